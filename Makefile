@@ -1,0 +1,46 @@
+# The two commands of the README: `make demo` and `make test`. Each installs what is missing
+# (Debian packages when root or with sudo, a .venv, the package with its extras) and runs.
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+PIP    := $(VENV)/bin/pip
+APT_PACKAGES := libembree-dev libtbb-dev libglm-dev
+DEMO_DIR ?= demo-out
+# Persistent build dir (pyproject: build-dir) => incremental rebuilds.
+STAMP  := $(VENV)/.ibrtools-installed
+
+.PHONY: setup system-deps build test demo bench clean check-asan
+
+setup: system-deps $(STAMP)
+
+system-deps:
+	@if dpkg -s $(APT_PACKAGES) >/dev/null 2>&1; then :; \
+	elif [ "$$(id -u)" = 0 ]; then apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(APT_PACKAGES); \
+	elif command -v sudo >/dev/null; then sudo apt-get update -qq && sudo DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(APT_PACKAGES); \
+	else echo "ibrtools: missing Debian packages; install them with: sudo apt-get install $(APT_PACKAGES)" >&2; exit 2; fi
+
+$(VENV)/bin/python:
+	$(PYTHON) -m venv $(VENV)
+	$(PIP) install -q --upgrade pip
+
+# Reinstall when the build description or sources change; the CMake build dir persists.
+$(STAMP): $(VENV)/bin/python pyproject.toml CMakeLists.txt $(shell find cpp python cli -name '*.cpp' -o -name '*.h' -o -name '*.py' 2>/dev/null)
+	flock $(VENV)/.install-lock sh -c "$(PIP) install -q scikit-build-core pybind11 ninja && \
+	  $(PIP) install -q --no-build-isolation -e '.[test,bench,colmap]' && touch $(STAMP)"
+
+
+build: setup
+
+test: setup
+	$(PY) -m pytest -q -n 2 tests
+
+demo: setup
+	$(VENV)/bin/ibr-preprocess synth:objects -o $(DEMO_DIR)/scene --views 12 --size 480x360
+	$(VENV)/bin/ibr-render $(DEMO_DIR)/scene --method reference --holdout v003 v009 -o $(DEMO_DIR)/render
+	@echo "demo: images and report.json in $(DEMO_DIR)/render"
+
+bench: setup
+	$(PY) benchmarks/bench_raycast.py
+
+clean:
+	rm -rf build $(VENV) $(DEMO_DIR)

@@ -1,0 +1,8 @@
+#include "module.h"
+
+PYBIND11_MODULE(_core, m) {
+  m.doc() = "ibrtools C++ engine (see DESIGN.md: cli -> ibrtools -> _core -> cpp/ibr -> cpp/kernels)";
+  ibr::bind::BindCore(m);
+  ibr::bind::BindRaycast(m);
+  ibr::bind::BindMetrics(m);
+}

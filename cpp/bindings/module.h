@@ -1,0 +1,10 @@
+// One Bind* function per family; module.cpp calls them all.
+#pragma once
+#include <pybind11/pybind11.h>
+
+namespace ibr::bind {
+namespace py = pybind11;
+void BindCore(py::module_& m);
+void BindRaycast(py::module_& m);
+void BindMetrics(py::module_& m);
+}  // namespace ibr::bind

@@ -1,0 +1,208 @@
+"""Image and depth I/O through OpenImageIO.
+
+Colour in memory is float32 *linear* RGB (H, W, 3), C-contiguous. Integer formats (PNG 8/16-bit,
+JPEG) hold sRGB-encoded values: decoded on read, encoded on write. EXR and PFM hold linear
+floats as they are. Depth never goes through 8 bits: it is read from float formats (EXR, PFM,
+TIFF float) or from 16-bit PNG with an explicit scale (``depth = value * scale``, the
+documented integer encoding of RGB-D data sets such as ICL-NUIM and TUM: scale 1/5000).
+Unknown depth is 0 in memory and on disk (docs/FORMAT.md).
+
+Writes are atomic: a temporary file in the same directory, then a rename.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from .errors import BadValueError, DtypeError, FormatError, MissingFileError, ShapeError
+
+FLOAT_EXTS = {".exr", ".pfm", ".hdr"}
+INT_EXTS = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".ppm", ".pgm"}
+
+
+def _oiio():
+    import OpenImageIO as oiio  # deferred: a heavy import that only I/O needs
+
+    return oiio
+
+
+def srgb_to_linear(v: np.ndarray) -> np.ndarray:
+    """IEC 61966-2-1 sRGB decoding, values in [0, 1]."""
+    v = np.asarray(v, dtype=np.float32)
+    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+def linear_to_srgb(v: np.ndarray) -> np.ndarray:
+    """IEC 61966-2-1 sRGB encoding; input clipped to [0, 1], NaN mapped to 0."""
+    v = np.clip(np.nan_to_num(np.asarray(v, dtype=np.float32), nan=0.0), 0.0, 1.0)
+    return np.where(v <= 0.0031308, v * 12.92, 1.055 * np.power(v, 1 / 2.4) - 0.055).astype(np.float32)
+
+
+def _read_raw(path: str | os.PathLike) -> tuple[np.ndarray, str]:
+    """Pixels as stored (H, W, C) and the OIIO base type name ('uint8', 'uint16', 'float', ...)."""
+    path = Path(path)
+    if not path.is_file():
+        raise MissingFileError(f"{path}: no such file")
+    oiio = _oiio()
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise FormatError(f"{path}: not a readable image ({oiio.geterror().strip() or 'unknown format'})")
+    try:
+        spec = inp.spec()
+        fmt = str(spec.format)
+        if fmt in ("uint8", "uint16"):
+            arr = inp.read_image(fmt)
+        else:
+            arr = inp.read_image("float")
+        if arr is None:
+            raise FormatError(f"{path}: could not decode ({inp.geterror().strip() or 'truncated or corrupt'})")
+    finally:
+        inp.close()
+    arr = np.asarray(arr)
+    if arr.ndim == 2:
+        arr = arr[:, :, None]
+    return arr, fmt
+
+
+def read_image(path: str | os.PathLike, *, alpha: bool = False) -> np.ndarray:
+    """Linear float32 colour (H, W, 3), or (H, W, 4) with ``alpha=True`` (alpha is never
+    sRGB-decoded). Grey images are expanded to RGB; missing alpha reads as 1."""
+    arr, fmt = _read_raw(path)
+    c = arr.shape[2]
+    if fmt in ("uint8", "uint16"):
+        scaled = arr.astype(np.float32) / (255.0 if fmt == "uint8" else 65535.0)
+        rgb = srgb_to_linear(scaled[..., :3] if c >= 3 else np.repeat(scaled[..., :1], 3, axis=2))
+    else:
+        scaled = arr.astype(np.float32)
+        rgb = scaled[..., :3] if c >= 3 else np.repeat(scaled[..., :1], 3, axis=2)
+    if not np.all(np.isfinite(rgb)):
+        raise BadValueError(f"{path}: colour contains NaN or infinity")
+    if not alpha:
+        return np.ascontiguousarray(rgb)
+    a = scaled[..., 3:4] if c in (2, 4) else np.ones(rgb.shape[:2] + (1,), np.float32)
+    if c == 2:
+        a = scaled[..., 1:2]
+    return np.ascontiguousarray(np.concatenate([rgb, a], axis=2))
+
+
+def read_mask(path: str | os.PathLike) -> np.ndarray:
+    """A boolean mask (H, W): true where the first channel is above half its range."""
+    arr, fmt = _read_raw(path)
+    full = {"uint8": 255, "uint16": 65535}.get(fmt, 1.0)
+    return np.ascontiguousarray(arr[..., 0] > full / 2)
+
+
+def read_depth(path: str | os.PathLike, *, scale: float | None = None, channel: int = 0) -> np.ndarray:
+    """Depth (H, W) float32. Float formats are read as they are; 16-bit integer images need
+    ``scale`` (depth = value * scale, 0 stays unknown). 8-bit depth is refused: it cannot hold
+    depth (importers with a documented 8-bit encoding, e.g. NeRF lego, decode it themselves)."""
+    arr, fmt = _read_raw(path)
+    if channel >= arr.shape[2]:
+        raise ShapeError(f"{path}: depth channel {channel} requested, image has {arr.shape[2]}")
+    v = arr[..., channel]
+    if fmt == "uint8":
+        raise DtypeError(f"{path}: 8-bit image cannot hold depth; use EXR/PFM or 16-bit PNG with a scale")
+    if fmt == "uint16":
+        if scale is None or not (scale > 0):
+            raise BadValueError(f"{path}: 16-bit depth needs a positive scale (depth = value * scale)")
+        d = v.astype(np.float32) * np.float32(scale)
+    else:
+        d = v.astype(np.float32) if scale is None else v.astype(np.float32) * np.float32(scale)
+    return np.ascontiguousarray(d)
+
+
+def check_depth(depth: np.ndarray, name: str, shape: tuple[int, int] | None = None) -> np.ndarray:
+    """Validate a depth map: float32 (H, W), no NaN, no negatives, some known pixels.
+    +inf is allowed (a point at infinity, e.g. sky in MPEG content); 0 means unknown."""
+    if not isinstance(depth, np.ndarray) or depth.dtype != np.float32:
+        raise DtypeError(f"{name}: expected float32 depth array, got "
+                         f"{getattr(depth, 'dtype', type(depth).__name__)}")
+    if depth.ndim != 2 or (shape is not None and depth.shape != tuple(shape)):
+        want = f"(H, W) = {tuple(shape)}" if shape is not None else "(H, W)"
+        raise ShapeError(f"{name}: expected depth of shape {want}, got {depth.shape}")
+    nan = int(np.isnan(depth).sum())
+    if nan:
+        raise BadValueError(f"{name}: {nan} NaN depth pixels; unknown depth must be 0")
+    neg = int((depth < 0).sum())
+    if neg:
+        raise BadValueError(f"{name}: {neg} negative depth pixels (min {float(depth.min()):g})")
+    if not np.any(depth > 0):
+        raise BadValueError(f"{name}: no valid depth (every pixel is 0 = unknown)")
+    return depth
+
+
+@contextmanager
+def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
+    """Yields a temporary path beside ``path`` (same extension); renames it over ``path``
+    only when the block succeeds, so a reader never sees a half-written file."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        os.replace(tmp_path, path)
+    finally:
+        if tmp_path.exists():
+            tmp_path.unlink()
+
+
+def write_image(path: str | os.PathLike, image: np.ndarray, *, bits: int = 8) -> Path:
+    """Write linear float colour (H, W, C). PNG/JPEG/TIFF: sRGB-encoded at ``bits`` (8 or 16;
+    an alpha channel stays linear); EXR/PFM: linear float32, as it is (NaN written as 0)."""
+    path = Path(path)
+    image = np.asarray(image)
+    if image.ndim == 2:
+        image = image[:, :, None]
+    if image.ndim != 3 or image.shape[2] not in (1, 2, 3, 4) or image.shape[0] == 0 or image.shape[1] == 0:
+        raise ShapeError(f"{path}: expected image of shape (H, W, C) with C in 1..4, got {image.shape}")
+    if not np.issubdtype(image.dtype, np.floating):
+        raise DtypeError(f"{path}: expected a float image (linear colour), got {image.dtype}")
+    ext = path.suffix.lower()
+    oiio = _oiio()
+    h, w, c = image.shape
+    if ext in FLOAT_EXTS:
+        pixels = np.nan_to_num(image.astype(np.float32), nan=0.0)
+        spec = oiio.ImageSpec(w, h, c, "float")
+    elif ext in INT_EXTS:
+        if bits not in (8, 16):
+            raise BadValueError(f"{path}: bits must be 8 or 16, got {bits}")
+        if ext in (".jpg", ".jpeg") and bits != 8:
+            raise BadValueError(f"{path}: JPEG is 8-bit only")
+        enc = image.astype(np.float32).copy()
+        colour = min(c, 3) if c != 2 else 1
+        enc[..., :colour] = linear_to_srgb(enc[..., :colour])
+        enc[..., colour:] = np.clip(np.nan_to_num(enc[..., colour:]), 0, 1)
+        full = 255.0 if bits == 8 else 65535.0
+        pixels = np.round(enc * full).astype(np.uint8 if bits == 8 else np.uint16)
+        spec = oiio.ImageSpec(w, h, c, "uint8" if bits == 8 else "uint16")
+    else:
+        raise FormatError(f"{path}: unknown image extension {ext!r} (expected one of "
+                          f"{sorted(FLOAT_EXTS | INT_EXTS)})")
+    with atomic_path(path) as tmp:
+        out = oiio.ImageOutput.create(str(tmp))
+        if out is None:
+            raise FormatError(f"{path}: OpenImageIO cannot write this format ({oiio.geterror().strip()})")
+        try:
+            if not out.open(str(tmp), spec) or not out.write_image(np.ascontiguousarray(pixels)):
+                raise FormatError(f"{path}: write failed ({out.geterror().strip()})")
+        finally:
+            out.close()
+    return path
+
+
+def write_depth(path: str | os.PathLike, depth: np.ndarray) -> Path:
+    """Depth (H, W) as single-channel float32 EXR or PFM (unknown = 0; NaN written as 0)."""
+    path = Path(path)
+    if path.suffix.lower() not in (".exr", ".pfm"):
+        raise FormatError(f"{path}: depth is written as .exr or .pfm only, never through 8 bits")
+    depth = np.asarray(depth)
+    if depth.ndim != 2:
+        raise ShapeError(f"{path}: expected depth of shape (H, W), got {depth.shape}")
+    return write_image(path, depth.astype(np.float32)[:, :, None])

@@ -1,0 +1,186 @@
+"""Scene model: views, named render targets, camera paths and meshes (DESIGN.md "Data model").
+
+In memory:
+  View.color  (H, W, 3) float32 linear RGB, C-contiguous
+  View.depth  (H, W) float32: z for pinhole, ray distance for equirect; 0 = unknown,
+              +inf = at infinity (sky); never NaN or negative (checked on import)
+  View.mask   (H, W) bool, true = pixel belongs to the scene content (optional)
+Images are loaded lazily from their files the first time they are used.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from .camera import Camera
+from .errors import BadValueError, DtypeError, ShapeError
+from .mesh import Mesh
+
+
+class _Lazy:
+    """An array given directly or produced on first use by a loader (e.g. reading a file)."""
+
+    def __init__(self, value: np.ndarray | None = None, loader: Callable[[], np.ndarray] | None = None,
+                 source: str | None = None):
+        self._value, self._loader, self.source = value, loader, source
+
+    @property
+    def present(self) -> bool:
+        return self._value is not None or self._loader is not None
+
+    def get(self) -> np.ndarray | None:
+        if self._value is None and self._loader is not None:
+            self._value = self._loader()
+            self._loader = None
+        return self._value
+
+
+@dataclass(eq=False)
+class View:
+    """A camera with its colour and, optionally, depth and mask (lazily loaded)."""
+
+    name: str
+    camera: Camera
+    _color: _Lazy = field(default_factory=_Lazy, repr=False)
+    _depth: _Lazy = field(default_factory=_Lazy, repr=False)
+    _mask: _Lazy = field(default_factory=_Lazy, repr=False)
+
+    @classmethod
+    def create(cls, name: str, camera: Camera, color=None, depth=None, mask=None) -> "View":
+        """A view from arrays, or from callables that load them, or None."""
+        def lazy(v, what):
+            if v is None:
+                return _Lazy()
+            if callable(v):
+                return _Lazy(loader=v, source=getattr(v, "source", None))
+            return _Lazy(value=_check_image(v, f"view {name!r} {what}", camera, what))
+
+        view = cls(name, camera, lazy(color, "color"), lazy(depth, "depth"), lazy(mask, "mask"))
+        return view
+
+    def _get(self, which: str) -> np.ndarray | None:
+        lazy: _Lazy = getattr(self, "_" + which)
+        was_loaded = lazy._value is not None
+        value = lazy.get()
+        if value is not None and not was_loaded:
+            lazy._value = _check_image(value, f"view {self.name!r} {which}"
+                                       + (f" ({lazy.source})" if lazy.source else ""), self.camera, which)
+        return lazy._value
+
+    @property
+    def color(self) -> np.ndarray | None:
+        return self._get("color")
+
+    @property
+    def depth(self) -> np.ndarray | None:
+        return self._get("depth")
+
+    @property
+    def mask(self) -> np.ndarray | None:
+        return self._get("mask")
+
+    @property
+    def has_color(self) -> bool:
+        return self._color.present
+
+    @property
+    def has_depth(self) -> bool:
+        return self._depth.present
+
+    @property
+    def has_mask(self) -> bool:
+        return self._mask.present
+
+
+def _check_image(v: np.ndarray, name: str, camera: Camera, what: str) -> np.ndarray:
+    from .imageio import check_depth
+
+    hw = (camera.height, camera.width)
+    if not isinstance(v, np.ndarray):
+        raise DtypeError(f"{name}: expected a numpy array, got {type(v).__name__}")
+    if what == "color":
+        if v.dtype != np.float32:
+            raise DtypeError(f"{name}: expected float32 linear RGB, got {v.dtype}")
+        if v.shape != hw + (3,):
+            raise ShapeError(f"{name}: expected shape (H, W, 3) = {hw + (3,)} to match the camera, got {v.shape}")
+        if not np.all(np.isfinite(v)):
+            raise BadValueError(f"{name}: colour contains NaN or infinity")
+        return np.ascontiguousarray(v)
+    if what == "depth":
+        return np.ascontiguousarray(check_depth(v, name, hw))
+    if v.dtype != np.bool_:
+        raise DtypeError(f"{name}: expected a bool mask, got {v.dtype}")
+    if v.shape != hw:
+        raise ShapeError(f"{name}: expected shape (H, W) = {hw} to match the camera, got {v.shape}")
+    return np.ascontiguousarray(v)
+
+
+@dataclass(eq=False)
+class Scene:
+    """Input views, named targets (cameras to render, with ground truth when known), camera
+    paths, meshes by kind ("ground_truth", "reconstructed"), units and provenance."""
+
+    views: list[View] = field(default_factory=list)
+    targets: list[View] = field(default_factory=list)
+    paths: dict[str, list[Camera]] = field(default_factory=dict)
+    meshes: dict[str, Mesh] = field(default_factory=dict)
+    units: str = "unknown"
+    source: dict = field(default_factory=dict)
+    root: Path | None = None
+
+    def view(self, name: str) -> View:
+        for v in self.views:
+            if v.name == name:
+                return v
+        raise BadValueError(f"view {name!r}: not in the scene (views: {_some(v.name for v in self.views)})")
+
+    def target(self, name: str) -> View:
+        for v in self.targets:
+            if v.name == name:
+                return v
+        raise BadValueError(f"target {name!r}: not in the scene (targets: {_some(v.name for v in self.targets)})")
+
+    @property
+    def mesh(self) -> Mesh | None:
+        """The mesh methods should use: the reconstructed one when the scene has one (it is
+        what a real capture gives), else the ground truth."""
+        return self.meshes.get("reconstructed") or self.meshes.get("ground_truth")
+
+    def bounds(self) -> np.ndarray:
+        """(2, 3) axis-aligned bounds of meshes, camera centres and the depth of the views."""
+        pts = [v.camera.centre[None] for v in self.views + self.targets]
+        for m in self.meshes.values():
+            pts.append(m.bounds().astype(np.float64))
+        for v in self.views:
+            if v.has_depth and v.depth is not None:
+                d = v.depth
+                ok = np.isfinite(d) & (d > 0)
+                if ok.any():
+                    step = max(1, int(np.sqrt(d.size / 4096)))
+                    w = v.camera.unproject(np.where(ok, d, 0)[::1])[::step, ::step][ok[::step, ::step]]
+                    if len(w):
+                        pts.append(np.stack([w.min(0), w.max(0)]))
+        allp = np.concatenate(pts, 0)
+        return np.stack([allp.min(0), allp.max(0)])
+
+    def validate(self) -> None:
+        """Check what loading lazily would otherwise find late: names unique, views present."""
+        if not self.views and not self.targets:
+            raise BadValueError("scene: empty (no views and no targets)")
+        names = [v.name for v in self.views] + [t.name for t in self.targets]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise BadValueError(f"scene: duplicate view/target names {dup[:5]}")
+
+
+def _some(names, k: int = 8) -> str:
+    names = list(names)
+    return ", ".join(names[:k]) + (f", ... ({len(names)} in all)" if len(names) > k else "") or "none"
+
+
+def path_str(p: str | os.PathLike) -> str:
+    return str(Path(p))
