@@ -76,7 +76,7 @@ def look_at(eye: Any, target: Any, up: Any = (0.0, 1.0, 0.0)) -> np.ndarray:
     if not n > 0:
         raise BadValueError("look_at: eye and target coincide")
     z = fwd / n
-    x = np.cross(z, -np.asarray(up, dtype=np.float64))
+    x = np.cross(z, np.asarray(up, dtype=np.float64))
     if not np.linalg.norm(x) > 1e-12:
         raise BadValueError("look_at: up is parallel to the viewing direction")
     x /= np.linalg.norm(x)

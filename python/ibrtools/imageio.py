@@ -66,6 +66,10 @@ def _read_raw(path: str | os.PathLike) -> tuple[np.ndarray, str]:
     arr = np.asarray(arr)
     if arr.ndim == 2:
         arr = arr[:, :, None]
+    if path.suffix.lower() == ".pfm":
+        # PFM stores rows bottom to top. OpenImageIO writes them so but reads them back
+        # unflipped (checked with OIIO 3.2 and a hand-written file in tests/test_imageio.py).
+        arr = np.ascontiguousarray(arr[::-1])
     return arr, fmt
 
 

@@ -122,7 +122,7 @@ def _check_image(v: np.ndarray, name: str, camera: Camera, what: str) -> np.ndar
 @dataclass(eq=False)
 class Scene:
     """Input views, named targets (cameras to render, with ground truth when known), camera
-    paths, meshes by kind ("ground_truth", "reconstructed"), units and provenance."""
+    paths, meshes by kind ("ground_truth", "reconstructed"), lights, units and provenance."""
 
     views: list[View] = field(default_factory=list)
     targets: list[View] = field(default_factory=list)
@@ -130,6 +130,13 @@ class Scene:
     meshes: dict[str, Mesh] = field(default_factory=dict)
     units: str = "unknown"
     source: dict = field(default_factory=dict)
+    # Lights the views were rendered with (synthetic scenes), as scene.json stores them:
+    # {"kind": "point"|"directional", "vector": [x, y, z], "color": [r, g, b], "shadows": bool};
+    # plus "ambient" and "background" in ``shading``. The reference method renders with them.
+    lights: list[dict] = field(default_factory=list)
+    shading: dict = field(default_factory=dict)
+    # Records of the preprocessing stages that produced this scene (stages.py): name -> record.
+    stages: dict = field(default_factory=dict)
     root: Path | None = None
 
     def view(self, name: str) -> View:

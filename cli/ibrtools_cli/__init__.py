@@ -1,0 +1,1 @@
+"""Command-line front of ibrtools: parse arguments, call the library, print a table."""

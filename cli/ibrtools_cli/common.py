@@ -1,0 +1,64 @@
+"""What every command shares: thread/debug/quiet flags, the error policy and tables.
+
+Exit codes (DESIGN.md "Contracts"): 0 success, 2 bad input or usage (one line on stderr,
+no traceback unless --debug), 1 internal error.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Callable, Sequence
+
+from ibrtools.errors import InputError, NotBuiltError
+
+
+def add_common(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("-j", "--threads", type=int, default=0, metavar="N",
+                        help="threads for the engine (default: all cores)")
+    parser.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+
+
+def set_threads(n: int) -> None:
+    if n < 0:
+        raise InputError(f"--threads: expected a non-negative number, got {n}")
+    from ibrtools import _core
+
+    _core.set_num_threads(n)
+
+
+def run_command(prog: str, body: Callable[[argparse.Namespace], int],
+                parser: argparse.ArgumentParser, argv: Sequence[str] | None) -> int:
+    args = parser.parse_args(argv)
+    try:
+        set_threads(args.threads)
+        return body(args)
+    except (InputError, NotBuiltError) as e:
+        if args.debug:
+            raise
+        print(f"{prog}: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as e:  # noqa: BLE001 - the last line of defence: one line, exit 1
+        if args.debug:
+            raise
+        print(f"{prog}: internal error: {type(e).__name__}: {e} (run with --debug for the traceback)",
+              file=sys.stderr)
+        return 1
+
+
+def print_table(headers: list[str], rows: list[list[str]], title: str | None = None,
+                quiet: bool = False) -> None:
+    if quiet:
+        return
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=title, title_justify="left")
+    for h in headers:
+        table.add_column(h)
+    for r in rows:
+        table.add_row(*[str(c) for c in r])
+    Console(width=max(100, Console().width)).print(table)

@@ -1,0 +1,190 @@
+"""The native scene format: a directory with ``scene.json`` (docs/FORMAT.md), images, depth
+maps and meshes. It is what every importer writes and what the render commands read.
+
+Converts from: nothing (this is the engine's own convention, see camera.py and scene.py).
+Colour is stored as 8-bit sRGB PNG by default (``color_format="exr"`` keeps linear float32),
+depth as float32 EXR, masks as 8-bit PNG, meshes as PLY (vertex colours) or OBJ+MTL (textures).
+A save is atomic: the scene is written to a temporary directory beside the target and renamed
+into place, so a reader never sees a half-written scene.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+from ..camera import Camera
+from ..errors import BadValueError, FormatError, MissingFileError
+from ..imageio import read_depth, read_image, read_mask, write_depth, write_image
+from ..scene import Scene, View
+
+NAME = "native"
+DESCRIPTION = "ibrtools scene directory (scene.json, docs/FORMAT.md)"
+FORMAT_TAG = "ibrtools-scene"
+VERSION = 1
+SCENE_FILE = "scene.json"
+
+
+def detect(path: Path) -> bool:
+    path = Path(path)
+    f = path / SCENE_FILE if path.is_dir() else path
+    if f.name != SCENE_FILE or not f.is_file():
+        return False
+    try:
+        with open(f, encoding="utf-8") as fh:
+            return json.load(fh).get("format") == FORMAT_TAG
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+class FileLoader:
+    """Loads one image file on first use; ``source`` names it in error messages."""
+
+    def __init__(self, fn, path: Path, **kwargs):
+        self.fn, self.source, self.kwargs = fn, str(path), kwargs
+
+    def __call__(self):
+        return self.fn(self.source, **self.kwargs)
+
+
+def _json_safe(value):
+    """JSON cannot hold inf/NaN as numbers: write them as strings."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    return value
+
+
+def _safe_name(name: str) -> str:
+    bad = set('/\\:*?"<>|') | {"\0"}
+    return "".join("_" if c in bad else c for c in name)
+
+
+def _write_view(root: Path, view: View, kind: str, color_format: str) -> dict:
+    entry: dict = {"name": view.name, "camera": view.camera.to_dict()}
+    stem = _safe_name(view.name)
+    if view.has_color:
+        rel = f"{kind}/{stem}.{'exr' if color_format == 'exr' else 'png'}"
+        write_image(root / rel, view.color)
+        entry["color"] = rel
+    if view.has_depth:
+        rel = f"{kind}/{stem}.depth.exr"
+        write_depth(root / rel, view.depth)
+        entry["depth"] = rel
+    if view.has_mask:
+        rel = f"{kind}/{stem}.mask.png"
+        write_image(root / rel, view.mask.astype("float32"))
+        entry["mask"] = rel
+    return entry
+
+
+def save(scene: Scene, path: str | os.PathLike, *, color_format: str = "png",
+         overwrite: bool = True) -> Path:
+    """Write ``scene`` as a native scene directory at ``path`` (atomically)."""
+    path = Path(path)
+    if color_format not in ("png", "exr"):
+        raise BadValueError(f"color_format: expected 'png' or 'exr', got {color_format!r}")
+    if path.exists() and not overwrite:
+        raise BadValueError(f"{path}: exists (pass overwrite=True to replace it)")
+    if path.exists() and not (path.is_dir() and (path / SCENE_FILE).exists() or path.is_dir() and not any(path.iterdir())):
+        raise BadValueError(f"{path}: exists and is not a scene directory; refusing to replace it")
+    scene.validate()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    try:
+        doc: dict = {"format": FORMAT_TAG, "version": VERSION, "units": scene.units,
+                     "source": _json_safe(scene.source),
+                     "views": [_write_view(tmp, v, "images", color_format) for v in scene.views],
+                     "targets": [_write_view(tmp, v, "targets", color_format) for v in scene.targets],
+                     "paths": {name: [c.to_dict() for c in cams] for name, cams in scene.paths.items()},
+                     "meshes": {}}
+        if scene.lights:
+            doc["lights"] = _json_safe(scene.lights)
+        if scene.shading:
+            doc["shading"] = _json_safe(scene.shading)
+        if scene.stages:
+            doc["stages"] = _json_safe(scene.stages)
+        for kind, mesh in scene.meshes.items():
+            from ..meshio import write_mesh
+
+            textured = bool(mesh.textures) and mesh.uvs is not None
+            rel = f"mesh/{kind}.{'obj' if textured else 'ply'}"
+            write_mesh(tmp / rel, mesh)
+            doc["meshes"][kind] = {"path": rel}
+        with open(tmp / SCENE_FILE, "w", encoding="utf-8") as fh:
+            json.dump(doc, fh, indent=1)
+        if path.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old.", dir=path.parent))
+            os.replace(path, old / "scene")
+            os.replace(tmp, path)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    scene.root = path
+    return path
+
+
+def _read_view(root: Path, entry, where: str, need_color: bool) -> View:
+    if not isinstance(entry, dict) or "name" not in entry:
+        raise FormatError(f"{where}: expected an object with 'name' and 'camera'")
+    camera = Camera.from_dict(entry.get("camera"), f"{where}.camera")
+    loaders = {}
+    for key, fn in (("color", read_image), ("depth", read_depth), ("mask", read_mask)):
+        rel = entry.get(key)
+        if rel is None:
+            if key == "color" and need_color:
+                raise FormatError(f"{where}: missing 'color'")
+            continue
+        f = root / rel
+        if not f.is_file():
+            raise MissingFileError(f"{f}: no such file (named by {where}.{key})")
+        loaders[key] = FileLoader(fn, f)
+    return View.create(str(entry["name"]), camera, **loaders)
+
+
+def load(path: Path, options: dict | None = None) -> Scene:
+    """Read a native scene directory (or its scene.json)."""
+    path = Path(path)
+    f = path / SCENE_FILE if path.is_dir() else path
+    root = f.parent
+    if not f.is_file():
+        raise MissingFileError(f"{f}: no such file")
+    try:
+        with open(f, encoding="utf-8") as fh:
+            doc = json.load(fh)
+    except json.JSONDecodeError as e:
+        raise FormatError(f"{f}: not valid JSON ({e.msg} at line {e.lineno})") from None
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT_TAG:
+        raise FormatError(f"{f}: not an ibrtools scene (expected \"format\": \"{FORMAT_TAG}\")")
+    version = doc.get("version")
+    if version != VERSION:
+        raise FormatError(f"{f}: scene format version {version!r} is not supported (this ibrtools reads {VERSION})")
+    views = [_read_view(root, e, f"{f.name}: views[{i}]", True) for i, e in enumerate(doc.get("views", []))]
+    targets = [_read_view(root, e, f"{f.name}: targets[{i}]", False) for i, e in enumerate(doc.get("targets", []))]
+    paths = {}
+    for name, cams in (doc.get("paths") or {}).items():
+        if not isinstance(cams, list) or not cams:
+            raise FormatError(f"{f}: paths.{name}: expected a non-empty list of cameras")
+        paths[name] = [Camera.from_dict(c, f"{f.name}: paths.{name}[{i}]") for i, c in enumerate(cams)]
+    meshes = {}
+    for kind, m in (doc.get("meshes") or {}).items():
+        if not isinstance(m, dict) or "path" not in m:
+            raise FormatError(f"{f}: meshes.{kind}: expected an object with 'path'")
+        from ..meshio import read_mesh
+
+        meshes[kind] = read_mesh(root / m["path"], kind=kind)
+    scene = Scene(views=views, targets=targets, paths=paths, meshes=meshes,
+                  units=str(doc.get("units", "unknown")), source=dict(doc.get("source") or {}),
+                  lights=list(doc.get("lights") or []), shading=dict(doc.get("shading") or {}),
+                  stages=dict(doc.get("stages") or {}), root=root)
+    scene.validate()
+    return scene

@@ -1,0 +1,171 @@
+"""A render job: which cameras to render (targets, held-out views, a path, a pose file),
+rendering them with a method, writing the images and ``report.json`` (DESIGN.md "Contracts").
+
+Outputs in the output directory: ``<frame>.png`` (8-bit sRGB; holes black), ``<frame>.exr``
+with ``float_out``, ``<frame>.depth.exr`` with ``depth_out``, ``<frame>.mask.png`` (white =
+hole) when the frame has holes, and ``report.json``. Every file is written atomically and
+``report.json`` last, so a reader that finds it finds every image it names.
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from ..camera import Camera
+from ..errors import BadValueError, FormatError, MissingFileError
+from ..imageio import atomic_path, write_depth, write_image
+from ..scene import Scene, View
+from . import methods
+
+
+@dataclass
+class Frame:
+    name: str
+    camera: Camera
+    truth: View | None = None  # ground truth (colour, maybe depth) when known
+
+
+@dataclass
+class Job:
+    scene: Scene          # the inputs the method may use (held-out views removed)
+    frames: list[Frame] = field(default_factory=list)
+
+
+def read_poses(path: str | os.PathLike) -> list[Frame]:
+    """A pose file: a JSON list of cameras in the scene.json camera format, each optionally
+    with a "name" (default pose_000, pose_001, ...)."""
+    path = Path(path)
+    if not path.is_file():
+        raise MissingFileError(f"--poses {path}: no such file")
+    try:
+        with open(path, encoding="utf-8") as fh:
+            doc = json.load(fh)
+    except json.JSONDecodeError as e:
+        raise FormatError(f"--poses {path}: not valid JSON ({e.msg} at line {e.lineno})") from None
+    if isinstance(doc, dict) and "cameras" in doc:
+        doc = doc["cameras"]
+    if not isinstance(doc, list) or not doc:
+        raise FormatError(f"--poses {path}: expected a non-empty JSON list of cameras")
+    frames = []
+    for i, d in enumerate(doc):
+        cam = Camera.from_dict(d, f"--poses {path.name}[{i}]")
+        frames.append(Frame(str(d.get("name", f"pose_{i:03d}")), cam))
+    return frames
+
+
+def plan(scene: Scene, *, targets: list[str] | None = None, holdout: list[str] | None = None,
+         path: str | None = None, poses: str | None = None) -> Job:
+    """Resolve the cameras to render. With nothing asked, render every target of the scene."""
+    frames: list[Frame] = []
+    held = list(dict.fromkeys(holdout or []))
+    for name in held:
+        v = scene.view(name)
+        frames.append(Frame(v.name, v.camera, v))
+    inputs = [v for v in scene.views if v.name not in set(held)]
+    if held and not inputs:
+        raise BadValueError("--holdout: every input view is held out; at least one must remain")
+    for name in targets or []:
+        t = scene.target(name)
+        frames.append(Frame(t.name, t.camera, t if t.has_color else None))
+    if path is not None:
+        if path not in scene.paths:
+            raise BadValueError(f"--path {path!r}: not in the scene (paths: {', '.join(scene.paths) or 'none'})")
+        frames += [Frame(f"{path}_{i:04d}", c) for i, c in enumerate(scene.paths[path])]
+    if poses is not None:
+        frames += read_poses(poses)
+    if not (held or targets or path or poses):
+        frames = [Frame(t.name, t.camera, t if t.has_color else None) for t in scene.targets]
+        if not frames:
+            raise BadValueError("nothing to render: the scene has no targets; give --target, --holdout, "
+                                "--path or --poses")
+    names = [f.name for f in frames]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise BadValueError(f"frames: the same name is asked for twice: {dup[:5]}")
+    sub = Scene(views=inputs, targets=scene.targets, paths=scene.paths, meshes=scene.meshes,
+                units=scene.units, source=scene.source, lights=scene.lights, shading=scene.shading,
+                stages=scene.stages, root=scene.root)
+    return Job(sub, frames)
+
+
+def _frame_metrics(out: dict, truth: View | None) -> dict:
+    from ..metrics import compare
+
+    if truth is None or not truth.has_color:
+        hole = out.get("hole")
+        return {"coverage": float(1.0 - hole.mean())} if hole is not None else {}
+    m = compare(out["color"], truth.color, hole_mask=out.get("hole"),
+                mask=truth.mask if truth.has_mask else None)
+    # JSON has no inf: an exact match (PSNR = inf) is written as null, like an empty mask.
+    return {k: (float(v) if v is not None and np.isfinite(v) else None) for k, v in m.items()}
+
+
+def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict | None = None,
+        float_out: bool = False, depth_out: bool = False, threads: int = 0,
+        progress: Callable[[int, int, str], None] | None = None) -> dict:
+    """Render every frame of ``job``; write images and report.json; return the report."""
+    from .. import _core
+
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise BadValueError(f"-o {out_dir}: exists and is not a directory")
+    name = methods.resolve(method_name, job.scene)
+    method = methods.create(name, params)
+    if threads:
+        _core.set_num_threads(threads)
+    setup = method.prepare(job.scene)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    frames_report = []
+    for i, frame in enumerate(job.frames):
+        if progress:
+            progress(i, len(job.frames), frame.name)
+        t0 = time.perf_counter()
+        out, stage_ms = method.render(frame.camera)
+        total_ms = (time.perf_counter() - t0) * 1e3
+        color = np.nan_to_num(out["color"], nan=0.0, posinf=0.0, neginf=0.0)
+        hole = out.get("hole")
+        if hole is not None:
+            color = np.where(hole[..., None], 0.0, color).astype(np.float32)
+        image = f"{frame.name}.png"
+        write_image(out_dir / image, color)
+        entry: dict = {"name": frame.name, "image": image,
+                       "time_ms": {"total": round(total_ms, 3), **{k: round(v, 3) for k, v in stage_ms.items()}},
+                       "metrics": _frame_metrics({**out, "color": color}, frame.truth)}
+        if float_out:
+            write_image(out_dir / f"{frame.name}.exr", color)
+            entry["image_float"] = f"{frame.name}.exr"
+        if depth_out and "depth" in out:
+            write_depth(out_dir / f"{frame.name}.depth.exr", out["depth"])
+            entry["depth"] = f"{frame.name}.depth.exr"
+        if hole is not None and hole.any():
+            write_image(out_dir / f"{frame.name}.mask.png", hole.astype(np.float32))
+            entry["mask"] = f"{frame.name}.mask.png"
+        frames_report.append(entry)
+    if progress:
+        progress(len(job.frames), len(job.frames), "")
+    report = {"method": name, "params": dict(params or {}), "threads": int(_core.get_num_threads()),
+              "inputs": len(job.scene.views), "frames": frames_report,
+              "summary": _summary(frames_report, setup)}
+    with atomic_path(out_dir / "report.json") as tmp:
+        tmp.write_text(json.dumps(report, indent=1, allow_nan=False))
+    return report
+
+
+def _summary(frames: list[dict], setup_ms: dict) -> dict:
+    s: dict = {"frames": len(frames), "setup_ms": {k: round(v, 3) for k, v in setup_ms.items()}}
+    totals = [f["time_ms"]["total"] for f in frames]
+    if totals:
+        s["time_ms"] = {"total": round(float(np.sum(totals)), 3), "median": round(float(np.median(totals)), 3)}
+    keys = sorted({k for f in frames for k, v in f["metrics"].items() if isinstance(v, (int, float))})
+    for k in keys:
+        vals = [f["metrics"][k] for f in frames if isinstance(f["metrics"].get(k), (int, float))
+                and np.isfinite(f["metrics"][k])]
+        if vals:
+            s[f"mean_{k}"] = round(float(np.mean(vals)), 6)
+    return s

@@ -1,0 +1,99 @@
+"""The registry of novel-view methods (DESIGN.md "Commands": --method).
+
+A method is a class with ``prepare(scene) -> dict of setup times`` (work done once per scene:
+BVH builds, view selection structures) and ``render(camera) -> (outputs, stage times in ms)``,
+where outputs holds "color" (H, W, 3) float32 linear, optionally "depth" (H, W) and "hole"
+(H, W) bool. Methods that are documented but not built yet raise NotBuiltError by name.
+"""
+from __future__ import annotations
+
+import time
+from typing import Protocol
+
+import numpy as np
+
+from ..camera import Camera
+from ..errors import BadValueError, InputError, NotBuiltError
+from ..scene import Scene
+
+METHODS: dict[str, str] = {
+    "auto": "pick the best built method for the scene's data",
+    "reference": "Embree ray casting of the scene's ground-truth mesh (shaded as the scene was made)",
+    "dibr": "multi-view depth-image-based rendering, RVS class (Bonatto et al. 2021)",
+    "warp": "single-view warp with background-depth holes (dos Anjos et al.)",
+    "depthwarp": "iterative backward depth warping (Lee et al. 2018)",
+    "tm": "textured global mesh (Prakash et al. 2021)",
+    "ulr": "per-pixel unstructured lumigraph (Prakash et al. 2021)",
+    "pvm": "per-view meshes with clustered depth filtering (Prakash et al. 2021)",
+    "hybrid": "per-pixel choice of TM / ULR / PVM (Prakash et al. 2021)",
+}
+BUILT = ("reference",)
+
+
+class Method(Protocol):
+    name: str
+
+    def prepare(self, scene: Scene) -> dict[str, float]: ...
+
+    def render(self, camera: Camera) -> tuple[dict[str, np.ndarray], dict[str, float]]: ...
+
+
+class ReferenceMethod:
+    """Ray-cast the ground-truth mesh with the scene's lights: the ideal answer, and the
+    renderer that made the synthetic scenes (so held-out views match it to quantisation)."""
+
+    name = "reference"
+
+    def __init__(self, params: dict | None = None):
+        params = dict(params or {})
+        unknown = set(params) - {"ambient"}
+        if unknown:
+            raise BadValueError(f"--param: method 'reference' has no parameter(s) {sorted(unknown)}")
+        self.params = params
+        self._renderer = None
+
+    def prepare(self, scene: Scene) -> dict[str, float]:
+        from .reference import Light, ReferenceRenderer, default_lights
+
+        mesh = scene.meshes.get("ground_truth")
+        if mesh is None:
+            raise InputError("--method reference: the scene has no ground-truth mesh "
+                             "(reference rendering needs one; synthetic scenes carry it)")
+        t0 = time.perf_counter()
+        self._renderer = ReferenceRenderer(mesh)
+        setup_ms = (time.perf_counter() - t0) * 1e3
+        if scene.lights:
+            self._lights = [Light(kind=d["kind"], vector=tuple(d["vector"]), color=tuple(d["color"]),
+                                  shadows=bool(d.get("shadows", True))) for d in scene.lights]
+        else:
+            self._lights = default_lights(mesh.bounds())
+        self._ambient = float(self.params.get("ambient", scene.shading.get("ambient", 0.15)))
+        self._background = tuple(scene.shading.get("background", (0.0, 0.0, 0.0)))
+        return {"bvh": setup_ms}
+
+    def render(self, camera: Camera) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+        t0 = time.perf_counter()
+        out = self._renderer.render(camera, outputs=("color", "depth", "hit"), lights=self._lights,
+                                    ambient=self._ambient, background=self._background)
+        ms = (time.perf_counter() - t0) * 1e3
+        return {"color": out["color"], "depth": out["depth"], "hole": ~out["hit"]}, {"raycast_shade": ms}
+
+
+def resolve(name: str, scene: Scene) -> str:
+    """The concrete method for ``--method name`` on ``scene``."""
+    if name not in METHODS:
+        raise BadValueError(f"--method: unknown method {name!r} (expected one of {', '.join(METHODS)})")
+    if name == "auto":
+        if "ground_truth" in scene.meshes:
+            return "reference"
+        raise NotBuiltError("--method auto: this scene has no ground-truth mesh, and the methods for "
+                            "captured views (dibr, warp, tm, ulr, pvm, hybrid) are not built yet")
+    if name not in BUILT:
+        raise NotBuiltError(f"--method {name}: not built yet ({METHODS[name]}); built: {', '.join(BUILT)}")
+    return name
+
+
+def create(name: str, params: dict | None = None) -> Method:
+    if name == "reference":
+        return ReferenceMethod(params)
+    raise NotBuiltError(f"--method {name}: not built yet")
