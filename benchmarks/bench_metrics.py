@@ -75,13 +75,16 @@ def run(size: int, repeats: int) -> str:
         f"two random float32 images, median of {repeats} runs after a warm-up, measured by "
         f"`benchmarks/bench_metrics.py` on {cpu_name()} ({os.cpu_count()} cores), Python "
         f"{platform.python_version()}, numpy {np.__version__}. 'speed-up' is scikit-image's time "
-        "over ours, in the same run; '|diff|' is our mean SSIM minus scikit-image's computed in "
-        "float64 (for float32 input scikit-image filters in float32 and differs from both by ~1e-7).",
+        "over ours, in the same run; 'abs diff' is |our mean SSIM minus scikit-image's computed in "
+        "float64| (for float32 input scikit-image filters in float32 and differs from both by ~1e-7).",
         "",
         "| case | implementation | time (ms) | speed-up | abs diff |",
         "|---|---|---:|---:|---:|",
     ]
-    return "\n".join(head + rows) + "\n"
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    tail = ["", f"1-minute load average at the end of the run: {load:.2f} (other work on the machine "
+                 "slows both sides alike; the ratio is the figure to read)."]
+    return "\n".join(head + rows + tail) + "\n"
 
 
 def write_section(path: Path, section: str) -> None:
