@@ -1,0 +1,163 @@
+"""Helpers shared by the importers: option parsing, JSON reading, lazy file loaders.
+
+Options reach an importer as a dict; from the command line (``--opt key=value``) every value
+is a string, from Python it may be a number. The ``opt_*`` helpers accept both, and every
+importer rejects keys it does not know (a misspelt option must not be ignored silently).
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from ..camera import orthonormalize
+from ..errors import BadValueError, DtypeError, FormatError, MissingFileError
+
+
+class FileLoader:
+    """A zero-argument callable that loads one array from ``source`` (a file path) on first
+    use; ``View.create`` reads ``.source`` to name the file in error messages."""
+
+    def __init__(self, source: str | Path, fn: Callable[..., np.ndarray], *args: Any, **kwargs: Any):
+        self.source = str(source)
+        self._fn, self._args, self._kwargs = fn, args, kwargs
+
+    def __call__(self) -> np.ndarray:
+        return self._fn(*self._args, **self._kwargs)
+
+    def __repr__(self) -> str:
+        return f"FileLoader({self.source!r})"
+
+
+def check_options(options: dict, known: dict[str, str], fmt: str) -> dict:
+    """``options`` as a dict after checking every key is one ``fmt`` reads (``known``: key ->
+    one-line help, used in the error message)."""
+    options = dict(options or {})
+    unknown = sorted(set(options) - set(known))
+    if unknown:
+        listing = ", ".join(sorted(known)) or "none"
+        raise BadValueError(f"{fmt} importer: unknown option(s) {', '.join(unknown)} (known: {listing})")
+    return options
+
+
+def opt_float(options: dict, key: str, default: float | None, *, positive: bool = False,
+              nonnegative: bool = False) -> float | None:
+    """A finite float option; strings such as ``"8"`` or ``"1/5000"`` are accepted."""
+    if key not in options or options[key] is None:
+        return default
+    raw = options[key]
+    try:
+        if isinstance(raw, str) and "/" in raw:
+            num, den = raw.split("/", 1)
+            value = float(num) / float(den)
+        else:
+            value = float(raw)
+    except (TypeError, ValueError, ZeroDivisionError):
+        raise DtypeError(f"option {key}: expected a number, got {raw!r}") from None
+    if not math.isfinite(value):
+        raise BadValueError(f"option {key}: expected a finite number, got {raw!r}")
+    if positive and not value > 0:
+        raise BadValueError(f"option {key}: expected a positive number, got {raw!r}")
+    if nonnegative and value < 0:
+        raise BadValueError(f"option {key}: expected a number >= 0, got {raw!r}")
+    return value
+
+
+def opt_int(options: dict, key: str, default: int | None, *, minimum: int | None = None) -> int | None:
+    if key not in options or options[key] is None:
+        return default
+    raw = options[key]
+    try:
+        value = int(raw) if not isinstance(raw, float) or raw.is_integer() else None
+    except (TypeError, ValueError):
+        value = None
+    if value is None or isinstance(raw, bool):
+        raise DtypeError(f"option {key}: expected an integer, got {raw!r}")
+    if minimum is not None and value < minimum:
+        raise BadValueError(f"option {key}: expected an integer >= {minimum}, got {value}")
+    return value
+
+
+def opt_choice(options: dict, key: str, default: str, choices: tuple[str, ...]) -> str:
+    value = str(options.get(key, default)).strip().lower()
+    if value not in choices:
+        raise BadValueError(f"option {key}: expected one of {', '.join(choices)}, got {options.get(key)!r}")
+    return value
+
+
+def read_json(path: Path) -> Any:
+    """Parsed JSON of ``path``; MissingFileError / FormatError naming the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise MissingFileError(f"{path}: no such file")
+    try:
+        with open(path, "r", encoding="utf-8") as f:
+            return json.load(f)
+    except json.JSONDecodeError as e:
+        raise FormatError(f"{path}: malformed JSON (line {e.lineno}, column {e.colno}: {e.msg})") from None
+    except UnicodeDecodeError:
+        raise FormatError(f"{path}: not a UTF-8 text file") from None
+
+
+def rigid_from_matrix(m: Any, where: str) -> np.ndarray:
+    """A 4x4 float64 rigid matrix from ``m`` (4x4 or 3x4), checked, then re-orthonormalised
+    (files store ~7 significant digits; the check rejects anything that is not noise)."""
+    from ..camera import check_rigid
+
+    rigid = check_rigid(m, where)
+    rigid[:3, :3] = orthonormalize(rigid[:3, :3])
+    return rigid
+
+
+def quat_to_rotation(qw: float, qx: float, qy: float, qz: float, where: str) -> np.ndarray:
+    """Rotation matrix of a unit quaternion (Hamilton convention, as COLMAP, TUM and Eigen).
+    A quaternion whose norm is not 1 to 1e-3 is refused: it is not a rotation as written."""
+    q = np.array([qw, qx, qy, qz], dtype=np.float64)
+    if not np.all(np.isfinite(q)):
+        raise BadValueError(f"{where}: quaternion contains NaN or infinity")
+    n = float(np.linalg.norm(q))
+    if abs(n - 1.0) > 1e-3:
+        raise BadValueError(f"{where}: quaternion norm {n:.6f} is not 1; not a rotation")
+    w, x, y, z = q / n
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def invert_rigid(m: np.ndarray) -> np.ndarray:
+    out = np.eye(4)
+    r, t = m[:3, :3], m[:3, 3]
+    out[:3, :3] = r.T
+    out[:3, 3] = -r.T @ t
+    return out
+
+
+def image_size(path: Path) -> tuple[int, int]:
+    """(width, height) of an image file from its header only (no pixel decoding)."""
+    from ..imageio import _oiio
+
+    path = Path(path)
+    if not path.is_file():
+        raise MissingFileError(f"{path}: no such file")
+    oiio = _oiio()
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise FormatError(f"{path}: not a readable image ({oiio.geterror().strip() or 'unknown format'})")
+    try:
+        spec = inp.spec()
+        return int(spec.width), int(spec.height)
+    finally:
+        inp.close()
+
+
+def check_same_size(path: Path, size: tuple[int, int], what: str, expected_from: str) -> None:
+    w, h = image_size(path)
+    if (w, h) != tuple(size):
+        from ..errors import ShapeError
+
+        raise ShapeError(f"{path}: {what} is {w}x{h}, expected {size[0]}x{size[1]} ({expected_from})")
