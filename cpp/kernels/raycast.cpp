@@ -317,11 +317,13 @@ void RaycastCamera(const EmbreeScene& scene, const Camera& camera, const Surface
   const glm::vec3 origin(camera.CentreInWorld());
   const std::int32_t* object_ids = scene.ObjectIds();
   const bool need_normal = out.normal != nullptr || out.color != nullptr;
+  const bool unit_rays = camera.model == CameraModel::kEquirect;
   auto fn = [&](int py, int px, const glm::vec3& dir, const Hit& h, RayQuery& query) {
     const std::int64_t i = std::int64_t(py) * width + px;
     const bool is_hit = h.prim >= 0;
     if (out.depth) out.depth[i] = h.t;  // t is z (pinhole) or distance (equirect): see raycast.h
-    if (out.distance) out.distance[i] = is_hit ? h.t * glm::length(dir) : 0.f;
+    // Equirect rays are unit by construction: their distance is t itself (= depth, exactly).
+    if (out.distance) out.distance[i] = is_hit ? (unit_rays ? h.t : h.t * glm::length(dir)) : 0.f;
     if (out.prim_id) out.prim_id[i] = h.prim;
     if (out.object_id) out.object_id[i] = is_hit ? object_ids[h.prim] : -1;
     if (out.hit) out.hit[i] = is_hit ? 1 : 0;

@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import FormatError, MissingFileError
+from .errors import DtypeError, FormatError, MissingFileError
 from .imageio import atomic_path, linear_to_srgb, read_image, srgb_to_linear
 from .mesh import Mesh
 
@@ -122,6 +122,16 @@ def _read_tensor(path: Path) -> dict:
     return out
 
 
+def _has_polygons(path: Path) -> bool:
+    """True when the OBJ has a face of more than 3 corners. (open3d's tensor reader is only
+    asked then: it crashes the process on some malformed files instead of failing.)"""
+    with open(path, "rb") as fh:
+        for line in fh:
+            if line.startswith(b"f ") and len(line.split()) > 4:
+                return True
+    return False
+
+
 def read_mesh(path: str | os.PathLike, kind: str = "ground_truth", *,
               texture: str | os.PathLike | None = None) -> Mesh:
     """Read a PLY or OBJ (+ MTL, textures) mesh, and its sidecar ``<path>.attrs.npz`` if any.
@@ -142,7 +152,7 @@ def read_mesh(path: str | os.PathLike, kind: str = "ground_truth", *,
     try:
         with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
             data = _read_legacy(path)
-            if ext == ".obj" and len(data["faces"]) == 0:
+            if ext == ".obj" and len(data["faces"]) == 0 and _has_polygons(path):
                 data = _read_tensor(path)  # polygons (quads): the legacy reader skips them
     except (RuntimeError, ValueError, OSError) as e:
         raise FormatError(f"{path}: open3d could not read the mesh ({str(e).strip().splitlines()[0]})") from None
@@ -190,7 +200,7 @@ def write_mesh(path: str | os.PathLike, mesh: Mesh) -> Path:
     must go to OBJ (FormatError otherwise)."""
     path = Path(path)
     if not isinstance(mesh, Mesh):
-        raise FormatError(f"{path}: expected an ibrtools.Mesh to write, got {type(mesh).__name__}")
+        raise DtypeError(f"mesh: expected an ibrtools.Mesh to write to {path}, got {type(mesh).__name__}")
     ext = path.suffix.lower()
     if ext not in MESH_EXTS:
         raise FormatError(f"{path}: unknown mesh extension {ext!r} (expected one of {MESH_EXTS})")
