@@ -33,7 +33,9 @@ def warp(color: np.ndarray, depth: np.ndarray, src_cam, dst_cam, src_mask: np.nd
     if src_mask is not None:
         ok &= src_mask
     world = src_cam.unproject(np.where(ok, depth, 0.0))[ok]
-    cols = np.asarray(color)[ok]
+    color = np.asarray(color)
+    nch = color.shape[2] if color.ndim == 3 else 1
+    cols = color[ok].reshape(-1, nch)
     xy, z = dst_cam.project(world)
     with np.errstate(invalid="ignore"):
         u = np.floor(xy[:, 0])
@@ -47,10 +49,10 @@ def warp(color: np.ndarray, depth: np.ndarray, src_cam, dst_cam, src_mask: np.nd
     first[1:] = lin_s[1:] != lin_s[:-1]
     keep = order[first]
     h, w = dst_cam.height, dst_cam.width
-    out = np.zeros((h * w, cols.shape[1] if cols.ndim == 2 else 1), np.float32)
+    out = np.zeros((h * w, nch), np.float32)
     out_z = np.zeros(h * w, np.float64)
     valid = np.zeros(h * w, bool)
-    out[lin[keep]] = cols[keep].reshape(len(keep), -1)
+    out[lin[keep]] = cols[keep]
     out_z[lin[keep]] = z[keep]
     valid[lin[keep]] = True
     return out.reshape(h, w, -1), out_z.reshape(h, w), valid.reshape(h, w)
