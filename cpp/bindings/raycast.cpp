@@ -172,6 +172,7 @@ class RayScene {
 }  // namespace
 
 void BindRaycast(py::module_& m) {
+  m.attr("EMBREE_VERSION") = RTC_VERSION_STRING;
   py::class_<RayScene>(m, "RayScene",
                        "A triangle mesh in an Embree BVH (built once) with its shading attributes; "
                        "renders reference buffers and shaded colour for cameras (cpp/kernels/raycast.h).")
