@@ -1,0 +1,417 @@
+"""COLMAP sparse models (cameras, images; .bin or .txt) with their images, and dense depth maps.
+
+Reader: a small numpy/struct reader of COLMAP's documented binary and text formats
+(https://colmap.github.io/format.html). We do not go through pycolmap: it is an optional
+extra, its Python API has changed across releases (4.x added rigs and frames), and all we need
+is three record types; the tests cross-check this reader against pycolmap when installed.
+
+Convention converted from
+  COLMAP already uses OpenCV camera axes (x right, y down, z forward) and stores
+  world-to-camera poses: ``qvec`` (w, x, y, z; Hamilton) and ``tvec`` with
+  ``point_in_cam = R(q) point_in_world + t``; pixel centres at +0.5 (as ours). So
+  cam_from_world = [R(q) | t]. Quaternions whose norm is not 1 (to 1e-3) are refused.
+  Camera models: SIMPLE_PINHOLE (f, cx, cy), PINHOLE (fx, fy, cx, cy), SIMPLE_RADIAL (f, cx,
+  cy, k), RADIAL (f, cx, cy, k1, k2), OPENCV (fx, fy, cx, cy, k1, k2, p1, p2). Other models
+  are refused (FormatError).
+
+Distortion: images of distorted models are undistorted **lazily, on load**, to a pinhole camera
+with the same fx, fy, cx, cy and size: each output pixel's normalised coordinate is distorted
+with COLMAP's model (exact, no iteration needed in this direction) and the source image is
+sampled bilinearly (numpy, vectorised). The only residual is the bilinear interpolation;
+pixels that map outside the source are black and excluded from the view's mask. Depth maps
+are resampled the same way with nearest-neighbour sampling (depth must not be blended).
+
+Layout
+  ``path`` may be a model folder (holding cameras.bin|txt) or a data-set folder with the model
+  in ``sparse/0``, ``sparse`` or any sub-folder (two levels deep; ``sparse/0`` wins, then the
+  shortest path) and images in ``images/`` or the single ``images_*`` folder (e.g. LLFF
+  ``images_4``, fountain-P11 ``images_25``). Images are matched by the file name stored in the
+  model. When the images are smaller or larger than the model's cameras (downscaled sets), the
+  intrinsics are scaled to the images; the aspect ratio must agree (to one pixel), else
+  FormatError. Dense depth maps ``stereo/depth_maps/<name>.geometric.bin`` are read when present
+  (COLMAP's array format: ASCII header ``width&height&channels&`` then float32 values, the
+  column index fastest, then row, then channel; values <= 0 or non-finite = unknown).
+
+Options
+  model=<dir>                 model folder, relative to ``path`` (default: searched)
+  images=<dir>                image folder, relative to ``path`` (default: images/ or images_*/)
+  depth=geometric|photometric|none   dense depth maps to read (default geometric)
+"""
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import numpy as np
+
+from ..camera import Camera
+from ..errors import BadValueError, FormatError, MissingFileError, ShapeError
+from ..imageio import read_image
+from ..scene import Scene, View
+from ._common import FileLoader, check_options, image_size, opt_choice, quat_to_rotation
+
+NAME = "colmap"
+DESCRIPTION = "COLMAP sparse model (cameras/images .bin|.txt) + images (+ dense depth maps)"
+OPTIONS = {"model": "model folder relative to the input", "images": "image folder relative to the input",
+           "depth": "geometric|photometric|none"}
+
+# model id -> (name, number of params)
+MODELS = {0: ("SIMPLE_PINHOLE", 3), 1: ("PINHOLE", 4), 2: ("SIMPLE_RADIAL", 4), 3: ("RADIAL", 5),
+          4: ("OPENCV", 8), 5: ("OPENCV_FISHEYE", 8), 6: ("FULL_OPENCV", 12), 7: ("FOV", 5),
+          8: ("SIMPLE_RADIAL_FISHEYE", 4), 9: ("RADIAL_FISHEYE", 5), 10: ("THIN_PRISM_FISHEYE", 12)}
+SUPPORTED = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
+NPARAMS = {name: n for name, n in MODELS.values()}
+
+
+# --- model reading ------------------------------------------------------------------------------
+class _Reader:
+    def __init__(self, path: Path):
+        self.path, self.data, self.pos = path, path.read_bytes(), 0
+
+    def take(self, fmt: str):
+        size = struct.calcsize(fmt)
+        if self.pos + size > len(self.data):
+            raise FormatError(f"{self.path}: truncated at byte {self.pos} (needed {size} more bytes)")
+        out = struct.unpack_from(fmt, self.data, self.pos)
+        self.pos += size
+        return out
+
+    def cstring(self) -> str:
+        end = self.data.find(b"\0", self.pos)
+        if end < 0:
+            raise FormatError(f"{self.path}: truncated image name at byte {self.pos}")
+        s = self.data[self.pos:end].decode("utf-8", errors="replace")
+        self.pos = end + 1
+        return s
+
+
+def _text_lines(path: Path) -> list[str]:
+    return [ln for ln in path.read_text(encoding="utf-8", errors="replace").splitlines()
+            if not ln.lstrip().startswith("#")]
+
+
+def read_cameras(path: Path) -> dict[int, dict]:
+    """{camera_id: {"model": name, "width", "height", "params": np.ndarray}} from cameras.bin/.txt."""
+    cams = {}
+    if path.suffix == ".bin":
+        r = _Reader(path)
+        (n,) = r.take("<Q")
+        for _ in range(n):
+            cid, mid, w, h = r.take("<iiQQ")
+            if mid not in MODELS:
+                raise FormatError(f"{path}: camera {cid}: unknown model id {mid}")
+            name, npar = MODELS[mid]
+            cams[cid] = {"model": name, "width": w, "height": h, "params": np.array(r.take(f"<{npar}d"))}
+        return cams
+    for i, ln in enumerate(_text_lines(path), 1):
+        parts = ln.split()
+        if not parts:
+            continue
+        try:
+            cid, name, w, h = int(parts[0]), parts[1], int(parts[2]), int(parts[3])
+            params = np.array([float(v) for v in parts[4:]])
+        except (ValueError, IndexError):
+            raise FormatError(f"{path}: malformed camera line {ln[:80]!r}") from None
+        if name not in NPARAMS:
+            raise FormatError(f"{path}: camera {cid}: unknown model {name!r}")
+        if len(params) != NPARAMS[name]:
+            raise FormatError(f"{path}: camera {cid} ({name}): expected {NPARAMS[name]} parameters, got {len(params)}")
+        cams[cid] = {"model": name, "width": w, "height": h, "params": params}
+    return cams
+
+
+def read_images(path: Path) -> dict[int, dict]:
+    """{image_id: {"qvec", "tvec", "camera_id", "name"}} from images.bin/.txt (2-D points skipped)."""
+    imgs = {}
+    if path.suffix == ".bin":
+        r = _Reader(path)
+        (n,) = r.take("<Q")
+        for _ in range(n):
+            vals = r.take("<i7di")
+            name = r.cstring()
+            (npts,) = r.take("<Q")
+            skip = npts * 24  # x, y (double), point3D_id (int64)
+            if r.pos + skip > len(r.data):
+                raise FormatError(f"{path}: truncated in the 2-D points of image {name!r}")
+            r.pos += skip
+            imgs[vals[0]] = {"qvec": np.array(vals[1:5]), "tvec": np.array(vals[5:8]), "camera_id": vals[8],
+                             "name": name}
+        return imgs
+    lines = _text_lines(path)
+    i = 0
+    while i < len(lines):
+        parts = lines[i].split()
+        if not parts:
+            i += 1
+            continue
+        try:
+            iid = int(parts[0])
+            q = np.array([float(v) for v in parts[1:5]])
+            t = np.array([float(v) for v in parts[5:8]])
+            cid = int(parts[8])
+            name = " ".join(parts[9:])
+        except (ValueError, IndexError):
+            raise FormatError(f"{path}: malformed image line {lines[i][:80]!r}") from None
+        if not name:
+            raise FormatError(f"{path}: image {iid} has no name")
+        imgs[iid] = {"qvec": q, "tvec": t, "camera_id": cid, "name": name}
+        i += 2  # the next line holds the 2-D points (possibly empty)
+    return imgs
+
+
+def read_array(path: Path) -> np.ndarray:
+    """A COLMAP dense array (depth or normal map) as (H, W) or (H, W, C) float32."""
+    data = Path(path).read_bytes()
+    pos, fields = 0, []
+    for _ in range(3):
+        end = data.find(b"&", pos)
+        if end < 0 or end - pos > 20:
+            raise FormatError(f"{path}: not a COLMAP array (expected 'width&height&channels&' header)")
+        fields.append(data[pos:end])
+        pos = end + 1
+    try:
+        w, h, c = (int(f) for f in fields)
+    except ValueError:
+        raise FormatError(f"{path}: malformed COLMAP array header {b'&'.join(fields)!r}") from None
+    n = w * h * c
+    if len(data) - pos != 4 * n:
+        raise FormatError(f"{path}: {w}x{h}x{c} float32 array needs {4 * n} bytes after the header, "
+                          f"file has {len(data) - pos}")
+    arr = np.frombuffer(data, np.float32, count=n, offset=pos).reshape(c, h, w).transpose(1, 2, 0)
+    return np.ascontiguousarray(arr[..., 0] if c == 1 else arr)
+
+
+# --- distortion ---------------------------------------------------------------------------------
+def _distort(model: str, params: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """COLMAP's distortion of normalised image coordinates (x, y) -> distorted (x, y)."""
+    if model in ("SIMPLE_PINHOLE", "PINHOLE"):
+        return x, y
+    r2 = x * x + y * y
+    if model == "SIMPLE_RADIAL":
+        f = 1 + params[3] * r2
+        return x * f, y * f
+    if model == "RADIAL":
+        f = 1 + params[3] * r2 + params[4] * r2 * r2
+        return x * f, y * f
+    if model == "OPENCV":
+        k1, k2, p1, p2 = params[4:8]
+        f = 1 + k1 * r2 + k2 * r2 * r2
+        xy = x * y
+        return x * f + 2 * p1 * xy + p2 * (r2 + 2 * x * x), y * f + p1 * (r2 + 2 * y * y) + 2 * p2 * xy
+    raise FormatError(f"camera model {model}: not supported")
+
+
+def _intrinsics(model: str, p: np.ndarray) -> tuple[float, float, float, float]:
+    if model in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"):
+        return p[0], p[0], p[1], p[2]
+    return p[0], p[1], p[2], p[3]
+
+
+def is_distorted(model: str, params: np.ndarray) -> bool:
+    if model in ("SIMPLE_PINHOLE", "PINHOLE"):
+        return False
+    extra = params[3:] if model in ("SIMPLE_RADIAL", "RADIAL") else params[4:]
+    return bool(np.any(extra != 0))
+
+
+def undistort_map(cam: Camera, model: str, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Continuous source coordinates (H, W) each, of every pixel centre of the undistorted
+    pinhole ``cam`` (same fx, fy, cx, cy as the distorted camera)."""
+    u, v = cam.pixel_grid()
+    x, y = (u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy
+    xd, yd = _distort(model, params, x, y)
+    return xd * cam.fx + cam.cx, yd * cam.fy + cam.cy
+
+
+def remap_bilinear(img: np.ndarray, sx: np.ndarray, sy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sample ``img`` (H, W[, C]) at continuous coordinates (pixel centres at +0.5); returns the
+    samples and a bool map of those inside the image (outside: 0)."""
+    h, w = img.shape[:2]
+    fx, fy = sx - 0.5, sy - 0.5
+    inside = (fx >= -0.5) & (fx <= w - 0.5) & (fy >= -0.5) & (fy <= h - 0.5)
+    fx, fy = np.clip(fx, 0, w - 1), np.clip(fy, 0, h - 1)
+    x0 = np.minimum(np.floor(fx).astype(np.int64), w - 2 if w > 1 else 0)
+    y0 = np.minimum(np.floor(fy).astype(np.int64), h - 2 if h > 1 else 0)
+    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+    ax, ay = (fx - x0), (fy - y0)
+    if img.ndim == 3:
+        ax, ay = ax[..., None], ay[..., None]
+    top = img[y0, x0] * (1 - ax) + img[y0, x1] * ax
+    bot = img[y1, x0] * (1 - ax) + img[y1, x1] * ax
+    out = (top * (1 - ay) + bot * ay).astype(img.dtype)
+    out[~inside] = 0
+    return np.ascontiguousarray(out), inside
+
+
+def remap_nearest(img: np.ndarray, sx: np.ndarray, sy: np.ndarray) -> np.ndarray:
+    h, w = img.shape[:2]
+    xi, yi = np.floor(sx).astype(np.int64), np.floor(sy).astype(np.int64)
+    inside = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
+    out = img[np.clip(yi, 0, h - 1), np.clip(xi, 0, w - 1)]
+    out[~inside] = 0
+    return np.ascontiguousarray(out)
+
+
+class _Undistorter:
+    """Computes the undistortion map once per camera and shares it between that camera's views."""
+
+    def __init__(self, cam: Camera, model: str, params: np.ndarray):
+        self.cam, self.model, self.params, self._map = cam, model, params, None
+
+    def map(self):
+        if self._map is None:
+            self._map = undistort_map(self.cam, self.model, self.params)
+        return self._map
+
+    def color(self, path: Path) -> np.ndarray:
+        img = read_image(path)
+        if img.shape[:2] != (self.cam.height, self.cam.width):
+            raise ShapeError(f"{path}: image is {img.shape[1]}x{img.shape[0]}, expected "
+                             f"{self.cam.width}x{self.cam.height}")
+        return remap_bilinear(img, *self.map())[0]
+
+    def mask(self) -> np.ndarray:
+        sx, sy = self.map()
+        w, h = self.cam.width, self.cam.height
+        return np.ascontiguousarray((sx >= 0) & (sx <= w) & (sy >= 0) & (sy <= h))
+
+    def depth(self, path: Path) -> np.ndarray:
+        d = _load_depth(path, self.cam)
+        return remap_nearest(d, *self.map())
+
+
+def _load_depth(path: Path, cam: Camera) -> np.ndarray:
+    d = read_array(path)
+    if d.ndim != 2:
+        raise ShapeError(f"{path}: expected a one-channel depth map, got {d.shape[2]} channels")
+    if d.shape != (cam.height, cam.width):
+        raise ShapeError(f"{path}: depth map is {d.shape[1]}x{d.shape[0]}, expected {cam.width}x{cam.height} "
+                         "(the view's image size)")
+    d = np.where(np.isfinite(d) & (d > 0), d, 0).astype(np.float32)
+    return np.ascontiguousarray(d)
+
+
+# --- layout -------------------------------------------------------------------------------------
+def _is_model(d: Path) -> bool:
+    return (d / "cameras.bin").is_file() or (d / "cameras.txt").is_file()
+
+
+def _find_model(path: Path) -> Path | None:
+    if _is_model(path):
+        return path
+    for cand in (path / "sparse" / "0", path / "sparse"):
+        if _is_model(cand):
+            return cand
+    subs = sorted([d for d in path.glob("*") if d.is_dir() and _is_model(d)]
+                  + [d for d in path.glob("*/*") if d.is_dir() and _is_model(d)],
+                  key=lambda d: (len(d.relative_to(path).parts), str(d)))
+    return subs[0] if subs else None
+
+
+def _find_images(root: Path) -> Path | None:
+    if (root / "images").is_dir():
+        return root / "images"
+    cands = sorted(d for d in root.glob("images_*") if d.is_dir())
+    return cands[0] if len(cands) == 1 else None
+
+
+def detect(path: Path) -> bool:
+    path = Path(path)
+    return path.is_dir() and _find_model(path) is not None
+
+
+def _model_file(model: Path, stem: str) -> Path:
+    for ext in (".bin", ".txt"):
+        if (model / (stem + ext)).is_file():
+            return model / (stem + ext)
+    raise MissingFileError(f"{model}: no {stem}.bin or {stem}.txt")
+
+
+def load(path: Path, options: dict) -> Scene:
+    path = Path(path)
+    options = check_options(options, OPTIONS, NAME)
+    depth_kind = opt_choice(options, "depth", "geometric", ("geometric", "photometric", "none"))
+    if not path.is_dir():
+        raise MissingFileError(f"{path}: not a directory")
+    if "model" in options:
+        model = path / str(options["model"])
+        if not _is_model(model):
+            raise MissingFileError(f"{model}: no cameras.bin or cameras.txt (option model=)")
+    else:
+        model = _find_model(path)
+        if model is None:
+            raise FormatError(f"{path}: no COLMAP model (cameras.bin|txt in sparse/0, sparse or a sub-folder)")
+    root = path if model != path else (path.parent if not _find_images(path) else path)
+    if "images" in options:
+        images_dir = path / str(options["images"])
+        if not images_dir.is_dir():
+            raise MissingFileError(f"{images_dir}: no such directory (option images=)")
+    else:
+        images_dir = _find_images(root)
+        if images_dir is None:
+            found = sorted(d.name for d in root.glob("images*") if d.is_dir())
+            raise FormatError(f"{root}: no image folder (expected images/ or a single images_*/, found "
+                              f"{found or 'none'}; pass images=DIR)")
+    cams = read_cameras(_model_file(model, "cameras"))
+    imgs = read_images(_model_file(model, "images"))
+    if not imgs:
+        raise FormatError(f"{model}: the model has no images")
+    depth_dir = root / "stereo" / "depth_maps"
+
+    views = []
+    undistorters: dict[tuple[int, int, int], _Undistorter] = {}
+    scaled_note = None
+    for iid in sorted(imgs, key=lambda k: imgs[k]["name"]):
+        im = imgs[iid]
+        where = f"{model} image {im['name']!r}"
+        if im["camera_id"] not in cams:
+            raise FormatError(f"{where}: camera {im['camera_id']} is not in cameras")
+        c = cams[im["camera_id"]]
+        if c["model"] not in SUPPORTED:
+            raise FormatError(f"{where}: camera model {c['model']} is not supported "
+                              f"(supported: {', '.join(SUPPORTED)})")
+        fx, fy, cx, cy = _intrinsics(c["model"], c["params"])
+        if not (fx > 0 and fy > 0):
+            raise BadValueError(f"{where}: camera {im['camera_id']}: focal length must be positive, got {fx}, {fy}")
+        pose = np.eye(4)
+        pose[:3, :3] = quat_to_rotation(*im["qvec"], where=where)
+        pose[:3, 3] = im["tvec"]
+        cam = Camera.pinhole(c["width"], c["height"], fx, fy, cx, cy, pose)
+        img_path = images_dir / im["name"]
+        if not img_path.is_file():
+            raise MissingFileError(f"{img_path}: image {im['name']!r} of the model not found in {images_dir}")
+        w, h = image_size(img_path)
+        if (w, h) != (cam.width, cam.height):
+            # Downscaled images: scale the intrinsics; the aspect ratio must agree to a pixel.
+            s = w / cam.width
+            if abs(cam.height * s - h) > 1.0 or abs(cam.width * (h / cam.height) - w) > 1.0:
+                raise FormatError(f"{img_path}: image is {w}x{h} but the model's camera {im['camera_id']} is "
+                                  f"{cam.width}x{cam.height}: different aspect ratio, cannot scale")
+            cam = cam.scaled(w, h)
+            scaled_note = f"intrinsics scaled from {c['width']}x{c['height']} to the images ({w}x{h})"
+        distorted = is_distorted(c["model"], c["params"])
+        depth_file = depth_dir / f"{im['name']}.{depth_kind}.bin" if depth_kind != "none" else None
+        has_depth = depth_file is not None and depth_file.is_file()
+        if distorted:
+            key = (im["camera_id"], w, h)
+            if key not in undistorters:
+                undistorters[key] = _Undistorter(cam, c["model"], c["params"])
+            und = undistorters[key]
+            view = View.create(str(Path(im["name"]).with_suffix("")), cam,
+                               color=FileLoader(img_path, und.color, img_path),
+                               depth=FileLoader(depth_file, und.depth, depth_file) if has_depth else None,
+                               mask=FileLoader(img_path, und.mask))
+        else:
+            view = View.create(str(Path(im["name"]).with_suffix("")), cam,
+                               color=FileLoader(img_path, read_image, img_path),
+                               depth=FileLoader(depth_file, _load_depth, depth_file, cam) if has_depth else None)
+        views.append(view)
+    notes = []
+    if scaled_note:
+        notes.append(scaled_note)
+    if undistorters:
+        notes.append("distorted cameras undistorted on load to pinhole with the same K (bilinear)")
+    return Scene(views=views, units="unknown",
+                 source={"format": NAME, "path": str(path), "model": str(model), "images": str(images_dir),
+                         "notes": "; ".join(notes)},
+                 root=root)

@@ -1,0 +1,118 @@
+"""Raw planar YUV files (MPEG test content): reading one frame, and Y'CbCr -> linear RGB.
+
+File layout: frames one after the other; each frame is the Y plane (W x H) followed, for 4:2:0,
+by the Cb and Cr planes (ceil(W/2) x ceil(H/2) each); 4:0:0 files hold the Y plane only.
+Samples are uint8 for 8-bit content and little-endian uint16 for 9..16 bits (the value range
+is [0, 2^bits - 1] whatever the container). Only the requested frame is read from disk.
+
+Colour conversion (``yuv_to_rgb``): limited ("video") range by default, as MPEG test
+sequences are: Y' in [16, 235] * 2^(bits-8), Cb/Cr centred on 128 * 2^(bits-8) with half-range
+112 * 2^(bits-8); full range maps [0, 2^bits - 1]. Matrix BT.709 by default (Kr = 0.2126,
+Kb = 0.0722) or BT.601 (Kr = 0.299, Kb = 0.114). Chroma is upsampled 2x with the centred
+linear filter (weights 3/4, 1/4, edges clamped). The resulting R'G'B' are clipped to [0, 1]
+and decoded with the sRGB transfer function (an approximation of the BT.709/BT.1886 display
+transfer: the two differ by a few code values in the darks), giving linear RGB like every
+other importer.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import BadValueError, FormatError, MissingFileError
+from ..imageio import srgb_to_linear
+
+MATRICES = {"bt709": (0.2126, 0.0722), "bt601": (0.299, 0.114)}
+
+
+def plane_shapes(width: int, height: int, chroma: str = "420") -> list[tuple[int, int]]:
+    if chroma == "420":
+        cw, ch = (width + 1) // 2, (height + 1) // 2
+        return [(height, width), (ch, cw), (ch, cw)]
+    if chroma == "400":
+        return [(height, width)]
+    raise BadValueError(f"chroma format: expected '420' or '400', got {chroma!r}")
+
+
+def frame_bytes(width: int, height: int, bits: int, chroma: str = "420") -> int:
+    bps = 1 if bits <= 8 else 2
+    return bps * sum(h * w for h, w in plane_shapes(width, height, chroma))
+
+
+def frame_count(path: Path, width: int, height: int, bits: int, chroma: str = "420") -> int:
+    """Number of frames in ``path``; FormatError when its size is not a whole number of frames."""
+    path = Path(path)
+    if not path.is_file():
+        raise MissingFileError(f"{path}: no such file")
+    size = path.stat().st_size
+    fb = frame_bytes(width, height, bits, chroma)
+    if size == 0 or size % fb:
+        raise FormatError(f"{path}: {size} bytes is not a whole number of {width}x{height} "
+                          f"{'4:2:0' if chroma == '420' else '4:0:0'} {bits}-bit frames "
+                          f"({fb} bytes each; expected {fb} x N bytes)")
+    return size // fb
+
+
+def read_frame(path: Path, width: int, height: int, bits: int, frame: int = 0,
+               chroma: str = "420") -> list[np.ndarray]:
+    """The planes [Y, Cb, Cr] (or [Y]) of frame ``frame`` as uint8/uint16 arrays (H, W)."""
+    if not 1 <= int(bits) <= 16:
+        raise BadValueError(f"{path}: bit depth must be in 1..16, got {bits}")
+    n = frame_count(path, width, height, bits, chroma)
+    if not 0 <= frame < n:
+        raise BadValueError(f"{path}: frame {frame} requested, the file has {n} frame(s) (0..{n - 1})")
+    dtype = np.uint8 if bits <= 8 else np.dtype("<u2")
+    offset = frame * frame_bytes(width, height, bits, chroma)
+    planes = []
+    for h, w in plane_shapes(width, height, chroma):
+        a = np.fromfile(path, dtype=dtype, count=h * w, offset=offset).reshape(h, w)
+        offset += a.nbytes
+        planes.append(a.astype(np.uint16) if bits > 8 else a)
+    return planes
+
+
+def _upsample2(c: np.ndarray, h: int, w: int) -> np.ndarray:
+    """2x upsampling of a chroma plane with the centred linear filter (3/4, 1/4)."""
+    def axis(a: np.ndarray, ax: int, n: int) -> np.ndarray:
+        prev = np.concatenate([np.take(a, [0], axis=ax), np.take(a, np.arange(a.shape[ax] - 1), axis=ax)], ax)
+        nxt = np.concatenate([np.take(a, np.arange(1, a.shape[ax]), axis=ax), np.take(a, [-1], axis=ax)], ax)
+        even, odd = 0.75 * a + 0.25 * prev, 0.75 * a + 0.25 * nxt
+        out = np.stack([even, odd], axis=ax + 1)
+        shape = list(a.shape)
+        shape[ax] *= 2
+        return np.take(out.reshape(shape), np.arange(n), axis=ax)
+
+    return axis(axis(c.astype(np.float32), 0, h), 1, w)
+
+
+def yuv_to_rgb(planes: list[np.ndarray], bits: int, matrix: str = "bt709", full_range: bool = False) -> np.ndarray:
+    """Linear float32 RGB (H, W, 3) of Y'CbCr planes (see the module docstring)."""
+    if matrix not in MATRICES:
+        raise BadValueError(f"yuv matrix: expected one of {', '.join(MATRICES)}, got {matrix!r}")
+    y = planes[0].astype(np.float32)
+    h, w = y.shape
+    scale = float(1 << (bits - 8)) if bits >= 8 else 1.0 / (1 << (8 - bits))
+    vmax = float((1 << bits) - 1)
+    if len(planes) == 1:
+        cb = cr = np.zeros_like(y)
+    else:
+        cb, cr = (_upsample2(p, h, w) for p in planes[1:3])
+    if full_range:
+        yn = y / vmax
+        mid = float(1 << (bits - 1))
+        cbn, crn = (cb - mid) / vmax, (cr - mid) / vmax
+        if len(planes) == 1:
+            cbn = crn = np.zeros_like(y)
+    else:
+        yn = (y - 16 * scale) / (219 * scale)
+        cbn, crn = (cb - 128 * scale) / (224 * scale), (cr - 128 * scale) / (224 * scale)
+        if len(planes) == 1:
+            cbn = crn = np.zeros_like(y)
+    kr, kb = MATRICES[matrix]
+    kg = 1 - kr - kb
+    r = yn + 2 * (1 - kr) * crn
+    b = yn + 2 * (1 - kb) * cbn
+    g = (yn - kr * r - kb * b) / kg
+    rgb = np.clip(np.stack([r, g, b], -1), 0, 1)
+    return np.ascontiguousarray(srgb_to_linear(rgb))
