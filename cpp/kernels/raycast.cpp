@@ -48,6 +48,7 @@ struct Hit {
   float t;
   float u, v;
   std::int32_t prim;  // -1 = no hit
+  glm::vec3 ng;       // Embree's unnormalised geometric normal (either orientation)
 };
 
 // Traces every pixel of the camera, in tiles (ParallelFor2D) and packets of N rays laid out
@@ -92,7 +93,8 @@ void TracePackets(const EmbreeScene& scene, const CameraRays& rays, int tile, Fn
           if (!valid[k]) continue;
           const bool is_hit = rh.hit.geomID[k] != RTC_INVALID_GEOMETRY_ID;
           const Hit h{is_hit ? rh.ray.tfar[k] : 0.f, rh.hit.u[k], rh.hit.v[k],
-                      is_hit ? static_cast<std::int32_t>(rh.hit.primID[k]) : -1};
+                      is_hit ? static_cast<std::int32_t>(rh.hit.primID[k]) : -1,
+                      glm::vec3(rh.hit.Ng_x[k], rh.hit.Ng_y[k], rh.hit.Ng_z[k])};
           fn(by + k / BW, bx + k % BW, glm::vec3(dx[k], dy[k], dz[k]), h, query);
         }
       }
@@ -124,7 +126,8 @@ void TraceSingle(const EmbreeScene& scene, const CameraRays& rays, int tile, Fn&
         query.Intersect1(handle, &rh);
         const bool is_hit = rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
         const Hit h{is_hit ? rh.ray.tfar : 0.f, rh.hit.u, rh.hit.v,
-                    is_hit ? static_cast<std::int32_t>(rh.hit.primID) : -1};
+                    is_hit ? static_cast<std::int32_t>(rh.hit.primID) : -1,
+                    glm::vec3(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z)};
         fn(py, px, d, h, query);
       }
     }
@@ -139,18 +142,14 @@ void Trace(const EmbreeScene& scene, const Camera& camera, const RaycastOptions&
   else TracePackets<16, 4, 4, RTCRayHit16>(scene, rays, options.tile, fn);
 }
 
-// Unit geometric normal of face `prim`, flipped to face against `dir` (towards the camera).
-glm::vec3 FacingNormal(const EmbreeScene& scene, std::int32_t prim, const glm::vec3& dir) {
-  const std::int32_t* f = scene.Faces() + 3 * std::int64_t(prim);
-  const float* v = scene.Vertices();
-  const glm::vec3 a(v[3 * f[0]], v[3 * f[0] + 1], v[3 * f[0] + 2]);
-  const glm::vec3 b(v[3 * f[1]], v[3 * f[1] + 1], v[3 * f[1] + 2]);
-  const glm::vec3 c(v[3 * f[2]], v[3 * f[2] + 1], v[3 * f[2] + 2]);
-  glm::vec3 n = glm::cross(b - a, c - a);
-  const float len = glm::length(n);
+// Unit geometric normal of the hit face, flipped to face against `dir` (towards the camera).
+// Embree's Ng is the face's edge cross product (no vertex fetch: the mesh stays out of the
+// cache on a normal-only pass).
+glm::vec3 FacingNormal(const glm::vec3& ng, const glm::vec3& dir) {
+  const float len = glm::length(ng);
   // A degenerate face cannot be hit by a watertight intersector; keep a defined value anyway.
   if (!(len > 0.f)) return -glm::normalize(dir);
-  n /= len;
+  const glm::vec3 n = ng / len;
   return glm::dot(n, dir) > 0.f ? -n : n;
 }
 
@@ -339,7 +338,7 @@ void RaycastCamera(const EmbreeScene& scene, const Camera& camera, const Surface
       }
       return;
     }
-    const glm::vec3 n = FacingNormal(scene, h.prim, dir);
+    const glm::vec3 n = FacingNormal(h.ng, dir);
     if (out.normal) {
       out.normal[3 * i] = n.x, out.normal[3 * i + 1] = n.y, out.normal[3 * i + 2] = n.z;
     }
