@@ -15,14 +15,12 @@ Convention converted from
     stored sRGB values** (``rgb * a + bg * (1 - a)``, then decoded to linear) — exactly what the
     NeRF papers' evaluation images are — and ``alpha > 0.5`` becomes the view's mask.
   * Depth (Blender synthetic sets, e.g. lego ``r_N_depth_0001.png``): an 8- or 16-bit image,
-    channel 0 = v; v = 0 is background (unknown depth, 0); otherwise the **distance along the
-    ray** is ``depth_offset - depth_scale * v / vmax`` (a linear encoding), converted to z-depth
-    for the pinhole camera (``Camera.depth_ray_to_z``). Looked up as ``<stem>_depth_0001.png``,
-    ``<stem>_depth.png``. The defaults (5.75, 7.07) are *measured* on the lego test views: they
-    make the depth maps of neighbouring views agree (warped depth within 2 % of the target's
-    depth on ~96 % of the overlap, median 0.4 %); the formula ``8 * (1 - v/255)``
-    (offset = scale = 8) agrees on only ~40 % (median 3.3 %), see tests/test_realdata.py and
-    docs/importers.md. Other Blender renders may need their own values.
+    channel 0 = v, read with *straight* alpha (the PNGs carry an alpha channel; OpenImageIO
+    would otherwise premultiply v by it); v = 0 is background (unknown depth, 0); otherwise the
+    **distance along the ray** is ``depth_scale * (1 - v / vmax)``, converted to z-depth for the
+    pinhole camera (``Camera.depth_ray_to_z``). Looked up as ``<stem>_depth_0001.png``,
+    ``<stem>_depth.png``. A free two-parameter fit ``a - b v/255`` of the lego depth maps to each
+    other gives a = 7.97, b = 7.94, i.e. this encoding with scale 8.
 
 A path may be a ``transforms*.json`` file or a folder holding ``transforms_{train,val,test}.json``
 and/or ``transforms.json``. Every split found becomes views named by the image stem
@@ -31,8 +29,7 @@ and/or ``transforms.json``. Every split found becomes views named by the image s
 Options
   split=all|train|val|test   which split files to import (default all that exist)
   background=black|white     compositing colour for RGBA images (default black)
-  depth_offset=5.75          ray distance encoded by v = 0 (see above)
-  depth_scale=7.07           ray distance per unit of v / vmax (see above)
+  depth_scale=8              ray distance encoded by v = 0 (default 8)
   depth=auto|none            read depth PNGs when present (default auto)
 """
 from __future__ import annotations
@@ -44,7 +41,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import BadValueError, DtypeError, FormatError, MissingFileError, ShapeError
-from ..imageio import _read_raw, srgb_to_linear
+from ..imageio import srgb_to_linear
 from ..scene import Scene, View
 from ._common import (FileLoader, check_options, check_same_size, image_size, invert_rigid, opt_choice,
                       opt_float, read_json, rigid_from_matrix)
@@ -56,8 +53,7 @@ SPLITS = ("train", "val", "test")
 OPTIONS = {
     "split": "all|train|val|test",
     "background": "black|white: compositing colour of RGBA images",
-    "depth_offset": "ray distance encoded by v = 0 (default 5.75, measured on lego)",
-    "depth_scale": "ray distance per unit v/vmax (default 7.07, measured on lego)",
+    "depth_scale": "ray distance encoded by v = 0 (default 8)",
     "depth": "auto|none",
 }
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".exr", ".tif", ".tiff", "")
@@ -111,8 +107,32 @@ def _number(d: dict, key: str, where: str) -> float:
     return v
 
 
+def _read_straight(path: Path) -> tuple[np.ndarray, str]:
+    """Pixels as stored with **straight** (unassociated) alpha: OpenImageIO premultiplies PNG
+    colour by alpha on read unless asked not to, which would composite twice."""
+    from ..imageio import _oiio
+
+    oiio = _oiio()
+    if not Path(path).is_file():
+        raise MissingFileError(f"{path}: no such file")
+    cfg = oiio.ImageSpec()
+    cfg.attribute("oiio:UnassociatedAlpha", 1)
+    inp = oiio.ImageInput.open(str(path), cfg)
+    if inp is None:
+        raise FormatError(f"{path}: not a readable image ({oiio.geterror().strip() or 'unknown format'})")
+    try:
+        fmt = str(inp.spec().format)
+        arr = inp.read_image(fmt if fmt in ("uint8", "uint16") else "float")
+        if arr is None:
+            raise FormatError(f"{path}: could not decode ({inp.geterror().strip() or 'truncated or corrupt'})")
+    finally:
+        inp.close()
+    arr = np.asarray(arr)
+    return (arr[:, :, None] if arr.ndim == 2 else arr), fmt
+
+
 def _load_color(path: Path, background: float) -> np.ndarray:
-    arr, fmt = _read_raw(path)
+    arr, fmt = _read_straight(path)
     c = arr.shape[2]
     if fmt in ("uint8", "uint16"):
         v = arr.astype(np.float32) / (255.0 if fmt == "uint8" else 65535.0)
@@ -132,32 +152,29 @@ def _load_color(path: Path, background: float) -> np.ndarray:
 
 
 def _load_mask(path: Path) -> np.ndarray:
-    arr, fmt = _read_raw(path)
+    arr, fmt = _read_straight(path)
     full = {"uint8": 255.0, "uint16": 65535.0}.get(fmt, 1.0)
     if arr.shape[2] not in (2, 4):
         raise FormatError(f"{path}: no alpha channel for the mask")
     return np.ascontiguousarray(arr[..., -1] > full / 2)
 
 
-DEPTH_OFFSET, DEPTH_SCALE = 5.75, 7.07
-
-
-def decode_depth(v: np.ndarray, vmax: float, depth_offset: float, depth_scale: float) -> np.ndarray:
-    """Ray distance of the Blender depth encoding ``offset - scale * v / vmax``; v = 0 -> 0
-    (unknown); a value that decodes to a distance <= 0 is unknown too."""
+def decode_depth(v: np.ndarray, vmax: float, depth_scale: float) -> np.ndarray:
+    """Ray distance of the Blender depth encoding ``scale * (1 - v / vmax)``; v = 0 -> 0
+    (unknown); v = vmax (distance 0) is unknown too."""
     v = v.astype(np.float64)
-    ray = depth_offset - depth_scale * v / vmax
+    ray = depth_scale * (1.0 - v / vmax)
     return np.where((v > 0) & (ray > 0), ray, 0.0)
 
 
-def _load_depth(path: Path, camera: Camera, depth_offset: float, depth_scale: float) -> np.ndarray:
-    arr, fmt = _read_raw(path)
+def _load_depth(path: Path, camera: Camera, depth_scale: float) -> np.ndarray:
+    arr, fmt = _read_straight(path)  # the depth PNGs have an alpha channel: never premultiply v
     if fmt not in ("uint8", "uint16"):
         raise DtypeError(f"{path}: expected an 8- or 16-bit depth PNG (Blender encoding), got {fmt}")
     if arr.shape[:2] != (camera.height, camera.width):
         raise ShapeError(f"{path}: depth is {arr.shape[1]}x{arr.shape[0]}, expected "
                          f"{camera.width}x{camera.height} (its colour image)")
-    ray = decode_depth(arr[..., 0], 255.0 if fmt == "uint8" else 65535.0, depth_offset, depth_scale)
+    ray = decode_depth(arr[..., 0], 255.0 if fmt == "uint8" else 65535.0, depth_scale)
     return np.ascontiguousarray(camera.depth_ray_to_z(ray).astype(np.float32))
 
 
@@ -217,8 +234,7 @@ def load(path: Path, options: dict) -> Scene:
     options = check_options(options, OPTIONS, NAME)
     split = opt_choice(options, "split", "all", ("all",) + SPLITS)
     background = {"black": 0.0, "white": 1.0}[opt_choice(options, "background", "black", ("black", "white"))]
-    depth_offset = opt_float(options, "depth_offset", DEPTH_OFFSET, positive=True)
-    depth_scale = opt_float(options, "depth_scale", DEPTH_SCALE, positive=True)
+    depth_scale = opt_float(options, "depth_scale", 8.0, positive=True)
     use_depth = opt_choice(options, "depth", "auto", ("auto", "none")) == "auto"
     if not path.exists():
         raise MissingFileError(f"{path}: no such file or directory")
@@ -257,7 +273,7 @@ def load(path: Path, options: dict) -> Scene:
         views.append(View.create(
             name, camera,
             color=FileLoader(image, _load_color, image, background),
-            depth=FileLoader(depth, _load_depth, depth, camera, depth_offset, depth_scale) if depth is not None else None,
+            depth=FileLoader(depth, _load_depth, depth, camera, depth_scale) if depth is not None else None,
             mask=mask))
     dup = sorted({v.name for v in views if [w.name for w in views].count(v.name) > 1})
     if dup:
@@ -265,8 +281,7 @@ def load(path: Path, options: dict) -> Scene:
     notes = [f"RGBA composited over {'white' if background else 'black'} on the sRGB values; "
              "mask = alpha > 0.5"]
     if any(e[4] is not None for e in entries):
-        notes.append(f"depth: ray distance = {depth_offset:g} - {depth_scale:g} * v/vmax, v = 0 unknown, "
-                     "converted to z")
+        notes.append(f"depth: ray distance = {depth_scale:g} * (1 - v/vmax), v = 0 unknown, converted to z")
     return Scene(views=views, units="unknown",
                  source={"format": NAME, "path": str(path), "files": [str(f) for _, f in files],
                          "background": "white" if background else "black", "notes": "; ".join(notes)},

@@ -1,0 +1,145 @@
+"""NeRF importer on tiny fixtures written here: cameras by hand, compositing, depth decoding, errors."""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from ibrtools.errors import BadValueError, FormatError, MissingFileError, ShapeError
+from ibrtools.formats import nerf
+from ibrtools.imageio import _oiio, srgb_to_linear
+
+W, H = 8, 6
+
+
+def write_png(path, arr):
+    oiio = _oiio()
+    arr = np.ascontiguousarray(arr)
+    if arr.ndim == 2:
+        arr = arr[..., None]
+    out = oiio.ImageOutput.create(str(path))
+    spec = oiio.ImageSpec(arr.shape[1], arr.shape[0], arr.shape[2], str(arr.dtype))
+    spec.attribute("oiio:UnassociatedAlpha", 1)  # store our values as they are (straight alpha)
+    out.open(str(path), spec)
+    out.write_image(arr)
+    out.close()
+
+
+def make_set(tmp_path, frames=None, **meta):
+    (tmp_path / "test").mkdir(exist_ok=True)
+    rgba = np.zeros((H, W, 4), np.uint8)
+    rgba[..., 0] = 200
+    rgba[:, : W // 2, 3] = 255  # left half opaque, right half transparent
+    rgba[:, W // 2:, 3] = 64
+    write_png(tmp_path / "test" / "r_0.png", rgba)
+    depth = np.zeros((H, W, 4), np.uint8)
+    depth[..., 0] = 100
+    depth[0, 0, 0] = 0
+    write_png(tmp_path / "test" / "r_0_depth_0001.png", depth)
+    c2w = np.eye(4)
+    c2w[:3, 3] = (1.0, 2.0, 3.0)
+    doc = {"camera_angle_x": 2 * math.atan(0.5 * W / 10.0),
+           "frames": frames if frames is not None else [{"file_path": "./test/r_0", "transform_matrix": c2w.tolist()}]}
+    doc.update(meta)
+    (tmp_path / "transforms_test.json").write_text(json.dumps(doc))
+    return tmp_path
+
+
+def test_camera_from_blender_pose(tmp_path):
+    make_set(tmp_path)
+    assert nerf.detect(tmp_path) and nerf.detect(tmp_path / "transforms_test.json")
+    scene = nerf.load(tmp_path, {})
+    (v,) = scene.views
+    c = v.camera
+    assert v.name == "r_0" and (c.width, c.height) == (W, H)
+    assert c.fx == pytest.approx(10.0) and c.fy == pytest.approx(10.0) and (c.cx, c.cy) == (W / 2, H / 2)
+    np.testing.assert_allclose(c.centre, (1, 2, 3), atol=1e-12)
+    # Identity Blender rotation: the camera looks along world -z with y up -> OpenCV R = diag(1, -1, -1).
+    np.testing.assert_allclose(c.cam_from_world[:3, :3], np.diag([1.0, -1.0, -1.0]), atol=1e-12)
+    xy, z = c.project(np.array([1.0, 3.0, 1.0]))  # 2 ahead, 1 up -> above the centre
+    np.testing.assert_allclose(xy, (W / 2, H / 2 - 10 * 1 / 2))
+    assert z == pytest.approx(2.0)
+
+
+def test_composite_mask_and_depth(tmp_path):
+    make_set(tmp_path)
+    v = nerf.load(tmp_path, {}).views[0]
+    a = 64 / 255
+    np.testing.assert_allclose(v.color[0, 0], srgb_to_linear(np.float32([200 / 255, 0, 0])), atol=1e-6)
+    np.testing.assert_allclose(v.color[0, -1, 0], srgb_to_linear(np.float32(200 / 255 * a)), atol=1e-6)
+    vw = nerf.load(tmp_path, {"background": "white"}).views[0]
+    np.testing.assert_allclose(vw.color[0, -1, 1], srgb_to_linear(np.float32(1 - a)), atol=1e-6)
+    assert v.mask[:, : W // 2].all() and not v.mask[:, W // 2:].any()
+    ray = 8 * (1 - 100 / 255)
+    z = v.camera.depth_ray_to_z(np.full((H, W), ray))
+    assert v.depth[0, 0] == 0  # v = 0: background, unknown
+    np.testing.assert_allclose(v.depth[1:], z[1:], rtol=1e-6)
+    v4 = nerf.load(tmp_path, {"depth_scale": "4"}).views[0]
+    np.testing.assert_allclose(v4.depth[1, 1], 4 * (1 - 100 / 255) / np.linalg.norm(
+        v.camera.rays_in_cam(1.5, 1.5)), rtol=1e-6)
+    assert not nerf.load(tmp_path, {"depth": "none"}).views[0].has_depth
+
+
+def test_instant_ngp_intrinsics_and_splits(tmp_path):
+    make_set(tmp_path, fl_x=12.0, fl_y=11.0, cx=3.5, cy=2.5, w=W, h=H)
+    (tmp_path / "transforms_train.json").write_text((tmp_path / "transforms_test.json").read_text())
+    scene = nerf.load(tmp_path, {})
+    assert sorted(v.name for v in scene.views) == ["test/r_0", "train/r_0"]  # stems collide
+    c = scene.views[0].camera
+    assert (c.fx, c.fy, c.cx, c.cy) == (12.0, 11.0, 3.5, 2.5)
+    assert [v.name for v in nerf.load(tmp_path, {"split": "train"}).views] == ["r_0"]
+
+
+def test_bad_input(tmp_path):
+    make_set(tmp_path)
+    f = tmp_path / "transforms_test.json"
+    with pytest.raises(MissingFileError, match="transforms_val"):
+        nerf.load(tmp_path, {"split": "val"})
+    with pytest.raises(BadValueError, match="unknown option"):
+        nerf.load(tmp_path, {"bg": "white"})
+    with pytest.raises(BadValueError, match="background"):
+        nerf.load(tmp_path, {"background": "grey"})
+    doc = json.loads(f.read_text())
+    f.write_text("{")
+    with pytest.raises(FormatError, match="transforms_test.json.*malformed"):
+        nerf.load(tmp_path, {})
+    bad = dict(doc, camera_angle_x=0.0)
+    f.write_text(json.dumps(bad))
+    with pytest.raises(BadValueError, match="camera_angle_x"):
+        nerf.load(tmp_path, {})
+    bad = dict(doc, fl_x=-3.0)
+    f.write_text(json.dumps(bad))
+    with pytest.raises(BadValueError, match="focal"):
+        nerf.load(tmp_path, {})
+    bad = {k: v for k, v in doc.items() if k != "camera_angle_x"}
+    f.write_text(json.dumps(bad))
+    with pytest.raises(FormatError, match="camera_angle_x"):
+        nerf.load(tmp_path, {})
+    m = np.eye(4)
+    m[:3, :3] *= 2.0  # a scale, not a rotation
+    f.write_text(json.dumps(dict(doc, frames=[{"file_path": "./test/r_0", "transform_matrix": m.tolist()}])))
+    with pytest.raises(BadValueError, match=r"transforms_test.json frames\[0\].*rigid"):
+        nerf.load(tmp_path, {})
+    f.write_text(json.dumps(dict(doc, frames=[{"file_path": "./test/r_9", "transform_matrix": np.eye(4).tolist()}])))
+    with pytest.raises(MissingFileError, match="r_9"):
+        nerf.load(tmp_path, {})
+    f.write_text(json.dumps(dict(doc, w=W + 1, h=H)))
+    with pytest.raises(ShapeError, match="r_0.png"):
+        nerf.load(tmp_path, {})
+    f.write_text(json.dumps(doc))
+    write_png(tmp_path / "test" / "r_0_depth_0001.png", np.zeros((H + 1, W, 4), np.uint8))
+    with pytest.raises(ShapeError, match="r_0_depth_0001.png"):
+        nerf.load(tmp_path, {})
+
+
+def test_round_trip_native(tmp_path):
+    from ibrtools.formats import native
+
+    (tmp_path / "in").mkdir()
+    make_set(tmp_path / "in")
+    scene = nerf.load(tmp_path / "in", {})
+    native.save(scene, tmp_path / "out")
+    back = native.load(tmp_path / "out", {})
+    assert back.views[0].camera.allclose(scene.views[0].camera, 1e-9)
