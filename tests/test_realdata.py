@@ -36,8 +36,8 @@ def lego_error(opts, src="r_0", dst="r_5"):
 
 
 def test_lego_warp():
-    # Measured r_0 -> r_5 (18 deg apart): colour MAE 0.049, 97 % of warped depths within 2 % of
-    # r_5's own depth. The residual is the studs' fine texture, the 8-bit depth steps (0.03
+    # Measured r_0 -> r_5 (18 deg apart): colour MAE 0.045, 96.8 % of warped depths within 2 % of
+    # r_5's own depth (median 0.26 %). The residual is the studs' fine texture, the 8-bit depth steps (0.03
     # units) and specular highlights. Threshold 0.07 colour, 90 % depth.
     col, dep = lego_error({})
     assert col["mae"] < 0.07 and dep["within_2pct"] > 0.90, (col, dep)
@@ -45,9 +45,10 @@ def test_lego_warp():
 
 @pytest.mark.parametrize("opts", [{"depth_scale": 6}, {"depth_scale": 10}])
 def test_lego_wrong_depth_scale_fails(opts):
-    # Measured: scale 6 / 10 give colour MAE 0.13-0.2 and < 40 % of depths within 2 %.
+    # Measured: scale 6 / 10 give colour MAE 0.152 / 0.171 and 49.6 % / 48.2 % of depths within 2 %
+    # (even 7 and 9 give MAE > 0.14).
     col, dep = lego_error(opts)
-    assert col["mae"] > 0.1 and dep["within_2pct"] < 0.5, (col, dep)
+    assert col["mae"] > 0.1 and dep["within_2pct"] < 0.6, (col, dep)
 
 
 # --- ICL-NUIM --------------------------------------------------------------------------------------
