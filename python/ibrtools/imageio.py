@@ -43,13 +43,17 @@ def linear_to_srgb(v: np.ndarray) -> np.ndarray:
     return np.where(v <= 0.0031308, v * 12.92, 1.055 * np.power(v, 1 / 2.4) - 0.055).astype(np.float32)
 
 
-def _read_raw(path: str | os.PathLike) -> tuple[np.ndarray, str]:
-    """Pixels as stored (H, W, C) and the OIIO base type name ('uint8', 'uint16', 'float', ...)."""
+def read_pixels(path: str | os.PathLike) -> tuple[np.ndarray, str]:
+    """Pixels as stored (H, W, C), alpha **straight** (unassociated, as PNG holds it: OpenImageIO
+    would otherwise premultiply colour, and any channel stored beside alpha, on read), and the
+    base type name ('uint8', 'uint16' or 'float')."""
     path = Path(path)
     if not path.is_file():
         raise MissingFileError(f"{path}: no such file")
     oiio = _oiio()
-    inp = oiio.ImageInput.open(str(path))
+    config = oiio.ImageSpec()
+    config.attribute("oiio:UnassociatedAlpha", 1)
+    inp = oiio.ImageInput.open(str(path), config)
     if inp is None:
         raise FormatError(f"{path}: not a readable image ({oiio.geterror().strip() or 'unknown format'})")
     try:
@@ -58,6 +62,7 @@ def _read_raw(path: str | os.PathLike) -> tuple[np.ndarray, str]:
         if fmt in ("uint8", "uint16"):
             arr = inp.read_image(fmt)
         else:
+            fmt = "float"
             arr = inp.read_image("float")
         if arr is None:
             raise FormatError(f"{path}: could not decode ({inp.geterror().strip() or 'truncated or corrupt'})")
@@ -66,17 +71,16 @@ def _read_raw(path: str | os.PathLike) -> tuple[np.ndarray, str]:
     arr = np.asarray(arr)
     if arr.ndim == 2:
         arr = arr[:, :, None]
-    if path.suffix.lower() == ".pfm":
-        # PFM stores rows bottom to top. OpenImageIO writes them so but reads them back
-        # unflipped (checked with OIIO 3.2 and a hand-written file in tests/test_imageio.py).
-        arr = np.ascontiguousarray(arr[::-1])
+    # PFM stores rows bottom to top. OpenImageIO 3.2 flips them on read only when opened with
+    # a configuration spec (as here); tests/test_imageio.py pins this with a hand-written file.
     return arr, fmt
 
 
 def read_image(path: str | os.PathLike, *, alpha: bool = False) -> np.ndarray:
     """Linear float32 colour (H, W, 3), or (H, W, 4) with ``alpha=True`` (alpha is never
-    sRGB-decoded). Grey images are expanded to RGB; missing alpha reads as 1."""
-    arr, fmt = _read_raw(path)
+    sRGB-decoded). Colour is straight, not multiplied by alpha. Grey images are expanded to
+    RGB; missing alpha reads as 1."""
+    arr, fmt = read_pixels(path)
     c = arr.shape[2]
     if fmt in ("uint8", "uint16"):
         scaled = arr.astype(np.float32) / (255.0 if fmt == "uint8" else 65535.0)
@@ -96,7 +100,7 @@ def read_image(path: str | os.PathLike, *, alpha: bool = False) -> np.ndarray:
 
 def read_mask(path: str | os.PathLike) -> np.ndarray:
     """A boolean mask (H, W): true where the first channel is above half its range."""
-    arr, fmt = _read_raw(path)
+    arr, fmt = read_pixels(path)
     full = {"uint8": 255, "uint16": 65535}.get(fmt, 1.0)
     return np.ascontiguousarray(arr[..., 0] > full / 2)
 
@@ -105,7 +109,7 @@ def read_depth(path: str | os.PathLike, *, scale: float | None = None, channel: 
     """Depth (H, W) float32. Float formats are read as they are; 16-bit integer images need
     ``scale`` (depth = value * scale, 0 stays unknown). 8-bit depth is refused: it cannot hold
     depth (importers with a documented 8-bit encoding, e.g. NeRF lego, decode it themselves)."""
-    arr, fmt = _read_raw(path)
+    arr, fmt = read_pixels(path)
     if channel >= arr.shape[2]:
         raise ShapeError(f"{path}: depth channel {channel} requested, image has {arr.shape[2]}")
     v = arr[..., channel]

@@ -35,7 +35,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import DtypeError, FormatError, MissingFileError, ShapeError
-from ..imageio import _read_raw, read_image
+from ..imageio import read_pixels, read_image
 from ..scene import Scene, View
 from ._common import FileLoader, check_options, check_same_size, image_size, opt_float
 
@@ -61,7 +61,7 @@ def detect(path: Path) -> bool:
 
 
 def _load_depth(path: Path, disp_scale: float, focal: float, baseline: float, shape: tuple[int, int]) -> np.ndarray:
-    arr, fmt = _read_raw(path)
+    arr, fmt = read_pixels(path)
     if fmt not in ("uint8", "uint16"):
         raise DtypeError(f"{path}: expected an 8- or 16-bit disparity PNG, got {fmt}")
     if arr.shape[:2] != shape:
@@ -114,5 +114,5 @@ def nonoccluded_mask(scene: Scene, which: str = "left_nonoccluded") -> np.ndarra
     f = scene.source.get("masks", {}).get(which)
     if f is None:
         return None
-    arr, _ = _read_raw(f)
+    arr, _ = read_pixels(f)
     return np.ascontiguousarray(arr[..., 0] == arr[..., 0].max()) if arr.max() > 0 else arr[..., 0] > 0

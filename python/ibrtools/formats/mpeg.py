@@ -55,7 +55,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import BadValueError, DtypeError, FormatError, MissingFileError, ShapeError
-from ..imageio import _read_raw, read_image
+from ..imageio import read_pixels, read_image
 from ..scene import Scene, View
 from . import yuv
 from ._common import FileLoader, check_options, check_same_size, opt_choice, opt_int, read_json
@@ -249,7 +249,7 @@ def _load_depth(path: Path, mc: MpegCamera, frame: int) -> np.ndarray:
     if path.suffix.lower() == ".yuv":
         y = yuv.read_frame(path, w, h, mc.bits_depth, frame, mc.depth_chroma)[0]
         return decode_depth(y, mc.bits_depth, near, far, mc.invalid_zero, str(path))
-    arr, fmt = _read_raw(path)
+    arr, fmt = read_pixels(path)
     if arr.shape[:2] != (h, w):
         raise ShapeError(f"{path}: depth is {arr.shape[1]}x{arr.shape[0]}, expected {w}x{h} ({mc.name})")
     if fmt in ("uint8", "uint16"):

@@ -20,6 +20,7 @@ from ..camera import Camera
 from ..errors import BadValueError, FormatError, MissingFileError
 from ..imageio import read_depth, read_image, read_mask, write_depth, write_image
 from ..scene import Scene, View
+from ._common import FileLoader
 
 NAME = "native"
 DESCRIPTION = "ibrtools scene directory (scene.json, docs/FORMAT.md)"
@@ -29,25 +30,11 @@ SCENE_FILE = "scene.json"
 
 
 def detect(path: Path) -> bool:
+    """A directory with a scene.json (or that file): load() then says precisely what is wrong
+    with it, rather than "unknown format"."""
     path = Path(path)
     f = path / SCENE_FILE if path.is_dir() else path
-    if f.name != SCENE_FILE or not f.is_file():
-        return False
-    try:
-        with open(f, encoding="utf-8") as fh:
-            return json.load(fh).get("format") == FORMAT_TAG
-    except (OSError, ValueError, AttributeError):
-        return False
-
-
-class FileLoader:
-    """Loads one image file on first use; ``source`` names it in error messages."""
-
-    def __init__(self, fn, path: Path, **kwargs):
-        self.fn, self.source, self.kwargs = fn, str(path), kwargs
-
-    def __call__(self):
-        return self.fn(self.source, **self.kwargs)
+    return f.name == SCENE_FILE and f.is_file()
 
 
 def _json_safe(value):
@@ -147,7 +134,7 @@ def _read_view(root: Path, entry, where: str, need_color: bool) -> View:
         f = root / rel
         if not f.is_file():
             raise MissingFileError(f"{f}: no such file (named by {where}.{key})")
-        loaders[key] = FileLoader(fn, f)
+        loaders[key] = FileLoader(f, fn, f)
     return View.create(str(entry["name"]), camera, **loaders)
 
 

@@ -41,7 +41,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import BadValueError, DtypeError, FormatError, MissingFileError, ShapeError
-from ..imageio import srgb_to_linear
+from ..imageio import read_pixels, srgb_to_linear
 from ..scene import Scene, View
 from ._common import (FileLoader, check_options, check_same_size, image_size, invert_rigid, opt_choice,
                       opt_float, read_json, rigid_from_matrix)
@@ -107,32 +107,8 @@ def _number(d: dict, key: str, where: str) -> float:
     return v
 
 
-def _read_straight(path: Path) -> tuple[np.ndarray, str]:
-    """Pixels as stored with **straight** (unassociated) alpha: OpenImageIO premultiplies PNG
-    colour by alpha on read unless asked not to, which would composite twice."""
-    from ..imageio import _oiio
-
-    oiio = _oiio()
-    if not Path(path).is_file():
-        raise MissingFileError(f"{path}: no such file")
-    cfg = oiio.ImageSpec()
-    cfg.attribute("oiio:UnassociatedAlpha", 1)
-    inp = oiio.ImageInput.open(str(path), cfg)
-    if inp is None:
-        raise FormatError(f"{path}: not a readable image ({oiio.geterror().strip() or 'unknown format'})")
-    try:
-        fmt = str(inp.spec().format)
-        arr = inp.read_image(fmt if fmt in ("uint8", "uint16") else "float")
-        if arr is None:
-            raise FormatError(f"{path}: could not decode ({inp.geterror().strip() or 'truncated or corrupt'})")
-    finally:
-        inp.close()
-    arr = np.asarray(arr)
-    return (arr[:, :, None] if arr.ndim == 2 else arr), fmt
-
-
 def _load_color(path: Path, background: float) -> np.ndarray:
-    arr, fmt = _read_straight(path)
+    arr, fmt = read_pixels(path)
     c = arr.shape[2]
     if fmt in ("uint8", "uint16"):
         v = arr.astype(np.float32) / (255.0 if fmt == "uint8" else 65535.0)
@@ -152,7 +128,7 @@ def _load_color(path: Path, background: float) -> np.ndarray:
 
 
 def _load_mask(path: Path) -> np.ndarray:
-    arr, fmt = _read_straight(path)
+    arr, fmt = read_pixels(path)
     full = {"uint8": 255.0, "uint16": 65535.0}.get(fmt, 1.0)
     if arr.shape[2] not in (2, 4):
         raise FormatError(f"{path}: no alpha channel for the mask")
@@ -168,7 +144,7 @@ def decode_depth(v: np.ndarray, vmax: float, depth_scale: float) -> np.ndarray:
 
 
 def _load_depth(path: Path, camera: Camera, depth_scale: float) -> np.ndarray:
-    arr, fmt = _read_straight(path)  # the depth PNGs have an alpha channel: never premultiply v
+    arr, fmt = read_pixels(path)  # the depth PNGs have an alpha channel: never premultiply v
     if fmt not in ("uint8", "uint16"):
         raise DtypeError(f"{path}: expected an 8- or 16-bit depth PNG (Blender encoding), got {fmt}")
     if arr.shape[:2] != (camera.height, camera.width):
