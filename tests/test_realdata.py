@@ -181,3 +181,23 @@ def test_fountain_colmap_against_ground_truth():
     wrong = np.array([v.camera.cam_from_world[:3, 3] for v in scene.views])
     s, r, t = umeyama(wrong, g)
     assert np.sqrt(np.mean(np.sum(((s * (r @ wrong.T)).T + t - g) ** 2, 1))) > 0.2
+
+
+# --- format detection of the real folders (ibr-preprocess DIR with no --format) ------------------
+@pytest.mark.parametrize("sub, fmt, n_views", [
+    ("nerf_lego", "nerf", 40), ("middlebury/Teddy", "middlebury", 2), ("middlebury/Art", "middlebury", 2),
+    ("fountain_p11", "colmap", 11), ("icl_nuim_livingroom", "rgbd", 5)])
+def test_real_folders_are_detected_and_import_to_native(tmp_path, sub, fmt, n_views):
+    from ibrtools.formats import detect, load, native
+
+    src = need(sub)
+    assert detect(src) == fmt
+    scene = load(src)
+    assert len(scene.views) == n_views
+    if fmt == "colmap":  # intrinsics scaled to the quarter-size images that are present
+        assert (scene.views[0].camera.width, scene.views[0].camera.height) == (768, 512)
+    # Round trip through the native format keeps the cameras to 1e-9.
+    native.save(scene, tmp_path / "s")
+    back = native.load(tmp_path / "s")
+    for a, b in zip(scene.views, back.views):
+        assert a.name == b.name and a.camera.allclose(b.camera, 1e-9)
