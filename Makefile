@@ -4,20 +4,16 @@ PYTHON ?= python3
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
 PIP    := $(VENV)/bin/pip
-APT_PACKAGES := libembree-dev libtbb-dev libglm-dev libusb-1.0-0
 DEMO_DIR ?= demo-out
 # Persistent build dir (pyproject: build-dir) => incremental rebuilds.
 STAMP  := $(VENV)/.ibrtools-installed
 
-.PHONY: setup system-deps build test demo bench clean check-asan
+.PHONY: setup system-deps build test demo bench clean
 
 setup: system-deps $(STAMP)
 
 system-deps:
-	@if dpkg -s $(APT_PACKAGES) >/dev/null 2>&1; then :; \
-	elif [ "$$(id -u)" = 0 ]; then apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(APT_PACKAGES); \
-	elif command -v sudo >/dev/null; then sudo apt-get update -qq && sudo DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(APT_PACKAGES); \
-	else echo "ibrtools: missing Debian packages; install them with: sudo apt-get install $(APT_PACKAGES)" >&2; exit 2; fi
+	@PYTHON=$(PYTHON) tools/install-system-deps.sh
 
 $(VENV)/bin/python:
 	$(PYTHON) -m venv $(VENV)
@@ -25,7 +21,7 @@ $(VENV)/bin/python:
 
 # Reinstall when the build description or sources change; the CMake build dir persists.
 $(STAMP): $(VENV)/bin/python pyproject.toml CMakeLists.txt $(shell find cpp python cli -name '*.cpp' -o -name '*.h' -o -name '*.py' 2>/dev/null)
-	flock $(VENV)/.install-lock sh -c "$(PIP) install -q scikit-build-core pybind11 ninja && \
+	flock $(VENV)/.install-lock sh -c "$(PIP) install -q scikit-build-core pybind11 ninja cmake && \
 	  $(PIP) install -q --no-build-isolation -e '.[test,bench,colmap]' && touch $(STAMP)"
 
 
@@ -41,6 +37,7 @@ demo: setup
 
 bench: setup
 	$(PY) benchmarks/bench_raycast.py
+	$(PY) benchmarks/bench_metrics.py
 
 clean:
 	rm -rf build $(VENV) $(DEMO_DIR)
