@@ -84,7 +84,7 @@ def test_thread_count_does_not_change_pixels(scene_dir, tmp_path):
     (["{scene}", "--target", "nope"], "target 'nope'"),
     (["{scene}", "--path", "nope"], "--path 'nope'"),
     (["{scene}", "--poses", "{tmp}/absent.json"], "absent.json: no such file"),
-    (["{scene}", "--poses", "{tmp}/bad.json"], "not valid JSON"),
+    (["{scene}", "--poses", "{tmp}/bad.json"], "malformed JSON"),
     (["{scene}", "--holdout", "v000", "v001", "v002", "v003", "v004", "v005"], "every input view is held out"),
     (["{tmp}/absent"], "absent"),
     (["{scene}", "--holdout", "v001", "-j", "-1"], "--threads"),

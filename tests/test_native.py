@@ -111,7 +111,7 @@ def test_mismatched_image_and_depth_sizes(tmp_path, rng):
 
 def test_not_json(tmp_path):
     (tmp_path / "scene.json").write_text("{nope")
-    with pytest.raises(FormatError, match="not valid JSON"):
+    with pytest.raises(FormatError, match="malformed JSON"):
         native.load(tmp_path)
     with pytest.raises(MissingFileError):
         load(tmp_path / "absent")

@@ -20,7 +20,7 @@ from ..camera import Camera
 from ..errors import BadValueError, FormatError, MissingFileError
 from ..imageio import read_depth, read_image, read_mask, write_depth, write_image
 from ..scene import Scene, View
-from ._common import FileLoader
+from ._common import FileLoader, read_json
 
 NAME = "native"
 DESCRIPTION = "ibrtools scene directory (scene.json, docs/FORMAT.md)"
@@ -145,11 +145,7 @@ def load(path: Path, options: dict | None = None) -> Scene:
     root = f.parent
     if not f.is_file():
         raise MissingFileError(f"{f}: no such file")
-    try:
-        with open(f, encoding="utf-8") as fh:
-            doc = json.load(fh)
-    except json.JSONDecodeError as e:
-        raise FormatError(f"{f}: not valid JSON ({e.msg} at line {e.lineno})") from None
+    doc = read_json(f)
     if not isinstance(doc, dict) or doc.get("format") != FORMAT_TAG:
         raise FormatError(f"{f}: not an ibrtools scene (expected \"format\": \"{FORMAT_TAG}\")")
     version = doc.get("version")

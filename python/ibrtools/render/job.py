@@ -19,6 +19,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import BadValueError, FormatError, MissingFileError
+from ..formats._common import read_json
 from ..imageio import atomic_path, write_depth, write_image
 from ..scene import Scene, View
 from . import methods
@@ -43,11 +44,7 @@ def read_poses(path: str | os.PathLike) -> list[Frame]:
     path = Path(path)
     if not path.is_file():
         raise MissingFileError(f"--poses {path}: no such file")
-    try:
-        with open(path, encoding="utf-8") as fh:
-            doc = json.load(fh)
-    except json.JSONDecodeError as e:
-        raise FormatError(f"--poses {path}: not valid JSON ({e.msg} at line {e.lineno})") from None
+    doc = read_json(path)
     if isinstance(doc, dict) and "cameras" in doc:
         doc = doc["cameras"]
     if not isinstance(doc, list) or not doc:
