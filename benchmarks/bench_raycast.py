@@ -5,8 +5,9 @@
 The mesh is made here, deterministically (nothing downloaded): a UV sphere with two sine
 bumps, 640 x 1024 segments = 1,308,672 triangles. One pinhole camera sees it filling most of a
 1920x1080 image (about 65 % of the rays hit). Each implementation builds its BVH (timed
-apart, median of --builds builds) and then casts one ray per pixel, median of --repeats
-queries after one warm-up:
+apart, median of --builds builds) and then casts one ray per pixel; after one warm-up each,
+the implementations are timed in turn for --repeats rounds (so that other work on the
+machine slows them alike) and the median per implementation is reported:
 
 * ibrtools: ``ReferenceRenderer.render(camera, outputs=("depth",))`` -- rays are generated
   inside the kernel and the depth image is written (included in the time);
@@ -107,31 +108,21 @@ def run(width: int, height: int, repeats: int, builds: int) -> str:
     origins = np.ascontiguousarray(o.reshape(-1, 3))
     dirs = np.ascontiguousarray(d.reshape(-1, 3))
 
-    rows = []  # (implementation, build ms, query ms, depth image)
+    load_start = os.getloadavg()[0]
+    builds_ms: dict[str, float] = {}
 
-    # --- ours ---
-    # Each build replaces the previous object (freed first), as a program that rebuilds would.
+    # --- BVH builds (each build replaces the previous object, as a program that rebuilds would) ---
     renderers: list = []
 
     def ours_build():
         renderers.clear()
         renderers.append(ReferenceRenderer(mesh))
 
-    build = median_ms(ours_build, builds, warmup=False)
+    builds_ms["ours"] = median_ms(ours_build, builds, warmup=False)
     r = renderers[-1]
-    _core.set_num_threads(0)
-    threads = _core.get_num_threads()
-    ours_depth = r.render(cam, outputs=("depth",))["depth"]
-    for packet, label in ((16, "16-ray packets (default)"), (8, "8-ray packets"), (1, "single rays")):
-        q = median_ms(lambda: r.render(cam, outputs=("depth",), packet=packet), repeats)
-        rows.append((f"ibrtools, {label}, {threads} threads", build if packet == 16 else None, q, ours_depth))
-    _core.set_num_threads(1)
-    q = median_ms(lambda: r.render(cam, outputs=("depth",)), repeats)
-    rows.append(("ibrtools, 16-ray packets, 1 thread", None, q, ours_depth))
-    _core.set_num_threads(0)
-    del renderers
 
-    # --- open3d ---
+    scenes: list = []
+
     def o3d_build():
         scenes.clear()
         s = o3d.t.geometry.RaycastingScene()
@@ -139,16 +130,12 @@ def run(width: int, height: int, repeats: int, builds: int) -> str:
         s.cast_rays(o3d.core.Tensor(rays6[:1, :1]))  # the BVH is built on the first query
         scenes.append(s)
 
-    scenes: list = []
-    build = median_ms(o3d_build, builds, warmup=False)
-    s = scenes[-1]
+    builds_ms["open3d"] = median_ms(o3d_build, builds, warmup=False)
+    o3s = scenes[-1]
     rt = o3d.core.Tensor(rays6)
-    q = median_ms(lambda: s.cast_rays(rt), repeats)
-    rows.append((f"open3d {o3d.__version__} RaycastingScene.cast_rays", build, q,
-                 s.cast_rays(rt)["t_hit"].numpy()))
-    del scenes
 
-    # --- embreex ---
+    exs: list = []
+
     def ex_build():
         exs.clear()
         es = rtcore_scene.EmbreeScene()
@@ -156,16 +143,47 @@ def run(width: int, height: int, repeats: int, builds: int) -> str:
         es.run(origins[:1], dirs[:1], query="DISTANCE")  # commits (builds) the scene
         exs.append(es)
 
-    exs: list = []
-    build = median_ms(ex_build, builds, warmup=False)
+    builds_ms["embreex"] = median_ms(ex_build, builds, warmup=False)
     es = exs[-1]
-    q = median_ms(lambda: es.run(origins, dirs, query="DISTANCE"), repeats)
     ver = getattr(embreex, "__version__", None)
     if ver is None:
         from importlib.metadata import version
         ver = version("embreex")
-    rows.append((f"embreex {ver} EmbreeScene.run(DISTANCE)", build, q,
-                 es.run(origins, dirs, query="DISTANCE").reshape(height, width)))
+
+    _core.set_num_threads(0)
+    threads = _core.get_num_threads()
+
+    def ours(packet, n_threads=0):
+        def fn():
+            _core.set_num_threads(n_threads)
+            try:
+                return r.render(cam, outputs=("depth",), packet=packet)["depth"]
+            finally:
+                _core.set_num_threads(0)
+        return fn
+
+    variants = [  # (name, build key, query callable)
+        (f"ibrtools, 16-ray packets (default), {threads} threads", "ours", ours(16)),
+        (f"ibrtools, 8-ray packets, {threads} threads", None, ours(8)),
+        (f"ibrtools, single rays, {threads} threads", None, ours(1)),
+        ("ibrtools, 16-ray packets, 1 thread", None, ours(16, 1)),
+        (f"open3d {o3d.__version__} RaycastingScene.cast_rays", "open3d",
+         lambda: o3s.cast_rays(rt)["t_hit"].numpy()),
+        (f"embreex {ver} EmbreeScene.run(DISTANCE)", "embreex",
+         lambda: es.run(origins, dirs, query="DISTANCE").reshape(height, width)),
+    ]
+    # Round robin: every implementation is timed once per round, so load from other work on
+    # the machine falls on all of them alike; the median over rounds is reported.
+    depths = [fn() for _, _, fn in variants]  # warm-up, and the depth each one returns
+    times: list[list[float]] = [[] for _ in variants]
+    for _ in range(repeats):
+        for k, (_, _, fn) in enumerate(variants):
+            t = time.perf_counter()
+            fn()
+            times[k].append((time.perf_counter() - t) * 1e3)
+    rows = [(name, None if key is None else builds_ms[key], statistics.median(times[k]), depths[k])
+            for k, (name, key, _) in enumerate(variants)]
+    ours_depth = depths[0]
 
     ours_q = rows[0][2]
     hit = float((ours_depth > 0).mean())
@@ -176,7 +194,8 @@ def run(width: int, height: int, repeats: int, builds: int) -> str:
         f"deterministic bumpy sphere of {len(f):,} triangles, measured by `benchmarks/bench_raycast.py` on "
         f"{cpu_name()} ({os.cpu_count()} cores), Python {platform.python_version()}, numpy {np.__version__}, "
         f"ibrtools {ibrtools.__version__} on Embree {_core.EMBREE_VERSION} (Debian, BVH quality high, robust). "
-        f"Query: median of {repeats} runs after a warm-up; build: median of {builds} builds, timed apart. "
+        f"Query: median of {repeats} rounds after a warm-up, the implementations timed in turn in each "
+        f"round; build: median of {builds} builds, timed apart. "
         "'speed-up' is the peer's query time over ours (16-ray packets, all threads), in the same run; "
         "'agree' is the fraction of pixels with the same hit/miss and depth within 1e-5 relative of ours. "
         "Peers get precomputed rays; ours generates them inside the kernel (timed).",
@@ -187,8 +206,9 @@ def run(width: int, height: int, repeats: int, builds: int) -> str:
     for name, b, q, depth in rows:
         lines.append(f"| {name} | {'' if b is None else f'{b:.0f}'} | {q:.1f} | {n_rays / q / 1e3:.1f} | "
                      f"{q / ours_q:.2f}x | {'ref.' if name.startswith('ibrtools') else agreement(ours_depth, depth)} |")
-    lines += ["", f"1-minute load average at the end of the run: {os.getloadavg()[0]:.2f} (other work on the "
-              "machine slows every implementation alike; the ratios are the figures to read)."]
+    lines += ["", f"1-minute load average at the start / end of the run: {load_start:.2f} / "
+              f"{os.getloadavg()[0]:.2f} (2 = both cores busy; other work on the machine slows the "
+              "implementations alike since they are timed in turn: the ratios are the figures to read)."]
     return "\n".join(lines)
 
 
