@@ -36,8 +36,8 @@ demo: setup
 	@echo "demo: images and report.json in $(DEMO_DIR)/render"
 
 bench: setup
-	$(PY) benchmarks/bench_raycast.py
-	$(PY) benchmarks/bench_metrics.py
+	$(PY) benchmarks/bench_raycast.py --write-docs
+	$(PY) benchmarks/bench_metrics.py --write
 
 clean:
 	rm -rf build $(VENV) $(DEMO_DIR)

@@ -10,36 +10,14 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
-import re
-import statistics
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
-
-BEGIN, END = "<!-- bench_metrics:begin -->", "<!-- bench_metrics:end -->"
-
-
-def median_ms(fn, repeats: int) -> float:
-    fn()  # warm-up (thread pool start, page faults)
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        times.append((time.perf_counter() - t) * 1e3)
-    return statistics.median(times)
+from benchlib import DOCS, machine, median_ms, write_section
 
 
-def cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
+
 
 
 def run(size: int, repeats: int) -> str:
@@ -73,8 +51,7 @@ def run(size: int, repeats: int) -> str:
         "",
         f"SSIM (scikit-image's default definition: 7x7 box window, sample covariance, 3-pixel crop) of "
         f"two random float32 images, median of {repeats} runs after a warm-up, measured by "
-        f"`benchmarks/bench_metrics.py` on {cpu_name()} ({os.cpu_count()} cores), Python "
-        f"{platform.python_version()}, numpy {np.__version__}. 'speed-up' is scikit-image's time "
+        f"`benchmarks/bench_metrics.py` on {machine()}, numpy {np.__version__}. 'speed-up' is scikit-image's time "
         "over ours, in the same run; 'abs diff' is |our mean SSIM minus scikit-image's computed in "
         "float64| (for float32 input scikit-image filters in float32 and differs from both by ~1e-7).",
         "",
@@ -87,30 +64,20 @@ def run(size: int, repeats: int) -> str:
     return "\n".join(head + rows + tail) + "\n"
 
 
-def write_section(path: Path, section: str) -> None:
-    block = f"{BEGIN}\n{section}{END}\n"
-    text = path.read_text() if path.exists() else "# Benchmarks\n\n"
-    if BEGIN in text and END in text:
-        text = re.sub(re.escape(BEGIN) + r".*?" + re.escape(END) + r"\n?", lambda _: block, text, flags=re.S)
-    else:
-        text = text.rstrip("\n") + "\n\n" + block
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--size", type=int, default=1024, help="image side in pixels (default 1024)")
     p.add_argument("--repeats", type=int, default=7, help="timed runs per case, >= 5 (default 7)")
-    p.add_argument("--write", type=Path, help="Markdown file whose Metrics section to replace or append")
+    p.add_argument("--write", type=Path, nargs="?", const=DOCS,
+                   help=f"Markdown file whose Metrics section to replace or append (default {DOCS.name})")
     args = p.parse_args(argv)
     if args.size < 7 or args.repeats < 5:
         p.error("--size must be >= 7 and --repeats >= 5")
     section = run(args.size, args.repeats)
     print(section)
     if args.write:
-        write_section(args.write, section)
+        write_section("bench_metrics", section, args.write)
         print(f"wrote the Metrics section of {args.write}", file=sys.stderr)
     return 0
 

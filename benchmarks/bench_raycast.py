@@ -25,17 +25,13 @@ section of docs/benchmarks.md between its markers (or appends it); nothing else 
 from __future__ import annotations
 
 import argparse
-import os
-import platform
-import re
 import statistics
+import os
 import time
-from pathlib import Path
 
 import numpy as np
+from benchlib import DOCS, machine, median_ms, write_section
 
-BEGIN, END = "<!-- bench_raycast:begin -->", "<!-- bench_raycast:end -->"
-DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
 
 
 def bumpy_sphere(n_lat: int = 640, n_lon: int = 1024) -> tuple[np.ndarray, np.ndarray]:
@@ -57,25 +53,6 @@ def bumpy_sphere(n_lat: int = 640, n_lon: int = 1024) -> tuple[np.ndarray, np.nd
     return v, np.ascontiguousarray(np.vstack(f).astype(np.int32))
 
 
-def median_ms(fn, repeats: int, warmup: bool = True) -> float:
-    if warmup:
-        fn()
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        times.append((time.perf_counter() - t) * 1e3)
-    return statistics.median(times)
-
-
-def cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
 
 
 def agreement(ours: np.ndarray, theirs: np.ndarray) -> str:
@@ -192,7 +169,7 @@ def run(width: int, height: int, repeats: int, builds: int) -> str:
         "",
         f"Primary-ray depth pass, {width}x{height} pinhole ({n_rays / 1e6:.2f} M rays, {100 * hit:.0f} % hit) on a "
         f"deterministic bumpy sphere of {len(f):,} triangles, measured by `benchmarks/bench_raycast.py` on "
-        f"{cpu_name()} ({os.cpu_count()} cores), Python {platform.python_version()}, numpy {np.__version__}, "
+        f"{machine()}, numpy {np.__version__}, "
         f"ibrtools {ibrtools.__version__} on Embree {_core.EMBREE_VERSION} (Debian, BVH quality high, robust). "
         f"Query: median of {repeats} rounds after a warm-up, the implementations timed in turn in each "
         f"round; build: median of {builds} builds, timed apart. "
@@ -212,15 +189,6 @@ def run(width: int, height: int, repeats: int, builds: int) -> str:
     return "\n".join(lines)
 
 
-def write_docs(section: str, path: Path = DOCS) -> None:
-    block = f"{BEGIN}\n{section}\n{END}"
-    text = path.read_text() if path.exists() else "# Benchmarks\n"
-    pattern = re.compile(re.escape(BEGIN) + ".*?" + re.escape(END), re.S)
-    text = pattern.sub(lambda _: block, text) if pattern.search(text) else text.rstrip("\n") + "\n\n" + block + "\n"
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -233,7 +201,7 @@ def main() -> None:
     section = run(a.width, a.height, a.repeats, a.builds)
     print(section)
     if a.write_docs:
-        write_docs(section)
+        write_section("bench_raycast", section)
         print(f"\nwrote {DOCS}")
 
 

@@ -1,5 +1,4 @@
 """Cameras: conventions of camera.py / cpp/ibr/camera.h pinned down with hand-checked values."""
-import math
 
 import numpy as np
 import pytest

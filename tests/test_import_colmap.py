@@ -6,7 +6,6 @@ import struct
 import numpy as np
 import pytest
 
-from ibrtools.camera import Camera
 from ibrtools.errors import BadValueError, FormatError, MissingFileError
 from ibrtools.formats import colmap
 from ibrtools.imageio import write_image

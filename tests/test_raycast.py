@@ -20,7 +20,6 @@ import time
 import numpy as np
 import pytest
 
-import ibrtools
 from ibrtools import BadValueError, Camera, DtypeError, Mesh, ShapeError, _core, look_at
 from ibrtools.render.reference import Light, ReferenceRenderer, default_lights
 
@@ -324,7 +323,7 @@ def test_background_and_default_lights():
 
 # --- against an independent implementation -----------------------------------------------------
 def test_against_embreex():
-    embreex = pytest.importorskip("embreex")
+    pytest.importorskip("embreex")
     from embreex import rtcore_scene
     from embreex.mesh_construction import TriangleMesh
 

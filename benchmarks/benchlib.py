@@ -1,0 +1,52 @@
+"""What every benchmark script shares: timing (median after a warm-up), the machine's
+description, and replacing one marked section of docs/benchmarks.md."""
+from __future__ import annotations
+
+import os
+import platform
+import re
+import statistics
+import time
+from pathlib import Path
+
+DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
+
+
+def median_ms(fn, repeats: int, warmup: bool = True) -> float:
+    """Median wall time of ``fn()`` in milliseconds over ``repeats`` calls (after one warm-up
+    call that starts the thread pool and touches the memory)."""
+    if warmup:
+        fn()
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        times.append((time.perf_counter() - t) * 1e3)
+    return statistics.median(times)
+
+
+def cpu_name() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown CPU"
+
+
+def machine() -> str:
+    """One phrase for the write-up: CPU, cores, Python."""
+    return f"{cpu_name()} ({os.cpu_count()} cores), Python {platform.python_version()}"
+
+
+def write_section(name: str, section: str, path: Path = DOCS) -> None:
+    """Replace (or append) the section between ``<!-- NAME:begin -->`` and ``<!-- NAME:end -->``."""
+    begin, end = f"<!-- {name}:begin -->", f"<!-- {name}:end -->"
+    block = f"{begin}\n{section.rstrip()}\n{end}\n"
+    text = path.read_text() if path.exists() else "# Benchmarks\n\n"
+    pattern = re.compile(re.escape(begin) + r".*?" + re.escape(end) + r"\n?", re.S)
+    text = pattern.sub(lambda _: block, text) if pattern.search(text) else text.rstrip("\n") + "\n\n" + block
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
