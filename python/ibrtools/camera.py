@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from .checks import check_float, check_int
 from .errors import BadValueError, DtypeError, FormatError, ShapeError
 
 PINHOLE = "pinhole"
@@ -87,27 +88,6 @@ def look_at(eye: Any, target: Any, up: Any = (0.0, 1.0, 0.0)) -> np.ndarray:
     return m
 
 
-def _positive_int(value: Any, name: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        if isinstance(value, float) and value.is_integer():
-            value = int(value)
-        else:
-            raise DtypeError(f"{name}: expected a positive integer, got {value!r}")
-    if value <= 0:
-        raise BadValueError(f"{name}: expected a positive integer, got {value}")
-    return int(value)
-
-
-def _finite(value: Any, name: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise DtypeError(f"{name}: expected a number, got {value!r}") from None
-    if not math.isfinite(v):
-        raise BadValueError(f"{name}: expected a finite number, got {v}")
-    return v
-
-
 @dataclass(frozen=True, eq=False)
 class Camera:
     """A camera: intrinsics of one model plus a rigid ``cam_from_world`` pose."""
@@ -126,19 +106,19 @@ class Camera:
     def __post_init__(self) -> None:
         if self.model not in MODELS:
             raise BadValueError(f"camera model: expected one of {MODELS}, got {self.model!r}")
-        object.__setattr__(self, "width", _positive_int(self.width, "camera width"))
-        object.__setattr__(self, "height", _positive_int(self.height, "camera height"))
+        object.__setattr__(self, "width", check_int(self.width, "camera width", 1))
+        object.__setattr__(self, "height", check_int(self.height, "camera height", 1))
         if self.model == PINHOLE:
             for k in ("fx", "fy"):
-                v = _finite(getattr(self, k), k)
+                v = check_float(getattr(self, k), k)
                 if v <= 0:
                     raise BadValueError(f"{k}: focal length must be positive, got {v}")
                 object.__setattr__(self, k, v)
             for k in ("cx", "cy"):
-                object.__setattr__(self, k, _finite(getattr(self, k), k))
+                object.__setattr__(self, k, check_float(getattr(self, k), k))
         else:
-            lon = tuple(_finite(v, "lon_range") for v in self.lon_range)
-            lat = tuple(_finite(v, "lat_range") for v in self.lat_range)
+            lon = tuple(check_float(v, "lon_range") for v in self.lon_range)
+            lat = tuple(check_float(v, "lat_range") for v in self.lat_range)
             if len(lon) != 2 or not (lon[0] < lon[1]) or lon[1] - lon[0] > 2 * math.pi + 1e-9:
                 raise BadValueError(f"lon_range: expected (min, max) with 0 < max - min <= 360 deg, got {lon}")
             if (len(lat) != 2 or not (lat[0] < lat[1]) or lat[0] < -math.pi / 2 - 1e-9

@@ -24,6 +24,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .camera import Camera, look_at
+from .checks import check_float, check_int
 from .errors import BadValueError, DtypeError, MissingFileError
 from .mesh import Mesh
 from .scene import Scene, View
@@ -516,29 +517,11 @@ _BUILDERS = {"objects": _preset_objects, "crowd": _preset_crowd, "city": _preset
 # ============================================================================================
 # make_scene
 # ============================================================================================
-def _check_int(value: Any, name: str, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise DtypeError(f"{name}: expected an integer, got {value!r}")
-    if value < minimum:
-        raise BadValueError(f"{name}: expected an integer >= {minimum}, got {value}")
-    return int(value)
-
-
-def _check_nonneg(value: Any, name: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise DtypeError(f"{name}: expected a number, got {value!r}") from None
-    if not (math.isfinite(v) and v >= 0):
-        raise BadValueError(f"{name}: expected a finite number >= 0, got {v}")
-    return v
-
-
 def _check_size(size: Any) -> tuple[int, int]:
     if isinstance(size, str) or not hasattr(size, "__len__") or len(size) != 2:
         raise DtypeError(f"size: expected (width, height), got {size!r}")
-    w = _check_int(size[0], "size width", 1)
-    h = _check_int(size[1], "size height", 1)
+    w = check_int(size[0], "size width", 1)
+    h = check_int(size[1], "size height", 1)
     return w, h
 
 
@@ -648,13 +631,13 @@ def make_scene(preset: str, *, size: Sequence[int] = (480, 360), views: int = 12
     if not isinstance(preset, str) or preset not in PRESETS:
         raise BadValueError(f"preset {preset!r}: unknown (presets: {', '.join(PRESETS)})")
     size = _check_size(size)
-    views = _check_int(views, "views", 1)
-    seed = _check_int(seed, "seed", 0)
-    holdout_targets = _check_int(holdout_targets, "holdout_targets", 0)
-    path_frames = _check_int(path_frames, "path_frames", 2)
-    exposure_jitter = _check_nonneg(exposure_jitter, "exposure_jitter")
-    white_balance_jitter = _check_nonneg(white_balance_jitter, "white_balance_jitter")
-    depth_noise = _check_nonneg(depth_noise, "depth_noise")
+    views = check_int(views, "views", 1)
+    seed = check_int(seed, "seed", 0)
+    holdout_targets = check_int(holdout_targets, "holdout_targets", 0)
+    path_frames = check_int(path_frames, "path_frames", 2)
+    exposure_jitter = check_float(exposure_jitter, "exposure_jitter", 0.0)
+    white_balance_jitter = check_float(white_balance_jitter, "white_balance_jitter", 0.0)
+    depth_noise = check_float(depth_noise, "depth_noise", 0.0)
     if isinstance(extra_meshes, (str, Path)):
         extra_meshes = [extra_meshes]
     extra_meshes = [Path(p) for p in extra_meshes]

@@ -35,6 +35,7 @@ import numpy as np
 
 from .._core import RayScene
 from ..camera import Camera
+from ..checks import check_float
 from ..errors import BadValueError, DtypeError, ShapeError
 from ..mesh import Mesh
 
@@ -177,12 +178,7 @@ class ReferenceRenderer:
             if not isinstance(light, Light):
                 raise DtypeError(f"lights[{i}]: expected an ibrtools.render.reference.Light, "
                                  f"got {type(light).__name__}")
-        try:
-            ambient = float(ambient)
-        except (TypeError, ValueError):
-            raise DtypeError(f"ambient: expected a number, got {ambient!r}") from None
-        if not (math.isfinite(ambient) and ambient >= 0):
-            raise BadValueError(f"ambient: expected a finite number >= 0, got {ambient}")
+        ambient = check_float(ambient, "ambient", 0.0)
         bg = _vec3(background, "background")
         return self._scene.render(core_cam, names,
                                   [(l.kind, l.vector, l.color, l.shadows) for l in lights],
