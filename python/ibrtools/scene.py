@@ -168,7 +168,7 @@ class Scene:
                 ok = np.isfinite(d) & (d > 0)
                 if ok.any():
                     step = max(1, int(np.sqrt(d.size / 4096)))
-                    w = v.camera.unproject(np.where(ok, d, 0)[::1])[::step, ::step][ok[::step, ::step]]
+                    w = v.camera.unproject(np.where(ok, d, 0))[::step, ::step][ok[::step, ::step]]
                     if len(w):
                         pts.append(np.stack([w.min(0), w.max(0)]))
         allp = np.concatenate(pts, 0)
