@@ -25,7 +25,8 @@ def build_parser() -> argparse.ArgumentParser:
                "examples:\n"
                "  ibr-render scenes/objects --method reference --holdout v003 v009 -o out/holdout\n"
                "  ibr-render scenes/objects --target t000 t001 --depth --float -o out/targets\n"
-               "  ibr-render scenes/objects --path orbit -o out/orbit -j 2")
+               "  ibr-render scenes/objects --path orbit -o out/orbit -j 2\n"
+               "  ibr-render scenes/rgbd --method dibr --inputs 4 --holdout 4 -o out/dibr")
     p.add_argument("scene", metavar="SCENE", help="scene directory (ibr-preprocess output)")
     p.add_argument("-o", "--output", default="render-out", metavar="DIR",
                    help="output directory (default: render-out)")
@@ -37,6 +38,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="remove these input views from the inputs and render them as ground truth")
     p.add_argument("--path", metavar="NAME", help="render every camera of this stored path")
     p.add_argument("--poses", metavar="FILE", help="JSON list of cameras (scene.json camera format)")
+    d = p.add_argument_group("dibr options (method parameters; also as --param key=value)")
+    d.add_argument("--inputs", metavar="K|v1,v2,...",
+                   help="the K most similar input views per frame (default 4), or these views")
+    d.add_argument("--quality", metavar="Q", help="triangle quality: side, shape, depth or normal (default side)")
+    d.add_argument("--blend-exponent", metavar="P", help="blending weight (q/d)^P (default 5, as RVS)")
     p.add_argument("--float", action="store_true", help="also write <frame>.exr (linear float)")
     p.add_argument("--depth", action="store_true", help="also write <frame>.depth.exr")
     p.add_argument("--report", action="store_true", help="print the per-frame report table")
@@ -57,6 +63,10 @@ def _body(args: argparse.Namespace) -> int:
         def progress(i: int, n: int, name: str) -> None:
             print(f"\r{PROG}: frame {i}/{n} {name:<24}", end="" if i < n else "\n", file=sys.stderr)
     params = {k: _number(v) for k, v in parse_options(args.param).items()}
+    for key, value in (("inputs", args.inputs), ("quality", args.quality),
+                       ("blend_exponent", args.blend_exponent)):
+        if value is not None:
+            params[key] = _number(value)
     report = render_job.run(job, args.method, args.output, params=params, float_out=args.float,
                             depth_out=args.depth, threads=args.threads, progress=progress)
     if args.report or not args.quiet:

@@ -134,6 +134,10 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
         entry: dict = {"name": frame.name, "image": image,
                        "time_ms": {"total": round(total_ms, 3), **{k: round(v, 3) for k, v in stage_ms.items()}},
                        "metrics": _frame_metrics({**out, "color": color}, frame.truth)}
+        # Method-specific facts about the frame (dibr: the selected input views, best first,
+        # their similarity, and how many candidates were skipped for not overlapping).
+        if hasattr(method, "frame_report"):
+            entry.update(method.frame_report())
         if float_out:
             write_image(out_dir / f"{frame.name}.exr", color)
             entry["image_float"] = f"{frame.name}.exr"

@@ -27,7 +27,7 @@ METHODS: dict[str, str] = {
     "pvm": "per-view meshes with clustered depth filtering (Prakash et al. 2021)",
     "hybrid": "per-pixel choice of TM / ULR / PVM (Prakash et al. 2021)",
 }
-BUILT = ("reference",)
+BUILT = ("reference", "dibr")
 
 
 class Method(Protocol):
@@ -84,10 +84,15 @@ def resolve(name: str, scene: Scene) -> str:
     if name not in METHODS:
         raise BadValueError(f"--method: unknown method {name!r} (expected one of {', '.join(METHODS)})")
     if name == "auto":
+        # Captured colour + depth views are what DIBR is for; a ground-truth mesh alone (views
+        # without depth) still renders exactly with the reference ray caster.
+        if scene.views and all(v.has_depth for v in scene.views):
+            return "dibr"
         if "ground_truth" in scene.meshes:
             return "reference"
-        raise NotBuiltError("--method auto: this scene has no ground-truth mesh, and the methods for "
-                            "captured views (dibr, warp, tm, ulr, pvm, hybrid) are not built yet")
+        raise NotBuiltError("--method auto: some input views have no depth (dibr needs depth) and the "
+                            "scene has no ground-truth mesh; the methods for colour-only views "
+                            "(tm, ulr, pvm, hybrid) are not built yet")
     if name not in BUILT:
         raise NotBuiltError(f"--method {name}: not built yet ({METHODS[name]}); built: {', '.join(BUILT)}")
     return name
@@ -96,4 +101,8 @@ def resolve(name: str, scene: Scene) -> str:
 def create(name: str, params: dict | None = None) -> Method:
     if name == "reference":
         return ReferenceMethod(params)
+    if name == "dibr":
+        from .dibr import DibrMethod
+
+        return DibrMethod(params)
     raise NotBuiltError(f"--method {name}: not built yet")

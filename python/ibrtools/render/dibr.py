@@ -1,0 +1,195 @@
+"""Multi-view depth-image-based rendering, RVS class (Bonatto et al. 2021): ``--method dibr``.
+
+Per frame:
+  select  the k inputs most similar to the target camera (view_selection.py: frustum-intersection
+          volume by Monte Carlo x viewing-direction agreement, Eq. 4-7), or the listed inputs;
+          inputs that do not overlap the target are never warped;
+  warp    each selected view is forward-warped as an implicit triangle mesh into the target
+          (C++ kernel cpp/kernels/forward_warp.cpp, triangle quality of the paper's Table 1,
+          combined depth test within a view) and accumulated at once into
+          ``_core.DibrAccumulator`` (cpp/kernels/blend.cpp): constant memory whatever the
+          number of inputs, views are streamed one at a time;
+  blend   weighted mean of the warped views (Eq. 3) with weights (q / d)^p, p = --blend-exponent
+          (RVS's BlendingFactor 5 by default).
+
+Holes (no input covers the pixel) stay black and are returned as the ``hole`` mask; filling
+them is the inpainting issue's job.
+
+Parameters (``ibr-render --inputs/--quality/--blend-exponent`` or ``--param key=value``)
+  inputs          K (int, default 4) = the K best views by similarity, or a list of view names
+                  (list or "v1,v2,...") = those views, minus any that do not overlap the target
+  quality         side | shape | depth | normal: the triangle quality measure (Table 1)
+  blend_exponent  p > 0 in the blending weight (q / d)^p (default 5, as RVS)
+  side_threshold  T in target pixels for the "side" quality; 0 = the kernel's resolution-scaled
+                  default
+  samples, seed   Monte Carlo samples per target for view selection (default 4000) and the seed
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from ..camera import Camera
+from ..errors import BadValueError, InputError
+from ..scene import Scene
+from . import view_selection as vs
+
+QUALITIES = ("side", "shape", "depth", "normal")
+PARAMS = ("inputs", "quality", "blend_exponent", "side_threshold", "samples", "seed")
+DEFAULTS = {"inputs": vs.DEFAULT_K, "quality": "side", "blend_exponent": 5.0, "side_threshold": 0.0,
+            "samples": vs.DEFAULT_SAMPLES, "seed": vs.DEFAULT_SEED}
+
+
+def _parse_inputs(v) -> int | list[str]:
+    if isinstance(v, bool):
+        raise BadValueError(f"--inputs: expected a count K >= 1 or view names v1,v2,..., got {v!r}")
+    if isinstance(v, (int, np.integer)):
+        if v < 1:
+            raise BadValueError(f"--inputs: expected a count K >= 1 or view names v1,v2,..., got {v}")
+        return int(v)
+    if isinstance(v, float):
+        raise BadValueError(f"--inputs: expected a whole count K >= 1 or view names, got {v}")
+    if isinstance(v, str):
+        s = v.strip()
+        if s.lstrip("+-").isdigit():
+            return _parse_inputs(int(s))
+        names = [n.strip() for n in s.split(",")]
+    elif isinstance(v, (list, tuple)):
+        names = [str(n).strip() for n in v]
+    else:
+        raise BadValueError(f"--inputs: expected a count K or view names v1,v2,..., got {type(v).__name__}")
+    if not names or any(not n for n in names):
+        raise BadValueError(f"--inputs: empty view name in {v!r} (expected K or v1,v2,...)")
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise BadValueError(f"--inputs: view(s) listed twice: {dup}")
+    return names
+
+
+def _number(params: dict, key: str, flag: str, minimum: float, strict: bool) -> float:
+    v = params[key]
+    try:
+        if isinstance(v, bool):
+            raise ValueError
+        f = float(v)
+    except (TypeError, ValueError):
+        raise BadValueError(f"{flag}: expected a number, got {v!r}") from None
+    if not math.isfinite(f) or (f <= minimum if strict else f < minimum):
+        raise BadValueError(f"{flag}: expected a finite number {'>' if strict else '>='} {minimum:g}, got {v!r}")
+    return f
+
+
+def check_params(params: dict | None) -> dict:
+    """Validated DIBR parameters with defaults filled in (BadValueError naming the option)."""
+    params = dict(params or {})
+    unknown = set(params) - set(PARAMS)
+    if unknown:
+        raise BadValueError(f"--param: method 'dibr' has no parameter(s) {sorted(unknown)} "
+                            f"(parameters: {', '.join(PARAMS)})")
+    p = {**DEFAULTS, **params}
+    p["inputs"] = _parse_inputs(p["inputs"])
+    if p["quality"] not in QUALITIES:
+        raise BadValueError(f"--quality: expected one of {', '.join(QUALITIES)}, got {p['quality']!r}")
+    p["blend_exponent"] = _number(p, "blend_exponent", "--blend-exponent", 0.0, True)
+    p["side_threshold"] = _number(p, "side_threshold", "--param side_threshold", 0.0, False)
+    for key, lo in (("samples", 1), ("seed", 0)):
+        v = p[key]
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+            raise BadValueError(f"--param {key}: expected an integer >= {lo}, got {v!r}")
+        p[key] = int(v)
+    return p
+
+
+class DibrMethod:
+    """``--method dibr`` (see the module doc)."""
+
+    name = "dibr"
+
+    def __init__(self, params: dict | None = None):
+        self.params = check_params(params)
+        self.last_frame: dict = {}
+        self._scene: Scene | None = None
+
+    def warp_options(self):
+        from .. import _core
+
+        o = _core.WarpOptions()
+        o.quality = self.params["quality"]
+        o.side_threshold = float(self.params["side_threshold"])
+        o.blend_exponent = float(self.params["blend_exponent"])
+        return o
+
+    def prepare(self, scene: Scene) -> dict[str, float]:
+        if not scene.views:
+            raise InputError("--method dibr: the scene has no input views")
+        no_depth = [v.name for v in scene.views if not v.has_depth]
+        if no_depth:
+            raise InputError(f"--method dibr needs depth for every input view; without depth: "
+                             f"{', '.join(no_depth[:5])}{' ...' if len(no_depth) > 5 else ''} "
+                             f"({len(no_depth)} of {len(scene.views)})")
+        no_color = [v.name for v in scene.views if not v.has_color]
+        if no_color:
+            raise InputError(f"--method dibr needs colour for every input view; without colour: "
+                             f"{', '.join(no_color[:5])}")
+        names = [v.name for v in scene.views]
+        inputs = self.params["inputs"]
+        if isinstance(inputs, list):
+            missing = [n for n in inputs if n not in names]
+            if missing:
+                raise BadValueError(f"--inputs: view(s) {missing} not among the input views "
+                                    f"(held-out views are not inputs)")
+            self._candidates = [names.index(n) for n in inputs]
+            self._k = len(inputs)
+        else:
+            self._candidates = None
+            self._k = inputs
+        t0 = time.perf_counter()
+        # Each view's depth range bounds its frustum (and their union the target's); it needs
+        # every depth map once, which is also what checks them.
+        self._ranges = [vs.depth_range(v.depth, f"view {v.name!r} depth") for v in scene.views]
+        self._target_range = vs.union(self._ranges)
+        ranges_ms = (time.perf_counter() - t0) * 1e3
+        self._scene = scene
+        self._cams = [v.camera for v in scene.views]
+        self._core_cams = [c.to_core() for c in self._cams]
+        self._options = None  # made at the first render (the kernel's WarpOptions)
+        return {"depth_ranges": ranges_ms}
+
+    def select(self, camera: Camera) -> vs.Selection:
+        return vs.select_views(camera, self._target_range, self._cams, self._ranges, self._k,
+                               candidates=self._candidates, samples=self.params["samples"],
+                               seed=self.params["seed"])
+
+    def render(self, camera: Camera) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+        from .. import _core
+
+        if self._scene is None:
+            raise InputError("dibr: prepare(scene) must be called before render(camera)")
+        if self._options is None:
+            self._options = self.warp_options()
+        t0 = time.perf_counter()
+        sel = self.select(camera)
+        t1 = time.perf_counter()
+        acc = _core.DibrAccumulator(camera.to_core())
+        for i in sel.indices:
+            v = self._scene.views[i]
+            acc.add_view(np.ascontiguousarray(v.color, np.float32), np.ascontiguousarray(v.depth, np.float32),
+                         self._core_cams[i], self._options)
+        t2 = time.perf_counter()
+        color, depth, confidence, hole = acc.result()
+        t3 = time.perf_counter()
+        views = self._scene.views
+        self.last_frame = {
+            "selected": [views[i].name for i in sel.indices],
+            "similarity": [round(float(sel.scores[i]), 6) for i in sel.indices],
+            "candidates": len(sel.candidates),
+            "skipped_no_overlap": int(sel.skipped),
+        }
+        out = {"color": color, "depth": depth, "confidence": confidence, "hole": hole}
+        return out, {"select": (t1 - t0) * 1e3, "warp": (t2 - t1) * 1e3, "blend": (t3 - t2) * 1e3}
+
+    def frame_report(self) -> dict:
+        """What report.json records for the last frame (selected views, skipped count)."""
+        return dict(self.last_frame)

@@ -1,0 +1,172 @@
+"""--method dibr (render/dibr.py): parameters, wiring into ibr-render and report.json, and
+accuracy on real data (benchmarks/bench_dibr_accuracy.py protocols)."""
+from __future__ import annotations
+
+import json
+import sys
+
+import numpy as np
+import pytest
+
+from conftest import REPO, shared_data
+from ibrtools import _core
+from ibrtools.camera import Camera, look_at
+from ibrtools.errors import BadValueError, InputError
+from ibrtools.render import methods
+from ibrtools.render.dibr import DibrMethod, check_params
+from ibrtools.scene import Scene, View
+from ibrtools_cli import preprocess, render
+
+needs_kernel = pytest.mark.skipif(not hasattr(_core, "DibrAccumulator"),
+                                  reason="_core.DibrAccumulator (the DIBR kernel) is not built")
+
+
+def _plane_scene(n=3, depth_ok=True):
+    views = []
+    for i in range(n):
+        cam = Camera.from_fov(32, 24, 60, look_at((0.2 * i, 0, -2), (0, 0, 0)))
+        depth = np.full((24, 32), 2.0, np.float32) if depth_ok else None
+        views.append(View.create(f"v{i}", cam, color=np.full((24, 32, 3), 0.5, np.float32), depth=depth))
+    return Scene(views=views)
+
+
+# --- parameters --------------------------------------------------------------------------
+def test_params_defaults_and_forms():
+    p = check_params(None)
+    assert p["inputs"] == 4 and p["quality"] == "side" and p["blend_exponent"] == 5.0
+    assert check_params({"inputs": "2"})["inputs"] == 2
+    assert check_params({"inputs": "v1, v2"})["inputs"] == ["v1", "v2"]
+    assert check_params({"inputs": ["a"]})["inputs"] == ["a"]
+    for q in ("side", "shape", "depth", "normal"):
+        assert check_params({"quality": q})["quality"] == q
+
+
+@pytest.mark.parametrize("params, flag", [
+    ({"inputs": 0}, "--inputs"), ({"inputs": -2}, "--inputs"), ({"inputs": 2.5}, "--inputs"),
+    ({"inputs": "a,,b"}, "--inputs"), ({"inputs": "a,a"}, "--inputs"), ({"inputs": True}, "--inputs"),
+    ({"inputs": {}}, "--inputs"),
+    ({"quality": "best"}, "--quality"), ({"quality": 3}, "--quality"),
+    ({"blend_exponent": 0}, "--blend-exponent"), ({"blend_exponent": -1}, "--blend-exponent"),
+    ({"blend_exponent": "x"}, "--blend-exponent"), ({"blend_exponent": float("nan")}, "--blend-exponent"),
+    ({"side_threshold": -1}, "side_threshold"), ({"samples": 0}, "samples"), ({"seed": 1.5}, "seed"),
+    ({"bogus": 1}, "no parameter"),
+])
+def test_bad_params_name_the_option(params, flag):
+    with pytest.raises(BadValueError, match=flag):
+        DibrMethod(params)
+
+
+def test_prepare_rejects_views_without_depth_and_unknown_inputs():
+    with pytest.raises(InputError, match="dibr needs depth"):
+        DibrMethod().prepare(_plane_scene(depth_ok=False))
+    with pytest.raises(InputError, match="no input views"):
+        DibrMethod().prepare(Scene(views=[]))
+    with pytest.raises(BadValueError, match="--inputs"):
+        DibrMethod({"inputs": "v0,nope"}).prepare(_plane_scene())
+    s = _plane_scene()
+    s.views[1] = View.create("v1", s.views[1].camera, color=s.views[1].color,
+                             depth=lambda: np.zeros((24, 32), np.float32))
+    with pytest.raises(InputError, match="no valid depth"):  # found when prepare loads it
+        DibrMethod().prepare(s)
+
+
+def test_auto_picks_dibr_for_depth_views_and_reference_otherwise():
+    assert methods.resolve("auto", _plane_scene()) == "dibr"
+    from ibrtools.errors import NotBuiltError
+    with pytest.raises(NotBuiltError, match="dibr needs depth"):
+        methods.resolve("auto", _plane_scene(depth_ok=False))
+    assert methods.resolve("dibr", _plane_scene()) == "dibr"
+
+
+def test_selection_uses_listed_inputs_only():
+    m = DibrMethod({"inputs": "v2,v0"})
+    m.prepare(_plane_scene())
+    sel = m.select(_plane_scene().views[1].camera)
+    assert sorted(sel.indices) == [0, 2]
+
+
+# --- end to end --------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def scene_dir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("dibr") / "scene"
+    assert preprocess.main(["synth:objects", "-o", str(d), "--views", "8", "--size", "96x72", "-q"]) == 0
+    return d
+
+
+@needs_kernel
+def test_cli_holdout_report_lists_selection_and_stage_times(scene_dir, tmp_path):
+    out = tmp_path / "o"
+    assert render.main([str(scene_dir), "--method", "dibr", "--holdout", "v003", "--inputs", "3",
+                        "--blend-exponent", "5", "--quality", "side", "-o", str(out), "-q"]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["method"] == "dibr" and rep["params"]["inputs"] == 3
+    f = rep["frames"][0]
+    assert 1 <= len(f["selected"]) <= 3 and "v003" not in f["selected"]
+    assert f["skipped_no_overlap"] >= 0 and f["candidates"] == 7
+    for stage in ("select", "warp", "blend"):
+        assert f["time_ms"][stage] >= 0
+    # Synthetic objects from 3 neighbouring views: measured 24.0 dB on covered object pixels
+    # (shading differs between views, 96x72 inputs resample coarsely); 22 dB catches a broken
+    # warp (a wrong pose or axis gives < 15 dB) without flaking. The background has no depth,
+    # so coverage is about the objects' share of the image.
+    assert f["metrics"]["psnr_masked"] > 22 and f["metrics"]["coverage"] > 0.3
+
+
+@needs_kernel
+def test_cli_named_inputs_and_bad_values(scene_dir, tmp_path, capsys):
+    out = tmp_path / "n"
+    assert render.main([str(scene_dir), "--method", "dibr", "--holdout", "v003", "--inputs", "v002,v004",
+                        "-o", str(out), "-q"]) == 0
+    f = json.loads((out / "report.json").read_text())["frames"][0]
+    assert set(f["selected"]) <= {"v002", "v004"} and f["candidates"] == 2
+    for argv, msg in ((["--inputs", "0"], "--inputs"), (["--inputs", "v003"], "--inputs"),
+                      (["--quality", "nice"], "--quality"), (["--blend-exponent", "-1"], "--blend-exponent")):
+        assert render.main([str(scene_dir), "--method", "dibr", "--holdout", "v003", *argv,
+                            "-o", str(tmp_path / "bad"), "-q"]) == 2
+        err = capsys.readouterr().err
+        assert msg in err and "Traceback" not in err
+
+
+# --- real data ---------------------------------------------------------------------------
+DATA = shared_data()
+
+
+@pytest.fixture(scope="module")
+def bench():
+    if not DATA.is_dir():
+        pytest.skip(f"real data not found at {DATA} (set IBR_SHARED_DATA)")
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    import bench_dibr_accuracy
+    return bench_dibr_accuracy
+
+
+def _need(sub):
+    if not (DATA / sub).is_dir():
+        pytest.skip(f"{sub} not in the shared data")
+
+
+# Thresholds ~1 dB below what the kernel measured (docs/dibr.md): lego object pixels 23.76,
+# ICL visible 32.93, Teddy visible 25.07, Cones 24.06 dB. They guard against regressions;
+# they are below the RVS targets, which are not reached yet (see docs/dibr.md).
+@needs_kernel
+def test_real_lego_heldout(bench):
+    _need("nerf_lego")
+    r = bench.lego(DATA, heldout=("r_0",))
+    # r_0 alone measured 19.14 dB object / 23.11 dB all (r_50 and r_150 reach 28 dB: each has
+    # a near-duplicate camera among the inputs; r_0 and r_100 do not).
+    assert r["psnr_object"] > 18.5 and r["psnr_all"] > 22.5
+
+
+@needs_kernel
+def test_real_icl_frame4_from_1_and_5(bench):
+    _need("icl_nuim_livingroom")
+    r = bench.icl(DATA)
+    assert r["psnr_visible"] > 32.0 and r["hole"] < 0.1
+
+
+@needs_kernel
+@pytest.mark.parametrize("name, floor", [("Teddy", 24.0), ("Cones", 23.0)])
+def test_real_middlebury_right_from_left(bench, name, floor):
+    _need(f"middlebury/{name}")
+    r = bench.middlebury(DATA, name)
+    assert r["psnr_visible"] > floor and r["hole_visible"] < 0.02
