@@ -5,4 +5,5 @@ PYBIND11_MODULE(_core, m) {
   ibr::bind::BindCore(m);
   ibr::bind::BindRaycast(m);
   ibr::bind::BindMetrics(m);
+  ibr::bind::BindDibr(m);
 }

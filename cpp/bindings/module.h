@@ -7,4 +7,5 @@ namespace py = pybind11;
 void BindCore(py::module_& m);
 void BindRaycast(py::module_& m);
 void BindMetrics(py::module_& m);
+void BindDibr(py::module_& m);
 }  // namespace ibr::bind

@@ -1,0 +1,239 @@
+// Binding of depth-image-based rendering (cpp/kernels/forward_warp.h, cpp/kernels/blend.h):
+// _core.WarpOptions, _core.DibrAccumulator (streaming warp + blend into one target camera)
+// and _core.forward_warp (one view, per-view buffers). Thin: checks arrays (array.h),
+// releases the GIL around the kernels, raises typed errors after them.
+#include <chrono>
+#include <string>
+#include <vector>
+
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+
+#include "array.h"
+#include "ibr/camera.h"
+#include "ibr/errors.h"
+#include "kernels/blend.h"
+#include "kernels/forward_warp.h"
+#include "module.h"
+
+namespace ibr::bind {
+namespace {
+
+const char* QualityName(WarpQuality q) {
+  switch (q) {
+    case WarpQuality::kSide: return "side";
+    case WarpQuality::kShape: return "shape";
+    case WarpQuality::kDepth: return "depth";
+    case WarpQuality::kNormal: return "normal";
+  }
+  return "?";
+}
+
+WarpQuality ParseQuality(const std::string& s) {
+  if (s == "side") return WarpQuality::kSide;
+  if (s == "shape") return WarpQuality::kShape;
+  if (s == "depth") return WarpQuality::kDepth;
+  if (s == "normal") return WarpQuality::kNormal;
+  throw BadValueError("quality: expected 'side', 'shape', 'depth' or 'normal', got '" + s + "'");
+}
+
+DepthTest ParseDepthTest(const std::string& s) {
+  if (s == "combined") return DepthTest::kCombined;
+  if (s == "nearest") return DepthTest::kNearest;
+  throw BadValueError("depth_test: expected 'combined' or 'nearest', got '" + s + "'");
+}
+
+// A checked input view: colour (H, W, 3), depth (H, W) with (H, W) = the camera's size.
+struct InputView {
+  py::array_t<float, py::array::c_style> color, depth;
+};
+
+InputView CheckInput(const py::handle& color_obj, const py::handle& depth_obj, const Camera& camera) {
+  InputView v;
+  v.depth = CheckArray<float>(depth_obj, "depth", {{"H", camera.height}, {"W", camera.width}});
+  v.color = CheckArray<float>(color_obj, "color", {{"H", camera.height}, {"W", camera.width}, {"3", 3}});
+  if (camera.height < 2 || camera.width < 2) {
+    throw ShapeError("depth: the view must be at least 2 x 2 pixels to form triangles, got " +
+                     std::to_string(camera.height) + " x " + std::to_string(camera.width));
+  }
+  return v;
+}
+
+void CheckCounts(const WarpCounts& c) {
+  if (c.bad_depths > 0) {
+    throw BadValueError("depth: " + std::to_string(c.bad_depths) +
+                        " values are NaN or negative (expected > 0, 0 = unknown, +inf = at infinity)");
+  }
+  if (c.valid_vertices == 0) throw BadValueError("depth: no valid depth (every value is 0 = unknown)");
+}
+
+double MsSince(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+
+class DibrAccumulator {
+ public:
+  explicit DibrAccumulator(const Camera& target) : target_(target) {
+    const std::size_t n = std::size_t(target.width) * target.height;
+    sum_wc_.resize(3 * n);
+    sum_w_.resize(n);
+    sum_w_invd_.resize(n);
+    sum_q_.resize(n);
+    view_color_.resize(3 * n);
+    view_depth_.resize(n);
+    view_weight_.resize(n);
+    view_quality_.resize(n);
+    Buffers();
+    py::gil_scoped_release release;
+    ClearBlend(buffers_);
+  }
+
+  void AddView(const py::object& color_obj, const py::object& depth_obj, const Camera& camera,
+               const WarpOptions& options) {
+    InputView in = CheckInput(color_obj, depth_obj, camera);
+    const ImageView<const float> color = ConstViewOf(in.color), depth = ConstViewOf(in.depth);
+    const int th = target_.height, tw = target_.width;
+    WarpCounts counts;
+    {
+      py::gil_scoped_release release;
+      const auto t0 = std::chrono::steady_clock::now();
+      // The kernel adds the view to the sums only when its depth passed the checks below.
+      counts = ForwardWarp(color, depth, camera, target_, options, scratch_, ImageView<float>(view_color_.data(), th, tw, 3),
+                           ImageView<float>(view_depth_.data(), th, tw), ImageView<float>(view_weight_.data(), th, tw),
+                           view_quality_.data(), &buffers_);
+      if (counts.bad_depths == 0 && counts.valid_vertices > 0) ++num_views_;
+      last_ms_ = MsSince(t0);
+    }
+    CheckCounts(counts);
+  }
+
+  py::tuple Result() {
+    const py::ssize_t h = target_.height, w = target_.width;
+    auto color = NewArray<float>({h, w, 3});
+    auto depth = NewArray<float>({h, w});
+    auto conf = NewArray<float>({h, w});
+    auto hole = NewArray<bool>({h, w});
+    float *c = color.mutable_data(), *d = depth.mutable_data(), *q = conf.mutable_data();
+    auto* o = reinterpret_cast<std::uint8_t*>(hole.mutable_data());
+    {
+      py::gil_scoped_release release;
+      ResolveBlend(buffers_, c, d, q, o);
+    }
+    return py::make_tuple(color, depth, conf, hole);
+  }
+
+  void Reset() {
+    py::gil_scoped_release release;
+    ClearBlend(buffers_);
+    num_views_ = 0;
+  }
+
+  int NumViews() const { return num_views_; }
+  double LastMs() const { return last_ms_; }
+  const Camera& Target() const { return target_; }
+
+ private:
+  void Buffers() {
+    buffers_.height = target_.height;
+    buffers_.width = target_.width;
+    buffers_.sum_wc = sum_wc_.data();
+    buffers_.sum_w = sum_w_.data();
+    buffers_.sum_w_invd = sum_w_invd_.data();
+    buffers_.sum_q = sum_q_.data();
+  }
+
+  Camera target_;
+  std::vector<float> sum_wc_, sum_w_, sum_w_invd_, sum_q_;
+  std::vector<float> view_color_, view_depth_, view_weight_, view_quality_;
+  WarpScratch scratch_;
+  BlendBuffers buffers_;
+  int num_views_ = 0;
+  double last_ms_ = 0.0;
+};
+
+}  // namespace
+
+void BindDibr(py::module_& m) {
+  py::class_<WarpOptions>(m, "WarpOptions",
+                          "Options of the forward mesh warp (cpp/kernels/forward_warp.h); defaults: RVS 4.0.")
+      .def(py::init<>())
+      .def_property(
+          "quality", [](const WarpOptions& o) { return std::string(QualityName(o.quality)); },
+          [](WarpOptions& o, const std::string& s) { o.quality = ParseQuality(s); },
+          "Triangle quality (paper Table 1): 'side' (default, RVS), 'shape', 'depth', 'normal'.")
+      .def_property(
+          "side_threshold", [](const WarpOptions& o) { return o.side_threshold; },
+          [](WarpOptions& o, float t) {
+            if (!(t >= 0.f) || std::isinf(t)) throw BadValueError("side_threshold: expected a finite value >= 0 (0 = auto)");
+            o.side_threshold = t;
+          },
+          "T in target pixels; 0 = auto: max(4, 10 * sqrt(W * H / (1920 * 1080))).")
+      .def_property(
+          "blend_exponent", [](const WarpOptions& o) { return o.blend_exponent; },
+          [](WarpOptions& o, float p) {
+            if (!(p >= 0.f && p <= 16.f)) throw BadValueError("blend_exponent: expected a value in [0, 16]");
+            o.blend_exponent = p;
+          },
+          "p in the blending weight (q / d)^p; RVS uses 5, the paper's Eq. 2 is q / d^3.")
+      .def_property(
+          "depth_test",
+          [](const WarpOptions& o) { return std::string(o.depth_test == DepthTest::kCombined ? "combined" : "nearest"); },
+          [](WarpOptions& o, const std::string& s) { o.depth_test = ParseDepthTest(s); },
+          "'combined' (paper Eq. 2: largest q / d^3 wins) or 'nearest' (plain z-buffer).")
+      .def_readwrite("discard_stretched", &WarpOptions::discard_stretched,
+                     "Drop triangles whose quality reaches 0 (paper Eq. 1) instead of flooring it (RVS).")
+      .def("effective_side_threshold", [](const WarpOptions& o, const Camera& t) { return SideThreshold(o, t); },
+           py::arg("target_camera"), "T used for this target camera.")
+      .def("__repr__", [](const WarpOptions& o) {
+        return "WarpOptions(quality='" + std::string(QualityName(o.quality)) +
+               "', side_threshold=" + std::to_string(o.side_threshold) +
+               ", blend_exponent=" + std::to_string(o.blend_exponent) + ", depth_test='" +
+               (o.depth_test == DepthTest::kCombined ? "combined" : "nearest") +
+               "', discard_stretched=" + (o.discard_stretched ? "True" : "False") + ")";
+      });
+
+  py::class_<DibrAccumulator>(m, "DibrAccumulator",
+                              "Streaming DIBR into one target camera: add_view warps a colour + depth view and "
+                              "adds it to running sums (constant memory); result() blends (paper Eq. 3).")
+      .def(py::init<const Camera&>(), py::arg("target_camera"))
+      .def("add_view", &DibrAccumulator::AddView, py::arg("color"), py::arg("depth"), py::arg("camera"),
+           py::arg("options") = WarpOptions(),
+           "color float32 (H, W, 3) linear, depth float32 (H, W) (pinhole: z, equirect: ray distance; 0 = "
+           "unknown, +inf = at infinity), camera: _core.Camera of size W x H. GIL released.")
+      .def("result", &DibrAccumulator::Result,
+           "(color (H, W, 3) f32, depth (H, W) f32 (0 in holes), confidence (H, W) f32 = sum over views of "
+           "the kept triangle quality in (0, 1], hole (H, W) bool).")
+      .def("reset", &DibrAccumulator::Reset, "Forget every view added.")
+      .def_property_readonly("num_views", &DibrAccumulator::NumViews)
+      .def_property_readonly("last_add_ms", &DibrAccumulator::LastMs,
+                             "Wall time of the last add_view's warp + accumulation (checks excluded), ms.");
+
+  m.def(
+      "forward_warp",
+      [](const py::object& color_obj, const py::object& depth_obj, const Camera& camera, const Camera& target,
+         const WarpOptions& options) {
+        InputView in = CheckInput(color_obj, depth_obj, camera);
+        const ImageView<const float> color = ConstViewOf(in.color), depth = ConstViewOf(in.depth);
+        const py::ssize_t th = target.height, tw = target.width;
+        auto c = NewArray<float>({th, tw, 3});
+        auto d = NewArray<float>({th, tw});
+        auto w = NewArray<float>({th, tw});
+        std::vector<float> quality(std::size_t(th) * tw);
+        WarpScratch scratch;
+        ImageView<float> cv(c.mutable_data(), int(th), int(tw), 3), dv(d.mutable_data(), int(th), int(tw)),
+            wv(w.mutable_data(), int(th), int(tw));
+        WarpCounts counts;
+        {
+          py::gil_scoped_release release;
+          counts = ForwardWarp(color, depth, camera, target, options, scratch, cv, dv, wv, quality.data(), nullptr);
+        }
+        CheckCounts(counts);
+        return py::make_tuple(c, d, w);
+      },
+      py::arg("color"), py::arg("depth"), py::arg("camera"), py::arg("target_camera"),
+      py::arg("options") = WarpOptions(),
+      "Warp one view: (color (Ht, Wt, 3), depth (Ht, Wt) (0 = not covered), weight (Ht, Wt) = (q / d)^p "
+      "(0 = not covered)). GIL released.");
+}
+
+}  // namespace ibr::bind

@@ -1,0 +1,384 @@
+#include "kernels/forward_warp.h"
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <cstddef>
+#include <limits>
+
+#include "ibr/parallel.h"
+
+namespace ibr {
+namespace {
+
+constexpr int kChunkRows = 16;   // input block rows per binning task
+constexpr int kBandRows = 16;    // target rows per rasterisation task
+constexpr int kSubpixel = 256;   // fixed point: 1/256 pixel
+constexpr float kGuardPixels = 16384.f;
+constexpr float kInf = std::numeric_limits<float>::infinity();
+constexpr std::int32_t kInvalid = std::numeric_limits<std::int32_t>::min();
+
+// Floor / ceil of a / 256 (arithmetic shift: floor for negative a too).
+inline std::int64_t FloorSub(std::int64_t a) { return a >> 8; }
+inline std::int64_t CeilSub(std::int64_t a) { return -((-a) >> 8); }
+inline std::int64_t FloorDiv(std::int64_t a, std::int64_t b) {
+  std::int64_t q = a / b;
+  if ((a % b != 0) && ((a < 0) != (b < 0))) --q;
+  return q;
+}
+inline std::int64_t CeilDiv(std::int64_t a, std::int64_t b) { return -FloorDiv(-a, b); }
+
+// The three input pixels (linear indices) of triangle `id` of an input of width w.
+inline void TriangleVertices(std::uint32_t id, int w, std::int64_t v[3]) {
+  const std::int64_t a = id >> 1;  // the block's top-left pixel
+  if ((id & 1u) == 0) {
+    v[0] = a; v[1] = a + 1; v[2] = a + w;
+  } else {
+    v[0] = a + 1; v[1] = a + w + 1; v[2] = a + w;
+  }
+}
+
+inline float ClampDepth(float d) { return std::min(std::max(d, kMinWeightDepth), kMaxWeightDepth); }
+
+inline float Weight(float q, float d, float p) {
+  const float x = q / ClampDepth(d);
+  float w;
+  if (p == 5.f) {
+    const float x2 = x * x;
+    w = x2 * x2 * x;
+  } else if (p == 3.f) {
+    w = x * x * x;
+  } else {
+    w = std::pow(x, p);
+  }
+  return std::min(std::max(w, 1e-30f), 1e30f);
+}
+
+struct Context {
+  const ImageView<const float>* color;
+  const ImageView<const float>* depth;
+  const Camera* source;
+  const Camera* target;
+  const WarpOptions* options;
+  const std::int32_t* vx;  // fixed point, 1/256 px
+  const std::int32_t* vy;
+  const float* vinv;
+  float side_t;
+  bool equirect_target;
+  int tw, th;
+};
+
+// Quality of a triangle (forward_warp.h); returns <= 0 when the triangle is to be dropped.
+float TriangleQuality(const Context& cx, const std::int64_t vi[3], const float x[3], const float y[3],
+                      double area_px) {
+  const WarpOptions& o = *cx.options;
+  float q = 1.f;
+  switch (o.quality) {
+    case WarpQuality::kSide: {
+      float l2 = 0.f;
+      for (int e = 0; e < 3; ++e) {
+        const int f = (e + 1) % 3;
+        const float dx = x[f] - x[e], dy = y[f] - y[e];
+        l2 = std::max(l2, dx * dx + dy * dy);
+      }
+      q = 1.f - std::sqrt(l2) / cx.side_t;
+      break;
+    }
+    case WarpQuality::kShape: {
+      float s2 = 0.f;
+      for (int e = 0; e < 3; ++e) {
+        const int f = (e + 1) % 3;
+        const float dx = x[f] - x[e], dy = y[f] - y[e];
+        s2 += dx * dx + dy * dy;
+      }
+      // 4 sqrt(3) A / sum e^2, relative to the grid triangle's 4 sqrt(3) (1/2) / 4 = 0.866.
+      q = s2 > 0.f ? static_cast<float>(4.0 * std::sqrt(3.0) * area_px / s2 / 0.8660254037844386) : 0.f;
+      break;
+    }
+    case WarpQuality::kDepth: {
+      const float* d = cx.depth->data;
+      const float d0 = d[vi[0]], d1 = d[vi[1]], d2 = d[vi[2]];
+      const float lo = std::min(d0, std::min(d1, d2)), hi = std::max(d0, std::max(d1, d2));
+      q = std::isinf(hi) ? (std::isinf(lo) ? 1.f : 0.f) : 1.f - (hi - lo) / (kDepthVariation * lo);
+      break;
+    }
+    case WarpQuality::kNormal: {
+      const float* d = cx.depth->data;
+      const int w = cx.depth->width;
+      glm::dvec3 p[3];
+      for (int k = 0; k < 3; ++k) {
+        const double dk = d[vi[k]];
+        if (std::isinf(dk)) return 1.f;  // sky: a direction, no surface to be edge-on
+        const double u = double(vi[k] % w) + 0.5, v = double(vi[k] / w) + 0.5;
+        p[k] = cx.source->RayInCam(u, v) * dk;
+      }
+      const glm::dvec3 n = glm::cross(p[1] - p[0], p[2] - p[0]);
+      const glm::dvec3 c = (p[0] + p[1] + p[2]) / 3.0;
+      const double nn = glm::length(n) * glm::length(c);
+      q = nn > 0.0 ? static_cast<float>(std::abs(glm::dot(n, c)) / nn) : 0.f;
+      break;
+    }
+  }
+  if (q <= 0.f && o.discard_stretched) return 0.f;
+  return std::min(1.f, std::max(q, kQualityFloor));
+}
+
+// Rasterises triangle `id` into rows [band_y0, band_y1) of the outputs.
+void RasterTriangle(const Context& cx, std::uint32_t id, int band_y0, int band_y1, float* score,
+                    const ImageView<float>& oc, const ImageView<float>& od, float* oq) {
+  std::int64_t vi[3];
+  TriangleVertices(id, cx.depth->width, vi);
+  float x[3], y[3], inv[3];
+  std::int64_t X[3], Y[3];
+  for (int k = 0; k < 3; ++k) {
+    X[k] = cx.vx[vi[k]];
+    Y[k] = cx.vy[vi[k]];
+    inv[k] = cx.vinv[vi[k]];
+    x[k] = float(X[k]) * (1.f / kSubpixel);
+    y[k] = float(Y[k]) * (1.f / kSubpixel);
+  }
+  const std::int64_t area2 = (X[1] - X[0]) * (Y[2] - Y[0]) - (Y[1] - Y[0]) * (X[2] - X[0]);
+  if (area2 <= 0) return;  // back-facing or degenerate
+  const std::int64_t min_x = std::min(X[0], std::min(X[1], X[2])), max_x = std::max(X[0], std::max(X[1], X[2]));
+  const std::int64_t min_y = std::min(Y[0], std::min(Y[1], Y[2])), max_y = std::max(Y[0], std::max(Y[1], Y[2]));
+  static_assert(kSubpixel == 256, "FloorSub / CeilSub divide by 256");
+  const int px0 = static_cast<int>(std::max<std::int64_t>(0, CeilSub(min_x - kSubpixel / 2)));
+  const int px1 = static_cast<int>(std::min<std::int64_t>(cx.tw - 1, FloorSub(max_x - kSubpixel / 2)));
+  const int py0 = static_cast<int>(std::max<std::int64_t>(band_y0, CeilSub(min_y - kSubpixel / 2)));
+  const int py1 = static_cast<int>(std::min<std::int64_t>(band_y1 - 1, FloorSub(max_y - kSubpixel / 2)));
+  if (px0 > px1 || py0 > py1) return;
+
+  const int n_inf = (inv[0] == 0.f) + (inv[1] == 0.f) + (inv[2] == 0.f);
+  if (n_inf != 0 && n_inf != 3) return;  // mixed sky / surface: stretched across a silhouette
+  const bool affine = n_inf == 3;
+
+  const double area_px = double(area2) / (2.0 * kSubpixel * kSubpixel);
+  const float q = TriangleQuality(cx, vi, x, y, area_px);
+  if (q <= 0.f) return;
+
+  // Edge e is opposite vertex e: from vertex e+1 to vertex e+2; E_e / area2 = barycentric e.
+  std::int64_t ex[3], ey[3], e_row[3], bias[3];
+  const std::int64_t sx = std::int64_t(px0) * kSubpixel + kSubpixel / 2;
+  const std::int64_t sy = std::int64_t(py0) * kSubpixel + kSubpixel / 2;
+  for (int e = 0; e < 3; ++e) {
+    const int a = (e + 1) % 3, b = (e + 2) % 3;
+    const std::int64_t dx = X[b] - X[a], dy = Y[b] - Y[a];
+    const bool owns = dy > 0 || (dy == 0 && dx < 0);
+    ex[e] = -dy * kSubpixel;  // step in x
+    ey[e] = dx * kSubpixel;   // step in y
+    bias[e] = owns ? 0 : 1;
+    e_row[e] = dx * (sy - Y[a]) - dy * (sx - X[a]) - bias[e];
+  }
+  // Attributes over the vertices, premultiplied by 1/d (perspective-correct) unless affine.
+  const float* col = cx.color->data;
+  float a_inv[3], a_c[3][3];
+  for (int k = 0; k < 3; ++k) {
+    const float m = affine ? 1.f : inv[k];
+    a_inv[k] = inv[k];
+    for (int c = 0; c < 3; ++c) a_c[k][c] = col[3 * vi[k] + c] * m;
+  }
+  const float inv_area = static_cast<float>(1.0 / double(area2));
+  const bool combined = cx.options->depth_test == DepthTest::kCombined;
+  const int tw = cx.tw;
+  // Wide triangles (long slivers across disocclusions): per row, the exact span where the three
+  // edge functions are >= 0 (integer division), instead of scanning the whole bounding box.
+  const bool spans = px1 - px0 >= 8;
+  for (int py = py0; py <= py1; ++py, e_row[0] += ey[0], e_row[1] += ey[1], e_row[2] += ey[2]) {
+    int xs = px0, xe = px1;
+    if (spans) {
+      for (int e = 0; e < 3; ++e) {
+        const std::int64_t v = e_row[e], st = ex[e];
+        if (st > 0) {
+          if (v < 0) xs = static_cast<int>(std::max<std::int64_t>(xs, px0 + CeilDiv(-v, st)));
+        } else if (st < 0) {
+          xe = v < 0 ? px0 - 1 : static_cast<int>(std::min<std::int64_t>(xe, px0 + v / (-st)));
+        } else if (v < 0) {
+          xe = px0 - 1;
+        }
+      }
+      if (xs > xe) continue;
+    }
+    std::int64_t e0 = e_row[0] + ex[0] * (xs - px0), e1 = e_row[1] + ex[1] * (xs - px0),
+                 e2 = e_row[2] + ex[2] * (xs - px0);
+    float* srow = score + std::ptrdiff_t(py) * tw;
+    for (int px = xs; px <= xe; ++px) {
+      if ((e0 | e1 | e2) >= 0) {
+        // The bias (-1 on non-owned edges) is removed again for the barycentrics.
+        const float b0 = float(e0 + bias[0]) * inv_area, b1 = float(e1 + bias[1]) * inv_area,
+                    b2 = float(e2 + bias[2]) * inv_area;
+        float d, s;
+        if (affine) {
+          d = kInf;
+        } else {
+          const float id = b0 * a_inv[0] + b1 * a_inv[1] + b2 * a_inv[2];
+          d = 1.f / id;
+        }
+        if (combined) {
+          const float dc = ClampDepth(d);
+          s = q / (dc * dc * dc);
+        } else {
+          s = -std::min(d, kMaxWeightDepth);
+        }
+        if (s > srow[px]) {
+          srow[px] = s;
+          const float m = affine ? 1.f : d;
+          float* c = &oc.At(py, px);
+          for (int ch = 0; ch < 3; ++ch) c[ch] = (b0 * a_c[0][ch] + b1 * a_c[1][ch] + b2 * a_c[2][ch]) * m;
+          od.At(py, px) = d;
+          oq[std::ptrdiff_t(py) * tw + px] = q;
+        }
+      }
+      e0 += ex[0]; e1 += ex[1]; e2 += ex[2];
+    }
+  }
+}
+
+}  // namespace
+
+float SideThreshold(const WarpOptions& options, const Camera& target) {
+  if (options.side_threshold > 0.f) return options.side_threshold;
+  return static_cast<float>(std::max(kMinAutoSide, 10.0 * std::sqrt(double(target.width) * target.height / (1920.0 * 1080.0))));
+}
+
+WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<const float>& depth,
+                       const Camera& source, const Camera& target, const WarpOptions& options,
+                       WarpScratch& scratch, const ImageView<float>& out_color,
+                       const ImageView<float>& out_depth, const ImageView<float>& out_weight,
+                       float* out_quality, const BlendBuffers* accumulate) {
+  WarpCounts counts;
+  const int h = depth.height, w = depth.width;
+  const int th = target.height, tw = target.width;
+  const std::int64_t n = std::int64_t(h) * w;
+  scratch.vx.resize(n);
+  scratch.vy.resize(n);
+  scratch.vinv.resize(n);
+  scratch.score.resize(std::int64_t(th) * tw);
+
+  // Pass 1: vertices. target_from_source = (R_t, t_t) o (R_s, t_s)^-1.
+  const glm::dmat3 rot = target.rot * glm::transpose(source.rot);
+  const glm::dvec3 trans = target.trans - rot * source.trans;
+  const float lo_x = -kGuardPixels, hi_x = float(tw) + kGuardPixels;
+  const float lo_y = -kGuardPixels, hi_y = float(th) + kGuardPixels;
+  std::atomic<std::int64_t> valid{0}, bad{0};
+  ParallelFor(h, 8, [&](std::int64_t r0, std::int64_t r1) {
+    std::int64_t my_valid = 0, my_bad = 0;
+    for (std::int64_t r = r0; r < r1; ++r) {
+      const float* drow = depth.Row(static_cast<int>(r));
+      for (int u = 0; u < w; ++u) {
+        const std::int64_t i = r * w + u;
+        const float d = drow[u];
+        std::int32_t& ox = scratch.vx[i];
+        ox = kInvalid;
+        scratch.vy[i] = 0;
+        scratch.vinv[i] = 0.f;
+        if (!(d > 0.f)) {
+          if (d != 0.f) ++my_bad;  // NaN or negative
+          continue;
+        }
+        ++my_valid;
+        const glm::dvec3 ray = source.RayInCam(u + 0.5, double(r) + 0.5);
+        glm::dvec3 p;
+        if (std::isinf(d)) {
+          p = rot * ray;  // a direction: rotation only
+        } else {
+          p = rot * (ray * double(d)) + trans;
+        }
+        double x, y, dt;
+        if (!target.ProjectCam(p, &x, &y, &dt)) continue;
+        if (!(x > lo_x && x < hi_x && y > lo_y && y < hi_y)) continue;
+        // Snap to 1/256 px (round half away from zero is fine: one rule for every vertex).
+        ox = static_cast<std::int32_t>(std::lround(x * kSubpixel));
+        scratch.vy[i] = static_cast<std::int32_t>(std::lround(y * kSubpixel));
+        scratch.vinv[i] = std::isinf(d) ? 0.f : static_cast<float>(1.0 / dt);
+      }
+    }
+    valid += my_valid;
+    bad += my_bad;
+  });
+  counts.valid_vertices = valid;
+  counts.bad_depths = bad;
+  // A view the front will reject (bad or no depth) never reaches the sums.
+  const BlendBuffers* acc = counts.bad_depths == 0 && counts.valid_vertices > 0 ? accumulate : nullptr;
+
+  // Pass 2: bin triangles into target row bands, per chunk of input block rows.
+  const int block_rows = std::max(0, h - 1);
+  const int num_chunks = (block_rows + kChunkRows - 1) / kChunkRows;
+  const int num_bands = (th + kBandRows - 1) / kBandRows;
+  if (scratch.bins.size() < std::size_t(num_chunks) * num_bands) scratch.bins.resize(std::size_t(num_chunks) * num_bands);
+  const bool equirect_target = target.model == CameraModel::kEquirect;
+  const std::int64_t seam = std::int64_t(tw) * kSubpixel / 2;
+  ParallelFor(num_chunks, 1, [&](std::int64_t c0, std::int64_t c1) {
+    for (std::int64_t c = c0; c < c1; ++c) {
+      std::vector<std::uint32_t>* bins = &scratch.bins[std::size_t(c) * num_bands];
+      for (int b = 0; b < num_bands; ++b) bins[b].clear();
+      const int r0 = static_cast<int>(c) * kChunkRows, r1 = std::min(block_rows, r0 + kChunkRows);
+      for (int r = r0; r < r1; ++r) {
+        for (int u = 0; u + 1 < w; ++u) {
+          const std::int64_t a = std::int64_t(r) * w + u;
+          const std::int32_t* VX = scratch.vx.data();
+          const std::int32_t* VY = scratch.vy.data();
+          const std::int32_t xa = VX[a], xb = VX[a + 1], xc = VX[a + w], xd = VX[a + w + 1];
+          if (xb == kInvalid || xc == kInvalid) continue;  // both triangles touch b and c
+          const std::int32_t ya = VY[a], yb = VY[a + 1], yc = VY[a + w], yd = VY[a + w + 1];
+          for (int k = 0; k < 2; ++k) {
+            std::int64_t x0, x1, x2, y0, y1, y2;
+            if (k == 0) { x0 = xa; x1 = xb; x2 = xc; y0 = ya; y1 = yb; y2 = yc; }
+            else { x0 = xb; x1 = xd; x2 = xc; y0 = yb; y1 = yd; y2 = yc; }
+            if (x0 == kInvalid || x1 == kInvalid || x2 == kInvalid) continue;
+            if ((x1 - x0) * (y2 - y0) - (y1 - y0) * (x2 - x0) <= 0) continue;  // back-facing, degenerate
+            const std::int64_t mnx = std::min(x0, std::min(x1, x2)), mxx = std::max(x0, std::max(x1, x2));
+            if (equirect_target && mxx - mnx > seam) continue;  // straddles the longitude seam
+            if (mxx < 0 || mnx > std::int64_t(tw) * kSubpixel) continue;
+            const std::int64_t mny = std::min(y0, std::min(y1, y2)), mxy = std::max(y0, std::max(y1, y2));
+            const int ry0 = static_cast<int>(std::max<std::int64_t>(0, CeilSub(mny - kSubpixel / 2)));
+            const int ry1 = static_cast<int>(std::min<std::int64_t>(th - 1, FloorSub(mxy - kSubpixel / 2)));
+            if (ry0 > ry1) continue;
+            const std::uint32_t id = static_cast<std::uint32_t>(2 * a + k);
+            for (int b = ry0 / kBandRows; b <= ry1 / kBandRows; ++b) bins[b].push_back(id);
+          }
+        }
+      }
+    }
+  });
+
+  // Pass 3: rasterise each band; then turn quality into weight (and accumulate).
+  Context cx{&color, &depth, &source, &target, &options, scratch.vx.data(), scratch.vy.data(), scratch.vinv.data(),
+             SideThreshold(options, target), equirect_target, tw, th};
+  float* score = scratch.score.data();
+  const float p = options.blend_exponent;
+  std::atomic<std::int64_t> covered{0};
+  ParallelFor(num_bands, 1, [&](std::int64_t b0, std::int64_t b1) {
+    for (std::int64_t b = b0; b < b1; ++b) {
+      const int y0 = static_cast<int>(b) * kBandRows, y1 = std::min(th, y0 + kBandRows);
+      for (std::ptrdiff_t i = std::ptrdiff_t(y0) * tw; i < std::ptrdiff_t(y1) * tw; ++i) {
+        score[i] = -kInf;
+        out_quality[i] = 0.f;
+        out_depth.data[i] = 0.f;
+        out_color.data[3 * i] = out_color.data[3 * i + 1] = out_color.data[3 * i + 2] = 0.f;
+      }
+      for (int c = 0; c < num_chunks; ++c) {
+        for (std::uint32_t id : scratch.bins[std::size_t(c) * num_bands + b]) {
+          RasterTriangle(cx, id, y0, y1, score, out_color, out_depth, out_quality);
+        }
+      }
+      std::int64_t my_covered = 0;
+      for (std::ptrdiff_t i = std::ptrdiff_t(y0) * tw; i < std::ptrdiff_t(y1) * tw; ++i) {
+        const float q = out_quality[i];
+        if (q > 0.f) {
+          out_weight.data[i] = Weight(q, out_depth.data[i], p);
+          ++my_covered;
+        } else {
+          out_weight.data[i] = 0.f;
+        }
+      }
+      covered += my_covered;
+      if (acc) {
+        AccumulateRows(out_color.data, out_depth.data, out_weight.data, out_quality, *acc, y0, y1);
+      }
+    }
+  });
+  counts.covered_pixels = covered;
+  return counts;
+}
+
+}  // namespace ibr
