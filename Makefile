@@ -32,12 +32,13 @@ test: setup
 
 demo: setup
 	$(VENV)/bin/ibr-preprocess synth:objects -o $(DEMO_DIR)/scene --views 12 --size 480x360
-	$(VENV)/bin/ibr-render $(DEMO_DIR)/scene --method reference --holdout v003 v009 -o $(DEMO_DIR)/render
+	$(VENV)/bin/ibr-render $(DEMO_DIR)/scene --method dibr --holdout v003 v009 -o $(DEMO_DIR)/render
 	@echo "demo: images and report.json in $(DEMO_DIR)/render"
 
 bench: setup
 	$(PY) benchmarks/bench_raycast.py --write-docs
 	$(PY) benchmarks/bench_metrics.py --write
+	$(PY) benchmarks/bench_dibr.py --write-docs
 
 clean:
 	rm -rf build $(VENV) $(DEMO_DIR)
