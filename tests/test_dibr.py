@@ -145,28 +145,53 @@ def _need(sub):
         pytest.skip(f"{sub} not in the shared data")
 
 
-# Thresholds ~1 dB below what the kernel measured (docs/dibr.md): lego object pixels 23.76,
-# ICL visible 32.93, Teddy visible 25.07, Cones 24.06 dB. They guard against regressions;
-# they are below the RVS targets, which are not reached yet (see docs/dibr.md).
+def test_bench_scoring_three_ways(bench):
+    # Synthetic check of the bench's scoring: a 4x4 frame equal to the truth except one hole
+    # (black) whose truth equals its neighbours: excluded and nearest-filled are exact (PSNR
+    # capped by metrics.psnr), black is not; hole fraction 1/16.
+    pytest.importorskip("scipy")
+    truth = np.full((4, 4, 3), 0.5, np.float32)
+    color = truth.copy()
+    hole = np.zeros((4, 4), bool)
+    hole[1, 2] = True
+    color[hole] = 0.0
+    t = bench.three_ways(color, truth, hole)
+    assert t["hole"] == pytest.approx(1 / 16)
+    assert t["excluded"] > 60 and t["filled"] > 60 and t["black"] < 20
+    assert bench.nearest_fill(color, hole)[1, 2] == pytest.approx(truth[1, 2])
+
+
+def test_default_side_threshold_is_rvs():
+    # RVS 4.0: q = clamp(10000 - 1000 L, 1, 10000), i.e. T = 10 target pixels (docs/dibr.md).
+    from ibrtools.render.dibr import check_params
+    assert check_params({})["side_threshold"] == 10.0
+
+
+# Floors ~0.5 dB below what was measured (docs/dibr.md, T = 10 px): lego r_0 object 19.70 / all
+# 23.4 dB; ICL holes excluded 33.13, nearest-filled 32.59; Teddy holes excluded 29.17, holes
+# black 25.08; Cones 27.69 / 24.08 dB. They guard against regressions (a warp offset of one
+# pixel costs 4-5 dB on Middlebury); they are below the RVS targets, which are not all reached.
 @needs_kernel
 def test_real_lego_heldout(bench):
     _need("nerf_lego")
     r = bench.lego(DATA, heldout=("r_0",))
-    # r_0 alone measured 19.14 dB object / 23.11 dB all (r_50 and r_150 reach 28 dB: each has
-    # a near-duplicate camera among the inputs; r_0 and r_100 do not).
-    assert r["psnr_object"] > 18.5 and r["psnr_all"] > 22.5
+    # r_50 and r_150 reach 28 dB: each has a near-duplicate camera among the inputs; r_0 and
+    # r_100 do not, and the 8-bit depth (steps ~0.8 % of the depth) misregisters by ~1 px there.
+    assert r["psnr_object"] > 19.2 and r["psnr_all"] > 22.8
 
 
 @needs_kernel
 def test_real_icl_frame4_from_1_and_5(bench):
     _need("icl_nuim_livingroom")
     r = bench.icl(DATA)
-    assert r["psnr_visible"] > 32.0 and r["hole"] < 0.1
+    assert r["psnr_visible"] > 32.6 and r["hole"] < 0.1
+    if r["all"]["filled"] is not None:
+        assert r["all"]["filled"] > 32.0
 
 
 @needs_kernel
-@pytest.mark.parametrize("name, floor", [("Teddy", 24.0), ("Cones", 23.0)])
-def test_real_middlebury_right_from_left(bench, name, floor):
+@pytest.mark.parametrize("name, excluded, black", [("Teddy", 28.7, 24.6), ("Cones", 27.2, 23.6)])
+def test_real_middlebury_right_from_left(bench, name, excluded, black):
     _need(f"middlebury/{name}")
     r = bench.middlebury(DATA, name)
-    assert r["psnr_visible"] > floor and r["hole_visible"] < 0.02
+    assert r["vis"]["excluded"] > excluded and r["vis"]["black"] > black and r["hole_visible"] < 0.02
