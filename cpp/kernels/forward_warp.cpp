@@ -38,6 +38,14 @@ inline void TriangleVertices(std::uint32_t id, int w, std::int64_t v[3]) {
   }
 }
 
+// std::lround(v) without the library call: the same value for |v| < 2^31 (v - trunc(v) is
+// exact). Branch-free: the rounding direction is random per vertex, a branch mispredicts.
+inline std::int32_t RoundHalfAway(double v) {
+  const std::int32_t t = static_cast<std::int32_t>(v);  // truncation
+  const double frac = v - double(t);
+  return t + std::int32_t(frac >= 0.5) - std::int32_t(frac <= -0.5);
+}
+
 inline float ClampDepth(float d) { return std::min(std::max(d, kMinWeightDepth), kMaxWeightDepth); }
 
 inline float Weight(float q, float d, float p) {
@@ -54,15 +62,49 @@ inline float Weight(float q, float d, float p) {
   return std::min(std::max(w, 1e-30f), 1e30f);
 }
 
+// Fixed-point edge functions of a triangle with vertices X, Y (1/256 px), set up at the pixel
+// centre (px0 + 0.5, py0 + 0.5). Edge e is opposite vertex e: from vertex e+1 to vertex e+2;
+// E_e / area2 = barycentric e. e_row includes the tie-rule bias (-1 on edges the triangle
+// does not own), so "covered" is simply E_0, E_1, E_2 >= 0.
+struct Edges {
+  std::int64_t ex[3], ey[3], e_row[3], bias[3];
+};
+
+inline void SetupEdges(const std::int64_t X[3], const std::int64_t Y[3], int px0, int py0, Edges* E) {
+  const std::int64_t sx = std::int64_t(px0) * kSubpixel + kSubpixel / 2;
+  const std::int64_t sy = std::int64_t(py0) * kSubpixel + kSubpixel / 2;
+  for (int e = 0; e < 3; ++e) {
+    const int a = (e + 1) % 3, b = (e + 2) % 3;
+    const std::int64_t dx = X[b] - X[a], dy = Y[b] - Y[a];
+    const bool owns = dy > 0 || (dy == 0 && dx < 0);
+    E->ex[e] = -dy * kSubpixel;  // step in x
+    E->ey[e] = dx * kSubpixel;   // step in y
+    E->bias[e] = owns ? 0 : 1;
+    E->e_row[e] = dx * (sy - Y[a]) - dy * (sx - X[a]) - E->bias[e];
+  }
+}
+
+// Coverage of the nx x ny (each 1 or 2) centres from the set-up corner: bit 2 * j + i set when
+// centre (px0 + i, py0 + j) is inside.
+inline unsigned SmallCoverage(const Edges& E, int nx, int ny) {
+  unsigned mask = 0;
+  for (int j = 0; j < ny; ++j) {
+    for (int i = 0; i < nx; ++i) {
+      const std::int64_t e0 = E.e_row[0] + E.ex[0] * i + E.ey[0] * j, e1 = E.e_row[1] + E.ex[1] * i + E.ey[1] * j,
+                         e2 = E.e_row[2] + E.ex[2] * i + E.ey[2] * j;
+      if ((e0 | e1 | e2) >= 0) mask |= 1u << (2 * j + i);
+    }
+  }
+  return mask;
+}
+
 struct Context {
   const ImageView<const float>* color;
   const ImageView<const float>* depth;
   const Camera* source;
   const Camera* target;
   const WarpOptions* options;
-  const std::int32_t* vx;  // fixed point, 1/256 px
-  const std::int32_t* vy;
-  const float* vinv;
+  const WarpVertex* verts;
   float side_t;
   bool equirect_target;
   int tw, th;
@@ -131,9 +173,10 @@ void RasterTriangle(const Context& cx, std::uint32_t id, int band_y0, int band_y
   float x[3], y[3], inv[3];
   std::int64_t X[3], Y[3];
   for (int k = 0; k < 3; ++k) {
-    X[k] = cx.vx[vi[k]];
-    Y[k] = cx.vy[vi[k]];
-    inv[k] = cx.vinv[vi[k]];
+    const WarpVertex& vk = cx.verts[vi[k]];
+    X[k] = vk.x;
+    Y[k] = vk.y;
+    inv[k] = vk.inv;
     x[k] = float(X[k]) * (1.f / kSubpixel);
     y[k] = float(Y[k]) * (1.f / kSubpixel);
   }
@@ -148,6 +191,17 @@ void RasterTriangle(const Context& cx, std::uint32_t id, int band_y0, int band_y
   const int py1 = static_cast<int>(std::min<std::int64_t>(band_y1 - 1, FloorSub(max_y - kSubpixel / 2)));
   if (px0 > px1 || py0 > py1) return;
 
+  Edges E;
+  SetupEdges(X, Y, px0, py0, &E);
+  const std::int64_t *ex = E.ex, *ey = E.ey, *bias = E.bias;
+  std::int64_t* e_row = E.e_row;
+  // Small triangles (the common case: an undistorted grid triangle covers 0-2 pixel centres)
+  // have at most 2 x 2 candidate centres: test them directly (binning already dropped the
+  // ones that cover none). Same integer edge values as the scan below.
+  const bool small = px1 - px0 <= 1 && py1 - py0 <= 1;
+  const unsigned mask = small ? SmallCoverage(E, px1 - px0 + 1, py1 - py0 + 1) : 0u;
+  if (small && mask == 0) return;
+
   const int n_inf = (inv[0] == 0.f) + (inv[1] == 0.f) + (inv[2] == 0.f);
   if (n_inf != 0 && n_inf != 3) return;  // mixed sky / surface: stretched across a silhouette
   const bool affine = n_inf == 3;
@@ -156,19 +210,6 @@ void RasterTriangle(const Context& cx, std::uint32_t id, int band_y0, int band_y
   const float q = TriangleQuality(cx, vi, x, y, area_px);
   if (q <= 0.f) return;
 
-  // Edge e is opposite vertex e: from vertex e+1 to vertex e+2; E_e / area2 = barycentric e.
-  std::int64_t ex[3], ey[3], e_row[3], bias[3];
-  const std::int64_t sx = std::int64_t(px0) * kSubpixel + kSubpixel / 2;
-  const std::int64_t sy = std::int64_t(py0) * kSubpixel + kSubpixel / 2;
-  for (int e = 0; e < 3; ++e) {
-    const int a = (e + 1) % 3, b = (e + 2) % 3;
-    const std::int64_t dx = X[b] - X[a], dy = Y[b] - Y[a];
-    const bool owns = dy > 0 || (dy == 0 && dx < 0);
-    ex[e] = -dy * kSubpixel;  // step in x
-    ey[e] = dx * kSubpixel;   // step in y
-    bias[e] = owns ? 0 : 1;
-    e_row[e] = dx * (sy - Y[a]) - dy * (sx - X[a]) - bias[e];
-  }
   // Attributes over the vertices, premultiplied by 1/d (perspective-correct) unless affine.
   const float* col = cx.color->data;
   float a_inv[3], a_c[3][3];
@@ -180,6 +221,45 @@ void RasterTriangle(const Context& cx, std::uint32_t id, int band_y0, int band_y
   const float inv_area = static_cast<float>(1.0 / double(area2));
   const bool combined = cx.options->depth_test == DepthTest::kCombined;
   const int tw = cx.tw;
+  // Shades centre (px, py) given its edge values (bias included), keeps it if it wins the test.
+  const auto shade = [&](int px, int py, std::int64_t e0, std::int64_t e1, std::int64_t e2) {
+    // The bias (-1 on non-owned edges) is removed again for the barycentrics.
+    const float b0 = float(e0 + bias[0]) * inv_area, b1 = float(e1 + bias[1]) * inv_area,
+                b2 = float(e2 + bias[2]) * inv_area;
+    float d, s;
+    if (affine) {
+      d = kInf;
+    } else {
+      const float id = b0 * a_inv[0] + b1 * a_inv[1] + b2 * a_inv[2];
+      d = 1.f / id;
+    }
+    if (combined) {
+      const float dc = ClampDepth(d);
+      s = q / (dc * dc * dc);
+    } else {
+      s = -std::min(d, kMaxWeightDepth);
+    }
+    const std::ptrdiff_t i = std::ptrdiff_t(py) * tw + px;
+    if (s > score[i]) {
+      score[i] = s;
+      const float m = affine ? 1.f : d;
+      float* c = oc.data + 3 * i;
+      for (int ch = 0; ch < 3; ++ch) c[ch] = (b0 * a_c[0][ch] + b1 * a_c[1][ch] + b2 * a_c[2][ch]) * m;
+      od.data[i] = d;
+      oq[i] = q;
+    }
+  };
+  if (small) {
+    for (int j = 0; j <= py1 - py0; ++j) {
+      for (int i = 0; i <= px1 - px0; ++i) {
+        if (mask & (1u << (2 * j + i))) {
+          shade(px0 + i, py0 + j, e_row[0] + ex[0] * i + ey[0] * j, e_row[1] + ex[1] * i + ey[1] * j,
+                e_row[2] + ex[2] * i + ey[2] * j);
+        }
+      }
+    }
+    return;
+  }
   // Wide triangles (long slivers across disocclusions): per row, the exact span where the three
   // edge functions are >= 0 (integer division), instead of scanning the whole bounding box.
   const bool spans = px1 - px0 >= 8;
@@ -200,34 +280,8 @@ void RasterTriangle(const Context& cx, std::uint32_t id, int band_y0, int band_y
     }
     std::int64_t e0 = e_row[0] + ex[0] * (xs - px0), e1 = e_row[1] + ex[1] * (xs - px0),
                  e2 = e_row[2] + ex[2] * (xs - px0);
-    float* srow = score + std::ptrdiff_t(py) * tw;
     for (int px = xs; px <= xe; ++px) {
-      if ((e0 | e1 | e2) >= 0) {
-        // The bias (-1 on non-owned edges) is removed again for the barycentrics.
-        const float b0 = float(e0 + bias[0]) * inv_area, b1 = float(e1 + bias[1]) * inv_area,
-                    b2 = float(e2 + bias[2]) * inv_area;
-        float d, s;
-        if (affine) {
-          d = kInf;
-        } else {
-          const float id = b0 * a_inv[0] + b1 * a_inv[1] + b2 * a_inv[2];
-          d = 1.f / id;
-        }
-        if (combined) {
-          const float dc = ClampDepth(d);
-          s = q / (dc * dc * dc);
-        } else {
-          s = -std::min(d, kMaxWeightDepth);
-        }
-        if (s > srow[px]) {
-          srow[px] = s;
-          const float m = affine ? 1.f : d;
-          float* c = &oc.At(py, px);
-          for (int ch = 0; ch < 3; ++ch) c[ch] = (b0 * a_c[0][ch] + b1 * a_c[1][ch] + b2 * a_c[2][ch]) * m;
-          od.At(py, px) = d;
-          oq[std::ptrdiff_t(py) * tw + px] = q;
-        }
-      }
+      if ((e0 | e1 | e2) >= 0) shade(px, py, e0, e1, e2);
       e0 += ex[0]; e1 += ex[1]; e2 += ex[2];
     }
   }
@@ -249,9 +303,7 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
   const int h = depth.height, w = depth.width;
   const int th = target.height, tw = target.width;
   const std::int64_t n = std::int64_t(h) * w;
-  scratch.vx.resize(n);
-  scratch.vy.resize(n);
-  scratch.vinv.resize(n);
+  scratch.verts.resize(n);
   scratch.score.resize(std::int64_t(th) * tw);
 
   // Pass 1: vertices. target_from_source = (R_t, t_t) o (R_s, t_s)^-1.
@@ -259,37 +311,62 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
   const glm::dvec3 trans = target.trans - rot * source.trans;
   const float lo_x = -kGuardPixels, hi_x = float(tw) + kGuardPixels;
   const float lo_y = -kGuardPixels, hi_y = float(th) + kGuardPixels;
+  const bool pinholes = source.model == CameraModel::kPinhole && target.model == CameraModel::kPinhole;
+  WarpVertex* verts = scratch.verts.data();
+  // Pinhole source: the ray's x per column, (u + 0.5 - cx) / fx, once per view (same doubles).
+  if (pinholes) {
+    scratch.ray_x.resize(w);
+    for (int u = 0; u < w; ++u) scratch.ray_x[u] = (u + 0.5 - source.cx) / source.fx;
+  }
+  const double* ray_x = scratch.ray_x.data();
   std::atomic<std::int64_t> valid{0}, bad{0};
   ParallelFor(h, 8, [&](std::int64_t r0, std::int64_t r1) {
     std::int64_t my_valid = 0, my_bad = 0;
     for (std::int64_t r = r0; r < r1; ++r) {
       const float* drow = depth.Row(static_cast<int>(r));
+      WarpVertex* vrow = verts + r * w;
+      // Pinhole -> pinhole (the common case): Camera::RayInCam, the glm rotation and
+      // Camera::ProjectCam written out with the very same operations in the same order (so the
+      // same doubles, bit for bit), without the per-pixel model branches or divisions for the
+      // ray (its x comes from a per-column table, its y is computed once per row).
+      const double ray_y = (double(r) + 0.5 - source.cy) / source.fy;
       for (int u = 0; u < w; ++u) {
-        const std::int64_t i = r * w + u;
         const float d = drow[u];
-        std::int32_t& ox = scratch.vx[i];
-        ox = kInvalid;
-        scratch.vy[i] = 0;
-        scratch.vinv[i] = 0.f;
+        WarpVertex& o = vrow[u];
+        o.x = kInvalid;
+        o.y = 0;
+        o.inv = 0.f;
         if (!(d > 0.f)) {
           if (d != 0.f) ++my_bad;  // NaN or negative
           continue;
         }
         ++my_valid;
-        const glm::dvec3 ray = source.RayInCam(u + 0.5, double(r) + 0.5);
-        glm::dvec3 p;
-        if (std::isinf(d)) {
-          p = rot * ray;  // a direction: rotation only
-        } else {
-          p = rot * (ray * double(d)) + trans;
-        }
         double x, y, dt;
-        if (!target.ProjectCam(p, &x, &y, &dt)) continue;
+        if (pinholes && !std::isinf(d)) {
+          const double dd = double(d);
+          const double rx = ray_x[u] * dd, ry = ray_y * dd, rz = dd;
+          const double pz = rot[0][2] * rx + rot[1][2] * ry + rot[2][2] * rz + trans.z;
+          if (!(pz > 0.0)) continue;
+          const double px = rot[0][0] * rx + rot[1][0] * ry + rot[2][0] * rz + trans.x;
+          const double py = rot[0][1] * rx + rot[1][1] * ry + rot[2][1] * rz + trans.y;
+          x = target.fx * px / pz + target.cx;
+          y = target.fy * py / pz + target.cy;
+          dt = pz;
+        } else {
+          const glm::dvec3 ray = source.RayInCam(u + 0.5, double(r) + 0.5);
+          glm::dvec3 p;
+          if (std::isinf(d)) {
+            p = rot * ray;  // a direction: rotation only
+          } else {
+            p = rot * (ray * double(d)) + trans;
+          }
+          if (!target.ProjectCam(p, &x, &y, &dt)) continue;
+        }
         if (!(x > lo_x && x < hi_x && y > lo_y && y < hi_y)) continue;
-        // Snap to 1/256 px (round half away from zero is fine: one rule for every vertex).
-        ox = static_cast<std::int32_t>(std::lround(x * kSubpixel));
-        scratch.vy[i] = static_cast<std::int32_t>(std::lround(y * kSubpixel));
-        scratch.vinv[i] = std::isinf(d) ? 0.f : static_cast<float>(1.0 / dt);
+        // Snap to 1/256 px, rounding half away from zero (one rule for every vertex).
+        o.x = RoundHalfAway(x * kSubpixel);
+        o.y = RoundHalfAway(y * kSubpixel);
+        o.inv = std::isinf(d) ? 0.f : static_cast<float>(1.0 / dt);
       }
     }
     valid += my_valid;
@@ -315,11 +392,9 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
       for (int r = r0; r < r1; ++r) {
         for (int u = 0; u + 1 < w; ++u) {
           const std::int64_t a = std::int64_t(r) * w + u;
-          const std::int32_t* VX = scratch.vx.data();
-          const std::int32_t* VY = scratch.vy.data();
-          const std::int32_t xa = VX[a], xb = VX[a + 1], xc = VX[a + w], xd = VX[a + w + 1];
+          const std::int32_t xa = verts[a].x, xb = verts[a + 1].x, xc = verts[a + w].x, xd = verts[a + w + 1].x;
           if (xb == kInvalid || xc == kInvalid) continue;  // both triangles touch b and c
-          const std::int32_t ya = VY[a], yb = VY[a + 1], yc = VY[a + w], yd = VY[a + w + 1];
+          const std::int32_t ya = verts[a].y, yb = verts[a + 1].y, yc = verts[a + w].y, yd = verts[a + w + 1].y;
           for (int k = 0; k < 2; ++k) {
             std::int64_t x0, x1, x2, y0, y1, y2;
             if (k == 0) { x0 = xa; x1 = xb; x2 = xc; y0 = ya; y1 = yb; y2 = yc; }
@@ -342,7 +417,7 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
   });
 
   // Pass 3: rasterise each band; then turn quality into weight (and accumulate).
-  Context cx{&color, &depth, &source, &target, &options, scratch.vx.data(), scratch.vy.data(), scratch.vinv.data(),
+  Context cx{&color, &depth, &source, &target, &options, verts,
              SideThreshold(options, target), equirect_target, tw, th};
   float* score = scratch.score.data();
   const float p = options.blend_exponent;

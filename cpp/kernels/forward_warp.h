@@ -78,10 +78,17 @@ struct WarpOptions {
 // Side threshold used for a target camera (auto rule above when options.side_threshold == 0).
 float SideThreshold(const WarpOptions& options, const Camera& target);
 
+// One projected input pixel. Array of structs: a triangle reads its three vertices from two
+// cache lines (rows v and v + 1) instead of six with one array per field.
+struct WarpVertex {
+  std::int32_t x, y;  // target position, 1/256 px (x = INT32_MIN: invalid)
+  float inv;          // 1 / target depth (0 = infinite)
+};
+
 // Working memory of the warp, grown (never shrunk) by ForwardWarp and reused across views.
 struct WarpScratch {
-  std::vector<std::int32_t> vx, vy;           // per input pixel: target position, 1/256 px
-  std::vector<float> vinv;                    // per input pixel: 1 / target depth (0 = infinite)
+  std::vector<WarpVertex> verts;              // per input pixel
+  std::vector<double> ray_x;                  // per input column (pinhole source)
   std::vector<std::vector<std::uint32_t>> bins;  // (input chunk, band) -> triangle ids
   std::vector<float> score;                   // per target pixel: q / d^3 of the kept fragment
 };
