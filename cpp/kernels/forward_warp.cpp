@@ -403,11 +403,26 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
             if ((x1 - x0) * (y2 - y0) - (y1 - y0) * (x2 - x0) <= 0) continue;  // back-facing, degenerate
             const std::int64_t mnx = std::min(x0, std::min(x1, x2)), mxx = std::max(x0, std::max(x1, x2));
             if (equirect_target && mxx - mnx > seam) continue;  // straddles the longitude seam
-            if (mxx < 0 || mnx > std::int64_t(tw) * kSubpixel) continue;
+            // Pixel centres in the bounding box (the same rule as RasterTriangle).
+            const int rx0 = static_cast<int>(std::max<std::int64_t>(0, CeilSub(mnx - kSubpixel / 2)));
+            const int rx1 = static_cast<int>(std::min<std::int64_t>(tw - 1, FloorSub(mxx - kSubpixel / 2)));
+            if (rx0 > rx1) continue;
             const std::int64_t mny = std::min(y0, std::min(y1, y2)), mxy = std::max(y0, std::max(y1, y2));
-            const int ry0 = static_cast<int>(std::max<std::int64_t>(0, CeilSub(mny - kSubpixel / 2)));
-            const int ry1 = static_cast<int>(std::min<std::int64_t>(th - 1, FloorSub(mxy - kSubpixel / 2)));
+            int ry0 = static_cast<int>(std::max<std::int64_t>(0, CeilSub(mny - kSubpixel / 2)));
+            int ry1 = static_cast<int>(std::min<std::int64_t>(th - 1, FloorSub(mxy - kSubpixel / 2)));
             if (ry0 > ry1) continue;
+            if (rx1 - rx0 <= 1 && ry1 - ry0 <= 1) {
+              // Small triangle: about half of them cover no pixel centre at all; drop those here
+              // (the rasteriser would set them up for nothing), and bin the others by the rows
+              // they do cover.
+              const std::int64_t X[3] = {x0, x1, x2}, Y[3] = {y0, y1, y2};
+              Edges E;
+              SetupEdges(X, Y, rx0, ry0, &E);
+              const unsigned mask = SmallCoverage(E, rx1 - rx0 + 1, ry1 - ry0 + 1);
+              if (mask == 0) continue;
+              if ((mask & 3u) == 0) ++ry0;       // top row uncovered
+              if ((mask & 12u) == 0) ry1 = ry0;  // bottom row uncovered (or absent)
+            }
             const std::uint32_t id = static_cast<std::uint32_t>(2 * a + k);
             for (int b = ry0 / kBandRows; b <= ry1 / kBandRows; ++b) bins[b].push_back(id);
           }
