@@ -167,9 +167,9 @@ def test_default_side_threshold_is_rvs():
     assert check_params({})["side_threshold"] == 10.0
 
 
-# Floors ~0.5 dB below what was measured (docs/dibr.md, T = 10 px): lego r_0 object 19.70 / all
-# 23.4 dB; ICL holes excluded 33.13, nearest-filled 32.59; Teddy holes excluded 29.17, holes
-# black 25.08; Cones 27.69 / 24.08 dB. They guard against regressions (a warp offset of one
+# Floors ~0.5 dB below what was measured (docs/dibr.md, T = 10 px, stretched-only pixels as
+# holes): lego r_0 object / all; ICL holes excluded 33.46, nearest-filled 32.57; Teddy holes
+# excluded 29.27, nearest-filled 29.00; Cones 27.92 / 27.61 dB. They guard against regressions (a warp offset of one
 # pixel costs 4-5 dB on Middlebury); they are below the RVS targets, which are not all reached.
 @needs_kernel
 def test_real_lego_heldout(bench):
@@ -190,8 +190,12 @@ def test_real_icl_frame4_from_1_and_5(bench):
 
 
 @needs_kernel
-@pytest.mark.parametrize("name, excluded, black", [("Teddy", 28.7, 24.6), ("Cones", 27.2, 23.6)])
-def test_real_middlebury_right_from_left(bench, name, excluded, black):
+@pytest.mark.parametrize("name, excluded, filled", [("Teddy", 28.7, 28.5), ("Cones", 27.4, 27.1)])
+def test_real_middlebury_right_from_left(bench, name, excluded, filled):
     _need(f"middlebury/{name}")
     r = bench.middlebury(DATA, name)
-    assert r["vis"]["excluded"] > excluded and r["vis"]["black"] > black and r["hole_visible"] < 0.02
+    # "filled" is RVS's protocol (holes take the nearest covered colour). Holes black is not
+    # floored: stretched-only pixels are holes by design (issue 3), so it measures hole count.
+    assert r["vis"]["excluded"] > excluded and r["hole_visible"] < 0.03
+    if r["vis"]["filled"] is not None:
+        assert r["vis"]["filled"] > filled

@@ -73,12 +73,26 @@ double MsSince(std::chrono::steady_clock::time_point t0) {
 
 class DibrAccumulator {
  public:
-  explicit DibrAccumulator(const Camera& target) : target_(target) {
+  DibrAccumulator(const Camera& target, float stretched_quality, bool stretched_holes, float depth_tolerance)
+      : target_(target) {
+    if (!(stretched_quality >= 0.f && stretched_quality <= 1.f)) {
+      throw BadValueError("stretched_quality: expected a number in [0, 1], got " + std::to_string(stretched_quality));
+    }
+    if (!(depth_tolerance >= 0.f && depth_tolerance < 1.f)) {
+      throw BadValueError("depth_tolerance: expected a number in [0, 1), got " + std::to_string(depth_tolerance));
+    }
+    if (stretched_holes && stretched_quality == 0.f) {
+      throw BadValueError("stretched_holes: needs stretched_quality > 0 to say which fragments are stretched");
+    }
     const std::size_t n = std::size_t(target.width) * target.height;
     sum_wc_.resize(3 * n);
     sum_w_.resize(n);
     sum_w_invd_.resize(n);
     sum_q_.resize(n);
+    max_q_.resize(n);
+    buffers_.stretched_quality = stretched_quality;
+    buffers_.stretched_holes = stretched_holes;
+    buffers_.depth_tolerance = depth_tolerance;
     view_color_.resize(3 * n);
     view_depth_.resize(n);
     view_weight_.resize(n);
@@ -140,10 +154,11 @@ class DibrAccumulator {
     buffers_.sum_w = sum_w_.data();
     buffers_.sum_w_invd = sum_w_invd_.data();
     buffers_.sum_q = sum_q_.data();
+    buffers_.max_q = max_q_.data();
   }
 
   Camera target_;
-  std::vector<float> sum_wc_, sum_w_, sum_w_invd_, sum_q_;
+  std::vector<float> sum_wc_, sum_w_, sum_w_invd_, sum_q_, max_q_;
   std::vector<float> view_color_, view_depth_, view_weight_, view_quality_;
   WarpScratch scratch_;
   BlendBuffers buffers_;
@@ -195,7 +210,12 @@ void BindDibr(py::module_& m) {
   py::class_<DibrAccumulator>(m, "DibrAccumulator",
                               "Streaming DIBR into one target camera: add_view warps a colour + depth view and "
                               "adds it to running sums (constant memory); result() blends (paper Eq. 3).")
-      .def(py::init<const Camera&>(), py::arg("target_camera"))
+      .def(py::init<const Camera&, float, bool, float>(), py::arg("target_camera"),
+           py::arg("stretched_quality") = 0.f, py::arg("stretched_holes") = false, py::arg("depth_tolerance") = 0.f,
+           "Visibility across views (cpp/kernels/blend.h; all off = RVS): stretched_quality in [0, 1] "
+           "(fragments with q below it are stretched: never mixed into unstretched content), "
+           "stretched_holes (pixels only stretched fragments cover become holes), depth_tolerance "
+           "(relative: a nearer fragment replaces the sums, a farther one is dropped).")
       .def("add_view", &DibrAccumulator::AddView, py::arg("color"), py::arg("depth"), py::arg("camera"),
            py::arg("options") = WarpOptions(),
            "color float32 (H, W, 3) linear, depth float32 (H, W) (pinhole: z, equirect: ray distance; 0 = "

@@ -1,5 +1,6 @@
 #include "kernels/blend.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstddef>
 #include <limits>
@@ -16,23 +17,67 @@ void ClearBlend(const BlendBuffers& acc) {
   ParallelFor(acc.height, kRowsPerTask, [&](std::int64_t y0, std::int64_t y1) {
     for (std::int64_t i = y0 * w; i < y1 * w; ++i) {
       acc.sum_wc[3 * i] = acc.sum_wc[3 * i + 1] = acc.sum_wc[3 * i + 2] = 0.f;
-      acc.sum_w[i] = acc.sum_w_invd[i] = acc.sum_q[i] = 0.f;
+      acc.sum_w[i] = acc.sum_w_invd[i] = acc.sum_q[i] = acc.max_q[i] = 0.f;
     }
   });
 }
 
+namespace {
+
+void ResetPixel(const BlendBuffers& acc, std::ptrdiff_t i) {
+  acc.sum_wc[3 * i] = acc.sum_wc[3 * i + 1] = acc.sum_wc[3 * i + 2] = 0.f;
+  acc.sum_w[i] = acc.sum_w_invd[i] = acc.sum_q[i] = acc.max_q[i] = 0.f;
+}
+
+// Whether the fragment (depth d, quality q) joins the sums at pixel i, after resetting them
+// when it replaces what they hold ("Visibility across views" in blend.h).
+bool Admit(const BlendBuffers& acc, std::ptrdiff_t i, float d, float q) {
+  if (!(acc.sum_w[i] > 0.f)) return true;
+  if (acc.stretched_quality > 0.f) {
+    const bool new_stretched = q < acc.stretched_quality;
+    const bool old_stretched = acc.max_q[i] < acc.stretched_quality;
+    if (new_stretched && !old_stretched) return false;
+    if (!new_stretched && old_stretched) {
+      ResetPixel(acc, i);
+      return true;
+    }
+  }
+  if (acc.depth_tolerance > 0.f) {
+    // Accumulated depth sum_w / sum_w_invd without dividing: compare d * sum_w_invd with
+    // sum_w * (1 -/+ tol). Infinite depths (1/d = 0) are handled apart to avoid inf * 0.
+    const float s_inv = acc.sum_w_invd[i], s_w = acc.sum_w[i];
+    if (std::isinf(d)) return s_inv == 0.f;  // only joins other fragments at infinity
+    if (s_inv == 0.f) {                       // sums hold only infinity: a finite surface is nearer
+      ResetPixel(acc, i);
+      return true;
+    }
+    const float ratio_num = d * s_inv;         // = d / d_acc * s_w
+    if (ratio_num < s_w * (1.f - acc.depth_tolerance)) {
+      ResetPixel(acc, i);
+      return true;
+    }
+    if (ratio_num > s_w * (1.f + acc.depth_tolerance)) return false;
+  }
+  return true;
+}
+
+}  // namespace
+
 void AccumulateRows(const float* color, const float* depth, const float* weight, const float* quality,
                     const BlendBuffers& acc, int y0, int y1) {
   const std::ptrdiff_t w = acc.width;
+  const bool visibility = acc.stretched_quality > 0.f || acc.depth_tolerance > 0.f;
   for (std::ptrdiff_t i = y0 * w; i < std::ptrdiff_t(y1) * w; ++i) {
     const float wi = weight[i];
     if (!(wi > 0.f)) continue;
+    if (visibility && !Admit(acc, i, depth[i], quality[i])) continue;
     acc.sum_wc[3 * i] += wi * color[3 * i];
     acc.sum_wc[3 * i + 1] += wi * color[3 * i + 1];
     acc.sum_wc[3 * i + 2] += wi * color[3 * i + 2];
     acc.sum_w[i] += wi;
     acc.sum_w_invd[i] += wi / depth[i];  // depth > 0 where covered; +inf gives 0
     acc.sum_q[i] += quality[i];
+    acc.max_q[i] = std::max(acc.max_q[i], quality[i]);
   }
 }
 
@@ -41,7 +86,8 @@ void ResolveBlend(const BlendBuffers& acc, float* color, float* depth, float* co
   ParallelFor(acc.height, kRowsPerTask, [&](std::int64_t y0, std::int64_t y1) {
     for (std::int64_t i = y0 * w; i < y1 * w; ++i) {
       const float sw = acc.sum_w[i];
-      if (sw > 0.f) {
+      const bool stretched_only = acc.stretched_holes && acc.max_q[i] < acc.stretched_quality;
+      if (sw > 0.f && !stretched_only) {
         const float inv = 1.f / sw;
         color[3 * i] = acc.sum_wc[3 * i] * inv;
         color[3 * i + 1] = acc.sum_wc[3 * i + 1] * inv;

@@ -10,6 +10,22 @@
 // at infinity), both 0 where sum_w == 0 (hole); confidence = sum_q (0 .. number of views; a
 // pixel seen by one view through undistorted triangles has confidence ~1); hole = sum_w == 0.
 // Never NaN: weights are finite and positive where a view covers a pixel (forward_warp.h).
+//
+// Visibility across views (optional; RVS blends every view's front fragment, so both are off by
+// default and the pure Eq. 3 mean is kept). Each view's z-buffer only resolves occlusion within
+// that view; a background fragment of view A and the foreground fragment of view B at the same
+// target pixel are otherwise averaged (ghosting, damped only by the 1/d^p factor). Two rules,
+// applied as each fragment arrives, keep the sums streaming (no per-view buffers):
+//  * stretched_quality > 0: a fragment with q < stretched_quality lies on a stretched triangle
+//    (a disocclusion bridge). It never mixes into a pixel that holds unstretched content, and
+//    unstretched content replaces it. With stretched_holes, pixels that only stretched
+//    fragments cover are holes ("background that no input sees is a hole, not stretched
+//    foreground").
+//  * depth_tolerance > 0: among fragments of the same class, one nearer than the accumulated
+//    depth by more than this relative tolerance replaces the sums (a foreground surface the
+//    earlier views did not see); one farther by more is occluded and dropped.
+// Both depend on view order only when fragments tie at the thresholds; the order is fixed by
+// the caller, so results stay deterministic.
 #pragma once
 #include <cstdint>
 
@@ -21,6 +37,10 @@ struct BlendBuffers {
   float* sum_w = nullptr;       // (H, W)
   float* sum_w_invd = nullptr;  // (H, W)
   float* sum_q = nullptr;       // (H, W)
+  float* max_q = nullptr;       // (H, W) largest q among the fragments in the sums
+  float stretched_quality = 0.f;  // see "Visibility across views"; 0 = off
+  bool stretched_holes = false;
+  float depth_tolerance = 0.f;    // relative; 0 = off
 };
 
 // Zeroes the sums (all threads).
