@@ -11,7 +11,7 @@
 namespace ibr {
 namespace {
 
-constexpr int kChunkRows = 16;   // input block rows per binning task
+constexpr int kSegCols = 64;     // input quads per column segment (y-range culling unit)
 constexpr int kBandRows = 16;    // target rows per rasterisation task
 constexpr int kSubpixel = 256;   // fixed point: 1/256 pixel
 constexpr float kGuardPixels = 16384.f;
@@ -110,22 +110,26 @@ struct Context {
   int tw, th;
 };
 
+// q = 1 - L / T (before the floor), L = longest side in target pixels.
+inline float SideQuality(const float x[3], const float y[3], float side_t) {
+  float l2 = 0.f;
+  for (int e = 0; e < 3; ++e) {
+    const int f = (e + 1) % 3;
+    const float dx = x[f] - x[e], dy = y[f] - y[e];
+    l2 = std::max(l2, dx * dx + dy * dy);
+  }
+  return 1.f - std::sqrt(l2) / side_t;
+}
+
 // Quality of a triangle (forward_warp.h); returns <= 0 when the triangle is to be dropped.
 float TriangleQuality(const Context& cx, const std::int64_t vi[3], const float x[3], const float y[3],
                       double area_px) {
   const WarpOptions& o = *cx.options;
   float q = 1.f;
   switch (o.quality) {
-    case WarpQuality::kSide: {
-      float l2 = 0.f;
-      for (int e = 0; e < 3; ++e) {
-        const int f = (e + 1) % 3;
-        const float dx = x[f] - x[e], dy = y[f] - y[e];
-        l2 = std::max(l2, dx * dx + dy * dy);
-      }
-      q = 1.f - std::sqrt(l2) / cx.side_t;
+    case WarpQuality::kSide:
+      q = SideQuality(x, y, cx.side_t);
       break;
-    }
     case WarpQuality::kShape: {
       float s2 = 0.f;
       for (int e = 0; e < 3; ++e) {
@@ -165,65 +169,35 @@ float TriangleQuality(const Context& cx, const std::int64_t vi[3], const float x
   return std::min(1.f, std::max(q, kQualityFloor));
 }
 
-// Rasterises triangle `id` into rows [band_y0, band_y1) of the outputs.
-void RasterTriangle(const Context& cx, std::uint32_t id, int band_y0, int band_y1, float* score,
-                    const ImageView<float>& oc, const ImageView<float>& od, float* oq) {
-  std::int64_t vi[3];
-  TriangleVertices(id, cx.depth->width, vi);
-  float x[3], y[3], inv[3];
-  std::int64_t X[3], Y[3];
-  for (int k = 0; k < 3; ++k) {
-    const WarpVertex& vk = cx.verts[vi[k]];
-    X[k] = vk.x;
-    Y[k] = vk.y;
-    inv[k] = vk.inv;
-    x[k] = float(X[k]) * (1.f / kSubpixel);
-    y[k] = float(Y[k]) * (1.f / kSubpixel);
-  }
-  const std::int64_t area2 = (X[1] - X[0]) * (Y[2] - Y[0]) - (Y[1] - Y[0]) * (X[2] - X[0]);
-  if (area2 <= 0) return;  // back-facing or degenerate
-  const std::int64_t min_x = std::min(X[0], std::min(X[1], X[2])), max_x = std::max(X[0], std::max(X[1], X[2]));
-  const std::int64_t min_y = std::min(Y[0], std::min(Y[1], Y[2])), max_y = std::max(Y[0], std::max(Y[1], Y[2]));
-  static_assert(kSubpixel == 256, "FloorSub / CeilSub divide by 256");
-  const int px0 = static_cast<int>(std::max<std::int64_t>(0, CeilSub(min_x - kSubpixel / 2)));
-  const int px1 = static_cast<int>(std::min<std::int64_t>(cx.tw - 1, FloorSub(max_x - kSubpixel / 2)));
-  const int py0 = static_cast<int>(std::max<std::int64_t>(band_y0, CeilSub(min_y - kSubpixel / 2)));
-  const int py1 = static_cast<int>(std::min<std::int64_t>(band_y1 - 1, FloorSub(max_y - kSubpixel / 2)));
-  if (px0 > px1 || py0 > py1) return;
-
-  Edges E;
-  SetupEdges(X, Y, px0, py0, &E);
-  const std::int64_t *ex = E.ex, *ey = E.ey, *bias = E.bias;
-  std::int64_t* e_row = E.e_row;
-  // Small triangles (the common case: an undistorted grid triangle covers 0-2 pixel centres)
-  // have at most 2 x 2 candidate centres: test them directly (binning already dropped the
-  // ones that cover none). Same integer edge values as the scan below.
-  const bool small = px1 - px0 <= 1 && py1 - py0 <= 1;
-  const unsigned mask = small ? SmallCoverage(E, px1 - px0 + 1, py1 - py0 + 1) : 0u;
-  if (small && mask == 0) return;
-
-  const int n_inf = (inv[0] == 0.f) + (inv[1] == 0.f) + (inv[2] == 0.f);
-  if (n_inf != 0 && n_inf != 3) return;  // mixed sky / surface: stretched across a silhouette
-  const bool affine = n_inf == 3;
-
-  const double area_px = double(area2) / (2.0 * kSubpixel * kSubpixel);
-  const float q = TriangleQuality(cx, vi, x, y, area_px);
-  if (q <= 0.f) return;
-
-  // Attributes over the vertices, premultiplied by 1/d (perspective-correct) unless affine.
-  const float* col = cx.color->data;
+// One triangle's interpolation set-up and the per-centre shading + depth test. Barycentric e of
+// a centre is (E_e + bias_e) / area2 (the tie-rule bias removed again); depth and colour are
+// interpolated perspective-correctly (forward_warp.h). Every path (small quad, small triangle,
+// span scan) shades through this, so a centre gets the same bits whichever path covers it.
+struct Shader {
+  float inv_area, q;
   float a_inv[3], a_c[3][3];
-  for (int k = 0; k < 3; ++k) {
-    const float m = affine ? 1.f : inv[k];
-    a_inv[k] = inv[k];
-    for (int c = 0; c < 3; ++c) a_c[k][c] = col[3 * vi[k] + c] * m;
+  std::int64_t bias[3];
+  bool affine, combined;
+  int tw;
+  float *score, *oc, *od, *oq;
+
+  // inv: 1 / depth of the vertices (all 0 = affine sky); col: their colours.
+  void Setup(std::int64_t area2, const std::int64_t b[3], float quality, const float inv[3],
+             const float* const col[3], bool all_inf) {
+    affine = all_inf;
+    q = quality;
+    // float(1 / area2) correctly rounded (area2 < 2^24 here is not needed: the double quotient
+    // rounded to float is what the float path has always used).
+    inv_area = static_cast<float>(1.0 / double(area2));
+    for (int k = 0; k < 3; ++k) {
+      bias[k] = b[k];
+      const float m = affine ? 1.f : inv[k];
+      a_inv[k] = inv[k];
+      for (int c = 0; c < 3; ++c) a_c[k][c] = col[k][c] * m;
+    }
   }
-  const float inv_area = static_cast<float>(1.0 / double(area2));
-  const bool combined = cx.options->depth_test == DepthTest::kCombined;
-  const int tw = cx.tw;
-  // Shades centre (px, py) given its edge values (bias included), keeps it if it wins the test.
-  const auto shade = [&](int px, int py, std::int64_t e0, std::int64_t e1, std::int64_t e2) {
-    // The bias (-1 on non-owned edges) is removed again for the barycentrics.
+
+  inline void Shade(int px, int py, std::int64_t e0, std::int64_t e1, std::int64_t e2) const {
     const float b0 = float(e0 + bias[0]) * inv_area, b1 = float(e1 + bias[1]) * inv_area,
                 b2 = float(e2 + bias[2]) * inv_area;
     float d, s;
@@ -243,18 +217,65 @@ void RasterTriangle(const Context& cx, std::uint32_t id, int band_y0, int band_y
     if (s > score[i]) {
       score[i] = s;
       const float m = affine ? 1.f : d;
-      float* c = oc.data + 3 * i;
+      float* c = oc + 3 * i;
       for (int ch = 0; ch < 3; ++ch) c[ch] = (b0 * a_c[0][ch] + b1 * a_c[1][ch] + b2 * a_c[2][ch]) * m;
-      od.data[i] = d;
+      od[i] = d;
       oq[i] = q;
     }
-  };
+  }
+};
+
+// Rasterises triangle `id` into rows [band_y0, band_y1) of the outputs (any size, any quality).
+void RasterTriangle(const Context& cx, std::uint32_t id, int band_y0, int band_y1, Shader& sh) {
+  std::int64_t vi[3];
+  TriangleVertices(id, cx.depth->width, vi);
+  float x[3], y[3], inv[3];
+  std::int64_t X[3], Y[3];
+  for (int k = 0; k < 3; ++k) {
+    const WarpVertex& vk = cx.verts[vi[k]];
+    X[k] = vk.x;
+    Y[k] = vk.y;
+    inv[k] = vk.inv;
+    x[k] = float(X[k]) * (1.f / kSubpixel);
+    y[k] = float(Y[k]) * (1.f / kSubpixel);
+  }
+  if (X[0] == kInvalid || X[1] == kInvalid || X[2] == kInvalid) return;
+  const std::int64_t area2 = (X[1] - X[0]) * (Y[2] - Y[0]) - (Y[1] - Y[0]) * (X[2] - X[0]);
+  if (area2 <= 0) return;  // back-facing or degenerate
+  const std::int64_t min_x = std::min(X[0], std::min(X[1], X[2])), max_x = std::max(X[0], std::max(X[1], X[2]));
+  if (cx.equirect_target && max_x - min_x > std::int64_t(cx.tw) * kSubpixel / 2) return;  // straddles the seam
+  const std::int64_t min_y = std::min(Y[0], std::min(Y[1], Y[2])), max_y = std::max(Y[0], std::max(Y[1], Y[2]));
+  static_assert(kSubpixel == 256, "FloorSub / CeilSub divide by 256");
+  const int px0 = static_cast<int>(std::max<std::int64_t>(0, CeilSub(min_x - kSubpixel / 2)));
+  const int px1 = static_cast<int>(std::min<std::int64_t>(cx.tw - 1, FloorSub(max_x - kSubpixel / 2)));
+  const int py0 = static_cast<int>(std::max<std::int64_t>(band_y0, CeilSub(min_y - kSubpixel / 2)));
+  const int py1 = static_cast<int>(std::min<std::int64_t>(band_y1 - 1, FloorSub(max_y - kSubpixel / 2)));
+  if (px0 > px1 || py0 > py1) return;
+
+  Edges E;
+  SetupEdges(X, Y, px0, py0, &E);
+  const std::int64_t *ex = E.ex, *ey = E.ey;
+  std::int64_t* e_row = E.e_row;
+  // Small triangles (<= 2 x 2 candidate centres): test them directly.
+  const bool small = px1 - px0 <= 1 && py1 - py0 <= 1;
+  const unsigned mask = small ? SmallCoverage(E, px1 - px0 + 1, py1 - py0 + 1) : 0u;
+  if (small && mask == 0) return;
+
+  const int n_inf = (inv[0] == 0.f) + (inv[1] == 0.f) + (inv[2] == 0.f);
+  if (n_inf != 0 && n_inf != 3) return;  // mixed sky / surface: stretched across a silhouette
+
+  const double area_px = double(area2) / (2.0 * kSubpixel * kSubpixel);
+  const float q = TriangleQuality(cx, vi, x, y, area_px);
+  if (q <= 0.f) return;
+  const float* col = cx.color->data;
+  const float* cols[3] = {col + 3 * vi[0], col + 3 * vi[1], col + 3 * vi[2]};
+  sh.Setup(area2, E.bias, q, inv, cols, n_inf == 3);
   if (small) {
     for (int j = 0; j <= py1 - py0; ++j) {
       for (int i = 0; i <= px1 - px0; ++i) {
         if (mask & (1u << (2 * j + i))) {
-          shade(px0 + i, py0 + j, e_row[0] + ex[0] * i + ey[0] * j, e_row[1] + ex[1] * i + ey[1] * j,
-                e_row[2] + ex[2] * i + ey[2] * j);
+          sh.Shade(px0 + i, py0 + j, e_row[0] + ex[0] * i + ey[0] * j, e_row[1] + ex[1] * i + ey[1] * j,
+                   e_row[2] + ex[2] * i + ey[2] * j);
         }
       }
     }
@@ -281,9 +302,101 @@ void RasterTriangle(const Context& cx, std::uint32_t id, int band_y0, int band_y
     std::int64_t e0 = e_row[0] + ex[0] * (xs - px0), e1 = e_row[1] + ex[1] * (xs - px0),
                  e2 = e_row[2] + ex[2] * (xs - px0);
     for (int px = xs; px <= xe; ++px) {
-      if ((e0 | e1 | e2) >= 0) shade(px, py, e0, e1, e2);
+      if ((e0 | e1 | e2) >= 0) sh.Shade(px, py, e0, e1, e2);
       e0 += ex[0]; e1 += ex[1]; e2 += ex[2];
     }
+  }
+}
+
+// One triangle of a small quad (fast path: quality 'side', finite depths, every vertex valid):
+// the candidate centres are the quad's, px0 + i, py0 + j for i < nx, j < ny (nx, ny <= 4,
+// already clipped to the band and the image). A centre outside the triangle's own bounding box
+// fails an edge test anyway, so this covers exactly what RasterTriangle covers. Coordinates
+// span < 5 px (1280 units), so every edge value fits in 32 bits.
+inline void SmallQuadTriangle(const Context& cx, const WarpVertex& v0, const WarpVertex& v1, const WarpVertex& v2,
+                              const float* c0, const float* c1, const float* c2, int px0, int py0, int nx,
+                              int ny, Shader& sh) {
+  const std::int32_t X[3] = {v0.x, v1.x, v2.x}, Y[3] = {v0.y, v1.y, v2.y};
+  const std::int32_t area2 = (X[1] - X[0]) * (Y[2] - Y[0]) - (Y[1] - Y[0]) * (X[2] - X[0]);
+  if (area2 <= 0) return;  // back-facing or degenerate
+  const std::int32_t sx = px0 * kSubpixel + kSubpixel / 2, sy = py0 * kSubpixel + kSubpixel / 2;
+  std::int32_t ex[3], ey[3], er[3];
+  std::int64_t bias[3];
+  for (int e = 0; e < 3; ++e) {
+    const int a = e == 2 ? 0 : e + 1, b = e == 0 ? 2 : e - 1;
+    const std::int32_t dx = X[b] - X[a], dy = Y[b] - Y[a];
+    const bool owns = dy > 0 || (dy == 0 && dx < 0);
+    ex[e] = -dy * kSubpixel;
+    ey[e] = dx * kSubpixel;
+    bias[e] = owns ? 0 : 1;
+    er[e] = dx * (sy - Y[a]) - dy * (sx - X[a]) - std::int32_t(bias[e]);
+  }
+  unsigned mask = 0;  // bit 4 j + i: centre (px0 + i, py0 + j) covered
+  for (int j = 0; j < ny; ++j) {
+    const std::int32_t f0 = er[0] + ey[0] * j, f1 = er[1] + ey[1] * j, f2 = er[2] + ey[2] * j;
+    for (int i = 0; i < nx; ++i) {
+      const std::int32_t e0 = f0 + ex[0] * i, e1 = f1 + ex[1] * i, e2 = f2 + ex[2] * i;
+      mask |= unsigned((e0 | e1 | e2) >= 0) << (4 * j + i);
+    }
+  }
+  if (mask == 0) return;
+  const float x[3] = {float(X[0]) * (1.f / kSubpixel), float(X[1]) * (1.f / kSubpixel), float(X[2]) * (1.f / kSubpixel)};
+  const float y[3] = {float(Y[0]) * (1.f / kSubpixel), float(Y[1]) * (1.f / kSubpixel), float(Y[2]) * (1.f / kSubpixel)};
+  float q = SideQuality(x, y, cx.side_t);
+  if (q <= 0.f && cx.options->discard_stretched) return;
+  q = std::min(1.f, std::max(q, kQualityFloor));
+  const float inv[3] = {v0.inv, v1.inv, v2.inv};
+  const float* cols[3] = {c0, c1, c2};
+  sh.Setup(area2, bias, q, inv, cols, false);
+  do {
+    const int bit = __builtin_ctz(mask);
+    mask &= mask - 1;
+    const int i = bit & 3, j = bit >> 2;
+    sh.Shade(px0 + i, py0 + j, er[0] + ex[0] * i + ey[0] * j, er[1] + ex[1] * i + ey[1] * j,
+             er[2] + ex[2] * i + ey[2] * j);
+  } while (mask != 0);
+}
+
+// Rasterises every triangle of input block row r, columns [u0, u1), into band rows [y0, y1), in
+// input order (triangle 0 then 1 of each quad).
+void RasterBlockRow(const Context& cx, int r, int u0, int u1, int y0, int y1, bool fast, Shader& sh) {
+  const int w = cx.depth->width;
+  const WarpVertex* top = cx.verts + std::int64_t(r) * w;
+  const WarpVertex* bot = top + w;
+  const float* ctop = cx.color->data + 3 * (std::int64_t(r) * w);
+  const float* cbot = ctop + 3 * std::int64_t(w);
+  for (int u = u0; u < u1; ++u) {
+    const WarpVertex &A = top[u], &B = top[u + 1], &C = bot[u], &D = bot[u + 1];
+    if (B.x == kInvalid || C.x == kInvalid) continue;  // both triangles touch B and C
+    if (A.x != kInvalid && D.x != kInvalid) {
+      // Both triangles lie in the quad's bounding box: no centre of it in the band (or the
+      // image), nothing to do.
+      const std::int32_t mny = std::min(std::min(A.y, B.y), std::min(C.y, D.y));
+      const std::int32_t mxy = std::max(std::max(A.y, B.y), std::max(C.y, D.y));
+      int qy0 = static_cast<int>(CeilSub(mny - kSubpixel / 2)), qy1 = static_cast<int>(FloorSub(mxy - kSubpixel / 2));
+      if (qy0 > qy1 || qy1 < y0 || qy0 >= y1) continue;
+      const std::int32_t mnx = std::min(std::min(A.x, B.x), std::min(C.x, D.x));
+      const std::int32_t mxx = std::max(std::max(A.x, B.x), std::max(C.x, D.x));
+      int qx0 = static_cast<int>(CeilSub(mnx - kSubpixel / 2)), qx1 = static_cast<int>(FloorSub(mxx - kSubpixel / 2));
+      if (qx0 > qx1 || qx1 < 0 || qx0 >= cx.tw) continue;
+      if (fast && qx1 - qx0 <= 3 && qy1 - qy0 <= 3 && (!cx.equirect_target || mxx - mnx <= cx.tw * (kSubpixel / 2)) &&
+          A.inv != 0.f && B.inv != 0.f && C.inv != 0.f && D.inv != 0.f) {
+        {
+          qx0 = std::max(qx0, 0);
+          qx1 = std::min(qx1, cx.tw - 1);
+          qy0 = std::max(qy0, y0);
+          qy1 = std::min(qy1, y1 - 1);
+          const int nx = qx1 - qx0 + 1, ny = qy1 - qy0 + 1;
+          const float *ca = ctop + 3 * u, *cb = ca + 3, *cc = cbot + 3 * u, *cd = cc + 3;
+          SmallQuadTriangle(cx, A, B, C, ca, cb, cc, qx0, qy0, nx, ny, sh);
+          SmallQuadTriangle(cx, B, D, C, cb, cd, cc, qx0, qy0, nx, ny, sh);
+          continue;
+        }
+      }
+    }
+    const std::uint32_t id = static_cast<std::uint32_t>(2 * (std::int64_t(r) * w + u));
+    RasterTriangle(cx, id, y0, y1, sh);
+    RasterTriangle(cx, id + 1, y0, y1, sh);
   }
 }
 
@@ -303,8 +416,10 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
   const int h = depth.height, w = depth.width;
   const int th = target.height, tw = target.width;
   const std::int64_t n = std::int64_t(h) * w;
+  const int num_segs = (std::max(1, w - 1) + kSegCols - 1) / kSegCols;
   scratch.verts.resize(n);
   scratch.score.resize(std::int64_t(th) * tw);
+  scratch.seg_y.resize(std::size_t(h) * (num_segs + 1));
 
   // Pass 1: vertices. target_from_source = (R_t, t_t) o (R_s, t_s)^-1.
   const glm::dmat3 rot = target.rot * glm::transpose(source.rot);
@@ -313,6 +428,7 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
   const float lo_y = -kGuardPixels, hi_y = float(th) + kGuardPixels;
   const bool pinholes = source.model == CameraModel::kPinhole && target.model == CameraModel::kPinhole;
   WarpVertex* verts = scratch.verts.data();
+  YRange* seg_y = scratch.seg_y.data();
   // Pinhole source: the ray's x per column, (u + 0.5 - cx) / fx, once per view (same doubles).
   if (pinholes) {
     scratch.ray_x.resize(w);
@@ -368,6 +484,23 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
         o.y = RoundHalfAway(y * kSubpixel);
         o.inv = std::isinf(d) ? 0.f : static_cast<float>(1.0 / dt);
       }
+      // Target y range of the row's valid vertices per column segment (vertices u0 .. u0 +
+      // kSegCols inclusive: the segment's quads), and of the whole row (last entry).
+      YRange* ry = seg_y + r * (num_segs + 1);
+      YRange all{std::numeric_limits<std::int32_t>::max(), std::numeric_limits<std::int32_t>::min()};
+      for (int s = 0; s < num_segs; ++s) {
+        YRange g = {std::numeric_limits<std::int32_t>::max(), std::numeric_limits<std::int32_t>::min()};
+        const int u1 = std::min(w - 1, (s + 1) * kSegCols);
+        for (int u = s * kSegCols; u <= u1; ++u) {
+          if (vrow[u].x == kInvalid) continue;
+          g.lo = std::min(g.lo, vrow[u].y);
+          g.hi = std::max(g.hi, vrow[u].y);
+        }
+        ry[s] = g;
+        all.lo = std::min(all.lo, g.lo);
+        all.hi = std::max(all.hi, g.hi);
+      }
+      ry[num_segs] = all;
     }
     valid += my_valid;
     bad += my_bad;
@@ -377,67 +510,30 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
   // A view the front will reject (bad or no depth) never reaches the sums.
   const BlendBuffers* acc = counts.bad_depths == 0 && counts.valid_vertices > 0 ? accumulate : nullptr;
 
-  // Pass 2: bin triangles into target row bands, per chunk of input block rows.
+  // Pass 2: rasterise each target band: the input block rows, then column segments, whose
+  // vertices' y range reaches the band (no per-triangle bins); triangles in input order.
   const int block_rows = std::max(0, h - 1);
-  const int num_chunks = (block_rows + kChunkRows - 1) / kChunkRows;
   const int num_bands = (th + kBandRows - 1) / kBandRows;
-  if (scratch.bins.size() < std::size_t(num_chunks) * num_bands) scratch.bins.resize(std::size_t(num_chunks) * num_bands);
   const bool equirect_target = target.model == CameraModel::kEquirect;
-  const std::int64_t seam = std::int64_t(tw) * kSubpixel / 2;
-  ParallelFor(num_chunks, 1, [&](std::int64_t c0, std::int64_t c1) {
-    for (std::int64_t c = c0; c < c1; ++c) {
-      std::vector<std::uint32_t>* bins = &scratch.bins[std::size_t(c) * num_bands];
-      for (int b = 0; b < num_bands; ++b) bins[b].clear();
-      const int r0 = static_cast<int>(c) * kChunkRows, r1 = std::min(block_rows, r0 + kChunkRows);
-      for (int r = r0; r < r1; ++r) {
-        for (int u = 0; u + 1 < w; ++u) {
-          const std::int64_t a = std::int64_t(r) * w + u;
-          const std::int32_t xa = verts[a].x, xb = verts[a + 1].x, xc = verts[a + w].x, xd = verts[a + w + 1].x;
-          if (xb == kInvalid || xc == kInvalid) continue;  // both triangles touch b and c
-          const std::int32_t ya = verts[a].y, yb = verts[a + 1].y, yc = verts[a + w].y, yd = verts[a + w + 1].y;
-          for (int k = 0; k < 2; ++k) {
-            std::int64_t x0, x1, x2, y0, y1, y2;
-            if (k == 0) { x0 = xa; x1 = xb; x2 = xc; y0 = ya; y1 = yb; y2 = yc; }
-            else { x0 = xb; x1 = xd; x2 = xc; y0 = yb; y1 = yd; y2 = yc; }
-            if (x0 == kInvalid || x1 == kInvalid || x2 == kInvalid) continue;
-            if ((x1 - x0) * (y2 - y0) - (y1 - y0) * (x2 - x0) <= 0) continue;  // back-facing, degenerate
-            const std::int64_t mnx = std::min(x0, std::min(x1, x2)), mxx = std::max(x0, std::max(x1, x2));
-            if (equirect_target && mxx - mnx > seam) continue;  // straddles the longitude seam
-            // Pixel centres in the bounding box (the same rule as RasterTriangle).
-            const int rx0 = static_cast<int>(std::max<std::int64_t>(0, CeilSub(mnx - kSubpixel / 2)));
-            const int rx1 = static_cast<int>(std::min<std::int64_t>(tw - 1, FloorSub(mxx - kSubpixel / 2)));
-            if (rx0 > rx1) continue;
-            const std::int64_t mny = std::min(y0, std::min(y1, y2)), mxy = std::max(y0, std::max(y1, y2));
-            int ry0 = static_cast<int>(std::max<std::int64_t>(0, CeilSub(mny - kSubpixel / 2)));
-            int ry1 = static_cast<int>(std::min<std::int64_t>(th - 1, FloorSub(mxy - kSubpixel / 2)));
-            if (ry0 > ry1) continue;
-            if (rx1 - rx0 <= 1 && ry1 - ry0 <= 1) {
-              // Small triangle: about half of them cover no pixel centre at all; drop those here
-              // (the rasteriser would set them up for nothing), and bin the others by the rows
-              // they do cover.
-              const std::int64_t X[3] = {x0, x1, x2}, Y[3] = {y0, y1, y2};
-              Edges E;
-              SetupEdges(X, Y, rx0, ry0, &E);
-              const unsigned mask = SmallCoverage(E, rx1 - rx0 + 1, ry1 - ry0 + 1);
-              if (mask == 0) continue;
-              if ((mask & 3u) == 0) ++ry0;       // top row uncovered
-              if ((mask & 12u) == 0) ry1 = ry0;  // bottom row uncovered (or absent)
-            }
-            const std::uint32_t id = static_cast<std::uint32_t>(2 * a + k);
-            for (int b = ry0 / kBandRows; b <= ry1 / kBandRows; ++b) bins[b].push_back(id);
-          }
-        }
-      }
-    }
-  });
-
-  // Pass 3: rasterise each band; then turn quality into weight (and accumulate).
   Context cx{&color, &depth, &source, &target, &options, verts,
              SideThreshold(options, target), equirect_target, tw, th};
+  const bool fast = options.quality == WarpQuality::kSide;
   float* score = scratch.score.data();
   const float p = options.blend_exponent;
   std::atomic<std::int64_t> covered{0};
+  // Centre rows [CeilSub(lo - 128), FloorSub(hi - 128)] of a y range meet band rows [y0, y1)?
+  const auto reaches = [](const YRange& a, const YRange& b, int y0, int y1) {
+    const std::int32_t lo = std::min(a.lo, b.lo), hi = std::max(a.hi, b.hi);
+    return lo <= hi && FloorSub(std::int64_t(hi) - kSubpixel / 2) >= y0 && CeilSub(std::int64_t(lo) - kSubpixel / 2) < y1;
+  };
   ParallelFor(num_bands, 1, [&](std::int64_t b0, std::int64_t b1) {
+    Shader sh;
+    sh.combined = options.depth_test == DepthTest::kCombined;
+    sh.tw = tw;
+    sh.score = score;
+    sh.oc = out_color.data;
+    sh.od = out_depth.data;
+    sh.oq = out_quality;
     for (std::int64_t b = b0; b < b1; ++b) {
       const int y0 = static_cast<int>(b) * kBandRows, y1 = std::min(th, y0 + kBandRows);
       for (std::ptrdiff_t i = std::ptrdiff_t(y0) * tw; i < std::ptrdiff_t(y1) * tw; ++i) {
@@ -446,9 +542,13 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
         out_depth.data[i] = 0.f;
         out_color.data[3 * i] = out_color.data[3 * i + 1] = out_color.data[3 * i + 2] = 0.f;
       }
-      for (int c = 0; c < num_chunks; ++c) {
-        for (std::uint32_t id : scratch.bins[std::size_t(c) * num_bands + b]) {
-          RasterTriangle(cx, id, y0, y1, score, out_color, out_depth, out_quality);
+      for (int r = 0; r < block_rows; ++r) {
+        const YRange* ya = seg_y + std::int64_t(r) * (num_segs + 1);
+        const YRange* yb = ya + (num_segs + 1);
+        if (!reaches(ya[num_segs], yb[num_segs], y0, y1)) continue;
+        for (int s = 0; s < num_segs; ++s) {
+          if (!reaches(ya[s], yb[s], y0, y1)) continue;
+          RasterBlockRow(cx, r, s * kSegCols, std::min(w - 1, (s + 1) * kSegCols), y0, y1, fast, sh);
         }
       }
       std::int64_t my_covered = 0;

@@ -85,11 +85,16 @@ struct WarpVertex {
   float inv;          // 1 / target depth (0 = infinite)
 };
 
+// Target y (1/256 px) range of a run of projected vertices (lo > hi: none valid).
+struct YRange {
+  std::int32_t lo, hi;
+};
+
 // Working memory of the warp, grown (never shrunk) by ForwardWarp and reused across views.
 struct WarpScratch {
   std::vector<WarpVertex> verts;              // per input pixel
   std::vector<double> ray_x;                  // per input column (pinhole source)
-  std::vector<std::vector<std::uint32_t>> bins;  // (input chunk, band) -> triangle ids
+  std::vector<YRange> seg_y;                  // per input row: per column segment, then all
   std::vector<float> score;                   // per target pixel: q / d^3 of the kept fragment
 };
 
