@@ -6,6 +6,8 @@
 #include <cstddef>
 #include <limits>
 
+#include <emmintrin.h>  // SSE2: part of x86-64, no build option needed
+
 #include "ibr/parallel.h"
 
 namespace ibr {
@@ -182,13 +184,12 @@ struct Shader {
   float *score, *oc, *od, *oq;
 
   // inv: 1 / depth of the vertices (all 0 = affine sky); col: their colours.
-  void Setup(std::int64_t area2, const std::int64_t b[3], float quality, const float inv[3],
+  // inverse_area: float(1 / area2) (see SmallQuadTriangle for a cheaper equal form).
+  void Setup(float inverse_area, const std::int64_t b[3], float quality, const float inv[3],
              const float* const col[3], bool all_inf) {
     affine = all_inf;
     q = quality;
-    // float(1 / area2) correctly rounded (area2 < 2^24 here is not needed: the double quotient
-    // rounded to float is what the float path has always used).
-    inv_area = static_cast<float>(1.0 / double(area2));
+    inv_area = inverse_area;
     for (int k = 0; k < 3; ++k) {
       bias[k] = b[k];
       const float m = affine ? 1.f : inv[k];
@@ -200,22 +201,21 @@ struct Shader {
   inline void Shade(int px, int py, std::int64_t e0, std::int64_t e1, std::int64_t e2) const {
     const float b0 = float(e0 + bias[0]) * inv_area, b1 = float(e1 + bias[1]) * inv_area,
                 b2 = float(e2 + bias[2]) * inv_area;
-    float d, s;
-    if (affine) {
-      d = kInf;
-    } else {
-      const float id = b0 * a_inv[0] + b1 * a_inv[1] + b2 * a_inv[2];
-      d = 1.f / id;
-    }
+    // 1 / d interpolated (0 for sky); the score q / d^3 (d clamped) is q (1/d)^3 with 1/d
+    // clamped to [1 / kMaxWeightDepth, 1 / kMinWeightDepth]: no division unless the fragment
+    // wins. kNearest ranks by 1/d (larger = nearer), the same order as -d.
+    const float id = affine ? 0.f : b0 * a_inv[0] + b1 * a_inv[1] + b2 * a_inv[2];
+    float s;
     if (combined) {
-      const float dc = ClampDepth(d);
-      s = q / (dc * dc * dc);
+      const float ic = std::min(std::max(id, 1.f / kMaxWeightDepth), 1.f / kMinWeightDepth);
+      s = q * (ic * ic * ic);
     } else {
-      s = -std::min(d, kMaxWeightDepth);
+      s = std::max(id, 1.f / kMaxWeightDepth);
     }
     const std::ptrdiff_t i = std::ptrdiff_t(py) * tw + px;
     if (s > score[i]) {
       score[i] = s;
+      const float d = affine ? kInf : 1.f / id;
       const float m = affine ? 1.f : d;
       float* c = oc + 3 * i;
       for (int ch = 0; ch < 3; ++ch) c[ch] = (b0 * a_c[0][ch] + b1 * a_c[1][ch] + b2 * a_c[2][ch]) * m;
@@ -269,7 +269,7 @@ void RasterTriangle(const Context& cx, std::uint32_t id, int band_y0, int band_y
   if (q <= 0.f) return;
   const float* col = cx.color->data;
   const float* cols[3] = {col + 3 * vi[0], col + 3 * vi[1], col + 3 * vi[2]};
-  sh.Setup(area2, E.bias, q, inv, cols, n_inf == 3);
+  sh.Setup(static_cast<float>(1.0 / double(area2)), E.bias, q, inv, cols, n_inf == 3);
   if (small) {
     for (int j = 0; j <= py1 - py0; ++j) {
       for (int i = 0; i <= px1 - px0; ++i) {
@@ -347,7 +347,10 @@ inline void SmallQuadTriangle(const Context& cx, const WarpVertex& v0, const War
   q = std::min(1.f, std::max(q, kQualityFloor));
   const float inv[3] = {v0.inv, v1.inv, v2.inv};
   const float* cols[3] = {c0, c1, c2};
-  sh.Setup(area2, bias, q, inv, cols, false);
+  // area2 < 2^24 is exact in float, and the double quotient rounded to float is the correctly
+  // rounded float quotient (53 >= 2 * 24 + 2: double rounding is innocuous for division), so
+  // this equals float(1.0 / double(area2)) of the general path, bit for bit.
+  sh.Setup(1.f / float(area2), bias, q, inv, cols, false);
   do {
     const int bit = __builtin_ctz(mask);
     mask &= mask - 1;
@@ -446,7 +449,7 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
       // same doubles, bit for bit), without the per-pixel model branches or divisions for the
       // ray (its x comes from a per-column table, its y is computed once per row).
       const double ray_y = (double(r) + 0.5 - source.cy) / source.fy;
-      for (int u = 0; u < w; ++u) {
+      const auto scalar_vertex = [&](int u) {
         const float d = drow[u];
         WarpVertex& o = vrow[u];
         o.x = kInvalid;
@@ -454,7 +457,7 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
         o.inv = 0.f;
         if (!(d > 0.f)) {
           if (d != 0.f) ++my_bad;  // NaN or negative
-          continue;
+          return;
         }
         ++my_valid;
         double x, y, dt;
@@ -462,12 +465,21 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
           const double dd = double(d);
           const double rx = ray_x[u] * dd, ry = ray_y * dd, rz = dd;
           const double pz = rot[0][2] * rx + rot[1][2] * ry + rot[2][2] * rz + trans.z;
-          if (!(pz > 0.0)) continue;
+          if (!(pz > 0.0)) return;
           const double px = rot[0][0] * rx + rot[1][0] * ry + rot[2][0] * rz + trans.x;
           const double py = rot[0][1] * rx + rot[1][1] * ry + rot[2][1] * rz + trans.y;
-          x = target.fx * px / pz + target.cx;
-          y = target.fy * py / pz + target.cy;
+          // One division: x = fx px / pz + cx as fx px (1 / pz) + cx (differs from
+          // Camera::ProjectCam by an ulp or so, far below the 1/256 px snap).
+          const double ipz = 1.0 / pz;
+          x = target.fx * px * ipz + target.cx;
+          y = target.fy * py * ipz + target.cy;
           dt = pz;
+          if (x > lo_x && x < hi_x && y > lo_y && y < hi_y) {
+            o.x = RoundHalfAway(x * kSubpixel);
+            o.y = RoundHalfAway(y * kSubpixel);
+            o.inv = static_cast<float>(ipz);
+          }
+          return;
         } else {
           const glm::dvec3 ray = source.RayInCam(u + 0.5, double(r) + 0.5);
           glm::dvec3 p;
@@ -476,14 +488,61 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
           } else {
             p = rot * (ray * double(d)) + trans;
           }
-          if (!target.ProjectCam(p, &x, &y, &dt)) continue;
+          if (!target.ProjectCam(p, &x, &y, &dt)) return;
         }
-        if (!(x > lo_x && x < hi_x && y > lo_y && y < hi_y)) continue;
+        if (!(x > lo_x && x < hi_x && y > lo_y && y < hi_y)) return;
         // Snap to 1/256 px, rounding half away from zero (one rule for every vertex).
         o.x = RoundHalfAway(x * kSubpixel);
         o.y = RoundHalfAway(y * kSubpixel);
         o.inv = std::isinf(d) ? 0.f : static_cast<float>(1.0 / dt);
+      };
+      int u = 0;
+      if (pinholes) {
+        // Two vertices per step (SSE2 doubles): the very same operations as the scalar pinhole
+        // branch, in the same order (no FMA), so the same bits. Pairs with a depth that is not
+        // finite and > 0 go through the scalar rules.
+        const __m128d r02 = _mm_set1_pd(rot[0][2]), r12 = _mm_set1_pd(rot[1][2]), r22 = _mm_set1_pd(rot[2][2]);
+        const __m128d r00 = _mm_set1_pd(rot[0][0]), r10 = _mm_set1_pd(rot[1][0]), r20 = _mm_set1_pd(rot[2][0]);
+        const __m128d r01 = _mm_set1_pd(rot[0][1]), r11 = _mm_set1_pd(rot[1][1]), r21 = _mm_set1_pd(rot[2][1]);
+        const __m128d tx = _mm_set1_pd(trans.x), ty = _mm_set1_pd(trans.y), tz = _mm_set1_pd(trans.z);
+        const __m128d fx = _mm_set1_pd(target.fx), fy = _mm_set1_pd(target.fy);
+        const __m128d tcx = _mm_set1_pd(target.cx), tcy = _mm_set1_pd(target.cy), ryv = _mm_set1_pd(ray_y);
+        const __m128d one = _mm_set1_pd(1.0);
+        alignas(16) double xs[2], ys[2], ip[2];
+        for (; u + 2 <= w; u += 2) {
+          const float d0 = drow[u], d1 = drow[u + 1];
+          if (!(d0 > 0.f && d1 > 0.f && d0 < kInf && d1 < kInf)) {
+            scalar_vertex(u);
+            scalar_vertex(u + 1);
+            continue;
+          }
+          const __m128d dd = _mm_cvtps_pd(_mm_castsi128_ps(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(drow + u))));
+          const __m128d rx = _mm_mul_pd(_mm_loadu_pd(ray_x + u), dd), ry = _mm_mul_pd(ryv, dd), rz = dd;
+          const __m128d pz = _mm_add_pd(_mm_add_pd(_mm_add_pd(_mm_mul_pd(r02, rx), _mm_mul_pd(r12, ry)), _mm_mul_pd(r22, rz)), tz);
+          const __m128d px = _mm_add_pd(_mm_add_pd(_mm_add_pd(_mm_mul_pd(r00, rx), _mm_mul_pd(r10, ry)), _mm_mul_pd(r20, rz)), tx);
+          const __m128d py = _mm_add_pd(_mm_add_pd(_mm_add_pd(_mm_mul_pd(r01, rx), _mm_mul_pd(r11, ry)), _mm_mul_pd(r21, rz)), ty);
+          const __m128d ipz = _mm_div_pd(one, pz);
+          _mm_store_pd(xs, _mm_add_pd(_mm_mul_pd(_mm_mul_pd(fx, px), ipz), tcx));
+          _mm_store_pd(ys, _mm_add_pd(_mm_mul_pd(_mm_mul_pd(fy, py), ipz), tcy));
+          _mm_store_pd(ip, ipz);
+          const int front = _mm_movemask_pd(_mm_cmpgt_pd(pz, _mm_setzero_pd()));
+          my_valid += 2;
+          for (int k = 0; k < 2; ++k) {
+            WarpVertex& o = vrow[u + k];
+            const double x = xs[k], y = ys[k];
+            if (((front >> k) & 1) && x > lo_x && x < hi_x && y > lo_y && y < hi_y) {
+              o.x = RoundHalfAway(x * kSubpixel);
+              o.y = RoundHalfAway(y * kSubpixel);
+              o.inv = static_cast<float>(ip[k]);
+            } else {
+              o.x = kInvalid;
+              o.y = 0;
+              o.inv = 0.f;
+            }
+          }
+        }
       }
+      for (; u < w; ++u) scalar_vertex(u);
       // Target y range of the row's valid vertices per column segment (vertices u0 .. u0 +
       // kSegCols inclusive: the segment's quads), and of the whole row (last entry).
       YRange* ry = seg_y + r * (num_segs + 1);
