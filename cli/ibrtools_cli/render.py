@@ -26,7 +26,8 @@ def build_parser() -> argparse.ArgumentParser:
                "  ibr-render scenes/objects --method reference --holdout v003 v009 -o out/holdout\n"
                "  ibr-render scenes/objects --target t000 t001 --depth --float -o out/targets\n"
                "  ibr-render scenes/objects --path orbit -o out/orbit -j 2\n"
-               "  ibr-render scenes/rgbd --method dibr --inputs 4 --holdout 4 -o out/dibr")
+               "  ibr-render scenes/rgbd --method dibr --inputs 4 --holdout 4 -o out/dibr\n"
+               "  ibr-render scenes/rgbd --method dibr --holdout 4 --inpaint pushpull -o out/filled")
     p.add_argument("scene", metavar="SCENE", help="scene directory (ibr-preprocess output)")
     p.add_argument("-o", "--output", default="render-out", metavar="DIR",
                    help="output directory (default: render-out)")
@@ -43,6 +44,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the K most similar input views per frame (default 4), or these views")
     d.add_argument("--quality", metavar="Q", help="triangle quality: side, shape, depth or normal (default side)")
     d.add_argument("--blend-exponent", metavar="P", help="blending weight (q/d)^P (default 5, as RVS)")
+    p.add_argument("--inpaint", default="none", choices=["none", "pushpull", "metameric"],
+                   help="fill the holes a method leaves (dibr): none (default, holes black), pushpull "
+                        "(depth-aware push-pull when the method gives depth), metameric [not built yet]. "
+                        "<frame>.mask.png still marks the filled holes")
     p.add_argument("--float", action="store_true", help="also write <frame>.exr (linear float)")
     p.add_argument("--depth", action="store_true", help="also write <frame>.depth.exr")
     p.add_argument("--report", action="store_true", help="print the per-frame report table")
@@ -68,7 +73,8 @@ def _body(args: argparse.Namespace) -> int:
         if value is not None:
             params[key] = _number(value)
     report = render_job.run(job, args.method, args.output, params=params, float_out=args.float,
-                            depth_out=args.depth, threads=args.threads, progress=progress)
+                            depth_out=args.depth, threads=args.threads, inpaint=args.inpaint,
+                            progress=progress)
     if args.report or not args.quiet:
         rows = []
         for f in report["frames"]:

@@ -6,4 +6,5 @@ PYBIND11_MODULE(_core, m) {
   ibr::bind::BindRaycast(m);
   ibr::bind::BindMetrics(m);
   ibr::bind::BindDibr(m);
+  ibr::bind::BindInpaint(m);
 }

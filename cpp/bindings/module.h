@@ -8,4 +8,5 @@ void BindCore(py::module_& m);
 void BindRaycast(py::module_& m);
 void BindMetrics(py::module_& m);
 void BindDibr(py::module_& m);
+void BindInpaint(py::module_& m);
 }  // namespace ibr::bind

@@ -104,10 +104,26 @@ def _frame_metrics(out: dict, truth: View | None) -> dict:
 
 
 def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict | None = None,
-        float_out: bool = False, depth_out: bool = False, threads: int = 0,
+        float_out: bool = False, depth_out: bool = False, threads: int = 0, inpaint: str = "none",
         progress: Callable[[int, int, str], None] | None = None) -> dict:
-    """Render every frame of ``job``; write images and report.json; return the report."""
+    """Render every frame of ``job``; write images and report.json; return the report.
+
+    ``inpaint`` ("none" or "pushpull", :mod:`ibrtools.inpaint`) post-processes frames whose method
+    returns a "hole" mask: the holes are filled (depth-aware when the method returns depth), the
+    time is reported as stage "inpaint", the mask is still written and "psnr_holes" scores the
+    filled pixels when ground truth exists. Frames without a hole are not touched (the report
+    says "inpaint": "skipped: no hole")."""
     from .. import _core
+    from ..inpaint import METHODS as INPAINT_METHODS
+    from ..inpaint import NOT_BUILT as INPAINT_NOT_BUILT
+    from ..inpaint import inpaint as fill_holes
+
+    if inpaint in INPAINT_NOT_BUILT:
+        from ..errors import NotBuiltError
+
+        raise NotBuiltError(f"--inpaint {inpaint}: {INPAINT_NOT_BUILT[inpaint]} is not built yet")
+    if inpaint not in INPAINT_METHODS:
+        raise BadValueError(f"--inpaint: expected one of {', '.join(INPAINT_METHODS)}, got {inpaint!r}")
 
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
@@ -124,16 +140,30 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
             progress(i, len(job.frames), frame.name)
         t0 = time.perf_counter()
         out, stage_ms = method.render(frame.camera)
-        total_ms = (time.perf_counter() - t0) * 1e3
         color = np.nan_to_num(out["color"], nan=0.0, posinf=0.0, neginf=0.0)
         hole = out.get("hole")
         if hole is not None:
             color = np.where(hole[..., None], 0.0, color).astype(np.float32)
+        inpaint_note = None
+        if inpaint != "none":
+            if hole is None or not hole.any():
+                inpaint_note = "skipped: no hole"  # DESIGN.md: inpainting does nothing where there is no hole
+            else:
+                t1 = time.perf_counter()
+                color = fill_holes(np.ascontiguousarray(color, np.float32), hole, inpaint,
+                                   depth=_inpaint_depth(out.get("depth"), hole))
+                stage_ms = {**stage_ms, "inpaint": (time.perf_counter() - t1) * 1e3}
+                inpaint_note = inpaint
+        total_ms = (time.perf_counter() - t0) * 1e3
         image = f"{frame.name}.png"
         write_image(out_dir / image, color)
         entry: dict = {"name": frame.name, "image": image,
                        "time_ms": {"total": round(total_ms, 3), **{k: round(v, 3) for k, v in stage_ms.items()}},
                        "metrics": _frame_metrics({**out, "color": color}, frame.truth)}
+        if inpaint_note is not None:
+            entry["inpaint"] = inpaint_note
+            if inpaint_note == inpaint and frame.truth is not None and frame.truth.has_color:
+                entry["metrics"]["psnr_holes"] = _psnr_in(color, frame.truth.color, hole)
         # Method-specific facts about the frame (dibr: the selected input views, best first,
         # their similarity, and how many candidates were skipped for not overlapping).
         if hasattr(method, "frame_report"):
@@ -150,12 +180,34 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
         frames_report.append(entry)
     if progress:
         progress(len(job.frames), len(job.frames), "")
-    report = {"method": name, "params": dict(params or {}), "threads": int(_core.get_num_threads()),
+    report = {"method": name, "params": dict(params or {}), "inpaint": inpaint,
+              "threads": int(_core.get_num_threads()),
               "inputs": len(job.scene.views), "frames": frames_report,
               "summary": _summary(frames_report, setup)}
     with atomic_path(out_dir / "report.json") as tmp:
         tmp.write_text(json.dumps(report, indent=1, allow_nan=False))
     return report
+
+
+def _inpaint_depth(depth: np.ndarray | None, hole: np.ndarray) -> np.ndarray | None:
+    """The frame's depth for depth-aware push-pull (float32, C-contiguous), or None (classic) when
+    the method gives none or no pixel outside the holes has a known depth."""
+    if depth is None or depth.shape != hole.shape:
+        return None
+    depth = np.ascontiguousarray(depth, np.float32)
+    known = np.isfinite(depth) & (depth > 0) & ~hole
+    return depth if known.any() else None
+
+
+def _psnr_in(color: np.ndarray, truth: np.ndarray, region: np.ndarray) -> float | None:
+    """PSNR (sRGB, peak 1) inside the filled holes; None when not finite (JSON has no inf)."""
+    from ..imageio import linear_to_srgb
+    from ..metrics import psnr
+
+    if truth.shape != color.shape:
+        return None
+    v = psnr(linear_to_srgb(color), linear_to_srgb(np.asarray(truth, np.float32)), 1.0, mask=region)
+    return float(v) if v is not None and np.isfinite(v) else None
 
 
 def _summary(frames: list[dict], setup_ms: dict) -> dict:

@@ -1,0 +1,80 @@
+// Push-pull hole filling: the classic pyramid fill (Gortler et al. 1996, "The Lumigraph",
+// section 3.4 / "image-space reconstruction using push-pull") and the depth-aware variant of
+// dos Anjos et al., "Metameric Inpainting for Image Warping", section 3.3, Algorithm 1.
+//
+// Pyramid: level 0 is the input; level l+1 has ceil(h/2) x ceil(w/2) pixels, each the
+// combination of the (up to) 2x2 "children" below it (1 or 2 children on the last row/column
+// of odd-sized levels). Every level holds a colour c (C channels), a validity v in [0, 1]
+// and, in the depth-aware variant, a depth d.
+//
+// PULL (Alg. 1 lines 1-12), per coarse pixel, children i with (c_i, v_i, d_i):
+//   level 0: v_i = 0 in holes, 1 elsewhere.
+//   depth-aware only: ref = the children's background depth (see below); children whose known
+//     depth is nearer than ref by more than `threshold` get v_i = 0 (Alg. 1 lines 2-7);
+//     d_out = ref (line 10).
+//   W = sum v_i; v_out = W / n (n = number of children: partial validity is carried, line 9);
+//   c_out = sum v_i c_i / W (line 8 keeps c premultiplied; we store it normalised, the same
+//   thing divided by v_out), c_out = 0 and v_out = 0 when W = 0.
+// PUSH (Alg. 1 lines 13-16), coarse to fine, level l from the already filled level l+1:
+//   a = v^gamma (a = 1 for any v > 0 when gamma = 0, a = 0 when v = 0);
+//   filled_l = a c_l + (1 - a) up(filled_{l+1}),  up = bilinear (weights 3/4, 1/4 per axis,
+//   pixel centres at +0.5, clamped at the border).
+//   Alg. 1 writes mix(hicolour, locolour, hiValidity^gamma), which in GLSL/HLSL order would give
+//   the *coarse* colour the weight of the fine validity; the text (sec. 3.3.1: gamma = 0 is
+//   "the original push-pull", gamma = 1 "maximal ... blur") only makes sense with the fine
+//   colour weighted by its validity, which is what we do.
+//   Level 0: out = image where not a hole (copied: exact), up(filled_1) in holes.
+//
+// Classic = depth test off and gamma = 0: the pull averages the valid children weighted by their
+// (partial) validity, the push fills exactly the pixels with no valid data from the coarser level
+// (the normalised convolution the paper calls "the original push-pull").
+//
+// Depth convention (deviation in words, not in effect): the paper works in Unity's reversed-Z
+// depth buffer, where a *larger* value is *nearer* ("[29]'s depth test is reversed compared to
+// ours; that is, they only draw from locations close to the maximal depth (closest to the
+// camera)"), so its "minimal depth of the block" is the farthest sample, the background. Our
+// depth is metric (z or ray distance, larger = farther), so ref = the *largest* known depth among
+// the children, and children with ref - d > threshold (nearer, foreground) are dropped. Hole
+// pixels take part in ref (the warper writes background depth into holes, sec. 3.1), so a block
+// that mixes a foreground sample with a background hole rejects the foreground.
+// Unknown depth (NaN, +-inf or <= 0, DESIGN.md) never sets ref and is never rejected.
+// The threshold is "0.04 of the normalised depth" (authors' Unity code): the kernel normalises by
+// the image's range of known depth, threshold_abs = depth_threshold * (max - min).
+//
+// Shapes: image (H, W, C) float32, hole (H, W) one byte per pixel (non-zero = hole), depth
+// (H, W) float32 or empty, out (H, W, C) float32 (may not alias image). H, W, C >= 1.
+// The front (cpp/bindings/inpaint.cpp) checks shapes, finiteness outside holes and options.
+// Multithreaded over the rows of each level with ibr::ParallelFor; every pixel is computed
+// independently, so the result is identical for any thread count. Scratch for levels >= 1 is
+// allocated here (about 1/3 of the input); nothing is thrown.
+#pragma once
+#include <cstdint>
+
+#include "ibr/image.h"
+
+namespace ibr {
+
+struct PushPullOptions {
+  bool depth_aware = false;     // Alg. 1's depth test in the pull (needs depth)
+  float depth_threshold = 0.04f;  // fraction of the image's known-depth range (authors' 0.04)
+  float gamma = 0.0f;           // push: a = v^gamma; 0 = classic, 0.5 = the paper's default
+};
+
+enum class PushPullStatus {
+  kOk = 0,
+  kNoHole,         // nothing to fill: out is a copy of image
+  kNoValidPixel,   // every pixel is a hole: out untouched
+  kAllRejected,    // depth-aware: every valid sample was nearer than a background hole at
+                   // every scale, so the coarsest level has no data: out untouched
+};
+
+PushPullStatus PushPullKernel(const ImageView<const float>& image,
+                              const ImageView<const std::uint8_t>& hole,
+                              const ImageView<const float>& depth, const PushPullOptions& options,
+                              const ImageView<float>& out);
+
+// Number of non-finite values of image at pixels where hole == 0 (multithreaded).
+std::int64_t CountNonFiniteOutsideHoles(const ImageView<const float>& image,
+                                        const ImageView<const std::uint8_t>& hole);
+
+}  // namespace ibr

@@ -1,0 +1,92 @@
+"""Hole filling for rendered frames: push-pull, classic and depth-aware (docs/inpaint.md).
+
+* :func:`pushpull` — the pyramid fill of Gortler et al. 1996 ("classic": the pull averages the
+  valid pixels of each 2x2 block weighted by their validity, the push fills the pixels with no
+  valid data from the coarser level by bilinear up-sampling) and, when ``depth`` is given, the
+  depth-aware variant of dos Anjos et al. (*Metameric Inpainting for Image Warping*, sec. 3.3,
+  Alg. 1): samples nearer than the block's background depth by more than ``depth_threshold``
+  (a fraction of the image's depth range) get no weight, partial validity is carried through the
+  pull, and the push mixes a pixel with the coarser level by ``validity ** gamma``.
+* :func:`inpaint` — the method switch the renderer uses (``--inpaint``).
+
+The C++ kernel is ``cpp/kernels/pushpull.{h,cpp}`` (equations, the paper's depth convention and
+where we read Alg. 1 differently are written there). Outside the holes the result *is* the input
+(copied, bit for bit); an image without holes is returned unchanged (a copy). An image that is
+all hole raises :class:`BadValueError` (there is nothing to fill from).
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from .errors import BadValueError, DtypeError, ShapeError
+
+METHODS = {
+    "none": "leave holes as they are",
+    "pushpull": "push-pull pyramid fill (depth-aware when the frame has depth)",
+}
+NOT_BUILT = {"metameric": "metameric inpainting (issue 5 item 4)"}
+
+DEPTH_THRESHOLD = 0.04  # authors' Unity code: 0.04 of the normalised depth
+GAMMA = 0.5             # paper sec. 3.3.1: "a compromise at gamma = .5"
+
+
+def _arrays(image: Any, hole: Any, depth: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    # dtype/shape/contiguity are checked in C++ (cpp/bindings/array.h); only the hole's dtype
+    # family is normalised here so that any bool-like mask works.
+    if not isinstance(image, np.ndarray):
+        raise DtypeError(f"image: expected a float32 numpy array of shape (H, W) or (H, W, C), got {type(image).__name__}")
+    if not isinstance(hole, np.ndarray):
+        raise DtypeError(f"hole: expected a bool or uint8 numpy array of shape (H, W), got {type(hole).__name__}")
+    if hole.dtype not in (np.bool_, np.uint8):
+        raise DtypeError(f"hole: expected a bool or uint8 array of shape (H, W), got {hole.dtype}")
+    if image.ndim not in (2, 3):
+        raise ShapeError(f"image: expected shape (H, W) or (H, W, C), got {image.shape}")
+    if hole.shape != image.shape[:2]:
+        raise ShapeError(f"hole: expected shape (H, W) = {image.shape[:2]} to match image, got {hole.shape}")
+    if depth is not None and not isinstance(depth, np.ndarray):
+        raise DtypeError(f"depth: expected a float32 numpy array of shape (H, W), got {type(depth).__name__}")
+    return image, np.ascontiguousarray(hole), depth
+
+
+def pushpull(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = None, *,
+             depth_threshold: float = DEPTH_THRESHOLD, gamma: float = GAMMA) -> np.ndarray:
+    """Fill the holes of ``image`` by push-pull.
+
+    image: float32 (H, W) or (H, W, C), any number of channels, finite outside the holes (the
+    values inside holes are never read). hole: bool or uint8 (H, W), True/non-zero = hole.
+    depth: None for the classic fill, or float32 (H, W) metric depth (larger = farther; NaN,
+    inf or <= 0 = unknown) *including inside the holes*, where a warper writes the background
+    depth (sec. 3.1) — then the depth-aware fill of Alg. 1 is used. ``depth_threshold`` (>= 0,
+    fraction of the image's known-depth range) and ``gamma`` (>= 0) only apply to the depth-aware
+    fill; classic is gamma = 0 (a pixel with any valid data keeps it).
+
+    Returns a new float32 array of image's shape, equal to ``image`` outside the holes.
+    Raises ShapeError/DtypeError for bad arrays, BadValueError for non-finite pixels outside the
+    holes, bad options, an all-hole image, or (depth-aware) no background data at all.
+    """
+    from . import _core
+
+    image, hole, depth = _arrays(image, hole, depth)
+    if depth is None:
+        out, _ = _core.pushpull(image, hole, None, 0.0, 0.0)
+    else:
+        out, _ = _core.pushpull(image, hole, depth, float(depth_threshold), float(gamma))
+    return out
+
+
+def inpaint(image: np.ndarray, hole: np.ndarray, method: str = "pushpull",
+            depth: np.ndarray | None = None) -> np.ndarray:
+    """Fill holes with ``method`` ("none" returns ``image`` unchanged, "pushpull" is
+    :func:`pushpull`, depth-aware when ``depth`` is given)."""
+    if method == "none":
+        _arrays(image, hole, depth)
+        return image
+    if method == "pushpull":
+        return pushpull(image, hole, depth)
+    if method in NOT_BUILT:
+        from .errors import NotBuiltError
+
+        raise NotBuiltError(f"inpaint method {method!r}: {NOT_BUILT[method]} is not built yet")
+    raise BadValueError(f"inpaint method: expected one of {', '.join(METHODS)}, got {method!r}")
