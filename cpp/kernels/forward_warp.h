@@ -45,10 +45,11 @@
 // paper's Eq. 2 is q / d^3). d is clamped to [1e-6, 1e6] in q / d^3 and in w so that both stay
 // finite float (infinite depth gets the smallest weight).
 //
-// Parallel and deterministic: pass 1 projects vertices (rows in parallel); pass 2 bins
-// triangles into target row bands per fixed chunk of input rows; pass 3 rasterises each band
-// (bands own their pixels; triangles visited in input order). The partition depends on the
-// image sizes only, so results are bit-identical for any thread count.
+// Parallel and deterministic: pass 1 projects vertices (rows in parallel) and records the
+// target y range of each input row's 64-column segments; pass 2 rasterises each target row band
+// (bands own their pixels) by scanning the input segments whose y range reaches it, triangles
+// in input order (no per-triangle bins). The partition depends on the image sizes only, so
+// results are bit-identical for any thread count.
 #pragma once
 #include <cstdint>
 #include <vector>
