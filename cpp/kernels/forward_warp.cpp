@@ -13,8 +13,8 @@
 namespace ibr {
 namespace {
 
-constexpr int kSegCols = 64;     // input quads per column segment (y-range culling unit)
-constexpr int kBandRows = 16;    // target rows per rasterisation task
+constexpr int kSegCols = 16;     // input quads per column segment (y-range culling unit)
+constexpr int kBandRows = 32;    // target rows per rasterisation task
 constexpr int kSubpixel = 256;   // fixed point: 1/256 pixel
 constexpr float kGuardPixels = 16384.f;
 constexpr float kInf = std::numeric_limits<float>::infinity();
@@ -422,7 +422,7 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
   const int num_segs = (std::max(1, w - 1) + kSegCols - 1) / kSegCols;
   scratch.verts.resize(n);
   scratch.score.resize(std::int64_t(th) * tw);
-  scratch.seg_y.resize(std::size_t(h) * (num_segs + 1));
+  scratch.seg_y.resize(std::size_t(h) * num_segs);
 
   // Pass 1: vertices. target_from_source = (R_t, t_t) o (R_s, t_s)^-1.
   const glm::dmat3 rot = target.rot * glm::transpose(source.rot);
@@ -544,9 +544,8 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
       }
       for (; u < w; ++u) scalar_vertex(u);
       // Target y range of the row's valid vertices per column segment (vertices u0 .. u0 +
-      // kSegCols inclusive: the segment's quads), and of the whole row (last entry).
-      YRange* ry = seg_y + r * (num_segs + 1);
-      YRange all{std::numeric_limits<std::int32_t>::max(), std::numeric_limits<std::int32_t>::min()};
+      // kSegCols inclusive: the segment's quads).
+      YRange* ry = seg_y + r * num_segs;
       for (int s = 0; s < num_segs; ++s) {
         YRange g = {std::numeric_limits<std::int32_t>::max(), std::numeric_limits<std::int32_t>::min()};
         const int u1 = std::min(w - 1, (s + 1) * kSegCols);
@@ -556,10 +555,7 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
           g.hi = std::max(g.hi, vrow[u].y);
         }
         ry[s] = g;
-        all.lo = std::min(all.lo, g.lo);
-        all.hi = std::max(all.hi, g.hi);
       }
-      ry[num_segs] = all;
     }
     valid += my_valid;
     bad += my_bad;
@@ -580,11 +576,42 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
   float* score = scratch.score.data();
   const float p = options.blend_exponent;
   std::atomic<std::int64_t> covered{0};
-  // Centre rows [CeilSub(lo - 128), FloorSub(hi - 128)] of a y range meet band rows [y0, y1)?
-  const auto reaches = [](const YRange& a, const YRange& b, int y0, int y1) {
-    const std::int32_t lo = std::min(a.lo, b.lo), hi = std::max(a.hi, b.hi);
-    return lo <= hi && FloorSub(std::int64_t(hi) - kSubpixel / 2) >= y0 && CeilSub(std::int64_t(lo) - kSubpixel / 2) < y1;
-  };
+  // Per band, the (block row, column segment) pairs whose vertices' y range reaches it, in input
+  // order (counting sort: a segment touches few bands, so a band never scans the others).
+  // Centre rows of a y range: [CeilSub(lo - 128), FloorSub(hi - 128)].
+  std::vector<std::uint32_t>& band_start = scratch.band_start;
+  std::vector<std::uint32_t>& band_segs = scratch.band_segs;
+  std::vector<std::uint32_t>& seg_bands = scratch.seg_bands;
+  band_start.assign(std::size_t(num_bands) + 1, 0u);
+  seg_bands.resize(2 * std::size_t(block_rows) * num_segs);
+  for (int r = 0; r < block_rows; ++r) {
+    const YRange* ya = seg_y + std::int64_t(r) * num_segs;
+    const YRange* yb = ya + num_segs;
+    std::uint32_t* sb = seg_bands.data() + 2 * std::int64_t(r) * num_segs;
+    for (int s = 0; s < num_segs; ++s) {
+      const std::int32_t lo = std::min(ya[s].lo, yb[s].lo), hi = std::max(ya[s].hi, yb[s].hi);
+      sb[2 * s] = 1u;  // no band (first > last)
+      sb[2 * s + 1] = 0u;
+      if (lo > hi) continue;
+      const std::int64_t c0 = std::max<std::int64_t>(0, CeilSub(std::int64_t(lo) - kSubpixel / 2));
+      const std::int64_t c1 = std::min<std::int64_t>(th - 1, FloorSub(std::int64_t(hi) - kSubpixel / 2));
+      if (c0 > c1) continue;
+      const std::uint32_t b_lo = static_cast<std::uint32_t>(c0 / kBandRows), b_hi = static_cast<std::uint32_t>(c1 / kBandRows);
+      sb[2 * s] = b_lo;
+      sb[2 * s + 1] = b_hi;
+      for (std::uint32_t b = b_lo; b <= b_hi; ++b) ++band_start[b + 1];
+    }
+  }
+  for (int b = 0; b < num_bands; ++b) band_start[b + 1] += band_start[b];
+  band_segs.resize(band_start[num_bands]);
+  {
+    std::vector<std::uint32_t>& fill = scratch.band_fill;
+    fill.assign(band_start.begin(), band_start.end() - 1);
+    const std::uint32_t num_ids = static_cast<std::uint32_t>(std::size_t(block_rows) * num_segs);
+    for (std::uint32_t id = 0; id < num_ids; ++id) {
+      for (std::uint32_t b = seg_bands[2 * id]; b <= seg_bands[2 * id + 1]; ++b) band_segs[fill[b]++] = id;
+    }
+  }
   ParallelFor(num_bands, 1, [&](std::int64_t b0, std::int64_t b1) {
     Shader sh;
     sh.combined = options.depth_test == DepthTest::kCombined;
@@ -601,14 +628,10 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
         out_depth.data[i] = 0.f;
         out_color.data[3 * i] = out_color.data[3 * i + 1] = out_color.data[3 * i + 2] = 0.f;
       }
-      for (int r = 0; r < block_rows; ++r) {
-        const YRange* ya = seg_y + std::int64_t(r) * (num_segs + 1);
-        const YRange* yb = ya + (num_segs + 1);
-        if (!reaches(ya[num_segs], yb[num_segs], y0, y1)) continue;
-        for (int s = 0; s < num_segs; ++s) {
-          if (!reaches(ya[s], yb[s], y0, y1)) continue;
-          RasterBlockRow(cx, r, s * kSegCols, std::min(w - 1, (s + 1) * kSegCols), y0, y1, fast, sh);
-        }
+      for (std::uint32_t k = band_start[b]; k < band_start[b + 1]; ++k) {
+        const std::uint32_t id = band_segs[k];
+        const int r = static_cast<int>(id / std::uint32_t(num_segs)), s = static_cast<int>(id % std::uint32_t(num_segs));
+        RasterBlockRow(cx, r, s * kSegCols, std::min(w - 1, (s + 1) * kSegCols), y0, y1, fast, sh);
       }
       std::int64_t my_covered = 0;
       for (std::ptrdiff_t i = std::ptrdiff_t(y0) * tw; i < std::ptrdiff_t(y1) * tw; ++i) {

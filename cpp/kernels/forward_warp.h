@@ -46,10 +46,11 @@
 // finite float (infinite depth gets the smallest weight).
 //
 // Parallel and deterministic: pass 1 projects vertices (rows in parallel) and records the
-// target y range of each input row's 64-column segments; pass 2 rasterises each target row band
-// (bands own their pixels) by scanning the input segments whose y range reaches it, triangles
-// in input order (no per-triangle bins). The partition depends on the image sizes only, so
-// results are bit-identical for any thread count.
+// target y range of each input row's 16-column segments; a counting sort then lists, per
+// 32-row target band, the block-row segments whose y range reaches it, in input order; pass 2
+// rasterises each band (bands own their pixels) from its list, triangles in input order (no
+// per-triangle bins). The partition depends on the image sizes only, so results are
+// bit-identical for any thread count.
 #pragma once
 #include <cstdint>
 #include <vector>
@@ -95,7 +96,11 @@ struct YRange {
 struct WarpScratch {
   std::vector<WarpVertex> verts;              // per input pixel
   std::vector<double> ray_x;                  // per input column (pinhole source)
-  std::vector<YRange> seg_y;                  // per input row: per column segment, then all
+  std::vector<YRange> seg_y;                  // per input row, per column segment
+  std::vector<std::uint32_t> seg_bands;       // per block row segment: first, last band
+  std::vector<std::uint32_t> band_start;      // per band: start in band_segs (+ end)
+  std::vector<std::uint32_t> band_fill;
+  std::vector<std::uint32_t> band_segs;       // per band: segment ids (row * segments + s)
   std::vector<float> score;                   // per target pixel: q / d^3 of the kept fragment
 };
 
