@@ -1,6 +1,7 @@
 // Binding of depth-image-based rendering (cpp/kernels/forward_warp.h, cpp/kernels/blend.h):
 // _core.WarpOptions, _core.DibrAccumulator (streaming warp + blend into one target camera)
-// and _core.forward_warp (one view, per-view buffers). Thin: checks arrays (array.h),
+// and _core.forward_warp (one view, per-view buffers); _core.warp_with_holes and _core.warp_flow
+// (single-view warp with background-depth holes, dos Anjos et al. sec. 3.1). Thin: checks arrays (array.h),
 // releases the GIL around the kernels, raises typed errors after them.
 #include <chrono>
 #include <string>
@@ -65,6 +66,29 @@ void CheckCounts(const WarpCounts& c) {
                         " values are NaN or negative (expected > 0, 0 = unknown, +inf = at infinity)");
   }
   if (c.valid_vertices == 0) throw BadValueError("depth: no valid depth (every value is 0 = unknown)");
+}
+
+float CheckStretch(float t) {
+  if (!(t > 0.f) || std::isinf(t)) {
+    throw BadValueError("stretch_threshold: expected a finite number of pixels > 0, got " + std::to_string(t));
+  }
+  return t;
+}
+
+float CheckJump(float j) {
+  if (!(j >= 0.f) || std::isinf(j)) {
+    throw BadValueError("depth_jump: expected a finite number >= 0 (0 = off), got " + std::to_string(j));
+  }
+  return j;
+}
+
+// (color, depth, mask) of the hole-mode warp; throws after the kernel for bad depth / flow.
+py::tuple HoleResult(py::array_t<float> c, py::array_t<float> d, py::array_t<std::uint8_t> m, const WarpCounts& counts) {
+  if (counts.bad_flow > 0) {
+    throw BadValueError("flow: " + std::to_string(counts.bad_flow) + " vectors are not finite (NaN or inf)");
+  }
+  CheckCounts(counts);
+  return py::make_tuple(c, d, m);
 }
 
 double MsSince(std::chrono::steady_clock::time_point t0) {
@@ -254,6 +278,78 @@ void BindDibr(py::module_& m) {
       py::arg("options") = WarpOptions(),
       "Warp one view: (color (Ht, Wt, 3), depth (Ht, Wt) (0 = not covered), weight (Ht, Wt) = (q / d)^p "
       "(0 = not covered)). GIL released.");
+
+  m.attr("WARP_SURFACE") = int(kMaskSurface);
+  m.attr("WARP_DISOCCLUDED") = int(kMaskDisoccluded);
+  m.attr("WARP_UNCOVERED") = int(kMaskUncovered);
+  m.def(
+      "warp_with_holes",
+      [](const py::object& color_obj, const py::object& depth_obj, const Camera& camera, const Camera& target,
+         float stretch_threshold, float depth_jump) {
+        HoleWarpOptions options;
+        options.stretch_threshold = CheckStretch(stretch_threshold);
+        options.depth_jump = CheckJump(depth_jump);
+        InputView in = CheckInput(color_obj, depth_obj, camera);
+        const ImageView<const float> color = ConstViewOf(in.color), depth = ConstViewOf(in.depth);
+        const py::ssize_t th = target.height, tw = target.width;
+        auto c = NewArray<float>({th, tw, 3});
+        auto d = NewArray<float>({th, tw});
+        auto mk = NewArray<std::uint8_t>({th, tw});
+        ImageView<float> cv(c.mutable_data(), int(th), int(tw), 3), dv(d.mutable_data(), int(th), int(tw));
+        std::uint8_t* mp = mk.mutable_data();
+        WarpCounts counts;
+        {
+          py::gil_scoped_release release;
+          WarpScratch scratch;
+          counts = WarpWithHoles(color, depth, camera, target, options, scratch, cv, dv, mp);
+        }
+        return HoleResult(c, d, mk, counts);
+      },
+      py::arg("color"), py::arg("depth"), py::arg("camera"), py::arg("target_camera"),
+      py::arg("stretch_threshold") = kDefaultStretchThreshold, py::arg("depth_jump") = kDefaultDepthJump,
+      "Warp one RGB-D view into target_camera with background-depth holes (dos Anjos et al. sec. 3.1, "
+      "Eq. 1; cpp/kernels/forward_warp.h). color float32 (H, W, 3), depth float32 (H, W) (pinhole: z, "
+      "equirect: ray distance; 0 = unknown, +inf = at infinity). Quads whose longest target edge exceeds "
+      "stretch_threshold pixels and whose corner depths differ by more than a factor 1 + depth_jump (0 = "
+      "stretch only) are stretched. Returns (color (Ht, Wt, 3) (0 in holes), depth (Ht, Wt) "
+      "(surface depth; background depth in disocclusions; 0 where nothing lands), mask (Ht, Wt) uint8: "
+      "WARP_SURFACE 0, WARP_DISOCCLUDED 1, WARP_UNCOVERED 2). GIL released.");
+  m.def(
+      "warp_flow",
+      [](const py::object& color_obj, const py::object& depth_obj, const py::object& flow_obj,
+         float stretch_threshold, float depth_jump) {
+        HoleWarpOptions options;
+        options.stretch_threshold = CheckStretch(stretch_threshold);
+        options.depth_jump = CheckJump(depth_jump);
+        auto depth_arr = CheckArray<float>(depth_obj, "depth", {{"H", -1}, {"W", -1}});
+        const int h = int(depth_arr.shape(0)), w = int(depth_arr.shape(1));
+        auto color_arr = CheckArray<float>(color_obj, "color", {{"H", h}, {"W", w}, {"3", 3}});
+        auto flow_arr = CheckArray<float>(flow_obj, "flow", {{"H", h}, {"W", w}, {"2", 2}});
+        if (h < 2 || w < 2) {
+          throw ShapeError("depth: the view must be at least 2 x 2 pixels to form triangles, got " +
+                           std::to_string(h) + " x " + std::to_string(w));
+        }
+        const ImageView<const float> color = ConstViewOf(color_arr), depth = ConstViewOf(depth_arr);
+        const float* flow = flow_arr.data();
+        auto c = NewArray<float>({h, w, 3});
+        auto d = NewArray<float>({h, w});
+        auto mk = NewArray<std::uint8_t>({h, w});
+        ImageView<float> cv(c.mutable_data(), h, w, 3), dv(d.mutable_data(), h, w);
+        std::uint8_t* mp = mk.mutable_data();
+        WarpCounts counts;
+        {
+          py::gil_scoped_release release;
+          WarpScratch scratch;
+          counts = WarpFlowWithHoles(color, depth, flow, options, scratch, cv, dv, mp);
+        }
+        return HoleResult(c, d, mk, counts);
+      },
+      py::arg("color"), py::arg("depth"), py::arg("flow"), py::arg("stretch_threshold") = kDefaultStretchThreshold,
+      py::arg("depth_jump") = kDefaultDepthJump,
+      "Warp one RGB-D image by a per-pixel motion field with background-depth holes (forward_warp.h, "
+      "flow form): flow float32 (H, W, 2) = target - source position in pixels (x, y); depth orders "
+      "the fragments (larger = farther; 0 = unknown). Returns (color, depth, mask) as warp_with_holes, "
+      "of the input's size. GIL released.");
 }
 
 }  // namespace ibr::bind

@@ -183,6 +183,9 @@ struct Shader {
   int tw;
   float *score, *oc, *od, *oq;
 
+  // Per-quad state: none for DIBR (triangles are judged alone, by their quality).
+  inline void BeginQuad(const WarpVertex&, const WarpVertex&, const WarpVertex&, const WarpVertex&) {}
+
   // inv: 1 / depth of the vertices (all 0 = affine sky); col: their colours.
   // inverse_area: float(1 / area2) (see SmallQuadTriangle for a cheaper equal form).
   void Setup(float inverse_area, const std::int64_t b[3], float quality, const float inv[3],
@@ -226,7 +229,8 @@ struct Shader {
 };
 
 // Rasterises triangle `id` into rows [band_y0, band_y1) of the outputs (any size, any quality).
-void RasterTriangle(const Context& cx, std::uint32_t id, int band_y0, int band_y1, Shader& sh) {
+template <class Sh>
+void RasterTriangle(const Context& cx, std::uint32_t id, int band_y0, int band_y1, Sh& sh) {
   std::int64_t vi[3];
   TriangleVertices(id, cx.depth->width, vi);
   float x[3], y[3], inv[3];
@@ -313,9 +317,10 @@ void RasterTriangle(const Context& cx, std::uint32_t id, int band_y0, int band_y
 // already clipped to the band and the image). A centre outside the triangle's own bounding box
 // fails an edge test anyway, so this covers exactly what RasterTriangle covers. Coordinates
 // span < 5 px (1280 units), so every edge value fits in 32 bits.
+template <class Sh>
 inline void SmallQuadTriangle(const Context& cx, const WarpVertex& v0, const WarpVertex& v1, const WarpVertex& v2,
                               const float* c0, const float* c1, const float* c2, int px0, int py0, int nx,
-                              int ny, Shader& sh) {
+                              int ny, Sh& sh) {
   const std::int32_t X[3] = {v0.x, v1.x, v2.x}, Y[3] = {v0.y, v1.y, v2.y};
   const std::int32_t area2 = (X[1] - X[0]) * (Y[2] - Y[0]) - (Y[1] - Y[0]) * (X[2] - X[0]);
   if (area2 <= 0) return;  // back-facing or degenerate
@@ -362,7 +367,8 @@ inline void SmallQuadTriangle(const Context& cx, const WarpVertex& v0, const War
 
 // Rasterises every triangle of input block row r, columns [u0, u1), into band rows [y0, y1), in
 // input order (triangle 0 then 1 of each quad).
-void RasterBlockRow(const Context& cx, int r, int u0, int u1, int y0, int y1, bool fast, Shader& sh) {
+template <class Sh>
+void RasterBlockRow(const Context& cx, int r, int u0, int u1, int y0, int y1, bool fast, Sh& sh) {
   const int w = cx.depth->width;
   const WarpVertex* top = cx.verts + std::int64_t(r) * w;
   const WarpVertex* bot = top + w;
@@ -371,6 +377,7 @@ void RasterBlockRow(const Context& cx, int r, int u0, int u1, int y0, int y1, bo
   for (int u = u0; u < u1; ++u) {
     const WarpVertex &A = top[u], &B = top[u + 1], &C = bot[u], &D = bot[u + 1];
     if (B.x == kInvalid || C.x == kInvalid) continue;  // both triangles touch B and C
+    sh.BeginQuad(A, B, C, D);
     if (A.x != kInvalid && D.x != kInvalid) {
       // Both triangles lie in the quad's bounding box: no centre of it in the band (or the
       // image), nothing to do.
@@ -403,25 +410,35 @@ void RasterBlockRow(const Context& cx, int r, int u0, int u1, int y0, int y1, bo
   }
 }
 
-}  // namespace
 
-float SideThreshold(const WarpOptions& options, const Camera& target) {
-  if (options.side_threshold > 0.f) return options.side_threshold;
-  return static_cast<float>(std::max(kMinAutoSide, 10.0 * std::sqrt(double(target.width) * target.height / (1920.0 * 1080.0))));
+// Target y range (1/256 px) of a row's valid vertices per column segment (vertices u0 .. u0 +
+// kSegCols inclusive: the segment's quads).
+void RowSegmentRanges(const WarpVertex* vrow, int w, int num_segs, YRange* ry) {
+  for (int s = 0; s < num_segs; ++s) {
+    YRange g = {std::numeric_limits<std::int32_t>::max(), std::numeric_limits<std::int32_t>::min()};
+    const int u1 = std::min(w - 1, (s + 1) * kSegCols);
+    for (int u = s * kSegCols; u <= u1; ++u) {
+      if (vrow[u].x == kInvalid) continue;
+      g.lo = std::min(g.lo, vrow[u].y);
+      g.hi = std::max(g.hi, vrow[u].y);
+    }
+    ry[s] = g;
+  }
 }
 
-WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<const float>& depth,
-                       const Camera& source, const Camera& target, const WarpOptions& options,
-                       WarpScratch& scratch, const ImageView<float>& out_color,
-                       const ImageView<float>& out_depth, const ImageView<float>& out_weight,
-                       float* out_quality, const BlendBuffers* accumulate) {
+inline int NumSegments(int w) { return (std::max(1, w - 1) + kSegCols - 1) / kSegCols; }
+
+// Pass 1 of the mesh warp: every input pixel projected into the target (scratch.verts) and the
+// per-row segment y ranges (scratch.seg_y). Counts valid and bad depths.
+WarpCounts ProjectVertices(const ImageView<const float>& depth, const Camera& source, const Camera& target,
+                           WarpScratch& scratch) {
   WarpCounts counts;
   const int h = depth.height, w = depth.width;
   const int th = target.height, tw = target.width;
+  (void)th;
   const std::int64_t n = std::int64_t(h) * w;
   const int num_segs = (std::max(1, w - 1) + kSegCols - 1) / kSegCols;
   scratch.verts.resize(n);
-  scratch.score.resize(std::int64_t(th) * tw);
   scratch.seg_y.resize(std::size_t(h) * num_segs);
 
   // Pass 1: vertices. target_from_source = (R_t, t_t) o (R_s, t_s)^-1.
@@ -543,39 +560,77 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
         }
       }
       for (; u < w; ++u) scalar_vertex(u);
-      // Target y range of the row's valid vertices per column segment (vertices u0 .. u0 +
-      // kSegCols inclusive: the segment's quads).
-      YRange* ry = seg_y + r * num_segs;
-      for (int s = 0; s < num_segs; ++s) {
-        YRange g = {std::numeric_limits<std::int32_t>::max(), std::numeric_limits<std::int32_t>::min()};
-        const int u1 = std::min(w - 1, (s + 1) * kSegCols);
-        for (int u = s * kSegCols; u <= u1; ++u) {
-          if (vrow[u].x == kInvalid) continue;
-          g.lo = std::min(g.lo, vrow[u].y);
-          g.hi = std::max(g.hi, vrow[u].y);
-        }
-        ry[s] = g;
-      }
+      // Target y range of the row's valid vertices per column segment.
+      RowSegmentRanges(vrow, w, num_segs, seg_y + r * num_segs);
     }
     valid += my_valid;
     bad += my_bad;
   });
   counts.valid_vertices = valid;
   counts.bad_depths = bad;
-  // A view the front will reject (bad or no depth) never reaches the sums.
-  const BlendBuffers* acc = counts.bad_depths == 0 && counts.valid_vertices > 0 ? accumulate : nullptr;
+  return counts;
+}
 
-  // Pass 2: rasterise each target band: the input block rows, then column segments, whose
-  // vertices' y range reaches the band (no per-triangle bins); triangles in input order.
+// Pass 1 of the flow form: vertex (u, v) moves to (u + 0.5 + flow_x, v + 0.5 + flow_y); 1 / depth
+// orders fragments. Depth 0 = unknown (vertex invalid); NaN / negative depth or a non-finite
+// flow vector are counted as bad (the front rejects them).
+WarpCounts FlowVertices(const ImageView<const float>& depth, const float* flow, WarpScratch& scratch) {
+  const int h = depth.height, w = depth.width;
+  const int num_segs = NumSegments(w);
+  scratch.verts.resize(std::int64_t(h) * w);
+  scratch.seg_y.resize(std::size_t(h) * num_segs);
+  WarpVertex* verts = scratch.verts.data();
+  YRange* seg_y = scratch.seg_y.data();
+  std::atomic<std::int64_t> valid{0}, bad{0}, bad_flow{0};
+  ParallelFor(h, 8, [&](std::int64_t r0, std::int64_t r1) {
+    std::int64_t my_valid = 0, my_bad = 0, my_bad_flow = 0;
+    for (std::int64_t r = r0; r < r1; ++r) {
+      const float* drow = depth.Row(static_cast<int>(r));
+      const float* frow = flow + 2 * r * w;
+      WarpVertex* vrow = verts + r * w;
+      for (int u = 0; u < w; ++u) {
+        const float d = drow[u], fx = frow[2 * u], fy = frow[2 * u + 1];
+        WarpVertex& o = vrow[u];
+        o.x = kInvalid;
+        o.y = 0;
+        o.inv = 0.f;
+        if (!std::isfinite(fx) || !std::isfinite(fy)) {
+          ++my_bad_flow;
+          continue;
+        }
+        if (!(d > 0.f)) {
+          if (d != 0.f) ++my_bad;
+          continue;
+        }
+        ++my_valid;
+        const double x = double(u) + 0.5 + double(fx), y = double(r) + 0.5 + double(fy);
+        if (!(x > -kGuardPixels && x < double(w) + kGuardPixels && y > -kGuardPixels && y < double(h) + kGuardPixels)) {
+          continue;
+        }
+        o.x = RoundHalfAway(x * kSubpixel);
+        o.y = RoundHalfAway(y * kSubpixel);
+        o.inv = std::isinf(d) ? 0.f : 1.f / d;
+      }
+      RowSegmentRanges(vrow, w, num_segs, seg_y + r * num_segs);
+    }
+    valid += my_valid;
+    bad += my_bad;
+    bad_flow += my_bad_flow;
+  });
+  WarpCounts counts;
+  counts.valid_vertices = valid;
+  counts.bad_depths = bad;
+  counts.bad_flow = bad_flow;
+  return counts;
+}
+
+// Per target band of kBandRows rows, the (block row, column segment) pairs whose vertices' y
+// range reaches it (scratch.band_start / band_segs). Returns the number of bands.
+int BuildBandLists(WarpScratch& scratch, int h, int w, int th) {
+  const int num_segs = NumSegments(w);
   const int block_rows = std::max(0, h - 1);
   const int num_bands = (th + kBandRows - 1) / kBandRows;
-  const bool equirect_target = target.model == CameraModel::kEquirect;
-  Context cx{&color, &depth, &source, &target, &options, verts,
-             SideThreshold(options, target), equirect_target, tw, th};
-  const bool fast = options.quality == WarpQuality::kSide;
-  float* score = scratch.score.data();
-  const float p = options.blend_exponent;
-  std::atomic<std::int64_t> covered{0};
+  const YRange* seg_y = scratch.seg_y.data();
   // Per band, the (block row, column segment) pairs whose vertices' y range reaches it, in input
   // order (counting sort: a segment touches few bands, so a band never scans the others).
   // Centre rows of a y range: [CeilSub(lo - 128), FloorSub(hi - 128)].
@@ -612,45 +667,272 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
       for (std::uint32_t b = seg_bands[2 * id]; b <= seg_bands[2 * id + 1]; ++b) band_segs[fill[b]++] = id;
     }
   }
+  return num_bands;
+}
+
+// Pass 2: rasterise each target band (bands own their pixels; in parallel) from its segment
+// list, triangles in input order. Per task a shader is made by make(); per band, init(sh, y0,
+// y1) clears the band, finish(sh, y0, y1) post-processes it.
+template <class MakeShader, class Init, class Finish>
+void RasterBands(const Context& cx, const WarpScratch& scratch, int num_bands, bool fast, MakeShader&& make,
+                 Init&& init, Finish&& finish) {
+  const int w = cx.depth->width, th = cx.th;
+  const int num_segs = NumSegments(w);
+  const std::uint32_t* band_start = scratch.band_start.data();
+  const std::uint32_t* band_segs = scratch.band_segs.data();
   ParallelFor(num_bands, 1, [&](std::int64_t b0, std::int64_t b1) {
-    Shader sh;
-    sh.combined = options.depth_test == DepthTest::kCombined;
-    sh.tw = tw;
-    sh.score = score;
-    sh.oc = out_color.data;
-    sh.od = out_depth.data;
-    sh.oq = out_quality;
+    auto sh = make();
     for (std::int64_t b = b0; b < b1; ++b) {
       const int y0 = static_cast<int>(b) * kBandRows, y1 = std::min(th, y0 + kBandRows);
-      for (std::ptrdiff_t i = std::ptrdiff_t(y0) * tw; i < std::ptrdiff_t(y1) * tw; ++i) {
-        score[i] = -kInf;
-        out_quality[i] = 0.f;
-        out_depth.data[i] = 0.f;
-        out_color.data[3 * i] = out_color.data[3 * i + 1] = out_color.data[3 * i + 2] = 0.f;
-      }
+      init(sh, y0, y1);
       for (std::uint32_t k = band_start[b]; k < band_start[b + 1]; ++k) {
         const std::uint32_t id = band_segs[k];
         const int r = static_cast<int>(id / std::uint32_t(num_segs)), s = static_cast<int>(id % std::uint32_t(num_segs));
         RasterBlockRow(cx, r, s * kSegCols, std::min(w - 1, (s + 1) * kSegCols), y0, y1, fast, sh);
       }
-      std::int64_t my_covered = 0;
-      for (std::ptrdiff_t i = std::ptrdiff_t(y0) * tw; i < std::ptrdiff_t(y1) * tw; ++i) {
-        const float q = out_quality[i];
-        if (q > 0.f) {
-          out_weight.data[i] = Weight(q, out_depth.data[i], p);
-          ++my_covered;
-        } else {
-          out_weight.data[i] = 0.f;
-        }
-      }
-      covered += my_covered;
-      if (acc) {
-        AccumulateRows(out_color.data, out_depth.data, out_weight.data, out_quality, *acc, y0, y1);
-      }
+      finish(sh, y0, y1);
     }
   });
+}
+
+}  // namespace
+
+float SideThreshold(const WarpOptions& options, const Camera& target) {
+  if (options.side_threshold > 0.f) return options.side_threshold;
+  return static_cast<float>(std::max(kMinAutoSide, 10.0 * std::sqrt(double(target.width) * target.height / (1920.0 * 1080.0))));
+}
+
+WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<const float>& depth,
+                       const Camera& source, const Camera& target, const WarpOptions& options,
+                       WarpScratch& scratch, const ImageView<float>& out_color,
+                       const ImageView<float>& out_depth, const ImageView<float>& out_weight,
+                       float* out_quality, const BlendBuffers* accumulate) {
+  const int h = depth.height, w = depth.width;
+  const int th = target.height, tw = target.width;
+  scratch.score.resize(std::int64_t(th) * tw);
+  WarpCounts counts = ProjectVertices(depth, source, target, scratch);
+  // A view the front will reject (bad or no depth) never reaches the sums.
+  const BlendBuffers* acc = counts.bad_depths == 0 && counts.valid_vertices > 0 ? accumulate : nullptr;
+
+  const int num_bands = BuildBandLists(scratch, h, w, th);
+  const bool equirect_target = target.model == CameraModel::kEquirect;
+  Context cx{&color, &depth, &source, &target, &options, scratch.verts.data(),
+             SideThreshold(options, target), equirect_target, tw, th};
+  const bool fast = options.quality == WarpQuality::kSide;
+  float* score = scratch.score.data();
+  const float p = options.blend_exponent;
+  std::atomic<std::int64_t> covered{0};
+  RasterBands(
+      cx, scratch, num_bands, fast,
+      [&] {
+        Shader sh;
+        sh.combined = options.depth_test == DepthTest::kCombined;
+        sh.tw = tw;
+        sh.score = score;
+        sh.oc = out_color.data;
+        sh.od = out_depth.data;
+        sh.oq = out_quality;
+        return sh;
+      },
+      [&](Shader&, int y0, int y1) {
+        for (std::ptrdiff_t i = std::ptrdiff_t(y0) * tw; i < std::ptrdiff_t(y1) * tw; ++i) {
+          score[i] = -kInf;
+          out_quality[i] = 0.f;
+          out_depth.data[i] = 0.f;
+          out_color.data[3 * i] = out_color.data[3 * i + 1] = out_color.data[3 * i + 2] = 0.f;
+        }
+      },
+      [&](Shader&, int y0, int y1) {
+        std::int64_t my_covered = 0;
+        for (std::ptrdiff_t i = std::ptrdiff_t(y0) * tw; i < std::ptrdiff_t(y1) * tw; ++i) {
+          const float q = out_quality[i];
+          if (q > 0.f) {
+            out_weight.data[i] = Weight(q, out_depth.data[i], p);
+            ++my_covered;
+          } else {
+            out_weight.data[i] = 0.f;
+          }
+        }
+        covered += my_covered;
+        if (acc) {
+          AccumulateRows(out_color.data, out_depth.data, out_weight.data, out_quality, *acc, y0, y1);
+        }
+      });
   counts.covered_pixels = covered;
   return counts;
+}
+
+// ---- Warp with background-depth holes (dos Anjos et al. sec. 3.1; forward_warp.h) ----
+namespace {
+
+// Shader of the hole mode: plain z-buffer on the re-partitioned depth of Eq. 1 (smaller wins).
+// Unstretched quads: interpolated colour and depth as in DIBR, key 0.5 d. Stretched quads: one
+// flat background depth for the whole quad, key 1 - 0.5 d, colour 0, mask kMaskDisoccluded.
+struct HoleShader {
+  float inv_area;
+  float a_inv[3], a_c[3][3];
+  std::int64_t bias[3];
+  bool affine;
+  int tw;
+  float stretch2;    // squared stretch threshold, px^2
+  float depth_jump1; // 1 + HoleWarpOptions::depth_jump
+  bool stretched;    // of the current quad
+  float bg_depth;    // of the current quad: the farthest corner (metric; +inf for sky)
+  double bg_key;     // 1 - 0.5 d(bg_depth), kept above 0.5
+  double* key;
+  float *oc, *od;
+  std::uint8_t* om;
+
+  // d of Eq. 1: metric depth z mapped monotonically onto [0, 1] (larger = farther) by
+  // d = z / (1 + z) = 1 / (1 + 1/z); +inf -> 1. Double: distinct depths stay distinct keys.
+  static inline double NormDepth(float inv) { return inv > 0.f ? 1.0 / (1.0 + double(inv)) : 1.0; }
+
+  inline void BeginQuad(const WarpVertex& A, const WarpVertex& B, const WarpVertex& C, const WarpVertex& D) {
+    // The quad's edges: AB, AC, BC (triangle 0) and BD, DC (triangle 1); corners B and C are
+    // valid here (RasterBlockRow), A and D may not be.
+    const WarpVertex* v[4] = {&A, &B, &C, &D};
+    static constexpr int kEdges[5][2] = {{0, 1}, {0, 2}, {1, 2}, {1, 3}, {3, 2}};
+    const float s = 1.f / kSubpixel;
+    float l2 = 0.f;
+    for (const auto& e : kEdges) {
+      const WarpVertex &p = *v[e[0]], &q = *v[e[1]];
+      if (p.x == kInvalid || q.x == kInvalid) continue;
+      const float dx = float(q.x - p.x) * s, dy = float(q.y - p.y) * s;
+      l2 = std::max(l2, dx * dx + dy * dy);
+    }
+    stretched = false;
+    if (!(l2 > stretch2)) return;
+    // "The minimum of the depth of all four vertices" in the paper's reversed-Z buffer (larger =
+    // nearer) is the farthest corner: the smallest 1 / z here (0 = infinite).
+    float inv = kInf, inv_hi = 0.f;
+    for (const WarpVertex* c : v) {
+      if (c->x != kInvalid) {
+        inv = std::min(inv, c->inv);
+        inv_hi = std::max(inv_hi, c->inv);
+      }
+    }
+    // ... and connects foreground and background: nearest / farthest corner depth ratio above
+    // 1 + depth_jump (0 = the stretch alone decides).
+    stretched = inv_hi > inv * depth_jump1 || (depth_jump1 <= 1.f);
+    if (!stretched) return;
+    bg_depth = inv > 0.f ? 1.f / inv : kInf;
+    // Eq. 1, stretched: 1 - 0.5 d in (0.5, 1]. d = 1 (infinite background) would give 0.5, the
+    // key of unstretched sky; the smallest double above 0.5 keeps the two ranges disjoint.
+    bg_key = std::max(1.0 - 0.5 * NormDepth(inv), std::nextafter(0.5, 1.0));
+  }
+
+  void Setup(float inverse_area, const std::int64_t b[3], float, const float inv[3], const float* const col[3],
+             bool all_inf) {
+    affine = all_inf;
+    inv_area = inverse_area;
+    for (int k = 0; k < 3; ++k) {
+      bias[k] = b[k];
+      const float m = affine ? 1.f : inv[k];
+      a_inv[k] = inv[k];
+      for (int c = 0; c < 3; ++c) a_c[k][c] = col[k][c] * m;
+    }
+  }
+
+  inline void Shade(int px, int py, std::int64_t e0, std::int64_t e1, std::int64_t e2) const {
+    const std::ptrdiff_t i = std::ptrdiff_t(py) * tw + px;
+    if (stretched) {
+      // No interpolation: the quad's background depth everywhere, a hole in colour.
+      if (bg_key < key[i]) {
+        key[i] = bg_key;
+        od[i] = bg_depth;
+        oc[3 * i] = oc[3 * i + 1] = oc[3 * i + 2] = 0.f;
+        om[i] = kMaskDisoccluded;
+      }
+      return;
+    }
+    const float b0 = float(e0 + bias[0]) * inv_area, b1 = float(e1 + bias[1]) * inv_area,
+                b2 = float(e2 + bias[2]) * inv_area;
+    const float id = affine ? 0.f : b0 * a_inv[0] + b1 * a_inv[1] + b2 * a_inv[2];
+    const double k = 0.5 * NormDepth(id);  // Eq. 1, unstretched: 0.5 d in [0, 0.5]
+    if (k < key[i]) {
+      key[i] = k;
+      const bool far = affine || !(id > 0.f);
+      const float d = far ? kInf : 1.f / id;
+      const float m = affine ? 1.f : d;
+      float* c = oc + 3 * i;
+      for (int ch = 0; ch < 3; ++ch) c[ch] = (b0 * a_c[0][ch] + b1 * a_c[1][ch] + b2 * a_c[2][ch]) * m;
+      od[i] = d;
+      om[i] = kMaskSurface;
+    }
+  }
+};
+
+// Pass 2 of both hole-mode entry points (vertices already in scratch).
+WarpCounts RasterHoles(const ImageView<const float>& color, const ImageView<const float>& depth,
+                       const Camera* source, const Camera* target, bool equirect_target, int th, int tw,
+                       const HoleWarpOptions& options, WarpScratch& scratch, WarpCounts counts,
+                       const ImageView<float>& out_color, const ImageView<float>& out_depth,
+                       std::uint8_t* out_mask) {
+  // The shared rasteriser runs with quality 'side' (its fast small-quad path) and never discards:
+  // the HoleShader ignores the triangle quality, stretch is judged per quad in BeginQuad.
+  WarpOptions wo;
+  wo.quality = WarpQuality::kSide;
+  wo.discard_stretched = false;
+  const float t = options.stretch_threshold;
+  const int num_bands = BuildBandLists(scratch, depth.height, depth.width, th);
+  Context cx{&color, &depth, source, target, &wo, scratch.verts.data(), t, equirect_target, tw, th};
+  scratch.depth_key.resize(std::size_t(th) * tw);
+  double* key = scratch.depth_key.data();
+  std::atomic<std::int64_t> covered{0}, disoccluded{0};
+  RasterBands(
+      cx, scratch, num_bands, true,
+      [&] {
+        HoleShader sh;
+        sh.tw = tw;
+        sh.stretch2 = t * t;
+        sh.depth_jump1 = 1.f + options.depth_jump;
+        sh.stretched = false;
+        sh.key = key;
+        sh.oc = out_color.data;
+        sh.od = out_depth.data;
+        sh.om = out_mask;
+        return sh;
+      },
+      [&](HoleShader&, int y0, int y1) {
+        for (std::ptrdiff_t i = std::ptrdiff_t(y0) * tw; i < std::ptrdiff_t(y1) * tw; ++i) {
+          key[i] = std::numeric_limits<double>::infinity();
+          out_depth.data[i] = 0.f;
+          out_mask[i] = kMaskUncovered;
+          out_color.data[3 * i] = out_color.data[3 * i + 1] = out_color.data[3 * i + 2] = 0.f;
+        }
+      },
+      [&](HoleShader&, int y0, int y1) {
+        std::int64_t c = 0, d = 0;
+        for (std::ptrdiff_t i = std::ptrdiff_t(y0) * tw; i < std::ptrdiff_t(y1) * tw; ++i) {
+          c += out_mask[i] == kMaskSurface;
+          d += out_mask[i] == kMaskDisoccluded;
+        }
+        covered += c;
+        disoccluded += d;
+      });
+  counts.covered_pixels = covered;
+  counts.disoccluded_pixels = disoccluded;
+  return counts;
+}
+
+}  // namespace
+
+WarpCounts WarpWithHoles(const ImageView<const float>& color, const ImageView<const float>& depth,
+                         const Camera& source, const Camera& target, const HoleWarpOptions& options,
+                         WarpScratch& scratch, const ImageView<float>& out_color,
+                         const ImageView<float>& out_depth, std::uint8_t* out_mask) {
+  const WarpCounts counts = ProjectVertices(depth, source, target, scratch);
+  return RasterHoles(color, depth, &source, &target, target.model == CameraModel::kEquirect, target.height,
+                     target.width, options, scratch, counts, out_color, out_depth, out_mask);
+}
+
+WarpCounts WarpFlowWithHoles(const ImageView<const float>& color, const ImageView<const float>& depth,
+                             const float* flow, const HoleWarpOptions& options, WarpScratch& scratch,
+                             const ImageView<float>& out_color, const ImageView<float>& out_depth,
+                             std::uint8_t* out_mask) {
+  const WarpCounts counts = FlowVertices(depth, flow, scratch);
+  return RasterHoles(color, depth, nullptr, nullptr, false, depth.height, depth.width, options, scratch, counts,
+                     out_color, out_depth, out_mask);
 }
 
 }  // namespace ibr

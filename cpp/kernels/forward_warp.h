@@ -102,12 +102,15 @@ struct WarpScratch {
   std::vector<std::uint32_t> band_fill;
   std::vector<std::uint32_t> band_segs;       // per band: segment ids (row * segments + s)
   std::vector<float> score;                   // per target pixel: q / d^3 of the kept fragment
+  std::vector<double> depth_key;              // hole mode, per target pixel: Eq. 1 key of the kept fragment
 };
 
 struct WarpCounts {
   std::int64_t valid_vertices = 0;  // input pixels with a usable depth (> 0, not NaN)
   std::int64_t bad_depths = 0;      // NaN or negative depths (the front rejects these)
-  std::int64_t covered_pixels = 0;  // target pixels written
+  std::int64_t covered_pixels = 0;  // target pixels written (hole mode: surface pixels)
+  std::int64_t disoccluded_pixels = 0;  // hole mode: pixels only stretched quads cover
+  std::int64_t bad_flow = 0;        // flow form: non-finite flow vectors (the front rejects these)
 };
 
 // color (H, W, 3) and depth (H, W) of the input, `source` camera of size W x H; outputs of the
@@ -123,5 +126,77 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
                        WarpScratch& scratch, const ImageView<float>& out_color,
                        const ImageView<float>& out_depth, const ImageView<float>& out_weight,
                        float* out_quality, const BlendBuffers* accumulate = nullptr);
+
+// ---- Warp with background-depth holes ---------------------------------------------------------
+// dos Anjos et al., "Metameric Inpainting for Image Warping", sec. 3.1, Eq. 1. One RGB-D view is
+// warped into a target camera (or by a per-pixel flow field) with the rasteriser above (same
+// implicit mesh, projection, 1/256 px snap, edge functions and tie rule, back-face and seam
+// rules, band-parallel deterministic structure) and a different shader:
+//
+// Stretched quad. A quad (2x2 input pixel centres = the mesh's two triangles) is stretched when
+// the longest of its five edges (4 sides + the diagonal) in the target is longer than
+// HoleWarpOptions::stretch_threshold pixels: the paper's "when a quad stretches more than a
+// threshold it means it connects foreground and background" (a quad that is not stretched in the
+// image is a surface, whatever its depth spread) AND its corners' depths differ by more than a
+// factor 1 + depth_jump (the "connects foreground and background" part, checked rather than
+// assumed: without it a smooth surface magnified by a larger view change -- a ground plane seen
+// at a grazing angle -- turns into a disocclusion; depth_jump = 0 is the stretch test alone).
+// One decision per quad: both triangles get it.
+//
+// Depth convention. The paper draws into Unity's reversed-Z buffer (larger value = nearer) and
+// writes "the minimum of the depth of all four vertices" into a stretched quad: that is the
+// FARTHEST corner, the background. Our depth is metric (z for a pinhole target, ray distance for
+// equirect; larger = farther), so a stretched quad is written flat (no interpolation) with the
+// LARGEST corner depth = the smallest 1/z of its valid corners (+inf if a corner is at infinity).
+//
+// Depth re-partitioning, Eq. 1, with d = z / (1 + z) in [0, 1] (monotone in z, +inf -> 1):
+//   d_r = 0.5 d        unstretched (interpolated d, perspective-correct as in DIBR)
+//   d_r = 1 - 0.5 d    stretched   (d of the background depth above)
+// and the depth test keeps the SMALLEST d_r (in our conventional direction; this is how Eq. 1's
+// text reads: "stretched quads have greater depth values ... and will always fail the depth
+// test", "the quad with the greater raw depth value d will be drawn"). Hence unstretched content
+// always beats stretched content, nearer unstretched content beats farther (a plain z-buffer; no
+// triangle quality here: the quality of DIBR's Eq. 2 is what separates stretched from unstretched,
+// and that is now exact), and where stretched quads overlap the FARTHEST one wins. Keys are
+// doubles (distinct depths keep distinct keys); d = 1 in the stretched branch is lifted to the
+// next double above 0.5 so that the two ranges never touch. Ties: the first fragment in input
+// order is kept (strict <), as in DIBR.
+//
+// Outputs of the target size: colour (Ht, Wt, 3) (0 in holes), depth (Ht, Wt) (metric: surface
+// depth on kMaskSurface, the background depth on kMaskDisoccluded, 0 on kMaskUncovered) and a
+// mask (Ht, Wt) uint8 with the codes below. The paper's un-partitioning of the depth for the
+// inpainting is the identity here: the output depth is already metric.
+//
+// Flow form (temporal up-sampling): the source pixel centre (u + 0.5, v + 0.5) moves to
+// (u + 0.5 + flow[v][u][0], v + 0.5 + flow[v][u][1]) (target - source, pixels; target size =
+// source size); 1 / depth orders the fragments and is interpolated as above. Depth 0 = unknown
+// (vertex dropped); non-finite flow is counted in WarpCounts::bad_flow (the front raises).
+constexpr std::uint8_t kMaskSurface = 0, kMaskDisoccluded = 1, kMaskUncovered = 2;
+constexpr float kDefaultStretchThreshold = 2.f;
+constexpr float kDefaultDepthJump = kDepthVariation;
+
+struct HoleWarpOptions {
+  // Longest target edge (pixels) of an unstretched quad. An undistorted quad has edges of 1 px
+  // and a diagonal of sqrt(2) = 1.41 px; 2 px lets a view change magnify the surface by up to
+  // 1.41x before it opens holes, and makes every gap wider than about one pixel a hole.
+  float stretch_threshold = kDefaultStretchThreshold;
+  // Relative depth spread (z_far / z_near - 1) a stretched quad must also have; 0 = off. 0.1 is
+  // DIBR's kDepthVariation ("depth" quality reaches 0 at a 10 % jump between neighbours).
+  float depth_jump = kDefaultDepthJump;
+};
+
+// color (H, W, 3), depth (H, W) of the `source` camera (W x H); outputs of the target's size.
+// Never throws (beyond std::bad_alloc from the scratch). Counts: valid_vertices, bad_depths,
+// covered_pixels (kMaskSurface), disoccluded_pixels (kMaskDisoccluded).
+WarpCounts WarpWithHoles(const ImageView<const float>& color, const ImageView<const float>& depth,
+                         const Camera& source, const Camera& target, const HoleWarpOptions& options,
+                         WarpScratch& scratch, const ImageView<float>& out_color,
+                         const ImageView<float>& out_depth, std::uint8_t* out_mask);
+
+// Flow form: flow is (H, W, 2) float32, C order; outputs (H, W[, 3]) like the input.
+WarpCounts WarpFlowWithHoles(const ImageView<const float>& color, const ImageView<const float>& depth,
+                             const float* flow, const HoleWarpOptions& options, WarpScratch& scratch,
+                             const ImageView<float>& out_color, const ImageView<float>& out_depth,
+                             std::uint8_t* out_mask);
 
 }  // namespace ibr

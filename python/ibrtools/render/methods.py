@@ -27,7 +27,7 @@ METHODS: dict[str, str] = {
     "pvm": "per-view meshes with clustered depth filtering (Prakash et al. 2021)",
     "hybrid": "per-pixel choice of TM / ULR / PVM (Prakash et al. 2021)",
 }
-BUILT = ("reference", "dibr")
+BUILT = ("reference", "dibr", "warp")
 
 
 class Method(Protocol):
@@ -105,4 +105,8 @@ def create(name: str, params: dict | None = None) -> Method:
         from .dibr import DibrMethod
 
         return DibrMethod(params)
+    if name == "warp":
+        from .warp import WarpMethod
+
+        return WarpMethod(params)
     raise NotBuiltError(f"--method {name}: not built yet")

@@ -1,0 +1,150 @@
+"""Single-view warp with background-depth holes (dos Anjos et al., *Metameric Inpainting for Image
+Warping*, sec. 3.1): ``--method warp``.
+
+Per frame:
+  select  the one input view most similar to the target (view_selection.py, k = 1: the DIBR
+          similarity of Eq. 4-6), or the view named by ``--inputs NAME``;
+  warp    that view's RGB-D is forward-warped into the target by ``_core.warp_with_holes``
+          (cpp/kernels/forward_warp.h, "Warp with background-depth holes": DIBR's rasteriser,
+          stretched quads drawn flat at their farthest corner's depth and re-partitioned by Eq. 1
+          so that they only fill disocclusions).
+
+Outputs: "color" (0 in holes), "depth" (surface depth; the background depth inside disocclusions;
+0 where nothing lands, e.g. outside the input's field of view), "hole" (bool: disoccluded or not
+covered) and "disoccluded" (bool: holes with a background depth). ``ibr-render --inpaint pushpull``
+fills the holes depth-aware with that depth (render/job.py), so the fill takes the background.
+
+Parameters (``--inputs`` or ``--param key=value``)
+  inputs             one view name, or 1 (= the most similar view; the default)
+  stretch_threshold  longest target edge (pixels) of a quad that is not stretched (default 2)
+  depth_jump         relative depth spread a stretched quad must also have (default 0.1; 0 = off)
+  samples, seed      Monte Carlo samples per target for view selection (default 4000) and the seed
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from ..camera import Camera
+from ..errors import BadValueError, InputError
+from ..scene import Scene
+from . import view_selection as vs
+
+PARAMS = ("inputs", "stretch_threshold", "depth_jump", "samples", "seed")
+DEFAULTS = {"inputs": 1, "stretch_threshold": 2.0, "depth_jump": 0.1, "samples": vs.DEFAULT_SAMPLES, "seed": vs.DEFAULT_SEED}
+
+
+def check_params(params: dict | None) -> dict:
+    """Validated parameters with defaults filled in (BadValueError naming the option)."""
+    params = dict(params or {})
+    unknown = set(params) - set(PARAMS)
+    if unknown:
+        raise BadValueError(f"--param: method 'warp' has no parameter(s) {sorted(unknown)} "
+                            f"(parameters: {', '.join(PARAMS)})")
+    p = {**DEFAULTS, **params}
+    v = p["inputs"]
+    if isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v == 1:
+        p["inputs"] = 1
+    elif isinstance(v, str) and v.strip() == "1":
+        p["inputs"] = 1
+    elif isinstance(v, str) and v.strip() and "," not in v:
+        p["inputs"] = v.strip()
+    else:
+        raise BadValueError(f"--inputs: method 'warp' uses one input view: expected 1 (the most similar) "
+                            f"or one view name, got {v!r}")
+    t = p["stretch_threshold"]
+    try:
+        if isinstance(t, bool):
+            raise ValueError
+        t = float(t)
+    except (TypeError, ValueError):
+        raise BadValueError(f"--param stretch_threshold: expected a number of pixels > 0, got {p['stretch_threshold']!r}") from None
+    if not (math.isfinite(t) and t > 0):
+        raise BadValueError(f"--param stretch_threshold: expected a finite number of pixels > 0, got {t!r}")
+    p["stretch_threshold"] = t
+    j = p["depth_jump"]
+    try:
+        if isinstance(j, bool):
+            raise ValueError
+        j = float(j)
+    except (TypeError, ValueError):
+        raise BadValueError(f"--param depth_jump: expected a number >= 0, got {p['depth_jump']!r}") from None
+    if not (math.isfinite(j) and j >= 0):
+        raise BadValueError(f"--param depth_jump: expected a finite number >= 0, got {j!r}")
+    p["depth_jump"] = j
+    for key, lo in (("samples", 1), ("seed", 0)):
+        v = p[key]
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+            raise BadValueError(f"--param {key}: expected an integer >= {lo}, got {v!r}")
+        p[key] = int(v)
+    return p
+
+
+class WarpMethod:
+    """``--method warp`` (see the module doc)."""
+
+    name = "warp"
+
+    def __init__(self, params: dict | None = None):
+        self.params = check_params(params)
+        self.last_frame: dict = {}
+        self._scene: Scene | None = None
+
+    def prepare(self, scene: Scene) -> dict[str, float]:
+        if not scene.views:
+            raise InputError("--method warp: the scene has no input views")
+        names = [v.name for v in scene.views]
+        inputs = self.params["inputs"]
+        if isinstance(inputs, str):
+            if inputs not in names:
+                raise BadValueError(f"--inputs: view {inputs!r} is not among the input views "
+                                    f"(held-out views are not inputs)")
+            self._candidates = [names.index(inputs)]
+        else:
+            self._candidates = None
+        cand = self._candidates if self._candidates is not None else range(len(names))
+        bad = [names[i] for i in cand if not (scene.views[i].has_depth and scene.views[i].has_color)]
+        if bad:
+            raise InputError(f"--method warp needs colour and depth for its input view(s); missing for: "
+                             f"{', '.join(bad[:5])}{' ...' if len(bad) > 5 else ''}")
+        t0 = time.perf_counter()
+        self._ranges = [vs.depth_range(v.depth, f"view {v.name!r} depth") for v in scene.views]
+        self._target_range = vs.union(self._ranges)
+        ms = (time.perf_counter() - t0) * 1e3
+        self._scene = scene
+        self._cams = [v.camera for v in scene.views]
+        return {"depth_ranges": ms}
+
+    def render(self, camera: Camera) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+        from .. import _core
+
+        if self._scene is None:
+            raise InputError("warp: prepare(scene) must be called before render(camera)")
+        t0 = time.perf_counter()
+        if self._candidates is not None:
+            index = self._candidates[0]
+        else:
+            sel = vs.select_views(camera, self._target_range, self._cams, self._ranges, 1,
+                                  samples=self.params["samples"], seed=self.params["seed"])
+            if not sel.indices:
+                raise InputError("--method warp: no input view overlaps the target camera")
+            index = sel.indices[0]
+        t1 = time.perf_counter()
+        v = self._scene.views[index]
+        color, depth, mask = _core.warp_with_holes(
+            np.ascontiguousarray(v.color, np.float32), np.ascontiguousarray(v.depth, np.float32),
+            v.camera.to_core(), camera.to_core(), float(self.params["stretch_threshold"]),
+            float(self.params["depth_jump"]))
+        t2 = time.perf_counter()
+        disoccluded = mask == _core.WARP_DISOCCLUDED
+        hole = mask != _core.WARP_SURFACE
+        self.last_frame = {"selected": [v.name], "disoccluded_pixels": int(disoccluded.sum()),
+                           "uncovered_pixels": int((mask == _core.WARP_UNCOVERED).sum())}
+        out = {"color": color, "depth": depth, "hole": hole, "disoccluded": disoccluded}
+        return out, {"select": (t1 - t0) * 1e3, "warp": (t2 - t1) * 1e3}
+
+    def frame_report(self) -> dict:
+        """What report.json records for the last frame (the input view, hole pixel counts)."""
+        return dict(self.last_frame)
