@@ -26,7 +26,6 @@ Parameters (``ibr-render --inputs/--quality/--blend-exponent`` or ``--param key=
 """
 from __future__ import annotations
 
-import math
 import time
 
 import numpy as np
@@ -34,11 +33,10 @@ import numpy as np
 from ..camera import Camera
 from ..errors import BadValueError, InputError
 from ..scene import Scene
+from . import params as P
 from . import view_selection as vs
 
 QUALITIES = ("side", "shape", "depth", "normal")
-PARAMS = ("inputs", "quality", "blend_exponent", "side_threshold", "samples", "seed",
-          "stretched_quality", "stretched_holes", "depth_tolerance")
 # side_threshold 10 px: RVS 4.0's q = clamp(10000 - 1000 L, 1, 10000) is q = 1 - L / 10 with L in
 # target pixels, whatever the resolution. Measured (docs/dibr.md, "Parameters"): on the real-data
 # cases T = 10 beats the kernel's resolution-scaled auto T (5.6 px at 800x800, 4 px at 640x480)
@@ -81,47 +79,20 @@ def _parse_inputs(v) -> int | list[str]:
     return names
 
 
-def _number(params: dict, key: str, flag: str, minimum: float, strict: bool) -> float:
-    v = params[key]
-    try:
-        if isinstance(v, bool):
-            raise ValueError
-        f = float(v)
-    except (TypeError, ValueError):
-        raise BadValueError(f"{flag}: expected a number, got {v!r}") from None
-    if not math.isfinite(f) or (f <= minimum if strict else f < minimum):
-        raise BadValueError(f"{flag}: expected a finite number {'>' if strict else '>='} {minimum:g}, got {v!r}")
-    return f
-
-
 def check_params(params: dict | None) -> dict:
     """Validated DIBR parameters with defaults filled in (BadValueError naming the option)."""
-    params = dict(params or {})
-    unknown = set(params) - set(PARAMS)
-    if unknown:
-        raise BadValueError(f"--param: method 'dibr' has no parameter(s) {sorted(unknown)} "
-                            f"(parameters: {', '.join(PARAMS)})")
-    p = {**DEFAULTS, **params}
+    p = P.with_defaults("dibr", params, DEFAULTS)
     p["inputs"] = _parse_inputs(p["inputs"])
     if p["quality"] not in QUALITIES:
         raise BadValueError(f"--quality: expected one of {', '.join(QUALITIES)}, got {p['quality']!r}")
-    p["blend_exponent"] = _number(p, "blend_exponent", "--blend-exponent", 0.0, True)
-    p["side_threshold"] = _number(p, "side_threshold", "--param side_threshold", 0.0, False)
-    p["stretched_quality"] = _number(p, "stretched_quality", "--param stretched_quality", 0.0, False)
-    p["depth_tolerance"] = _number(p, "depth_tolerance", "--param depth_tolerance", 0.0, False)
-    if p["stretched_quality"] > 1 or p["depth_tolerance"] >= 1:
-        raise BadValueError("--param stretched_quality must be <= 1 and depth_tolerance < 1")
-    sh = p["stretched_holes"]
-    if isinstance(sh, str):
-        sh = {"1": True, "true": True, "yes": True, "0": False, "false": False, "no": False}.get(sh.lower(), sh)
-    if not isinstance(sh, (bool, int)) or sh not in (0, 1):
-        raise BadValueError(f"--param stretched_holes: expected true or false, got {p['stretched_holes']!r}")
-    p["stretched_holes"] = bool(sh)
-    for key, lo in (("samples", 1), ("seed", 0)):
-        v = p[key]
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
-            raise BadValueError(f"--param {key}: expected an integer >= {lo}, got {v!r}")
-        p[key] = int(v)
+    p["blend_exponent"] = P.number(p["blend_exponent"], "--blend-exponent", 0.0, strict=True)
+    p["side_threshold"] = P.number(p["side_threshold"], "--param side_threshold", 0.0)
+    p["stretched_quality"] = P.number(p["stretched_quality"], "--param stretched_quality", 0.0, maximum=1.0)
+    p["depth_tolerance"] = P.number(p["depth_tolerance"], "--param depth_tolerance", 0.0, maximum=1.0,
+                                    strict_max=True)
+    p["stretched_holes"] = P.boolean(p["stretched_holes"], "--param stretched_holes")
+    p["samples"] = P.integer(p["samples"], "--param samples", 1)
+    p["seed"] = P.integer(p["seed"], "--param seed", 0)
     return p
 
 
@@ -169,21 +140,16 @@ class DibrMethod:
             self._candidates = None
             self._k = inputs
         t0 = time.perf_counter()
-        # Each view's depth range bounds its frustum (and their union the target's); it needs
-        # every depth map once, which is also what checks them.
-        self._ranges = [vs.depth_range(v.depth, f"view {v.name!r} depth") for v in scene.views]
-        self._target_range = vs.union(self._ranges)
+        self._views = vs.ViewSet.of(scene.views)
         ranges_ms = (time.perf_counter() - t0) * 1e3
         self._scene = scene
-        self._cams = [v.camera for v in scene.views]
-        self._core_cams = [c.to_core() for c in self._cams]
+        self._core_cams = [c.to_core() for c in self._views.cameras]
         self._options = None  # made at the first render (the kernel's WarpOptions)
         return {"depth_ranges": ranges_ms}
 
     def select(self, camera: Camera) -> vs.Selection:
-        return vs.select_views(camera, self._target_range, self._cams, self._ranges, self._k,
-                               candidates=self._candidates, samples=self.params["samples"],
-                               seed=self.params["seed"])
+        return self._views.select(camera, self._k, candidates=self._candidates,
+                                  samples=self.params["samples"], seed=self.params["seed"])
 
     def render(self, camera: Camera) -> tuple[dict[str, np.ndarray], dict[str, float]]:
         from .. import _core

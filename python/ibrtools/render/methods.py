@@ -15,6 +15,7 @@ import numpy as np
 from ..camera import Camera
 from ..errors import BadValueError, InputError, NotBuiltError
 from ..scene import Scene
+from . import params as P
 
 METHODS: dict[str, str] = {
     "auto": "pick the best built method for the scene's data",
@@ -45,11 +46,10 @@ class ReferenceMethod:
     name = "reference"
 
     def __init__(self, params: dict | None = None):
-        params = dict(params or {})
-        unknown = set(params) - {"ambient"}
-        if unknown:
-            raise BadValueError(f"--param: method 'reference' has no parameter(s) {sorted(unknown)}")
-        self.params = params
+        # ambient: None = the scene's own shading (how its views were rendered).
+        self.params = P.with_defaults("reference", params, {"ambient": None})
+        if self.params["ambient"] is not None:
+            self.params["ambient"] = P.number(self.params["ambient"], "--param ambient", 0.0)
         self._renderer = None
 
     def prepare(self, scene: Scene) -> dict[str, float]:
@@ -67,7 +67,8 @@ class ReferenceMethod:
                                   shadows=bool(d.get("shadows", True))) for d in scene.lights]
         else:
             self._lights = default_lights(mesh.bounds())
-        self._ambient = float(self.params.get("ambient", scene.shading.get("ambient", 0.15)))
+        ambient = self.params["ambient"]
+        self._ambient = float(scene.shading.get("ambient", 0.15) if ambient is None else ambient)
         self._background = tuple(scene.shading.get("background", (0.0, 0.0, 0.0)))
         return {"bvh": setup_ms}
 

@@ -219,3 +219,24 @@ def select_views(target: Camera, target_range: DepthRange, cameras: list[Camera]
     usable.sort(key=lambda i: -scores[i])
     chosen = usable[:k]
     return Selection(chosen, scores, vols, agree, skipped=len(cand) - len(usable), candidates=cand)
+
+
+@dataclass
+class ViewSet:
+    """The input views of a method, ready for selection: cameras, each view's depth range and
+    their union (the target's range). Building it reads every depth map once, which is also
+    what checks them."""
+
+    cameras: list[Camera]
+    ranges: list[DepthRange]
+    target_range: DepthRange
+
+    @classmethod
+    def of(cls, views) -> "ViewSet":
+        ranges = [depth_range(v.depth, f"view {v.name!r} depth") for v in views]
+        return cls([v.camera for v in views], ranges, union(ranges))
+
+    def select(self, target: Camera, k: int, *, candidates: list[int] | None = None,
+               samples: int = DEFAULT_SAMPLES, seed: int = DEFAULT_SEED) -> Selection:
+        return select_views(target, self.target_range, self.cameras, self.ranges, k,
+                            candidates=candidates, samples=samples, seed=seed)

@@ -22,7 +22,6 @@ Parameters (``--inputs`` or ``--param key=value``)
 """
 from __future__ import annotations
 
-import math
 import time
 
 import numpy as np
@@ -30,55 +29,29 @@ import numpy as np
 from ..camera import Camera
 from ..errors import BadValueError, InputError
 from ..scene import Scene
+from . import params as P
 from . import view_selection as vs
 
-PARAMS = ("inputs", "stretch_threshold", "depth_jump", "samples", "seed")
 DEFAULTS = {"inputs": 1, "stretch_threshold": 2.0, "depth_jump": 0.1, "samples": vs.DEFAULT_SAMPLES, "seed": vs.DEFAULT_SEED}
 
 
 def check_params(params: dict | None) -> dict:
     """Validated parameters with defaults filled in (BadValueError naming the option)."""
-    params = dict(params or {})
-    unknown = set(params) - set(PARAMS)
-    if unknown:
-        raise BadValueError(f"--param: method 'warp' has no parameter(s) {sorted(unknown)} "
-                            f"(parameters: {', '.join(PARAMS)})")
-    p = {**DEFAULTS, **params}
+    p = P.with_defaults("warp", params, DEFAULTS)
     v = p["inputs"]
+    if isinstance(v, str) and v.strip() == "1":
+        v = 1
     if isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v == 1:
-        p["inputs"] = 1
-    elif isinstance(v, str) and v.strip() == "1":
         p["inputs"] = 1
     elif isinstance(v, str) and v.strip() and "," not in v:
         p["inputs"] = v.strip()
     else:
         raise BadValueError(f"--inputs: method 'warp' uses one input view: expected 1 (the most similar) "
                             f"or one view name, got {v!r}")
-    t = p["stretch_threshold"]
-    try:
-        if isinstance(t, bool):
-            raise ValueError
-        t = float(t)
-    except (TypeError, ValueError):
-        raise BadValueError(f"--param stretch_threshold: expected a number of pixels > 0, got {p['stretch_threshold']!r}") from None
-    if not (math.isfinite(t) and t > 0):
-        raise BadValueError(f"--param stretch_threshold: expected a finite number of pixels > 0, got {t!r}")
-    p["stretch_threshold"] = t
-    j = p["depth_jump"]
-    try:
-        if isinstance(j, bool):
-            raise ValueError
-        j = float(j)
-    except (TypeError, ValueError):
-        raise BadValueError(f"--param depth_jump: expected a number >= 0, got {p['depth_jump']!r}") from None
-    if not (math.isfinite(j) and j >= 0):
-        raise BadValueError(f"--param depth_jump: expected a finite number >= 0, got {j!r}")
-    p["depth_jump"] = j
-    for key, lo in (("samples", 1), ("seed", 0)):
-        v = p[key]
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
-            raise BadValueError(f"--param {key}: expected an integer >= {lo}, got {v!r}")
-        p[key] = int(v)
+    p["stretch_threshold"] = P.number(p["stretch_threshold"], "--param stretch_threshold", 0.0, strict=True)
+    p["depth_jump"] = P.number(p["depth_jump"], "--param depth_jump", 0.0)
+    p["samples"] = P.integer(p["samples"], "--param samples", 1)
+    p["seed"] = P.integer(p["seed"], "--param seed", 0)
     return p
 
 
@@ -110,11 +83,9 @@ class WarpMethod:
             raise InputError(f"--method warp needs colour and depth for its input view(s); missing for: "
                              f"{', '.join(bad[:5])}{' ...' if len(bad) > 5 else ''}")
         t0 = time.perf_counter()
-        self._ranges = [vs.depth_range(v.depth, f"view {v.name!r} depth") for v in scene.views]
-        self._target_range = vs.union(self._ranges)
+        self._views = vs.ViewSet.of(scene.views)
         ms = (time.perf_counter() - t0) * 1e3
         self._scene = scene
-        self._cams = [v.camera for v in scene.views]
         return {"depth_ranges": ms}
 
     def render(self, camera: Camera) -> tuple[dict[str, np.ndarray], dict[str, float]]:
@@ -126,8 +97,7 @@ class WarpMethod:
         if self._candidates is not None:
             index = self._candidates[0]
         else:
-            sel = vs.select_views(camera, self._target_range, self._cams, self._ranges, 1,
-                                  samples=self.params["samples"], seed=self.params["seed"])
+            sel = self._views.select(camera, 1, samples=self.params["samples"], seed=self.params["seed"])
             if not sel.indices:
                 raise InputError("--method warp: no input view overlaps the target camera")
             index = sel.indices[0]

@@ -1,0 +1,63 @@
+"""Checks of method parameters (``ibr-render --param key=value`` and the method flags).
+
+Values arrive as numbers or as the strings of ``--param``; each check converts and raises a
+BadValueError that names the flag and says what was expected.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from ..errors import BadValueError
+
+_TRUE = {"1": True, "true": True, "yes": True, "on": True, "0": False, "false": False, "no": False, "off": False}
+
+
+def with_defaults(method: str, params: dict | None, defaults: dict) -> dict:
+    """``params`` over ``defaults``; an unknown key is an error listing the known ones."""
+    params = dict(params or {})
+    unknown = set(params) - set(defaults)
+    if unknown:
+        raise BadValueError(f"--param: method {method!r} has no parameter(s) {sorted(unknown)} "
+                            f"(parameters: {', '.join(defaults)})")
+    return {**defaults, **params}
+
+
+def number(value: Any, flag: str, minimum: float | None = None, *, strict: bool = False,
+           maximum: float | None = None, strict_max: bool = False) -> float:
+    """A finite number, above ``minimum`` (``strict``: not equal) and below ``maximum``."""
+    try:
+        if isinstance(value, bool):
+            raise ValueError
+        f = float(value)
+    except (TypeError, ValueError):
+        raise BadValueError(f"{flag}: expected a number, got {value!r}") from None
+    low_bad = minimum is not None and (f <= minimum if strict else f < minimum)
+    high_bad = maximum is not None and (f >= maximum if strict_max else f > maximum)
+    if not math.isfinite(f) or low_bad or high_bad:
+        bounds = []
+        if minimum is not None:
+            bounds.append(f"{'>' if strict else '>='} {minimum:g}")
+        if maximum is not None:
+            bounds.append(f"{'<' if strict_max else '<='} {maximum:g}")
+        bound = f" {' and '.join(bounds)}" if bounds else ""
+        raise BadValueError(f"{flag}: expected a finite number{bound}, got {value!r}")
+    return f
+
+
+def integer(value: Any, flag: str, minimum: int) -> int:
+    if isinstance(value, str) and value.strip().lstrip("+-").isdigit():
+        value = int(value)
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise BadValueError(f"{flag}: expected an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def boolean(value: Any, flag: str) -> bool:
+    if isinstance(value, str):
+        value = _TRUE.get(value.strip().lower(), value)
+    if isinstance(value, (bool, np.bool_)) or (isinstance(value, (int, np.integer)) and value in (0, 1)):
+        return bool(value)
+    raise BadValueError(f"{flag}: expected true or false, got {value!r}")
