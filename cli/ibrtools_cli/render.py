@@ -5,6 +5,8 @@ import argparse
 import sys
 from typing import Sequence
 
+from ibrtools.errors import NotBuiltError
+
 from .common import add_common, print_table, run_command
 
 PROG = "ibr-render"
@@ -48,6 +50,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="fill the holes a method leaves (dibr): none (default, holes black), pushpull "
                         "(depth-aware push-pull when the method gives depth), metameric [not built yet]. "
                         "<frame>.mask.png still marks the filled holes")
+    p.add_argument("--foveate", metavar="X,Y",
+                   help="foveated ventral metamers around the fixation point X,Y [not built yet]")
     p.add_argument("--float", action="store_true", help="also write <frame>.exr (linear float)")
     p.add_argument("--depth", action="store_true", help="also write <frame>.depth.exr")
     p.add_argument("--report", action="store_true", help="print the per-frame report table")
@@ -60,6 +64,8 @@ def _body(args: argparse.Namespace) -> int:
     from ibrtools.render import job as render_job
     from ibrtools.stages import parse_options
 
+    if args.foveate is not None:
+        raise NotBuiltError("--foveate: not built yet (ventral metamers, Walton et al. 2021)")
     scene = native.load(args.scene)
     job = render_job.plan(scene, targets=args.target, holdout=args.holdout, path=args.path,
                           poses=args.poses)
