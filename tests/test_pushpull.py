@@ -176,14 +176,60 @@ def test_unknown_depth_is_ignored():
     assert np.array_equal(out[~hole], img[~hole])
 
 
-def test_all_rejected_is_a_clear_error():
-    # The only valid pixel is far in front of a background-depth hole at every scale.
+def _far_ground_scene(h=32, w=40):
+    """Far ground hidden behind an object: every valid pixel is foreground (textured, depth
+    2-2.1) and the hole carries a background depth (10) beyond every one of them, so Alg. 1's
+    depth test drops every valid sample at some scale and its 1x1 top has no data (this raised
+    "no background data" before the classic fallback, pushpull.h)."""
+    rng = np.random.default_rng(7)
+    img = rng.random((h, w, 3), dtype=np.float32)
+    depth = (2 + 0.1 * rng.random((h, w))).astype(np.float32)
+    hole = np.zeros((h, w), bool)
+    hole[4:h - 4, 5:w - 7] = True
+    depth[hole] = 10.0
+    img[hole] = np.nan  # never read
+    return img, depth, hole
+
+
+def test_background_beyond_every_valid_pixel_falls_back_to_classic():
+    # The smallest case: the one valid pixel is far in front of the background-depth hole.
     img = np.ones((1, 2), np.float32)
     hole = np.array([[False, True]])
     depth = np.array([[1.0, 10.0]], np.float32)
-    with pytest.raises(BadValueError, match="no background data"):
-        pushpull(img, hole, depth)
-    assert np.array_equal(pushpull(img, hole), np.ones((1, 2), np.float32))
+    np.testing.assert_array_equal(pushpull(img, hole, depth), pushpull(img, hole))
+
+    img, depth, hole = _far_ground_scene()
+    classic = pushpull(img, hole)
+    for gamma in (0.0, 0.5, 1.0):
+        out = pushpull(img, hole, depth, gamma=gamma)
+        assert np.all(np.isfinite(out))
+        assert np.array_equal(out[~hole], img[~hole])
+        # Inside the hole, 4+ px from its border, no depth-aware data reaches the pixel (s = 0):
+        # the fill is the classic one bit for bit (F0 = 0 and 1 - s = 1 exactly, pushpull.h).
+        inner = np.zeros_like(hole)
+        inner[8:-8, 9:-11] = True
+        assert np.array_equal(out[inner], classic[inner])
+        # Next to the border, Alg. 1's data and the classic fill mix: both are convex
+        # combinations of valid pixels, so the result stays within their range (1e-6: float32
+        # rounding of weights summing to 1).
+        lo, hi = img[~hole].min(axis=0), img[~hole].max(axis=0)
+        assert np.all(out[hole] >= lo - 1e-6) and np.all(out[hole] <= hi + 1e-6)
+    # An all-hole image still has nothing to fill from, depth or not.
+    with pytest.raises(BadValueError, match="every pixel is a hole"):
+        pushpull(img, np.ones_like(hole), depth)
+
+
+def test_classic_fallback_is_thread_count_deterministic():
+    img, depth, hole = _far_ground_scene(160, 300)  # several row tasks per level at 2-3 threads
+    before = _core.get_num_threads()
+    try:
+        results = []
+        for n in (1, 2, 3):
+            _core.set_num_threads(n)
+            results.append(pushpull(img, hole, depth))
+    finally:
+        _core.set_num_threads(0 if before >= 2 else before)
+    assert all(np.array_equal(r, results[0]) for r in results[1:])
 
 
 # --- threads --------------------------------------------------------------------------------

@@ -81,11 +81,6 @@ void BindInpaint(py::module_& m) {
         if (status == PushPullStatus::kNoValidPixel) {
           throw BadValueError("hole: every pixel is a hole; push-pull needs at least one pixel outside the holes");
         }
-        if (status == PushPullStatus::kAllRejected) {
-          throw BadValueError(
-              "depth: depth-aware push-pull found no background data: every pixel outside the holes is "
-              "nearer than the hole depth by more than depth_threshold; raise depth_threshold or pass depth=None");
-        }
         return py::make_tuple(out, status == PushPullStatus::kNoHole);
       },
       py::arg("image"), py::arg("hole"), py::arg("depth") = py::none(), py::arg("depth_threshold") = 0.04,

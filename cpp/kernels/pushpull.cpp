@@ -284,15 +284,60 @@ PushPullStatus Run(const ImageView<const float>& image, const ImageView<const st
     if (Complete(levels[i], options.gamma)) break;
   }
   const Level& t = levels[top];
-  if (!Complete(t, 0.0f)) {
-    // Only the 1x1 top can be incomplete here; with a valid pixel in the image that means the
-    // depth test dropped every valid sample.
-    return depth_aware ? PushPullStatus::kAllRejected : PushPullStatus::kNoValidPixel;
+  if (Complete(t, 0.0f)) {
+    // PUSH: the top keeps its colour (nothing coarser to mix with).
+    for (std::size_t i = top; i-- > 0;) Push<kC>(levels[i + 1], C, options.gamma, levels[i]);
+    PushToOutput<kC>(levels[0], image, hole, out);
+    return PushPullStatus::kOk;
   }
-  // PUSH: the top keeps its colour (nothing coarser to mix with).
-  for (std::size_t i = top; i-- > 0;) Push<kC>(levels[i + 1], C, options.gamma, levels[i]);
-  PushToOutput<kC>(levels[0], image, hole, out);
-  return PushPullStatus::kOk;
+  // Only the 1x1 top can be incomplete here. Classic: impossible (the image has a valid pixel).
+  // Depth-aware: the depth test dropped every valid sample at some scale (the farthest depth in
+  // the image is hole only). Classic fallback, per hole pixel (pushpull.h): the top's colour is
+  // 0, so the push gives F0 = the part of the fill that came from depth-aware data; the same push
+  // of the indicator "has data" (1 where v > 0, top 0) gives s, the weight of that part; the
+  // weight 1 - s the empty top would get goes to the classic fill of the same pixel.
+  if (!depth_aware) return PushPullStatus::kNoValidPixel;
+  std::size_t total_s = 0;
+  for (const Level& l : levels) total_s += std::size_t(l.h) * l.w;
+  std::unique_ptr<float[]> s_scratch(new float[total_s]);
+  std::vector<Level> s_levels(levels.size());
+  std::size_t s_offset = 0;
+  for (std::size_t i = 0; i < levels.size(); ++i) {
+    const std::size_t n = std::size_t(levels[i].h) * levels[i].w;
+    s_levels[i] = Level{levels[i].h, levels[i].w, s_scratch.get() + s_offset, levels[i].v, nullptr};
+    s_offset += n;
+    for (std::size_t p = 0; p < n; ++p) s_levels[i].c[p] = levels[i].v[p] > 0.0f ? 1.0f : 0.0f;
+  }
+  for (int k = 0; k < C; ++k) t.c[k] = 0.0f;  // top: v = 0 (Pull wrote colour 0 already)
+  for (std::size_t i = top; i-- > 0;) {
+    Push<kC>(levels[i + 1], C, options.gamma, levels[i]);
+    Push<1>(s_levels[i + 1], 1, options.gamma, s_levels[i]);
+  }
+  PushPullOptions classic;
+  classic.depth_aware = false;
+  classic.gamma = 0.0f;
+  Run<kC>(image, hole, ImageView<const float>(), classic, out);  // kOk: the image has a valid pixel
+  const Level& f1 = levels[0];
+  const Level& s1 = s_levels[0];
+  const Taps ty = MakeTaps(image.height, f1.h), tx = MakeTaps(image.width, f1.w);
+  ParallelFor(image.height, RowGrain(image.width), [&](std::int64_t y0, std::int64_t y1) {
+    float fbuf[kC > 0 ? kC : 1];
+    std::vector<float> fdyn(kC > 0 ? 0 : C);
+    float* f = kC > 0 ? fbuf : fdyn.data();
+    for (int y = static_cast<int>(y0); y < static_cast<int>(y1); ++y) {
+      const std::uint8_t* hrow = hole.Row(y);
+      for (int x = 0; x < image.width; ++x) {
+        if (!hrow[x]) continue;
+        float s;
+        Up<kC>(f1, C, ty, tx, y, x, f);
+        Up<1>(s1, 1, ty, tx, y, x, &s);
+        // s = 0 (no depth-aware data reaches the pixel): f = 0 exactly and out stays classic.
+        float* o = &out.At(y, x, 0);
+        for (int k = 0; k < C; ++k) o[k] = f[k] + (1.0f - s) * o[k];
+      }
+    }
+  });
+  return PushPullStatus::kClassicFallback;
 }
 
 }  // namespace

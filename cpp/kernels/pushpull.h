@@ -41,12 +41,29 @@
 // The threshold is "0.04 of the normalised depth" (authors' Unity code): the kernel normalises by
 // the image's range of known depth, threshold_abs = depth_threshold * (max - min).
 //
+// Classic fallback (our deviation from Alg. 1). When the farthest depth of the image (within the
+// threshold) is hole only -- a hole's background lies beyond every visible pixel, e.g. far ground
+// disoccluded behind an object -- the depth test drops every valid sample at some scale and Alg. 1
+// ends with no data at the 1x1 top; its push would fill with an undefined colour. We then keep
+// Alg. 1 wherever it has data and give the rest of each hole pixel to the classic fill:
+//   out = F0 + (1 - s) * classic,
+// where F0 is Alg. 1's push with the top colour set to 0, s is the same push of the indicator
+// "has data" (1 where v > 0, 0 at the top), i.e. the weight of depth-aware data in the pixel's
+// fill (the fill is affine in the top colour: F0 + (1 - s) * top), and classic is the classic
+// push-pull of the same pixel. A hole pixel that no depth-aware data reaches (s = 0) gets the
+// classic fill exactly; when the top has data s = 1 everywhere and nothing changes. Why not fall
+// back per block at the first level whose depth test drops every valid sample: such blocks sit
+// on every foreground/background-hole edge, where the drop is the point of Alg. 1 (coarser levels
+// usually do find background), so a per-block classic average would bleed the foreground into
+// every hole beside it; the fallback must only take what Alg. 1 leaves empty at every scale.
+//
 // Shapes: image (H, W, C) float32, hole (H, W) one byte per pixel (non-zero = hole), depth
 // (H, W) float32 or empty, out (H, W, C) float32 (may not alias image). H, W, C >= 1.
 // The front (cpp/bindings/inpaint.cpp) checks shapes, finiteness outside holes and options.
 // Multithreaded over the rows of each level with ibr::ParallelFor; every pixel is computed
 // independently, so the result is identical for any thread count. Scratch for levels >= 1 is
-// allocated here (about 1/3 of the input); nothing is thrown.
+// allocated here (about 1/3 of the input; the fallback adds a classic run and 1/3 of a channel);
+// nothing is thrown.
 #pragma once
 #include <cstdint>
 
@@ -62,10 +79,9 @@ struct PushPullOptions {
 
 enum class PushPullStatus {
   kOk = 0,
-  kNoHole,         // nothing to fill: out is a copy of image
-  kNoValidPixel,   // every pixel is a hole: out untouched
-  kAllRejected,    // depth-aware: every valid sample was nearer than a background hole at
-                   // every scale, so the coarsest level has no data: out untouched
+  kNoHole,           // nothing to fill: out is a copy of image
+  kNoValidPixel,     // every pixel is a hole: out untouched
+  kClassicFallback,  // depth-aware found no data at the top: filled with the classic fallback
 };
 
 PushPullStatus PushPullKernel(const ImageView<const float>& image,

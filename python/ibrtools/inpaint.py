@@ -6,7 +6,10 @@
   depth-aware variant of dos Anjos et al. (*Metameric Inpainting for Image Warping*, sec. 3.3,
   Alg. 1): samples nearer than the block's background depth by more than ``depth_threshold``
   (a fraction of the image's depth range) get no weight, partial validity is carried through the
-  pull, and the push mixes a pixel with the coarser level by ``validity ** gamma``.
+  pull, and the push mixes a pixel with the coarser level by ``validity ** gamma``. Where
+  Alg. 1 finds no data at any scale (a hole's background depth lies beyond every valid pixel),
+  the hole pixel takes the classic fill for the share Alg. 1 leaves empty (our deviation,
+  ``pushpull.h``), so the depth-aware fill always completes.
 * :func:`inpaint` — the method switch the renderer uses (``--inpaint``).
 
 The C++ kernel is ``cpp/kernels/pushpull.{h,cpp}`` (equations, the paper's depth convention and
@@ -64,7 +67,8 @@ def pushpull(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = Non
 
     Returns a new float32 array of image's shape, equal to ``image`` outside the holes.
     Raises ShapeError/DtypeError for bad arrays, BadValueError for non-finite pixels outside the
-    holes, bad options, an all-hole image, or (depth-aware) no background data at all.
+    holes, bad options or an all-hole image. When the depth test leaves a hole with no data at
+    any scale, that hole falls back to the classic fill (docs/inpaint.md), it does not raise.
     """
     from . import _core
 

@@ -150,19 +150,10 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
                 inpaint_note = "skipped: no hole"  # DESIGN.md: inpainting does nothing where there is no hole
             else:
                 t1 = time.perf_counter()
-                fill_depth = _inpaint_depth(out.get("depth"), hole)
-                inpaint_note = inpaint
-                try:
-                    filled = fill_holes(np.ascontiguousarray(color, np.float32), hole, inpaint, depth=fill_depth)
-                except BadValueError:
-                    # Depth-aware push-pull finds no data when a hole's background depth lies
-                    # beyond every visible pixel (warp: far background disoccluded); fill classic.
-                    if fill_depth is None:
-                        raise
-                    filled = fill_holes(np.ascontiguousarray(color, np.float32), hole, inpaint, depth=None)
-                    inpaint_note = f"{inpaint} (classic: no background data for the depth-aware fill)"
-                color = filled
+                color = fill_holes(np.ascontiguousarray(color, np.float32), hole, inpaint,
+                                   depth=_inpaint_depth(out.get("depth"), hole))
                 stage_ms = {**stage_ms, "inpaint": (time.perf_counter() - t1) * 1e3}
+                inpaint_note = inpaint
         total_ms = (time.perf_counter() - t0) * 1e3
         image = f"{frame.name}.png"
         write_image(out_dir / image, color)
@@ -171,7 +162,7 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
                        "metrics": _frame_metrics({**out, "color": color}, frame.truth)}
         if inpaint_note is not None:
             entry["inpaint"] = inpaint_note
-            if inpaint_note.startswith(inpaint) and frame.truth is not None and frame.truth.has_color:
+            if inpaint_note == inpaint and frame.truth is not None and frame.truth.has_color:
                 entry["metrics"]["psnr_holes"] = _psnr_in(color, frame.truth.color, hole)
         # Method-specific facts about the frame (dibr: the selected input views, best first,
         # their similarity, and how many candidates were skipped for not overlapping).
