@@ -7,4 +7,5 @@ PYBIND11_MODULE(_core, m) {
   ibr::bind::BindMetrics(m);
   ibr::bind::BindDibr(m);
   ibr::bind::BindInpaint(m);
+  ibr::bind::BindSteerable(m);
 }

@@ -9,4 +9,5 @@ void BindRaycast(py::module_& m);
 void BindMetrics(py::module_& m);
 void BindDibr(py::module_& m);
 void BindInpaint(py::module_& m);
+void BindSteerable(py::module_& m);
 }  // namespace ibr::bind
