@@ -13,13 +13,11 @@ absolute error against the unholed frame (information only: the methods aim at d
 """
 from __future__ import annotations
 
-import argparse
 import os
 import sys
-from pathlib import Path
 
 import numpy as np
-from benchlib import DOCS, machine, median_ms, write_section
+from benchlib import load_note, machine, median_ms, size_repeats_main
 
 
 def frame(size: int, hole_fraction: float = 0.10, seed: int = 0):
@@ -98,7 +96,6 @@ def run(size: int, repeats: int) -> str:
         for name, key in zip(names, ("classic", "depth", "oiio", "cv")):
             ms = times[name]
             rows.append(f"| {name} | {ms:.2f} | {peer_o / ms:.1f}x | {peer_c / ms:.1f}x | {errs[key]:.4f} |")
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     head = [
         "## Inpainting",
         "",
@@ -111,25 +108,12 @@ def run(size: int, repeats: int) -> str:
         "| implementation | time (ms) | vs OIIO | vs OpenCV | MAE in holes |",
         "|---|---:|---:|---:|---:|",
     ]
-    tail = ["", f"1-minute load average at the end of the run: {load:.2f} (other work on the machine "
-                "slows every row alike; read the ratios)."]
+    tail = ["", load_note()]
     return "\n".join(head + rows + tail) + "\n"
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--size", type=int, default=1024, help="image side in pixels (default 1024)")
-    p.add_argument("--repeats", type=int, default=7, help="timed runs per case, >= 5 (default 7)")
-    p.add_argument("--write", type=Path, nargs="?", const=DOCS,
-                   help=f"Markdown file whose Inpainting section to replace or append (default {DOCS.name})")
-    args = p.parse_args(argv)
-    if args.size < 32 or args.repeats < 5:
-        p.error("--size must be >= 32 and --repeats >= 5")
-    section = run(args.size, args.repeats)
-    print(section)
-    if args.write:
-        write_section("bench_inpaint", section, args.write)
-    return 0
+    return size_repeats_main(__doc__, "bench_inpaint", run, argv, min_size=32)
 
 
 if __name__ == "__main__":

@@ -8,13 +8,11 @@ is shared with other benchmarks: nothing else in it is touched).
 """
 from __future__ import annotations
 
-import argparse
 import os
 import sys
-from pathlib import Path
 
 import numpy as np
-from benchlib import DOCS, machine, median_ms, write_section
+from benchlib import load_note, machine, median_ms, size_repeats_main
 
 
 
@@ -58,28 +56,13 @@ def run(size: int, repeats: int) -> str:
         "| case | implementation | time (ms) | speed-up | abs diff |",
         "|---|---|---:|---:|---:|",
     ]
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    tail = ["", f"1-minute load average at the end of the run: {load:.2f} (other work on the machine "
-                 "slows both sides alike; the ratio is the figure to read)."]
+    tail = ["", load_note()]
     return "\n".join(head + rows + tail) + "\n"
 
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--size", type=int, default=1024, help="image side in pixels (default 1024)")
-    p.add_argument("--repeats", type=int, default=7, help="timed runs per case, >= 5 (default 7)")
-    p.add_argument("--write", type=Path, nargs="?", const=DOCS,
-                   help=f"Markdown file whose Metrics section to replace or append (default {DOCS.name})")
-    args = p.parse_args(argv)
-    if args.size < 7 or args.repeats < 5:
-        p.error("--size must be >= 7 and --repeats >= 5")
-    section = run(args.size, args.repeats)
-    print(section)
-    if args.write:
-        write_section("bench_metrics", section, args.write)
-        print(f"wrote the Metrics section of {args.write}", file=sys.stderr)
-    return 0
+    return size_repeats_main(__doc__, "bench_metrics", run, argv, min_size=7)
 
 
 if __name__ == "__main__":

@@ -50,3 +50,29 @@ def write_section(name: str, section: str, path: Path = DOCS) -> None:
     tmp = path.with_name(f".{path.name}.tmp")
     tmp.write_text(text)
     os.replace(tmp, path)
+
+
+def load_note() -> str:
+    """The closing line of a section: how busy the machine was (ratios stay meaningful)."""
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    return (f"1-minute load average at the end of the run: {load:.2f} (other work on the machine slows "
+            "every row alike; read the ratios).")
+
+
+def size_repeats_main(doc: str, section: str, run, argv=None, *, min_size: int = 7) -> int:
+    """The command line shared by the image benchmarks: --size, --repeats, --write [FILE]."""
+    import argparse
+
+    p = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--size", type=int, default=1024, help="image side in pixels (default 1024)")
+    p.add_argument("--repeats", type=int, default=7, help="timed runs per case, >= 5 (default 7)")
+    p.add_argument("--write", type=Path, nargs="?", const=DOCS,
+                   help=f"replace or append this benchmark's section of a Markdown file (default {DOCS.name})")
+    args = p.parse_args(argv)
+    if args.size < min_size or args.repeats < 5:
+        p.error(f"--size must be >= {min_size} and --repeats >= 5")
+    text = run(args.size, args.repeats)
+    print(text)
+    if args.write:
+        write_section(section, text, args.write)
+    return 0
