@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from ibrtools import _core
-from ibrtools.errors import BadValueError, DtypeError, NotBuiltError, ShapeError
+from ibrtools.errors import BadValueError, DtypeError, ShapeError
 from ibrtools.inpaint import inpaint, pushpull
 
 
@@ -321,8 +321,7 @@ def test_inpaint_switch():
     assert inpaint(img, hole, "none") is img
     np.testing.assert_array_equal(inpaint(img, hole, "pushpull"), pushpull(img, hole))
     np.testing.assert_array_equal(inpaint(img, hole, "pushpull", depth), pushpull(img, hole, depth))
-    with pytest.raises(NotBuiltError, match="metameric"):
-        inpaint(img, hole, "metameric")
+    # metameric is built now (tests/test_metameric.py covers it).
     with pytest.raises(BadValueError, match="inpaint method"):
         inpaint(img, hole, "telea")
     with pytest.raises(ShapeError):
@@ -364,10 +363,6 @@ def test_cli_render_dibr_inpaint_pushpull(scene_dir, tmp_path, capsys):
     assert f["metrics"]["psnr_holes"] is not None
     # Scores over the covered pixels do not change (the fill only writes into holes).
     assert f["metrics"]["psnr_masked"] == f0["metrics"]["psnr_masked"]
-    # metameric is listed but not built: exit 2 with a one-line message.
-    assert render.main([str(scene_dir), *base, "--inpaint", "metameric", "-o", str(tmp_path / "m")]) == 2
-    err = capsys.readouterr().err
-    assert "not built yet" in err and "Traceback" not in err
 
 
 def test_job_skips_inpaint_without_holes(scene_dir, tmp_path, monkeypatch):

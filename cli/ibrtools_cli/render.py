@@ -48,7 +48,8 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--blend-exponent", metavar="P", help="blending weight (q/d)^P (default 5, as RVS)")
     p.add_argument("--inpaint", default="none", choices=["none", "pushpull", "metameric"],
                    help="fill the holes a method leaves (dibr): none (default, holes black), pushpull "
-                        "(depth-aware push-pull when the method gives depth), metameric [not built yet]. "
+                        "(depth-aware push-pull when the method gives depth), metameric (noise with the "
+                        "steerable-band statistics of the surroundings; docs/inpaint.md). "
                         "<frame>.mask.png still marks the filled holes")
     p.add_argument("--foveate", metavar="X,Y",
                    help="foveated ventral metamers around the fixation point X,Y [not built yet]")

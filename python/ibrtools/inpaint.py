@@ -10,7 +10,8 @@
   Alg. 1 finds no data at any scale (a hole's background depth lies beyond every valid pixel),
   the hole pixel takes the classic fill for the share Alg. 1 leaves empty (our deviation,
   ``pushpull.h``), so the depth-aware fill always completes.
-* :func:`inpaint` — the method switch the renderer uses (``--inpaint``).
+* :func:`inpaint` — the method switch the renderer uses (``--inpaint``); "metameric" is
+  :func:`ibrtools.metameric.metameric` (docs/inpaint.md, "Metameric").
 
 The C++ kernel is ``cpp/kernels/pushpull.{h,cpp}`` (equations, the paper's depth convention and
 where we read Alg. 1 differently are written there). Outside the holes the result *is* the input
@@ -28,8 +29,9 @@ from .errors import BadValueError, DtypeError, ShapeError
 METHODS = {
     "none": "leave holes as they are",
     "pushpull": "push-pull pyramid fill (depth-aware when the frame has depth)",
+    "metameric": "metameric inpainting: steerable-band statistics matched by noise (ibrtools.metameric)",
 }
-NOT_BUILT = {"metameric": "metameric inpainting (issue 5 item 4)"}
+NOT_BUILT: dict[str, str] = {}
 
 DEPTH_THRESHOLD = 0.04  # authors' Unity code: 0.04 of the normalised depth
 GAMMA = 0.5             # paper sec. 3.3.1: "a compromise at gamma = .5"
@@ -81,14 +83,21 @@ def pushpull(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = Non
 
 
 def inpaint(image: np.ndarray, hole: np.ndarray, method: str = "pushpull",
-            depth: np.ndarray | None = None) -> np.ndarray:
+            depth: np.ndarray | None = None, **options: Any) -> np.ndarray:
     """Fill holes with ``method`` ("none" returns ``image`` unchanged, "pushpull" is
-    :func:`pushpull`, depth-aware when ``depth`` is given)."""
+    :func:`pushpull`, depth-aware when ``depth`` is given, "metameric" is
+    :func:`ibrtools.metameric.metameric`, which takes ``options`` levels, orientations, seed, flow)."""
+    if options and method != "metameric":
+        raise BadValueError(f"inpaint method {method!r}: takes no options, got {', '.join(options)}")
     if method == "none":
         _arrays(image, hole, depth)
         return image
     if method == "pushpull":
         return pushpull(image, hole, depth)
+    if method == "metameric":
+        from .metameric import metameric
+
+        return metameric(image, hole, depth, **options)
     if method in NOT_BUILT:
         from .errors import NotBuiltError
 

@@ -108,8 +108,9 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
         progress: Callable[[int, int, str], None] | None = None) -> dict:
     """Render every frame of ``job``; write images and report.json; return the report.
 
-    ``inpaint`` ("none" or "pushpull", :mod:`ibrtools.inpaint`) post-processes frames whose method
-    returns a "hole" mask: the holes are filled (depth-aware when the method returns depth), the
+    ``inpaint`` ("none", "pushpull" or "metameric", :mod:`ibrtools.inpaint`) post-processes frames
+    whose method returns a "hole" mask: the holes are filled (depth-aware when the method returns
+    depth; metameric with seed 0, the same noise for every frame as Walton et al. 2021), the
     time is reported as stage "inpaint", the mask is still written and "psnr_holes" scores the
     filled pixels when ground truth exists. Frames without a hole are not touched (the report
     says "inpaint": "skipped: no hole")."""
