@@ -40,9 +40,16 @@
 // lowpass (h_L, w_L, C). Every level's input must be at least 3 x 3 (h_l, w_l >= 3 for
 // l < L: a 5-tap reflect1 border needs 3 samples), see SteerableMaxLevels. ycbcr needs C = 3.
 // The front (cpp/bindings/steerable.cpp) checks all of it; kernels trust their inputs, never
-// throw, and allocate only scratch (the intermediate low-pass images, ~1.4 x the input, and
-// per-task row buffers). Multithreaded over rows with ibr::ParallelFor: each output row is
-// computed alone, by the same arithmetic, so results are identical for any thread count.
+// throw, and allocate only scratch: the low-pass images of levels 1..L-1 (~0.33 x the input,
+// uninitialised, first touched by the parallel loop that writes them) and per-thread row
+// buffers kept between calls (~21 rows of the widest image seen). Full resolution is never
+// stored but in the outputs: the YCbCr conversion happens row by row inside the first filter
+// pass, and the top pass (H0, L0) is fused with level 0 (analysis: the level-0 low-pass rows
+// stream through a ring of 8 rows; synthesis: the collapsed level-0 rows likewise, then the
+// inverse colour matrix in place). Every output row is written by a store of its first filter
+// part (no zero fill). Multithreaded over rows with ibr::ParallelFor: each output row is
+// computed alone, by the same arithmetic (rows at the edges of the fused tasks are computed by
+// both neighbours, identically), so results are identical for any thread count.
 #pragma once
 #include <vector>
 
