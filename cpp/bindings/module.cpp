@@ -8,4 +8,5 @@ PYBIND11_MODULE(_core, m) {
   ibr::bind::BindDibr(m);
   ibr::bind::BindInpaint(m);
   ibr::bind::BindSteerable(m);
+  ibr::bind::BindMetameric(m);
 }

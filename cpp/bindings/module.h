@@ -10,4 +10,5 @@ void BindMetrics(py::module_& m);
 void BindDibr(py::module_& m);
 void BindInpaint(py::module_& m);
 void BindSteerable(py::module_& m);
+void BindMetameric(py::module_& m);
 }  // namespace ibr::bind

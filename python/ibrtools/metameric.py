@@ -22,9 +22,9 @@ match the surrounding background, instead of the smooth colour of push-pull:
 The noise pyramid depends only on (size, channels, levels, orientations, seed), so it is built
 once and cached (Walton et al.: "this random pattern is held constant over time"); ``flow``
 moves it with the scene (sec. 3.4.1): the noise at pixel x is read at x + flow(x) (nearest
-sample of each level, wrapping at the borders). All per-pixel work is C++ (steerable analysis /
-synthesis, push-pull) or vectorised numpy (masks, the mean + sigma * noise composite on the
-masked samples only).
+sample of each level, wrapping at the borders). All per-pixel work is C++: steerable analysis /
+synthesis, push-pull, and cpp/kernels/metameric.h (the stacked [X, X^2] push-pull input of a
+level, the mean + sigma * noise composite inside its mask, in place); numpy builds the masks.
 """
 from __future__ import annotations
 
@@ -226,6 +226,7 @@ def metameric(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = No
     ShapeError/DtypeError for bad arrays, BadValueError for non-finite pixels outside the holes,
     bad options or an all-hole image.
     """
+    from . import _core
     from .inpaint import DEPTH_THRESHOLD, GAMMA, _arrays, pushpull
     from .steerable import SteerablePyramid, analyse, synthesise
 
@@ -266,30 +267,23 @@ def metameric(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = No
     n_hp, n_bands, _ = _noise_pyramid_cached(h, w, c, levels, orientations, seed)
     band_masks, lo_mask = level_masks(hole, levels)
 
+    # One buffer for the push-pull input of every level (level 0, with the high-pass, is the
+    # largest; coarser levels use a contiguous prefix of it).
+    k0 = 1 + (orientations if levels else 0)
+    stack_buf = np.empty(h * w * 2 * k0 * c, np.float32)
+    flow_c = None if flow is None else np.ascontiguousarray(flow)
+
     def fill(bands: list[np.ndarray], noise: list[np.ndarray], mask: np.ndarray, scale: int) -> None:
         # One push-pull of [X..., X^2...] of every band of the level (sec. 3.3.1), then
-        # mean + sigma * noise on the masked samples only (sec. 3.4), written into the bands.
+        # mean + sigma * noise on the masked samples only (sec. 3.4), written into the bands in
+        # place (both per-sample passes in C++: cpp/kernels/metameric.h).
         mask = _level_mask(mask, hole, scale)
         d = None if depth is None else np.ascontiguousarray(depth[::scale, ::scale])
-        k = len(bands)
-        stack = np.empty(bands[0].shape[:2] + (2 * k * c,), np.float32)
-        for i, b in enumerate(bands):
-            stack[..., i * c:(i + 1) * c] = b
-            np.multiply(b, b, out=stack[..., (k + i) * c:(k + i + 1) * c])
+        hl, wl = mask.shape
+        stack = stack_buf[:hl * wl * 2 * len(bands) * c].reshape(hl, wl, 2 * len(bands) * c)
+        _core.metameric_stack_moments(bands, stack)
         moments = pushpull(stack, mask, d, **pp_kw)
-        idx = np.flatnonzero(mask)
-        m = moments.reshape(-1, 2 * k * c).take(idx, axis=0)
-        mean, sq = m[:, :k * c], m[:, k * c:]
-        sigma = _sigma(mean, sq)
-        if flow is None:
-            xi = np.concatenate([n.reshape(-1, c).take(idx, axis=0) for n in noise], axis=1)
-        else:
-            ys, xs = np.divmod(idx, mask.shape[1])
-            yy, xx = _sample_positions(ys, xs, scale, mask.shape, flow)
-            xi = np.concatenate([n[yy, xx] for n in noise], axis=1)
-        synth = mean + sigma * xi
-        for i, b in enumerate(bands):
-            b.reshape(-1, c)[idx] = synth[:, i * c:(i + 1) * c]
+        _core.metameric_composite(moments, mask, noise, bands, flow_c, scale)
 
     # Level 0 also carries the high-pass residual (same resolution, same mask: one push-pull
     # call per level).
@@ -302,6 +296,5 @@ def metameric(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = No
     d = None if depth is None else np.ascontiguousarray(depth[::scale, ::scale])
     lowpass = pushpull(pyr.lowpass, lo_mask, d, **pp_kw)
     rec = synthesise(SteerablePyramid(pyr.highpass, pyr.bands, lowpass, ycbcr=ycbcr))
-    out = x.copy()
-    out[hole] = rec[hole]
+    out = np.where(hole[..., None], rec, x)
     return out[..., 0] if squeeze else out

@@ -1,0 +1,176 @@
+// Bindings of cpp/kernels/metameric.h: the checking front (dtypes, shapes of every band, mask,
+// flow, scale, no aliasing of written bands) and the calls with the GIL released.
+// Python: ibrtools.metameric (private helpers of metameric()).
+#include <cmath>
+#include <string>
+#include <vector>
+
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+
+#include "array.h"
+#include "ibr/errors.h"
+#include "kernels/metameric.h"
+#include "module.h"
+
+namespace ibr::bind {
+namespace {
+
+using FloatArray = py::array_t<float, py::array::c_style>;
+
+ImageView<float> View3(FloatArray& a) {
+  return ImageView<float>(a.mutable_data(), static_cast<int>(a.shape(0)), static_cast<int>(a.shape(1)),
+                          static_cast<int>(a.shape(2)));
+}
+
+// A non-empty list of float32 (h, w, C) arrays of one shape; h, w, c = -1 take the first's.
+std::vector<FloatArray> CheckBands(const py::handle& obj, const char* name, py::ssize_t h, py::ssize_t w,
+                                   py::ssize_t c, bool writable) {
+  if (!py::isinstance<py::list>(obj) && !py::isinstance<py::tuple>(obj)) {
+    throw DtypeError(std::string(name) + ": expected a list of float32 (H, W, C) arrays, got " +
+                     std::string(py::str(py::type::of(obj).attr("__name__"))));
+  }
+  std::vector<FloatArray> out;
+  for (py::handle item : obj) {
+    const std::string item_name = std::string(name) + "[" + std::to_string(out.size()) + "]";
+    FloatArray a = CheckArray<float>(item, item_name.c_str(), {{"H", h}, {"W", w}, {"C", c}}, writable);
+    h = a.shape(0);
+    w = a.shape(1);
+    c = a.shape(2);
+    out.push_back(a);
+  }
+  if (out.empty()) throw ShapeError(std::string(name) + ": expected at least one band, got an empty list");
+  if (h < 1 || w < 1 || c < 1) {
+    throw ShapeError(std::string(name) + ": expected at least 1 sample and 1 channel, got shape " +
+                     DescribeShape(out[0]));
+  }
+  return out;
+}
+
+bool Overlap(const py::array& a, const py::array& b) {
+  const char* a0 = static_cast<const char*>(a.data());
+  const char* b0 = static_cast<const char*>(b.data());
+  return a0 < b0 + b.nbytes() && b0 < a0 + a.nbytes();
+}
+
+void CheckNoAlias(const std::vector<FloatArray>& written, const std::vector<py::array>& others, const char* name,
+                  bool indexed) {
+  for (std::size_t i = 0; i < written.size(); ++i) {
+    for (std::size_t j = 0; j < others.size(); ++j) {
+      if (Overlap(written[i], others[j])) {
+        throw BadValueError(std::string(name) + (indexed ? "[" + std::to_string(i) + "]" : std::string()) +
+                            ": shares memory with another argument of the call (it is written in place)");
+      }
+    }
+  }
+}
+
+}  // namespace
+
+void BindMetameric(py::module_& m) {
+  m.def(
+      "metameric_stack_moments",
+      [](py::handle bands_obj, py::handle out_obj) {
+        std::vector<FloatArray> bands = CheckBands(bands_obj, "bands", -1, -1, -1, false);
+        const py::ssize_t h = bands[0].shape(0), w = bands[0].shape(1), c = bands[0].shape(2);
+        const py::ssize_t k = static_cast<py::ssize_t>(bands.size());
+        FloatArray out = CheckArray<float>(out_obj, "out", {{"h", h}, {"w", w}, {"2kC", 2 * k * c}}, true);
+        std::vector<py::array> ins(bands.begin(), bands.end());
+        CheckNoAlias({out}, ins, "out", false);
+        std::vector<ImageView<const float>> views;
+        for (FloatArray& b : bands) views.push_back(ConstViewOf(b));
+        const ImageView<float> out_view = View3(out);
+        py::gil_scoped_release release;
+        MetamericStackMoments(views.data(), static_cast<int>(k), out_view);
+      },
+      py::arg("bands"), py::arg("out"),
+      "Push-pull input of one level's moments (cpp/kernels/metameric.h): bands = k float32 (h, w, C) "
+      "arrays; writes out float32 (h, w, 2kC) = [X_0..X_{k-1}, X_0^2..X_{k-1}^2] along the channels.");
+
+  m.def(
+      "metameric_composite",
+      [](py::handle moments_obj, py::handle mask_obj, py::handle noise_obj, py::handle bands_obj,
+         py::handle flow_obj, int scale) {
+        std::vector<FloatArray> bands = CheckBands(bands_obj, "bands", -1, -1, -1, true);
+        const py::ssize_t h = bands[0].shape(0), w = bands[0].shape(1), c = bands[0].shape(2);
+        const py::ssize_t k = static_cast<py::ssize_t>(bands.size());
+        std::vector<FloatArray> noise = CheckBands(noise_obj, "noise", h, w, c, false);
+        if (static_cast<py::ssize_t>(noise.size()) != k) {
+          throw ShapeError("noise: expected one array per band (" + std::to_string(k) + "), got " +
+                           std::to_string(noise.size()));
+        }
+        FloatArray moments = CheckArray<float>(moments_obj, "moments", {{"h", h}, {"w", w}, {"2kC", 2 * k * c}});
+        py::array mask_arr;
+        if (py::isinstance<py::array>(mask_obj) &&
+            py::reinterpret_borrow<py::array>(mask_obj).dtype().is(py::dtype::of<std::uint8_t>())) {
+          mask_arr = CheckArray<std::uint8_t>(mask_obj, "mask", {{"h", h}, {"w", w}});
+        } else {
+          mask_arr = CheckArray<bool>(mask_obj, "mask", {{"h", h}, {"w", w}});
+        }
+        if (scale < 1) throw BadValueError("scale: expected an integer >= 1, got " + std::to_string(scale));
+        MetamericFlow flow;
+        py::array flow_arr;
+        if (!flow_obj.is_none()) {
+          const bool f64 = py::isinstance<py::array>(flow_obj) &&
+                           py::reinterpret_borrow<py::array>(flow_obj).dtype().is(py::dtype::of<double>());
+          if (f64) {
+            auto a = CheckArray<double>(flow_obj, "flow", {{"H", -1}, {"W", -1}, {"2", 2}});
+            flow.f64 = a.data();
+            flow_arr = a;
+          } else {
+            auto a = CheckArray<float>(flow_obj, "flow", {{"H", -1}, {"W", -1}, {"2", 2}});
+            flow.f32 = a.data();
+            flow_arr = a;
+          }
+          flow.height = static_cast<int>(flow_arr.shape(0));
+          flow.width = static_cast<int>(flow_arr.shape(1));
+          if ((h - 1) * static_cast<py::ssize_t>(scale) >= flow.height ||
+              (w - 1) * static_cast<py::ssize_t>(scale) >= flow.width) {
+            throw ShapeError("flow: expected the full-resolution flow of a level of " + std::to_string(h) + "x" +
+                             std::to_string(w) + " samples at scale " + std::to_string(scale) +
+                             " (at least " + std::to_string((h - 1) * scale + 1) + "x" +
+                             std::to_string((w - 1) * scale + 1) + " pixels), got " + DescribeShape(flow_arr));
+          }
+          std::int64_t bad = 0;
+          {
+            py::gil_scoped_release release;
+            const std::int64_t n = std::int64_t(flow.height) * flow.width * 2;
+            for (std::int64_t i = 0; i < n; ++i) {
+              bad += flow.f64 ? !std::isfinite(flow.f64[i]) : !std::isfinite(flow.f32[i]);
+            }
+          }
+          if (bad) throw BadValueError("flow: contains " + std::to_string(bad) + " NaN or infinite values");
+        }
+        std::vector<py::array> others(noise.begin(), noise.end());
+        others.push_back(moments);
+        others.push_back(mask_arr);
+        if (flow_arr) others.push_back(flow_arr);
+        for (std::size_t i = 0; i < bands.size(); ++i) {
+          for (std::size_t j = 0; j < bands.size(); ++j) {
+            if (i != j && Overlap(bands[i], bands[j])) {
+              throw BadValueError("bands[" + std::to_string(i) + "]: shares memory with bands[" +
+                                  std::to_string(j) + "] (each is written in place)");
+            }
+          }
+        }
+        CheckNoAlias(bands, others, "bands", true);
+        std::vector<ImageView<const float>> noise_views;
+        for (FloatArray& n : noise) noise_views.push_back(ConstViewOf(n));
+        std::vector<ImageView<float>> band_views;
+        for (FloatArray& b : bands) band_views.push_back(View3(b));
+        const ImageView<const float> moments_view = ConstViewOf(moments);
+        const ImageView<const std::uint8_t> mask_view(static_cast<const std::uint8_t*>(mask_arr.data()),
+                                                      static_cast<int>(h), static_cast<int>(w), 1);
+        py::gil_scoped_release release;
+        MetamericComposite(moments_view, mask_view, noise_views.data(), band_views.data(), static_cast<int>(k),
+                           flow, scale);
+      },
+      py::arg("moments"), py::arg("mask"), py::arg("noise"), py::arg("bands"), py::arg("flow") = py::none(),
+      py::arg("scale") = 1,
+      "Metameric synthesis of one level in place (cpp/kernels/metameric.h): where mask (bool or uint8 (h, w)) "
+      "is set, bands[i] = mean + sqrt(max(0, E[X^2] - mean^2)) * noise[i] at the (flow-moved, wrapped) "
+      "noise position, with mean, E[X^2] from moments float32 (h, w, 2kC); flow None or float32/float64 "
+      "full-resolution (H, W, 2), read at (y * scale, x * scale).");
+}
+
+}  // namespace ibr::bind

@@ -1,0 +1,48 @@
+// Per-sample work of metameric inpainting (dos Anjos et al., "Metameric Inpainting for Image
+// Warping", sec. 3.3.1 and 3.4; Walton et al. 2021 sec. 3.4; docs/inpaint.md, "Metameric").
+// python/ibrtools/metameric.py orchestrates: steerable analysis, masks and the push-pull of the
+// moments are other kernels; these two are the passes in between, per pyramid level with k
+// bands (the high-pass residual counts as a band at level 0) of C channels each:
+//
+// MetamericStackMoments: the push-pull input of the level's moments,
+//   out[y, x, i*C + ch] = band_i[y, x, ch],  out[y, x, (k + i)*C + ch] = band_i[y, x, ch]^2.
+//
+// MetamericComposite: the synthesis inside the level's (dilated) hole mask, in place,
+//   band_i[y, x, ch] = mean + sigma * noise_i[yy, xx, ch]   where mask[y, x] != 0,
+//   mean = moments[y, x, i*C + ch], sigma = sqrt(max(0, moments[y, x, (k + i)*C + ch] - mean^2))
+//   (E[X^2] - E[X]^2 of flat data rounds to small negatives in float32; a NaN difference also
+//   gives sigma = 0, so sigma is never NaN). Samples outside the mask are not touched.
+//   Noise position: (yy, xx) = (y, x) without flow; with flow (full resolution (H, W, 2), (dx, dy)
+//   in pixels, float32 or float64) read at the sample's full-resolution pixel (y*scale, x*scale):
+//   yy = rint(y + dy / scale) mod h, xx = rint(x + dx / scale) mod w (round half to even, the
+//   result in [0, h) / [0, w): the noise wraps), in double, as numpy's float64 promotion does.
+//
+// The arithmetic is the float32 numpy expression's, operation by operation (no fused
+// multiply-add unless the compiler contracts it, e.g. with -march=native: then ~1 ulp).
+// Shapes (row, col, channel), C-contiguous: bands/noise (h, w, C), moments/out (h, w, 2kC),
+// mask (h, w) one byte per sample. Bands may not alias moments or noise. The front
+// (cpp/bindings/metameric.cpp) checks everything; kernels trust their inputs, never throw and
+// never allocate. Multithreaded over rows with ibr::ParallelFor; every sample is independent, so
+// the result is identical for any thread count.
+#pragma once
+#include <cstdint>
+
+#include "ibr/image.h"
+
+namespace ibr {
+
+void MetamericStackMoments(const ImageView<const float>* bands, int k, const ImageView<float>& out);
+
+// Flow of the noise (full resolution); exactly one of f32/f64 set, or neither (no flow).
+struct MetamericFlow {
+  const float* f32 = nullptr;
+  const double* f64 = nullptr;
+  int height = 0;
+  int width = 0;
+};
+
+void MetamericComposite(const ImageView<const float>& moments, const ImageView<const std::uint8_t>& mask,
+                        const ImageView<const float>* noise, const ImageView<float>* bands, int k,
+                        const MetamericFlow& flow, int scale);
+
+}  // namespace ibr

@@ -1,0 +1,103 @@
+"""The per-sample C++ passes of metameric inpainting (cpp/kernels/metameric.h): the stacked
+[X, X^2] push-pull input and the mean + sigma * noise composite, against the numpy expressions
+python/ibrtools/metameric.py used before them (exact: same float32 operations, same order)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ibrtools import _core
+from ibrtools.errors import BadValueError, DtypeError, ShapeError
+from ibrtools.metameric import _sample_positions
+
+
+def _bands(k=3, h=13, w=11, c=3, seed=0):
+    rng = np.random.default_rng(seed)
+    return [rng.standard_normal((h, w, c)).astype(np.float32) for _ in range(k)]
+
+
+def test_stack_moments_matches_numpy():
+    bands = _bands()
+    out = np.full((13, 11, 18), np.nan, np.float32)
+    _core.metameric_stack_moments(bands, out)
+    ref = np.concatenate(bands + [b * b for b in bands], axis=2)
+    np.testing.assert_array_equal(out, ref)
+
+
+def _reference(moments, mask, noise, bands, flow, scale):
+    k, c = len(bands), bands[0].shape[2]
+    idx = np.flatnonzero(mask)
+    m = moments.reshape(-1, 2 * k * c)[idx]
+    mean, sq = m[:, :k * c], m[:, k * c:]
+    sigma = np.sqrt(np.maximum(sq - mean * mean, np.float32(0)))
+    ys, xs = np.divmod(idx, mask.shape[1])
+    yy, xx = _sample_positions(ys, xs, scale, mask.shape, flow)
+    synth = mean + sigma * np.concatenate([n[yy, xx] for n in noise], axis=1)
+    out = [b.copy() for b in bands]
+    for i, b in enumerate(out):
+        b.reshape(-1, c)[idx] = synth[:, i * c:(i + 1) * c]
+    return out
+
+
+@pytest.mark.parametrize("flow_dtype,scale", [(None, 1), (np.float32, 1), (np.float32, 4), (np.float64, 2)])
+def test_composite_matches_numpy(flow_dtype, scale):
+    rng = np.random.default_rng(3)
+    h, w, c, k = 13, 11, 3, 3
+    bands, noise = _bands(k, h, w, c, 1), _bands(k, h, w, c, 2)
+    mean = rng.standard_normal((h, w, k * c)).astype(np.float32)
+    # E[X^2] around mean^2, below it for some samples (sigma clamps to 0 there, never NaN).
+    sq = (mean * mean + rng.uniform(-0.1, 1.0, mean.shape)).astype(np.float32)
+    moments = np.ascontiguousarray(np.concatenate([mean, sq], axis=2))
+    mask = rng.random((h, w)) < 0.4
+    flow = None
+    if flow_dtype is not None:
+        # Half-integer offsets included: rint rounds half to even in both.
+        flow = (rng.integers(-60, 60, ((h - 1) * scale + 3, (w - 1) * scale + 2, 2)) * 0.5).astype(flow_dtype)
+    ref = _reference(moments, mask, noise, bands, flow, scale)
+    _core.metameric_composite(moments, mask.astype(np.uint8), noise, bands, flow, scale)
+    for b, r in zip(bands, ref):
+        np.testing.assert_array_equal(b, r)
+        assert np.isfinite(b).all()
+
+
+def test_bad_input():
+    bands, noise = _bands(2), _bands(2, seed=5)
+    mom = np.zeros((13, 11, 12), np.float32)
+    mask = np.ones((13, 11), bool)
+    with pytest.raises(ShapeError, match="bands: expected at least one band"):
+        _core.metameric_stack_moments([], mom)
+    with pytest.raises(DtypeError, match="bands: expected a list"):
+        _core.metameric_stack_moments(bands[0], mom)
+    with pytest.raises(ShapeError, match=r"bands\[1\]"):
+        _core.metameric_stack_moments([bands[0], bands[1][:, :5].copy()], mom)
+    with pytest.raises(DtypeError, match=r"bands\[0\]: expected float32"):
+        _core.metameric_stack_moments([bands[0].astype(np.float64)], mom)
+    with pytest.raises(ShapeError, match="out: expected float32 array of shape"):
+        _core.metameric_stack_moments(bands, np.zeros((13, 11, 6), np.float32))
+    buf = np.zeros(13 * 11 * 6, np.float32)
+    with pytest.raises(BadValueError, match="out: .*shares memory"):
+        _core.metameric_stack_moments([buf[:13 * 11 * 3].reshape(13, 11, 3)], buf.reshape(13, 11, 6))
+    ro = bands[0].copy()
+    ro.setflags(write=False)
+    with pytest.raises(BadValueError, match="writeable"):
+        _core.metameric_composite(mom, mask, noise, [ro, bands[1]])
+    with pytest.raises(ShapeError, match="noise: expected one array per band"):
+        _core.metameric_composite(mom, mask, noise[:1], bands)
+    with pytest.raises(ShapeError, match="moments"):
+        _core.metameric_composite(mom[:, :, :6].copy(), mask, noise, bands)
+    with pytest.raises(ShapeError, match="mask"):
+        _core.metameric_composite(mom, mask[:5], noise, bands)
+    with pytest.raises(BadValueError, match="scale"):
+        _core.metameric_composite(mom, mask, noise, bands, None, 0)
+    with pytest.raises(ShapeError, match="flow: expected the full-resolution flow"):
+        _core.metameric_composite(mom, mask, noise, bands, np.zeros((13, 11, 2), np.float32), 2)
+    with pytest.raises(BadValueError, match="flow: contains 1 NaN"):
+        f = np.zeros((13, 11, 2), np.float32)
+        f[3, 4, 1] = np.nan
+        _core.metameric_composite(mom, mask, noise, bands, f, 1)
+    with pytest.raises(DtypeError, match="flow"):
+        _core.metameric_composite(mom, mask, noise, bands, np.zeros((13, 11, 2), np.int32), 1)
+    with pytest.raises(BadValueError, match=r"bands\[0\]: shares memory"):
+        _core.metameric_composite(mom, mask, [bands[0], noise[1]], bands)
+    with pytest.raises(BadValueError, match=r"shares memory with bands"):
+        _core.metameric_composite(mom, mask, noise, [bands[0], bands[0]])
