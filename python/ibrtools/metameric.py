@@ -176,12 +176,6 @@ def _check_flow(flow: Any, h: int, w: int) -> np.ndarray | None:
     return flow
 
 
-def _sigma(mean: np.ndarray, sq: np.ndarray) -> np.ndarray:
-    """sigma from push-pulled moments: sqrt(max(0, E[X^2] - E[X]^2)) (sec. 3.3.1). The clamp is
-    needed: in float32, E[X^2] - E[X]^2 of a (locally) constant X rounds to small negatives."""
-    return np.sqrt(np.maximum(sq - mean * mean, np.float32(0)))
-
-
 def local_moments(x: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = None,
                   **pushpull_options: Any) -> tuple[np.ndarray, np.ndarray]:
     """Mean and variance of ``x`` (float32 (H, W, C) or (H, W)) inside ``hole`` from push-pull of
