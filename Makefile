@@ -22,7 +22,7 @@ $(VENV)/bin/python:
 # Reinstall when the build description or sources change; the CMake build dir persists.
 $(STAMP): $(VENV)/bin/python pyproject.toml CMakeLists.txt $(shell find cpp python cli -name '*.cpp' -o -name '*.h' -o -name '*.py' 2>/dev/null)
 	flock $(VENV)/.install-lock sh -c "$(PIP) install -q scikit-build-core pybind11 ninja cmake && \
-	  $(PIP) install -q --no-build-isolation -e '.[test,bench,colmap]' && touch $(STAMP)"
+	  $(PIP) install -q --no-build-isolation -e '.[test,bench,colmap,flip]' && touch $(STAMP)"
 
 
 build: setup
