@@ -123,12 +123,6 @@ def test_usage_errors_exit_2(capsys):
     assert e.value.code == 2
 
 
-def test_foveate_is_not_built_yet(scene_dir, tmp_path, capsys):
-    assert render.main([str(scene_dir), "--holdout", "v001", "--foveate", "0.5,0.5", "-o", str(tmp_path / "f")]) == 2
-    assert "--foveate: not built yet" in capsys.readouterr().err
-    assert not (tmp_path / "f").exists()
-
-
 def test_bench_is_reserved(capsys):
     assert bench.main(["somewhere"]) == 2
     assert "not built yet" in capsys.readouterr().err

@@ -5,7 +5,7 @@ import argparse
 import sys
 from typing import Sequence
 
-from ibrtools.errors import NotBuiltError
+from ibrtools.errors import BadValueError
 
 from .common import add_common, print_table, run_command
 
@@ -52,7 +52,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "steerable-band statistics of the surroundings; docs/inpaint.md). "
                         "<frame>.mask.png still marks the filled holes")
     p.add_argument("--foveate", metavar="X,Y",
-                   help="foveated ventral metamers around the fixation point X,Y [not built yet]")
+                   help="foveated ventral metamers (Walton et al. 2021; docs/foveate.md): keep the image "
+                        "around the fixation point X,Y (fractions of width and height, e.g. 0.5,0.5 = "
+                        "centre) and replace the periphery by noise with the steerable-band statistics "
+                        "pooled over regions that grow with eccentricity (after --inpaint)")
+    p.add_argument("--pooling", type=float, default=None, metavar="ALPHA",
+                   help="with --foveate: pooling region size per degree of eccentricity (default 0.5, "
+                        "Bouma's law); the display's horizontal field of view is taken as 90 degrees")
     p.add_argument("--float", action="store_true", help="also write <frame>.exr (linear float)")
     p.add_argument("--depth", action="store_true", help="also write <frame>.depth.exr")
     p.add_argument("--report", action="store_true", help="print the per-frame report table")
@@ -65,8 +71,11 @@ def _body(args: argparse.Namespace) -> int:
     from ibrtools.render import job as render_job
     from ibrtools.stages import parse_options
 
+    foveate = None
     if args.foveate is not None:
-        raise NotBuiltError("--foveate: not built yet (ventral metamers, Walton et al. 2021)")
+        foveate = _fixation(args.foveate)
+    elif args.pooling is not None:
+        raise BadValueError("--pooling: only with --foveate X,Y")
     scene = native.load(args.scene)
     job = render_job.plan(scene, targets=args.target, holdout=args.holdout, path=args.path,
                           poses=args.poses)
@@ -81,7 +90,7 @@ def _body(args: argparse.Namespace) -> int:
             params[key] = _number(value)
     report = render_job.run(job, args.method, args.output, params=params, float_out=args.float,
                             depth_out=args.depth, threads=args.threads, inpaint=args.inpaint,
-                            progress=progress)
+                            foveate=foveate, pooling=args.pooling, progress=progress)
     if args.report or not args.quiet:
         rows = []
         for f in report["frames"]:
@@ -92,6 +101,17 @@ def _body(args: argparse.Namespace) -> int:
                     title=f"{PROG} --method {report['method']} ({report['threads']} threads) -> {args.output}",
                     quiet=args.quiet and not args.report)
     return 0
+
+
+def _fixation(text: str) -> tuple[float, float]:
+    """--foveate X,Y: two numbers in [0, 1] (the library checks the range)."""
+    parts = text.split(",")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        return float(parts[0]), float(parts[1])
+    except ValueError:
+        raise BadValueError(f"--foveate: expected X,Y (two numbers in [0, 1], e.g. 0.5,0.5), got {text!r}") from None
 
 
 def _number(v: str):

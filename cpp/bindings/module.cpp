@@ -9,4 +9,5 @@ PYBIND11_MODULE(_core, m) {
   ibr::bind::BindInpaint(m);
   ibr::bind::BindSteerable(m);
   ibr::bind::BindMetameric(m);
+  ibr::bind::BindMip(m);
 }

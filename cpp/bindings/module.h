@@ -11,4 +11,5 @@ void BindDibr(py::module_& m);
 void BindInpaint(py::module_& m);
 void BindSteerable(py::module_& m);
 void BindMetameric(py::module_& m);
+void BindMip(py::module_& m);
 }  // namespace ibr::bind

@@ -105,6 +105,7 @@ def _frame_metrics(out: dict, truth: View | None) -> dict:
 
 def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict | None = None,
         float_out: bool = False, depth_out: bool = False, threads: int = 0, inpaint: str = "none",
+        foveate: tuple[float, float] | None = None, pooling: float | None = None,
         progress: Callable[[int, int, str], None] | None = None) -> dict:
     """Render every frame of ``job``; write images and report.json; return the report.
 
@@ -113,7 +114,11 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
     depth; metameric with seed 0, the same noise for every frame as Walton et al. 2021), the
     time is reported as stage "inpaint", the mask is still written and "psnr_holes" scores the
     filled pixels when ground truth exists. Frames without a hole are not touched (the report
-    says "inpaint": "skipped: no hole")."""
+    says "inpaint": "skipped: no hole").
+
+    ``foveate`` ((x, y) fixation in [0, 1]^2, or None) post-processes every frame, after the
+    inpainting, into a foveated ventral metamer (:func:`ibrtools.foveate.foveate`, seed 0 and
+    ``pooling`` or its default), timed as stage "foveate"; metrics then score the metamer."""
     from .. import _core
     from ..inpaint import METHODS as INPAINT_METHODS
     from ..inpaint import NOT_BUILT as INPAINT_NOT_BUILT
@@ -126,6 +131,12 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
     if inpaint not in INPAINT_METHODS:
         raise BadValueError(f"--inpaint: expected one of {', '.join(INPAINT_METHODS)}, got {inpaint!r}")
 
+    fov_kw: dict = {}
+    if foveate is not None:
+        from ..foveate import POOLING, _check_geometry
+
+        fov_kw = {"fixation": foveate, "pooling": POOLING if pooling is None else pooling}
+        _check_geometry(fov_kw["fixation"], fov_kw["pooling"], 90.0)  # bad values fail before rendering
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise BadValueError(f"-o {out_dir}: exists and is not a directory")
@@ -155,6 +166,13 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
                                    depth=_inpaint_depth(out.get("depth"), hole))
                 stage_ms = {**stage_ms, "inpaint": (time.perf_counter() - t1) * 1e3}
                 inpaint_note = inpaint
+        if fov_kw:
+            from ..foveate import foveate as foveate_image
+
+            t1 = time.perf_counter()
+            color = foveate_image(np.ascontiguousarray(color, np.float32), fov_kw["fixation"],
+                                  pooling=fov_kw["pooling"])
+            stage_ms = {**stage_ms, "foveate": (time.perf_counter() - t1) * 1e3}
         total_ms = (time.perf_counter() - t0) * 1e3
         image = f"{frame.name}.png"
         write_image(out_dir / image, color)
@@ -182,6 +200,7 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
     if progress:
         progress(len(job.frames), len(job.frames), "")
     report = {"method": name, "params": dict(params or {}), "inpaint": inpaint,
+              **({"foveate": {"fixation": list(fov_kw["fixation"]), "pooling": fov_kw["pooling"]}} if fov_kw else {}),
               "threads": int(_core.get_num_threads()),
               "inputs": len(job.scene.views), "frames": frames_report,
               "summary": _summary(frames_report, setup)}
