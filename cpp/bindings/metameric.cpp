@@ -18,11 +18,6 @@ namespace {
 
 using FloatArray = py::array_t<float, py::array::c_style>;
 
-ImageView<float> View3(FloatArray& a) {
-  return ImageView<float>(a.mutable_data(), static_cast<int>(a.shape(0)), static_cast<int>(a.shape(1)),
-                          static_cast<int>(a.shape(2)));
-}
-
 // A non-empty list of float32 (h, w, C) arrays of one shape; h, w, c = -1 take the first's.
 std::vector<FloatArray> CheckBands(const py::handle& obj, const char* name, py::ssize_t h, py::ssize_t w,
                                    py::ssize_t c, bool writable) {
@@ -79,7 +74,7 @@ void BindMetameric(py::module_& m) {
         CheckNoAlias({out}, ins, "out", false);
         std::vector<ImageView<const float>> views;
         for (FloatArray& b : bands) views.push_back(ConstViewOf(b));
-        const ImageView<float> out_view = View3(out);
+        const ImageView<float> out_view = ViewOf(out);
         py::gil_scoped_release release;
         MetamericStackMoments(views.data(), static_cast<int>(k), out_view);
       },
@@ -157,7 +152,7 @@ void BindMetameric(py::module_& m) {
         std::vector<ImageView<const float>> noise_views;
         for (FloatArray& n : noise) noise_views.push_back(ConstViewOf(n));
         std::vector<ImageView<float>> band_views;
-        for (FloatArray& b : bands) band_views.push_back(View3(b));
+        for (FloatArray& b : bands) band_views.push_back(ViewOf(b));
         const ImageView<const float> moments_view = ConstViewOf(moments);
         const ImageView<const std::uint8_t> mask_view(static_cast<const std::uint8_t*>(mask_arr.data()),
                                                       static_cast<int>(h), static_cast<int>(w), 1);

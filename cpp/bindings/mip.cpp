@@ -17,11 +17,6 @@ namespace {
 
 using FloatArray = py::array_t<float, py::array::c_style>;
 
-ImageView<float> View3(FloatArray& a) {
-  return ImageView<float>(a.mutable_data(), static_cast<int>(a.shape(0)), static_cast<int>(a.shape(1)),
-                          static_cast<int>(a.shape(2)));
-}
-
 // Levels above the full resolution until 1x1: ceil halving.
 int MaxLevels(py::ssize_t h, py::ssize_t w) {
   int n = 0;
@@ -66,7 +61,7 @@ void BindMip(py::module_& m) {
           out.push_back(NewArray<float>({lh, lw, c}));
         }
         std::vector<ImageView<float>> views;
-        for (FloatArray& a : out) views.push_back(View3(a));
+        for (FloatArray& a : out) views.push_back(ViewOf(a));
         const ImageView<const float> in = ConstViewOf(image);
         {
           py::gil_scoped_release release;
@@ -123,7 +118,7 @@ void BindMip(py::module_& m) {
         std::vector<ImageView<const float>> views;
         for (FloatArray& a : levels) views.push_back(ConstViewOf(a));
         const ImageView<const float> level_view = ConstViewOf(level);
-        const ImageView<float> out_view = View3(out);
+        const ImageView<float> out_view = ViewOf(out);
         {
           py::gil_scoped_release release;
           MipLookup(views.data(), static_cast<int>(views.size()), level_view, out_view);
