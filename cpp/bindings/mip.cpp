@@ -28,6 +28,35 @@ int MaxLevels(py::ssize_t h, py::ssize_t w) {
   return n;
 }
 
+// A list of float32 (h, w, C) arrays of one shape (h, w, C >= 1; -1 = any); writable for outputs.
+std::vector<FloatArray> CheckBandList(const py::handle& obj, const char* name, py::ssize_t h, py::ssize_t w,
+                                      py::ssize_t c, bool writable) {
+  if (!py::isinstance<py::list>(obj) && !py::isinstance<py::tuple>(obj)) {
+    throw DtypeError(std::string(name) + ": expected a list of float32 (h, w, C) arrays, got " +
+                     std::string(py::str(py::type::of(obj).attr("__name__"))));
+  }
+  std::vector<FloatArray> out;
+  for (py::handle item : obj) {
+    const std::string item_name = std::string(name) + "[" + std::to_string(out.size()) + "]";
+    FloatArray a = CheckArray<float>(item, item_name.c_str(), {{"h", h}, {"w", w}, {"C", c}}, writable);
+    h = a.shape(0);
+    w = a.shape(1);
+    c = a.shape(2);
+    out.push_back(a);
+  }
+  if (out.empty()) throw ShapeError(std::string(name) + ": expected at least one band, got an empty list");
+  if (h < 1 || w < 1 || c < 1) {
+    throw ShapeError(std::string(name) + ": expected at least 1 sample and 1 channel, got " + DescribeShape(out[0]));
+  }
+  return out;
+}
+
+bool Overlaps(const py::array& a, const py::array& b) {
+  const char* a0 = static_cast<const char*>(a.data());
+  const char* b0 = static_cast<const char*>(b.data());
+  return a0 < b0 + b.nbytes() && b0 < a0 + a.nbytes();
+}
+
 }  // namespace
 
 void BindMip(py::module_& m) {
@@ -129,6 +158,92 @@ void BindMip(py::module_& m) {
       "Trilinear read of a MIP chain (cpp/kernels/mip.h): levels = [level 0 (H, W, C), level 1 "
       "(ceil(H/2), ceil(W/2), C), ...] float32; level float32 (H, W), finite, the fractional MIP level "
       "per pixel (clamped to [0, len(levels) - 1]; <= 0 copies level 0 exactly). Returns float32 (H, W, C).");
+
+  m.def(
+      "mip_foveate_level",
+      [](py::handle bands_obj, py::handle level_obj, py::handle noise_obj, int levels) {
+        std::vector<FloatArray> bands = CheckBandList(bands_obj, "bands", -1, -1, -1, true);
+        const py::ssize_t h = bands[0].shape(0), w = bands[0].shape(1), c = bands[0].shape(2);
+        const py::ssize_t k = static_cast<py::ssize_t>(bands.size());
+        std::vector<FloatArray> noise = CheckBandList(noise_obj, "noise", h, w, c, false);
+        if (static_cast<py::ssize_t>(noise.size()) != k) {
+          throw ShapeError("noise: expected one array per band (" + std::to_string(k) + "), got " +
+                           std::to_string(noise.size()));
+        }
+        if (2 * k * c > kMipMaxMomentChannels) {
+          throw ShapeError("bands: 2 x bands x channels must be <= " + std::to_string(kMipMaxMomentChannels) +
+                           ", got " + std::to_string(2 * k * c));
+        }
+        const int top = MaxLevels(h, w);
+        if (levels < 0 || levels > top) {
+          throw BadValueError("levels: expected 0.." + std::to_string(top) + " for " + std::to_string(h) + "x" +
+                              std::to_string(w) + " bands, got " + std::to_string(levels));
+        }
+        FloatArray level = CheckArray<float>(level_obj, "level", {{"h", h}, {"w", w}});
+        for (std::size_t i = 0; i < bands.size(); ++i) {
+          for (std::size_t j = 0; j < bands.size(); ++j) {
+            if (i != j && Overlaps(bands[i], bands[j])) {
+              throw BadValueError("bands[" + std::to_string(i) + "]: shares memory with bands[" + std::to_string(j) +
+                                  "] (each is written in place)");
+            }
+          }
+          for (std::size_t j = 0; j < noise.size(); ++j) {
+            if (Overlaps(bands[i], noise[j])) {
+              throw BadValueError("bands[" + std::to_string(i) + "]: shares memory with noise[" + std::to_string(j) +
+                                  "]");
+            }
+          }
+          if (Overlaps(bands[i], level)) {
+            throw BadValueError("bands[" + std::to_string(i) + "]: shares memory with level");
+          }
+        }
+        std::int64_t bad = 0;
+        const float* lp = level.data();
+        {
+          py::gil_scoped_release release;
+          for (std::int64_t i = 0; i < std::int64_t(h) * w; ++i) bad += !std::isfinite(lp[i]);
+        }
+        if (bad) throw BadValueError("level: contains " + std::to_string(bad) + " NaN or infinite values");
+        std::vector<FloatArray> chain;
+        py::ssize_t lh = h, lw = w;
+        for (int l = 0; l < levels; ++l) {
+          lh = (lh + 1) / 2;
+          lw = (lw + 1) / 2;
+          chain.push_back(NewArray<float>({lh, lw, 2 * k * c}));
+        }
+        std::vector<ImageView<float>> band_views;
+        std::vector<ImageView<const float>> band_in, noise_views, chain_in;
+        for (FloatArray& b : bands) {
+          band_views.push_back(ViewOf(b));
+          band_in.push_back(ConstViewOf(b));
+        }
+        for (FloatArray& a : noise) noise_views.push_back(ConstViewOf(a));
+        std::vector<ImageView<float>> chain_views;
+        for (FloatArray& a : chain) {
+          chain_views.push_back(ViewOf(a));
+          chain_in.push_back(ConstViewOf(a));
+        }
+        const ImageView<const float> level_view = ConstViewOf(level);
+        {
+          py::gil_scoped_release release;
+          for (int l = 0; l < levels; ++l) {
+            if (l == 0) {
+              MipDownMoments(band_in.data(), static_cast<int>(k), chain_views[0]);
+            } else {
+              MipDown(chain_in[l - 1], chain_views[l]);
+            }
+          }
+          MipFoveateChange(band_views.data(), static_cast<int>(k), chain_in.data(), levels, level_view,
+                           noise_views.data());
+        }
+      },
+      py::arg("bands"), py::arg("level"), py::arg("noise"), py::arg("levels"),
+      "One pyramid level of a foveated metamer, in place (cpp/kernels/mip.h MipFoveateChange): bands "
+      "k float32 (h, w, C) arrays, written with their change; level float32 (h, w) finite, the MIP level "
+      "per sample; noise k float32 (h, w, C); levels 0..mip_max_levels(h, w), the chain height of the "
+      "moments [X, X^2] (built here, never returned). Where level <= 0 the change is 0; elsewhere it is "
+      "mean + sigma * noise - band with the moments read trilinearly at min(level, levels). Equals "
+      "mip_build + mip_lookup + metameric_composite + subtraction to float rounding.");
 }
 
 }  // namespace ibr::bind

@@ -81,7 +81,167 @@ void LookupRows(const ImageView<const float>* levels, int n_levels, const ImageV
   }
 }
 
+// One output row of MipDownMoments for band i: X averages at o[i*C..], X^2 averages at o[(k+i)*C..]
+// (the operations of MipDown on the stacked values).
+void DownMomentRow(const float* __restrict a, const float* __restrict b, bool two_rows, int in_w, int c, int k,
+                   int i, int out_c, float* __restrict o) {
+  const int pairs = in_w / 2;
+  const std::ptrdiff_t ox = static_cast<std::ptrdiff_t>(i) * c, oq = static_cast<std::ptrdiff_t>(k + i) * c;
+  for (int x = 0; x < pairs; ++x) {
+    const float* a0 = a + static_cast<std::ptrdiff_t>(2 * x) * c;
+    const float* b0 = b + static_cast<std::ptrdiff_t>(2 * x) * c;
+    float* px = o + static_cast<std::ptrdiff_t>(x) * out_c;
+    for (int ch = 0; ch < c; ++ch) {
+      const float p = a0[ch], q = a0[c + ch];
+      const float pp = p * p, qq = q * q;
+      if (two_rows) {
+        const float r = b0[ch], s = b0[c + ch];
+        const float rr = r * r, ss = s * s;
+        px[ox + ch] = ((p + q) + (r + s)) * 0.25f;
+        px[oq + ch] = ((pp + qq) + (rr + ss)) * 0.25f;
+      } else {
+        px[ox + ch] = (p + q) * 0.5f;
+        px[oq + ch] = (pp + qq) * 0.5f;
+      }
+    }
+  }
+  if (in_w & 1) {
+    const float* a0 = a + static_cast<std::ptrdiff_t>(in_w - 1) * c;
+    const float* b0 = b + static_cast<std::ptrdiff_t>(in_w - 1) * c;
+    float* px = o + static_cast<std::ptrdiff_t>(pairs) * out_c;
+    for (int ch = 0; ch < c; ++ch) {
+      const float p = a0[ch], pp = p * p;
+      if (two_rows) {
+        const float r = b0[ch], rr = r * r;
+        px[ox + ch] = (p + r) * 0.5f;
+        px[oq + ch] = (pp + rr) * 0.5f;
+      } else {
+        px[ox + ch] = p;
+        px[oq + ch] = pp;
+      }
+    }
+  }
+}
+
+// TapsAt without floating-point floor: for level l >= 1 the sample coordinate (x + 0.5) / 2^l - 0.5
+// is q / 2^(l+1) with the integer q = 2x + 1 - 2^l, so its floor is q >> (l + 1) and its fraction
+// (q & (2^(l+1) - 1)) / 2^(l+1), both exact: bit-identical to TapsAt's float values.
+struct AxisTap {
+  int i0, i1;
+  float f;
+};
+
+AxisTap AxisAt(int x, int level, int size) {
+  const int q = 2 * x + 1 - (1 << level);
+  const int i = q >> (level + 1);  // arithmetic shift: floor for negative q
+  AxisTap a;
+  a.f = static_cast<float>(q & ((2 << level) - 1)) * (1.0f / static_cast<float>(2 << level));
+  a.i0 = std::clamp(i, 0, size - 1);
+  a.i1 = std::clamp(i + 1, 0, size - 1);
+  return a;
+}
+
+Taps FastTapsAt(const ImageView<const float>& lv, const AxisTap& row, int level, int x) {
+  const AxisTap col = AxisAt(x, level, lv.width);
+  Taps t;
+  t.fx = col.f;
+  t.fy = row.f;
+  t.r0 = lv.Row(row.i0);
+  t.r1 = lv.Row(row.i1);
+  t.x0 = static_cast<std::ptrdiff_t>(col.i0) * lv.channels;
+  t.x1 = static_cast<std::ptrdiff_t>(col.i1) * lv.channels;
+  return t;
+}
+
+// Rows [y0, y1) of MipFoveateChange; kM > 0 fixes the moment count 2kC at compile time.
+template <int kM>
+void FoveateRows(const ImageView<float>* bands, int k, const ImageView<const float>* mip, int n,
+                 const ImageView<const float>& level_map, const ImageView<const float>* noise, int y0, int y1) {
+  const int c = bands[0].channels, kc = k * c, nm = kM > 0 ? kM : 2 * kc;
+  const float top = static_cast<float>(n);
+  float m[kMipMaxMomentChannels];
+  AxisTap rows[32];  // per chain level 1..n (n <= 31: sizes are int): the row taps of this row
+  for (int y = y0; y < y1; ++y) {
+    const float* lam_row = level_map.Row(y);
+    for (int l = 1; l <= n; ++l) rows[l] = AxisAt(y, l, mip[l - 1].height);
+    for (int x = 0; x < bands[0].width; ++x) {
+      const float lam_raw = lam_row[x];
+      if (!(lam_raw > 0.0f)) {  // not pooled: no change
+        for (int i = 0; i < k; ++i) {
+          float* b = &bands[i].At(y, x);
+          for (int ch = 0; ch < c; ++ch) b[ch] = 0.0f;
+        }
+        continue;
+      }
+      const float lam = std::min(lam_raw, top);
+      int l0 = 0;
+      float t = 0.0f;
+      if (lam > 0.0f) {
+        l0 = static_cast<int>(std::floor(lam));
+        if (l0 > n - 1) l0 = n - 1;
+        t = lam - static_cast<float>(l0);
+      }
+      if (l0 == 0) {  // the stack's level 0: the pixel's own [X, X^2] (bilinear taps at weight 0 skipped)
+        const float w0 = lam > 0.0f ? 1.0f - t : 1.0f;
+        for (int i = 0; i < k; ++i) {
+          const float* b = &bands[i].At(y, x);
+          for (int ch = 0; ch < c; ++ch) {
+            const float v = b[ch];
+            m[i * c + ch] = w0 * v;
+            m[kc + i * c + ch] = w0 * (v * v);
+          }
+        }
+      } else {
+        Accumulate<kM, false>(FastTapsAt(mip[l0 - 1], rows[l0], l0, x), 1.0f - t, nm, m);
+      }
+      if (t > 0.0f) Accumulate<kM, true>(FastTapsAt(mip[l0], rows[l0 + 1], l0 + 1, x), t, nm, m);
+      for (int i = 0; i < k; ++i) {
+        const float* nz = &noise[i].At(y, x);
+        float* b = &bands[i].At(y, x);
+        for (int ch = 0; ch < c; ++ch) {
+          const float mean = m[i * c + ch];
+          const float sq = m[kc + i * c + ch];
+          const float mm = mean * mean;
+          const float d = sq - mm;
+          const float sigma = d > 0.0f ? std::sqrt(d) : 0.0f;
+          const float s = sigma * nz[ch];
+          const float nv = mean + s;
+          b[ch] = nv - b[ch];
+        }
+      }
+    }
+  }
+}
+
 }  // namespace
+
+void MipDownMoments(const ImageView<const float>* bands, int k, const ImageView<float>& out) {
+  const int c = bands[0].channels, in_h = bands[0].height, in_w = bands[0].width;
+  ParallelFor(out.height, RowGrain(out.width), [&](std::int64_t y0, std::int64_t y1) {
+    for (int y = static_cast<int>(y0); y < static_cast<int>(y1); ++y) {
+      const bool two_rows = 2 * y + 1 < in_h;
+      for (int i = 0; i < k; ++i) {
+        const float* a = bands[i].Row(2 * y);
+        const float* b = two_rows ? bands[i].Row(2 * y + 1) : a;
+        DownMomentRow(a, b, two_rows, in_w, c, k, i, out.channels, out.Row(y));
+      }
+    }
+  });
+}
+
+void MipFoveateChange(const ImageView<float>* bands, int k, const ImageView<const float>* mip, int n,
+                      const ImageView<const float>& level_map, const ImageView<const float>* noise) {
+  const int nm = 2 * k * bands[0].channels;
+  ParallelFor(bands[0].height, RowGrain(bands[0].width), [&](std::int64_t y0, std::int64_t y1) {
+    const int a = static_cast<int>(y0), b = static_cast<int>(y1);
+    switch (nm) {
+      case 12: FoveateRows<12>(bands, k, mip, n, level_map, noise, a, b); break;
+      case 18: FoveateRows<18>(bands, k, mip, n, level_map, noise, a, b); break;
+      case 30: FoveateRows<30>(bands, k, mip, n, level_map, noise, a, b); break;
+      default: FoveateRows<0>(bands, k, mip, n, level_map, noise, a, b); break;
+    }
+  });
+}
 
 void MipDown(const ImageView<const float>& in, const ImageView<float>& out) {
   const int c = in.channels;

@@ -13,7 +13,8 @@ eccentricity (Bouma 1970; the paper's sec. 3.1 "Size"):
    level of band level l is ``log2(size_px) - l`` (a 2^m x 2^m box of band samples);
 3. moment maps (sec. 3.2 "Pooling"): per level, the MIP maps of X and X^2 of every band
    (cpp/kernels/mip.h, one chain for the stacked [X..., X^2...]) read trilinearly at that level:
-   mean = E[X], variance = max(0, E[X^2] - E[X]^2);
+   mean = E[X], variance = max(0, E[X^2] - E[X]^2) (:func:`foveate` fuses this step with step 4
+   in one C++ pass per level, _core.mip_foveate_level, without storing the moment maps);
 4. synthesis (sec. 3.4): band = mean + sigma * noise, the noise being white noise analysed by
    the same pyramid and normalised to unit variance per band (:mod:`ibrtools.metameric`'s cached
    noise pyramid, "held constant over time"), written where the pooling region is larger than a
@@ -43,6 +44,7 @@ from .errors import BadValueError, DtypeError, ShapeError
 # the corridor" of Fig. 3 without printing a number; that corridor is centred on Bouma's law
 # (1970): critical spacing ~0.5 x eccentricity, which we take as the default.
 POOLING = 0.5
+_MAX_FUSED_MOMENTS = 256  # cpp/kernels/mip.h kMipMaxMomentChannels: 2 x bands x channels of the fused path
 FOV_DEG = 90.0  # horizontal field of view of the display the image is viewed on (a typical HMD)
 
 
@@ -194,16 +196,24 @@ def foveate(image: np.ndarray, fixation: tuple[float, float] = (0.5, 0.5), *, po
     n_hp, n_bands, _ = _noise_pyramid_cached(h, w, c, levels, orientations, seed)
     noise = [[n_hp] + (list(n_bands[0]) if levels else [])] + [list(n_bands[l]) for l in range(1, levels)]
     for bands, nz, lam in zip(groups, noise, _levels_at(lam0, levels)):
-        pooled = lam > 0
-        if not pooled.any():
+        top = float(lam.max())
+        if not top > 0:
             for b in bands:
                 b[...] = 0  # no change at this level
             continue
+        h_l, w_l = bands[0].shape[:2]
+        n = min(int(_core.mip_max_levels(h_l, w_l)), math.ceil(top))
+        if 2 * len(bands) * c <= _MAX_FUSED_MOMENTS:
+            # Fused (cpp/kernels/mip.h MipFoveateChange): the MIP chain of [X, X^2] built from the
+            # bands and read trilinearly per sample straight into mean + sigma * noise - band; the
+            # moment maps are never materialised. Equals the branch below to float rounding.
+            _core.mip_foveate_level(bands, lam, nz, n)
+            continue
         moments = _moments(bands, lam)
         new = [b.copy() for b in bands]
-        _core.metameric_composite(moments, pooled, nz, new)
-        for b, n in zip(bands, new):
-            np.subtract(n, b, out=b)  # the band's change, in place
+        _core.metameric_composite(moments, lam > 0, nz, new)
+        for b, nb in zip(bands, new):
+            np.subtract(nb, b, out=b)  # the band's change, in place
     pyr.lowpass[...] = 0
     delta = synthesise(SteerablePyramid(pyr.highpass, pyr.bands, pyr.lowpass, ycbcr=pyr.ycbcr))
     out = np.where(fovea[..., None], x, x + delta)
