@@ -312,41 +312,15 @@ void RasterTriangle(const Context& cx, std::uint32_t id, int band_y0, int band_y
   }
 }
 
-// One triangle of a small quad (fast path: quality 'side', finite depths, every vertex valid):
-// the candidate centres are the quad's, px0 + i, py0 + j for i < nx, j < ny (nx, ny <= 4,
-// already clipped to the band and the image). A centre outside the triangle's own bounding box
-// fails an edge test anyway, so this covers exactly what RasterTriangle covers. Coordinates
-// span < 5 px (1280 units), so every edge value fits in 32 bits.
+// Shades one triangle of a small quad whose covered candidate centres are `mask` (bit 4 j + i:
+// centre (px0 + i, py0 + j)); er / ex / ey / bias are its 32-bit edge functions (SmallQuad).
 template <class Sh>
-inline void SmallQuadTriangle(const Context& cx, const WarpVertex& v0, const WarpVertex& v1, const WarpVertex& v2,
-                              const float* c0, const float* c1, const float* c2, int px0, int py0, int nx,
-                              int ny, Sh& sh) {
-  const std::int32_t X[3] = {v0.x, v1.x, v2.x}, Y[3] = {v0.y, v1.y, v2.y};
-  const std::int32_t area2 = (X[1] - X[0]) * (Y[2] - Y[0]) - (Y[1] - Y[0]) * (X[2] - X[0]);
-  if (area2 <= 0) return;  // back-facing or degenerate
-  const std::int32_t sx = px0 * kSubpixel + kSubpixel / 2, sy = py0 * kSubpixel + kSubpixel / 2;
-  std::int32_t ex[3], ey[3], er[3];
-  std::int64_t bias[3];
-  for (int e = 0; e < 3; ++e) {
-    const int a = e == 2 ? 0 : e + 1, b = e == 0 ? 2 : e - 1;
-    const std::int32_t dx = X[b] - X[a], dy = Y[b] - Y[a];
-    const bool owns = dy > 0 || (dy == 0 && dx < 0);
-    ex[e] = -dy * kSubpixel;
-    ey[e] = dx * kSubpixel;
-    bias[e] = owns ? 0 : 1;
-    er[e] = dx * (sy - Y[a]) - dy * (sx - X[a]) - std::int32_t(bias[e]);
-  }
-  unsigned mask = 0;  // bit 4 j + i: centre (px0 + i, py0 + j) covered
-  for (int j = 0; j < ny; ++j) {
-    const std::int32_t f0 = er[0] + ey[0] * j, f1 = er[1] + ey[1] * j, f2 = er[2] + ey[2] * j;
-    for (int i = 0; i < nx; ++i) {
-      const std::int32_t e0 = f0 + ex[0] * i, e1 = f1 + ex[1] * i, e2 = f2 + ex[2] * i;
-      mask |= unsigned((e0 | e1 | e2) >= 0) << (4 * j + i);
-    }
-  }
-  if (mask == 0) return;
-  const float x[3] = {float(X[0]) * (1.f / kSubpixel), float(X[1]) * (1.f / kSubpixel), float(X[2]) * (1.f / kSubpixel)};
-  const float y[3] = {float(Y[0]) * (1.f / kSubpixel), float(Y[1]) * (1.f / kSubpixel), float(Y[2]) * (1.f / kSubpixel)};
+inline void ShadeSmallTriangle(const Context& cx, const WarpVertex& v0, const WarpVertex& v1, const WarpVertex& v2,
+                               const float* c0, const float* c1, const float* c2, std::int32_t area2,
+                               const std::int32_t er[3], const std::int32_t ex[3], const std::int32_t ey[3],
+                               const std::int64_t bias[3], unsigned mask, int px0, int py0, Sh& sh) {
+  const float x[3] = {float(v0.x) * (1.f / kSubpixel), float(v1.x) * (1.f / kSubpixel), float(v2.x) * (1.f / kSubpixel)};
+  const float y[3] = {float(v0.y) * (1.f / kSubpixel), float(v1.y) * (1.f / kSubpixel), float(v2.y) * (1.f / kSubpixel)};
   float q = SideQuality(x, y, cx.side_t);
   if (q <= 0.f && cx.options->discard_stretched) return;
   q = std::min(1.f, std::max(q, kQualityFloor));
@@ -363,6 +337,79 @@ inline void SmallQuadTriangle(const Context& cx, const WarpVertex& v0, const War
     sh.Shade(px0 + i, py0 + j, er[0] + ex[0] * i + ey[0] * j, er[1] + ex[1] * i + ey[1] * j,
              er[2] + ex[2] * i + ey[2] * j);
   } while (mask != 0);
+}
+
+// Edge function of the edge from p to q (32 bits, 1/256 px) set up at centre (sx, sy) / 256,
+// tie-rule bias included (as SetupEdges).
+inline void SmallEdge(const WarpVertex& p, const WarpVertex& q, std::int32_t sx, std::int32_t sy, std::int32_t* ex,
+                      std::int32_t* ey, std::int32_t* er, std::int64_t* bias) {
+  const std::int32_t dx = q.x - p.x, dy = q.y - p.y;
+  const bool owns = dy > 0 || (dy == 0 && dx < 0);
+  *ex = -dy * kSubpixel;
+  *ey = dx * kSubpixel;
+  *bias = owns ? 0 : 1;
+  *er = dx * (sy - p.y) - dy * (sx - p.x) - std::int32_t(*bias);
+}
+
+// Both triangles of a small quad A B / C D (fast path: quality 'side', finite depths, every
+// vertex valid): triangle 0 = (A, B, C), triangle 1 = (B, D, C), in that order. The candidate
+// centres are the quad's, px0 + i, py0 + j for i < nx, j < ny (nx, ny <= 4, already clipped to
+// the band and the image). A centre outside a triangle's own bounding box fails an edge test
+// anyway, so this covers exactly what RasterTriangle covers. Coordinates span < 5 px (1280
+// units), so every edge value fits in 32 bits. The diagonal B -> C is edge 0 of triangle 0;
+// edge 1 of triangle 1 is C -> B, whose biased value is -e - 1 = ~e (exactly one of the two
+// owns a non-degenerate edge; a degenerate one makes both areas 0): one evaluation decides
+// which triangle may own each centre. Quality and shading set-up only for a triangle that
+// covers a centre.
+template <class Sh>
+inline void SmallQuad(const Context& cx, const WarpVertex& A, const WarpVertex& B, const WarpVertex& C,
+                      const WarpVertex& D, const float* ca, const float* cb, const float* cc, const float* cd,
+                      int px0, int py0, int nx, int ny, Sh& sh) {
+  const std::int32_t area0 = (B.x - A.x) * (C.y - A.y) - (B.y - A.y) * (C.x - A.x);
+  const std::int32_t area1 = (D.x - B.x) * (C.y - B.y) - (D.y - B.y) * (C.x - B.x);
+  if (area0 <= 0 && area1 <= 0) return;  // back-facing or degenerate
+  const std::int32_t sx = px0 * kSubpixel + kSubpixel / 2, sy = py0 * kSubpixel + kSubpixel / 2;
+  // Triangle 0: edge e opposite vertex e (B -> C, C -> A, A -> B); triangle 1: D -> C, C -> B,
+  // B -> D.
+  std::int32_t ex0[3], ey0[3], er0[3], ex1[3], ey1[3], er1[3];
+  std::int64_t bias0[3], bias1[3];
+  SmallEdge(B, C, sx, sy, &ex0[0], &ey0[0], &er0[0], &bias0[0]);
+  SmallEdge(C, A, sx, sy, &ex0[1], &ey0[1], &er0[1], &bias0[1]);
+  SmallEdge(A, B, sx, sy, &ex0[2], &ey0[2], &er0[2], &bias0[2]);
+  SmallEdge(D, C, sx, sy, &ex1[0], &ey1[0], &er1[0], &bias1[0]);
+  SmallEdge(B, D, sx, sy, &ex1[2], &ey1[2], &er1[2], &bias1[2]);
+  ex1[1] = -ex0[0];
+  ey1[1] = -ey0[0];
+  er1[1] = ~er0[0];
+  bias1[1] = 1 - bias0[0];
+  unsigned m0 = 0, m1 = 0;  // bit 4 j + i: centre (px0 + i, py0 + j) covered
+  if (nx <= 2 && ny <= 2) {
+    // Branch-free 2 x 2 (the common case); centres beyond nx / ny masked off afterwards.
+    for (int j = 0; j < 2; ++j) {
+      for (int i = 0; i < 2; ++i) {
+        const std::int32_t d = er0[0] + ex0[0] * i + ey0[0] * j;
+        const std::int32_t a1 = er0[1] + ex0[1] * i + ey0[1] * j, a2 = er0[2] + ex0[2] * i + ey0[2] * j;
+        const std::int32_t b0 = er1[0] + ex1[0] * i + ey1[0] * j, b2 = er1[2] + ex1[2] * i + ey1[2] * j;
+        m0 |= unsigned((d | a1 | a2) >= 0) << (4 * j + i);
+        m1 |= unsigned((~d | b0 | b2) >= 0) << (4 * j + i);
+      }
+    }
+    const unsigned valid = (nx == 2 ? 3u : 1u) * (ny == 2 ? 0x11u : 1u);
+    m0 &= valid;
+    m1 &= valid;
+  } else {
+    for (int j = 0; j < ny; ++j) {
+      for (int i = 0; i < nx; ++i) {
+        const std::int32_t d = er0[0] + ex0[0] * i + ey0[0] * j;
+        const std::int32_t a1 = er0[1] + ex0[1] * i + ey0[1] * j, a2 = er0[2] + ex0[2] * i + ey0[2] * j;
+        const std::int32_t b0 = er1[0] + ex1[0] * i + ey1[0] * j, b2 = er1[2] + ex1[2] * i + ey1[2] * j;
+        m0 |= unsigned((d | a1 | a2) >= 0) << (4 * j + i);
+        m1 |= unsigned((~d | b0 | b2) >= 0) << (4 * j + i);
+      }
+    }
+  }
+  if (area0 > 0 && m0 != 0) ShadeSmallTriangle(cx, A, B, C, ca, cb, cc, area0, er0, ex0, ey0, bias0, m0, px0, py0, sh);
+  if (area1 > 0 && m1 != 0) ShadeSmallTriangle(cx, B, D, C, cb, cd, cc, area1, er1, ex1, ey1, bias1, m1, px0, py0, sh);
 }
 
 // Rasterises every triangle of input block row r, columns [u0, u1), into band rows [y0, y1), in
@@ -398,8 +445,7 @@ void RasterBlockRow(const Context& cx, int r, int u0, int u1, int y0, int y1, bo
           qy1 = std::min(qy1, y1 - 1);
           const int nx = qx1 - qx0 + 1, ny = qy1 - qy0 + 1;
           const float *ca = ctop + 3 * u, *cb = ca + 3, *cc = cbot + 3 * u, *cd = cc + 3;
-          SmallQuadTriangle(cx, A, B, C, ca, cb, cc, qx0, qy0, nx, ny, sh);
-          SmallQuadTriangle(cx, B, D, C, cb, cd, cc, qx0, qy0, nx, ny, sh);
+          SmallQuad(cx, A, B, C, D, ca, cb, cc, cd, qx0, qy0, nx, ny, sh);
           continue;
         }
       }
