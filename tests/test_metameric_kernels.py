@@ -64,7 +64,7 @@ def test_bad_input():
     bands, noise = _bands(2), _bands(2, seed=5)
     mom = np.zeros((13, 11, 12), np.float32)
     mask = np.ones((13, 11), bool)
-    with pytest.raises(ShapeError, match="bands: expected at least one band"):
+    with pytest.raises(ShapeError, match="bands: expected at least one array"):
         _core.metameric_stack_moments([], mom)
     with pytest.raises(DtypeError, match="bands: expected a list"):
         _core.metameric_stack_moments(bands[0], mom)

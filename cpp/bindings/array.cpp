@@ -25,4 +25,34 @@ std::string DescribeExpected(const std::vector<Dim>& dims) {
   return n == s ? n : n + " = " + s;
 }
 
+std::vector<py::array_t<float, py::array::c_style>> CheckArrayList(const py::handle& obj, const char* name,
+                                                                    py::ssize_t h, py::ssize_t w, py::ssize_t c,
+                                                                    bool writable) {
+  if (!py::isinstance<py::list>(obj) && !py::isinstance<py::tuple>(obj)) {
+    throw DtypeError(std::string(name) + ": expected a list of float32 (h, w, C) arrays, got " +
+                     std::string(py::str(py::type::of(obj).attr("__name__"))));
+  }
+  std::vector<py::array_t<float, py::array::c_style>> out;
+  for (py::handle item : obj) {
+    const std::string item_name = std::string(name) + "[" + std::to_string(out.size()) + "]";
+    auto a = CheckArray<float>(item, item_name.c_str(), {{"h", h}, {"w", w}, {"C", c}}, writable);
+    h = a.shape(0);
+    w = a.shape(1);
+    c = a.shape(2);
+    out.push_back(a);
+  }
+  if (out.empty()) throw ShapeError(std::string(name) + ": expected at least one array, got an empty list");
+  if (h < 1 || w < 1 || c < 1) {
+    throw ShapeError(std::string(name) + ": expected at least 1 sample and 1 channel, got shape " +
+                     DescribeShape(out[0]));
+  }
+  return out;
+}
+
+bool Overlaps(const py::array& a, const py::array& b) {
+  const char* a0 = static_cast<const char*>(a.data());
+  const char* b0 = static_cast<const char*>(b.data());
+  return a0 < b0 + b.nbytes() && b0 < a0 + a.nbytes();
+}
+
 }  // namespace ibr::bind

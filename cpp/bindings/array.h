@@ -86,4 +86,13 @@ py::array_t<T, py::array::c_style> NewArray(std::initializer_list<py::ssize_t> s
   return py::array_t<T, py::array::c_style>(std::vector<py::ssize_t>(shape));
 }
 
+// A non-empty list (or tuple) of float32 (h, w, C) arrays of one shape; h, w, c = -1 take the
+// first array's size. `writable` for arrays the kernel writes in place.
+std::vector<py::array_t<float, py::array::c_style>> CheckArrayList(const py::handle& obj, const char* name,
+                                                                    py::ssize_t h, py::ssize_t w, py::ssize_t c,
+                                                                    bool writable);
+
+// Whether two arrays' memory ranges overlap (an in-place output must not alias an input).
+bool Overlaps(const py::array& a, const py::array& b);
+
 }  // namespace ibr::bind

@@ -18,41 +18,11 @@ namespace {
 
 using FloatArray = py::array_t<float, py::array::c_style>;
 
-// A non-empty list of float32 (h, w, C) arrays of one shape; h, w, c = -1 take the first's.
-std::vector<FloatArray> CheckBands(const py::handle& obj, const char* name, py::ssize_t h, py::ssize_t w,
-                                   py::ssize_t c, bool writable) {
-  if (!py::isinstance<py::list>(obj) && !py::isinstance<py::tuple>(obj)) {
-    throw DtypeError(std::string(name) + ": expected a list of float32 (H, W, C) arrays, got " +
-                     std::string(py::str(py::type::of(obj).attr("__name__"))));
-  }
-  std::vector<FloatArray> out;
-  for (py::handle item : obj) {
-    const std::string item_name = std::string(name) + "[" + std::to_string(out.size()) + "]";
-    FloatArray a = CheckArray<float>(item, item_name.c_str(), {{"H", h}, {"W", w}, {"C", c}}, writable);
-    h = a.shape(0);
-    w = a.shape(1);
-    c = a.shape(2);
-    out.push_back(a);
-  }
-  if (out.empty()) throw ShapeError(std::string(name) + ": expected at least one band, got an empty list");
-  if (h < 1 || w < 1 || c < 1) {
-    throw ShapeError(std::string(name) + ": expected at least 1 sample and 1 channel, got shape " +
-                     DescribeShape(out[0]));
-  }
-  return out;
-}
-
-bool Overlap(const py::array& a, const py::array& b) {
-  const char* a0 = static_cast<const char*>(a.data());
-  const char* b0 = static_cast<const char*>(b.data());
-  return a0 < b0 + b.nbytes() && b0 < a0 + a.nbytes();
-}
-
 void CheckNoAlias(const std::vector<FloatArray>& written, const std::vector<py::array>& others, const char* name,
                   bool indexed) {
   for (std::size_t i = 0; i < written.size(); ++i) {
     for (std::size_t j = 0; j < others.size(); ++j) {
-      if (Overlap(written[i], others[j])) {
+      if (Overlaps(written[i], others[j])) {
         throw BadValueError(std::string(name) + (indexed ? "[" + std::to_string(i) + "]" : std::string()) +
                             ": shares memory with another argument of the call (it is written in place)");
       }
@@ -66,7 +36,7 @@ void BindMetameric(py::module_& m) {
   m.def(
       "metameric_stack_moments",
       [](py::handle bands_obj, py::handle out_obj) {
-        std::vector<FloatArray> bands = CheckBands(bands_obj, "bands", -1, -1, -1, false);
+        std::vector<FloatArray> bands = CheckArrayList(bands_obj, "bands", -1, -1, -1, false);
         const py::ssize_t h = bands[0].shape(0), w = bands[0].shape(1), c = bands[0].shape(2);
         const py::ssize_t k = static_cast<py::ssize_t>(bands.size());
         FloatArray out = CheckArray<float>(out_obj, "out", {{"h", h}, {"w", w}, {"2kC", 2 * k * c}}, true);
@@ -86,10 +56,10 @@ void BindMetameric(py::module_& m) {
       "metameric_composite",
       [](py::handle moments_obj, py::handle mask_obj, py::handle noise_obj, py::handle bands_obj,
          py::handle flow_obj, int scale) {
-        std::vector<FloatArray> bands = CheckBands(bands_obj, "bands", -1, -1, -1, true);
+        std::vector<FloatArray> bands = CheckArrayList(bands_obj, "bands", -1, -1, -1, true);
         const py::ssize_t h = bands[0].shape(0), w = bands[0].shape(1), c = bands[0].shape(2);
         const py::ssize_t k = static_cast<py::ssize_t>(bands.size());
-        std::vector<FloatArray> noise = CheckBands(noise_obj, "noise", h, w, c, false);
+        std::vector<FloatArray> noise = CheckArrayList(noise_obj, "noise", h, w, c, false);
         if (static_cast<py::ssize_t>(noise.size()) != k) {
           throw ShapeError("noise: expected one array per band (" + std::to_string(k) + "), got " +
                            std::to_string(noise.size()));
@@ -142,7 +112,7 @@ void BindMetameric(py::module_& m) {
         if (flow_arr) others.push_back(flow_arr);
         for (std::size_t i = 0; i < bands.size(); ++i) {
           for (std::size_t j = 0; j < bands.size(); ++j) {
-            if (i != j && Overlap(bands[i], bands[j])) {
+            if (i != j && Overlaps(bands[i], bands[j])) {
               throw BadValueError("bands[" + std::to_string(i) + "]: shares memory with bands[" +
                                   std::to_string(j) + "] (each is written in place)");
             }

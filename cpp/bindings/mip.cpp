@@ -28,35 +28,6 @@ int MaxLevels(py::ssize_t h, py::ssize_t w) {
   return n;
 }
 
-// A list of float32 (h, w, C) arrays of one shape (h, w, C >= 1; -1 = any); writable for outputs.
-std::vector<FloatArray> CheckBandList(const py::handle& obj, const char* name, py::ssize_t h, py::ssize_t w,
-                                      py::ssize_t c, bool writable) {
-  if (!py::isinstance<py::list>(obj) && !py::isinstance<py::tuple>(obj)) {
-    throw DtypeError(std::string(name) + ": expected a list of float32 (h, w, C) arrays, got " +
-                     std::string(py::str(py::type::of(obj).attr("__name__"))));
-  }
-  std::vector<FloatArray> out;
-  for (py::handle item : obj) {
-    const std::string item_name = std::string(name) + "[" + std::to_string(out.size()) + "]";
-    FloatArray a = CheckArray<float>(item, item_name.c_str(), {{"h", h}, {"w", w}, {"C", c}}, writable);
-    h = a.shape(0);
-    w = a.shape(1);
-    c = a.shape(2);
-    out.push_back(a);
-  }
-  if (out.empty()) throw ShapeError(std::string(name) + ": expected at least one band, got an empty list");
-  if (h < 1 || w < 1 || c < 1) {
-    throw ShapeError(std::string(name) + ": expected at least 1 sample and 1 channel, got " + DescribeShape(out[0]));
-  }
-  return out;
-}
-
-bool Overlaps(const py::array& a, const py::array& b) {
-  const char* a0 = static_cast<const char*>(a.data());
-  const char* b0 = static_cast<const char*>(b.data());
-  return a0 < b0 + b.nbytes() && b0 < a0 + a.nbytes();
-}
-
 }  // namespace
 
 void BindMip(py::module_& m) {
@@ -162,10 +133,10 @@ void BindMip(py::module_& m) {
   m.def(
       "mip_foveate_level",
       [](py::handle bands_obj, py::handle level_obj, py::handle noise_obj, int levels) {
-        std::vector<FloatArray> bands = CheckBandList(bands_obj, "bands", -1, -1, -1, true);
+        std::vector<FloatArray> bands = CheckArrayList(bands_obj, "bands", -1, -1, -1, true);
         const py::ssize_t h = bands[0].shape(0), w = bands[0].shape(1), c = bands[0].shape(2);
         const py::ssize_t k = static_cast<py::ssize_t>(bands.size());
-        std::vector<FloatArray> noise = CheckBandList(noise_obj, "noise", h, w, c, false);
+        std::vector<FloatArray> noise = CheckArrayList(noise_obj, "noise", h, w, c, false);
         if (static_cast<py::ssize_t>(noise.size()) != k) {
           throw ShapeError("noise: expected one array per band (" + std::to_string(k) + "), got " +
                            std::to_string(noise.size()));
