@@ -12,13 +12,11 @@ border, the largest over the channels (the figures of docs/steerable.md).
 """
 from __future__ import annotations
 
-import argparse
 import os
 import sys
-from pathlib import Path
 
 import numpy as np
-from benchlib import DOCS, machine, median_ms, write_section
+from benchlib import load_note, machine, median_ms, size_repeats_main
 
 RGB_TO_YCC = np.array([[0.299, 0.587, 0.114], [-0.168736, -0.331264, 0.5], [0.5, -0.418688, -0.081312]])
 BORDER = 16
@@ -89,7 +87,6 @@ def run(size: int, repeats: int, levels: int = 4) -> str:
                 f"| | {t_space:.1f} | 1.0x | {t_freq / t_space:.1f}x | {fmt(err['space'])} |")
     rows.append(f"| pyrtools {pt.__version__} SteerablePyramidFreq (order 1), build + recon_pyr "
                 f"| | {t_freq:.1f} | {t_space / t_freq:.1f}x | 1.0x | {fmt(err['freq'])} |")
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     head = [
         "## Steerable pyramid",
         "",
@@ -105,25 +102,12 @@ def run(size: int, repeats: int, levels: int = 4) -> str:
         "border max |",
         "|---|---:|---:|---:|---:|---:|---:|",
     ]
-    tail = ["", f"1-minute load average at the end of the run: {load:.2f} (other work on the machine slows every "
-                "row alike; read the ratios)."]
+    tail = ["", load_note()]
     return "\n".join(head + rows + tail) + "\n"
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--size", type=int, default=1024, help="image side in pixels (default 1024)")
-    p.add_argument("--repeats", type=int, default=7, help="timed runs per case, >= 5 (default 7)")
-    p.add_argument("--write", type=Path, nargs="?", const=DOCS,
-                   help=f"Markdown file whose Steerable pyramid section to replace or append (default {DOCS.name})")
-    args = p.parse_args(argv)
-    if args.size < 64 or args.repeats < 5:
-        p.error("--size must be >= 64 and --repeats >= 5")
-    section = run(args.size, args.repeats)
-    print(section)
-    if args.write:
-        write_section("bench_steerable", section, args.write)
-    return 0
+    return size_repeats_main(__doc__, "bench_steerable", run, argv, min_size=64)
 
 
 if __name__ == "__main__":

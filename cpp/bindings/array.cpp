@@ -49,6 +49,17 @@ std::vector<py::array_t<float, py::array::c_style>> CheckArrayList(const py::han
   return out;
 }
 
+std::vector<py::array_t<float, py::array::c_style>> CheckPairedArrayList(
+    const py::handle& obj, const char* name, const std::vector<py::array_t<float, py::array::c_style>>& first,
+    const char* first_name) {
+  auto out = CheckArrayList(obj, name, first[0].shape(0), first[0].shape(1), first[0].shape(2), false);
+  if (out.size() != first.size()) {
+    throw ShapeError(std::string(name) + ": expected one array per " + first_name + " array (" +
+                     std::to_string(first.size()) + "), got " + std::to_string(out.size()));
+  }
+  return out;
+}
+
 bool Overlaps(const py::array& a, const py::array& b) {
   const char* a0 = static_cast<const char*>(a.data());
   const char* b0 = static_cast<const char*>(b.data());

@@ -92,6 +92,11 @@ std::vector<py::array_t<float, py::array::c_style>> CheckArrayList(const py::han
                                                                     py::ssize_t h, py::ssize_t w, py::ssize_t c,
                                                                     bool writable);
 
+// A second list of arrays that pairs one to one with `first` (same count, same shape each).
+std::vector<py::array_t<float, py::array::c_style>> CheckPairedArrayList(
+    const py::handle& obj, const char* name, const std::vector<py::array_t<float, py::array::c_style>>& first,
+    const char* first_name);
+
 // Whether two arrays' memory ranges overlap (an in-place output must not alias an input).
 bool Overlaps(const py::array& a, const py::array& b);
 

@@ -59,11 +59,7 @@ void BindMetameric(py::module_& m) {
         std::vector<FloatArray> bands = CheckArrayList(bands_obj, "bands", -1, -1, -1, true);
         const py::ssize_t h = bands[0].shape(0), w = bands[0].shape(1), c = bands[0].shape(2);
         const py::ssize_t k = static_cast<py::ssize_t>(bands.size());
-        std::vector<FloatArray> noise = CheckArrayList(noise_obj, "noise", h, w, c, false);
-        if (static_cast<py::ssize_t>(noise.size()) != k) {
-          throw ShapeError("noise: expected one array per band (" + std::to_string(k) + "), got " +
-                           std::to_string(noise.size()));
-        }
+        std::vector<FloatArray> noise = CheckPairedArrayList(noise_obj, "noise", bands, "band");
         FloatArray moments = CheckArray<float>(moments_obj, "moments", {{"h", h}, {"w", w}, {"2kC", 2 * k * c}});
         py::array mask_arr;
         if (py::isinstance<py::array>(mask_obj) &&

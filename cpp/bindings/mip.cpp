@@ -136,11 +136,7 @@ void BindMip(py::module_& m) {
         std::vector<FloatArray> bands = CheckArrayList(bands_obj, "bands", -1, -1, -1, true);
         const py::ssize_t h = bands[0].shape(0), w = bands[0].shape(1), c = bands[0].shape(2);
         const py::ssize_t k = static_cast<py::ssize_t>(bands.size());
-        std::vector<FloatArray> noise = CheckArrayList(noise_obj, "noise", h, w, c, false);
-        if (static_cast<py::ssize_t>(noise.size()) != k) {
-          throw ShapeError("noise: expected one array per band (" + std::to_string(k) + "), got " +
-                           std::to_string(noise.size()));
-        }
+        std::vector<FloatArray> noise = CheckPairedArrayList(noise_obj, "noise", bands, "band");
         if (2 * k * c > kMipMaxMomentChannels) {
           throw ShapeError("bands: 2 x bands x channels must be <= " + std::to_string(kMipMaxMomentChannels) +
                            ", got " + std::to_string(2 * k * c));
