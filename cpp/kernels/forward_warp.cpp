@@ -171,27 +171,20 @@ float TriangleQuality(const Context& cx, const std::int64_t vi[3], const float x
   return std::min(1.f, std::max(q, kQualityFloor));
 }
 
-// One triangle's interpolation set-up and the per-centre shading + depth test. Barycentric e of
-// a centre is (E_e + bias_e) / area2 (the tie-rule bias removed again); depth and colour are
-// interpolated perspective-correctly (forward_warp.h). Every path (small quad, small triangle,
-// span scan) shades through this, so a centre gets the same bits whichever path covers it.
-struct Shader {
-  float inv_area, q;
+// Perspective-correct interpolation over one triangle, shared by both shaders: barycentric e of
+// a centre is (E_e + bias_e) / area2 (the tie-rule bias removed again); 1 / d and c / d are
+// linear in screen space (forward_warp.h). affine = every vertex at infinity (sky).
+struct TriangleInterp {
+  float inv_area;
   float a_inv[3], a_c[3][3];
   std::int64_t bias[3];
-  bool affine, combined;
-  int tw;
-  float *score, *oc, *od, *oq;
-
-  // Per-quad state: none for DIBR (triangles are judged alone, by their quality).
-  inline void BeginQuad(const WarpVertex&, const WarpVertex&, const WarpVertex&, const WarpVertex&) {}
+  bool affine;
 
   // inv: 1 / depth of the vertices (all 0 = affine sky); col: their colours.
   // inverse_area: float(1 / area2) (see SmallQuadTriangle for a cheaper equal form).
-  void Setup(float inverse_area, const std::int64_t b[3], float quality, const float inv[3],
-             const float* const col[3], bool all_inf) {
+  void SetupInterp(float inverse_area, const std::int64_t b[3], const float inv[3], const float* const col[3],
+                   bool all_inf) {
     affine = all_inf;
-    q = quality;
     inv_area = inverse_area;
     for (int k = 0; k < 3; ++k) {
       bias[k] = b[k];
@@ -200,14 +193,45 @@ struct Shader {
       for (int c = 0; c < 3; ++c) a_c[k][c] = col[k][c] * m;
     }
   }
+  inline void Bary(std::int64_t e0, std::int64_t e1, std::int64_t e2, float b[3]) const {
+    b[0] = float(e0 + bias[0]) * inv_area;
+    b[1] = float(e1 + bias[1]) * inv_area;
+    b[2] = float(e2 + bias[2]) * inv_area;
+  }
+  // Interpolated 1 / d (0 for sky).
+  inline float InvDepth(const float b[3]) const {
+    return affine ? 0.f : b[0] * a_inv[0] + b[1] * a_inv[1] + b[2] * a_inv[2];
+  }
+  // Colour at barycentrics b, with m = d (perspective) or 1 (affine).
+  inline void Color(const float b[3], float m, float* c) const {
+    for (int ch = 0; ch < 3; ++ch) c[ch] = (b[0] * a_c[0][ch] + b[1] * a_c[1][ch] + b[2] * a_c[2][ch]) * m;
+  }
+};
+
+// One triangle's per-centre shading + depth test (DIBR). Every path (small quad, small triangle,
+// span scan) shades through this, so a centre gets the same bits whichever path covers it.
+struct Shader : TriangleInterp {
+  float q;
+  bool combined;
+  int tw;
+  float *score, *oc, *od, *oq;
+
+  // Per-quad state: none for DIBR (triangles are judged alone, by their quality).
+  inline void BeginQuad(const WarpVertex&, const WarpVertex&, const WarpVertex&, const WarpVertex&) {}
+
+  void Setup(float inverse_area, const std::int64_t b[3], float quality, const float inv[3],
+             const float* const col[3], bool all_inf) {
+    q = quality;
+    SetupInterp(inverse_area, b, inv, col, all_inf);
+  }
 
   inline void Shade(int px, int py, std::int64_t e0, std::int64_t e1, std::int64_t e2) const {
-    const float b0 = float(e0 + bias[0]) * inv_area, b1 = float(e1 + bias[1]) * inv_area,
-                b2 = float(e2 + bias[2]) * inv_area;
+    float b[3];
+    Bary(e0, e1, e2, b);
     // 1 / d interpolated (0 for sky); the score q / d^3 (d clamped) is q (1/d)^3 with 1/d
     // clamped to [1 / kMaxWeightDepth, 1 / kMinWeightDepth]: no division unless the fragment
     // wins. kNearest ranks by 1/d (larger = nearer), the same order as -d.
-    const float id = affine ? 0.f : b0 * a_inv[0] + b1 * a_inv[1] + b2 * a_inv[2];
+    const float id = InvDepth(b);
     float s;
     if (combined) {
       const float ic = std::min(std::max(id, 1.f / kMaxWeightDepth), 1.f / kMinWeightDepth);
@@ -220,8 +244,7 @@ struct Shader {
       score[i] = s;
       const float d = affine ? kInf : 1.f / id;
       const float m = affine ? 1.f : d;
-      float* c = oc + 3 * i;
-      for (int ch = 0; ch < 3; ++ch) c[ch] = (b0 * a_c[0][ch] + b1 * a_c[1][ch] + b2 * a_c[2][ch]) * m;
+      Color(b, m, oc + 3 * i);
       od[i] = d;
       oq[i] = q;
     }
@@ -814,11 +837,7 @@ namespace {
 // Shader of the hole mode: plain z-buffer on the re-partitioned depth of Eq. 1 (smaller wins).
 // Unstretched quads: interpolated colour and depth as in DIBR, key 0.5 d. Stretched quads: one
 // flat background depth for the whole quad, key 1 - 0.5 d, colour 0, mask kMaskDisoccluded.
-struct HoleShader {
-  float inv_area;
-  float a_inv[3], a_c[3][3];
-  std::int64_t bias[3];
-  bool affine;
+struct HoleShader : TriangleInterp {
   int tw;
   float stretch2;    // squared stretch threshold, px^2
   float depth_jump1; // 1 + HoleWarpOptions::depth_jump
@@ -869,14 +888,7 @@ struct HoleShader {
 
   void Setup(float inverse_area, const std::int64_t b[3], float, const float inv[3], const float* const col[3],
              bool all_inf) {
-    affine = all_inf;
-    inv_area = inverse_area;
-    for (int k = 0; k < 3; ++k) {
-      bias[k] = b[k];
-      const float m = affine ? 1.f : inv[k];
-      a_inv[k] = inv[k];
-      for (int c = 0; c < 3; ++c) a_c[k][c] = col[k][c] * m;
-    }
+    SetupInterp(inverse_area, b, inv, col, all_inf);
   }
 
   inline void Shade(int px, int py, std::int64_t e0, std::int64_t e1, std::int64_t e2) const {
@@ -891,17 +903,16 @@ struct HoleShader {
       }
       return;
     }
-    const float b0 = float(e0 + bias[0]) * inv_area, b1 = float(e1 + bias[1]) * inv_area,
-                b2 = float(e2 + bias[2]) * inv_area;
-    const float id = affine ? 0.f : b0 * a_inv[0] + b1 * a_inv[1] + b2 * a_inv[2];
+    float b[3];
+    Bary(e0, e1, e2, b);
+    const float id = InvDepth(b);
     const double k = 0.5 * NormDepth(id);  // Eq. 1, unstretched: 0.5 d in [0, 0.5]
     if (k < key[i]) {
       key[i] = k;
       const bool far = affine || !(id > 0.f);
       const float d = far ? kInf : 1.f / id;
       const float m = affine ? 1.f : d;
-      float* c = oc + 3 * i;
-      for (int ch = 0; ch < 3; ++ch) c[ch] = (b0 * a_c[0][ch] + b1 * a_c[1][ch] + b2 * a_c[2][ch]) * m;
+      Color(b, m, oc + 3 * i);
       od[i] = d;
       om[i] = kMaskSurface;
     }
