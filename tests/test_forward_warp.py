@@ -13,11 +13,10 @@ Tolerances:
 from __future__ import annotations
 
 import math
-import threading
-import time
 
 import numpy as np
 import pytest
+from gil import stamps_during, stamps_in_middle
 
 from ibrtools import BadValueError, Camera, DtypeError, ShapeError, _core, look_at
 
@@ -211,24 +210,13 @@ def test_gil_released(restore_threads):
     col = noise_image(n, n)
     acc = _core.DibrAccumulator(dst.to_core())
     _core.set_num_threads(1)
-    call = {}
-
     def work():
-        call["t0"] = time.perf_counter()
         for _ in range(6):
             acc.add_view(col, dep, cam.to_core())
-        call["t1"] = time.perf_counter()
 
-    stamps = []
-    th = threading.Thread(target=work)
-    th.start()
-    while th.is_alive():
-        stamps.append(time.perf_counter())
-    th.join()
-    t0, t1 = call["t0"], call["t1"]
+    t0, t1, stamps = stamps_during(work)
     assert t1 - t0 > 0.02, "warp too short for this check"
-    lo, hi = t0 + 0.25 * (t1 - t0), t1 - 0.25 * (t1 - t0)
-    assert sum(lo < s < hi for s in stamps) > 0
+    assert stamps_in_middle(t0, t1, stamps) > 0
 
 
 def test_result_never_nan_and_holes_black():

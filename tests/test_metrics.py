@@ -3,11 +3,10 @@ from __future__ import annotations
 
 import math
 import sys
-import threading
-import time
 
 import numpy as np
 import pytest
+from gil import stamps_during
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
@@ -191,20 +190,8 @@ def test_core_ssim_releases_the_gil():
     # While the worker thread is inside the kernel, the main thread must be able to run:
     # any main-thread timestamp strictly inside the call proves the GIL was released.
     a, b = _pair((1024, 1024), 2)
-    span = {}
-
-    def work():
-        span["t0"] = time.perf_counter()
-        _core.ssim(a, b, 1.0, True)
-        span["t1"] = time.perf_counter()
-
-    stamps = []
-    t = threading.Thread(target=work)
-    t.start()
-    while t.is_alive():
-        stamps.append(time.perf_counter())
-    t.join()
-    inside = [s for s in stamps if span["t0"] < s < span["t1"]]
+    t0, t1, stamps = stamps_during(lambda: _core.ssim(a, b, 1.0, True))
+    inside = [s for s in stamps if t0 < s < t1]
     assert len(inside) > 10
 
 

@@ -14,11 +14,11 @@ Tolerances:
 from __future__ import annotations
 
 import math
-import threading
 import time
 
 import numpy as np
 import pytest
+from gil import stamps_during, stamps_in_middle
 
 from ibrtools import BadValueError, Camera, DtypeError, Mesh, ShapeError, _core, look_at
 from ibrtools.render.reference import Light, ReferenceRenderer, default_lights
@@ -416,26 +416,10 @@ def test_gil_released_during_render(restore_threads):
     r.render(Camera.from_fov(160, 120, 60, pose), outputs=("color",), lights=lights, packet=1)
     scale = min(8.0, max(1.0, math.sqrt(0.08 / max(time.perf_counter() - t, 1e-4))))
     cam = Camera.from_fov(int(160 * scale), int(120 * scale), 60, pose)
-    call = {}
-
-    def work():
-        call["t0"] = time.perf_counter()
-        r.render(cam, outputs=("color",), lights=lights, packet=1)
-        call["t1"] = time.perf_counter()
-
-    stamps = []
-    th = threading.Thread(target=work)
-    th.start()
-    while th.is_alive():
-        stamps.append(time.perf_counter())
-    th.join()
-    t0, t1 = call["t0"], call["t1"]
+    t0, t1, stamps = stamps_during(lambda: r.render(cam, outputs=("color",), lights=lights, packet=1))
     assert t1 - t0 > 0.02, "render too short for this check"
-    lo, hi = t0 + 0.25 * (t1 - t0), t1 - 0.25 * (t1 - t0)
-    inside = sum(lo < s < hi for s in stamps)
-    assert inside > 0
-    # (Negative control, run by hand: with `sum(range(3 * 10**7))` as the work, which holds the
-    # GIL, `inside` is 0.)
+    assert stamps_in_middle(t0, t1, stamps) > 0
+    # (Negative control: tests/gil.py.)
 
 
 # --- bad input ---------------------------------------------------------------------------------
