@@ -97,6 +97,20 @@ def _depth_file(image: Path) -> Path | None:
     return None
 
 
+def _focal(m: dict, axis: str, size: int, where: str) -> float | None:
+    """Focal length along ``axis`` ("x" or "y") in pixels from fl_<axis> or camera_angle_<axis>
+    (full field of view, radians); None when neither key is present."""
+    if f"fl_{axis}" in m:
+        return _number(m, f"fl_{axis}", where)
+    key = f"camera_angle_{axis}"
+    if key not in m:
+        return None
+    angle = _number(m, key, where)
+    if not 0 < angle < math.pi:
+        raise BadValueError(f"{where}: {key} = {angle} rad is not in (0, pi)")
+    return 0.5 * size / math.tan(0.5 * angle)
+
+
 def _number(d: dict, key: str, where: str) -> float:
     try:
         v = float(d[key])
@@ -177,23 +191,11 @@ def _camera(meta: dict, frame: dict, image: Path, where: str) -> Camera:
         check_same_size(image, (w, h), "image", f"'w', 'h' of {where}")
     else:
         w, h = image_size(image)
-    if "fl_x" in m:
-        fx = _number(m, "fl_x", where)
-    elif "camera_angle_x" in m:
-        ax = _number(m, "camera_angle_x", where)
-        if not 0 < ax < math.pi:
-            raise BadValueError(f"{where}: camera_angle_x = {ax} rad is not in (0, pi)")
-        fx = 0.5 * w / math.tan(0.5 * ax)
-    else:
+    fx = _focal(m, "x", w, where)
+    if fx is None:
         raise FormatError(f"{where}: missing key 'camera_angle_x' (or 'fl_x')")
-    if "fl_y" in m:
-        fy = _number(m, "fl_y", where)
-    elif "camera_angle_y" in m:
-        ay = _number(m, "camera_angle_y", where)
-        if not 0 < ay < math.pi:
-            raise BadValueError(f"{where}: camera_angle_y = {ay} rad is not in (0, pi)")
-        fy = 0.5 * h / math.tan(0.5 * ay)
-    else:
+    fy = _focal(m, "y", h, where)
+    if fy is None:
         fy = fx
     if not (fx > 0 and fy > 0):
         raise BadValueError(f"{where}: focal length must be positive, got fx={fx}, fy={fy}")
