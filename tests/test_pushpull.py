@@ -271,6 +271,57 @@ def test_runs_from_two_python_threads():
     assert all(np.array_equal(o, expect) for o in out)
 
 
+@pytest.mark.parametrize("channels", [12, 18, 24, 30])
+def test_specialised_channel_counts_match_one_channel_runs(channels):
+    # 12, 18, 24 and 30 channels (the metameric moments) run a compiled-in channel count; the
+    # channels are independent, so each must equal the 1-channel run of that channel (1e-6:
+    # float32 rounding only, the operations per channel are the same).
+    img, depth, hole = _scene(40, 52)
+    rng = np.random.default_rng(channels)
+    x = rng.random((40, 52, channels), dtype=np.float32)
+    for d in (None, depth):
+        out = pushpull(x, hole, d)
+        for k in (0, channels // 2, channels - 1):
+            np.testing.assert_allclose(out[..., k], pushpull(np.ascontiguousarray(x[..., k]), hole, d), atol=1e-6)
+
+
+@pytest.mark.parametrize("depth_aware", [False, True])
+def test_out_and_holes_only(depth_aware):
+    img, depth, hole = _far_ground_scene() if depth_aware else _scene()
+    d = depth if depth_aware else None
+    args = (0.04, 0.5) if depth_aware else (0.0, 0.0)  # the far-ground scene takes the classic fallback too
+    full = pushpull(img, hole, d, gamma=args[1]) if depth_aware else pushpull(img, hole)
+    out = np.full_like(img, -7.0)
+    got, no_hole = _core.pushpull(img, hole, d, *args, out=out, holes_only=True)
+    assert got is out and not no_hole
+    assert np.array_equal(out[hole], full[hole])           # the fill, bit for bit
+    assert np.all(out[~hole] == -7.0)                      # the rest untouched
+    out2 = np.empty_like(img)
+    _core.pushpull(img, hole, d, *args, out=out2)          # holes_only off: the whole image
+    assert np.array_equal(out2, full)
+    # No hole: nothing to write with holes_only.
+    out3 = np.full_like(img, -7.0)
+    clean = np.nan_to_num(img)  # the far-ground image has NaN in its (now absent) holes
+    assert _core.pushpull(clean, np.zeros_like(hole), d, *args, out=out3, holes_only=True)[1]
+    assert np.all(out3 == -7.0)
+
+
+def test_out_bad_input():
+    img, depth, hole = _scene()
+    with pytest.raises(ShapeError, match="out"):
+        _core.pushpull(img, hole, None, 0.0, 0.0, out=np.empty((64, 63), np.float32))
+    with pytest.raises(DtypeError, match="out"):
+        _core.pushpull(img, hole, None, 0.0, 0.0, out=np.empty((64, 64), np.float64))
+    ro = np.empty_like(img)
+    ro.flags.writeable = False
+    with pytest.raises(BadValueError, match="out.*read-only"):
+        _core.pushpull(img, hole, None, 0.0, 0.0, out=ro)
+    with pytest.raises(BadValueError, match="out: shares memory"):
+        _core.pushpull(img, hole, None, 0.0, 0.0, out=img)
+    with pytest.raises(BadValueError, match="out: shares memory"):
+        _core.pushpull(img, hole, depth, 0.04, 0.5, out=depth)
+
+
 def test_uint8_mask_same_as_bool():
     rng = np.random.default_rng(6)
     img = rng.random((20, 30, 3), dtype=np.float32)

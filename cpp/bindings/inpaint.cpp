@@ -36,7 +36,7 @@ void BindInpaint(py::module_& m) {
   m.def(
       "pushpull",
       [](py::handle image_obj, py::handle hole_obj, py::handle depth_obj, double depth_threshold,
-         double gamma) {
+         double gamma, py::handle out_obj, bool holes_only) {
         const bool has_c = py::isinstance<py::array>(image_obj) &&
                            py::reinterpret_borrow<py::array>(image_obj).ndim() == 3;
         FloatArray image = has_c ? CheckArray<float>(image_obj, "image", {{"H", -1}, {"W", -1}, {"C", -1}})
@@ -65,7 +65,18 @@ void BindInpaint(py::module_& m) {
         }
         const ImageView<const float> image_view(image.data(), static_cast<int>(h), static_cast<int>(w),
                                                 static_cast<int>(c));
-        FloatArray out = has_c ? NewArray<float>({h, w, c}) : NewArray<float>({h, w});
+        options.holes_only = holes_only;
+        FloatArray out;
+        if (out_obj.is_none()) {
+          out = has_c ? NewArray<float>({h, w, c}) : NewArray<float>({h, w});
+        } else {
+          out = has_c ? CheckArray<float>(out_obj, "out", {{"H", h}, {"W", w}, {"C", c}}, true)
+                      : CheckArray<float>(out_obj, "out", {{"H", h}, {"W", w}}, true);
+          if (Overlaps(out, image) || (depth_obj.is_none() ? false : Overlaps(out, depth)) ||
+              Overlaps(out, py::reinterpret_borrow<py::array>(hole_keep))) {
+            throw BadValueError("out: shares memory with image, hole or depth (it is written)");
+          }
+        }
         const ImageView<float> out_view(out.mutable_data(), static_cast<int>(h), static_cast<int>(w),
                                         static_cast<int>(c));
         PushPullStatus status;
@@ -84,10 +95,11 @@ void BindInpaint(py::module_& m) {
         return py::make_tuple(out, status == PushPullStatus::kNoHole);
       },
       py::arg("image"), py::arg("hole"), py::arg("depth") = py::none(), py::arg("depth_threshold") = 0.04,
-      py::arg("gamma") = 0.0,
+      py::arg("gamma") = 0.0, py::arg("out") = py::none(), py::arg("holes_only") = false,
       "Push-pull hole filling (cpp/kernels/pushpull.h). image float32 (H, W) or (H, W, C); hole bool or "
-      "uint8 (H, W), non-zero = hole; depth float32 (H, W) or None (classic). Returns (filled image, "
-      "no_hole) where no_hole says the image had no hole and was copied.");
+      "uint8 (H, W), non-zero = hole; depth float32 (H, W) or None (classic); out: None (a new array) or "
+      "a writeable float32 array of image's shape to fill; holes_only: write the hole pixels of out only. "
+      "Returns (out, no_hole) where no_hole says the image had no hole.");
 }
 
 }  // namespace ibr::bind

@@ -183,13 +183,13 @@ void Push(const Level& coarse, int channels, float gamma, const Level& fine) {
 // Level 0: copy the image outside holes (exact), up(filled level 1) inside.
 template <int kC>
 void PushToOutput(const Level& coarse, const ImageView<const float>& image,
-                  const ImageView<const std::uint8_t>& hole, const ImageView<float>& out) {
+                  const ImageView<const std::uint8_t>& hole, bool holes_only, const ImageView<float>& out) {
   const int C = kC > 0 ? kC : image.channels;
   const Taps ty = MakeTaps(image.height, coarse.h), tx = MakeTaps(image.width, coarse.w);
   ParallelFor(image.height, RowGrain(image.width), [&](std::int64_t y0, std::int64_t y1) {
     for (int y = static_cast<int>(y0); y < static_cast<int>(y1); ++y) {
       const std::uint8_t* hrow = hole.Row(y);
-      std::memcpy(out.Row(y), image.Row(y), sizeof(float) * std::size_t(image.width) * C);
+      if (!holes_only) std::memcpy(out.Row(y), image.Row(y), sizeof(float) * std::size_t(image.width) * C);
       for (int x = 0; x < image.width; ++x) {
         if (hrow[x]) Up<kC>(coarse, C, ty, tx, y, x, &out.At(y, x, 0));
       }
@@ -214,7 +214,7 @@ PushPullStatus Run(const ImageView<const float>& image, const ImageView<const st
   const std::uint8_t* h0 = hole.data;
   if (std::all_of(h0, h0 + n0, [](std::uint8_t b) { return b != 0; })) return PushPullStatus::kNoValidPixel;
   if (std::none_of(h0, h0 + n0, [](std::uint8_t b) { return b != 0; })) {
-    std::memcpy(out.data, image.data, sizeof(float) * n0 * C);
+    if (!options.holes_only) std::memcpy(out.data, image.data, sizeof(float) * n0 * C);
     return PushPullStatus::kNoHole;
   }
   const bool depth_aware = options.depth_aware && !depth.Empty();
@@ -287,7 +287,7 @@ PushPullStatus Run(const ImageView<const float>& image, const ImageView<const st
   if (Complete(t, 0.0f)) {
     // PUSH: the top keeps its colour (nothing coarser to mix with).
     for (std::size_t i = top; i-- > 0;) Push<kC>(levels[i + 1], C, options.gamma, levels[i]);
-    PushToOutput<kC>(levels[0], image, hole, out);
+    PushToOutput<kC>(levels[0], image, hole, options.holes_only, out);
     return PushPullStatus::kOk;
   }
   // Only the 1x1 top can be incomplete here. Classic: impossible (the image has a valid pixel).
@@ -316,6 +316,7 @@ PushPullStatus Run(const ImageView<const float>& image, const ImageView<const st
   PushPullOptions classic;
   classic.depth_aware = false;
   classic.gamma = 0.0f;
+  classic.holes_only = options.holes_only;
   Run<kC>(image, hole, ImageView<const float>(), classic, out);  // kOk: the image has a valid pixel
   const Level& f1 = levels[0];
   const Level& s1 = s_levels[0];
@@ -351,6 +352,12 @@ PushPullStatus PushPullKernel(const ImageView<const float>& image,
     case 2: return Run<2>(image, hole, depth, options, out);
     case 3: return Run<3>(image, hole, depth, options, out);
     case 4: return Run<4>(image, hole, depth, options, out);
+    // The metameric moments ([X, X^2] of 2 or 3 YCbCr bands per level, 2 or 4 orientations):
+    // a fixed channel count lets the compiler unroll and vectorise the per-pixel loops.
+    case 12: return Run<12>(image, hole, depth, options, out);
+    case 18: return Run<18>(image, hole, depth, options, out);
+    case 24: return Run<24>(image, hole, depth, options, out);
+    case 30: return Run<30>(image, hole, depth, options, out);
     default: return Run<0>(image, hole, depth, options, out);
   }
 }

@@ -23,7 +23,8 @@
 //   the *coarse* colour the weight of the fine validity; the text (sec. 3.3.1: gamma = 0 is
 //   "the original push-pull", gamma = 1 "maximal ... blur") only makes sense with the fine
 //   colour weighted by its validity, which is what we do.
-//   Level 0: out = image where not a hole (copied: exact), up(filled_1) in holes.
+//   Level 0: out = image where not a hole (copied: exact; left untouched with holes_only),
+//   up(filled_1) in holes.
 //
 // Classic = depth test off and gamma = 0: the pull averages the valid children weighted by their
 // (partial) validity, the push fills exactly the pixels with no valid data from the coarser level
@@ -75,11 +76,14 @@ struct PushPullOptions {
   bool depth_aware = false;     // Alg. 1's depth test in the pull (needs depth)
   float depth_threshold = 0.04f;  // fraction of the image's known-depth range (authors' 0.04)
   float gamma = 0.0f;           // push: a = v^gamma; 0 = classic, 0.5 = the paper's default
+  // Write only the hole pixels of `out` (the rest keep whatever they held): for callers that
+  // read the fill in the holes only (the metameric moments), it saves copying the image.
+  bool holes_only = false;
 };
 
 enum class PushPullStatus {
   kOk = 0,
-  kNoHole,           // nothing to fill: out is a copy of image
+  kNoHole,           // nothing to fill: out is a copy of image (untouched with holes_only)
   kNoValidPixel,     // every pixel is a hole: out untouched
   kClassicFallback,  // depth-aware found no data at the top: filled with the classic fallback
 };

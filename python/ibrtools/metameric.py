@@ -265,6 +265,8 @@ def metameric(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = No
     # largest; coarser levels use a contiguous prefix of it).
     k0 = 1 + (orientations if levels else 0)
     stack_buf = np.empty(h * w * 2 * k0 * c, np.float32)
+    moments_buf = np.empty_like(stack_buf)
+    pp_args = (float(pp_kw["depth_threshold"]), float(pp_kw["gamma"])) if pp_kw else (0.0, 0.0)
     flow_c = None if flow is None else np.ascontiguousarray(flow)
 
     def fill(bands: list[np.ndarray], noise: list[np.ndarray], mask: np.ndarray, scale: int) -> None:
@@ -276,7 +278,10 @@ def metameric(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = No
         hl, wl = mask.shape
         stack = stack_buf[:hl * wl * 2 * len(bands) * c].reshape(hl, wl, 2 * len(bands) * c)
         _core.metameric_stack_moments(bands, stack)
-        moments = pushpull(stack, mask, d, **pp_kw)
+        # The composite reads the moments inside the mask only: fill just the holes, into a
+        # reused buffer (saves copying and allocating the whole stack per level).
+        moments = moments_buf[:stack.size].reshape(stack.shape)
+        _core.pushpull(stack, mask, d, *pp_args, out=moments, holes_only=True)
         _core.metameric_composite(moments, mask, noise, bands, flow_c, scale)
 
     # Level 0 also carries the high-pass residual (same resolution, same mask: one push-pull
