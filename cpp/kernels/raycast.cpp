@@ -378,3 +378,150 @@ std::vector<std::int32_t> VisibleObjects(const EmbreeScene& scene, const Camera&
 }
 
 }  // namespace ibr
+
+// ============================================================================================
+// Depth peeling (raycast.h "Deep depth buffers")
+// ============================================================================================
+namespace ibr {
+namespace {
+
+// Umbra offset x (Eq. 1) past a quad at depth d on the ray of a pixel whose projector ray has
+// lateral slope |r_xy| = rn; see raycast.h for the derivation. 0 = standard peeling.
+double UmbraOffset(const PeelOptions& o, double d, double rn, double s) {
+  if (o.num_novel <= 0) return 0.0;
+  double x = std::numeric_limits<double>::infinity();
+  for (int k = 0; k < o.num_novel && x > 0.0; ++k) {
+    const double* p = o.novel_in_cam + 3 * k;
+    const double c = p[2] + o.novel_radius;  // the nearest the quad the camera may be (smallest D)
+    const double dd = d - c;
+    if (!(dd > 0.0)) return 0.0;  // a camera at or past the quad's depth: no umbra
+    const double e = std::sqrt(p[0] * p[0] + p[1] * p[1]) + o.novel_radius;
+    const double h = (std::abs(p[2]) + o.novel_radius) * rn;
+    const double spread = e + h - s;
+    if (!(spread > 0.0)) continue;  // the whole umbra is infinite for this camera
+    x = std::min(x, dd * s / spread);
+  }
+  return x;
+}
+
+}  // namespace
+
+void CheckPeel(const Camera& camera, const PeelOptions& o) {
+  if (o.layers < 1) throw BadValueError("layers: expected an integer >= 1, got " + std::to_string(o.layers));
+  if (o.num_novel > 0) {
+    if (camera.model != CameraModel::kPinhole) {
+      throw BadValueError("umbra: generalised umbra culling needs a pinhole source camera");
+    }
+    if (!std::isfinite(o.novel_radius) || o.novel_radius < 0.0) {
+      throw BadValueError("umbra radius: expected a finite number >= 0");
+    }
+    for (int i = 0; i < 3 * o.num_novel; ++i) {
+      if (!std::isfinite(o.novel_in_cam[i])) {
+        throw BadValueError("umbra positions: camera " + std::to_string(i / 3) + " has NaN or infinite coordinates");
+      }
+    }
+  }
+}
+
+void PeelCamera(const EmbreeScene& scene, const Camera& camera, const PeelOptions& options,
+                const PeelOutputs& out) {
+  constexpr int N = 16, BW = 4, BH = 4;
+  const CameraRays rays(camera);
+  const RTCScene handle = scene.Handle();
+  const std::int32_t* object_ids = scene.ObjectIds();
+  const std::int64_t width = camera.width, plane = std::int64_t(camera.width) * camera.height;
+  const int layers = options.layers;
+  const float extent_eps = 1e-7f * scene.Extent();
+  const bool pinhole = camera.model == CameraModel::kPinhole;
+  const double half_pixel = pinhole ? 0.5 / std::max(camera.fx, camera.fy) : 0.0;
+  ParallelFor2D(camera.height, camera.width, options.tile, [&](int y0, int y1, int x0, int x1) {
+    RayQuery query(/*coherent=*/true);
+    alignas(64) int valid[N];
+    RTCRayHit16 rh;
+    float tnear[N];
+    std::int32_t prev_prim[N];
+    glm::vec3 dir[N];
+    double rn[N];
+    std::int64_t pix[N];
+    for (int by = y0; by < y1; by += BH) {
+      for (int bx = x0; bx < x1; bx += BW) {
+        for (int k = 0; k < N; ++k) {
+          const int px = bx + k % BW, py = by + k / BW;
+          const bool ok = px < x1 && py < y1;
+          valid[k] = ok ? -1 : 0;
+          dir[k] = ok ? rays.Dir(px, py) : glm::vec3(0.f, 0.f, 1.f);
+          pix[k] = ok ? std::int64_t(py) * width + px : 0;
+          tnear[k] = 0.f;
+          prev_prim[k] = -1;
+          rn[k] = pinhole ? std::hypot((px + 0.5 - camera.cx) / camera.fx, (py + 0.5 - camera.cy) / camera.fy) : 0.0;
+        }
+        for (int layer = 0; layer < layers; ++layer) {
+          bool any = false;
+          for (int k = 0; k < N; ++k) {
+            any |= valid[k] != 0;
+            rh.ray.org_x[k] = rays.origin.x;
+            rh.ray.org_y[k] = rays.origin.y;
+            rh.ray.org_z[k] = rays.origin.z;
+            rh.ray.dir_x[k] = dir[k].x;
+            rh.ray.dir_y[k] = dir[k].y;
+            rh.ray.dir_z[k] = dir[k].z;
+            rh.ray.tnear[k] = tnear[k];
+            rh.ray.tfar[k] = kInf;
+            rh.ray.time[k] = 0.f;
+            rh.ray.mask[k] = 0xFFFFFFFFu;
+            rh.ray.id[k] = static_cast<unsigned>(k);
+            rh.ray.flags[k] = 0;
+            rh.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
+            rh.hit.primID[k] = RTC_INVALID_GEOMETRY_ID;
+            rh.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
+          }
+          if (any) query.Intersect16(valid, handle, &rh);
+          for (int k = 0; k < N; ++k) {
+            const int px = bx + k % BW, py = by + k / BW;
+            if (px >= x1 || py >= y1) continue;
+            const std::int64_t i = layer * plane + pix[k];
+            float t = 0.f;
+            std::int32_t prim = -1;
+            if (valid[k] && rh.hit.geomID[k] != RTC_INVALID_GEOMETRY_ID) {
+              t = rh.ray.tfar[k];
+              prim = static_cast<std::int32_t>(rh.hit.primID[k]);
+              // The previous layer's triangle again (float rounding only): trace on past it.
+              for (int retry = 0; prim == prev_prim[k] && retry < 4; ++retry) {
+                RTCRayHit r1;
+                r1.ray.org_x = rays.origin.x, r1.ray.org_y = rays.origin.y, r1.ray.org_z = rays.origin.z;
+                r1.ray.dir_x = dir[k].x, r1.ray.dir_y = dir[k].y, r1.ray.dir_z = dir[k].z;
+                r1.ray.tnear = t + 1e-4f * t + extent_eps;
+                r1.ray.tfar = kInf;
+                r1.ray.time = 0.f;
+                r1.ray.mask = 0xFFFFFFFFu;
+                r1.ray.id = 0;
+                r1.ray.flags = 0;
+                r1.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+                r1.hit.primID = RTC_INVALID_GEOMETRY_ID;
+                r1.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+                query.Intersect1(handle, &r1);
+                if (r1.hit.geomID == RTC_INVALID_GEOMETRY_ID) { prim = -1; t = 0.f; break; }
+                t = r1.ray.tfar;
+                prim = static_cast<std::int32_t>(r1.hit.primID);
+              }
+              if (prim == prev_prim[k]) { prim = -1; t = 0.f; }
+            }
+            if (out.depth) out.depth[i] = t;
+            if (out.object_id) out.object_id[i] = prim >= 0 ? object_ids[prim] : -1;
+            if (prim < 0) {
+              valid[k] = 0;
+              continue;
+            }
+            prev_prim[k] = prim;
+            const double x = UmbraOffset(options, t, rn[k], half_pixel * t);
+            const double next = double(t) + 1e-5 * t + extent_eps + x;
+            if (!(next < 3.0e38)) valid[k] = 0;  // infinite umbra: nothing behind is visible
+            else tnear[k] = static_cast<float>(next);
+          }
+        }
+      }
+    }
+  });
+}
+
+}  // namespace ibr

@@ -121,4 +121,54 @@ void MarkVisibleObjects(const EmbreeScene& scene, const Camera& camera, const Ra
 std::vector<std::int32_t> VisibleObjects(const EmbreeScene& scene, const Camera& camera,
                                          const RaycastOptions& options = {});
 
+
+// --- Deep depth buffers by depth peeling (Lee, Kim, Eisemann 2018, sec. 3.4; Everitt 2001) ---
+//
+// Layer 0 is the primary-ray hit of every pixel; layer k + 1 continues the same ray past layer
+// k's hit: tnear = t_k + eps(t_k) + x(t_k), where eps(t) = 1e-5 t + 1e-7 extent is far above the
+// float rounding of a hit parameter (so the same surface, or its neighbour triangle at a shared
+// edge, is not hit again at t_k) and x is the umbra offset (0 = standard depth peeling). A hit of
+// the very triangle of layer k (possible only through rounding) is skipped by re-tracing past it.
+// Hence per pixel the non-empty layers come first and their depths increase strictly.
+//
+// Generalised umbra culling (Eq. 1): the pixel quad at depth d (the previous layer's hit) is
+// taken as an opaque square of half-size s = d / (2 max(fx, fy)) (the disc it contains) in the
+// plane z = d of the source camera. A novel camera at o = (ox, oy, c) in source camera axes
+// sees a point of the pixel's ray at depth d + x past the quad only if the segment between them
+// misses the quad; in the plane z = d that segment is at lateral distance |a| x / (D + x) from
+// the ray, D = d - c, |a| = the lateral distance (in the plane z = c) between o and the pixel's
+// ray. Hidden while that is <= s:   x <= D s / (|a| - s)   (Eq. 1 with e + h >= |a|: e = |o_xy|,
+// the camera's distance to the centre ray (optical axis), h = |c| |r_xy|, the offset of the
+// pixel's projector ray r = ((u - cx) / fx, (v - cy) / fy, 1) from the axis at depth c; the
+// triangle inequality makes e + h an upper bound of |a|, i.e. a smaller, safe x). A set of
+// novel cameras (each also within `novel_radius` of its given position: c + radius, e + radius,
+// |c| + radius) skips only what every one of them cannot see: x = min over cameras; x = 0 when
+// D <= 0 (the camera is past the quad); x = +inf when e + h <= s for every camera (nothing
+// behind the pixel is visible: the pixel's later layers stay empty; this bounds the layers).
+// Pinhole source cameras only (the front checks); the peeled depth is z (= t on pinhole rays).
+struct PeelOptions {
+  int layers = 4;
+  // Novel camera centres in the *source camera's* axes, (K, 3) row-major; K = 0: no culling.
+  const double* novel_in_cam = nullptr;
+  int num_novel = 0;
+  double novel_radius = 0.0;
+  int tile = 32;
+};
+
+// Outputs (L, H, W) row-major, layer-major; either may be null.
+//   depth      float   z (pinhole) or ray distance (equirect) of layer k's hit; 0 = empty
+//   object_id  int32   object id of the hit face; -1 = empty
+struct PeelOutputs {
+  float* depth = nullptr;
+  std::int32_t* object_id = nullptr;
+};
+
+// Front: throws BadValueError for layers < 1, umbra cameras with NaN / infinite coordinates, a
+// negative radius, or umbra culling asked of a non-pinhole camera.
+void CheckPeel(const Camera& camera, const PeelOptions& options);
+
+// Kernel: fills the L layers for every pixel. Deterministic (partition by image size only).
+void PeelCamera(const EmbreeScene& scene, const Camera& camera, const PeelOptions& options,
+                const PeelOutputs& out);
+
 }  // namespace ibr
