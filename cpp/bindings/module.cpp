@@ -10,4 +10,5 @@ PYBIND11_MODULE(_core, m) {
   ibr::bind::BindSteerable(m);
   ibr::bind::BindMetameric(m);
   ibr::bind::BindMip(m);
+  ibr::bind::BindCulling(m);
 }

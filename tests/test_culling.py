@@ -1,0 +1,210 @@
+"""Warping-based occlusion culling (ibrtools.culling; docs/culling.md)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ibrtools import _core, synth
+from ibrtools.camera import Camera, look_at
+from ibrtools.culling import CullResult, cull_objects, object_boxes
+from ibrtools.errors import BadValueError, DtypeError, NotBuiltError, ShapeError
+from ibrtools.render.reference import ReferenceRenderer
+
+W, H = 64, 48
+
+
+def _camera() -> Camera:
+    # At the origin looking down +z (world = camera axes: x right, y down).
+    return Camera.pinhole(W, H, 40.0, 40.0, W / 2, H / 2, np.eye(4))
+
+
+def _mesh(centers, sizes):
+    part = synth.boxes(centers, sizes, object_ids=np.arange(len(centers)))
+    return synth.merge([part], [], None)
+
+
+# Object 0: a wall 10 x 10 at z = 5 (drawn into the depth below as a constant 5: it covers the
+# whole 90 deg-ish view at 40 px focal length: |x| <= 5 at z = 5 spans +-40 px > W / 2);
+# 1: a box fully behind the wall (z 9.5..10.5); 2: a box in front of it (z 2.5..3.5);
+# 3: a box behind the camera; 4: a box far to the side (outside the left plane);
+# 5: a box around the camera centre (crosses the near plane).
+CENTERS = [(0, 0, 5), (0.3, -0.2, 10), (0.2, 0.1, 3), (0, 0, -4), (-40, 0, 5), (0, 0, 0.2)]
+SIZES = [(10, 10, 0.02), (1, 1, 1), (1, 1, 1), (1, 1, 1), (1, 1, 1), (1, 1, 1)]
+
+
+@pytest.fixture(scope="module")
+def wall_scene():
+    mesh = _mesh(CENTERS, SIZES)
+    depth = np.full((H, W), 5.0 - 0.01, np.float32)  # the wall's front face
+    return mesh, object_boxes(mesh), depth
+
+
+def test_object_boxes_exact():
+    mesh = _mesh([(1, 2, 3), (-1, 0, 5)], [(2, 4, 6), (1, 1, 1)])
+    b = object_boxes(mesh)
+    assert b.shape == (2, 2, 3) and b.dtype == np.float32
+    # Axis-aligned boxes (yaw 0): the corners are exact up to float32 rounding of the vertices.
+    np.testing.assert_allclose(b[0], [[0, 0, 0], [2, 4, 6]], atol=1e-6)
+    np.testing.assert_allclose(b[1], [[-1.5, -0.5, 4.5], [-0.5, 0.5, 5.5]], atol=1e-6)
+
+
+def test_empty_object_id_is_culled():
+    mesh = _mesh([(0, 0, 5)], [(1, 1, 1)])
+    mesh.object_ids[:] = 1  # object 0 has no face
+    b = object_boxes(mesh)
+    assert np.all(np.isinf(b[0])) and np.isfinite(b[1]).all()
+    res = cull_objects(np.zeros((H, W), np.float32), None, _camera(), b)
+    assert res.frustum_culled[0] and res.visible[1]
+
+
+def test_wall_culls_behind_keeps_front(wall_scene):
+    _, boxes, depth = wall_scene
+    res = cull_objects(depth, np.zeros((H, W), bool), _camera(), boxes)
+    assert isinstance(res, CullResult)
+    assert res.occlusion_culled.tolist() == [False, True, False, False, False, False]
+    assert res.frustum_culled.tolist() == [False, False, False, True, True, False]
+    assert res.visible.tolist() == [True, False, True, False, False, True]
+    # Disjoint sets, and the drawn set is their complement.
+    assert not (res.frustum_culled & res.occlusion_culled).any()
+    np.testing.assert_array_equal(res.visible, ~(res.frustum_culled | res.occlusion_culled))
+    assert set(res.times_ms) >= {"nbuffer", "test"}
+    assert res.stats["near"] == 1
+
+
+def test_holes_never_cull(wall_scene):
+    _, boxes, depth = wall_scene
+    res = cull_objects(depth, np.ones((H, W), bool), _camera(), boxes)
+    assert not res.occlusion_culled.any()
+    # Empty pixels (depth 0) are far too, even when not flagged as holes.
+    res = cull_objects(np.zeros((H, W), np.float32), None, _camera(), boxes)
+    assert not res.occlusion_culled.any()
+
+
+def test_one_hole_pixel_under_the_box_keeps_it(wall_scene):
+    _, boxes, depth = wall_scene
+    from ibrtools._core import cull_project_boxes
+    state, rect, _ = cull_project_boxes(boxes, _camera().to_core(), 1e-3, 1)
+    x0, y0, x1, y1 = rect[1]
+    hole = np.zeros((H, W), bool)
+    hole[(y0 + y1) // 2, x1 - 1] = True  # one pixel inside the (padded) rectangle
+    assert not cull_objects(depth, hole, _camera(), boxes).occlusion_culled[1]
+    hole[:] = False
+    hole[y1, x1] = True  # just outside it: no effect
+    assert cull_objects(depth, hole, _camera(), boxes).occlusion_culled[1]
+
+
+def test_rectangles_cover_the_projection():
+    # A unit box at z 9.5..10.5 centred on the axis: corners project to x = 32 +- 40 * 0.5 / 9.5.
+    boxes = np.array([[[-0.5, -0.5, 9.5], [0.5, 0.5, 10.5]]], np.float32)
+    state, rect, min_z = _core.cull_project_boxes(boxes, _camera().to_core(), 1e-3, 0)
+    e = 40 * 0.5 / 9.5
+    assert state[0] == 2
+    assert rect[0].tolist() == [int(np.floor(32 - e)), int(np.floor(24 - e)), int(np.floor(32 + e)) + 1,
+                                int(np.floor(24 + e)) + 1]
+    assert min_z[0] <= 9.5 and min_z[0] == np.float32(9.5)
+    # pad grows it by one pixel on every side.
+    _, rect1, _ = _core.cull_project_boxes(boxes, _camera().to_core(), 1e-3, 1)
+    assert (rect1[0] - rect[0]).tolist() == [-1, -1, 1, 1]
+
+
+def test_box_touching_the_occluder_depth_is_kept():
+    # min z equal to the max depth: not strictly behind, so kept.
+    boxes = np.array([[[-0.5, -0.5, 5.0], [0.5, 0.5, 6.0]]], np.float32)
+    res = cull_objects(np.full((H, W), 5.0, np.float32), None, _camera(), boxes)
+    assert res.visible[0]
+    res = cull_objects(np.full((H, W), 4.99, np.float32), None, _camera(), boxes)
+    assert res.occlusion_culled[0]
+
+
+def test_crowd_against_reference():
+    """The crowd preset, small: occlusion map = the reference depth of the same frame (a perfect
+    warp) and, when the depth warp is built, the warp of the previous path frame. Target: no
+    falsely culled object of more than 2 pixels."""
+    mesh, built = synth.build_mesh("crowd", size=(160, 90), path_frames=48)
+    boxes = object_boxes(mesh)
+    ref = ReferenceRenderer(mesh)
+    cams = built.paths["orbit"]
+    prev, cam = cams[0], cams[1]
+    out = ref.render(cam, outputs=("depth", "object_id"), lights=[])
+    ids = ref.visible_objects(cam)
+    counts = np.bincount(out["object_id"][out["object_id"] >= 0], minlength=len(boxes))
+    res = cull_objects(out["depth"], None, cam, boxes)
+    ev = res.evaluate(ids, counts)
+    assert ev["falsely_culled_large"] == 0, ev["false_ids"]
+    assert ev["drawn"] >= ev["ideal"] - ev["falsely_culled"]
+    assert ev["occlusion_culled"] > 100  # the crowd hides much of itself (246 of 3001 at 160x90)
+    assert 0 < ev["culled_fraction"] <= ev["ideal_culled_fraction"] + 1e-9
+    try:
+        from ibrtools.depthwarp import warp_depth
+    except ImportError:
+        pytest.skip("ibrtools.depthwarp.warp_depth not built yet")
+    src = ref.render(prev, outputs=("depth",), lights=[])["depth"]
+    w = warp_depth(src, prev, cam)
+    ev = cull_objects(w.depth, w.hole, cam, boxes).evaluate(ids, counts)
+    assert ev["falsely_culled_large"] == 0, ev["false_ids"]
+    assert ev["occlusion_culled"] > 0
+
+
+def test_evaluate_counts():
+    res = CullResult(visible=np.array([True, False, False, True]), frustum_culled=np.array([False, True, False, False]),
+                     occlusion_culled=np.array([False, False, True, False]),
+                     max_depth=np.zeros(4, np.float32), min_z=np.zeros(4, np.float32))
+    ev = res.evaluate(np.array([0, 1, 2], np.int32), np.array([50, 1, 9, 0]))
+    assert ev["drawn"] == 2 and ev["ideal"] == 3
+    assert ev["falsely_culled"] == 2 and ev["falsely_culled_small"] == 1 and ev["falsely_culled_large"] == 1
+    assert ev["false_ids"] == [1, 2]
+    assert ev["culled_fraction"] == 0.5 and ev["ideal_culled_fraction"] == 0.25
+    with pytest.raises(BadValueError, match="ideal_visible_ids"):
+        res.evaluate(np.array([7]))
+    with pytest.raises(ShapeError, match="pixel_counts"):
+        res.evaluate(np.array([0]), np.zeros(3, int))
+    with pytest.raises(DtypeError, match="ideal_visible_ids"):
+        res.evaluate(np.array([0.5]))
+
+
+def test_bad_inputs(wall_scene):
+    mesh, boxes, depth = wall_scene
+    cam = _camera()
+    with pytest.raises(DtypeError, match="mesh"):
+        object_boxes("mesh")
+    with pytest.raises(DtypeError, match="warped_depth"):
+        cull_objects(depth.astype(np.float64), None, cam, boxes)
+    with pytest.raises(ShapeError, match="warped_depth"):
+        cull_objects(depth[:-1], None, cam, boxes)
+    with pytest.raises(DtypeError, match="hole"):
+        cull_objects(depth, np.zeros((H, W), np.float32), cam, boxes)
+    with pytest.raises(ShapeError, match="hole"):
+        cull_objects(depth, np.zeros((H, W + 1), bool), cam, boxes)
+    with pytest.raises(DtypeError, match="camera"):
+        cull_objects(depth, None, cam.to_core(), boxes)
+    eq = Camera.equirect(W, H, cam_from_world=np.eye(4))
+    with pytest.raises(BadValueError, match="pinhole"):
+        cull_objects(depth, None, eq, boxes)
+    with pytest.raises(DtypeError, match="boxes"):
+        cull_objects(depth, None, cam, boxes.astype(np.float64))
+    with pytest.raises(ShapeError, match="boxes"):
+        cull_objects(depth, None, cam, boxes.reshape(-1, 3, 2))
+    bad = boxes.copy()
+    bad[0, 0, 0] = np.nan
+    with pytest.raises(BadValueError, match="boxes"):
+        cull_objects(depth, None, cam, bad)
+    with pytest.raises(BadValueError, match="near"):
+        cull_objects(depth, None, cam, boxes, near=0.0)
+    with pytest.raises(BadValueError, match="pad"):
+        cull_objects(depth, None, cam, boxes, pad=-1)
+    with pytest.raises(DtypeError, match="approximate"):
+        cull_objects(depth, None, cam, boxes, approximate="yes")
+    with pytest.raises(BadValueError, match="source_depth"):
+        cull_objects(depth, None, cam, boxes, approximate=True)
+    # The C++ front checks face indices and pinhole cameras itself.
+    with pytest.raises(BadValueError, match="faces"):
+        _core.cull_object_boxes(mesh.vertices, mesh.faces + 10_000, mesh.object_ids, 6)
+    with pytest.raises(BadValueError, match="pinhole"):
+        _core.cull_project_boxes(boxes, eq.to_core(), 1e-3, 1)
+
+
+def test_empty_box_list(wall_scene):
+    _, _, depth = wall_scene
+    res = cull_objects(depth, None, _camera(), np.zeros((0, 2, 3), np.float32))
+    assert res.visible.shape == (0,)
+    assert res.evaluate(np.zeros(0, np.int32))["drawn"] == 0
