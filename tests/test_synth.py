@@ -54,7 +54,7 @@ def test_names_paths_units_and_lights(objects_scene):
         assert v.color.shape == (48, 64, 3) and v.color.dtype == np.float32
         assert v.depth.shape == (48, 64) and (v.depth > 0).mean() > 0.3  # ground + objects
     assert "reconstructed" not in s.meshes
-    assert synth.PRESETS.keys() == {"objects", "crowd", "city"}
+    assert synth.PRESETS.keys() == {"objects", "crowd", "city", "spheres"}
 
 
 def test_demo_ring_has_neighbours_for_holdouts():

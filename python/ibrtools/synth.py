@@ -8,11 +8,14 @@ identical arrays.
 
 Building blocks, all vectorised numpy (no per-triangle Python loops):
 
-* geometry: :func:`boxes` (N boxes at once), :func:`uv_sphere`, :func:`cylinder`,
+* geometry: :func:`boxes` (N boxes at once), :func:`uv_sphere`, :func:`torus`, :func:`cylinder`,
   :func:`ground_grid`, :func:`load_placed` (any OBJ/PLY, scaled and placed), :func:`merge`;
 * textures: :func:`procedural_texture` (checkers + value-noise octaves + stripes, seeded);
 * camera rigs: :func:`ring`, :func:`forward_grid`, :func:`random_sphere`, :func:`smooth_path`
-  (Catmull-Rom through keyframes), :func:`orbit`.
+  (Catmull-Rom through keyframes), :func:`orbit`;
+* motion: :func:`path_motion` (the per-frame maximal image motion of a camera path, the measure
+  of Lee, Kim, Eisemann 2018 sec. 4.1); the ``walk`` paths (15-35 px/frame at 1920x1080) and
+  ``stress`` paths (100+ px/frame) of the crowd, city and spheres presets.
 """
 from __future__ import annotations
 
@@ -33,6 +36,7 @@ PRESETS: dict[str, str] = {
     "objects": "textured and glossy boxes, spheres and a cylinder on a ground plane; ring of cameras",
     "crowd": "thousands of small textured boxes (distinct object ids) on a ground plane, for culling; ring of cameras",
     "city": "blocks of buildings along streets on a ground plane; street-level forward-facing camera grid",
+    "spheres": "high-polygon scene (1.2 M triangles): dense meshed tori and spheres on a ground plane; ring of cameras",
 }
 
 UP = np.array([0.0, 1.0, 0.0])
@@ -134,6 +138,25 @@ def uv_sphere(center: Any, radius: float, n_lon: int = 48, n_lat: int = 24, text
     area = np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
     faces = faces[area > 1e-12 * radius * radius]
     vuv = np.stack([(lo / (2 * math.pi)).ravel(), ((la + math.pi / 2) / math.pi).ravel()], -1)
+    m = len(faces)
+    return Part(verts, faces, _corner_uvs(faces, vuv), np.full(m, texture_id), np.full(m, object_id))
+
+
+def torus(center: Any, major: float, minor: float, n_u: int = 64, n_v: int = 32, tilt: float = 0.0,
+          texture_id: int = 0, object_id: int = 0) -> Part:
+    """A torus of radii ``major`` (ring) and ``minor`` (tube) around the +y axis, tilted by
+    ``tilt`` radians about +x; u follows the ring, v the tube (seams duplicated)."""
+    u = np.linspace(0.0, 2 * math.pi, n_u + 1)
+    v = np.linspace(0.0, 2 * math.pi, n_v + 1)
+    uu, vv = np.meshgrid(u, v, indexing="ij")
+    ring = major + minor * np.cos(vv)
+    # Rows follow u, columns v: outward normals with _grid_faces' winding need -sin(u) in z.
+    pts = np.stack([ring * np.cos(uu), minor * np.sin(vv), -ring * np.sin(uu)], -1).reshape(-1, 3)
+    c, s = math.cos(tilt), math.sin(tilt)
+    pts = pts @ np.array([[1, 0, 0], [0, c, -s], [0, s, c]]).T
+    verts = np.asarray(center, float) + pts
+    faces = _grid_faces(n_u, n_v)
+    vuv = np.stack([(uu / (2 * math.pi)).ravel(), (vv / (2 * math.pi)).ravel()], -1)
     m = len(faces)
     return Part(verts, faces, _corner_uvs(faces, vuv), np.full(m, texture_id), np.full(m, object_id))
 
@@ -365,6 +388,55 @@ def orbit(n: int, *, size: tuple[int, int], center: Any, radius: float, height: 
     return [_cam(size, fov_x, e, look_at_point) for e in eyes]
 
 
+def walk_orbit(n: int, *, step_deg: float, size: tuple[int, int], center: Any, radius: float,
+               height: float, look_at_point: Any, fov_x: float, bob: float = 0.0, bob_period: int = 40,
+               phase_deg: float = 0.0) -> list[Camera]:
+    """n cameras on a horizontal circle advancing a fixed ``step_deg`` per frame (so the
+    per-frame motion does not depend on n), height bobbing by ``bob`` over ``bob_period`` frames."""
+    c = np.asarray(center, float)
+    a = np.radians(phase_deg + step_deg * np.arange(n))
+    h = height + bob * np.sin(2 * math.pi * np.arange(n) / bob_period)
+    eyes = c + np.stack([radius * np.sin(a), h, -radius * np.cos(a)], -1)
+    return [_cam(size, fov_x, e, look_at_point) for e in eyes]
+
+
+def walk_forward(n: int, *, step: float, size: tuple[int, int], start: Any, fov_x: float,
+                 sway: float = 0.3, yaw_deg: float = 3.0, period: int = 40) -> list[Camera]:
+    """n cameras walking along +z at ``step`` metres per frame from ``start``, swaying sideways
+    by ``sway`` metres and turning by +-``yaw_deg`` over ``period`` frames."""
+    t = np.arange(n)
+    ph = 2 * math.pi * t / period
+    eyes = np.asarray(start, float) + np.stack([sway * np.sin(ph), 0.05 * np.sin(2 * ph), step * t], -1)
+    yaw = np.radians(yaw_deg) * np.sin(ph + 0.7)
+    look = eyes + 20.0 * np.stack([np.sin(yaw), np.zeros(n), np.cos(yaw)], -1)
+    return [_cam(size, fov_x, e, g) for e, g in zip(eyes, look)]
+
+
+def path_motion(mesh: Mesh, cameras: Sequence[Camera], *, renderer=None) -> np.ndarray:
+    """Per-frame maximal image motion (pixels) along a camera path: for t >= 1, the largest
+    distance any surface point seen by frame t - 1 moves in the image between frames t - 1 and
+    t (its reference depth unprojected from t - 1 and projected into t; points that land behind
+    camera t are left out). Lee, Kim, Eisemann 2018 sec. 4.1 report the mean of these maxima."""
+    from .render.reference import ReferenceRenderer
+
+    if len(cameras) < 2:
+        raise BadValueError("cameras: a path needs at least 2 cameras to have motion")
+    renderer = renderer or ReferenceRenderer(mesh)
+    out = []
+    for a, b in zip(cameras[:-1], cameras[1:]):
+        depth = renderer.render(a, outputs=("depth",), lights=[])["depth"]
+        ok = depth > 0
+        if not ok.any():
+            out.append(0.0)
+            continue
+        x, y = a.pixel_grid()
+        xy, z = b.project(a.unproject(depth)[ok])
+        good = np.isfinite(z) & (z > 0)
+        d = np.hypot(xy[good, 0] - x[ok][good], xy[good, 1] - y[ok][good])
+        out.append(float(d.max()) if d.size else 0.0)
+    return np.asarray(out)
+
+
 # ============================================================================================
 # Presets
 # ============================================================================================
@@ -460,6 +532,12 @@ def _preset_crowd(size, views, seed, k_targets, path_frames, n_objects: int = 30
     targets = [ring(1, phase=f * step, **kw)[0] for f in _between_ring(views, k_targets)]
     paths = {"orbit": orbit(path_frames, size=size, center=(0, 0, 0), radius=14.0, height=3.0,
                             look_at_point=(0, 0.3, 0), fov_x=fov, bob=0.5)}
+    # Fixed-step paths for depth warping (docs/synth.md "Motion"): walk 15-35 px/frame and
+    # stress 100+ px/frame of average maximal motion at 1920x1080 (scales with the width).
+    walk = dict(size=size, center=(0, 0, 0), radius=14.0, height=3.0, look_at_point=(0, 0.3, 0), fov_x=fov,
+                bob=0.3)
+    paths["walk"] = walk_orbit(path_frames, step_deg=_WALK["crowd"][0], **walk)
+    paths["stress"] = walk_orbit(path_frames, step_deg=_WALK["crowd"][1], **walk)
     return _Built(parts, textures, mats, cams, targets, paths, None, (0.0, 0.0), 1.0)
 
 
@@ -508,10 +586,60 @@ def _preset_city(size, views, seed, k_targets, path_frames, blocks_x: int = 6, b
     keys = np.array([[0.0, 1.7, 0.0], [0.8, 1.8, 10.0], [-0.8, 1.6, 20.0], [0.5, 1.7, 30.0], [0.0, 1.7, 40.0]])
     keys = keys + start
     paths = {"street": smooth_path(keys, keys + [0.0, 0.0, 20.0], path_frames, size=size, fov_x=fov)}
+    paths["walk"] = walk_forward(path_frames, step=_WALK["city"][0], size=size, start=start, fov_x=fov)
+    paths["stress"] = walk_forward(path_frames, step=_WALK["city"][1], size=size, start=start, fov_x=fov)
     return _Built(parts, textures, mats, cams, tg, paths, thin, (street / 2 - 2.5, start[2] + 10.0), 1.5)
 
 
-_BUILDERS = {"objects": _preset_objects, "crowd": _preset_crowd, "city": _preset_city}
+def _preset_spheres(size, views, seed, k_targets, path_frames) -> _Built:
+    """The high-polygon scene: 8 interlinked, tilted tori (129600 triangles each) and 6 UV
+    spheres (~36700 each) on a ground plane: 1.26 M triangles, depth complexity up to ~8."""
+    rng = _rng(seed, "geometry")
+    trng = _rng(seed, "textures")
+    ts = _texture_size(size, 0.5)
+    textures = [procedural_texture(trng, _texture_size(size, 2.0), "ground")] + \
+        [procedural_texture(trng, ts) for _ in range(6)]
+    parts = [ground_grid(24.0, cells=8, texture_id=0, object_id=0)]
+    oid = 1
+    ang = 2 * math.pi * (np.arange(8) + rng.uniform(-0.2, 0.2, 8)) / 8
+    rad = rng.uniform(0.6, 2.2, 8)
+    for j in range(8):
+        major, minor = rng.uniform(0.45, 0.8), rng.uniform(0.1, 0.22)
+        tilt = rng.uniform(0.3, 1.4)
+        c = [rad[j] * math.sin(ang[j]), major * math.sin(tilt) + minor + 0.02, -rad[j] * math.cos(ang[j])]
+        parts.append(torus(c, major, minor, 360, 180, tilt, 1 + j % 6, oid))
+        oid += 1
+    ang = 2 * math.pi * (np.arange(6) + 0.5 + rng.uniform(-0.2, 0.2, 6)) / 6
+    rad = rng.uniform(0.8, 2.6, 6)
+    for j in range(6):
+        r = rng.uniform(0.25, 0.55)
+        parts.append(uv_sphere([rad[j] * math.sin(ang[j]), r, -rad[j] * math.cos(ang[j])], r, 192, 96,
+                               1 + (j + 3) % 6, oid))
+        oid += 1
+    mats = np.zeros((oid, 2), np.float32)
+    mats[:, 1] = 8.0
+    mats[1 + np.flatnonzero(rng.random(oid - 1) < 0.4)] = [0.6, 64.0]
+    fov = 60.0
+    kw = dict(size=size, radius=6.0, height=2.2, look_at_point=(0, 0.5, 0), fov_x=fov)
+    cams = ring(views, **kw)
+    step = 2 * math.pi / views
+    targets = [ring(1, phase=f * step, **kw)[0] for f in _between_ring(views, k_targets)]
+    walk = dict(size=size, center=(0, 0, 0), radius=5.5, height=2.0, look_at_point=(0, 0.5, 0), fov_x=fov,
+                bob=0.2)
+    paths = {"orbit": orbit(path_frames, size=size, center=(0, 0, 0), radius=5.5, height=2.0,
+                            look_at_point=(0, 0.5, 0), fov_x=fov, bob=0.3),
+             "walk": walk_orbit(path_frames, step_deg=_WALK["spheres"][0], **walk),
+             "stress": walk_orbit(path_frames, step_deg=_WALK["spheres"][1], **walk)}
+    return _Built(parts, textures, mats, cams, targets, paths, None, (3.5, 3.5), 0.8)
+
+
+# Per-frame steps of the "walk" and "stress" paths (degrees on the orbit, or metres along the
+# street), tuned so that at 1920x1080 the average maximal motion (path_motion) is 15-35 px/frame
+# (walk) and >= 100 px/frame (stress); measured figures in docs/synth.md.
+_WALK = {"crowd": (0.38, 2.0), "city": (0.045, 0.4), "spheres": (0.9, 4.0)}
+
+_BUILDERS = {"objects": _preset_objects, "crowd": _preset_crowd, "city": _preset_city,
+             "spheres": _preset_spheres}
 
 
 # ============================================================================================
