@@ -12,5 +12,6 @@ void BindInpaint(py::module_& m);
 void BindSteerable(py::module_& m);
 void BindMetameric(py::module_& m);
 void BindMip(py::module_& m);
+void BindDepthwarp(py::module_& m);
 void BindCulling(py::module_& m);
 }  // namespace ibr::bind

@@ -1,0 +1,458 @@
+// Bindings of cpp/kernels/depthwarp.h and cpp/kernels/nbuffer.h: the checking front (dtypes,
+// shapes, pinhole cameras, finiteness, object ids in range), the scratch buffers and the calls with
+// the GIL released. Python: ibrtools.depthwarp (the only user; other modules use that API).
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <glm/glm.hpp>
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include "array.h"
+#include "ibr/camera.h"
+#include "ibr/errors.h"
+#include "kernels/depthwarp.h"
+#include "kernels/nbuffer.h"
+#include "module.h"
+
+namespace ibr::bind {
+namespace {
+
+using FloatArray = py::array_t<float, py::array::c_style>;
+using IntArray = py::array_t<std::int32_t, py::array::c_style>;
+using DoubleArray = py::array_t<double, py::array::c_style>;
+
+double MsSince(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+
+void CheckPinhole(const Camera& c, const char* name) {
+  if (c.model != CameraModel::kPinhole) {
+    throw BadValueError(std::string(name) + ": equirect camera not supported by depthwarp (pinhole only)");
+  }
+}
+
+// Counts NaN (and, unless allow_inf, infinite) values, GIL released.
+std::int64_t CountNonFinite(const float* p, std::int64_t n, bool allow_inf, bool allow_negative, std::int64_t* negative) {
+  std::int64_t bad = 0, neg = 0;
+  py::gil_scoped_release release;
+  for (std::int64_t i = 0; i < n; ++i) {
+    const float v = p[i];
+    bad += std::isnan(v) || (!allow_inf && std::isinf(v));
+    neg += v < 0.0f;
+  }
+  *negative = allow_negative ? 0 : neg;
+  return bad;
+}
+
+// The checked inputs of a motion computation (one or more layers).
+struct MotionInputs {
+  FloatArray layers;  // (L, H, W)
+  py::object ids_keep;
+  IntArray ids;       // (L, H, W) or empty
+  bool has_ids = false;
+  std::vector<double> dst_from_src;  // (K + 1) x 12
+  int num_motions = 0;
+  int num_layers = 0, height = 0, width = 0;
+};
+
+MotionInputs CheckMotionInputs(const py::handle& layers_obj, const Camera& src, const Camera& dst,
+                               const py::handle& ids_obj, const py::handle& motion_obj) {
+  CheckPinhole(src, "src");
+  CheckPinhole(dst, "dst");
+  MotionInputs in;
+  in.layers = CheckArray<float>(layers_obj, "layers", {{"L", -1}, {"H", src.height}, {"W", src.width}});
+  in.num_layers = static_cast<int>(in.layers.shape(0));
+  in.height = src.height;
+  in.width = src.width;
+  if (in.num_layers < 1 || in.num_layers > 127) {
+    throw ShapeError("layers: expected 1..127 layers, got " + std::to_string(in.num_layers));
+  }
+  std::int64_t negative = 0;
+  const std::int64_t n = std::int64_t(in.num_layers) * in.height * in.width;
+  const std::int64_t bad = CountNonFinite(in.layers.data(), n, false, false, &negative);
+  if (bad || negative) {
+    throw BadValueError("layers: depth must be finite and >= 0 (0 = empty), got " + std::to_string(bad) +
+                        " NaN/infinite and " + std::to_string(negative) + " negative values");
+  }
+  std::vector<glm::dmat4> motions;
+  if (!motion_obj.is_none()) {
+    DoubleArray m = CheckArray<double>(motion_obj, "object_motion", {{"K", -1}, {"4", 4}, {"4", 4}});
+    const double* p = m.data();
+    for (py::ssize_t k = 0; k < m.shape(0); ++k, p += 16) {
+      glm::dmat4 t(1.0);
+      for (int r = 0; r < 4; ++r) {
+        for (int c = 0; c < 4; ++c) {
+          if (!std::isfinite(p[r * 4 + c])) {
+            throw BadValueError("object_motion[" + std::to_string(k) + "]: contains NaN or infinity");
+          }
+          t[c][r] = p[r * 4 + c];
+        }
+      }
+      if (std::fabs(p[12]) > 1e-9 || std::fabs(p[13]) > 1e-9 || std::fabs(p[14]) > 1e-9 ||
+          std::fabs(p[15] - 1.0) > 1e-9) {
+        throw BadValueError("object_motion[" + std::to_string(k) + "]: last row must be (0, 0, 0, 1)");
+      }
+      motions.push_back(t);
+    }
+  }
+  in.num_motions = static_cast<int>(motions.size());
+  if (!ids_obj.is_none()) {
+    if (motion_obj.is_none()) throw BadValueError("object_ids: given without object_motion");
+    in.ids = CheckArray<std::int32_t>(ids_obj, "object_ids",
+                                      {{"L", in.num_layers}, {"H", in.height}, {"W", in.width}});
+    in.has_ids = true;
+    const std::int32_t* p = in.ids.data();
+    std::int64_t out_of_range = 0;
+    const int k = in.num_motions;
+    {
+      py::gil_scoped_release release;
+      for (std::int64_t i = 0; i < n; ++i) out_of_range += p[i] < -1 || p[i] >= k;
+    }
+    if (out_of_range) {
+      throw BadValueError("object_ids: expected -1 (static) or 0.." + std::to_string(k - 1) +
+                          " (an index into object_motion), got " + std::to_string(out_of_range) +
+                          " values out of range");
+    }
+  } else if (!motion_obj.is_none() && in.num_motions > 0) {
+    throw BadValueError("object_motion: given without object_ids");
+  }
+  // dst_from_src = dst.cam_from_world * motion * src.world_from_cam (3x4 row-major each).
+  auto pose = [](const Camera& c) {
+    glm::dmat4 m(c.rot);
+    m[3] = glm::dvec4(c.trans, 1.0);
+    return m;
+  };
+  const glm::dmat4 dst_from_world = pose(dst), world_from_src = glm::inverse(pose(src));
+  auto push = [&](const glm::dmat4& a) {
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 4; ++c) in.dst_from_src.push_back(a[c][r]);
+    }
+  };
+  push(dst_from_world * world_from_src);
+  for (const glm::dmat4& t : motions) push(dst_from_world * t * world_from_src);
+  return in;
+}
+
+FloatArray ComputeMotion(const MotionInputs& in, const Camera& src, const Camera& dst) {
+  FloatArray packed = NewArray<float>({in.num_layers, in.height, in.width, 4});
+  DepthWarpMover mover{&src, &dst, in.dst_from_src.data(), in.num_motions};
+  const std::int64_t plane = std::int64_t(in.height) * in.width;
+  float* out = packed.mutable_data();
+  const float* depth = in.layers.data();
+  const std::int32_t* ids = in.has_ids ? in.ids.data() : nullptr;
+  py::gil_scoped_release release;
+  for (int j = 0; j < in.num_layers; ++j) {
+    ImageView<const float> d(depth + j * plane, in.height, in.width);
+    ImageView<const std::int32_t> idv(ids ? ids + j * plane : nullptr, in.height, in.width);
+    DepthWarpMotion(d, ids ? &idv : nullptr, mover, ImageView<float>(out + j * plane * 4, in.height, in.width, 4));
+  }
+  return packed;
+}
+
+// Min-max motion mipmaps of every layer of a packed (L, H, W, 4) buffer.
+struct MotionMips {
+  int num_layers = 0, height = 0, width = 0;
+  std::vector<std::vector<std::vector<float>>> levels;  // [layer][level - 1]
+  std::vector<std::vector<std::pair<int, int>>> dims;   // (h, w) of each level
+  std::vector<std::array<float, 4>> rot;
+  std::vector<int> axes;
+};
+
+const char* AxesName(int a) {
+  switch (static_cast<DepthWarpAxes>(a)) {
+    case DepthWarpAxes::kAxisAligned: return "aab";
+    case DepthWarpAxes::kOriented: return "oriented";
+    case DepthWarpAxes::kDegeneratePca: return "aab (degenerate pca)";
+    case DepthWarpAxes::kOrientedNotSmaller: return "aab (oriented not smaller)";
+    case DepthWarpAxes::kEmpty: return "empty";
+  }
+  return "?";
+}
+
+FloatArray CheckPacked(const py::handle& obj) {
+  FloatArray p = CheckArray<float>(obj, "packed", {{"L", -1}, {"H", -1}, {"W", -1}, {"4", 4}});
+  if (p.shape(0) < 1 || p.shape(0) > 127 || p.shape(1) < 1 || p.shape(2) < 1) {
+    throw ShapeError("packed: expected 1..127 layers of at least 1x1 pixels, got " + DescribeShape(p));
+  }
+  return p;
+}
+
+// Y-map: the front owns the levels; the kernels fill and read them.
+struct YMap {
+  int height = 0, width = 0, mip_levels = 0;
+  std::vector<std::vector<float>> nbuf;  // N-buffer levels of the coarse image
+  int ch = 0, cw = 0;
+};
+
+}  // namespace
+
+void BindDepthwarp(py::module_& m) {
+  m.def(
+      "dw_motion",
+      [](py::handle layers, const Camera& src, const Camera& dst, py::handle ids, py::handle motion) {
+        MotionInputs in = CheckMotionInputs(layers, src, dst, ids, motion);
+        return ComputeMotion(in, src, dst);
+      },
+      py::arg("layers"), py::arg("src"), py::arg("dst"), py::arg("object_ids") = py::none(),
+      py::arg("object_motion") = py::none(),
+      "Exact motion buffers (cpp/kernels/depthwarp.h DepthWarpMotion) of layers float32 (L, H, W) z in "
+      "src (0 = empty) into dst: float32 (L, H, W, 4) = (mx, my, z_dst, 0); z_dst = 0 marks invalid pixels. "
+      "object_ids int32 (L, H, W) in -1..K-1 with object_motion float64 (K, 4, 4) new_world_from_old_world.");
+
+  py::class_<MotionMips>(m, "DepthWarpMips", "Min-max motion mipmaps of each layer (dw_build_mips).")
+      .def_readonly("num_layers", &MotionMips::num_layers)
+      .def_property_readonly("axes", [](const MotionMips& mm) {
+        std::vector<std::string> out;
+        for (int a : mm.axes) out.push_back(AxesName(a));
+        return out;
+      })
+      .def("rotation", [](const MotionMips& mm, int layer) {
+        if (layer < 0 || layer >= mm.num_layers) throw BadValueError("layer: out of range");
+        DoubleArray r = NewArray<double>({2, 2});
+        for (int i = 0; i < 4; ++i) r.mutable_data()[i] = mm.rot[layer][i];
+        return r;
+      }, py::arg("layer"), "u = R v: the 2x2 rotation of the layer's bound axes.")
+      .def("num_levels", [](const MotionMips& mm, int layer) {
+        if (layer < 0 || layer >= mm.num_layers) throw BadValueError("layer: out of range");
+        return static_cast<int>(mm.levels[layer].size());
+      }, py::arg("layer"))
+      .def("level", [](const MotionMips& mm, int layer, int level) {
+        if (layer < 0 || layer >= mm.num_layers) throw BadValueError("layer: out of range");
+        if (level < 1 || level > static_cast<int>(mm.levels[layer].size())) throw BadValueError("level: out of range");
+        const auto [h, w] = mm.dims[layer][level - 1];
+        FloatArray a = NewArray<float>({h, w, 4});
+        std::copy(mm.levels[layer][level - 1].begin(), mm.levels[layer][level - 1].end(), a.mutable_data());
+        return a;
+      }, py::arg("layer"), py::arg("level"),
+      "A copy of level >= 1 (h, w, 4) = (min u, min w, max u, max w); empty texels (+inf, +inf, -inf, -inf).");
+
+  m.def(
+      "dw_build_mips",
+      [](py::handle packed_obj, bool oriented, int pca_grid) {
+        FloatArray packed = CheckPacked(packed_obj);
+        if (pca_grid < 2 || pca_grid > 1024) throw BadValueError("pca_grid: expected 2..1024, got " + std::to_string(pca_grid));
+        MotionMips mm;
+        mm.num_layers = static_cast<int>(packed.shape(0));
+        mm.height = static_cast<int>(packed.shape(1));
+        mm.width = static_cast<int>(packed.shape(2));
+        const std::int64_t plane = std::int64_t(mm.height) * mm.width * 4;
+        mm.levels.resize(mm.num_layers);
+        mm.dims.resize(mm.num_layers);
+        mm.rot.resize(mm.num_layers);
+        mm.axes.resize(mm.num_layers);
+        for (int j = 0; j < mm.num_layers; ++j) {
+          int h = mm.height, w = mm.width;
+          while (h > 1 || w > 1) {
+            h = (h + 1) / 2, w = (w + 1) / 2;
+            mm.dims[j].push_back({h, w});
+            mm.levels[j].emplace_back(std::size_t(h) * w * 4);
+          }
+        }
+        const float* pd = packed.data();
+        {
+          py::gil_scoped_release release;
+          for (int j = 0; j < mm.num_layers; ++j) {
+            ImageView<const float> pv(pd + j * plane, mm.height, mm.width, 4);
+            mm.axes[j] = static_cast<int>(DepthWarpChooseAxes(pv, oriented, pca_grid, mm.rot[j].data()));
+            for (std::size_t l = 0; l < mm.levels[j].size(); ++l) {
+              ImageView<float> out(mm.levels[j][l].data(), mm.dims[j][l].first, mm.dims[j][l].second, 4);
+              if (l == 0) {
+                DepthWarpMipLevel1(pv, mm.rot[j].data(), out);
+              } else {
+                const auto& prev = mm.levels[j][l - 1];
+                DepthWarpMipDown(ImageView<const float>(prev.data(), mm.dims[j][l - 1].first, mm.dims[j][l - 1].second, 4),
+                                 out);
+              }
+            }
+          }
+        }
+        return mm;
+      },
+      py::arg("packed"), py::arg("oriented") = false, py::arg("pca_grid") = 16,
+      "Min-max motion mipmaps (DepthWarpChooseAxes, DepthWarpMipLevel1/Down) of packed float32 "
+      "(L, H, W, 4) from dw_motion; oriented: try PCA axes of a pca_grid x pca_grid sample per layer.");
+
+  m.def(
+      "dw_warp",
+      [](py::handle packed_obj, const MotionMips& mm, int dst_height, int dst_width, int seeds, int iters,
+         float threshold, bool tight, int steps, float early_exit, std::uint32_t seed, bool dilate,
+         int dilate_min_neighbors) {
+        FloatArray packed = CheckPacked(packed_obj);
+        if (packed.shape(0) != mm.num_layers || packed.shape(1) != mm.height || packed.shape(2) != mm.width) {
+          throw ShapeError("mips: built for (" + std::to_string(mm.num_layers) + ", " + std::to_string(mm.height) +
+                           ", " + std::to_string(mm.width) + ") but packed is " + DescribeShape(packed));
+        }
+        if (dst_height < 1 || dst_width < 1) throw BadValueError("dst size: expected >= 1x1");
+        if (seeds < 1 || seeds > 4096) throw BadValueError("seeds: expected 1..4096, got " + std::to_string(seeds));
+        if (iters < 0 || iters > 1000) throw BadValueError("iters: expected 0..1000, got " + std::to_string(iters));
+        if (!(threshold > 0.0f) || !std::isfinite(threshold)) throw BadValueError("threshold: expected a finite number > 0");
+        if (steps < 0 || steps > 64) throw BadValueError("steps: expected 0..64, got " + std::to_string(steps));
+        if (!(early_exit >= 0.0f) || !std::isfinite(early_exit)) throw BadValueError("early_exit: expected a finite number >= 0");
+        if (dilate_min_neighbors < 1 || dilate_min_neighbors > 8) {
+          throw BadValueError("dilate_min_neighbors: expected 1..8, got " + std::to_string(dilate_min_neighbors));
+        }
+        const std::int64_t plane = std::int64_t(mm.height) * mm.width * 4;
+        std::vector<std::vector<ImageView<const float>>> mip_views(mm.num_layers);
+        std::vector<DepthWarpLayer> layers(mm.num_layers);
+        for (int j = 0; j < mm.num_layers; ++j) {
+          for (std::size_t l = 0; l < mm.levels[j].size(); ++l) {
+            mip_views[j].emplace_back(mm.levels[j][l].data(), mm.dims[j][l].first, mm.dims[j][l].second, 4);
+          }
+          layers[j].packed = ImageView<const float>(packed.data() + j * plane, mm.height, mm.width, 4);
+          layers[j].mips = mip_views[j].data();
+          layers[j].n_mips = static_cast<int>(mip_views[j].size());
+          for (int i = 0; i < 4; ++i) layers[j].rot[i] = mm.rot[j][i];
+        }
+        DepthWarpOptions opt;
+        opt.seeds = seeds, opt.iters = iters, opt.threshold = threshold, opt.tight = tight, opt.steps = steps;
+        opt.early_exit = early_exit, opt.seed = seed;
+        FloatArray depth = NewArray<float>({dst_height, dst_width});
+        py::array_t<std::int8_t, py::array::c_style> layer = NewArray<std::int8_t>({dst_height, dst_width});
+        DepthWarpCounters counters;
+        double warp_ms = 0, dilate_ms = 0;
+        std::int64_t dilated = 0;
+        {
+          py::gil_scoped_release release;
+          auto t0 = std::chrono::steady_clock::now();
+          ImageView<float> dv(depth.mutable_data(), dst_height, dst_width);
+          ImageView<std::int8_t> lv(layer.mutable_data(), dst_height, dst_width);
+          DepthWarpBackward(layers.data(), mm.num_layers, opt, dv, lv, &counters);
+          warp_ms = MsSince(t0);
+          if (dilate) {
+            t0 = std::chrono::steady_clock::now();
+            std::vector<float> d_in(dv.data, dv.data + dv.NumPixels());
+            std::vector<std::int8_t> l_in(lv.data, lv.data + lv.NumPixels());
+            dilated = DepthWarpDilate(ImageView<const float>(d_in.data(), dst_height, dst_width),
+                                      ImageView<const std::int8_t>(l_in.data(), dst_height, dst_width),
+                                      dilate_min_neighbors, dv, lv);
+            dilate_ms = MsSince(t0);
+          }
+        }
+        py::dict c;
+        c["converged"] = counters.converged;
+        c["early_exit"] = counters.early_exit;
+        c["searched"] = counters.searched;
+        c["samples"] = counters.samples;
+        c["lookups"] = counters.lookups;
+        c["dilated"] = dilated;
+        c["warp_ms"] = warp_ms;
+        c["dilate_ms"] = dilate_ms;
+        return py::make_tuple(depth, layer, c);
+      },
+      py::arg("packed"), py::arg("mips"), py::arg("dst_height"), py::arg("dst_width"), py::arg("seeds") = 16,
+      py::arg("iters") = 3, py::arg("threshold") = 0.5f, py::arg("tight") = true, py::arg("steps") = 3,
+      py::arg("early_exit") = 0.5f, py::arg("seed") = 0u, py::arg("dilate") = true,
+      py::arg("dilate_min_neighbors") = 5,
+      "Backward depth warp (DepthWarpBackward, then DepthWarpDilate when dilate): returns depth float32 "
+      "(H', W') (0 in holes), layer int8 (H', W') (-1 in holes) and a dict of counters and wall times.");
+
+  m.def(
+      "dw_forward",
+      [](py::handle layers_obj, const Camera& src, const Camera& dst, py::handle ids, py::handle motion,
+         const std::string& kind) {
+        DepthWarpForwardKind k;
+        if (kind == "vfw") {
+          k = DepthWarpForwardKind::kVfw;
+        } else if (kind == "afw") {
+          k = DepthWarpForwardKind::kAfw;
+        } else {
+          throw BadValueError("kind: expected 'vfw' or 'afw', got '" + kind + "'");
+        }
+        MotionInputs in = CheckMotionInputs(layers_obj, src, dst, ids, motion);
+        auto t0 = std::chrono::steady_clock::now();
+        FloatArray packed = ComputeMotion(in, src, dst);
+        const double motion_ms = MsSince(t0);
+        const int dh = dst.height, dw = dst.width;
+        FloatArray depth = NewArray<float>({dh, dw});
+        py::array_t<std::int8_t, py::array::c_style> layer = NewArray<std::int8_t>({dh, dw});
+        double warp_ms = 0;
+        {
+          py::gil_scoped_release release;
+          t0 = std::chrono::steady_clock::now();
+          std::vector<std::uint64_t> key(std::size_t(dh) * dw, ~std::uint64_t(0));
+          ImageView<std::uint64_t> kv(key.data(), dh, dw);
+          DepthWarpMover mover{&src, &dst, in.dst_from_src.data(), in.num_motions};
+          const std::int64_t plane = std::int64_t(in.height) * in.width;
+          for (int j = 0; j < in.num_layers; ++j) {
+            ImageView<const float> d(in.layers.data() + j * plane, in.height, in.width);
+            ImageView<const std::int32_t> idv(in.has_ids ? in.ids.data() + j * plane : nullptr, in.height, in.width);
+            ImageView<const float> pv(packed.data() + j * plane * 4, in.height, in.width, 4);
+            DepthWarpForward(k, d, in.has_ids ? &idv : nullptr, pv, mover, j, kv);
+          }
+          DepthWarpDecodeKeys(ImageView<const std::uint64_t>(key.data(), dh, dw),
+                              ImageView<float>(depth.mutable_data(), dh, dw),
+                              ImageView<std::int8_t>(layer.mutable_data(), dh, dw));
+          warp_ms = MsSince(t0);
+        }
+        return py::make_tuple(depth, layer, motion_ms, warp_ms);
+      },
+      py::arg("layers"), py::arg("src"), py::arg("dst"), py::arg("object_ids") = py::none(),
+      py::arg("object_motion") = py::none(), py::arg("kind") = "vfw",
+      "Forward depth warp baselines (DepthWarpForward, 'vfw' quad splats / 'afw' atomic-min points, both "
+      "with the half-pixel support expansion): (depth (H', W') float32, layer int8, motion_ms, warp_ms).");
+
+  py::class_<YMap>(m, "YMap", "Y-map of a depth buffer for conservative max-depth queries (cpp/kernels/nbuffer.h).")
+      .def(py::init([](py::handle depth_obj, int mip_levels) {
+             FloatArray depth = CheckArray<float>(depth_obj, "depth", {{"H", -1}, {"W", -1}});
+             const int h = static_cast<int>(depth.shape(0)), w = static_cast<int>(depth.shape(1));
+             if (h < 1 || w < 1) throw ShapeError("depth: expected at least 1x1 pixels, got " + DescribeShape(depth));
+             if (mip_levels < 0 || mip_levels > 8) {
+               throw BadValueError("mip_levels: expected 0..8, got " + std::to_string(mip_levels));
+             }
+             std::int64_t neg = 0;
+             if (CountNonFinite(depth.data(), std::int64_t(h) * w, true, true, &neg)) {
+               throw BadValueError("depth: contains NaN (set holes to the far depth, or +inf, before building)");
+             }
+             YMap y;
+             y.height = h, y.width = w, y.mip_levels = mip_levels;
+             py::gil_scoped_release release;
+             std::vector<float> cur(depth.data(), depth.data() + std::int64_t(h) * w);
+             int ch = h, cw = w;
+             for (int l = 0; l < mip_levels; ++l) {
+               const int nh = (ch + 1) / 2, nw = (cw + 1) / 2;
+               std::vector<float> next(std::size_t(nh) * nw);
+               MaxMipDown(ImageView<const float>(cur.data(), ch, cw), ImageView<float>(next.data(), nh, nw));
+               cur.swap(next);
+               ch = nh, cw = nw;
+             }
+             y.ch = ch, y.cw = cw;
+             const int top = 31 - __builtin_clz(static_cast<unsigned>(std::min(ch, cw)));  // floor(log2 min)
+             y.nbuf.push_back(std::move(cur));
+             for (int l = 1; l <= top; ++l) {
+               std::vector<float> next(std::size_t(ch) * cw);
+               NBufferStep(ImageView<const float>(y.nbuf.back().data(), ch, cw), 1 << (l - 1),
+                           ImageView<float>(next.data(), ch, cw));
+               y.nbuf.push_back(std::move(next));
+             }
+             return y;
+           }),
+           py::arg("depth"), py::arg("mip_levels") = 2)
+      .def_readonly("height", &YMap::height)
+      .def_readonly("width", &YMap::width)
+      .def_readonly("mip_levels", &YMap::mip_levels)
+      .def_property_readonly("num_nbuffer_levels", [](const YMap& y) { return static_cast<int>(y.nbuf.size()); })
+      .def("max_depth", [](const YMap& y, py::handle boxes_obj) {
+             IntArray boxes = CheckArray<std::int32_t>(boxes_obj, "boxes", {{"K", -1}, {"4", 4}});
+             const py::ssize_t k = boxes.shape(0);
+             FloatArray out = NewArray<float>({k});
+             std::vector<ImageView<const float>> views;
+             for (const auto& l : y.nbuf) views.emplace_back(l.data(), y.ch, y.cw);
+             const std::int32_t* b = boxes.data();
+             float* o = out.mutable_data();
+             {
+               py::gil_scoped_release release;
+               NBufferQuery(views.data(), static_cast<int>(views.size()), y.mip_levels, y.height, y.width, b, k, o);
+             }
+             return out;
+           }, py::arg("boxes"),
+           "boxes int32 (K, 4) = (x0, y0, x1, y1), x1/y1 exclusive, clipped; float32 (K,) >= the max over each box "
+           "(+inf for an empty box).");
+}
+
+}  // namespace ibr::bind

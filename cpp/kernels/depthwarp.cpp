@@ -1,0 +1,521 @@
+// Iterative backward depth warping and forward baselines: see depthwarp.h for the contract.
+#include "kernels/depthwarp.h"
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <mutex>
+
+#include "ibr/parallel.h"
+
+namespace ibr {
+namespace {
+
+constexpr float kInf = std::numeric_limits<float>::infinity();
+
+std::int64_t RowGrain(int width) { return std::max<std::int64_t>(1, kMinPixelsPerTask / std::max(1, width)); }
+
+// Source pixel centre (xi, yi) at depth z -> target image position and z. False when the point
+// lands at or behind the target's image plane or moves further than kDepthWarpMaxMotion.
+inline bool MovePixel(const DepthWarpMover& m, double xi, double yi, double z, int id, double* xo, double* yo,
+                      double* zo) {
+  const Camera& s = *m.src;
+  const Camera& d = *m.dst;
+  const double pcx = (xi - s.cx) / s.fx * z, pcy = (yi - s.cy) / s.fy * z, pcz = z;
+  const double* a = m.dst_from_src + 12 * (id + 1);
+  const double x = a[0] * pcx + a[1] * pcy + a[2] * pcz + a[3];
+  const double y = a[4] * pcx + a[5] * pcy + a[6] * pcz + a[7];
+  const double zz = a[8] * pcx + a[9] * pcy + a[10] * pcz + a[11];
+  if (!(zz > 0.0)) return false;
+  *xo = d.fx * x / zz + d.cx;
+  *yo = d.fy * y / zz + d.cy;
+  *zo = zz;
+  return std::isfinite(*xo) && std::isfinite(*yo) && std::fabs(*xo - xi) < kDepthWarpMaxMotion &&
+         std::fabs(*yo - yi) < kDepthWarpMaxMotion;
+}
+
+struct Bound {
+  float u0, w0, u1, w1;
+  bool Valid() const { return u0 <= u1 && w0 <= w1; }
+};
+constexpr Bound kEmptyBound{kInf, kInf, -kInf, -kInf};
+
+inline Bound Union(const Bound& a, const Bound& b) {
+  return {std::min(a.u0, b.u0), std::min(a.w0, b.w0), std::max(a.u1, b.u1), std::max(a.w1, b.w1)};
+}
+inline Bound Intersect(const Bound& a, const Bound& b) {
+  return {std::max(a.u0, b.u0), std::max(a.w0, b.w0), std::min(a.u1, b.u1), std::min(a.w1, b.w1)};
+}
+
+// Texel (ix >> level, iy >> level) of the layer's min-max mipmap; level 0 reads the packed buffer.
+inline Bound Texel(const DepthWarpLayer& l, int level, int ix, int iy) {
+  if (level == 0) {
+    const float* s = l.packed.data + (std::ptrdiff_t(iy) * l.packed.width + ix) * 4;
+    if (!(s[2] > 0.0f)) return kEmptyBound;
+    const float u = l.rot[0] * s[0] + l.rot[1] * s[1];
+    const float w = l.rot[2] * s[0] + l.rot[3] * s[1];
+    return {u, w, u, w};
+  }
+  const ImageView<const float>& m = l.mips[level - 1];
+  const float* t = m.data + (std::ptrdiff_t(iy >> level) * m.width + (ix >> level)) * 4;
+  return {t[0], t[1], t[2], t[3]};
+}
+
+inline Bound GlobalBound(const DepthWarpLayer& l) {
+  return l.n_mips > 0 ? Texel(l, l.n_mips, 0, 0) : Texel(l, 0, 0, 0);
+}
+
+// Axis-aligned source region p - R^T B (x0, y0, x1, y1).
+struct Region {
+  float x0, y0, x1, y1;
+};
+inline Region SourceRegion(const DepthWarpLayer& l, const Bound& b, float px, float py) {
+  const float* r = l.rot;
+  // v = R^T u: vx = r0 u + r2 w, vy = r1 u + r3 w.
+  const float vx_min = (r[0] >= 0 ? r[0] * b.u0 : r[0] * b.u1) + (r[2] >= 0 ? r[2] * b.w0 : r[2] * b.w1);
+  const float vx_max = (r[0] >= 0 ? r[0] * b.u1 : r[0] * b.u0) + (r[2] >= 0 ? r[2] * b.w1 : r[2] * b.w0);
+  const float vy_min = (r[1] >= 0 ? r[1] * b.u0 : r[1] * b.u1) + (r[3] >= 0 ? r[3] * b.w0 : r[3] * b.w1);
+  const float vy_max = (r[1] >= 0 ? r[1] * b.u1 : r[1] * b.u0) + (r[3] >= 0 ? r[3] * b.w1 : r[3] * b.w0);
+  return {px - vx_max, py - vy_max, px - vx_min, py - vy_min};
+}
+
+// Fig. 5 local_motion_bound: four corner lookups at level ceil(log2 extent) of the region clipped
+// to the source image. Empty when the region misses the image or holds no valid motion.
+inline Bound LocalBound(const DepthWarpLayer& l, Region r) {
+  const int w = l.packed.width, h = l.packed.height;
+  if (!(r.x1 >= 0.0f && r.y1 >= 0.0f && r.x0 < float(w) && r.y0 < float(h))) return kEmptyBound;
+  r.x0 = std::max(r.x0, 0.0f);
+  r.y0 = std::max(r.y0, 0.0f);
+  r.x1 = std::min(r.x1, float(w));
+  r.y1 = std::min(r.y1, float(h));
+  const float e = std::max(r.x1 - r.x0, r.y1 - r.y0);
+  int level = 0;
+  if (e > 1.0f) {
+    // ceil(log2 e) = bits of (ceil(e) - 1): e <= 2^level <=> ceil(e) <= 2^level.
+    const std::uint32_t n = static_cast<std::uint32_t>(std::ceil(std::min(e, 1.0e9f))) - 1u;
+    level = 32 - __builtin_clz(n);
+  }
+  level = std::min(level, l.n_mips);
+  const int ix0 = std::min(int(r.x0), w - 1), ix1 = std::min(int(r.x1), w - 1);
+  const int iy0 = std::min(int(r.y0), h - 1), iy1 = std::min(int(r.y1), h - 1);
+  Bound b = Texel(l, level, ix0, iy0);
+  b = Union(b, Texel(l, level, ix1, iy0));
+  b = Union(b, Texel(l, level, ix0, iy1));
+  b = Union(b, Texel(l, level, ix1, iy1));
+  return b;
+}
+
+inline std::uint32_t Hash(std::uint32_t x) {
+  x ^= x >> 16;
+  x *= 0x7feb352dU;
+  x ^= x >> 15;
+  x *= 0x846ca68bU;
+  x ^= x >> 16;
+  return x;
+}
+inline float Unit(std::uint32_t x) { return float(x >> 8) * (1.0f / 16777216.0f); }
+inline float RadicalInverse2(std::uint32_t k) {
+  k = (k << 16) | (k >> 16);
+  k = ((k & 0x00ff00ffU) << 8) | ((k & 0xff00ff00U) >> 8);
+  k = ((k & 0x0f0f0f0fU) << 4) | ((k & 0xf0f0f0f0U) >> 4);
+  k = ((k & 0x33333333U) << 2) | ((k & 0xccccccccU) >> 2);
+  k = ((k & 0x55555555U) << 1) | ((k & 0xaaaaaaaaU) >> 1);
+  return Unit(k);
+}
+inline float Frac(float x) { return x - std::floor(x); }
+
+// Fig. 3 fixed_point_search with Fig. 6 multi_layer_seed, for target centre (px, py), search
+// layer j, seed q. On convergence sets z and the layer the sample came from.
+inline bool FixedPointSearch(const DepthWarpLayer* layers, int j, float px, float py, float qx, float qy,
+                             int iters, float thr2, float* z, int* layer, std::int64_t* lookups) {
+  const int w = layers[0].packed.width, h = layers[0].packed.height;
+  int empties = 0;
+  for (int k = 0;; ++k) {
+    if (!(qx >= 0.0f && qy >= 0.0f && qx < float(w) && qy < float(h))) return false;  // rejected, not clamped
+    const std::ptrdiff_t at = (std::ptrdiff_t(int(qy)) * w + int(qx)) * 4;
+    ++*lookups;
+    const float* s = layers[j].packed.data + at;
+    int jj = j;
+    if (!(s[2] > 0.0f)) {
+      if (++empties >= 2) return false;
+      for (jj = j - 1; jj >= 0; --jj) {
+        s = layers[jj].packed.data + at;
+        if (s[2] > 0.0f) break;
+      }
+      if (jj < 0) return false;
+    }
+    const float wx = px - s[0], wy = py - s[1];
+    const float dx = qx - wx, dy = qy - wy;
+    if (dx * dx + dy * dy < thr2) {
+      *z = s[2];
+      *layer = jj;
+      return true;
+    }
+    if (k >= iters) return false;
+    qx = wx;
+    qy = wy;
+  }
+}
+
+inline void AtomicMin(std::uint64_t* p, std::uint64_t v) {
+  std::uint64_t cur = __atomic_load_n(p, __ATOMIC_RELAXED);
+  while (v < cur && !__atomic_compare_exchange_n(p, &cur, v, true, __ATOMIC_RELAXED, __ATOMIC_RELAXED)) {
+  }
+}
+
+inline std::uint64_t Key(float z, int layer) {
+  std::uint32_t bits;
+  std::memcpy(&bits, &z, 4);
+  return (std::uint64_t(bits) << 32) | std::uint32_t(layer);
+}
+
+struct ScreenVertex {
+  double x, y, inv_z;
+};
+
+// Depth-tested triangle: pixel centres inside (either orientation; edges included), 1/z affine.
+void RasterTriangle(const ScreenVertex& a, const ScreenVertex& b, const ScreenVertex& c, int layer,
+                    const ImageView<std::uint64_t>& key) {
+  const double area = (b.x - a.x) * (c.y - a.y) - (b.y - a.y) * (c.x - a.x);
+  if (!(std::fabs(area) > 1e-12)) return;
+  const double inv_area = 1.0 / area;
+  const int x0 = std::max(0, int(std::ceil(std::min({a.x, b.x, c.x}) - 0.5)));
+  const int x1 = std::min(key.width - 1, int(std::floor(std::max({a.x, b.x, c.x}) - 0.5)));
+  const int y0 = std::max(0, int(std::ceil(std::min({a.y, b.y, c.y}) - 0.5)));
+  const int y1 = std::min(key.height - 1, int(std::floor(std::max({a.y, b.y, c.y}) - 0.5)));
+  for (int y = y0; y <= y1; ++y) {
+    const double py = y + 0.5;
+    std::uint64_t* row = key.Row(y);
+    for (int x = x0; x <= x1; ++x) {
+      const double px = x + 0.5;
+      // Barycentrics (normalised by the signed area: all >= 0 inside for either orientation).
+      const double l0 = ((b.x - px) * (c.y - py) - (b.y - py) * (c.x - px)) * inv_area;
+      const double l1 = ((c.x - px) * (a.y - py) - (c.y - py) * (a.x - px)) * inv_area;
+      const double l2 = 1.0 - l0 - l1;
+      if (l0 < 0.0 || l1 < 0.0 || l2 < 0.0) continue;
+      const double iz = l0 * a.inv_z + l1 * b.inv_z + l2 * c.inv_z;
+      if (!(iz > 0.0)) continue;
+      AtomicMin(&row[x], Key(float(1.0 / iz), layer));
+    }
+  }
+}
+
+}  // namespace
+
+void DepthWarpMotion(const ImageView<const float>& depth, const ImageView<const std::int32_t>* ids,
+                     const DepthWarpMover& mover, const ImageView<float>& packed) {
+  const int w = depth.width;
+  ParallelFor(depth.height, RowGrain(w), [&](std::int64_t r0, std::int64_t r1) {
+    for (int y = int(r0); y < int(r1); ++y) {
+      const float* d = depth.Row(y);
+      const std::int32_t* id = ids ? ids->Row(y) : nullptr;
+      float* out = packed.Row(y);
+      for (int x = 0; x < w; ++x) {
+        float* o = out + 4 * x;
+        o[0] = o[1] = o[2] = o[3] = 0.0f;
+        if (!(d[x] > 0.0f)) continue;
+        const double xi = x + 0.5, yi = y + 0.5;
+        double xo, yo, zo;
+        if (!MovePixel(mover, xi, yi, d[x], id ? id[x] : -1, &xo, &yo, &zo)) continue;
+        o[0] = float(xo - xi);
+        o[1] = float(yo - yi);
+        o[2] = float(zo);
+      }
+    }
+  });
+}
+
+DepthWarpAxes DepthWarpChooseAxes(const ImageView<const float>& packed, bool try_oriented, int sample_grid,
+                                  float rot[4]) {
+  rot[0] = 1, rot[1] = 0, rot[2] = 0, rot[3] = 1;
+  const int w = packed.width, h = packed.height;
+  // Global axis-aligned box (needed for the area comparison and the empty case).
+  std::mutex mu;
+  double ax0 = kInf, ay0 = kInf, ax1 = -kInf, ay1 = -kInf;
+  ParallelFor(h, RowGrain(w), [&](std::int64_t r0, std::int64_t r1) {
+    float lx0 = kInf, ly0 = kInf, lx1 = -kInf, ly1 = -kInf;
+    for (int y = int(r0); y < int(r1); ++y) {
+      const float* s = packed.Row(y);
+      for (int x = 0; x < w; ++x, s += 4) {
+        if (!(s[2] > 0.0f)) continue;
+        lx0 = std::min(lx0, s[0]), lx1 = std::max(lx1, s[0]);
+        ly0 = std::min(ly0, s[1]), ly1 = std::max(ly1, s[1]);
+      }
+    }
+    std::lock_guard<std::mutex> lock(mu);  // min / max: the order of the chunks does not matter
+    ax0 = std::min<double>(ax0, lx0), ax1 = std::max<double>(ax1, lx1);
+    ay0 = std::min<double>(ay0, ly0), ay1 = std::max<double>(ay1, ly1);
+  });
+  if (!(ax0 <= ax1)) return DepthWarpAxes::kEmpty;
+  if (!try_oriented) return DepthWarpAxes::kAxisAligned;
+  // PCA of the motions at a fixed grid of pixels (sec. 3.3: "a small number (e.g., 64) suffices").
+  double sx = 0, sy = 0, sxx = 0, sxy = 0, syy = 0;
+  int n = 0;
+  for (int j = 0; j < sample_grid; ++j) {
+    const int y = std::min(h - 1, int((j + 0.5) * h / sample_grid));
+    for (int i = 0; i < sample_grid; ++i) {
+      const int x = std::min(w - 1, int((i + 0.5) * w / sample_grid));
+      const float* s = packed.Row(y) + 4 * x;
+      if (!(s[2] > 0.0f)) continue;
+      sx += s[0], sy += s[1], sxx += double(s[0]) * s[0], sxy += double(s[0]) * s[1], syy += double(s[1]) * s[1];
+      ++n;
+    }
+  }
+  if (n < 2) return DepthWarpAxes::kDegeneratePca;
+  const double mx = sx / n, my = sy / n;
+  const double a = sxx / n - mx * mx, b = sxy / n - mx * my, c = syy / n - my * my;
+  const double half_gap = std::sqrt(0.25 * (a - c) * (a - c) + b * b);  // (lambda1 - lambda2) / 2
+  // No principal direction: all sampled motions equal, or an isotropic spread.
+  if (!(half_gap > 1e-6 * (0.5 * (a + c)) + 1e-12)) return DepthWarpAxes::kDegeneratePca;
+  const double theta = 0.5 * std::atan2(2.0 * b, a - c);
+  const float ct = float(std::cos(theta)), st = float(std::sin(theta));
+  const float r[4] = {ct, st, -st, ct};  // u = e1 . v, w = e2 . v
+  double ou0 = kInf, ow0 = kInf, ou1 = -kInf, ow1 = -kInf;
+  ParallelFor(h, RowGrain(w), [&](std::int64_t r0, std::int64_t r1) {
+    float lu0 = kInf, lw0 = kInf, lu1 = -kInf, lw1 = -kInf;
+    for (int y = int(r0); y < int(r1); ++y) {
+      const float* s = packed.Row(y);
+      for (int x = 0; x < w; ++x, s += 4) {
+        if (!(s[2] > 0.0f)) continue;
+        const float u = r[0] * s[0] + r[1] * s[1], v = r[2] * s[0] + r[3] * s[1];
+        lu0 = std::min(lu0, u), lu1 = std::max(lu1, u);
+        lw0 = std::min(lw0, v), lw1 = std::max(lw1, v);
+      }
+    }
+    std::lock_guard<std::mutex> lock(mu);
+    ou0 = std::min<double>(ou0, lu0), ou1 = std::max<double>(ou1, lu1);
+    ow0 = std::min<double>(ow0, lw0), ow1 = std::max<double>(ow1, lw1);
+  });
+  const double aab_area = (ax1 - ax0) * (ay1 - ay0), ob_area = (ou1 - ou0) * (ow1 - ow0);
+  if (!(ob_area < aab_area)) return DepthWarpAxes::kOrientedNotSmaller;
+  std::copy(r, r + 4, rot);
+  return DepthWarpAxes::kOriented;
+}
+
+void DepthWarpMipLevel1(const ImageView<const float>& packed, const float rot[4], const ImageView<float>& out) {
+  const int w = packed.width, h = packed.height;
+  const float r0 = rot[0], r1 = rot[1], r2 = rot[2], r3 = rot[3];
+  ParallelFor(out.height, RowGrain(out.width * 2), [&](std::int64_t a, std::int64_t b) {
+    for (int j = int(a); j < int(b); ++j) {
+      float* o = out.Row(j);
+      for (int i = 0; i < out.width; ++i, o += 4) {
+        float u0 = kInf, w0 = kInf, u1 = -kInf, w1 = -kInf;
+        for (int y = 2 * j; y < std::min(h, 2 * j + 2); ++y) {
+          for (int x = 2 * i; x < std::min(w, 2 * i + 2); ++x) {
+            const float* s = packed.Row(y) + 4 * x;
+            if (!(s[2] > 0.0f)) continue;
+            const float u = r0 * s[0] + r1 * s[1], v = r2 * s[0] + r3 * s[1];
+            u0 = std::min(u0, u), u1 = std::max(u1, u), w0 = std::min(w0, v), w1 = std::max(w1, v);
+          }
+        }
+        o[0] = u0, o[1] = w0, o[2] = u1, o[3] = w1;
+      }
+    }
+  });
+}
+
+void DepthWarpMipDown(const ImageView<const float>& in, const ImageView<float>& out) {
+  ParallelFor(out.height, RowGrain(out.width * 2), [&](std::int64_t a, std::int64_t b) {
+    for (int j = int(a); j < int(b); ++j) {
+      float* o = out.Row(j);
+      for (int i = 0; i < out.width; ++i, o += 4) {
+        float u0 = kInf, w0 = kInf, u1 = -kInf, w1 = -kInf;
+        for (int y = 2 * j; y < std::min(in.height, 2 * j + 2); ++y) {
+          for (int x = 2 * i; x < std::min(in.width, 2 * i + 2); ++x) {
+            const float* s = in.Row(y) + 4 * x;
+            u0 = std::min(u0, s[0]), w0 = std::min(w0, s[1]), u1 = std::max(u1, s[2]), w1 = std::max(w1, s[3]);
+          }
+        }
+        o[0] = u0, o[1] = w0, o[2] = u1, o[3] = w1;
+      }
+    }
+  });
+}
+
+void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const DepthWarpOptions& opt,
+                       const ImageView<float>& depth_out, const ImageView<std::int8_t>& layer_out,
+                       DepthWarpCounters* counters) {
+  const int w = depth_out.width;
+  const float thr2 = opt.threshold * opt.threshold;
+  const int n_seeds = std::max(1, opt.seeds);
+  const float inv_n = 1.0f / float(n_seeds);
+  std::atomic<std::int64_t> converged{0}, early{0}, searched{0}, samples{0}, lookups{0};
+  ParallelFor(depth_out.height, RowGrain(w), [&](std::int64_t r0, std::int64_t r1) {
+    std::int64_t c_conv = 0, c_early = 0, c_search = 0, c_samples = 0, c_lookups = 0;
+    for (int y = int(r0); y < int(r1); ++y) {
+      float* dout = depth_out.Row(y);
+      std::int8_t* lout = layer_out.Row(y);
+      const float py = y + 0.5f;
+      for (int x = 0; x < w; ++x) {
+        const float px = x + 0.5f;
+        float best = kInf;
+        int best_layer = -1;
+        for (int j = 0; j < num_layers; ++j) {
+          const DepthWarpLayer& l = layers[j];
+          Bound b = GlobalBound(l);
+          if (!b.Valid()) continue;
+          bool empty = false;
+          if (opt.tight) {
+            for (int k = 0; k < opt.steps; ++k) {
+              b = Intersect(b, LocalBound(l, SourceRegion(l, b, px, py)));
+              if (!b.Valid()) {
+                empty = true;
+                break;
+              }
+            }
+          } else {
+            const Region r = SourceRegion(l, b, px, py);
+            empty = !(r.x1 >= 0.0f && r.y1 >= 0.0f && r.x0 < float(l.packed.width) && r.y0 < float(l.packed.height));
+          }
+          if (empty) continue;
+          ++c_search;
+          const float eu = b.u1 - b.u0, ew = b.w1 - b.w0;
+          const std::uint32_t h =
+              Hash(opt.seed * 0x9e3779b9U ^ Hash(std::uint32_t(x) * 0x85ebca6bU ^ Hash(std::uint32_t(y) ^ (std::uint32_t(j) << 24))));
+          const float j1 = Unit(h), j2 = Unit(Hash(h ^ 0x68bc21ebU));
+          const bool one = std::max(eu, ew) < opt.early_exit;
+          c_early += one;
+          const int n = one ? 1 : n_seeds;
+          for (int k = 0; k < n; ++k) {
+            float su = 0.5f, sw = 0.5f;
+            if (!one) {
+              su = Frac((k + 0.5f) * inv_n + j1);
+              sw = Frac(RadicalInverse2(std::uint32_t(k)) + j2);
+            }
+            const float u = b.u0 + su * eu, v = b.w0 + sw * ew;
+            const float vx = l.rot[0] * u + l.rot[2] * v, vy = l.rot[1] * u + l.rot[3] * v;
+            float z;
+            int from;
+            ++c_samples;
+            if (FixedPointSearch(layers, j, px, py, px - vx, py - vy, opt.iters, thr2, &z, &from, &c_lookups) &&
+                z < best) {
+              best = z;
+              best_layer = from;
+            }
+          }
+        }
+        if (best_layer >= 0) {
+          dout[x] = best;
+          lout[x] = std::int8_t(best_layer);
+          ++c_conv;
+        } else {
+          dout[x] = 0.0f;
+          lout[x] = -1;
+        }
+      }
+    }
+    converged += c_conv, early += c_early, searched += c_search, samples += c_samples, lookups += c_lookups;
+  });
+  counters->converged = converged, counters->early_exit = early, counters->searched = searched;
+  counters->samples = samples, counters->lookups = lookups;
+}
+
+std::int64_t DepthWarpDilate(const ImageView<const float>& din, const ImageView<const std::int8_t>& lin,
+                             int min_neighbors, const ImageView<float>& dout, const ImageView<std::int8_t>& lout) {
+  const int w = din.width, h = din.height;
+  std::atomic<std::int64_t> filled{0};
+  // Edge neighbours first, then diagonals: "nearest" neighbour.
+  static const int kDx[8] = {-1, 1, 0, 0, -1, 1, -1, 1};
+  static const int kDy[8] = {0, 0, -1, 1, -1, -1, 1, 1};
+  ParallelFor(h, RowGrain(w), [&](std::int64_t r0, std::int64_t r1) {
+    std::int64_t local = 0;
+    for (int y = int(r0); y < int(r1); ++y) {
+      for (int x = 0; x < w; ++x) {
+        float d = din.Row(y)[x];
+        std::int8_t l = lin.Row(y)[x];
+        if (l < 0) {
+          int count = 0;
+          float best_edge = kInf, best_diag = kInf;
+          std::int8_t layer_edge = -1, layer_diag = -1;
+          for (int k = 0; k < 8; ++k) {
+            const int xx = x + kDx[k], yy = y + kDy[k];
+            if (xx < 0 || yy < 0 || xx >= w || yy >= h) continue;
+            const std::int8_t nl = lin.Row(yy)[xx];
+            if (nl < 0) continue;
+            ++count;
+            const float nd = din.Row(yy)[xx];
+            if (k < 4 && nd < best_edge) best_edge = nd, layer_edge = nl;
+            if (k >= 4 && nd < best_diag) best_diag = nd, layer_diag = nl;
+          }
+          if (count >= min_neighbors) {
+            d = layer_edge >= 0 ? best_edge : best_diag;
+            l = layer_edge >= 0 ? layer_edge : layer_diag;
+            ++local;
+          }
+        }
+        dout.Row(y)[x] = d;
+        lout.Row(y)[x] = l;
+      }
+    }
+    filled += local;
+  });
+  return filled;
+}
+
+void DepthWarpForward(DepthWarpForwardKind kind, const ImageView<const float>& depth,
+                      const ImageView<const std::int32_t>* ids, const ImageView<const float>& packed,
+                      const DepthWarpMover& mover, int layer, const ImageView<std::uint64_t>& key) {
+  const int w = packed.width;
+  ParallelFor(packed.height, RowGrain(w), [&](std::int64_t r0, std::int64_t r1) {
+    for (int y = int(r0); y < int(r1); ++y) {
+      const float* s = packed.Row(y);
+      for (int x = 0; x < w; ++x, s += 4) {
+        if (!(s[2] > 0.0f)) continue;
+        if (kind == DepthWarpForwardKind::kAfw) {
+          const double px = x + 0.5 + s[0], py = y + 0.5 + s[1];
+          // Centres i + 0.5 in [p - 1, p + 1): i in [p - 1.5, p + 0.5).
+          const int i0 = std::max(0, int(std::ceil(px - 1.5))), i1 = std::min(key.width - 1, int(std::ceil(px + 0.5)) - 1);
+          const int j0 = std::max(0, int(std::ceil(py - 1.5))), j1 = std::min(key.height - 1, int(std::ceil(py + 0.5)) - 1);
+          const std::uint64_t k = Key(s[2], layer);
+          for (int j = j0; j <= j1; ++j) {
+            for (int i = i0; i <= i1; ++i) AtomicMin(&key.Row(j)[i], k);
+          }
+          continue;
+        }
+        // VFW: the pixel's footprint expanded by half a pixel, at the pixel's depth.
+        const double z = depth.Row(y)[x];
+        const int id = ids ? ids->Row(y)[x] : -1;
+        static const double kCx[4] = {-0.5, 1.5, 1.5, -0.5};
+        static const double kCy[4] = {-0.5, -0.5, 1.5, 1.5};
+        ScreenVertex v[4];
+        bool ok = true;
+        double bx0 = kInf, bx1 = -kInf, by0 = kInf, by1 = -kInf;
+        for (int c = 0; c < 4 && ok; ++c) {
+          double xo, yo, zo;
+          ok = MovePixel(mover, x + kCx[c], y + kCy[c], z, id, &xo, &yo, &zo);
+          v[c] = {xo, yo, 1.0 / zo};
+          bx0 = std::min(bx0, xo), bx1 = std::max(bx1, xo), by0 = std::min(by0, yo), by1 = std::max(by1, yo);
+        }
+        if (!ok || bx1 - bx0 > kDepthWarpMaxSplat || by1 - by0 > kDepthWarpMaxSplat) continue;
+        if (bx1 < 0 || by1 < 0 || bx0 > key.width || by0 > key.height) continue;
+        RasterTriangle(v[0], v[1], v[2], layer, key);
+        RasterTriangle(v[0], v[2], v[3], layer, key);
+      }
+    }
+  });
+}
+
+void DepthWarpDecodeKeys(const ImageView<const std::uint64_t>& key, const ImageView<float>& depth,
+                         const ImageView<std::int8_t>& layer) {
+  ParallelFor(key.height, RowGrain(key.width), [&](std::int64_t r0, std::int64_t r1) {
+    for (int y = int(r0); y < int(r1); ++y) {
+      for (int x = 0; x < key.width; ++x) {
+        const std::uint64_t k = key.Row(y)[x];
+        if (k == ~std::uint64_t(0)) {
+          depth.Row(y)[x] = 0.0f;
+          layer.Row(y)[x] = -1;
+          continue;
+        }
+        const std::uint32_t bits = std::uint32_t(k >> 32);
+        float z;
+        std::memcpy(&z, &bits, 4);
+        depth.Row(y)[x] = z;
+        layer.Row(y)[x] = std::int8_t(std::uint32_t(k));
+      }
+    }
+  });
+}
+
+}  // namespace ibr
