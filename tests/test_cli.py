@@ -79,7 +79,7 @@ def test_thread_count_does_not_change_pixels(scene_dir, tmp_path):
 
 
 @pytest.mark.parametrize("argv, msg", [
-    (["{scene}", "--method", "depthwarp", "--holdout", "v001"], "not built yet"),
+    (["{scene}", "--method", "depthwarp", "--holdout", "v001", "--layers", "0"], "--layers"),
     (["{scene}", "--holdout", "nope"], "view 'nope': not in the scene"),
     (["{scene}", "--target", "nope"], "target 'nope'"),
     (["{scene}", "--path", "nope"], "--path 'nope'"),

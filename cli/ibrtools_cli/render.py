@@ -29,7 +29,8 @@ def build_parser() -> argparse.ArgumentParser:
                "  ibr-render scenes/objects --target t000 t001 --depth --float -o out/targets\n"
                "  ibr-render scenes/objects --path orbit -o out/orbit -j 2\n"
                "  ibr-render scenes/rgbd --method dibr --inputs 4 --holdout 4 -o out/dibr\n"
-               "  ibr-render scenes/rgbd --method dibr --holdout 4 --inpaint pushpull -o out/filled")
+               "  ibr-render scenes/rgbd --method dibr --holdout 4 --inpaint pushpull -o out/filled\n"
+               "  ibr-render scenes/crowd --method depthwarp --path walk --layers 4 --seeds 16 --umbra -o out/dw")
     p.add_argument("scene", metavar="SCENE", help="scene directory (ibr-preprocess output)")
     p.add_argument("-o", "--output", default="render-out", metavar="DIR",
                    help="output directory (default: render-out)")
@@ -46,6 +47,17 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the K most similar input views per frame (default 4), or these views")
     d.add_argument("--quality", metavar="Q", help="triangle quality: side, shape, depth or normal (default side)")
     d.add_argument("--blend-exponent", metavar="P", help="blending weight (q/d)^P (default 5, as RVS)")
+    w = p.add_argument_group("depthwarp options (iterative depth warping along --poses / --path; "
+                             "docs/depthwarp.md; also as --param key=value)")
+    w.add_argument("--layers", metavar="L", help="depth layers peeled from the previous frame (default 3)")
+    w.add_argument("--seeds", metavar="N", help="stratified search seeds per pixel (default 16)")
+    w.add_argument("--iters", metavar="T", help="fixed-point iterations per seed (default 3)")
+    w.add_argument("--oriented-bounds", action="store_true", help="PCA-oriented search bounds when smaller")
+    w.add_argument("--umbra", action="store_true", help="generalised umbra culling while peeling the layers")
+    w.add_argument("--cull", action="store_true",
+                   help="warping-based occlusion culling of the objects, scored against the reference")
+    w.add_argument("--forward", choices=["vfw", "afw"],
+                   help="run a forward-warping baseline (VFW quad splats, AFW point splats) instead")
     p.add_argument("--inpaint", default="none", choices=["none", "pushpull", "metameric"],
                    help="fill the holes a method leaves (dibr): none (default, holes black), pushpull "
                         "(depth-aware push-pull when the method gives depth), metameric (noise with the "
@@ -85,13 +97,31 @@ def _body(args: argparse.Namespace) -> int:
             print(f"\r{PROG}: frame {i}/{n} {name:<24}", end="" if i < n else "\n", file=sys.stderr)
     params = {k: _number(v) for k, v in parse_options(args.param).items()}
     for key, value in (("inputs", args.inputs), ("quality", args.quality),
-                       ("blend_exponent", args.blend_exponent)):
+                       ("blend_exponent", args.blend_exponent), ("layers", args.layers),
+                       ("seeds", args.seeds), ("iters", args.iters), ("forward", args.forward)):
         if value is not None:
             params[key] = _number(value)
+    for key, flag in (("oriented_bounds", args.oriented_bounds), ("umbra", args.umbra), ("cull", args.cull)):
+        if flag:
+            params[key] = True
+    depthwarp_only = [k for k in ("layers", "seeds", "iters", "forward", "oriented_bounds", "umbra", "cull")
+                      if k in params]
+    if depthwarp_only and args.method != "depthwarp":
+        raise BadValueError(f"--{depthwarp_only[0].replace('_', '-')}: only with --method depthwarp")
     report = render_job.run(job, args.method, args.output, params=params, float_out=args.float,
                             depth_out=args.depth, threads=args.threads, inpaint=args.inpaint,
                             foveate=foveate, pooling=args.pooling, progress=progress)
-    if args.report or not args.quiet:
+    if report["method"] == "depthwarp" and (args.report or not args.quiet):
+        rows = []
+        for f in report["frames"]:
+            m, dw = f["metrics"], f.get("depthwarp", {})
+            rows.append([f["name"], f"{f['time_ms']['total']:.1f}", _fmt(dw.get("warp_ms"), 1),
+                         _fmt(dw.get("reference_ms"), 1), _fmt(m.get("depth_psnr")), _fmt(m.get("depth_ssim"), 4),
+                         _fmt(m.get("hole_fraction"), 4)])
+        print_table(["frame", "ms", "warp ms", "reference ms", "depth PSNR dB", "depth SSIM", "holes"], rows,
+                    title=f"{PROG} --method depthwarp ({report['threads']} threads) -> {args.output}",
+                    quiet=args.quiet and not args.report)
+    elif args.report or not args.quiet:
         rows = []
         for f in report["frames"]:
             m = f["metrics"]

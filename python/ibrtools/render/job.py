@@ -187,6 +187,9 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
         # their similarity, and how many candidates were skipped for not overlapping).
         if hasattr(method, "frame_report"):
             entry.update(method.frame_report())
+        # Method-specific scores of the frame (depthwarp: depth PSNR/SSIM against the reference).
+        if hasattr(method, "frame_metrics"):
+            entry["metrics"].update(method.frame_metrics())
         if float_out:
             write_image(out_dir / f"{frame.name}.exr", color)
             entry["image_float"] = f"{frame.name}.exr"

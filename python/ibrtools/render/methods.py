@@ -28,7 +28,7 @@ METHODS: dict[str, str] = {
     "pvm": "per-view meshes with clustered depth filtering (Prakash et al. 2021)",
     "hybrid": "per-pixel choice of TM / ULR / PVM (Prakash et al. 2021)",
 }
-BUILT = ("reference", "dibr", "warp")
+BUILT = ("reference", "dibr", "warp", "depthwarp")
 
 
 class Method(Protocol):
@@ -110,4 +110,8 @@ def create(name: str, params: dict | None = None) -> Method:
         from .warp import WarpMethod
 
         return WarpMethod(params)
+    if name == "depthwarp":
+        from .depthwarp import DepthWarpMethod
+
+        return DepthWarpMethod(params)
     raise NotBuiltError(f"--method {name}: not built yet")

@@ -1,0 +1,269 @@
+"""Iterative backward depth warping along a camera path (Lee, Kim, Eisemann 2018): ``--method depthwarp``.
+
+For frame t of a pose sequence (``--poses``, ``--path``), the depth buffer of camera t is
+*predicted* from frame t - 1 instead of being rendered:
+
+  peel       the reference deep depth buffer of frame t - 1: L layers by depth peeling with the
+             Embree reference renderer (``ReferenceRenderer.peel``), optionally with generalised
+             umbra culling towards camera t (``umbra``) and, on scenes with a ground object
+             (object id 0 of the synthetic presets) and L >= 2, the last layer = the ground alone
+             (the paper's sec. 4.1 set-up; ``ground``);
+  warp       ``ibrtools.depthwarp.warp_depth`` (motion buffers, min-max motion mipmaps, tight or
+             oriented bounds, N seeds x T fixed-point iterations, cross-layer seeding, dilation) or,
+             with ``forward`` vfw / afw, the forward baselines ``forward_warp_depth`` through the
+             same path;
+  cull       (``cull``) warping-based occlusion culling of the scene's objects with the warped
+             depth (``ibrtools.culling``), scored against the objects the reference render of
+             frame t sees;
+  reference  the Embree depth render of frame t: the ground truth of the scores and the cost the
+             warp replaces.
+
+Frame 0 has no previous frame: its output is the reference depth (report "source": null).
+
+Output image: the warped depth visualised (near bright, far dark: grey level 1 - z / far,
+sRGB-encoded), holes black; ``"depth"`` the warped z (0 in holes; ``--depth`` writes it as EXR),
+``"hole"`` the pixels no layer converged for (after dilation).
+
+Scores (report.json "metrics" of each warped frame):
+  depth_psnr, depth_ssim  of the warped depth against the reference depth of the same frame,
+      both normalised by ``far``: the largest camera z of the 8 corners of the mesh's bounding
+      box in that frame's camera (the farthest any surface can be), with empty pixels and holes
+      at far (the paper keeps holes "filled with the background depth"; sec. 4.1) and clamped to
+      [0, far]; PSNR = 10 log10(1 / MSE) of z / far; SSIM with data range 1 (ibrtools.metrics.ssim,
+      scikit-image's).
+  hole_fraction  fraction of the frame's pixels that are holes.
+Stage times (report "time_ms"): peel, motion, mipmap, warp, dilate, cull, reference; the frame's
+"depthwarp" entry adds warp_ms (motion + mipmap + warp + dilate: the predicted depth buffer's
+cost), reference_ms and their ratio, the per-layer fill of the source buffer and the warp stats.
+
+Parameters (flags of ibr-render or ``--param key=value``)
+  layers            L >= 1 (default 3)
+  seeds, iters      N (default 16), T (default 3)
+  threshold         convergence threshold in pixels (default 0.5)
+  oriented_bounds   PCA-oriented search bounds (default false)
+  umbra             generalised umbra culling while peeling (default false)
+  ground            "auto" (object 0 as the ground layer when L >= 2 and the mesh has several
+                    objects), "none", or an object id
+  cull              warping-based occlusion culling (default false)
+  forward           "none" (the iterative backward warp), "vfw" or "afw" (forward baselines)
+  dilate            fill small holes surrounded by converged pixels (default true)
+  bound             "tight" (default) or "global"
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..camera import PINHOLE, Camera
+from ..errors import BadValueError, InputError, NotBuiltError
+from ..scene import Scene
+from . import params as P
+
+DEFAULTS = {"layers": 3, "seeds": 16, "iters": 3, "threshold": 0.5, "oriented_bounds": False, "umbra": False,
+            "ground": "auto", "cull": False, "forward": "none", "dilate": True, "bound": "tight"}
+FORWARD = ("none", "vfw", "afw")
+
+
+def check_params(params: dict | None) -> dict:
+    """Validated parameters with defaults filled in (BadValueError naming the flag)."""
+    p = P.with_defaults("depthwarp", params, DEFAULTS)
+    p["layers"] = P.integer(p["layers"], "--layers", 1)
+    p["seeds"] = P.integer(p["seeds"], "--seeds", 1)
+    p["iters"] = P.integer(p["iters"], "--iters", 1)
+    p["threshold"] = P.number(p["threshold"], "--param threshold", 0.0, strict=True)
+    for key, flag in (("oriented_bounds", "--oriented-bounds"), ("umbra", "--umbra"), ("cull", "--cull"),
+                      ("dilate", "--param dilate")):
+        p[key] = P.boolean(p[key], flag)
+    if p["forward"] not in FORWARD:
+        raise BadValueError(f"--forward: expected one of {', '.join(FORWARD)}, got {p['forward']!r}")
+    if p["bound"] not in ("tight", "global"):
+        raise BadValueError(f"--param bound: expected 'tight' or 'global', got {p['bound']!r}")
+    g = p["ground"]
+    if isinstance(g, str) and g.strip().lower() in ("auto", "none"):
+        p["ground"] = g.strip().lower()
+    else:
+        p["ground"] = P.integer(g, "--param ground (auto, none or an object id)", 0)
+    return p
+
+
+def depth_scores(warped: np.ndarray, hole: np.ndarray | None, reference: np.ndarray, far: float) -> dict:
+    """Depth PSNR / SSIM of ``warped`` against ``reference`` (module doc: z / far, empty and holes
+    at far) and the hole fraction."""
+    from ..metrics import psnr, ssim
+
+    far = float(far)
+    if not far > 0:
+        raise BadValueError(f"far: expected a positive depth, got {far}")
+    w = np.where(warped > 0, warped, far)
+    if hole is not None:
+        w = np.where(hole, far, w)
+    r = np.where(reference > 0, reference, far)
+    a = (np.clip(w, 0.0, far) / far).astype(np.float32)
+    b = (np.clip(r, 0.0, far) / far).astype(np.float32)
+    p = psnr(a, b, 1.0)
+    out = {"depth_psnr": float(p) if p is not None and np.isfinite(p) else None,
+           "depth_ssim": float(ssim(a, b, 1.0)),
+           "hole_fraction": float(hole.mean()) if hole is not None else 0.0}
+    return out
+
+
+def far_depth(bounds: np.ndarray, camera: Camera) -> float:
+    """The largest camera z of the 8 corners of ``bounds`` (2, 3): no surface is farther."""
+    b = np.asarray(bounds, np.float64)
+    corners = np.array([[b[i, 0], b[j, 1], b[k, 2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+    z = corners @ camera.cam_from_world[2, :3] + camera.cam_from_world[2, 3]
+    return float(max(z.max(), 1e-6))
+
+
+def visualise(depth: np.ndarray, far: float) -> np.ndarray:
+    """(H, W, 3) linear RGB whose sRGB grey level is 1 - z / far (0 where z = 0)."""
+    from ..imageio import srgb_to_linear
+
+    v = np.where(depth > 0, 1.0 - np.clip(depth / far, 0.0, 1.0), 0.0).astype(np.float32)
+    return np.ascontiguousarray(np.repeat(srgb_to_linear(v)[..., None], 3, axis=2), np.float32)
+
+
+def _jsonable(v):
+    if isinstance(v, (bool, np.bool_)):
+        return bool(v)
+    if isinstance(v, (int, np.integer)):
+        return int(v)
+    if isinstance(v, (float, np.floating)):
+        return float(v) if np.isfinite(v) else None
+    if isinstance(v, np.ndarray):
+        return _jsonable(v.tolist())
+    if isinstance(v, (list, tuple)):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, dict):
+        return {str(k): _jsonable(x) for k, x in v.items()}
+    return v if isinstance(v, (str, type(None))) else str(v)
+
+
+class DepthWarpMethod:
+    """``--method depthwarp`` (see the module doc)."""
+
+    name = "depthwarp"
+
+    def __init__(self, params: dict | None = None):
+        self.params = check_params(params)
+        self._renderer = None
+        self._prev: Camera | None = None
+        self.last_frame: dict = {}
+        self.last_metrics: dict = {}
+
+    def prepare(self, scene: Scene) -> dict[str, float]:
+        from .reference import ReferenceRenderer
+
+        mesh = scene.meshes.get("ground_truth") or scene.mesh
+        if mesh is None:
+            raise InputError("--method depthwarp needs the scene's geometry (a synthetic scene, or a mesh "
+                             "given to ibr-preprocess): the scene has no mesh")
+        try:
+            from .. import depthwarp as _dw  # noqa: F401
+        except ImportError:
+            raise NotBuiltError("--method depthwarp: the depth-warping kernels (ibrtools.depthwarp) are "
+                                "not built yet") from None
+        self._mesh = mesh
+        p = self.params
+        ground = p["ground"]
+        if ground == "auto":
+            ground = 0 if p["layers"] >= 2 and mesh.num_objects > 1 and np.any(mesh.object_ids == 0) else None
+        elif ground == "none":
+            ground = None
+        else:
+            if p["layers"] < 2:
+                raise BadValueError("--param ground: a ground-only last layer needs --layers >= 2")
+            if not np.any(mesh.object_ids == ground):
+                raise BadValueError(f"--param ground: no face of the mesh has object id {ground}")
+        self._ground = ground
+        t0 = time.perf_counter()
+        self._renderer = ReferenceRenderer(mesh)
+        setup = {"bvh": (time.perf_counter() - t0) * 1e3}
+        self._bounds = mesh.bounds()
+        if p["cull"]:
+            from ..culling import object_boxes
+
+            t1 = time.perf_counter()
+            self._boxes = object_boxes(mesh)
+            setup["object_boxes"] = (time.perf_counter() - t1) * 1e3
+        self._prev = None
+        return setup
+
+    def _warp_params(self):
+        from ..depthwarp import DepthWarpParams
+
+        p = self.params
+        return DepthWarpParams(seeds=p["seeds"], iters=p["iters"], threshold=p["threshold"], bound=p["bound"],
+                               oriented=p["oriented_bounds"], dilate=p["dilate"])
+
+    def render(self, camera: Camera) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+        if self._renderer is None:
+            raise InputError("depthwarp: prepare(scene) must be called before render(camera)")
+        if camera.model != PINHOLE:
+            raise BadValueError(f"camera: {camera.model} cameras are not supported by depthwarp (pinhole only)")
+        p = self.params
+        far = far_depth(self._bounds, camera)
+        stages: dict[str, float] = {}
+        src, self._prev = self._prev, camera
+        if src is None:
+            t0 = time.perf_counter()
+            ref = self._renderer.render(camera, outputs=("depth",), lights=[])["depth"]
+            stages["reference"] = (time.perf_counter() - t0) * 1e3
+            hole = np.zeros(ref.shape, bool)
+            self.last_frame = {"depthwarp": {"source": None, "note": "first frame: the reference depth "
+                                             "(no previous frame to warp from)", "reference_ms": stages["reference"]}}
+            self.last_metrics = {}
+            return {"color": visualise(ref, far), "depth": ref, "hole": hole}, stages
+
+        deep = self._renderer.peel(src, p["layers"], umbra=[camera] if p["umbra"] else None,
+                                   ground_object=self._ground)
+        stages["peel"] = sum(deep.times_ms.values())
+        if p["forward"] == "none":
+            from ..depthwarp import warp_depth
+
+            res = warp_depth(deep.depth, src, camera, self._warp_params())
+        else:
+            from ..depthwarp import forward_warp_depth
+
+            res = forward_warp_depth(deep.depth, src, camera, p["forward"])
+        for k in ("motion", "mipmap", "warp", "dilate"):
+            if k in res.times_ms:
+                stages[k] = float(res.times_ms[k])
+        warp_ms = sum(stages.get(k, 0.0) for k in ("motion", "mipmap", "warp", "dilate"))
+        t0 = time.perf_counter()
+        ref_out = self._renderer.render(camera, outputs=("depth", "object_id") if p["cull"] else ("depth",),
+                                        lights=[])
+        stages["reference"] = (time.perf_counter() - t0) * 1e3
+        ref = ref_out["depth"]
+        hole = np.asarray(res.hole, bool)
+        depth = np.where(hole, np.float32(0), res.depth).astype(np.float32)
+        report = {"source": "previous frame", "layers": deep.layers, "ground_layer": deep.ground_layer,
+                  "umbra": deep.umbra, "forward": p["forward"],
+                  "source_fill": [round(float(f), 6) for f in deep.fill],
+                  "warp_ms": round(warp_ms, 3), "reference_ms": round(stages["reference"], 3),
+                  "reference_over_warp": round(stages["reference"] / warp_ms, 3) if warp_ms > 0 else None,
+                  "stats": {k: _jsonable(v) for k, v in dict(res.stats).items()}}
+        self.last_frame = {"depthwarp": report}
+        if p["cull"]:
+            from ..culling import cull_objects
+
+            t0 = time.perf_counter()
+            cr = cull_objects(np.ascontiguousarray(depth), hole, camera, self._boxes)
+            stages["cull"] = (time.perf_counter() - t0) * 1e3
+            ids = ref_out["object_id"]
+            k = len(self._boxes)
+            counts = np.bincount(ids[ids >= 0].ravel(), minlength=k)[:k]
+            ev = cr.evaluate(np.flatnonzero(counts > 0), counts)
+            ev["times_ms"] = {kk: round(float(v), 3) for kk, v in cr.times_ms.items()}
+            self.last_frame["cull"] = ev
+        self.last_metrics = depth_scores(depth, hole, ref, far)
+        return {"color": visualise(depth, far), "depth": depth, "hole": hole}, stages
+
+    def frame_report(self) -> dict:
+        """What report.json records for the last frame (see the module doc)."""
+        return dict(self.last_frame)
+
+    def frame_metrics(self) -> dict:
+        """Depth scores of the last frame (merged into its "metrics")."""
+        return dict(self.last_metrics)
