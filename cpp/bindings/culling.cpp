@@ -73,6 +73,26 @@ py::tuple CullProjectBoxes(const py::object& boxes_obj, const Camera& camera, do
   return py::make_tuple(state, rect, min_z);
 }
 
+void CullAwocFill(const py::object& depth_obj, const py::object& hole_obj, const py::object& motion_obj,
+                  const py::object& dst_depth_obj, int steps) {
+  auto depth = CheckArray<float>(depth_obj, "depth", {{"H'", -1}, {"W'", -1}}, true);
+  auto hole = CheckArray<bool>(hole_obj, "hole", {{"H'", depth.shape(0)}, {"W'", depth.shape(1)}}, true);
+  auto motion = CheckArray<float>(motion_obj, "motion", {{"H", -1}, {"W", -1}, {"2", 2}});
+  auto dst = CheckArray<float>(dst_depth_obj, "dst_depth", {{"H", motion.shape(0)}, {"W", motion.shape(1)}});
+  if (steps < 0 || steps > 16) throw BadValueError("steps: expected 0..16, got " + std::to_string(steps));
+  if (Overlaps(depth, hole)) throw BadValueError("depth and hole: must not share memory");
+  const int h = static_cast<int>(motion.shape(0)), w = static_cast<int>(motion.shape(1));
+  if (h < 1 || w < 1) throw ShapeError("motion: expected a non-empty (H, W, 2) array");
+  std::vector<float> scratch(static_cast<std::size_t>(AwocScratchSize(h, w)));
+  const float* m = motion.data();
+  const float* d = dst.data();
+  float* out = depth.mutable_data();
+  auto* ho = reinterpret_cast<std::uint8_t*>(hole.mutable_data());  // numpy bool: one byte, 0 or 1
+  const int oh = static_cast<int>(depth.shape(0)), ow = static_cast<int>(depth.shape(1));
+  py::gil_scoped_release release;
+  AwocFill(m, d, h, w, steps, scratch.data(), out, ho, oh, ow);
+}
+
 py::array_t<float> ShadowMapVisibilityPy(const py::object& depth_obj, const Camera& view, const py::object& maps_obj,
                                          const std::vector<Camera>& cams, float bias) {
   auto depth = CheckArray<float>(depth_obj, "view_depth", {{"H", view.height}, {"W", view.width}});
@@ -150,6 +170,11 @@ void BindCulling(py::module_& m) {
         "Frustum test and screen rectangles of world boxes (K, 2, 3) for a pinhole _core.Camera: returns "
         "(state uint8 (K,) 0 outside / 1 crosses near / 2 on screen, rect int32 (K, 4) x0 y0 x1 y1, "
         "min_z float32 (K,)); cpp/kernels/culling.h.");
+  m.def("cull_awoc_fill", &CullAwocFill, py::arg("depth"), py::arg("hole"), py::arg("motion"),
+        py::arg("dst_depth"), py::arg("steps"),
+        "AWOC: fill the holes of a warped depth (H', W') float32 / hole bool, in place, with the nearest "
+        "moved depth of the source pixels at the corners of each hole's narrowed search bound "
+        "(motion (H, W, 2), dst_depth (H, W) from depthwarp.motion_buffer); cpp/kernels/culling.h.");
   m.def("shadow_map_visibility", &ShadowMapVisibilityPy, py::arg("view_depth"), py::arg("view"), py::arg("maps"),
         py::arg("cameras"), py::arg("bias"),
         "Fraction of the S shadow maps (S, Hs, Ws) in which each view pixel's surface point is lit "

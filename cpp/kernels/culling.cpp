@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <vector>
 
 #include "ibr/parallel.h"
 
@@ -91,6 +92,131 @@ void ProjectBoxes(const float* boxes, std::int64_t num_boxes, const Camera& came
                   std::uint8_t* state, std::int32_t* rect, float* min_z) {
   ParallelFor(num_boxes, 1024, [&](std::int64_t b, std::int64_t e) {
     for (std::int64_t k = b; k < e; ++k) ProjectOne(boxes + k * 6, camera, options, state + k, rect + k * 4, min_z + k);
+  });
+}
+
+}  // namespace ibr
+
+namespace ibr {
+namespace {
+
+struct MotionLevel {
+  float* data;  // (h, w, 4): min x, min y, max x, max y
+  int h, w;
+};
+
+int NumLevels(int height, int width) {
+  int n = 1;
+  for (int h = height, w = width; h > 1 || w > 1; h = (h + 1) / 2, w = (w + 1) / 2) ++n;
+  return n;
+}
+
+}  // namespace
+
+std::int64_t AwocScratchSize(int height, int width) {
+  std::int64_t total = 0;
+  for (int h = height, w = width;; h = (h + 1) / 2, w = (w + 1) / 2) {
+    total += static_cast<std::int64_t>(h) * w * 4;
+    if (h == 1 && w == 1) break;
+  }
+  return total;
+}
+
+void AwocFill(const float* motion, const float* dst_depth, int height, int width, int steps, float* scratch,
+              float* depth, std::uint8_t* hole, int out_height, int out_width) {
+  const float inf = std::numeric_limits<float>::infinity();
+  const int n = NumLevels(height, width);
+  std::vector<MotionLevel> lv;  // n small headers (<= 32): bookkeeping, not image memory
+  lv.reserve(n);
+  float* p = scratch;
+  for (int h = height, w = width, l = 0; l < n; ++l, h = (h + 1) / 2, w = (w + 1) / 2) {
+    lv.push_back({p, h, w});
+    p += static_cast<std::int64_t>(h) * w * 4;
+  }
+  // Level 0: the valid motions.
+  ParallelFor(height, std::max<std::int64_t>(1, kMinPixelsPerTask / std::max(1, width)), [&](std::int64_t y0, std::int64_t y1) {
+    for (std::int64_t i = y0 * width; i < y1 * width; ++i) {
+      float* t = lv[0].data + i * 4;
+      if (dst_depth[i] > 0.0f) {
+        t[0] = t[2] = motion[i * 2];
+        t[1] = t[3] = motion[i * 2 + 1];
+      } else {
+        t[0] = t[1] = inf;
+        t[2] = t[3] = -inf;
+      }
+    }
+  });
+  for (int l = 1; l < n; ++l) {
+    const MotionLevel& a = lv[l - 1];
+    const MotionLevel& b = lv[l];
+    ParallelFor(b.h, std::max<std::int64_t>(1, kMinPixelsPerTask / std::max(1, b.w)), [&](std::int64_t y0, std::int64_t y1) {
+      for (std::int64_t y = y0; y < y1; ++y) {
+        for (int x = 0; x < b.w; ++x) {
+          float r[4] = {inf, inf, -inf, -inf};
+          for (int dy = 0; dy < 2; ++dy) {
+            const std::int64_t yy = std::min<std::int64_t>(2 * y + dy, a.h - 1);
+            for (int dx = 0; dx < 2; ++dx) {
+              const int xx = std::min(2 * x + dx, a.w - 1);
+              const float* s = a.data + (yy * a.w + xx) * 4;
+              r[0] = std::min(r[0], s[0]), r[1] = std::min(r[1], s[1]);
+              r[2] = std::max(r[2], s[2]), r[3] = std::max(r[3], s[3]);
+            }
+          }
+          std::copy(r, r + 4, b.data + (y * b.w + x) * 4);
+        }
+      }
+    });
+  }
+  const float* top = lv[n - 1].data;
+  if (!(top[0] <= top[2])) return;  // no valid motion at all
+  ParallelFor(out_height, std::max<std::int64_t>(1, kMinPixelsPerTask / std::max(1, out_width)), [&](std::int64_t y0, std::int64_t y1) {
+    for (std::int64_t y = y0; y < y1; ++y) {
+      for (int x = 0; x < out_width; ++x) {
+        const std::int64_t o = y * out_width + x;
+        if (!hole[o]) continue;
+        // B = [p - Vmax, p - Vmin] in source pixel indices.
+        double bx0 = x - top[2], bx1 = x - top[0], by0 = y - top[3], by1 = y - top[1];
+        for (int s = 0; s < steps; ++s) {
+          // Clip to the image before reading (no solution lies outside it).
+          const double cx0 = std::max(bx0, 0.0), cx1 = std::min(bx1, width - 1.0);
+          const double cy0 = std::max(by0, 0.0), cy1 = std::min(by1, height - 1.0);
+          if (!(cx0 <= cx1 && cy0 <= cy1)) break;
+          const double ext = std::max(cx1 - cx0, cy1 - cy0) + 1.0;
+          const int l = std::clamp(static_cast<int>(std::ceil(std::log2(ext))), 0, n - 1);
+          const MotionLevel& m = lv[l];
+          float r[4] = {inf, inf, -inf, -inf};
+          const int tx[2] = {static_cast<int>(cx0) >> l, static_cast<int>(cx1) >> l};
+          const int ty[2] = {static_cast<int>(cy0) >> l, static_cast<int>(cy1) >> l};
+          for (int j = 0; j < 2; ++j) {
+            for (int i = 0; i < 2; ++i) {
+              const float* t = m.data + (static_cast<std::int64_t>(std::min(ty[j], m.h - 1)) * m.w +
+                                         std::min(tx[i], m.w - 1)) * 4;
+              r[0] = std::min(r[0], t[0]), r[1] = std::min(r[1], t[1]);
+              r[2] = std::max(r[2], t[2]), r[3] = std::max(r[3], t[3]);
+            }
+          }
+          if (!(r[0] <= r[2])) break;  // no valid motion under B: keep the last bound
+          bx0 = std::max(cx0, x - static_cast<double>(r[2])), bx1 = std::min(cx1, x - static_cast<double>(r[0]));
+          by0 = std::max(cy0, y - static_cast<double>(r[3])), by1 = std::min(cy1, y - static_cast<double>(r[1]));
+          if (!(bx0 <= bx1 && by0 <= by1)) break;
+        }
+        float best = inf;
+        const double xs[2] = {bx0, bx1}, ys[2] = {by0, by1};
+        for (double qy : ys) {
+          for (double qx : xs) {
+            if (!std::isfinite(qx) || !std::isfinite(qy)) continue;
+            const std::int64_t ix = std::clamp<std::int64_t>(std::llround(qx), 0, width - 1);
+            const std::int64_t iy = std::clamp<std::int64_t>(std::llround(qy), 0, height - 1);
+            const float d = dst_depth[iy * width + ix];
+            if (d > 0.0f) best = std::min(best, d);
+          }
+        }
+        if (best < inf) {
+          depth[o] = best;
+          hole[o] = 0;
+        }
+      }
+    }
   });
 }
 

@@ -25,6 +25,22 @@
 //   outside the frustum but not outside any single plane is kept); the rectangle test catches
 //   most of those boxes.
 //
+// AwocFill (approximate WOC, paper sec. 5.3: "fills the holes using the motion vectors at the
+//   extrema of the local search bound ... we simply consider the nearest of them as an approximate
+//   depth"). Inputs: the source frame's motion (H, W, 2) float32 = target pixel position - source
+//   pixel position and dst_depth (H, W) float32 = z of each source pixel moved into the target
+//   camera (0 = invalid), i.e. ibrtools.depthwarp.motion_buffer; the warped target depth
+//   (H', W') float32 and hole (H', W') uint8, both updated in place.
+//   Search bound (Fig. 5): a min-max mipmap of the valid motions (level 0 = the pixels, level
+//   l + 1 = 2x2 blocks of level l, up to one texel). For a hole pixel p (integer index; its source
+//   solution q satisfies q + V(q) = p) the global bound is B = [p - Vmax, p - Vmin] from the top
+//   texel; each of `steps` narrowing steps reads the level l = ceil(log2(max extent of B)) at the
+//   texels under B's four corners (they cover B), takes their motion range and intersects
+//   [p - Vmax', p - Vmin'] with B. The source pixels at the final B's four corners (rounded,
+//   clamped to the image) are the candidates; the least positive dst_depth among them fills p
+//   (hole cleared). Where no candidate is valid (or no motion is valid at all), p stays a hole.
+//   scratch: AwocScratchSize(H, W) floats, owned by the front.
+//
 // Kernels trust their inputs (python/ibrtools/culling.py and cpp/bindings/culling.cpp check
 // them), never throw and never allocate. ProjectBoxes is multithreaded over boxes with
 // ibr::ParallelFor; every output depends on its box only (identical for any thread count).
@@ -47,5 +63,10 @@ void ObjectBoxes(const float* vertices, const std::int32_t* faces, std::int64_t 
 
 void ProjectBoxes(const float* boxes, std::int64_t num_boxes, const Camera& camera, const CullOptions& options,
                   std::uint8_t* state, std::int32_t* rect, float* min_z);
+
+std::int64_t AwocScratchSize(int height, int width);
+
+void AwocFill(const float* motion, const float* dst_depth, int height, int width, int steps, float* scratch,
+              float* depth, std::uint8_t* hole, int out_height, int out_width);
 
 }  // namespace ibr

@@ -199,7 +199,14 @@ def cull_objects(warped_depth: np.ndarray, hole: np.ndarray | None, camera: Came
         if source_depth is None or source_camera is None:
             raise BadValueError("approximate: AWOC needs source_depth and source_camera (the frame "
                                 "the warp started from)")
-        raise NotBuiltError("culling: approximate=True (AWOC) not built yet")
+        source_camera = _check_camera(source_camera, "source_camera")
+        steps = check_int(awoc_steps, "awoc_steps", 0)
+        from .depthwarp import motion_buffer
+        motion, dst_depth = motion_buffer(source_depth, source_camera, camera, object_ids=object_ids,
+                                          object_motion=object_motion)
+        depth, hole = depth.copy(), hole.copy()
+        _core.cull_awoc_fill(depth, hole, np.ascontiguousarray(motion, np.float32),
+                             np.ascontiguousarray(dst_depth, np.float32), steps)
     occluder = np.where(hole | ~(depth > 0), np.float32(np.inf), depth).astype(np.float32, copy=False)
     t1 = time.perf_counter()
     query = MaxDepthQuery(occluder, mip_levels=mip_levels)
