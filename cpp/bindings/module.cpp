@@ -10,6 +10,7 @@ PYBIND11_MODULE(_core, m) {
   ibr::bind::BindSteerable(m);
   ibr::bind::BindMetameric(m);
   ibr::bind::BindMip(m);
+  ibr::bind::BindSolvers(m);
   ibr::bind::BindDepthwarp(m);
   ibr::bind::BindCulling(m);
 }

@@ -12,6 +12,7 @@ void BindInpaint(py::module_& m);
 void BindSteerable(py::module_& m);
 void BindMetameric(py::module_& m);
 void BindMip(py::module_& m);
+void BindSolvers(py::module_& m);
 void BindDepthwarp(py::module_& m);
 void BindCulling(py::module_& m);
 }  // namespace ibr::bind
