@@ -1,5 +1,6 @@
 """The per-sample C++ passes of metameric inpainting (cpp/kernels/metameric.h): the stacked
-[X, X^2] push-pull input and the mean + sigma * noise composite, against the numpy expressions
+[X, X^2] push-pull input, the push-pull of the moments computed on the fly
+(cpp/kernels/pushpull.h PushPullMomentsKernel) and the mean + sigma * noise composite, against the numpy expressions
 python/ibrtools/metameric.py used before them (exact: same float32 operations, same order)."""
 from __future__ import annotations
 
@@ -22,6 +23,58 @@ def test_stack_moments_matches_numpy():
     _core.metameric_stack_moments(bands, out)
     ref = np.concatenate(bands + [b * b for b in bands], axis=2)
     np.testing.assert_array_equal(out, ref)
+
+
+@pytest.mark.parametrize("k,depth_aware", [(2, False), (3, True), (5, True), (1, False)])
+def test_pushpull_moments_matches_pushpull_of_the_stack(k, depth_aware):
+    # The fused kernel computes level 0's rows of [X, X^2] on the fly; in the mask it must equal
+    # push-pull of the stored stack bit for bit (same operations, same order; k = 1 runs the
+    # generic channel count, 2, 3 and 5 the compiled-in ones), and never write outside it.
+    rng = np.random.default_rng(k)
+    h, w = 37, 29
+    bands = _bands(k, h, w, seed=k)
+    mask = np.zeros((h, w), bool)
+    mask[5:20, 3:12] = True
+    mask[30:, 20:] = True
+    depth = (5 + rng.random((h, w))).astype(np.float32) if depth_aware else None
+    if depth_aware:
+        depth[10:14, :] = 1.0  # a foreground strip the depth test rejects next to the mask
+    stack = np.empty((h, w, 2 * k * 3), np.float32)
+    _core.metameric_stack_moments(bands, stack)
+    args = (0.04, 0.5) if depth_aware else (0.0, 0.0)
+    ref, _ = _core.pushpull(stack, mask, depth, *args)
+    out = np.full((h, w, 2 * k * 3), -3.0, np.float32)
+    _core.metameric_pushpull_moments(bands, mask.view(np.uint8), depth, *args, out)
+    np.testing.assert_array_equal(out[mask], ref[mask])
+    assert np.all(out[~mask] == -3.0)
+
+
+def test_pushpull_moments_bad_input():
+    bands = _bands(2)
+    out = np.zeros((13, 11, 12), np.float32)
+    mask = np.zeros((13, 11), np.uint8)
+    mask[2:5, 2:5] = 1
+    with pytest.raises(ShapeError, match="out: expected float32 array of shape"):
+        _core.metameric_pushpull_moments(bands, mask, None, 0.0, 0.0, np.zeros((13, 11, 6), np.float32))
+    with pytest.raises(ShapeError, match="mask"):
+        _core.metameric_pushpull_moments(bands, mask[:5].copy(), None, 0.0, 0.0, out)
+    with pytest.raises(ShapeError, match="depth"):
+        _core.metameric_pushpull_moments(bands, mask, np.ones((13, 10), np.float32), 0.04, 0.5, out)
+    with pytest.raises(BadValueError, match="gamma"):
+        _core.metameric_pushpull_moments(bands, mask, None, 0.0, -1.0, out)
+    with pytest.raises(BadValueError, match="every sample is masked"):
+        _core.metameric_pushpull_moments(bands, np.ones_like(mask), None, 0.0, 0.0, out)
+    nan = [b.copy() for b in bands]
+    nan[1][0, 0, 0] = np.nan
+    with pytest.raises(BadValueError, match=r"bands\[1\]: contains 1 NaN"):
+        _core.metameric_pushpull_moments(nan, mask, None, 0.0, 0.0, out)
+    nan[1][3, 3, 0] = np.nan  # inside the mask: never read, no error for it
+    nan[1][0, 0, 0] = 0.0
+    _core.metameric_pushpull_moments(nan, mask, None, 0.0, 0.0, out)
+    with pytest.raises(BadValueError, match="out: .*shares memory"):
+        buf = np.zeros(13 * 11 * 12, np.float32)
+        _core.metameric_pushpull_moments([buf[:13 * 11 * 3].reshape(13, 11, 3)] * 2, mask, None, 0.0, 0.0,
+                                         buf.reshape(13, 11, 12))
 
 
 def _reference(moments, mask, noise, bands, flow, scale):

@@ -273,9 +273,9 @@ def test_runs_from_two_python_threads():
 
 @pytest.mark.parametrize("channels", [12, 18, 24, 30])
 def test_specialised_channel_counts_match_one_channel_runs(channels):
-    # 12, 18, 24 and 30 channels (the metameric moments) run a compiled-in channel count; the
-    # channels are independent, so each must equal the 1-channel run of that channel (1e-6:
-    # float32 rounding only, the operations per channel are the same).
+    # Many channels (the metameric moments' counts) take the generic channel loop; the channels
+    # are independent, so each must equal the 1-channel run of that channel (1e-6: float32
+    # rounding only, the operations per channel are the same).
     img, depth, hole = _scene(40, 52)
     rng = np.random.default_rng(channels)
     x = rng.random((40, 52, channels), dtype=np.float32)

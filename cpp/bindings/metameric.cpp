@@ -11,6 +11,7 @@
 #include "array.h"
 #include "ibr/errors.h"
 #include "kernels/metameric.h"
+#include "kernels/pushpull.h"
 #include "module.h"
 
 namespace ibr::bind {
@@ -51,6 +52,59 @@ void BindMetameric(py::module_& m) {
       py::arg("bands"), py::arg("out"),
       "Push-pull input of one level's moments (cpp/kernels/metameric.h): bands = k float32 (h, w, C) "
       "arrays; writes out float32 (h, w, 2kC) = [X_0..X_{k-1}, X_0^2..X_{k-1}^2] along the channels.");
+
+  m.def(
+      "metameric_pushpull_moments",
+      [](py::handle bands_obj, py::handle hole_obj, py::handle depth_obj, double depth_threshold, double gamma,
+         py::handle out_obj) {
+        std::vector<FloatArray> bands = CheckArrayList(bands_obj, "bands", -1, -1, -1, false);
+        const py::ssize_t h = bands[0].shape(0), w = bands[0].shape(1), c = bands[0].shape(2);
+        const py::ssize_t k = static_cast<py::ssize_t>(bands.size());
+        auto hole = CheckArray<std::uint8_t>(hole_obj, "mask", {{"h", h}, {"w", w}});
+        FloatArray out = CheckArray<float>(out_obj, "out", {{"h", h}, {"w", w}, {"2kC", 2 * k * c}}, true);
+        PushPullOptions options;
+        FloatArray depth;
+        if (!depth_obj.is_none()) {
+          depth = CheckArray<float>(depth_obj, "depth", {{"h", h}, {"w", w}});
+          options.depth_aware = true;
+        }
+        if (!(std::isfinite(gamma) && gamma >= 0.0)) {
+          throw BadValueError("gamma: expected a finite number >= 0, got " + std::to_string(gamma));
+        }
+        if (!(std::isfinite(depth_threshold) && depth_threshold >= 0.0)) {
+          throw BadValueError("depth_threshold: expected a finite number >= 0, got " + std::to_string(depth_threshold));
+        }
+        options.gamma = static_cast<float>(gamma);
+        options.depth_threshold = static_cast<float>(depth_threshold);
+        std::vector<py::array> ins(bands.begin(), bands.end());
+        ins.push_back(hole);
+        if (options.depth_aware) ins.push_back(depth);
+        CheckNoAlias({out}, ins, "out", false);
+        std::vector<ImageView<const float>> views;
+        for (FloatArray& b : bands) views.push_back(ConstViewOf(b));
+        const ImageView<const std::uint8_t> hole_view = ConstViewOf(hole);
+        const ImageView<const float> depth_view = options.depth_aware ? ConstViewOf(depth) : ImageView<const float>();
+        const ImageView<float> out_view = ViewOf(out);
+        PushPullStatus status;
+        {
+          py::gil_scoped_release release;
+          for (std::size_t i = 0; i < views.size(); ++i) {
+            if (const std::int64_t bad = CountNonFiniteOutsideHoles(views[i], hole_view)) {
+              throw BadValueError("bands[" + std::to_string(i) + "]: contains " + std::to_string(bad) +
+                                  " NaN or infinite values outside the mask");
+            }
+          }
+          status = PushPullMomentsKernel(views.data(), static_cast<int>(k), hole_view, depth_view, options, out_view);
+        }
+        if (status == PushPullStatus::kNoValidPixel) {
+          throw BadValueError("mask: every sample is masked; the moments need samples outside the mask");
+        }
+      },
+      py::arg("bands"), py::arg("mask"), py::arg("depth"), py::arg("depth_threshold"), py::arg("gamma"),
+      py::arg("out"),
+      "Push-pull of one level's moments (cpp/kernels/pushpull.h PushPullMomentsKernel): bands = k float32 "
+      "(h, w, C) arrays; mask uint8 (h, w), non-zero = fill; depth float32 (h, w) or None (classic); writes "
+      "the masked samples of out float32 (h, w, 2kC): push-pull of [X_0..X_{k-1}, X_0^2..X_{k-1}^2].");
 
   m.def(
       "metameric_composite",

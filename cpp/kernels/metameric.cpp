@@ -31,25 +31,8 @@ void Positions(const F* flow, int flow_w, int y, int x, int scale, int h, int w,
 }  // namespace
 
 void MetamericStackMoments(const ImageView<const float>* bands, int k, const ImageView<float>& out) {
-  const int c = bands[0].channels;
   ParallelFor(out.height, RowGrain(out.width), [&](std::int64_t y0, std::int64_t y1) {
-    for (int y = static_cast<int>(y0); y < static_cast<int>(y1); ++y) {
-      float* o = out.Row(y);
-      for (int i = 0; i < k; ++i) {
-        const float* b = bands[i].Row(y);
-        float* ox = o + i * c;
-        float* oq = o + (k + i) * c;
-        for (int x = 0; x < out.width; ++x) {
-          const std::ptrdiff_t ob = std::ptrdiff_t(x) * out.channels;
-          const float* bx = b + std::ptrdiff_t(x) * c;
-          for (int ch = 0; ch < c; ++ch) {
-            const float v = bx[ch];
-            ox[ob + ch] = v;
-            oq[ob + ch] = v * v;
-          }
-        }
-      }
-    }
+    for (int y = static_cast<int>(y0); y < static_cast<int>(y1); ++y) StackMomentsRow(bands, k, y, out.Row(y));
   });
 }
 

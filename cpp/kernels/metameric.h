@@ -25,6 +25,7 @@
 // never allocate. Multithreaded over rows with ibr::ParallelFor; every sample is independent, so
 // the result is identical for any thread count.
 #pragma once
+#include <cstddef>
 #include <cstdint>
 
 #include "ibr/image.h"
@@ -32,6 +33,25 @@
 namespace ibr {
 
 void MetamericStackMoments(const ImageView<const float>* bands, int k, const ImageView<float>& out);
+
+// Row y of MetamericStackMoments' output into `row` (width * 2kC floats); also the level-0 rows
+// of PushPullMomentsKernel (pushpull.h), which computes them on the fly instead of storing them.
+inline void StackMomentsRow(const ImageView<const float>* bands, int k, int y, float* row) {
+  const int c = bands[0].channels, width = bands[0].width;
+  const std::ptrdiff_t C = 2 * std::ptrdiff_t(k) * c;
+  for (int i = 0; i < k; ++i) {
+    const float* b = bands[i].Row(y);
+    float* ox = row + i * c;
+    float* oq = row + (k + i) * c;
+    for (int x = 0; x < width; ++x) {
+      for (int ch = 0; ch < c; ++ch) {
+        const float v = b[std::ptrdiff_t(x) * c + ch];
+        ox[x * C + ch] = v;
+        oq[x * C + ch] = v * v;
+      }
+    }
+  }
+}
 
 // Flow of the noise (full resolution); exactly one of f32/f64 set, or neither (no flow).
 struct MetamericFlow {

@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "ibr/parallel.h"
+#include "kernels/metameric.h"
 
 namespace ibr {
 namespace {
@@ -31,25 +32,53 @@ struct Level {
   float* d = nullptr;
 };
 
-// Level 0 seen as a pull source: validity from the hole mask (one byte per pixel).
+// Level 0 seen as a pull source: validity from the hole mask (one byte per pixel). A source's
+// CRow(y, scratch) returns row y's C interleaved channels; sources that compute their rows
+// (kMaterialises) write them into `scratch` (w * C floats), the others ignore it.
 struct InputSource {
+  static constexpr bool kMaterialises = false;
   const ImageView<const float>& image;
   const ImageView<const std::uint8_t>& hole;
   const ImageView<const float>& depth;
   int h() const { return image.height; }
   int w() const { return image.width; }
-  const float* CRow(int y) const { return image.Row(y); }
+  int channels() const { return image.channels; }
+  const float* CRow(int y, float*) const { return image.Row(y); }
   const std::uint8_t* VRow(int y) const { return hole.Row(y); }
   static float V(const std::uint8_t* row, int x) { return row[x] ? 0.0f : 1.0f; }
   const float* DRow(int y) const { return depth.Empty() ? nullptr : depth.Row(y); }
+  InputSource WithoutDepth(const ImageView<const float>& none) const { return {image, hole, none}; }
+};
+
+// Level 0 of the moments of k bands (pushpull.h PushPullMomentsKernel): row y is
+// [X_0 .. X_{k-1}, X_0^2 .. X_{k-1}^2] of the bands' C channels each, computed on the fly.
+struct MomentsSource {
+  static constexpr bool kMaterialises = true;
+  const ImageView<const float>* bands;
+  int k;
+  const ImageView<const std::uint8_t>& hole;
+  const ImageView<const float>& depth;
+  int h() const { return hole.height; }
+  int w() const { return hole.width; }
+  int channels() const { return 2 * k * bands[0].channels; }
+  const float* CRow(int y, float* scratch) const {
+    StackMomentsRow(bands, k, y, scratch);
+    return scratch;
+  }
+  const std::uint8_t* VRow(int y) const { return hole.Row(y); }
+  static float V(const std::uint8_t* row, int x) { return row[x] ? 0.0f : 1.0f; }
+  const float* DRow(int y) const { return depth.Empty() ? nullptr : depth.Row(y); }
+  MomentsSource WithoutDepth(const ImageView<const float>& none) const { return {bands, k, hole, none}; }
 };
 
 struct LevelSource {
+  static constexpr bool kMaterialises = false;
   const Level& l;
-  int channels;
+  int channels_;
   int h() const { return l.h; }
   int w() const { return l.w; }
-  const float* CRow(int y) const { return l.c + std::ptrdiff_t(y) * l.w * channels; }
+  int channels() const { return channels_; }
+  const float* CRow(int y, float*) const { return l.c + std::ptrdiff_t(y) * l.w * channels_; }
   const float* VRow(int y) const { return l.v + std::ptrdiff_t(y) * l.w; }
   static float V(const float* row, int x) { return row[x]; }
   const float* DRow(int y) const { return l.d ? l.d + std::ptrdiff_t(y) * l.w : nullptr; }
@@ -63,11 +92,12 @@ void Pull(const Src& src, int channels, bool depth_aware, float threshold, const
     float acc[kC > 0 ? kC : 1];
     std::vector<float> acc_dyn(kC > 0 ? 0 : C);
     float* sum = kC > 0 ? acc : acc_dyn.data();
+    std::vector<float> rows(Src::kMaterialises ? 2 * std::size_t(src.w()) * C : 0);
     for (int Y = static_cast<int>(y0); Y < static_cast<int>(y1); ++Y) {
       const int sy0 = 2 * Y, sy1 = std::min(2 * Y + 1, src.h() - 1);
       const bool has_row1 = sy1 != sy0;
-      const float* c0 = src.CRow(sy0);
-      const float* c1 = src.CRow(sy1);
+      const float* c0 = src.CRow(sy0, rows.data());
+      const float* c1 = has_row1 ? src.CRow(sy1, rows.data() + (rows.empty() ? 0 : std::size_t(src.w()) * C)) : c0;
       const auto* v0 = src.VRow(sy0);
       const auto* v1 = src.VRow(sy1);
       const float* d0 = depth_aware ? src.DRow(sy0) : nullptr;
@@ -181,16 +211,24 @@ void Push(const Level& coarse, int channels, float gamma, const Level& fine) {
 }
 
 // Level 0: copy the image outside holes (exact), up(filled level 1) inside.
-template <int kC>
-void PushToOutput(const Level& coarse, const ImageView<const float>& image,
-                  const ImageView<const std::uint8_t>& hole, bool holes_only, const ImageView<float>& out) {
-  const int C = kC > 0 ? kC : image.channels;
-  const Taps ty = MakeTaps(image.height, coarse.h), tx = MakeTaps(image.width, coarse.w);
-  ParallelFor(image.height, RowGrain(image.width), [&](std::int64_t y0, std::int64_t y1) {
+// Row y of the source into out's row y (exact).
+template <class Src>
+void CopyRow(const Src& src, int y, const ImageView<float>& out) {
+  float* o = out.Row(y);
+  const float* r = src.CRow(y, o);
+  if (r != o) std::memcpy(o, r, sizeof(float) * std::size_t(src.w()) * src.channels());
+}
+
+template <int kC, class Src>
+void PushToOutput(const Level& coarse, const Src& src, bool holes_only, const ImageView<float>& out) {
+  const int C = kC > 0 ? kC : src.channels();
+  const int height = src.h(), width = src.w();
+  const Taps ty = MakeTaps(height, coarse.h), tx = MakeTaps(width, coarse.w);
+  ParallelFor(height, RowGrain(width), [&](std::int64_t y0, std::int64_t y1) {
     for (int y = static_cast<int>(y0); y < static_cast<int>(y1); ++y) {
-      const std::uint8_t* hrow = hole.Row(y);
-      if (!holes_only) std::memcpy(out.Row(y), image.Row(y), sizeof(float) * std::size_t(image.width) * C);
-      for (int x = 0; x < image.width; ++x) {
+      const std::uint8_t* hrow = src.VRow(y);
+      if (!holes_only) CopyRow(src, y, out);
+      for (int x = 0; x < width; ++x) {
         if (hrow[x]) Up<kC>(coarse, C, ty, tx, y, x, &out.At(y, x, 0));
       }
     }
@@ -205,16 +243,21 @@ bool Complete(const Level& l, float gamma) {
   return std::all_of(l.v, l.v + n, [](float v) { return v >= 1.0f; });
 }
 
-template <int kC>
-PushPullStatus Run(const ImageView<const float>& image, const ImageView<const std::uint8_t>& hole,
-                   const ImageView<const float>& depth, const PushPullOptions& options,
-                   const ImageView<float>& out) {
-  const int C = image.channels;
-  const std::size_t n0 = std::size_t(image.height) * image.width;
+template <int kC, class Src>
+PushPullStatus Run(const Src& src, const PushPullOptions& options, const ImageView<float>& out) {
+  const int C = src.channels();
+  const ImageView<const std::uint8_t>& hole = src.hole;
+  const ImageView<const float>& depth = src.depth;
+  const int height = src.h(), width = src.w();
+  const std::size_t n0 = std::size_t(height) * width;
   const std::uint8_t* h0 = hole.data;
   if (std::all_of(h0, h0 + n0, [](std::uint8_t b) { return b != 0; })) return PushPullStatus::kNoValidPixel;
   if (std::none_of(h0, h0 + n0, [](std::uint8_t b) { return b != 0; })) {
-    if (!options.holes_only) std::memcpy(out.data, image.data, sizeof(float) * n0 * C);
+    if (!options.holes_only) {
+      ParallelFor(height, RowGrain(width), [&](std::int64_t y0, std::int64_t y1) {
+        for (int y = static_cast<int>(y0); y < static_cast<int>(y1); ++y) CopyRow(src, y, out);
+      });
+    }
     return PushPullStatus::kNoHole;
   }
   const bool depth_aware = options.depth_aware && !depth.Empty();
@@ -222,14 +265,14 @@ PushPullStatus Run(const ImageView<const float>& image, const ImageView<const st
   if (depth_aware) {
     // "0.04 of the normalised depth": normalise by the range of known depth in this image.
     // Per-row-band min/max, combined in order (min/max do not depend on the order anyway).
-    const std::int64_t grain = RowGrain(image.width);
-    const std::int64_t bands = (image.height + grain - 1) / grain;
+    const std::int64_t grain = RowGrain(width);
+    const std::int64_t bands = (height + grain - 1) / grain;
     std::vector<float> band_lo(bands, std::numeric_limits<float>::infinity()), band_hi(bands, -1.0f);
     ParallelFor(bands, 1, [&](std::int64_t b0, std::int64_t b1) {
       for (std::int64_t b = b0; b < b1; ++b) {
         float blo = std::numeric_limits<float>::infinity(), bhi = -1.0f;
-        const std::size_t i0 = std::size_t(b * grain) * image.width;
-        const std::size_t i1 = std::min(n0, std::size_t((b + 1) * grain) * image.width);
+        const std::size_t i0 = std::size_t(b * grain) * width;
+        const std::size_t i1 = std::min(n0, std::size_t((b + 1) * grain) * width);
         for (std::size_t i = i0; i < i1; ++i) {
           const float d = depth.data[i];
           if (Known(d)) {
@@ -249,7 +292,7 @@ PushPullStatus Run(const ImageView<const float>& image, const ImageView<const st
   // Sizes of levels 1..L (down to 1x1) and one scratch block for all of them.
   std::vector<Level> levels;
   std::size_t total = 0;
-  for (int h = image.height, w = image.width; h > 1 || w > 1;) {
+  for (int h = height, w = width; h > 1 || w > 1;) {
     h = (h + 1) / 2;
     w = (w + 1) / 2;
     Level l;
@@ -276,7 +319,7 @@ PushPullStatus Run(const ImageView<const float>& image, const ImageView<const st
   std::size_t top = 0;
   for (std::size_t i = 0; i < levels.size(); ++i) {
     if (i == 0) {
-      Pull<kC>(InputSource{image, hole, depth}, C, depth_aware, threshold, levels[0]);
+      Pull<kC>(src, C, depth_aware, threshold, levels[0]);
     } else {
       Pull<kC>(LevelSource{levels[i - 1], C}, C, depth_aware, threshold, levels[i]);
     }
@@ -287,7 +330,7 @@ PushPullStatus Run(const ImageView<const float>& image, const ImageView<const st
   if (Complete(t, 0.0f)) {
     // PUSH: the top keeps its colour (nothing coarser to mix with).
     for (std::size_t i = top; i-- > 0;) Push<kC>(levels[i + 1], C, options.gamma, levels[i]);
-    PushToOutput<kC>(levels[0], image, hole, options.holes_only, out);
+    PushToOutput<kC>(levels[0], src, options.holes_only, out);
     return PushPullStatus::kOk;
   }
   // Only the 1x1 top can be incomplete here. Classic: impossible (the image has a valid pixel).
@@ -317,17 +360,18 @@ PushPullStatus Run(const ImageView<const float>& image, const ImageView<const st
   classic.depth_aware = false;
   classic.gamma = 0.0f;
   classic.holes_only = options.holes_only;
-  Run<kC>(image, hole, ImageView<const float>(), classic, out);  // kOk: the image has a valid pixel
+  const ImageView<const float> no_depth;
+  Run<kC>(src.WithoutDepth(no_depth), classic, out);  // kOk: the image has a valid pixel
   const Level& f1 = levels[0];
   const Level& s1 = s_levels[0];
-  const Taps ty = MakeTaps(image.height, f1.h), tx = MakeTaps(image.width, f1.w);
-  ParallelFor(image.height, RowGrain(image.width), [&](std::int64_t y0, std::int64_t y1) {
+  const Taps ty = MakeTaps(height, f1.h), tx = MakeTaps(width, f1.w);
+  ParallelFor(height, RowGrain(width), [&](std::int64_t y0, std::int64_t y1) {
     float fbuf[kC > 0 ? kC : 1];
     std::vector<float> fdyn(kC > 0 ? 0 : C);
     float* f = kC > 0 ? fbuf : fdyn.data();
     for (int y = static_cast<int>(y0); y < static_cast<int>(y1); ++y) {
       const std::uint8_t* hrow = hole.Row(y);
-      for (int x = 0; x < image.width; ++x) {
+      for (int x = 0; x < width; ++x) {
         if (!hrow[x]) continue;
         float s;
         Up<kC>(f1, C, ty, tx, y, x, f);
@@ -347,18 +391,31 @@ PushPullStatus PushPullKernel(const ImageView<const float>& image,
                               const ImageView<const std::uint8_t>& hole,
                               const ImageView<const float>& depth, const PushPullOptions& options,
                               const ImageView<float>& out) {
+  const InputSource src{image, hole, depth};
   switch (image.channels) {
-    case 1: return Run<1>(image, hole, depth, options, out);
-    case 2: return Run<2>(image, hole, depth, options, out);
-    case 3: return Run<3>(image, hole, depth, options, out);
-    case 4: return Run<4>(image, hole, depth, options, out);
-    // The metameric moments ([X, X^2] of 2 or 3 YCbCr bands per level, 2 or 4 orientations):
-    // a fixed channel count lets the compiler unroll and vectorise the per-pixel loops.
-    case 12: return Run<12>(image, hole, depth, options, out);
-    case 18: return Run<18>(image, hole, depth, options, out);
-    case 24: return Run<24>(image, hole, depth, options, out);
-    case 30: return Run<30>(image, hole, depth, options, out);
-    default: return Run<0>(image, hole, depth, options, out);
+    case 1: return Run<1>(src, options, out);
+    case 2: return Run<2>(src, options, out);
+    case 3: return Run<3>(src, options, out);
+    case 4: return Run<4>(src, options, out);
+    default: return Run<0>(src, options, out);
+  }
+}
+
+PushPullStatus PushPullMomentsKernel(const ImageView<const float>* bands, int k,
+                                     const ImageView<const std::uint8_t>& hole,
+                                     const ImageView<const float>& depth, const PushPullOptions& options,
+                                     const ImageView<float>& out) {
+  PushPullOptions o = options;
+  o.holes_only = true;
+  const MomentsSource src{bands, k, hole, depth};
+  // [X, X^2] of 2 or 3 RGB/YCbCr bands (2 or 4 orientations, the high-pass at level 0): a fixed
+  // channel count lets the compiler unroll and vectorise the per-pixel loops.
+  switch (src.channels()) {
+    case 12: return Run<12>(src, o, out);
+    case 18: return Run<18>(src, o, out);
+    case 24: return Run<24>(src, o, out);
+    case 30: return Run<30>(src, o, out);
+    default: return Run<0>(src, o, out);
   }
 }
 

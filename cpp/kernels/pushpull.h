@@ -93,6 +93,16 @@ PushPullStatus PushPullKernel(const ImageView<const float>& image,
                               const ImageView<const float>& depth, const PushPullOptions& options,
                               const ImageView<float>& out);
 
+// The push-pull of the moments [X_0 .. X_{k-1}, X_0^2 .. X_{k-1}^2] of k bands (h, w, C) each
+// (metameric inpainting, dos Anjos et al. sec. 3.3.1), without storing them: the level-0 rows
+// are computed on the fly (metameric.h StackMomentsRow), so the result in the holes is
+// PushPullKernel's of MetamericStackMoments' output. Writes the hole pixels of out (h, w, 2kC)
+// only (holes_only is implied). hole and depth as for PushPullKernel.
+PushPullStatus PushPullMomentsKernel(const ImageView<const float>* bands, int k,
+                                     const ImageView<const std::uint8_t>& hole,
+                                     const ImageView<const float>& depth, const PushPullOptions& options,
+                                     const ImageView<float>& out);
+
 // Number of non-finite values of image at pixels where hole == 0 (multithreaded).
 std::int64_t CountNonFiniteOutsideHoles(const ImageView<const float>& image,
                                         const ImageView<const std::uint8_t>& hole);

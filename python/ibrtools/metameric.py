@@ -261,11 +261,10 @@ def metameric(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = No
     n_hp, n_bands, _ = _noise_pyramid_cached(h, w, c, levels, orientations, seed)
     band_masks, lo_mask = level_masks(hole, levels)
 
-    # One buffer for the push-pull input of every level (level 0, with the high-pass, is the
+    # One buffer for the moments of every level (level 0, with the high-pass, is the
     # largest; coarser levels use a contiguous prefix of it).
     k0 = 1 + (orientations if levels else 0)
-    stack_buf = np.empty(h * w * 2 * k0 * c, np.float32)
-    moments_buf = np.empty_like(stack_buf)
+    moments_buf = np.empty(h * w * 2 * k0 * c, np.float32)
     pp_args = (float(pp_kw["depth_threshold"]), float(pp_kw["gamma"])) if pp_kw else (0.0, 0.0)
     flow_c = None if flow is None else np.ascontiguousarray(flow)
 
@@ -276,12 +275,10 @@ def metameric(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = No
         mask = _level_mask(mask, hole, scale)
         d = None if depth is None else np.ascontiguousarray(depth[::scale, ::scale])
         hl, wl = mask.shape
-        stack = stack_buf[:hl * wl * 2 * len(bands) * c].reshape(hl, wl, 2 * len(bands) * c)
-        _core.metameric_stack_moments(bands, stack)
-        # The composite reads the moments inside the mask only: fill just the holes, into a
-        # reused buffer (saves copying and allocating the whole stack per level).
-        moments = moments_buf[:stack.size].reshape(stack.shape)
-        _core.pushpull(stack, mask, d, *pp_args, out=moments, holes_only=True)
+        # The composite reads the moments inside the mask only: the kernel fills just those, into
+        # a reused buffer, computing [X, X^2] on the fly (no stacked copy of the level).
+        moments = moments_buf[:hl * wl * 2 * len(bands) * c].reshape(hl, wl, 2 * len(bands) * c)
+        _core.metameric_pushpull_moments(bands, mask.view(np.uint8), d, *pp_args, moments)
         _core.metameric_composite(moments, mask, noise, bands, flow_c, scale)
 
     # Level 0 also carries the high-pass residual (same resolution, same mask: one push-pull
