@@ -13,4 +13,5 @@ PYBIND11_MODULE(_core, m) {
   ibr::bind::BindSolvers(m);
   ibr::bind::BindDepthwarp(m);
   ibr::bind::BindCulling(m);
+  ibr::bind::BindHybrid(m);
 }

@@ -15,4 +15,5 @@ void BindMip(py::module_& m);
 void BindSolvers(py::module_& m);
 void BindDepthwarp(py::module_& m);
 void BindCulling(py::module_& m);
+void BindHybrid(py::module_& m);
 }  // namespace ibr::bind
