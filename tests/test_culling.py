@@ -140,11 +140,11 @@ def test_crowd_against_reference():
     assert ev["occlusion_culled"] > 30
     assert 0 < ev["culled_fraction"] <= ev["ideal_culled_fraction"] + 1e-9
     try:
-        from ibrtools.depthwarp import warp_depth
+        from ibrtools.depthwarp import DepthWarpParams, warp_depth
     except ImportError:
         pytest.skip("ibrtools.depthwarp.warp_depth not built yet")
     src = ref.render(prev, outputs=("depth",), lights=[])["depth"]
-    w = warp_depth(src, prev, cam)
+    w = warp_depth(src, prev, cam, DepthWarpParams(dilate=False))
     ev = cull_objects(w.depth, w.hole, cam, boxes).evaluate(ids, counts)
     assert ev["falsely_culled_large"] == 0, ev["false_ids"]
     assert ev["occlusion_culled"] > 0

@@ -74,7 +74,8 @@ py::tuple CullProjectBoxes(const py::object& boxes_obj, const Camera& camera, do
 }
 
 void CullAwocFill(const py::object& depth_obj, const py::object& hole_obj, const py::object& motion_obj,
-                  const py::object& dst_depth_obj, int steps) {
+                  const py::object& dst_depth_obj, int steps, const py::object& sky_obj,
+                  const py::object& source_depth_obj) {
   auto depth = CheckArray<float>(depth_obj, "depth", {{"H'", -1}, {"W'", -1}}, true);
   auto hole = CheckArray<bool>(hole_obj, "hole", {{"H'", depth.shape(0)}, {"W'", depth.shape(1)}}, true);
   auto motion = CheckArray<float>(motion_obj, "motion", {{"H", -1}, {"W", -1}, {"2", 2}});
@@ -83,6 +84,22 @@ void CullAwocFill(const py::object& depth_obj, const py::object& hole_obj, const
   if (Overlaps(depth, hole)) throw BadValueError("depth and hole: must not share memory");
   const int h = static_cast<int>(motion.shape(0)), w = static_cast<int>(motion.shape(1));
   if (h < 1 || w < 1) throw ShapeError("motion: expected a non-empty (H, W, 2) array");
+  const double* sky = nullptr;
+  const float* src = nullptr;
+  py::array_t<double, py::array::c_style> sky_arr;
+  py::array_t<float, py::array::c_style> src_arr;
+  if (!sky_obj.is_none() || !source_depth_obj.is_none()) {
+    if (sky_obj.is_none() || source_depth_obj.is_none()) {
+      throw BadValueError("sky_from_target and source_depth: give both or neither");
+    }
+    sky_arr = CheckArray<double>(sky_obj, "sky_from_target", {{"3", 3}, {"3", 3}});
+    src_arr = CheckArray<float>(source_depth_obj, "source_depth", {{"H", h}, {"W", w}});
+    for (int i = 0; i < 9; ++i) {
+      if (!std::isfinite(sky_arr.data()[i])) throw BadValueError("sky_from_target: contains NaN or infinity");
+    }
+    sky = sky_arr.data();
+    src = src_arr.data();
+  }
   std::vector<float> scratch(static_cast<std::size_t>(AwocScratchSize(h, w)));
   const float* m = motion.data();
   const float* d = dst.data();
@@ -90,7 +107,7 @@ void CullAwocFill(const py::object& depth_obj, const py::object& hole_obj, const
   auto* ho = reinterpret_cast<std::uint8_t*>(hole.mutable_data());  // numpy bool: one byte, 0 or 1
   const int oh = static_cast<int>(depth.shape(0)), ow = static_cast<int>(depth.shape(1));
   py::gil_scoped_release release;
-  AwocFill(m, d, h, w, steps, scratch.data(), out, ho, oh, ow);
+  AwocFill(m, d, h, w, steps, sky, src, scratch.data(), out, ho, oh, ow);
 }
 
 py::array_t<float> ShadowMapVisibilityPy(const py::object& depth_obj, const Camera& view, const py::object& maps_obj,
@@ -171,10 +188,12 @@ void BindCulling(py::module_& m) {
         "(state uint8 (K,) 0 outside / 1 crosses near / 2 on screen, rect int32 (K, 4) x0 y0 x1 y1, "
         "min_z float32 (K,)); cpp/kernels/culling.h.");
   m.def("cull_awoc_fill", &CullAwocFill, py::arg("depth"), py::arg("hole"), py::arg("motion"),
-        py::arg("dst_depth"), py::arg("steps"),
+        py::arg("dst_depth"), py::arg("steps"), py::arg("sky_from_target") = py::none(),
+        py::arg("source_depth") = py::none(),
         "AWOC: fill the holes of a warped depth (H', W') float32 / hole bool, in place, with the nearest "
         "moved depth of the source pixels at the corners of each hole's narrowed search bound "
-        "(motion (H, W, 2), dst_depth (H, W) from depthwarp.motion_buffer); cpp/kernels/culling.h.");
+        "(motion (H, W, 2), dst_depth (H, W) from depthwarp.motion_buffer); holes whose direction was empty in "
+        "source_depth (via the 3x3 sky_from_target map) stay holes; cpp/kernels/culling.h.");
   m.def("shadow_map_visibility", &ShadowMapVisibilityPy, py::arg("view_depth"), py::arg("view"), py::arg("maps"),
         py::arg("cameras"), py::arg("bias"),
         "Fraction of the S shadow maps (S, Hs, Ws) in which each view pixel's surface point is lit "

@@ -122,8 +122,9 @@ std::int64_t AwocScratchSize(int height, int width) {
   return total;
 }
 
-void AwocFill(const float* motion, const float* dst_depth, int height, int width, int steps, float* scratch,
-              float* depth, std::uint8_t* hole, int out_height, int out_width) {
+void AwocFill(const float* motion, const float* dst_depth, int height, int width, int steps,
+              const double* sky_from_target, const float* source_depth, float* scratch, float* depth,
+              std::uint8_t* hole, int out_height, int out_width) {
   const float inf = std::numeric_limits<float>::infinity();
   const int n = NumLevels(height, width);
   std::vector<MotionLevel> lv;  // n small headers (<= 32): bookkeeping, not image memory
@@ -174,6 +175,19 @@ void AwocFill(const float* motion, const float* dst_depth, int height, int width
       for (int x = 0; x < out_width; ++x) {
         const std::int64_t o = y * out_width + x;
         if (!hole[o]) continue;
+        if (sky_from_target != nullptr) {
+          const double* m = sky_from_target;
+          const double px = x + 0.5, py = y + 0.5;
+          const double hz = m[6] * px + m[7] * py + m[8];
+          bool sky = true;
+          if (hz > 0.0) {
+            const double qx = (m[0] * px + m[1] * py + m[2]) / hz, qy = (m[3] * px + m[4] * py + m[5]) / hz;
+            if (qx >= 0.0 && qx < width && qy >= 0.0 && qy < height) {
+              sky = !(source_depth[static_cast<std::int64_t>(qy) * width + static_cast<std::int64_t>(qx)] > 0.0f);
+            }
+          }
+          if (sky) continue;
+        }
         // B = [p - Vmax, p - Vmin] in source pixel indices.
         double bx0 = x - top[2], bx1 = x - top[0], by0 = y - top[3], by1 = y - top[1];
         for (int s = 0; s < steps; ++s) {

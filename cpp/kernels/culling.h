@@ -39,6 +39,12 @@
 //   [p - Vmax', p - Vmin'] with B. The source pixels at the final B's four corners (rounded,
 //   clamped to the image) are the candidates; the least positive dst_depth among them fills p
 //   (hole cleared). Where no candidate is valid (or no motion is valid at all), p stays a hole.
+//   Empty background: our depth buffers have no "far plane" value (0 = no surface), so a target
+//   pixel that sees the sky is a hole of the warp, while in the paper's rasteriser it converges to
+//   the far depth. With `sky_from_target` (3x3 row-major, K_src R_src R_dst^T K_dst^-1: the map of
+//   directions, i.e. of points at infinity) and `source_depth` (H, W), a hole whose direction lands
+//   on an empty source pixel (or outside the source image) is left a hole (far), as the paper's
+//   warp would have found the far plane there. Null pointers turn this off.
 //   scratch: AwocScratchSize(H, W) floats, owned by the front.
 //
 // Kernels trust their inputs (python/ibrtools/culling.py and cpp/bindings/culling.cpp check
@@ -66,7 +72,8 @@ void ProjectBoxes(const float* boxes, std::int64_t num_boxes, const Camera& came
 
 std::int64_t AwocScratchSize(int height, int width);
 
-void AwocFill(const float* motion, const float* dst_depth, int height, int width, int steps, float* scratch,
-              float* depth, std::uint8_t* hole, int out_height, int out_width);
+void AwocFill(const float* motion, const float* dst_depth, int height, int width, int steps,
+              const double* sky_from_target, const float* source_depth, float* scratch, float* depth,
+              std::uint8_t* hole, int out_height, int out_width);
 
 }  // namespace ibr
