@@ -1,0 +1,222 @@
+"""Per-view meshes and their two-level voxel tiles (ibrtools.hybrid.pvm, cpp/kernels/pvm.h):
+hand-checked grids, cut discontinuities, planar merging, tiles that reassemble the PVM and lie
+in their cells, thread independence, bad input."""
+import numpy as np
+import pytest
+
+from ibrtools import _core
+from ibrtools.camera import Camera, look_at
+from ibrtools.errors import BadValueError, DtypeError, ShapeError
+from ibrtools.hybrid.pvm import PvmOptions, PvmTiles, build_tiles, view_mesh
+
+
+def cam(w=33, h=25, eye=(0.0, 0.0, 0.0), target=(0.0, 0.0, 1.0), f=30.0):
+    return Camera.pinhole(w, h, f, f, w / 2, h / 2, look_at(eye, target, up=(0.0, -1.0, 0.0)))
+
+
+def tri_normals(v, f):
+    return np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+
+
+def areas(v, f):
+    return 0.5 * np.linalg.norm(tri_normals(v.astype(np.float64), f), axis=1)
+
+
+def test_single_quad_hand_checked():
+    # 2 x 2 pixels = one quad a b / c d; b-c is the flatter diagonal -> (a, c, b), (b, c, d).
+    d = np.array([[1.0, 2.0], [2.0, 1.5]], np.float32)
+    f = _core.pvm_triangulate(d, None, 10.0, 0.0, 1)
+    assert f.tolist() == [[0, 2, 1], [1, 2, 3]]
+    d = np.array([[1.0, 2.0], [3.0, 1.1]], np.float32)  # a-d flatter -> (a, c, d), (a, d, b)
+    assert _core.pvm_triangulate(d, None, 10.0, 0.0, 1).tolist() == [[0, 2, 3], [0, 3, 1]]
+    d[0, 0] = 0  # a unknown: only the triangle without a
+    assert _core.pvm_triangulate(d, None, 10.0, 0.0, 1).tolist() == [[1, 2, 3]]
+
+
+def test_fronto_parallel_plane_exact_and_merged():
+    c = cam()
+    depth = np.full((c.height, c.width), 2.0, np.float32)
+    v, f = view_mesh(c, depth, PvmOptions(max_block=8))
+    # 32 x 24 quads -> 4 x 3 blocks of 8, two triangles each, only the 20 block corners used.
+    assert len(f) == 24 and len(v) == 5 * 4
+    pc = v @ c.cam_from_world[:3, :3].T.astype(np.float32) + c.cam_from_world[:3, 3].astype(np.float32)
+    np.testing.assert_allclose(pc[:, 2], 2.0, rtol=1e-6)  # exact up to float32 rounding
+    # Counter-clockwise seen from the camera: normals point back towards it (-z in the camera).
+    nz = tri_normals(pc.astype(np.float64), f)[:, 2]
+    assert np.all(nz < 0)
+    # Unmerged: every quad as 2 triangles, same total area (the plane's extent).
+    v1, f1 = view_mesh(c, depth, PvmOptions(max_block=1))
+    assert len(f1) == 2 * 32 * 24
+    np.testing.assert_allclose(areas(v1, f1).sum(), areas(v, f).sum(), rtol=1e-5)
+
+
+def test_slanted_plane_merges_and_stays_on_plane():
+    c = cam(65, 49)
+    # Plane z = 3 + 0.5 x (world = camera here): 1/z is affine in the pixel coordinates.
+    x, y = c.pixel_grid()
+    rx = (x - c.cx) / c.fx
+    depth = (3.0 / (1 - 0.5 * rx)).astype(np.float32)
+    v, f = view_mesh(c, depth, PvmOptions(max_block=16, plane_tol=1e-4))
+    # Unmerged, with a jump threshold above this steep slope's 3.6 % per pixel (at 3 % some
+    # edges would be cut: a slope and a step look alike to a relative-jump test).
+    v1, f1 = view_mesh(c, depth, PvmOptions(max_block=1, max_rel_jump=0.2))
+    assert len(f1) == 2 * 64 * 48 and len(f) < len(f1) / 50
+    pc = (v.astype(np.float64) - c.centre) @ c.cam_from_world[:3, :3].T
+    np.testing.assert_allclose(pc[:, 2], 3 + 0.5 * pc[:, 0], rtol=1e-5)
+    np.testing.assert_allclose(areas(v, f).sum(), areas(v1, f1).sum(), rtol=1e-4)
+
+
+def test_depth_discontinuity_is_cut():
+    c = cam()
+    depth = np.full((c.height, c.width), 2.0, np.float32)
+    depth[:, 17:] = 3.0  # a step between columns 16 and 17
+    for mb in (1, 16):
+        v, f = view_mesh(c, depth, PvmOptions(max_block=mb, max_rel_jump=0.05))
+        z = ((v.astype(np.float64) - c.centre) @ c.cam_from_world[:3, :3].T)[:, 2]
+        zf = z[f]
+        assert np.all(np.ptp(zf, axis=1) < 1e-5), "a triangle spans the step"
+    # Unmerged count: every quad but the 24 rows of the cut column.
+    v, f = view_mesh(c, depth, PvmOptions(max_block=1, max_rel_jump=0.05))
+    assert len(f) == 2 * (32 - 1) * 24
+    # A gentle slope under the threshold is kept whole.
+    ramp = np.tile(np.linspace(2.0, 2.5, c.width, dtype=np.float32), (c.height, 1))
+    v, f = view_mesh(c, ramp, PvmOptions(max_block=1, max_rel_jump=0.05))
+    assert len(f) == 2 * 32 * 24
+
+
+def test_unknown_and_infinite_depth_make_no_triangles():
+    c = cam()
+    depth = np.full((c.height, c.width), 2.0, np.float32)
+    depth[:5] = 0
+    depth[:, :4] = np.inf
+    v, f = view_mesh(c, depth, PvmOptions(max_block=1))
+    assert len(f) == 2 * (32 - 4) * (24 - 5)
+    assert np.all(np.isfinite(v))
+
+
+def test_equirect_view_mesh_ray_distance():
+    c = Camera.equirect(32, 16)
+    depth = np.full((16, 32), 1.5, np.float32)  # a sphere of radius 1.5 around the camera
+    v, f = view_mesh(c, depth)
+    np.testing.assert_allclose(np.linalg.norm(v - c.centre, axis=1), 1.5, rtol=1e-5)
+    assert len(f) == 2 * 31 * 15  # no merging for equirect
+
+
+def two_plane_scene():
+    """Two cameras looking at a floor and a box-like step: depth rendered analytically."""
+    cams, depths = {}, {}
+    for i, eye in enumerate([(-0.6, -1.5, -3.0), (0.7, -1.2, -2.8)]):
+        c = Camera.pinhole(48, 36, 40.0, 40.0, 24.0, 18.0, look_at(eye, (0.0, 0.0, 0.0), up=(0.0, -1.0, 0.0)))
+        x, y = c.pixel_grid()
+        r = c.rays_in_cam(x, y) @ c.world_from_cam[:3, :3].T  # world ray directions (z = 1 in cam)
+        o = c.centre
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t_floor = (0.0 - o[1]) / r[..., 1]      # floor y = 0
+            t_wall = (0.6 - o[2]) / r[..., 2]       # wall z = 0.6
+        t = np.where((t_floor > 0) & ((t_floor < t_wall) | ~(t_wall > 0)), t_floor, t_wall)
+        t = np.where(np.isfinite(t) & (t > 0) & (t < 50), t, 0)
+        cams[f"v{i}"] = c
+        depths[f"v{i}"] = t.astype(np.float32)  # t is the z-depth (rays have z = 1 in the camera)
+    return cams, depths
+
+
+def test_tiles_reassemble_the_pvm_and_lie_in_their_cells(tmp_path):
+    cams, depths = two_plane_scene()
+    opts = PvmOptions(coarse=4, sub=4)
+    t = build_tiles(cams, depths, opts)
+    assert t.num_tiles > 1 and len(t.pvm_faces) > 0
+    # Every PVM face is covered by its pieces: the areas add up (slivers < 1e-7 of a face dropped;
+    # float32 vertices of cut points: 1e-4 relative).
+    a_pvm = areas(t.pvm_vertices, t.pvm_faces)
+    a_pieces = np.bincount(t.face_source, weights=areas(t.vertices, t.faces), minlength=len(a_pvm))
+    np.testing.assert_allclose(a_pieces, a_pvm, rtol=1e-4, atol=1e-9)
+    # Same triangle set: uncut pieces are the PVM faces themselves.
+    assert set(np.unique(t.face_source)) == set(range(len(t.pvm_faces)))
+    ext = (t.pvm_vertices.max(0) - t.pvm_vertices.min(0)).max()
+    for k in range(t.num_tiles):
+        tv, tf = t.tile(k)
+        assert len(tf) > 0 and tf.min() >= 0 and tf.max() < len(tv)
+        b = t.cell_bounds(k)
+        eps = 1e-5 * ext  # float32 rounding of a cut point exactly on a cell face
+        assert np.all(tv >= b[0] - eps) and np.all(tv <= b[1] + eps)
+        np.testing.assert_allclose(t.tile_bounds[k], np.stack([tv.min(0), tv.max(0)]))
+        src = t.face_source[t.face_offsets[k]:t.face_offsets[k + 1]]
+        assert np.all(t.pvm_face_view[src] == t.tile_view[k])
+    # Sorted by coarse cell, fine cell, view; the coarse lookup covers every tile exactly once.
+    cc = t.tile_cell // opts.sub
+    cid = (cc[:, 2] * opts.coarse + cc[:, 1]) * opts.coarse + cc[:, 0]
+    assert np.all(np.diff(cid) >= 0)
+    assert t.coarse_offsets[0] == 0 and t.coarse_offsets[-1] == t.num_tiles
+    for c in np.unique(cid)[:5]:
+        cx, cy, cz = c % 4, (c // 4) % 4, c // 16
+        r = t.coarse_tiles(cx, cy, cz)
+        assert np.all(cid[r.start:r.stop] == c) and len(r) == int((cid == c).sum())
+    # Round trip through the cache file.
+    p = t.save(tmp_path / "tiles.npz")
+    u = PvmTiles.load(p)
+    assert u.views == t.views and u.coarse == 4 and u.sub == 4
+    for name in ("vertices", "faces", "face_offsets", "tile_view", "tile_cell", "coarse_offsets", "pvm_faces"):
+        np.testing.assert_array_equal(getattr(u, name), getattr(t, name))
+
+
+def test_same_result_for_any_thread_count():
+    cams, depths = two_plane_scene()
+    out = []
+    for n in (1, 2):
+        _core.set_num_threads(n)
+        try:
+            t = build_tiles(cams, depths, PvmOptions(coarse=8, sub=4, max_block=4))
+        finally:
+            _core.set_num_threads(0)
+        out.append(t)
+    for name in ("vertices", "faces", "face_source", "face_offsets", "tile_view", "pvm_faces"):
+        np.testing.assert_array_equal(getattr(out[0], name), getattr(out[1], name))
+
+
+def test_slice_single_triangle_hand_checked():
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
+    r = _core.pvm_slice(v, np.array([[0, 1, 2]], np.int32), np.zeros(1, np.int32), 1,
+                        [0.0, 0.0, 0.0], [0.25, 0.25, 0.25], 1, 4)
+    # The triangle x + y <= 1 in z = 0 meets the 10 cells with i + j <= 3 of a 4 x 4 x 4 grid.
+    assert len(r["keys"]) == 10
+    a = areas(r["vertices"], r["faces"]).sum()
+    assert a == pytest.approx(0.5, rel=1e-6)
+
+
+def test_bad_input():
+    d = np.ones((4, 4), np.float32)
+    with pytest.raises(DtypeError, match="depth"):
+        _core.pvm_triangulate(d.astype(np.float64), None)
+    with pytest.raises(ShapeError, match="2 x 2"):
+        _core.pvm_triangulate(np.ones((1, 4), np.float32), None)
+    with pytest.raises(ShapeError, match="plane_field"):
+        _core.pvm_triangulate(d, np.ones((3, 4), np.float32))
+    with pytest.raises(BadValueError, match="max_block"):
+        _core.pvm_triangulate(d, None, 0.03, 1e-3, 3)
+    with pytest.raises(BadValueError, match="max_rel_jump"):
+        _core.pvm_triangulate(d, None, -1.0)
+    v = np.zeros((3, 3), np.float32)
+    f = np.array([[0, 1, 3]], np.int32)
+    with pytest.raises(BadValueError, match="out of range"):
+        _core.pvm_slice(v, f, np.zeros(1, np.int32), 1, [0, 0, 0], [1, 1, 1])
+    with pytest.raises(BadValueError, match="face_view"):
+        _core.pvm_slice(v, np.array([[0, 1, 2]], np.int32), np.ones(1, np.int32), 1, [0, 0, 0], [1, 1, 1])
+    with pytest.raises(BadValueError, match="empty bounds"):
+        _core.pvm_slice(v, np.array([[0, 1, 2]], np.int32), np.zeros(1, np.int32), 1, [0, 0, 0], [0, 1, 1])
+    with pytest.raises(ShapeError, match="face_view"):
+        _core.pvm_slice(v, np.array([[0, 1, 2]], np.int32), np.zeros(2, np.int32), 1, [0, 0, 0], [1, 1, 1])
+    c = cam()
+    with pytest.raises(ShapeError, match="match the camera"):
+        view_mesh(c, np.ones((3, 3), np.float32))
+    with pytest.raises(DtypeError):
+        view_mesh("cam", np.ones((3, 3), np.float32))
+    with pytest.raises(BadValueError, match="without depth"):
+        build_tiles({"a": c}, {})
+    with pytest.raises(BadValueError, match="empty"):
+        build_tiles({"a": c}, {"a": np.zeros((c.height, c.width), np.float32)})
+    with pytest.raises(BadValueError, match="no views"):
+        build_tiles({}, {})
+    with pytest.raises(BadValueError, match="power of two"):
+        PvmOptions(max_block=6)
+    with pytest.raises(BadValueError, match="max_rel_jump"):
+        PvmOptions(max_rel_jump=0)
