@@ -12,7 +12,8 @@ from ibrtools import synth
 from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError, InputError
 from ibrtools.render import job as render_job
-from ibrtools.render.depthwarp import DepthWarpMethod, check_params, depth_scores, far_depth, visualise
+from ibrtools.render.depthwarp import (DepthWarpMethod, check_params, depth_scores, far_depth, fill_background,
+                                       visualise)
 from ibrtools.scene import Scene, View
 
 try:
@@ -53,13 +54,17 @@ def test_depth_scores_definition():
     # A uniform error of 0.1 (1 % of far = 10): PSNR = 10 log10(1 / 0.01^2) = 40 dB (float32 rounding).
     s = depth_scores(ref + 0.1, None, ref, 10.0)
     assert s["depth_psnr"] == pytest.approx(40.0, abs=1e-3)
-    # Holes count as far; a hole where the reference is empty (0 = far) is no error.
-    ref2 = ref.copy()
-    ref2[:, :20] = 0
-    hole = np.zeros(ref.shape, bool)
-    hole[:, :20] = True
-    s = depth_scores(np.where(hole, 0, ref2).astype(np.float32), hole, ref2, 10.0)
-    assert s["depth_psnr"] is None and s["hole_fraction"] == 0.5
+    # Holes take the background depth around them: a hole on a step edge between a near
+    # (2 m) and a far (6 m) half is filled from the far side; a frame that is all hole is far.
+    step = np.full((16, 16), 2.0, np.float32)
+    step[:, 8:] = 6.0
+    hole = np.zeros(step.shape, bool)
+    hole[:, 6:10] = True
+    filled = fill_background(np.where(hole, 0, step).astype(np.float32), hole, 10.0)
+    assert (filled[:, 6:10] == 6.0).all() and (filled[~hole] == step[~hole]).all()
+    assert (fill_background(np.zeros((4, 4), np.float32), np.ones((4, 4), bool), 10.0) == 10.0).all()
+    s = depth_scores(np.where(hole, 0, step).astype(np.float32), hole, np.where(hole, 6.0, step), 10.0)
+    assert s["depth_psnr"] is None and s["hole_fraction"] == 0.25
     with pytest.raises(BadValueError, match="far"):
         depth_scores(ref, None, ref, 0.0)
 
@@ -100,7 +105,7 @@ def test_static_camera_warps_exactly(crowd):
     job = render_job.Job(crowd, [render_job.Frame("a", cam), render_job.Frame("b", cam)])
     # No dilation: it would (rightly) fill sky pixels next to the horizon, which the reference
     # leaves empty.
-    m = DepthWarpMethod({"layers": 1, "seeds": 4, "dilate": False})
+    m = DepthWarpMethod({"layers": 1, "seeds": 4, "dilate": False, "far_plane": False})
     m.prepare(crowd)
     out0, st0 = m.render(cam)
     assert m.frame_report()["depthwarp"]["source"] is None and "reference" in st0
@@ -108,7 +113,14 @@ def test_static_camera_warps_exactly(crowd):
     ref = out0["depth"]
     np.testing.assert_array_equal(out1["depth"], ref)
     np.testing.assert_array_equal(out1["hole"], ref == 0)
-    s = m.frame_metrics()
+    # With the far plane (default), the sky warps too: no hole at all, sky reported empty.
+    m2 = DepthWarpMethod({"layers": 1, "seeds": 4, "dilate": False})
+    m2.prepare(crowd)
+    m2.render(cam)
+    out2, _ = m2.render(cam)
+    np.testing.assert_array_equal(out2["depth"], ref)
+    assert not out2["hole"].any()
+    s = m2.frame_metrics()
     assert s["depth_psnr"] is None and s["depth_ssim"] == pytest.approx(1.0)
     assert {"peel", "reference"} <= set(st1) and m.frame_report()["depthwarp"]["layers"] == 1
     del job

@@ -27,10 +27,11 @@ sRGB-encoded), holes black; ``"depth"`` the warped z (0 in holes; ``--depth`` wr
 Scores (report.json "metrics" of each warped frame):
   depth_psnr, depth_ssim  of the warped depth against the reference depth of the same frame,
       both normalised by ``far``: the largest camera z of the 8 corners of the mesh's bounding
-      box in that frame's camera (the farthest any surface can be), with empty pixels and holes
-      at far (the paper keeps holes "filled with the background depth"; sec. 4.1) and clamped to
-      [0, far]; PSNR = 10 log10(1 / MSE) of z / far; SSIM with data range 1 (ibrtools.metrics.ssim,
-      scikit-image's).
+      box in that frame's camera (the farthest any surface can be), with empty pixels at far and
+      the warp's holes filled with the background depth around them (``fill_background``; the
+      paper's single-layer warp "keeps holes (filled with the background depth)", sec. 4.1),
+      clamped to [0, far]; PSNR = 10 log10(1 / MSE) of z / far; SSIM with data range 1
+      (ibrtools.metrics.ssim, scikit-image's).
   hole_fraction  fraction of the frame's pixels that are holes.
 Stage times (report "time_ms"): peel, motion, mipmap, warp, dilate, cull, reference; the frame's
 "depthwarp" entry adds warp_ms (motion + mipmap + warp + dilate: the predicted depth buffer's
@@ -48,6 +49,8 @@ Parameters (flags of ibr-render or ``--param key=value``)
   forward           "none" (the iterative backward warp), "vfw" or "afw" (forward baselines)
   dilate            fill small holes surrounded by converged pixels (default true)
   bound             "tight" (default) or "global"
+  far_plane         empty source pixels of layer 0 warp as a far plane (default true; see
+                    ``warp_with_far_plane``)
 """
 from __future__ import annotations
 
@@ -61,7 +64,8 @@ from ..scene import Scene
 from . import params as P
 
 DEFAULTS = {"layers": 3, "seeds": 16, "iters": 3, "threshold": 0.5, "oriented_bounds": False, "umbra": False,
-            "ground": "auto", "cull": False, "forward": "none", "dilate": True, "bound": "tight"}
+            "ground": "auto", "cull": False, "forward": "none", "dilate": True, "bound": "tight",
+            "far_plane": True}
 FORWARD = ("none", "vfw", "afw")
 
 
@@ -73,7 +77,7 @@ def check_params(params: dict | None) -> dict:
     p["iters"] = P.integer(p["iters"], "--iters", 1)
     p["threshold"] = P.number(p["threshold"], "--param threshold", 0.0, strict=True)
     for key, flag in (("oriented_bounds", "--oriented-bounds"), ("umbra", "--umbra"), ("cull", "--cull"),
-                      ("dilate", "--param dilate")):
+                      ("dilate", "--param dilate"), ("far_plane", "--param far_plane")):
         p[key] = P.boolean(p[key], flag)
     if p["forward"] not in FORWARD:
         raise BadValueError(f"--forward: expected one of {', '.join(FORWARD)}, got {p['forward']!r}")
@@ -87,25 +91,57 @@ def check_params(params: dict | None) -> dict:
     return p
 
 
+def _last_known(d: np.ndarray, known: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Value of the nearest known pixel to the left of each pixel in its row (and whether any)."""
+    idx = np.where(known, np.arange(d.shape[1])[None, :], -1)
+    last = np.maximum.accumulate(idx, axis=1)
+    return np.take_along_axis(d, np.maximum(last, 0), axis=1), last >= 0
+
+
+def fill_background(depth: np.ndarray, hole: np.ndarray, far: float) -> np.ndarray:
+    """``depth`` with its holes filled by the background depth around them: each hole pixel takes
+    the largest depth of the nearest known pixels to its left, right, top and bottom (the far
+    side of a disocclusion; Lee et al. sec. 4.1: the single-layer warp "keeps holes (filled with
+    the background depth)"; the classic DIBR background fill). Empty pixels (0) count as ``far``;
+    a hole with no known pixel in its row and column is ``far``. Vectorised (no pixel loop)."""
+    d = np.where(depth > 0, depth, np.float32(far)).astype(np.float32)
+    hole = np.asarray(hole, bool)
+    if not hole.any():
+        return d
+    known = ~hole
+    best = np.full(d.shape, -np.inf, np.float32)
+    for flip_t in (False, True):
+        dd, kk = (d.T, known.T) if flip_t else (d, known)
+        for rev in (False, True):
+            a, k = (dd[:, ::-1], kk[:, ::-1]) if rev else (dd, kk)
+            v, ok = _last_known(np.ascontiguousarray(a), k)
+            v = np.where(ok, v, -np.inf)
+            if rev:
+                v = v[:, ::-1]
+            best = np.maximum(best, v.T if flip_t else v)
+    out = d.copy()
+    out[hole] = np.where(np.isfinite(best[hole]), best[hole], np.float32(far))
+    return out
+
+
 def depth_scores(warped: np.ndarray, hole: np.ndarray | None, reference: np.ndarray, far: float) -> dict:
-    """Depth PSNR / SSIM of ``warped`` against ``reference`` (module doc: z / far, empty and holes
-    at far) and the hole fraction."""
+    """Depth PSNR / SSIM of ``warped`` against ``reference`` (module doc: z / far, empty at far,
+    holes filled with the background depth by :func:`fill_background`) and the hole fraction."""
     from ..metrics import psnr, ssim
 
     far = float(far)
     if not far > 0:
         raise BadValueError(f"far: expected a positive depth, got {far}")
-    w = np.where(warped > 0, warped, far)
-    if hole is not None:
-        w = np.where(hole, far, w)
+    if hole is None:
+        hole = np.zeros(warped.shape, bool)
+    w = fill_background(warped, hole, far)
     r = np.where(reference > 0, reference, far)
     a = (np.clip(w, 0.0, far) / far).astype(np.float32)
     b = (np.clip(r, 0.0, far) / far).astype(np.float32)
     p = psnr(a, b, 1.0)
-    out = {"depth_psnr": float(p) if p is not None and np.isfinite(p) else None,
-           "depth_ssim": float(ssim(a, b, 1.0)),
-           "hole_fraction": float(hole.mean()) if hole is not None else 0.0}
-    return out
+    return {"depth_psnr": float(p) if p is not None and np.isfinite(p) else None,
+            "depth_ssim": float(ssim(a, b, 1.0)),
+            "hole_fraction": float(hole.mean())}
 
 
 def far_depth(bounds: np.ndarray, camera: Camera) -> float:
@@ -122,6 +158,36 @@ def visualise(depth: np.ndarray, far: float) -> np.ndarray:
 
     v = np.where(depth > 0, 1.0 - np.clip(depth / far, 0.0, 1.0), 0.0).astype(np.float32)
     return np.ascontiguousarray(np.repeat(srgb_to_linear(v)[..., None], 3, axis=2), np.float32)
+
+
+def warp_with_far_plane(layers: np.ndarray, src: Camera, dst: Camera, bounds: np.ndarray, forward: str = "none",
+                        params=None, far_plane: bool = True):
+    """Warp a deep depth buffer (L, H, W) from ``src`` into ``dst`` (``forward`` "none" = the
+    iterative backward warp with ``params``, else "vfw" / "afw"), returning the WarpResult with
+    ``depth`` 0 in holes and where nothing is.
+
+    ``far_plane``: like a cleared GL depth buffer, the empty pixels of layer 0 become a surface
+    at z = 2 far_src (far_src: the farthest corner of the scene ``bounds`` in src, so the plane is
+    behind every surface), so that the background's motion converges instead of leaving holes;
+    a converged depth beyond far_dst (no surface can be farther in dst) is that plane: reported
+    as empty (depth 0), not as a hole."""
+    from ..depthwarp import forward_warp_depth, warp_depth
+
+    layers = np.ascontiguousarray(layers[None] if layers.ndim == 2 else layers, np.float32)
+    if far_plane:
+        layers = layers.copy()
+        layers[0][layers[0] <= 0] = np.float32(2.0 * far_depth(bounds, src))
+    if forward == "none":
+        res = warp_depth(layers, src, dst, params)
+    else:
+        res = forward_warp_depth(layers, src, dst, forward)
+    hole = np.asarray(res.hole, bool)
+    depth = np.where(hole, np.float32(0), res.depth)
+    if far_plane:
+        depth = np.where(depth > far_depth(bounds, dst), np.float32(0), depth)
+    res.depth = np.ascontiguousarray(depth, np.float32)
+    res.hole = hole
+    return res
 
 
 def _jsonable(v):
@@ -219,14 +285,8 @@ class DepthWarpMethod:
         deep = self._renderer.peel(src, p["layers"], umbra=[camera] if p["umbra"] else None,
                                    ground_object=self._ground)
         stages["peel"] = sum(deep.times_ms.values())
-        if p["forward"] == "none":
-            from ..depthwarp import warp_depth
-
-            res = warp_depth(deep.depth, src, camera, self._warp_params())
-        else:
-            from ..depthwarp import forward_warp_depth
-
-            res = forward_warp_depth(deep.depth, src, camera, p["forward"])
+        res = warp_with_far_plane(deep.depth, src, camera, self._bounds, p["forward"],
+                                  self._warp_params() if p["forward"] == "none" else None, p["far_plane"])
         for k in ("motion", "mipmap", "warp", "dilate"):
             if k in res.times_ms:
                 stages[k] = float(res.times_ms[k])
@@ -237,7 +297,7 @@ class DepthWarpMethod:
         stages["reference"] = (time.perf_counter() - t0) * 1e3
         ref = ref_out["depth"]
         hole = np.asarray(res.hole, bool)
-        depth = np.where(hole, np.float32(0), res.depth).astype(np.float32)
+        depth = res.depth
         report = {"source": "previous frame", "layers": deep.layers, "ground_layer": deep.ground_layer,
                   "umbra": deep.umbra, "forward": p["forward"],
                   "source_fill": [round(float(f), 6) for f in deep.fill],
