@@ -1,0 +1,308 @@
+"""The global mesh of hybrid IBR (Prakash et al. 2021, sec. 3.1 and Fig. 2; issue 6 item 2).
+docs/preprocess.md says what is chosen and why.
+
+* :func:`choose_source` — where the geometry comes from. ``auto``: the scene's
+  ``reconstructed`` mesh when it has one (what a real capture gives); else, when every view has
+  depth, TSDF fusion of the depth maps (so that a synthetic scene's ground truth never leaks
+  into a method under evaluation); else the ``ground_truth`` mesh (the only geometry there is);
+  else an error. ``reconstructed`` / ``ground_truth`` / ``fusion`` force one.
+* :func:`fuse_depth` — open3d UniformTSDFVolume over the views' depth maps, marching cubes;
+  voxel = the depth points' largest extent / ``resolution`` (default 384), truncation 4 voxels.
+* :func:`densify` — midpoint subdivision of edges longer than ``max_edge`` (per-vertex colour
+  needs vertices about as dense as the texture detail it should hold).
+* :func:`vertex_colors` — per-vertex colour by ULR-weighted blending (Buehler et al. 2001) of
+  the views that see the vertex: visibility by a depth test against each view's depth map,
+  penalty = angle between the vertex normal and the direction to the camera + a resolution
+  term, k = 4 best views, weights 1 - p / p_(k+1).
+* :func:`depth_from_mesh` — a view's depth rendered from the mesh (Embree, ReferenceRenderer).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+from typing import Mapping
+
+import numpy as np
+
+from ..camera import PINHOLE, Camera
+from ..checks import check_float, check_int
+from ..errors import BadValueError, DtypeError, NotBuiltError
+from ..mesh import Mesh
+from ..scene import Scene
+
+SOURCES = ("auto", "reconstructed", "ground_truth", "fusion")
+
+
+@dataclass(frozen=True)
+class GlobalMeshOptions:
+    """Parameters of the mesh and texture stages (hashed into their cache keys)."""
+
+    source: str = "auto"
+    resolution: int = 384        # TSDF voxel = largest extent of the depth points / resolution
+    trunc_voxels: float = 4.0    # TSDF truncation distance in voxels
+    max_edge_voxels: float = 1.0  # densify a given mesh to edges <= this many voxels
+    max_faces: int = 4_000_000   # cap on densification
+    k_views: int = 4             # ULR: views blended per vertex
+    depth_tol: float = 0.02      # visibility: |z_vertex - z_view| <= depth_tol * z_view
+
+    def __post_init__(self) -> None:
+        if self.source not in SOURCES:
+            raise BadValueError(f"mesh source: expected one of {SOURCES}, got {self.source!r}")
+        check_int(self.resolution, "resolution", 8)
+        check_float(self.trunc_voxels, "trunc_voxels", 1.0)
+        if not check_float(self.max_edge_voxels, "max_edge_voxels") > 0:
+            raise BadValueError("max_edge_voxels: expected > 0")
+        check_int(self.max_faces, "max_faces", 1)
+        check_int(self.k_views, "k_views", 1)
+        if not check_float(self.depth_tol, "depth_tol") > 0:
+            raise BadValueError("depth_tol: expected > 0")
+
+    def to_dict(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+def choose_source(scene: Scene, source: str = "auto") -> str:
+    """The mesh source ``auto`` resolves to for ``scene`` (see the module docstring)."""
+    if source not in SOURCES:
+        raise BadValueError(f"mesh source: expected one of {SOURCES}, got {source!r}")
+    all_depth = bool(scene.views) and all(v.has_depth for v in scene.views)
+    if source == "auto":
+        if "reconstructed" in scene.meshes:
+            return "reconstructed"
+        if all_depth:
+            return "fusion"
+        if "ground_truth" in scene.meshes:
+            return "ground_truth"
+        raise BadValueError("global mesh: the views have no depth and the scene has no mesh; "
+                            "nothing to build geometry from")
+    if source in ("reconstructed", "ground_truth") and source not in scene.meshes:
+        raise BadValueError(f"global mesh: the scene has no {source!r} mesh (it has: "
+                            f"{', '.join(scene.meshes) or 'none'})")
+    if source == "fusion" and not all_depth:
+        raise BadValueError("global mesh: fusion needs a depth map for every view")
+    return source
+
+
+def depth_extent(cameras: Mapping[str, Camera], depths: Mapping[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """(min, max) corners of the world points of the depth maps (subsampled to ~4096 per view)."""
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    for n, cam in cameras.items():
+        d = depths[n]
+        step = max(1, int(math.sqrt(d.size / 4096)))
+        ok = np.isfinite(d) & (d > 0)
+        if not ok.any():
+            continue
+        w = cam.unproject(np.where(ok, d, 0))[::step, ::step][ok[::step, ::step]]
+        if len(w):
+            lo, hi = np.minimum(lo, w.min(0)), np.maximum(hi, w.max(0))
+    if not np.all(hi >= lo) or not (hi - lo).max() > 0:
+        raise BadValueError("global mesh: empty bounds (no view has a valid depth pixel)")
+    return lo, hi
+
+
+def fuse_depth(cameras: Mapping[str, Camera], depths: Mapping[str, np.ndarray],
+               options: GlobalMeshOptions | None = None) -> Mesh:
+    """TSDF fusion (open3d ScalableTSDFVolume) of pinhole z-depth maps, then marching cubes.
+    Unknown depth (0) and infinity (sky) are left out."""
+    import open3d as o3d
+
+    options = options or GlobalMeshOptions()
+    pin = {n: c for n, c in cameras.items() if c.model == PINHOLE}
+    if not pin:
+        raise NotBuiltError("global mesh: fusion of equirectangular depth maps is not built yet")
+    lo, hi = depth_extent(pin, depths)
+    # A uniform grid (cube of side = the largest extent of the depth points plus the truncation
+    # margin): open3d's ScalableTSDFVolume extracts no surface in open3d 0.20 here (checked on a
+    # single plane), the uniform volume does.
+    trunc_margin = 2 * options.trunc_voxels / options.resolution
+    length = float((hi - lo).max()) * (1 + trunc_margin)
+    voxel = length / options.resolution
+    centre = (lo + hi) / 2
+    vol = o3d.pipelines.integration.UniformTSDFVolume(
+        length=length, resolution=options.resolution, sdf_trunc=options.trunc_voxels * voxel,
+        color_type=o3d.pipelines.integration.TSDFVolumeColorType.NoColor,
+        origin=(centre - length / 2).astype(np.float64))
+    blank = None
+    for n, cam in pin.items():
+        d = np.asarray(depths[n], np.float32)
+        d = np.where(np.isfinite(d) & (d > 0), d, 0).astype(np.float32)
+        # open3d puts pixel centres at integer coordinates, we at +0.5: shift the principal point.
+        intr = o3d.camera.PinholeCameraIntrinsic(cam.width, cam.height, cam.fx, cam.fy, cam.cx - 0.5, cam.cy - 0.5)
+        if blank is None or blank.shape[:2] != d.shape:
+            blank = np.zeros(d.shape + (3,), np.uint8)
+        rgbd = o3d.geometry.RGBDImage.create_from_color_and_depth(
+            o3d.geometry.Image(blank), o3d.geometry.Image(d),
+            depth_scale=1.0, depth_trunc=float(np.max(d)) + 1.0, convert_rgb_to_intensity=False)
+        vol.integrate(rgbd, intr, np.ascontiguousarray(cam.cam_from_world))
+    m = vol.extract_triangle_mesh()
+    v = np.asarray(m.vertices, np.float32)
+    f = np.asarray(m.triangles, np.int32)
+    if len(f) == 0:
+        raise BadValueError("global mesh: TSDF fusion produced no surface (depth maps disagree or are empty)")
+    # Marching cubes gives triangles whose normals point outwards of the TSDF's negative side, i.e.
+    # towards the cameras, counter-clockwise seen from the front, as mesh.py wants.
+    return Mesh(v, f, kind="reconstructed")
+
+
+def densify(mesh: Mesh, max_edge: float, max_faces: int = 4_000_000) -> Mesh:
+    """Split every triangle with an edge longer than ``max_edge`` into 4 (midpoints), repeatedly,
+    until no edge is longer or the next round would pass ``max_faces``. Vertex colours, UVs and
+    textures are dropped (colour comes from the views); object ids are kept."""
+    if not max_edge > 0:
+        raise BadValueError(f"max_edge: expected > 0, got {max_edge}")
+    v = mesh.vertices.astype(np.float32)
+    f = mesh.faces.copy()
+    obj = mesh.object_ids.copy()
+    while True:
+        e = np.stack([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]], 1)  # (M, 3, 2)
+        length = np.linalg.norm(v[e[..., 0]] - v[e[..., 1]], axis=-1)
+        split = (length > max_edge).any(1)
+        n_split = int(split.sum())
+        if n_split == 0 or len(f) + 3 * n_split > max_faces:
+            break
+        # Split every edge of a split face (then its neighbours share the midpoints: no T-junction
+        # within the split set; a kept face next to a split one keeps a T-junction, which does not
+        # matter for per-vertex colour).
+        es = np.sort(e[split].reshape(-1, 2), 1)
+        key = es[:, 0].astype(np.int64) * len(v) + es[:, 1]
+        uk, inv = np.unique(key, return_inverse=True)
+        a, b = uk // len(v), uk % len(v)
+        mids = ((v[a] + v[b]) * 0.5).astype(np.float32)
+        mid_id = (len(v) + inv).reshape(-1, 3).astype(np.int32)  # midpoints of (01, 12, 20)
+        v = np.concatenate([v, mids])
+        fs = f[split]
+        m01, m12, m20 = mid_id[:, 0], mid_id[:, 1], mid_id[:, 2]
+        new = np.concatenate([np.stack([fs[:, 0], m01, m20], 1), np.stack([m01, fs[:, 1], m12], 1),
+                              np.stack([m20, m12, fs[:, 2]], 1), np.stack([m01, m12, m20], 1)])
+        f = np.concatenate([f[~split], new]).astype(np.int32)
+        obj = np.concatenate([obj[~split], np.tile(obj[split], 4)])
+    return Mesh(v, f, object_ids=obj, materials=mesh.materials, kind=mesh.kind)
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals (float32 (N, 3); 0 for isolated vertices)."""
+    v = vertices.astype(np.float64)
+    fn = np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])
+    n = np.zeros_like(v)
+    for k in range(3):
+        for a in range(3):
+            n[:, a] += np.bincount(faces[:, k], weights=fn[:, a], minlength=len(v))
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    return (n / np.where(norm > 0, norm, 1)).astype(np.float32)
+
+
+def _sample_bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """img (H, W, C) at continuous coordinates (pixel centres at +0.5), clamped to the edge."""
+    h, w = img.shape[:2]
+    xf, yf = np.clip(x - 0.5, 0, w - 1), np.clip(y - 0.5, 0, h - 1)
+    x0, y0 = np.minimum(xf.astype(np.int64), w - 2 if w > 1 else 0), np.minimum(yf.astype(np.int64), h - 2 if h > 1 else 0)
+    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+    tx, ty = (xf - x0)[:, None], (yf - y0)[:, None]
+    top = img[y0, x0] * (1 - tx) + img[y0, x1] * tx
+    bot = img[y1, x0] * (1 - tx) + img[y1, x1] * tx
+    return top * (1 - ty) + bot * ty
+
+
+def vertex_colors(mesh: Mesh, cameras: Mapping[str, Camera], colors: Mapping[str, np.ndarray],
+                  depths: Mapping[str, np.ndarray], options: GlobalMeshOptions | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """ULR-weighted blend of the views' colours at each vertex: (colors (N, 3) f32, seen (N,) int32
+    = number of views that see the vertex). Vertices no view sees get colour 0."""
+    options = options or GlobalMeshOptions()
+    names = list(cameras)
+    if not names:
+        raise BadValueError("vertex colours: no views")
+    v = mesh.vertices.astype(np.float64)
+    nrm = vertex_normals(mesh.vertices, mesh.faces).astype(np.float64)
+    n_v, n_views = len(v), len(names)
+    penalty = np.full((n_views, n_v), np.inf, np.float32)
+    dist = np.full((n_views, n_v), np.inf, np.float32)
+    for i, n in enumerate(names):
+        cam, d = cameras[n], depths[n]
+        xy, z = cam.project(v)
+        with np.errstate(invalid="ignore"):
+            inside = (np.isfinite(z) & (xy[:, 0] >= 0) & (xy[:, 0] < cam.width)
+                      & (xy[:, 1] >= 0) & (xy[:, 1] < cam.height))
+        idx = np.flatnonzero(inside)
+        px = np.minimum(xy[idx, 0].astype(np.int64), cam.width - 1)
+        py = np.minimum(xy[idx, 1].astype(np.int64), cam.height - 1)
+        dz = d[py, px]
+        # Depth test: the view's own depth (z for pinhole, ray distance for equirect, as project()).
+        vis = np.isfinite(dz) & (dz > 0) & (np.abs(z[idx] - dz) <= options.depth_tol * dz)
+        idx = idx[vis]
+        to_cam = cam.centre[None] - v[idx]
+        r = np.linalg.norm(to_cam, axis=1)
+        cosang = np.einsum("ij,ij->i", to_cam, nrm[idx]) / np.maximum(r, 1e-12)
+        ang = np.arccos(np.clip(cosang, -1, 1))
+        ok = ang < np.pi / 2 - 1e-3  # seen from the front
+        penalty[i, idx[ok]] = ang[ok]
+        dist[i, idx[ok]] = r[ok]
+    seen = np.isfinite(penalty).sum(0).astype(np.int32)
+    # Resolution penalty (Buehler et al.): a view farther than the nearest one that sees the vertex
+    # samples it more coarsely.
+    dmin = np.min(dist, axis=0)
+    with np.errstate(invalid="ignore"):
+        penalty = penalty + 0.5 * np.maximum(0, dist / np.where(np.isfinite(dmin), dmin, 1) - 1)
+    k = min(options.k_views, n_views)
+    if n_views > k:
+        thresh = np.partition(penalty, k, axis=0)[k]  # the (k+1)-th smallest penalty
+    else:
+        thresh = np.full(n_v, np.inf, np.float32)
+    acc = np.zeros((n_v, 3), np.float64)
+    wsum = np.zeros(n_v, np.float64)
+    for i, n in enumerate(names):
+        p = penalty[i]
+        use = np.flatnonzero(np.isfinite(p) & (p < thresh))
+        if len(use) == 0:
+            continue
+        t = thresh[use]
+        w = np.where(np.isfinite(t), 1 - p[use] / np.where(t > 0, t, 1), 1.0)
+        w = np.maximum(w, 1e-3)  # a vertex seen by one view only keeps its colour
+        cam = cameras[n]
+        xy, _ = cam.project(v[use])
+        col = _sample_bilinear(colors[n], xy[:, 0], xy[:, 1])
+        acc[use] += w[:, None] * col
+        wsum[use] += w
+    out = np.where(wsum[:, None] > 0, acc / np.where(wsum > 0, wsum, 1)[:, None], 0).astype(np.float32)
+    return np.ascontiguousarray(out), seen
+
+
+def depth_from_mesh(mesh: Mesh, cameras: Mapping[str, Camera]) -> dict[str, np.ndarray]:
+    """Each camera's depth rendered from ``mesh`` (z for pinhole, ray distance for equirect;
+    0 where no surface), one BVH for all."""
+    from ..render.reference import ReferenceRenderer
+
+    if not isinstance(mesh, Mesh):
+        raise DtypeError(f"mesh: expected an ibrtools.Mesh, got {type(mesh).__name__}")
+    rr = ReferenceRenderer(mesh)
+    out = {}
+    for n, cam in cameras.items():
+        d = np.asarray(rr.render(cam, outputs="depth")["depth"], np.float32)
+        out[n] = np.ascontiguousarray(np.where(np.isfinite(d) & (d > 0), d, 0).astype(np.float32))
+    return out
+
+
+def mesh_scale(mesh: Mesh) -> float:
+    ext = mesh.bounds()[1] - mesh.bounds()[0]
+    return float(ext.max())
+
+
+def build_global_mesh(scene: Scene, options: GlobalMeshOptions | None = None,
+                      depths: Mapping[str, np.ndarray] | None = None) -> tuple[Mesh, dict]:
+    """The untextured global mesh and a record {source, vertices, faces, voxel}."""
+    options = options or GlobalMeshOptions()
+    src = choose_source(scene, options.source)
+    if src == "fusion":
+        cams = {v.name: v.camera for v in scene.views}
+        deps = depths or {v.name: v.depth for v in scene.views}
+        mesh = fuse_depth(cams, deps, options)
+        lo, hi = depth_extent(cams, deps)
+        voxel = float((hi - lo).max() / options.resolution)  # (up to the truncation margin)
+    else:
+        given = scene.meshes[src]
+        if len(given.faces) == 0 or not mesh_scale(given) > 0:
+            raise BadValueError(f"global mesh: the {src!r} mesh is degenerate (zero extent)")
+        voxel = mesh_scale(given) / options.resolution
+        mesh = densify(given, options.max_edge_voxels * voxel, options.max_faces)
+    return mesh, {"source": src, "vertices": int(len(mesh.vertices)), "faces": int(len(mesh.faces)),
+                  "voxel": voxel}

@@ -1,0 +1,143 @@
+"""The global mesh (ibrtools.hybrid.globalmesh): which geometry is used, TSDF fusion of a known
+plane, densification, ULR-weighted per-vertex colour with a depth test, depth from the mesh,
+bad input."""
+import numpy as np
+import pytest
+
+from ibrtools.camera import Camera, look_at
+from ibrtools.errors import BadValueError, DtypeError
+from ibrtools.hybrid.globalmesh import (GlobalMeshOptions, build_global_mesh, choose_source, densify,
+                                        depth_from_mesh, fuse_depth, vertex_colors, vertex_normals)
+from ibrtools.mesh import Mesh
+from ibrtools.scene import Scene, View
+
+
+def quad(z=0.0, size=1.0, kind="ground_truth"):
+    """A square of side 2 * size in the plane y = z, normal +y."""
+    v = np.array([[-size, z, -size], [size, z, -size], [size, z, size], [-size, z, size]], np.float32)
+    # Counter-clockwise seen from +y: normal (0, 1, 0).
+    f = np.array([[0, 2, 1], [0, 3, 2]], np.int32)
+    return Mesh(v, f, kind=kind)
+
+
+def wall(zw=2.0, size=3.0):
+    """The plane z = zw facing -z (towards cameras at z < zw)."""
+    v = np.array([[-size, -size, zw], [size, -size, zw], [size, size, zw], [-size, size, zw]], np.float32)
+    f = np.array([[0, 2, 1], [0, 3, 2]], np.int32)
+    n = vertex_normals(v, f)
+    if n[0, 2] > 0:
+        f = f[:, [0, 2, 1]]
+    return Mesh(v, f)
+
+
+def cam_at(eye, w=40, h=30, f=30.0, target=(0.0, 0.0, 2.0)):
+    return Camera.pinhole(w, h, f, f, w / 2, h / 2, look_at(eye, target, up=(0.0, -1.0, 0.0)))
+
+
+def test_choose_source():
+    c = cam_at((0, 0, 0))
+    d = np.full((30, 40), 2.0, np.float32)
+    col = np.zeros((30, 40, 3), np.float32)
+    with_depth = [View.create("a", c, color=col, depth=d)]
+    no_depth = [View.create("a", c, color=col)]
+    gt, rec = wall(), Mesh(wall().vertices, wall().faces, kind="reconstructed")
+    assert choose_source(Scene(views=with_depth, meshes={"ground_truth": gt, "reconstructed": rec})) == "reconstructed"
+    # Ground truth is not used when depth can be fused: no leak of ground truth into a method.
+    assert choose_source(Scene(views=with_depth, meshes={"ground_truth": gt})) == "fusion"
+    assert choose_source(Scene(views=no_depth, meshes={"ground_truth": gt})) == "ground_truth"
+    assert choose_source(Scene(views=with_depth, meshes={"ground_truth": gt}), "ground_truth") == "ground_truth"
+    with pytest.raises(BadValueError, match="no depth and the scene has no mesh"):
+        choose_source(Scene(views=no_depth))
+    with pytest.raises(BadValueError, match="no 'reconstructed' mesh"):
+        choose_source(Scene(views=with_depth), "reconstructed")
+    with pytest.raises(BadValueError, match="fusion needs a depth map"):
+        choose_source(Scene(views=no_depth, meshes={"ground_truth": gt}), "fusion")
+    with pytest.raises(BadValueError, match="mesh source"):
+        choose_source(Scene(views=with_depth), "magic")
+
+
+def test_fusion_of_a_plane_lies_on_it():
+    cams = {f"v{i}": cam_at((x, 0.0, 0.0)) for i, x in enumerate((-0.3, 0.0, 0.3))}
+    depths = {n: depth_from_mesh(wall(), {n: c})[n] for n, c in cams.items()}
+    m = fuse_depth(cams, depths, GlobalMeshOptions(resolution=64))
+    assert m.kind == "reconstructed" and len(m.faces) > 100
+    voxel = float(np.ptp(np.concatenate([c.unproject(depths[n]).reshape(-1, 3) for n, c in cams.items()]),
+                         axis=0).max()) / 64
+    # Marching cubes on a TSDF of exact depth: vertices on the plane within a small part of a voxel.
+    assert np.abs(m.vertices[:, 2] - 2.0).max() < 0.25 * voxel
+    # Normals face the cameras (-z).
+    assert vertex_normals(m.vertices, m.faces)[:, 2].mean() < -0.9
+
+
+def test_depth_from_mesh_exact_plane():
+    c = cam_at((0.0, 0.0, 0.0))
+    d = depth_from_mesh(wall(), {"a": c})["a"]
+    np.testing.assert_allclose(d, 2.0, rtol=1e-5)  # z-depth of the plane z = 2 (float32 ray hits)
+    d = depth_from_mesh(quad(z=5.0, size=0.1), {"a": c})["a"]
+    assert np.all(d == 0)  # nothing hit: 0 = unknown
+    with pytest.raises(DtypeError):
+        depth_from_mesh("mesh", {"a": c})
+
+
+def test_densify_bounds_edges_and_keeps_area():
+    m = quad(size=1.0)
+    d = densify(m, 0.3)
+    e = d.vertices[d.faces]
+    lengths = np.linalg.norm(e - np.roll(e, 1, axis=1), axis=-1)
+    assert lengths.max() <= 0.3 + 1e-6
+
+    def area(mm):
+        v = mm.vertices.astype(np.float64)
+        return 0.5 * np.linalg.norm(np.cross(v[mm.faces[:, 1]] - v[mm.faces[:, 0]],
+                                             v[mm.faces[:, 2]] - v[mm.faces[:, 0]]), axis=1).sum()
+    assert area(d) == pytest.approx(area(m), rel=1e-6)
+    # Orientation kept: every normal still +y.
+    assert np.all(vertex_normals(d.vertices, d.faces)[:, 1] > 0.99)
+    # The face cap stops subdivision.
+    assert len(densify(m, 1e-3, max_faces=100).faces) <= 100
+    with pytest.raises(BadValueError):
+        densify(m, 0.0)
+
+
+def test_vertex_colors_blend_and_depth_test():
+    mesh = densify(wall(size=1.0), 0.2)
+    c_red, c_green = cam_at((-0.2, 0.0, 0.0)), cam_at((0.2, 0.0, 0.0))
+    cams = {"red": c_red, "green": c_green}
+    red = np.zeros((30, 40, 3), np.float32)
+    red[..., 0] = 1
+    green = np.zeros((30, 40, 3), np.float32)
+    green[..., 1] = 1
+    depths = depth_from_mesh(mesh, cams)
+    col, seen = vertex_colors(mesh, cams, {"red": red, "green": green}, depths, GlobalMeshOptions(k_views=2))
+    both = seen == 2
+    assert both.any()
+    # Convex blend of the two views: r + g = 1 and b = 0 wherever both see the vertex.
+    np.testing.assert_allclose(col[both].sum(1), 1.0, rtol=1e-5)
+    # The green view's depth says an occluder stands in front (z = 1): it sees no vertex.
+    occluded = {"red": depths["red"], "green": np.full_like(depths["green"], 1.0)}
+    col, seen = vertex_colors(mesh, cams, {"red": red, "green": green}, occluded)
+    vis = seen > 0
+    assert vis.any() and seen.max() == 1
+    np.testing.assert_allclose(col[vis], [[1.0, 0.0, 0.0]] * int(vis.sum()), atol=1e-6)
+    with pytest.raises(BadValueError, match="no views"):
+        vertex_colors(mesh, {}, {}, {})
+
+
+def test_build_global_mesh_from_given_mesh_and_errors():
+    c = cam_at((0.0, 0.0, 0.0))
+    v = View.create("a", c, color=np.zeros((30, 40, 3), np.float32))
+    mesh, rec = build_global_mesh(Scene(views=[v], meshes={"ground_truth": wall()}),
+                                  GlobalMeshOptions(resolution=16))
+    assert rec["source"] == "ground_truth" and len(mesh.faces) > 2
+    # Degenerate: all vertices at one point.
+    flat = Mesh(np.zeros((3, 3), np.float32), np.array([[0, 1, 2]], np.int32))
+    with pytest.raises(BadValueError, match="degenerate"):
+        build_global_mesh(Scene(views=[v], meshes={"ground_truth": flat}))
+    with pytest.raises(BadValueError, match="no depth and the scene has no mesh"):
+        build_global_mesh(Scene(views=[v]))
+    # Depth maps with no finite surface (all sky): empty bounds.
+    v0 = View.create("a", c, color=np.zeros((30, 40, 3), np.float32), depth=np.full((30, 40), np.inf, np.float32))
+    with pytest.raises(BadValueError, match="empty bounds"):
+        build_global_mesh(Scene(views=[v0]))
+    with pytest.raises(BadValueError, match="resolution"):
+        GlobalMeshOptions(resolution=2)
