@@ -67,25 +67,30 @@ inline Bound GlobalBound(const DepthWarpLayer& l) {
   return l.n_mips > 0 ? Texel(l, l.n_mips, 0, 0) : Texel(l, 0, 0, 0);
 }
 
-// Axis-aligned source region p - R^T B (x0, y0, x1, y1).
+// Axis-aligned source region p - R^T B (x0, y0, x1, y1) of the target centres p in
+// [px0, px1] x [py0, py1].
 struct Region {
   float x0, y0, x1, y1;
 };
-inline Region SourceRegion(const DepthWarpLayer& l, const Bound& b, float px, float py) {
+inline Region SourceRegion(const DepthWarpLayer& l, const Bound& b, float px0, float py0, float px1, float py1) {
   const float* r = l.rot;
   // v = R^T u: vx = r0 u + r2 w, vy = r1 u + r3 w.
   const float vx_min = (r[0] >= 0 ? r[0] * b.u0 : r[0] * b.u1) + (r[2] >= 0 ? r[2] * b.w0 : r[2] * b.w1);
   const float vx_max = (r[0] >= 0 ? r[0] * b.u1 : r[0] * b.u0) + (r[2] >= 0 ? r[2] * b.w1 : r[2] * b.w0);
   const float vy_min = (r[1] >= 0 ? r[1] * b.u0 : r[1] * b.u1) + (r[3] >= 0 ? r[3] * b.w0 : r[3] * b.w1);
   const float vy_max = (r[1] >= 0 ? r[1] * b.u1 : r[1] * b.u0) + (r[3] >= 0 ? r[3] * b.w1 : r[3] * b.w0);
-  return {px - vx_max, py - vy_max, px - vx_min, py - vy_min};
+  return {px0 - vx_max, py0 - vy_max, px1 - vx_min, py1 - vy_min};
+}
+
+inline bool Overlaps(const DepthWarpLayer& l, const Region& r) {
+  return r.x1 >= 0.0f && r.y1 >= 0.0f && r.x0 < float(l.packed.width) && r.y0 < float(l.packed.height);
 }
 
 // Fig. 5 local_motion_bound: four corner lookups at level ceil(log2 extent) of the region clipped
 // to the source image. Empty when the region misses the image or holds no valid motion.
 inline Bound LocalBound(const DepthWarpLayer& l, Region r) {
   const int w = l.packed.width, h = l.packed.height;
-  if (!(r.x1 >= 0.0f && r.y1 >= 0.0f && r.x0 < float(w) && r.y0 < float(h))) return kEmptyBound;
+  if (!Overlaps(l, r)) return kEmptyBound;
   r.x0 = std::max(r.x0, 0.0f);
   r.y0 = std::max(r.y0, 0.0f);
   r.x1 = std::min(r.x1, float(w));
@@ -230,6 +235,7 @@ void DepthWarpMotion(const ImageView<const float>& depth, const ImageView<const 
 DepthWarpAxes DepthWarpChooseAxes(const ImageView<const float>& packed, bool try_oriented, int sample_grid,
                                   float rot[4]) {
   rot[0] = 1, rot[1] = 0, rot[2] = 0, rot[3] = 1;
+  if (!try_oriented) return DepthWarpAxes::kAxisAligned;  // no full pass: the mipmap's top is the global box
   const int w = packed.width, h = packed.height;
   // Global axis-aligned box (needed for the area comparison and the empty case).
   std::mutex mu;
@@ -249,7 +255,6 @@ DepthWarpAxes DepthWarpChooseAxes(const ImageView<const float>& packed, bool try
     ay0 = std::min<double>(ay0, ly0), ay1 = std::max<double>(ay1, ly1);
   });
   if (!(ax0 <= ax1)) return DepthWarpAxes::kEmpty;
-  if (!try_oriented) return DepthWarpAxes::kAxisAligned;
   // PCA of the motions at a fixed grid of pixels (sec. 3.3: "a small number (e.g., 64) suffices").
   double sx = 0, sy = 0, sxx = 0, sxy = 0, syy = 0;
   int n = 0;
@@ -337,72 +342,96 @@ void DepthWarpMipDown(const ImageView<const float>& in, const ImageView<float>& 
 void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const DepthWarpOptions& opt,
                        const ImageView<float>& depth_out, const ImageView<std::int8_t>& layer_out,
                        DepthWarpCounters* counters) {
-  const int w = depth_out.width;
+  const int w = depth_out.width, h = depth_out.height;
+  constexpr int kT = kDepthWarpTile;
+  const int tiles_x = (w + kT - 1) / kT, tiles_y = (h + kT - 1) / kT;
   const float thr2 = opt.threshold * opt.threshold;
   const int n_seeds = std::max(1, opt.seeds);
   const float inv_n = 1.0f / float(n_seeds);
   std::atomic<std::int64_t> converged{0}, early{0}, searched{0}, samples{0}, lookups{0};
-  ParallelFor(depth_out.height, RowGrain(w), [&](std::int64_t r0, std::int64_t r1) {
+  const std::int64_t grain = std::max<std::int64_t>(1, kMinPixelsPerTask / (std::int64_t(kT) * kT * tiles_x));
+  ParallelFor(tiles_y, grain, [&](std::int64_t r0, std::int64_t r1) {
     std::int64_t c_conv = 0, c_early = 0, c_search = 0, c_samples = 0, c_lookups = 0;
-    for (int y = int(r0); y < int(r1); ++y) {
-      float* dout = depth_out.Row(y);
-      std::int8_t* lout = layer_out.Row(y);
-      const float py = y + 0.5f;
-      for (int x = 0; x < w; ++x) {
-        const float px = x + 0.5f;
-        float best = kInf;
-        int best_layer = -1;
+    float best[kT * kT];
+    std::int8_t best_layer[kT * kT];
+    for (int ty = int(r0); ty < int(r1); ++ty) {
+      const int y0 = ty * kT, y1 = std::min(h, y0 + kT);
+      for (int tx = 0; tx < tiles_x; ++tx) {
+        const int x0 = tx * kT, x1 = std::min(w, x0 + kT);
+        std::fill(best, best + kT * kT, kInf);
+        std::fill(best_layer, best_layer + kT * kT, std::int8_t(-1));
         for (int j = 0; j < num_layers; ++j) {
           const DepthWarpLayer& l = layers[j];
-          Bound b = GlobalBound(l);
-          if (!b.Valid()) continue;
+          // Fig. 5 for the whole tile: the tile's source region is the union of its pixels'
+          // regions, so the tile bound is conservative for each of them.
+          Bound bt = GlobalBound(l);
+          if (!bt.Valid()) continue;
+          const float cx0 = x0 + 0.5f, cy0 = y0 + 0.5f, cx1 = x1 - 0.5f, cy1 = y1 - 0.5f;
           bool empty = false;
           if (opt.tight) {
-            for (int k = 0; k < opt.steps; ++k) {
-              b = Intersect(b, LocalBound(l, SourceRegion(l, b, px, py)));
-              if (!b.Valid()) {
-                empty = true;
-                break;
-              }
+            for (int k = 0; k < opt.steps && !empty; ++k) {
+              bt = Intersect(bt, LocalBound(l, SourceRegion(l, bt, cx0, cy0, cx1, cy1)));
+              empty = !bt.Valid();
             }
           } else {
-            const Region r = SourceRegion(l, b, px, py);
-            empty = !(r.x1 >= 0.0f && r.y1 >= 0.0f && r.x0 < float(l.packed.width) && r.y0 < float(l.packed.height));
+            empty = !Overlaps(l, SourceRegion(l, bt, cx0, cy0, cx1, cy1));
           }
           if (empty) continue;
-          ++c_search;
-          const float eu = b.u1 - b.u0, ew = b.w1 - b.w0;
-          const std::uint32_t h =
-              Hash(opt.seed * 0x9e3779b9U ^ Hash(std::uint32_t(x) * 0x85ebca6bU ^ Hash(std::uint32_t(y) ^ (std::uint32_t(j) << 24))));
-          const float j1 = Unit(h), j2 = Unit(Hash(h ^ 0x68bc21ebU));
-          const bool one = std::max(eu, ew) < opt.early_exit;
-          c_early += one;
-          const int n = one ? 1 : n_seeds;
-          for (int k = 0; k < n; ++k) {
-            float su = 0.5f, sw = 0.5f;
-            if (!one) {
-              su = Frac((k + 0.5f) * inv_n + j1);
-              sw = Frac(RadicalInverse2(std::uint32_t(k)) + j2);
-            }
-            const float u = b.u0 + su * eu, v = b.w0 + sw * ew;
-            const float vx = l.rot[0] * u + l.rot[2] * v, vy = l.rot[1] * u + l.rot[3] * v;
-            float z;
-            int from;
-            ++c_samples;
-            if (FixedPointSearch(layers, j, px, py, px - vx, py - vy, opt.iters, thr2, &z, &from, &c_lookups) &&
-                z < best) {
-              best = z;
-              best_layer = from;
+          const bool tile_one = std::max(bt.u1 - bt.u0, bt.w1 - bt.w0) < opt.early_exit;
+          for (int y = y0; y < y1; ++y) {
+            const float py = y + 0.5f;
+            for (int x = x0; x < x1; ++x) {
+              const float px = x + 0.5f;
+              Bound b = bt;
+              if (opt.tight && !tile_one && opt.steps > 0) {
+                // One narrowing step of the pixel's own region (Fig. 5) from the tile bound.
+                b = Intersect(b, LocalBound(l, SourceRegion(l, b, px, py, px, py)));
+                if (!b.Valid()) continue;
+              } else if (!Overlaps(l, SourceRegion(l, b, px, py, px, py))) {
+                continue;
+              }
+              ++c_search;
+              const float eu = b.u1 - b.u0, ew = b.w1 - b.w0;
+              const bool one = tile_one || std::max(eu, ew) < opt.early_exit;
+              c_early += one;
+              const int n = one ? 1 : n_seeds;
+              float j1 = 0.0f, j2 = 0.0f;
+              if (!one) {
+                const std::uint32_t hh = Hash(opt.seed * 0x9e3779b9U ^
+                                              Hash(std::uint32_t(x) * 0x85ebca6bU ^ Hash(std::uint32_t(y) ^ (std::uint32_t(j) << 24))));
+                j1 = Unit(hh), j2 = Unit(Hash(hh ^ 0x68bc21ebU));
+              }
+              const int at = (y - y0) * kT + (x - x0);
+              for (int k = 0; k < n; ++k) {
+                float su = 0.5f, sw = 0.5f;
+                if (!one) {
+                  su = Frac((k + 0.5f) * inv_n + j1);
+                  sw = Frac(RadicalInverse2(std::uint32_t(k)) + j2);
+                }
+                const float u = b.u0 + su * eu, v = b.w0 + sw * ew;
+                const float vx = l.rot[0] * u + l.rot[2] * v, vy = l.rot[1] * u + l.rot[3] * v;
+                float z;
+                int from;
+                ++c_samples;
+                if (FixedPointSearch(layers, j, px, py, px - vx, py - vy, opt.iters, thr2, &z, &from, &c_lookups) &&
+                    z < best[at]) {
+                  best[at] = z;
+                  best_layer[at] = std::int8_t(from);
+                }
+              }
             }
           }
         }
-        if (best_layer >= 0) {
-          dout[x] = best;
-          lout[x] = std::int8_t(best_layer);
-          ++c_conv;
-        } else {
-          dout[x] = 0.0f;
-          lout[x] = -1;
+        for (int y = y0; y < y1; ++y) {
+          float* dout = depth_out.Row(y);
+          std::int8_t* lout = layer_out.Row(y);
+          for (int x = x0; x < x1; ++x) {
+            const int at = (y - y0) * kT + (x - x0);
+            const bool ok = best_layer[at] >= 0;
+            dout[x] = ok ? best[at] : 0.0f;
+            lout[x] = best_layer[at];
+            c_conv += ok;
+          }
         }
       }
     }
