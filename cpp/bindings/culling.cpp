@@ -111,7 +111,7 @@ void CullAwocFill(const py::object& depth_obj, const py::object& hole_obj, const
 }
 
 py::array_t<float> ShadowMapVisibilityPy(const py::object& depth_obj, const Camera& view, const py::object& maps_obj,
-                                         const std::vector<Camera>& cams, float bias) {
+                                         const std::vector<Camera>& cams, float bias, float slope_bias) {
   auto depth = CheckArray<float>(depth_obj, "view_depth", {{"H", view.height}, {"W", view.width}});
   if (cams.empty()) throw BadValueError("cameras: expected at least one shadow-map camera");
   auto maps = CheckArray<float>(maps_obj, "maps", {{"S", static_cast<py::ssize_t>(cams.size())}, {"Hs", -1}, {"Ws", -1}});
@@ -124,13 +124,14 @@ py::array_t<float> ShadowMapVisibilityPy(const py::object& depth_obj, const Came
     }
   }
   if (!std::isfinite(bias) || bias < 0.0f) throw BadValueError("bias: expected a finite number >= 0");
+  if (!std::isfinite(slope_bias) || slope_bias < 0.0f) throw BadValueError("slope_bias: expected a finite number >= 0");
   auto vis = NewArray<float>({view.height, view.width});
   const float* d = depth.data();
   const float* mp = maps.data();
   float* out = vis.mutable_data();
   {
     py::gil_scoped_release release;
-    ShadowMapVisibility(d, view, mp, cams.data(), static_cast<int>(cams.size()), bias, out);
+    ShadowMapVisibility(d, view, mp, cams.data(), static_cast<int>(cams.size()), bias, slope_bias, out);
   }
   return vis;
 }
@@ -195,9 +196,9 @@ void BindCulling(py::module_& m) {
         "(motion (H, W, 2), dst_depth (H, W) from depthwarp.motion_buffer); holes whose direction was empty in "
         "source_depth (via the 3x3 sky_from_target map) stay holes; cpp/kernels/culling.h.");
   m.def("shadow_map_visibility", &ShadowMapVisibilityPy, py::arg("view_depth"), py::arg("view"), py::arg("maps"),
-        py::arg("cameras"), py::arg("bias"),
+        py::arg("cameras"), py::arg("bias"), py::arg("slope_bias"),
         "Fraction of the S shadow maps (S, Hs, Ws) in which each view pixel's surface point is lit "
-        "(cpp/kernels/shadows.h); bias in shadow-map texels.");
+        "(cpp/kernels/shadows.h); bias in shadow-map texels, slope_bias times the map's own depth slope.");
   py::class_<OcclusionScene>(m, "OcclusionScene", "A triangle mesh in an Embree BVH for occlusion rays.")
       .def(py::init<const py::object&, const py::object&>(), py::arg("vertices"), py::arg("faces"))
       .def("visibility", &OcclusionScene::Visibility, py::arg("view_depth"), py::arg("view"),

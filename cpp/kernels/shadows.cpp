@@ -1,6 +1,7 @@
 // Equations and shapes: shadows.h.
 #include "kernels/shadows.h"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 
@@ -17,10 +18,18 @@ glm::dvec3 SurfacePoint(const Camera& view, int u, int v, double z) {
   return glm::transpose(view.rot) * (p_cam - view.trans);
 }
 
+// |depth change| per texel towards the flatter neighbour; 0 when no neighbour has a surface.
+double Slope(double d, float a, float b) {
+  const double da = a > 0.0f ? std::abs(d - a) : std::numeric_limits<double>::infinity();
+  const double db = b > 0.0f ? std::abs(d - b) : std::numeric_limits<double>::infinity();
+  const double m = std::min(da, db);
+  return std::isfinite(m) ? m : 0.0;
+}
+
 }  // namespace
 
 void ShadowMapVisibility(const float* view_depth, const Camera& view, const float* maps, const Camera* cams,
-                         int num_samples, float bias, float* visibility) {
+                         int num_samples, float bias, float slope_bias, float* visibility) {
   const int w = view.width, h = view.height;
   const float inv_s = 1.0f / static_cast<float>(num_samples);
   ParallelFor2D(h, w, kTile, [&](int y0, int y1, int x0, int x1) {
@@ -40,10 +49,15 @@ void ShadowMapVisibility(const float* view_depth, const Camera& view, const floa
           if (!(q.z > 0.0)) { ++lit; continue; }
           const double x = c.fx * q.x / q.z + c.cx, y = c.fy * q.y / q.z + c.cy;
           if (!(x >= 0.0 && x < c.width && y >= 0.0 && y < c.height)) { ++lit; continue; }
-          const std::int64_t t = (static_cast<std::int64_t>(s) * c.height + static_cast<int>(y)) * c.width +
-                                 static_cast<int>(x);
-          const double d = maps[t];
-          lit += !(d > 0.0) || q.z <= d + bias * q.z / c.fx;
+          const int ix = static_cast<int>(x), iy = static_cast<int>(y);
+          const float* row = maps + (static_cast<std::int64_t>(s) * c.height + iy) * c.width;
+          const double d = row[ix];
+          if (!(d > 0.0)) { ++lit; continue; }
+          // Receiver slope from the map itself: per axis the smaller of the forward and backward
+          // differences (a depth edge on one side does not count), missing neighbours ignored.
+          const double sx = Slope(d, ix > 0 ? row[ix - 1] : 0.0f, ix + 1 < c.width ? row[ix + 1] : 0.0f);
+          const double sy = Slope(d, iy > 0 ? row[ix - c.width] : 0.0f, iy + 1 < c.height ? row[ix + c.width] : 0.0f);
+          lit += q.z <= d + bias * q.z / c.fx + slope_bias * (sx + sy);
         }
         visibility[i] = static_cast<float>(lit) * inv_s;
       }

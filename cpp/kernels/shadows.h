@@ -11,10 +11,14 @@
 //   maps (S, Hs, Ws) float32 pinhole z depth buffers of the cameras cams[s] (0 = no surface or a
 //   hole of a warped map: no known occluder there). For each point p and sample s: q = cams[s]
 //   point_in_cam of p; p is lit by s when q.z <= 0, or q projects outside the map, or the texel
-//   under it (nearest: floor(x), floor(y)) holds d = 0, or q.z <= d + bias * q.z / fx_s.
-//   The bias is in shadow-map texels at the point's depth (q.z / fx_s is the world size of one
-//   texel there): a surface is not shadowed by its own sampled depth as long as its slope
-//   across a texel, seen from the light, stays below `bias` texels of depth per texel.
+//   under it (nearest: floor(x), floor(y)) holds d = 0, or
+//     q.z <= d + bias * q.z / fx_s + slope_bias * (sx + sy)
+//   (a constant and a slope-scaled bias, the usual remedy for shadow acne): q.z / fx_s is the
+//   world size of one texel at the point's depth, so `bias` is in texels; sx, sy are the receiver's
+//   depth change per texel along x and y read from the map (per axis the smaller of the forward and
+//   backward differences, so that a depth edge beside the texel does not count). The point lies
+//   within half a texel of the texel centre along each axis, so its own surface differs from d by at
+//   most 0.5 (sx + sy): slope_bias = 1 covers that twice.
 //   visibility[v, u] = lit count / S.
 //
 // TracedVisibility (the reference: one occlusion ray per point and sample, Embree):
@@ -35,7 +39,7 @@
 namespace ibr {
 
 void ShadowMapVisibility(const float* view_depth, const Camera& view, const float* maps, const Camera* cams,
-                         int num_samples, float bias, float* visibility);
+                         int num_samples, float bias, float slope_bias, float* visibility);
 
 void TracedVisibility(const EmbreeScene& scene, const float* view_depth, const Camera& view,
                       const double* light_positions, int num_samples, float eps_rel, float* visibility);
