@@ -38,6 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
                f"synthetic scenes (INPUT = synth:PRESET):\n{presets}\n\n"
                "examples:\n"
                "  ibr-preprocess synth:objects -o scenes/objects --views 12 --size 480x360\n"
+               "  ibr-preprocess synth:objects -o scenes/objects --methods tm,ulr,pvm,hybrid\n"
                "  ibr-preprocess ../shared/data/nerf_lego -o scenes/lego\n"
                "  ibr-preprocess ../shared/data/icl_nuim_livingroom -o scenes/icl --format rgbd "
                "--opt fx=481.2 --opt fy=-480.0 --opt cx=319.5 --opt cy=239.5 --opt depth_scale=0.0002")
@@ -46,7 +47,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--format", choices=IMPORTERS, help="input format (default: detect)")
     p.add_argument("--opt", action="append", metavar="KEY=VALUE", default=[],
                    help="importer option (repeatable), e.g. --opt depth_scale=0.0002; see docs/importers.md")
-    p.add_argument("--force", action="store_true", help="run every stage even when up to date")
+    p.add_argument("--methods", metavar="M[,M...]", default=None,
+                   help="render methods to prepare for: their stages run, the others are skipped "
+                        "(reference, dibr, warp, depthwarp, tm, ulr, pvm, hybrid; 'all'). Default 'auto': "
+                        "the methods built in this version (today that needs the import alone)")
+    p.add_argument("--stages", metavar="S[,S...]", default=None,
+                   help="run exactly these stages (and the stages they read) whatever --methods says: "
+                        "mesh, depth, texture, variance, harmonise, pvm (docs/preprocess.md)")
+    p.add_argument("--set", action="append", metavar="STAGE.KEY=VALUE", default=[], dest="stage_set",
+                   help="stage parameter (repeatable), e.g. --set mesh.source=fusion --set pvm.max_block=8")
+    p.add_argument("--force", action="store_true", help="run every selected stage even when up to date")
     p.add_argument("--json", action="store_true", help="print the stage table as JSON")
     g = p.add_argument_group("synthetic scenes")
     g.add_argument("--size", type=_size, default=(640, 480), metavar="WxH", help="image size (default 640x480)")
@@ -61,7 +71,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _body(args: argparse.Namespace) -> int:
     import json
 
-    from ibrtools.stages import parse_options, preprocess
+    from ibrtools.stages import parse_methods, parse_options, parse_stage_options, parse_stages, preprocess
 
     synth = None
     if args.input.startswith("synth:"):
@@ -75,8 +85,12 @@ def _body(args: argparse.Namespace) -> int:
             raise InputError(f"--views: expected at least 1, got {args.views}")
         synth = {"preset": preset, "size": list(args.size), "views": args.views, "seed": args.seed,
                  "reconstructed": bool(args.reconstructed)}
+    methods = parse_methods(args.methods)
+    stages = parse_stages(args.stages)
+    stage_options = parse_stage_options(args.stage_set)
     results = preprocess(args.input, args.output, fmt=args.format, options=parse_options(args.opt),
-                         synth=synth, force=args.force)
+                         synth=synth, force=args.force, methods=methods, stages=stages,
+                         stage_options=stage_options)
     if args.json:
         print(json.dumps([r.to_dict() for r in results], indent=1))
     else:

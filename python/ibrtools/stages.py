@@ -3,8 +3,11 @@
 A stage declares what it reads and what it is for; the planner runs it only when its
 output is missing or its inputs or parameters changed (a content hash, stored in the
 scene's ``scene.json`` under ``stages``), and reports every stage as ran / up to date /
-skipped, with the reason and the time. Today the only stage is ``import``; the hybrid-IBR
-stages (depth from mesh, fusion, textures, per-view meshes, harmonisation) join this table.
+skipped, with the reason and the time. ``import`` makes the scene; the derived stages of
+hybrid IBR (issue 6: global mesh, per-view depth from it, texture, variance, harmonisation,
+per-view meshes and tiles) are declared in ``STAGES`` with their inputs, outputs and the
+methods that need them, write under ``SCENE/cache/<stage>/`` and record their key and output
+hashes in scene.json ``stages`` (docs/FORMAT.md "Cache", docs/preprocess.md).
 """
 from __future__ import annotations
 
@@ -15,7 +18,9 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .errors import BadValueError, InputError
+import numpy as np
+
+from .errors import BadValueError, InputError, MissingFileError, NotBuiltError
 from .scene import Scene
 
 # Bump when the import code changes what it writes, so that old scenes are rebuilt.
@@ -104,6 +109,406 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
                        {"views": n_views, "targets": n_targets})
 
 
+# ---------------------------------------------------------------------------------------------
+# The preprocessing stages after import (issue 6): declared once, planned per run.
+
+CACHE_DIR = "cache"
+SCENE_FILE = "scene.json"
+# Methods and the stages they read (DESIGN.md "Commands"): reference/dibr/warp/depthwarp work
+# from the views alone; tm needs the textured global mesh; ulr the global mesh as geometry proxy
+# and per-view depth; pvm the per-view meshes (and the global mesh to pick voxels at render
+# time); hybrid all of it plus the harmonised images.
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One derived stage: what it reads, writes and is for.
+
+    ``inputs``: upstream stages whose outputs it reads (their keys enter its key; "scene" is the
+    imported scene's content: scene.json less its stage records, plus every file it names).
+    ``outputs``: files it writes under ``SCENE/cache/<name>/``. ``methods``: the render methods
+    that need it. ``params``: its parameters (hashed). ``version``: bump when the code changes
+    what it writes."""
+
+    name: str
+    inputs: tuple[str, ...]
+    outputs: tuple[str, ...]
+    methods: frozenset[str]
+    description: str
+    version: int = 1
+
+
+STAGES: dict[str, Stage] = {s.name: s for s in (
+    Stage("mesh", ("scene",), ("mesh.npz",), frozenset({"tm", "ulr", "pvm", "hybrid"}),
+          "global mesh: reconstructed mesh, else TSDF fusion of the depth maps, else ground truth"),
+    Stage("depth", ("scene", "mesh"), ("depth.npz",), frozenset({"ulr", "pvm", "hybrid"}),
+          "per-view depth rendered from the global mesh, for views without depth"),
+    Stage("texture", ("scene", "mesh", "depth"), ("texture.npz",), frozenset({"tm", "hybrid"}),
+          "per-vertex colour of the global mesh by ULR-weighted blending of the views"),
+    Stage("variance", ("scene", "mesh", "depth"), ("variance.npz",), frozenset({"hybrid"}),
+          "per-vertex photometric standard deviation across the views that see it"),
+    Stage("harmonise", ("scene", "mesh", "variance"), ("harmonise.npz",), frozenset({"hybrid"}),
+          "diffuse harmonisation, graph-cut view-dependent masks, Poisson re-injection"),
+    Stage("pvm", ("scene", "depth"), ("tiles.npz",), frozenset({"pvm", "hybrid"}),
+          "per-view meshes sliced into a two-level voxel grid of tiles"),
+)}
+ORDER = tuple(STAGES)
+ALL_METHODS = ("reference", "dibr", "warp", "depthwarp", "tm", "ulr", "pvm", "hybrid")
+
+
+def available_stages() -> list[str]:
+    """Stages whose code exists in this build: variance and harmonise come from
+    ibrtools.hybrid.variance / .harmonise and are absent from the table until those land."""
+    import importlib.util
+
+    out = []
+    for name in ORDER:
+        if name in ("variance", "harmonise"):
+            mod = "ibrtools.hybrid." + name
+            try:
+                if importlib.util.find_spec(mod) is None:
+                    continue
+            except ImportError:
+                continue
+        out.append(name)
+    return out
+
+
+def default_methods() -> list[str]:
+    """``--methods`` default: the render methods built in this version (render/methods.py BUILT),
+    so that a plain import prepares exactly what can be rendered; today none of them needs a
+    derived stage, so the default run is the import alone (fast, as the demo wants)."""
+    from .render.methods import BUILT
+
+    return [m for m in BUILT]
+
+
+def parse_methods(text: str | None) -> list[str]:
+    if text is None or text == "auto":
+        return default_methods()
+    if text == "all":
+        return list(ALL_METHODS)
+    out = [t.strip() for t in text.split(",") if t.strip()]
+    bad = [m for m in out if m not in ALL_METHODS]
+    if bad or not out:
+        raise BadValueError(f"--methods {text!r}: expected a comma-separated list of {', '.join(ALL_METHODS)} "
+                            "(or 'auto', 'all')")
+    return out
+
+
+def parse_stages(text: str | None) -> list[str] | None:
+    if text is None:
+        return None
+    out = [t.strip() for t in text.split(",") if t.strip()]
+    known = list(ORDER)
+    bad = [s for s in out if s not in known]
+    if bad or not out:
+        raise BadValueError(f"--stages {text!r}: expected a comma-separated list of {', '.join(known)}")
+    absent = [s for s in out if s not in available_stages()]
+    if absent:
+        raise NotBuiltError(f"--stages: {', '.join(absent)} not built yet")
+    return out
+
+
+def _file_hash(path: Path) -> str:
+    h = hashlib.blake2b(digest_size=16)
+    with open(path, "rb") as fh:
+        while chunk := fh.read(_HASH_CHUNK):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def scene_content_key(root: Path) -> str:
+    """Content hash of an imported scene: scene.json without its stage records, and the bytes
+    of every file it names (views, targets, meshes)."""
+    if not (root / SCENE_FILE).is_file():
+        raise MissingFileError(f"{root / SCENE_FILE}: no such file (not an imported scene)")
+    with open(root / SCENE_FILE, encoding="utf-8") as fh:
+        doc = json.load(fh)
+    doc.pop("stages", None)
+    h = hashlib.blake2b(digest_size=16)
+    h.update(json.dumps(doc, sort_keys=True).encode())
+    rels = []
+    for group in ("views", "targets"):
+        for e in doc.get(group, []):
+            rels += [e[k] for k in ("color", "depth", "mask") if isinstance(e, dict) and e.get(k)]
+    rels += [m["path"] for m in (doc.get("meshes") or {}).values() if isinstance(m, dict) and "path" in m]
+    for rel in rels:
+        f = root / rel
+        h.update(rel.encode() + b"\0")
+        for side in sorted(f.parent.glob(f.name + ".*")) if f.suffix in (".obj", ".ply") else []:
+            h.update(_file_hash(side).encode())  # mesh sidecars (attrs, mtl)
+        h.update(_file_hash(f).encode() if f.is_file() else b"missing")
+    return h.hexdigest()
+
+
+def _stage_key(stage: Stage, params: dict, upstream: dict[str, str]) -> str:
+    h = hashlib.blake2b(digest_size=16)
+    h.update(json.dumps({"stage": stage.name, "version": stage.version, "params": params,
+                         "inputs": {k: upstream.get(k) for k in stage.inputs}}, sort_keys=True).encode())
+    return h.hexdigest()
+
+
+def _read_doc(root: Path) -> dict:
+    with open(root / SCENE_FILE, encoding="utf-8") as fh:
+        return json.load(fh)
+
+
+def _write_stage_record(root: Path, name: str, record: dict | None) -> None:
+    """Update scene.json's ``stages`` entry atomically (temporary file, then rename)."""
+    from .imageio import atomic_path
+
+    doc = _read_doc(root)
+    stages = dict(doc.get("stages") or {})
+    if record is None:
+        stages.pop(name, None)
+    else:
+        stages[name] = record
+    doc["stages"] = stages
+    with atomic_path(root / SCENE_FILE) as tmp:
+        with open(tmp, "w", encoding="utf-8") as fh:
+            json.dump(doc, fh, indent=1)
+
+
+def save_npz(path: Path, **arrays) -> Path:
+    """np.savez (uncompressed: fast to write and read) to a temporary name, then rename."""
+    from .imageio import atomic_path
+
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, **arrays)
+    return path
+
+
+def load_npz(path: Path) -> dict[str, np.ndarray]:
+    with np.load(path, allow_pickle=False) as z:
+        return {k: z[k] for k in z.files}
+
+
+class _Context:
+    """What the stages of one run share: the scene, its root, and outputs already in memory."""
+
+    def __init__(self, root: Path, options: dict):
+        from .formats import native
+
+        self.root = root
+        self.scene: Scene = native.load(root)
+        self.options = options
+        self.memo: dict[str, dict] = {}
+
+    def cache(self, stage: str) -> Path:
+        return self.root / CACHE_DIR / stage
+
+    def get(self, stage: str) -> dict:
+        if stage not in self.memo:
+            self.memo[stage] = load_npz(self.cache(stage) / STAGES[stage].outputs[0])
+        return self.memo[stage]
+
+    # -- inputs the stages share ---------------------------------------------------------------
+    def cameras(self) -> dict:
+        return {v.name: v.camera for v in self.scene.views}
+
+    def depths(self) -> dict:
+        """Each view's depth: its own, or the one the depth stage rendered from the mesh."""
+        rendered = None
+        out = {}
+        for v in self.scene.views:
+            if v.has_depth:
+                out[v.name] = v.depth
+            else:
+                if rendered is None:
+                    rendered = self.get("depth")
+                out[v.name] = rendered[v.name]
+        return out
+
+    def mesh(self):
+        from .mesh import Mesh
+
+        d = self.get("mesh")
+        return Mesh(d["vertices"], d["faces"], object_ids=d["object_ids"], kind="reconstructed")
+
+
+def _params(name: str, options: dict) -> dict:
+    from .hybrid.globalmesh import GlobalMeshOptions
+    from .hybrid.pvm import PvmOptions
+
+    if name in ("mesh", "texture", "depth"):
+        o = GlobalMeshOptions(**options.get("mesh", {})).to_dict()
+        if name == "mesh":
+            return {k: o[k] for k in ("source", "resolution", "trunc_voxels", "max_edge_voxels", "max_faces")}
+        if name == "texture":
+            return {k: o[k] for k in ("k_views", "depth_tol")}
+        return {}
+    if name == "pvm":
+        return PvmOptions(**options.get("pvm", {})).to_dict()
+    return dict(options.get(name, {}))
+
+
+def _run_mesh(ctx: _Context) -> dict:
+    from .hybrid.globalmesh import GlobalMeshOptions, build_global_mesh
+
+    opts = GlobalMeshOptions(**ctx.options.get("mesh", {}))
+    mesh, rec = build_global_mesh(ctx.scene, opts)
+    arrays = {"vertices": mesh.vertices, "faces": mesh.faces, "object_ids": mesh.object_ids}
+    save_npz(ctx.cache("mesh") / "mesh.npz", **arrays)
+    ctx.memo["mesh"] = arrays
+    return rec
+
+
+def _depth_needed(ctx: _Context) -> str | None:
+    missing = [v.name for v in ctx.scene.views if not v.has_depth]
+    return None if missing else "every view has depth"
+
+
+def _run_depth(ctx: _Context) -> dict:
+    from .hybrid.globalmesh import depth_from_mesh
+
+    cams = {v.name: v.camera for v in ctx.scene.views if not v.has_depth}
+    deps = depth_from_mesh(ctx.mesh(), cams)
+    save_npz(ctx.cache("depth") / "depth.npz", **deps)
+    ctx.memo["depth"] = deps
+    return {"views": len(deps)}
+
+
+def _run_texture(ctx: _Context) -> dict:
+    from .hybrid.globalmesh import GlobalMeshOptions, vertex_colors
+
+    opts = GlobalMeshOptions(**ctx.options.get("mesh", {}))
+    colors = {v.name: v.color for v in ctx.scene.views}
+    col, seen = vertex_colors(ctx.mesh(), ctx.cameras(), colors, ctx.depths(), opts)
+    save_npz(ctx.cache("texture") / "texture.npz", vertex_colors=col, seen=seen)
+    ctx.memo["texture"] = {"vertex_colors": col, "seen": seen}
+    return {"vertices": int(len(col)), "unseen": int((seen == 0).sum())}
+
+
+def _run_variance(ctx: _Context) -> dict:
+    from .hybrid.variance import variance_mesh
+
+    std = np.asarray(variance_mesh(ctx.scene, ctx.mesh()), np.float32)
+    save_npz(ctx.cache("variance") / "variance.npz", std=std)
+    ctx.memo["variance"] = {"std": std}
+    return {"vertices": int(len(std)), "mean_std": round(float(std.mean()), 5) if len(std) else 0.0}
+
+
+def _run_harmonise(ctx: _Context) -> dict | str:
+    from .hybrid.harmonise import harmonise
+
+    res = harmonise(ctx.scene, ctx.mesh(), ctx.get("variance")["std"], params=ctx.options.get("harmonise") or None)
+    if getattr(res, "skipped_reason", None):
+        return str(res.skipped_reason)
+    arrays = {}
+    for n, img in res.images.items():
+        arrays[f"image/{n}"] = np.asarray(img, np.float32)
+    for n, m in res.masks.items():
+        arrays[f"mask/{n}"] = np.asarray(m, bool)
+    arrays["vd_texture"] = np.asarray(res.vd_texture, np.float32)
+    save_npz(ctx.cache("harmonise") / "harmonise.npz", **arrays)
+    stats = {k: v for k, v in (res.stats or {}).items() if isinstance(v, (int, float, str))}
+    return {"views": len(res.images), **stats}
+
+
+def _run_pvm(ctx: _Context) -> dict:
+    from .hybrid.pvm import PvmOptions, build_tiles
+
+    tiles = build_tiles(ctx.cameras(), ctx.depths(), PvmOptions(**ctx.options.get("pvm", {})))
+    tiles.save(ctx.cache("pvm") / "tiles.npz")
+    s = tiles.stats
+    return {"pvm_faces": s["pvm_faces"], "tiles": s["tiles"], "tile_faces": s["tile_faces"]}
+
+
+_RUN = {"mesh": _run_mesh, "depth": _run_depth, "texture": _run_texture, "variance": _run_variance,
+        "harmonise": _run_harmonise, "pvm": _run_pvm}
+_APPLIES = {"depth": _depth_needed}
+
+
+def _closure(selected: list[str]) -> list[str]:
+    """``selected`` and every stage they read, in pipeline order."""
+    need = set(selected)
+    changed = True
+    while changed:
+        changed = False
+        for s in list(need):
+            for i in STAGES[s].inputs:
+                if i in STAGES and i not in need:
+                    need.add(i)
+                    changed = True
+    return [s for s in ORDER if s in need]
+
+
+def run_stages(root: str | os.PathLike, *, methods: list[str] | None = None, stages: list[str] | None = None,
+               force: bool = False, options: dict | None = None) -> list[StageResult]:
+    """Plan and run the derived stages of the scene at ``root`` for ``methods`` (default:
+    :func:`default_methods`), or exactly ``stages`` (plus what they read). Every available stage
+    gets a row: ran / up to date / skipped (with the reason) / failed."""
+    root = Path(root)
+    options = dict(options or {})
+    methods = list(methods) if methods is not None else default_methods()
+    avail = available_stages()
+    if stages is not None:
+        wanted = _closure([s for s in stages])
+        why = {s: ("selected (--stages)" if s in stages else
+                   "read by " + ", ".join(t for t in stages if s in _closure([t]) and t != s)) for s in wanted}
+    else:
+        wanted = _closure([s for s in avail if STAGES[s].methods & set(methods)])
+        why = {s: "needed by " + ", ".join(m for m in methods if m in STAGES[s].methods) for s in wanted}
+        for s in wanted:
+            if why[s] == "needed by ":
+                why[s] = "read by a needed stage"
+    wanted = [s for s in wanted if s in avail]
+    ctx = _Context(root, options)
+    upstream = {"scene": scene_content_key(root)}
+    records = dict(_read_doc(root).get("stages") or {})
+    results: list[StageResult] = []
+    for name in [s for s in ORDER if s in avail]:
+        st = STAGES[name]
+        if name not in wanted:
+            reason = ("not selected (--stages)" if stages is not None else
+                      f"not needed by methods {', '.join(methods) or 'none'}")
+            results.append(StageResult(name, "skipped", reason))
+            continue
+        params = _params(name, options)
+        key = _stage_key(st, params, upstream)
+        upstream[name] = key
+        not_needed = _APPLIES[name](ctx) if name in _APPLIES else None
+        rec = records.get(name)
+        if not_needed:
+            upstream[name] = "not needed"  # readers' keys do not depend on what it would read
+            results.append(StageResult(name, "skipped", not_needed))
+            if rec is not None:
+                _write_stage_record(root, name, None)
+            continue
+        if not force and rec and rec.get("key") == key:
+            if rec.get("skipped"):
+                results.append(StageResult(name, "skipped", f"{rec['skipped']} (inputs unchanged)"))
+                continue
+            bad = [rel for rel, hsh in (rec.get("outputs") or {}).items()
+                   if not (ctx.cache(name) / rel).is_file() or _file_hash(ctx.cache(name) / rel) != hsh]
+            if not bad and rec.get("outputs"):
+                results.append(StageResult(name, "up to date", "inputs and parameters unchanged",
+                                           0.0, dict(rec.get("details") or {})))
+                continue
+            reason = f"output {bad[0]} missing or corrupt"
+        else:
+            reason = "forced" if force else ("inputs or parameters changed" if rec else "no output yet")
+        t0 = time.perf_counter()
+        # Outputs are replaced atomically; a stale record is removed first so that a failure
+        # part-way never leaves a record naming an old output as current.
+        if rec is not None:
+            _write_stage_record(root, name, None)
+        details = _RUN[name](ctx)
+        seconds = time.perf_counter() - t0
+        if isinstance(details, str):  # the stage decided it has nothing to do (e.g. harmonise)
+            _write_stage_record(root, name, {"key": key, "skipped": details, "params": params})
+            results.append(StageResult(name, "skipped", details, seconds))
+            continue
+        outputs = {rel: _file_hash(ctx.cache(name) / rel) for rel in st.outputs}
+        _write_stage_record(root, name, {"key": key, "params": params, "outputs": outputs,
+                                         "seconds": round(seconds, 4), "details": details,
+                                         "why": why.get(name, "")})
+        results.append(StageResult(name, "ran", f"{reason}; {why.get(name, '')}", seconds, details))
+    return results
+
+
 def parse_options(pairs: list[str] | None) -> dict:
     """``key=value`` strings (``--opt``) into a dict; numbers stay strings (importers convert)."""
     out: dict = {}
@@ -115,8 +520,54 @@ def parse_options(pairs: list[str] | None) -> dict:
     return out
 
 
+def parse_stage_options(pairs: list[str] | None) -> dict:
+    """``STAGE.KEY=VALUE`` strings (``--set``) into {stage: {key: value}}; values are read as JSON
+    when they parse (numbers, true/false), else kept as strings."""
+    out: dict = {}
+    for p in pairs or []:
+        if "=" not in p or "." not in p.split("=", 1)[0]:
+            raise InputError(f"--set {p!r}: expected STAGE.KEY=VALUE, e.g. pvm.max_block=8")
+        k, v = p.split("=", 1)
+        stage, key = k.strip().split(".", 1)
+        if stage not in STAGES:
+            raise InputError(f"--set {p!r}: unknown stage {stage!r} (expected one of {', '.join(STAGES)})")
+        try:
+            value = json.loads(v)
+        except ValueError:
+            value = v.strip()
+        out.setdefault(stage, {})[key.strip()] = value
+    if "texture" in out or "depth" in out:
+        raise InputError("--set: texture and depth read their parameters from mesh.* (e.g. mesh.k_views=4)")
+    return out
+
+
 def preprocess(input_spec: str, output: str | os.PathLike, *, fmt: str | None = None,
-               options: dict | None = None, synth: dict | None = None,
-               force: bool = False) -> list[StageResult]:
-    """Run the stages a scene needs; returns the stage table."""
-    return [run_import(input_spec, Path(output), fmt=fmt, options=options, synth=synth, force=force)]
+               options: dict | None = None, synth: dict | None = None, force: bool = False,
+               methods: list[str] | None = None, stages: list[str] | None = None,
+               stage_options: dict | None = None) -> list[StageResult]:
+    """Import (or find up to date) the scene, then run the derived stages ``methods`` need (or
+    exactly ``stages``); returns the stage table."""
+    if stages is not None:
+        stages = [s for s in stages if s != "import"]
+    if stage_options:
+        _check_stage_options(stage_options)
+    results = [run_import(input_spec, Path(output), fmt=fmt, options=options, synth=synth, force=force)]
+    if stages == []:
+        return results
+    results += run_stages(output, methods=methods, stages=stages, force=force, options=stage_options)
+    return results
+
+
+def _check_stage_options(options: dict) -> None:
+    """Fail on unknown parameters before any work is done."""
+    from .hybrid.globalmesh import GlobalMeshOptions
+    from .hybrid.pvm import PvmOptions
+
+    for stage, kw in options.items():
+        cls = {"mesh": GlobalMeshOptions, "pvm": PvmOptions}.get(stage)
+        if cls is None:
+            continue
+        try:
+            cls(**kw)
+        except TypeError as e:
+            raise BadValueError(f"--set {stage}.*: {e}") from None

@@ -1,0 +1,166 @@
+"""The stage planner (ibrtools.stages, ibr-preprocess): stages run for the methods that need
+them, a second run does nothing, missing or corrupt outputs are rebuilt, parameters and
+--stages / --force override, records in scene.json, bad input."""
+import json
+
+import numpy as np
+import pytest
+
+from ibrtools import stages as S
+from ibrtools.camera import Camera, look_at
+from ibrtools.errors import BadValueError, InputError
+from ibrtools.formats import native
+from ibrtools.mesh import Mesh
+from ibrtools.scene import Scene, View
+from ibrtools_cli import preprocess
+
+SMALL = ["--views", "3", "--size", "48x36", "--set", "mesh.resolution=32"]
+
+
+def run(d, *extra, capsys):
+    assert preprocess.main(["synth:objects", "-o", str(d), *SMALL, "--json", *extra]) == 0
+    return {r["stage"]: r for r in json.loads(capsys.readouterr().out)}
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    d = tmp_path_factory.mktemp("stages") / "scene"
+    rows = {r.name: r for r in S.preprocess(
+        "synth:objects", d, synth={"preset": "objects", "size": [48, 36], "views": 3, "seed": 0,
+                                   "reconstructed": False},
+        methods=["tm", "ulr", "pvm", "hybrid"], stage_options={"mesh": {"resolution": 32}})}
+    return d, rows
+
+
+def test_hybrid_methods_run_every_stage_then_nothing(built, capsys):
+    d, rows = built
+    assert rows["import"].status == "ran"
+    for name in ("mesh", "texture", "pvm"):
+        assert rows[name].status == "ran", rows[name]
+    assert rows["depth"].status == "skipped" and "every view has depth" in rows["depth"].reason
+    assert rows["mesh"].details["source"] == "fusion"
+    for name in ("mesh", "texture", "pvm"):
+        assert (d / "cache" / name).is_dir()
+    doc = json.loads((d / "scene.json").read_text())
+    rec = doc["stages"]["pvm"]
+    assert len(rec["key"]) == 32 and "tiles.npz" in rec["outputs"] and rec["params"]["coarse"] == 32
+    # Second run with nothing changed: every stage up to date or skipped, and it says so.
+    out = run(d, "--methods", "tm,ulr,pvm,hybrid", capsys=capsys)
+    assert {r["status"] for r in out.values()} <= {"up to date", "skipped"}
+    assert out["pvm"]["status"] == "up to date"
+    assert preprocess.main(["synth:objects", "-o", str(d), *SMALL, "--methods", "tm,ulr,pvm,hybrid"]) == 0
+    assert "nothing to do" in capsys.readouterr().out
+
+
+def test_methods_that_need_no_stage_skip_them(built, capsys):
+    d, _ = built
+    out = run(d, "--methods", "dibr,warp", capsys=capsys)
+    for name in ("mesh", "texture", "pvm"):
+        assert out[name]["status"] == "skipped" and "not needed by methods dibr, warp" in out[name]["reason"]
+    # tm needs no PVM: the PVM stage is skipped, the mesh and texture are up to date.
+    out = run(d, "--methods", "tm", capsys=capsys)
+    assert out["pvm"]["status"] == "skipped" and "not needed" in out["pvm"]["reason"]
+    assert out["mesh"]["status"] == "up to date" and out["texture"]["status"] == "up to date"
+    # Default methods (those built): today none needs a derived stage.
+    out = run(d, capsys=capsys)
+    assert all(out[n]["status"] == "skipped" for n in ("mesh", "texture", "pvm"))
+
+
+def test_missing_or_corrupt_output_is_rebuilt(built, capsys):
+    d, _ = built
+    f = d / "cache" / "texture" / "texture.npz"
+    f.write_bytes(f.read_bytes()[:-10] + b"0123456789")
+    out = run(d, "--methods", "tm", capsys=capsys)
+    assert out["texture"]["status"] == "ran" and "missing or corrupt" in out["texture"]["reason"]
+    assert out["mesh"]["status"] == "up to date"
+    f.unlink()
+    out = run(d, "--methods", "tm", capsys=capsys)
+    assert out["texture"]["status"] == "ran" and "missing or corrupt" in out["texture"]["reason"]
+    assert f.is_file()
+    assert run(d, "--methods", "tm", capsys=capsys)["texture"]["status"] == "up to date"
+
+
+def test_parameter_change_reruns_that_stage_only(built, capsys):
+    d, _ = built
+    out = run(d, "--stages", "pvm", "--set", "pvm.max_block=8", capsys=capsys)
+    assert out["pvm"]["status"] == "ran" and "changed" in out["pvm"]["reason"]
+    # pvm reads depth, depth reads the mesh: the mesh is up to date (same parameters).
+    assert out["mesh"]["status"] == "up to date"
+    assert out["texture"]["status"] == "skipped" and "not selected" in out["texture"]["reason"]
+    out = run(d, "--stages", "pvm", "--set", "pvm.max_block=8", capsys=capsys)
+    assert out["pvm"]["status"] == "up to date"
+    # --force reruns the selected stages.
+    out = run(d, "--stages", "pvm", "--set", "pvm.max_block=8", "--force", capsys=capsys)
+    assert out["pvm"]["status"] == "ran" and "forced" in out["pvm"]["reason"]
+    # Back to the default parameters for the other tests.
+    assert run(d, "--stages", "pvm", capsys=capsys)["pvm"]["status"] == "ran"
+
+
+def test_changed_scene_content_reruns_derived_stages(tmp_path, capsys):
+    d = tmp_path / "s"
+    run(d, "--methods", "pvm", capsys=capsys)
+    # Edit a view's depth by hand: the scene content hash changes, the stages rerun.
+    from ibrtools.imageio import read_depth, write_depth
+
+    f = d / "images" / "v000.depth.exr"
+    depth = read_depth(f)
+    write_depth(f, depth * np.float32(1.01))
+    out = run(d, "--methods", "pvm", capsys=capsys)
+    assert out["import"]["status"] == "up to date"
+    assert out["mesh"]["status"] == "ran" and out["pvm"]["status"] == "ran"
+
+
+def test_views_without_depth_get_depth_from_the_mesh(tmp_path, capsys):
+    # A native scene whose views have colour only and whose mesh is given: the depth stage runs.
+    v = np.array([[-3, -3, 2], [3, -3, 2], [3, 3, 2], [-3, 3, 2]], np.float32)
+    mesh = Mesh(v, np.array([[0, 1, 2], [0, 2, 3]], np.int32), kind="reconstructed")
+    views = []
+    for i, x in enumerate((-0.2, 0.2)):
+        c = Camera.pinhole(32, 24, 24.0, 24.0, 16.0, 12.0, look_at((x, 0, 0), (x, 0, 2), up=(0, -1, 0)))
+        views.append(View.create(f"v{i}", c, color=np.full((24, 32, 3), 0.5, np.float32)))
+    src = tmp_path / "src"
+    native.save(Scene(views=views, meshes={"reconstructed": mesh}), src)
+    d = tmp_path / "s"
+    assert preprocess.main([str(src), "-o", str(d), "--methods", "pvm", "--set", "mesh.resolution=16",
+                            "--json"]) == 0
+    out = {r["stage"]: r for r in json.loads(capsys.readouterr().out)}
+    assert out["mesh"]["status"] == "ran" and out["mesh"]["source"] == "reconstructed"
+    assert out["depth"]["status"] == "ran" and out["depth"]["views"] == 2
+    assert out["pvm"]["status"] == "ran" and out["pvm"]["pvm_faces"] > 0
+    dep = S.load_npz(d / "cache" / "depth" / "depth.npz")
+    np.testing.assert_allclose(dep["v0"][dep["v0"] > 0], 2.0, rtol=1e-4)  # plane z = 2 seen head on
+    # And without a mesh and without depth: a clear error, exit 2.
+    native.save(Scene(views=views), tmp_path / "src2")
+    assert preprocess.main([str(tmp_path / "src2"), "-o", str(tmp_path / "s2"), "--methods", "pvm"]) == 2
+    assert "no depth and the scene has no mesh" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, msg", [
+    (["--methods", "magic"], "--methods"),
+    (["--stages", "nope"], "--stages"),
+    (["--set", "pvm.max_block"], "STAGE.KEY=VALUE"),
+    (["--set", "nostage.x=1"], "unknown stage"),
+    (["--set", "pvm.max_block=6"], "power of two"),
+    (["--set", "pvm.bogus=1"], "bogus"),
+    (["--set", "mesh.source=magic"], "mesh source"),
+])
+def test_bad_stage_arguments(tmp_path, capsys, argv, msg):
+    d = tmp_path / "s"
+    assert preprocess.main(["synth:objects", "-o", str(d), "--views", "2", "--size", "32x24", *argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert msg in err and len(err.splitlines()) == 1
+    assert not d.exists()  # arguments are checked before any work
+
+
+def test_parse_helpers():
+    assert S.parse_methods("tm, pvm") == ["tm", "pvm"]
+    assert S.parse_methods("all") == list(S.ALL_METHODS)
+    assert S.parse_stages("pvm,mesh") == ["pvm", "mesh"]
+    assert S.parse_stage_options(["pvm.max_block=8", "mesh.source=fusion"]) == {
+        "pvm": {"max_block": 8}, "mesh": {"source": "fusion"}}
+    with pytest.raises(BadValueError):
+        S.parse_methods("")
+    with pytest.raises(InputError):
+        S.parse_stage_options(["texture.k_views=3"])
+    with pytest.raises(FileNotFoundError):
+        S.scene_content_key(S.Path("/nonexistent-scene"))
