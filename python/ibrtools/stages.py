@@ -391,9 +391,11 @@ def _run_variance(ctx: _Context) -> dict:
 
 
 def _run_harmonise(ctx: _Context) -> dict | str:
-    from .hybrid.harmonise import harmonise
+    from .hybrid import harmonise as H
 
-    res = harmonise(ctx.scene, ctx.mesh(), ctx.get("variance")["std"], params=ctx.options.get("harmonise") or None)
+    opts = ctx.options.get("harmonise") or {}
+    params = H.HarmoniseParams(**opts) if opts and hasattr(H, "HarmoniseParams") else None
+    res = H.harmonise(ctx.scene, ctx.mesh(), ctx.get("variance")["std"], params=params)
     if getattr(res, "skipped_reason", None):
         return str(res.skipped_reason)
     arrays = {}
@@ -563,8 +565,14 @@ def _check_stage_options(options: dict) -> None:
     from .hybrid.globalmesh import GlobalMeshOptions
     from .hybrid.pvm import PvmOptions
 
+    classes = {"mesh": GlobalMeshOptions, "pvm": PvmOptions}
+    if "harmonise" in options and "harmonise" in available_stages():
+        from .hybrid import harmonise as H
+
+        if hasattr(H, "HarmoniseParams"):
+            classes["harmonise"] = H.HarmoniseParams
     for stage, kw in options.items():
-        cls = {"mesh": GlobalMeshOptions, "pvm": PvmOptions}.get(stage)
+        cls = classes.get(stage)
         if cls is None:
             continue
         try:

@@ -305,4 +305,4 @@ def build_global_mesh(scene: Scene, options: GlobalMeshOptions | None = None,
         voxel = mesh_scale(given) / options.resolution
         mesh = densify(given, options.max_edge_voxels * voxel, options.max_faces)
     return mesh, {"source": src, "vertices": int(len(mesh.vertices)), "faces": int(len(mesh.faces)),
-                  "voxel": voxel}
+                  "voxel": float(f"{voxel:.4g}")}
