@@ -330,3 +330,15 @@ def test_bad_inputs():
         motion_buffer(d, cam, cam, object_ids=ids, object_motion=nonrigid)
     with pytest.raises(BadValueError, match="kind"):
         forward_warp_depth(d, cam, cam, "splat")
+
+
+def test_skip_farther_does_not_change_the_two_plane_result():
+    # The skip only drops searches whose layer cannot hold a nearer sample (depthwarp.h "skip");
+    # on this scene no cross-layer climb leaves the bound, so the outputs are identical.
+    deep = two_plane_scene()
+    src, dst = cam_at(), cam_at((0.4, -0.2, 0.3))
+    a = warp_depth(deep, src, dst, DepthWarpParams(skip_farther=True))
+    b = warp_depth(deep, src, dst, DepthWarpParams(skip_farther=False))
+    np.testing.assert_array_equal(a.depth, b.depth)
+    np.testing.assert_array_equal(a.layer, b.layer)
+    assert a.stats["searches"] < b.stats["searches"]

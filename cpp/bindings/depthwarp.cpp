@@ -159,6 +159,7 @@ FloatArray ComputeMotion(const MotionInputs& in, const Camera& src, const Camera
 struct MotionMips {
   int num_layers = 0, height = 0, width = 0;
   std::vector<std::vector<std::vector<float>>> levels;  // [layer][level - 1]
+  std::vector<std::vector<std::vector<float>>> zlevels; // [layer][level - 1]: min z_dst
   std::vector<std::vector<std::pair<int, int>>> dims;   // (h, w) of each level
   std::vector<std::array<float, 4>> rot;
   std::vector<int> axes;
@@ -243,6 +244,7 @@ void BindDepthwarp(py::module_& m) {
         mm.width = static_cast<int>(packed.shape(2));
         const std::int64_t plane = std::int64_t(mm.height) * mm.width * 4;
         mm.levels.resize(mm.num_layers);
+        mm.zlevels.resize(mm.num_layers);
         mm.dims.resize(mm.num_layers);
         mm.rot.resize(mm.num_layers);
         mm.axes.resize(mm.num_layers);
@@ -252,6 +254,7 @@ void BindDepthwarp(py::module_& m) {
             h = (h + 1) / 2, w = (w + 1) / 2;
             mm.dims[j].push_back({h, w});
             mm.levels[j].emplace_back(std::size_t(h) * w * 4);
+            mm.zlevels[j].emplace_back(std::size_t(h) * w);
           }
         }
         const float* pd = packed.data();
@@ -261,13 +264,15 @@ void BindDepthwarp(py::module_& m) {
             ImageView<const float> pv(pd + j * plane, mm.height, mm.width, 4);
             mm.axes[j] = static_cast<int>(DepthWarpChooseAxes(pv, oriented, pca_grid, mm.rot[j].data()));
             for (std::size_t l = 0; l < mm.levels[j].size(); ++l) {
-              ImageView<float> out(mm.levels[j][l].data(), mm.dims[j][l].first, mm.dims[j][l].second, 4);
+              const int lh = mm.dims[j][l].first, lw = mm.dims[j][l].second;
+              ImageView<float> out(mm.levels[j][l].data(), lh, lw, 4);
+              ImageView<float> out_z(mm.zlevels[j][l].data(), lh, lw);
               if (l == 0) {
-                DepthWarpMipLevel1(pv, mm.rot[j].data(), out);
+                DepthWarpMipLevel1(pv, mm.rot[j].data(), out, out_z);
               } else {
-                const auto& prev = mm.levels[j][l - 1];
-                DepthWarpMipDown(ImageView<const float>(prev.data(), mm.dims[j][l - 1].first, mm.dims[j][l - 1].second, 4),
-                                 out);
+                const int ph = mm.dims[j][l - 1].first, pw = mm.dims[j][l - 1].second;
+                DepthWarpMipDown(ImageView<const float>(mm.levels[j][l - 1].data(), ph, pw, 4),
+                                 ImageView<const float>(mm.zlevels[j][l - 1].data(), ph, pw), out, out_z);
               }
             }
           }
@@ -282,7 +287,7 @@ void BindDepthwarp(py::module_& m) {
       "dw_warp",
       [](py::handle packed_obj, const MotionMips& mm, int dst_height, int dst_width, int seeds, int iters,
          float threshold, bool tight, int steps, float early_exit, std::uint32_t seed, bool dilate,
-         int dilate_min_neighbors) {
+         int dilate_min_neighbors, bool skip_farther) {
         FloatArray packed = CheckPacked(packed_obj);
         if (packed.shape(0) != mm.num_layers || packed.shape(1) != mm.height || packed.shape(2) != mm.width) {
           throw ShapeError("mips: built for (" + std::to_string(mm.num_layers) + ", " + std::to_string(mm.height) +
@@ -298,20 +303,22 @@ void BindDepthwarp(py::module_& m) {
           throw BadValueError("dilate_min_neighbors: expected 1..8, got " + std::to_string(dilate_min_neighbors));
         }
         const std::int64_t plane = std::int64_t(mm.height) * mm.width * 4;
-        std::vector<std::vector<ImageView<const float>>> mip_views(mm.num_layers);
+        std::vector<std::vector<ImageView<const float>>> mip_views(mm.num_layers), zmip_views(mm.num_layers);
         std::vector<DepthWarpLayer> layers(mm.num_layers);
         for (int j = 0; j < mm.num_layers; ++j) {
           for (std::size_t l = 0; l < mm.levels[j].size(); ++l) {
             mip_views[j].emplace_back(mm.levels[j][l].data(), mm.dims[j][l].first, mm.dims[j][l].second, 4);
+            zmip_views[j].emplace_back(mm.zlevels[j][l].data(), mm.dims[j][l].first, mm.dims[j][l].second);
           }
           layers[j].packed = ImageView<const float>(packed.data() + j * plane, mm.height, mm.width, 4);
           layers[j].mips = mip_views[j].data();
+          layers[j].zmips = zmip_views[j].data();
           layers[j].n_mips = static_cast<int>(mip_views[j].size());
           for (int i = 0; i < 4; ++i) layers[j].rot[i] = mm.rot[j][i];
         }
         DepthWarpOptions opt;
         opt.seeds = seeds, opt.iters = iters, opt.threshold = threshold, opt.tight = tight, opt.steps = steps;
-        opt.early_exit = early_exit, opt.seed = seed;
+        opt.early_exit = early_exit, opt.seed = seed, opt.skip_farther = skip_farther;
         FloatArray depth = NewArray<float>({dst_height, dst_width});
         py::array_t<std::int8_t, py::array::c_style> layer = NewArray<std::int8_t>({dst_height, dst_width});
         DepthWarpCounters counters;
@@ -348,7 +355,7 @@ void BindDepthwarp(py::module_& m) {
       py::arg("packed"), py::arg("mips"), py::arg("dst_height"), py::arg("dst_width"), py::arg("seeds") = 16,
       py::arg("iters") = 3, py::arg("threshold") = 0.5f, py::arg("tight") = true, py::arg("steps") = 3,
       py::arg("early_exit") = 0.5f, py::arg("seed") = 0u, py::arg("dilate") = true,
-      py::arg("dilate_min_neighbors") = 5,
+      py::arg("dilate_min_neighbors") = 5, py::arg("skip_farther") = true,
       "Backward depth warp (DepthWarpBackward, then DepthWarpDilate when dilate): returns depth float32 "
       "(H', W') (0 in holes), layer int8 (H', W') (-1 in holes) and a dict of counters and wall times.");
 

@@ -36,17 +36,22 @@ inline bool MovePixel(const DepthWarpMover& m, double xi, double yi, double z, i
          std::fabs(*yo - yi) < kDepthWarpMaxMotion;
 }
 
+// A motion bound (u0, w0)-(u1, w1) in the layer's rotated axes and zmin, a lower bound of z_dst of
+// every valid source pixel it was read from (so of any sample that can converge through it).
 struct Bound {
-  float u0, w0, u1, w1;
+  float u0, w0, u1, w1, zmin;
   bool Valid() const { return u0 <= u1 && w0 <= w1; }
 };
-constexpr Bound kEmptyBound{kInf, kInf, -kInf, -kInf};
+constexpr Bound kEmptyBound{kInf, kInf, -kInf, -kInf, kInf};
 
 inline Bound Union(const Bound& a, const Bound& b) {
-  return {std::min(a.u0, b.u0), std::min(a.w0, b.w0), std::max(a.u1, b.u1), std::max(a.w1, b.w1)};
+  return {std::min(a.u0, b.u0), std::min(a.w0, b.w0), std::max(a.u1, b.u1), std::max(a.w1, b.w1),
+          std::min(a.zmin, b.zmin)};
 }
+// The true source is in both regions, so its motion is in both boxes and its z above both zmins.
 inline Bound Intersect(const Bound& a, const Bound& b) {
-  return {std::max(a.u0, b.u0), std::max(a.w0, b.w0), std::min(a.u1, b.u1), std::min(a.w1, b.w1)};
+  return {std::max(a.u0, b.u0), std::max(a.w0, b.w0), std::min(a.u1, b.u1), std::min(a.w1, b.w1),
+          std::max(a.zmin, b.zmin)};
 }
 
 // Texel (ix >> level, iy >> level) of the layer's min-max mipmap; level 0 reads the packed buffer.
@@ -56,11 +61,12 @@ inline Bound Texel(const DepthWarpLayer& l, int level, int ix, int iy) {
     if (!(s[2] > 0.0f)) return kEmptyBound;
     const float u = l.rot[0] * s[0] + l.rot[1] * s[1];
     const float w = l.rot[2] * s[0] + l.rot[3] * s[1];
-    return {u, w, u, w};
+    return {u, w, u, w, s[2]};
   }
   const ImageView<const float>& m = l.mips[level - 1];
-  const float* t = m.data + (std::ptrdiff_t(iy >> level) * m.width + (ix >> level)) * 4;
-  return {t[0], t[1], t[2], t[3]};
+  const std::ptrdiff_t at = std::ptrdiff_t(iy >> level) * m.width + (ix >> level);
+  const float* t = m.data + at * 4;
+  return {t[0], t[1], t[2], t[3], l.zmips[level - 1].data[at]};
 }
 
 inline Bound GlobalBound(const DepthWarpLayer& l) {
@@ -299,41 +305,54 @@ DepthWarpAxes DepthWarpChooseAxes(const ImageView<const float>& packed, bool try
   return DepthWarpAxes::kOriented;
 }
 
-void DepthWarpMipLevel1(const ImageView<const float>& packed, const float rot[4], const ImageView<float>& out) {
+void DepthWarpMipLevel1(const ImageView<const float>& packed, const float rot[4], const ImageView<float>& out,
+                        const ImageView<float>& out_z) {
   const int w = packed.width, h = packed.height;
   const float r0 = rot[0], r1 = rot[1], r2 = rot[2], r3 = rot[3];
   ParallelFor(out.height, RowGrain(out.width * 2), [&](std::int64_t a, std::int64_t b) {
     for (int j = int(a); j < int(b); ++j) {
       float* o = out.Row(j);
+      float* oz = out_z.Row(j);
+      const int y0 = 2 * j, y1 = std::min(h, 2 * j + 2);
       for (int i = 0; i < out.width; ++i, o += 4) {
-        float u0 = kInf, w0 = kInf, u1 = -kInf, w1 = -kInf;
-        for (int y = 2 * j; y < std::min(h, 2 * j + 2); ++y) {
-          for (int x = 2 * i; x < std::min(w, 2 * i + 2); ++x) {
-            const float* s = packed.Row(y) + 4 * x;
+        float u0 = kInf, w0 = kInf, u1 = -kInf, w1 = -kInf, z0 = kInf;
+        const int x0 = 2 * i, x1 = std::min(w, 2 * i + 2);
+        for (int y = y0; y < y1; ++y) {
+          const float* s = packed.Row(y) + 4 * x0;
+          for (int x = x0; x < x1; ++x, s += 4) {
             if (!(s[2] > 0.0f)) continue;
             const float u = r0 * s[0] + r1 * s[1], v = r2 * s[0] + r3 * s[1];
             u0 = std::min(u0, u), u1 = std::max(u1, u), w0 = std::min(w0, v), w1 = std::max(w1, v);
+            z0 = std::min(z0, s[2]);
           }
         }
         o[0] = u0, o[1] = w0, o[2] = u1, o[3] = w1;
+        oz[i] = z0;
       }
     }
   });
 }
 
-void DepthWarpMipDown(const ImageView<const float>& in, const ImageView<float>& out) {
+void DepthWarpMipDown(const ImageView<const float>& in, const ImageView<const float>& in_z, const ImageView<float>& out,
+                      const ImageView<float>& out_z) {
   ParallelFor(out.height, RowGrain(out.width * 2), [&](std::int64_t a, std::int64_t b) {
     for (int j = int(a); j < int(b); ++j) {
       float* o = out.Row(j);
+      float* oz = out_z.Row(j);
+      const int y0 = 2 * j, y1 = std::min(in.height, 2 * j + 2);
       for (int i = 0; i < out.width; ++i, o += 4) {
-        float u0 = kInf, w0 = kInf, u1 = -kInf, w1 = -kInf;
-        for (int y = 2 * j; y < std::min(in.height, 2 * j + 2); ++y) {
-          for (int x = 2 * i; x < std::min(in.width, 2 * i + 2); ++x) {
-            const float* s = in.Row(y) + 4 * x;
+        float u0 = kInf, w0 = kInf, u1 = -kInf, w1 = -kInf, z0 = kInf;
+        const int x0 = 2 * i, x1 = std::min(in.width, 2 * i + 2);
+        for (int y = y0; y < y1; ++y) {
+          const float* s = in.Row(y) + 4 * x0;
+          const float* sz = in_z.Row(y);
+          for (int x = x0; x < x1; ++x, s += 4) {
             u0 = std::min(u0, s[0]), w0 = std::min(w0, s[1]), u1 = std::max(u1, s[2]), w1 = std::max(w1, s[3]);
+            z0 = std::min(z0, sz[x]);
           }
         }
         o[0] = u0, o[1] = w0, o[2] = u1, o[3] = w1;
+        oz[i] = z0;
       }
     }
   });
@@ -382,13 +401,14 @@ void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const Depth
             const float py = y + 0.5f;
             for (int x = x0; x < x1; ++x) {
               const float px = x + 0.5f;
+              const int at = (y - y0) * kT + (x - x0);
+              // No sample of this layer can be nearer than zmin: the result cannot change.
+              if (opt.skip_farther && bt.zmin >= best[at]) continue;
               Bound b = bt;
               if (opt.tight && !tile_one && opt.steps > 0) {
                 // One narrowing step of the pixel's own region (Fig. 5) from the tile bound.
                 b = Intersect(b, LocalBound(l, SourceRegion(l, b, px, py, px, py)));
-                if (!b.Valid()) continue;
-              } else if (!Overlaps(l, SourceRegion(l, b, px, py, px, py))) {
-                continue;
+                if (!b.Valid() || (opt.skip_farther && b.zmin >= best[at])) continue;
               }
               ++c_search;
               const float eu = b.u1 - b.u0, ew = b.w1 - b.w0;
@@ -401,7 +421,6 @@ void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const Depth
                                               Hash(std::uint32_t(x) * 0x85ebca6bU ^ Hash(std::uint32_t(y) ^ (std::uint32_t(j) << 24))));
                 j1 = Unit(hh), j2 = Unit(Hash(hh ^ 0x68bc21ebU));
               }
-              const int at = (y - y0) * kT + (x - x0);
               for (int k = 0; k < n; ++k) {
                 float su = 0.5f, sw = 0.5f;
                 if (!one) {
