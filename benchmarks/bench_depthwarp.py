@@ -17,7 +17,8 @@ method's depth PSNR / SSIM (``ibrtools.render.depthwarp.depth_scores``: z / far,
 2. Speed: on ``crowd``, ``warp_depth`` with N = 4, L = 3, T = 3 (motion buffers and mipmaps
    included: the call's wall time) against ``ReferenceRenderer.render(camera, outputs=("depth",))``
    of the same frame, alternated for --repeats rounds, medians; and the N / L / T scaling table
-   (Table 3), one factor varied at a time around N = 4, L = 3, T = 3.
+   (Table 3), one factor varied at a time around N = 4, L = 3, T = 3; and the depth peeling cost
+   and fill per layer, plain vs generalised umbra culling towards the next frame (Table 4).
 3. Plots (Fig. 10 / 11) on ``crowd``, frame 1: quality vs N for L = 1 and 4; quality vs L at
    N = 16; quality vs T at motions x1, x2, x4 (frames 0 -> 1, 2, 4 of ``walk``) and the
    ``stress`` path (100+ px/frame). PNGs in docs/img/depthwarp_*.png.
@@ -173,6 +174,26 @@ def speed(size, repeats: int) -> tuple[str, str]:
     return head, table
 
 
+def peel_table(size, repeats: int) -> str:
+    """Depth peeling cost and fill per layer (the paper's Table 4), plain vs umbra culling
+    towards the next frame, on crowd (walk frame 0, novel camera = frame 1)."""
+    mesh, r, paths = _setup("crowd", size, 2)
+    src, dst = paths["walk"][0], paths["walk"][1]
+    rows = []
+    for L in (1, 2, 3, 4):
+        cells = []
+        for umbra in (None, [dst]):
+            r.peel(src, L, umbra=umbra)
+            times, fill = [], None
+            for _ in range(max(3, repeats // 2)):
+                d = r.peel(src, L, umbra=umbra)
+                times.append(d.times_ms["peel"])
+                fill = d.fill
+            cells.append(f"{statistics.median(times):.1f} ms, fill {', '.join(f'{f:.2f}' for f in fill)}")
+        rows.append(f"| {L} | " + " | ".join(cells) + " |")
+    return ("| L | plain peeling | umbra culling (novel camera: next frame) |\n|---|---|---|\n" + "\n".join(rows))
+
+
 def plots(size, write: bool) -> str:
     import matplotlib
 
@@ -282,6 +303,7 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     qtab, results = quality_table(size, args.frames)
     shead, stab = speed(size, args.repeats)
+    ptable = peel_table(size, args.repeats)
     ptab = "" if args.skip_plots else plots(size, args.write_docs)
     text = "\n".join([
         "## Depth warping",
@@ -306,6 +328,11 @@ def main(argv=None) -> int:
         "Scaling (warp_depth wall ms, Table 3 analogue):",
         "",
         stab,
+        "",
+        "Depth peeling on crowd (Embree, walk frame 0; fill = non-empty fraction per layer; Table 4 "
+        "analogue; the ground-only layer is not included):",
+        "",
+        ptable,
         "",
         *(["Quality sweeps on crowd (depth SSIM / PSNR dB; plots: docs/img/depthwarp_psnr.png, "
            "docs/img/depthwarp_ssim.png):", "", ptab, ""] if ptab else []),
