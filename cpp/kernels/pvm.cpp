@@ -3,7 +3,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <limits>
+#include <unordered_map>
 
 #include <tbb/parallel_sort.h>
 
@@ -114,9 +116,15 @@ void ClipHalf(const Poly& in, int axis, double value, double sign, Poly& out) {
       std::copy(a, a + 3, out.p[out.n++]);
     }
     if ((da >= 0) != (db >= 0) && out.n < kMaxPoly) {
-      const double t = da / (da - db);
+      // Interpolate from the lexicographically smaller end so that the two triangles sharing
+      // an edge get bit-identical cut points (then a tile can share them).
+      const bool swap = std::lexicographical_compare(b, b + 3, a, a + 3);
+      const double* p0 = swap ? b : a;
+      const double* p1 = swap ? a : b;
+      const double d0 = swap ? db : da, d1 = swap ? da : db;
+      const double t = d0 / (d0 - d1);
       double* q = out.p[out.n++];
-      for (int k = 0; k < 3; ++k) q[k] = a[k] + t * (b[k] - a[k]);
+      for (int k = 0; k < 3; ++k) q[k] = p0[k] + t * (p1[k] - p0[k]);
       q[axis] = value;  // exactly on the face, whatever the rounding of t
     }
   }
@@ -147,6 +155,20 @@ struct Piece {
   std::int64_t seq;   // position before sorting: ties keep input order (deterministic)
   std::int32_t face;
   std::int32_t clip;  // -1 = the whole input triangle, else index of its 9 floats in `clip`
+};
+
+// Exact bit pattern of a float32 point: cut points shared by neighbouring pieces of a tile.
+struct PointKey {
+  std::uint32_t b[3];
+  bool operator==(const PointKey& o) const { return b[0] == o.b[0] && b[1] == o.b[1] && b[2] == o.b[2]; }
+};
+struct PointKeyHash {
+  std::size_t operator()(const PointKey& k) const {
+    std::uint64_t h = k.b[0] * 0x9E3779B97F4A7C15ull;
+    h ^= (h >> 29) + k.b[1] * 0xBF58476D1CE4E5B9ull;
+    h ^= (h >> 31) + k.b[2] * 0x94D049BB133111EBull;
+    return static_cast<std::size_t>(h ^ (h >> 32));
+  }
 };
 
 struct Chunk {
@@ -284,6 +306,7 @@ void PvmSlice(const float* vertices, std::int64_t num_vertices, const std::int32
   out.face_source.reserve(n_pieces);
   std::int64_t tile = -1;
   float* box = nullptr;
+  std::unordered_map<PointKey, std::int32_t, PointKeyHash> cut_points;
   auto add_vertex = [&](const float* p) {
     for (int a = 0; a < 3; ++a) {
       out.vertices.push_back(p[a]);
@@ -299,6 +322,7 @@ void PvmSlice(const float* vertices, std::int64_t num_vertices, const std::int32
         out.vertex_offsets.push_back(static_cast<std::int64_t>(out.vertices.size() / 3));
       }
       ++tile;
+      cut_points.clear();
       out.keys.push_back(p.key);
       const float inf = std::numeric_limits<float>::infinity();
       out.bounds.insert(out.bounds.end(), {inf, inf, inf, -inf, -inf, -inf});
@@ -315,7 +339,13 @@ void PvmSlice(const float* vertices, std::int64_t num_vertices, const std::int32
       }
     } else {
       const float* q = clip.data() + 9 * static_cast<std::int64_t>(p.clip);
-      for (int k = 0; k < 3; ++k) out.faces.push_back(add_vertex(q + 3 * k));
+      for (int k = 0; k < 3; ++k) {
+        PointKey key;
+        std::memcpy(key.b, q + 3 * k, sizeof key.b);
+        auto it = cut_points.find(key);
+        if (it == cut_points.end()) it = cut_points.emplace(key, add_vertex(q + 3 * k)).first;
+        out.faces.push_back(it->second);
+      }
     }
     out.face_source.push_back(p.face);
   }

@@ -31,7 +31,9 @@
 //     coarse_id = (cz * coarse + cy) * coarse + cx, local_id = (lz * sub + ly) * sub + lx,
 //   so sorting by key groups tiles by coarse cell, then fine cell, then view.
 //   Output: PvmTiles (below); tiles sorted by key, faces of a tile contiguous, vertices of a tile
-//   contiguous and shared by its faces (an input vertex appears once per tile that uses it).
+//   contiguous and shared by its faces (an input vertex appears once per tile that uses it; cut
+//   points are computed from the lexicographically smaller end of an edge, so the pieces of two
+//   triangles sharing an edge get bit-identical cut points, stored once per tile).
 //
 // The fronts (cpp/bindings/hybrid.cpp) check shapes, index ranges and finiteness; kernels trust
 // their inputs and never throw. Results are identical for any thread count.
