@@ -457,6 +457,10 @@ def run_stages(root: str | os.PathLike, *, methods: list[str] | None = None, sta
             if why[s] == "needed by ":
                 why[s] = "read by a needed stage"
     wanted = [s for s in wanted if s in avail]
+    if not wanted:  # nothing to plan: no scene load, no hashing (the plain import stays fast)
+        reason = ("not selected (--stages)" if stages is not None else
+                  f"not needed by methods {', '.join(methods) or 'none'}")
+        return [StageResult(name, "skipped", reason) for name in ORDER if name in avail]
     ctx = _Context(root, options)
     upstream = {"scene": scene_content_key(root)}
     records = dict(_read_doc(root).get("stages") or {})
