@@ -191,3 +191,29 @@ def test_peel_bad_input():
         r.peel(Camera.equirect(16, 8), 2, umbra=[cam])
     # Plain peeling works for equirect cameras (depth = ray distance).
     assert r.peel(Camera.equirect(16, 8, cam_from_world=look_at((0, 2, -8), (0, 0, 0))), 2).depth.shape == (2, 8, 16)
+
+
+def test_gil_released_during_peel():
+    """Structural (tests/gil.py): while a peel runs in another thread, this thread runs Python."""
+    import math
+    import sys
+    import time
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from gil import stamps_during, stamps_in_middle
+
+    r = ReferenceRenderer(_box_scene())
+    old = _core.get_num_threads()
+    try:
+        _core.set_num_threads(1)  # leave a core for this thread
+        t = time.perf_counter()
+        r.peel(_ring_cam(30, w=160, h=120), 8)
+        # Size the image so that one call lasts ~80 ms (>> the 5 ms switch interval).
+        scale = min(8.0, max(1.0, math.sqrt(0.08 / max(time.perf_counter() - t, 1e-4))))
+        cam = _ring_cam(30, w=int(160 * scale), h=int(120 * scale))
+        t0, t1, stamps = stamps_during(lambda: r.peel(cam, 8))
+    finally:
+        _core.set_num_threads(old)
+    assert t1 - t0 > 0.02, "peel too short for this check"
+    assert stamps_in_middle(t0, t1, stamps) > 0
