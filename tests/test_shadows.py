@@ -168,3 +168,28 @@ def test_bad_inputs(scene):
     with pytest.raises(BadValueError, match="light_positions"):
         _core.OcclusionScene(r.mesh.vertices, r.mesh.faces).visibility(
             depth, view.to_core(), np.full((1, 3), np.nan), 1e-4)
+
+
+def test_gil_released_during_shadow_kernels(scene):
+    """Structural (STYLE.md 6): while the shadow-map test and the traced reference run in another
+    thread, this thread executes Python code (negative control: tests/gil.py)."""
+    from gil import stamps_during, stamps_in_middle
+
+    from ibrtools import _core
+    r, depth = scene
+    view, light = _view(), _light(1.0)
+    cams = [light.camera(64, p) for p in light.samples(64)]
+    maps = np.stack([r.render(c, outputs=("depth",), lights=[])["depth"] for c in cams])
+    core_cams = [c.to_core() for c in cams]
+    occ = _core.OcclusionScene(r.mesh.vertices, r.mesh.faces)
+    pos = light.samples(64)
+    _core.set_num_threads(1)  # leave a core for this thread
+    try:
+        for work in (lambda: [_core.shadow_map_visibility(depth, view.to_core(), maps, core_cams, 0.5, 1.0)
+                              for _ in range(20)],
+                     lambda: [occ.visibility(depth, view.to_core(), pos, 1e-4) for _ in range(5)]):
+            t0, t1, stamps = stamps_during(work)
+            assert t1 - t0 > 0.02, "kernel too short for this check"
+            assert stamps_in_middle(t0, t1, stamps) > 0
+    finally:
+        _core.set_num_threads(0)  # back to all cores (the default)
