@@ -67,7 +67,8 @@ def test_plane_translation_is_exact(shift):
     expect = np.array([-F * shift[0] / z, -F * shift[1] / z], np.float32)
     np.testing.assert_allclose(motion, np.broadcast_to(expect, motion.shape), atol=1e-4)
     np.testing.assert_array_equal(dz, plane(z))
-    for params in (DepthWarpParams(), DepthWarpParams(bound="global", seeds=4), DepthWarpParams(oriented=True)):
+    for params in (DepthWarpParams(), DepthWarpParams(bound="global", seeds=4), DepthWarpParams(oriented=True),
+                   DepthWarpParams(tile=1, pixel_step=False), DepthWarpParams(tile=16, early_exit=0.0)):
         r = warp_depth(plane(z), src, dst, params)
         # Pixel p has a source iff p - v lies in the source image (samples outside are rejected).
         xs = np.arange(W) + 0.5 - expect[0]
@@ -307,11 +308,14 @@ def test_bad_inputs():
                          (DepthWarpParams(threshold=0), "threshold"), (DepthWarpParams(bound="box"), "bound"),
                          (DepthWarpParams(early_exit=-1), "early_exit"), (DepthWarpParams(steps=-2), "steps"),
                          (DepthWarpParams(dilate_min_neighbors=9), "dilate_min_neighbors"),
-                         (DepthWarpParams(threshold=float("nan")), "threshold")):
+                         (DepthWarpParams(threshold=float("nan")), "threshold"), (DepthWarpParams(tile=0), "tile"),
+                         (DepthWarpParams(tile=17), "tile"), (DepthWarpParams(seed=2**32), "seed")):
         with pytest.raises(BadValueError, match=name):
             warp_depth(d, cam, cam, params)
     with pytest.raises(DtypeError, match="oriented"):
         warp_depth(d, cam, cam, DepthWarpParams(oriented="yes"))
+    with pytest.raises(DtypeError, match="pixel_step"):
+        warp_depth(d, cam, cam, DepthWarpParams(pixel_step=1))
     with pytest.raises(DtypeError, match="params"):
         warp_depth(d, cam, cam, {"seeds": 4})
     ids = np.zeros((H, W), np.int32)

@@ -287,7 +287,7 @@ void BindDepthwarp(py::module_& m) {
       "dw_warp",
       [](py::handle packed_obj, const MotionMips& mm, int dst_height, int dst_width, int seeds, int iters,
          float threshold, bool tight, int steps, float early_exit, std::uint32_t seed, bool dilate,
-         int dilate_min_neighbors, bool skip_farther) {
+         int dilate_min_neighbors, bool skip_farther, int tile, bool pixel_step) {
         FloatArray packed = CheckPacked(packed_obj);
         if (packed.shape(0) != mm.num_layers || packed.shape(1) != mm.height || packed.shape(2) != mm.width) {
           throw ShapeError("mips: built for (" + std::to_string(mm.num_layers) + ", " + std::to_string(mm.height) +
@@ -319,6 +319,10 @@ void BindDepthwarp(py::module_& m) {
         DepthWarpOptions opt;
         opt.seeds = seeds, opt.iters = iters, opt.threshold = threshold, opt.tight = tight, opt.steps = steps;
         opt.early_exit = early_exit, opt.seed = seed, opt.skip_farther = skip_farther;
+        if (tile < 1 || tile > kDepthWarpMaxTile) {
+          throw BadValueError("tile: expected 1.." + std::to_string(kDepthWarpMaxTile) + ", got " + std::to_string(tile));
+        }
+        opt.tile = tile, opt.pixel_step = pixel_step;
         FloatArray depth = NewArray<float>({dst_height, dst_width});
         py::array_t<std::int8_t, py::array::c_style> layer = NewArray<std::int8_t>({dst_height, dst_width});
         DepthWarpCounters counters;
@@ -355,7 +359,8 @@ void BindDepthwarp(py::module_& m) {
       py::arg("packed"), py::arg("mips"), py::arg("dst_height"), py::arg("dst_width"), py::arg("seeds") = 16,
       py::arg("iters") = 3, py::arg("threshold") = 0.5f, py::arg("tight") = true, py::arg("steps") = 3,
       py::arg("early_exit") = 0.5f, py::arg("seed") = 0u, py::arg("dilate") = true,
-      py::arg("dilate_min_neighbors") = 5, py::arg("skip_farther") = true,
+      py::arg("dilate_min_neighbors") = 5, py::arg("skip_farther") = true, py::arg("tile") = 8,
+      py::arg("pixel_step") = true,
       "Backward depth warp (DepthWarpBackward, then DepthWarpDilate when dilate): returns depth float32 "
       "(H', W') (0 in holes), layer int8 (H', W') (-1 in holes) and a dict of counters and wall times.");
 

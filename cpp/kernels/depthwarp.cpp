@@ -218,21 +218,60 @@ void RasterTriangle(const ScreenVertex& a, const ScreenVertex& b, const ScreenVe
 void DepthWarpMotion(const ImageView<const float>& depth, const ImageView<const std::int32_t>* ids,
                      const DepthWarpMover& mover, const ImageView<float>& packed) {
   const int w = depth.width;
+  if (ids) {
+    // Per-object transforms: the general per-pixel path (double precision).
+    ParallelFor(depth.height, RowGrain(w), [&](std::int64_t r0, std::int64_t r1) {
+      for (int y = int(r0); y < int(r1); ++y) {
+        const float* d = depth.Row(y);
+        const std::int32_t* id = ids->Row(y);
+        float* out = packed.Row(y);
+        for (int x = 0; x < w; ++x) {
+          float* o = out + 4 * x;
+          o[0] = o[1] = o[2] = o[3] = 0.0f;
+          if (!(d[x] > 0.0f)) continue;
+          const double xi = x + 0.5, yi = y + 0.5;
+          double xo, yo, zo;
+          if (!MovePixel(mover, xi, yi, d[x], id[x], &xo, &yo, &zo)) continue;
+          o[0] = float(xo - xi);
+          o[1] = float(yo - yi);
+          o[2] = float(zo);
+        }
+      }
+    });
+    return;
+  }
+  // Static scene: point_in_dst = z * (A * ray) + t with ray = ((x + 0.5 - cx) / fx, ry, 1), i.e.
+  // z * (c + rx * A0) + t per row; float32 arithmetic, branch-free so that it vectorises (the
+  // motion's float rounding is ~1e-4 px at 2000 px; z_dst of an identity transform is exact).
+  const Camera& s = *mover.src;
+  const Camera& dcam = *mover.dst;
+  const double* a = mover.dst_from_src;
+  const float a0x = float(a[0] / s.fx), a0y = float(a[4] / s.fx), a0z = float(a[8] / s.fx);
+  const float tx = float(a[3]), ty = float(a[7]), tz = float(a[11]);
+  const float fx = float(dcam.fx), fy = float(dcam.fy), cx = float(dcam.cx), cy = float(dcam.cy);
+  const float scx = float(s.cx);
   ParallelFor(depth.height, RowGrain(w), [&](std::int64_t r0, std::int64_t r1) {
     for (int y = int(r0); y < int(r1); ++y) {
+      const double ry = (y + 0.5 - s.cy) / s.fy;
+      const float cxr = float(a[1] * ry + a[2]), cyr = float(a[5] * ry + a[6]), czr = float(a[9] * ry + a[10]);
+      const float yi = float(y) + 0.5f;
       const float* d = depth.Row(y);
-      const std::int32_t* id = ids ? ids->Row(y) : nullptr;
-      float* out = packed.Row(y);
+      float* o = packed.Row(y);
       for (int x = 0; x < w; ++x) {
-        float* o = out + 4 * x;
-        o[0] = o[1] = o[2] = o[3] = 0.0f;
-        if (!(d[x] > 0.0f)) continue;
-        const double xi = x + 0.5, yi = y + 0.5;
-        double xo, yo, zo;
-        if (!MovePixel(mover, xi, yi, d[x], id ? id[x] : -1, &xo, &yo, &zo)) continue;
-        o[0] = float(xo - xi);
-        o[1] = float(yo - yi);
-        o[2] = float(zo);
+        const float z = d[x];
+        const float rx = float(x) + 0.5f - scx;
+        const float px = z * (cxr + rx * a0x) + tx;
+        const float py = z * (cyr + rx * a0y) + ty;
+        const float pz = z * (czr + rx * a0z) + tz;
+        const float inv = 1.0f / (pz > 0.0f ? pz : 1.0f);
+        const float mx = fx * px * inv + cx - (float(x) + 0.5f);
+        const float my = fy * py * inv + cy - yi;
+        // NaN-safe: every comparison with NaN is false.
+        const bool ok = z > 0.0f && pz > 0.0f && std::fabs(mx) < kDepthWarpMaxMotion && std::fabs(my) < kDepthWarpMaxMotion;
+        o[4 * x + 0] = ok ? mx : 0.0f;
+        o[4 * x + 1] = ok ? my : 0.0f;
+        o[4 * x + 2] = ok ? pz : 0.0f;
+        o[4 * x + 3] = 0.0f;
       }
     }
   });
@@ -305,32 +344,53 @@ DepthWarpAxes DepthWarpChooseAxes(const ImageView<const float>& packed, bool try
   return DepthWarpAxes::kOriented;
 }
 
-void DepthWarpMipLevel1(const ImageView<const float>& packed, const float rot[4], const ImageView<float>& out,
-                        const ImageView<float>& out_z) {
+namespace {
+// One 2x2 block of the packed buffer into (u0, w0, u1, w1, zmin); Identity: no rotation.
+template <bool Identity>
+inline void Level1Texel(const float* s, int n, const float* r, float* o, float* oz) {
+  float u0 = kInf, w0 = kInf, u1 = -kInf, w1 = -kInf, z0 = kInf;
+  for (int k = 0; k < n; ++k, s += 4) {
+    const bool ok = s[2] > 0.0f;
+    const float u = Identity ? s[0] : r[0] * s[0] + r[1] * s[1];
+    const float v = Identity ? s[1] : r[2] * s[0] + r[3] * s[1];
+    u0 = std::min(u0, ok ? u : kInf), u1 = std::max(u1, ok ? u : -kInf);
+    w0 = std::min(w0, ok ? v : kInf), w1 = std::max(w1, ok ? v : -kInf);
+    z0 = std::min(z0, ok ? s[2] : kInf);
+  }
+  o[0] = std::min(o[0], u0), o[1] = std::min(o[1], w0), o[2] = std::max(o[2], u1), o[3] = std::max(o[3], w1);
+  *oz = std::min(*oz, z0);
+}
+
+template <bool Identity>
+void MipLevel1Impl(const ImageView<const float>& packed, const float rot[4], const ImageView<float>& out,
+                   const ImageView<float>& out_z) {
   const int w = packed.width, h = packed.height;
-  const float r0 = rot[0], r1 = rot[1], r2 = rot[2], r3 = rot[3];
   ParallelFor(out.height, RowGrain(out.width * 2), [&](std::int64_t a, std::int64_t b) {
     for (int j = int(a); j < int(b); ++j) {
       float* o = out.Row(j);
       float* oz = out_z.Row(j);
-      const int y0 = 2 * j, y1 = std::min(h, 2 * j + 2);
-      for (int i = 0; i < out.width; ++i, o += 4) {
-        float u0 = kInf, w0 = kInf, u1 = -kInf, w1 = -kInf, z0 = kInf;
-        const int x0 = 2 * i, x1 = std::min(w, 2 * i + 2);
-        for (int y = y0; y < y1; ++y) {
-          const float* s = packed.Row(y) + 4 * x0;
-          for (int x = x0; x < x1; ++x, s += 4) {
-            if (!(s[2] > 0.0f)) continue;
-            const float u = r0 * s[0] + r1 * s[1], v = r2 * s[0] + r3 * s[1];
-            u0 = std::min(u0, u), u1 = std::max(u1, u), w0 = std::min(w0, v), w1 = std::max(w1, v);
-            z0 = std::min(z0, s[2]);
-          }
-        }
-        o[0] = u0, o[1] = w0, o[2] = u1, o[3] = w1;
-        oz[i] = z0;
+      for (int i = 0; i < out.width; ++i) {
+        o[4 * i + 0] = kInf, o[4 * i + 1] = kInf, o[4 * i + 2] = -kInf, o[4 * i + 3] = -kInf;
+        oz[i] = kInf;
+      }
+      for (int y = 2 * j; y < std::min(h, 2 * j + 2); ++y) {
+        const float* s = packed.Row(y);
+        const int pairs = w / 2;
+        for (int i = 0; i < pairs; ++i) Level1Texel<Identity>(s + 8 * i, 2, rot, o + 4 * i, oz + i);
+        if (w & 1) Level1Texel<Identity>(s + 8 * pairs, 1, rot, o + 4 * pairs, oz + pairs);
       }
     }
   });
+}
+}  // namespace
+
+void DepthWarpMipLevel1(const ImageView<const float>& packed, const float rot[4], const ImageView<float>& out,
+                        const ImageView<float>& out_z) {
+  if (rot[0] == 1.0f && rot[1] == 0.0f && rot[2] == 0.0f && rot[3] == 1.0f) {
+    MipLevel1Impl<true>(packed, rot, out, out_z);
+  } else {
+    MipLevel1Impl<false>(packed, rot, out, out_z);
+  }
 }
 
 void DepthWarpMipDown(const ImageView<const float>& in, const ImageView<const float>& in_z, const ImageView<float>& out,
@@ -362,7 +422,8 @@ void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const Depth
                        const ImageView<float>& depth_out, const ImageView<std::int8_t>& layer_out,
                        DepthWarpCounters* counters) {
   const int w = depth_out.width, h = depth_out.height;
-  constexpr int kT = kDepthWarpTile;
+  constexpr int kMaxT = kDepthWarpMaxTile;
+  const int kT = std::max(1, std::min(kMaxT, opt.tile));
   const int tiles_x = (w + kT - 1) / kT, tiles_y = (h + kT - 1) / kT;
   const float thr2 = opt.threshold * opt.threshold;
   const int n_seeds = std::max(1, opt.seeds);
@@ -371,8 +432,8 @@ void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const Depth
   const std::int64_t grain = std::max<std::int64_t>(1, kMinPixelsPerTask / (std::int64_t(kT) * kT * tiles_x));
   ParallelFor(tiles_y, grain, [&](std::int64_t r0, std::int64_t r1) {
     std::int64_t c_conv = 0, c_early = 0, c_search = 0, c_samples = 0, c_lookups = 0;
-    float best[kT * kT];
-    std::int8_t best_layer[kT * kT];
+    float best[kMaxT * kMaxT];
+    std::int8_t best_layer[kMaxT * kMaxT];
     for (int ty = int(r0); ty < int(r1); ++ty) {
       const int y0 = ty * kT, y1 = std::min(h, y0 + kT);
       for (int tx = 0; tx < tiles_x; ++tx) {
@@ -405,7 +466,7 @@ void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const Depth
               // No sample of this layer can be nearer than zmin: the result cannot change.
               if (opt.skip_farther && bt.zmin >= best[at]) continue;
               Bound b = bt;
-              if (opt.tight && !tile_one && opt.steps > 0) {
+              if (opt.tight && !tile_one && opt.steps > 0 && opt.pixel_step) {
                 // One narrowing step of the pixel's own region (Fig. 5) from the tile bound.
                 b = Intersect(b, LocalBound(l, SourceRegion(l, b, px, py, px, py)));
                 if (!b.Valid() || (opt.skip_farther && b.zmin >= best[at])) continue;

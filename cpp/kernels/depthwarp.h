@@ -28,7 +28,7 @@
 //          lookups at level ceil(log2 e) (at most the last level); B := B ∩ union of the four texels
 //          (the intersection keeps the bound conservative: the true source's motion is in every
 //          bound). An empty bound or a region outside the source means no source: layer skipped.
-//          Deviation for speed: the `steps` steps run once per kDepthWarpTile^2 tile of target
+//          Deviation for speed: the `steps` steps run once per options.tile^2 tile of target
 //          pixels (P = the tile's pixel centres, so the tile bound is conservative for each pixel),
 //          then one more step per pixel (P = p) from the tile bound, skipped when the tile bound is
 //          already below early_exit. "global": B = the global bound, no narrowing.
@@ -80,7 +80,7 @@ namespace ibr {
 
 inline constexpr float kDepthWarpMaxMotion = 1.0e7f;
 inline constexpr int kDepthWarpMaxSplat = 256;
-inline constexpr int kDepthWarpTile = 8;
+inline constexpr int kDepthWarpMaxTile = 16;
 
 // Moves source pixels into the target camera (both pinhole). dst_from_src: (num_motions + 1)
 // affine transforms, each 3x4 row-major float64, point_in_dst_cam = A * point_in_src_cam + t:
@@ -126,6 +126,8 @@ struct DepthWarpOptions {
   float early_exit = 0.5f;  // px
   std::uint32_t seed = 0;   // jitter of the stratified seeds
   bool skip_farther = true; // skip a layer's search where its min z_dst cannot beat the depth found
+  int tile = 8;             // target tile side for the bound narrowing (1..kDepthWarpMaxTile)
+  bool pixel_step = true;   // one more narrowing step per pixel from the tile bound
 };
 
 struct DepthWarpLayer {

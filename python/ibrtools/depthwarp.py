@@ -51,6 +51,8 @@ class DepthWarpParams:
     seed: int = 0            # jitter of the stratified seeds (deterministic for a fixed seed)
     dilate_min_neighbors: int = 5  # converged pixels among the 8 neighbours needed to fill a hole
     pca_samples: int = 16    # oriented bounds: PCA of the motions at a pca_samples^2 grid of pixels
+    tile: int = 8            # side of the target tiles whose bound is narrowed together (1 = per pixel)
+    pixel_step: bool = True  # one more narrowing step per pixel from its tile's bound
     skip_farther: bool = True  # skip a layer's search where its nearest possible depth cannot win (not in
     #                            the paper; False = every layer searched at every pixel, as in the paper)
 
@@ -58,7 +60,7 @@ class DepthWarpParams:
         """A copy with every field checked (typed errors naming the field)."""
         if self.bound not in BOUNDS:
             raise BadValueError(f"bound: expected one of {BOUNDS}, got {self.bound!r}")
-        for name in ("oriented", "dilate", "skip_farther"):
+        for name in ("oriented", "dilate", "skip_farther", "pixel_step"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise DtypeError(f"{name}: expected a bool, got {getattr(self, name)!r}")
         p = DepthWarpParams(
@@ -68,7 +70,10 @@ class DepthWarpParams:
             early_exit=check_float(self.early_exit, "early_exit", 0.0), dilate=bool(self.dilate),
             seed=check_int(self.seed, "seed", 0),
             dilate_min_neighbors=check_int(self.dilate_min_neighbors, "dilate_min_neighbors", 1),
-            pca_samples=check_int(self.pca_samples, "pca_samples", 2), skip_farther=bool(self.skip_farther))
+            pca_samples=check_int(self.pca_samples, "pca_samples", 2), skip_farther=bool(self.skip_farther),
+            tile=check_int(self.tile, "tile", 1), pixel_step=bool(self.pixel_step))
+        if p.tile > 16:
+            raise BadValueError(f"tile: expected 1..16, got {p.tile}")
         if not p.threshold > 0:
             raise BadValueError(f"threshold: expected a number > 0, got {p.threshold}")
         if p.seeds > 4096:
@@ -184,7 +189,7 @@ def warp_depth(layers, src, dst, params=DepthWarpParams(), *, object_ids=None, o
     t2 = time.perf_counter()
     depth, layer, c = core.dw_warp(packed, mips, dst.height, dst.width, p.seeds, p.iters, p.threshold,
                                    p.bound == "tight", p.steps, p.early_exit, p.seed, p.dilate,
-                                   p.dilate_min_neighbors, p.skip_farther)
+                                   p.dilate_min_neighbors, p.skip_farther, p.tile, p.pixel_step)
     times = {"motion": (t1 - t0) * 1e3, "mipmap": (t2 - t1) * 1e3, "warp": c["warp_ms"], "dilate": c["dilate_ms"]}
     n = dst.height * dst.width
     stats = {
