@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from ibrtools import _core, synth
 from ibrtools.camera import Camera, look_at
@@ -278,3 +280,23 @@ def test_awoc_culls_behind_holes_woc_keeps():
     awoc = cull_objects(tgt_depth, hole, dst, boxes, approximate=True, source_depth=src_depth, source_camera=src)
     assert awoc.occlusion_culled[0]
     assert awoc.stats["approximate"]
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(1, 40))
+def test_exact_depth_never_culls_a_visible_object(seed, n):
+    """Property: with the frame's own reference depth as the occlusion map (no warp error), no object
+    the reference renderer sees (any pixel) is culled, whatever the boxes and the camera."""
+    rng = np.random.default_rng(seed)
+    centers = rng.uniform([-3, -1, 2], [3, 1, 12], (n, 3))
+    sizes = rng.uniform(0.05, 2.5, (n, 3))
+    part = synth.boxes(centers, sizes, rng.uniform(0, np.pi, n), object_ids=np.arange(n))
+    mesh = synth.merge([part], [], None)
+    eye = rng.uniform([-2, -1, -3], [2, 1, 1])
+    cam = Camera.from_fov(48, 36, float(rng.uniform(40, 100)),
+                          look_at(eye, eye + [rng.uniform(-0.5, 0.5), rng.uniform(-0.3, 0.3), 1.0]))
+    ref = ReferenceRenderer(mesh)
+    out = ref.render(cam, outputs=("depth",), lights=[])
+    res = cull_objects(out["depth"], None, cam, object_boxes(mesh))
+    ev = res.evaluate(ref.visible_objects(cam))
+    assert ev["falsely_culled"] == 0, ev["false_ids"]
