@@ -2,7 +2,7 @@
 synthetic ``crowd`` and ``city`` scenes: drawn / ideal / falsely culled objects and stage times.
 
     python benchmarks/bench_culling.py [--width 1920 --height 1080] [--frames 12] [--target-motion 30]
-                                       [--path-frames 48] [--seeds 8] [--write-docs]
+                                       [--path-frames 48] [--seeds 8] [--csv FILE] [--write-docs]
 
 Per frame t = 1 .. --frames of the scene's path. The number of cameras on the whole path sets the
 motion per frame: the main rows use as many as give a largest motion of about --target-motion px
@@ -22,14 +22,16 @@ Ground truth ("ideal"): the object ids the Embree reference renderer hits in fra
 = visible in the reference but culled, split into <= 2 px objects (the paper expects those) and
 larger ones (target: 0). Times are wall ms medians over the frames: motion + warp (the warp call),
 N-buffer (Y-map build), test (frustum + rectangles + queries), and the reference depth render of
-the same frame for scale. With --write-docs, replaces the "bench_culling" section of
+the same frame for scale. --csv writes every frame's figures (and the falsely culled ids). With --write-docs, replaces the "bench_culling" section of
 docs/benchmarks.md.
 """
 from __future__ import annotations
 
 import argparse
+import csv
 import statistics
 import time
+from pathlib import Path
 
 import numpy as np
 from benchlib import DOCS, load_note, machine, write_section
@@ -40,6 +42,9 @@ from ibrtools.errors import NotBuiltError
 from ibrtools.render.reference import ReferenceRenderer
 
 SCENES = (("crowd", "orbit"), ("city", "street"))
+
+
+PER_FRAME: list[dict] = []  # every frame's record (--csv)
 
 
 def run_scene(preset: str, path: str, size: tuple[int, int], frames: int, path_frames: int, seeds: int) -> list[dict]:
@@ -95,6 +100,11 @@ def run_scene(preset: str, path: str, size: tuple[int, int], frames: int, path_f
             for k, v in times.items():
                 a.setdefault("t_" + k, []).append(v)
             a.setdefault("hole", []).append(res.stats["hole_fraction"])
+            PER_FRAME.append({"scene": preset, "path_frames": path_frames, "frame": t, "map": mode,
+                              **{k: v for k, v in ev.items() if k != "false_ids"},
+                              "false_ids": " ".join(map(str, ev["false_ids"])),
+                              "hole_fraction": res.stats["hole_fraction"],
+                              **{"ms_" + k: v for k, v in times.items()}})
         prev_depth = out["depth"]
     rows = []
     for mode in modes:
@@ -185,12 +195,20 @@ def main() -> None:
                     help="main rows: path cameras chosen for about this largest motion per frame in px "
                          "(issue 4: 15-35); 0 = use --path-frames only")
     ap.add_argument("--seeds", type=int, default=8, help="warp seeds N (paper sec. 5.3: 8)")
+    ap.add_argument("--csv", type=Path, help="also write every frame's figures to this CSV file")
     ap.add_argument("--write-docs", action="store_true", help="update docs/benchmarks.md")
     a = ap.parse_args()
     if a.frames < 1 or a.path_frames < a.frames + 1:
         ap.error("--frames must be >= 1 and --path-frames > --frames")
     section = run(a.width, a.height, a.frames, a.path_frames, a.seeds, a.target_motion)
     print(section)
+    if a.csv:
+        keys = list(dict.fromkeys(k for r in PER_FRAME for k in r))
+        with open(a.csv, "w", newline="") as f:
+            w = csv.DictWriter(f, keys)
+            w.writeheader()
+            w.writerows(PER_FRAME)
+        print(f"\nwrote {a.csv} ({len(PER_FRAME)} frame records)")
     if a.write_docs:
         write_section("bench_culling", section)
         print(f"\nwrote {DOCS}")
