@@ -300,3 +300,25 @@ def test_exact_depth_never_culls_a_visible_object(seed, n):
     res = cull_objects(out["depth"], None, cam, object_boxes(mesh))
     ev = res.evaluate(ref.visible_objects(cam))
     assert ev["falsely_culled"] == 0, ev["false_ids"]
+
+
+def test_gil_released_during_awoc_fill():
+    """Structural (STYLE.md 6): AwocFill runs without the GIL (negative control: tests/gil.py)."""
+    from gil import stamps_during, stamps_in_middle
+
+    h, w = 540, 960
+    rng = np.random.default_rng(0)
+    motion = rng.uniform(-40, 40, (h, w, 2)).astype(np.float32)
+    dst = rng.uniform(1, 10, (h, w)).astype(np.float32)
+    depth = np.zeros((h, w), np.float32)
+    _core.set_num_threads(1)  # leave a core for this thread
+    try:
+        def work():
+            for _ in range(5):
+                hole = np.ones((h, w), bool)
+                _core.cull_awoc_fill(depth, hole, motion, dst, 3)
+        t0, t1, stamps = stamps_during(work)
+        assert t1 - t0 > 0.02, "kernel too short for this check"
+        assert stamps_in_middle(t0, t1, stamps) > 0
+    finally:
+        _core.set_num_threads(0)

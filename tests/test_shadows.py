@@ -193,3 +193,19 @@ def test_gil_released_during_shadow_kernels(scene):
             assert stamps_in_middle(t0, t1, stamps) > 0
     finally:
         _core.set_num_threads(0)  # back to all cores (the default)
+
+
+def test_equirect_view():
+    # Surface points come from RayInCam * depth for any camera model: an equirect view of the
+    # unoccluded ground is fully lit, and the slab's shadow appears in it for traced and rendered maps.
+    view = Camera.equirect(64, 32, cam_from_world=look_at((0, 9, -9), (0, 0, 0)))
+    lit = _renderer(occluder=False)
+    depth = lit.render(view, outputs=("depth",), lights=[])["depth"]
+    for m in ("trace", "render"):
+        assert soft_shadows(lit, _light(1.0), view, depth, samples=4, resolution=128, method=m).visibility.min() == 1.0
+    r = _renderer()
+    depth = r.render(view, outputs=("depth",), lights=[])["depth"]
+    tr = soft_shadows(r, _light(0.0), view, depth, samples=1, method="trace").visibility
+    rd = soft_shadows(r, _light(0.0), view, depth, samples=1, resolution=512, method="render").visibility
+    assert (tr == 0).sum() > 0
+    assert (tr != rd).sum() <= 0.3 * (tr == 0).sum()
