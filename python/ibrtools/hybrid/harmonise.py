@@ -1,0 +1,345 @@
+"""Multi-view harmonisation (Prakash et al. 2021, sec. 4.1 and 4.2; issue 6 items 5-8).
+docs/harmonise.md states the energy, the thresholds and where we deviate from the paper.
+
+Per input view, in linear RGB:
+
+1. **Diffuse harmonisation** (sec. 4.1). T = the global mesh's colour rendered into the view
+   (Embree, :class:`~ibrtools.render.reference.ReferenceRenderer` with ambient 1 and no
+   lights: the vertex colours or texture as they are -- the paper's textured mesh, i.e. a blend
+   of the views). Per pixel and channel the scale s = (G * (W T)) / (G * (W I)), G a Gaussian of
+   sigma = ``sigma_frac`` (3 %) of the image's larger side, W the weight of pixels that take part:
+   pixels the mesh covers, minus the saturated ones (luminance in the image's top or bottom
+   ``saturated_pct`` = 2 %) and the view-dependent ones (the variance mesh interpolated into the
+   view exceeds ``vd_variance_frac`` = 10 % of the colour range in any channel). Dividing both
+   blurs by the same G * W is the normalised convolution (Knutsson & Westin 1993): excluded pixels
+   do not bias the ratio. Where no weighted pixel is near (G * W < 1e-3), s is the view's global
+   ratio sum(W T) / sum(W I). Harmonised image Hm = s I.
+2. **View-dependent mask by graph cut** (sec. 4.2). Binary labels per pixel, 1 = view-dependent
+   (keep the original), 0 = diffuse (the harmonised colour is right). Departure
+   e = max over channels of (Hm - T) / range (how much brighter than the diffuse prediction the
+   pixel is, as a fraction of the colour range: highlights add light). Energy, minimised exactly
+   by :func:`ibrtools.solvers.grid_maxflow` on the 4-connected grid:
+       E(L) = sum_p [L_p = 0] max(0, e_p - tau) + [L_p = 1] max(0, tau - e_p)
+              + lambda sum_{p~q} [L_p != L_q]
+   (tau = ``data_threshold``, lambda = ``smoothness``; pixels the mesh does not cover cannot be
+   view-dependent; in the spirit of digital photomontage's data term "distance to the
+   predicted colour" with a Potts seam cost). The mask is the cut "and" the saturated-bright or
+   high-variance regions of step 1 (grown by ``region_grow_frac`` = 1 % of the larger side).
+3. **Poisson re-injection** (sec. 4.2): inside the mask, the image whose gradients are the
+   original's with Hm as the boundary condition (:func:`ibrtools.solvers.poisson_blend`).
+4. **View-dependent texture**: per vertex of the mesh, the average of the masks of the views that
+   see it (bilinear at the vertex's projection, equal weights; visibility as in the variance
+   mesh), in [0, 1].
+
+**Skip**: when every view's global per-channel gain (median of T / I over the weighted pixels)
+is within ``skip_threshold`` (2 %, in log) of the views' mean, the views already agree and the
+images are returned unchanged with ``skipped_reason`` set. This assumes T is a blend of the
+views (not an unshaded albedo texture, whose ratio to a shaded image is not a gain).
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+from scipy.ndimage import binary_dilation, gaussian_filter
+
+from ..checks import check_float
+from ..errors import BadValueError, DtypeError, ShapeError
+from ..mesh import Mesh
+from ..scene import Scene
+from ..solvers import grid_maxflow, poisson_blend
+from .variance import DEPTH_TOL, check_inputs, vertex_statistics, visible_samples
+
+LUMA = np.array([0.2126, 0.7152, 0.0722])  # Rec. 709 weights of linear RGB
+
+
+@dataclass(frozen=True)
+class HarmoniseParams:
+    """Parameters (hashed into the stage's cache key). Defaults from the paper where it gives them."""
+
+    sigma_frac: float = 0.03        # Gaussian sigma = 3 % of the image's larger side (paper)
+    saturated_pct: float = 2.0      # top / bottom 2 % of luminance are "saturated" (paper)
+    vd_variance_frac: float = 0.10  # view-dependent where variance-mesh std > 10 % of range (paper)
+    data_threshold: float = 0.09    # tau: departure (fraction of range) where both labels cost the same
+    smoothness: float = 0.05        # lambda: Potts cost per 4-neighbour label change, same units
+    departure_blur: float = 1.0     # Gaussian sigma (pixels) on the departure before the data term
+    neighbours: int = 4             # other views (nearest camera centres) in the diffuse prediction
+    edge_px: int = 1                # no data term within this many pixels of a depth discontinuity
+    region_grow_frac: float = 0.01  # saturated / high-variance regions grown by 1 % of the larger side
+    skip_threshold: float = 0.02    # skip when every view's log gain is within 2 % of the mean
+    poisson_tol: float = 1e-6       # relative residual of the re-injection
+    depth_tol: float = DEPTH_TOL    # vertex visibility (vd texture)
+    t_source: str = "views"         # T: "views" = gain-compensated per-vertex mean of the views; "mesh"
+    force: bool = False             # harmonise even when the views agree
+
+    def __post_init__(self) -> None:
+        for name in ("sigma_frac", "saturated_pct", "vd_variance_frac", "data_threshold", "smoothness",
+                     "departure_blur", "region_grow_frac", "skip_threshold", "poisson_tol", "depth_tol"):
+            v = check_float(getattr(self, name), name, 0.0)
+            if name in ("sigma_frac", "poisson_tol", "depth_tol") and not v > 0:
+                raise BadValueError(f"{name}: expected > 0, got {v}")
+        if not (isinstance(self.neighbours, (int, np.integer)) and self.neighbours >= 1):
+            raise BadValueError(f"neighbours: expected an integer >= 1, got {self.neighbours!r}")
+        if not (isinstance(self.edge_px, (int, np.integer)) and 0 <= self.edge_px <= 64):
+            raise BadValueError(f"edge_px: expected an integer in [0, 64], got {self.edge_px!r}")
+        if self.t_source not in ("views", "mesh"):
+            raise BadValueError(f"t_source: expected 'views' or 'mesh', got {self.t_source!r}")
+        if not self.saturated_pct < 50:
+            raise BadValueError(f"saturated_pct: expected < 50, got {self.saturated_pct}")
+        if not self.poisson_tol < 1:
+            raise BadValueError(f"poisson_tol: expected < 1, got {self.poisson_tol}")
+
+
+@dataclass
+class HarmoniseResult:
+    images: dict[str, np.ndarray]
+    masks: dict[str, np.ndarray]
+    vd_texture: np.ndarray
+    stats: dict = field(default_factory=dict)
+    skipped_reason: str | None = None
+
+
+def _depth_edges(depth: np.ndarray, hit: np.ndarray, px: int) -> np.ndarray:
+    """Pixels within ``px`` of a silhouette or crease in depth (relative step > 5 %), where the
+    mesh colour T mixes surfaces and cannot predict the image."""
+    d = np.where(hit, depth, 0.0).astype(np.float64)
+    e = np.zeros(d.shape, bool)
+    for a, b in ((d[:, 1:], d[:, :-1]), (d[1:], d[:-1])):
+        step = np.abs(a - b) > 0.05 * np.maximum(np.minimum(a, b), 1e-9)
+        step |= (a > 0) != (b > 0)
+        if a.shape[1] != d.shape[1]:
+            e[:, 1:] |= step
+            e[:, :-1] |= step
+        else:
+            e[1:] |= step
+            e[:-1] |= step
+    return binary_dilation(e, iterations=px) if px > 0 and e.any() else e
+
+
+def _render_t(renderer, cam, std: np.ndarray, faces: np.ndarray, colors: np.ndarray | None):
+    """T (the vertex ``colors`` interpolated, or the mesh's own colour when None), the
+    coverage, the variance mesh interpolated into the view, and the mesh's depth."""
+    names = ("depth", "prim_id", "bary", "hit") + (("color",) if colors is None else ())
+    out = renderer.render(cam, outputs=names, lights=[], ambient=1.0)
+    hit = out["hit"]
+    prim = out["prim_id"][hit]
+    uv = out["bary"][hit].astype(np.float32)
+    f = faces[prim]
+    w = np.stack([1 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]], 1)[..., None]
+    std_pix = np.zeros(hit.shape + (3,), np.float32)
+    std_pix[hit] = (std[f] * w).sum(1)
+    if colors is None:
+        t = out["color"]
+    else:
+        t = np.zeros(hit.shape + (3,), np.float32)
+        t[hit] = (colors[f] * w).sum(1)
+    return t, hit, std_pix, out["depth"]
+
+
+def _weights(img: np.ndarray, hit: np.ndarray, std_pix: np.ndarray, rng_c: np.ndarray, p: HarmoniseParams):
+    lum = img.astype(np.float64) @ LUMA
+    if hit.any():
+        lo, hi = np.percentile(lum[hit], [p.saturated_pct, 100 - p.saturated_pct])
+    else:
+        lo, hi = -np.inf, np.inf
+    sat_lo, sat_hi = lum <= lo, lum >= hi
+    high_var = (std_pix > p.vd_variance_frac * rng_c).any(-1) & hit
+    valid = hit & ~sat_lo & ~sat_hi & ~high_var
+    return valid, sat_hi & hit, high_var
+
+
+def _global_gain(img, t, valid) -> np.ndarray:
+    """Median of T / I per channel over the weighted pixels (1 where there are too few)."""
+    ok = valid & (img > 1e-3).all(-1) & (t > 1e-3).all(-1)
+    if ok.sum() < 16:
+        return np.ones(3)
+    return np.median(t[ok].astype(np.float64) / img[ok], axis=0)
+
+
+def _scale_field(img, t, valid, sigma, fallback) -> np.ndarray:
+    w = valid.astype(np.float32)
+    support = gaussian_filter(w, sigma, mode="nearest")
+    scale = np.empty(img.shape, np.float32)
+    for c in range(3):  # a loop over channels; each blur is one separable scipy pass
+        num = gaussian_filter(w * t[..., c], sigma, mode="nearest")
+        den = gaussian_filter(w * img[..., c], sigma, mode="nearest")
+        ok = (support > 1e-3) & (den > 1e-6)
+        scale[..., c] = np.where(ok, num / np.where(ok, den, 1.0), fallback[c])
+    return scale
+
+
+def _cross_view_prediction(j: int, cams, depths, hms, hits, p: HarmoniseParams, depth_tol: float):
+    """The diffuse prediction of view j's pixels from the other views: each pixel's surface point
+    (the mesh's depth) projected into the ``neighbours`` nearest views that see it (depth test
+    against their mesh depth), their harmonised colours sampled bilinearly, the per-channel
+    median taken. A highlight is seen at a surface point by few views, so the median of the others
+    is its diffuse colour; texture detail, unlike in the mesh colour T, is in every view alike.
+    Returns (prediction (H, W, 3) float32, n_seen (H, W) int)."""
+    from .variance import bilinear
+
+    cam = cams[j]
+    hit = hits[j]
+    pts = cam.unproject(np.where(hit, depths[j], 0.0))[hit]
+    centres = np.array([c.centre for c in cams])
+    order = np.argsort(np.linalg.norm(centres - cam.centre, axis=1))
+    others = [k for k in order if k != j][: p.neighbours]
+    samples = np.full((len(others), len(pts), 3), np.nan, np.float32)
+    for i, k in enumerate(others):
+        xy, z = cams[k].project(pts)
+        x, y = xy[:, 0], xy[:, 1]
+        ok = np.isfinite(z) & (x >= 0) & (x < cams[k].width) & (y >= 0) & (y < cams[k].height)
+        idx = np.nonzero(ok)[0]
+        zk = depths[k][np.minimum(y[idx].astype(np.int64), cams[k].height - 1),
+                       np.minimum(x[idx].astype(np.int64), cams[k].width - 1)]
+        idx = idx[(zk > 0) & (np.abs(zk - z[idx]) <= depth_tol * z[idx])]
+        samples[i, idx] = bilinear(hms[k], x[idx], y[idx])
+    n_seen = np.zeros(hit.shape, np.int32)
+    pred = np.zeros(hit.shape + (3,), np.float32)
+    if len(others):
+        seen = np.isfinite(samples[..., 0])
+        n_seen[hit] = seen.sum(0)
+        with np.errstate(all="ignore"):
+            med = np.nanmedian(samples, axis=0) if seen.any() else np.zeros((len(pts), 3), np.float32)
+        pred[hit] = np.nan_to_num(med)
+    return pred, n_seen
+
+
+def _vd_cut(hm, t, hit, edges, rng_c, p: HarmoniseParams) -> np.ndarray:
+    diff = (hm - t) / rng_c
+    if p.departure_blur > 0:
+        diff = gaussian_filter(diff, (p.departure_blur, p.departure_blur, 0), mode="nearest")
+    e = diff.max(-1)
+    e[edges] = p.data_threshold  # no evidence either way next to depth discontinuities
+    k = 1000.0  # capacities in thousandths of the range: int64, exact cut
+    d0 = np.round(k * np.maximum(0.0, e - p.data_threshold)).astype(np.int64)
+    d1 = np.round(k * np.maximum(0.0, p.data_threshold - e)).astype(np.int64)
+    d1[~hit] = np.int64(10 ** 9)  # not covered by the mesh: never view-dependent
+    d0[~hit] = 0
+    lam = np.full(hit.shape, int(round(k * p.smoothness)), np.int64)
+    # Label 1 (view-dependent) = sink side, which pays source_cap.
+    _, vd = grid_maxflow(d1, d0, lam, lam.copy())
+    return vd
+
+
+def colour_range(scene: Scene) -> np.ndarray:
+    """Per-channel colour range of the inputs: 99th minus 1st percentile over all views
+    (sub-sampled), floored at 1e-3."""
+    samples = []
+    for v in scene.views:
+        c = v.color
+        step = max(1, int(math.sqrt(c.shape[0] * c.shape[1] / 20000)))
+        samples.append(c[::step, ::step].reshape(-1, 3))
+    s = np.concatenate(samples)
+    lo, hi = np.percentile(s, [1, 99], axis=0)
+    return np.maximum(hi - lo, 1e-3)
+
+
+def harmonise(scene: Scene, mesh: Mesh, std: np.ndarray, params: HarmoniseParams | None = None, *,
+              colors: np.ndarray | None = None) -> HarmoniseResult:
+    """Harmonise the views of ``scene`` against ``mesh``'s colour (module docstring).
+
+    ``std``: (N, 3) float32 per-vertex standard deviation (:func:`ibrtools.hybrid.variance.variance_mesh`).
+    ``colors``: optional (N, 3) per-vertex colours for T (e.g. ``vertex_statistics(...)["mean"]``,
+    saves recomputing it); else T follows ``params.t_source``.
+    Returns :class:`HarmoniseResult`: images (view -> (H, W, 3) float32), masks (view -> (H, W)
+    bool view-dependent mask), vd_texture ((N,) float32 in [0, 1]), stats, and skipped_reason
+    (str) when the views already agree photometrically (then the images are the inputs and the
+    masks empty).
+    """
+    from ..render.reference import ReferenceRenderer
+
+    params = HarmoniseParams() if params is None else params
+    if not isinstance(params, HarmoniseParams):
+        raise DtypeError(f"params: expected HarmoniseParams or None, got {type(params).__name__}")
+    check_inputs(scene, mesh)
+    if not isinstance(std, np.ndarray):
+        raise DtypeError(f"std: expected a float32 numpy array of shape (N, 3), got {type(std).__name__}")
+    if std.shape != (len(mesh.vertices), 3):
+        raise ShapeError(f"std: expected shape (N, 3) = ({len(mesh.vertices)}, 3) (one row per mesh vertex), "
+                         f"got {std.shape}")
+    std = std.astype(np.float32)
+    if not np.all(np.isfinite(std)) or (std < 0).any():
+        raise BadValueError("std: expected finite values >= 0")
+    if colors is not None:
+        if not isinstance(colors, np.ndarray):
+            raise DtypeError(f"colors: expected a float32 numpy array of shape (N, 3), got {type(colors).__name__}")
+        if colors.shape != (len(mesh.vertices), 3):
+            raise ShapeError(f"colors: expected shape (N, 3) = ({len(mesh.vertices)}, 3), got {colors.shape}")
+        colors = colors.astype(np.float32)
+    t0 = time.perf_counter()
+    renderer = ReferenceRenderer(mesh)
+    rng_c = colour_range(scene)
+    if colors is None and params.t_source == "views":
+        # The mesh colour of a capture is a blend of differently exposed views (ULR weights vary
+        # over the surface, so does its exposure); the gain-compensated mean is consistent.
+        colors = vertex_statistics(scene, mesh, depth_tol=params.depth_tol, renderer=renderer)["mean"]
+
+    # Pass 1: render T, weights and global gains (the skip test needs every view's gain).
+    per_view = {}
+    for v in scene.views:
+        img = np.ascontiguousarray(v.color, np.float32)
+        t, hit, std_pix, depth = _render_t(renderer, v.camera, std, mesh.faces, colors)
+        valid, sat_hi, high_var = _weights(img, hit, std_pix, rng_c, params)
+        edges = _depth_edges(depth, hit, params.edge_px)
+        per_view[v.name] = (img, t, hit, valid, sat_hi, high_var, _global_gain(img, t, valid), edges, depth)
+    log_g = np.log(np.array([pv[6] for pv in per_view.values()]))
+    spread = float(np.abs(log_g - log_g.mean(0)).max()) if len(log_g) else 0.0
+    stats: dict = {"params": asdict(params), "colour_range": rng_c.tolist(), "gain_spread_log": spread,
+                   "views": {}}
+    if spread < params.skip_threshold and not params.force:
+        reason = (f"views agree photometrically: largest per-view gain deviation {100 * spread:.2f} % "
+                  f"< {100 * params.skip_threshold:.1f} %")
+        stats["time_s"] = time.perf_counter() - t0
+        return HarmoniseResult({n: pv[0] for n, pv in per_view.items()},
+                               {n: np.zeros(pv[2].shape, bool) for n, pv in per_view.items()},
+                               np.zeros(len(mesh.vertices), np.float32), stats, reason)
+
+    # Pass 2: diffuse harmonisation of every view (the cut's prediction needs all of them).
+    hms = {}
+    for name, (img, t, hit, valid, sat_hi, high_var, gain, edges, depth) in per_view.items():
+        h, w = hit.shape
+        hms[name] = img * _scale_field(img, t, valid, params.sigma_frac * max(h, w), gain)
+    # Pass 3: view-dependent mask and Poisson re-injection.
+    names = list(per_view)
+    cams = [scene.view(n).camera for n in names]
+    depths = [per_view[n][8] for n in names]
+    hits = [per_view[n][2] for n in names]
+    hm_list = [hms[n] for n in names]
+    images, masks = {}, {}
+    for j, name in enumerate(names):
+        img, t, hit, valid, sat_hi, high_var, gain, edges, depth = per_view[name]
+        hm = hms[name]
+        pred, n_seen = _cross_view_prediction(j, cams, depths, hm_list, hits, params, params.depth_tol)
+        # Where no other view sees the point, the mesh colour is the only prediction.
+        pred = np.where((n_seen > 0)[..., None], pred, t)
+        cut = _vd_cut(hm, pred, hit, edges, rng_c, params)
+        # The regions come from a per-vertex field rasterised at the mesh's resolution: grown by
+        # ~1 % of the image so that a highlight smaller than a triangle is not cut off at its rim.
+        regions = sat_hi | high_var
+        grow = int(round(params.region_grow_frac * max(hit.shape)))
+        if grow > 0 and regions.any():
+            regions = binary_dilation(regions, iterations=grow)
+        mask = cut & regions
+        if mask.any() and not mask.all():
+            out, info = poisson_blend(np.ascontiguousarray(hm, np.float32), img, mask, tol=params.poisson_tol)
+        else:
+            out, info = hm.astype(np.float32), {"iterations": 0, "relative_residual": 0.0, "converged": True}
+        # No negative light: the re-injected gradients can undershoot next to a dark boundary.
+        np.maximum(out, 0.0, out=out)
+        images[name], masks[name] = out, mask
+        stats["views"][name] = {"gain": gain.tolist(), "weighted_fraction": float(valid.mean()),
+                                "high_variance_fraction": float(high_var.mean()), "cut_fraction": float(cut.mean()),
+                                "mask_fraction": float(mask.mean()), "poisson": dict(info)}
+
+    # View-dependent texture: masks averaged per vertex over the views that see it.
+    n = len(mesh.vertices)
+    acc, cnt = np.zeros(n), np.zeros(n)
+    fmasks = {k: m.astype(np.float32) for k, m in masks.items()}
+    for s in visible_samples(scene, mesh, renderer, params.depth_tol, images=fmasks):
+        acc += np.bincount(s.index, weights=s.color.astype(np.float64), minlength=n)
+        cnt += np.bincount(s.index, minlength=n)
+    vd_texture = (acc / np.maximum(cnt, 1)).astype(np.float32)
+    stats["time_s"] = time.perf_counter() - t0
+    return HarmoniseResult(images, masks, vd_texture, stats, None)
