@@ -143,6 +143,8 @@ def test_views_without_depth_get_depth_from_the_mesh(tmp_path, capsys):
     (["--set", "pvm.max_block=6"], "power of two"),
     (["--set", "pvm.bogus=1"], "bogus"),
     (["--set", "mesh.source=magic"], "mesh source"),
+    (["--exposure-jitter", "-1"], "--exposure-jitter"),
+    (["--wb-jitter", "-0.5"], "--wb-jitter"),
 ])
 def test_bad_stage_arguments(tmp_path, capsys, argv, msg):
     d = tmp_path / "s"
@@ -150,6 +152,14 @@ def test_bad_stage_arguments(tmp_path, capsys, argv, msg):
     err = capsys.readouterr().err.strip()
     assert msg in err and len(err.splitlines()) == 1
     assert not d.exists()  # arguments are checked before any work
+
+
+def test_jitter_options_reach_the_synthetic_scene(tmp_path, capsys):
+    d = tmp_path / "s"
+    assert preprocess.main(["synth:objects", "-o", str(d), "--views", "2", "--size", "32x24",
+                            "--exposure-jitter", "0.2", "-q"]) == 0
+    src = json.loads((d / "scene.json").read_text())["source"]
+    assert src["color_jitter"]["exposure_sigma"] == 0.2
 
 
 def test_parse_helpers():

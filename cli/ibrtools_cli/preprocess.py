@@ -62,6 +62,10 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--size", type=_size, default=(640, 480), metavar="WxH", help="image size (default 640x480)")
     g.add_argument("--views", type=int, default=16, metavar="N", help="input views (default 16)")
     g.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    g.add_argument("--exposure-jitter", type=float, default=0.0, metavar="SIGMA",
+                   help="per-view exposure jitter (std of the log gain; default 0) for harmonisation tests")
+    g.add_argument("--wb-jitter", type=float, default=0.0, metavar="SIGMA",
+                   help="per-view, per-channel white-balance jitter (std of the log gain; default 0)")
     g.add_argument("--reconstructed", action="store_true",
                    help="also store a degraded 'reconstructed' copy of the mesh")
     add_common(p)
@@ -85,6 +89,12 @@ def _body(args: argparse.Namespace) -> int:
             raise InputError(f"--views: expected at least 1, got {args.views}")
         synth = {"preset": preset, "size": list(args.size), "views": args.views, "seed": args.seed,
                  "reconstructed": bool(args.reconstructed)}
+        # Only when set, so that the import key of scenes made without jitter is unchanged.
+        for key, value in (("exposure_jitter", args.exposure_jitter), ("white_balance_jitter", args.wb_jitter)):
+            if not value >= 0:
+                raise InputError(f"--{key.replace('_', '-').replace('white-balance', 'wb')}: expected >= 0, got {value}")
+            if value > 0:
+                synth[key] = value
     methods = parse_methods(args.methods)
     stages = parse_stages(args.stages)
     stage_options = parse_stage_options(args.stage_set)
