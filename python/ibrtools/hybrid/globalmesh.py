@@ -89,11 +89,15 @@ def depth_extent(cameras: Mapping[str, Camera], depths: Mapping[str, np.ndarray]
     for n, cam in cameras.items():
         d = depths[n]
         step = max(1, int(math.sqrt(d.size / 4096)))
-        ok = np.isfinite(d) & (d > 0)
-        if not ok.any():
-            continue
-        w = cam.unproject(np.where(ok, d, 0))[::step, ::step][ok[::step, ::step]]
-        if len(w):
+        ds = d[::step, ::step]
+        ys, xs = np.nonzero(np.isfinite(ds) & (ds > 0))
+        if len(ys):
+            rays = cam.rays_in_cam(xs * step + 0.5, ys * step + 0.5)
+            if cam.model != PINHOLE:  # equirect depth is the distance along the (unit) ray
+                rays = rays / np.linalg.norm(rays, axis=-1, keepdims=True)
+            p_cam = rays * ds[ys, xs][:, None]
+            wfc = cam.world_from_cam
+            w = p_cam @ wfc[:3, :3].T + wfc[:3, 3]
             lo, hi = np.minimum(lo, w.min(0)), np.maximum(hi, w.max(0))
     if not np.all(hi >= lo) or not (hi - lo).max() > 0:
         raise BadValueError("global mesh: empty bounds (no view has a valid depth pixel)")
@@ -101,7 +105,7 @@ def depth_extent(cameras: Mapping[str, Camera], depths: Mapping[str, np.ndarray]
 
 
 def fuse_depth(cameras: Mapping[str, Camera], depths: Mapping[str, np.ndarray],
-               options: GlobalMeshOptions | None = None) -> Mesh:
+               options: GlobalMeshOptions | None = None, extent: tuple | None = None) -> Mesh:
     """TSDF fusion (open3d ScalableTSDFVolume) of pinhole z-depth maps, then marching cubes.
     Unknown depth (0) and infinity (sky) are left out."""
     import open3d as o3d
@@ -110,7 +114,7 @@ def fuse_depth(cameras: Mapping[str, Camera], depths: Mapping[str, np.ndarray],
     pin = {n: c for n, c in cameras.items() if c.model == PINHOLE}
     if not pin:
         raise NotBuiltError("global mesh: fusion of equirectangular depth maps is not built yet")
-    lo, hi = depth_extent(pin, depths)
+    lo, hi = extent if extent is not None else depth_extent(pin, depths)
     # A uniform grid (cube of side = the largest extent of the depth points plus the truncation
     # margin): open3d's ScalableTSDFVolume extracts no surface in open3d 0.20 here (checked on a
     # single plane), the uniform volume does.
@@ -295,8 +299,8 @@ def build_global_mesh(scene: Scene, options: GlobalMeshOptions | None = None,
     if src == "fusion":
         cams = {v.name: v.camera for v in scene.views}
         deps = depths or {v.name: v.depth for v in scene.views}
-        mesh = fuse_depth(cams, deps, options)
-        lo, hi = depth_extent(cams, deps)
+        lo, hi = depth_extent({n: c for n, c in cams.items() if c.model == PINHOLE} or cams, deps)
+        mesh = fuse_depth(cams, deps, options, extent=(lo, hi))
         voxel = float((hi - lo).max() / options.resolution)  # (up to the truncation margin)
     else:
         given = scene.meshes[src]
