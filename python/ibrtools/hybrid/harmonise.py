@@ -22,7 +22,7 @@ Per input view, in linear RGB:
        E(L) = sum_p [L_p = 0] max(0, e_p - tau) + [L_p = 1] max(0, tau - e_p)
               + lambda sum_{p~q} [L_p != L_q]
    (tau = ``data_threshold``, lambda = ``smoothness``; pixels the mesh does not cover cannot be
-   view-dependent; in the spirit of digital photomontage's data term "distance to the
+   view-dependent; the outside of the image counts as label 0; in the spirit of digital photomontage's data term "distance to the
    predicted colour" with a Potts seam cost). The mask is the cut "and" the saturated-bright or
    high-variance regions of step 1 (grown by ``region_grow_frac`` = 1 % of the larger side).
 3. **Poisson re-injection** (sec. 4.2): inside the mask, the image whose gradients are the
@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -53,6 +54,7 @@ from ..solvers import grid_maxflow, poisson_blend
 from .variance import DEPTH_TOL, check_inputs, vertex_statistics, visible_samples
 
 LUMA = np.array([0.2126, 0.7152, 0.0722])  # Rec. 709 weights of linear RGB
+NO_EVIDENCE_BIAS = 0.02  # departure (fraction of range) below tau given to pixels with no evidence
 
 
 @dataclass(frozen=True)
@@ -200,7 +202,8 @@ def _cross_view_prediction(j: int, cams, depths, hms, hits, p: HarmoniseParams, 
     if len(others):
         seen = np.isfinite(samples[..., 0])
         n_seen[hit] = seen.sum(0)
-        with np.errstate(all="ignore"):
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN pixels: no other view sees them
             med = np.nanmedian(samples, axis=0) if seen.any() else np.zeros((len(pts), 3), np.float32)
         pred[hit] = np.nan_to_num(med)
     return pred, n_seen
@@ -211,13 +214,19 @@ def _vd_cut(hm, t, hit, edges, rng_c, p: HarmoniseParams) -> np.ndarray:
     if p.departure_blur > 0:
         diff = gaussian_filter(diff, (p.departure_blur, p.departure_blur, 0), mode="nearest")
     e = diff.max(-1)
-    e[edges] = p.data_threshold  # no evidence either way next to depth discontinuities
+    # No evidence (next to depth discontinuities, or seen by no other view): a slight preference
+    # for "diffuse", so that such pixels follow their neighbours and never form a region alone.
+    e[edges] = p.data_threshold - NO_EVIDENCE_BIAS
     k = 1000.0  # capacities in thousandths of the range: int64, exact cut
     d0 = np.round(k * np.maximum(0.0, e - p.data_threshold)).astype(np.int64)
     d1 = np.round(k * np.maximum(0.0, p.data_threshold - e)).astype(np.int64)
     d1[~hit] = np.int64(10 ** 9)  # not covered by the mesh: never view-dependent
     d0[~hit] = 0
     lam = np.full(hit.shape, int(round(k * p.smoothness)), np.int64)
+    # Outside the image counts as diffuse: a label change at the image border pays the Potts
+    # cost too, so a region is not cheaper to mark just because the frame cuts it.
+    for border in (d1[0], d1[-1], d1[:, 0], d1[:, -1]):
+        border += lam[0, 0]
     # Label 1 (view-dependent) = sink side, which pays source_cap.
     _, vd = grid_maxflow(d1, d0, lam, lam.copy())
     return vd
@@ -283,6 +292,7 @@ def harmonise(scene: Scene, mesh: Mesh, std: np.ndarray, params: HarmoniseParams
         t, hit, std_pix, depth = _render_t(renderer, v.camera, std, mesh.faces, colors)
         valid, sat_hi, high_var = _weights(img, hit, std_pix, rng_c, params)
         edges = _depth_edges(depth, hit, params.edge_px)
+        valid &= ~edges  # T mixes surfaces at depth edges: no evidence for the ratio there
         per_view[v.name] = (img, t, hit, valid, sat_hi, high_var, _global_gain(img, t, valid), edges, depth)
     log_g = np.log(np.array([pv[6] for pv in per_view.values()]))
     spread = float(np.abs(log_g - log_g.mean(0)).max()) if len(log_g) else 0.0
@@ -306,15 +316,20 @@ def harmonise(scene: Scene, mesh: Mesh, std: np.ndarray, params: HarmoniseParams
     cams = [scene.view(n).camera for n in names]
     depths = [per_view[n][8] for n in names]
     hits = [per_view[n][2] for n in names]
-    hm_list = [hms[n] for n in names]
+    # The cut compares each view with the others after their *global* gains only: the local
+    # Gaussian-ratio field can be off by a few % where the weighted pixels are far (e.g. a
+    # sphere's excluded bright top), and that must not read as view dependence.
+    globally = {n: per_view[n][0] * per_view[n][6].astype(np.float32) for n in names}
+    hm_list = [globally[n] for n in names]
     images, masks = {}, {}
     for j, name in enumerate(names):
         img, t, hit, valid, sat_hi, high_var, gain, edges, depth = per_view[name]
         hm = hms[name]
         pred, n_seen = _cross_view_prediction(j, cams, depths, hm_list, hits, params, params.depth_tol)
-        # Where no other view sees the point, the mesh colour is the only prediction.
-        pred = np.where((n_seen > 0)[..., None], pred, t)
-        cut = _vd_cut(hm, pred, hit, edges, rng_c, params)
+        # A point no other view sees cannot be compared: no evidence either way there (the mesh
+        # colour is no substitute: its vertices may lie outside every image at the frame's edge).
+        pred = np.where((n_seen > 0)[..., None], pred, globally[name])  # (no departure to blur in)
+        cut = _vd_cut(globally[name], pred, hit, edges | (n_seen == 0), rng_c, params)
         # The regions come from a per-vertex field rasterised at the mesh's resolution: grown by
         # ~1 % of the image so that a highlight smaller than a triangle is not cut off at its rim.
         regions = sat_hi | high_var

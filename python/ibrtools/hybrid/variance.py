@@ -9,7 +9,7 @@ Colours are sampled bilinearly at the projection (pixel centres at +0.5).
 
 Exposure and white balance are *removed before the deviation is taken*: each view's colours are
 divided by its global per-channel gain (the median over its visible vertices of view colour /
-vertex mean, re-estimated twice as the means change). Otherwise a 20 % exposure difference
+vertex mean, re-estimated with the means until the gains settle). Otherwise a 20 % exposure difference
 would make every vertex "view-dependent" and leave nothing for the diffuse harmonisation to
 correct; what remains is what a global gain cannot explain: specular highlights, occlusion
 errors, noise. (The paper does not say; this is our reading of what the variance must measure.)
@@ -27,6 +27,7 @@ from ..mesh import Mesh
 from ..scene import Scene
 
 DEPTH_TOL = 0.01  # |z_vertex - z_rendered| <= 1 % of z: a vertex on the rendered surface
+GAIN_ITERATIONS = 30  # at most; stops when no gain moves by more than 1e-4 (log)
 
 
 @dataclass
@@ -133,7 +134,10 @@ def vertex_statistics(scene: Scene, mesh: Mesh, *, depth_tol: float = DEPTH_TOL,
 
     mean, var = moments()
     if compensate_gains and len(samples) > 1:
-        for _ in range(2):
+        # Alternate gains (robust: medians) and means until the gains settle (each vertex is seen
+        # by a subset of the views, so the means mix gains: convergence is geometric, not one step).
+        for _ in range(GAIN_ITERATIONS):
+            before = {k: g.copy() for k, g in gains.items()}
             for s in samples:
                 shared = count[s.index] >= 2
                 m = mean[s.index[shared]]
@@ -146,6 +150,8 @@ def vertex_statistics(scene: Scene, mesh: Mesh, *, depth_tol: float = DEPTH_TOL,
             for s in samples:
                 gains[s.name] = gains[s.name] / g
             mean, var = moments()
+            if max(float(np.abs(np.log(gains[k] / before[k])).max()) for k in gains) < 1e-4:
+                break
     std = np.where(count[:, None] >= 2, np.sqrt(var), 0.0)
     mean = np.where(count[:, None] >= 1, mean, 0.0)
     return {"mean": mean.astype(np.float32), "std": std.astype(np.float32), "count": count.astype(np.int32),
