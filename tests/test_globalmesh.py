@@ -141,3 +141,22 @@ def test_build_global_mesh_from_given_mesh_and_errors():
         build_global_mesh(Scene(views=[v0]))
     with pytest.raises(BadValueError, match="resolution"):
         GlobalMeshOptions(resolution=2)
+
+
+def test_fusion_of_a_synthetic_scene_lies_on_its_ground_truth():
+    """TSDF fusion of exact depth maps: the fused vertices lie on the ground-truth surface to a
+    fraction of a voxel (distances by open3d's RaycastingScene, independent of our code)."""
+    import open3d as o3d
+
+    from ibrtools.synth import make_scene
+
+    s = make_scene("objects", size=(160, 120), views=6, holdout_targets=0)
+    m, rec = build_global_mesh(s, GlobalMeshOptions(resolution=128))
+    assert rec["source"] == "fusion"
+    gt = s.meshes["ground_truth"]
+    rs = o3d.t.geometry.RaycastingScene()
+    rs.add_triangles(o3d.core.Tensor(gt.vertices), o3d.core.Tensor(gt.faces.astype(np.uint32)))
+    d = rs.compute_distance(o3d.core.Tensor(m.vertices)).numpy() / rec["voxel"]
+    # Measured: median 0.05, 95th percentile 0.16, max 1.8 voxels (rounded edges of the boxes, where
+    # the truncated SDF of two faces overlaps). Bounds: 0.2, 0.5 and 3 voxels.
+    assert np.median(d) < 0.2 and np.percentile(d, 95) < 0.5 and d.max() < 3
