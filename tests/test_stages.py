@@ -162,6 +162,21 @@ def test_jitter_options_reach_the_synthetic_scene(tmp_path, capsys):
     assert src["color_jitter"]["exposure_sigma"] == 0.2
 
 
+def test_stage_output_for_the_render_methods(built, tmp_path):
+    d, _ = built
+    from ibrtools.errors import MissingFileError
+    from ibrtools.hybrid.pvm import PvmTiles
+
+    f = S.stage_output(d, "pvm")
+    assert f.name == "tiles.npz" and PvmTiles.load(f).num_tiles > 0
+    with pytest.raises(MissingFileError, match="no output of stage 'depth'"):
+        S.stage_output(d, "depth")  # skipped: every view has depth
+    with pytest.raises(BadValueError, match="unknown"):
+        S.stage_output(d, "nope")
+    with pytest.raises(MissingFileError):
+        S.stage_output(tmp_path, "pvm")
+
+
 def test_parse_helpers():
     assert S.parse_methods("tm, pvm") == ["tm", "pvm"]
     assert S.parse_methods("all") == list(S.ALL_METHODS)

@@ -515,6 +515,25 @@ def run_stages(root: str | os.PathLike, *, methods: list[str] | None = None, sta
     return results
 
 
+def stage_output(root: str | os.PathLike, stage: str, *, verify: bool = True) -> Path:
+    """Path of a derived stage's output in the scene at ``root`` (for the render methods), after
+    checking that scene.json records it and (``verify``) that the file still has its recorded
+    hash. Raises MissingFileError naming the command that makes it."""
+    root = Path(root)
+    if stage not in STAGES:
+        raise BadValueError(f"stage {stage!r}: unknown (expected one of {', '.join(STAGES)})")
+    rec = (_read_doc(root).get("stages") or {}).get(stage) if (root / SCENE_FILE).is_file() else None
+    hint = f"run: ibr-preprocess {root} -o {root} --stages {stage}"
+    if not rec or not rec.get("outputs"):
+        why = f" ({rec['skipped']})" if rec and rec.get("skipped") else ""
+        raise MissingFileError(f"{root}: no output of stage {stage!r}{why}; {hint}")
+    rel, hsh = next(iter(rec["outputs"].items()))
+    f = root / CACHE_DIR / stage / rel
+    if not f.is_file() or (verify and _file_hash(f) != hsh):
+        raise MissingFileError(f"{f}: missing or changed since stage {stage!r} wrote it; {hint} --force")
+    return f
+
+
 def parse_options(pairs: list[str] | None) -> dict:
     """``key=value`` strings (``--opt``) into a dict; numbers stay strings (importers convert)."""
     out: dict = {}
