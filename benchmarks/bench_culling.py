@@ -1,15 +1,15 @@
 """Warping-based occlusion culling (WOC, Lee et al. 2018 sec. 5) along the camera paths of the
 synthetic ``crowd`` and ``city`` scenes: drawn / ideal / falsely culled objects and stage times.
 
-    python benchmarks/bench_culling.py [--width 1920 --height 1080] [--frames 12] [--target-motion 30]
-                                       [--path-frames 48] [--seeds 8] [--csv FILE] [--write-docs]
+    python benchmarks/bench_culling.py [--width 1920 --height 1080] [--frames 12] [--paths walk,stress]
+                                       [--seeds 8] [--csv FILE] [--write-docs]
 
-Per frame t = 1 .. --frames of the scene's path. The number of cameras on the whole path sets the
-motion per frame: the main rows use as many as give a largest motion of about --target-motion px
-per frame (issue 4: 15-35 px), the "(stress)" rows the --path-frames path (48: 100+ px/frame on
-crowd at 1920x1080; the paper's AWOC case). Per frame: the occlusion map is frame t-1's reference depth warped into
-frame t (``ibrtools.depthwarp.warp_depth``, single layer, N = --seeds as in the paper's sec. 5.3,
-holes = far); ``ibrtools.culling.cull_objects`` tests every object's world box. Rows:
+Per frame t = 1 .. --frames of the scenes' fixed-step paths (``ibrtools.synth``: "walk" 15-35
+px/frame and "stress" 100+ px/frame of average maximal motion at 1920x1080; the stress path is the
+paper's AWOC case). Per frame: the occlusion map is frame t-1's reference depth warped into frame t
+(``ibrtools.depthwarp.warp_depth``, single layer, N = --seeds as in the paper's sec. 5.3, no
+dilation (not conservative), holes = far); ``ibrtools.culling.cull_objects`` tests every object's
+world box. Rows:
 
 * **WOC**: the warped map (the method);
 * **AWOC**: ``approximate=True`` when it is built;
@@ -41,7 +41,7 @@ from ibrtools.culling import cull_objects, object_boxes
 from ibrtools.errors import NotBuiltError
 from ibrtools.render.reference import ReferenceRenderer
 
-SCENES = (("crowd", "orbit"), ("city", "street"))
+SCENES = ("crowd", "city")
 
 
 PER_FRAME: list[dict] = []  # every frame's record (--csv)
@@ -100,7 +100,7 @@ def run_scene(preset: str, path: str, size: tuple[int, int], frames: int, path_f
             for k, v in times.items():
                 a.setdefault("t_" + k, []).append(v)
             a.setdefault("hole", []).append(res.stats["hole_fraction"])
-            PER_FRAME.append({"scene": preset, "path_frames": path_frames, "frame": t, "map": mode,
+            PER_FRAME.append({"scene": preset, "path": path, "frame": t, "map": mode,
                               **{k: v for k, v in ev.items() if k != "false_ids"},
                               "false_ids": " ".join(map(str, ev["false_ids"])),
                               "hole_fraction": res.stats["hole_fraction"],
@@ -127,56 +127,38 @@ def run_scene(preset: str, path: str, size: tuple[int, int], frames: int, path_f
     return rows
 
 
-def path_frames_for(preset: str, path: str, size: tuple[int, int], target_px: float) -> int:
-    """Cameras on the whole path so that frame 0 -> 1's largest motion is about ``target_px``
-    (measured on a 48-camera path; motion scales with 1 / path_frames)."""
-    from ibrtools.depthwarp import motion_buffer
-
-    mesh, built = synth.build_mesh(preset, size=size, path_frames=48)
-    cams = built.paths[path]
-    depth = ReferenceRenderer(mesh).render(cams[0], outputs=("depth",), lights=[])["depth"]
-    motion, valid = motion_buffer(depth, cams[0], cams[1])
-    peak = float(np.linalg.norm(motion, axis=-1)[valid > 0].max())
-    return max(48, int(round(48 * peak / target_px)))
-
-
-def run(width: int, height: int, frames: int, path_frames: int, seeds: int, target_motion: float) -> str:
+def run(width: int, height: int, frames: int, paths: list[str], seeds: int) -> str:
     rows = []
-    for preset, path in SCENES:
-        pf = path_frames
-        if target_motion > 0:
-            try:
-                pf = max(path_frames_for(preset, path, (width, height), target_motion), frames + 1)
-            except ImportError:
-                pass
-        rows += run_scene(preset, path, (width, height), frames, pf, seeds)
-        if target_motion > 0 and pf != path_frames:  # the stress path: --path-frames cameras
-            rows += [r | {"mode": r["mode"] + " (stress)"} for r in
-                     run_scene(preset, path, (width, height), frames, path_frames, seeds) if r["mode"] != "exact depth"]
+    for preset in SCENES:
+        for path in paths:
+            # The scene's fixed-step paths (synth, docs/synth.md): "walk" 15-35 px/frame and "stress"
+            # 100+ px/frame of average maximal motion at 1920x1080.
+            rows += [r | {"mode": f"{r['mode']} ({path})"}
+                     for r in run_scene(preset, path, (width, height), frames, frames + 1, seeds)
+                     if path == paths[0] or r["mode"] != "exact depth"]
     lines = [
         "## Warping-based occlusion culling (bench_culling)",
         "",
         f"`python benchmarks/bench_culling.py --width {width} --height {height} --frames {frames} "
-        f"--target-motion {target_motion:g} --path-frames {path_frames} --seeds {seeds}` on {machine()}. Frames "
-        f"1..{frames} of each scene's path (path cameras chosen for a largest motion of ~{target_motion:g} px/frame; "
-        f"stress rows: {path_frames} cameras); per frame, frame t-1's reference depth warped into frame t "
+        f"--paths {','.join(paths)} --seeds {seeds}` on {machine()}. Frames 1..{frames} of each scene's fixed-step "
+        "paths (walk: 15-35 px/frame, stress: 100+ px/frame of average maximal motion at 1920x1080); per frame, frame t-1's reference depth warped into frame t "
         "(single layer, holes = far) is the occlusion map (WOC), or frame t's own reference depth (exact depth). "
         "Object counts are means per frame; falsely culled = visible in the Embree reference but culled, summed "
         "over the frames (<= 2 px objects apart; target for larger ones: 0). Times: medians per frame, ms.",
         "",
-        "| scene | map | path cameras | motion px/frame (median / max) | objects | drawn | ideal | frustum culled "
+        "| scene | map (path) | motion px/frame (median / max) | objects | drawn | ideal | frustum culled "
         "| occlusion culled | culled / ideal culled "
         "| falsely culled <= 2 px | falsely culled > 2 px | holes | warp ms | N-buffer ms | test ms | reference ms |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         if r.get("absent"):
-            lines.append(f"| {r['scene']} | {r['mode']} | not built yet |" + " |" * 14)
+            lines.append(f"| {r['scene']} | {r['mode']} | not built yet |" + " |" * 13)
             continue
         warp = "-" if r["t_warp"] != r["t_warp"] else f"{r['t_warp']:.1f}"
         mot = "-" if r["motion"] is None else f"{r['motion'][0]:.1f} / {r['motion'][1]:.1f}"
         lines.append(
-            f"| {r['scene']} | {r['mode']} | {r['path_frames']} | {mot} | {r['objects']} | {r['drawn']:.1f} | {r['ideal']:.1f} | "
+            f"| {r['scene']} | {r['mode']} | {mot} | {r['objects']} | {r['drawn']:.1f} | {r['ideal']:.1f} | "
             f"{r['frustum']:.1f} | {r['occlusion']:.1f} | {100 * r['culled']:.1f} % / {100 * r['ideal_culled']:.1f} % | "
             f"{r['false_small']} | {r['false_large']} | {100 * r['hole']:.2f} % | {warp} | {r['t_nbuffer']:.2f} | "
             f"{r['t_test']:.2f} | {r['t_reference']:.1f} |")
@@ -189,18 +171,15 @@ def main() -> None:
     ap.add_argument("--width", type=int, default=1920)
     ap.add_argument("--height", type=int, default=1080)
     ap.add_argument("--frames", type=int, default=12, help="frames culled per scene (default 12)")
-    ap.add_argument("--path-frames", type=int, default=48,
-                    help="cameras on the whole path of the stress rows (default 48: 100+ px/frame on crowd)")
-    ap.add_argument("--target-motion", type=float, default=30.0,
-                    help="main rows: path cameras chosen for about this largest motion per frame in px "
-                         "(issue 4: 15-35); 0 = use --path-frames only")
+    ap.add_argument("--paths", default="walk,stress", help="the scenes' paths to run (default walk,stress)")
     ap.add_argument("--seeds", type=int, default=8, help="warp seeds N (paper sec. 5.3: 8)")
     ap.add_argument("--csv", type=Path, help="also write every frame's figures to this CSV file")
     ap.add_argument("--write-docs", action="store_true", help="update docs/benchmarks.md")
     a = ap.parse_args()
-    if a.frames < 1 or a.path_frames < a.frames + 1:
-        ap.error("--frames must be >= 1 and --path-frames > --frames")
-    section = run(a.width, a.height, a.frames, a.path_frames, a.seeds, a.target_motion)
+    paths = [p for p in a.paths.split(",") if p]
+    if a.frames < 1 or not paths or any(p not in ("walk", "stress") for p in paths):
+        ap.error("--frames must be >= 1; --paths: walk and/or stress")
+    section = run(a.width, a.height, a.frames, paths, a.seeds)
     print(section)
     if a.csv:
         keys = list(dict.fromkeys(k for r in PER_FRAME for k in r))
