@@ -4,7 +4,6 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
-#include <vector>
 
 #include "ibr/parallel.h"
 
@@ -105,6 +104,8 @@ struct MotionLevel {
   int h, w;
 };
 
+constexpr int kMaxLevels = 40;
+
 int NumLevels(int height, int width) {
   int n = 1;
   for (int h = height, w = width; h > 1 || w > 1; h = (h + 1) / 2, w = (w + 1) / 2) ++n;
@@ -127,11 +128,10 @@ void AwocFill(const float* motion, const float* dst_depth, int height, int width
               std::uint8_t* hole, int out_height, int out_width) {
   const float inf = std::numeric_limits<float>::infinity();
   const int n = NumLevels(height, width);
-  std::vector<MotionLevel> lv;  // n small headers (<= 32): bookkeeping, not image memory
-  lv.reserve(n);
+  MotionLevel lv[kMaxLevels];  // n <= 33 for int sizes: headers on the stack, the texels in scratch
   float* p = scratch;
   for (int h = height, w = width, l = 0; l < n; ++l, h = (h + 1) / 2, w = (w + 1) / 2) {
-    lv.push_back({p, h, w});
+    lv[l] = {p, h, w};
     p += static_cast<std::int64_t>(h) * w * 4;
   }
   // Level 0: the valid motions.
