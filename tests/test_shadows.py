@@ -112,6 +112,10 @@ def test_warp_close_to_render(scene):
     # Warped maps differ from rendered ones by at most a texel at depth edges: mean visibility
     # error well under one sample in 16 (0.0625).
     assert np.abs(warp.visibility - ref).mean() < 0.01
+    # With umbra culling towards the samples while peeling: the same quality bound.
+    umb = soft_shadows(r, light, _view(), depth, samples=16, resolution=256, method="warp", layers=2,
+                       ground_object=0, umbra=True)
+    assert np.abs(umb.visibility - ref).mean() < 0.01
     assert set(warp.times_ms) >= {"layers", "maps", "shade", "total"}
 
 
@@ -140,6 +144,8 @@ def test_bad_inputs(scene):
         soft_shadows(r, light, view, depth.astype(np.float64), method="render", resolution=16)
     with pytest.raises(BadValueError, match="method"):
         soft_shadows(r, light, view, depth, method="raster")
+    with pytest.raises(DtypeError, match="umbra"):
+        soft_shadows(r, light, view, depth, umbra="yes")
     with pytest.raises(BadValueError, match="samples"):
         soft_shadows(r, light, view, depth, samples=0)
     with pytest.raises(BadValueError, match="resolution"):

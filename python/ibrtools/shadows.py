@@ -161,6 +161,7 @@ def _occlusion_scene(renderer):
 
 def soft_shadows(renderer, light: AreaLight, view: Camera, view_depth: np.ndarray, *, samples: int = 16,
                  resolution: int = 512, method: str = "warp", layers: int = 3, ground_object: int | None = None,
+                 umbra: bool = False,
                  params=None, bias: float = DEFAULT_BIAS, slope_bias: float = DEFAULT_SLOPE_BIAS,
                  eps_rel: float = DEFAULT_EPS_REL,
                  seed: int | None = 0) -> ShadowResult:
@@ -174,7 +175,9 @@ def soft_shadows(renderer, light: AreaLight, view: Camera, view_depth: np.ndarra
     ``resolution`` shadow-map side in pixels. ``method``: "warp" | "render" | "trace" (module
     docstring). "warp" only: ``layers`` L of the deep depth buffer at the light's centre (L = 1: its
     plain depth), ``ground_object`` (the ground's object id: the last layer is the ground alone, the
-    paper's set-up; needs L >= 2), ``params`` a :class:`ibrtools.depthwarp.DepthWarpParams`
+    paper's set-up; needs L >= 2), ``umbra`` (generalised umbra culling while peeling, Eq. 1, towards
+    the S sample positions: fragments no sample can see behind a nearer pixel quad are skipped),
+    ``params`` a :class:`ibrtools.depthwarp.DepthWarpParams`
     (default: N = 4 seeds as in the paper's sec. 6). ``bias`` (texels) and ``slope_bias`` (times the
     map's own depth slope): the shadow-map bias ("warp", "render"; shadows.h); ``eps_rel``: occlusion-ray start offset relative to the view depth ("trace").
     """
@@ -189,6 +192,8 @@ def soft_shadows(renderer, light: AreaLight, view: Camera, view_depth: np.ndarra
         raise DtypeError(f"view: expected an ibrtools.Camera, got {type(view).__name__}")
     if not isinstance(view_depth, np.ndarray):
         raise DtypeError(f"view_depth: expected a float32 numpy array of shape (H, W), got {type(view_depth).__name__}")
+    if not isinstance(umbra, (bool, np.bool_)):
+        raise DtypeError(f"umbra: expected a bool, got {umbra!r}")
     if method not in METHODS:
         raise BadValueError(f"method: expected one of {METHODS}, got {method!r}")
     s = check_int(samples, "samples", 1)
@@ -227,7 +232,8 @@ def soft_shadows(renderer, light: AreaLight, view: Camera, view_depth: np.ndarra
             if layers == 1 and ground_object is None:
                 deep = renderer.render(centre, outputs=("depth",), lights=[])["depth"][None]
             else:
-                deep = renderer.peel(centre, layers, ground_object=ground_object).depth
+                deep = renderer.peel(centre, layers, ground_object=ground_object,
+                                     umbra=positions if umbra else None).depth
             t1 = time.perf_counter()
             holes = 0.0
             for i, c in enumerate(cams):
