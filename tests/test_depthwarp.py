@@ -370,3 +370,16 @@ def test_synthetic_frame_pair_against_the_reference_depth():
             fw = forward_warp_depth(deep, c0, c1, kind).depth
             assert p_ours > metrics.psnr(fw / far, ref / far) + 3, (L, kind)
             assert s_ours > metrics.ssim(fw / far, ref / far), (L, kind)
+
+
+def test_scratch_reuse_between_calls_does_not_leak_results():
+    # warp_depth keeps this thread's motion buffer and mipmaps for the next call of the same shape.
+    deep = two_plane_scene()
+    other = np.stack([plane(3.0), plane(6.0)])
+    src, dst = cam_at(), cam_at((0.3, 0.1, 0.2))
+    first = warp_depth(deep, src, dst, DepthWarpParams(oriented=True))
+    warp_depth(other, src, cam_at((-0.2, 0, 0)))
+    again = warp_depth(deep, src, dst, DepthWarpParams(oriented=True))
+    np.testing.assert_array_equal(first.depth, again.depth)
+    np.testing.assert_array_equal(first.layer, again.layer)
+    assert first.stats == again.stats

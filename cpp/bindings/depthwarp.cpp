@@ -139,8 +139,14 @@ MotionInputs CheckMotionInputs(const py::handle& layers_obj, const Camera& src, 
   return in;
 }
 
-FloatArray ComputeMotion(const MotionInputs& in, const Camera& src, const Camera& dst) {
-  FloatArray packed = NewArray<float>({in.num_layers, in.height, in.width, 4});
+FloatArray ComputeMotion(const MotionInputs& in, const Camera& src, const Camera& dst, const py::handle& out_obj) {
+  FloatArray packed = out_obj.is_none()
+                          ? NewArray<float>({in.num_layers, in.height, in.width, 4})
+                          : CheckArray<float>(out_obj, "out", {{"L", in.num_layers}, {"H", in.height}, {"W", in.width}, {"4", 4}},
+                                              true);
+  if (!out_obj.is_none() && (Overlaps(packed, in.layers) || (in.has_ids && Overlaps(packed, in.ids)))) {
+    throw BadValueError("out: shares memory with an input");
+  }
   DepthWarpMover mover{&src, &dst, in.dst_from_src.data(), in.num_motions};
   const std::int64_t plane = std::int64_t(in.height) * in.width;
   float* out = packed.mutable_data();
@@ -196,15 +202,16 @@ struct YMap {
 void BindDepthwarp(py::module_& m) {
   m.def(
       "dw_motion",
-      [](py::handle layers, const Camera& src, const Camera& dst, py::handle ids, py::handle motion) {
+      [](py::handle layers, const Camera& src, const Camera& dst, py::handle ids, py::handle motion, py::handle out) {
         MotionInputs in = CheckMotionInputs(layers, src, dst, ids, motion);
-        return ComputeMotion(in, src, dst);
+        return ComputeMotion(in, src, dst, out);
       },
       py::arg("layers"), py::arg("src"), py::arg("dst"), py::arg("object_ids") = py::none(),
-      py::arg("object_motion") = py::none(),
+      py::arg("object_motion") = py::none(), py::arg("out") = py::none(),
       "Exact motion buffers (cpp/kernels/depthwarp.h DepthWarpMotion) of layers float32 (L, H, W) z in "
       "src (0 = empty) into dst: float32 (L, H, W, 4) = (mx, my, z_dst, 0); z_dst = 0 marks invalid pixels. "
-      "object_ids int32 (L, H, W) in -1..K-1 with object_motion float64 (K, 4, 4) new_world_from_old_world.");
+      "object_ids int32 (L, H, W) in -1..K-1 with object_motion float64 (K, 4, 4) new_world_from_old_world. "
+      "out: an existing writeable float32 (L, H, W, 4) array to fill (and return) instead of a new one.");
 
   py::class_<MotionMips>(m, "DepthWarpMips", "Min-max motion mipmaps of each layer (dw_build_mips).")
       .def_readonly("num_layers", &MotionMips::num_layers)
@@ -235,33 +242,41 @@ void BindDepthwarp(py::module_& m) {
 
   m.def(
       "dw_build_mips",
-      [](py::handle packed_obj, bool oriented, int pca_grid) {
+      [](py::handle packed_obj, bool oriented, int pca_grid, py::object reuse) -> py::object {
         FloatArray packed = CheckPacked(packed_obj);
         if (pca_grid < 2 || pca_grid > 1024) throw BadValueError("pca_grid: expected 2..1024, got " + std::to_string(pca_grid));
-        MotionMips mm;
-        mm.num_layers = static_cast<int>(packed.shape(0));
-        mm.height = static_cast<int>(packed.shape(1));
-        mm.width = static_cast<int>(packed.shape(2));
-        const std::int64_t plane = std::int64_t(mm.height) * mm.width * 4;
-        mm.levels.resize(mm.num_layers);
-        mm.zlevels.resize(mm.num_layers);
-        mm.dims.resize(mm.num_layers);
-        mm.rot.resize(mm.num_layers);
-        mm.axes.resize(mm.num_layers);
-        for (int j = 0; j < mm.num_layers; ++j) {
-          int h = mm.height, w = mm.width;
-          while (h > 1 || w > 1) {
-            h = (h + 1) / 2, w = (w + 1) / 2;
-            mm.dims[j].push_back({h, w});
-            mm.levels[j].emplace_back(std::size_t(h) * w * 4);
-            mm.zlevels[j].emplace_back(std::size_t(h) * w);
+        if (!reuse.is_none() && !py::isinstance<MotionMips>(reuse)) {
+          throw DtypeError("reuse: expected a DepthWarpMips or None");
+        }
+        py::object result = reuse.is_none() ? py::cast(MotionMips()) : reuse;
+        MotionMips& mm = result.cast<MotionMips&>();
+        const int nl = static_cast<int>(packed.shape(0)), hh = static_cast<int>(packed.shape(1)),
+                  ww = static_cast<int>(packed.shape(2));
+        if (mm.num_layers != nl || mm.height != hh || mm.width != ww) {
+          // (Re)allocate; a reused object of the same size keeps its buffers (no page faults).
+          mm = MotionMips();
+          mm.num_layers = nl, mm.height = hh, mm.width = ww;
+          mm.levels.resize(nl);
+          mm.zlevels.resize(nl);
+          mm.dims.resize(nl);
+          mm.rot.resize(nl);
+          mm.axes.resize(nl);
+          for (int j = 0; j < nl; ++j) {
+            int h = hh, w = ww;
+            while (h > 1 || w > 1) {
+              h = (h + 1) / 2, w = (w + 1) / 2;
+              mm.dims[j].push_back({h, w});
+              mm.levels[j].emplace_back(std::size_t(h) * w * 4);
+              mm.zlevels[j].emplace_back(std::size_t(h) * w);
+            }
           }
         }
+        const std::int64_t plane = std::int64_t(hh) * ww * 4;
         const float* pd = packed.data();
         {
           py::gil_scoped_release release;
-          for (int j = 0; j < mm.num_layers; ++j) {
-            ImageView<const float> pv(pd + j * plane, mm.height, mm.width, 4);
+          for (int j = 0; j < nl; ++j) {
+            ImageView<const float> pv(pd + j * plane, hh, ww, 4);
             mm.axes[j] = static_cast<int>(DepthWarpChooseAxes(pv, oriented, pca_grid, mm.rot[j].data()));
             for (std::size_t l = 0; l < mm.levels[j].size(); ++l) {
               const int lh = mm.dims[j][l].first, lw = mm.dims[j][l].second;
@@ -277,11 +292,12 @@ void BindDepthwarp(py::module_& m) {
             }
           }
         }
-        return mm;
+        return result;
       },
-      py::arg("packed"), py::arg("oriented") = false, py::arg("pca_grid") = 16,
+      py::arg("packed"), py::arg("oriented") = false, py::arg("pca_grid") = 16, py::arg("reuse") = py::none(),
       "Min-max motion mipmaps (DepthWarpChooseAxes, DepthWarpMipLevel1/Down) of packed float32 "
-      "(L, H, W, 4) from dw_motion; oriented: try PCA axes of a pca_grid x pca_grid sample per layer.");
+      "(L, H, W, 4) from dw_motion; oriented: try PCA axes of a pca_grid x pca_grid sample per layer. "
+      "reuse: a DepthWarpMips to refill (returned; its buffers are kept when the size matches).");
 
   m.def(
       "dw_warp",
@@ -337,8 +353,11 @@ void BindDepthwarp(py::module_& m) {
           warp_ms = MsSince(t0);
           if (dilate) {
             t0 = std::chrono::steady_clock::now();
-            std::vector<float> d_in(dv.data, dv.data + dv.NumPixels());
-            std::vector<std::int8_t> l_in(lv.data, lv.data + lv.NumPixels());
+            // Per-thread copies of the input kept between calls (no fresh pages per frame).
+            static thread_local std::vector<float> d_in;
+            static thread_local std::vector<std::int8_t> l_in;
+            d_in.assign(dv.data, dv.data + dv.NumPixels());
+            l_in.assign(lv.data, lv.data + lv.NumPixels());
             dilated = DepthWarpDilate(ImageView<const float>(d_in.data(), dst_height, dst_width),
                                       ImageView<const std::int8_t>(l_in.data(), dst_height, dst_width),
                                       dilate_min_neighbors, dv, lv);
@@ -378,7 +397,7 @@ void BindDepthwarp(py::module_& m) {
         }
         MotionInputs in = CheckMotionInputs(layers_obj, src, dst, ids, motion);
         auto t0 = std::chrono::steady_clock::now();
-        FloatArray packed = ComputeMotion(in, src, dst);
+        FloatArray packed = ComputeMotion(in, src, dst, py::none());
         const double motion_ms = MsSince(t0);
         const int dh = dst.height, dw = dst.width;
         FloatArray depth = NewArray<float>({dh, dw});

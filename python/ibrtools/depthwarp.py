@@ -13,6 +13,7 @@ differ in size. Every function checks its inputs and raises the typed errors of
 """
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -171,6 +172,20 @@ def _result(depth: np.ndarray, layer: np.ndarray, times: dict, stats: dict) -> W
     return WarpResult(depth=depth, hole=hole, layer=layer, times_ms=times, stats=stats)
 
 
+_local = threading.local()
+
+
+def _scratch(shape: tuple[int, ...]) -> dict:
+    """This thread's motion buffer and mipmaps of the last call with layers of ``shape``: reused
+    so that a sequence of frames does not page-fault ~20 bytes per pixel and layer anew each call
+    (the kernels overwrite every element). One set per thread: concurrent calls never share."""
+    cache = getattr(_local, "scratch", None)
+    if cache is None or cache["shape"] != shape:
+        cache = {"shape": shape}
+        _local.scratch = cache
+    return cache
+
+
 def warp_depth(layers, src, dst, params=DepthWarpParams(), *, object_ids=None, object_motion=None) -> WarpResult:
     """Iterative backward depth warping (Lee et al. 2018, Fig. 2/3/5/6) of an L-layer deep depth buffer.
     layers (L,H,W) f32 (layer 0 = nearest surfaces, 0 = empty), or (H,W) for L = 1; object_ids (L,H,W) int32."""
@@ -182,10 +197,12 @@ def warp_depth(layers, src, dst, params=DepthWarpParams(), *, object_ids=None, o
     lay = _as_layers(layers, src)
     ids, mot = _as_ids(object_ids, object_motion, lay.shape)
     core = _core()
+    scratch = _scratch(lay.shape)
     t0 = time.perf_counter()
-    packed = core.dw_motion(lay, src.to_core(), dst.to_core(), ids, mot)
+    packed = core.dw_motion(lay, src.to_core(), dst.to_core(), ids, mot, scratch.get("packed"))
     t1 = time.perf_counter()
-    mips = core.dw_build_mips(packed, p.oriented, p.pca_samples)
+    mips = core.dw_build_mips(packed, p.oriented, p.pca_samples, scratch.get("mips"))
+    scratch["packed"], scratch["mips"] = packed, mips
     t2 = time.perf_counter()
     depth, layer, c = core.dw_warp(packed, mips, dst.height, dst.width, p.seeds, p.iters, p.threshold,
                                    p.bound == "tight", p.steps, p.early_exit, p.seed, p.dilate,
