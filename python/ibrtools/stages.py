@@ -405,7 +405,8 @@ def _run_harmonise(ctx: _Context) -> dict | str:
         arrays[f"mask/{n}"] = np.asarray(m, bool)
     arrays["vd_texture"] = np.asarray(res.vd_texture, np.float32)
     save_npz(ctx.cache("harmonise") / "harmonise.npz", **arrays)
-    stats = {k: v for k, v in (res.stats or {}).items() if isinstance(v, (int, float, str))}
+    stats = {k: (float(f"{v:.4g}") if isinstance(v, float) else v) for k, v in (res.stats or {}).items()
+             if isinstance(v, (int, float, str))}
     return {"views": len(res.images), **stats}
 
 
