@@ -458,6 +458,24 @@ void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const Depth
           }
           if (empty) continue;
           const bool tile_one = std::max(bt.u1 - bt.u0, bt.w1 - bt.w0) < opt.early_exit;
+          {
+            // Prefetch the source rows the searches will read first (the tile shifted by the
+            // bound's centre motion): a tile's short row segments in several rows defeat the
+            // hardware prefetcher (measured: -8 % warp time, 960x540, L = 3, one thread).
+            const float uc = 0.5f * (bt.u0 + bt.u1), wc = 0.5f * (bt.w0 + bt.w1);
+            const float vx = l.rot[0] * uc + l.rot[2] * wc, vy = l.rot[1] * uc + l.rot[3] * wc;
+            const int sx0 = int(std::floor(x0 - vx)), sx1 = int(std::floor(x1 - vx));
+            const int sy0 = int(std::floor(y0 - vy));
+            const int pw = l.packed.width, ph = l.packed.height;
+            const int ax = std::max(0, sx0), bx = std::min(pw - 1, sx1);
+            if (ax <= bx) {
+              for (int yy = std::max(0, sy0); yy < std::min(ph, sy0 + (y1 - y0)); ++yy) {
+                const float* row = l.packed.Row(yy);
+                for (int xx = ax; xx <= bx; xx += 4) __builtin_prefetch(row + 4 * xx);
+                __builtin_prefetch(row + 4 * bx);
+              }
+            }
+          }
           for (int y = y0; y < y1; ++y) {
             const float py = y + 0.5f;
             for (int x = x0; x < x1; ++x) {
