@@ -177,6 +177,32 @@ def test_stage_output_for_the_render_methods(built, tmp_path):
         S.stage_output(tmp_path, "pvm")
 
 
+def test_failed_stage_leaves_no_record_and_reruns(tmp_path, capsys, monkeypatch):
+    d = tmp_path / "s"
+    run(d, "--methods", "pvm", capsys=capsys)
+    before = json.loads((d / "scene.json").read_text())["stages"]["pvm"]
+
+    def boom(ctx):
+        raise RuntimeError("disk full")
+
+    monkeypatch.setitem(S._RUN, "pvm", boom)
+    assert preprocess.main(["synth:objects", "-o", str(d), *SMALL, "--stages", "pvm", "--force"]) == 1
+    assert "disk full" in capsys.readouterr().err
+    doc = json.loads((d / "scene.json").read_text())
+    assert "pvm" not in doc["stages"] and "mesh" in doc["stages"]  # no record naming a stale output
+    assert not list((d / "cache" / "pvm").glob(".*"))  # no temporary file left behind
+    monkeypatch.undo()
+    out = run(d, "--methods", "pvm", capsys=capsys)
+    assert out["pvm"]["status"] == "ran" and out["pvm"]["tiles"] == before["details"]["tiles"]
+
+
+def test_progress_on_stderr(tmp_path, capsys):
+    d = tmp_path / "s"
+    assert preprocess.main(["synth:objects", "-o", str(d), *SMALL, "--methods", "pvm"]) == 0
+    err = capsys.readouterr().err
+    assert "ibr-preprocess: pvm: running" in err and "ibr-preprocess: mesh: running" in err
+
+
 def test_parse_helpers():
     assert S.parse_methods("tm, pvm") == ["tm", "pvm"]
     assert S.parse_methods("all") == list(S.ALL_METHODS)

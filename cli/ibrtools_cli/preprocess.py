@@ -100,7 +100,9 @@ def _body(args: argparse.Namespace) -> int:
     stage_options = parse_stage_options(args.stage_set)
     results = preprocess(args.input, args.output, fmt=args.format, options=parse_options(args.opt),
                          synth=synth, force=args.force, methods=methods, stages=stages,
-                         stage_options=stage_options)
+                         stage_options=stage_options,
+                         progress=None if args.quiet or args.json else
+                         (lambda msg: print(f"{PROG}: {msg}", file=sys.stderr, flush=True)))
     if args.json:
         print(json.dumps([r.to_dict() for r in results], indent=1))
     else:

@@ -439,7 +439,7 @@ def _closure(selected: list[str]) -> list[str]:
 
 
 def run_stages(root: str | os.PathLike, *, methods: list[str] | None = None, stages: list[str] | None = None,
-               force: bool = False, options: dict | None = None) -> list[StageResult]:
+               force: bool = False, options: dict | None = None, progress=None) -> list[StageResult]:
     """Plan and run the derived stages of the scene at ``root`` for ``methods`` (default:
     :func:`default_methods`), or exactly ``stages`` (plus what they read). Every available stage
     gets a row: ran / up to date / skipped (with the reason) / failed."""
@@ -497,6 +497,8 @@ def run_stages(root: str | os.PathLike, *, methods: list[str] | None = None, sta
             reason = f"output {bad[0]} missing or corrupt"
         else:
             reason = "forced" if force else ("inputs or parameters changed" if rec else "no output yet")
+        if progress is not None:
+            progress(f"{name}: running ({reason}) - {st.description}")
         t0 = time.perf_counter()
         # Outputs are replaced atomically; a stale record is removed first so that a failure
         # part-way never leaves a record naming an old output as current.
@@ -570,7 +572,7 @@ def parse_stage_options(pairs: list[str] | None) -> dict:
 def preprocess(input_spec: str, output: str | os.PathLike, *, fmt: str | None = None,
                options: dict | None = None, synth: dict | None = None, force: bool = False,
                methods: list[str] | None = None, stages: list[str] | None = None,
-               stage_options: dict | None = None) -> list[StageResult]:
+               stage_options: dict | None = None, progress=None) -> list[StageResult]:
     """Import (or find up to date) the scene, then run the derived stages ``methods`` need (or
     exactly ``stages``); returns the stage table."""
     if stages is not None:
@@ -580,7 +582,8 @@ def preprocess(input_spec: str, output: str | os.PathLike, *, fmt: str | None = 
     results = [run_import(input_spec, Path(output), fmt=fmt, options=options, synth=synth, force=force)]
     if stages == []:
         return results
-    results += run_stages(output, methods=methods, stages=stages, force=force, options=stage_options)
+    results += run_stages(output, methods=methods, stages=stages, force=force, options=stage_options,
+                          progress=progress)
     return results
 
 
