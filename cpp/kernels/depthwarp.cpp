@@ -610,7 +610,7 @@ void DepthWarpForward(DepthWarpForwardKind kind, const ImageView<const float>& d
         bool ok = true;
         double bx0 = kInf, bx1 = -kInf, by0 = kInf, by1 = -kInf;
         for (int c = 0; c < 4 && ok; ++c) {
-          double xo, yo, zo;
+          double xo = 0.0, yo = 0.0, zo = 1.0;
           ok = MovePixel(mover, x + kCx[c], y + kCy[c], z, id, &xo, &yo, &zo);
           v[c] = {xo, yo, 1.0 / zo};
           bx0 = std::min(bx0, xo), bx1 = std::max(bx1, xo), by0 = std::min(by0, yo), by1 = std::max(by1, yo);
