@@ -26,7 +26,7 @@ import numpy as np
 
 from ..camera import PINHOLE, Camera
 from ..checks import check_float, check_int
-from ..errors import BadValueError, DtypeError, NotBuiltError
+from ..errors import BadValueError, DtypeError
 from ..mesh import Mesh
 from ..scene import Scene
 
@@ -106,14 +106,21 @@ def depth_extent(cameras: Mapping[str, Camera], depths: Mapping[str, np.ndarray]
 
 def fuse_depth(cameras: Mapping[str, Camera], depths: Mapping[str, np.ndarray],
                options: GlobalMeshOptions | None = None, extent: tuple | None = None) -> Mesh:
-    """TSDF fusion (open3d ScalableTSDFVolume) of pinhole z-depth maps, then marching cubes.
-    Unknown depth (0) and infinity (sky) are left out."""
+    """TSDF fusion (open3d UniformTSDFVolume) of the depth maps, then marching cubes. Pinhole
+    z-depth is integrated as it is; an equirect view is first resampled into the 6 faces of a
+    cube map (:func:`equirect_to_cube_faces`). Unknown depth (0) and infinity (sky) are left out."""
     import open3d as o3d
 
     options = options or GlobalMeshOptions()
-    pin = {n: c for n, c in cameras.items() if c.model == PINHOLE}
-    if not pin:
-        raise NotBuiltError("global mesh: fusion of equirectangular depth maps is not built yet")
+    pin: dict[str, Camera] = {}
+    pin_depth: dict[str, np.ndarray] = {}
+    for n, c in cameras.items():
+        if c.model == PINHOLE:
+            pin[n], pin_depth[n] = c, depths[n]
+        else:
+            for k, (fc, fd) in enumerate(equirect_to_cube_faces(c, depths[n])):
+                pin[f"{n}#face{k}"], pin_depth[f"{n}#face{k}"] = fc, fd
+    depths = pin_depth
     lo, hi = extent if extent is not None else depth_extent(pin, depths)
     # A uniform grid (cube of side = the largest extent of the depth points plus the truncation
     # margin): open3d's ScalableTSDFVolume extracts no surface in open3d 0.20 here (checked on a
@@ -146,6 +153,42 @@ def fuse_depth(cameras: Mapping[str, Camera], depths: Mapping[str, np.ndarray],
     # Marching cubes gives triangles whose normals point outwards of the TSDF's negative side, i.e.
     # towards the cameras, counter-clockwise seen from the front, as mesh.py wants.
     return Mesh(v, f, kind="reconstructed")
+
+
+_CUBE_DIRS = (((0, 0, 1), (0, -1, 0)), ((0, 0, -1), (0, -1, 0)), ((1, 0, 0), (0, -1, 0)),
+              ((-1, 0, 0), (0, -1, 0)), ((0, 1, 0), (0, 0, 1)), ((0, -1, 0), (0, 0, -1)))
+
+
+def equirect_to_cube_faces(camera: Camera, depth: np.ndarray) -> list[tuple[Camera, np.ndarray]]:
+    """Six 90-degree pinhole cameras at an equirect camera's centre (cube-map faces, side =
+    width / 4 clamped to [16, 2048]) and their z-depth, read from the equirect ray distance at
+    the nearest pixel (no interpolation across depth edges); 0 outside the equirect's ranges."""
+    from ..camera import look_at
+
+    side = int(min(2048, max(16, camera.width // 4)))
+    f = side / 2.0
+    x, y = np.meshgrid(np.arange(side) + 0.5, np.arange(side) + 0.5)
+    d_face = np.stack([(x - f) / f, (y - f) / f, np.ones_like(x)], -1)  # z = 1 rays in the face
+    norm = np.linalg.norm(d_face, axis=-1)
+    out = []
+    for fwd, up in _CUBE_DIRS:
+        face_from_cam = look_at((0.0, 0.0, 0.0), fwd, up)[:3, :3]
+        d_cam = d_face @ face_from_cam  # rays in the equirect camera's frame (R^T d)
+        lon = np.arctan2(d_cam[..., 0], d_cam[..., 2])
+        lat = np.arcsin(np.clip(-d_cam[..., 1] / norm, -1, 1))
+        lo0, lo1 = camera.lon_range
+        la0, la1 = camera.lat_range
+        px = np.floor((lon - lo0) / (lo1 - lo0) * camera.width).astype(np.int64)
+        py = np.floor((la1 - lat) / (la1 - la0) * camera.height).astype(np.int64)
+        inside = (px >= 0) & (px < camera.width) & (py >= 0) & (py < camera.height)
+        r = np.zeros((side, side), np.float32)
+        r[inside] = depth[py[inside], px[inside]]
+        z = np.where(np.isfinite(r) & (r > 0), r / norm, 0).astype(np.float32)
+        pose = np.eye(4)
+        pose[:3, :3] = face_from_cam
+        cam_from_world = pose @ camera.cam_from_world
+        out.append((Camera.pinhole(side, side, f, f, f, f, cam_from_world), z))
+    return out
 
 
 def densify(mesh: Mesh, max_edge: float, max_faces: int = 4_000_000) -> Mesh:
@@ -299,7 +342,7 @@ def build_global_mesh(scene: Scene, options: GlobalMeshOptions | None = None,
     if src == "fusion":
         cams = {v.name: v.camera for v in scene.views}
         deps = depths or {v.name: v.depth for v in scene.views}
-        lo, hi = depth_extent({n: c for n, c in cams.items() if c.model == PINHOLE} or cams, deps)
+        lo, hi = depth_extent(cams, deps)
         mesh = fuse_depth(cams, deps, options, extent=(lo, hi))
         voxel = float((hi - lo).max() / options.resolution)  # (up to the truncation margin)
     else:
