@@ -232,12 +232,18 @@ def scene_content_key(root: Path) -> str:
     for group in ("views", "targets"):
         for e in doc.get(group, []):
             rels += [e[k] for k in ("color", "depth", "mask") if isinstance(e, dict) and e.get(k)]
-    rels += [m["path"] for m in (doc.get("meshes") or {}).values() if isinstance(m, dict) and "path" in m]
+    mesh_files = [root / m["path"] for m in (doc.get("meshes") or {}).values() if isinstance(m, dict) and "path" in m]
+    cache = (root / CACHE_DIR).resolve()
+    for d in sorted({f.parent for f in mesh_files}):
+        # Meshes with their sidecars, materials and textures: their whole directory, unless it is
+        # the scene root (then the mesh file and its "<name>.*" sidecars), never the cache.
+        files = (sorted(d.rglob("*")) if d.resolve() != root.resolve() else
+                 sorted(p for f in mesh_files if f.parent == d for p in [f, *d.glob(f.name + ".*")]))
+        rels += [p.relative_to(root).as_posix() for p in files
+                 if p.is_file() and cache not in p.resolve().parents]
     for rel in rels:
         f = root / rel
         h.update(rel.encode() + b"\0")
-        for side in sorted(f.parent.glob(f.name + ".*")) if f.suffix in (".obj", ".ply") else []:
-            h.update(_file_hash(side).encode())  # mesh sidecars (attrs, mtl)
         h.update(_file_hash(f).encode() if f.is_file() else b"missing")
     return h.hexdigest()
 
