@@ -383,3 +383,24 @@ def test_scratch_reuse_between_calls_does_not_leak_results():
     np.testing.assert_array_equal(first.depth, again.depth)
     np.testing.assert_array_equal(first.layer, again.layer)
     assert first.stats == again.stats
+
+
+def test_dilation_closes_cracks_but_not_wide_holes():
+    # Zero motion: the warp reproduces the input, holes where it is empty. A 1-px crack has 6
+    # converged neighbours (>= 5: filled with the smaller of its edge neighbours' depths); a 3-px
+    # band's middle column has none and its border columns 3 (< 5): the band stays a hole.
+    d = np.where(np.arange(W)[None, :] < W // 2, 4.0, 6.0).astype(np.float32).repeat(H, 0)
+    d[:, 20] = 0           # crack between 4.0 and 4.0
+    d[:, W // 2] = 0       # crack between 4.0 (left) and 6.0 (right)
+    d[:, 70:73] = 0        # 3 px band
+    cam = cam_at()
+    off = warp_depth(d, cam, cam, DepthWarpParams(dilate=False))
+    np.testing.assert_array_equal(off.hole, d == 0)
+    on = warp_depth(d, cam, cam, DepthWarpParams(dilate=True))
+    # (rows 0 and H-1: only 4 neighbours exist there, so the crack's end pixels stay holes)
+    np.testing.assert_array_equal(on.depth[1:-1, 20], 4.0)
+    np.testing.assert_array_equal(on.depth[1:-1, W // 2], 4.0)  # nearest neighbours tie: the smaller depth
+    assert on.hole[[0, -1]][:, [20, W // 2]].all()
+    assert on.hole[:, 70:73].all()
+    assert on.stats["dilated_pixels"] == 2 * (H - 2)
+    assert (on.layer[1:-1, 20] == 0).all()
