@@ -144,6 +144,7 @@ def test_path_report(crowd, tmp_path, params):
         c = f1["cull"]
         assert c["objects"] == crowd.meshes["ground_truth"].num_objects and "falsely_culled_large" in c
         assert "cull" in f1["time_ms"]
+        assert dw["dilate"] is False and dw["stats"]["dilated_pixels"] == 0  # culling needs conservative holes
     assert (tmp_path / "o" / f1["depth"]).is_file() and (tmp_path / "o" / f1["image"]).is_file()
     assert "mean_depth_ssim" in rep["summary"]
     json.dumps(rep, allow_nan=False)

@@ -45,7 +45,8 @@ Parameters (flags of ibr-render or ``--param key=value``)
   umbra             generalised umbra culling while peeling (default false)
   ground            "auto" (object 0 as the ground layer when L >= 2 and the mesh has several
                     objects), "none", or an object id
-  cull              warping-based occlusion culling (default false)
+  cull              warping-based occlusion culling (default false); turns dilation off (a
+                    dilated hole holds an occluder's depth and could cull what shows through it)
   forward           "none" (the iterative backward warp), "vfw" or "afw" (forward baselines)
   dilate            fill small holes surrounded by converged pixels (default true)
   bound             "tight" (default) or "global"
@@ -260,8 +261,11 @@ class DepthWarpMethod:
         from ..depthwarp import DepthWarpParams
 
         p = self.params
+        # Culling needs conservative holes: a dilated hole takes a neighbour's (occluder's) depth
+        # and culled a 5-px object seen through a 1-px gap (docs/culling.md), so --cull warps
+        # without dilation (the report says so).
         return DepthWarpParams(seeds=p["seeds"], iters=p["iters"], threshold=p["threshold"], bound=p["bound"],
-                               oriented=p["oriented_bounds"], dilate=p["dilate"])
+                               oriented=p["oriented_bounds"], dilate=p["dilate"] and not p["cull"])
 
     def render(self, camera: Camera) -> tuple[dict[str, np.ndarray], dict[str, float]]:
         if self._renderer is None:
@@ -300,6 +304,7 @@ class DepthWarpMethod:
         depth = res.depth
         report = {"source": "previous frame", "layers": deep.layers, "ground_layer": deep.ground_layer,
                   "umbra": deep.umbra, "forward": p["forward"],
+                  "dilate": bool(p["dilate"] and not p["cull"] and p["forward"] == "none"),
                   "source_fill": [round(float(f), 6) for f in deep.fill],
                   "warp_ms": round(warp_ms, 3), "reference_ms": round(stages["reference"], 3),
                   "reference_over_warp": round(stages["reference"] / warp_ms, 3) if warp_ms > 0 else None,
