@@ -14,4 +14,5 @@ PYBIND11_MODULE(_core, m) {
   ibr::bind::BindDepthwarp(m);
   ibr::bind::BindCulling(m);
   ibr::bind::BindHybrid(m);
+  ibr::bind::BindHybridRender(m);
 }

@@ -16,4 +16,5 @@ void BindSolvers(py::module_& m);
 void BindDepthwarp(py::module_& m);
 void BindCulling(py::module_& m);
 void BindHybrid(py::module_& m);
+void BindHybridRender(py::module_& m);
 }  // namespace ibr::bind

@@ -1,0 +1,253 @@
+// Binding of the hybrid rendering kernels (cpp/kernels/hybrid.h, cpp/kernels/ulr.h):
+// _core.interpolate_vertex_attribute (TM colour / view-dependent texture from the G-buffer),
+// _core.ulr_penalty / _core.ulr_select (the shared ULR ranking, for tests and Python callers),
+// _core.ulr_blend (per-pixel ULR), _core.hybrid_select, _core.blur_selection,
+// _core.hybrid_composite. Thin: checks arrays (array.h) and values, allocates the outputs,
+// releases the GIL around the kernels.
+#include <cmath>
+#include <string>
+#include <vector>
+
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include "array.h"
+#include "ibr/camera.h"
+#include "ibr/errors.h"
+#include "kernels/hybrid.h"
+#include "kernels/ulr.h"
+#include "module.h"
+
+namespace ibr::bind {
+namespace {
+
+using FArray = py::array_t<float, py::array::c_style>;
+
+const std::uint8_t* BoolData(const py::array_t<bool, py::array::c_style>& a) {
+  return reinterpret_cast<const std::uint8_t*>(a.data());
+}
+
+float CheckFinite(double v, const char* name, double lo) {
+  if (!std::isfinite(v) || v < lo) {
+    throw BadValueError(std::string(name) + ": expected a finite number >= " + std::to_string(lo) + ", got " +
+                        std::to_string(v));
+  }
+  return static_cast<float>(v);
+}
+
+FArray InterpolateVertexAttributeBinding(const py::object& prim_obj, const py::object& bary_obj,
+                                         const py::object& faces_obj, const py::object& attrib_obj) {
+  auto prim = CheckArray<std::int32_t>(prim_obj, "prim_id", {{"H", -1}, {"W", -1}});
+  const auto h = prim.shape(0), w = prim.shape(1);
+  auto bary = CheckArray<float>(bary_obj, "bary", {{"H", h}, {"W", w}, {"2", 2}});
+  auto faces = CheckArray<std::int32_t>(faces_obj, "faces", {{"M", -1}, {"3", 3}});
+  py::array a = py::reinterpret_borrow<py::array>(attrib_obj);
+  const bool one_channel = py::isinstance<py::array>(attrib_obj) && a.ndim() == 1;
+  auto attrib = one_channel ? CheckArray<float>(attrib_obj, "attrib", {{"N", -1}})
+                            : CheckArray<float>(attrib_obj, "attrib", {{"N", -1}, {"C", -1}});
+  const auto n = attrib.shape(0);
+  const int channels = one_channel ? 1 : static_cast<int>(attrib.shape(1));
+  if (channels < 1) throw ShapeError("attrib: expected at least one channel, got 0");
+  const auto m = faces.shape(0);
+  {
+    const std::int32_t* f = faces.data();
+    for (py::ssize_t i = 0; i < 3 * m; ++i) {
+      if (f[i] < 0 || f[i] >= n) {
+        throw BadValueError("faces: index " + std::to_string(f[i]) + " out of range for " + std::to_string(n) +
+                            " vertices");
+      }
+    }
+    const std::int32_t* p = prim.data();
+    for (py::ssize_t i = 0; i < h * w; ++i) {
+      if (p[i] < -1 || p[i] >= m) {
+        throw BadValueError("prim_id: " + std::to_string(p[i]) + " is not a face index in [-1, " + std::to_string(m) +
+                            ")");
+      }
+    }
+  }
+  FArray out = one_channel ? NewArray<float>({h, w}) : NewArray<float>({h, w, channels});
+  {
+    py::gil_scoped_release release;
+    InterpolateVertexAttribute(prim.data(), bary.data(), static_cast<std::int64_t>(h) * w, faces.data(), attrib.data(),
+                               channels, out.mutable_data());
+  }
+  return out;
+}
+
+py::tuple UlrBlendBinding(const Camera& novel, const py::object& depth_obj, const py::list& views_obj,
+                          const py::object& normal_obj, const py::object& mask_obj, int k, double resolution_weight,
+                          double depth_tol) {
+  if (k < 1 || k > 64) throw BadValueError("k: expected 1 .. 64 views per pixel, got " + std::to_string(k));
+  UlrOptions opt;
+  opt.k = k;
+  opt.resolution_weight = CheckFinite(resolution_weight, "resolution_weight", 0.0);
+  opt.depth_tol = CheckFinite(depth_tol, "depth_tol", 0.0);
+  auto depth = CheckArray<float>(depth_obj, "gbuffer_depth", {{"H", novel.height}, {"W", novel.width}});
+  const auto h = depth.shape(0), w = depth.shape(1);
+  FArray normal;
+  if (!normal_obj.is_none()) normal = CheckArray<float>(normal_obj, "normal", {{"H", h}, {"W", w}, {"3", 3}});
+  py::array_t<bool, py::array::c_style> mask;
+  if (!mask_obj.is_none()) mask = CheckArray<bool>(mask_obj, "pixel_mask", {{"H", h}, {"W", w}});
+  // Each view: (camera, colour (h, w, 3), depth (h, w)) with (h, w) the camera's size.
+  std::vector<FArray> keep;
+  std::vector<UlrInputView> views;
+  for (std::size_t i = 0; i < views_obj.size(); ++i) {
+    const std::string nm = "views[" + std::to_string(i) + "]";
+    py::handle item = views_obj[i];
+    if (!py::isinstance<py::tuple>(item) || py::len(item) != 3) {
+      throw DtypeError(nm + ": expected a (camera, color, depth) tuple");
+    }
+    py::tuple t = py::reinterpret_borrow<py::tuple>(item);
+    if (!py::isinstance<Camera>(t[0])) throw DtypeError(nm + "[0]: expected a _core.Camera");
+    UlrInputView v;
+    v.camera = t[0].cast<Camera>();
+    const std::string cn = nm + ".color", dn = nm + ".depth";
+    auto c = CheckArray<float>(t[1], cn.c_str(), {{"h", v.camera.height}, {"w", v.camera.width}, {"3", 3}});
+    auto d = CheckArray<float>(t[2], dn.c_str(), {{"h", v.camera.height}, {"w", v.camera.width}});
+    v.color = ConstViewOf(c);
+    v.depth = ConstViewOf(d);
+    keep.push_back(c);
+    keep.push_back(d);
+    views.push_back(v);
+  }
+  FArray color = NewArray<float>({h, w, 3});
+  auto count = py::array_t<std::uint8_t, py::array::c_style>(std::vector<py::ssize_t>{h, w});
+  {
+    py::gil_scoped_release release;
+    UlrBlend(novel, ConstViewOf(depth), normal_obj.is_none() ? ImageView<const float>() : ConstViewOf(normal),
+             mask_obj.is_none() ? nullptr : BoolData(mask), views.data(), static_cast<int>(views.size()), opt,
+             ViewOf(color), ViewOf(count));
+  }
+  return py::make_tuple(color, count);
+}
+
+py::array_t<std::uint8_t> HybridSelectBinding(const py::object& depth_obj, const py::object& inside_obj,
+                                              const py::object& valid_obj, const py::object& pvm_depth_obj,
+                                              const py::object& vd_obj, double geo_threshold, double tau_var) {
+  auto depth = CheckArray<float>(depth_obj, "gbuffer_depth", {{"H", -1}, {"W", -1}});
+  const auto h = depth.shape(0), w = depth.shape(1);
+  HybridSelectOptions opt;
+  opt.geo_threshold = CheckFinite(geo_threshold, "geo_threshold", 0.0);
+  if (!std::isfinite(tau_var)) throw BadValueError("tau_var: expected a finite number, got " + std::to_string(tau_var));
+  opt.tau_var = static_cast<float>(tau_var);
+  py::array_t<bool, py::array::c_style> inside, valid;
+  FArray pvm_depth, vd;
+  if (!inside_obj.is_none()) inside = CheckArray<bool>(inside_obj, "inside_grid", {{"H", h}, {"W", w}});
+  if (valid_obj.is_none() != pvm_depth_obj.is_none()) {
+    throw BadValueError("pvm_valid and pvm_depth: give both or neither");
+  }
+  if (!valid_obj.is_none()) {
+    valid = CheckArray<bool>(valid_obj, "pvm_valid", {{"H", h}, {"W", w}});
+    pvm_depth = CheckArray<float>(pvm_depth_obj, "pvm_depth", {{"H", h}, {"W", w}});
+  }
+  if (!vd_obj.is_none()) vd = CheckArray<float>(vd_obj, "vd", {{"H", h}, {"W", w}});
+  auto label = py::array_t<std::uint8_t, py::array::c_style>(std::vector<py::ssize_t>{h, w});
+  {
+    py::gil_scoped_release release;
+    HybridSelect(ConstViewOf(depth), inside_obj.is_none() ? nullptr : BoolData(inside),
+                 valid_obj.is_none() ? nullptr : BoolData(valid), valid_obj.is_none() ? nullptr : pvm_depth.data(),
+                 vd_obj.is_none() ? nullptr : vd.data(), opt, ViewOf(label));
+  }
+  return label;
+}
+
+FArray BlurSelectionBinding(const py::object& label_obj, double sigma) {
+  auto label = CheckArray<std::uint8_t>(label_obj, "label", {{"H", -1}, {"W", -1}});
+  const float s = CheckFinite(sigma, "sigma_blur", 0.0);
+  if (s > 1000.f) throw BadValueError("sigma_blur: expected <= 1000 pixels, got " + std::to_string(sigma));
+  const auto h = label.shape(0), w = label.shape(1);
+  {
+    const std::uint8_t* l = label.data();
+    for (py::ssize_t i = 0; i < h * w; ++i) {
+      if (l[i] > kLabelNone) throw BadValueError("label: values must be 0 (TM), 1 (ULR), 2 (PVM) or 3 (none)");
+    }
+  }
+  FArray out = NewArray<float>({h, w, 3});
+  std::vector<float> scratch(static_cast<std::size_t>(h) * w * 3);
+  {
+    py::gil_scoped_release release;
+    BlurSelection(ConstViewOf(label), s, scratch.data(), ViewOf(out));
+  }
+  return out;
+}
+
+FArray HybridCompositeBinding(const py::object& weights_obj, const py::object& tm_obj, const py::object& ulr_obj,
+                              const py::object& ulr_count_obj, const py::object& pvm_obj, const py::object& valid_obj) {
+  auto weights = CheckArray<float>(weights_obj, "weights", {{"H", -1}, {"W", -1}, {"3", 3}});
+  const auto h = weights.shape(0), w = weights.shape(1);
+  auto tm = CheckArray<float>(tm_obj, "tm", {{"H", h}, {"W", w}, {"3", 3}});
+  if (ulr_obj.is_none() != ulr_count_obj.is_none()) throw BadValueError("ulr and ulr_count: give both or neither");
+  if (pvm_obj.is_none() != valid_obj.is_none()) throw BadValueError("pvm and pvm_valid: give both or neither");
+  FArray ulr, pvm;
+  py::array_t<std::uint8_t, py::array::c_style> count;
+  py::array_t<bool, py::array::c_style> valid;
+  if (!ulr_obj.is_none()) {
+    ulr = CheckArray<float>(ulr_obj, "ulr", {{"H", h}, {"W", w}, {"3", 3}});
+    count = CheckArray<std::uint8_t>(ulr_count_obj, "ulr_count", {{"H", h}, {"W", w}});
+  }
+  if (!pvm_obj.is_none()) {
+    pvm = CheckArray<float>(pvm_obj, "pvm", {{"H", h}, {"W", w}, {"3", 3}});
+    valid = CheckArray<bool>(valid_obj, "pvm_valid", {{"H", h}, {"W", w}});
+  }
+  FArray out = NewArray<float>({h, w, 3});
+  {
+    py::gil_scoped_release release;
+    HybridComposite(ConstViewOf(weights), ConstViewOf(tm), ulr_obj.is_none() ? nullptr : ulr.data(),
+                    ulr_obj.is_none() ? nullptr : count.data(), pvm_obj.is_none() ? nullptr : pvm.data(),
+                    pvm_obj.is_none() ? nullptr : BoolData(valid), ViewOf(out));
+  }
+  return out;
+}
+
+}  // namespace
+
+void BindHybridRender(py::module_& m) {
+  m.def("interpolate_vertex_attribute", &InterpolateVertexAttributeBinding, py::arg("prim_id"), py::arg("bary"),
+        py::arg("faces"), py::arg("attrib"),
+        "Per-vertex attribute (N,) or (N, C) float32 interpolated at each pixel's hit (prim_id (H, W) int32, "
+        "-1 = none; bary (H, W, 2) Embree (u, v)): (H, W) or (H, W, C), 0 where nothing is hit.");
+  m.def(
+      "ulr_penalty",
+      [](const std::vector<float>& p, const std::vector<float>& c_novel, const std::vector<float>& c_view,
+         double resolution_weight) {
+        if (p.size() != 3 || c_novel.size() != 3 || c_view.size() != 3) {
+          throw ShapeError("ulr_penalty: p, c_novel and c_view must have 3 coordinates each");
+        }
+        return UlrPenalty(glm::vec3(p[0], p[1], p[2]), glm::vec3(c_novel[0], c_novel[1], c_novel[2]),
+                          glm::vec3(c_view[0], c_view[1], c_view[2]), static_cast<float>(resolution_weight));
+      },
+      py::arg("p"), py::arg("c_novel"), py::arg("c_view"), py::arg("resolution_weight") = 0.5,
+      "ULR penalty (cpp/kernels/ulr.h): angle + resolution_weight * max(0, |c_view-p|/|c_novel-p| - 1).");
+  m.def(
+      "ulr_select",
+      [](const py::object& pen_obj, int k) {
+        auto pen = CheckArray<float>(pen_obj, "penalty", {{"n", -1}});
+        if (k < 1 || k > 64) throw BadValueError("k: expected 1 .. 64, got " + std::to_string(k));
+        std::vector<int> idx(k);
+        std::vector<float> wt(k);
+        const int mm = UlrSelect(pen.data(), static_cast<int>(pen.shape(0)), k, idx.data(), wt.data());
+        idx.resize(mm);
+        wt.resize(mm);
+        return py::make_tuple(idx, wt);
+      },
+      py::arg("penalty"), py::arg("k"),
+      "The k smallest finite penalties (cpp/kernels/ulr.h UlrSelect): (indices, weights summing to 1).");
+  m.def("ulr_blend", &UlrBlendBinding, py::arg("camera"), py::arg("gbuffer_depth"), py::arg("views"), py::kw_only(),
+        py::arg("normal") = py::none(), py::arg("pixel_mask") = py::none(), py::arg("k") = 4,
+        py::arg("resolution_weight") = 0.5, py::arg("depth_tol") = 0.02,
+        "Per-pixel ULR at the G-buffer's points: views = [(camera, color, depth), ...] -> (color (H, W, 3), "
+        "count (H, W) uint8 views used, 0 = none sees the point).");
+  m.def("hybrid_select", &HybridSelectBinding, py::arg("gbuffer_depth"), py::kw_only(),
+        py::arg("inside_grid") = py::none(), py::arg("pvm_valid") = py::none(), py::arg("pvm_depth") = py::none(),
+        py::arg("vd") = py::none(), py::arg("geo_threshold") = 0.03, py::arg("tau_var") = 0.82,
+        "Per-pixel method (Prakash et al. 2021 Fig. 7): uint8 (H, W) 0 TM, 1 ULR, 2 PVM, 3 nothing to render.");
+  m.def("blur_selection", &BlurSelectionBinding, py::arg("label"), py::arg("sigma_blur"),
+        "Gaussian-blurred one-hot selection weights (H, W, 3) = (TM, ULR, PVM), normalised to sum 1.");
+  m.def("hybrid_composite", &HybridCompositeBinding, py::arg("weights"), py::arg("tm"), py::kw_only(),
+        py::arg("ulr") = py::none(), py::arg("ulr_count") = py::none(), py::arg("pvm") = py::none(),
+        py::arg("pvm_valid") = py::none(),
+        "Composite of TM, ULR and PVM colours by the selection weights, with fallbacks (PVM -> ULR -> TM).");
+}
+
+}  // namespace ibr::bind

@@ -1,0 +1,92 @@
+// Hybrid IBR rendering kernels (Prakash et al. 2021, "Hybrid Image-based Rendering for Free-view
+// Synthesis", sec. 3.3 and 6): G-buffer attribute interpolation for the textured mesh (TM),
+// per-pixel Unstructured Lumigraph blending (ULR) at the global mesh's visible points, the
+// per-pixel method selection of Fig. 7, the blur of the selection mask and the composite.
+//
+// Conventions (cpp/ibr/camera.h): OpenCV camera axes, pixel (u, v) has its centre at
+// (u + 0.5, v + 0.5); "depth" is the scene model's depth: z for a pinhole camera, distance along
+// the ray for an equirect one, 0 = unknown / no surface. Images are row-major (H, W[, C]) float32.
+// Kernels never throw or allocate policy: the binding (cpp/bindings/hybrid_render.cpp) checks
+// shapes and values and allocates every output.
+#pragma once
+#include <cstdint>
+
+#include <glm/glm.hpp>
+
+#include "ibr/camera.h"
+#include "ibr/image.h"
+
+namespace ibr {
+
+// ---- TM: G-buffer attributes ---------------------------------------------------------------
+// out(pixel, c) = (1 - u - v) a[f0, c] + u a[f1, c] + v a[f2, c] for the hit face f = prim_id
+// (Embree's barycentrics, cpp/kernels/raycast.h); 0 where prim_id < 0. attrib is (N, channels),
+// faces (M, 3) with indices already checked to lie in [0, N) and prim ids in [-1, M).
+void InterpolateVertexAttribute(const std::int32_t* prim_id, const float* bary, std::int64_t num_pixels,
+                                const std::int32_t* faces, const float* attrib, int channels, float* out);
+
+// ---- per-pixel ULR --------------------------------------------------------------------------
+struct UlrInputView {
+  Camera camera;
+  ImageView<const float> color;  // (h, w, 3) linear RGB (harmonised when available)
+  ImageView<const float> depth;  // (h, w) the view's depth (z / distance), 0 = unknown
+};
+
+struct UlrOptions {
+  int k = 4;                       // views kept per pixel (UlrSelect: the k-th gets weight 0)
+  float resolution_weight = 0.5f;  // UlrPenalty's resolution term
+  // Occlusion test: the input view sees the point when its depth at the point's (nearest) pixel
+  // agrees with the point's depth in that view within depth_tol * view depth (relative: depth
+  // maps and the global mesh err in proportion to distance; 2 % as the texture stage).
+  float depth_tol = 0.02f;
+  // Input views behind the surface (angle between the G-buffer normal and the direction to the
+  // view >= 90 degrees) are skipped when a normal is given.
+};
+
+// For every pixel with gbuffer_depth > 0 (and pixel_mask != 0 when a mask is given): the world
+// point p = centre + depth * ray; penalties UlrPenalty(p, novel centre, view centre) of every
+// input view; the best k by UlrSelect among the views that pass the occlusion (and back-face)
+// test, found lazily: the best k are tested, failing ones dropped and the selection redone.
+// color_out = sum_j w_j * bilinear(view_j colour at p's projection) (edge-clamped), count_out =
+// the number of views with positive weight (0 = no view sees p: colour 0, the caller falls back
+// to TM). Pixels not computed get colour 0 and count 0. normal may be empty (no back-face test).
+void UlrBlend(const Camera& novel, ImageView<const float> gbuffer_depth, ImageView<const float> normal,
+              const std::uint8_t* pixel_mask, const UlrInputView* views, int num_views, const UlrOptions& options,
+              ImageView<float> color_out, ImageView<std::uint8_t> count_out);
+
+// ---- hybrid selection (Fig. 7) --------------------------------------------------------------
+enum HybridLabel : std::uint8_t { kLabelTm = 0, kLabelUlr = 1, kLabelPvm = 2, kLabelNone = 3 };
+
+struct HybridSelectOptions {
+  float geo_threshold = 0.03f;  // |PVM depth - global depth| above this -> PVM (3 cm in scene units)
+  float tau_var = 0.82f;        // view-dependent texture above this -> ULR
+};
+
+// Per pixel, with global hit = gbuffer_depth > 0:
+//   !inside_grid                                              -> ULR (kLabelNone if no global hit)
+//   pvm_valid && (!hit || |pvm_depth - gbuffer_depth| > geo)  -> PVM
+//   !hit                                                      -> kLabelNone (nothing to render)
+//   vd > tau_var                                              -> ULR
+//   else                                                      -> TM
+// Null inputs: inside_grid = every pixel inside the grid; pvm_valid (and pvm_depth) = no PVM
+// candidate anywhere; vd = 0 everywhere.
+void HybridSelect(ImageView<const float> gbuffer_depth, const std::uint8_t* inside_grid, const std::uint8_t* pvm_valid,
+                  const float* pvm_depth, const float* vd, const HybridSelectOptions& options,
+                  ImageView<std::uint8_t> label_out);
+
+// Blurs the one-hot selection (TM, ULR, PVM) with a separable Gaussian of standard deviation
+// sigma pixels (radius ceil(3 sigma), edge-clamped; sigma = 0: no blur) and normalises the three
+// weights to sum 1 where any is positive. kLabelNone contributes to none (its pixels get the
+// weights of their neighbours, or all 0). weights_out (H, W, 3) = (tm, ulr, pvm); scratch holds
+// 3 * H * W floats.
+void BlurSelection(ImageView<const std::uint8_t> label, float sigma, float* scratch, ImageView<float> weights_out);
+
+// color = w_tm * tm + w_ulr * ulr' + w_pvm * pvm', where a method without a result at the pixel
+// falls back: ulr' = ulr where ulr_count > 0 else tm; pvm' = pvm where pvm_valid else ulr'.
+// Pixels whose weights are all 0 get colour 0. ulr / pvm (and their masks) may be null (weight
+// moved to the fallback).
+void HybridComposite(ImageView<const float> weights, ImageView<const float> tm, const float* ulr,
+                     const std::uint8_t* ulr_count, const float* pvm, const std::uint8_t* pvm_valid,
+                     ImageView<float> color_out);
+
+}  // namespace ibr
