@@ -15,4 +15,5 @@ PYBIND11_MODULE(_core, m) {
   ibr::bind::BindCulling(m);
   ibr::bind::BindHybrid(m);
   ibr::bind::BindHybridRender(m);
+  ibr::bind::BindPvmRender(m);
 }

@@ -17,4 +17,5 @@ void BindDepthwarp(py::module_& m);
 void BindCulling(py::module_& m);
 void BindHybrid(py::module_& m);
 void BindHybridRender(py::module_& m);
+void BindPvmRender(py::module_& m);
 }  // namespace ibr::bind

@@ -1,0 +1,292 @@
+// Binding of the PVM renderer (cpp/kernels/pvm_render.h): _core.PvmRenderer holds the tiles
+// (references to the numpy arrays of tiles.npz, checked once), the input views' cameras and
+// images, and the per-frame buffers; render() runs the five stages with the GIL released and
+// returns the outputs and per-stage times. Thin: checks arrays (array.h) and values, the
+// kernels do the work. Python: ibrtools.hybrid.pvm_render.
+#include <chrono>
+#include <cmath>
+#include <string>
+#include <vector>
+
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include "array.h"
+#include "ibr/camera.h"
+#include "ibr/errors.h"
+#include "kernels/pvm_render.h"
+#include "module.h"
+
+namespace ibr::bind {
+namespace {
+
+using F32 = py::array_t<float, py::array::c_style>;
+using I32 = py::array_t<std::int32_t, py::array::c_style>;
+using I64 = py::array_t<std::int64_t, py::array::c_style>;
+
+// array.h has no int64 dtype name: the 1-D int64 offset arrays are checked here.
+I64 CheckOffsets(py::handle obj, const char* name, py::ssize_t n) {
+  if (!py::isinstance<py::array>(obj)) {
+    throw DtypeError(std::string(name) + ": expected a numpy int64 array of shape (" + std::to_string(n) + ",)");
+  }
+  py::array a = py::reinterpret_borrow<py::array>(obj);
+  if (!a.dtype().is(py::dtype::of<std::int64_t>())) {
+    throw DtypeError(std::string(name) + ": expected int64 array of shape (" + std::to_string(n) + ",), got " +
+                     std::string(py::str(a.dtype())) + " " + DescribeShape(a));
+  }
+  if (a.ndim() != 1 || a.shape(0) != n || !(a.flags() & py::array::c_style)) {
+    throw ShapeError(std::string(name) + ": expected a contiguous int64 array of shape (" + std::to_string(n) +
+                     ",), got " + DescribeShape(a));
+  }
+  return py::reinterpret_borrow<I64>(a);
+}
+
+class PvmRendererCore {
+ public:
+  PvmRendererCore(py::handle vertices, py::handle faces, py::handle face_offsets, py::handle tile_view,
+                  py::handle tile_cell, py::handle coarse_offsets, std::vector<double> origin,
+                  std::vector<double> cell, int coarse, int sub, std::vector<Camera> cameras, py::list images,
+                  py::handle enabled) {
+    vertices_ = CheckArray<float>(vertices, "vertices", {{"V", -1}, {"3", 3}});
+    faces_ = CheckArray<std::int32_t>(faces, "faces", {{"F", -1}, {"3", 3}});
+    tile_view_ = CheckArray<std::int32_t>(tile_view, "tile_view", {{"T", -1}});
+    const py::ssize_t nt = tile_view_.shape(0);
+    face_offsets_ = CheckOffsets(face_offsets, "face_offsets", nt + 1);
+    tile_cell_ = CheckArray<std::int32_t>(tile_cell, "tile_cell", {{"T", nt}, {"3", 3}});
+    if (coarse < 1 || sub < 1 || static_cast<std::int64_t>(coarse) * sub > 4096) {
+      throw BadValueError("coarse, sub: expected >= 1 with coarse * sub <= 4096, got " + std::to_string(coarse) +
+                          ", " + std::to_string(sub));
+    }
+    const py::ssize_t nc = static_cast<py::ssize_t>(coarse) * coarse * coarse;
+    coarse_offsets_ = CheckOffsets(coarse_offsets, "coarse_offsets", nc + 1);
+    if (origin.size() != 3 || cell.size() != 3) throw ShapeError("origin, cell: expected 3 numbers each");
+    for (int a = 0; a < 3; ++a) {
+      if (!std::isfinite(origin[a]) || !(cell[a] > 0.0) || !std::isfinite(cell[a])) {
+        throw BadValueError("origin, cell: expected finite numbers with cell > 0");
+      }
+    }
+    const int nv = static_cast<int>(cameras.size());
+    if (nv < 1 || nv > 32767) throw BadValueError("cameras: expected 1 .. 32767 views, got " + std::to_string(nv));
+    if (static_cast<int>(py::len(images)) != nv) {
+      throw ShapeError("images: expected one image per camera (" + std::to_string(nv) + "), got " +
+                       std::to_string(py::len(images)));
+    }
+    for (int v = 0; v < nv; ++v) {
+      const std::string name = "images[" + std::to_string(v) + "]";
+      images_.push_back(CheckArray<float>(images[static_cast<std::size_t>(v)], name.c_str(),
+                                          {{"H_v", cameras[v].height}, {"W_v", cameras[v].width}, {"3", 3}}));
+      image_ptrs_.push_back(images_.back().data());
+    }
+    auto en = CheckArray<bool>(enabled, "enabled", {{"views", nv}});
+    enabled_.assign(en.data(), en.data() + nv);
+    cameras_ = std::move(cameras);
+    // Index checks, once.
+    const std::int64_t n_vert = vertices_.shape(0), n_face = faces_.shape(0);
+    const std::int32_t* f = faces_.data();
+    for (std::int64_t i = 0; i < 3 * n_face; ++i) {
+      if (f[i] < 0 || f[i] >= n_vert) throw BadValueError("faces: index out of range [0, " + std::to_string(n_vert) + ")");
+    }
+    const float* vp = vertices_.data();
+    for (std::int64_t i = 0; i < 3 * n_vert; ++i) {
+      if (!std::isfinite(vp[i])) throw BadValueError("vertices: expected finite coordinates");
+    }
+    const std::int64_t* fo = face_offsets_.data();
+    if (fo[0] != 0 || fo[nt] != n_face) throw BadValueError("face_offsets: expected 0 .. F");
+    for (py::ssize_t t = 0; t < nt; ++t) {
+      if (fo[t + 1] < fo[t]) throw BadValueError("face_offsets: expected non-decreasing");
+      const std::int32_t v = tile_view_.data()[t];
+      if (v < 0 || v >= nv) throw BadValueError("tile_view: view index out of range [0, " + std::to_string(nv) + ")");
+      for (int a = 0; a < 3; ++a) {
+        const std::int32_t c = tile_cell_.data()[3 * t + a];
+        if (c < 0 || c >= coarse * sub) throw BadValueError("tile_cell: fine cell out of range");
+      }
+    }
+    const std::int64_t* co = coarse_offsets_.data();
+    if (co[0] != 0 || co[nc] != nt) throw BadValueError("coarse_offsets: expected 0 .. T");
+    for (py::ssize_t c = 0; c < nc; ++c) {
+      if (co[c + 1] < co[c]) throw BadValueError("coarse_offsets: expected non-decreasing");
+    }
+    tiles_.vertices = vertices_.data();
+    tiles_.faces = faces_.data();
+    tiles_.face_offsets = face_offsets_.data();
+    tiles_.tile_view = tile_view_.data();
+    tiles_.tile_cell = tile_cell_.data();
+    tiles_.coarse_offsets = coarse_offsets_.data();
+    tiles_.num_tiles = nt;
+    for (int a = 0; a < 3; ++a) {
+      tiles_.grid.origin[a] = origin[a];
+      tiles_.grid.cell[a] = cell[a];
+    }
+    tiles_.grid.coarse = coarse;
+    tiles_.grid.sub = sub;
+  }
+
+  py::dict Render(const Camera& camera, py::handle gbuffer_obj, py::handle mask_obj, bool filtered, float sigma,
+                  float alpha, float gamma, float tau_depth, int max_tiles, int max_candidates, int ulr_k,
+                  float merge_rel, float radius_sigmas, int margin, float near, bool cull_back, float max_angle_deg) {
+    if (camera.model != CameraModel::kPinhole) {
+      throw BadValueError("camera: PVM rendering takes a pinhole target camera (equirect targets are not built)");
+    }
+    const py::ssize_t h = camera.height, w = camera.width;
+    F32 gbuf;
+    const float* gptr = nullptr;
+    if (!gbuffer_obj.is_none()) {
+      gbuf = CheckArray<float>(gbuffer_obj, "gbuffer_depth", {{"H", h}, {"W", w}});
+      gptr = gbuf.data();
+    }
+    py::array_t<bool, py::array::c_style> mask;
+    const std::uint8_t* mptr = nullptr;
+    if (!mask_obj.is_none()) {
+      mask = CheckArray<bool>(mask_obj, "pixel_mask", {{"H", h}, {"W", w}});
+      mptr = reinterpret_cast<const std::uint8_t*>(mask.data());
+    }
+    auto finite_min = [](float v, const char* name, float lo, bool strict) {
+      if (!std::isfinite(v) || (strict ? !(v > lo) : !(v >= lo))) {
+        throw BadValueError(std::string(name) + ": expected a finite number " + (strict ? "> " : ">= ") +
+                            std::to_string(lo) + ", got " + std::to_string(v));
+      }
+    };
+    finite_min(sigma, "sigma", 0.f, true);
+    finite_min(alpha, "alpha", 0.f, false);
+    finite_min(gamma, "gamma", 0.f, true);
+    finite_min(tau_depth, "tau_depth", 0.f, false);
+    finite_min(merge_rel, "merge_rel", 0.f, false);
+    finite_min(radius_sigmas, "radius_sigmas", 0.f, false);
+    finite_min(near, "near", 0.f, true);
+    finite_min(max_angle_deg, "max_angle", 0.f, true);
+    if (radius_sigmas * sigma > 64.f) throw BadValueError("radius_sigmas * sigma: expected <= 64 pixels");
+    if (max_tiles < 1 || max_tiles > 255) throw BadValueError("max_tiles: expected 1 .. 255, got " + std::to_string(max_tiles));
+    if (max_candidates < 1 || max_candidates > kPvmMaxCandidates) {
+      throw BadValueError("max_candidates: expected 1 .. " + std::to_string(kPvmMaxCandidates) + ", got " +
+                          std::to_string(max_candidates));
+    }
+    if (ulr_k < 1 || ulr_k > 64) throw BadValueError("ulr_k: expected 1 .. 64, got " + std::to_string(ulr_k));
+    if (margin < 0 || margin > 32) throw BadValueError("margin: expected 0 .. 32, got " + std::to_string(margin));
+    PvmRenderOptions o;
+    o.filtered = filtered;
+    o.sigma = sigma;
+    o.alpha = alpha;
+    o.gamma = gamma;
+    o.tau_depth = tau_depth;
+    o.max_tiles = max_tiles;
+    o.max_candidates = max_candidates;
+    o.ulr_k = ulr_k;
+    o.merge_rel = merge_rel;
+    o.radius_sigmas = radius_sigmas;
+    o.margin = margin;
+    o.near = near;
+    o.cull_back = cull_back;
+    o.max_angle = max_angle_deg >= 180.f ? 3.15f : max_angle_deg * 3.14159265f / 180.f;
+    PvmViews views;
+    views.count = static_cast<int>(cameras_.size());
+    views.cameras = cameras_.data();
+    views.images = image_ptrs_.data();
+    views.enabled = enabled_.data();
+    auto color = NewArray<float>({h, w, 3});
+    auto depth = NewArray<float>({h, w});
+    auto vote = NewArray<float>({h, w});
+    auto valid = NewArray<bool>({h, w});
+    auto inside = NewArray<bool>({h, w});
+    double ms[5];
+    {
+      py::gil_scoped_release release;
+      using Clock = std::chrono::steady_clock;
+      auto t = Clock::now();
+      auto lap = [&](int i) {
+        const auto now = Clock::now();
+        ms[i] = std::chrono::duration<double, std::milli>(now - t).count();
+        t = now;
+      };
+      PvmVisibleCoarse(tiles_.grid, camera, gptr, o.margin, frame_.visible);
+      lap(0);
+      PvmSelectTiles(tiles_, views, frame_.visible, camera, o, frame_);
+      lap(1);
+      PvmRasterise(tiles_, views, camera, o, frame_);
+      lap(2);
+      PvmCluster(views, camera, mptr, o, frame_);
+      lap(3);
+      PvmFilter(tiles_.grid, camera, mptr, o, frame_, color.mutable_data(), depth.mutable_data(), vote.mutable_data(),
+                reinterpret_cast<std::uint8_t*>(valid.mutable_data()),
+                reinterpret_cast<std::uint8_t*>(inside.mutable_data()));
+      lap(4);
+    }
+    std::int64_t nvis = 0;
+    for (std::uint8_t v : frame_.visible) nvis += v;
+    py::dict times;
+    times["voxel_lookup"] = ms[0];
+    times["tile_sort"] = ms[1];
+    times["per_view_depth_pass"] = ms[2];
+    times["cluster_blend"] = ms[3];
+    times["spatial_filter"] = ms[4];
+    py::dict out;
+    out["color"] = color;
+    out["depth"] = depth;
+    out["vote"] = vote;
+    out["valid"] = valid;
+    out["inside_grid"] = inside;
+    out["times_ms"] = times;
+    out["visible_coarse"] = nvis;
+    out["tiles"] = static_cast<std::int64_t>(frame_.tiles.size());
+    out["triangles"] = frame_.triangles;
+    return out;
+  }
+
+  // Candidate lists of the last frame (for tests and inspection): count (H, W) uint8, depth
+  // (H, W, K) f32 and view (H, W, K) int16 (entries past count are unspecified).
+  py::dict Candidates(int h, int w, int k) const {
+    const std::size_t npix = static_cast<std::size_t>(h) * static_cast<std::size_t>(w);
+    if (frame_.cand_count.size() != npix || frame_.cand_depth.size() != npix * static_cast<std::size_t>(k)) {
+      throw BadValueError("candidates: no frame of that size and max_candidates rendered yet");
+    }
+    auto count = NewArray<std::uint8_t>({h, w});
+    auto depth = NewArray<float>({h, w, k});
+    auto view = py::array_t<std::int16_t, py::array::c_style>(std::vector<py::ssize_t>{h, w, k});
+    std::copy(frame_.cand_count.begin(), frame_.cand_count.end(), count.mutable_data());
+    std::copy(frame_.cand_depth.begin(), frame_.cand_depth.end(), depth.mutable_data());
+    std::copy(frame_.cand_view.begin(), frame_.cand_view.end(), view.mutable_data());
+    py::dict out;
+    out["count"] = count;
+    out["depth"] = depth;
+    out["view"] = view;
+    return out;
+  }
+
+ private:
+  F32 vertices_;
+  I32 faces_, tile_view_, tile_cell_;
+  I64 face_offsets_, coarse_offsets_;
+  std::vector<F32> images_;
+  std::vector<const float*> image_ptrs_;
+  std::vector<std::uint8_t> enabled_;
+  std::vector<Camera> cameras_;
+  PvmTileArrays tiles_;
+  PvmFrame frame_;
+};
+
+}  // namespace
+
+void BindPvmRender(py::module_& m) {
+  py::class_<PvmRendererCore>(m, "PvmRenderer",
+                              "PVM tiles + input views; render() runs cpp/kernels/pvm_render.h's five stages. "
+                              "Not thread-safe: one render at a time per object (it reuses its frame buffers).")
+      .def(py::init<py::handle, py::handle, py::handle, py::handle, py::handle, py::handle, std::vector<double>,
+                    std::vector<double>, int, int, std::vector<Camera>, py::list, py::handle>(),
+           py::arg("vertices"), py::arg("faces"), py::arg("face_offsets"), py::arg("tile_view"), py::arg("tile_cell"),
+           py::arg("coarse_offsets"), py::arg("origin"), py::arg("cell"), py::arg("coarse"), py::arg("sub"),
+           py::arg("cameras"), py::arg("images"), py::arg("enabled"),
+           "Arrays as in tiles.npz (docs/FORMAT.md), tile_view indexing `cameras`; images float32 (H_v, W_v, 3) "
+           "linear RGB per camera; enabled bool (views,): views the renderer may use.")
+      .def("render", &PvmRendererCore::Render, py::arg("camera"), py::arg("gbuffer_depth") = py::none(),
+           py::arg("pixel_mask") = py::none(), py::arg("filtered") = true, py::arg("sigma") = 3.f,
+           py::arg("alpha") = 7.f, py::arg("gamma") = 7.f, py::arg("tau_depth") = 0.83f, py::arg("max_tiles") = 12,
+           py::arg("max_candidates") = 12, py::arg("ulr_k") = 4, py::arg("merge_rel") = 0.02f,
+           py::arg("radius_sigmas") = 2.f, py::arg("margin") = 1, py::arg("near") = 1e-3f,
+           py::arg("cull_back") = true, py::arg("max_angle") = 180.f,
+           "dict: color (H, W, 3), depth (H, W) (Eq. 2 vote), vote (H, W), valid, inside_grid (H, W) bool, "
+           "times_ms per stage, visible_coarse, tiles, triangles.")
+      .def("candidates", &PvmRendererCore::Candidates, py::arg("height"), py::arg("width"),
+           py::arg("max_candidates") = 12, "The last frame's per-pixel candidate lists (count, depth, view).");
+}
+
+}  // namespace ibr::bind

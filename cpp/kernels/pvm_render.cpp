@@ -1,0 +1,616 @@
+// PVM rendering with clustered depth filtering: see pvm_render.h for the contract.
+#include "kernels/pvm_render.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <limits>
+
+#include "ibr/parallel.h"
+#include "kernels/ulr.h"
+
+namespace ibr {
+namespace {
+
+inline std::int64_t CoarseCount(const PvmGrid& g) {
+  return static_cast<std::int64_t>(g.coarse) * g.coarse * g.coarse;
+}
+
+// Coarse cell index along one axis of a world coordinate (outer cells extend to infinity).
+inline int CoarseAxis(const PvmGrid& g, int a, double x) {
+  const double f = (x - g.origin[a]) / (g.cell[a] * g.sub);
+  if (!(f >= 0.0)) return 0;  // also NaN
+  if (f >= g.coarse - 1) return g.coarse - 1;
+  return static_cast<int>(f);
+}
+
+inline glm::vec3 Centre(const Camera& c) { return glm::vec3(c.CentreInWorld()); }
+
+// Bilinear read of an (h, w, 3) image at continuous image coordinates (pixel centres at +0.5),
+// clamped to the image.
+inline void Sample(const float* img, int w, int h, double x, double y, float* out) {
+  double sx = x - 0.5, sy = y - 0.5;
+  sx = std::min(std::max(sx, 0.0), static_cast<double>(w - 1));
+  sy = std::min(std::max(sy, 0.0), static_cast<double>(h - 1));
+  const int x0 = std::min(static_cast<int>(sx), w - 1), y0 = std::min(static_cast<int>(sy), h - 1);
+  const int x1 = std::min(x0 + 1, w - 1), y1 = std::min(y0 + 1, h - 1);
+  const float fx = static_cast<float>(sx - x0), fy = static_cast<float>(sy - y0);
+  const float* a = img + (static_cast<std::int64_t>(y0) * w + x0) * 3;
+  const float* b = img + (static_cast<std::int64_t>(y0) * w + x1) * 3;
+  const float* c = img + (static_cast<std::int64_t>(y1) * w + x0) * 3;
+  const float* d = img + (static_cast<std::int64_t>(y1) * w + x1) * 3;
+  for (int k = 0; k < 3; ++k) {
+    const float top = a[k] + fx * (b[k] - a[k]);
+    const float bot = c[k] + fx * (d[k] - c[k]);
+    out[k] = top + fy * (bot - top);
+  }
+}
+
+struct Tri {
+  double x[3], y[3];
+  float iz[3];
+  std::int16_t view;
+  std::uint8_t rank;
+  int row0, row1;  // rows [row0, row1] whose centres may be covered
+  int col0, col1;
+};
+
+// The edge a->b owns its pixels exactly on it when it is a "top-left" edge under this one
+// consistent rule; the reversed edge of a neighbour gets the complement (watertight).
+inline bool OwnsEdge(double dx, double dy) { return dy > 0.0 || (dy == 0.0 && dx < 0.0); }
+
+}  // namespace
+
+void PvmVisibleCoarse(const PvmGrid& grid, const Camera& camera, const float* gbuffer_depth, int margin,
+                      std::vector<std::uint8_t>& visible) {
+  const int c = grid.coarse;
+  const std::int64_t n = CoarseCount(grid);
+  visible.assign(static_cast<std::size_t>(n), 0);
+  const int h = camera.height, w = camera.width;
+  if (gbuffer_depth == nullptr) {
+    // Frustum planes through the centre (pinhole): fx X + cx Z >= 0, fx X + (cx - W) Z <= 0, same in y.
+    const glm::dmat3 rt = glm::transpose(camera.rot);
+    (void)rt;
+    ParallelFor(n, 256, [&](std::int64_t b, std::int64_t e) {
+      for (std::int64_t id = b; id < e; ++id) {
+        const int cx = static_cast<int>(id % c), cy = static_cast<int>((id / c) % c), cz = static_cast<int>(id / (c * c));
+        const int idx[3] = {cx, cy, cz};
+        double lo[3], hi[3];
+        for (int a = 0; a < 3; ++a) {
+          lo[a] = grid.origin[a] + static_cast<double>(idx[a]) * grid.sub * grid.cell[a];
+          hi[a] = lo[a] + grid.sub * grid.cell[a];
+        }
+        int out[5] = {0, 0, 0, 0, 0};
+        for (int k = 0; k < 8; ++k) {
+          const glm::dvec3 p((k & 1) ? hi[0] : lo[0], (k & 2) ? hi[1] : lo[1], (k & 4) ? hi[2] : lo[2]);
+          const glm::dvec3 q = camera.CamFromWorld(p);
+          out[0] += q.z <= 0.0;
+          out[1] += camera.fx * q.x + camera.cx * q.z < 0.0;
+          out[2] += camera.fx * q.x + (camera.cx - w) * q.z > 0.0;
+          out[3] += camera.fy * q.y + camera.cy * q.z < 0.0;
+          out[4] += camera.fy * q.y + (camera.cy - h) * q.z > 0.0;
+        }
+        bool culled = false;
+        for (int k = 0; k < 5; ++k) culled = culled || out[k] == 8;
+        visible[static_cast<std::size_t>(id)] = culled ? 0 : 1;
+      }
+    });
+    return;
+  }
+  // Mark the cells of the G-buffer's surface points: per band of rows a list of cells, merged in
+  // band order (the marks are the same whatever the order; lists keep the writes race-free).
+  const int band = 16;
+  const int nb = (h + band - 1) / band;
+  std::vector<std::vector<std::int32_t>> lists(static_cast<std::size_t>(nb));
+  ParallelFor(nb, 1, [&](std::int64_t b0, std::int64_t b1) {
+    for (std::int64_t b = b0; b < b1; ++b) {
+      auto& out = lists[static_cast<std::size_t>(b)];
+      std::int32_t last = -1;
+      const int y0 = static_cast<int>(b) * band, y1 = std::min(h, y0 + band);
+      for (int y = y0; y < y1; ++y) {
+        for (int x = 0; x < w; ++x) {
+          const float z = gbuffer_depth[static_cast<std::int64_t>(y) * w + x];
+          if (!(z > 0.f) || !std::isfinite(z)) continue;
+          const glm::dvec3 pc = camera.RayInCam(x + 0.5, y + 0.5) * static_cast<double>(z);
+          const glm::dvec3 p = camera.WorldFromCamDir(pc) + camera.CentreInWorld();
+          const std::int32_t id = (CoarseAxis(grid, 2, p.z) * c + CoarseAxis(grid, 1, p.y)) * c + CoarseAxis(grid, 0, p.x);
+          if (id != last) out.push_back(id);
+          last = id;
+        }
+      }
+    }
+  });
+  std::vector<std::uint8_t> hit(static_cast<std::size_t>(n), 0);
+  for (const auto& l : lists)
+    for (std::int32_t id : l) hit[static_cast<std::size_t>(id)] = 1;
+  for (std::int64_t id = 0; id < n; ++id) {
+    if (!hit[static_cast<std::size_t>(id)]) continue;
+    const int cx = static_cast<int>(id % c), cy = static_cast<int>((id / c) % c), cz = static_cast<int>(id / (c * c));
+    for (int z = std::max(0, cz - margin); z <= std::min(c - 1, cz + margin); ++z)
+      for (int y = std::max(0, cy - margin); y <= std::min(c - 1, cy + margin); ++y)
+        for (int x = std::max(0, cx - margin); x <= std::min(c - 1, cx + margin); ++x)
+          visible[static_cast<std::size_t>((static_cast<std::int64_t>(z) * c + y) * c + x)] = 1;
+  }
+}
+
+void PvmSelectTiles(const PvmTileArrays& tiles, const PvmViews& views, const std::vector<std::uint8_t>& visible,
+                    const Camera& camera, const PvmRenderOptions& options, PvmFrame& frame) {
+  const std::int64_t n = CoarseCount(tiles.grid);
+  const std::int64_t chunk = 64;
+  const std::int64_t nchunks = (n + chunk - 1) / chunk;
+  std::vector<std::vector<std::int64_t>> kept(static_cast<std::size_t>(nchunks));
+  std::vector<std::vector<std::uint8_t>> ranks(static_cast<std::size_t>(nchunks));
+  const glm::vec3 c_novel = Centre(camera);
+  std::vector<glm::vec3> centres(static_cast<std::size_t>(views.count));
+  for (int v = 0; v < views.count; ++v) centres[static_cast<std::size_t>(v)] = Centre(views.cameras[v]);
+  const PvmGrid& g = tiles.grid;
+  const int k = std::max(1, options.max_tiles);
+  ParallelFor(nchunks, 1, [&](std::int64_t b0, std::int64_t b1) {
+    std::vector<float> pen;
+    std::vector<std::int64_t> ids;
+    std::vector<int> index(static_cast<std::size_t>(k));
+    std::vector<float> weight(static_cast<std::size_t>(k));
+    for (std::int64_t ch = b0; ch < b1; ++ch) {
+      auto& out = kept[static_cast<std::size_t>(ch)];
+      auto& out_rank = ranks[static_cast<std::size_t>(ch)];
+      for (std::int64_t cell = ch * chunk; cell < std::min(n, (ch + 1) * chunk); ++cell) {
+        if (!visible[static_cast<std::size_t>(cell)]) continue;
+        std::int64_t t = tiles.coarse_offsets[cell];
+        const std::int64_t t_end = tiles.coarse_offsets[cell + 1];
+        while (t < t_end) {
+          // One fine cell: tiles t .. u-1.
+          const std::int32_t* fc = tiles.tile_cell + 3 * t;
+          std::int64_t u = t + 1;
+          while (u < t_end && tiles.tile_cell[3 * u] == fc[0] && tiles.tile_cell[3 * u + 1] == fc[1] &&
+                 tiles.tile_cell[3 * u + 2] == fc[2])
+            ++u;
+          const glm::vec3 centre(static_cast<float>(g.origin[0] + (fc[0] + 0.5) * g.cell[0]),
+                                 static_cast<float>(g.origin[1] + (fc[1] + 0.5) * g.cell[1]),
+                                 static_cast<float>(g.origin[2] + (fc[2] + 0.5) * g.cell[2]));
+          pen.clear();
+          ids.clear();
+          for (std::int64_t s = t; s < u; ++s) {
+            const int v = tiles.tile_view[s];
+            if (!views.enabled[v]) continue;
+            if (options.max_angle < 3.1415926f) {
+              const glm::vec3 a = centres[static_cast<std::size_t>(v)] - centre, b = c_novel - centre;
+              if (std::atan2(glm::length(glm::cross(a, b)), glm::dot(a, b)) > options.max_angle) continue;
+            }
+            ids.push_back(s);
+            pen.push_back(UlrPenalty(centre, c_novel, centres[static_cast<std::size_t>(v)], options.resolution_weight));
+          }
+          const int m = UlrSelect(pen.data(), static_cast<int>(pen.size()), k, index.data(), weight.data());
+          for (int r = 0; r < m; ++r) {
+            out.push_back(ids[static_cast<std::size_t>(index[static_cast<std::size_t>(r)])]);
+            out_rank.push_back(static_cast<std::uint8_t>(r));
+          }
+          t = u;
+        }
+      }
+    }
+  });
+  frame.tiles.clear();
+  frame.tile_rank.clear();
+  for (std::int64_t ch = 0; ch < nchunks; ++ch) {
+    frame.tiles.insert(frame.tiles.end(), kept[static_cast<std::size_t>(ch)].begin(), kept[static_cast<std::size_t>(ch)].end());
+    frame.tile_rank.insert(frame.tile_rank.end(), ranks[static_cast<std::size_t>(ch)].begin(),
+                           ranks[static_cast<std::size_t>(ch)].end());
+  }
+}
+
+void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camera& camera,
+                  const PvmRenderOptions& options, PvmFrame& frame) {
+  const int h = camera.height, w = camera.width;
+  const int K = std::min(std::max(1, options.max_candidates), kPvmMaxCandidates);
+  const std::int64_t npix = static_cast<std::int64_t>(h) * w;
+  frame.cand_depth.resize(static_cast<std::size_t>(npix * K));
+  frame.cand_view.resize(static_cast<std::size_t>(npix * K));
+  frame.cand_rank.resize(static_cast<std::size_t>(npix * K));
+  frame.cand_count.resize(static_cast<std::size_t>(npix));
+  const glm::dvec3 c_novel = camera.CentreInWorld();
+  std::vector<glm::dvec3> view_centres(static_cast<std::size_t>(views.count));
+  for (int v = 0; v < views.count; ++v) view_centres[static_cast<std::size_t>(v)] = views.cameras[v].CentreInWorld();
+
+  // Triangle setup, per chunk of kept tiles, concatenated in tile order.
+  const std::int64_t nt = static_cast<std::int64_t>(frame.tiles.size());
+  const std::int64_t chunk = 32;
+  const std::int64_t nchunks = (nt + chunk - 1) / chunk;
+  std::vector<std::vector<Tri>> setup(static_cast<std::size_t>(nchunks));
+  ParallelFor(nchunks, 1, [&](std::int64_t b0, std::int64_t b1) {
+    for (std::int64_t ch = b0; ch < b1; ++ch) {
+      auto& out = setup[static_cast<std::size_t>(ch)];
+      out.clear();
+      for (std::int64_t i = ch * chunk; i < std::min(nt, (ch + 1) * chunk); ++i) {
+        const std::int64_t t = frame.tiles[static_cast<std::size_t>(i)];
+        const int view = tiles.tile_view[t];
+        for (std::int64_t f = tiles.face_offsets[t]; f < tiles.face_offsets[t + 1]; ++f) {
+          glm::dvec3 pw[3];
+          Tri tri;
+          bool ok = true;
+          for (int k = 0; k < 3; ++k) {
+            const float* v = tiles.vertices + 3 * static_cast<std::int64_t>(tiles.faces[3 * f + k]);
+            pw[k] = glm::dvec3(v[0], v[1], v[2]);
+            const glm::dvec3 q = camera.CamFromWorld(pw[k]);
+            if (!(q.z >= options.near)) {
+              ok = false;
+              break;
+            }
+            tri.x[k] = camera.fx * q.x / q.z + camera.cx;
+            tri.y[k] = camera.fy * q.y / q.z + camera.cy;
+            tri.iz[k] = static_cast<float>(1.0 / q.z);
+          }
+          if (!ok) continue;
+          if (options.cull_back) {
+            // Outward normal cross(b - a, c - a) faces the triangle's own view (pvm.h).
+            const glm::dvec3 nrm = glm::cross(pw[1] - pw[0], pw[2] - pw[0]);
+            if (!(glm::dot(nrm, c_novel - pw[0]) > 0.0)) continue;
+          }
+          const double xmin = std::min({tri.x[0], tri.x[1], tri.x[2]}), xmax = std::max({tri.x[0], tri.x[1], tri.x[2]});
+          const double ymin = std::min({tri.y[0], tri.y[1], tri.y[2]}), ymax = std::max({tri.y[0], tri.y[1], tri.y[2]});
+          // Pixel centres x + 0.5 in [xmin, xmax].
+          const double c0 = std::ceil(xmin - 0.5), c1 = std::floor(xmax - 0.5);
+          const double r0 = std::ceil(ymin - 0.5), r1 = std::floor(ymax - 0.5);
+          if (c1 < 0 || r1 < 0 || c0 > w - 1 || r0 > h - 1 || c0 > c1 || r0 > r1) continue;
+          tri.col0 = static_cast<int>(std::max(c0, 0.0));
+          tri.col1 = static_cast<int>(std::min(c1, static_cast<double>(w - 1)));
+          tri.row0 = static_cast<int>(std::max(r0, 0.0));
+          tri.row1 = static_cast<int>(std::min(r1, static_cast<double>(h - 1)));
+          tri.view = static_cast<std::int16_t>(view);
+          tri.rank = frame.tile_rank[static_cast<std::size_t>(i)];
+          out.push_back(tri);
+        }
+      }
+    }
+  });
+  std::vector<Tri> tris;
+  {
+    std::size_t total = 0;
+    for (const auto& s : setup) total += s.size();
+    tris.reserve(total);
+    for (const auto& s : setup) tris.insert(tris.end(), s.begin(), s.end());
+  }
+  frame.triangles = static_cast<std::int64_t>(tris.size());
+  // Bin into bands (in triangle order).
+  const int nb = (h + kBandRows - 1) / kBandRows;
+  std::vector<std::int64_t> start(static_cast<std::size_t>(nb) + 1, 0);
+  for (const Tri& t : tris)
+    for (int b = t.row0 / kBandRows; b <= t.row1 / kBandRows; ++b) ++start[static_cast<std::size_t>(b) + 1];
+  for (int b = 0; b < nb; ++b) start[static_cast<std::size_t>(b) + 1] += start[static_cast<std::size_t>(b)];
+  std::vector<std::int32_t> binned(static_cast<std::size_t>(start[static_cast<std::size_t>(nb)]));
+  {
+    std::vector<std::int64_t> fill(start.begin(), start.end() - 1);
+    for (std::size_t i = 0; i < tris.size(); ++i)
+      for (int b = tris[i].row0 / kBandRows; b <= tris[i].row1 / kBandRows; ++b)
+        binned[static_cast<std::size_t>(fill[static_cast<std::size_t>(b)]++)] = static_cast<std::int32_t>(i);
+  }
+  float* cd = frame.cand_depth.data();
+  std::int16_t* cv = frame.cand_view.data();
+  std::uint8_t* cr = frame.cand_rank.data();
+  std::uint8_t* cc = frame.cand_count.data();
+  ParallelFor(nb, 1, [&](std::int64_t b0, std::int64_t b1) {
+    for (std::int64_t b = b0; b < b1; ++b) {
+      const int y0 = static_cast<int>(b) * kBandRows, y1 = std::min(h, y0 + kBandRows);
+      std::memset(cc + static_cast<std::int64_t>(y0) * w, 0, static_cast<std::size_t>(y1 - y0) * w);
+      for (std::int64_t q = start[static_cast<std::size_t>(b)]; q < start[static_cast<std::size_t>(b) + 1]; ++q) {
+        const Tri& t = tris[static_cast<std::size_t>(binned[static_cast<std::size_t>(q)])];
+        int i0 = 0, i1 = 1, i2 = 2;
+        double area = (t.x[1] - t.x[0]) * (t.y[2] - t.y[0]) - (t.x[2] - t.x[0]) * (t.y[1] - t.y[0]);
+        if (area == 0.0 || !std::isfinite(area)) continue;
+        if (area < 0.0) {
+          std::swap(i1, i2);
+          area = -area;
+        }
+        const double ax = t.x[i0], ay = t.y[i0], bx = t.x[i1], by = t.y[i1], qx = t.x[i2], qy = t.y[i2];
+        const float iza = t.iz[i0], izb = t.iz[i1], izc = t.iz[i2];
+        // Edges: e0 = b->c (weight of a), e1 = c->a (weight of b), e2 = a->b (weight of c).
+        const bool own0 = OwnsEdge(qx - bx, qy - by), own1 = OwnsEdge(ax - qx, ay - qy), own2 = OwnsEdge(bx - ax, by - ay);
+        const double inv = 1.0 / area;
+        const int ya = std::max(t.row0, y0), yb = std::min(t.row1, y1 - 1);
+        for (int y = ya; y <= yb; ++y) {
+          const double py = y + 0.5;
+          for (int x = t.col0; x <= t.col1; ++x) {
+            const double px = x + 0.5;
+            const double e0 = (qx - bx) * (py - by) - (qy - by) * (px - bx);
+            const double e1 = (ax - qx) * (py - qy) - (ay - qy) * (px - qx);
+            const double e2 = (bx - ax) * (py - ay) - (by - ay) * (px - ax);
+            // Positive area: inside where all e >= 0 (in y-down image coordinates).
+            if (e0 < 0.0 || e1 < 0.0 || e2 < 0.0) continue;
+            if ((e0 == 0.0 && !own0) || (e1 == 0.0 && !own1) || (e2 == 0.0 && !own2)) continue;
+            const float iz = static_cast<float>((e0 * iza + e1 * izb + e2 * izc) * inv);
+            if (!(iz > 0.f)) continue;
+            const float z = 1.f / iz;
+            const std::int64_t p = static_cast<std::int64_t>(y) * w + x;
+            float* pd = cd + p * K;
+            std::int16_t* pv = cv + p * K;
+            std::uint8_t* pr = cr + p * K;
+            const int n = cc[p];
+            int s = 0;
+            while (s < n && pv[s] != t.view) ++s;
+            if (s < n) {
+              if (z < pd[s]) {
+                pd[s] = z;
+                pr[s] = t.rank;
+              }
+            } else if (n < K) {
+              pd[n] = z;
+              pv[n] = t.view;
+              pr[n] = t.rank;
+              cc[p] = static_cast<std::uint8_t>(n + 1);
+            } else {
+              int worst = 0;
+              for (int j = 1; j < n; ++j)
+                if (pr[j] > pr[worst] || (pr[j] == pr[worst] && pv[j] > pv[worst])) worst = j;
+              if (t.rank < pr[worst] || (t.rank == pr[worst] && t.view < pv[worst])) {
+                pd[worst] = z;
+                pv[worst] = t.view;
+                pr[worst] = t.rank;
+              }
+            }
+          }
+        }
+      }
+    }
+  });
+}
+
+void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t* pixel_mask,
+                const PvmRenderOptions& options, PvmFrame& frame) {
+  const int h = camera.height, w = camera.width;
+  const int K = std::min(std::max(1, options.max_candidates), kPvmMaxCandidates);
+  const std::int64_t npix = static_cast<std::int64_t>(h) * w;
+  frame.d_fg.assign(static_cast<std::size_t>(npix), 0.f);
+  frame.d_bg.assign(static_cast<std::size_t>(npix), 0.f);
+  frame.n_fg.assign(static_cast<std::size_t>(npix), 0);
+  frame.n_bg.assign(static_cast<std::size_t>(npix), 0);
+  frame.c_fg.assign(static_cast<std::size_t>(npix * 3), 0.f);
+  frame.c_bg.assign(static_cast<std::size_t>(npix * 3), 0.f);
+  // The filter reads clusters up to R pixels around a masked pixel: resolve the mask dilated by R.
+  std::vector<std::uint8_t> need;
+  if (pixel_mask != nullptr) {
+    const int r = options.filtered ? static_cast<int>(std::ceil(options.radius_sigmas * options.sigma)) : 0;
+    std::vector<std::uint8_t> rows(static_cast<std::size_t>(npix), 0);
+    need.assign(static_cast<std::size_t>(npix), 0);
+    ParallelFor(h, 8, [&](std::int64_t a, std::int64_t b) {
+      for (std::int64_t y = a; y < b; ++y) {
+        int last = -1000000;  // last masked column seen
+        for (int x = 0; x < w; ++x) {
+          if (pixel_mask[y * w + x]) last = x;
+          if (x - last <= r) rows[static_cast<std::size_t>(y * w + x)] = 1;
+        }
+        last = 1000000;
+        for (int x = w - 1; x >= 0; --x) {
+          if (pixel_mask[y * w + x]) last = x;
+          if (last - x <= r) rows[static_cast<std::size_t>(y * w + x)] = 1;
+        }
+      }
+    });
+    ParallelFor(w, 64, [&](std::int64_t a, std::int64_t b) {
+      for (std::int64_t x = a; x < b; ++x) {
+        int last = -1000000;
+        for (int y = 0; y < h; ++y) {
+          if (rows[static_cast<std::size_t>(y * w + x)]) last = y;
+          if (y - last <= r) need[static_cast<std::size_t>(y * w + x)] = 1;
+        }
+        last = 1000000;
+        for (int y = h - 1; y >= 0; --y) {
+          if (rows[static_cast<std::size_t>(y * w + x)]) last = y;
+          if (last - y <= r) need[static_cast<std::size_t>(y * w + x)] = 1;
+        }
+      }
+    });
+  }
+  const glm::dvec3 c_novel_d = camera.CentreInWorld();
+  const glm::vec3 c_novel(c_novel_d);
+  std::vector<glm::vec3> centres(static_cast<std::size_t>(views.count));
+  for (int v = 0; v < views.count; ++v) centres[static_cast<std::size_t>(v)] = Centre(views.cameras[v]);
+  const int ulr_k = std::max(1, options.ulr_k);
+  ParallelFor(h, 4, [&](std::int64_t a, std::int64_t b) {
+    float col[kPvmMaxCandidates][3];
+    float pen[kPvmMaxCandidates];
+    int member[kPvmMaxCandidates];
+    bool bg[kPvmMaxCandidates];
+    std::vector<int> index(static_cast<std::size_t>(ulr_k));
+    std::vector<float> weight(static_cast<std::size_t>(ulr_k));
+    for (std::int64_t y = a; y < b; ++y) {
+      for (int x = 0; x < w; ++x) {
+        const std::int64_t p = y * w + x;
+        if (!need.empty() && !need[static_cast<std::size_t>(p)]) continue;
+        const int n = frame.cand_count[static_cast<std::size_t>(p)];
+        if (n == 0) continue;
+        const float* d = frame.cand_depth.data() + p * K;
+        const std::int16_t* vv = frame.cand_view.data() + p * K;
+        // 2-means on the depths.
+        float lo = d[0], hi = d[0];
+        for (int i = 1; i < n; ++i) {
+          lo = std::min(lo, d[i]);
+          hi = std::max(hi, d[i]);
+        }
+        double m0 = lo, m1 = hi;
+        for (int i = 0; i < n; ++i) bg[i] = false;
+        bool two = hi - lo > options.merge_rel * lo;
+        if (two) {
+          for (int it = 0; it < 16; ++it) {
+            bool changed = false;
+            double s0 = 0, s1 = 0;
+            int k0 = 0, k1 = 0;
+            for (int i = 0; i < n; ++i) {
+              const bool to_bg = std::fabs(d[i] - m1) < std::fabs(d[i] - m0);
+              changed = changed || to_bg != bg[i] || it == 0;
+              bg[i] = to_bg;
+              if (to_bg) {
+                s1 += d[i];
+                ++k1;
+              } else {
+                s0 += d[i];
+                ++k0;
+              }
+            }
+            m0 = s0 / k0;  // k0, k1 >= 1: the smallest depth stays nearer m0, the largest nearer m1
+            m1 = s1 / k1;
+            if (!changed) break;
+          }
+          two = m1 - m0 > options.merge_rel * m0;
+        }
+        if (!two) {
+          double s = 0;
+          for (int i = 0; i < n; ++i) {
+            bg[i] = false;
+            s += d[i];
+          }
+          m0 = s / n;
+        }
+        // Candidate colours and penalties.
+        const glm::dvec3 ray = camera.WorldFromCamDir(camera.RayInCam(x + 0.5, y + 0.5));
+        for (int i = 0; i < n; ++i) {
+          const glm::dvec3 pw = c_novel_d + ray * static_cast<double>(d[i]);
+          const int v = vv[i];
+          const Camera& cam = views.cameras[v];
+          double ix = 0, iy = 0, iz = 0;
+          pen[i] = std::numeric_limits<float>::infinity();
+          col[i][0] = col[i][1] = col[i][2] = 0.f;
+          if (cam.ProjectCam(cam.CamFromWorld(pw), &ix, &iy, &iz)) {
+            Sample(views.images[v], cam.width, cam.height, ix, iy, col[i]);
+            pen[i] = UlrPenalty(glm::vec3(pw), c_novel, centres[static_cast<std::size_t>(v)], options.resolution_weight);
+          }
+        }
+        for (int k = 0; k < (two ? 2 : 1); ++k) {
+          int m = 0;
+          float sub_pen[kPvmMaxCandidates];
+          for (int i = 0; i < n; ++i)
+            if (bg[i] == (k == 1)) {
+              member[m] = i;
+              sub_pen[m++] = pen[i];
+            }
+          float c3[3] = {0.f, 0.f, 0.f};
+          const int sel = UlrSelect(sub_pen, m, ulr_k, index.data(), weight.data());
+          if (sel == 0) {  // no candidate projects into its view: unweighted mean
+            for (int j = 0; j < m; ++j)
+              for (int q = 0; q < 3; ++q) c3[q] += col[member[j]][q] / static_cast<float>(m);
+          } else {
+            for (int j = 0; j < sel; ++j)
+              for (int q = 0; q < 3; ++q) c3[q] += weight[static_cast<std::size_t>(j)] * col[member[index[static_cast<std::size_t>(j)]]][q];
+          }
+          float* out = (k == 0 ? frame.c_fg.data() : frame.c_bg.data()) + 3 * p;
+          out[0] = c3[0];
+          out[1] = c3[1];
+          out[2] = c3[2];
+          if (k == 0) {
+            frame.d_fg[static_cast<std::size_t>(p)] = static_cast<float>(m0);
+            frame.n_fg[static_cast<std::size_t>(p)] = static_cast<std::uint8_t>(m);
+          } else {
+            frame.d_bg[static_cast<std::size_t>(p)] = static_cast<float>(m1);
+            frame.n_bg[static_cast<std::size_t>(p)] = static_cast<std::uint8_t>(m);
+          }
+        }
+      }
+    }
+  });
+}
+
+void PvmFilter(const PvmGrid& grid, const Camera& camera, const std::uint8_t* pixel_mask,
+               const PvmRenderOptions& options, const PvmFrame& frame, float* color, float* depth, float* vote,
+               std::uint8_t* valid, std::uint8_t* inside_grid) {
+  const int h = camera.height, w = camera.width;
+  const int r = static_cast<int>(std::ceil(options.radius_sigmas * options.sigma));
+  const int side = 2 * r + 1;
+  std::vector<float> gauss(static_cast<std::size_t>(side) * side);
+  for (int dy = -r; dy <= r; ++dy)
+    for (int dx = -r; dx <= r; ++dx)
+      gauss[static_cast<std::size_t>((dy + r) * side + dx + r)] =
+          options.sigma > 0.f ? std::exp(-(dx * dx + dy * dy) / (2.f * options.sigma * options.sigma))
+                              : (dx == 0 && dy == 0 ? 1.f : 0.f);
+  double lo[3], hi[3];
+  for (int a = 0; a < 3; ++a) {
+    lo[a] = grid.origin[a];
+    hi[a] = grid.origin[a] + grid.cell[a] * grid.coarse * grid.sub;
+  }
+  const glm::dvec3 c_novel = camera.CentreInWorld();
+  const float* dfg = frame.d_fg.data();
+  const float* dbg = frame.d_bg.data();
+  const std::uint8_t* nfg = frame.n_fg.data();
+  const std::uint8_t* nbg = frame.n_bg.data();
+  ParallelFor(h, 4, [&](std::int64_t a, std::int64_t b) {
+    for (std::int64_t y = a; y < b; ++y) {
+      for (int x = 0; x < w; ++x) {
+        const std::int64_t p = y * w + x;
+        // Ray against the grid's finite box (slabs).
+        const glm::dvec3 dir = camera.WorldFromCamDir(camera.RayInCam(x + 0.5, y + 0.5));
+        double t0 = 0.0, t1 = std::numeric_limits<double>::infinity();
+        for (int k = 0; k < 3; ++k) {
+          if (dir[k] == 0.0) {
+            if (c_novel[k] < lo[k] || c_novel[k] > hi[k]) t1 = -1.0;
+            continue;
+          }
+          double ta = (lo[k] - c_novel[k]) / dir[k], tb = (hi[k] - c_novel[k]) / dir[k];
+          if (ta > tb) std::swap(ta, tb);
+          t0 = std::max(t0, ta);
+          t1 = std::min(t1, tb);
+        }
+        inside_grid[p] = t0 <= t1 ? 1 : 0;
+        float* out = color + 3 * p;
+        out[0] = out[1] = out[2] = 0.f;
+        depth[p] = 0.f;
+        vote[p] = 0.f;
+        valid[p] = 0;
+        if (pixel_mask != nullptr && !pixel_mask[p]) continue;
+        const int n0 = nfg[p], n1 = nbg[p];
+        if (n0 == 0) continue;
+        valid[p] = 1;
+        const float* c0 = frame.c_fg.data() + 3 * p;
+        const float* c1 = frame.c_bg.data() + 3 * p;
+        if (n1 == 0) {
+          out[0] = c0[0];
+          out[1] = c0[1];
+          out[2] = c0[2];
+          depth[p] = dfg[p];
+          vote[p] = 1.f;
+          continue;
+        }
+        // Eq. 2 vote.
+        const bool pick_bg = static_cast<float>(n1) >= options.tau_depth * static_cast<float>(n0);
+        depth[p] = pick_bg ? dbg[p] : dfg[p];
+        vote[p] = static_cast<float>(pick_bg ? n1 : n0) / static_cast<float>(n0 + n1);
+        if (!options.filtered) {
+          out[0] = c0[0];
+          out[1] = c0[1];
+          out[2] = c0[2];
+          continue;
+        }
+        // Eq. 1.
+        const float di0 = dfg[p], di1 = dbg[p];
+        double w0 = 0.0, w1 = 0.0;
+        const int ya = std::max<int>(0, static_cast<int>(y) - r), yb = std::min<int>(h - 1, static_cast<int>(y) + r);
+        const int xa = std::max(0, x - r), xb = std::min(w - 1, x + r);
+        for (int yy = ya; yy <= yb; ++yy) {
+          const float* grow = gauss.data() + static_cast<std::size_t>((yy - static_cast<int>(y) + r) * side + r - x);
+          for (int xx = xa; xx <= xb; ++xx) {
+            const std::int64_t q = static_cast<std::int64_t>(yy) * w + xx;
+            const float g = grow[xx];
+            if (nfg[q]) {
+              const float gn = g * nfg[q];
+              w0 += gn * std::exp(-options.alpha * std::fabs(dfg[q] - di0));
+              w1 += gn * std::exp(-options.alpha * std::fabs(dfg[q] - di1));
+            }
+            if (nbg[q]) {
+              const float gn = g * nbg[q];
+              w0 += gn * std::exp(-options.alpha * std::fabs(dbg[q] - di0));
+              w1 += gn * std::exp(-options.alpha * std::fabs(dbg[q] - di1));
+            }
+          }
+        }
+        // W0^g / (W0^g + W1^g) through the ratio (no overflow for large gamma).
+        double a1 = 0.0;
+        if (w0 > 0.0 && w1 > 0.0) {
+          const double t = std::exp(options.gamma * std::log(w1 / w0));
+          a1 = std::isfinite(t) ? t / (1.0 + t) : 1.0;
+        } else if (w1 > 0.0) {
+          a1 = 1.0;
+        }
+        const float f1 = static_cast<float>(a1), f0 = 1.f - f1;
+        for (int k = 0; k < 3; ++k) out[k] = f0 * c0[k] + f1 * c1[k];
+      }
+    }
+  });
+}
+
+}  // namespace ibr

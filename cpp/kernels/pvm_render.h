@@ -1,0 +1,130 @@
+// Rendering per-view meshes (PVM) stored as tiles of the two-level voxel grid, with clustered
+// depth filtering (Prakash et al. 2021, "Hybrid Image-based Rendering for Free-view Synthesis",
+// sec. 5.1-5.2 and Eq. 1-2). The tiles come from the preprocessing stage (cpp/kernels/pvm.h,
+// docs/preprocess.md); Python front: python/ibrtools/hybrid/pvm_render.py; docs/pvm_render.md.
+//
+// Stages of one frame (each a function below; the binding times them separately):
+//  1. PvmVisibleCoarse  "voxel lookup": coarse cells that hold visible surface. With a G-buffer
+//     (z of the global mesh per pixel, 0 = no hit) every hit pixel is unprojected and its coarse
+//     cell marked, then the marks are dilated by `margin` cells (a 1-cell margin catches surface
+//     the global mesh misses just in front of / behind what it has). Without one, every coarse
+//     cell whose finite box is not entirely outside one plane of the camera frustum.
+//  2. PvmSelectTiles    "tile sort": per fine cell of a visible coarse cell, the tiles of enabled
+//     views ranked by the ULR penalty (ulr.h) of their view for the fine cell's centre and the
+//     novel camera; the best `max_tiles` are kept with their rank 0..max_tiles-1. Views whose
+//     angle at the cell centre (between the rays to the view and to the novel camera) exceeds
+//     max_angle are left out: with a sparse capture "the top 12" would otherwise include views
+//     from the far side, which see the background behind what the novel camera sees.
+//  3. PvmRasterise      "per-view depth pass": the kept tiles' triangles rasterised into per-pixel
+//     candidate lists of at most `max_candidates` entries (z, view, rank). Pixel centres at
+//     +0.5, top-left fill rule, z interpolated perspective-correctly (1/z affine in the screen).
+//     One entry per view and pixel holding that view's nearest fragment (a per-view depth test);
+//     a new view arriving at a full list replaces the entry of the worst (rank, view) when its
+//     own is better. Back faces (seen from the other side than from their own view) and
+//     triangles with a vertex closer than `near` are skipped (no near-plane clipping). The image
+//     is cut into bands of kBandRows rows, triangles are binned in tile order, each band is
+//     rasterised by one task in that order: results are identical for any thread count.
+//  4. PvmCluster        "cluster & blend": per pixel 2-means on the candidate depths
+//     (initialised at the smallest and largest; assignment to the nearer mean, ties to the
+//     foreground; at most 16 iterations), merged into one cluster when the two means differ by
+//     at most merge_rel * the foreground mean (identical depths -> one cluster). Per cluster the
+//     ULR-weighted colour of its candidates (UlrSelect with k = ulr_k over the candidates'
+//     penalties at their own surface points); a candidate's colour is its view's image sampled
+//     bilinearly at the projection of the candidate's surface point (projective texturing of the
+//     PVM by its own image).
+//  5. PvmFilter         "spatial filter": Eq. 1, W_{i,k} = sum_{j in Omega_i} sum_{k'} G_sigma(i, j)
+//     exp(-alpha |d_{j,k'} - d_{i,k}|) #N_{j,k'} (the paper writes d_{j,k'} - d_{i,k}; the
+//     absolute value makes the falloff symmetric), Omega_i the (2R+1)^2 window with
+//     R = ceil(radius_sigmas * sigma); colour = sum_k W^gamma c_k / sum_k W^gamma. Depth by the
+//     vote of Eq. 2: d_bg when #bg >= tau_depth * #fg, else d_fg; vote = the winning cluster's
+//     share of the candidates. filtered = false: the foreground cluster's colour (PVM-H-like
+//     baseline without the spatial filter). Pixels with one cluster take its colour either way.
+//
+// Kernels trust their inputs (the binding cpp/bindings/pvm_render.cpp checks them) and never
+// throw; buffers live in PvmFrame, reused from frame to frame.
+#pragma once
+#include <cstdint>
+#include <vector>
+
+#include "ibr/camera.h"
+#include "kernels/pvm.h"
+
+namespace ibr {
+
+constexpr int kPvmMaxCandidates = 16;  // hard limit of the per-pixel candidate list
+constexpr int kBandRows = 16;          // rasteriser band height
+
+// Read-only views of the tiles.npz arrays (docs/FORMAT.md "cache/pvm").
+struct PvmTileArrays {
+  const float* vertices = nullptr;            // (V, 3) world
+  const std::int32_t* faces = nullptr;        // (F, 3) indices into vertices
+  const std::int64_t* face_offsets = nullptr; // (T + 1,)
+  const std::int32_t* tile_view = nullptr;    // (T,) index into the views
+  const std::int32_t* tile_cell = nullptr;    // (T, 3) fine cell
+  const std::int64_t* coarse_offsets = nullptr;  // (coarse^3 + 1,)
+  std::int64_t num_tiles = 0;
+  PvmGrid grid{};
+};
+
+// The input views the tiles refer to: cameras, linear RGB float images (H_v, W_v, 3) and which
+// views may be used (held-out views are disabled).
+struct PvmViews {
+  int count = 0;
+  const Camera* cameras = nullptr;
+  const float* const* images = nullptr;
+  const std::uint8_t* enabled = nullptr;
+};
+
+struct PvmRenderOptions {
+  int max_tiles = 12;        // tiles kept per fine voxel (paper: 12)
+  int max_candidates = 12;   // candidates per pixel (<= kPvmMaxCandidates)
+  int margin = 1;            // dilation of the G-buffer's coarse cells, in cells
+  int ulr_k = 4;             // ULR k within a cluster (weight 0 at the k-th)
+  float resolution_weight = 0.5f;  // ULR resolution penalty weight (ulr.h)
+  float max_angle = 3.15f;   // radians: a view whose ray to the fine cell's centre makes a larger angle
+                             // with the novel camera's is not ranked for that cell (> pi: no limit)
+  float near = 1e-3f;        // triangles with a vertex at z < near are skipped (scene units)
+  bool cull_back = true;     // skip triangles seen from their back
+  float merge_rel = 0.02f;   // one cluster when |d_bg - d_fg| <= merge_rel * d_fg
+  float sigma = 3.f;         // Eq. 1 spatial Gaussian, pixels
+  float alpha = 7.f;         // Eq. 1 depth falloff per scene unit
+  float gamma = 7.f;         // cluster blend power
+  float radius_sigmas = 2.f; // filter window radius R = ceil(radius_sigmas * sigma)
+  float tau_depth = 0.83f;   // Eq. 2
+  bool filtered = true;
+};
+
+// Per-frame buffers (sized by the functions).
+struct PvmFrame {
+  std::vector<std::uint8_t> visible;      // (coarse^3,)
+  std::vector<std::int64_t> tiles;        // kept tiles in (coarse cell, fine cell, rank) order
+  std::vector<std::uint8_t> tile_rank;    // rank of each kept tile in its fine cell
+  std::vector<float> cand_depth;          // (H * W * K)
+  std::vector<std::int16_t> cand_view;
+  std::vector<std::uint8_t> cand_rank;
+  std::vector<std::uint8_t> cand_count;   // (H * W)
+  std::vector<float> d_fg, d_bg;          // (H * W) cluster mean depths
+  std::vector<std::uint8_t> n_fg, n_bg;   // cluster sizes (0 = none)
+  std::vector<float> c_fg, c_bg;          // (H * W * 3) cluster colours
+  std::int64_t triangles = 0;             // rasterised triangles (after culling) of the last frame
+};
+
+// Stage 1. gbuffer_depth (H, W) z or nullptr; visible gets coarse^3 bytes (1 = visible).
+void PvmVisibleCoarse(const PvmGrid& grid, const Camera& camera, const float* gbuffer_depth, int margin,
+                      std::vector<std::uint8_t>& visible);
+// Stage 2.
+void PvmSelectTiles(const PvmTileArrays& tiles, const PvmViews& views, const std::vector<std::uint8_t>& visible,
+                    const Camera& camera, const PvmRenderOptions& options, PvmFrame& frame);
+// Stage 3. camera must be pinhole.
+void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camera& camera,
+                  const PvmRenderOptions& options, PvmFrame& frame);
+// Stage 4. pixel_mask (H, W) or nullptr = all pixels.
+void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t* pixel_mask,
+                const PvmRenderOptions& options, PvmFrame& frame);
+// Stage 5. Outputs (H, W, 3) color, (H, W) depth, vote, valid and inside_grid; pixels outside
+// the mask or without candidates get colour 0, depth 0, vote 0, valid 0.
+void PvmFilter(const PvmGrid& grid, const Camera& camera, const std::uint8_t* pixel_mask,
+               const PvmRenderOptions& options, const PvmFrame& frame, float* color, float* depth, float* vote,
+               std::uint8_t* valid, std::uint8_t* inside_grid);
+
+}  // namespace ibr

@@ -1,0 +1,211 @@
+"""Rendering per-view meshes (PVM) with clustered depth filtering (Prakash et al. 2021, sec. 5.1-5.2,
+Eq. 1-2). docs/pvm_render.md; C++: cpp/kernels/pvm_render.h (five stages, GIL released).
+
+:class:`PvmRenderer` loads the PVM tiles of the ``pvm`` preprocessing stage (tiles.npz) and the
+input images (the ``harmonise`` stage's images when that stage ran, else the originals). Tiles of
+views that are not in the scene given (held-out views) are never used. :meth:`PvmRenderer.render`
+gives a :class:`PvmResult`:
+
+* visible coarse voxels from ``gbuffer_depth`` (the global mesh's z per pixel, 0 = no hit; the
+  coarse cells of its surface points plus a ``margin`` of 1 cell) or, with None, every coarse cell
+  in the camera frustum;
+* per visible fine voxel its tiles ranked by the ULR penalty of their view (voxel centre, novel
+  camera), the best ``max_tiles`` = 12 kept;
+* those tiles rasterised into per-pixel candidate lists (<= 12: depth, view; the colour is the
+  view's image at the candidate's surface point), one per view (nearest fragment);
+* per pixel 2-means on the candidate depths, ULR-weighted colour per cluster, the spatial filter of
+  Eq. 1 and the gamma-power blend (``filtered=True``), or the foreground cluster's colour
+  (``filtered=False``: the unfiltered PVM-H-like baseline);
+* depth by the vote of Eq. 2 (``tau_depth``) for the hybrid method's geometric test.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..camera import PINHOLE, Camera
+from ..errors import BadValueError, DtypeError, InputError, MissingFileError, NotBuiltError, ShapeError
+from ..render import params as P
+from ..scene import Scene
+from .pvm import PvmTiles
+
+# Defaults: sigma, alpha, gamma, tau_depth from the paper's sweep (sec. 7); max_tiles 12 (sec. 5.1);
+# max_candidates 12 (per-pixel list); ulr_k 4 as the ULR method (weight 0 at the 4th, ulr.h);
+# merge_rel 0.02: two clusters closer than 2 % of the depth are one surface (below the PVM stage's
+# 3 % discontinuity cut, above the 0.5 % depth noise of the synthetic scenes); radius_sigmas 2:
+# the Eq. 1 window is (2 * ceil(2 sigma) + 1)^2 = 13 x 13 px for sigma = 3 (Gaussian weight at
+# its edge 0.135); margin 1 coarse cell around the G-buffer's cells; near 1e-3 scene units.
+DEFAULTS = {"sigma": 3.0, "alpha": 7.0, "gamma": 7.0, "tau_depth": 0.83, "max_tiles": 12,
+            "max_candidates": 12, "ulr_k": 4, "merge_rel": 0.02, "radius_sigmas": 2.0, "margin": 1,
+            "near": 1e-3, "cull_back": True, "max_angle": 180.0, "filtered": True}
+
+STAGE_NAMES = {"voxel_lookup": "voxel lookup", "tile_sort": "tile sort",
+               "per_view_depth_pass": "per-view depth pass", "cluster_blend": "cluster & blend",
+               "spatial_filter": "spatial filter"}
+
+
+def check_params(params: dict | None) -> dict:
+    """Validated PVM parameters with defaults (BadValueError naming the parameter)."""
+    p = P.with_defaults("pvm", params, DEFAULTS)
+    p["sigma"] = P.number(p["sigma"], "--param sigma", 0.0, strict=True, maximum=32.0)
+    p["alpha"] = P.number(p["alpha"], "--param alpha", 0.0)
+    p["gamma"] = P.number(p["gamma"], "--param gamma", 0.0, strict=True)
+    p["tau_depth"] = P.number(p["tau_depth"], "--param tau_depth", 0.0)
+    p["merge_rel"] = P.number(p["merge_rel"], "--param merge_rel", 0.0)
+    p["radius_sigmas"] = P.number(p["radius_sigmas"], "--param radius_sigmas", 0.0)
+    p["near"] = P.number(p["near"], "--param near", 0.0, strict=True)
+    p["max_angle"] = P.number(p["max_angle"], "--param max_angle", 0.0, strict=True, maximum=180.0)
+    p["max_tiles"] = P.integer(p["max_tiles"], "--param max_tiles", 1)
+    p["max_candidates"] = P.integer(p["max_candidates"], "--param max_candidates", 1)
+    p["ulr_k"] = P.integer(p["ulr_k"], "--param ulr_k", 1)
+    p["margin"] = P.integer(p["margin"], "--param margin", 0)
+    p["cull_back"] = P.boolean(p["cull_back"], "--param cull_back")
+    p["filtered"] = P.boolean(p["filtered"], "--param filtered")
+    if p["max_tiles"] > 255:
+        raise BadValueError(f"--param max_tiles: expected <= 255, got {p['max_tiles']}")
+    if p["max_candidates"] > 16:
+        raise BadValueError(f"--param max_candidates: expected <= 16, got {p['max_candidates']}")
+    if p["margin"] > 32:
+        raise BadValueError(f"--param margin: expected <= 32, got {p['margin']}")
+    if p["sigma"] * p["radius_sigmas"] > 64:
+        raise BadValueError("--param sigma * radius_sigmas: expected <= 64 pixels")
+    return p
+
+
+@dataclass
+class PvmResult:
+    """One PVM frame (arrays (H, W[, 3])): color f32 linear; depth f32 z of the cluster picked by
+    the vote of Eq. 2 (0 where invalid); valid bool (some candidate); vote f32 the winning
+    cluster's share of the candidates; inside_grid bool (the pixel's ray meets the PVM grid's
+    box); times_ms per stage; stats (visible coarse cells, kept tiles, rasterised triangles)."""
+
+    color: np.ndarray
+    depth: np.ndarray
+    valid: np.ndarray
+    vote: np.ndarray
+    inside_grid: np.ndarray
+    times_ms: dict = field(default_factory=dict)
+    stats: dict = field(default_factory=dict)
+
+
+def _preprocess_hint(scene: Scene) -> str:
+    root = scene.root if scene.root is not None else "SCENE"
+    return f"ibr-preprocess {root} -o {root} --methods pvm"
+
+
+def load_tiles(scene: Scene) -> PvmTiles:
+    """The scene's PVM tiles (stage ``pvm``); InputError naming the command when it has none."""
+    from .. import stages
+
+    if scene.root is None:
+        raise InputError(f"PVM rendering needs the scene's pvm stage (tiles.npz); the scene has no directory: "
+                         f"save it and run {_preprocess_hint(scene)}")
+    try:
+        path = stages.stage_output(scene.root, "pvm")
+    except MissingFileError as e:
+        raise InputError(f"PVM rendering needs the pvm stage: {e}; run {_preprocess_hint(scene)}") from None
+    return PvmTiles.load(path)
+
+
+def load_images(scene: Scene) -> dict[str, np.ndarray]:
+    """Input images: the harmonise stage's when it ran, else the views' own colour."""
+    from .. import stages
+
+    harmonised: dict[str, np.ndarray] = {}
+    if scene.root is not None:
+        try:
+            path = stages.stage_output(scene.root, "harmonise")
+        except (MissingFileError, BadValueError):
+            path = None  # skipped (views agree) or not run: the original images
+        if path is not None:
+            with np.load(path, allow_pickle=False) as z:
+                harmonised = {k[len("image/"):]: z[k] for k in z.files if k.startswith("image/")}
+    out = {}
+    for v in scene.views:
+        img = harmonised.get(v.name)
+        if img is None:
+            if not v.has_color:
+                raise InputError(f"PVM rendering needs colour for every input view; {v.name} has none")
+            img = v.color
+        out[v.name] = np.ascontiguousarray(img, np.float32)
+    return out
+
+
+class PvmRenderer:
+    """PVM renderer of a scene (see the module doc). ``tiles`` / ``images`` override what is loaded
+    from the scene's cache (tests build tiles in memory with hybrid.pvm.build_tiles)."""
+
+    def __init__(self, scene: Scene, params: dict | None = None, *, tiles: PvmTiles | None = None,
+                 images: dict[str, np.ndarray] | None = None):
+        from .. import _core
+
+        if not isinstance(scene, Scene):
+            raise DtypeError(f"scene: expected an ibrtools Scene, got {type(scene).__name__}")
+        self.params = check_params(params)
+        if not scene.views:
+            raise InputError("PVM rendering: the scene has no input views")
+        self.tiles = tiles if tiles is not None else load_tiles(scene)
+        if not isinstance(self.tiles, PvmTiles):
+            raise DtypeError(f"tiles: expected hybrid.pvm.PvmTiles, got {type(self.tiles).__name__}")
+        images = images if images is not None else load_images(scene)
+        by_name = {v.name: v for v in scene.views}
+        unknown = [n for n in self.tiles.views if n not in by_name]
+        # Views of the tiles that the scene lacks (held out, or removed) are disabled: their
+        # tiles are never drawn. Their camera/image slots get a stand-in (never read).
+        present = [n for n in self.tiles.views if n in by_name]
+        if not present:
+            raise InputError(f"PVM rendering: none of the tiles' views {self.tiles.views[:5]} is an input view "
+                             f"of the scene; rerun {_preprocess_hint(scene)}")
+        cams, imgs, enabled = [], [], []
+        stand_in = None
+        for n in self.tiles.views:
+            if n in by_name:
+                v = by_name[n]
+                img = images.get(n)
+                if img is None:
+                    raise InputError(f"PVM rendering: no image for view {n}")
+                if img.shape != (v.camera.height, v.camera.width, 3):
+                    raise ShapeError(f"image of {n}: expected (H, W, 3) = "
+                                     f"{(v.camera.height, v.camera.width, 3)}, got {img.shape}")
+                cams.append(v.camera.to_core())
+                imgs.append(np.ascontiguousarray(img, np.float32))
+                enabled.append(True)
+            else:
+                if stand_in is None:
+                    stand_in = (by_name[present[0]].camera.to_core(),
+                                np.ascontiguousarray(images[present[0]], np.float32))
+                cams.append(stand_in[0])
+                imgs.append(stand_in[1])
+                enabled.append(False)
+        self.disabled_views = unknown
+        t = self.tiles
+        self._core = _core.PvmRenderer(
+            t.vertices, t.faces, np.ascontiguousarray(t.face_offsets, np.int64), t.tile_view, t.tile_cell,
+            np.ascontiguousarray(t.coarse_offsets, np.int64), [float(x) for x in t.origin],
+            [float(x) for x in t.cell], int(t.coarse), int(t.sub), cams, imgs, np.array(enabled, bool))
+
+    def render(self, camera: Camera, gbuffer_depth: np.ndarray | None = None,
+               pixel_mask: np.ndarray | None = None, filtered: bool | None = None) -> PvmResult:
+        """One frame (see the module doc). ``filtered`` None = the ``filtered`` parameter."""
+        if not isinstance(camera, Camera):
+            raise DtypeError(f"camera: expected an ibrtools.Camera, got {type(camera).__name__}")
+        if camera.model != PINHOLE:
+            raise NotBuiltError("PVM rendering of an equirect target camera: not built yet (pinhole targets only)")
+        p = self.params
+        filt = p["filtered"] if filtered is None else P.boolean(filtered, "filtered")
+        out = self._core.render(camera.to_core(), gbuffer_depth, pixel_mask, filt, p["sigma"], p["alpha"],
+                                p["gamma"], p["tau_depth"], p["max_tiles"], p["max_candidates"], p["ulr_k"],
+                                p["merge_rel"], p["radius_sigmas"], p["margin"], p["near"], p["cull_back"],
+                                p["max_angle"])
+        times = {STAGE_NAMES[k]: float(v) for k, v in out["times_ms"].items()}
+        stats = {"visible_coarse": int(out["visible_coarse"]), "tiles": int(out["tiles"]),
+                 "triangles": int(out["triangles"])}
+        return PvmResult(color=out["color"], depth=out["depth"], valid=out["valid"], vote=out["vote"],
+                         inside_grid=out["inside_grid"], times_ms=times, stats=stats)
+
+    def candidates(self, camera: Camera) -> dict[str, np.ndarray]:
+        """The last rendered frame's per-pixel candidate lists (count (H, W), depth and view
+        (H, W, K); entries past count unspecified), for tests and inspection."""
+        return self._core.candidates(camera.height, camera.width, self.params["max_candidates"])
