@@ -86,7 +86,7 @@ def highlight_contrast(img, hl) -> float:
     return float(lum[hl].mean() / max(lum[ring].mean(), 1e-6))
 
 
-def synth_case(size, views, jitter, seed, mesh_res) -> dict:
+def synth_case(size, views, jitter, seed, mesh_res, params: HarmoniseParams | None = None) -> dict:
     w, h = size
     sc = make_scene("objects", size=(w, h), views=views, holdout_targets=0, exposure_jitter=jitter,
                     white_balance_jitter=jitter / 3, seed=seed)
@@ -99,7 +99,7 @@ def synth_case(size, views, jitter, seed, mesh_res) -> dict:
     st = vertex_statistics(sc, mesh)
     t_var = time.perf_counter() - t0
     t0 = time.perf_counter()
-    res = harmonise(sc, mesh, st["std"], colors=st["mean"])
+    res = harmonise(sc, mesh, st["std"], params, colors=st["mean"])
     t_harm = time.perf_counter() - t0
 
     # Ground truth: highlight masks and diffuse pixels from renders of the ground-truth mesh.

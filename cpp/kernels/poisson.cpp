@@ -29,7 +29,9 @@ struct Level {
   std::int64_t Size() const { return std::int64_t(h + 2) * stride; }
   void Allocate() {
     stride = w + 2;
-    const std::int64_t n = Size();
+    // One more zero row below the ring: the fused residual-restriction evaluates the stencil at
+    // ring cells of the bottom row (children past an odd-sized grid), which read one row further.
+    const std::int64_t n = Size() + stride;
     m.assign(n, 0);
     diag.assign(n, 0.0f);
     inv_diag.assign(n, 0.0f);

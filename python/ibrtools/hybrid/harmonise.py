@@ -3,44 +3,57 @@ docs/harmonise.md states the energy, the thresholds and where we deviate from th
 
 Per input view, in linear RGB:
 
-1. **Diffuse harmonisation** (sec. 4.1). T = the global mesh's colour rendered into the view
-   (Embree, :class:`~ibrtools.render.reference.ReferenceRenderer` with ambient 1 and no
-   lights: the vertex colours or texture as they are -- the paper's textured mesh, i.e. a blend
-   of the views). Per pixel and channel the scale s = (G * (W T)) / (G * (W I)), G a Gaussian of
-   sigma = ``sigma_frac`` (3 %) of the image's larger side, W the weight of pixels that take part:
-   pixels the mesh covers, minus the saturated ones (luminance in the image's top or bottom
-   ``saturated_pct`` = 2 %) and the view-dependent ones (the variance mesh interpolated into the
-   view exceeds ``vd_variance_frac`` = 10 % of the colour range in any channel). Dividing both
-   blurs by the same G * W is the normalised convolution (Knutsson & Westin 1993): excluded pixels
-   do not bias the ratio. Where no weighted pixel is near (G * W < 1e-3), s is the view's global
-   ratio sum(W T) / sum(W I). Harmonised image Hm = s I.
+1. **Diffuse harmonisation** (sec. 4.1). T = the mesh colour rendered into the view (Embree,
+   :class:`~ibrtools.render.reference.ReferenceRenderer`): by default (``t_source="views"``) the
+   per-vertex mean of the views' colours after each view's global gain is divided out
+   (:func:`~ibrtools.hybrid.variance.vertex_statistics`), interpolated over the visible
+   triangle; ``t_source="mesh"`` uses the mesh's own vertex colours / texture (ambient 1, no
+   lights). Why not the mesh's own colour by default: a ULR-blended texture of differently
+   exposed views has an exposure that varies over the surface with the blend weights, and the
+   harmonised images would inherit it. Per pixel and channel the scale
+   s = (G * (W T)) / (G * (W I)), G a Gaussian of sigma = ``sigma_frac`` (3 %) of the image's
+   larger side, W = 1 for pixels that take part: covered by the mesh, not within ``edge_px`` of a
+   depth discontinuity (T mixes surfaces there), not saturated (luminance in the image's top or
+   bottom ``saturated_pct`` = 2 %), not view-dependent (the variance mesh interpolated into the
+   view exceeds ``vd_variance_frac`` = 10 % of the colour range in a channel). Dividing both blurs
+   by the same G * W is the normalised convolution (Knutsson & Westin 1993): excluded pixels do
+   not bias the ratio. Where no weighted pixel is near (G * W < 1e-3), s is the view's global gain
+   (median of T / I over the weighted pixels). Harmonised image Hm = s I.
 2. **View-dependent mask by graph cut** (sec. 4.2). Binary labels per pixel, 1 = view-dependent
-   (keep the original), 0 = diffuse (the harmonised colour is right). Departure
-   e = max over channels of (Hm - T) / range (how much brighter than the diffuse prediction the
-   pixel is, as a fraction of the colour range: highlights add light). Energy, minimised exactly
-   by :func:`ibrtools.solvers.grid_maxflow` on the 4-connected grid:
+   (keep the original), 0 = diffuse. The diffuse prediction P of a pixel is the per-channel
+   median of the ``neighbours`` (4) nearest views' colours at the pixel's surface point (mesh
+   depth, projected, depth-tested, bilinear), every view corrected by its *global* gain only; a
+   highlight is seen at a point by few views, texture detail by all. Departure
+   e = max over channels of G_1 * (g I - P) / range (g the view's global gain, G_1 a Gaussian of
+   ``departure_blur`` = 1 px, range the inputs' 1st-99th percentile range per channel): how much
+   brighter than the other views the pixel is (highlights add light). Energy, minimised exactly by
+   :func:`ibrtools.solvers.grid_maxflow` (int64 capacities in thousandths of the range):
        E(L) = sum_p [L_p = 0] max(0, e_p - tau) + [L_p = 1] max(0, tau - e_p)
               + lambda sum_{p~q} [L_p != L_q]
-   (tau = ``data_threshold``, lambda = ``smoothness``; pixels the mesh does not cover cannot be
-   view-dependent; the outside of the image counts as label 0; in the spirit of digital photomontage's data term "distance to the
-   predicted colour" with a Potts seam cost). The mask is the cut "and" the saturated-bright or
-   high-variance regions of step 1 (grown by ``region_grow_frac`` = 1 % of the larger side).
+   tau = ``data_threshold`` (0.10), lambda = ``smoothness`` (0.05); pixels the mesh does not
+   cover cannot be view-dependent; pixels with no evidence (next to depth edges, seen by no other
+   view) get e = tau - 0.02; the outside of the image counts as label 0. This is digital
+   photomontage's (Agarwala et al. 2004) data term "distance to a predicted colour", signed, with
+   its Potts seam cost. The mask is the cut "and" the saturated-bright or high-variance regions of
+   step 1, grown by ``region_grow_frac`` (1 %) of the larger side (they are rasterised from a
+   per-vertex field and are coarser than a small highlight).
 3. **Poisson re-injection** (sec. 4.2): inside the mask, the image whose gradients are the
-   original's with Hm as the boundary condition (:func:`ibrtools.solvers.poisson_blend`).
+   original's with Hm as the boundary condition (:func:`ibrtools.solvers.poisson_blend`,
+   relative residual ``poisson_tol`` = 1e-6); negative values clamped to 0.
 4. **View-dependent texture**: per vertex of the mesh, the average of the masks of the views that
    see it (bilinear at the vertex's projection, equal weights; visibility as in the variance
    mesh), in [0, 1].
 
 **Skip**: when every view's global per-channel gain (median of T / I over the weighted pixels)
 is within ``skip_threshold`` (2 %, in log) of the views' mean, the views already agree and the
-images are returned unchanged with ``skipped_reason`` set. This assumes T is a blend of the
-views (not an unshaded albedo texture, whose ratio to a shaded image is not a gain).
+images are returned unchanged with ``skipped_reason`` set (``force=True`` overrides). With
+``t_source="mesh"`` and an unshaded albedo texture this test is meaningless (the ratio of an
+albedo to a shaded image is not a gain).
 """
 from __future__ import annotations
 
 import math
 import time
-import warnings
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -64,10 +77,11 @@ class HarmoniseParams:
     sigma_frac: float = 0.03        # Gaussian sigma = 3 % of the image's larger side (paper)
     saturated_pct: float = 2.0      # top / bottom 2 % of luminance are "saturated" (paper)
     vd_variance_frac: float = 0.10  # view-dependent where variance-mesh std > 10 % of range (paper)
-    data_threshold: float = 0.09    # tau: departure (fraction of range) where both labels cost the same
+    data_threshold: float = 0.10    # tau: departure (fraction of range) where both labels cost the same
     smoothness: float = 0.05        # lambda: Potts cost per 4-neighbour label change, same units
     departure_blur: float = 1.0     # Gaussian sigma (pixels) on the departure before the data term
     neighbours: int = 4             # other views (nearest camera centres) in the diffuse prediction
+    prediction_quantile: float = 0.5  # of the neighbours' colours: 0.5 = median
     edge_px: int = 1                # no data term within this many pixels of a depth discontinuity
     region_grow_frac: float = 0.01  # saturated / high-variance regions grown by 1 % of the larger side
     skip_threshold: float = 0.02    # skip when every view's log gain is within 2 % of the mean
@@ -78,7 +92,7 @@ class HarmoniseParams:
 
     def __post_init__(self) -> None:
         for name in ("sigma_frac", "saturated_pct", "vd_variance_frac", "data_threshold", "smoothness",
-                     "departure_blur", "region_grow_frac", "skip_threshold", "poisson_tol", "depth_tol"):
+                     "departure_blur", "prediction_quantile", "region_grow_frac", "skip_threshold", "poisson_tol", "depth_tol"):
             v = check_float(getattr(self, name), name, 0.0)
             if name in ("sigma_frac", "poisson_tol", "depth_tol") and not v > 0:
                 raise BadValueError(f"{name}: expected > 0, got {v}")
@@ -172,6 +186,20 @@ def _scale_field(img, t, valid, sigma, fallback) -> np.ndarray:
     return scale
 
 
+def _nan_quantile(samples: np.ndarray, q: float) -> np.ndarray:
+    """Quantile q (linear interpolation) over axis 0 ignoring NaN, 0 where all are NaN; sorted
+    in one vectorised pass (numpy's nanquantile loops in Python over the other axes)."""
+    srt = np.sort(samples, axis=0)  # NaN last
+    n = np.isfinite(samples).sum(0)
+    pos = q * np.maximum(n - 1, 0)
+    lo = np.floor(pos).astype(np.int64)
+    hi = np.minimum(lo + 1, np.maximum(n - 1, 0))
+    a = np.take_along_axis(srt, lo[None], 0)[0]
+    b = np.take_along_axis(srt, hi[None], 0)[0]
+    out = a + (pos - lo).astype(np.float32) * (b - a)
+    return np.where(n > 0, out, 0.0).astype(np.float32)
+
+
 def _cross_view_prediction(j: int, cams, depths, hms, hits, p: HarmoniseParams, depth_tol: float):
     """The diffuse prediction of view j's pixels from the other views: each pixel's surface point
     (the mesh's depth) projected into the ``neighbours`` nearest views that see it (depth test
@@ -202,10 +230,7 @@ def _cross_view_prediction(j: int, cams, depths, hms, hits, p: HarmoniseParams, 
     if len(others):
         seen = np.isfinite(samples[..., 0])
         n_seen[hit] = seen.sum(0)
-        with np.errstate(all="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN pixels: no other view sees them
-            med = np.nanmedian(samples, axis=0) if seen.any() else np.zeros((len(pts), 3), np.float32)
-        pred[hit] = np.nan_to_num(med)
+        pred[hit] = _nan_quantile(samples, p.prediction_quantile)
     return pred, n_seen
 
 
@@ -232,12 +257,12 @@ def _vd_cut(hm, t, hit, edges, rng_c, p: HarmoniseParams) -> np.ndarray:
     return vd
 
 
-def colour_range(scene: Scene) -> np.ndarray:
-    """Per-channel colour range of the inputs: 99th minus 1st percentile over all views
-    (sub-sampled), floored at 1e-3."""
+def colour_range(scene: Scene, gains: dict | None = None) -> np.ndarray:
+    """Per-channel colour range of the inputs (times their per-view ``gains`` when given): 99th
+    minus 1st percentile over all views (sub-sampled), floored at 1e-3."""
     samples = []
     for v in scene.views:
-        c = v.color
+        c = v.color if gains is None else v.color * gains[v.name].astype(np.float32)
         step = max(1, int(math.sqrt(c.shape[0] * c.shape[1] / 20000)))
         samples.append(c[::step, ::step].reshape(-1, 3))
     s = np.concatenate(samples)
@@ -293,7 +318,14 @@ def harmonise(scene: Scene, mesh: Mesh, std: np.ndarray, params: HarmoniseParams
         valid, sat_hi, high_var = _weights(img, hit, std_pix, rng_c, params)
         edges = _depth_edges(depth, hit, params.edge_px)
         valid &= ~edges  # T mixes surfaces at depth edges: no evidence for the ratio there
-        per_view[v.name] = (img, t, hit, valid, sat_hi, high_var, _global_gain(img, t, valid), edges, depth)
+        per_view[v.name] = [img, t, hit, valid, sat_hi, high_var, _global_gain(img, t, valid), edges, depth,
+                            std_pix]
+    # The range of the *gain-corrected* colours (a strongly over-exposed view must not widen it:
+    # every threshold is a fraction of it), then the weights again with that range.
+    rng_c = colour_range(scene, {n: pv[6] for n, pv in per_view.items()})
+    for pv in per_view.values():
+        valid, pv[4], pv[5] = _weights(pv[0], pv[2], pv[9], rng_c, params)
+        pv[3] = valid & ~pv[7]
     log_g = np.log(np.array([pv[6] for pv in per_view.values()]))
     spread = float(np.abs(log_g - log_g.mean(0)).max()) if len(log_g) else 0.0
     stats: dict = {"params": asdict(params), "colour_range": rng_c.tolist(), "gain_spread_log": spread,
@@ -308,7 +340,7 @@ def harmonise(scene: Scene, mesh: Mesh, std: np.ndarray, params: HarmoniseParams
 
     # Pass 2: diffuse harmonisation of every view (the cut's prediction needs all of them).
     hms = {}
-    for name, (img, t, hit, valid, sat_hi, high_var, gain, edges, depth) in per_view.items():
+    for name, (img, t, hit, valid, sat_hi, high_var, gain, edges, depth, _) in per_view.items():
         h, w = hit.shape
         hms[name] = img * _scale_field(img, t, valid, params.sigma_frac * max(h, w), gain)
     # Pass 3: view-dependent mask and Poisson re-injection.
@@ -323,7 +355,7 @@ def harmonise(scene: Scene, mesh: Mesh, std: np.ndarray, params: HarmoniseParams
     hm_list = [globally[n] for n in names]
     images, masks = {}, {}
     for j, name in enumerate(names):
-        img, t, hit, valid, sat_hi, high_var, gain, edges, depth = per_view[name]
+        img, t, hit, valid, sat_hi, high_var, gain, edges, depth, _ = per_view[name]
         hm = hms[name]
         pred, n_seen = _cross_view_prediction(j, cams, depths, hm_list, hits, params, params.depth_tol)
         # A point no other view sees cannot be compared: no evidence either way there (the mesh
