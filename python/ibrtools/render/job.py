@@ -3,7 +3,8 @@ rendering them with a method, writing the images and ``report.json`` (DESIGN.md 
 
 Outputs in the output directory: ``<frame>.png`` (8-bit sRGB; holes black), ``<frame>.exr``
 with ``float_out``, ``<frame>.depth.exr`` with ``depth_out``, ``<frame>.mask.png`` (white =
-hole) when the frame has holes, and ``report.json``. Every file is written atomically and
+hole) when the frame has holes (for the hybrid method: its per-pixel selection, red PVM, blue
+ULR, green TM, with the holes in ``<frame>.hole.png``), and ``report.json``. Every file is written atomically and
 ``report.json`` last, so a reader that finds it finds every image it names.
 """
 from __future__ import annotations
@@ -196,7 +197,16 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
         if depth_out and "depth" in out:
             write_depth(out_dir / f"{frame.name}.depth.exr", out["depth"])
             entry["depth"] = f"{frame.name}.depth.exr"
-        if hole is not None and hole.any():
+        selection = out.get("selection")
+        if selection is not None:
+            # Hybrid methods: the per-pixel method selection (RGB) is the frame's mask image
+            # (render/hybrid.py); its holes, if any, go to <frame>.hole.png.
+            write_image(out_dir / f"{frame.name}.mask.png", np.asarray(selection, np.float32))
+            entry["mask"] = f"{frame.name}.mask.png"
+            if hole is not None and hole.any():
+                write_image(out_dir / f"{frame.name}.hole.png", hole.astype(np.float32))
+                entry["hole_mask"] = f"{frame.name}.hole.png"
+        elif hole is not None and hole.any():
             write_image(out_dir / f"{frame.name}.mask.png", hole.astype(np.float32))
             entry["mask"] = f"{frame.name}.mask.png"
         frames_report.append(entry)

@@ -1,0 +1,337 @@
+"""Hybrid image-based rendering (Prakash et al. 2021, sec. 3.3 and 6): ``--method tm``, ``ulr``
+and ``hybrid`` (docs/hybrid.md).
+
+Every method starts from the **G-buffer** of the global mesh (the ``mesh`` stage): Embree ray
+casting (``ReferenceRenderer``, outputs depth, normal, prim_id, bary; no shading), one ray per
+pixel centre.
+
+* ``tm`` (textured mesh): the ``texture`` stage's per-vertex colour interpolated with the hit's
+  barycentrics (C++ ``_core.interpolate_vertex_attribute``). Pixels the mesh misses are holes.
+* ``ulr`` (per-pixel Unstructured Lumigraph, Buehler et al. 2001): at each G-buffer point the
+  input views are ranked by the ULR penalty (cpp/kernels/ulr.h: angle + 0.5 x resolution term),
+  views that do not see the point (outside the image, behind the surface, or the view's depth at
+  the point's pixel differs by more than ``depth_tol`` = 2 % relative) are dropped, the best
+  ``k`` = 4 are blended with weights falling to 0 at the 4th, reading the harmonised images
+  (``harmonise`` stage; the original images when the stage was skipped) bilinearly. Pixels no
+  view sees fall back to TM when the scene has the ``texture`` stage (else they are holes).
+* ``hybrid`` (Fig. 7): per pixel, outside the PVM grid -> ULR; PVM depth (the cluster vote of
+  Eq. 2, ``tau_depth``) farther than ``geo_threshold`` (3 cm in scene units) from the global
+  depth -> PVM; else the view-dependent texture (``harmonise`` stage) above ``tau_var`` -> ULR;
+  else TM. The one-hot selection is blurred (Gaussian ``sigma_blur`` = 4 px) and the three
+  colours composited; ULR is computed only where its blurred weight is positive (or where a PVM
+  pixel without candidates falls back to it). The PVM colour comes from
+  :class:`ibrtools.hybrid.pvm_render.PvmRenderer` (clustered depth filtering, ``sigma``,
+  ``alpha``, ``gamma``). The selection (red PVM, blue ULR, green TM; the blurred weights) is
+  returned as output "selection" and written as ``<frame>.mask.png`` by the render job.
+
+Held-out views (``--holdout``) are absent from the job's scene, so ULR and PVM never read them;
+the mesh, texture, variance and harmonise stages were computed with every view of the scene (as
+in the paper's Ponche evaluation), so for unseen-view figures use the scene's targets, which no
+stage reads.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..camera import Camera
+from ..errors import BadValueError, InputError, MissingFileError
+from ..mesh import Mesh
+from ..scene import Scene
+from . import params as P
+
+ULR_DEFAULTS = {"k": 4, "resolution_weight": 0.5, "depth_tol": 0.02, "harmonised": True}
+# sigma, alpha, gamma, tau_depth, tau_var, sigma_blur: the paper's sweep values (sec. 7).
+# geo_threshold None = 3 cm converted to the scene's units (metres when unknown).
+HYBRID_DEFAULTS = {**ULR_DEFAULTS, "sigma": 3.0, "alpha": 7.0, "gamma": 7.0, "tau_depth": 0.83,
+                   "tau_var": 0.82, "sigma_blur": 4.0, "geo_threshold": None, "filtered": True}
+STAGES_FOR = {"tm": ("mesh", "texture"), "ulr": ("mesh", "depth"),
+              "hybrid": ("mesh", "depth", "texture", "variance", "harmonise", "pvm")}
+_UNIT_METRES = {"m": 1.0, "meter": 1.0, "metre": 1.0, "meters": 1.0, "metres": 1.0, "cm": 0.01, "mm": 0.001,
+                "km": 1000.0}
+SELECTION_COLORS = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]], np.float32)  # TM, ULR, PVM
+
+
+def check_params(method: str, params: dict | None) -> dict:
+    defaults = {"tm": {}, "ulr": ULR_DEFAULTS, "hybrid": HYBRID_DEFAULTS}[method]
+    p = P.with_defaults(method, params, defaults)
+    if method == "tm":
+        return p
+    p["k"] = P.integer(p["k"], "--param k", 1)
+    if p["k"] > 64:
+        raise BadValueError(f"--param k: expected at most 64 views per pixel, got {p['k']}")
+    p["resolution_weight"] = P.number(p["resolution_weight"], "--param resolution_weight", 0.0)
+    p["depth_tol"] = P.number(p["depth_tol"], "--param depth_tol", 0.0, strict=True)
+    p["harmonised"] = P.boolean(p["harmonised"], "--param harmonised")
+    if method == "hybrid":
+        for key in ("sigma", "alpha", "gamma"):
+            p[key] = P.number(p[key], f"--param {key}", 0.0, strict=True)
+        p["tau_depth"] = P.number(p["tau_depth"], "--param tau_depth", 0.0)
+        p["tau_var"] = P.number(p["tau_var"], "--param tau_var")
+        p["sigma_blur"] = P.number(p["sigma_blur"], "--param sigma_blur", 0.0, maximum=1000.0)
+        if p["geo_threshold"] is not None:
+            p["geo_threshold"] = P.number(p["geo_threshold"], "--param geo_threshold", 0.0)
+        p["filtered"] = P.boolean(p["filtered"], "--param filtered")
+    return p
+
+
+def geo_threshold_for(units: str) -> float:
+    """3 cm (the paper's threshold) in the scene's units; metres when the units are unknown."""
+    metres = _UNIT_METRES.get(str(units).strip().lower(), 1.0)
+    return 0.03 / metres
+
+
+def _stage(scene: Scene, stage: str, method: str):
+    from ..stages import load_npz, stage_output
+
+    if scene.root is None:
+        raise InputError(f"--method {method}: the scene has no directory with preprocessed stages; "
+                         f"run: ibr-preprocess INPUT -o SCENE --methods {method}")
+    try:
+        return load_npz(stage_output(scene.root, stage))
+    except MissingFileError as e:
+        raise MissingFileError(f"--method {method} needs stage {stage!r}: {e}; or run: "
+                               f"ibr-preprocess {scene.root} -o {scene.root} --methods {method}") from None
+
+
+class _GlobalMesh:
+    """The global mesh's ray caster, per-vertex attributes and G-buffer."""
+
+    def __init__(self, scene: Scene, method: str, texture: bool):
+        from .reference import ReferenceRenderer
+
+        d = _stage(scene, "mesh", method)
+        self.mesh = Mesh(d["vertices"], d["faces"], object_ids=d.get("object_ids"), kind="reconstructed")
+        t0 = time.perf_counter()
+        self.renderer = ReferenceRenderer(self.mesh)
+        self.build_ms = (time.perf_counter() - t0) * 1e3
+        self.faces = np.ascontiguousarray(self.mesh.faces, np.int32)
+        self.colors = None
+        if texture:
+            tex = _stage(scene, "texture", method)
+            self.colors = np.ascontiguousarray(tex["vertex_colors"], np.float32)
+            if self.colors.shape != (len(self.mesh.vertices), 3):
+                raise InputError(f"texture stage: vertex_colors shape {self.colors.shape} does not match the mesh's "
+                                 f"{len(self.mesh.vertices)} vertices; rerun ibr-preprocess {scene.root} "
+                                 f"-o {scene.root} --stages texture --force")
+
+    def gbuffer(self, camera: Camera) -> dict:
+        out = self.renderer.render(camera, outputs=("depth", "normal", "prim_id", "bary", "hit"), lights=[],
+                                   ambient=0.0)
+        return out
+
+    def interpolate(self, gb: dict, attrib: np.ndarray) -> np.ndarray:
+        from .. import _core
+
+        return _core.interpolate_vertex_attribute(gb["prim_id"], gb["bary"], self.faces, attrib)
+
+
+def _views_for_ulr(scene: Scene, method: str, harmonised: bool) -> tuple[list, str]:
+    """[(core camera, colour, depth)] of the input views: harmonised colour when the harmonise
+    stage has it, the view's depth or the depth stage's rendering."""
+    images: dict = {}
+    source = "original"
+    if harmonised and scene.root is not None:
+        from ..stages import _read_doc
+
+        rec = ((_read_doc(scene.root).get("stages") or {}).get("harmonise") or {})
+        if rec.get("outputs"):
+            h = _stage(scene, "harmonise", method)
+            images = {k[len("image/"):]: v for k, v in h.items() if k.startswith("image/")}
+            source = "harmonised"
+        elif rec.get("skipped"):
+            source = f"original (harmonise skipped: {rec['skipped']})"
+    rendered = None
+    out = []
+    for v in scene.views:
+        if v.has_depth:
+            depth = v.depth
+        else:
+            if rendered is None:
+                rendered = _stage(scene, "depth", method)
+            if v.name not in rendered:
+                raise InputError(f"--method {method}: view {v.name!r} has no depth and the depth stage has none; "
+                                 f"rerun ibr-preprocess {scene.root} -o {scene.root} --stages depth --force")
+            depth = rendered[v.name]
+        color = images.get(v.name)
+        if color is None:
+            color = v.color
+        out.append((v.camera.to_core(), np.ascontiguousarray(color, np.float32),
+                    np.ascontiguousarray(depth, np.float32)))
+    if not out:
+        raise InputError(f"--method {method}: the scene has no input views")
+    return out, source
+
+
+class TmMethod:
+    """Textured global mesh (per-vertex colour of the texture stage)."""
+
+    name = "tm"
+
+    def __init__(self, params: dict | None = None):
+        self.params = check_params("tm", params)
+        self._gm: _GlobalMesh | None = None
+
+    def prepare(self, scene: Scene) -> dict[str, float]:
+        t0 = time.perf_counter()
+        self._gm = _GlobalMesh(scene, "tm", texture=True)
+        return {"load": (time.perf_counter() - t0) * 1e3 - self._gm.build_ms, "bvh": self._gm.build_ms}
+
+    def render(self, camera: Camera) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+        if self._gm is None:
+            raise BadValueError("tm: prepare(scene) must be called before render")
+        t0 = time.perf_counter()
+        gb = self._gm.gbuffer(camera)
+        t1 = time.perf_counter()
+        color = self._gm.interpolate(gb, self._gm.colors)
+        t2 = time.perf_counter()
+        return ({"color": color, "depth": gb["depth"], "hole": ~gb["hit"]},
+                {"gbuffer": (t1 - t0) * 1e3, "tm_shade": (t2 - t1) * 1e3})
+
+
+class UlrMethod:
+    """Per-pixel ULR at the global mesh's points; TM where no view sees the point."""
+
+    name = "ulr"
+
+    def __init__(self, params: dict | None = None):
+        self.params = check_params("ulr", params)
+        self._gm: _GlobalMesh | None = None
+        self._last: dict = {}
+
+    def prepare(self, scene: Scene) -> dict[str, float]:
+        from ..stages import _read_doc
+
+        t0 = time.perf_counter()
+        has_tex = scene.root is not None and bool(
+            ((_read_doc(scene.root).get("stages") or {}).get("texture") or {}).get("outputs"))
+        self._gm = _GlobalMesh(scene, "ulr", texture=has_tex)
+        self._views, self._source = _views_for_ulr(scene, "ulr", self.params["harmonised"])
+        return {"load": (time.perf_counter() - t0) * 1e3 - self._gm.build_ms, "bvh": self._gm.build_ms}
+
+    def render(self, camera: Camera) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+        from .. import _core
+
+        if self._gm is None:
+            raise BadValueError("ulr: prepare(scene) must be called before render")
+        p = self.params
+        t0 = time.perf_counter()
+        gb = self._gm.gbuffer(camera)
+        t1 = time.perf_counter()
+        ulr, count = _core.ulr_blend(camera.to_core(), gb["depth"], self._views, normal=gb["normal"], k=p["k"],
+                                     resolution_weight=p["resolution_weight"], depth_tol=p["depth_tol"])
+        t2 = time.perf_counter()
+        seen = count > 0
+        times = {"gbuffer": (t1 - t0) * 1e3, "ulr_blend": (t2 - t1) * 1e3}
+        if self._gm.colors is not None:
+            tm = self._gm.interpolate(gb, self._gm.colors)
+            color = np.where(seen[..., None], ulr, tm)
+            hole = ~gb["hit"]
+            times["tm_fallback"] = (time.perf_counter() - t2) * 1e3
+        else:
+            color, hole = ulr, ~seen
+        hit = gb["hit"]
+        self._last = {"images": self._source,
+                      "ulr_fraction": round(float(seen.sum() / max(1, hit.sum())), 4)}
+        return {"color": color, "depth": gb["depth"], "hole": hole}, times
+
+    def frame_report(self) -> dict:
+        return dict(self._last)
+
+
+class HybridMethod:
+    """Per-pixel choice of TM / ULR / PVM (Fig. 7) with the blurred selection mask."""
+
+    name = "hybrid"
+
+    def __init__(self, params: dict | None = None):
+        self.params = check_params("hybrid", params)
+        self._gm: _GlobalMesh | None = None
+        self._last: dict = {}
+
+    def prepare(self, scene: Scene) -> dict[str, float]:
+        try:
+            from ..hybrid.pvm_render import PvmRenderer
+        except ImportError:
+            from ..errors import NotBuiltError
+
+            raise NotBuiltError("--method hybrid: the PVM renderer (ibrtools.hybrid.pvm_render) is not built yet") from None
+        t0 = time.perf_counter()
+        self._gm = _GlobalMesh(scene, "hybrid", texture=True)
+        self._views, self._source = _views_for_ulr(scene, "hybrid", self.params["harmonised"])
+        self._vd = None
+        h = None
+        from ..stages import _read_doc
+
+        rec = ((_read_doc(scene.root).get("stages") or {}).get("harmonise") or {})
+        if rec.get("outputs"):
+            h = _stage(scene, "harmonise", "hybrid")
+        elif not rec.get("skipped"):
+            _stage(scene, "harmonise", "hybrid")  # raises, naming the command
+        if h is not None and "vd_texture" in h:
+            self._vd = np.ascontiguousarray(h["vd_texture"], np.float32)
+            if self._vd.shape != (len(self._gm.mesh.vertices),):
+                raise InputError(f"harmonise stage: vd_texture shape {self._vd.shape} does not match the mesh; "
+                                 f"rerun ibr-preprocess {scene.root} -o {scene.root} --stages harmonise --force")
+        p = self.params
+        self._geo = geo_threshold_for(scene.units) if p["geo_threshold"] is None else p["geo_threshold"]
+        t1 = time.perf_counter()
+        pvm_params = {k: p[k] for k in ("sigma", "alpha", "gamma", "tau_depth")}
+        self._pvm = PvmRenderer(scene, pvm_params)
+        t2 = time.perf_counter()
+        return {"load": (t1 - t0) * 1e3 - self._gm.build_ms, "bvh": self._gm.build_ms, "pvm_load": (t2 - t1) * 1e3}
+
+    def render(self, camera: Camera) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+        from .. import _core
+
+        if self._gm is None:
+            raise BadValueError("hybrid: prepare(scene) must be called before render")
+        p = self.params
+        times: dict[str, float] = {}
+        t0 = time.perf_counter()
+        gb = self._gm.gbuffer(camera)
+        t1 = time.perf_counter()
+        tm = self._gm.interpolate(gb, self._gm.colors)
+        vd = self._gm.interpolate(gb, self._vd) if self._vd is not None else None
+        t2 = time.perf_counter()
+        times["gbuffer"], times["tm_shade"] = (t1 - t0) * 1e3, (t2 - t1) * 1e3
+        # PVM: candidates for the visible coarse voxels; depth vote everywhere (the selection
+        # needs it), colour where the pixel mask asks (here: the global mesh's pixels and those
+        # it misses inside the grid, i.e. every pixel; see docs/hybrid.md "What is computed").
+        res = self._pvm.render(camera, gbuffer_depth=gb["depth"], pixel_mask=None, filtered=p["filtered"])
+        t3 = time.perf_counter()
+        for k, v in (res.times_ms or {}).items():
+            times[k] = float(v)  # the PVM stages of Table 2: voxel lookup, tile sort, ...
+        inside = np.ascontiguousarray(res.inside_grid, bool)
+        valid = np.ascontiguousarray(res.valid, bool)
+        label = _core.hybrid_select(gb["depth"], inside_grid=inside, pvm_valid=valid,
+                                    pvm_depth=np.ascontiguousarray(res.depth, np.float32), vd=vd,
+                                    geo_threshold=self._geo, tau_var=p["tau_var"])
+        weights = _core.blur_selection(label, p["sigma_blur"])
+        need_ulr = (weights[..., 1] > 0) | ((weights[..., 2] > 0) & ~valid)
+        t4 = time.perf_counter()
+        times["masking"] = (t4 - t3) * 1e3
+        if need_ulr.any():
+            ulr, count = _core.ulr_blend(camera.to_core(), gb["depth"], self._views, normal=gb["normal"],
+                                         pixel_mask=need_ulr, k=p["k"], resolution_weight=p["resolution_weight"],
+                                         depth_tol=p["depth_tol"])
+        else:
+            ulr, count = None, None
+        t5 = time.perf_counter()
+        times["ulr_blend"] = (t5 - t4) * 1e3
+        color = _core.hybrid_composite(weights, tm, ulr=ulr, ulr_count=count,
+                                       pvm=np.ascontiguousarray(res.color, np.float32), pvm_valid=valid)
+        hole = label == 3
+        hole &= weights.sum(-1) == 0
+        times["composite"] = (time.perf_counter() - t5) * 1e3
+        depth = np.where(label == 2, res.depth, gb["depth"]).astype(np.float32)
+        selection = np.einsum("hwk,kc->hwc", weights, SELECTION_COLORS).astype(np.float32)
+        n = label.size
+        self._last = {"selection": {name: round(float((label == i).sum() / n), 4)
+                                    for i, name in enumerate(("tm", "ulr", "pvm", "none"))},
+                      "ulr_pixels": int(need_ulr.sum()), "images": self._source}
+        return {"color": color, "depth": depth, "hole": hole, "selection": selection, "label": label}, times
+
+    def frame_report(self) -> dict:
+        return dict(self._last)
