@@ -282,7 +282,7 @@ void BindPvmRender(py::module_& m) {
            py::arg("alpha") = 7.f, py::arg("gamma") = 7.f, py::arg("tau_depth") = 0.83f, py::arg("max_tiles") = 12,
            py::arg("max_candidates") = 12, py::arg("ulr_k") = 4, py::arg("merge_rel") = 0.02f,
            py::arg("radius_sigmas") = 2.f, py::arg("margin") = 1, py::arg("near") = 1e-3f,
-           py::arg("cull_back") = true, py::arg("max_angle") = 180.f,
+           py::arg("cull_back") = true, py::arg("max_angle") = 60.f,
            "dict: color (H, W, 3), depth (H, W) (Eq. 2 vote), vote (H, W), valid, inside_grid (H, W) bool, "
            "times_ms per stage, visible_coarse, tiles, triangles.")
       .def("candidates", &PvmRendererCore::Candidates, py::arg("height"), py::arg("width"),
