@@ -7,6 +7,7 @@ where outputs holds "color" (H, W, 3) float32 linear, optionally "depth" (H, W) 
 """
 from __future__ import annotations
 
+import importlib.util
 import time
 from typing import Protocol
 
@@ -28,7 +29,8 @@ METHODS: dict[str, str] = {
     "pvm": "per-view meshes with clustered depth filtering (Prakash et al. 2021)",
     "hybrid": "per-pixel choice of TM / ULR / PVM (Prakash et al. 2021)",
 }
-BUILT = ("reference", "dibr", "warp", "depthwarp")
+BUILT = ("reference", "dibr", "warp", "depthwarp", "tm", "ulr") + (
+    ("hybrid",) if importlib.util.find_spec("ibrtools.hybrid.pvm_render") is not None else ())
 BUILT += ("pvm",)  # per-view meshes (render/pvm.py)
 
 
@@ -94,7 +96,8 @@ def resolve(name: str, scene: Scene) -> str:
             return "reference"
         raise NotBuiltError("--method auto: some input views have no depth (dibr needs depth) and the "
                             "scene has no ground-truth mesh; the methods for colour-only views "
-                            "(tm, ulr, pvm, hybrid) are not built yet")
+                            "(tm, ulr, pvm, hybrid) need ibr-preprocess SCENE --methods ...; "
+                            "ask for one with --method")
     if name not in BUILT:
         raise NotBuiltError(f"--method {name}: not built yet ({METHODS[name]}); built: {', '.join(BUILT)}")
     return name
@@ -115,6 +118,10 @@ def create(name: str, params: dict | None = None) -> Method:
         from .depthwarp import DepthWarpMethod
 
         return DepthWarpMethod(params)
+    if name in ("tm", "ulr", "hybrid") and name in BUILT:
+        from .hybrid import HybridMethod, TmMethod, UlrMethod
+
+        return {"tm": TmMethod, "ulr": UlrMethod, "hybrid": HybridMethod}[name](params)
     if name == "pvm":
         from .pvm import PvmMethod
 
