@@ -50,7 +50,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--methods", metavar="M[,M...]", default=None,
                    help="render methods to prepare for: their stages run, the others are skipped "
                         "(reference, dibr, warp, depthwarp, tm, ulr, pvm, hybrid; 'all'). Default 'auto': "
-                        "the methods built in this version (today that needs the import alone)")
+                        "the methods that work from the views alone, i.e. the import alone (fast); "
+                        "name tm,ulr,pvm,hybrid to prepare those")
     p.add_argument("--stages", metavar="S[,S...]", default=None,
                    help="run exactly these stages (and the stages they read) whatever --methods says: "
                         "mesh, depth, texture, variance, harmonise, pvm (docs/preprocess.md)")

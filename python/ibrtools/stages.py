@@ -174,13 +174,15 @@ def available_stages() -> list[str]:
     return out
 
 
-def default_methods() -> list[str]:
-    """``--methods`` default: the render methods built in this version (render/methods.py BUILT),
-    so that a plain import prepares exactly what can be rendered; today none of them needs a
-    derived stage, so the default run is the import alone (fast, as the demo wants)."""
-    from .render.methods import BUILT
+VIEW_ONLY_METHODS = ("reference", "dibr", "warp", "depthwarp")
 
-    return [m for m in BUILT]
+
+def default_methods() -> list[str]:
+    """``--methods`` default (``auto``): the methods that work from the views alone (reference,
+    dibr, warp, depthwarp), so that a plain ``ibr-preprocess`` is the import alone and stays fast
+    (``make demo``). tm / ulr / pvm / hybrid are prepared when named (or with ``all``); their
+    render methods say which stage to run when its output is missing."""
+    return list(VIEW_ONLY_METHODS)
 
 
 def parse_methods(text: str | None) -> list[str]:
