@@ -123,9 +123,9 @@ def test_usage_errors_exit_2(capsys):
     assert e.value.code == 2
 
 
-def test_bench_is_reserved(capsys):
-    assert bench.main(["somewhere"]) == 2
-    assert "not built yet" in capsys.readouterr().err
+def test_bench_bad_scene_exits_2(capsys):
+    assert bench.main(["somewhere", "-o", "somewhere-out"]) == 2
+    assert capsys.readouterr().err.startswith("ibr-bench: error:")
 
 
 def test_installed_entry_points_exit_codes(tmp_path):

@@ -9,8 +9,9 @@ pixel centre.
   barycentrics (C++ ``_core.interpolate_vertex_attribute``). Pixels the mesh misses are holes.
 * ``ulr`` (per-pixel Unstructured Lumigraph, Buehler et al. 2001): at each G-buffer point the
   input views are ranked by the ULR penalty (cpp/kernels/ulr.h: angle + 0.5 x resolution term),
-  views that do not see the point (outside the image, behind the surface, or the view's depth at
-  the point's pixel differs by more than ``depth_tol`` = 2 % relative) are dropped, the best
+  views that do not see the point (outside the image, behind the surface, or the depth at the
+  point's pixel differs by more than ``depth_tol`` = 2 % relative; that depth is the global mesh
+  rendered into the view, ``occlusion=mesh``, or the view's own, ``occlusion=views``) are dropped, the best
   ``k`` = 4 are blended with weights falling to 0 at the 4th, reading the harmonised images
   (``harmonise`` stage; the original images when the stage was skipped) bilinearly. Pixels no
   view sees fall back to TM when the scene has the ``texture`` stage (else they are holes).
@@ -41,7 +42,12 @@ from ..mesh import Mesh
 from ..scene import Scene
 from . import params as P
 
-ULR_DEFAULTS = {"k": 4, "resolution_weight": 0.5, "depth_tol": 0.02, "harmonised": True}
+# occlusion "mesh": each input view's depth for the occlusion test is the global mesh rendered
+# into that view (the proxy ULR blends on, as in Buehler et al. and the paper's deferred ULR), so
+# a surface point of the G-buffer is tested against the same geometry; "views": the views' own
+# (captured) depth, which disagrees with a reconstructed mesh by more than depth_tol over much of
+# the surface (measured: 11 % of pixels kept ULR on a 48-voxel fusion, docs/hybrid.md).
+ULR_DEFAULTS = {"k": 4, "resolution_weight": 0.5, "depth_tol": 0.02, "harmonised": True, "occlusion": "mesh"}
 # sigma, alpha, gamma, tau_depth, tau_var, sigma_blur: the paper's sweep values (sec. 7).
 # geo_threshold None = 3 cm converted to the scene's units (metres when unknown).
 HYBRID_DEFAULTS = {**ULR_DEFAULTS, "sigma": 3.0, "alpha": 7.0, "gamma": 7.0, "tau_depth": 0.83,
@@ -64,6 +70,8 @@ def check_params(method: str, params: dict | None) -> dict:
     p["resolution_weight"] = P.number(p["resolution_weight"], "--param resolution_weight", 0.0)
     p["depth_tol"] = P.number(p["depth_tol"], "--param depth_tol", 0.0, strict=True)
     p["harmonised"] = P.boolean(p["harmonised"], "--param harmonised")
+    if p["occlusion"] not in ("mesh", "views"):
+        raise BadValueError(f"--param occlusion: expected 'mesh' or 'views', got {p['occlusion']!r}")
     if method == "hybrid":
         for key in ("sigma", "alpha", "gamma"):
             p[key] = P.number(p[key], f"--param {key}", 0.0, strict=True)
@@ -127,9 +135,10 @@ class _GlobalMesh:
         return _core.interpolate_vertex_attribute(gb["prim_id"], gb["bary"], self.faces, attrib)
 
 
-def _views_for_ulr(scene: Scene, method: str, harmonised: bool) -> tuple[list, str]:
+def _views_for_ulr(scene: Scene, method: str, harmonised: bool, gm: "_GlobalMesh | None" = None) -> tuple[list, str]:
     """[(core camera, colour, depth)] of the input views: harmonised colour when the harmonise
-    stage has it, the view's depth or the depth stage's rendering."""
+    stage has it; depth = the global mesh rendered into the view (``gm`` given: occlusion
+    "mesh"), else the view's depth or the depth stage's rendering."""
     images: dict = {}
     source = "original"
     if harmonised and scene.root is not None:
@@ -145,7 +154,9 @@ def _views_for_ulr(scene: Scene, method: str, harmonised: bool) -> tuple[list, s
     rendered = None
     out = []
     for v in scene.views:
-        if v.has_depth:
+        if gm is not None:
+            depth = gm.renderer.render(v.camera, outputs=("depth",), lights=[], ambient=0.0)["depth"]
+        elif v.has_depth:
             depth = v.depth
         else:
             if rendered is None:
@@ -207,7 +218,8 @@ class UlrMethod:
         has_tex = scene.root is not None and bool(
             ((_read_doc(scene.root).get("stages") or {}).get("texture") or {}).get("outputs"))
         self._gm = _GlobalMesh(scene, "ulr", texture=has_tex)
-        self._views, self._source = _views_for_ulr(scene, "ulr", self.params["harmonised"])
+        self._views, self._source = _views_for_ulr(scene, "ulr", self.params["harmonised"],
+                                                   self._gm if self.params["occlusion"] == "mesh" else None)
         return {"load": (time.perf_counter() - t0) * 1e3 - self._gm.build_ms, "bvh": self._gm.build_ms}
 
     def render(self, camera: Camera) -> tuple[dict[str, np.ndarray], dict[str, float]]:
@@ -259,7 +271,8 @@ class HybridMethod:
             raise NotBuiltError("--method hybrid: the PVM renderer (ibrtools.hybrid.pvm_render) is not built yet") from None
         t0 = time.perf_counter()
         self._gm = _GlobalMesh(scene, "hybrid", texture=True)
-        self._views, self._source = _views_for_ulr(scene, "hybrid", self.params["harmonised"])
+        self._views, self._source = _views_for_ulr(scene, "hybrid", self.params["harmonised"],
+                                                   self._gm if self.params["occlusion"] == "mesh" else None)
         self._vd = None
         h = None
         from ..stages import _read_doc
