@@ -278,6 +278,10 @@ class Camera:
             raise FormatError(f"{where}: missing key {e.args[0]!r}") from None
         except (BadValueError, DtypeError, ShapeError) as e:
             raise type(e)(f"{where}: {e}") from None
+        except (TypeError, ValueError, OverflowError) as e:
+            # a value of the wrong JSON type (null focal, string range...): found by
+            # tests/test_fuzz_importers.py; bad input, not a bug
+            raise FormatError(f"{where}: malformed camera ({type(e).__name__}: {e})") from None
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, Camera) and self.to_dict() == other.to_dict()

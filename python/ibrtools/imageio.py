@@ -43,6 +43,17 @@ def linear_to_srgb(v: np.ndarray) -> np.ndarray:
     return np.where(v <= 0.0031308, v * 12.92, 1.055 * np.power(v, 1 / 2.4) - 0.055).astype(np.float32)
 
 
+def _geterror(source, default: str) -> str:
+    """OpenImageIO's error text, or ``default``. A corrupt file can put raw bytes from its header
+    into the message, which OpenImageIO's Python binding then fails to decode as UTF-8 (found by
+    tests/test_fuzz_importers.py): that must not turn a FormatError into a UnicodeDecodeError."""
+    try:
+        msg = source.geterror()
+    except UnicodeDecodeError:
+        return default + " (undecodable error text)"
+    return msg.strip() or default
+
+
 def read_pixels(path: str | os.PathLike) -> tuple[np.ndarray, str]:
     """Pixels as stored (H, W, C), alpha **straight** (unassociated, as PNG holds it: OpenImageIO
     would otherwise premultiply colour, and any channel stored beside alpha, on read), and the
@@ -55,7 +66,7 @@ def read_pixels(path: str | os.PathLike) -> tuple[np.ndarray, str]:
     config.attribute("oiio:UnassociatedAlpha", 1)
     inp = oiio.ImageInput.open(str(path), config)
     if inp is None:
-        raise FormatError(f"{path}: not a readable image ({oiio.geterror().strip() or 'unknown format'})")
+        raise FormatError(f"{path}: not a readable image ({_geterror(oiio, 'unknown format')})")
     try:
         spec = inp.spec()
         fmt = str(spec.format)
@@ -65,7 +76,7 @@ def read_pixels(path: str | os.PathLike) -> tuple[np.ndarray, str]:
             fmt = "float"
             arr = inp.read_image("float")
         if arr is None:
-            raise FormatError(f"{path}: could not decode ({inp.geterror().strip() or 'truncated or corrupt'})")
+            raise FormatError(f"{path}: could not decode ({_geterror(inp, 'truncated or corrupt')})")
     finally:
         inp.close()
     arr = np.asarray(arr)

@@ -122,6 +122,103 @@ def _read_tensor(path: Path) -> dict:
     return out
 
 
+_PLY_TYPES = {"char": 1, "int8": 1, "uchar": 1, "uint8": 1, "short": 2, "int16": 2, "ushort": 2,
+              "uint16": 2, "int": 4, "int32": 4, "uint": 4, "uint32": 4, "float": 4, "float32": 4,
+              "double": 8, "float64": 8}
+_PLY_NP = {1: "u1", 2: "u2", 4: "u4"}
+
+
+def _check_ply(path: Path) -> None:
+    """Validate a PLY's header against its body before open3d sees it.
+
+    open3d's PLY reader (RPly underneath) crashes the process (segmentation fault) on some
+    malformed files: a missing x/y/z vertex property, a face list whose count runs past the end
+    of the data (found by tests/test_fuzz_importers.py). It also accepts a file that holds fewer
+    faces than its header announces. This check needs the header and one pass over the face
+    counts (vectorised for all-triangle and all-quad files, the layouts writers produce)."""
+    with open(path, "rb") as fh:
+        head = fh.read(65536)
+    if not head:
+        raise FormatError(f"{path}: no triangles could be read (empty file)")
+    end = head.find(b"end_header")
+    if not head.startswith(b"ply") or end < 0:
+        raise FormatError(f"{path}: not a PLY file (no 'ply' magic or no 'end_header' in the first 64 KiB)")
+    nl = head.find(b"\n", end)
+    body_start = (nl + 1) if nl >= 0 else len(head)
+    fmt, elements = None, []
+    try:
+        lines = head[:end].decode("ascii").splitlines()
+    except UnicodeDecodeError:
+        raise FormatError(f"{path}: PLY header is not ASCII text") from None
+    for ln in lines[1:]:
+        t = ln.split()
+        if not t or t[0] in ("comment", "obj_info"):
+            continue
+        if t[0] == "format" and len(t) == 3 and t[1] in ("ascii", "binary_little_endian", "binary_big_endian"):
+            fmt = t[1]
+        elif t[0] == "element" and len(t) == 3 and t[2].isdigit():
+            elements.append((t[1], int(t[2]), []))
+        elif t[0] == "property" and elements and len(t) == 3 and t[1] in _PLY_TYPES:
+            elements[-1][2].append((t[2], _PLY_TYPES[t[1]], None))
+        elif (t[0] == "property" and elements and len(t) == 5 and t[1] == "list"
+              and t[2] in _PLY_TYPES and t[3] in _PLY_TYPES):
+            elements[-1][2].append((t[4], _PLY_TYPES[t[3]], _PLY_TYPES[t[2]]))
+        else:
+            raise FormatError(f"{path}: malformed PLY header line {ln[:60]!r}")
+    if fmt is None:
+        raise FormatError(f"{path}: PLY header has no valid 'format' line")
+    el = {name: (count, props) for name, count, props in elements}
+    if "vertex" not in el or {"x", "y", "z"} - {p[0] for p in el["vertex"][1]}:
+        raise FormatError(f"{path}: PLY has no vertex element with properties x, y and z")
+    if "face" in el and not any(p[2] is not None for p in el["face"][1]):
+        raise FormatError(f"{path}: PLY face element has no list property (vertex_indices)")
+    if fmt == "ascii":
+        # RPly reads ASCII as a stream of tokens (line breaks do not matter): check the tokens.
+        with open(path, "rb") as fh:
+            fh.seek(body_start)
+            tokens = fh.read().split()
+        size, unit = len(tokens), "tokens"
+    else:
+        size, unit = path.stat().st_size - body_start, "bytes"
+    order = ">" if fmt == "binary_big_endian" else "<"
+    pos = 0  # in tokens (ASCII) or bytes (binary)
+    with open(path, "rb") as fh:
+        for name, count, props in elements:
+            fixed = sum(1 if fmt == "ascii" else sz for _, sz, cs in props if cs is None)
+            lists = [(sz, cs) for _, sz, cs in props if cs is not None]
+            if not lists:
+                pos += count * fixed
+                continue
+            if count == 0:
+                continue
+            if len(lists) != 1 or fixed:
+                return  # e.g. faces with texcoord lists: not walked here, open3d reads them as before
+            isz, csz = lists[0] if fmt != "ascii" else (1, 1)
+            if csz not in _PLY_NP:
+                raise FormatError(f"{path}: PLY element {name!r}: list count must be an integer type")
+            for corners in (3, 4):  # all triangles or all quads: one vectorised check
+                rec = csz + corners * isz
+                if pos + count * rec > size:
+                    continue
+                if fmt == "ascii":
+                    block = tokens[pos:pos + count * rec:rec]
+                    ok = bool(np.all(np.array(block) == str(corners).encode()))
+                else:
+                    fh.seek(body_start + pos)
+                    raw = np.frombuffer(fh.read(count * rec), np.uint8).reshape(count, rec)
+                    ok = np.all(raw[:, :csz].copy().view(order + _PLY_NP[csz])[:, 0] == corners)
+                if ok:
+                    pos += count * rec
+                    break
+            else:
+                raise FormatError(f"{path}: PLY element {name!r}: {count} faces announced, the data does not "
+                                  "hold that many triangles or quads (truncated or corrupt; mixed polygons "
+                                  "are not supported)")
+    if pos > size:
+        raise FormatError(f"{path}: PLY data is truncated (the header needs {pos} {unit} after it, "
+                          f"the file has {size})")
+
+
 def _has_polygons(path: Path) -> bool:
     """True when the OBJ has a face of more than 3 corners. (open3d's tensor reader is only
     asked then: it crashes the process on some malformed files instead of failing.)"""
@@ -148,6 +245,8 @@ def read_mesh(path: str | os.PathLike, kind: str = "ground_truth", *,
     tex_image = None
     if texture is not None:
         tex_image = read_image(texture)  # MissingFileError / FormatError with its own message
+    if ext == ".ply":
+        _check_ply(path)
     o3d = _o3d()
     try:
         with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):

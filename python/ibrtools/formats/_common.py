@@ -88,6 +88,30 @@ def opt_choice(options: dict, key: str, default: str, choices: tuple[str, ...]) 
     return value
 
 
+def document_errors(load: Callable) -> Callable:
+    """Decorator for importer entry points whose first argument is the path they read.
+
+    A data-set document of the wrong shape (a JSON list where an object is expected, null for a
+    number, a string for a matrix...) makes the interpretation code fail with TypeError,
+    AttributeError, KeyError, IndexError or a bare ValueError deep inside. Hypothesis fuzzing
+    (tests/test_fuzz_importers.py) found dozens of such paths. They are bad input, not bugs:
+    re-raised as FormatError naming the file and the failure, so the commands exit 2 with one
+    line. Typed errors raised on purpose pass through unchanged."""
+    import functools
+
+    from ..errors import IbrError
+
+    @functools.wraps(load)
+    def wrapper(path, *args, **kwargs):
+        try:
+            return load(path, *args, **kwargs)
+        except IbrError:
+            raise
+        except (TypeError, AttributeError, KeyError, IndexError, ValueError, OverflowError) as e:
+            raise FormatError(f"{path}: malformed content ({type(e).__name__}: {e})") from None
+    return wrapper
+
+
 def read_json(path: Path) -> Any:
     """Parsed JSON of ``path``; MissingFileError / FormatError naming the file."""
     path = Path(path)
@@ -139,7 +163,7 @@ def invert_rigid(m: np.ndarray) -> np.ndarray:
 
 def image_size(path: Path) -> tuple[int, int]:
     """(width, height) of an image file from its header only (no pixel decoding)."""
-    from ..imageio import _oiio
+    from ..imageio import _geterror, _oiio
 
     path = Path(path)
     if not path.is_file():
@@ -147,7 +171,7 @@ def image_size(path: Path) -> tuple[int, int]:
     oiio = _oiio()
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
-        raise FormatError(f"{path}: not a readable image ({oiio.geterror().strip() or 'unknown format'})")
+        raise FormatError(f"{path}: not a readable image ({_geterror(oiio, 'unknown format')})")
     try:
         spec = inp.spec()
         return int(spec.width), int(spec.height)

@@ -48,7 +48,7 @@ from ..camera import Camera
 from ..errors import BadValueError, FormatError, MissingFileError, ShapeError
 from ..imageio import read_image
 from ..scene import Scene, View
-from ._common import FileLoader, check_options, image_size, opt_choice, quat_to_rotation
+from ._common import document_errors, FileLoader, check_options, image_size, opt_choice, quat_to_rotation
 
 NAME = "colmap"
 DESCRIPTION = "COLMAP sparse model (cameras/images .bin|.txt) + images (+ dense depth maps)"
@@ -327,6 +327,7 @@ def _model_file(model: Path, stem: str) -> Path:
     raise MissingFileError(f"{model}: no {stem}.bin or {stem}.txt")
 
 
+@document_errors
 def load(path: Path, options: dict) -> Scene:
     path = Path(path)
     options = check_options(options, OPTIONS, NAME)

@@ -37,7 +37,7 @@ from ..camera import Camera
 from ..errors import DtypeError, FormatError, MissingFileError, ShapeError
 from ..imageio import read_pixels, read_image
 from ..scene import Scene, View
-from ._common import FileLoader, check_options, check_same_size, image_size, opt_float
+from ._common import document_errors, FileLoader, check_options, check_same_size, image_size, opt_float
 
 NAME = "middlebury"
 DESCRIPTION = "Middlebury stereo pair with disparity (im2/im6 + disp2/disp6, or view1/view5 + disp1/disp5)"
@@ -72,6 +72,7 @@ def _load_depth(path: Path, disp_scale: float, focal: float, baseline: float, sh
     return np.ascontiguousarray(z.astype(np.float32))
 
 
+@document_errors
 def load(path: Path, options: dict) -> Scene:
     path = Path(path)
     options = check_options(options, OPTIONS, NAME)

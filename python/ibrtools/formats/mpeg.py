@@ -58,7 +58,7 @@ from ..errors import BadValueError, DtypeError, FormatError, MissingFileError, S
 from ..imageio import read_pixels, read_image
 from ..scene import Scene, View
 from . import yuv
-from ._common import FileLoader, check_options, check_same_size, opt_choice, opt_int, read_json
+from ._common import document_errors, FileLoader, check_options, check_same_size, opt_choice, opt_int, read_json
 
 NAME = "mpeg"
 DESCRIPTION = "MPEG-I/RVS camera JSON or RVS synthesis config (OMAF axes) + YUV/PNG/EXR"
@@ -204,6 +204,7 @@ class MpegCamera:
             raise BadValueError(f"{self.where}: Depth_range must be 0 < near < far, got {list(self.depth_range)}")
 
 
+@document_errors
 def read_camera_file(path: Path) -> dict[str, MpegCamera]:
     doc = read_json(path)
     if not isinstance(doc, dict) or not isinstance(doc.get("cameras"), list):
@@ -297,6 +298,7 @@ def _find_files(folder: Path, name: str) -> tuple[Path | None, Path | None]:
     return (color[0] if color else None), (depth[0] if depth else None)
 
 
+@document_errors
 def load(path: Path, options: dict) -> Scene:
     path = Path(path)
     options = check_options(options, OPTIONS, NAME)

@@ -20,7 +20,7 @@ from ..camera import Camera
 from ..errors import BadValueError, FormatError, MissingFileError
 from ..imageio import read_depth, read_image, read_mask, write_depth, write_image
 from ..scene import Scene, View
-from ._common import FileLoader, read_json
+from ._common import document_errors, FileLoader, read_json
 
 NAME = "native"
 DESCRIPTION = "ibrtools scene directory (scene.json, docs/FORMAT.md)"
@@ -138,6 +138,7 @@ def _read_view(root: Path, entry, where: str, need_color: bool) -> View:
     return View.create(str(entry["name"]), camera, **loaders)
 
 
+@document_errors
 def load(path: Path, options: dict | None = None) -> Scene:
     """Read a native scene directory (or its scene.json)."""
     path = Path(path)

@@ -43,7 +43,7 @@ from ..camera import Camera
 from ..errors import BadValueError, DtypeError, FormatError, MissingFileError, ShapeError
 from ..imageio import read_pixels, srgb_to_linear
 from ..scene import Scene, View
-from ._common import (FileLoader, check_options, check_same_size, image_size, invert_rigid, opt_choice,
+from ._common import (document_errors, FileLoader, check_options, check_same_size, image_size, invert_rigid, opt_choice,
                       opt_float, read_json, rigid_from_matrix)
 
 NAME = "nerf"
@@ -169,12 +169,12 @@ def _load_depth(path: Path, camera: Camera, depth_scale: float) -> np.ndarray:
 
 
 def _has_alpha(path: Path) -> bool:
-    from ..imageio import _oiio
+    from ..imageio import _geterror, _oiio
 
     oiio = _oiio()
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
-        raise FormatError(f"{path}: not a readable image ({oiio.geterror().strip()})")
+        raise FormatError(f"{path}: not a readable image ({_geterror(oiio, 'unknown format')})")
     try:
         return inp.spec().nchannels in (2, 4)
     finally:
@@ -207,6 +207,7 @@ def _camera(meta: dict, frame: dict, image: Path, where: str) -> Camera:
     return Camera.pinhole(w, h, fx, fy, cx, cy, invert_rigid(c2w_gl @ GL_TO_CV))
 
 
+@document_errors
 def load(path: Path, options: dict) -> Scene:
     path = Path(path)
     options = check_options(options, OPTIONS, NAME)

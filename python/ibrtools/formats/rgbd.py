@@ -46,7 +46,7 @@ from ..camera import Camera
 from ..errors import BadValueError, FormatError, MissingFileError
 from ..imageio import read_depth, read_image
 from ..scene import Scene, View
-from ._common import FileLoader, check_options, check_same_size, image_size, invert_rigid, opt_choice, \
+from ._common import document_errors, FileLoader, check_options, check_same_size, image_size, invert_rigid, opt_choice, \
     opt_float, quat_to_rotation
 
 NAME = "rgbd"
@@ -173,6 +173,7 @@ def _tum_frames(path: Path, max_dt: float) -> list[tuple[str, Path, Path, np.nda
     return frames
 
 
+@document_errors
 def load(path: Path, options: dict) -> Scene:
     path = Path(path)
     options = check_options(options, OPTIONS, NAME)

@@ -27,6 +27,9 @@ MATRICES = {"bt709": (0.2126, 0.0722), "bt601": (0.299, 0.114)}
 
 
 def plane_shapes(width: int, height: int, chroma: str = "420") -> list[tuple[int, int]]:
+    if not (isinstance(width, (int, np.integer)) and isinstance(height, (int, np.integer))
+            and width > 0 and height > 0):
+        raise BadValueError(f"YUV frame size: expected positive integers, got {width}x{height}")
     if chroma == "420":
         cw, ch = (width + 1) // 2, (height + 1) // 2
         return [(height, width), (ch, cw), (ch, cw)]
