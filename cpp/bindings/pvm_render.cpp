@@ -124,7 +124,7 @@ class PvmRendererCore {
 
   py::dict Render(const Camera& camera, py::handle gbuffer_obj, py::handle mask_obj, bool filtered, float sigma,
                   float alpha, float gamma, float tau_depth, int max_tiles, int max_candidates, int ulr_k,
-                  float merge_rel, float radius_sigmas, int margin, float near, bool cull_back, float max_angle_deg) {
+                  float merge_rel, float radius_sigmas, int margin, float near, bool cull_back, float max_angle_deg, int ray_stride) {
     if (camera.model != CameraModel::kPinhole) {
       throw BadValueError("camera: PVM rendering takes a pinhole target camera (equirect targets are not built)");
     }
@@ -162,6 +162,7 @@ class PvmRendererCore {
                           std::to_string(max_candidates));
     }
     if (ulr_k < 1 || ulr_k > 64) throw BadValueError("ulr_k: expected 1 .. 64, got " + std::to_string(ulr_k));
+    if (ray_stride < 0) throw BadValueError("ray_stride: expected >= 0, got " + std::to_string(ray_stride));
     if (margin < 0 || margin > 32) throw BadValueError("margin: expected 0 .. 32, got " + std::to_string(margin));
     PvmRenderOptions o;
     o.filtered = filtered;
@@ -177,6 +178,7 @@ class PvmRendererCore {
     o.margin = margin;
     o.near = near;
     o.cull_back = cull_back;
+    o.ray_stride = ray_stride;
     o.max_angle = max_angle_deg >= 180.f ? 3.15f : max_angle_deg * 3.14159265f / 180.f;
     PvmViews views;
     views.count = static_cast<int>(cameras_.size());
@@ -198,7 +200,7 @@ class PvmRendererCore {
         ms[i] = std::chrono::duration<double, std::milli>(now - t).count();
         t = now;
       };
-      PvmVisibleCoarse(tiles_.grid, camera, gptr, o.margin, frame_.visible);
+      PvmVisibleCoarse(tiles_.grid, camera, gptr, o.margin, o.ray_stride, frame_.visible);
       lap(0);
       PvmSelectTiles(tiles_, views, frame_.visible, camera, o, frame_);
       lap(1);
@@ -282,7 +284,7 @@ void BindPvmRender(py::module_& m) {
            py::arg("alpha") = 7.f, py::arg("gamma") = 7.f, py::arg("tau_depth") = 0.83f, py::arg("max_tiles") = 12,
            py::arg("max_candidates") = 12, py::arg("ulr_k") = 4, py::arg("merge_rel") = 0.02f,
            py::arg("radius_sigmas") = 2.f, py::arg("margin") = 1, py::arg("near") = 1e-3f,
-           py::arg("cull_back") = true, py::arg("max_angle") = 60.f,
+           py::arg("cull_back") = true, py::arg("max_angle") = 60.f, py::arg("ray_stride") = 4,
            "dict: color (H, W, 3), depth (H, W) (Eq. 2 vote), vote (H, W), valid, inside_grid (H, W) bool, "
            "times_ms per stage, visible_coarse, tiles, triangles.")
       .def("candidates", &PvmRendererCore::Candidates, py::arg("height"), py::arg("width"),

@@ -62,7 +62,7 @@ inline bool OwnsEdge(double dx, double dy) { return dy > 0.0 || (dy == 0.0 && dx
 }  // namespace
 
 void PvmVisibleCoarse(const PvmGrid& grid, const Camera& camera, const float* gbuffer_depth, int margin,
-                      std::vector<std::uint8_t>& visible) {
+                      int ray_stride, std::vector<std::uint8_t>& visible) {
   const int c = grid.coarse;
   const std::int64_t n = CoarseCount(grid);
   visible.assign(static_cast<std::size_t>(n), 0);
@@ -101,6 +101,13 @@ void PvmVisibleCoarse(const PvmGrid& grid, const Camera& camera, const float* gb
   // band order (the marks are the same whatever the order; lists keep the writes race-free).
   const int band = 16;
   const int nb = (h + band - 1) / band;
+  const glm::dvec3 centre = camera.CentreInWorld();
+  double lo[3], hi[3], min_cell = 1e300;
+  for (int a = 0; a < 3; ++a) {
+    lo[a] = grid.origin[a];
+    hi[a] = grid.origin[a] + grid.cell[a] * grid.coarse * grid.sub;
+    min_cell = std::min(min_cell, grid.cell[a] * grid.sub);
+  }
   std::vector<std::vector<std::int32_t>> lists(static_cast<std::size_t>(nb));
   ParallelFor(nb, 1, [&](std::int64_t b0, std::int64_t b1) {
     for (std::int64_t b = b0; b < b1; ++b) {
@@ -116,6 +123,34 @@ void PvmVisibleCoarse(const PvmGrid& grid, const Camera& camera, const float* gb
           const std::int32_t id = (CoarseAxis(grid, 2, p.z) * c + CoarseAxis(grid, 1, p.y)) * c + CoarseAxis(grid, 0, p.x);
           if (id != last) out.push_back(id);
           last = id;
+        }
+        // Every ray_stride-th pixel of every ray_stride-th row: the cells its ray crosses in front
+        // of the G-buffer's surface (to the grid's far side where it has none), sampled at half
+        // the smallest coarse cell size.
+        if (ray_stride <= 0 || y % ray_stride != 0) continue;
+        for (int x = 0; x < w; x += ray_stride) {
+          const float z = gbuffer_depth[static_cast<std::int64_t>(y) * w + x];
+          const glm::dvec3 ray = camera.RayInCam(x + 0.5, y + 0.5);  // z = 1: t is depth
+          const glm::dvec3 dir = camera.WorldFromCamDir(ray);
+          double t0 = 0.0, t1 = (z > 0.f && std::isfinite(z)) ? static_cast<double>(z) : 1e300;
+          for (int a = 0; a < 3; ++a) {
+            if (dir[a] == 0.0) {
+              if (centre[a] < lo[a] || centre[a] > hi[a]) t1 = -1.0;
+              continue;
+            }
+            double ta = (lo[a] - centre[a]) / dir[a], tb = (hi[a] - centre[a]) / dir[a];
+            if (ta > tb) std::swap(ta, tb);
+            t0 = std::max(t0, ta);
+            t1 = std::min(t1, tb);
+          }
+          if (!(t0 <= t1)) continue;
+          const double step = 0.5 * min_cell / glm::length(dir);
+          for (double t = t0; t <= t1 + step; t += step) {
+            const glm::dvec3 p = centre + dir * std::min(t, t1);
+            const std::int32_t id = (CoarseAxis(grid, 2, p.z) * c + CoarseAxis(grid, 1, p.y)) * c + CoarseAxis(grid, 0, p.x);
+            if (id != last) out.push_back(id);
+            last = id;
+          }
         }
       }
     }

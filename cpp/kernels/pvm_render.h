@@ -7,7 +7,11 @@
 //  1. PvmVisibleCoarse  "voxel lookup": coarse cells that hold visible surface. With a G-buffer
 //     (z of the global mesh per pixel, 0 = no hit) every hit pixel is unprojected and its coarse
 //     cell marked, then the marks are dilated by `margin` cells (a 1-cell margin catches surface
-//     the global mesh misses just in front of / behind what it has). Without one, every coarse
+//     the global mesh misses just in front of / behind what it has). With ray_stride > 0, also the
+//     cells that the rays of every ray_stride-th pixel and row cross in front of the G-buffer's
+//     surface (to the grid's far side where the G-buffer is empty): an object the global mesh
+//     lacks (the case PVMs are for) is otherwise not looked up when it is more than `margin`
+//     cells in front of the surface behind it. Without a G-buffer, every coarse
 //     cell whose finite box is not entirely outside one plane of the camera frustum.
 //  2. PvmSelectTiles    "tile sort": per fine cell of a visible coarse cell, the tiles of enabled
 //     views ranked by the ULR penalty (ulr.h) of their view for the fine cell's centre and the
@@ -79,6 +83,7 @@ struct PvmRenderOptions {
   int max_tiles = 12;        // tiles kept per fine voxel (paper: 12)
   int max_candidates = 12;   // candidates per pixel (<= kPvmMaxCandidates)
   int margin = 1;            // dilation of the G-buffer's coarse cells, in cells
+  int ray_stride = 4;        // cells in front of the G-buffer on every ray_stride-th ray (0 = off)
   int ulr_k = 4;             // ULR k within a cluster (weight 0 at the k-th)
   float resolution_weight = 0.5f;  // ULR resolution penalty weight (ulr.h)
   float max_angle = 3.15f;   // radians: a view whose ray to the fine cell's centre makes a larger angle
@@ -111,7 +116,7 @@ struct PvmFrame {
 
 // Stage 1. gbuffer_depth (H, W) z or nullptr; visible gets coarse^3 bytes (1 = visible).
 void PvmVisibleCoarse(const PvmGrid& grid, const Camera& camera, const float* gbuffer_depth, int margin,
-                      std::vector<std::uint8_t>& visible);
+                      int ray_stride, std::vector<std::uint8_t>& visible);
 // Stage 2.
 void PvmSelectTiles(const PvmTileArrays& tiles, const PvmViews& views, const std::vector<std::uint8_t>& visible,
                     const Camera& camera, const PvmRenderOptions& options, PvmFrame& frame);
