@@ -6,6 +6,7 @@ no traceback unless --debug), 1 internal error.
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 from typing import Callable, Sequence
 
@@ -27,12 +28,29 @@ def set_threads(n: int) -> None:
     _core.set_num_threads(n)
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread like Ctrl-C so that every ``finally`` and ``except
+    BaseException`` on the way out runs: temporary files are removed and partial outputs undone
+    (the default action of SIGTERM ends the process on the spot, leaving them behind)."""
+
+
+def _on_sigterm(signum, frame):
+    raise Terminated()
+
+
 def run_command(prog: str, body: Callable[[argparse.Namespace], int],
                 parser: argparse.ArgumentParser, argv: Sequence[str] | None) -> int:
     args = parser.parse_args(argv)
     try:
+        old_term = signal.signal(signal.SIGTERM, _on_sigterm)
+    except ValueError:  # not the main thread (a command called from a library thread)
+        old_term = None
+    try:
         set_threads(args.threads)
         return body(args)
+    except Terminated:
+        print(f"{prog}: terminated", file=sys.stderr)
+        return 143
     except (InputError, NotBuiltError) as e:
         if args.debug:
             raise
@@ -47,6 +65,9 @@ def run_command(prog: str, body: Callable[[argparse.Namespace], int],
         print(f"{prog}: internal error: {type(e).__name__}: {e} (run with --debug for the traceback)",
               file=sys.stderr)
         return 1
+    finally:
+        if old_term is not None:
+            signal.signal(signal.SIGTERM, old_term)
 
 
 def print_table(headers: list[str], rows: list[list[str]], title: str | None = None,

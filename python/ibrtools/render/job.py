@@ -21,7 +21,9 @@ import numpy as np
 from ..camera import Camera
 from ..errors import BadValueError, FormatError, MissingFileError
 from ..formats._common import read_json
-from ..imageio import atomic_path, write_depth, write_image
+from ..imageio import atomic_path
+from ..imageio import write_depth as _write_depth
+from ..imageio import write_image as _write_image
 from ..scene import Scene, View
 from . import methods
 
@@ -92,6 +94,87 @@ def plan(scene: Scene, *, targets: list[str] | None = None, holdout: list[str] |
     return Job(sub, frames)
 
 
+# --- memory: estimate before allocating -----------------------------------------------------------
+# Bytes held per pixel while rendering, calibrated on peak RSS measured with /usr/bin/time -v
+# (tools/measure_memory.py, docs/robustness.md "Peak memory"), rounded up. INPUT: every pixel of
+# every input view the method loads (colour float32 x3 + depth float32 + mask, plus the method's
+# per-view derived buffers). FRAME: every pixel of the largest frame (output colour, depth,
+# hole mask, the metrics' copies, per-frame scratch). reference reads no view, only the mesh.
+_INPUT_BPP = {"reference": 0, "dibr": 40, "warp": 40, "depthwarp": 40, "tm": 40, "ulr": 40, "pvm": 64,
+              "hybrid": 64}
+_FRAME_BPP = {"reference": 160, "dibr": 400, "warp": 400, "depthwarp": 600, "tm": 300, "ulr": 400,
+              "pvm": 400, "hybrid": 600}
+_TRIANGLE_BYTES = 160   # mesh arrays + Embree BVH per triangle
+_BASE_BYTES = 600 << 20  # the interpreter, numpy, OpenImageIO, open3d, the engine, loaded once
+
+
+def _parse_bytes(text: str) -> int:
+    t = text.strip().upper().removesuffix("B")
+    mult = {"K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}.get(t[-1:], 1)
+    try:
+        v = float(t[:-1] if t[-1:] in "KMGT" else t) * mult
+    except ValueError:
+        raise BadValueError(f"IBR_MEMORY_LIMIT: expected a size such as 8G or 512M, got {text!r}") from None
+    if not v > 0:
+        raise BadValueError(f"IBR_MEMORY_LIMIT: expected a positive size, got {text!r}")
+    return int(v)
+
+
+def available_memory() -> int:
+    """Bytes this process may still allocate: $IBR_MEMORY_LIMIT when set, else the smaller of
+    MemAvailable (/proc/meminfo) and the cgroup v2 limit minus its usage (containers)."""
+    env = os.environ.get("IBR_MEMORY_LIMIT")
+    if env:
+        return _parse_bytes(env)
+    avail = None
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    avail = int(line.split()[1]) * 1024
+                    break
+    except OSError:
+        pass
+    try:
+        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+        if limit != "max":
+            used = int(Path("/sys/fs/cgroup/memory.current").read_text())
+            avail = min(avail or 1 << 62, int(limit) - used)
+    except (OSError, ValueError):
+        pass
+    return avail if avail is not None else 1 << 62  # unknown platform: do not refuse
+
+
+def estimate_memory(job: Job, method: str) -> dict:
+    """A coarse upper estimate of the peak bytes of rendering ``job`` with ``method``, from the
+    camera sizes alone (no image is loaded): {"total", "inputs", "frame", "mesh", "base"}."""
+    in_px = sum(v.camera.width * v.camera.height for v in job.scene.views)
+    out_px = max((f.camera.width * f.camera.height for f in job.frames), default=0)
+    tris = sum(len(m.faces) for m in (job.scene.meshes or {}).values() if hasattr(m, "faces"))
+    est = {"inputs": in_px * _INPUT_BPP.get(method, 64), "frame": out_px * _FRAME_BPP.get(method, 600),
+           "mesh": tris * _TRIANGLE_BYTES, "base": _BASE_BYTES}
+    est["total"] = sum(est.values())
+    return est
+
+
+def check_memory(job: Job, method: str) -> dict:
+    """Refuse, before anything is allocated, a job whose estimate exceeds the available memory
+    (a clear error instead of the kernel's OOM killer part-way through)."""
+    est = estimate_memory(job, method)
+    avail = available_memory()
+    if est["total"] > avail:
+        gib = 1 << 30
+        big = max(job.frames, key=lambda f: f.camera.width * f.camera.height)
+        raise BadValueError(
+            f"--method {method}: this job needs about {est['total'] / gib:.1f} GiB "
+            f"({len(job.scene.views)} input views: {est['inputs'] / gib:.1f} GiB; largest frame "
+            f"{big.camera.width}x{big.camera.height}: {est['frame'] / gib:.1f} GiB; mesh "
+            f"{est['mesh'] / gib:.1f} GiB), only {avail / gib:.1f} GiB is available"
+            f"{' (IBR_MEMORY_LIMIT)' if os.environ.get('IBR_MEMORY_LIMIT') else ''}: render smaller frames, "
+            "use fewer input views (dibr: --inputs), or free memory")
+    return est
+
+
 def _frame_metrics(out: dict, truth: View | None) -> dict:
     from ..metrics import compare
 
@@ -123,7 +206,6 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
     from .. import _core
     from ..inpaint import METHODS as INPAINT_METHODS
     from ..inpaint import NOT_BUILT as INPAINT_NOT_BUILT
-    from ..inpaint import inpaint as fill_holes
 
     if inpaint in INPAINT_NOT_BUILT:
         from ..errors import NotBuiltError
@@ -142,11 +224,39 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
     if out_dir.exists() and not out_dir.is_dir():
         raise BadValueError(f"-o {out_dir}: exists and is not a directory")
     name = methods.resolve(method_name, job.scene)
+    check_memory(job, name)
     method = methods.create(name, params)
     if threads:
         _core.set_num_threads(threads)
     setup = method.prepare(job.scene)
     out_dir.mkdir(parents=True, exist_ok=True)
+    # report.json marks a complete run: a stale one must not describe the images written now.
+    (out_dir / "report.json").unlink(missing_ok=True)
+    written: list[Path] = []
+    try:
+        return _render_frames(job, method, name, out_dir, written, setup, params=params, float_out=float_out,
+                              depth_out=depth_out, inpaint=inpaint, fov_kw=fov_kw, progress=progress)
+    except BaseException:
+        # Interrupted (SIGINT, SIGTERM through the commands' handler) or failed part-way: the run
+        # is all or nothing, so the frames it wrote go too (each was written atomically).
+        for f in written:
+            f.unlink(missing_ok=True)
+        raise
+
+
+def _render_frames(job: Job, method, name: str, out_dir: Path, written: list[Path], setup: dict, *,
+                   params, float_out, depth_out, inpaint, fov_kw, progress) -> dict:
+    from .. import _core
+    from ..inpaint import inpaint as fill_holes
+
+    def write_image(path: Path, image: np.ndarray) -> None:
+        written.append(path)
+        _write_image(path, image)
+
+    def write_depth(path: Path, depth: np.ndarray) -> None:
+        written.append(path)
+        _write_depth(path, depth)
+
     frames_report = []
     for i, frame in enumerate(job.frames):
         if progress:
