@@ -132,6 +132,11 @@ def test_tiles_reassemble_the_pvm_and_lie_in_their_cells(tmp_path):
     np.testing.assert_allclose(a_pieces, a_pvm, rtol=1e-4, atol=1e-9)
     # Same triangle set: uncut pieces are the PVM faces themselves.
     assert set(np.unique(t.face_source)) == set(range(len(t.pvm_faces)))
+    # Clipping keeps each piece's orientation (counter-clockwise seen from its camera).
+    n_piece = tri_normals(t.vertices.astype(np.float64), t.faces)
+    n_src = tri_normals(t.pvm_vertices.astype(np.float64), t.pvm_faces)[t.face_source]
+    big = np.linalg.norm(n_piece, axis=1) > 1e-6 * np.linalg.norm(n_src, axis=1)
+    assert np.all(np.einsum("ij,ij->i", n_piece[big], n_src[big]) > 0)
     ext = (t.pvm_vertices.max(0) - t.pvm_vertices.min(0)).max()
     for k in range(t.num_tiles):
         tv, tf = t.tile(k)
