@@ -1,0 +1,146 @@
+"""Data safety (issue 9, item 5): SIGINT / SIGTERM during ibr-render and ibr-preprocess leave no
+partial output and no corrupt cache entry; a corrupt cache entry is detected and recomputed.
+
+The commands run as subprocesses (the installed entry points) and are signalled mid-run, once
+their first output appears. Contracts checked afterwards:
+* ibr-render: exit 130 (SIGINT) / 143 (SIGTERM); no frame image, no report.json (a stale one
+  from an earlier run in the same directory is gone too), no temporary file.
+* ibr-preprocess: exit 130 / 143; scene.json still parses; the interrupted stage has no record
+  (stages.stage_output refuses it with the command that makes it); no temporary file.
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from ibrtools.errors import MissingFileError
+
+BIN = Path(sys.executable).parent
+SIZE = "48x36"
+EXIT = {signal.SIGINT: 130, signal.SIGTERM: 143}
+
+
+def _command(name: str) -> list[str]:
+    exe = BIN / name
+    if exe.is_file():
+        return [str(exe)]
+    module = {"ibr-render": "ibrtools_cli.render", "ibr-preprocess": "ibrtools_cli.preprocess"}[name]
+    return [sys.executable, "-c", f"import sys; from {module} import main; sys.exit(main())"]
+
+
+def _temporaries(root: Path) -> list[Path]:
+    """Files or directories a writer leaves behind when it dies: atomic_path names ('.stem.XXXX.ext')
+    and native.save's temporary scene directories."""
+    return [p for p in root.rglob("*") if p.name.startswith(".") or ".tmp" in p.name]
+
+
+def _run_until(argv: list[str], ready, sig, timeout: float = 120.0) -> int:
+    """Start the command, wait until ``ready()`` holds, send ``sig``, return the exit code."""
+    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    t0 = time.monotonic()
+    try:
+        while not ready():
+            if proc.poll() is not None:
+                pytest.fail(f"{argv[0]} ended (exit {proc.returncode}) before it could be interrupted: "
+                            f"{proc.stderr.read().decode()[-500:]}")
+            if time.monotonic() - t0 > timeout:
+                pytest.fail(f"{argv[0]}: nothing to interrupt after {timeout} s")
+            time.sleep(0.02)
+        proc.send_signal(sig)
+        return proc.wait(timeout=timeout)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+@pytest.fixture(scope="module")
+def scene_dir(tmp_path_factory):
+    from ibrtools_cli import preprocess
+
+    d = tmp_path_factory.mktemp("intr") / "scene"
+    assert preprocess.main(["synth:objects", "-o", str(d), "--views", "3", "--size", SIZE, "-q"]) == 0
+    return d
+
+
+@pytest.fixture(scope="module")
+def many_poses(scene_dir, tmp_path_factory):
+    """1000 frames of 320x240: minutes of work, interrupted after the first frame."""
+    from ibrtools.formats import native
+
+    cam = native.load(scene_dir).views[0].camera.to_dict()
+    s = 320 / cam["width"]
+    cam.update(width=320, height=240, fx=cam["fx"] * s, fy=cam["fy"] * s, cx=cam["cx"] * s, cy=cam["cy"] * s)
+    f = tmp_path_factory.mktemp("poses") / "poses.json"
+    f.write_text(json.dumps([dict(cam, name=f"f{i:04d}") for i in range(1000)]))
+    return f
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_render_interrupted_leaves_nothing(scene_dir, many_poses, tmp_path, sig):
+    out = tmp_path / "out"
+    # a complete earlier run in the same directory: its report.json must not survive
+    small = tmp_path / "two.json"
+    small.write_text(json.dumps(json.loads(many_poses.read_text())[:2]))
+    assert subprocess.run(_command("ibr-render") + [str(scene_dir), "--method", "dibr", "--poses", str(small),
+                                                   "-o", str(out), "-q"], capture_output=True).returncode == 0
+    assert (out / "report.json").is_file()
+    code = _run_until(_command("ibr-render") + [str(scene_dir), "--method", "dibr", "--poses", str(many_poses),
+                                                "-o", str(out), "-q", "-j", "1"],
+                      lambda: (out / "f0002.png").exists(), sig)
+    assert code == EXIT[sig]
+    left = sorted(p.name for p in out.iterdir()) if out.exists() else []
+    assert not left, f"interrupted render left {left[:8]}"
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM], ids=["SIGTERM"])  # SIGINT: the same path (KeyboardInterrupt)
+def test_preprocess_interrupted_in_a_stage(tmp_path, sig):
+    from ibrtools import stages
+
+    d = tmp_path / "scene"
+    # the fused global mesh takes seconds: interrupted once the import has written scene.json
+    code = _run_until(_command("ibr-preprocess") + ["synth:objects", "-o", str(d), "--views", "3", "--size", "64x48",
+                                                    "--stages", "mesh", "-q"],
+                      lambda: (d / "scene.json").is_file() and (time.sleep(0.5) or True), sig)
+    assert code == EXIT[sig]
+    assert not _temporaries(tmp_path), _temporaries(tmp_path)
+    doc = json.loads((d / "scene.json").read_text())  # still a whole document
+    assert "mesh" not in (doc.get("stages") or {})
+    with pytest.raises(MissingFileError, match="--stages mesh"):
+        stages.stage_output(d, "mesh")
+
+
+def test_preprocess_interrupted_during_import(tmp_path):
+    """Signalled early (during the import or the interpreter start): no scene or a whole one."""
+    d = tmp_path / "scene"
+    t0 = time.monotonic()
+    code = _run_until(_command("ibr-preprocess") + ["synth:objects", "-o", str(d), "--views", "3", "--size", "64x48",
+                                                    "-q"], lambda: time.monotonic() - t0 > 1.5, signal.SIGTERM)
+    assert code in (143, -signal.SIGTERM)  # before the handler is installed the default action applies
+    assert not _temporaries(tmp_path), _temporaries(tmp_path)
+    if d.exists():
+        json.loads((d / "scene.json").read_text())
+
+
+def test_corrupt_cache_entry_is_detected_and_recomputed(tmp_path):
+    from ibrtools import stages
+    from ibrtools_cli import preprocess
+
+    d = tmp_path / "scene"
+    argv = ["synth:objects", "-o", str(d), "--views", "3", "--size", SIZE, "--stages", "mesh",
+            "--set", "mesh.source=ground_truth", "-q"]
+    assert preprocess.main(argv) == 0
+    f = stages.stage_output(d, "mesh")
+    good = f.read_bytes()
+    f.write_bytes(good[: len(good) // 2])  # a torn write or a disk error
+    with pytest.raises(MissingFileError, match="missing or changed"):
+        stages.stage_output(d, "mesh")
+    assert preprocess.main(argv[:-1] + ["--json"]) == 0
+    assert stages.stage_output(d, "mesh").read_bytes() == good  # recomputed, the same bytes
