@@ -1,0 +1,174 @@
+"""Hybrid IBR rendering (issue 7): quality of TM, ULR, PVM (filtered), unfiltered PVM and hybrid on
+held-out targets of a degraded synthetic scene, and speed at 1280x720 with a per-stage table
+(the paper's Table 2).
+
+    python benchmarks/bench_hybrid.py [--size 640x480] [--views 16] [--targets 4] [--depth-noise 0.01]
+        [--exposure-jitter 0.1] [--speed-size 1280x720] [--repeats 3] [-j N] [--write-docs]
+
+Scene: ``synth:objects`` (diffuse and glossy objects on a textured ground) made with
+``reconstructed=True`` (the global mesh is the degraded reconstruction: decimated, displaced,
+with a missing object; docs/synth.md), multiplicative depth noise on the input depth maps
+(which the PVMs are built from), per-view exposure jitter (which harmonisation removes) and
+``--targets`` held-out target cameras between the inputs that no preprocessing stage reads. The
+scene is preprocessed from scratch in a temporary directory for ``--methods tm,ulr,pvm,hybrid``
+(timed, reported). Quality: each method renders every target at the input resolution; metrics
+(``ibrtools.metrics.compare``: PSNR and SSIM on sRGB, FLIP) over the whole frame, holes black,
+averaged over the targets. PVM alone is ``PvmRenderer.render`` with the global mesh's G-buffer
+depth (its holes: pixels without candidates). Speed: the targets' cameras scaled to
+``--speed-size``, median over ``--repeats`` x targets of each method's render call, and the hybrid
+method's own per-stage times (G-buffer, TM shade, the PVM stages, masking, ULR blend, composite).
+With --write-docs, replaces the "Hybrid rendering" section of docs/benchmarks.md.
+"""
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from benchlib import DOCS, load_note, machine, write_section
+
+TARGETS_MS = {"tm": 20.0, "ulr": 80.0, "hybrid": 250.0}
+
+
+def _size(text: str) -> tuple[int, int]:
+    w, h = text.lower().split("x")
+    return int(w), int(h)
+
+
+class PvmOnly:
+    """PVM alone (filtered or not) for the comparison: PvmRenderer with the global G-buffer depth."""
+
+    def __init__(self, scene, filtered: bool):
+        from ibrtools.hybrid.pvm_render import PvmRenderer
+        from ibrtools.render.hybrid import _GlobalMesh
+
+        self.gm = _GlobalMesh(scene, "pvm", texture=False)
+        self.pvm = PvmRenderer(scene)
+        self.filtered = filtered
+
+    def render(self, camera):
+        t0 = time.perf_counter()
+        gb = self.gm.gbuffer(camera)
+        r = self.pvm.render(camera, gbuffer_depth=gb["depth"], filtered=self.filtered)
+        ms = (time.perf_counter() - t0) * 1e3
+        return {"color": r.color, "hole": ~r.valid}, {"total": ms}
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--size", default="640x480", help="WxH of the input views and quality targets (default 640x480)")
+    p.add_argument("--views", type=int, default=16, help="input views (default 16)")
+    p.add_argument("--targets", type=int, default=4, help="held-out targets (default 4)")
+    p.add_argument("--depth-noise", type=float, default=0.01, help="multiplicative depth noise (default 0.01)")
+    p.add_argument("--exposure-jitter", type=float, default=0.1, help="per-view exposure jitter (default 0.1)")
+    p.add_argument("--speed-size", default="1280x720", help="WxH of the timed frames (default 1280x720)")
+    p.add_argument("--repeats", type=int, default=3, help="timed renders per target and method (default 3)")
+    p.add_argument("-j", "--threads", type=int, default=0, help="engine threads (default: all cores)")
+    p.add_argument("--write-docs", action="store_true", help=f"replace the section in {DOCS.name}")
+    args = p.parse_args(argv)
+
+    from ibrtools import _core
+    from ibrtools.formats import native
+    from ibrtools.metrics import compare
+    from ibrtools.render import methods
+    from ibrtools.stages import preprocess
+
+    if args.threads:
+        _core.set_num_threads(args.threads)
+    size, speed_size = _size(args.size), _size(args.speed_size)
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp) / "scene"
+        synth = {"preset": "objects", "size": list(size), "views": args.views, "seed": 0, "reconstructed": True,
+                 "holdout_targets": args.targets, "depth_noise": args.depth_noise,
+                 "exposure_jitter": args.exposure_jitter}
+        t0 = time.perf_counter()
+        rows = preprocess("synth:objects", root, synth=synth, methods=["tm", "ulr", "pvm", "hybrid"])
+        prep_s = time.perf_counter() - t0
+        stage_s = {r.name: (r.status, r.seconds) for r in rows}
+        print(f"preprocess {prep_s:.1f} s: " + ", ".join(f"{k} {v[0]} {v[1]:.1f}s" for k, v in stage_s.items()),
+              file=sys.stderr)
+        scene = native.load(root)
+        targets = [t for t in scene.targets if t.has_color]
+        renderers = {}
+        for name in ("tm", "ulr", "hybrid"):
+            m = methods.create(name)
+            m.prepare(scene)
+            renderers[name] = m
+        renderers["pvm"] = PvmOnly(scene, filtered=True)
+        renderers["pvm_unfiltered"] = PvmOnly(scene, filtered=False)
+        order = ["tm", "ulr", "pvm", "pvm_unfiltered", "hybrid"]
+
+        # ---- quality at the input resolution -----------------------------------------------
+        quality = {n: {"psnr": [], "ssim": [], "flip": []} for n in order}
+        selection = []
+        for t in targets:
+            for n in order:
+                out, _ = renderers[n].render(t.camera)
+                color = np.nan_to_num(out["color"]).astype(np.float32)
+                hole = out.get("hole")
+                if hole is not None:
+                    color = np.where(hole[..., None], 0.0, color).astype(np.float32)
+                m = compare(color, t.color)
+                for k in quality[n]:
+                    quality[n][k].append(float(m[k]))
+                if n == "hybrid":
+                    selection.append(renderers[n].frame_report()["selection"])
+        mean = {n: {k: float(np.mean(v)) for k, v in quality[n].items()} for n in order}
+
+        # ---- speed at --speed-size ------------------------------------------------------------
+        speed = {n: [] for n in order}
+        stages: dict[str, list] = {}
+        for t in targets:
+            cam = t.camera.scaled(*speed_size)
+            for n in order:
+                renderers[n].render(cam)  # warm-up (first touch of the buffers of this size)
+                for _ in range(args.repeats):
+                    t1 = time.perf_counter()
+                    _, st = renderers[n].render(cam)
+                    speed[n].append((time.perf_counter() - t1) * 1e3)
+                    if n == "hybrid":
+                        for k, v in st.items():
+                            stages.setdefault(k, []).append(v)
+        med = {n: statistics.median(v) for n, v in speed.items()}
+
+    names = {"tm": "TM (textured mesh)", "ulr": "ULR (per-pixel)", "pvm": "PVM (clustered, filtered)",
+             "pvm_unfiltered": "PVM unfiltered (PVM-H-like)", "hybrid": "hybrid"}
+    lines = [f"Hybrid IBR rendering (`python benchmarks/bench_hybrid.py --write-docs`), {machine()}, "
+             f"{_core.get_num_threads()} threads. Scene: synth:objects, {args.views} input views of "
+             f"{size[0]}x{size[1]}, reconstructed (degraded) global mesh, depth noise {args.depth_noise}, "
+             f"exposure jitter {args.exposure_jitter}, glossy objects; {len(targets)} held-out targets no "
+             f"stage reads. Preprocessing (tm, ulr, pvm, hybrid) took {prep_s:.1f} s "
+             f"({', '.join(f'{k} {v[1]:.1f} s' + ('' if v[0] == 'ran' else f' {v[0]}') for k, v in stage_s.items())}).",
+             "", f"Quality at {size[0]}x{size[1]} (mean over the targets; whole frame, holes black):", "",
+             "| method | PSNR dB | SSIM | FLIP |", "|---|---:|---:|---:|"]
+    for n in order:
+        lines.append(f"| {names[n]} | {mean[n]['psnr']:.2f} | {mean[n]['ssim']:.4f} | {mean[n]['flip']:.4f} |")
+    beats = [n for n in ("tm", "ulr", "pvm") if mean["hybrid"]["psnr"] > mean[n]["psnr"]]
+    sel = {k: float(np.mean([s[k] for s in selection])) for k in selection[0]} if selection else {}
+    lines += ["", f"Hybrid beats on mean PSNR: {', '.join(beats) or 'none'} (target: tm, ulr and pvm). "
+              f"Mean selection: " + ", ".join(f"{k} {100 * v:.1f} %" for k, v in sel.items()) + ".",
+              "", f"Speed at {speed_size[0]}x{speed_size[1]} (median of {args.repeats} x {len(targets)} frames, "
+              "whole render call):", "", "| method | ms per frame | target |", "|---|---:|---|"]
+    for n in order:
+        tgt = TARGETS_MS.get(n)
+        verdict = "" if tgt is None else f"<= {tgt:.0f} ms: {'met' if med[n] <= tgt else 'missed'}"
+        lines.append(f"| {names[n]} | {med[n]:.1f} | {verdict} |")
+    lines += ["", "Hybrid per stage (Table 2 analogue; median ms):", "", "| stage | ms |", "|---|---:|"]
+    for k, v in stages.items():
+        lines.append(f"| {k} | {statistics.median(v):.2f} |")
+    lines += ["", load_note()]
+    text = "\n".join(lines)
+    print(text)
+    if args.write_docs:
+        write_section("Hybrid rendering", text)
+        print(f"wrote the 'Hybrid rendering' section of {DOCS}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
