@@ -189,3 +189,19 @@ def test_bad_inputs(base):
     no_color = Scene(views=[View.create("a", sc.views[0].camera)])
     with pytest.raises(BadValueError, match="no colour"):
         variance_mesh(no_color, mesh)
+
+
+def test_mesh_colour_source_matches_given_vertex_colours(base):
+    # t_source="mesh" renders the mesh's own vertex colours (ambient 1, no lights); with the mesh
+    # coloured by the same vertex means, T and so every output must agree with colors=means
+    # (Embree's colour interpolation vs ours: float rounding only).
+    sc, diffuse, mesh = base
+    colors, _ = jittered(diffuse, 0.2, seed=2)
+    scene = with_colors(sc, colors)
+    st = vertex_statistics(scene, mesh)
+    a = harmonise(scene, mesh, st["std"], colors=st["mean"])
+    coloured = replace(mesh, vertex_colors=st["mean"])
+    b = harmonise(scene, coloured, st["std"], HarmoniseParams(t_source="mesh"))
+    for n in a.images:
+        np.testing.assert_allclose(a.images[n], b.images[n], atol=1e-4)
+        assert np.array_equal(a.masks[n], b.masks[n])
