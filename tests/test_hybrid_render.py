@@ -27,6 +27,20 @@ def test_ulr_penalty_hand_checked():
     assert math.isinf(_core.ulr_penalty([0, 0, 0], [0, 0, 1], [0, 0, float("nan")]))
 
 
+def test_fast_penalty_matches_the_header():
+    """The per-pixel kernel's penalty (polynomial atan2, Abramowitz-Stegun 4.4.49, max error
+    1e-5 rad) against UlrPenalty: within 2e-5 (the polynomial's error plus float rounding)."""
+    rng = np.random.default_rng(0)
+    worst = 0.0
+    for _ in range(3000):
+        p, a, b = rng.normal(size=(3, 3)) * rng.choice([0.01, 1.0, 100.0])
+        worst = max(worst, abs(_core.ulr_penalty(p, a, b) - _core.ulr_penalty(p, a, b, fast=True)))
+    assert worst < 2e-5
+    assert math.isinf(_core.ulr_penalty([0, 0, 0], [0, 0, 0], [0, 0, 1], fast=True))
+    # Opposite directions: pi.
+    assert _core.ulr_penalty([0, 0, 0], [0, 0, 1], [0, 0, -1], fast=True) == pytest.approx(math.pi, abs=2e-5)
+
+
 def test_ulr_select_k_best_weights_to_zero_at_kth():
     pen = np.array([0.3, np.inf, 0.1, 0.3, 0.2, 0.05], np.float32)
     idx, w = _core.ulr_select(pen, 4)
@@ -308,20 +322,31 @@ def test_exact_mesh_hybrid_matches_reference_on_diffuse(exact_scene):
 
 @needs_pvm
 def test_target_outside_grid_renders_with_ulr_only(exact_scene):
+    """PVMs built from the near half of each view's depth only: the grid then covers the objects,
+    not the far ground; a target looking at the far ground from outside the grid is all ULR."""
+    from ibrtools.hybrid.pvm import build_tiles
+    from ibrtools.hybrid.pvm_render import PvmRenderer
     from ibrtools.render import methods
 
+    cams = {v.name: v.camera for v in exact_scene.views}
+    near = {}
+    for v in exact_scene.views:
+        d = v.depth.copy()
+        d[d > 6.0] = 0  # the objects stand within ~5 units of the cameras' look-at point
+        near[v.name] = d
+    tiles = build_tiles(cams, near)
+    lo, hi = tiles.origin, tiles.origin + tiles.cell * tiles.coarse * tiles.sub
     hy = methods.create("hybrid")
     hy.prepare(exact_scene)
-    # A camera far outside the scene's bounds, looking at it: every ray starts outside the grid;
-    # the PVM renderer reports the pixels whose rays meet the grid; those that miss it are ULR.
-    b = exact_scene.meshes["ground_truth"].bounds()
-    centre = (b[0] + b[1]) / 2
-    far = centre + np.array([0, 0.5, 1.0]) * 20 * np.linalg.norm(b[1] - b[0])
-    cam = Camera.from_fov(48, 36, 3, look_at(far, centre + np.array([0, 0, 5 * np.linalg.norm(b[1] - b[0])])))
+    hy._pvm = PvmRenderer(exact_scene, tiles=tiles)
+    eye = np.array([hi[0] + 2.0, 3.0, hi[2] + 2.0])
+    assert (eye > hi).any()  # the camera is outside the grid's box
+    cam = Camera.from_fov(48, 36, 50, look_at(eye, [11.0, 0.0, 11.0]))
     out, _ = hy.render(cam)
     lab = out["label"]
     assert not np.isnan(out["color"]).any()
-    assert set(np.unique(lab).tolist()) <= {1, 3}
+    assert (lab == 1).mean() > 0.3 and set(np.unique(lab).tolist()) <= {1, 3}
+    np.testing.assert_allclose(out["selection"][lab == 1], np.tile([0, 0, 1], ((lab == 1).sum(), 1)), atol=1e-6)
 
 
 def test_render_job_writes_frames(exact_scene, tmp_path):

@@ -210,15 +210,18 @@ void BindHybridRender(py::module_& m) {
   m.def(
       "ulr_penalty",
       [](const std::vector<float>& p, const std::vector<float>& c_novel, const std::vector<float>& c_view,
-         double resolution_weight) {
+         double resolution_weight, bool fast) {
         if (p.size() != 3 || c_novel.size() != 3 || c_view.size() != 3) {
           throw ShapeError("ulr_penalty: p, c_novel and c_view must have 3 coordinates each");
         }
-        return UlrPenalty(glm::vec3(p[0], p[1], p[2]), glm::vec3(c_novel[0], c_novel[1], c_novel[2]),
-                          glm::vec3(c_view[0], c_view[1], c_view[2]), static_cast<float>(resolution_weight));
+        const glm::vec3 pp(p[0], p[1], p[2]), cn(c_novel[0], c_novel[1], c_novel[2]);
+        const glm::vec3 cv(c_view[0], c_view[1], c_view[2]);
+        if (fast) return UlrPenaltyFast(pp, cn - pp, glm::length(cn - pp), cv, static_cast<float>(resolution_weight));
+        return UlrPenalty(pp, cn, cv, static_cast<float>(resolution_weight));
       },
-      py::arg("p"), py::arg("c_novel"), py::arg("c_view"), py::arg("resolution_weight") = 0.5,
-      "ULR penalty (cpp/kernels/ulr.h): angle + resolution_weight * max(0, |c_view-p|/|c_novel-p| - 1).");
+      py::arg("p"), py::arg("c_novel"), py::arg("c_view"), py::arg("resolution_weight") = 0.5, py::arg("fast") = false,
+      "ULR penalty (cpp/kernels/ulr.h): angle + resolution_weight * max(0, |c_view-p|/|c_novel-p| - 1); "
+      "fast=True: the per-pixel kernel's version (polynomial atan2, within 2e-5).");
   m.def(
       "ulr_select",
       [](const py::object& pen_obj, int k) {
