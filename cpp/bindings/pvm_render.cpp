@@ -44,8 +44,8 @@ I64 CheckOffsets(py::handle obj, const char* name, py::ssize_t n) {
 
 class PvmRendererCore {
  public:
-  PvmRendererCore(py::handle vertices, py::handle faces, py::handle face_offsets, py::handle tile_view,
-                  py::handle tile_cell, py::handle coarse_offsets, std::vector<double> origin,
+  PvmRendererCore(py::handle vertices, py::handle faces, py::handle face_offsets, py::handle vertex_offsets,
+                  py::handle tile_view, py::handle tile_cell, py::handle tile_bounds, py::handle coarse_offsets, std::vector<double> origin,
                   std::vector<double> cell, int coarse, int sub, std::vector<Camera> cameras, py::list images,
                   py::handle enabled) {
     vertices_ = CheckArray<float>(vertices, "vertices", {{"V", -1}, {"3", 3}});
@@ -54,6 +54,8 @@ class PvmRendererCore {
     const py::ssize_t nt = tile_view_.shape(0);
     face_offsets_ = CheckOffsets(face_offsets, "face_offsets", nt + 1);
     tile_cell_ = CheckArray<std::int32_t>(tile_cell, "tile_cell", {{"T", nt}, {"3", 3}});
+    vertex_offsets_ = CheckOffsets(vertex_offsets, "vertex_offsets", nt + 1);
+    tile_bounds_ = CheckArray<float>(tile_bounds, "tile_bounds", {{"T", nt}, {"2", 2}, {"3", 3}});
     if (coarse < 1 || sub < 1 || static_cast<std::int64_t>(coarse) * sub > 4096) {
       throw BadValueError("coarse, sub: expected >= 1 with coarse * sub <= 4096, got " + std::to_string(coarse) +
                           ", " + std::to_string(sub));
@@ -92,9 +94,21 @@ class PvmRendererCore {
       if (!std::isfinite(vp[i])) throw BadValueError("vertices: expected finite coordinates");
     }
     const std::int64_t* fo = face_offsets_.data();
+    const std::int64_t* vo = vertex_offsets_.data();
     if (fo[0] != 0 || fo[nt] != n_face) throw BadValueError("face_offsets: expected 0 .. F");
+    if (vo[0] != 0 || vo[nt] != n_vert) throw BadValueError("vertex_offsets: expected 0 .. V");
+    const float* tb = tile_bounds_.data();
+    for (std::int64_t i = 0; i < 6 * static_cast<std::int64_t>(nt); ++i) {
+      if (!std::isfinite(tb[i])) throw BadValueError("tile_bounds: expected finite numbers");
+    }
     for (py::ssize_t t = 0; t < nt; ++t) {
       if (fo[t + 1] < fo[t]) throw BadValueError("face_offsets: expected non-decreasing");
+      if (vo[t + 1] < vo[t]) throw BadValueError("vertex_offsets: expected non-decreasing");
+      for (std::int64_t i = 3 * fo[t]; i < 3 * fo[t + 1]; ++i) {
+        if (f[i] < vo[t] || f[i] >= vo[t + 1]) {
+          throw BadValueError("faces: tile " + std::to_string(t) + " indexes a vertex outside its vertex range");
+        }
+      }
       const std::int32_t v = tile_view_.data()[t];
       if (v < 0 || v >= nv) throw BadValueError("tile_view: view index out of range [0, " + std::to_string(nv) + ")");
       for (int a = 0; a < 3; ++a) {
@@ -110,6 +124,8 @@ class PvmRendererCore {
     tiles_.vertices = vertices_.data();
     tiles_.faces = faces_.data();
     tiles_.face_offsets = face_offsets_.data();
+    tiles_.vertex_offsets = vertex_offsets_.data();
+    tiles_.tile_bounds = tile_bounds_.data();
     tiles_.tile_view = tile_view_.data();
     tiles_.tile_cell = tile_cell_.data();
     tiles_.coarse_offsets = coarse_offsets_.data();
@@ -257,7 +273,8 @@ class PvmRendererCore {
  private:
   F32 vertices_;
   I32 faces_, tile_view_, tile_cell_;
-  I64 face_offsets_, coarse_offsets_;
+  I64 face_offsets_, vertex_offsets_, coarse_offsets_;
+  F32 tile_bounds_;
   std::vector<F32> images_;
   std::vector<const float*> image_ptrs_;
   std::vector<std::uint8_t> enabled_;
@@ -272,10 +289,11 @@ void BindPvmRender(py::module_& m) {
   py::class_<PvmRendererCore>(m, "PvmRenderer",
                               "PVM tiles + input views; render() runs cpp/kernels/pvm_render.h's five stages. "
                               "Not thread-safe: one render at a time per object (it reuses its frame buffers).")
-      .def(py::init<py::handle, py::handle, py::handle, py::handle, py::handle, py::handle, std::vector<double>,
+      .def(py::init<py::handle, py::handle, py::handle, py::handle, py::handle, py::handle, py::handle, py::handle,
+                    std::vector<double>,
                     std::vector<double>, int, int, std::vector<Camera>, py::list, py::handle>(),
-           py::arg("vertices"), py::arg("faces"), py::arg("face_offsets"), py::arg("tile_view"), py::arg("tile_cell"),
-           py::arg("coarse_offsets"), py::arg("origin"), py::arg("cell"), py::arg("coarse"), py::arg("sub"),
+           py::arg("vertices"), py::arg("faces"), py::arg("face_offsets"), py::arg("vertex_offsets"),
+           py::arg("tile_view"), py::arg("tile_cell"), py::arg("tile_bounds"), py::arg("coarse_offsets"), py::arg("origin"), py::arg("cell"), py::arg("coarse"), py::arg("sub"),
            py::arg("cameras"), py::arg("images"), py::arg("enabled"),
            "Arrays as in tiles.npz (docs/FORMAT.md), tile_view indexing `cameras`; images float32 (H_v, W_v, 3) "
            "linear RGB per camera; enabled bool (views,): views the renderer may use.")

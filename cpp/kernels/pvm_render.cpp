@@ -46,14 +46,6 @@ inline void Sample(const float* img, int w, int h, double x, double y, float* ou
   }
 }
 
-struct Tri {
-  double x[3], y[3];
-  float iz[3];
-  std::int16_t view;
-  std::uint8_t rank;
-  int row0, row1;  // rows [row0, row1] whose centres may be covered
-  int col0, col1;
-};
 
 // The edge a->b owns its pixels exactly on it when it is a "top-left" edge under this one
 // consistent rule; the reversed edge of a neighbour gets the complement (watertight).
@@ -235,6 +227,7 @@ void PvmSelectTiles(const PvmTileArrays& tiles, const PvmViews& views, const std
 
 void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camera& camera,
                   const PvmRenderOptions& options, PvmFrame& frame) {
+  (void)views;
   const int h = camera.height, w = camera.width;
   const int K = std::min(std::max(1, options.max_candidates), kPvmMaxCandidates);
   const std::int64_t npix = static_cast<std::int64_t>(h) * w;
@@ -243,149 +236,185 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
   frame.cand_rank.resize(static_cast<std::size_t>(npix * K));
   frame.cand_count.resize(static_cast<std::size_t>(npix));
   const glm::dvec3 c_novel = camera.CentreInWorld();
-  std::vector<glm::dvec3> view_centres(static_cast<std::size_t>(views.count));
-  for (int v = 0; v < views.count; ++v) view_centres[static_cast<std::size_t>(v)] = views.cameras[v].CentreInWorld();
+  // Camera as float rows for the per-vertex projection (world -> camera -> pixels).
+  float rot[9], trans[3];
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) rot[r * 3 + c] = static_cast<float>(camera.rot[c][r]);
+    trans[r] = static_cast<float>(camera.trans[r]);
+  }
+  const float fx = static_cast<float>(camera.fx), fy = static_cast<float>(camera.fy);
+  const float cx = static_cast<float>(camera.cx), cy = static_cast<float>(camera.cy);
+  const float cnx = static_cast<float>(c_novel.x), cny = static_cast<float>(c_novel.y), cnz = static_cast<float>(c_novel.z);
 
-  // Triangle setup, per chunk of kept tiles, concatenated in tile order.
+  // Rows each kept tile may cover, from its AABB's 8 corners (all rows when a corner is behind
+  // the near plane); tiles covering nothing are dropped. Then binned into bands in kept order.
   const std::int64_t nt = static_cast<std::int64_t>(frame.tiles.size());
-  const std::int64_t chunk = 32;
-  const std::int64_t nchunks = (nt + chunk - 1) / chunk;
-  std::vector<std::vector<Tri>> setup(static_cast<std::size_t>(nchunks));
-  ParallelFor(nchunks, 1, [&](std::int64_t b0, std::int64_t b1) {
-    for (std::int64_t ch = b0; ch < b1; ++ch) {
-      auto& out = setup[static_cast<std::size_t>(ch)];
-      out.clear();
-      for (std::int64_t i = ch * chunk; i < std::min(nt, (ch + 1) * chunk); ++i) {
-        const std::int64_t t = frame.tiles[static_cast<std::size_t>(i)];
-        const int view = tiles.tile_view[t];
-        for (std::int64_t f = tiles.face_offsets[t]; f < tiles.face_offsets[t + 1]; ++f) {
-          glm::dvec3 pw[3];
-          Tri tri;
-          bool ok = true;
-          for (int k = 0; k < 3; ++k) {
-            const float* v = tiles.vertices + 3 * static_cast<std::int64_t>(tiles.faces[3 * f + k]);
-            pw[k] = glm::dvec3(v[0], v[1], v[2]);
-            const glm::dvec3 q = camera.CamFromWorld(pw[k]);
-            if (!(q.z >= options.near)) {
-              ok = false;
-              break;
-            }
-            tri.x[k] = camera.fx * q.x / q.z + camera.cx;
-            tri.y[k] = camera.fy * q.y / q.z + camera.cy;
-            tri.iz[k] = static_cast<float>(1.0 / q.z);
-          }
-          if (!ok) continue;
-          if (options.cull_back) {
-            // Outward normal cross(b - a, c - a) faces the triangle's own view (pvm.h).
-            const glm::dvec3 nrm = glm::cross(pw[1] - pw[0], pw[2] - pw[0]);
-            if (!(glm::dot(nrm, c_novel - pw[0]) > 0.0)) continue;
-          }
-          const double xmin = std::min({tri.x[0], tri.x[1], tri.x[2]}), xmax = std::max({tri.x[0], tri.x[1], tri.x[2]});
-          const double ymin = std::min({tri.y[0], tri.y[1], tri.y[2]}), ymax = std::max({tri.y[0], tri.y[1], tri.y[2]});
-          // Pixel centres x + 0.5 in [xmin, xmax].
-          const double c0 = std::ceil(xmin - 0.5), c1 = std::floor(xmax - 0.5);
-          const double r0 = std::ceil(ymin - 0.5), r1 = std::floor(ymax - 0.5);
-          if (c1 < 0 || r1 < 0 || c0 > w - 1 || r0 > h - 1 || c0 > c1 || r0 > r1) continue;
-          tri.col0 = static_cast<int>(std::max(c0, 0.0));
-          tri.col1 = static_cast<int>(std::min(c1, static_cast<double>(w - 1)));
-          tri.row0 = static_cast<int>(std::max(r0, 0.0));
-          tri.row1 = static_cast<int>(std::min(r1, static_cast<double>(h - 1)));
-          tri.view = static_cast<std::int16_t>(view);
-          tri.rank = frame.tile_rank[static_cast<std::size_t>(i)];
-          out.push_back(tri);
+  std::vector<std::int32_t> row0(static_cast<std::size_t>(nt)), row1(static_cast<std::size_t>(nt));
+  ParallelFor(nt, 256, [&](std::int64_t b0, std::int64_t b1) {
+    for (std::int64_t i = b0; i < b1; ++i) {
+      const std::int64_t t = frame.tiles[static_cast<std::size_t>(i)];
+      const float* bb = tiles.tile_bounds + 6 * t;
+      double ymin = 1e300, ymax = -1e300, xmin = 1e300, xmax = -1e300;
+      bool behind = false;
+      for (int k = 0; k < 8; ++k) {
+        const glm::dvec3 p((k & 1) ? bb[3] : bb[0], (k & 2) ? bb[4] : bb[1], (k & 4) ? bb[5] : bb[2]);
+        const glm::dvec3 q = camera.CamFromWorld(p);
+        if (!(q.z >= options.near)) {
+          behind = true;
+          break;
+        }
+        const double x = camera.fx * q.x / q.z + camera.cx, y = camera.fy * q.y / q.z + camera.cy;
+        xmin = std::min(xmin, x), xmax = std::max(xmax, x), ymin = std::min(ymin, y), ymax = std::max(ymax, y);
+      }
+      std::int32_t r0 = 0, r1 = h - 1;
+      if (!behind) {
+        const double a0 = std::ceil(ymin - 0.5), a1 = std::floor(ymax - 0.5);
+        const double c0 = std::ceil(xmin - 0.5), c1 = std::floor(xmax - 0.5);
+        if (a1 < 0 || a0 > h - 1 || c1 < 0 || c0 > w - 1 || a0 > a1 || c0 > c1) {
+          r0 = 1, r1 = 0;  // covers no pixel centre
+        } else {
+          r0 = static_cast<std::int32_t>(std::max(a0, 0.0));
+          r1 = static_cast<std::int32_t>(std::min(a1, static_cast<double>(h - 1)));
         }
       }
+      row0[static_cast<std::size_t>(i)] = r0;
+      row1[static_cast<std::size_t>(i)] = r1;
     }
   });
-  std::vector<Tri> tris;
-  {
-    std::size_t total = 0;
-    for (const auto& s : setup) total += s.size();
-    tris.reserve(total);
-    for (const auto& s : setup) tris.insert(tris.end(), s.begin(), s.end());
-  }
-  frame.triangles = static_cast<std::int64_t>(tris.size());
-  // Bin into bands (in triangle order).
   const int nb = (h + kBandRows - 1) / kBandRows;
   std::vector<std::int64_t> start(static_cast<std::size_t>(nb) + 1, 0);
-  for (const Tri& t : tris)
-    for (int b = t.row0 / kBandRows; b <= t.row1 / kBandRows; ++b) ++start[static_cast<std::size_t>(b) + 1];
+  for (std::int64_t i = 0; i < nt; ++i) {
+    if (row0[static_cast<std::size_t>(i)] > row1[static_cast<std::size_t>(i)]) continue;
+    for (int b = row0[static_cast<std::size_t>(i)] / kBandRows; b <= row1[static_cast<std::size_t>(i)] / kBandRows; ++b)
+      ++start[static_cast<std::size_t>(b) + 1];
+  }
   for (int b = 0; b < nb; ++b) start[static_cast<std::size_t>(b) + 1] += start[static_cast<std::size_t>(b)];
   std::vector<std::int32_t> binned(static_cast<std::size_t>(start[static_cast<std::size_t>(nb)]));
   {
     std::vector<std::int64_t> fill(start.begin(), start.end() - 1);
-    for (std::size_t i = 0; i < tris.size(); ++i)
-      for (int b = tris[i].row0 / kBandRows; b <= tris[i].row1 / kBandRows; ++b)
+    for (std::int64_t i = 0; i < nt; ++i) {
+      if (row0[static_cast<std::size_t>(i)] > row1[static_cast<std::size_t>(i)]) continue;
+      for (int b = row0[static_cast<std::size_t>(i)] / kBandRows; b <= row1[static_cast<std::size_t>(i)] / kBandRows; ++b)
         binned[static_cast<std::size_t>(fill[static_cast<std::size_t>(b)]++)] = static_cast<std::int32_t>(i);
+    }
   }
   float* cd = frame.cand_depth.data();
   std::int16_t* cv = frame.cand_view.data();
   std::uint8_t* cr = frame.cand_rank.data();
   std::uint8_t* cc = frame.cand_count.data();
+  std::vector<std::int64_t> tri_count(static_cast<std::size_t>(nb), 0);
   ParallelFor(nb, 1, [&](std::int64_t b0, std::int64_t b1) {
+    std::vector<float> sx, sy, siz, wx, wy, wz;  // this tile's vertices: screen x, y, 1/z; world
     for (std::int64_t b = b0; b < b1; ++b) {
       const int y0 = static_cast<int>(b) * kBandRows, y1 = std::min(h, y0 + kBandRows);
       std::memset(cc + static_cast<std::int64_t>(y0) * w, 0, static_cast<std::size_t>(y1 - y0) * w);
+      std::int64_t drawn = 0;
       for (std::int64_t q = start[static_cast<std::size_t>(b)]; q < start[static_cast<std::size_t>(b) + 1]; ++q) {
-        const Tri& t = tris[static_cast<std::size_t>(binned[static_cast<std::size_t>(q)])];
-        int i0 = 0, i1 = 1, i2 = 2;
-        double area = (t.x[1] - t.x[0]) * (t.y[2] - t.y[0]) - (t.x[2] - t.x[0]) * (t.y[1] - t.y[0]);
-        if (area == 0.0 || !std::isfinite(area)) continue;
-        if (area < 0.0) {
-          std::swap(i1, i2);
-          area = -area;
+        const std::int64_t i = binned[static_cast<std::size_t>(q)];
+        const std::int64_t t = frame.tiles[static_cast<std::size_t>(i)];
+        const std::int16_t view = static_cast<std::int16_t>(tiles.tile_view[t]);
+        const std::uint8_t rank = frame.tile_rank[static_cast<std::size_t>(i)];
+        const std::int64_t v0 = tiles.vertex_offsets[t], v1 = tiles.vertex_offsets[t + 1];
+        const std::size_t nv = static_cast<std::size_t>(v1 - v0);
+        sx.resize(nv), sy.resize(nv), siz.resize(nv), wx.resize(nv), wy.resize(nv), wz.resize(nv);
+        for (std::size_t k = 0; k < nv; ++k) {
+          const float* v = tiles.vertices + 3 * (v0 + static_cast<std::int64_t>(k));
+          const float X = rot[0] * v[0] + rot[1] * v[1] + rot[2] * v[2] + trans[0];
+          const float Y = rot[3] * v[0] + rot[4] * v[1] + rot[5] * v[2] + trans[1];
+          const float Z = rot[6] * v[0] + rot[7] * v[1] + rot[8] * v[2] + trans[2];
+          wx[k] = v[0], wy[k] = v[1], wz[k] = v[2];
+          if (Z >= options.near) {
+            const float iz = 1.f / Z;
+            sx[k] = fx * X * iz + cx;
+            sy[k] = fy * Y * iz + cy;
+            siz[k] = iz;
+          } else {
+            siz[k] = -1.f;  // behind the near plane: its triangles are skipped
+          }
         }
-        const double ax = t.x[i0], ay = t.y[i0], bx = t.x[i1], by = t.y[i1], qx = t.x[i2], qy = t.y[i2];
-        const float iza = t.iz[i0], izb = t.iz[i1], izc = t.iz[i2];
-        // Edges: e0 = b->c (weight of a), e1 = c->a (weight of b), e2 = a->b (weight of c).
-        const bool own0 = OwnsEdge(qx - bx, qy - by), own1 = OwnsEdge(ax - qx, ay - qy), own2 = OwnsEdge(bx - ax, by - ay);
-        const double inv = 1.0 / area;
-        const int ya = std::max(t.row0, y0), yb = std::min(t.row1, y1 - 1);
-        for (int y = ya; y <= yb; ++y) {
-          const double py = y + 0.5;
-          for (int x = t.col0; x <= t.col1; ++x) {
-            const double px = x + 0.5;
-            const double e0 = (qx - bx) * (py - by) - (qy - by) * (px - bx);
-            const double e1 = (ax - qx) * (py - qy) - (ay - qy) * (px - qx);
-            const double e2 = (bx - ax) * (py - ay) - (by - ay) * (px - ax);
-            // Positive area: inside where all e >= 0 (in y-down image coordinates).
-            if (e0 < 0.0 || e1 < 0.0 || e2 < 0.0) continue;
-            if ((e0 == 0.0 && !own0) || (e1 == 0.0 && !own1) || (e2 == 0.0 && !own2)) continue;
-            const float iz = static_cast<float>((e0 * iza + e1 * izb + e2 * izc) * inv);
-            if (!(iz > 0.f)) continue;
-            const float z = 1.f / iz;
-            const std::int64_t p = static_cast<std::int64_t>(y) * w + x;
-            float* pd = cd + p * K;
-            std::int16_t* pv = cv + p * K;
-            std::uint8_t* pr = cr + p * K;
-            const int n = cc[p];
-            int s = 0;
-            while (s < n && pv[s] != t.view) ++s;
-            if (s < n) {
-              if (z < pd[s]) {
-                pd[s] = z;
-                pr[s] = t.rank;
-              }
-            } else if (n < K) {
-              pd[n] = z;
-              pv[n] = t.view;
-              pr[n] = t.rank;
-              cc[p] = static_cast<std::uint8_t>(n + 1);
-            } else {
-              int worst = 0;
-              for (int j = 1; j < n; ++j)
-                if (pr[j] > pr[worst] || (pr[j] == pr[worst] && pv[j] > pv[worst])) worst = j;
-              if (t.rank < pr[worst] || (t.rank == pr[worst] && t.view < pv[worst])) {
-                pd[worst] = z;
-                pv[worst] = t.view;
-                pr[worst] = t.rank;
+        for (std::int64_t f = tiles.face_offsets[t]; f < tiles.face_offsets[t + 1]; ++f) {
+          const std::size_t ia = static_cast<std::size_t>(tiles.faces[3 * f] - v0);
+          std::size_t ib = static_cast<std::size_t>(tiles.faces[3 * f + 1] - v0);
+          std::size_t ic = static_cast<std::size_t>(tiles.faces[3 * f + 2] - v0);
+          if (siz[ia] < 0.f || siz[ib] < 0.f || siz[ic] < 0.f) continue;
+          // Row range in this band first (cheap rejection).
+          const float ymn = std::min({sy[ia], sy[ib], sy[ic]}), ymx = std::max({sy[ia], sy[ib], sy[ic]});
+          const int ra = std::max(y0, static_cast<int>(std::ceil(ymn - 0.5f)));
+          const int rb = std::min(y1 - 1, static_cast<int>(std::floor(ymx - 0.5f)));
+          if (ra > rb) continue;
+          const float xmn = std::min({sx[ia], sx[ib], sx[ic]}), xmx = std::max({sx[ia], sx[ib], sx[ic]});
+          const int ca = std::max(0, static_cast<int>(std::ceil(xmn - 0.5f)));
+          const int cb = std::min(w - 1, static_cast<int>(std::floor(xmx - 0.5f)));
+          if (ca > cb) continue;
+          if (options.cull_back) {
+            // Outward normal cross(b - a, c - a) faces the triangle's own view (pvm.h).
+            const float e1x = wx[ib] - wx[ia], e1y = wy[ib] - wy[ia], e1z = wz[ib] - wz[ia];
+            const float e2x = wx[ic] - wx[ia], e2y = wy[ic] - wy[ia], e2z = wz[ic] - wz[ia];
+            const float nx = e1y * e2z - e1z * e2y, ny = e1z * e2x - e1x * e2z, nz = e1x * e2y - e1y * e2x;
+            if (!(nx * (cnx - wx[ia]) + ny * (cny - wy[ia]) + nz * (cnz - wz[ia]) > 0.f)) continue;
+          }
+          double area = (static_cast<double>(sx[ib]) - sx[ia]) * (static_cast<double>(sy[ic]) - sy[ia]) -
+                        (static_cast<double>(sx[ic]) - sx[ia]) * (static_cast<double>(sy[ib]) - sy[ia]);
+          if (area == 0.0 || !std::isfinite(area)) continue;
+          if (area < 0.0) {
+            std::swap(ib, ic);
+            area = -area;
+          }
+          ++drawn;
+          const double ax = sx[ia], ay = sy[ia], bx = sx[ib], by = sy[ib], qx = sx[ic], qy = sy[ic];
+          const float iza = siz[ia], izb = siz[ib], izc = siz[ic];
+          // Edges: e0 = b->c (weight of a), e1 = c->a (weight of b), e2 = a->b (weight of c).
+          const bool own0 = OwnsEdge(qx - bx, qy - by), own1 = OwnsEdge(ax - qx, ay - qy), own2 = OwnsEdge(bx - ax, by - ay);
+          const double inv = 1.0 / area;
+          for (int y = ra; y <= rb; ++y) {
+            const double py = y + 0.5;
+            for (int x = ca; x <= cb; ++x) {
+              const double px = x + 0.5;
+              const double e0 = (qx - bx) * (py - by) - (qy - by) * (px - bx);
+              const double e1 = (ax - qx) * (py - qy) - (ay - qy) * (px - qx);
+              const double e2 = (bx - ax) * (py - ay) - (by - ay) * (px - ax);
+              // Positive area: inside where all e >= 0 (in y-down image coordinates).
+              if (e0 < 0.0 || e1 < 0.0 || e2 < 0.0) continue;
+              if ((e0 == 0.0 && !own0) || (e1 == 0.0 && !own1) || (e2 == 0.0 && !own2)) continue;
+              const float iz = static_cast<float>((e0 * iza + e1 * izb + e2 * izc) * inv);
+              if (!(iz > 0.f)) continue;
+              const float z = 1.f / iz;
+              const std::int64_t p = static_cast<std::int64_t>(y) * w + x;
+              float* pd = cd + p * K;
+              std::int16_t* pv = cv + p * K;
+              std::uint8_t* pr = cr + p * K;
+              const int n = cc[p];
+              int s = 0;
+              while (s < n && pv[s] != view) ++s;
+              if (s < n) {
+                if (z < pd[s]) {
+                  pd[s] = z;
+                  pr[s] = rank;
+                }
+              } else if (n < K) {
+                pd[n] = z;
+                pv[n] = view;
+                pr[n] = rank;
+                cc[p] = static_cast<std::uint8_t>(n + 1);
+              } else {
+                int worst = 0;
+                for (int j = 1; j < n; ++j)
+                  if (pr[j] > pr[worst] || (pr[j] == pr[worst] && pv[j] > pv[worst])) worst = j;
+                if (rank < pr[worst] || (rank == pr[worst] && view < pv[worst])) {
+                  pd[worst] = z;
+                  pv[worst] = view;
+                  pr[worst] = rank;
+                }
               }
             }
           }
         }
       }
+      tri_count[static_cast<std::size_t>(b)] = drawn;
     }
   });
+  frame.triangles = 0;
+  for (std::int64_t c : tri_count) frame.triangles += c;
 }
 
 void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t* pixel_mask,

@@ -26,8 +26,10 @@
 //     a new view arriving at a full list replaces the entry of the worst (rank, view) when its
 //     own is better. Back faces (seen from the other side than from their own view) and
 //     triangles with a vertex closer than `near` are skipped (no near-plane clipping). The image
-//     is cut into bands of kBandRows rows, triangles are binned in tile order, each band is
-//     rasterised by one task in that order: results are identical for any thread count.
+//     is cut into bands of kBandRows rows; kept tiles are binned into the bands their projected
+//     AABB covers (in kept order); each band is one task that projects a tile's vertices once
+//     and draws its triangles clipped to the band, in that order: results are identical for
+//     any thread count, and no per-triangle buffer is ever built.
 //  4. PvmCluster        "cluster & blend": per pixel 2-means on the candidate depths
 //     (initialised at the smallest and largest; assignment to the nearer mean, ties to the
 //     foreground; at most 16 iterations), merged into one cluster when the two means differ by
@@ -63,6 +65,8 @@ struct PvmTileArrays {
   const float* vertices = nullptr;            // (V, 3) world
   const std::int32_t* faces = nullptr;        // (F, 3) indices into vertices
   const std::int64_t* face_offsets = nullptr; // (T + 1,)
+  const std::int64_t* vertex_offsets = nullptr;  // (T + 1,) a tile's faces index only its vertex range
+  const float* tile_bounds = nullptr;         // (T, 2, 3) AABB
   const std::int32_t* tile_view = nullptr;    // (T,) index into the views
   const std::int32_t* tile_cell = nullptr;    // (T, 3) fine cell
   const std::int64_t* coarse_offsets = nullptr;  // (coarse^3 + 1,)
@@ -111,7 +115,7 @@ struct PvmFrame {
   std::vector<float> d_fg, d_bg;          // (H * W) cluster mean depths
   std::vector<std::uint8_t> n_fg, n_bg;   // cluster sizes (0 = none)
   std::vector<float> c_fg, c_bg;          // (H * W * 3) cluster colours
-  std::int64_t triangles = 0;             // rasterised triangles (after culling) of the last frame
+  std::int64_t triangles = 0;             // triangles drawn (summed over the bands they touch)
 };
 
 // Stage 1. gbuffer_depth (H, W) z or nullptr; visible gets coarse^3 bytes (1 = visible).

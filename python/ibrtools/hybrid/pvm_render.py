@@ -194,7 +194,8 @@ class PvmRenderer:
         self.disabled_views = unknown
         t = self.tiles
         self._core = _core.PvmRenderer(
-            t.vertices, t.faces, np.ascontiguousarray(t.face_offsets, np.int64), t.tile_view, t.tile_cell,
+            t.vertices, t.faces, np.ascontiguousarray(t.face_offsets, np.int64),
+            np.ascontiguousarray(t.vertex_offsets, np.int64), t.tile_view, t.tile_cell, t.tile_bounds,
             np.ascontiguousarray(t.coarse_offsets, np.int64), [float(x) for x in t.origin],
             [float(x) for x in t.cell], int(t.coarse), int(t.sub), cams, imgs, np.array(enabled, bool))
 
