@@ -16,4 +16,5 @@ PYBIND11_MODULE(_core, m) {
   ibr::bind::BindHybrid(m);
   ibr::bind::BindHybridRender(m);
   ibr::bind::BindPvmRender(m);
+  ibr::bind::BindHarmonise(m);
 }

@@ -18,4 +18,5 @@ void BindCulling(py::module_& m);
 void BindHybrid(py::module_& m);
 void BindHybridRender(py::module_& m);
 void BindPvmRender(py::module_& m);
+void BindHarmonise(py::module_& m);
 }  // namespace ibr::bind

@@ -390,11 +390,15 @@ def _run_texture(ctx: _Context) -> dict:
 
 
 def _run_variance(ctx: _Context) -> dict:
-    from .hybrid.variance import variance_mesh
+    from .hybrid.variance import vertex_statistics
 
-    std = np.asarray(variance_mesh(ctx.scene, ctx.mesh()), np.float32)
-    save_npz(ctx.cache("variance") / "variance.npz", std=std)
-    ctx.memo["variance"] = {"std": std}
+    # One statistics pass gives the variance mesh and the gain-compensated vertex means, which
+    # the harmonise stage uses as its T (saves it a second pass over the views).
+    st = vertex_statistics(ctx.scene, ctx.mesh())
+    std = np.asarray(st["std"], np.float32)
+    mean = np.asarray(st["mean"], np.float32)
+    save_npz(ctx.cache("variance") / "variance.npz", std=std, mean=mean)
+    ctx.memo["variance"] = {"std": std, "mean": mean}
     return {"vertices": int(len(std)), "mean_std": round(float(std.mean()), 5) if len(std) else 0.0}
 
 
@@ -403,7 +407,11 @@ def _run_harmonise(ctx: _Context) -> dict | str:
 
     opts = ctx.options.get("harmonise") or {}
     params = H.HarmoniseParams(**opts) if opts and hasattr(H, "HarmoniseParams") else None
-    res = H.harmonise(ctx.scene, ctx.mesh(), ctx.get("variance")["std"], params=params)
+    var = ctx.get("variance")
+    # T = the gain-compensated vertex means the variance stage computed (t_source "views"; an
+    # older cache entry without them: harmonise computes them itself).
+    views_t = (params is None or params.t_source == "views") and "mean" in var
+    res = H.harmonise(ctx.scene, ctx.mesh(), var["std"], params=params, colors=var["mean"] if views_t else None)
     if getattr(res, "skipped_reason", None):
         return str(res.skipped_reason)
     arrays = {}
