@@ -48,6 +48,14 @@ inline std::int32_t RoundHalfAway(double v) {
   return t + std::int32_t(frac >= 0.5) - std::int32_t(frac <= -0.5);
 }
 
+// Inverse depth of a finite vertex, clamped to [1e-30, 1e30] (depth 1e-30 .. 1e30): 1 / depth of
+// a denormal depth overflows float to +inf (then inf / inf = NaN colours), and 1 / depth of a
+// depth near float max is a denormal whose reciprocal in the perspective-correct interpolation
+// overflows (inf colours); both found by tests/test_stress.py. No metric depth is near either
+// bound; infinite depth keeps its own rule (inverse 0, affine interpolation).
+constexpr double kMinInvDepth = 1e-30, kMaxInvDepth = 1e30;
+inline float InvDepth(double ip) { return static_cast<float>(std::min(std::max(ip, kMinInvDepth), kMaxInvDepth)); }
+
 inline float ClampDepth(float d) { return std::min(std::max(d, kMinWeightDepth), kMaxWeightDepth); }
 
 inline float Weight(float q, float d, float p) {
@@ -563,7 +571,7 @@ WarpCounts ProjectVertices(const ImageView<const float>& depth, const Camera& so
           if (x > lo_x && x < hi_x && y > lo_y && y < hi_y) {
             o.x = RoundHalfAway(x * kSubpixel);
             o.y = RoundHalfAway(y * kSubpixel);
-            o.inv = static_cast<float>(ipz);
+            o.inv = InvDepth(ipz);
           }
           return;
         } else {
@@ -580,7 +588,7 @@ WarpCounts ProjectVertices(const ImageView<const float>& depth, const Camera& so
         // Snap to 1/256 px, rounding half away from zero (one rule for every vertex).
         o.x = RoundHalfAway(x * kSubpixel);
         o.y = RoundHalfAway(y * kSubpixel);
-        o.inv = std::isinf(d) ? 0.f : static_cast<float>(1.0 / dt);
+        o.inv = std::isinf(d) ? 0.f : InvDepth(1.0 / dt);
       };
       int u = 0;
       if (pinholes) {
@@ -619,7 +627,7 @@ WarpCounts ProjectVertices(const ImageView<const float>& depth, const Camera& so
             if (((front >> k) & 1) && x > lo_x && x < hi_x && y > lo_y && y < hi_y) {
               o.x = RoundHalfAway(x * kSubpixel);
               o.y = RoundHalfAway(y * kSubpixel);
-              o.inv = static_cast<float>(ip[k]);
+              o.inv = InvDepth(ip[k]);
             } else {
               o.x = kInvalid;
               o.y = 0;
@@ -678,7 +686,7 @@ WarpCounts FlowVertices(const ImageView<const float>& depth, const float* flow, 
         }
         o.x = RoundHalfAway(x * kSubpixel);
         o.y = RoundHalfAway(y * kSubpixel);
-        o.inv = std::isinf(d) ? 0.f : 1.f / d;
+        o.inv = std::isinf(d) ? 0.f : std::min(std::max(1.f / d, float(kMinInvDepth)), float(kMaxInvDepth));
       }
       RowSegmentRanges(vrow, w, num_segs, seg_y + r * num_segs);
     }
