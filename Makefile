@@ -8,7 +8,7 @@ DEMO_DIR ?= demo-out
 # Persistent build dir (pyproject: build-dir) => incremental rebuilds.
 STAMP  := $(VENV)/.ibrtools-installed
 
-.PHONY: setup system-deps build test demo bench clean
+.PHONY: setup system-deps build test demo bench clean check-asan check-tsan
 
 setup: system-deps $(STAMP)
 
@@ -29,6 +29,18 @@ build: setup
 
 test: setup
 	$(PY) -m pytest -q -n 2 tests
+
+# Sanitizers (docs/robustness.md): the extension built with ASan+UBSan (or TSan) in build/asan
+# (build/tsan), run against python/ibrtools from a staging dir; the normal .venv install is not
+# touched. SANITIZE_TESTS selects the test files (default: the whole suite for ASan, the
+# multithreaded kernels' tests for TSan).
+TSAN_TESTS ?= tests/test_stress.py tests/test_forward_warp.py tests/test_pushpull.py tests/test_steerable.py tests/test_depthwarp.py
+
+check-asan: setup
+	tools/sanitize.sh asan
+
+check-tsan: setup
+	SANITIZE_TESTS="$(TSAN_TESTS)" tools/sanitize.sh tsan
 
 demo: setup
 	$(VENV)/bin/ibr-preprocess synth:objects -o $(DEMO_DIR)/scene --views 12 --size 480x360
