@@ -140,7 +140,7 @@ class PvmRendererCore {
 
   py::dict Render(const Camera& camera, py::handle gbuffer_obj, py::handle mask_obj, bool filtered, float sigma,
                   float alpha, float gamma, float tau_depth, int max_tiles, int max_candidates, int ulr_k,
-                  float merge_rel, float radius_sigmas, int margin, float near, bool cull_back, float max_angle_deg, int ray_stride) {
+                  float merge_rel, float radius_sigmas, int margin, float near, bool cull_back, float max_angle_deg, int ray_stride, int filter_step) {
     if (camera.model != CameraModel::kPinhole) {
       throw BadValueError("camera: PVM rendering takes a pinhole target camera (equirect targets are not built)");
     }
@@ -178,6 +178,9 @@ class PvmRendererCore {
                           std::to_string(max_candidates));
     }
     if (ulr_k < 1 || ulr_k > 64) throw BadValueError("ulr_k: expected 1 .. 64, got " + std::to_string(ulr_k));
+    if (filter_step < 1 || filter_step > 16) {
+      throw BadValueError("filter_step: expected 1 .. 16, got " + std::to_string(filter_step));
+    }
     if (ray_stride < 0) throw BadValueError("ray_stride: expected >= 0, got " + std::to_string(ray_stride));
     if (margin < 0 || margin > 32) throw BadValueError("margin: expected 0 .. 32, got " + std::to_string(margin));
     PvmRenderOptions o;
@@ -195,6 +198,7 @@ class PvmRendererCore {
     o.near = near;
     o.cull_back = cull_back;
     o.ray_stride = ray_stride;
+    o.filter_step = filter_step;
     o.max_angle = max_angle_deg >= 180.f ? 3.15f : max_angle_deg * 3.14159265f / 180.f;
     PvmViews views;
     views.count = static_cast<int>(cameras_.size());
@@ -302,7 +306,7 @@ void BindPvmRender(py::module_& m) {
            py::arg("alpha") = 7.f, py::arg("gamma") = 7.f, py::arg("tau_depth") = 0.83f, py::arg("max_tiles") = 12,
            py::arg("max_candidates") = 12, py::arg("ulr_k") = 4, py::arg("merge_rel") = 0.02f,
            py::arg("radius_sigmas") = 2.f, py::arg("margin") = 1, py::arg("near") = 1e-3f,
-           py::arg("cull_back") = true, py::arg("max_angle") = 60.f, py::arg("ray_stride") = 4,
+           py::arg("cull_back") = true, py::arg("max_angle") = 60.f, py::arg("ray_stride") = 8, py::arg("filter_step") = 2,
            "dict: color (H, W, 3), depth (H, W) (Eq. 2 vote), vote (H, W), valid, inside_grid (H, W) bool, "
            "times_ms per stage, visible_coarse, tiles, triangles.")
       .def("candidates", &PvmRendererCore::Candidates, py::arg("height"), py::arg("width"),

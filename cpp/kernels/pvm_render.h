@@ -40,8 +40,10 @@
 //     PVM by its own image).
 //  5. PvmFilter         "spatial filter": Eq. 1, W_{i,k} = sum_{j in Omega_i} sum_{k'} G_sigma(i, j)
 //     exp(-alpha |d_{j,k'} - d_{i,k}|) #N_{j,k'} (the paper writes d_{j,k'} - d_{i,k}; the
-//     absolute value makes the falloff symmetric), Omega_i the (2R+1)^2 window with
-//     R = ceil(radius_sigmas * sigma); colour = sum_k W^gamma c_k / sum_k W^gamma. Depth by the
+//     absolute value makes the falloff symmetric), Omega_i the window of radius
+//     R = ceil(radius_sigmas * sigma / step) * step sampled every `filter_step` pixels per axis
+//     (step 2: 7 x 7 of the 13 x 13 neighbours for sigma 3; the Gaussian weights are those of
+//     the sampled offsets, so W is a subsampled Eq. 1 and only W_1 / W_0 matters); colour = sum_k W^gamma c_k / sum_k W^gamma. Depth by the
 //     vote of Eq. 2: d_bg when #bg >= tau_depth * #fg, else d_fg; vote = the winning cluster's
 //     share of the candidates. filtered = false: the foreground cluster's colour (PVM-H-like
 //     baseline without the spatial filter). Pixels with one cluster take its colour either way.
@@ -87,7 +89,7 @@ struct PvmRenderOptions {
   int max_tiles = 12;        // tiles kept per fine voxel (paper: 12)
   int max_candidates = 12;   // candidates per pixel (<= kPvmMaxCandidates)
   int margin = 1;            // dilation of the G-buffer's coarse cells, in cells
-  int ray_stride = 4;        // cells in front of the G-buffer on every ray_stride-th ray (0 = off)
+  int ray_stride = 8;        // cells in front of the G-buffer on every ray_stride-th ray (0 = off)
   int ulr_k = 4;             // ULR k within a cluster (weight 0 at the k-th)
   float resolution_weight = 0.5f;  // ULR resolution penalty weight (ulr.h)
   float max_angle = 3.15f;   // radians: a view whose ray to the fine cell's centre makes a larger angle
@@ -98,7 +100,8 @@ struct PvmRenderOptions {
   float sigma = 3.f;         // Eq. 1 spatial Gaussian, pixels
   float alpha = 7.f;         // Eq. 1 depth falloff per scene unit
   float gamma = 7.f;         // cluster blend power
-  float radius_sigmas = 2.f; // filter window radius R = ceil(radius_sigmas * sigma)
+  float radius_sigmas = 2.f; // filter window radius R = ceil(radius_sigmas * sigma / step) * step
+  int filter_step = 2;       // Eq. 1 sums every filter_step-th neighbour per axis (1 = all)
   float tau_depth = 0.83f;   // Eq. 2
   bool filtered = true;
 };

@@ -42,14 +42,16 @@ from .pvm import PvmTiles
 # noise, 12 and 20 views, 3 held-out targets: 180 (no limit) / 90 / 60 / 40 degrees give filtered
 # PSNR 30.72 / 31.06 / 31.35 / 31.13 dB (20 views); with a sparse capture "the top 12" otherwise
 # includes views from the far side of an object, which see the background behind it and outvote
-# the foreground in Eq. 1 and Eq. 2. ray_stride 4: the coarse cells in front of the G-buffer's
-# surface on every 4th ray of every 4th row are looked up too (an object the global mesh lacks,
+# the foreground in Eq. 1 and Eq. 2. ray_stride 8: the coarse cells in front of the G-buffer's
+# surface on every 8th ray of every 8th row are looked up too (an object the global mesh lacks,
 # more than one coarse cell in front of the surface behind it, would otherwise be missed; on
 # synth:objects at 256x192 the thin object's pixels with a candidate at its depth went from 60 %
-# to the frustum lookup's 93-98 %; measured in docs/pvm_render.md).
+# to the frustum lookup's 93-98 %; at 1280x720 stride 8 costs 57 ms against 153 ms for stride 4,
+# same tiles). filter_step 2: Eq. 1 sums every 2nd neighbour per axis (7 x 7 of 13 x 13), 3.4x
+# fewer terms (docs/pvm_render.md, "Speed").
 DEFAULTS = {"sigma": 3.0, "alpha": 7.0, "gamma": 7.0, "tau_depth": 0.83, "max_tiles": 12,
             "max_candidates": 12, "ulr_k": 4, "merge_rel": 0.02, "radius_sigmas": 2.0, "margin": 1,
-            "near": 1e-3, "cull_back": True, "max_angle": 60.0, "ray_stride": 4,
+            "near": 1e-3, "cull_back": True, "max_angle": 60.0, "ray_stride": 8, "filter_step": 2,
             "filtered": True}
 
 STAGE_NAMES = {"voxel_lookup": "voxel lookup", "tile_sort": "tile sort",
@@ -73,6 +75,9 @@ def check_params(params: dict | None) -> dict:
     p["ulr_k"] = P.integer(p["ulr_k"], "--param ulr_k", 1)
     p["margin"] = P.integer(p["margin"], "--param margin", 0)
     p["ray_stride"] = P.integer(p["ray_stride"], "--param ray_stride", 0)
+    p["filter_step"] = P.integer(p["filter_step"], "--param filter_step", 1)
+    if p["filter_step"] > 16:
+        raise BadValueError(f"--param filter_step: expected <= 16, got {p['filter_step']}")
     p["cull_back"] = P.boolean(p["cull_back"], "--param cull_back")
     p["filtered"] = P.boolean(p["filtered"], "--param filtered")
     if p["max_tiles"] > 255:
@@ -211,7 +216,7 @@ class PvmRenderer:
         out = self._core.render(camera.to_core(), gbuffer_depth, pixel_mask, filt, p["sigma"], p["alpha"],
                                 p["gamma"], p["tau_depth"], p["max_tiles"], p["max_candidates"], p["ulr_k"],
                                 p["merge_rel"], p["radius_sigmas"], p["margin"], p["near"], p["cull_back"],
-                                p["max_angle"], p["ray_stride"])
+                                p["max_angle"], p["ray_stride"], p["filter_step"])
         times = {STAGE_NAMES[k]: float(v) for k, v in out["times_ms"].items()}
         stats = {"visible_coarse": int(out["visible_coarse"]), "tiles": int(out["tiles"]),
                  "triangles": int(out["triangles"])}
