@@ -91,9 +91,11 @@ void UlrBlend(const Camera& novel, ImageView<const float> gbuffer_depth, ImageVi
   for (int i = 0; i < num_views; ++i) centres[i] = glm::vec3(views[i].camera.CentreInWorld());
   const int k = std::max(1, std::min(options.k, 64));
   const bool use_normal = !normal.Empty();
+  const glm::dmat3 world_from_cam = glm::transpose(novel.rot);
   ParallelFor2D(H, W, 64, [&](int y0, int y1, int x0, int x1) {
     std::vector<float> pen(num_views);
     std::vector<std::uint8_t> tested(num_views);
+    std::vector<double> proj(3 * std::size_t(num_views));  // x, y, depth of p in each view
     int index[64];
     float weight[64];
     for (int y = y0; y < y1; ++y) {
@@ -107,19 +109,33 @@ void UlrBlend(const Camera& novel, ImageView<const float> gbuffer_depth, ImageVi
         if (!(t > 0.f) || !std::isfinite(t)) continue;
         if (pixel_mask && !pixel_mask[std::int64_t(y) * W + x]) continue;
         const glm::dvec3 p_cam = novel.RayInCam(x + 0.5, y + 0.5) * double(t);
-        const glm::dvec3 p_world_d = novel.WorldFromCamDir(p_cam) + c_novel_d;
+        const glm::dvec3 p_world_d = world_from_cam * p_cam + c_novel_d;
         const glm::vec3 p(p_world_d);
         glm::vec3 n(0.f);
         if (use_normal) n = glm::vec3(normal.At(y, x, 0), normal.At(y, x, 1), normal.At(y, x, 2));
         const glm::vec3 b = c_novel - p;
         const float lb = glm::length(b);
+        // Penalties, with the cheap visibility tests done for every view at once (behind the
+        // surface, behind the camera, outside the image): views failing them would otherwise
+        // trigger a re-selection each. The depth test (a read in the view's depth map) is lazy.
         for (int i = 0; i < num_views; ++i) {
-          float pi = UlrPenaltyFast(p, b, lb, centres[i], options.resolution_weight);
-          if (use_normal && !(glm::dot(n, centres[i] - p) > 0.f)) pi = INFINITY;  // sees the back
-          pen[i] = pi;
           tested[i] = 0;
+          pen[i] = INFINITY;
+          if (use_normal && !(glm::dot(n, centres[i] - p) > 0.f)) continue;  // sees the back
+          const float pi = UlrPenaltyFast(p, b, lb, centres[i], options.resolution_weight);
+          if (!std::isfinite(pi)) continue;
+          const UlrInputView& v = views[i];
+          double vx, vy, vd;
+          if (!v.camera.ProjectCam(v.camera.CamFromWorld(p_world_d), &vx, &vy, &vd) || !(vx >= 0.0) ||
+              !(vy >= 0.0) || !(vx < v.depth.width) || !(vy < v.depth.height)) {
+            continue;
+          }
+          proj[3 * i] = vx;
+          proj[3 * i + 1] = vy;
+          proj[3 * i + 2] = vd;
+          pen[i] = pi;
         }
-        // Lazy occlusion test: only views that would be selected are projected and tested.
+        // Lazy occlusion test: only views that would be selected are tested.
         int m = 0;
         glm::vec3 col(0.f);
         for (;;) {
@@ -130,15 +146,9 @@ void UlrBlend(const Camera& novel, ImageView<const float> gbuffer_depth, ImageVi
             if (tested[i]) continue;
             tested[i] = 1;
             const UlrInputView& v = views[i];
-            double vx, vy, vd;
-            const glm::dvec3 q = v.camera.CamFromWorld(p_world_d);
-            bool ok = v.camera.ProjectCam(q, &vx, &vy, &vd) && vx >= 0.0 && vy >= 0.0 &&
-                      vx < v.depth.width && vy < v.depth.height;
-            if (ok) {
-              const float dv = v.depth.At(std::min(int(vy), v.depth.height - 1), std::min(int(vx), v.depth.width - 1));
-              ok = dv > 0.f && std::isfinite(dv) && std::abs(vd - double(dv)) <= double(options.depth_tol) * dv;
-            }
-            if (!ok) {
+            const double vx = proj[3 * i], vy = proj[3 * i + 1], vd = proj[3 * i + 2];
+            const float dv = v.depth.At(std::min(int(vy), v.depth.height - 1), std::min(int(vx), v.depth.width - 1));
+            if (!(dv > 0.f && std::isfinite(dv) && std::abs(vd - double(dv)) <= double(options.depth_tol) * dv)) {
               pen[i] = INFINITY;
               all_ok = false;
             }
@@ -149,11 +159,7 @@ void UlrBlend(const Camera& novel, ImageView<const float> gbuffer_depth, ImageVi
         for (int j = 0; j < m; ++j) {
           if (!(weight[j] > 0.f)) continue;
           const int i = index[j];
-          // Every selected view passed the test above; project again for the colour read
-          // (k projections, cheaper than keeping every tested view's position).
-          double vx, vy, vd;
-          views[i].camera.ProjectCam(views[i].camera.CamFromWorld(p_world_d), &vx, &vy, &vd);
-          col += weight[j] * Bilinear3(views[i].color, vx, vy);
+          col += weight[j] * Bilinear3(views[i].color, proj[3 * i], proj[3 * i + 1]);
           ++used;
         }
         if (used > 0) {

@@ -50,8 +50,10 @@ float UlrPenaltyFast(const glm::vec3& p, const glm::vec3& b, float lb, const glm
 
 // For every pixel with gbuffer_depth > 0 (and pixel_mask != 0 when a mask is given): the world
 // point p = centre + depth * ray; penalties UlrPenalty(p, novel centre, view centre) of every
-// input view; the best k by UlrSelect among the views that pass the occlusion (and back-face)
-// test, found lazily: the best k are tested, failing ones dropped and the selection redone.
+// input view; the best k by UlrSelect among the views that see p: the back-face (when a normal
+// is given), behind-the-camera and outside-the-image tests are done for every view with the
+// penalties; the depth test (a read in the view's depth map) lazily: the best k are tested,
+// failing ones dropped and the selection redone.
 // color_out = sum_j w_j * bilinear(view_j colour at p's projection) (edge-clamped), count_out =
 // the number of views with positive weight (0 = no view sees p: colour 0, the caller falls back
 // to TM). Pixels not computed get colour 0 and count 0. normal may be empty (no back-face test).
