@@ -192,6 +192,31 @@ def test_pixel_mask_restricts_without_changing_the_result(exact):
     np.testing.assert_array_equal(part.depth[mask], full.depth[mask])
 
 
+def test_depth_pass_then_resolve_equals_render(exact):
+    scene, r = exact
+    t = scene.targets[0]
+    full = r.render(t.camera, gbuffer_depth=t.depth)
+    dp = r.depth_pass(t.camera, gbuffer_depth=t.depth)
+    np.testing.assert_array_equal(dp.depth, full.depth)
+    np.testing.assert_array_equal(dp.vote, full.vote)
+    np.testing.assert_array_equal(dp.valid, full.valid)
+    np.testing.assert_array_equal(dp.inside_grid, full.inside_grid)
+    assert (dp.color == 0).all()
+    mask = np.zeros(t.depth.shape, bool)
+    mask[40:120, 60:200] = True
+    res = r.resolve(t.camera, pixel_mask=mask)
+    assert set(res.times_ms) == {"cluster & blend", "spatial filter"}
+    np.testing.assert_array_equal(res.color[mask], full.color[mask])
+    assert (res.color[~mask] == 0).all()
+    # Resolve again (unfiltered), same kept lists.
+    u = r.resolve(t.camera, pixel_mask=mask, filtered=False)
+    ref_u = r.render(t.camera, gbuffer_depth=t.depth, filtered=False)
+    np.testing.assert_array_equal(u.color[mask], ref_u.color[mask])
+    # Another camera: no depth pass to resolve.
+    with pytest.raises(BadValueError, match="depth pass"):
+        r.resolve(scene.targets[1].camera, pixel_mask=mask)
+
+
 def test_thread_count_independence(exact):
     scene, r = exact
     t = scene.targets[1]

@@ -42,6 +42,15 @@ I64 CheckOffsets(py::handle obj, const char* name, py::ssize_t n) {
   return py::reinterpret_borrow<I64>(a);
 }
 
+bool SameCamera(const Camera& a, const Camera& b) {
+  if (a.model != b.model || a.width != b.width || a.height != b.height || a.fx != b.fx || a.fy != b.fy ||
+      a.cx != b.cx || a.cy != b.cy || a.trans != b.trans)
+    return false;
+  for (int c = 0; c < 3; ++c)
+    if (a.rot[c] != b.rot[c]) return false;
+  return true;
+}
+
 class PvmRendererCore {
  public:
   PvmRendererCore(py::handle vertices, py::handle faces, py::handle face_offsets, py::handle vertex_offsets,
@@ -140,11 +149,22 @@ class PvmRendererCore {
 
   py::dict Render(const Camera& camera, py::handle gbuffer_obj, py::handle mask_obj, bool filtered, float sigma,
                   float alpha, float gamma, float tau_depth, int max_tiles, int max_candidates, int ulr_k,
-                  float merge_rel, float radius_sigmas, int margin, float near, bool cull_back, float max_angle_deg, int ray_stride, int filter_step) {
+                  float merge_rel, float radius_sigmas, int margin, float near, bool cull_back, float max_angle_deg, int ray_stride, int filter_step,
+                  const std::string& mode) {
+    const bool depth_only = mode == "depth", resolve = mode == "resolve";
+    if (!depth_only && !resolve && mode != "full") {
+      throw BadValueError("mode: expected full, depth or resolve, got " + mode);
+    }
     if (camera.model != CameraModel::kPinhole) {
       throw BadValueError("camera: PVM rendering takes a pinhole target camera (equirect targets are not built)");
     }
     const py::ssize_t h = camera.height, w = camera.width;
+    if (resolve && !(depth_frame_ && SameCamera(camera, depth_camera_))) {
+      throw BadValueError("resolve: no depth pass of a " + std::to_string(w) + "x" + std::to_string(h) +
+                          " camera to resolve (call depth_pass first, with the same camera)");
+    }
+    if (depth_only && !mask_obj.is_none()) throw BadValueError("pixel_mask: the depth pass takes none");
+    if (resolve && !gbuffer_obj.is_none()) throw BadValueError("gbuffer_depth: resolve reuses the depth pass's");
     F32 gbuf;
     const float* gptr = nullptr;
     if (!gbuffer_obj.is_none()) {
@@ -220,18 +240,25 @@ class PvmRendererCore {
         ms[i] = std::chrono::duration<double, std::milli>(now - t).count();
         t = now;
       };
-      PvmVisibleCoarse(tiles_.grid, camera, gptr, o.margin, o.ray_stride, frame_.visible);
-      lap(0);
-      PvmSelectTiles(tiles_, views, frame_.visible, camera, o, frame_);
-      lap(1);
-      PvmRasterise(tiles_, views, camera, o, frame_);
-      lap(2);
-      PvmCluster(views, camera, mptr, o, frame_);
+      ms[0] = ms[1] = ms[2] = 0.0;
+      if (!resolve) {
+        PvmVisibleCoarse(tiles_.grid, camera, gptr, o.margin, o.ray_stride, frame_.visible);
+        lap(0);
+        PvmSelectTiles(tiles_, views, frame_.visible, camera, o, frame_);
+        lap(1);
+        PvmRasterise(tiles_, views, camera, o, frame_);
+        lap(2);
+      }
+      PvmCluster(views, camera, mptr, o, !depth_only, frame_);
       lap(3);
-      PvmFilter(tiles_.grid, camera, mptr, o, frame_, color.mutable_data(), depth.mutable_data(), vote.mutable_data(),
+      PvmFilter(tiles_.grid, camera, mptr, o, !depth_only, frame_, color.mutable_data(), depth.mutable_data(), vote.mutable_data(),
                 reinterpret_cast<std::uint8_t*>(valid.mutable_data()),
                 reinterpret_cast<std::uint8_t*>(inside.mutable_data()));
       lap(4);
+    }
+    if (!resolve) {
+      depth_frame_ = true;  // the candidate lists of this camera stay for resolve calls
+      depth_camera_ = camera;
     }
     std::int64_t nvis = 0;
     for (std::uint8_t v : frame_.visible) nvis += v;
@@ -285,6 +312,8 @@ class PvmRendererCore {
   std::vector<Camera> cameras_;
   PvmTileArrays tiles_;
   PvmFrame frame_;
+  bool depth_frame_ = false;  // frame_ holds the candidate lists of depth_camera_
+  Camera depth_camera_;
 };
 
 }  // namespace
@@ -306,9 +335,11 @@ void BindPvmRender(py::module_& m) {
            py::arg("alpha") = 7.f, py::arg("gamma") = 7.f, py::arg("tau_depth") = 0.83f, py::arg("max_tiles") = 12,
            py::arg("max_candidates") = 12, py::arg("ulr_k") = 4, py::arg("merge_rel") = 0.02f,
            py::arg("radius_sigmas") = 2.f, py::arg("margin") = 1, py::arg("near") = 1e-3f,
-           py::arg("cull_back") = true, py::arg("max_angle") = 60.f, py::arg("ray_stride") = 8, py::arg("filter_step") = 2,
+           py::arg("cull_back") = true, py::arg("max_angle") = 60.f, py::arg("ray_stride") = 8, py::arg("filter_step") = 2, py::arg("mode") = "full",
            "dict: color (H, W, 3), depth (H, W) (Eq. 2 vote), vote (H, W), valid, inside_grid (H, W) bool, "
-           "times_ms per stage, visible_coarse, tiles, triangles.")
+           "times_ms per stage, visible_coarse, tiles, triangles. mode: full (all stages); depth (stages "
+           "1-4 without colours: depth, vote, valid, inside_grid; colour 0; the frame is kept); resolve "
+           "(colours of pixel_mask from the kept depth pass: stages 4-5 only).")
       .def("candidates", &PvmRendererCore::Candidates, py::arg("height"), py::arg("width"),
            py::arg("max_candidates") = 12, "The last frame's per-pixel candidate lists (count, depth, view).");
 }

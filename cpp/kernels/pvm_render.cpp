@@ -434,7 +434,7 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
 }
 
 void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t* pixel_mask,
-                const PvmRenderOptions& options, PvmFrame& frame) {
+                const PvmRenderOptions& options, bool colours, PvmFrame& frame) {
   const int h = camera.height, w = camera.width;
   const int K = std::min(std::max(1, options.max_candidates), kPvmMaxCandidates);
   const std::int64_t npix = static_cast<std::int64_t>(h) * w;
@@ -539,6 +539,17 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
           }
           m0 = s / n;
         }
+        if (!colours) {
+          int k1 = 0;
+          for (int i = 0; i < n; ++i) k1 += bg[i] ? 1 : 0;
+          frame.d_fg[static_cast<std::size_t>(p)] = static_cast<float>(m0);
+          frame.n_fg[static_cast<std::size_t>(p)] = static_cast<std::uint8_t>(n - k1);
+          if (two) {
+            frame.d_bg[static_cast<std::size_t>(p)] = static_cast<float>(m1);
+            frame.n_bg[static_cast<std::size_t>(p)] = static_cast<std::uint8_t>(k1);
+          }
+          continue;
+        }
         // Candidate colours and penalties.
         const glm::dvec3 ray = camera.WorldFromCamDir(camera.RayInCam(x + 0.5, y + 0.5));
         for (int i = 0; i < n; ++i) {
@@ -588,7 +599,7 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
 }
 
 void PvmFilter(const PvmGrid& grid, const Camera& camera, const std::uint8_t* pixel_mask,
-               const PvmRenderOptions& options, const PvmFrame& frame, float* color, float* depth, float* vote,
+               const PvmRenderOptions& options, bool colours, const PvmFrame& frame, float* color, float* depth, float* vote,
                std::uint8_t* valid, std::uint8_t* inside_grid) {
   const int h = camera.height, w = camera.width;
   const int step = std::max(1, options.filter_step);
@@ -651,7 +662,7 @@ void PvmFilter(const PvmGrid& grid, const Camera& camera, const std::uint8_t* pi
         const bool pick_bg = static_cast<float>(n1) >= options.tau_depth * static_cast<float>(n0);
         depth[p] = pick_bg ? dbg[p] : dfg[p];
         vote[p] = static_cast<float>(pick_bg ? n1 : n0) / static_cast<float>(n0 + n1);
-        if (!options.filtered) {
+        if (!options.filtered || !colours) {
           out[0] = c0[0];
           out[1] = c0[1];
           out[2] = c0[2];

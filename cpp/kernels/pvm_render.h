@@ -130,13 +130,15 @@ void PvmSelectTiles(const PvmTileArrays& tiles, const PvmViews& views, const std
 // Stage 3. camera must be pinhole.
 void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camera& camera,
                   const PvmRenderOptions& options, PvmFrame& frame);
-// Stage 4. pixel_mask (H, W) or nullptr = all pixels.
+// Stage 4. pixel_mask (H, W) or nullptr = all pixels. colours = false: the clusters' depths
+// and sizes only (no image sampling; the hybrid method's depth pass).
 void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t* pixel_mask,
-                const PvmRenderOptions& options, PvmFrame& frame);
+                const PvmRenderOptions& options, bool colours, PvmFrame& frame);
 // Stage 5. Outputs (H, W, 3) color, (H, W) depth, vote, valid and inside_grid; pixels outside
-// the mask or without candidates get colour 0, depth 0, vote 0, valid 0.
+// the mask or without candidates get colour 0, depth 0, vote 0, valid 0. colours = false after a
+// PvmCluster without colours: no Eq. 1 (colour stays 0), depth / vote / valid as usual.
 void PvmFilter(const PvmGrid& grid, const Camera& camera, const std::uint8_t* pixel_mask,
-               const PvmRenderOptions& options, const PvmFrame& frame, float* color, float* depth, float* vote,
+               const PvmRenderOptions& options, bool colours, const PvmFrame& frame, float* color, float* depth, float* vote,
                std::uint8_t* valid, std::uint8_t* inside_grid);
 
 }  // namespace ibr

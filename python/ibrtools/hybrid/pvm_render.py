@@ -17,6 +17,11 @@ gives a :class:`PvmResult`:
   Eq. 1 and the gamma-power blend (``filtered=True``), or the foreground cluster's colour
   (``filtered=False``: the unfiltered PVM-H-like baseline);
 * depth by the vote of Eq. 2 (``tau_depth``) for the hybrid method's geometric test.
+
+Two-phase use (the hybrid method): :meth:`PvmRenderer.depth_pass` gives depth / vote / valid /
+inside_grid everywhere without sampling any image, then :meth:`PvmRenderer.resolve` computes the
+colours of a pixel mask only, from the kept candidate lists (same result as ``render`` with
+that mask).
 """
 from __future__ import annotations
 
@@ -207,6 +212,22 @@ class PvmRenderer:
     def render(self, camera: Camera, gbuffer_depth: np.ndarray | None = None,
                pixel_mask: np.ndarray | None = None, filtered: bool | None = None) -> PvmResult:
         """One frame (see the module doc). ``filtered`` None = the ``filtered`` parameter."""
+        return self._run(camera, gbuffer_depth, pixel_mask, filtered, "full")
+
+    def depth_pass(self, camera: Camera, gbuffer_depth: np.ndarray | None = None) -> PvmResult:
+        """Stages 1-4 without colours: depth (Eq. 2), vote, valid and inside_grid of every pixel,
+        colour 0. The candidate lists are kept for :meth:`resolve` (the hybrid method decides
+        where it needs PVM from the depth, then resolves colours only there)."""
+        return self._run(camera, gbuffer_depth, None, None, "depth")
+
+    def resolve(self, camera: Camera, pixel_mask: np.ndarray | None = None,
+                filtered: bool | None = None) -> PvmResult:
+        """Colours of ``pixel_mask``'s pixels from the last depth pass (or render) of ``camera``
+        (the same camera; BadValueError otherwise): cluster & blend and the spatial filter only.
+        Identical to :meth:`render` with that mask."""
+        return self._run(camera, None, pixel_mask, filtered, "resolve")
+
+    def _run(self, camera, gbuffer_depth, pixel_mask, filtered, mode) -> PvmResult:
         if not isinstance(camera, Camera):
             raise DtypeError(f"camera: expected an ibrtools.Camera, got {type(camera).__name__}")
         if camera.model != PINHOLE:
@@ -216,8 +237,10 @@ class PvmRenderer:
         out = self._core.render(camera.to_core(), gbuffer_depth, pixel_mask, filt, p["sigma"], p["alpha"],
                                 p["gamma"], p["tau_depth"], p["max_tiles"], p["max_candidates"], p["ulr_k"],
                                 p["merge_rel"], p["radius_sigmas"], p["margin"], p["near"], p["cull_back"],
-                                p["max_angle"], p["ray_stride"], p["filter_step"])
+                                p["max_angle"], p["ray_stride"], p["filter_step"], mode)
         times = {STAGE_NAMES[k]: float(v) for k, v in out["times_ms"].items()}
+        if mode == "resolve":
+            times = {k: times[k] for k in ("cluster & blend", "spatial filter")}
         stats = {"visible_coarse": int(out["visible_coarse"]), "tiles": int(out["tiles"]),
                  "triangles": int(out["triangles"])}
         return PvmResult(color=out["color"], depth=out["depth"], valid=out["valid"], vote=out["vote"],
