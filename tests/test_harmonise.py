@@ -326,3 +326,67 @@ def test_scale_field_reduced_resolution_matches_full_resolution(size):
     near = (support > 0.5e-3) & (support < 2e-3)
     assert near.mean() < 0.03  # measured 1.2 % of the pixels at 480x360
     assert rel[~near].max() < 0.01 and np.median(rel) < 1e-4
+
+
+def test_poisson_by_region_matches_one_solve():
+    """Per-region solves on their boxes give the whole-image Poisson solution."""
+    from ibrtools.hybrid.harmonise import _poisson_by_region
+    from ibrtools.solvers import poisson_blend
+
+    h, w = 90, 120
+    rng = np.random.default_rng(2)
+    yy, xx = np.mgrid[0:h, 0:w]
+    src = (0.4 + 0.3 * np.sin(xx / 7.0)[..., None] * np.cos(yy / 5.0)[..., None]
+           + 0.05 * rng.random((h, w, 3))).astype(np.float32)
+    bnd = (src * 1.2 + 0.05).astype(np.float32)
+    mask = np.zeros((h, w), bool)
+    mask[10:30, 10:40] = True                          # a block
+    mask[(yy - 60) ** 2 + (xx - 80) ** 2 < 15 ** 2] = True  # a disc
+    mask[0:12, 100:120] = True                         # a region on the image corner (Neumann)
+    mask[50, 5:20] = True                              # a 1-pixel line
+    mask[31, 41] = True                                # diagonal to the block: its own region
+    ref, ref_info = poisson_blend(bnd, src, mask, tol=1e-6)
+    out, info = _poisson_by_region(bnd, src, mask, 1e-6)
+    assert info["regions"] == 5 and info["converged"] and info["unknowns"] == mask.sum()
+    assert np.array_equal(out[~mask], bnd[~mask])
+    # Both stop at a 1e-6 relative residual of the same system (values ~1): they agree to 1e-5.
+    np.testing.assert_allclose(out, ref, rtol=0, atol=1e-5)
+
+
+def test_interpolate_vertex_values_matches_numpy(base):
+    from ibrtools import _core
+
+    sc, _, mesh = base
+    out = ReferenceRenderer(mesh).render(sc.views[0].camera, outputs=("prim_id", "bary", "hit"), lights=[])
+    rng = np.random.default_rng(4)
+    vals = rng.random((len(mesh.vertices), 6)).astype(np.float32)
+    got = _core.interpolate_vertex_values(out["prim_id"], out["bary"], mesh.faces, vals)
+    hit = out["hit"]
+    f = mesh.faces[out["prim_id"][hit]]
+    uv = out["bary"][hit]
+    w = np.stack([1 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]], 1)[..., None]
+    ref = np.zeros(hit.shape + (6,), np.float32)
+    ref[hit] = (vals[f] * w).sum(1)  # the numpy expression the kernel replaced
+    assert got.shape == ref.shape and got.dtype == np.float32 and hit.any()
+    # float32 either way, summed in the same order; numpy's pairwise sum over 3 terms is the same
+    # order too: equal to 1 ulp of values in [0, 1].
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-6)
+    assert not got[~hit].any()
+
+
+def test_interpolate_vertex_values_bad_inputs():
+    from ibrtools import _core
+
+    prim = np.array([[0, -1]], np.int32)
+    bary = np.zeros((1, 2, 2), np.float32)
+    faces = np.array([[0, 1, 2]], np.int32)
+    vals = np.ones((3, 2), np.float32)
+    assert _core.interpolate_vertex_values(prim, bary, faces, vals).tolist() == [[[1, 1], [0, 0]]]
+    with pytest.raises(BadValueError):  # triangle index out of range
+        _core.interpolate_vertex_values(np.array([[1, -1]], np.int32), bary, faces, vals)
+    with pytest.raises(BadValueError):  # vertex index out of range
+        _core.interpolate_vertex_values(prim, bary, np.array([[0, 1, 3]], np.int32), vals)
+    with pytest.raises(ShapeError):
+        _core.interpolate_vertex_values(prim, bary[:, :1], faces, vals)
+    with pytest.raises(DtypeError):
+        _core.interpolate_vertex_values(prim.astype(np.int64), bary, faces, vals)

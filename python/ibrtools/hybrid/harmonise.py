@@ -136,31 +136,33 @@ def _depth_edges(depth: np.ndarray, hit: np.ndarray, px: int) -> np.ndarray:
 
 def _render_t(renderer, cam, std: np.ndarray, faces: np.ndarray, colors: np.ndarray | None):
     """T (the vertex ``colors`` interpolated, or the mesh's own colour when None), the
-    coverage, the variance mesh interpolated into the view, and the mesh's depth."""
+    coverage, the variance mesh interpolated into the view, and the mesh's depth. The per-vertex
+    fields are interpolated over the rendered triangles by ``_core.interpolate_vertex_values``."""
+    from .. import _core
+
     names = ("depth", "prim_id", "bary", "hit") + (("color",) if colors is None else ())
     out = renderer.render(cam, outputs=names, lights=[], ambient=1.0)
-    hit = out["hit"]
-    prim = out["prim_id"][hit]
-    uv = out["bary"][hit].astype(np.float32)
-    f = faces[prim]
-    w = np.stack([1 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]], 1)[..., None]
-    std_pix = np.zeros(hit.shape + (3,), np.float32)
-    std_pix[hit] = (std[f] * w).sum(1)
-    if colors is None:
-        t = out["color"]
-    else:
-        t = np.zeros(hit.shape + (3,), np.float32)
-        t[hit] = (colors[f] * w).sum(1)
-    return t, hit, std_pix, out["depth"]
+    vals = std if colors is None else np.concatenate([std, colors], axis=1)  # one pass for both
+    field = _core.interpolate_vertex_values(out["prim_id"], np.ascontiguousarray(out["bary"], np.float32),
+                                            faces, np.ascontiguousarray(vals, np.float32))
+    std_pix = field[..., :3]
+    t = out["color"] if colors is None else field[..., 3:]
+    return t, out["hit"], std_pix, out["depth"]
 
 
-def _weights(img: np.ndarray, hit: np.ndarray, std_pix: np.ndarray, rng_c: np.ndarray, p: HarmoniseParams):
+def _saturated(img: np.ndarray, hit: np.ndarray, p: HarmoniseParams):
+    """The image's saturated-dark and saturated-bright pixels: luminance in the bottom / top
+    ``saturated_pct`` of the covered pixels."""
     lum = img.astype(np.float64) @ LUMA
     if hit.any():
         lo, hi = np.percentile(lum[hit], [p.saturated_pct, 100 - p.saturated_pct])
     else:
         lo, hi = -np.inf, np.inf
-    sat_lo, sat_hi = lum <= lo, lum >= hi
+    return lum <= lo, lum >= hi
+
+
+def _weights(sat: tuple, hit: np.ndarray, std_pix: np.ndarray, rng_c: np.ndarray, p: HarmoniseParams):
+    sat_lo, sat_hi = sat
     high_var = (std_pix > p.vd_variance_frac * rng_c).any(-1) & hit
     valid = hit & ~sat_lo & ~sat_hi & ~high_var
     return valid, sat_hi & hit, high_var
@@ -272,6 +274,37 @@ def _vd_cut(hm, t, hit, edges, rng_c, p: HarmoniseParams) -> np.ndarray:
     return vd
 
 
+def _poisson_by_region(boundary: np.ndarray, source: np.ndarray, mask: np.ndarray, tol: float):
+    """:func:`ibrtools.solvers.poisson_blend` solved per 4-connected region of ``mask``, each
+    on its bounding box plus one pixel (clamped to the image). The same linear system: regions
+    are not 4-adjacent, so they share no unknown and no boundary pixel, and the box holds every
+    4-neighbour of the region's pixels (image-border Neumann where the box meets the image
+    border). Each region reaches ``tol`` relative to its own right-hand side, so the whole does
+    too. The solver's work scales with its grid: ~1.5 % masked pixels in ~100 regions of a 1 MP
+    image cost ~10x less this way. Returns (image, info merged over the regions)."""
+    from scipy.ndimage import find_objects, label
+
+    h, w = mask.shape
+    lab, _ = label(mask)
+    out = boundary.copy()
+    merged = {"iterations": 0, "relative_residual": 0.0, "converged": True, "unknowns": 0, "regions": 0}
+    for i, sl in enumerate(find_objects(lab)):
+        if sl is None:
+            continue
+        y0, y1 = max(sl[0].start - 1, 0), min(sl[0].stop + 1, h)
+        x0, x1 = max(sl[1].start - 1, 0), min(sl[1].stop + 1, w)
+        m = lab[y0:y1, x0:x1] == i + 1
+        o, info = poisson_blend(np.ascontiguousarray(boundary[y0:y1, x0:x1]),
+                                np.ascontiguousarray(source[y0:y1, x0:x1]), m, tol=tol)
+        out[y0:y1, x0:x1][m] = o[m]
+        merged["iterations"] = max(merged["iterations"], int(info["iterations"]))
+        merged["relative_residual"] = max(merged["relative_residual"], float(info["relative_residual"]))
+        merged["converged"] = bool(merged["converged"] and info["converged"])
+        merged["unknowns"] += int(info.get("unknowns", m.sum()))
+        merged["regions"] += 1
+    return out, merged
+
+
 def colour_range(scene: Scene, gains: dict | None = None) -> np.ndarray:
     """Per-channel colour range of the inputs (times their per-view ``gains`` when given): 99th
     minus 1st percentile over all views (sub-sampled), floored at 1e-3."""
@@ -330,16 +363,17 @@ def harmonise(scene: Scene, mesh: Mesh, std: np.ndarray, params: HarmoniseParams
     for v in scene.views:
         img = np.ascontiguousarray(v.color, np.float32)
         t, hit, std_pix, depth = _render_t(renderer, v.camera, std, mesh.faces, colors)
-        valid, sat_hi, high_var = _weights(img, hit, std_pix, rng_c, params)
+        sat = _saturated(img, hit, params)
+        valid, sat_hi, high_var = _weights(sat, hit, std_pix, rng_c, params)
         edges = _depth_edges(depth, hit, params.edge_px)
         valid &= ~edges  # T mixes surfaces at depth edges: no evidence for the ratio there
         per_view[v.name] = [img, t, hit, valid, sat_hi, high_var, _global_gain(img, t, valid), edges, depth,
-                            std_pix]
+                            std_pix, sat]
     # The range of the *gain-corrected* colours (a strongly over-exposed view must not widen it:
     # every threshold is a fraction of it), then the weights again with that range.
     rng_c = colour_range(scene, {n: pv[6] for n, pv in per_view.items()})
     for pv in per_view.values():
-        valid, pv[4], pv[5] = _weights(pv[0], pv[2], pv[9], rng_c, params)
+        valid, pv[4], pv[5] = _weights(pv[10], pv[2], pv[9], rng_c, params)
         pv[3] = valid & ~pv[7]
     log_g = np.log(np.array([pv[6] for pv in per_view.values()]))
     spread = float(np.abs(log_g - log_g.mean(0)).max()) if len(log_g) else 0.0
@@ -355,7 +389,7 @@ def harmonise(scene: Scene, mesh: Mesh, std: np.ndarray, params: HarmoniseParams
 
     # Pass 2: diffuse harmonisation of every view (the cut's prediction needs all of them).
     hms = {}
-    for name, (img, t, hit, valid, sat_hi, high_var, gain, edges, depth, _) in per_view.items():
+    for name, (img, t, hit, valid, sat_hi, high_var, gain, edges, depth, _, _) in per_view.items():
         h, w = hit.shape
         hms[name] = img * _scale_field(img, t, valid, params.sigma_frac * max(h, w), gain)
     # Pass 3: view-dependent mask and Poisson re-injection.
@@ -370,7 +404,7 @@ def harmonise(scene: Scene, mesh: Mesh, std: np.ndarray, params: HarmoniseParams
     hm_list = [globally[n] for n in names]
     images, masks = {}, {}
     for j, name in enumerate(names):
-        img, t, hit, valid, sat_hi, high_var, gain, edges, depth, _ = per_view[name]
+        img, t, hit, valid, sat_hi, high_var, gain, edges, depth, _, _ = per_view[name]
         hm = hms[name]
         pred, n_seen = _cross_view_prediction(j, cams, depths, hm_list, hits, params, params.depth_tol)
         # A point no other view sees cannot be compared: no evidence either way there (the mesh
@@ -385,7 +419,7 @@ def harmonise(scene: Scene, mesh: Mesh, std: np.ndarray, params: HarmoniseParams
             regions = binary_dilation(regions, iterations=grow)
         mask = cut & regions
         if mask.any() and not mask.all():
-            out, info = poisson_blend(np.ascontiguousarray(hm, np.float32), img, mask, tol=params.poisson_tol)
+            out, info = _poisson_by_region(np.ascontiguousarray(hm, np.float32), img, mask, params.poisson_tol)
         else:
             out, info = hm.astype(np.float32), {"iterations": 0, "relative_residual": 0.0, "converged": True}
         # No negative light: the re-injected gradients can undershoot next to a dark boundary.
@@ -399,7 +433,8 @@ def harmonise(scene: Scene, mesh: Mesh, std: np.ndarray, params: HarmoniseParams
     n = len(mesh.vertices)
     acc, cnt = np.zeros(n), np.zeros(n)
     fmasks = {k: m.astype(np.float32) for k, m in masks.items()}
-    for s in visible_samples(scene, mesh, renderer, params.depth_tol, images=fmasks):
+    for s in visible_samples(scene, mesh, renderer, params.depth_tol, images=fmasks,
+                             depths={n: per_view[n][8] for n in names}):
         acc += np.bincount(s.index, weights=s.color.astype(np.float64), minlength=n)
         cnt += np.bincount(s.index, minlength=n)
     vd_texture = (acc / np.maximum(cnt, 1)).astype(np.float32)

@@ -79,16 +79,20 @@ def bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def visible_samples(scene: Scene, mesh: Mesh, renderer=None, depth_tol: float = DEPTH_TOL,
-                    images: dict[str, np.ndarray] | None = None):
-    """Yields one :class:`VertexSamples` per view (``images`` overrides the views' colours)."""
+                    images: dict[str, np.ndarray] | None = None, depths: dict[str, np.ndarray] | None = None):
+    """Yields one :class:`VertexSamples` per view (``images`` overrides the views' colours;
+    ``depths``: the mesh's depth per view when the caller has rendered it already)."""
     from ..render.reference import ReferenceRenderer
 
-    if renderer is None:
+    if renderer is None and depths is None:
         renderer = ReferenceRenderer(mesh)
     verts = mesh.vertices.astype(np.float64)
     for view in scene.views:
         cam = view.camera
-        depth = renderer.render(cam, outputs=("depth",), lights=[])["depth"]
+        if depths is not None:
+            depth = depths[view.name]
+        else:
+            depth = renderer.render(cam, outputs=("depth",), lights=[])["depth"]
         xy, z = cam.project(verts)
         x, y = xy[:, 0], xy[:, 1]
         ok = np.isfinite(z) & (z > 0) & (x >= 0) & (x < cam.width) & (y >= 0) & (y < cam.height)
