@@ -345,3 +345,76 @@ def test_found_forward_warp_extreme_depth_is_finite(depth_value):
     assert np.all(np.isfinite(out)) and not np.any(np.isnan(d2))
     inner = (slice(1, -1), slice(1, -1))
     np.testing.assert_allclose(out[inner], col[inner], atol=1e-5)  # identity warp: the same colours
+
+
+# --- the array boundary: wrong dtype, shape, strides, read-only, NaN ---------------------------------
+def _boundary_cases():
+    h, w = 12, 16
+    rng = np.random.default_rng(3)
+    col = rng.uniform(0, 1, (h, w, 3)).astype(np.float32)
+    dep = rng.uniform(1, 3, (h, w)).astype(np.float32)
+    hole = rng.uniform(size=(h, w)) < 0.3
+    cam = pinhole(h, w, 12.0).to_core()
+    return {
+        "forward_warp": (lambda c, d: _core.forward_warp(c, d, cam, cam, _core.WarpOptions()), [col, dep]),
+        "warp_with_holes": (lambda c, d: _core.warp_with_holes(c, d, cam, cam), [col, dep]),
+        "inpaint.pushpull": (lambda c, m: __import__("ibrtools.inpaint", fromlist=["x"]).pushpull(c, m), [col, hole]),
+        "metrics.ssim": (lambda a, b: __import__("ibrtools.metrics", fromlist=["x"]).ssim(a, b), [col, col]),
+        "steerable.analyse": (lambda c: __import__("ibrtools.steerable", fromlist=["x"]).analyse(c, 2), [col]),
+        "depthwarp.warp_depth": (lambda d: __import__("ibrtools.depthwarp", fromlist=["x"]).warp_depth(
+            d, pinhole(h, w, 12.0), pinhole(h, w, 12.0)), [dep]),
+    }
+
+
+MUTATIONS = ["float64", "int32", "transposed", "strided", "read-only", "extra-dim", "flattened", "empty",
+             "nan", "inf", "list"]
+
+
+def _mutate(a: np.ndarray, how: str):
+    if how == "float64":
+        return a.astype(np.float64)
+    if how == "int32":
+        return a.astype(np.int32)
+    if how == "transposed":
+        return np.swapaxes(a, 0, 1)
+    if how == "strided":
+        big = np.repeat(a, 2, axis=1)
+        return big[:, ::2]  # same shape and values, not contiguous
+    if how == "read-only":
+        b = a.copy()
+        b.setflags(write=False)
+        return b
+    if how == "extra-dim":
+        return a[..., None]
+    if how == "flattened":
+        return a.reshape(-1)
+    if how == "empty":
+        return a[:0]
+    if how in ("nan", "inf"):
+        b = a.astype(a.dtype)
+        if b.dtype.kind == "f":
+            b.flat[5] = np.nan if how == "nan" else np.inf
+        return b
+    return a.tolist()
+
+
+@pytest.mark.parametrize("entry", list(_boundary_cases()))
+@pytest.mark.parametrize("how", MUTATIONS)
+def test_array_boundary_is_typed(entry, how):
+    """Every mutated argument: a result (read-only, strided inputs are fine) or an InputError
+    naming the argument; never a crash, a pybind11 TypeError or silent garbage (no NaN out)."""
+    fn, args = _boundary_cases()[entry]
+    for i in range(len(args)):
+        mutated = list(args)
+        mutated[i] = _mutate(args[i], how)
+        try:
+            out = fn(*mutated)
+        except InputError as e:
+            assert str(e)
+            continue
+        if how in ("read-only", "strided"):
+            continue  # a valid input in another layout: accepted
+        arrays = [o for o in (out if isinstance(out, tuple) else (out,)) if isinstance(o, np.ndarray)]
+        for o in arrays:
+            if o.dtype.kind == "f" and how not in ("inf",):
+                assert not np.any(np.isnan(o)), f"{entry}: {how} argument {i} gave NaN output"
