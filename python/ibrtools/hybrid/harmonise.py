@@ -252,9 +252,14 @@ def _cross_view_prediction(j: int, cams, depths, hms, hits, p: HarmoniseParams, 
 
 
 def _vd_cut(hm, t, hit, edges, rng_c, p: HarmoniseParams) -> np.ndarray:
-    diff = (hm - t) / rng_c
+    import cv2
+
+    # float32 throughout (the inputs' precision); the blur is cv2's separable Gaussian with
+    # replicated borders, the same kernel as scipy's (radius 4 sigma, "nearest").
+    diff = (hm - t) * (1.0 / rng_c).astype(np.float32)
     if p.departure_blur > 0:
-        diff = gaussian_filter(diff, (p.departure_blur, p.departure_blur, 0), mode="nearest")
+        diff = cv2.GaussianBlur(diff.astype(np.float32), (0, 0), sigmaX=p.departure_blur, sigmaY=p.departure_blur,
+                                borderType=cv2.BORDER_REPLICATE).reshape(diff.shape)
     e = diff.max(-1)
     # No evidence (next to depth discontinuities, or seen by no other view): a slight preference
     # for "diffuse", so that such pixels follow their neighbours and never form a region alone.
