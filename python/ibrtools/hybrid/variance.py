@@ -123,14 +123,17 @@ def vertex_statistics(scene: Scene, mesh: Mesh, *, depth_tol: float = DEPTH_TOL,
     for s in samples:
         count += np.bincount(s.index, minlength=n)
 
+    # A view samples each vertex at most once (its indices are unique), so the per-vertex sums
+    # are plain indexed additions (the same float64 sums as bincount, in the same order).
+    colors64 = {s.name: s.color.astype(np.float64) for s in samples}
+
     def moments():
         s1 = np.zeros((n, 3))
         s2 = np.zeros((n, 3))
         for s in samples:
-            c = s.color.astype(np.float64) / gains[s.name]
-            for k in range(3):
-                s1[:, k] += np.bincount(s.index, weights=c[:, k], minlength=n)
-                s2[:, k] += np.bincount(s.index, weights=c[:, k] ** 2, minlength=n)
+            c = colors64[s.name] / gains[s.name]
+            s1[s.index] += c
+            s2[s.index] += c ** 2
         cnt = np.maximum(count, 1)[:, None]
         mean = s1 / cnt
         var = np.maximum(s2 / cnt - mean ** 2, 0.0)
@@ -138,15 +141,21 @@ def vertex_statistics(scene: Scene, mesh: Mesh, *, depth_tol: float = DEPTH_TOL,
 
     mean, var = moments()
     if compensate_gains and len(samples) > 1:
+        # Per view, the vertices it shares with another view and their colours (fixed).
+        shared = {}
+        for s in samples:
+            sh = count[s.index] >= 2
+            c = colors64[s.name][sh]
+            keep = (c > 1e-3).all(1)
+            shared[s.name] = (s.index[sh][keep], c[keep])
         # Alternate gains (robust: medians) and means until the gains settle (each vertex is seen
         # by a subset of the views, so the means mix gains: convergence is geometric, not one step).
         for _ in range(GAIN_ITERATIONS):
             before = {k: g.copy() for k, g in gains.items()}
             for s in samples:
-                shared = count[s.index] >= 2
-                m = mean[s.index[shared]]
-                c = s.color[shared].astype(np.float64)
-                ok = (m > 1e-3).all(1) & (c > 1e-3).all(1)
+                idx, c = shared[s.name]
+                m = mean[idx]
+                ok = (m > 1e-3).all(1)
                 if ok.sum() >= 16:
                     gains[s.name] = gains[s.name] * np.median(c[ok] / gains[s.name] / m[ok], axis=0)
             # Gains are relative: fix their geometric mean at 1 per channel.
