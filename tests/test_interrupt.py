@@ -123,9 +123,11 @@ def test_preprocess_interrupted_during_import(tmp_path):
     t0 = time.monotonic()
     code = _run_until(_command("ibr-preprocess") + ["synth:objects", "-o", str(d), "--views", "3", "--size", "64x48",
                                                     "-q"], lambda: time.monotonic() - t0 > 1.5, signal.SIGTERM)
-    assert code in (143, -signal.SIGTERM)  # before the handler is installed the default action applies
+    # 143: our handler; -15: before it is installed the default action applies; 0 was seen once on
+    # a loaded machine (the signal landing after the work was done): then the scene must be whole
+    assert code in (0, 143, -signal.SIGTERM)
     assert not _temporaries(tmp_path), _temporaries(tmp_path)
-    if d.exists():
+    if d.exists() or code == 0:
         json.loads((d / "scene.json").read_text())
 
 

@@ -339,7 +339,13 @@ def test_found_forward_warp_extreme_depth_is_finite(depth_value):
     col = np.random.default_rng(0).uniform(0, 1, (h, w, 3)).astype(np.float32)
     depth = np.full((h, w), depth_value, np.float32)
     cam = pinhole(h, w, 1.0)
-    c, d, wt = _core.forward_warp(col, depth, cam.to_core(), cam.to_core(), _core.WarpOptions())
+    try:
+        c, d, wt = _core.forward_warp(col, depth, cam.to_core(), cam.to_core(), _core.WarpOptions())
+    except InputError:
+        # a library loaded earlier in the same process (under pytest-xdist) may have set the CPU's
+        # denormals-are-zero mode: the subnormal depth is then 0 = unknown, refused typed
+        assert depth_value == DENORMAL
+        return
     assert np.all(np.isfinite(c)) and np.all(np.isfinite(wt)) and not np.any(np.isnan(d))
     out, d2, _ = _core.warp_with_holes(col, depth, cam.to_core(), cam.to_core())
     assert np.all(np.isfinite(out)) and not np.any(np.isnan(d2))
