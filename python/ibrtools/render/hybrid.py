@@ -124,9 +124,11 @@ class _GlobalMesh:
                                  f"{len(self.mesh.vertices)} vertices; rerun ibr-preprocess {scene.root} "
                                  f"-o {scene.root} --stages texture --force")
 
-    def gbuffer(self, camera: Camera) -> dict:
-        out = self.renderer.render(camera, outputs=("depth", "normal", "prim_id", "bary", "hit"), lights=[],
-                                   ambient=0.0)
+    def gbuffer(self, camera: Camera, normal: bool = True) -> dict:
+        """depth, prim_id, bary (and the normal, for ULR's back-face test); hit = prim_id >= 0."""
+        names = ("depth", "normal", "prim_id", "bary") if normal else ("depth", "prim_id", "bary")
+        out = self.renderer.render(camera, outputs=names, lights=[], ambient=0.0)
+        out["hit"] = out["prim_id"] >= 0
         return out
 
     def interpolate(self, gb: dict, attrib: np.ndarray) -> np.ndarray:
@@ -193,7 +195,7 @@ class TmMethod:
         if self._gm is None:
             raise BadValueError("tm: prepare(scene) must be called before render")
         t0 = time.perf_counter()
-        gb = self._gm.gbuffer(camera)
+        gb = self._gm.gbuffer(camera, normal=False)
         t1 = time.perf_counter()
         color = self._gm.interpolate(gb, self._gm.colors)
         t2 = time.perf_counter()
