@@ -60,7 +60,7 @@
 namespace ibr {
 
 constexpr int kPvmMaxCandidates = 16;  // hard limit of the per-pixel candidate list
-constexpr int kBandRows = 16;          // rasteriser band height
+constexpr int kBandRows = 32;          // rasteriser band height (16 -> 32: fewer bands per tile)
 
 // Read-only views of the tiles.npz arrays (docs/FORMAT.md "cache/pvm").
 struct PvmTileArrays {
