@@ -399,3 +399,19 @@ def test_render_job_writes_frames(exact_scene, tmp_path):
     assert f["name"] == "v001" and (tmp_path / "out" / "v001.png").is_file()
     assert f["metrics"]["psnr"] > 25 and "ulr_fraction" in f
     assert rep["inputs"] == 5
+
+
+@needs_pvm
+def test_render_job_hybrid_writes_the_selection_mask(exact_scene, tmp_path):
+    from ibrtools.imageio import read_image
+    from ibrtools.render import job as J
+
+    rep = J.run(J.plan(exact_scene), "hybrid", tmp_path / "out", params={"sigma_blur": 0})
+    f = rep["frames"][0]
+    assert f["mask"] == f"{f['name']}.mask.png" and set(f["selection"]) == {"tm", "ulr", "pvm", "none"}
+    mask = read_image(tmp_path / "out" / f["mask"])
+    assert mask.shape[2] == 3
+    # sigma_blur 0: every pixel is pure red (PVM), green (TM), blue (ULR) or black (nothing).
+    hard = np.round(mask, 3)
+    assert set(map(tuple, hard.reshape(-1, 3).tolist())) <= {(1, 0, 0), (0, 1, 0), (0, 0, 1), (0, 0, 0)}
+    assert "masking" in f["time_ms"] and "ulr_blend" in f["time_ms"]
