@@ -311,10 +311,10 @@ class HybridMethod:
         vd = self._gm.interpolate(gb, self._vd) if self._vd is not None else None
         t2 = time.perf_counter()
         times["gbuffer"], times["tm_shade"] = (t1 - t0) * 1e3, (t2 - t1) * 1e3
-        # PVM: candidates for the visible coarse voxels; depth vote everywhere (the selection
-        # needs it), colour where the pixel mask asks (here: the global mesh's pixels and those
-        # it misses inside the grid, i.e. every pixel; see docs/hybrid.md "What is computed").
-        res = self._pvm.render(camera, gbuffer_depth=gb["depth"], pixel_mask=None, filtered=p["filtered"])
+        # PVM in two passes: the depth pass (candidates of the visible voxels, 2-means, the Eq. 2
+        # vote) at every pixel, which the geometric test needs; colours (cluster blend, spatial
+        # filter) only where the blurred mask gives PVM a weight (resolve, below).
+        res = self._pvm.depth_pass(camera, gbuffer_depth=gb["depth"])
         t3 = time.perf_counter()
         for k, v in (res.times_ms or {}).items():
             times[k] = float(v)  # the PVM stages of Table 2: voxel lookup, tile sort, ...
@@ -325,8 +325,16 @@ class HybridMethod:
                                     geo_threshold=self._geo, tau_var=p["tau_var"])
         weights = _core.blur_selection(label, p["sigma_blur"])
         need_ulr = (weights[..., 1] > 0) | ((weights[..., 2] > 0) & ~valid)
+        need_pvm = (weights[..., 2] > 0) & valid
         t4 = time.perf_counter()
         times["masking"] = (t4 - t3) * 1e3
+        pvm_color = None
+        if need_pvm.any():
+            col = self._pvm.resolve(camera, pixel_mask=need_pvm, filtered=p["filtered"])
+            for k, v in (col.times_ms or {}).items():
+                times[k] = times.get(k, 0.0) + float(v)
+            pvm_color = np.ascontiguousarray(col.color, np.float32)
+        t4 = time.perf_counter()
         if need_ulr.any():
             ulr, count = _core.ulr_blend(camera.to_core(), gb["depth"], self._views, normal=gb["normal"],
                                          pixel_mask=need_ulr, k=p["k"], resolution_weight=p["resolution_weight"],
@@ -335,8 +343,8 @@ class HybridMethod:
             ulr, count = None, None
         t5 = time.perf_counter()
         times["ulr_blend"] = (t5 - t4) * 1e3
-        color = _core.hybrid_composite(weights, tm, ulr=ulr, ulr_count=count,
-                                       pvm=np.ascontiguousarray(res.color, np.float32), pvm_valid=valid)
+        color = _core.hybrid_composite(weights, tm, ulr=ulr, ulr_count=count, pvm=pvm_color,
+                                       pvm_valid=valid if pvm_color is not None else None)
         hole = label == 3
         hole &= weights.sum(-1) == 0
         times["composite"] = (time.perf_counter() - t5) * 1e3
@@ -345,7 +353,8 @@ class HybridMethod:
         n = label.size
         self._last = {"selection": {name: round(float((label == i).sum() / n), 4)
                                     for i, name in enumerate(("tm", "ulr", "pvm", "none"))},
-                      "ulr_pixels": int(need_ulr.sum()), "images": self._source}
+                      "ulr_pixels": int(need_ulr.sum()), "pvm_pixels": int(need_pvm.sum()),
+                      "images": self._source}
         return {"color": color, "depth": depth, "hole": hole, "selection": selection, "label": label}, times
 
     def frame_report(self) -> dict:
