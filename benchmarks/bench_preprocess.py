@@ -44,7 +44,7 @@ def one_run(root: Path, synth: dict):
     from ibrtools.stages import preprocess
 
     t0, c0 = time.perf_counter(), time.process_time()
-    rows = preprocess(f"synth:objects", root, synth=synth, methods=HYBRID)
+    rows = preprocess("synth:objects", root, synth=synth, methods=HYBRID)
     return time.perf_counter() - t0, time.process_time() - c0, rows
 
 
