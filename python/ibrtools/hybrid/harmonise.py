@@ -163,14 +163,18 @@ def _saturated(img: np.ndarray, hit: np.ndarray, p: HarmoniseParams):
 
 def _weights(sat: tuple, hit: np.ndarray, std_pix: np.ndarray, rng_c: np.ndarray, p: HarmoniseParams):
     sat_lo, sat_hi = sat
-    high_var = (std_pix > p.vd_variance_frac * rng_c).any(-1) & hit
+    thr = p.vd_variance_frac * rng_c
+    high_var = (std_pix[..., 0] > thr[0]) | (std_pix[..., 1] > thr[1]) | (std_pix[..., 2] > thr[2])
+    high_var &= hit
     valid = hit & ~sat_lo & ~sat_hi & ~high_var
     return valid, sat_hi & hit, high_var
 
 
 def _global_gain(img, t, valid) -> np.ndarray:
     """Median of T / I per channel over the weighted pixels (1 where there are too few)."""
-    ok = valid & (img > 1e-3).all(-1) & (t > 1e-3).all(-1)
+    ok = valid.copy()
+    for c in range(3):  # per channel: numpy's reductions over a last axis of 3 are slow
+        ok &= (img[..., c] > 1e-3) & (t[..., c] > 1e-3)
     if ok.sum() < 16:
         return np.ones(3)
     return np.median(t[ok].astype(np.float64) / img[ok], axis=0)
@@ -260,7 +264,7 @@ def _vd_cut(hm, t, hit, edges, rng_c, p: HarmoniseParams) -> np.ndarray:
     if p.departure_blur > 0:
         diff = cv2.GaussianBlur(diff.astype(np.float32), (0, 0), sigmaX=p.departure_blur, sigmaY=p.departure_blur,
                                 borderType=cv2.BORDER_REPLICATE).reshape(diff.shape)
-    e = diff.max(-1)
+    e = np.maximum(np.maximum(diff[..., 0], diff[..., 1]), diff[..., 2])
     # No evidence (next to depth discontinuities, or seen by no other view): a slight preference
     # for "diffuse", so that such pixels follow their neighbours and never form a region alone.
     e[edges] = p.data_threshold - NO_EVIDENCE_BIAS
