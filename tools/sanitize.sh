@@ -6,9 +6,10 @@
 #   tools/sanitize.sh tsan [pytest args...]   ThreadSanitizer (IBR_SANITIZE_THREAD=ON), build/tsan
 #
 # How it runs: the sanitized _core .so is placed in build/<kind>/stage/ibrtools/ next to
-# symlinks to every entry of python/ibrtools; PYTHONPATH puts the stage first and
-# SKBUILD_EDITABLE_SKIP=1 switches off the editable redirect of the .venv install (which
-# would otherwise hand out the normal, unsanitized _core). The uninstrumented Python
+# symlinks to every entry of python/ibrtools; PYTHONPATH puts the stage first, and a
+# sitecustomize.py in the stage removes the .venv's editable-install finder from sys.meta_path
+# (it runs after the .pth files; the finder would otherwise hand out the normal, unsanitized
+# _core, whatever sys.path says). The uninstrumented Python
 # interpreter needs the sanitizer runtime preloaded (LD_PRELOAD). Python leaks by design,
 # so leak detection is off; every other report aborts the run (halt_on_error=1).
 # Default test set: the environment variable SANITIZE_TESTS (space-separated paths) or,
@@ -60,8 +61,11 @@ for entry in "$ROOT"/python/ibrtools/*; do
   ln -s "$entry" "$STAGE/ibrtools/$(basename "$entry")"
 done
 cp "$BUILD"/_core.*.so "$STAGE/ibrtools/"
-
-export SKBUILD_EDITABLE_SKIP=1
+cat > "$STAGE/sitecustomize.py" <<'PY'
+# tools/sanitize.sh: let PYTHONPATH (this stage) decide where ibrtools comes from.
+import sys
+sys.meta_path[:] = [f for f in sys.meta_path if not type(f).__module__.startswith("_editable_skbc_")]
+PY
 export PYTHONPATH="$STAGE:$ROOT/cli${PYTHONPATH:+:$PYTHONPATH}"
 export LD_PRELOAD="$RT"
 export IBR_SANITIZER="$KIND"   # lets tests know (e.g. to skip subprocess-heavy cases)
