@@ -123,17 +123,18 @@ def vertex_statistics(scene: Scene, mesh: Mesh, *, depth_tol: float = DEPTH_TOL,
     for s in samples:
         count += np.bincount(s.index, minlength=n)
 
-    # A view samples each vertex at most once (its indices are unique), so the per-vertex sums
-    # are plain indexed additions (the same float64 sums as bincount, in the same order).
+    # Every view's samples in one array, in view order: one bincount per channel accumulates each
+    # vertex's samples in the same order as per-view sums would (the same float64 result).
     colors64 = {s.name: s.color.astype(np.float64) for s in samples}
+    all_index = np.concatenate([s.index for s in samples]) if samples else np.zeros(0, np.int64)
+    all_color = np.concatenate([colors64[s.name] for s in samples]) if samples else np.zeros((0, 3))
+    all_view = np.repeat(np.arange(len(samples)), [len(s.index) for s in samples])
 
     def moments():
-        s1 = np.zeros((n, 3))
-        s2 = np.zeros((n, 3))
-        for s in samples:
-            c = colors64[s.name] / gains[s.name]
-            s1[s.index] += c
-            s2[s.index] += c ** 2
+        g = np.array([gains[s.name] for s in samples]).reshape(-1, 3)
+        c = all_color / g[all_view]
+        s1 = np.stack([np.bincount(all_index, weights=c[:, k], minlength=n) for k in range(3)], 1)
+        s2 = np.stack([np.bincount(all_index, weights=c[:, k] ** 2, minlength=n) for k in range(3)], 1)
         cnt = np.maximum(count, 1)[:, None]
         mean = s1 / cnt
         var = np.maximum(s2 / cnt - mean ** 2, 0.0)
