@@ -38,8 +38,9 @@ Per input view, in linear RGB:
    step 1, grown by ``region_grow_frac`` (1 %) of the larger side (they are rasterised from a
    per-vertex field and are coarser than a small highlight).
 3. **Poisson re-injection** (sec. 4.2): inside the mask, the image whose gradients are the
-   original's with Hm as the boundary condition (:func:`ibrtools.solvers.poisson_blend`,
-   relative residual ``poisson_tol`` = 1e-6); negative values clamped to 0.
+   original's with Hm as the boundary condition (:func:`ibrtools.solvers.poisson_blend`, per
+   4-connected region of the mask on its box, relative residual ``poisson_tol`` = 1e-6);
+   negative values clamped to 0.
 4. **View-dependent texture**: per vertex of the mesh, the average of the masks of the views that
    see it (bilinear at the vertex's projection, equal weights; visibility as in the variance
    mesh), in [0, 1].
