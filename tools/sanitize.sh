@@ -67,7 +67,10 @@ import sys
 sys.meta_path[:] = [f for f in sys.meta_path if not type(f).__module__.startswith("_editable_skbc_")]
 PY
 export PYTHONPATH="$STAGE:$ROOT/cli${PYTHONPATH:+:$PYTHONPATH}"
-export LD_PRELOAD="$RT"
+# libstdc++ preloaded too: the Python binary does not link it, and ASan's __cxa_throw
+# interceptor, resolved when the runtime starts, otherwise finds no real __cxa_throw and aborts
+# at the first C++ exception ("CHECK failed: real___cxa_throw != 0").
+export LD_PRELOAD="$RT $(gcc -print-file-name=libstdc++.so)"
 export IBR_SANITIZER="$KIND"   # lets tests know (e.g. to skip subprocess-heavy cases)
 # Check the stage is what gets imported before spending time on the suite.
 "$PY" -c "import ibrtools._core as c, sys; p = c.__file__; sys.exit(0 if p.startswith('$STAGE') else 'sanitize.sh: imported ' + p + ', not the staged module')"
