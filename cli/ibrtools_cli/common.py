@@ -6,6 +6,8 @@ no traceback unless --debug), 1 internal error.
 from __future__ import annotations
 
 import argparse
+import atexit
+import os
 import signal
 import sys
 from typing import Callable, Sequence
@@ -34,8 +36,28 @@ class Terminated(KeyboardInterrupt):
     (the default action of SIGTERM ends the process on the spot, leaving them behind)."""
 
 
+_TERMINATED = False
+
+
 def _on_sigterm(signum, frame):
+    global _TERMINATED
+    _TERMINATED = True  # remembered: an extension module being imported may turn the exception into its own
     raise Terminated()
+
+
+def _terminated(prog: str, argv: Sequence[str] | None) -> int:
+    """Exit status 143 after SIGTERM (our cleanups have run by now). As the console command
+    (argv None), end the process right after the atexit stage: an extension whose import the
+    signal cut short (open3d) can turn the exit status into 1 while the interpreter shuts down."""
+    print(f"{prog}: terminated", file=sys.stderr)
+    if argv is None:
+        def _exit_now() -> None:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(143)
+
+        atexit.register(_exit_now)
+    return 143
 
 
 def run_command(prog: str, body: Callable[[argparse.Namespace], int],
@@ -49,8 +71,7 @@ def run_command(prog: str, body: Callable[[argparse.Namespace], int],
         set_threads(args.threads)
         return body(args)
     except Terminated:
-        print(f"{prog}: terminated", file=sys.stderr)
-        return 143
+        return _terminated(prog, argv)
     except (InputError, NotBuiltError) as e:
         if args.debug:
             raise
@@ -60,6 +81,8 @@ def run_command(prog: str, body: Callable[[argparse.Namespace], int],
         print(f"{prog}: interrupted", file=sys.stderr)
         return 130
     except Exception as e:  # noqa: BLE001 - the last line of defence: one line, exit 1
+        if _TERMINATED:  # SIGTERM inside an extension's import (open3d reports "ImportError: initialization failed")
+            return _terminated(prog, argv)
         if args.debug:
             raise
         print(f"{prog}: internal error: {type(e).__name__}: {e} (run with --debug for the traceback)",

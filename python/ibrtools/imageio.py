@@ -12,7 +12,9 @@ Writes are atomic: a temporary file in the same directory, then a rename.
 from __future__ import annotations
 
 import os
+import signal
 import tempfile
+import threading
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
@@ -161,14 +163,26 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     only when the block succeeds, so a reader never sees a half-written file."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    tmp_path = Path(tmp)
+    # SIGINT/SIGTERM raise in Python (cli/ibrtools_cli/common.py): held back while the temporary
+    # file is created and not yet guarded by the ``finally`` below, so an interrupt can never
+    # leave it behind.
+    held = {signal.SIGINT, signal.SIGTERM}
+    block = hasattr(signal, "pthread_sigmask") and threading.current_thread() is threading.main_thread()
+    old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, held) if block else None
+    tmp_path: Path | None = None
     try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+        tmp_path = Path(tmp)
+        os.close(fd)
+        if old_mask is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)
+            old_mask = None
         yield tmp_path
         os.replace(tmp_path, path)
     finally:
-        if tmp_path.exists():
+        if old_mask is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)
+        if tmp_path is not None and tmp_path.exists():
             tmp_path.unlink()
 
 
