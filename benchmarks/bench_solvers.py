@@ -27,13 +27,12 @@ import time
 from pathlib import Path
 
 import numpy as np
-import scipy.sparse as sp
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from benchlib import DOCS, machine, median_ms, write_section  # noqa: E402
 
 from ibrtools import _core  # noqa: E402
-from ibrtools.solvers import grid_maxflow, poisson_blend  # noqa: E402
+from ibrtools.solvers import grid_maxflow, poisson_blend, poisson_system  # noqa: E402
 
 RIGHT = np.array([[0, 0, 0], [0, 0, 1], [0, 0, 0]])
 DOWN = np.array([[0, 0, 0], [0, 0, 0], [0, 1, 0]])
@@ -87,31 +86,6 @@ def bench_maxflow(n: int, repeats: int) -> list[str]:
                      f"{'yes' if flow == ref_flow else f'NO ({flow} vs {ref_flow})'} | "
                      f"{'yes' if energy(s, t, r, d, side) == flow else 'NO'} |")
     return lines
-
-
-def poisson_system(boundary, source, mask):
-    """The same system as cpp/kernels/poisson.h (Pérez et al. eq. 7), assembled with scipy."""
-    H, W = mask.shape
-    idx = -np.ones((H, W), np.int64)
-    m = int(mask.sum())
-    idx[mask] = np.arange(m)
-    ys, xs = np.nonzero(mask)
-    b, diag = np.zeros(m), np.zeros(m)
-    rows, cols, vals = [np.arange(m)], [np.arange(m)], []
-    s, f = source.astype(np.float64), boundary.astype(np.float64)
-    for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
-        qy, qx = ys + dy, xs + dx
-        ok = (qy >= 0) & (qy < H) & (qx >= 0) & (qx < W)
-        i, qy, qx = np.nonzero(ok)[0], qy[ok], qx[ok]
-        diag[i] += 1
-        b[i] += s[ys[i], xs[i]] - s[qy, qx]
-        inside = mask[qy, qx]
-        b[i[~inside]] += f[qy[~inside], qx[~inside]]
-        rows.append(i[inside])
-        cols.append(idx[qy[inside], qx[inside]])
-        vals.append(-np.ones(int(inside.sum())))
-    A = sp.csr_matrix((np.concatenate([diag] + vals), (np.concatenate(rows), np.concatenate(cols))), shape=(m, m))
-    return A, b
 
 
 def test_images(n: int, channels: int = 0):

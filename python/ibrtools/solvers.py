@@ -84,3 +84,32 @@ def poisson_blend(boundary: np.ndarray, source: np.ndarray, mask: np.ndarray, *,
         raise BadValueError(f"max_iter: expected an integer >= 1, got {max_iter!r}")
     out, info = _core().poisson_blend(boundary, source, mask, float(tol), int(max_iter))
     return out, dict(info)
+
+
+def poisson_system(boundary, source, mask):
+    """The linear system poisson_blend solves for one channel (Pérez et al. eq. 7), assembled
+    independently with scipy in float64: (A csr (n, n), b (n,)) over the n mask pixels in row-major
+    order. A reference for checks (scipy spsolve) and for peer solvers (pyamg); needs scipy."""
+    import scipy.sparse as sp
+
+    H, W = mask.shape
+    idx = -np.ones((H, W), np.int64)
+    m = int(mask.sum())
+    idx[mask] = np.arange(m)
+    ys, xs = np.nonzero(mask)
+    b, diag = np.zeros(m), np.zeros(m)
+    rows, cols, vals = [np.arange(m)], [np.arange(m)], []
+    s, f = source.astype(np.float64), boundary.astype(np.float64)
+    for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        qy, qx = ys + dy, xs + dx
+        ok = (qy >= 0) & (qy < H) & (qx >= 0) & (qx < W)
+        i, qy, qx = np.nonzero(ok)[0], qy[ok], qx[ok]
+        diag[i] += 1
+        b[i] += s[ys[i], xs[i]] - s[qy, qx]
+        inside = mask[qy, qx]
+        b[i[~inside]] += f[qy[~inside], qx[~inside]]
+        rows.append(i[inside])
+        cols.append(idx[qy[inside], qx[inside]])
+        vals.append(-np.ones(int(inside.sum())))
+    A = sp.csr_matrix((np.concatenate([diag] + vals), (np.concatenate(rows), np.concatenate(cols))), shape=(m, m))
+    return A, b
