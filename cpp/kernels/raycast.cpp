@@ -102,6 +102,21 @@ void TracePackets(const EmbreeScene& scene, const CameraRays& rays, int tile, Fn
   });
 }
 
+// One ray from `org` along `dir`, starting at `tnear`, ready for query.Intersect1.
+inline void SetRay1(RTCRayHit& rh, const glm::vec3& org, const glm::vec3& dir, float tnear) {
+  rh.ray.org_x = org.x, rh.ray.org_y = org.y, rh.ray.org_z = org.z;
+  rh.ray.dir_x = dir.x, rh.ray.dir_y = dir.y, rh.ray.dir_z = dir.z;
+  rh.ray.tnear = tnear;
+  rh.ray.tfar = kInf;
+  rh.ray.time = 0.f;
+  rh.ray.mask = 0xFFFFFFFFu;
+  rh.ray.id = 0;
+  rh.ray.flags = 0;
+  rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+  rh.hit.primID = RTC_INVALID_GEOMETRY_ID;
+  rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+}
+
 // The scalar reference path: one rtcIntersect1 per pixel.
 template <typename Fn>
 void TraceSingle(const EmbreeScene& scene, const CameraRays& rays, int tile, Fn& fn) {
@@ -112,17 +127,7 @@ void TraceSingle(const EmbreeScene& scene, const CameraRays& rays, int tile, Fn&
     for (int py = y0; py < y1; ++py) {
       for (int px = x0; px < x1; ++px) {
         const glm::vec3 d = rays.Dir(px, py);
-        rh.ray.org_x = rays.origin.x, rh.ray.org_y = rays.origin.y, rh.ray.org_z = rays.origin.z;
-        rh.ray.dir_x = d.x, rh.ray.dir_y = d.y, rh.ray.dir_z = d.z;
-        rh.ray.tnear = 0.f;
-        rh.ray.tfar = kInf;
-        rh.ray.time = 0.f;
-        rh.ray.mask = 0xFFFFFFFFu;
-        rh.ray.id = 0;
-        rh.ray.flags = 0;
-        rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-        rh.hit.primID = RTC_INVALID_GEOMETRY_ID;
-        rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+        SetRay1(rh, rays.origin, d, 0.f);
         query.Intersect1(handle, &rh);
         const bool is_hit = rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
         const Hit h{is_hit ? rh.ray.tfar : 0.f, rh.hit.u, rh.hit.v,
@@ -488,17 +493,7 @@ void PeelCamera(const EmbreeScene& scene, const Camera& camera, const PeelOption
               // The previous layer's triangle again (float rounding only): trace on past it.
               for (int retry = 0; prim == prev_prim[k] && retry < 4; ++retry) {
                 RTCRayHit r1;
-                r1.ray.org_x = rays.origin.x, r1.ray.org_y = rays.origin.y, r1.ray.org_z = rays.origin.z;
-                r1.ray.dir_x = dir[k].x, r1.ray.dir_y = dir[k].y, r1.ray.dir_z = dir[k].z;
-                r1.ray.tnear = t + 1e-4f * t + extent_eps;
-                r1.ray.tfar = kInf;
-                r1.ray.time = 0.f;
-                r1.ray.mask = 0xFFFFFFFFu;
-                r1.ray.id = 0;
-                r1.ray.flags = 0;
-                r1.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-                r1.hit.primID = RTC_INVALID_GEOMETRY_ID;
-                r1.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+                SetRay1(r1, rays.origin, dir[k], t + 1e-4f * t + extent_eps);
                 query.Intersect1(handle, &r1);
                 if (r1.hit.geomID == RTC_INVALID_GEOMETRY_ID) { prim = -1; t = 0.f; break; }
                 t = r1.ray.tfar;
