@@ -10,14 +10,17 @@ import numpy as np
 from .errors import BadValueError, DtypeError
 
 
-def check_int(value: Any, name: str, minimum: int | None = None) -> int:
-    """An integer (a float with an integral value is accepted), at least ``minimum``."""
+def check_int(value: Any, name: str, minimum: int | None = None, maximum: int | None = None) -> int:
+    """An integer (a float with an integral value is accepted), at least ``minimum`` and at most
+    ``maximum``."""
     if isinstance(value, float) and value.is_integer():
         value = int(value)
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
         raise DtypeError(f"{name}: expected an integer, got {value!r}")
     if minimum is not None and value < minimum:
         raise BadValueError(f"{name}: expected an integer >= {minimum}, got {value}")
+    if maximum is not None and value > maximum:
+        raise BadValueError(f"{name}: expected an integer <= {maximum}, got {value}")
     return int(value)
 
 

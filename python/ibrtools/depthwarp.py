@@ -65,30 +65,16 @@ class DepthWarpParams:
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise DtypeError(f"{name}: expected a bool, got {getattr(self, name)!r}")
         p = DepthWarpParams(
-            seeds=check_int(self.seeds, "seeds", 1), iters=check_int(self.iters, "iters", 0),
+            seeds=check_int(self.seeds, "seeds", 1, 4096), iters=check_int(self.iters, "iters", 0, 1000),
             threshold=check_float(self.threshold, "threshold"), bound=self.bound,
-            steps=check_int(self.steps, "steps", 0), oriented=bool(self.oriented),
+            steps=check_int(self.steps, "steps", 0, 64), oriented=bool(self.oriented),
             early_exit=check_float(self.early_exit, "early_exit", 0.0), dilate=bool(self.dilate),
-            seed=check_int(self.seed, "seed", 0),
-            dilate_min_neighbors=check_int(self.dilate_min_neighbors, "dilate_min_neighbors", 1),
-            pca_samples=check_int(self.pca_samples, "pca_samples", 2), skip_farther=bool(self.skip_farther),
-            tile=check_int(self.tile, "tile", 1), pixel_step=bool(self.pixel_step))
-        if p.tile > 16:
-            raise BadValueError(f"tile: expected 1..16, got {p.tile}")
+            seed=check_int(self.seed, "seed", 0, 0xFFFFFFFF),
+            dilate_min_neighbors=check_int(self.dilate_min_neighbors, "dilate_min_neighbors", 1, 8),
+            pca_samples=check_int(self.pca_samples, "pca_samples", 2, 1024), skip_farther=bool(self.skip_farther),
+            tile=check_int(self.tile, "tile", 1, 16), pixel_step=bool(self.pixel_step))
         if not p.threshold > 0:
             raise BadValueError(f"threshold: expected a number > 0, got {p.threshold}")
-        if p.seeds > 4096:
-            raise BadValueError(f"seeds: expected at most 4096, got {p.seeds}")
-        if p.iters > 1000:
-            raise BadValueError(f"iters: expected at most 1000, got {p.iters}")
-        if p.steps > 64:
-            raise BadValueError(f"steps: expected at most 64, got {p.steps}")
-        if p.dilate_min_neighbors > 8:
-            raise BadValueError(f"dilate_min_neighbors: expected 1..8, got {p.dilate_min_neighbors}")
-        if p.pca_samples > 1024:
-            raise BadValueError(f"pca_samples: expected 2..1024, got {p.pca_samples}")
-        if p.seed > 0xFFFFFFFF:
-            raise BadValueError(f"seed: expected 0..2^32-1, got {p.seed}")
         return p
 
 
