@@ -10,7 +10,8 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import BadValueError
+from ..checks import check_int
+from ..errors import BadValueError, DtypeError
 
 _TRUE = {"1": True, "true": True, "yes": True, "on": True, "0": False, "false": False, "no": False, "off": False}
 
@@ -48,11 +49,13 @@ def number(value: Any, flag: str, minimum: float | None = None, *, strict: bool 
 
 
 def integer(value: Any, flag: str, minimum: int) -> int:
+    """An integer at least ``minimum``; ``--param`` strings of digits are converted first."""
     if isinstance(value, str) and value.strip().lstrip("+-").isdigit():
         value = int(value)
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise BadValueError(f"{flag}: expected an integer >= {minimum}, got {value!r}")
-    return int(value)
+    try:
+        return check_int(value, flag, minimum)
+    except DtypeError:  # a parameter's value is a bad value, whatever its type
+        raise BadValueError(f"{flag}: expected an integer >= {minimum}, got {value!r}") from None
 
 
 def boolean(value: Any, flag: str) -> bool:
