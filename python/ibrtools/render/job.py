@@ -33,6 +33,7 @@ class Frame:
     name: str
     camera: Camera
     truth: View | None = None  # ground truth (colour, maybe depth) when known
+    info: dict = field(default_factory=dict)  # facts copied into the frame's report entry (light field: row, col)
 
 
 @dataclass
@@ -60,8 +61,11 @@ def read_poses(path: str | os.PathLike) -> list[Frame]:
 
 
 def plan(scene: Scene, *, targets: list[str] | None = None, holdout: list[str] | None = None,
-         path: str | None = None, poses: str | None = None) -> Job:
-    """Resolve the cameras to render. With nothing asked, render every target of the scene."""
+         path: str | None = None, poses: str | None = None,
+         lightfield: tuple[int, int, float, str | None] | None = None) -> Job:
+    """Resolve the cameras to render. With nothing asked, render every target of the scene.
+    ``lightfield`` = (columns, rows, baseline, centre name or None): a camera grid
+    (:mod:`ibrtools.render.batches`), frames lf_0000, ... row-major."""
     frames: list[Frame] = []
     held = list(dict.fromkeys(holdout or []))
     for name in held:
@@ -79,7 +83,12 @@ def plan(scene: Scene, *, targets: list[str] | None = None, holdout: list[str] |
         frames += [Frame(f"{path}_{i:04d}", c) for i, c in enumerate(scene.paths[path])]
     if poses is not None:
         frames += read_poses(poses)
-    if not (held or targets or path or poses):
+    if lightfield is not None:
+        from .batches import lightfield_cameras
+
+        _, grid = lightfield_cameras(scene, *lightfield)
+        frames += [Frame(n, c, info={"row": r, "col": k}) for n, r, k, c in grid]
+    if not (held or targets or path or poses or lightfield):
         frames = [Frame(t.name, t.camera, t if t.has_color else None) for t in scene.targets]
         if not frames:
             raise BadValueError("nothing to render: the scene has no targets; give --target, --holdout, "
@@ -291,7 +300,7 @@ def _render_frames(job: Job, method, name: str, out_dir: Path, written: list[Pat
         write_image(out_dir / image, color)
         entry: dict = {"name": frame.name, "image": image,
                        "time_ms": {"total": round(total_ms, 3), **{k: round(v, 3) for k, v in stage_ms.items()}},
-                       "metrics": _frame_metrics({**out, "color": color}, frame.truth)}
+                       "metrics": _frame_metrics({**out, "color": color}, frame.truth), **frame.info}
         if inpaint_note is not None:
             entry["inpaint"] = inpaint_note
             if inpaint_note == inpaint and frame.truth is not None and frame.truth.has_color:
