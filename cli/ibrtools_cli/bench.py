@@ -11,7 +11,7 @@ from typing import Sequence
 
 from ibrtools.errors import BadValueError
 
-from .common import add_common, print_table, run_command
+from .common import add_common, print_json, print_table, progress_bar, run_command
 
 PROG = "ibr-bench"
 
@@ -22,20 +22,29 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog=PROG, formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Sweep a method's parameters on a scene and write run time against error "
-                    "(sweep.csv, sweep.png plot, sweep.md Markdown table) into -o DIR. Frames: the "
-                    "--holdout views (removed from the inputs), else the scene's targets with ground truth.",
+                    "(sweep.csv, sweep.png plot, sweep.md Markdown table, report.html: the plot, the "
+                    "table and the frames of the best configuration beside their ground truth with "
+                    "error heat maps; docs/reports.md) into -o DIR. Frames: the --holdout views "
+                    "(removed from the inputs), else the scene's targets with ground truth.",
         epilog="sweep grammar: --sweep key=v1:v2:v3 gives a parameter its values; groups are separated by\n"
                "commas (--sweep sigma=1:3:5,alpha=7) or given as repeated --sweep flags; the configurations\n"
                "are the Cartesian product. Any --param key=value of the method can be swept.\n\n"
-               "example:\n"
+               "examples:\n"
                "  ibr-bench scenes/objects --method hybrid --sweep sigma=1:3:5,gamma=3:7 "
-               "--sweep tau_var=0.5:0.82 -o out/sweep")
+               "--sweep tau_var=0.5:0.82 -o out/sweep\n"
+               "  ibr-bench scenes/objects --method ulr --sweep k=2:4:8 --holdout v003 -o out/ulr --json -q > ulr.json\n"
+               "  (then open out/sweep/report.html in a browser)")
     p.add_argument("scene", metavar="SCENE", help="scene directory (ibr-preprocess output)")
     p.add_argument("--method", default="auto", choices=list(METHODS), help="method (default: auto)")
     p.add_argument("--sweep", action="append", metavar="KEY=V1:V2,...", help="parameter values to sweep (repeatable)")
     p.add_argument("--param", action="append", metavar="KEY=VALUE", help="fixed method parameter (repeatable)")
     p.add_argument("--holdout", nargs="+", metavar="NAME", help="input views to hold out and score")
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="output directory")
+    p.add_argument("--report-frames", type=int, default=8, metavar="N",
+                   help="frames of the best configuration shown in report.html (default 8)")
+    p.add_argument("--json", action="store_true",
+                   help="print the sweep (one row per configuration, the output files) as JSON on stdout, "
+                        "and nothing else")
     add_common(p)
     return p
 
@@ -55,20 +64,86 @@ def _body(args: argparse.Namespace) -> int:
     both = sorted(set(base) & set(grid))
     if both:
         raise BadValueError(f"--param and --sweep both set {both}")
+    if args.report_frames < 0:
+        raise BadValueError(f"--report-frames: expected a number >= 0, got {args.report_frames}")
+    from ibrtools.report_html import check_output
+
+    check_output(out / "report.html", "-o")
     scene = native.load(args.scene)
+    keep = _BestFrames(args.report_frames)
+    with progress_bar(PROG, "configurations x frames", None, quiet=args.quiet) as bar:
+        def progress(ci: int, nc: int, fi: int, nf: int) -> None:
+            bar.update(ci * nf + fi, nc * nf, f"configuration {min(ci + 1, nc)}/{nc}")
 
-    def progress(ci: int, nc: int, fi: int, nf: int) -> None:
-        if not args.quiet and sys.stderr.isatty():
-            print(f"\r{PROG}: configuration {ci + 1}/{nc} frame {fi + 1}/{nf}   ", end="", file=sys.stderr)
+        rows = sweep(scene, args.method, grid, holdout=args.holdout, base=base, out_dir=out, progress=progress,
+                     frame_hook=keep)
+    keep.finish()
+    from ibrtools.render.methods import resolve
+    from ibrtools.report_html import bench_report
 
-    rows = sweep(scene, args.method, grid, holdout=args.holdout, base=base, out_dir=out, progress=progress)
-    if not args.quiet and sys.stderr.isatty():
-        print(file=sys.stderr)
+    name = resolve(args.method, scene)
     keys = list(grid)
+    html = bench_report(rows, keys, out, out / "report.html", panels=keep.panels, panels_config=keep.config,
+                        title=f"{PROG} --method {name}: {len(rows)} configurations on "
+                              f"{rows[0]['frames'] if rows else 0} frames")
+    if args.json:
+        print_json({"method": name, "swept": keys, "configurations": rows,
+                    "files": {k: str(out / k) for k in ("sweep.csv", "sweep.md", "sweep.png")} | {"report.html": str(html)}})
+        return 0
+    best = min(range(len(rows)), key=lambda i: (rows[i]["mean_flip"] is None, rows[i]["mean_flip"] or 0), default=None)
     print_table(["config", *keys, "median ms", "PSNR dB", "SSIM", "FLIP"],
                 [[r["config"], *[r[k] for k in keys], r["median_ms"], r["mean_psnr"], r["mean_ssim"], r["mean_flip"]]
-                 for r in rows], title=f"{PROG} --method {args.method} -> {out}", quiet=args.quiet)
+                 for r in rows], quiet=args.quiet,
+                title=f"{PROG} --method {name}: {len(rows)} configurations x {rows[0]['frames'] if rows else 0} "
+                      f"frames -> {out}",
+                totals=None if best is None else
+                [f"best: {rows[best]['config']}",
+                 *[""] * len(keys), f"fastest {min(r['median_ms'] for r in rows)}",
+                 max((r["mean_psnr"] for r in rows if r["mean_psnr"] is not None), default="-"),
+                 max((r["mean_ssim"] for r in rows if r["mean_ssim"] is not None), default="-"),
+                 rows[best]["mean_flip"] if rows[best]["mean_flip"] is not None else "-"])
+    if not args.quiet:
+        print(f"HTML report: {html}")
     return 0
+
+
+class _BestFrames:
+    """``sweep(frame_hook=...)``: keeps the panels (thumbnails, error maps) of the first ``n``
+    frames of the configuration with the lowest mean FLIP so far (mean PSNR, higher, when FLIP
+    is not available); one configuration's panels are held at a time besides the best's."""
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+        self.panels: list = []
+        self.config = None
+        self._best = None
+        self._ci = None
+        self._cur: list = []
+        self._scores: list = []
+
+    def __call__(self, ci, fi, frame, out, stage_ms, metrics) -> None:
+        if ci != self._ci:
+            self.finish()
+            self._ci, self._cur, self._scores = ci, [], []
+        flip, psnr = metrics.get("flip"), metrics.get("psnr")
+        self._scores.append(flip if flip is not None else (-psnr if psnr is not None else None))
+        if fi < self.n:
+            from ibrtools.report_html import frame_panel
+
+            numbers = {k: metrics.get(k) for k in ("psnr", "ssim", "flip", "coverage") if k in metrics}
+            self._cur.append(frame_panel(frame.name, out["color"], frame.truth.color,
+                                         selection=out.get("selection"), hole=out.get("hole"),
+                                         stage_ms={k: v for k, v in stage_ms.items() if k != "total"},
+                                         numbers={**numbers, "ms": round(stage_ms["total"], 2)}))
+
+    def finish(self) -> None:
+        if self._ci is None:
+            return
+        vals = [v for v in self._scores if v is not None]
+        score = sum(vals) / len(vals) if vals else float("inf")
+        if self._best is None or score < self._best:
+            self._best, self.config, self.panels = score, self._ci, self._cur
+        self._ci, self._cur = None, []
 
 
 def main(argv: Sequence[str] | None = None) -> int:

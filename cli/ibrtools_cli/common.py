@@ -7,10 +7,12 @@ from __future__ import annotations
 
 import argparse
 import atexit
+import contextlib
+import math
 import os
 import signal
 import sys
-from typing import Callable, Sequence
+from typing import Callable, Iterator, Sequence
 
 from ibrtools.errors import InputError, NotBuiltError
 
@@ -94,7 +96,8 @@ def run_command(prog: str, body: Callable[[argparse.Namespace], int],
 
 
 def print_table(headers: list[str], rows: list[list[str]], title: str | None = None,
-                quiet: bool = False) -> None:
+                quiet: bool = False, totals: list[str] | None = None) -> None:
+    """A rich table on stdout; ``totals`` is a last row set apart by a rule (the summary)."""
     if quiet:
         return
     from rich.console import Console
@@ -103,6 +106,77 @@ def print_table(headers: list[str], rows: list[list[str]], title: str | None = N
     table = Table(title=title, title_justify="left")
     for h in headers:
         table.add_column(h)
-    for r in rows:
-        table.add_row(*[str(c) for c in r])
+    for i, r in enumerate(rows):
+        table.add_row(*[str(c) for c in r], end_section=totals is not None and i == len(rows) - 1)
+    if totals is not None:
+        table.add_row(*[str(c) for c in totals], style="bold")
     Console(width=max(100, Console().width)).print(table)
+
+
+def print_json(doc) -> None:
+    """``--json``: the document alone on stdout (NaN/inf are not JSON: written as null)."""
+    import json
+
+    def clean(v):
+        if isinstance(v, float) and not math.isfinite(v):
+            return None
+        if isinstance(v, dict):
+            return {str(k): clean(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [clean(x) for x in v]
+        if hasattr(v, "item") and callable(v.item):  # numpy scalars
+            return clean(v.item())
+        return v
+
+    sys.stdout.write(json.dumps(clean(doc), indent=1, allow_nan=False) + "\n")
+    sys.stdout.flush()
+
+
+class _NoBar:
+    """What :func:`progress_bar` gives when no bar is shown: every call does nothing."""
+
+    shown = False
+
+    def update(self, done: int, total: int | None = None, label: str = "") -> None:
+        pass
+
+    def advance(self, label: str = "") -> None:
+        pass
+
+
+class _Bar:
+    shown = True
+
+    def __init__(self, progress, task) -> None:
+        self._p, self._t = progress, task
+
+    def update(self, done: int, total: int | None = None, label: str = "") -> None:
+        """``done`` of ``total`` steps finished; ``label`` names the step under way."""
+        kw = {"total": total} if total is not None else {}
+        self._p.update(self._t, completed=done, label=label, **kw)
+
+    def advance(self, label: str = "") -> None:
+        self._p.update(self._t, advance=1, label=label)
+
+
+@contextlib.contextmanager
+def progress_bar(prog: str, what: str, total: int | None = None, *, quiet: bool = False,
+                 stream=None) -> Iterator[_Bar | _NoBar]:
+    """THE progress bar of every command (rich, on stderr): shown only when ``stream`` (default
+    stderr) is a terminal and not ``quiet``, so pipes, logs, --json and tests see nothing.
+    Yields an object with ``update(done, total, label)`` and ``advance(label)``; ``total`` None
+    shows a pulsing bar (unknown length) with the elapsed time."""
+    stream = sys.stderr if stream is None else stream
+    if quiet or not (hasattr(stream, "isatty") and stream.isatty()):
+        yield _NoBar()
+        return
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, \
+        TimeRemainingColumn
+
+    console = Console(file=stream)
+    with Progress(TextColumn(f"[bold]{prog}[/] {what}"), BarColumn(), MofNCompleteColumn(),
+                  TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn(), TextColumn("{task.fields[label]}"),
+                  console=console, transient=False, redirect_stdout=False, redirect_stderr=False) as p:
+        task = p.add_task(what, total=total, label="")
+        yield _Bar(p, task)

@@ -8,7 +8,7 @@ from typing import Sequence
 
 from ibrtools.errors import InputError
 
-from .common import add_common, print_table, run_command
+from .common import add_common, print_table, progress_bar, run_command
 
 PROG = "ibr-preprocess"
 
@@ -39,6 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
                "examples:\n"
                "  ibr-preprocess synth:objects -o scenes/objects --views 12 --size 480x360\n"
                "  ibr-preprocess synth:objects -o scenes/objects --methods tm,ulr,pvm,hybrid\n"
+               "  ibr-preprocess synth:objects -o scenes/objects --json -q > stages.json\n"
                "  ibr-preprocess ../shared/data/nerf_lego -o scenes/lego\n"
                "  ibr-preprocess ../shared/data/icl_nuim_livingroom -o scenes/icl --format rgbd "
                "--opt fx=481.2 --opt fy=-480.0 --opt cx=319.5 --opt cy=239.5 --opt depth_scale=0.0002")
@@ -58,7 +59,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", metavar="STAGE.KEY=VALUE", default=[], dest="stage_set",
                    help="stage parameter (repeatable), e.g. --set mesh.source=fusion --set pvm.max_block=8")
     p.add_argument("--force", action="store_true", help="run every selected stage even when up to date")
-    p.add_argument("--json", action="store_true", help="print the stage table as JSON")
+    p.add_argument("--json", action="store_true", help="print the stage table as JSON on stdout, and nothing else")
     g = p.add_argument_group("synthetic scenes")
     g.add_argument("--size", type=_size, default=(640, 480), metavar="WxH", help="image size (default 640x480)")
     g.add_argument("--views", type=int, default=16, metavar="N", help="input views (default 16)")
@@ -99,11 +100,20 @@ def _body(args: argparse.Namespace) -> int:
     methods = parse_methods(args.methods)
     stages = parse_stages(args.stages)
     stage_options = parse_stage_options(args.stage_set)
-    results = preprocess(args.input, args.output, fmt=args.format, options=parse_options(args.opt),
-                         synth=synth, force=args.force, methods=methods, stages=stages,
-                         stage_options=stage_options,
-                         progress=None if args.quiet or args.json else
-                         (lambda msg: print(f"{PROG}: {msg}", file=sys.stderr, flush=True)))
+    with progress_bar(PROG, "stages", None, quiet=args.quiet or args.json) as bar:
+        if bar.shown:  # a terminal: the bar names the stage under way and counts the stages run
+            bar.update(0, None, "import")
+
+            def progress(msg: str) -> None:
+                bar.advance(msg.split(" - ")[0])
+        else:  # a log: one line per stage that runs (nothing with --quiet or --json)
+            def progress(msg: str) -> None:
+                if not (args.quiet or args.json):
+                    print(f"{PROG}: {msg}", file=sys.stderr, flush=True)
+        results = preprocess(args.input, args.output, fmt=args.format, options=parse_options(args.opt),
+                             synth=synth, force=args.force, methods=methods, stages=stages,
+                             stage_options=stage_options, progress=progress)
+        bar.advance("done")
     if args.json:
         print(json.dumps([r.to_dict() for r in results], indent=1))
     else:

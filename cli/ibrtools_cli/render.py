@@ -7,7 +7,7 @@ from typing import Sequence
 
 from ibrtools.errors import BadValueError
 
-from .common import add_common, print_table, run_command
+from .common import add_common, print_json, print_table, progress_bar, run_command
 
 PROG = "ibr-render"
 
@@ -30,7 +30,15 @@ def build_parser() -> argparse.ArgumentParser:
                "  ibr-render scenes/objects --path orbit -o out/orbit -j 2\n"
                "  ibr-render scenes/rgbd --method dibr --inputs 4 --holdout 4 -o out/dibr\n"
                "  ibr-render scenes/rgbd --method dibr --holdout 4 --inpaint pushpull -o out/filled\n"
-               "  ibr-render scenes/crowd --method depthwarp --path walk --layers 4 --seeds 16 --umbra -o out/dw")
+               "  ibr-render scenes/crowd --method depthwarp --path walk --layers 4 --seeds 16 --umbra -o out/dw\n"
+               "  ibr-render scenes/objects --lightfield 9x8 --baseline 0.02 --mp4 out/lf/lf.mp4 -o out/lf\n"
+               "  ibr-render scenes/objects --method hybrid --holdout v003 v009 --report-html -o out/hybrid\n"
+               "  ibr-render scenes/objects --path orbit --json -q -o out/orbit > orbit.json\n\n"
+               "light fields: --lightfield NxM --baseline B makes N columns x M rows of cameras on the plane\n"
+               "of the centre camera (--center NAME: a stored target, else an input view; default the first\n"
+               "target, else the first view), B scene units apart, all looking along the centre's direction\n"
+               "(parallel optical axes, as light-field displays use); frames lf_0000... row-major from the top\n"
+               "left, with row/col in report.json. docs/reports.md describes --report-html.")
     p.add_argument("scene", metavar="SCENE", help="scene directory (ibr-preprocess output)")
     p.add_argument("-o", "--output", default="render-out", metavar="DIR",
                    help="output directory (default: render-out)")
@@ -42,6 +50,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="remove these input views from the inputs and render them as ground truth")
     p.add_argument("--path", metavar="NAME", help="render every camera of this stored path")
     p.add_argument("--poses", metavar="FILE", help="JSON list of cameras (scene.json camera format)")
+    lf = p.add_argument_group("light fields and video")
+    lf.add_argument("--lightfield", metavar="NxM",
+                    help="render an N (columns) x M (rows) grid of cameras around the centre camera")
+    lf.add_argument("--baseline", type=float, metavar="B", help="with --lightfield: camera spacing in scene units")
+    lf.add_argument("--center", "--centre", dest="center", metavar="NAME",
+                    help="with --lightfield: the centre camera (target or input view; default the first "
+                         "target, else the first input view)")
+    lf.add_argument("--mp4", metavar="FILE", help="also write the frames, in order, as an H.264 MP4 "
+                                                  "(needs imageio-ffmpeg: pip install 'ibrtools[video]')")
+    lf.add_argument("--fps", type=float, default=None, metavar="F", help="with --mp4: frames per second (default 24)")
     d = p.add_argument_group("dibr options (method parameters; also as --param key=value)")
     d.add_argument("--inputs", metavar="K|v1,v2,...",
                    help="the K most similar input views per frame (default 4), or these views")
@@ -74,6 +92,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--float", action="store_true", help="also write <frame>.exr (linear float)")
     p.add_argument("--depth", action="store_true", help="also write <frame>.depth.exr")
     p.add_argument("--report", action="store_true", help="print the per-frame report table")
+    p.add_argument("--report-html", nargs="?", const="", default=None, metavar="FILE",
+                   help="write a self-contained HTML report (renders beside ground truth, error heat maps, "
+                        "masks, stage times; default FILE: <output>/report.html)")
+    p.add_argument("--json", action="store_true",
+                   help="print the report (report.json, plus the paths of the video and HTML report) as JSON "
+                        "on stdout, and nothing else")
     add_common(p)
     return p
 
@@ -88,13 +112,30 @@ def _body(args: argparse.Namespace) -> int:
         foveate = _fixation(args.foveate)
     elif args.pooling is not None:
         raise BadValueError("--pooling: only with --foveate X,Y")
+    lightfield = _lightfield(args)
+    video = html_path = None
+    if args.mp4 is not None:
+        from ibrtools.render import batches
+
+        batches.require_video()
+        video = batches.check_video_path(args.mp4)
+        if args.fps is None:
+            args.fps = 24.0
+        if not (0 < args.fps < float("inf")):
+            raise BadValueError(f"--fps: expected a positive frame rate, got {args.fps}")
+    elif args.fps is not None:
+        raise BadValueError("--fps: only with --mp4 FILE")
+    if args.report_html is not None:
+        from pathlib import Path
+
+        from ibrtools.report_html import check_output
+
+        html_path = check_output(args.report_html or Path(args.output) / "report.html")
     scene = native.load(args.scene)
     job = render_job.plan(scene, targets=args.target, holdout=args.holdout, path=args.path,
-                          poses=args.poses)
-    progress = None
-    if not args.quiet and sys.stderr.isatty():
-        def progress(i: int, n: int, name: str) -> None:
-            print(f"\r{PROG}: frame {i}/{n} {name:<24}", end="" if i < n else "\n", file=sys.stderr)
+                          poses=args.poses, lightfield=lightfield)
+    if video is not None:
+        batches.check_same_size([f.camera for f in job.frames])
     params = {k: _number(v) for k, v in parse_options(args.param).items()}
     for key, value in (("inputs", args.inputs), ("quality", args.quality),
                        ("blend_exponent", args.blend_exponent), ("layers", args.layers),
@@ -108,9 +149,56 @@ def _body(args: argparse.Namespace) -> int:
                       if k in params]
     if depthwarp_only and args.method != "depthwarp":
         raise BadValueError(f"--{depthwarp_only[0].replace('_', '-')}: only with --method depthwarp")
-    report = render_job.run(job, args.method, args.output, params=params, float_out=args.float,
-                            depth_out=args.depth, threads=args.threads, inpaint=args.inpaint,
-                            foveate=foveate, pooling=args.pooling, progress=progress)
+    with progress_bar(PROG, "frames", len(job.frames), quiet=args.quiet) as bar:
+        report = render_job.run(job, args.method, args.output, params=params, float_out=args.float,
+                                depth_out=args.depth, threads=args.threads, inpaint=args.inpaint,
+                                foveate=foveate, pooling=args.pooling,
+                                progress=lambda i, n, name: bar.update(i, n, name))
+    extra = {}
+    if video is not None:
+        from pathlib import Path
+
+        images = [Path(args.output) / f["image"] for f in report["frames"] if f.get("image")]
+        with progress_bar(PROG, "video", None, quiet=args.quiet):
+            extra["video"] = str(batches.write_mp4(images, video, fps=args.fps))
+    if html_path is not None:
+        from ibrtools.report_html import render_report
+
+        truths = {f.name: (lambda v=f.truth: v.color) for f in job.frames
+                  if f.truth is not None and f.truth.has_color}
+        with progress_bar(PROG, "HTML report", None, quiet=args.quiet):
+            extra["report_html"] = str(render_report(report, args.output, html_path, truths=truths))
+    if args.json:
+        print_json({**report, **extra})
+        return 0
+    _print_summary(args, report)
+    for key, what in (("video", "video"), ("report_html", "HTML report")):
+        if key in extra and not args.quiet:
+            print(f"{what}: {extra[key]}")
+    return 0
+
+
+def _lightfield(args: argparse.Namespace):
+    """--lightfield NxM --baseline B [--center NAME] -> plan()'s plain tuple, checked."""
+    if args.lightfield is None:
+        for flag, v in (("--baseline", args.baseline), ("--center", args.center)):
+            if v is not None:
+                raise BadValueError(f"{flag}: only with --lightfield NxM")
+        return None
+    from ibrtools.render.batches import check_baseline, parse_grid
+
+    n, m = parse_grid(args.lightfield)
+    if args.baseline is None:
+        raise BadValueError("--lightfield: give the camera spacing with --baseline B (scene units)")
+    return (n, m, check_baseline(args.baseline), args.center)
+
+
+def _print_summary(args: argparse.Namespace, report: dict) -> None:
+    """The per-frame table with a totals row: frames, median ms, mean metrics, failed frames."""
+    s = report.get("summary") or {}
+    nfail = len(report.get("failed") or [])
+    label = f"{s.get('frames', len(report['frames']))} frames" + (f", {nfail} failed" if nfail else "")
+    med = _fmt((s.get("time_ms") or {}).get("median"), 1)
     if report["method"] == "depthwarp" and (args.report or not args.quiet):
         rows = []
         for f in report["frames"]:
@@ -120,7 +208,9 @@ def _body(args: argparse.Namespace) -> int:
                          _fmt(m.get("hole_fraction"), 4)])
         print_table(["frame", "ms", "warp ms", "reference ms", "depth PSNR dB", "depth SSIM", "holes"], rows,
                     title=f"{PROG} --method depthwarp ({report['threads']} threads) -> {args.output}",
-                    quiet=args.quiet and not args.report)
+                    quiet=args.quiet and not args.report,
+                    totals=[label, f"median {med}", "", "", _fmt(s.get("mean_depth_psnr")),
+                            _fmt(s.get("mean_depth_ssim"), 4), _fmt(s.get("mean_hole_fraction"), 4)])
     elif args.report or not args.quiet:
         rows = []
         for f in report["frames"]:
@@ -129,8 +219,9 @@ def _body(args: argparse.Namespace) -> int:
                          _fmt(m.get("psnr_masked")), _fmt(m.get("ssim"), 4), _fmt(m.get("coverage"), 3)])
         print_table(["frame", "ms", "PSNR dB", "PSNR dB, covered", "SSIM", "coverage"], rows,
                     title=f"{PROG} --method {report['method']} ({report['threads']} threads) -> {args.output}",
-                    quiet=args.quiet and not args.report)
-    return 0
+                    quiet=args.quiet and not args.report,
+                    totals=[label, f"median {med}", _fmt(s.get("mean_psnr")), _fmt(s.get("mean_psnr_masked")),
+                            _fmt(s.get("mean_ssim"), 4), _fmt(s.get("mean_coverage"), 3)])
 
 
 def _fixation(text: str) -> tuple[float, float]:

@@ -77,9 +77,14 @@ def configurations(grid: dict[str, list], base: dict | None = None) -> list[dict
 
 
 def sweep(scene: Scene, method: str, grid: dict[str, list], *, holdout: list[str] | None = None,
-          base: dict | None = None, out_dir: str | os.PathLike | None = None, progress=None) -> list[dict]:
+          base: dict | None = None, out_dir: str | os.PathLike | None = None, progress=None,
+          frame_hook=None) -> list[dict]:
     """Run every configuration; return one row per configuration (params, times, mean metrics)
-    and, with ``out_dir``, write sweep.csv / sweep.md / sweep.png there."""
+    and, with ``out_dir``, write sweep.csv / sweep.md / sweep.png there.
+
+    ``progress(ci, n_configs, fi, n_frames)`` is called before each frame and once more with
+    ``(n_configs, n_configs, 0, n_frames)`` at the end; ``frame_hook(ci, fi, frame, outputs,
+    stage_ms, metrics)`` after each frame (the HTML report keeps thumbnails through it)."""
     name = methods.resolve(method, scene)
     job = J.plan(scene, holdout=holdout) if holdout else J.plan(scene)
     frames = [f for f in job.frames if f.truth is not None and f.truth.has_color]
@@ -101,12 +106,14 @@ def sweep(scene: Scene, method: str, grid: dict[str, list], *, holdout: list[str
             if progress:
                 progress(ci, len(configs), fi, len(frames))
             t1 = time.perf_counter()
-            out, _ = m.render(frame.camera)
+            out, stage_ms = m.render(frame.camera)
             times.append((time.perf_counter() - t1) * 1e3)
             color = np.nan_to_num(out["color"], nan=0.0, posinf=0.0, neginf=0.0)
             if out.get("hole") is not None:
                 color = np.where(out["hole"][..., None], 0.0, color).astype(np.float32)
             metrics.append(J._frame_metrics({**out, "color": color}, frame.truth))
+            if frame_hook:
+                frame_hook(ci, fi, frame, {**out, "color": color}, {"total": times[-1], **stage_ms}, metrics[-1])
         row = {"config": ci, **{k: cfg.get(k) for k in grid}, "frames": len(frames),
                "prepare_ms": round(prep_ms, 2), "median_ms": round(float(np.median(times)), 3),
                "mean_ms": round(float(np.mean(times)), 3)}
@@ -114,6 +121,8 @@ def sweep(scene: Scene, method: str, grid: dict[str, list], *, holdout: list[str
             vals = [x[key] for x in metrics if isinstance(x.get(key), (int, float)) and np.isfinite(x[key])]
             row[f"mean_{key}"] = round(float(np.mean(vals)), 5) if vals else None
         rows.append(row)
+    if progress:
+        progress(len(configs), len(configs), 0, len(frames))
     if out_dir is not None:
         write_outputs(rows, list(grid), Path(out_dir), title=f"{name} on {len(frames)} views")
     return rows
