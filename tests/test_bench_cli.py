@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import csv
+from pathlib import Path
 
 import pytest
 
@@ -69,3 +70,20 @@ def test_bench_bad_input_one_line_exit_2(scene_dir, tmp_path, capsys, argv, msg)
 def test_bench_missing_scene_and_stage(tmp_path, capsys):
     assert bench.main([str(tmp_path / "none"), "--method", "tm", "-o", str(tmp_path / "o")]) == 2
     assert capsys.readouterr().err.startswith("ibr-bench: error:")
+
+
+def test_bench_json_html_and_totals(scene_dir, tmp_path, capsys):
+    import json
+
+    out = tmp_path / "j"
+    assert bench.main([str(scene_dir), "--method", "ulr", "--sweep", "k=2:3", "--holdout", "v001",
+                       "-o", str(out), "--json"]) == 0
+    cap = capsys.readouterr()
+    doc = json.loads(cap.out)  # stdout holds the JSON alone
+    assert doc["method"] == "ulr" and doc["swept"] == ["k"] and [r["k"] for r in doc["configurations"]] == [2, 3]
+    assert all(Path(f).is_file() for f in doc["files"].values()) and cap.err == ""
+    assert (out / "report.html").read_text().startswith("<!DOCTYPE html>")
+    assert bench.main([str(scene_dir), "--method", "ulr", "--sweep", "k=2:3", "--holdout", "v001",
+                       "-o", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "best:" in text and "fastest" in text and "report.html" in text

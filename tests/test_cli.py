@@ -136,3 +136,106 @@ def test_installed_entry_points_exit_codes(tmp_path):
         assert r.returncode == 0 and "usage" in r.stdout
     r = subprocess.run([f"{exe}/ibr-render", str(tmp_path / "nothing")], capture_output=True, text=True)
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "nothing" in r.stderr
+
+
+# --- progress, --json, summary totals (issue 8 §3) --------------------------------------------------
+def test_render_json_is_the_report_and_nothing_else(scene_dir, tmp_path, capsys):
+    out = tmp_path / "j"
+    assert render.main([str(scene_dir), "--method", "reference", "--holdout", "v001", "v002", "-o", str(out),
+                        "--json"]) == 0
+    cap = capsys.readouterr()
+    assert json.loads(cap.out) == json.loads((out / "report.json").read_text())
+    assert cap.err == ""  # not a terminal: no bar
+
+
+def test_render_summary_table_has_totals(scene_dir, tmp_path, capsys):
+    assert render.main([str(scene_dir), "--method", "reference", "--holdout", "v001", "v002",
+                        "-o", str(tmp_path / "t")]) == 0
+    out = capsys.readouterr().out
+    rep = json.loads((tmp_path / "t/report.json").read_text())
+    assert "2 frames" in out and f"median {rep['summary']['time_ms']['median']:.1f}" in out
+    assert f"{rep['summary']['mean_psnr']:.2f}" in out
+
+
+class _FakeTerminal:
+    def __init__(self):
+        import io
+        self.buf = io.StringIO()
+
+    def isatty(self):
+        return True
+
+    def write(self, s):
+        return self.buf.write(s)
+
+    def flush(self):
+        pass
+
+
+def test_progress_bar_helper():
+    from ibrtools_cli.common import progress_bar
+
+    term = _FakeTerminal()
+    with progress_bar("ibr-x", "frames", 3, stream=term) as bar:
+        assert bar.shown
+        for i in range(3):
+            bar.update(i, 3, f"f{i}")
+        bar.update(3, 3, "")
+    text = term.buf.getvalue()
+    assert "ibr-x" in text and "3/3" in text
+    term = _FakeTerminal()
+    with progress_bar("ibr-x", "frames", 3, stream=term, quiet=True) as bar:
+        assert not bar.shown
+        bar.update(1, 3, "x")
+        bar.advance("y")
+    assert term.buf.getvalue() == ""
+    import io
+    with progress_bar("ibr-x", "frames", 3, stream=io.StringIO()) as bar:  # not a terminal: no bar
+        assert not bar.shown
+
+
+def _run_with_terminal_stderr(argv: list[str], timeout: float = 300) -> tuple[int, str, str]:
+    """Run a command with stderr on a pseudo-terminal (so the bar shows) and stdout on a pipe."""
+    import os
+    import pty
+    import select
+
+    master, slave = pty.openpty()
+    p = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=slave, stdin=subprocess.DEVNULL)
+    os.close(slave)
+    err = b""
+    try:
+        while True:
+            ready, _, _ = select.select([master], [], [], 0.1)
+            if ready:
+                try:
+                    chunk = os.read(master, 65536)
+                except OSError:  # the child closed the terminal
+                    chunk = b""
+                if not chunk:
+                    break
+                err += chunk
+            elif p.poll() is not None:
+                break
+        out = p.stdout.read()
+        p.wait(timeout)
+    finally:
+        os.close(master)
+    return p.returncode, out.decode(), err.decode(errors="replace")
+
+
+def test_progress_bars_on_a_terminal_and_json_alone_on_stdout(scene_dir, tmp_path):
+    exe = sys.executable.rsplit("/", 1)[0]
+    rc, out, err = _run_with_terminal_stderr([f"{exe}/ibr-render", str(scene_dir), "--method", "reference",
+                                              "--holdout", "v001", "v002", "-o", str(tmp_path / "r"), "--json"])
+    assert rc == 0 and json.loads(out)["summary"]["frames"] == 2
+    assert "ibr-render" in err and "frames" in err and "2/2" in err
+    rc, out, err = _run_with_terminal_stderr([f"{exe}/ibr-render", str(scene_dir), "--holdout", "v001",
+                                              "-o", str(tmp_path / "q"), "-q"])
+    assert rc == 0 and out == "" and err == ""  # --quiet: no bar, no table
+    rc, out, err = _run_with_terminal_stderr([f"{exe}/ibr-preprocess", "synth:objects", "-o", str(tmp_path / "s"),
+                                              "--views", "2", "--size", "32x24", "--json"])
+    assert rc == 0 and json.loads(out)[0]["status"] == "ran" and err == ""  # --json: no bar
+    rc, out, err = _run_with_terminal_stderr([f"{exe}/ibr-preprocess", "synth:objects", "-o", str(tmp_path / "s"),
+                                              "--views", "2", "--size", "32x24", "--force"])
+    assert rc == 0 and "stages" in err and "done" in err and "import" in out

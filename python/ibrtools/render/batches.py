@@ -119,10 +119,10 @@ def require_video() -> None:
 def check_video_path(path: str | os.PathLike) -> Path:
     """The MP4 path: ends in .mp4, is not a directory, and its folder can be written."""
     p = Path(path)
-    if p.suffix.lower() != ".mp4":
-        raise BadValueError(f"--mp4 {p}: expected a file name ending in .mp4")
     if p.is_dir():
         raise BadValueError(f"--mp4 {p}: is a directory")
+    if p.suffix.lower() != ".mp4":
+        raise BadValueError(f"--mp4 {p}: expected a file name ending in .mp4")
     _check_writable_parent(p, "--mp4")
     return p
 
