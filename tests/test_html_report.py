@@ -31,7 +31,7 @@ def _decode_png(data: bytes) -> np.ndarray:
         body = data[pos + 8:pos + 8 + n]
         assert struct.unpack(">I", data[pos + 8 + n:pos + 12 + n])[0] == zlib.crc32(kind + body) & 0xFFFFFFFF
         if kind == b"IHDR":
-            w, h, depth, ctype = struct.unpack(">IIBB", body[:10])
+            w, h, _depth, ctype = struct.unpack(">IIBB", body[:10])
             c = 3 if ctype == 2 else 1
         elif kind == b"IDAT":
             idat += body

@@ -9,6 +9,8 @@ import argparse
 import sys
 from typing import Sequence
 
+import numpy as np
+
 from ibrtools.errors import BadValueError
 
 from .common import add_common, print_json, print_table, progress_bar, run_command
@@ -108,33 +110,36 @@ def _body(args: argparse.Namespace) -> int:
 
 
 class _BestFrames:
-    """``sweep(frame_hook=...)``: keeps the panels (thumbnails, error maps) of the first ``n``
+    """``sweep(frame_hook=...)``: keeps shrunk copies (at most 640 pixels wide) of the first ``n``
     frames of the configuration with the lowest mean FLIP so far (mean PSNR, higher, when FLIP
-    is not available); one configuration's panels are held at a time besides the best's."""
+    is not available); one configuration's copies are held at a time besides the best's. The
+    panels (error maps: FLIP costs ~0.6 s per 640x480 frame) are made at the end, for the best
+    configuration only."""
 
     def __init__(self, n: int) -> None:
         self.n = n
-        self.panels: list = []
         self.config = None
+        self._kept: list = []
         self._best = None
         self._ci = None
         self._cur: list = []
         self._scores: list = []
 
     def __call__(self, ci, fi, frame, out, stage_ms, metrics) -> None:
+        from ibrtools.report_html import shrink
+
         if ci != self._ci:
             self.finish()
             self._ci, self._cur, self._scores = ci, [], []
         flip, psnr = metrics.get("flip"), metrics.get("psnr")
         self._scores.append(flip if flip is not None else (-psnr if psnr is not None else None))
         if fi < self.n:
-            from ibrtools.report_html import frame_panel
-
             numbers = {k: metrics.get(k) for k in ("psnr", "ssim", "flip", "coverage") if k in metrics}
-            self._cur.append(frame_panel(frame.name, out["color"], frame.truth.color,
-                                         selection=out.get("selection"), hole=out.get("hole"),
-                                         stage_ms={k: v for k, v in stage_ms.items() if k != "total"},
-                                         numbers={**numbers, "ms": round(stage_ms["total"], 2)}))
+            small = {k: None if out.get(k) is None else shrink(np.asarray(out[k], np.float32))
+                     for k in ("color", "selection", "hole")}
+            self._cur.append((frame.name, small, shrink(frame.truth.color),
+                              {k: v for k, v in stage_ms.items() if k != "total"},
+                              {**numbers, "ms": round(stage_ms["total"], 2)}))
 
     def finish(self) -> None:
         if self._ci is None:
@@ -142,8 +147,17 @@ class _BestFrames:
         vals = [v for v in self._scores if v is not None]
         score = sum(vals) / len(vals) if vals else float("inf")
         if self._best is None or score < self._best:
-            self._best, self.config, self.panels = score, self._ci, self._cur
+            self._best, self.config, self._kept = score, self._ci, self._cur
         self._ci, self._cur = None, []
+
+    @property
+    def panels(self) -> list:
+        from ibrtools.report_html import frame_panel
+
+        return [frame_panel(name, small["color"], truth, selection=small["selection"],
+                            hole=small["hole"],
+                            stage_ms=stage, numbers=numbers)
+                for name, small, truth, stage, numbers in self._kept]
 
 
 def main(argv: Sequence[str] | None = None) -> int:
