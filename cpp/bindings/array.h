@@ -46,7 +46,9 @@ py::array_t<T, py::array::c_style> CheckArray(const py::handle& obj, const char*
                      DescribeExpected(dims) + ", got " + std::string(py::str(py::type::of(obj).attr("__name__"))));
   }
   py::array a = py::reinterpret_borrow<py::array>(obj);
-  const bool dtype_ok = a.dtype().is(py::dtype::of<T>());
+  // equal, not is: an unpickled array (Dask, multiprocessing) has an equal dtype that is
+  // another object than numpy's builtin one.
+  const bool dtype_ok = a.dtype().equal(py::dtype::of<T>());
   bool shape_ok = a.ndim() == static_cast<py::ssize_t>(dims.size());
   for (std::size_t i = 0; shape_ok && i < dims.size(); ++i) {
     if (dims[i].size >= 0 && a.shape(i) != dims[i].size) shape_ok = false;

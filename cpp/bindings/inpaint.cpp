@@ -19,7 +19,7 @@ using FloatArray = py::array_t<float, py::array::c_style>;
 // The hole mask as one byte per pixel: bool or uint8 (non-zero = hole), (H, W), C-contiguous.
 ImageView<const std::uint8_t> HoleView(const py::handle& obj, py::ssize_t h, py::ssize_t w, py::object* keep) {
   if (py::isinstance<py::array>(obj) &&
-      py::reinterpret_borrow<py::array>(obj).dtype().is(py::dtype::of<std::uint8_t>())) {
+      py::reinterpret_borrow<py::array>(obj).dtype().equal(py::dtype::of<std::uint8_t>())) {
     auto a = CheckArray<std::uint8_t>(obj, "hole", {{"H", h}, {"W", w}});
     *keep = a;
     return ImageView<const std::uint8_t>(a.data(), static_cast<int>(h), static_cast<int>(w), 1);

@@ -117,7 +117,7 @@ void BindMetameric(py::module_& m) {
         FloatArray moments = CheckArray<float>(moments_obj, "moments", {{"h", h}, {"w", w}, {"2kC", 2 * k * c}});
         py::array mask_arr;
         if (py::isinstance<py::array>(mask_obj) &&
-            py::reinterpret_borrow<py::array>(mask_obj).dtype().is(py::dtype::of<std::uint8_t>())) {
+            py::reinterpret_borrow<py::array>(mask_obj).dtype().equal(py::dtype::of<std::uint8_t>())) {
           mask_arr = CheckArray<std::uint8_t>(mask_obj, "mask", {{"h", h}, {"w", w}});
         } else {
           mask_arr = CheckArray<bool>(mask_obj, "mask", {{"h", h}, {"w", w}});
@@ -127,7 +127,7 @@ void BindMetameric(py::module_& m) {
         py::array flow_arr;
         if (!flow_obj.is_none()) {
           const bool f64 = py::isinstance<py::array>(flow_obj) &&
-                           py::reinterpret_borrow<py::array>(flow_obj).dtype().is(py::dtype::of<double>());
+                           py::reinterpret_borrow<py::array>(flow_obj).dtype().equal(py::dtype::of<double>());
           if (f64) {
             auto a = CheckArray<double>(flow_obj, "flow", {{"H", -1}, {"W", -1}, {"2", 2}});
             flow.f64 = a.data();

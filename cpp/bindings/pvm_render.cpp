@@ -31,7 +31,7 @@ I64 CheckOffsets(py::handle obj, const char* name, py::ssize_t n) {
     throw DtypeError(std::string(name) + ": expected a numpy int64 array of shape (" + std::to_string(n) + ",)");
   }
   py::array a = py::reinterpret_borrow<py::array>(obj);
-  if (!a.dtype().is(py::dtype::of<std::int64_t>())) {
+  if (!a.dtype().equal(py::dtype::of<std::int64_t>())) {
     throw DtypeError(std::string(name) + ": expected int64 array of shape (" + std::to_string(n) + ",), got " +
                      std::string(py::str(a.dtype())) + " " + DescribeShape(a));
   }

@@ -67,7 +67,7 @@ void BindSolvers(py::module_& m) {
       "grid_maxflow",
       [](py::handle source_cap, py::handle sink_cap, py::handle right, py::handle down) {
         if (py::isinstance<py::array>(source_cap) &&
-            py::reinterpret_borrow<py::array>(source_cap).dtype().is(py::dtype::of<long long>())) {
+            py::reinterpret_borrow<py::array>(source_cap).dtype().equal(py::dtype::of<long long>())) {
           return GridMaxflowTyped<long long, std::int64_t>(source_cap, sink_cap, right, down);
         }
         return GridMaxflowTyped<double>(source_cap, sink_cap, right, down);
