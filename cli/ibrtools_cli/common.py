@@ -180,3 +180,14 @@ def progress_bar(prog: str, what: str, total: int | None = None, *, quiet: bool 
                   console=console, transient=False, redirect_stdout=False, redirect_stderr=False) as p:
         task = p.add_task(what, total=total, label="")
         yield _Bar(p, task)
+
+
+def add_distributed(parser: argparse.ArgumentParser) -> None:
+    """``--workers N`` / ``--scheduler ADDRESS``: run on Dask (docs/distributed.md); checked by
+    ibrtools.distributed.check_options (negative N, both at once: exit 2)."""
+    g = parser.add_argument_group("distributed execution (Dask; docs/distributed.md)")
+    g.add_argument("--workers", type=int, default=0, metavar="N",
+                   help="start a local Dask cluster of N worker processes (one engine thread each unless -j)")
+    g.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="run on an existing Dask cluster, e.g. tcp://10.0.0.5:8786 (the workers must see the "
+                        "scene at the same path)")

@@ -8,7 +8,7 @@ from typing import Sequence
 
 from ibrtools.errors import InputError
 
-from .common import add_common, print_table, progress_bar, run_command
+from .common import add_common, add_distributed, print_table, progress_bar, run_command
 
 PROG = "ibr-preprocess"
 
@@ -71,14 +71,17 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--reconstructed", action="store_true",
                    help="also store a degraded 'reconstructed' copy of the mesh")
     add_common(p)
+    add_distributed(p)
     return p
 
 
 def _body(args: argparse.Namespace) -> int:
     import json
 
+    from ibrtools.distributed import check_options
     from ibrtools.stages import parse_methods, parse_options, parse_stage_options, parse_stages, preprocess
 
+    check_options(args.scheduler, args.workers)  # usage errors before any work
     synth = None
     if args.input.startswith("synth:"):
         from ibrtools.synth import PRESETS
@@ -112,7 +115,8 @@ def _body(args: argparse.Namespace) -> int:
                     print(f"{PROG}: {msg}", file=sys.stderr, flush=True)
         results = preprocess(args.input, args.output, fmt=args.format, options=parse_options(args.opt),
                              synth=synth, force=args.force, methods=methods, stages=stages,
-                             stage_options=stage_options, progress=progress)
+                             stage_options=stage_options, progress=progress, scheduler=args.scheduler,
+                             workers=args.workers, threads=args.threads)
         bar.advance("done")
     if args.json:
         print(json.dumps([r.to_dict() for r in results], indent=1))

@@ -7,7 +7,7 @@ from typing import Sequence
 
 from ibrtools.errors import BadValueError
 
-from .common import add_common, print_json, print_table, progress_bar, run_command
+from .common import add_common, add_distributed, print_json, print_table, progress_bar, run_command
 
 PROG = "ibr-render"
 
@@ -99,14 +99,17 @@ def build_parser() -> argparse.ArgumentParser:
                    help="print the report (report.json, plus the paths of the video and HTML report) as JSON "
                         "on stdout, and nothing else")
     add_common(p)
+    add_distributed(p)
     return p
 
 
 def _body(args: argparse.Namespace) -> int:
+    from ibrtools.distributed import check_options
     from ibrtools.formats import native
     from ibrtools.render import job as render_job
     from ibrtools.stages import parse_options
 
+    check_options(args.scheduler, args.workers)  # usage errors before the scene is read
     foveate = None
     if args.foveate is not None:
         foveate = _fixation(args.foveate)
@@ -153,7 +156,8 @@ def _body(args: argparse.Namespace) -> int:
         report = render_job.run(job, args.method, args.output, params=params, float_out=args.float,
                                 depth_out=args.depth, threads=args.threads, inpaint=args.inpaint,
                                 foveate=foveate, pooling=args.pooling,
-                                progress=lambda i, n, name: bar.update(i, n, name))
+                                progress=lambda i, n, name: bar.update(i, n, name),
+                                scheduler=args.scheduler, workers=args.workers)
     extra = {}
     if video is not None:
         from pathlib import Path
@@ -168,14 +172,27 @@ def _body(args: argparse.Namespace) -> int:
                   if f.truth is not None and f.truth.has_color}
         with progress_bar(PROG, "HTML report", None, quiet=args.quiet):
             extra["report_html"] = str(render_report(report, args.output, html_path, truths=truths))
+    status = _report_failed(report)
     if args.json:
         print_json({**report, **extra})
-        return 0
+        return status
     _print_summary(args, report)
     for key, what in (("video", "video"), ("report_html", "HTML report")):
         if key in extra and not args.quiet:
             print(f"{what}: {extra[key]}")
-    return 0
+    return status
+
+
+def _report_failed(report: dict) -> int:
+    """Frames whose rendering raised (report.json "failed"): one stderr line naming them, exit 1;
+    the other frames were written."""
+    failed = report.get("failed") or []
+    if not failed:
+        return 0
+    shown = "; ".join(f"{f['name']}: {f['error']}" for f in failed[:3]) + ("; ..." if len(failed) > 3 else "")
+    print(f"{PROG}: {len(failed)} of {len(failed) + len(report['frames'])} frames failed (report.json "
+          f"\"failed\"): {shown}", file=sys.stderr)
+    return 1
 
 
 def _lightfield(args: argparse.Namespace):

@@ -294,15 +294,17 @@ def load_npz(path: Path) -> dict[str, np.ndarray]:
 
 
 class _Context:
-    """What the stages of one run share: the scene, its root, and outputs already in memory."""
+    """What the stages of one run share: the scene, its root, outputs already in memory, and
+    the Dask cluster of a distributed run (``cluster``: a distributed.LazyClient, or None)."""
 
-    def __init__(self, root: Path, options: dict):
+    def __init__(self, root: Path, options: dict, cluster=None):
         from .formats import native
 
         self.root = root
         self.scene: Scene = native.load(root)
         self.options = options
         self.memo: dict[str, dict] = {}
+        self.cluster = cluster
 
     def cache(self, stage: str) -> Path:
         return self.root / CACHE_DIR / stage
@@ -316,11 +318,12 @@ class _Context:
     def cameras(self) -> dict:
         return {v.name: v.camera for v in self.scene.views}
 
-    def depths(self) -> dict:
-        """Each view's depth: its own, or the one the depth stage rendered from the mesh."""
+    def depths(self, names: list[str] | None = None) -> dict:
+        """Each view's depth (of the views ``names``, default all): its own, or the one the depth
+        stage rendered from the mesh."""
         rendered = None
         out = {}
-        for v in self.scene.views:
+        for v in self.scene.views if names is None else [self.scene.view(n) for n in names]:
             if v.has_depth:
                 out[v.name] = v.depth
             else:
@@ -372,7 +375,10 @@ def _run_depth(ctx: _Context) -> dict:
     from .hybrid.globalmesh import depth_from_mesh
 
     cams = {v.name: v.camera for v in ctx.scene.views if not v.has_depth}
-    deps = depth_from_mesh(ctx.mesh(), cams)
+    if ctx.cluster is not None:  # per view: chunks of views on the workers, each loads the mesh
+        deps = ctx.cluster.map_views(_depth_task, ctx.root, list(cams), ctx.options)
+    else:
+        deps = depth_from_mesh(ctx.mesh(), cams)
     save_npz(ctx.cache("depth") / "depth.npz", **deps)
     ctx.memo["depth"] = deps
     return {"views": len(deps)}
@@ -426,10 +432,38 @@ def _run_harmonise(ctx: _Context) -> dict | str:
     return {"views": len(res.images), **stats}
 
 
+def _depth_task(root: str, names: list[str], options: dict, threads: int) -> dict:
+    """Dask task of the depth stage: depth of views ``names`` rendered from the stage's mesh."""
+    from .distributed import set_task_threads
+    from .hybrid.globalmesh import depth_from_mesh
+
+    set_task_threads(threads)
+    ctx = _Context(Path(root), options)
+    return depth_from_mesh(ctx.mesh(), {n: ctx.scene.view(n).camera for n in names})
+
+
+def _pvm_task(root: str, names: list[str], options: dict, threads: int) -> dict:
+    """Dask task of the pvm stage: the per-view meshes of views ``names``."""
+    from .distributed import set_task_threads
+    from .hybrid.pvm import PvmOptions, view_mesh
+
+    set_task_threads(threads)
+    ctx = _Context(Path(root), options)
+    opts = PvmOptions(**options.get("pvm", {}))
+    deps = ctx.depths(names)
+    return {n: view_mesh(ctx.scene.view(n).camera, deps[n], opts) for n in names}
+
+
 def _run_pvm(ctx: _Context) -> dict:
     from .hybrid.pvm import PvmOptions, build_tiles
 
-    tiles = build_tiles(ctx.cameras(), ctx.depths(), PvmOptions(**ctx.options.get("pvm", {})))
+    opts = PvmOptions(**ctx.options.get("pvm", {}))
+    cams = ctx.cameras()
+    if ctx.cluster is not None:  # the per-view meshes on the workers, the slicing here
+        meshes = ctx.cluster.map_views(_pvm_task, ctx.root, list(cams), ctx.options)
+        tiles = build_tiles(cams, {}, opts, view_meshes=meshes)
+    else:
+        tiles = build_tiles(cams, ctx.depths(), opts)
     tiles.save(ctx.cache("pvm") / "tiles.npz")
     s = tiles.stats
     return {"pvm_faces": s["pvm_faces"], "tiles": s["tiles"], "tile_faces": s["tile_faces"]}
@@ -455,10 +489,22 @@ def _closure(selected: list[str]) -> list[str]:
 
 
 def run_stages(root: str | os.PathLike, *, methods: list[str] | None = None, stages: list[str] | None = None,
-               force: bool = False, options: dict | None = None, progress=None) -> list[StageResult]:
+               force: bool = False, options: dict | None = None, progress=None,
+               scheduler: str | None = None, workers: int = 0, threads: int = 0) -> list[StageResult]:
     """Plan and run the derived stages of the scene at ``root`` for ``methods`` (default:
     :func:`default_methods`), or exactly ``stages`` (plus what they read). Every available stage
-    gets a row: ran / up to date / skipped (with the reason) / failed."""
+    gets a row: ran / up to date / skipped (with the reason) / failed.
+
+    ``workers`` N (a local Dask cluster) or ``scheduler`` ADDRESS: the per-view work of the
+    stages that are per view (depth: each view's depth rendered from the mesh; pvm: each view's
+    mesh) runs on the workers, which load the scene by path; the global stages (mesh fusion,
+    texture, variance, harmonise, the PVM tiling) run here. The cluster is started only when such
+    a stage runs; outputs are the same, bit for bit (docs/distributed.md). ``threads``: engine
+    threads per task (default: 1 on a local cluster, else the worker machine's cores shared
+    among its Dask threads)."""
+    from . import distributed as D
+
+    D.check_options(scheduler, workers)
     root = Path(root)
     options = dict(options or {})
     methods = list(methods) if methods is not None else default_methods()
@@ -478,7 +524,14 @@ def run_stages(root: str | os.PathLike, *, methods: list[str] | None = None, sta
         reason = ("not selected (--stages)" if stages is not None else
                   f"not needed by methods {', '.join(methods) or 'none'}")
         return [StageResult(name, "skipped", reason) for name in ORDER if name in avail]
-    ctx = _Context(root, options)
+    with D.LazyClient(scheduler, workers, threads) as cluster:
+        return _run_planned(root, options, wanted, why, avail, stages, methods, force, progress,
+                            cluster if D.wanted(scheduler, workers) else None)
+
+
+def _run_planned(root: Path, options: dict, wanted: list[str], why: dict, avail: list[str], stages, methods,
+                 force: bool, progress, cluster) -> list[StageResult]:
+    ctx = _Context(root, options, cluster)
     upstream = {"scene": scene_content_key(root)}
     records = dict(_read_doc(root).get("stages") or {})
     results: list[StageResult] = []
@@ -588,9 +641,14 @@ def parse_stage_options(pairs: list[str] | None) -> dict:
 def preprocess(input_spec: str, output: str | os.PathLike, *, fmt: str | None = None,
                options: dict | None = None, synth: dict | None = None, force: bool = False,
                methods: list[str] | None = None, stages: list[str] | None = None,
-               stage_options: dict | None = None, progress=None) -> list[StageResult]:
+               stage_options: dict | None = None, progress=None, scheduler: str | None = None,
+               workers: int = 0, threads: int = 0) -> list[StageResult]:
     """Import (or find up to date) the scene, then run the derived stages ``methods`` need (or
-    exactly ``stages``); returns the stage table."""
+    exactly ``stages``); returns the stage table. ``scheduler`` / ``workers`` / ``threads``: the
+    per-view stages on Dask (:func:`run_stages`)."""
+    from .distributed import check_options
+
+    check_options(scheduler, workers)
     if stages is not None:
         stages = [s for s in stages if s != "import"]
     if stage_options:
@@ -599,7 +657,7 @@ def preprocess(input_spec: str, output: str | os.PathLike, *, fmt: str | None = 
     if stages == []:
         return results
     results += run_stages(output, methods=methods, stages=stages, force=force, options=stage_options,
-                          progress=progress)
+                          progress=progress, scheduler=scheduler, workers=workers, threads=threads)
     return results
 
 

@@ -214,23 +214,25 @@ def grid_bounds(vertices: np.ndarray, coarse: int, sub: int) -> tuple[np.ndarray
 
 
 def build_tiles(cameras: Mapping[str, Camera], depths: Mapping[str, np.ndarray],
-                options: PvmOptions | None = None) -> PvmTiles:
+                options: PvmOptions | None = None, *,
+                view_meshes: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None) -> PvmTiles:
     """Every view's PVM, sliced into tiles. ``cameras`` and ``depths`` keyed by view name (same
-    names, in the order of ``cameras``)."""
+    names, in the order of ``cameras``). ``view_meshes``: every view's :func:`view_mesh` already
+    made (by Dask workers, ibrtools.stages); ``depths`` is then not read."""
     from .. import _core
 
     options = options or PvmOptions()
     names = list(cameras)
     if not names:
         raise BadValueError("build_tiles: no views")
-    missing = [n for n in names if n not in depths or depths[n] is None]
+    missing = [n for n in names if (n not in depths or depths[n] is None) and n not in (view_meshes or {})]
     if missing:
         raise BadValueError(f"build_tiles: views without depth {missing[:5]} (give depth maps or a mesh to "
                             "render them from)")
     verts, faces, fview, base = [], [], [], 0
     per_view = {}
     for i, n in enumerate(names):
-        v, f = view_mesh(cameras[n], depths[n], options)
+        v, f = view_meshes[n] if view_meshes is not None else view_mesh(cameras[n], depths[n], options)
         verts.append(v)
         faces.append(f + base)
         fview.append(np.full(len(f), i, np.int32))

@@ -40,6 +40,9 @@ class Frame:
 class Job:
     scene: Scene          # the inputs the method may use (held-out views removed)
     frames: list[Frame] = field(default_factory=list)
+    # plan()'s keyword arguments (JSON-able): plan(native.load(scene.root), **spec) makes the same
+    # job again, which is how Dask workers rebuild it (ibrtools.distributed). None: not planned.
+    spec: dict | None = None
 
 
 def read_poses(path: str | os.PathLike) -> list[Frame]:
@@ -65,7 +68,17 @@ def plan(scene: Scene, *, targets: list[str] | None = None, holdout: list[str] |
          lightfield: tuple[int, int, float, str | None] | None = None) -> Job:
     """Resolve the cameras to render. With nothing asked, render every target of the scene.
     ``lightfield`` = (columns, rows, baseline, centre name or None): a camera grid
-    (:mod:`ibrtools.render.batches`), frames lf_0000, ... row-major."""
+    (:mod:`ibrtools.render.batches`), frames lf_0000, ... row-major.
+
+    The job records these keyword arguments as ``job.spec`` (every one of them, whatever is
+    added later; a relative ``poses`` path made absolute) for the workers of a distributed run."""
+    spec = {k: v for k, v in locals().items() if k != "scene"}
+    if poses is not None:
+        spec["poses"] = str(Path(poses).resolve())
+    try:
+        spec = json.loads(json.dumps(spec))  # tuples to lists: what travels
+    except (TypeError, ValueError):
+        spec = None  # not JSON-able (an argument given as an object): a local run only
     frames: list[Frame] = []
     held = list(dict.fromkeys(holdout or []))
     for name in held:
@@ -100,7 +113,7 @@ def plan(scene: Scene, *, targets: list[str] | None = None, holdout: list[str] |
     sub = Scene(views=inputs, targets=scene.targets, paths=scene.paths, meshes=scene.meshes,
                 units=scene.units, source=scene.source, lights=scene.lights, shading=scene.shading,
                 stages=scene.stages, root=scene.root)
-    return Job(sub, frames)
+    return Job(sub, frames, spec)
 
 
 # --- memory: estimate before allocating -----------------------------------------------------------
@@ -198,10 +211,16 @@ def _frame_metrics(out: dict, truth: View | None) -> dict:
     return {k: (float(v) if v is not None and np.isfinite(v) else None) for k, v in m.items()}
 
 
+# Methods whose frames depend on the frames before them (depthwarp warps from the previous
+# frame): a distributed run gives all their frames to one task, in order.
+SEQUENTIAL = frozenset({"depthwarp"})
+
+
 def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict | None = None,
         float_out: bool = False, depth_out: bool = False, threads: int = 0, inpaint: str = "none",
         foveate: tuple[float, float] | None = None, pooling: float | None = None,
-        progress: Callable[[int, int, str], None] | None = None) -> dict:
+        progress: Callable[[int, int, str], None] | None = None,
+        scheduler: str | None = None, workers: int = 0) -> dict:
     """Render every frame of ``job``; write images and report.json; return the report.
 
     ``inpaint`` ("none", "pushpull" or "metameric", :mod:`ibrtools.inpaint`) post-processes frames
@@ -213,11 +232,22 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
 
     ``foveate`` ((x, y) fixation in [0, 1]^2, or None) post-processes every frame, after the
     inpainting, into a foveated ventral metamer (:func:`ibrtools.foveate.foveate`, seed 0 and
-    ``pooling`` or its default), timed as stage "foveate"; metrics then score the metamer."""
+    ``pooling`` or its default), timed as stage "foveate"; metrics then score the metamer.
+
+    ``workers`` N > 0 renders on a local Dask cluster of N processes (``threads`` engine threads
+    each, default 1), ``scheduler`` ADDRESS on an existing Dask cluster (``threads`` default:
+    the worker machine's cores shared among its Dask threads); the files are the same, bit for
+    bit, as a local run's (docs/distributed.md). The job's scene must be on disk (its ``root``).
+
+    A frame whose rendering raises is left out and listed in the report's "failed" ({"name",
+    "error"}); the other frames are written. An interrupt (KeyboardInterrupt, SIGTERM through
+    the commands) removes every file the run wrote: all or nothing."""
     from .. import _core
+    from .. import distributed as D
     from ..inpaint import METHODS as INPAINT_METHODS
     from ..inpaint import NOT_BUILT as INPAINT_NOT_BUILT
 
+    D.check_options(scheduler, workers)
     if inpaint in INPAINT_NOT_BUILT:
         from ..errors import NotBuiltError
 
@@ -236,111 +266,178 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
         raise BadValueError(f"-o {out_dir}: exists and is not a directory")
     name = methods.resolve(method_name, job.scene)
     check_memory(job, name)
-    method = methods.create(name, params)
-    if threads:
-        _core.set_num_threads(threads)
-    setup = method.prepare(job.scene)
+    frame_kw = {"inpaint": inpaint, "fov_kw": fov_kw, "float_out": float_out, "depth_out": depth_out}
+    distributed = D.wanted(scheduler, workers)
+    if distributed:
+        root = job.scene.root
+        if root is None or not (Path(root) / "scene.json").is_file():
+            raise BadValueError("--workers/--scheduler: the workers load the scene from disk; this job's "
+                                "scene has no scene directory (save it with formats.native.save first)")
+        if job.spec is None:
+            raise BadValueError("--workers/--scheduler: the workers rebuild the job with render.job.plan(); "
+                                "this job was not made by plan() with JSON-able arguments")
+        methods.create(name, params)  # bad parameters fail here, before a cluster is started
+        # Engine threads per task: -j, else one per worker process of a local cluster (its
+        # processes share this machine's cores), else the worker machine's cores (distributed.py).
+        spec = {"root": str(Path(root).resolve()), "stamp": D.scene_stamp(root), "plan": job.spec,
+                "method": name, "params": dict(params or {}), "frame": frame_kw,
+                "threads": int(threads) if threads or scheduler is not None else 1}
+    else:
+        method = methods.create(name, params)
+        if threads:
+            _core.set_num_threads(threads)
+        setup = method.prepare(job.scene)
     out_dir.mkdir(parents=True, exist_ok=True)
     # report.json marks a complete run: a stale one must not describe the images written now.
     (out_dir / "report.json").unlink(missing_ok=True)
     written: list[Path] = []
+    n = len(job.frames)
+    entries: list[dict | None] = [None] * n
+    failures: list[dict | None] = [None] * n
+    extra: dict = {}
     try:
-        return _render_frames(job, method, name, out_dir, written, setup, params=params, float_out=float_out,
-                              depth_out=depth_out, inpaint=inpaint, fov_kw=fov_kw, progress=progress)
+        if not distributed:
+            for i, frame in enumerate(job.frames):
+                if progress:
+                    progress(i, n, frame.name)
+                entries[i], failures[i], outputs = render_frame(method, frame, **frame_kw)
+                for rel, kind, array in outputs:
+                    written.append(out_dir / rel)
+                    write_output(out_dir, rel, kind, array)
+            used_threads = int(_core.get_num_threads())
+        else:
+            done = 0
+
+            def on_frame(i: int, entry, failure, files: dict[str, bytes]) -> None:
+                nonlocal done
+                for rel, data in files.items():
+                    written.append(out_dir / rel)
+                    with atomic_path(out_dir / rel) as tmp:
+                        tmp.write_bytes(data)
+                entries[i], failures[i] = entry, failure
+                done += 1
+                if progress:
+                    progress(done, n, job.frames[i].name)
+
+            sequential = name in SEQUENTIAL
+            chunks = [list(range(n))] if sequential else [[i] for i in range(n)]
+            if progress:
+                progress(0, n, "")
+            with D.open_client(scheduler, workers, threads_per_worker=1) as client:
+                info = D.run_frames(client, job, spec, chunks, on_frame)
+                extra["distributed"] = {**D.describe(client, scheduler), "tasks": len(chunks)}
+            setup, used_threads = info["setup_ms"] or {}, int(info["threads"] or 0)
+        if progress:
+            progress(n, n, "")
+        frames_report = [e for e in entries if e is not None]
+        report = {"method": name, "params": dict(params or {}), "inpaint": inpaint,
+                  **({"foveate": {"fixation": list(fov_kw["fixation"]), "pooling": fov_kw["pooling"]}}
+                     if fov_kw else {}),
+                  "threads": used_threads, **extra,
+                  "inputs": len(job.scene.views), "frames": frames_report,
+                  "failed": [f for f in failures if f is not None],
+                  "summary": _summary(frames_report, setup)}
+        with atomic_path(out_dir / "report.json") as tmp:
+            tmp.write_text(json.dumps(report, indent=1, allow_nan=False))
+        return report
     except BaseException:
-        # Interrupted (SIGINT, SIGTERM through the commands' handler) or failed part-way: the run
-        # is all or nothing, so the frames it wrote go too (each was written atomically).
+        # Interrupted (SIGINT, SIGTERM through the commands' handler) or failed outside a frame's
+        # rendering: the run is all or nothing, so the frames it wrote go too (each was written
+        # atomically).
         for f in written:
             f.unlink(missing_ok=True)
         raise
 
 
-def _render_frames(job: Job, method, name: str, out_dir: Path, written: list[Path], setup: dict, *,
-                   params, float_out, depth_out, inpaint, fov_kw, progress) -> dict:
-    from .. import _core
+def write_output(out_dir: Path, rel: str, kind: str, array: np.ndarray) -> Path:
+    """Write one output file of a frame (atomically): ``kind`` "depth" (single-channel float EXR)
+    or "image" (by extension: 8-bit sRGB PNG, linear float EXR). The one writer of local runs
+    and of Dask workers (which send the bytes back: ibrtools.distributed.encode_outputs)."""
+    path = out_dir / rel
+    if kind == "depth":
+        _write_depth(path, array)
+    else:
+        _write_image(path, array)
+    return path
+
+
+def render_frame(method, frame: Frame, *, inpaint: str, fov_kw: dict, float_out: bool, depth_out: bool
+                 ) -> tuple[dict | None, dict | None, list[tuple[str, str, np.ndarray]]]:
+    """Render one frame with a prepared ``method`` and post-process it: NaN guard, holes black,
+    inpainting, foveation, metrics. Returns (report entry, None, outputs) with outputs the files
+    to write [(file name, "image" | "depth", array)], or (None, {"name", "error"}, []) when the
+    rendering or its post-processing raised (the frame failed; the job goes on). Writes nothing:
+    the caller does (the local loop, or the client of a distributed run)."""
+    try:
+        return _render_frame(method, frame, inpaint=inpaint, fov_kw=fov_kw, float_out=float_out,
+                             depth_out=depth_out)
+    except Exception as e:  # noqa: BLE001 - reported by name in report.json "failed"
+        return None, {"name": frame.name, "error": f"{type(e).__name__}: {e}"}, []
+
+
+def _render_frame(method, frame: Frame, *, inpaint, fov_kw, float_out, depth_out):
     from ..inpaint import inpaint as fill_holes
 
-    def write_image(path: Path, image: np.ndarray) -> None:
-        written.append(path)
-        _write_image(path, image)
-
-    def write_depth(path: Path, depth: np.ndarray) -> None:
-        written.append(path)
-        _write_depth(path, depth)
-
-    frames_report = []
-    for i, frame in enumerate(job.frames):
-        if progress:
-            progress(i, len(job.frames), frame.name)
-        t0 = time.perf_counter()
-        out, stage_ms = method.render(frame.camera)
-        color = np.nan_to_num(out["color"], nan=0.0, posinf=0.0, neginf=0.0)
-        hole = out.get("hole")
-        if hole is not None:
-            color = np.where(hole[..., None], 0.0, color).astype(np.float32)
-        inpaint_note = None
-        if inpaint != "none":
-            if hole is None or not hole.any():
-                inpaint_note = "skipped: no hole"  # DESIGN.md: inpainting does nothing where there is no hole
-            else:
-                t1 = time.perf_counter()
-                color = fill_holes(np.ascontiguousarray(color, np.float32), hole, inpaint,
-                                   depth=_inpaint_depth(out.get("depth"), hole))
-                stage_ms = {**stage_ms, "inpaint": (time.perf_counter() - t1) * 1e3}
-                inpaint_note = inpaint
-        if fov_kw:
-            from ..foveate import foveate as foveate_image
-
+    outputs: list[tuple[str, str, np.ndarray]] = []
+    t0 = time.perf_counter()
+    out, stage_ms = method.render(frame.camera)
+    color = np.nan_to_num(out["color"], nan=0.0, posinf=0.0, neginf=0.0)
+    hole = out.get("hole")
+    if hole is not None:
+        color = np.where(hole[..., None], 0.0, color).astype(np.float32)
+    inpaint_note = None
+    if inpaint != "none":
+        if hole is None or not hole.any():
+            inpaint_note = "skipped: no hole"  # DESIGN.md: inpainting does nothing where there is no hole
+        else:
             t1 = time.perf_counter()
-            color = foveate_image(np.ascontiguousarray(color, np.float32), fov_kw["fixation"],
-                                  pooling=fov_kw["pooling"])
-            stage_ms = {**stage_ms, "foveate": (time.perf_counter() - t1) * 1e3}
-        total_ms = (time.perf_counter() - t0) * 1e3
-        image = f"{frame.name}.png"
-        write_image(out_dir / image, color)
-        entry: dict = {"name": frame.name, "image": image,
-                       "time_ms": {"total": round(total_ms, 3), **{k: round(v, 3) for k, v in stage_ms.items()}},
-                       "metrics": _frame_metrics({**out, "color": color}, frame.truth), **frame.info}
-        if inpaint_note is not None:
-            entry["inpaint"] = inpaint_note
-            if inpaint_note == inpaint and frame.truth is not None and frame.truth.has_color:
-                entry["metrics"]["psnr_holes"] = _psnr_in(color, frame.truth.color, hole)
-        # Method-specific facts about the frame (dibr: the selected input views, best first,
-        # their similarity, and how many candidates were skipped for not overlapping).
-        if hasattr(method, "frame_report"):
-            entry.update(method.frame_report())
-        # Method-specific scores of the frame (depthwarp: depth PSNR/SSIM against the reference).
-        if hasattr(method, "frame_metrics"):
-            entry["metrics"].update(method.frame_metrics())
-        if float_out:
-            write_image(out_dir / f"{frame.name}.exr", color)
-            entry["image_float"] = f"{frame.name}.exr"
-        if depth_out and "depth" in out:
-            write_depth(out_dir / f"{frame.name}.depth.exr", out["depth"])
-            entry["depth"] = f"{frame.name}.depth.exr"
-        selection = out.get("selection")
-        if selection is not None:
-            # Hybrid methods: the per-pixel method selection (RGB) is the frame's mask image
-            # (render/hybrid.py); its holes, if any, go to <frame>.hole.png.
-            write_image(out_dir / f"{frame.name}.mask.png", np.asarray(selection, np.float32))
-            entry["mask"] = f"{frame.name}.mask.png"
-            if hole is not None and hole.any():
-                write_image(out_dir / f"{frame.name}.hole.png", hole.astype(np.float32))
-                entry["hole_mask"] = f"{frame.name}.hole.png"
-        elif hole is not None and hole.any():
-            write_image(out_dir / f"{frame.name}.mask.png", hole.astype(np.float32))
-            entry["mask"] = f"{frame.name}.mask.png"
-        frames_report.append(entry)
-    if progress:
-        progress(len(job.frames), len(job.frames), "")
-    report = {"method": name, "params": dict(params or {}), "inpaint": inpaint,
-              **({"foveate": {"fixation": list(fov_kw["fixation"]), "pooling": fov_kw["pooling"]}} if fov_kw else {}),
-              "threads": int(_core.get_num_threads()),
-              "inputs": len(job.scene.views), "frames": frames_report,
-              "summary": _summary(frames_report, setup)}
-    with atomic_path(out_dir / "report.json") as tmp:
-        tmp.write_text(json.dumps(report, indent=1, allow_nan=False))
-    return report
+            color = fill_holes(np.ascontiguousarray(color, np.float32), hole, inpaint,
+                               depth=_inpaint_depth(out.get("depth"), hole))
+            stage_ms = {**stage_ms, "inpaint": (time.perf_counter() - t1) * 1e3}
+            inpaint_note = inpaint
+    if fov_kw:
+        from ..foveate import foveate as foveate_image
+
+        t1 = time.perf_counter()
+        color = foveate_image(np.ascontiguousarray(color, np.float32), fov_kw["fixation"],
+                              pooling=fov_kw["pooling"])
+        stage_ms = {**stage_ms, "foveate": (time.perf_counter() - t1) * 1e3}
+    total_ms = (time.perf_counter() - t0) * 1e3
+    image = f"{frame.name}.png"
+    outputs.append((image, "image", color))
+    entry: dict = {"name": frame.name, "image": image,
+                   "time_ms": {"total": round(total_ms, 3), **{k: round(v, 3) for k, v in stage_ms.items()}},
+                   "metrics": _frame_metrics({**out, "color": color}, frame.truth), **frame.info}
+    if inpaint_note is not None:
+        entry["inpaint"] = inpaint_note
+        if inpaint_note == inpaint and frame.truth is not None and frame.truth.has_color:
+            entry["metrics"]["psnr_holes"] = _psnr_in(color, frame.truth.color, hole)
+    # Method-specific facts about the frame (dibr: the selected input views, best first,
+    # their similarity, and how many candidates were skipped for not overlapping).
+    if hasattr(method, "frame_report"):
+        entry.update(method.frame_report())
+    # Method-specific scores of the frame (depthwarp: depth PSNR/SSIM against the reference).
+    if hasattr(method, "frame_metrics"):
+        entry["metrics"].update(method.frame_metrics())
+    if float_out:
+        outputs.append((f"{frame.name}.exr", "image", color))
+        entry["image_float"] = f"{frame.name}.exr"
+    if depth_out and "depth" in out:
+        outputs.append((f"{frame.name}.depth.exr", "depth", out["depth"]))
+        entry["depth"] = f"{frame.name}.depth.exr"
+    selection = out.get("selection")
+    if selection is not None:
+        # Hybrid methods: the per-pixel method selection (RGB) is the frame's mask image
+        # (render/hybrid.py); its holes, if any, go to <frame>.hole.png.
+        outputs.append((f"{frame.name}.mask.png", "image", np.asarray(selection, np.float32)))
+        entry["mask"] = f"{frame.name}.mask.png"
+        if hole is not None and hole.any():
+            outputs.append((f"{frame.name}.hole.png", "image", hole.astype(np.float32)))
+            entry["hole_mask"] = f"{frame.name}.hole.png"
+    elif hole is not None and hole.any():
+        outputs.append((f"{frame.name}.mask.png", "image", hole.astype(np.float32)))
+        entry["mask"] = f"{frame.name}.mask.png"
+    return entry, None, outputs
 
 
 def _inpaint_depth(depth: np.ndarray | None, hole: np.ndarray) -> np.ndarray | None:

@@ -1,0 +1,293 @@
+"""Distributed execution on Dask (issue 8; docs/distributed.md).
+
+``ibr-render`` / ``ibr-preprocess`` with ``--workers N`` start a :class:`distributed.LocalCluster`
+(N worker processes on loopback, one Dask thread each, no dashboard, quiet logs); with
+``--scheduler ADDRESS`` they connect a :class:`distributed.Client` to an existing cluster.
+
+What travels: the scene is shared by PATH (every worker loads it itself with
+:func:`ibrtools.formats.native.load`; all machines must see the same file system), never
+scattered. A render task carries a small spec (scene path, ``plan()``'s keyword arguments,
+method, parameters, post-processing options: a few hundred bytes) and a chunk of frame indices;
+it sends back each frame's report entry and its output files already encoded (PNG/EXR bytes,
+made by the same writer a local run uses, so the files are bit-identical). A worker prepares
+the method once per (scene, plan, method, parameters) and reuses it for every frame it is given
+(``_PREPARED``, a per-process cache of one entry).
+
+Failures: a frame whose render raises comes back as a failure record (the job goes on); a task
+that dies with its worker is rescheduled by the scheduler (and ``retries`` covers errors around
+the frame function), so no frame is lost.
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import tempfile
+from pathlib import Path
+from typing import Callable, Iterator
+
+from .errors import BadValueError, InputError
+
+# Seconds to wait for an existing scheduler before saying it cannot be reached.
+CONNECT_TIMEOUT = 5.0
+# Retries of a task that raised outside the per-frame error handling (a worker lost mid-task
+# is rescheduled by the scheduler whatever this says: distributed.scheduler.allowed-failures).
+RETRIES = 2
+HINT = "install the distributed extra: pip install 'ibrtools[distributed]' (dask[distributed])"
+
+
+class MissingDaskError(InputError):
+    """--workers / --scheduler asked for but dask.distributed is not installed."""
+
+
+def check_options(scheduler: str | None, workers: int) -> None:
+    """Usage errors before any work: a negative worker count, both options at once."""
+    if isinstance(workers, bool) or not isinstance(workers, int):
+        raise BadValueError(f"--workers: expected a whole number, got {workers!r}")
+    if workers < 0:
+        raise BadValueError(f"--workers: expected a number of worker processes >= 0, got {workers}")
+    if scheduler is not None and workers:
+        raise BadValueError("--workers and --scheduler: give one (--workers N starts a local cluster, "
+                            "--scheduler ADDRESS uses an existing one)")
+    if scheduler is not None and (not isinstance(scheduler, str) or not scheduler.strip()):
+        raise BadValueError(f"--scheduler: expected an address such as tcp://host:8786, got {scheduler!r}")
+
+
+def wanted(scheduler: str | None, workers: int) -> bool:
+    return scheduler is not None or workers > 0
+
+
+def _import_distributed():
+    try:
+        import distributed
+    except ImportError:
+        raise MissingDaskError(f"--workers/--scheduler: distributed execution needs dask.distributed; {HINT}") \
+            from None
+    return distributed
+
+
+@contextlib.contextmanager
+def open_client(scheduler: str | None = None, workers: int = 0, *, threads_per_worker: int = 1) -> Iterator:
+    """A connected :class:`distributed.Client`: to ``scheduler`` (an existing cluster; a clear
+    error within :data:`CONNECT_TIMEOUT` s when it cannot be reached), or to a LocalCluster of
+    ``workers`` processes started here (and closed on the way out)."""
+    check_options(scheduler, workers)
+    if not wanted(scheduler, workers):
+        raise BadValueError("open_client: give scheduler=ADDRESS or workers=N")
+    distributed = _import_distributed()
+    if scheduler is not None:
+        try:
+            client = distributed.Client(scheduler, timeout=CONNECT_TIMEOUT, set_as_default=False)
+        except (OSError, TimeoutError, ValueError, TypeError) as e:
+            raise BadValueError(f"--scheduler {scheduler}: cannot connect ({e})") from None
+        try:
+            yield client
+        finally:
+            client.close()
+        return
+    cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=threads_per_worker, processes=True,
+                                       host="127.0.0.1", dashboard_address=None, silence_logs=logging.ERROR,
+                                       # no dashboard; the scheduler's HTTP endpoint on loopback too
+                                       scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
+    try:
+        client = distributed.Client(cluster, set_as_default=False)
+        try:
+            yield client
+        finally:
+            client.close()
+    finally:
+        cluster.close()
+
+
+def describe(client, scheduler: str | None) -> dict:
+    """The cluster for the report: scheduler ("local" for --workers), worker count, threads."""
+    info = client.scheduler_info(n_workers=-1) if _takes_n_workers(client) else client.scheduler_info()
+    ws = info.get("workers", {})
+    return {"scheduler": scheduler or "local", "workers": len(ws),
+            "threads_per_worker": sorted({int(w.get("nthreads", 1)) for w in ws.values()})}
+
+
+def _takes_n_workers(client) -> bool:
+    import inspect
+
+    try:
+        return "n_workers" in inspect.signature(client.scheduler_info).parameters
+    except (TypeError, ValueError):
+        return False
+
+
+# ---------------------------------------------------------------------------------------------
+# Worker side: what a task does. Module-level functions, so that workers import them by name.
+
+_PREPARED: dict[str, tuple] = {}
+
+
+def _engine_threads(threads: int) -> int:
+    """Engine threads of a task on this worker: ``threads`` when given (-j), else this machine's
+    cores shared among the tasks the worker runs at once."""
+    if threads > 0:
+        return threads
+    try:
+        from distributed import get_worker
+
+        nthreads = max(1, int(get_worker().state.nthreads))
+    except (ImportError, ValueError, AttributeError):
+        nthreads = 1
+    return max(1, (os.cpu_count() or 1) // nthreads)
+
+
+def scene_stamp(root: str | os.PathLike) -> list:
+    """What identifies a scene's version on disk: scene.json's size and modification time (any
+    stage or re-import rewrites it), so a long-lived worker never reuses a stale preparation."""
+    st = (Path(root) / "scene.json").stat()
+    return [st.st_size, st.st_mtime_ns]
+
+
+def _prepared(spec: dict):
+    """(job, method, setup_ms, prepared_now) for ``spec`` on this worker, prepared once."""
+    from . import _core
+    from .formats import native
+    from .render import job as render_job
+    from .render import methods
+
+    key = json.dumps([spec["root"], spec["stamp"], spec["plan"], spec["method"], spec["params"],
+                      spec["threads"]], sort_keys=True, default=str)
+    hit = _PREPARED.get(key)
+    if hit is not None:
+        return (*hit, False)
+    _PREPARED.clear()  # one preparation per worker: the inputs of another job are freed
+    _core.set_num_threads(_engine_threads(spec["threads"]))
+    scene = native.load(spec["root"])
+    job = render_job.plan(scene, **spec["plan"])
+    method = methods.create(spec["method"], spec["params"])
+    setup = method.prepare(job.scene)
+    _PREPARED[key] = (job, method, setup)
+    return job, method, setup, True
+
+
+def encode_outputs(outputs: list[tuple[str, str, object]]) -> dict[str, bytes]:
+    """A frame's outputs [(file name, kind, array)] as file bytes, written by the very writer
+    of a local run (:func:`ibrtools.render.job.write_output`) into a scratch directory."""
+    from .render.job import write_output
+
+    files: dict[str, bytes] = {}
+    with tempfile.TemporaryDirectory(prefix="ibr-task-") as d:
+        for rel, kind, array in outputs:
+            path = write_output(Path(d), rel, kind, array)
+            files[rel] = path.read_bytes()
+            path.unlink()
+    return files
+
+
+def render_task(spec: dict, indices: list[int], names: list[str]) -> dict:
+    """A Dask task: render frames ``indices`` of the job ``spec`` describes. Returns {"frames":
+    [(index, entry or None, failure or None, files)], "setup_ms" (when this task prepared),
+    "threads"}, or {"error": exception} when the scene or the method cannot be prepared."""
+    from . import _core
+    from .render.job import render_frame
+
+    try:
+        job, method, setup, fresh = _prepared(spec)
+        got = [job.frames[i].name for i in indices] if max(indices) < len(job.frames) else None
+        if got != names:
+            raise BadValueError(f"the worker planned other frames than the client ({got} != {names}): "
+                                "the scene changed on disk, or the workers see another scene at "
+                                f"{spec['root']}")
+    except Exception as e:  # noqa: BLE001 - sent back and raised on the client (one error, no retries)
+        return {"error": e}
+    out = []
+    for i in indices:
+        entry, failure, outputs = render_frame(method, job.frames[i], **spec["frame"])
+        out.append((i, entry, failure, encode_outputs(outputs) if outputs else {}))
+    return {"frames": out, "setup_ms": setup if fresh else None, "threads": int(_core.get_num_threads())}
+
+
+def run_frames(client, job, spec: dict, chunks: list[list[int]], on_frame: Callable) -> dict:
+    """Submit one task per chunk of frame indices; call ``on_frame(index, entry, failure, files)``
+    on the client as frames complete (completion order). Returns {"setup_ms", "threads"} of
+    the workers. Futures are cancelled on any way out (an interrupt included)."""
+    from distributed import as_completed
+
+    import uuid
+
+    token = uuid.uuid4().hex[:10]
+    futures = [client.submit(render_task, spec, c, [job.frames[i].name for i in c], key=f"ibr-render-{token}-{k}",
+                             retries=RETRIES, pure=False) for k, c in enumerate(chunks)]
+    info: dict = {"setup_ms": None, "threads": None}
+    try:
+        for fut in as_completed(futures, loop=client.loop):
+            res = fut.result()
+            fut.release()
+            if "error" in res:
+                raise res["error"]
+            if res.get("setup_ms") is not None and info["setup_ms"] is None:
+                info["setup_ms"] = res["setup_ms"]
+            info["threads"] = res["threads"]
+            for i, entry, failure, files in res["frames"]:
+                on_frame(i, entry, failure, files)
+    finally:
+        client.cancel([f for f in futures if not f.done()])
+    return info
+
+
+# --- preprocessing: per-view work of the stages that are per view ------------------------------
+
+def _chunks(items: list, n_workers: int, per_worker: int = 4) -> list[list]:
+    """Small chunks of ``items`` (about ``per_worker`` per worker, order kept)."""
+    k = max(1, min(len(items), n_workers * per_worker))
+    size = -(-len(items) // k)
+    return [items[i:i + size] for i in range(0, len(items), size)]
+
+
+def map_views(client, fn: Callable, root: str | os.PathLike, names: list[str], *args) -> dict:
+    """``fn(root, names_chunk, *args) -> {name: value}`` over chunks of ``names`` on the
+    cluster; the merged dict in the order of ``names``."""
+    n_workers = max(1, len(client.scheduler_info().get("workers", {})))
+    futures = [client.submit(fn, str(root), c, *args, retries=RETRIES, pure=False)
+               for c in _chunks(list(names), n_workers)]
+    try:
+        parts = client.gather(futures)
+    finally:
+        client.cancel([f for f in futures if not f.done()])
+    merged: dict = {}
+    for p in parts:
+        merged.update(p)
+    return {n: merged[n] for n in names}
+
+
+def set_task_threads(threads: int) -> None:
+    """At the start of a task: the engine's threads (see :func:`_engine_threads`)."""
+    from . import _core
+
+    _core.set_num_threads(_engine_threads(threads))
+
+
+class LazyClient:
+    """The cluster of a preprocessing run, started (or connected) on first use only, so that a
+    run whose per-view stages are up to date or skipped starts none. A context manager."""
+
+    def __init__(self, scheduler: str | None = None, workers: int = 0, threads: int = 0):
+        check_options(scheduler, workers)
+        self.scheduler, self.workers = scheduler, workers
+        # Engine threads per task: -j, else one per worker process of a local cluster.
+        self.task_threads = int(threads) if threads or scheduler is not None else 1
+        self._stack = contextlib.ExitStack()
+        self._client = None
+
+    def __enter__(self) -> "LazyClient":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._client = None
+        self._stack.close()
+
+    @property
+    def client(self):
+        if self._client is None:
+            self._client = self._stack.enter_context(open_client(self.scheduler, self.workers))
+        return self._client
+
+    def map_views(self, fn: Callable, root: str | os.PathLike, names: list[str], *args) -> dict:
+        """:func:`map_views` on this cluster; ``fn`` also receives the engine threads per task."""
+        return map_views(self.client, fn, root, names, *args, self.task_threads)
