@@ -374,7 +374,7 @@ def render_report(report: dict, out_dir: str | os.PathLike, path: str | os.PathL
                 hole = (m if m.ndim == 2 else m[..., 0]) > 0.5
         body.append(panel_html(frame_panel(f.get("name"), rendered, truth, selection=selection, hole=hole,
                                            stage_ms=stage, numbers=numbers, max_width=max_width)))
-    t = title or f"ibr-render --method {report.get('method')}: {len(frames)} frames"
+    t = title or f"ibr-render --method {report.get('method')}: {len(frames)} frame{'' if len(frames) == 1 else 's'}"
     return write_page(path, page(t, "".join(body)))
 
 
