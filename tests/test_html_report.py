@@ -112,6 +112,18 @@ def test_check_output_and_unwritable_page(tmp_path):
         R.write_page(tmp_path / "file.txt" / "r.html", "<html></html>")
 
 
+def test_unwritable_directory_is_refused(tmp_path, monkeypatch, capsys, scene_dir):
+    # Tests may run as root, for whom permission bits do not stop a write: os.access decides.
+    import os
+
+    monkeypatch.setattr(os, "access", lambda p, mode: False)
+    with pytest.raises(BadValueError, match="cannot write into"):
+        R.check_output(tmp_path / "r.html")
+    assert render.main([str(scene_dir), "--holdout", "v001", "--report-html", str(tmp_path / "r.html"),
+                        "-o", str(tmp_path / "out")]) == 2
+    assert "cannot write into" in capsys.readouterr().err and not (tmp_path / "out").exists()
+
+
 # --- the commands ---------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def scene_dir(tmp_path_factory):
