@@ -8,7 +8,7 @@ DEMO_DIR ?= demo-out
 # Persistent build dir (pyproject: build-dir) => incremental rebuilds.
 STAMP  := $(VENV)/.ibrtools-installed
 
-.PHONY: setup system-deps build test demo bench clean check-asan check-tsan
+.PHONY: setup system-deps build test typecheck demo bench clean check-asan check-tsan
 
 setup: system-deps $(STAMP)
 
@@ -27,8 +27,13 @@ $(STAMP): $(VENV)/bin/python pyproject.toml CMakeLists.txt $(shell find cpp pyth
 
 build: setup
 
-test: setup
+test: setup typecheck
 	$(PY) -m pytest -q -n 2 tests
+
+# mypy --strict on the typed public API, the _core stub and tests/typing_usage.py (pyproject
+# [tool.mypy]; docs/api.md); ~10 s from a cold cache. `make test` runs it first.
+typecheck: setup
+	$(PY) -m mypy
 
 # Sanitizers (docs/robustness.md): the extension built with ASan+UBSan (or TSan) in build/asan
 # (build/tsan), run against python/ibrtools from a staging dir; the normal .venv install is not

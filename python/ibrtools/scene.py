@@ -12,13 +12,16 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
 from .camera import Camera
 from .errors import BadValueError, DtypeError, ShapeError
 from .mesh import Mesh
+
+if TYPE_CHECKING:
+    from .api import CameraLike, RenderResult
 
 
 class _Lazy:
@@ -173,6 +176,14 @@ class Scene:
                         pts.append(np.stack([w.min(0), w.max(0)]))
         allp = np.concatenate(pts, 0)
         return np.stack([allp.min(0), allp.max(0)])
+
+    def render(self, camera: "CameraLike", method: str = "auto", **params: Any) -> "RenderResult":
+        """Render ``camera`` (a Camera, a target or view name, or a scene.json camera dict) with
+        ``method`` and its parameters; the method is prepared once and kept for later calls.
+        See :func:`ibrtools.api.render` (docs/api.md)."""
+        from .api import render
+
+        return render(self, camera, method, **params)
 
     def validate(self) -> None:
         """Check what loading lazily would otherwise find late: names unique, views present."""

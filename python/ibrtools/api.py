@@ -1,0 +1,294 @@
+"""The Python API in three calls: load a scene, pick a camera, render it.
+
+``load_scene(path)`` reads a native scene directory (what ``ibr-preprocess`` writes, docs/FORMAT.md);
+``Scene.render(camera, method="auto", **params)`` renders one camera with one of the novel-view
+methods of :mod:`ibrtools.render.methods` and returns a :class:`RenderResult`. The method is
+prepared (BVH builds, view-selection structures, ...) once per scene, method and parameters and
+kept, so rendering many cameras of one scene pays the setup once:
+
+>>> import tempfile
+>>> import ibrtools
+>>> from ibrtools import synth
+>>> from ibrtools.formats import native
+>>> folder = tempfile.mkdtemp()
+>>> _ = native.save(synth.make_scene("objects", size=(64, 48), views=4, holdout_targets=1,
+...                                  path_frames=2), folder + "/scene")
+>>> scene = ibrtools.load_scene(folder + "/scene")
+>>> [v.name for v in scene.views], [t.name for t in scene.targets]
+(['v000', 'v001', 'v002', 'v003'], ['t000'])
+>>> result = scene.render("t000", method="dibr", inputs=2)   # a target's name
+>>> result.method, result.color.shape, result.color.dtype, result.hole.shape
+('dibr', (48, 64, 3), dtype('float32'), (48, 64))
+>>> result.prepared                                          # this call prepared dibr
+True
+>>> again = scene.render(scene.paths["orbit"][0], method="dibr", inputs=2)   # a Camera
+>>> again.prepared                                           # ... this one reused it
+False
+>>> sorted(again.times_ms)                                   # the method's stages, in ms
+['blend', 'select', 'total', 'warp']
+
+A camera may also be a dict in the scene.json camera format, and ``look_at`` poses one:
+
+>>> cam = ibrtools.Camera.from_fov(64, 48, 60.0, ibrtools.look_at((0.0, 1.5, 6.0), (0.0, 0.5, 0.0)))
+>>> scene.render(cam.to_dict(), method="reference").color.shape
+(48, 64, 3)
+
+Bad input raises a typed error (:mod:`ibrtools.errors`) that names the argument:
+
+>>> scene.render("nowhere")
+Traceback (most recent call last):
+...
+ibrtools.errors.BadValueError: camera 'nowhere': not a target or view of the scene (targets: t000; views: v000, v001, v002, v003)
+>>> ibrtools.load_scene(folder + "/missing")
+Traceback (most recent call last):
+...
+ibrtools.errors.MissingFileError: load_scene: .../missing: no such directory
+"""
+from __future__ import annotations
+
+import math
+import os
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Union
+
+import numpy as np
+import numpy.typing as npt
+
+from .camera import Camera
+from .errors import BadValueError, DtypeError, FormatError, MissingFileError
+from .scene import Scene
+
+__all__ = ["CameraLike", "RenderResult", "clear_render_cache", "load_scene", "render", "resolve_camera"]
+
+#: What :meth:`Scene.render` accepts as a camera: a Camera, the name of one of the scene's
+#: targets or views, or a dict in the scene.json camera format (docs/FORMAT.md).
+CameraLike = Union[Camera, str, "dict[str, Any]"]
+
+SCENE_FILE = "scene.json"
+
+
+def load_scene(path: str | os.PathLike[str]) -> Scene:
+    """Read a native ibrtools scene directory (or its ``scene.json``); images load lazily.
+
+    Other data sets (COLMAP, NeRF, MPEG, Middlebury, RGB-D) are imported by
+    ``ibr-preprocess`` or :func:`ibrtools.formats.load`, which return the same :class:`Scene`.
+
+    Raises MissingFileError when ``path`` does not exist, FormatError when it is not a
+    scene directory (a file, a directory without ``scene.json``) or the scene is malformed.
+
+    >>> load_scene(__file__)
+    Traceback (most recent call last):
+    ...
+    ibrtools.errors.FormatError: load_scene: .../api.py: a file, not a scene directory (expected a directory holding scene.json)
+    """
+    if not isinstance(path, (str, os.PathLike)):
+        raise DtypeError(f"load_scene: path: expected a str or os.PathLike, got {type(path).__name__}")
+    p = Path(path)
+    if not p.exists():
+        raise MissingFileError(f"load_scene: {p}: no such directory")
+    if p.is_file() and p.name != SCENE_FILE:
+        raise FormatError(f"load_scene: {p}: a file, not a scene directory (expected a directory "
+                          f"holding {SCENE_FILE})")
+    if p.is_dir() and not (p / SCENE_FILE).is_file():
+        raise FormatError(f"load_scene: {p}: no {SCENE_FILE} in this directory (not an ibrtools scene; "
+                          "import other data sets with ibr-preprocess or ibrtools.formats.load)")
+    from .formats import native
+
+    scene: Scene = native.load(p)
+    return scene
+
+
+@dataclass(frozen=True, eq=False)
+class RenderResult:
+    """One rendered camera.
+
+    ``color`` (H, W, 3) float32 linear RGB, C-contiguous, black in holes (as the written images
+    of ``ibr-render``); ``depth`` (H, W) float32 (0 = unknown) and ``hole`` (H, W) bool (true =
+    no input covers the pixel) when the method gives them; ``selection`` (H, W, 3) float32 for
+    the hybrid method (red PVM, green TM, blue ULR per pixel); ``outputs`` every other array the
+    method returned (dibr: "confidence"). ``times_ms`` the method's stage times plus "total"
+    (wall time of this render); ``setup_ms`` the method's one-off preparation times;
+    ``prepared`` whether this call paid them (False when the prepared method was reused).
+    """
+
+    color: npt.NDArray[np.float32]
+    method: str
+    camera: Camera
+    depth: npt.NDArray[np.float32] | None = None
+    hole: npt.NDArray[np.bool_] | None = None
+    selection: npt.NDArray[np.float32] | None = None
+    outputs: dict[str, npt.NDArray[Any]] = field(default_factory=dict)
+    times_ms: dict[str, float] = field(default_factory=dict)
+    setup_ms: dict[str, float] = field(default_factory=dict)
+    prepared: bool = False
+
+    @property
+    def coverage(self) -> float:
+        """Fraction of pixels that are not holes (1.0 when the method reports no hole mask)."""
+        return 1.0 if self.hole is None else float(1.0 - self.hole.mean())
+
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write ``color`` to ``path`` (PNG: 8-bit sRGB; EXR: linear float32), atomically."""
+        from .imageio import write_image
+
+        p = Path(path)
+        write_image(p, self.color)
+        return p
+
+
+def resolve_camera(scene: Scene, camera: CameraLike) -> Camera:
+    """The Camera that ``camera`` names: itself, a target or view of ``scene`` by name (targets
+    first), or one read from a scene.json camera dict.
+
+    >>> resolve_camera(Scene(), {"model": "pinhole", "width": 8, "cam_from_world": np.eye(4).tolist()})
+    Traceback (most recent call last):
+    ...
+    ibrtools.errors.FormatError: camera: missing key 'height'
+    """
+    if isinstance(camera, Camera):
+        return camera
+    if isinstance(camera, str):
+        for group in (scene.targets, scene.views):
+            for v in group:
+                if v.name == camera:
+                    return v.camera
+        raise BadValueError(f"camera {camera!r}: not a target or view of the scene (targets: "
+                            f"{_some(t.name for t in scene.targets)}; views: {_some(v.name for v in scene.views)})")
+    if isinstance(camera, dict):
+        return Camera.from_dict(camera, "camera")
+    raise DtypeError(f"camera: expected a Camera, a target or view name (str) or a scene.json camera "
+                     f"dict, got {type(camera).__name__}")
+
+
+def render(scene: Scene, camera: CameraLike, method: str = "auto", **params: Any) -> RenderResult:
+    """Render ``camera`` of ``scene`` with ``method`` (:data:`ibrtools.render.methods.METHODS`;
+    "auto" picks one from the scene's data) and the method's parameters (as ``ibr-render
+    --param key=value``, e.g. ``inputs=2`` for dibr). Same as ``scene.render(...)``.
+
+    The method is prepared on the first call for a (method, parameters) pair and kept with the
+    scene (it goes with the scene; a pickled or copied scene starts afresh) while the scene's views and meshes are the same
+    objects; :func:`clear_render_cache` drops it. Calls on one scene are serialised (a lock):
+    the prepared methods reuse their frame buffers.
+
+    >>> render(Scene(), "t000", method="nerf")
+    Traceback (most recent call last):
+    ...
+    ibrtools.errors.BadValueError: method: unknown method 'nerf' (expected one of auto, reference, dibr, warp, depthwarp, tm, ulr, pvm, hybrid)
+    """
+    from .render import methods
+
+    if not isinstance(scene, Scene):
+        raise DtypeError(f"scene: expected an ibrtools.Scene, got {type(scene).__name__}")
+    if not isinstance(method, str):
+        raise DtypeError(f"method: expected a method name (str), got {type(method).__name__}")
+    if method not in methods.METHODS:
+        raise BadValueError(f"method: unknown method {method!r} (expected one of {', '.join(methods.METHODS)})")
+    cam = resolve_camera(scene, camera)
+    name = methods.resolve(method, scene)
+    cache = _cache_of(scene)
+    with cache.lock:
+        prepared, setup_ms, fresh = cache.method(scene, name, params)
+        t0 = time.perf_counter()
+        out, stage_ms = prepared.render(cam)
+        total_ms = (time.perf_counter() - t0) * 1e3
+    # As ibr-render writes its frames (render/job.py): no NaN/inf, holes black.
+    color = np.nan_to_num(np.asarray(out["color"], np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+    hole = out.get("hole")
+    if hole is not None:
+        hole = np.asarray(hole, bool)
+        color = np.where(hole[..., None], np.float32(0.0), color)
+    depth = out.get("depth")
+    selection = out.get("selection")
+    rest = {k: v for k, v in out.items() if k not in ("color", "depth", "hole", "selection")}
+    return RenderResult(
+        color=np.ascontiguousarray(color, np.float32), method=name, camera=cam,
+        depth=None if depth is None else np.ascontiguousarray(depth, np.float32), hole=hole,
+        selection=None if selection is None else np.ascontiguousarray(selection, np.float32),
+        outputs=rest, times_ms={**{k: float(v) for k, v in stage_ms.items()}, "total": total_ms},
+        setup_ms=dict(setup_ms), prepared=fresh)
+
+
+def clear_render_cache(scene: Scene) -> None:
+    """Forget the methods :meth:`Scene.render` prepared for ``scene`` (their memory is freed).
+    Needed after changing a scene in place other than by replacing views or meshes."""
+    scene.__dict__.pop(_ATTR, None)
+
+
+# --- the prepared methods of each scene -------------------------------------------------------------
+class _Cache:
+    def __init__(self) -> None:
+        self.lock = threading.RLock()
+        # (method, frozen params) -> (signature of the scene's inputs, method, setup times)
+        self.entries: dict[tuple[str, Any], tuple[tuple[Any, ...], Any, dict[str, float]]] = {}
+
+    def method(self, scene: Scene, name: str, params: dict[str, Any]) -> tuple[Any, dict[str, float], bool]:
+        from .render import methods
+
+        key = (name, _freeze(params))
+        # The objects themselves (held by the entry, so their ids cannot be reused meanwhile).
+        signature = (tuple(scene.views), tuple(scene.meshes.items()), scene.root)
+        hashable = key[1] is not _UNHASHABLE
+        entry = self.entries.get(key) if hashable else None
+        if entry is not None and _same(entry[0], signature):
+            return entry[1], entry[2], False
+        prepared = methods.create(name, dict(params))
+        setup = dict(prepared.prepare(scene))
+        if hashable:
+            self.entries[key] = (signature, prepared, setup)
+        return prepared, setup, True
+
+    def __reduce__(self) -> tuple[type[_Cache], tuple[()]]:
+        # A pickled or copied scene (Dask scatters scenes to workers) starts with an empty cache:
+        # prepared methods hold locks, BVHs and C++ objects that are not to be shipped.
+        return (_Cache, ())
+
+
+_CACHES_LOCK = threading.Lock()
+_UNHASHABLE = object()
+_ATTR = "_ibr_render_cache"
+
+
+def _cache_of(scene: Scene) -> _Cache:
+    """The scene's cache, kept as an attribute of the scene: it lives and dies with the scene
+    (a prepared method may hold the scene: a side table keyed by the scene would keep it alive)."""
+    with _CACHES_LOCK:
+        cache = scene.__dict__.get(_ATTR)
+        if not isinstance(cache, _Cache):
+            cache = _Cache()
+            scene.__dict__[_ATTR] = cache
+        return cache
+
+
+def _same(a: tuple[Any, ...], b: tuple[Any, ...]) -> bool:
+    views_a, meshes_a, root_a = a
+    views_b, meshes_b, root_b = b
+    return (len(views_a) == len(views_b) and all(x is y for x, y in zip(views_a, views_b))
+            and len(meshes_a) == len(meshes_b)
+            and all(ka == kb and ma is mb for (ka, ma), (kb, mb) in zip(meshes_a, meshes_b)) and root_a == root_b)
+
+
+def _freeze(value: Any) -> Any:
+    """A hashable, order-independent key for a parameter dict; _UNHASHABLE when there is none
+    (the method is then prepared for this call only)."""
+    if isinstance(value, dict):
+        items = [(k, _freeze(v)) for k, v in sorted(value.items(), key=lambda kv: str(kv[0]))]
+        return _UNHASHABLE if any(v is _UNHASHABLE for _, v in items) else ("dict", tuple(items))
+    if isinstance(value, (list, tuple)):
+        items2 = [_freeze(v) for v in value]
+        return _UNHASHABLE if any(v is _UNHASHABLE for v in items2) else ("seq", tuple(items2))
+    if isinstance(value, float) and math.isnan(value):
+        return ("nan",)
+    try:
+        hash(value)
+    except TypeError:
+        return _UNHASHABLE
+    return (type(value).__name__, value)
+
+
+def _some(names: Any, k: int = 8) -> str:
+    names = list(names)
+    return ", ".join(names[:k]) + (f", ... ({len(names)} in all)" if len(names) > k else "") or "none"
+
