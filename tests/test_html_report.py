@@ -173,6 +173,15 @@ def test_render_report_caps_frames_and_shrinks(scene_dir, tmp_path):
     assert max(w for w in widths if w != 256) <= 20  # the colour bar strip (256) aside
 
 
+def test_render_report_names_failed_frames(scene_dir, tmp_path):
+    out = tmp_path / "o"
+    assert render.main([str(scene_dir), "--method", "reference", "--holdout", "v001", "-o", str(out), "-q"]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    rep["failed"] = [{"name": "p<1>", "error": "BadValueError: x & y"}]  # as a distributed run reports them
+    page = R.render_report(rep, out, tmp_path / "r.html").read_text()
+    assert "<li>p&lt;1&gt;: BadValueError: x &amp; y</li>" in page and "failed frames" in page
+
+
 def test_render_report_html_bad_path(scene_dir, tmp_path, capsys):
     (tmp_path / "file.txt").write_text("x")
     for target, msg in ((tmp_path / "file.txt" / "r.html", "not a directory"), (tmp_path, "is a directory")):

@@ -340,8 +340,9 @@ def render_report(report: dict, out_dir: str | os.PathLike, path: str | os.PathL
     if s.get("setup_ms"):
         body.append("<p>setup (once per run)</p>" + stage_bars(s["setup_ms"]))
     if failed:
-        names = ", ".join(str(f.get("name", f)) if isinstance(f, dict) else str(f) for f in failed)
-        body.append(f'<p class="fail">failed frames: {esc(names)}</p>')
+        items = "".join(f"<li>{esc(f.get('name', '?'))}: {esc(f.get('error', ''))}</li>" if isinstance(f, dict)
+                        else f"<li>{esc(f)}</li>" for f in failed)
+        body.append(f'<div class="fail">failed frames (not rendered; the others were):<ul>{items}</ul></div>')
     body.append("<h2>Frames</h2>")
     if len(shown) < len(frames):
         body.append(f'<p class="note">Showing {len(shown)} of {len(frames)} frames (evenly spaced, first and '
