@@ -280,10 +280,11 @@ def page(title: str, body: str) -> str:
 
 
 def check_output(path: str | os.PathLike, flag: str = "--report-html") -> Path:
-    """Fail early (before any rendering) when the page cannot be written at ``path``."""
+    """Fail early (before any rendering) when a file cannot be written at ``path`` (a
+    directory; a parent that is a file; a folder this process may not write into)."""
     p = Path(path)
     if p.is_dir():
-        raise BadValueError(f"{flag} {p}: is a directory (give a file name, e.g. {p / 'report.html'})")
+        raise BadValueError(f"{flag} {p}: is a directory (give a file name)")
     probe = p.parent
     while not probe.exists() and probe != probe.parent:
         probe = probe.parent

@@ -117,25 +117,15 @@ def require_video() -> None:
 
 
 def check_video_path(path: str | os.PathLike) -> Path:
-    """The MP4 path: ends in .mp4, is not a directory, and its folder can be written."""
+    """The MP4 path: not a directory, ends in .mp4, and its folder can be written."""
+    from ..report_html import check_output
+
     p = Path(path)
     if p.is_dir():
         raise BadValueError(f"--mp4 {p}: is a directory")
     if p.suffix.lower() != ".mp4":
         raise BadValueError(f"--mp4 {p}: expected a file name ending in .mp4")
-    _check_writable_parent(p, "--mp4")
-    return p
-
-
-def _check_writable_parent(p: Path, flag: str) -> None:
-    parent = p.parent if str(p.parent) else Path(".")
-    probe = parent
-    while not probe.exists():
-        probe = probe.parent
-    if not probe.is_dir():
-        raise BadValueError(f"{flag} {p}: {probe} is not a directory")
-    if not os.access(probe, os.W_OK | os.X_OK):
-        raise BadValueError(f"{flag} {p}: cannot write into {probe}")
+    return check_output(p, "--mp4")
 
 
 def write_mp4(images: list[str | os.PathLike], path: str | os.PathLike, *, fps: float = 24.0) -> Path:
