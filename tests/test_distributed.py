@@ -292,3 +292,53 @@ def test_lazy_client_starts_nothing_unused():
         assert lc._client is None and lc.task_threads == 1
     with pytest.raises(BadValueError):
         D.LazyClient(None, -2)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_interrupted_distributed_render_leaves_nothing(scene_dir, tmp_path, sig):
+    # All or nothing as a local run: interrupted once frames are written (SIGINT to the whole
+    # process group, as Ctrl-C in a terminal does; SIGTERM to the command alone), the command
+    # exits 130 / 143, removes every file it wrote and stops its workers.
+    import subprocess
+    import sys
+
+    cam = native.load(scene_dir).views[0].camera.to_dict()
+    s = 160 / cam["width"]
+    cam.update(width=160, height=120, fx=cam["fx"] * s, fy=cam["fy"] * s, cx=cam["cx"] * s, cy=cam["cy"] * s)
+    poses = tmp_path / "poses.json"
+    poses.write_text(json.dumps([dict(cam, name=f"f{i:04d}") for i in range(2000)]))
+    out = tmp_path / "out"
+    argv = [sys.executable, "-c", "import sys; from ibrtools_cli.render import main; sys.exit(main())",
+            str(scene_dir), "--method", "dibr", "--poses", str(poses), "--workers", "2", "-o", str(out), "-q"]
+    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
+    try:
+        t0 = time.monotonic()
+        while not (out / "f0003.png").exists():
+            assert proc.poll() is None, proc.stderr.read().decode()[-800:]
+            assert time.monotonic() - t0 < 120, "no frame written after 120 s"
+            time.sleep(0.05)
+        if sig == signal.SIGINT:
+            os.killpg(proc.pid, sig)
+        else:
+            proc.send_signal(sig)
+        code = proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    err = proc.stderr.read().decode()
+    assert code == {signal.SIGINT: 130, signal.SIGTERM: 143}[sig], err[-800:]
+    left = sorted(p.name for p in out.iterdir()) if out.exists() else []
+    assert not left, f"interrupted render left {left[:8]}"
+    assert "Traceback" not in err  # the workers ignore SIGINT: no worker's traceback on the terminal
+    # No worker process of the command's survives it: its process group empties (an exited
+    # worker is reaped by init a moment later).
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 20:
+        try:
+            os.killpg(proc.pid, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.2)
+    else:
+        pytest.fail("worker processes of the interrupted command are still running after 20 s")

@@ -189,5 +189,5 @@ def add_distributed(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--workers", type=int, default=0, metavar="N",
                    help="start a local Dask cluster of N worker processes (one engine thread each unless -j)")
     g.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                   help="run on an existing Dask cluster, e.g. tcp://10.0.0.5:8786 (the workers must see the "
+                   help="run on an existing Dask cluster, e.g. tcp://HOST:8786 (the workers must see the "
                         "scene at the same path)")

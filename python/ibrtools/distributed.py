@@ -93,11 +93,30 @@ def open_client(scheduler: str | None = None, workers: int = 0, *, threads_per_w
     try:
         client = distributed.Client(cluster, set_as_default=False)
         try:
+            # Ctrl-C reaches the whole process group: the command handles it (all or nothing,
+            # then stops the cluster), so its workers ignore it (new ones too: a plugin).
+            client.register_plugin(_ignore_sigint_plugin(), name="ibrtools-ignore-sigint")
             yield client
         finally:
             client.close()
     finally:
         cluster.close()
+
+
+def _ignore_sigint_plugin():
+    """A worker plugin that makes the worker process ignore SIGINT (defined here, not at module
+    level, so that importing this module does not import dask)."""
+    from distributed.diagnostics.plugin import WorkerPlugin
+
+    class IgnoreSigint(WorkerPlugin):
+        def setup(self, worker) -> None:
+            import signal
+            import threading
+
+            if threading.current_thread() is threading.main_thread():
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    return IgnoreSigint()
 
 
 def describe(client, scheduler: str | None) -> dict:
@@ -182,8 +201,9 @@ def encode_outputs(outputs: list[tuple[str, str, object]]) -> dict[str, bytes]:
 
 def render_task(spec: dict, indices: list[int], names: list[str]) -> dict:
     """A Dask task: render frames ``indices`` of the job ``spec`` describes. Returns {"frames":
-    [(index, entry or None, failure or None, files)], "setup_ms" (when this task prepared),
-    "threads"}, or {"error": exception} when the scene or the method cannot be prepared."""
+    [(index, entry or None, failure or None, files)], "setup_ms" (of the worker's preparation),
+    "prepared" (whether this task made it), "threads"}, or {"error": exception} when the scene
+    or the method cannot be prepared."""
     from . import _core
     from .render.job import render_frame
 
@@ -200,7 +220,7 @@ def render_task(spec: dict, indices: list[int], names: list[str]) -> dict:
     for i in indices:
         entry, failure, outputs = render_frame(method, job.frames[i], **spec["frame"])
         out.append((i, entry, failure, encode_outputs(outputs) if outputs else {}))
-    return {"frames": out, "setup_ms": setup if fresh else None, "threads": int(_core.get_num_threads())}
+    return {"frames": out, "setup_ms": setup, "prepared": fresh, "threads": int(_core.get_num_threads())}
 
 
 def run_frames(client, job, spec: dict, chunks: list[list[int]], on_frame: Callable) -> dict:
@@ -221,8 +241,8 @@ def run_frames(client, job, spec: dict, chunks: list[list[int]], on_frame: Calla
             fut.release()
             if "error" in res:
                 raise res["error"]
-            if res.get("setup_ms") is not None and info["setup_ms"] is None:
-                info["setup_ms"] = res["setup_ms"]
+            if info["setup_ms"] is None or res["prepared"]:
+                info["setup_ms"] = res["setup_ms"]  # a preparation of this job, else the reused one
             info["threads"] = res["threads"]
             for i, entry, failure, files in res["frames"]:
                 on_frame(i, entry, failure, files)
