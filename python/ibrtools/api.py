@@ -43,6 +43,7 @@ ibrtools.errors.BadValueError: camera 'nowhere': not a target or view of the sce
 Traceback (most recent call last):
 ...
 ibrtools.errors.MissingFileError: load_scene: .../missing: no such directory
+>>> import shutil; shutil.rmtree(folder)
 """
 from __future__ import annotations
 
