@@ -7,7 +7,6 @@ import re
 import shutil
 import struct
 import subprocess
-import zlib
 from pathlib import Path
 
 import numpy as np
@@ -23,22 +22,14 @@ SRC = re.compile(r'<img[^>]*\ssrc="([^"]*)"')
 
 
 def _decode_png(data: bytes) -> np.ndarray:
-    """A minimal decoder of the PNGs encode_png writes (8-bit, grey or RGB, filter 0)."""
+    """Decode PNG bytes with Pillow (an implementation independent of the OpenImageIO encoder)."""
+    import io
+
+    from PIL import Image
+
     assert data[:8] == b"\x89PNG\r\n\x1a\n"
-    pos, idat, w = 8, b"", 0
-    while pos < len(data):
-        n, kind = struct.unpack(">I4s", data[pos:pos + 8])
-        body = data[pos + 8:pos + 8 + n]
-        assert struct.unpack(">I", data[pos + 8 + n:pos + 12 + n])[0] == zlib.crc32(kind + body) & 0xFFFFFFFF
-        if kind == b"IHDR":
-            w, h, _depth, ctype = struct.unpack(">IIBB", body[:10])
-            c = 3 if ctype == 2 else 1
-        elif kind == b"IDAT":
-            idat += body
-        pos += 12 + n
-    raw = np.frombuffer(zlib.decompress(idat), np.uint8).reshape(h, 1 + w * c)
-    assert (raw[:, 0] == 0).all()
-    return raw[:, 1:].reshape(h, w, c)
+    a = np.asarray(Image.open(io.BytesIO(data)))
+    return a if a.ndim == 3 else a[..., None]
 
 
 def _images(page: str) -> list[tuple[int, int]]:

@@ -263,10 +263,10 @@ class Camera:
     def from_dict(cls, d: Any, where: str = "camera") -> "Camera":
         if not isinstance(d, dict):
             raise FormatError(f"{where}: expected a JSON object, got {type(d).__name__}")
+        if "cam_from_world" not in d:
+            raise FormatError(f"{where}: missing 'cam_from_world'")
         try:
             model = d.get("model", PINHOLE)
-            if "cam_from_world" not in d:
-                raise FormatError(f"{where}: missing 'cam_from_world'")
             pose = check_rigid(d["cam_from_world"], f"{where}.cam_from_world")
             if model == PINHOLE:
                 return cls.pinhole(d["width"], d["height"], d["fx"], d["fy"], d["cx"], d["cy"], pose)

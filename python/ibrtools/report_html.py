@@ -1,8 +1,7 @@
 """Self-contained HTML reports of render jobs and parameter sweeps (``ibr-render --report-html``,
 ``ibr-bench``; docs/reports.md).
 
-One page, nothing outside it: images are embedded as base64 PNG (encoded here with numpy and zlib,
-no imaging library needed), bars are plain HTML/CSS, the only script is a check that every image
+One page, nothing outside it: images are embedded as base64 PNG (encoded by OpenImageIO), bars are plain HTML/CSS, the only script is a check that every image
 decoded (it sets ``data-images-ok="k/n"`` on ``<body>`` and shows a warning when k < n).
 
 Per frame: the rendered view beside the ground truth, an error heat map (the FLIP map when
@@ -17,8 +16,6 @@ from __future__ import annotations
 import base64
 import html
 import os
-import struct
-import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -37,7 +34,12 @@ _MAGMA = np.array([[0, 0, 4], [28, 16, 68], [79, 18, 123], [129, 37, 129], [181,
 
 # --- images -------------------------------------------------------------------------------------
 def encode_png(image: np.ndarray) -> bytes:
-    """8-bit PNG bytes of a uint8 image (H, W) grey or (H, W, 3) RGB (filter 0, zlib level 6)."""
+    """8-bit PNG bytes of a uint8 image (H, W) grey or (H, W, 3) RGB, written by OpenImageIO (the
+    project's image I/O) into a temporary file and read back."""
+    import tempfile
+
+    import OpenImageIO as oiio
+
     a = np.asarray(image)
     if a.dtype != np.uint8:
         raise BadValueError(f"encode_png: expected uint8, got {a.dtype}")
@@ -46,14 +48,15 @@ def encode_png(image: np.ndarray) -> bytes:
     if a.ndim != 3 or a.shape[2] not in (1, 3) or a.shape[0] < 1 or a.shape[1] < 1:
         raise ShapeError(f"encode_png: expected (H, W) or (H, W, 3), got {np.asarray(image).shape}")
     h, w, c = a.shape
-    raw = np.concatenate([np.zeros((h, 1), np.uint8), np.ascontiguousarray(a).reshape(h, w * c)], axis=1)
+    with tempfile.TemporaryDirectory(prefix="ibr-png-") as tmp:
+        path = os.path.join(tmp, "image.png")
+        out = oiio.ImageOutput.create(path)
+        if out is None or not out.open(path, oiio.ImageSpec(w, h, c, oiio.UINT8)) \
+                or not out.write_image(np.ascontiguousarray(a)) or not out.close():
+            from .errors import InternalError
 
-    def chunk(kind: bytes, data: bytes) -> bytes:
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
-
-    ihdr = struct.pack(">IIBBBBB", w, h, 8, 2 if c == 3 else 0, 0, 0, 0)
-    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(raw.tobytes(), 6))
-            + chunk(b"IEND", b""))
+            raise InternalError(f"encode_png: OpenImageIO could not write a PNG: {oiio.geterror()}")
+        return Path(path).read_bytes()
 
 
 def data_uri(png: bytes) -> str:
