@@ -70,6 +70,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="per-view, per-channel white-balance jitter (std of the log gain; default 0)")
     g.add_argument("--reconstructed", action="store_true",
                    help="also store a degraded 'reconstructed' copy of the mesh")
+    g.add_argument("--frames", type=int, default=1, metavar="N",
+                   help="a video scene of N frames, the objects moving (default 1: a still scene; "
+                        "docs/FORMAT.md \"Frames\")")
     add_common(p)
     add_distributed(p)
     return p
@@ -92,6 +95,8 @@ def _body(args: argparse.Namespace) -> int:
                              f"{', '.join('synth:' + k for k in PRESETS)})")
         if args.views < 1:
             raise InputError(f"--views: expected at least 1, got {args.views}")
+        if args.frames < 1:
+            raise InputError(f"--frames: expected at least 1, got {args.frames}")
         synth = {"preset": preset, "size": list(args.size), "views": args.views, "seed": args.seed,
                  "reconstructed": bool(args.reconstructed)}
         # Only when set, so that the import key of scenes made without jitter is unchanged.
@@ -100,6 +105,8 @@ def _body(args: argparse.Namespace) -> int:
                 raise InputError(f"--{key.replace('_', '-').replace('white-balance', 'wb')}: expected >= 0, got {value}")
             if value > 0:
                 synth[key] = value
+        if args.frames > 1:  # only then: the import key of still scenes is unchanged
+            synth["frames"] = args.frames
     methods = parse_methods(args.methods)
     stages = parse_stages(args.stages)
     stage_options = parse_stage_options(args.stage_set)

@@ -163,15 +163,17 @@ def scene_stamp(root: str | os.PathLike) -> list:
     return [st.st_size, st.st_mtime_ns]
 
 
-def _prepared(spec: dict):
-    """(job, method, setup_ms, prepared_now) for ``spec`` on this worker, prepared once."""
+def _prepared(spec: dict, scene_frame: str | None = None):
+    """(job, method, setup_ms, prepared_now) for ``spec`` (and, in a video scene, its frame
+    ``scene_frame``) on this worker, prepared once."""
     from . import _core
     from .formats import native
     from .render import job as render_job
     from .render import methods
 
+    frame_stamp = scene_stamp(Path(spec["root"]) / "frames" / scene_frame) if scene_frame else None
     key = json.dumps([spec["root"], spec["stamp"], spec["plan"], spec["method"], spec["params"],
-                      spec["threads"]], sort_keys=True, default=str)
+                      spec["threads"], scene_frame, frame_stamp], sort_keys=True, default=str)
     hit = _PREPARED.get(key)
     if hit is not None:
         return (*hit, False)
@@ -180,7 +182,7 @@ def _prepared(spec: dict):
     scene = native.load(spec["root"])
     job = render_job.plan(scene, **spec["plan"])
     method = methods.create(spec["method"], spec["params"])
-    setup = method.prepare(job.scene)
+    setup = method.prepare(job.scene if scene_frame is None else job.scenes[scene_frame])
     _PREPARED[key] = (job, method, setup)
     return job, method, setup, True
 
@@ -199,7 +201,7 @@ def encode_outputs(outputs: list[tuple[str, str, object]]) -> dict[str, bytes]:
     return files
 
 
-def render_task(spec: dict, indices: list[int], names: list[str]) -> dict:
+def render_task(spec: dict, indices: list[int], names: list[str], scene_frames: list[str | None]) -> dict:
     """A Dask task: render frames ``indices`` of the job ``spec`` describes. Returns {"frames":
     [(index, entry or None, failure or None, files)], "setup_ms" (of the worker's preparation),
     "prepared" (whether this task made it), "threads"}, or {"error": exception} when the scene
@@ -207,20 +209,22 @@ def render_task(spec: dict, indices: list[int], names: list[str]) -> dict:
     from . import _core
     from .render.job import render_frame
 
-    try:
-        job, method, setup, fresh = _prepared(spec)
-        got = [job.frames[i].name for i in indices] if max(indices) < len(job.frames) else None
-        if got != names:
-            raise BadValueError(f"the worker planned other frames than the client ({got} != {names}): "
-                                "the scene changed on disk, or the workers see another scene at "
-                                f"{spec['root']}")
-    except Exception as e:  # noqa: BLE001 - sent back and raised on the client (one error, no retries)
-        return {"error": e}
     out = []
-    for i in indices:
+    fresh_any = False
+    for i, name, scene_frame in zip(indices, names, scene_frames):
+        try:  # cached after the first frame (of each scene frame, in a video)
+            job, method, setup, fresh = _prepared(spec, scene_frame)
+            got = job.frames[i].name if i < len(job.frames) else None
+            if got != name:
+                raise BadValueError(f"the worker planned other frames than the client ({got} != {name}): "
+                                    "the scene changed on disk, or the workers see another scene at "
+                                    f"{spec['root']}")
+        except Exception as e:  # noqa: BLE001 - sent back and raised on the client (one error, no retries)
+            return {"error": e}
+        fresh_any |= fresh
         entry, failure, outputs = render_frame(method, job.frames[i], **spec["frame"])
         out.append((i, entry, failure, encode_outputs(outputs) if outputs else {}))
-    return {"frames": out, "setup_ms": setup, "prepared": fresh, "threads": int(_core.get_num_threads())}
+    return {"frames": out, "setup_ms": setup, "prepared": fresh_any, "threads": int(_core.get_num_threads())}
 
 
 def run_frames(client, job, spec: dict, chunks: list[list[int]], on_frame: Callable) -> dict:
@@ -232,7 +236,8 @@ def run_frames(client, job, spec: dict, chunks: list[list[int]], on_frame: Calla
     import uuid
 
     token = uuid.uuid4().hex[:10]
-    futures = [client.submit(render_task, spec, c, [job.frames[i].name for i in c], key=f"ibr-render-{token}-{k}",
+    futures = [client.submit(render_task, spec, c, [job.frames[i].name for i in c],
+                             [job.frames[i].scene_frame for i in c], key=f"ibr-render-{token}-{k}",
                              retries=RETRIES, pure=False) for k, c in enumerate(chunks)]
     info: dict = {"setup_ms": None, "threads": None}
     try:

@@ -141,6 +141,10 @@ class Scene:
     # Records of the preprocessing stages that produced this scene (stages.py): name -> record.
     stages: dict = field(default_factory=dict)
     root: Path | None = None
+    # A video scene (docs/FORMAT.md "Frames"): the names of its frames, in time order; frame F is
+    # a still scene of its own (views, meshes, targets with ground truth at that instant) in
+    # root/frames/F/, loaded by :meth:`frame`. Empty for a still scene (a one-frame scene).
+    frames: list[str] = field(default_factory=list)
 
     def view(self, name: str) -> View:
         for v in self.views:
@@ -185,9 +189,20 @@ class Scene:
 
         return render(self, camera, method, **params)
 
+    def frame(self, name: str) -> "Scene":
+        """Frame ``name`` of a video scene, as a still scene (loaded from root/frames/<name>/)."""
+        if name not in self.frames:
+            have = _some(self.frames) if self.frames else "none: a still scene"
+            raise BadValueError(f"frame {name!r}: not in the scene (frames: {have})")
+        if self.root is None:
+            raise BadValueError(f"frame {name!r}: the video scene has no directory to load its frames from")
+        from .formats import native
+
+        return native.load(Path(self.root) / "frames" / name)
+
     def validate(self) -> None:
         """Check what loading lazily would otherwise find late: names unique, views present."""
-        if not self.views and not self.targets:
+        if not self.views and not self.targets and not self.frames:
             raise BadValueError("scene: empty (no views and no targets)")
         names = [v.name for v in self.views] + [t.name for t in self.targets]
         dup = sorted({n for n in names if names.count(n) > 1})

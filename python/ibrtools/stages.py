@@ -91,6 +91,20 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
         return StageResult("import", "up to date", "inputs and parameters unchanged", 0.0,
                            {"views": record.get("views"), "targets": record.get("targets")})
     t0 = time.perf_counter()
+    if synth is not None and synth.get("frames", 1) > 1:  # a synthetic video (docs/FORMAT.md "Frames")
+        from .synth import make_video
+
+        video, frames = make_video(**synth)
+        fmt_used = f"synth:{synth['preset']}"
+        video.stages["import"] = {"key": key, "format": fmt_used, "frames": len(frames),
+                                  "views": len(next(iter(frames.values())).views), "targets": len(video.targets),
+                                  "seconds": round(time.perf_counter() - t0, 4)}
+        native.save_video(video, frames, output)
+        seconds = time.perf_counter() - t0
+        reason = "forced" if force else ("inputs changed" if record else "no scene yet")
+        return StageResult("import", "ran", f"{reason}; {fmt_used}, {len(frames)} frames", seconds,
+                           {"frames": len(frames), "views": video.stages["import"]["views"],
+                            "targets": len(video.targets)})
     if synth is not None:
         from .synth import make_scene
 
@@ -656,8 +670,14 @@ def preprocess(input_spec: str, output: str | os.PathLike, *, fmt: str | None = 
     results = [run_import(input_spec, Path(output), fmt=fmt, options=options, synth=synth, force=force)]
     if stages == []:
         return results
-    results += run_stages(output, methods=methods, stages=stages, force=force, options=stage_options,
-                          progress=progress, scheduler=scheduler, workers=workers, threads=threads)
+    doc = _read_doc(Path(output))
+    for frame in doc.get("frames") or [None]:  # a video scene: the stages of every frame, in order
+        rows = run_stages(Path(output) if frame is None else Path(output) / "frames" / frame, methods=methods,
+                          stages=stages, force=force, options=stage_options, progress=progress,
+                          scheduler=scheduler, workers=workers, threads=threads)
+        for r in rows:
+            r.name = r.name if frame is None else f"{frame}/{r.name}"
+        results += rows
     return results
 
 

@@ -19,6 +19,7 @@ Building blocks, all vectorised numpy (no per-triangle Python loops):
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,7 +42,8 @@ PRESETS: dict[str, str] = {
 
 UP = np.array([0.0, 1.0, 0.0])
 # Independent random streams per purpose: changing e.g. the jitter never changes the geometry.
-_STREAM = {"geometry": 1, "textures": 2, "cameras": 3, "jitter": 4, "depth_noise": 5, "reconstructed": 6}
+_STREAM = {"geometry": 1, "textures": 2, "cameras": 3, "jitter": 4, "depth_noise": 5, "reconstructed": 6,
+           "motion": 7}
 
 
 def _rng(seed: int, stream: str) -> np.random.Generator:
@@ -746,7 +748,7 @@ def reconstructed_mesh(mesh: Mesh, *, seed: int, thin_object: int | None = None,
 def make_scene(preset: str, *, size: Sequence[int] = (480, 360), views: int = 12, seed: int = 0,
                holdout_targets: int = 3, exposure_jitter: float = 0.0, white_balance_jitter: float = 0.0,
                depth_noise: float = 0.0, reconstructed: bool = False,
-               extra_meshes: Sequence[str | Path] = (), path_frames: int = 48) -> Scene:
+               extra_meshes: Sequence[str | Path] = (), path_frames: int = 48, time: float = 0.0) -> Scene:
     """Render a synthetic scene (see docs/synth.md).
 
     Inputs ``views`` "v000", "v001", ... (colour + z-depth rendered from the ground-truth mesh;
@@ -755,7 +757,9 @@ def make_scene(preset: str, *, size: Sequence[int] = (480, 360), views: int = 12
     paths (``path_frames`` cameras each, not rendered), meshes "ground_truth" and, with
     ``reconstructed=True``, a degraded "reconstructed" copy. ``size`` is (width, height).
     ``exposure_jitter`` / ``white_balance_jitter``: standard deviation of log gains per view /
-    per channel; ``depth_noise``: standard deviation of the multiplicative depth error."""
+    per channel; ``depth_noise``: standard deviation of the multiplicative depth error.
+    ``time``: the instant of a video frame (:func:`make_video`): every object but the ground
+    (object id 0) is moved by ``time`` times its own velocity (:func:`move_objects`)."""
     if not isinstance(preset, str) or preset not in PRESETS:
         raise BadValueError(f"preset {preset!r}: unknown (presets: {', '.join(PRESETS)})")
     size = _check_size(size)
@@ -775,6 +779,9 @@ def make_scene(preset: str, *, size: Sequence[int] = (480, 360), views: int = 12
 
     mesh, built = build_mesh(preset, size=size, views=views, seed=seed, holdout_targets=holdout_targets,
                              path_frames=path_frames, extra_meshes=extra_meshes)
+    time = check_float(time, "time")
+    if time != 0.0:
+        mesh = move_objects(mesh, time, seed)
     from .render.reference import ReferenceRenderer, default_lights
 
     renderer = ReferenceRenderer(mesh)
@@ -820,3 +827,34 @@ def make_scene(preset: str, *, size: Sequence[int] = (480, 360), views: int = 12
     light_dicts = [lt.to_dict() for lt in lights]
     return Scene(views=scene_views, targets=targets, paths=built.paths, meshes=meshes, units="m",
                  source=source, lights=light_dicts, shading={"ambient": ambient, "background": list(background)})
+
+
+def move_objects(mesh: Mesh, time: float, seed: int, speed: float = 0.12) -> Mesh:
+    """``mesh`` with every object but the ground (object id 0) translated by ``time`` times a
+    velocity of its own: horizontal, ``speed`` scene units per frame at most, drawn from the
+    seed's "motion" stream (the same velocities for every frame of a video)."""
+    if mesh.object_ids is None:
+        raise BadValueError("move_objects: the mesh has no object ids")
+    n_obj = int(mesh.object_ids.max()) + 1
+    vel = _rng(seed, "motion").uniform(-speed, speed, (n_obj, 3))
+    vel[:, 1] = 0.0
+    vel[0] = 0.0  # the ground stays
+    vertex_obj = np.zeros(len(mesh.vertices), np.int64)
+    vertex_obj[mesh.faces.ravel()] = np.repeat(mesh.object_ids.astype(np.int64), 3)
+    moved = (mesh.vertices.astype(np.float64) + time * vel[vertex_obj]).astype(np.float32)
+    return dataclasses.replace(mesh, vertices=moved)
+
+
+def make_video(preset: str, *, frames: int = 3, **kwargs: Any) -> tuple[Scene, dict[str, Scene]]:
+    """A synthetic video scene (docs/FORMAT.md "Frames"): ``frames`` still scenes "f000", ...
+    made by :func:`make_scene` at times 0, 1, ... (the objects move, the ground and the cameras
+    stay), and the shared scene (targets' cameras, paths, units, source) that
+    :func:`ibrtools.formats.native.save_video` writes beside them."""
+    frames = check_int(frames, "frames", 1)
+    out = {f"f{i:03d}": make_scene(preset, time=float(i), **kwargs) for i in range(frames)}
+    first = next(iter(out.values()))
+    source = {**first.source, "frames": frames, "motion": "objects move by time x a per-object velocity "
+                                                          "(ibrtools.synth.move_objects), ground and cameras fixed"}
+    video = Scene(targets=[View.create(t.name, t.camera) for t in first.targets], paths=first.paths,
+                  units=first.units, source=source)
+    return video, out

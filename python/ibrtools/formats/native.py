@@ -26,6 +26,8 @@ NAME = "native"
 DESCRIPTION = "ibrtools scene directory (scene.json, docs/FORMAT.md)"
 FORMAT_TAG = "ibrtools-scene"
 VERSION = 1
+VIDEO_VERSION = 2  # a video scene (scene.json "frames"): a reader of version 1 would see no views
+FRAMES_DIR = "frames"
 SCENE_FILE = "scene.json"
 
 
@@ -120,6 +122,47 @@ def save(scene: Scene, path: str | os.PathLike, *, color_format: str = "png",
     return path
 
 
+def save_video(video: Scene, frames: dict[str, Scene], path: str | os.PathLike, *,
+               color_format: str = "png") -> Path:
+    """Write a video scene (docs/FORMAT.md "Frames") atomically: ``frames`` (name -> still scene,
+    in time order) under ``path``/frames/<name>/, and scene.json (version 2) with their names and
+    ``video``'s shared parts (units, source, stage records, paths, targets without images)."""
+    path = Path(path)
+    if not frames:
+        raise BadValueError("save_video: no frames")
+    bad = [n for n in frames if not n or _safe_name(n) != n or n in (".", "..")]
+    if bad:
+        raise BadValueError(f"save_video: frame names must be plain file names, got {bad[:3]}")
+    if path.exists() and not (path.is_dir() and ((path / SCENE_FILE).exists() or not any(path.iterdir()))):
+        raise BadValueError(f"{path}: exists and is not a scene directory; refusing to replace it")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    try:
+        for name, scene in frames.items():
+            save(scene, tmp / FRAMES_DIR / name, color_format=color_format)
+        doc: dict = {"format": FORMAT_TAG, "version": VIDEO_VERSION, "units": video.units,
+                     "source": _json_safe(video.source), "frames": list(frames), "views": [],
+                     "targets": [{"name": t.name, "camera": t.camera.to_dict()} for t in video.targets],
+                     "paths": {name: [c.to_dict() for c in cams] for name, cams in video.paths.items()},
+                     "meshes": {}}
+        if video.stages:
+            doc["stages"] = _json_safe(video.stages)
+        with open(tmp / SCENE_FILE, "w", encoding="utf-8") as fh:
+            json.dump(doc, fh, indent=1)
+        if path.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old.", dir=path.parent))
+            os.replace(path, old / "scene")
+            os.replace(tmp, path)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    video.root, video.frames = path, list(frames)
+    return path
+
+
 def _read_view(root: Path, entry, where: str, need_color: bool) -> View:
     if not isinstance(entry, dict) or "name" not in entry:
         raise FormatError(f"{where}: expected an object with 'name' and 'camera'")
@@ -150,8 +193,20 @@ def load(path: Path, options: dict | None = None) -> Scene:
     if not isinstance(doc, dict) or doc.get("format") != FORMAT_TAG:
         raise FormatError(f"{f}: not an ibrtools scene (expected \"format\": \"{FORMAT_TAG}\")")
     version = doc.get("version")
-    if version != VERSION:
-        raise FormatError(f"{f}: scene format version {version!r} is not supported (this ibrtools reads {VERSION})")
+    if version not in (VERSION, VIDEO_VERSION):
+        raise FormatError(f"{f}: scene format version {version!r} is not supported (this ibrtools reads "
+                          f"{VERSION} and {VIDEO_VERSION})")
+    frames = doc.get("frames")
+    if (version == VIDEO_VERSION) != (frames is not None):
+        raise FormatError(f"{f}: version {version} " + ("needs a 'frames' list (a video scene)" if frames is None
+                                                        else "cannot hold 'frames' (video scenes are version 2)"))
+    if frames is not None:
+        if (not isinstance(frames, list) or not frames or not all(isinstance(n, str) and n for n in frames)
+                or len(set(frames)) != len(frames)):
+            raise FormatError(f"{f}: 'frames': expected a non-empty list of distinct frame names")
+        for n in frames:
+            if _safe_name(n) != n or n in (".", "..") or not (root / FRAMES_DIR / n / SCENE_FILE).is_file():
+                raise MissingFileError(f"{root / FRAMES_DIR / n / SCENE_FILE}: no such file (frame {n!r} of {f})")
     views = [_read_view(root, e, f"{f.name}: views[{i}]", True) for i, e in enumerate(doc.get("views", []))]
     targets = [_read_view(root, e, f"{f.name}: targets[{i}]", False) for i, e in enumerate(doc.get("targets", []))]
     paths = {}
@@ -169,6 +224,6 @@ def load(path: Path, options: dict | None = None) -> Scene:
     scene = Scene(views=views, targets=targets, paths=paths, meshes=meshes,
                   units=str(doc.get("units", "unknown")), source=dict(doc.get("source") or {}),
                   lights=list(doc.get("lights") or []), shading=dict(doc.get("shading") or {}),
-                  stages=dict(doc.get("stages") or {}), root=root)
+                  stages=dict(doc.get("stages") or {}), root=root, frames=list(frames or []))
     scene.validate()
     return scene

@@ -34,6 +34,7 @@ class Frame:
     camera: Camera
     truth: View | None = None  # ground truth (colour, maybe depth) when known
     info: dict = field(default_factory=dict)  # facts copied into the frame's report entry (light field: row, col)
+    scene_frame: str | None = None  # video scenes: the frame of the scene it renders (Job.scenes)
 
 
 @dataclass
@@ -43,6 +44,21 @@ class Job:
     # plan()'s keyword arguments (JSON-able): plan(native.load(scene.root), **spec) makes the same
     # job again, which is how Dask workers rebuild it (ibrtools.distributed). None: not planned.
     spec: dict | None = None
+    # Video scenes: every scene frame's inputs by frame name (``scene`` is the first's); None
+    # for a still scene.
+    scenes: dict[str, Scene] | None = None
+
+
+def _plan_video(scene: Scene, args: dict, spec: dict | None) -> Job:
+    """plan() of a video scene: each scene frame planned as a still scene with the same arguments."""
+    frames: list[Frame] = []
+    scenes: dict[str, Scene] = {}
+    for fr in scene.frames:
+        sub = plan(scene.frame(fr), **args)
+        scenes[fr] = sub.scene
+        frames += [Frame(f"{fr}_{f.name}", f.camera, f.truth, {"frame": fr, **f.info}, scene_frame=fr)
+                   for f in sub.frames]
+    return Job(scenes[scene.frames[0]], frames, spec, scenes)
 
 
 def read_poses(path: str | os.PathLike) -> list[Frame]:
@@ -71,14 +87,21 @@ def plan(scene: Scene, *, targets: list[str] | None = None, holdout: list[str] |
     (:mod:`ibrtools.render.batches`), frames lf_0000, ... row-major.
 
     The job records these keyword arguments as ``job.spec`` (every one of them, whatever is
-    added later; a relative ``poses`` path made absolute) for the workers of a distributed run."""
-    spec = {k: v for k, v in locals().items() if k != "scene"}
+    added later; a relative ``poses`` path made absolute) for the workers of a distributed run.
+
+    A video scene (``scene.frames``; docs/FORMAT.md "Frames"): the cameras are resolved in
+    every scene frame alike and the job renders each of them at every frame, frame-major; job
+    frames are named ``<frame>_<camera>`` (e.g. f001_t000) with "frame" in their report entry."""
+    args = {k: v for k, v in locals().items() if k != "scene"}
     if poses is not None:
-        spec["poses"] = str(Path(poses).resolve())
+        args["poses"] = str(Path(poses).resolve())
+    spec = dict(args)
     try:
         spec = json.loads(json.dumps(spec))  # tuples to lists: what travels
     except (TypeError, ValueError):
         spec = None  # not JSON-able (an argument given as an object): a local run only
+    if scene.frames:
+        return _plan_video(scene, args, spec)
     frames: list[Frame] = []
     held = list(dict.fromkeys(holdout or []))
     for name in held:
@@ -270,6 +293,8 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
     distributed = D.wanted(scheduler, workers)
     if distributed:
         root = job.scene.root
+        if root is not None and job.scenes is not None:
+            root = Path(root).parents[1]  # a video scene's frame lives in <video>/frames/<frame>/
         if root is None or not (Path(root) / "scene.json").is_file():
             raise BadValueError("--workers/--scheduler: the workers load the scene from disk; this job's "
                                 "scene has no scene directory (save it with formats.native.save first)")
@@ -287,6 +312,7 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
         if threads:
             _core.set_num_threads(threads)
         setup = method.prepare(job.scene)
+        prepared_for = job.frames[0].scene_frame if job.frames else None
     out_dir.mkdir(parents=True, exist_ok=True)
     # report.json marks a complete run: a stale one must not describe the images written now.
     (out_dir / "report.json").unlink(missing_ok=True)
@@ -300,6 +326,11 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
             for i, frame in enumerate(job.frames):
                 if progress:
                     progress(i, n, frame.name)
+                if frame.scene_frame != prepared_for:  # a video's next scene frame: prepared anew
+                    method = None  # the previous frame's preparation is freed first
+                    method = methods.create(name, params)
+                    method.prepare(job.scenes[frame.scene_frame])
+                    prepared_for = frame.scene_frame
                 entries[i], failures[i], outputs = render_frame(method, frame, **frame_kw)
                 for rel, kind, array in outputs:
                     written.append(out_dir / rel)
@@ -319,6 +350,7 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
                 if progress:
                     progress(done, n, job.frames[i].name)
 
+            # One task per job frame (a video: frame-major, so a worker mostly keeps its scene frame).
             sequential = name in SEQUENTIAL
             chunks = [list(range(n))] if sequential else [[i] for i in range(n)]
             if progress:
