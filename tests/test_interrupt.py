@@ -15,6 +15,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -35,6 +36,35 @@ def _command(name: str) -> list[str]:
     return [sys.executable, "-c", f"import sys; from {module} import main; sys.exit(main())"]
 
 
+# A process started with SIGINT ignored keeps it ignored across exec, and Python then installs no
+# KeyboardInterrupt handler: that is what a shell does to a background job (`make test &`,
+# `( pytest ... & )`: SIGINT and SIGQUIT set to SIG_IGN), and pytest's workers pass it on. The
+# command then, correctly, ignores SIGINT and renders all 1000 frames (exit 0 with the normal
+# build, the 120 s timeout under ASan): the flaky failures of the SIGINT case. The commands are
+# therefore started through this exec with SIGINT at its default action, whatever the test
+# process inherited.
+_SIGINT_DEFAULT = [sys.executable, "-c", "import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_DFL); "
+                   "os.execv(sys.argv[1], sys.argv[1:])"]
+
+
+def _interruptible(argv: list[str]) -> list[str]:
+    return _SIGINT_DEFAULT + argv
+
+
+def test_sigint_default_in_children():
+    """The helper above works even when this process ignores SIGINT (the background-job case)."""
+    probe = _interruptible([sys.executable, "-c", "import signal; print(signal.getsignal(signal.SIGINT).__name__)"])
+    if threading.current_thread() is threading.main_thread():  # signal.signal: main thread only
+        old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        try:
+            out = subprocess.run(probe, capture_output=True, text=True, check=True).stdout.strip()
+        finally:
+            signal.signal(signal.SIGINT, old)
+        assert out == "default_int_handler"
+    out = subprocess.run(probe, capture_output=True, text=True, check=True).stdout.strip()
+    assert out == "default_int_handler"
+
+
 def _temporaries(root: Path) -> list[Path]:
     """Files or directories a writer leaves behind when it dies: atomic_path names ('.stem.XXXX.ext')
     and native.save's temporary scene directories."""
@@ -43,7 +73,7 @@ def _temporaries(root: Path) -> list[Path]:
 
 def _run_until(argv: list[str], ready, sig, timeout: float = 120.0) -> int:
     """Start the command, wait until ``ready()`` holds, send ``sig``, return the exit code."""
-    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(_interruptible(argv), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     t0 = time.monotonic()
     try:
         while not ready():
@@ -155,3 +185,35 @@ def test_corrupt_cache_entry_is_detected_and_recomputed(tmp_path):
         stages.stage_output(d, "mesh")
     assert preprocess.main(argv[:-1] + ["--json"]) == 0
     assert stages.stage_output(d, "mesh").read_bytes() == good  # recomputed, the same bytes
+
+
+@pytest.mark.parametrize("when", ["blocking", "unblocking"])
+def test_atomic_path_signal_at_the_mask_calls(tmp_path, monkeypatch, when):
+    """A KeyboardInterrupt out of either pthread_sigmask call of imageio.atomic_path (Python checks
+    for pending signals right after the call, the new mask already in force): the thread's signal
+    mask is restored and no temporary file is left. Before the fix, an interrupt out of the
+    blocking call left SIGINT/SIGTERM blocked in the main thread for good (and in every child it
+    started, which then could not be interrupted); the unblocking case held already."""
+    from ibrtools import imageio
+
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("atomic_path holds signals back only in the main thread")
+    real = signal.pthread_sigmask
+    before = real(signal.SIG_BLOCK, ())
+    pending = [True]  # one signal, delivered once
+
+    def interrupted(how, mask):
+        r = real(how, mask)
+        if pending and ((when == "blocking" and how == signal.SIG_BLOCK and signal.SIGINT in set(mask)) or
+                        (when == "unblocking" and how == signal.SIG_SETMASK and signal.SIGINT not in set(mask))):
+            pending.clear()
+            raise KeyboardInterrupt  # as if SIGINT had arrived while the mask changed
+        return r
+
+    monkeypatch.setattr(signal, "pthread_sigmask", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        with imageio.atomic_path(tmp_path / "x.txt") as tmp:
+            tmp.write_text("never renamed")
+    monkeypatch.undo()
+    assert real(signal.SIG_BLOCK, ()) == before
+    assert not list(tmp_path.iterdir())

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import HealthCheck, assume, event, given, settings
 from hypothesis import strategies as st
 
 from ibrtools import Camera, _core, look_at
@@ -424,3 +424,289 @@ def test_array_boundary_is_typed(entry, how):
         for o in arrays:
             if o.dtype.kind == "f" and how not in ("inf",):
                 assert not np.any(np.isnan(o)), f"{entry}: {how} argument {i} gave NaN output"
+
+
+# === the newer kernels (issue 9, second round): Y-map/N-buffer queries, motion buffers, max-flow,
+# Poisson, per-pixel ULR, the harmonise kernels, PVM rasterisation and clustered filtering ===========
+
+# --- Y-map / N-buffer max-depth queries (depthwarp.MaxDepthQuery) ------------------------------------
+@STRESS
+@given(size=SIZES, data=st.data())
+def test_ymap_max_depth_is_conservative_and_tight_to_the_image(size, data):
+    """true max over the clipped box <= answer <= max of the whole image; empty boxes +inf."""
+    from ibrtools.depthwarp import MaxDepthQuery
+
+    h, w = size
+    depth = data.draw(depth_maps(h, w))
+    levels = data.draw(st.sampled_from([0, 1, 2, 5]))
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**16)))
+    x = rng.integers(-3, w + 3, (12, 2))
+    y = rng.integers(-3, h + 3, (12, 2))
+    boxes = np.stack([x.min(1), y.min(1), x.max(1) + rng.integers(0, 2, 12), y.max(1) + rng.integers(0, 2, 12)],
+                     1).astype(np.int32)
+    boxes[0] = (0, 0, w, h)          # the whole image
+    boxes[1] = (-1000, -1000, 10**6, 10**6)  # far past every side: clipped to the image
+    boxes[2] = (w, 0, w + 5, h)      # entirely outside: empty
+    got = same_for_1_and_2_threads(lambda: MaxDepthQuery(depth, mip_levels=levels).max_depth(boxes))
+    assert got.shape == (12,) and not np.any(np.isnan(got))
+    for (x0, y0, x1, y1), g in zip(boxes, got):
+        x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)
+        if x0 >= x1 or y0 >= y1:
+            assert g == np.inf
+        else:
+            assert depth[y0:y1, x0:x1].max() <= g <= depth.max()
+    assert got[0] == depth.max() and got[1] == depth.max()
+
+
+# --- motion buffers (depthwarp.motion_buffer): motion of 0 and of thousands of pixels -----------------
+@STRESS
+@given(size=SIZES, f=FOCALS, data=st.data())
+def test_motion_buffer_matches_projection(size, f, data):
+    """Finite motion; zero motion for the same camera; elsewhere the motion equals the float64
+    projection of the un-projected point (relative 1e-4 of the motion + 1e-3 px: float32)."""
+    from ibrtools.depthwarp import motion_buffer
+
+    h, w = size
+    depth = data.draw(depth_maps(h, w))
+    motion = data.draw(st.sampled_from([0.0, 1e-6, 1.0, 1e3]))
+    src = pinhole(h, w, f)
+    dst = pinhole(h, w, f, eye=(motion, 0.0, 0.0), target=(motion, 0.0, 1.0))
+    mv, dz = same_for_1_and_2_threads(lambda: motion_buffer(depth, src, dst))
+    assert mv.shape == (h, w, 2) and np.all(np.isfinite(mv)) and np.all(np.isfinite(dz)) and np.all(dz >= 0)
+    assert np.all(mv[depth == 0] == 0) and np.all(dz[depth == 0] == 0)
+    assert np.all(mv[dz == 0] == 0)  # invalid pixels: motion 0
+    # A subnormal depth may read as 0 (invalid; flush-to-zero / denormals-are-zero, see the
+    # forward warp's pinned cases): normal depths must be valid for a camera that did not move.
+    normal = depth >= np.finfo(np.float32).tiny
+    if motion == 0.0:
+        np.testing.assert_allclose(mv, 0.0, atol=1e-3)
+        np.testing.assert_allclose(dz[normal], depth[normal], rtol=1e-5)
+        return
+    ok = dz > 0
+    if not ok.any():
+        return
+    # reference: float64 un-projection and projection (ibrtools.camera)
+    x, y = src.pixel_grid()
+    uv, zz = dst.project(src.unproject(depth))
+    want = uv[ok] - np.stack([x[ok], y[ok]], -1)
+    tol = 1e-4 * np.abs(want) + 1e-3  # float32 arithmetic in the kernel
+    assert np.all(np.abs(mv[ok] - want) <= tol)
+    np.testing.assert_allclose(dz[ok], zz[ok], rtol=1e-4)
+
+
+# --- max-flow (solvers.grid_maxflow): degenerate grids, zero and huge capacities -----------------------
+def _cut_value(labels, src, snk, right, down):
+    """Capacity of the cut given by a sink-side labelling (exact in Python ints)."""
+    lab = labels.astype(bool)
+    v = int(src[lab].sum()) + int(snk[~lab].sum())
+    v += int(right[:, :-1][lab[:, :-1] != lab[:, 1:]].sum())
+    v += int(down[:-1, :][lab[:-1, :] != lab[1:, :]].sum())
+    return v
+
+
+@STRESS
+@given(size=st.sampled_from([(1, 1), (1, 2), (1, 7), (7, 1), (2, 3), (3, 3)]), data=st.data())
+def test_grid_maxflow_is_the_minimum_cut(size, data):
+    """int64 capacities from 0 to 2^40 (huge but the sums fit int64): the returned flow equals the
+    capacity of the returned cut and the brute-force minimum over every labelling (<= 9 pixels)."""
+    import itertools
+
+    from ibrtools.solvers import grid_maxflow
+
+    h, w = size
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**16)))
+    scale = data.draw(st.sampled_from([0, 1, 1000, 2**40]))
+    kind = data.draw(st.sampled_from(["random", "zero terminals", "zero edges", "equal"]))
+
+    def caps():
+        return (rng.integers(0, 4, (h, w)) * scale).astype(np.int64) if kind != "equal" \
+            else np.full((h, w), scale, np.int64)
+
+    src, snk, right, down = caps(), caps(), caps(), caps()
+    if kind == "zero terminals":
+        src[:] = 0
+    if kind == "zero edges":
+        right[:] = 0
+        down[:] = 0
+    flow, labels = same_for_1_and_2_threads(lambda: grid_maxflow(src, snk, right, down))
+    assert labels.shape == (h, w) and labels.dtype == np.bool_
+    assert int(flow) == _cut_value(labels, src, snk, right, down)
+    best = min(_cut_value(np.array(bits, bool).reshape(h, w), src, snk, right, down)
+               for bits in itertools.product([False, True], repeat=h * w))
+    assert int(flow) == best
+
+
+@pytest.mark.parametrize("dtype", [np.int64, np.float64])
+def test_grid_maxflow_capacity_sums_past_the_type_are_refused_or_exact(dtype):
+    """Capacities whose sums overflow int64 (or lose every unit in float64) must not give a
+    silently wrong cut: either a typed refusal or the exact answer."""
+    from ibrtools.solvers import grid_maxflow
+
+    big = np.iinfo(np.int64).max // 2 if dtype == np.int64 else 1e300
+    src = np.full((2, 3), big, dtype)
+    snk = np.full((2, 3), big, dtype)
+    z = np.zeros((2, 3), dtype)
+    try:
+        flow, labels = grid_maxflow(src, snk, z, z)
+    except InputError:
+        return
+    # every pixel is cut on one side: flow = 6 * big
+    assert float(flow) == pytest.approx(6 * float(big), rel=1e-12)
+
+
+# --- Poisson blending (solvers.poisson_blend): 1x1 / 1xN grids, constant guidance, scales -------------
+@STRESS
+@given(size=SIZES, data=st.data())
+def test_poisson_blend_harmonic_stays_within_the_boundary(size, data):
+    """Constant source (zero guidance): the solution is harmonic, so within the range of the
+    boundary values (maximum principle; slack = tol relative + float32 rounding); a constant
+    boundary is reproduced; outside the mask the boundary is copied; 1 = 2 threads."""
+    from ibrtools.solvers import poisson_blend
+
+    h, w = size
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**16)))
+    scale = data.draw(st.sampled_from([DENORMAL, 1e-20, 1.0, 1e20]))
+    const = data.draw(st.booleans())
+    boundary = (np.full((h, w, 3), 0.5, np.float32) if const else rng.uniform(0, 1, (h, w, 3)).astype(np.float32))
+    boundary = (boundary * np.float32(scale)).astype(np.float32)
+    source = np.full((h, w, 3), data.draw(st.sampled_from([0.0, 7.0])), np.float32)
+    frac = data.draw(st.sampled_from([0.0, 0.3, 0.9, 1.0]))
+    mask = rng.uniform(size=(h, w)) < frac
+    try:
+        out, info = same_for_1_and_2_threads(lambda: poisson_blend(boundary, source, mask))
+    except InputError:
+        assert mask.all()  # no boundary at all: refused (the solution would be defined up to a constant)
+        return
+    assert not mask.all()
+    assert np.all(np.isfinite(out))
+    np.testing.assert_array_equal(out[~mask], boundary[~mask])
+    if not mask.any():
+        return
+    lo, hi = float(boundary[~mask].min()), float(boundary[~mask].max())
+    slack = 1e-4 * max(abs(lo), abs(hi)) + 1e-6 * scale
+    assert out[mask].min() >= lo - slack and out[mask].max() <= hi + slack
+    if const:
+        np.testing.assert_allclose(out[mask], boundary[0, 0, 0], rtol=1e-4)
+
+
+# --- per-pixel ULR (_core.ulr_blend) --------------------------------------------------------------------
+@STRESS
+@given(size=SIZES, f=FOCALS, data=st.data())
+def test_ulr_blend_is_a_convex_combination(size, f, data):
+    """Colour inside the inputs' range where counted, 0 where no view sees the point, counts <= k,
+    no NaN for G-buffer depths from subnormal to float max and views on / behind the point."""
+    h, w = size
+    gdepth = data.draw(depth_maps(h, w))
+    k = data.draw(st.sampled_from([1, 2, 4]))
+    novel = pinhole(h, w, f)
+    views = []
+    for i in range(3):
+        off = data.draw(st.sampled_from([0.0, 0.01, 1.0, 1e3]))
+        cam = pinhole(h, w, f, eye=(off * (i - 1), 0.0, 0.0), target=(off * (i - 1), 0.0, 1.0))
+        # the G-buffer's own depth (consistent where the view sits at the novel camera) or unrelated
+        vd = gdepth if data.draw(st.booleans()) else data.draw(depth_maps(h, w, holes=False))
+        views.append((cam.to_core(), data.draw(colours(h, w)), vd))
+    lo = min(float(v[1].min()) for v in views)
+    hi = max(float(v[1].max()) for v in views)
+    col, count = same_for_1_and_2_threads(
+        lambda: _core.ulr_blend(novel.to_core(), gdepth, views, k=k))
+    assert np.all(np.isfinite(col)) and count.max() <= k
+    seen = count > 0
+    event(f"ULR pixels seen: {'some' if seen.any() else 'none'}")
+    assert np.all(col[~seen] == 0)
+    if seen.any():
+        assert col[seen].min() >= lo - 1e-5 and col[seen].max() <= hi + 1e-5
+
+
+# --- the harmonise kernels --------------------------------------------------------------------------------
+@STRESS
+@given(size=SIZES, f=FOCALS, data=st.data())
+def test_cross_view_prediction_in_range(size, f, data):
+    """The predicted colour is a quantile of the source colours that see the point: inside their
+    range where n_seen > 0, 0 elsewhere; extreme depths give no NaN; 1 = 2 threads."""
+    h, w = size
+    depth = data.draw(depth_maps(h, w))
+    tol = data.draw(st.sampled_from([1e-6, 0.01, 10.0]))
+    q = data.draw(st.sampled_from([0.0, 0.5, 1.0]))
+    cam = pinhole(h, w, f)
+    cams, depths, imgs = [], [], []
+    for i in range(2):
+        off = data.draw(st.sampled_from([0.0, 0.01, 1e3]))
+        cams.append(pinhole(h, w, f, eye=(off, 0.0, 0.0), target=(off, 0.0, 1.0)).to_core())
+        depths.append(data.draw(depth_maps(h, w)))
+        imgs.append(data.draw(colours(h, w)))
+    pred, n = same_for_1_and_2_threads(
+        lambda: _core.cross_view_prediction(cam.to_core(), depth, cams, depths, imgs, tol, q))
+    assert np.all(np.isfinite(pred)) and n.min() >= 0 and n.max() <= 2
+    seen = n > 0
+    event(f"predicted pixels: {'some' if seen.any() else 'none'}")
+    assert np.all(pred[~seen] == 0)
+    if seen.any():
+        lo, hi = min(float(i.min()) for i in imgs), max(float(i.max()) for i in imgs)
+        assert pred[seen].min() >= lo and pred[seen].max() <= hi
+
+
+@STRESS
+@given(size=SIZES, data=st.data())
+def test_interpolate_vertex_values_convex(size, data):
+    """Barycentric interpolation with weights in [0, 1] summing to <= 1 (Embree's u, v): inside the
+    range of the triangle's vertex values (float32 slack), 0 where no triangle; values up to 1e30."""
+    h, w = size
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**16)))
+    scale = data.draw(st.sampled_from([DENORMAL, 1.0, 1e30]))
+    values = (rng.uniform(-1, 1, (5, 2)) * scale).astype(np.float32)
+    faces = rng.integers(0, 5, (4, 3)).astype(np.int32)
+    prim = rng.integers(-1, 4, (h, w)).astype(np.int32)
+    u = rng.uniform(0, 1, (h, w)).astype(np.float32)
+    v = (rng.uniform(0, 1, (h, w)) * (1 - u)).astype(np.float32)
+    bary = np.stack([u, v], -1)
+    out = same_for_1_and_2_threads(lambda: _core.interpolate_vertex_values(prim, bary, faces, values))
+    assert out.shape == (h, w, 2) and np.all(np.isfinite(out))
+    assert np.all(out[prim < 0] == 0)
+    hit = prim >= 0
+    fv = values[faces[prim[hit]]]  # (n, 3, 2)
+    slack = 1e-5 * scale + 1e-30
+    assert np.all(out[hit] >= fv.min(1) - slack) and np.all(out[hit] <= fv.max(1) + slack)
+
+
+# --- PVM: per-view meshes, tiles, rasterisation and the clustered filter (hybrid.pvm_render) -------------
+PVM_SIZES = st.sampled_from([(2, 2), (2, 9), (9, 2), (5, 7), (17, 16), (24, 40)])
+
+
+@STRESS
+@given(size=PVM_SIZES, f=st.sampled_from([1.0, 30.0, 1e4]), data=st.data())
+def test_pvm_render_edges(size, f, data):
+    """Views whose depths are constant, two-level or log-uniform over 1e-3 .. 1e6 (with holes), the
+    novel camera at an input view, moved, or inside the scene: colour inside the inputs' range where
+    valid, finite depth > 0 where valid, no NaN anywhere; 1 = 2 threads, filtered and unfiltered."""
+    from ibrtools.hybrid.pvm import build_tiles
+    from ibrtools.hybrid.pvm_render import PvmRenderer
+    from ibrtools.scene import Scene, View
+
+    h, w = size
+    views = []
+    for i in range(2):
+        cam = pinhole(h, w, f, eye=(0.1 * i, 0.0, 0.0), target=(0.1 * i, 0.0, 1.0))
+        d = data.draw(depth_maps(h, w))
+        d = np.where(d > 0, np.clip(d, 1e-3, 1e6), 0).astype(np.float32)
+        if not d.any():
+            d[0, 0] = 1.0  # a view needs one known depth (View.create refuses an all-unknown map, typed)
+        views.append(View.create(f"v{i}", cam, color=data.draw(colours(h, w)), depth=d))
+    scene = Scene(views=views)
+    try:
+        tiles = build_tiles({v.name: v.camera for v in views}, {v.name: v.depth for v in views})
+    except InputError:
+        return  # e.g. no triangle in any view: typed
+    r = PvmRenderer(scene, None, tiles=tiles, images={v.name: v.color for v in views})
+    z = data.draw(st.sampled_from([0.0, -1.0, 0.5]))
+    novel = pinhole(h + 1, w, f, eye=(0.05, 0.0, z), target=(0.05, 0.0, z + 1.0))
+    filtered = data.draw(st.booleans())
+    res = same_for_1_and_2_threads(lambda: (lambda o: (o.color, o.depth, o.valid))(r.render(novel, filtered=filtered)))
+    col, depth, valid = res
+    assert np.all(np.isfinite(col)) and not np.any(np.isnan(depth))
+    lo = min(float(v.color.min()) for v in views)
+    hi = max(float(v.color.max()) for v in views)
+    event(f"PVM valid pixels: {'some' if valid.any() else 'none'}")
+    if valid.any():
+        assert col[valid].min() >= lo - 1e-5 and col[valid].max() <= hi + 1e-5
+        assert np.all(np.isfinite(depth[valid])) and np.all(depth[valid] > 0)

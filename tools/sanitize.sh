@@ -74,6 +74,28 @@ export LD_PRELOAD="$RT $(gcc -print-file-name=libstdc++.so)"
 export IBR_SANITIZER="$KIND"   # lets tests know (e.g. to skip subprocess-heavy cases)
 # Check the stage is what gets imported before spending time on the suite.
 "$PY" -c "import ibrtools._core as c, sys; p = c.__file__; sys.exit(0 if p.startswith('$STAGE') else 'sanitize.sh: imported ' + p + ', not the staged module')"
+# Reports also go to files (log_path; one per process, suffix = pid): a pytest-xdist worker that a
+# report halts shows up only as "node down", its stderr is not forwarded.
+REPORTS=$BUILD/reports
+rm -rf "$REPORTS"
+mkdir -p "$REPORTS"
+case "$KIND" in
+  asan) export ASAN_OPTIONS="$ASAN_OPTIONS:log_path=$REPORTS/asan"
+        export UBSAN_OPTIONS="$UBSAN_OPTIONS:log_path=$REPORTS/ubsan";;
+  tsan) export TSAN_OPTIONS="$TSAN_OPTIONS:log_path=$REPORTS/tsan";;
+esac
 TESTS=${SANITIZE_TESTS:-tests}
+status=0
 # shellcheck disable=SC2086
-exec "$PY" -m pytest -q -p no:cacheprovider $TESTS "$@"
+"$PY" -m pytest -q -p no:cacheprovider $TESTS "$@" || status=$?
+if compgen -G "$REPORTS/*" >/dev/null; then
+  for f in "$REPORTS"/*; do
+    echo "=== sanitizer report: $f" >&2
+    cat "$f" >&2
+  done
+  echo "tools/sanitize.sh: $(ls "$REPORTS" | wc -l) sanitizer report file(s) in $REPORTS" >&2
+  [ "$status" -ne 0 ] || status=1
+else
+  echo "tools/sanitize.sh: no $KIND reports" >&2
+fi
+exit "$status"

@@ -2,7 +2,9 @@
 // dtypes, non-negative finite capacities, finite images, options) and the calls with the GIL
 // released. Python: ibrtools.solvers.
 #include <cmath>
+#include <limits>
 #include <string>
+#include <type_traits>
 
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
@@ -38,6 +40,12 @@ py::tuple GridMaxflowTyped(py::handle source_obj, py::handle sink_obj, py::handl
     py::gil_scoped_release release;
     const char* names[4] = {"source_cap", "sink_cap", "right", "down"};
     const Cap* arrays[4] = {source.data(), sink.data(), right.data(), down.data()};
+    // Total capacity (edges twice: a residual edge holds both directions' capacities), which
+    // bounds every residual capacity and the flow: it must fit the capacity type. Before this
+    // check, int64 capacities summing past 2^63 gave a wrapped, silently wrong flow and cut
+    // (found by tests/test_stress.py); float64 sums past 1e308 became inf.
+    __int128 total_int = 0;
+    double total_float = 0.0;
     for (int k = 0; k < 4 && bad.empty(); ++k) {
       for (py::ssize_t i = 0; i < h * w; ++i) {
         const Cap v = arrays[k][i];
@@ -46,6 +54,23 @@ py::tuple GridMaxflowTyped(py::handle source_obj, py::handle sink_obj, py::handl
                 " at flat index " + std::to_string(i);
           break;
         }
+        const int times = k < 2 ? 1 : 2;
+        if constexpr (std::is_integral_v<Cap>) {
+          total_int += static_cast<__int128>(v) * times;
+        } else {
+          total_float += static_cast<double>(v) * times;
+        }
+      }
+    }
+    if (bad.empty()) {
+      if constexpr (std::is_integral_v<Cap>) {
+        if (total_int > static_cast<__int128>(std::numeric_limits<Cap>::max())) {
+          bad = "capacities: their total (source_cap + sink_cap + 2 x (right + down)) exceeds the int64 range "
+                "(2^63 - 1); scale them down";
+        }
+      } else if (!std::isfinite(total_float)) {
+        bad = "capacities: their total (source_cap + sink_cap + 2 x (right + down)) overflows float64; "
+              "scale them down";
       }
     }
     if (bad.empty()) {

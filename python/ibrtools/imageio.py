@@ -166,11 +166,19 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     # SIGINT/SIGTERM raise in Python (cli/ibrtools_cli/common.py): held back while the temporary
     # file is created and not yet guarded by the ``finally`` below, so an interrupt can never
     # leave it behind.
+    # The mask in force is read first and restored by the ``finally`` whatever happens after:
+    # Python checks for pending signals right after the pthread_sigmask call that blocks, so a
+    # KeyboardInterrupt can come out of that call with the signals already blocked (before, the
+    # thread then kept SIGINT/SIGTERM blocked for good, and so did every child it started).
     held = {signal.SIGINT, signal.SIGTERM}
     block = hasattr(signal, "pthread_sigmask") and threading.current_thread() is threading.main_thread()
-    old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, held) if block else None
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, ()) if block else None
+    old_mask = None
     tmp_path: Path | None = None
     try:
+        if mask is not None:
+            old_mask = mask
+            signal.pthread_sigmask(signal.SIG_BLOCK, held)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
         tmp_path = Path(tmp)
         os.close(fd)
@@ -180,10 +188,11 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         yield tmp_path
         os.replace(tmp_path, path)
     finally:
-        if old_mask is not None:
-            signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)
+        # the temporary goes first: restoring the mask can raise a signal that arrived meanwhile
         if tmp_path is not None and tmp_path.exists():
             tmp_path.unlink()
+        if old_mask is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)
 
 
 def write_image(path: str | os.PathLike, image: np.ndarray, *, bits: int = 8) -> Path:
