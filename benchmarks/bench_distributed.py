@@ -145,7 +145,7 @@ def main() -> None:
             f"| local, 1 process x 2 engine threads | {f['median_s']['local']:.2f} | 1.00 |",
             f"| `--workers 2`: LocalCluster 2 processes x 1 thread, started in the run | "
             f"{f['median_s']['cluster']:.2f} | {f['cluster_over_local']:.2f} |",
-            f"| `--scheduler`: the same cluster already running | {f['median_s']['warm']:.2f} | "
+            f"| `--scheduler`: the same cluster already running, workers prepared | {f['median_s']['warm']:.2f} | "
             f"{f['warm_over_local']:.2f} |", "",
             f"Target (cluster within 15 % of local): **{ok}** ({(f['cluster_over_local'] - 1) * 100:+.0f} %). "
             f"Time per view (local): {f['local_s_per_view'] * 1e3:.0f} ms. Data per task: "

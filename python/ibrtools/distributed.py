@@ -24,6 +24,7 @@ import json
 import logging
 import os
 import tempfile
+import uuid
 from pathlib import Path
 from typing import Callable, Iterator
 
@@ -76,15 +77,18 @@ def open_client(scheduler: str | None = None, workers: int = 0, *, threads_per_w
     if not wanted(scheduler, workers):
         raise BadValueError("open_client: give scheduler=ADDRESS or workers=N")
     distributed = _import_distributed()
+    interrupted = [False]
     if scheduler is not None:
         try:
             client = distributed.Client(scheduler, timeout=CONNECT_TIMEOUT, set_as_default=False)
         except (OSError, TimeoutError, ValueError, TypeError) as e:
             raise BadValueError(f"--scheduler {scheduler}: cannot connect ({e})") from None
         try:
-            yield client
+            with _note_interrupt(interrupted):
+                yield client
         finally:
-            client.close()
+            with _quiet(interrupted[0]):
+                client.close()
         return
     cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=threads_per_worker, processes=True,
                                        host="127.0.0.1", dashboard_address=None, silence_logs=logging.ERROR,
@@ -96,11 +100,40 @@ def open_client(scheduler: str | None = None, workers: int = 0, *, threads_per_w
             # Ctrl-C reaches the whole process group: the command handles it (all or nothing,
             # then stops the cluster), so its workers ignore it (new ones too: a plugin).
             client.register_plugin(_ignore_sigint_plugin(), name="ibrtools-ignore-sigint")
-            yield client
+            with _note_interrupt(interrupted):
+                yield client
         finally:
-            client.close()
+            with _quiet(interrupted[0]):
+                client.close()
     finally:
-        cluster.close()
+        with _quiet(interrupted[0]):
+            cluster.close()
+
+
+@contextlib.contextmanager
+def _note_interrupt(flag: list) -> Iterator[None]:
+    try:
+        yield
+    except KeyboardInterrupt:  # Ctrl-C, or SIGTERM through the commands' handler
+        flag[0] = True
+        raise
+
+
+@contextlib.contextmanager
+def _quiet(on: bool) -> Iterator[None]:
+    """After an interrupt, the cluster's shutdown logs tracebacks of the callbacks it cancels
+    (tornado, distributed): not the user's concern, so those loggers are silenced meanwhile."""
+    names = ("distributed", "tornado", "asyncio")
+    old = {n: logging.getLogger(n).level for n in names}
+    if on:
+        for n in names:
+            logging.getLogger(n).setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        if on:
+            for n, lvl in old.items():
+                logging.getLogger(n).setLevel(lvl)
 
 
 def _ignore_sigint_plugin():
@@ -121,19 +154,20 @@ def _ignore_sigint_plugin():
 
 def describe(client, scheduler: str | None) -> dict:
     """The cluster for the report: scheduler ("local" for --workers), worker count, threads."""
-    info = client.scheduler_info(n_workers=-1) if _takes_n_workers(client) else client.scheduler_info()
-    ws = info.get("workers", {})
+    ws = _workers(client)
     return {"scheduler": scheduler or "local", "workers": len(ws),
             "threads_per_worker": sorted({int(w.get("nthreads", 1)) for w in ws.values()})}
 
 
-def _takes_n_workers(client) -> bool:
+def _workers(client) -> dict:
+    """Every worker's info (recent versions of scheduler_info() list the first 5 unless told)."""
     import inspect
 
     try:
-        return "n_workers" in inspect.signature(client.scheduler_info).parameters
+        every = "n_workers" in inspect.signature(client.scheduler_info).parameters
     except (TypeError, ValueError):
-        return False
+        every = False
+    return (client.scheduler_info(n_workers=-1) if every else client.scheduler_info()).get("workers", {})
 
 
 # ---------------------------------------------------------------------------------------------
@@ -233,8 +267,6 @@ def run_frames(client, job, spec: dict, chunks: list[list[int]], on_frame: Calla
     the workers. Futures are cancelled on any way out (an interrupt included)."""
     from distributed import as_completed
 
-    import uuid
-
     token = uuid.uuid4().hex[:10]
     futures = [client.submit(render_task, spec, c, [job.frames[i].name for i in c],
                              [job.frames[i].scene_frame for i in c], key=f"ibr-render-{token}-{k}",
@@ -268,7 +300,7 @@ def _chunks(items: list, n_workers: int, per_worker: int = 4) -> list[list]:
 def map_views(client, fn: Callable, root: str | os.PathLike, names: list[str], *args) -> dict:
     """``fn(root, names_chunk, *args) -> {name: value}`` over chunks of ``names`` on the
     cluster; the merged dict in the order of ``names``."""
-    n_workers = max(1, len(client.scheduler_info().get("workers", {})))
+    n_workers = max(1, len(_workers(client)))
     futures = [client.submit(fn, str(root), c, *args, retries=RETRIES, pure=False)
                for c in _chunks(list(names), n_workers)]
     try:

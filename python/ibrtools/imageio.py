@@ -212,9 +212,10 @@ def write_image(path: str | os.PathLike, image: np.ndarray, *, bits: int = 8) ->
     if ext in FLOAT_EXTS:
         pixels = np.nan_to_num(image.astype(np.float32), nan=0.0)
         spec = oiio.ImageSpec(w, h, c, "float")
-        # No capture date (OpenEXR "capDate"): the same pixels give the same bytes, so reruns and
-        # distributed runs (docs/distributed.md) write identical files.
-        spec.attribute("DateTime", "")
+        # A fixed capture date (OpenEXR "capDate", else the time of writing): the same pixels
+        # give the same bytes, so reruns and distributed runs (docs/distributed.md) write
+        # identical files.
+        spec.attribute("DateTime", "1970:01:01 00:00:00")
     elif ext in INT_EXTS:
         if bits not in (8, 16):
             raise BadValueError(f"{path}: bits must be 8 or 16, got {bits}")
