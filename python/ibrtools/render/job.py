@@ -145,12 +145,13 @@ def plan(scene: Scene, *, targets: list[str] | None = None, holdout: list[str] |
 # up so that the estimate stays 1.3-1.5x above every measurement. INPUT: every pixel of every
 # input view the method loads (colour float32 x3, depth, mask and the method's per-view buffers);
 # FRAME: every pixel of the largest frame (output colour, depth, hole mask, metrics' copies,
-# per-frame scratch); reference reads no view, only the mesh. tm/ulr/pvm/hybrid were not
-# measured (their stages at 4K did not fit the time): deliberately larger figures.
-_INPUT_BPP = {"reference": 0, "dibr": 24, "warp": 24, "depthwarp": 16, "tm": 40, "ulr": 40, "pvm": 64,
-              "hybrid": 64}
-_FRAME_BPP = {"reference": 120, "dibr": 64, "warp": 64, "depthwarp": 120, "tm": 300, "ulr": 400,
-              "pvm": 400, "hybrid": 600}
+# per-frame scratch); reference and tm read no view, only the mesh. tm/ulr/pvm/hybrid: fitted to
+# 4 views at 1080p and 4K and 8 views at 1080p (the per-view slope: ulr 12.5, pvm 12.8, hybrid
+# 16.8 bytes per input pixel measured, INPUT set ~1.5x above it for jobs with many views).
+_INPUT_BPP = {"reference": 0, "dibr": 24, "warp": 24, "depthwarp": 16, "tm": 0, "ulr": 20, "pvm": 20,
+              "hybrid": 24}
+_FRAME_BPP = {"reference": 120, "dibr": 64, "warp": 64, "depthwarp": 120, "tm": 120, "ulr": 124,
+              "pvm": 288, "hybrid": 428}
 _TRIANGLE_BYTES = 160   # mesh arrays + Embree BVH per triangle
 _BASE_BYTES = 400 << 20  # the interpreter, numpy, OpenImageIO, open3d, the engine, loaded once
 
