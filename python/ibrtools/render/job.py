@@ -9,6 +9,7 @@ ULR, green TM, with the holes in ``<frame>.hole.png``), and ``report.json``. Eve
 """
 from __future__ import annotations
 
+import glob
 import json
 import os
 import time
@@ -379,6 +380,10 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
         # atomically).
         for f in written:
             f.unlink(missing_ok=True)
+            # and its temporary, when the interrupt came while atomic_path was creating it (a
+            # signal handled in another thread raises in this one at any bytecode).
+            for t in f.parent.glob(f".{glob.escape(f.stem)}.*{f.suffix}"):
+                t.unlink(missing_ok=True)
         raise
 
 
