@@ -342,3 +342,17 @@ def test_interrupted_distributed_render_leaves_nothing(scene_dir, tmp_path, sig)
         time.sleep(0.2)
     else:
         pytest.fail("worker processes of the interrupted command are still running after 20 s")
+
+
+def test_missing_dask_is_a_clear_error(monkeypatch, scene_dir, tmp_path, capsys):
+    import sys
+
+    from ibrtools_cli import render
+
+    monkeypatch.setitem(sys.modules, "distributed", None)  # import distributed -> ImportError
+    with pytest.raises(D.MissingDaskError, match=r"ibrtools\[distributed\]"):
+        with D.open_client(None, 2):
+            pass
+    assert render.main([str(scene_dir), "--holdout", "v001", "--workers", "2", "-o", str(tmp_path / "o")]) == 2
+    assert "needs dask.distributed" in capsys.readouterr().err
+    assert not list((tmp_path / "o").glob("*.png"))
