@@ -163,7 +163,8 @@ def _table(rows, a, base: int) -> str:
     keys = sorted(merged, key=lambda k: (int(k[0].split("x")[0]), order.get(k[1], 99), k[1]))
     lines = [f"Measured with `tools/measure_memory.py` (synthetic `objects` scenes at the frame size: "
              f"{a.views} input views for reference/dibr/warp/depthwarp, {a.staged_views} for tm/ulr/pvm/hybrid, "
-             f"whose preprocessing stages run first; {a.frames} frames of the `orbit` path, -j {a.threads}; peak "
+             f"whose preprocessing stages run first; the first frames of the `orbit` path (this run: {a.frames}), "
+             f"-j {a.threads}; peak "
              f"RSS of the whole `ibr-render` process from `/usr/bin/time -v`; the interpreter with the engine, "
              f"open3d and numpy loaded alone peaks at {base / 2 ** 20:.0f} MiB). *Estimate* is the render job's "
              "own figure used to refuse a job early (ibrtools.render.job.estimate_memory); it must stay above "
