@@ -488,16 +488,19 @@ void RasterBlockRow(const Context& cx, int r, int u0, int u1, int y0, int y1, bo
 }
 
 
-// Target y range (1/256 px) of a row's valid vertices per column segment (vertices u0 .. u0 +
-// kSegCols inclusive: the segment's quads).
+// Target y and x ranges (1/256 px) of a row's valid vertices per column segment (vertices u0 ..
+// u0 + kSegCols inclusive: the segment's quads).
 void RowSegmentRanges(const WarpVertex* vrow, int w, int num_segs, YRange* ry) {
   for (int s = 0; s < num_segs; ++s) {
-    YRange g = {std::numeric_limits<std::int32_t>::max(), std::numeric_limits<std::int32_t>::min()};
+    YRange g = {std::numeric_limits<std::int32_t>::max(), std::numeric_limits<std::int32_t>::min(),
+                std::numeric_limits<std::int32_t>::max(), std::numeric_limits<std::int32_t>::min()};
     const int u1 = std::min(w - 1, (s + 1) * kSegCols);
     for (int u = s * kSegCols; u <= u1; ++u) {
       if (vrow[u].x == kInvalid) continue;
       g.lo = std::min(g.lo, vrow[u].y);
       g.hi = std::max(g.hi, vrow[u].y);
+      g.x_lo = std::min(g.x_lo, vrow[u].x);
+      g.x_hi = std::max(g.x_hi, vrow[u].x);
     }
     ry[s] = g;
   }
@@ -702,8 +705,9 @@ WarpCounts FlowVertices(const ImageView<const float>& depth, const float* flow, 
 }
 
 // Per target band of kBandRows rows, the (block row, column segment) pairs whose vertices' y
-// range reaches it (scratch.band_start / band_segs). Returns the number of bands.
-int BuildBandLists(WarpScratch& scratch, int h, int w, int th) {
+// range reaches it and whose x range reaches a centre column of the target (tw wide)
+// (scratch.band_start / band_segs). Returns the number of bands.
+int BuildBandLists(WarpScratch& scratch, int h, int w, int th, int tw) {
   const int num_segs = NumSegments(w);
   const int block_rows = std::max(0, h - 1);
   const int num_bands = (th + kBandRows - 1) / kBandRows;
@@ -725,6 +729,10 @@ int BuildBandLists(WarpScratch& scratch, int h, int w, int th) {
       sb[2 * s] = 1u;  // no band (first > last)
       sb[2 * s + 1] = 0u;
       if (lo > hi) continue;
+      // Every triangle of the segment lies in its vertices' x range: none covers a centre column
+      // of the target when that range holds none (RasterBlockRow / RasterTriangle clip to it).
+      const std::int32_t xlo = std::min(ya[s].x_lo, yb[s].x_lo), xhi = std::max(ya[s].x_hi, yb[s].x_hi);
+      if (FloorSub(std::int64_t(xhi) - kSubpixel / 2) < 0 || CeilSub(std::int64_t(xlo) - kSubpixel / 2) > tw - 1) continue;
       const std::int64_t c0 = std::max<std::int64_t>(0, CeilSub(std::int64_t(lo) - kSubpixel / 2));
       const std::int64_t c1 = std::min<std::int64_t>(th - 1, FloorSub(std::int64_t(hi) - kSubpixel / 2));
       if (c0 > c1) continue;
@@ -764,6 +772,20 @@ void RasterBands(const Context& cx, const WarpScratch& scratch, int num_bands, b
       init(sh, y0, y1);
       for (std::uint32_t k = band_start[b]; k < band_start[b + 1]; ++k) {
         const std::uint32_t id = band_segs[k];
+        if (k + 1 < band_start[b + 1]) {
+          // The next segment is elsewhere in the input (another block row): fetch its two vertex
+          // rows (16 + 1 vertices of 12 bytes each) and colour rows while this one is drawn.
+          const std::uint32_t nid = band_segs[k + 1];
+          const std::int64_t nr = nid / std::uint32_t(num_segs), nu = std::int64_t(nid % std::uint32_t(num_segs)) * kSegCols;
+          const char* v0 = reinterpret_cast<const char*>(cx.verts + nr * w + nu);
+          const char* c0 = reinterpret_cast<const char*>(cx.color->data + 3 * (nr * w + nu));
+          for (int line = 0; line < 4; ++line) {
+            __builtin_prefetch(v0 + 64 * line);
+            __builtin_prefetch(v0 + 12 * std::int64_t(w) + 64 * line);
+            __builtin_prefetch(c0 + 64 * line);
+            __builtin_prefetch(c0 + 12 * std::int64_t(w) + 64 * line);
+          }
+        }
         const int r = static_cast<int>(id / std::uint32_t(num_segs)), s = static_cast<int>(id % std::uint32_t(num_segs));
         RasterBlockRow(cx, r, s * kSegCols, std::min(w - 1, (s + 1) * kSegCols), y0, y1, fast, sh);
       }
@@ -791,7 +813,7 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
   // A view the front will reject (bad or no depth) never reaches the sums.
   const BlendBuffers* acc = counts.bad_depths == 0 && counts.valid_vertices > 0 ? accumulate : nullptr;
 
-  const int num_bands = BuildBandLists(scratch, h, w, th);
+  const int num_bands = BuildBandLists(scratch, h, w, th, tw);
   const bool equirect_target = target.model == CameraModel::kEquirect;
   Context cx{&color, &depth, &source, &target, &options, scratch.verts.data(),
              SideThreshold(options, target), equirect_target, tw, th};
@@ -820,20 +842,22 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
         }
       },
       [&](Shader&, int y0, int y1) {
+        // Row by row: the weights of a row, then its accumulation while the row is in L1/L2
+        // (the same per-pixel operations as a band-wide pass, one read of the row instead of two).
         std::int64_t my_covered = 0;
-        for (std::ptrdiff_t i = std::ptrdiff_t(y0) * tw; i < std::ptrdiff_t(y1) * tw; ++i) {
-          const float q = out_quality[i];
-          if (q > 0.f) {
-            out_weight.data[i] = Weight(q, out_depth.data[i], p);
-            ++my_covered;
-          } else {
-            out_weight.data[i] = 0.f;
+        for (int y = y0; y < y1; ++y) {
+          for (std::ptrdiff_t i = std::ptrdiff_t(y) * tw; i < std::ptrdiff_t(y + 1) * tw; ++i) {
+            const float q = out_quality[i];
+            if (q > 0.f) {
+              out_weight.data[i] = Weight(q, out_depth.data[i], p);
+              ++my_covered;
+            } else {
+              out_weight.data[i] = 0.f;
+            }
           }
+          if (acc) AccumulateRows(out_color.data, out_depth.data, out_weight.data, out_quality, *acc, y, y + 1);
         }
         covered += my_covered;
-        if (acc) {
-          AccumulateRows(out_color.data, out_depth.data, out_weight.data, out_quality, *acc, y0, y1);
-        }
       });
   counts.covered_pixels = covered;
   return counts;
@@ -939,7 +963,7 @@ WarpCounts RasterHoles(const ImageView<const float>& color, const ImageView<cons
   wo.quality = WarpQuality::kSide;
   wo.discard_stretched = false;
   const float t = options.stretch_threshold;
-  const int num_bands = BuildBandLists(scratch, depth.height, depth.width, th);
+  const int num_bands = BuildBandLists(scratch, depth.height, depth.width, th, tw);
   Context cx{&color, &depth, source, target, &wo, scratch.verts.data(), t, equirect_target, tw, th};
   scratch.depth_key.resize(std::size_t(th) * tw);
   double* key = scratch.depth_key.data();

@@ -46,8 +46,9 @@
 // finite float (infinite depth gets the smallest weight).
 //
 // Parallel and deterministic: pass 1 projects vertices (rows in parallel) and records the
-// target y range of each input row's 16-column segments; a counting sort then lists, per
-// 32-row target band, the block-row segments whose y range reaches it, in input order; pass 2
+// target y and x ranges of each input row's 16-column segments; a counting sort then lists, per
+// 32-row target band, the block-row segments whose y range reaches it and whose x range reaches
+// the image (segments wholly left or right of the target are never scanned), in input order; pass 2
 // rasterises each band (bands own their pixels) from its list, triangles in input order (no
 // per-triangle bins). The partition depends on the image sizes only, so results are
 // bit-identical for any thread count.
@@ -87,9 +88,10 @@ struct WarpVertex {
   float inv;          // 1 / target depth (0 = infinite)
 };
 
-// Target y (1/256 px) range of a run of projected vertices (lo > hi: none valid).
+// Target y and x (1/256 px) ranges of a run of projected vertices (lo > hi: none valid).
 struct YRange {
   std::int32_t lo, hi;
+  std::int32_t x_lo, x_hi;
 };
 
 // Working memory of the warp, grown (never shrunk) by ForwardWarp and reused across views.
