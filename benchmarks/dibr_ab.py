@@ -1,0 +1,105 @@
+"""Interleaved A/B of the DIBR kernels (forward warp + streaming blend) without Python in the loop.
+
+    python benchmarks/dibr_ab.py [--base REV] [--rounds 5] [--repeats 5] [--threads 1] [--views 4]
+                                 [--size 1920x1080]
+
+Builds benchmarks/dibr_ab/dibr_ab.cpp twice with the release flags of the engine (g++ -O3, no
+-march): once against cpp/kernels/{forward_warp,blend}.{h,cpp} of git revision --base (default
+HEAD), once against the working tree, and runs them alternately --rounds times on the scene of
+benchmarks/bench_dibr.py (``synth.make_scene("objects", views=8)``, target half-way between two
+ring cameras, the --views nearest inputs). Each run prints the minimum over --repeats of the
+process CPU time and the wall time of ClearBlend + views x ForwardWarp (accumulating) +
+ResolveBlend with the options of ``--method dibr``, and a hash of the outputs: the two builds must
+print the same hash (bit-identical results). On a shared machine compare the CPU times (the wall
+time of one thread is what the load leaves of a core); the script reports the minimum and median
+over the rounds. Needs g++ and TBB's headers (the engine's build dependencies).
+"""
+from __future__ import annotations
+
+import argparse
+import statistics
+import subprocess
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from ibrtools import synth
+
+ROOT = Path(__file__).resolve().parents[1]
+KERNEL_FILES = ("forward_warp.h", "forward_warp.cpp", "blend.h", "blend.cpp")
+
+
+def dump_scene(out: Path, size: tuple[int, int], k: int) -> None:
+    sc = synth.make_scene("objects", size=size, views=8, holdout_targets=1)
+    tgt = sc.targets[0]
+    c0 = tgt.camera.centre
+    views = sorted(sc.views, key=lambda v: float(np.linalg.norm(v.camera.centre - c0)))[:k]
+    lines = []
+    for i, v in enumerate(views + [tgt]):
+        c = v.camera
+        nums = [c.width, c.height, c.fx, c.fy, c.cx, c.cy] + list(np.asarray(c.cam_from_world)[:3, :4].ravel())
+        lines.append(" ".join(repr(float(x)) for x in nums))
+        if i < k:
+            np.ascontiguousarray(v.color, np.float32).tofile(out / f"c{i}.raw")
+            np.ascontiguousarray(v.depth, np.float32).tofile(out / f"d{i}.raw")
+    (out / "cams.txt").write_text("\n".join(lines) + "\n")
+
+
+def build(kernels: Path, exe: Path) -> None:
+    """kernels: a directory with kernels/<KERNEL_FILES>; the rest of the engine from the tree."""
+    cmd = ["g++", "-std=c++17", "-O3", "-DGLM_FORCE_XYZW_ONLY", f"-I{kernels}", f"-I{ROOT / 'cpp'}",
+           "-o", str(exe), str(ROOT / "benchmarks" / "dibr_ab" / "dibr_ab.cpp"),
+           str(kernels / "kernels" / "forward_warp.cpp"), str(kernels / "kernels" / "blend.cpp"),
+           str(ROOT / "cpp" / "ibr" / "parallel.cpp"), "-ltbb", "-lpthread"]
+    subprocess.run(cmd, check=True)
+
+
+def run(exe: Path, data: Path, threads: int, repeats: int, views: int) -> dict:
+    out = subprocess.run([str(exe), str(data), str(threads), str(repeats), str(views)], check=True,
+                         capture_output=True, text=True).stdout.split()
+    r = dict(zip(out[::2], out[1::2]))
+    return {"cpu": float(r["cpu_ms"]), "wall": float(r["wall_ms"]), "hash": r["hash"]}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--base", default="HEAD", help="git revision of the A side (B = working tree)")
+    ap.add_argument("--rounds", type=int, default=5)
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--views", type=int, default=4)
+    ap.add_argument("--size", default="1920x1080")
+    a = ap.parse_args()
+    w, h = (int(x) for x in a.size.lower().split("x"))
+    with tempfile.TemporaryDirectory(prefix="dibr_ab_") as tmp:
+        tmp = Path(tmp)
+        data = tmp / "data"
+        data.mkdir()
+        dump_scene(data, (w, h), a.views)
+        base = tmp / "base"
+        (base / "kernels").mkdir(parents=True)
+        for f in KERNEL_FILES:
+            src = subprocess.run(["git", "-C", str(ROOT), "show", f"{a.base}:cpp/kernels/{f}"], check=True,
+                                 capture_output=True).stdout
+            (base / "kernels" / f).write_bytes(src)
+        exes = {"A (" + a.base + ")": tmp / "a.bin", "B (working tree)": tmp / "b.bin"}
+        build(base, exes["A (" + a.base + ")"])
+        build(ROOT / "cpp", exes["B (working tree)"])
+        res: dict[str, list[dict]] = {k: [] for k in exes}
+        for r in range(a.rounds):
+            for name, exe in exes.items():
+                res[name].append(run(exe, data, a.threads, a.repeats, a.views))
+                x = res[name][-1]
+                print(f"round {r}: {name}: cpu {x['cpu']:.1f} ms, wall {x['wall']:.1f} ms, hash {x['hash']}", flush=True)
+        for name, rs in res.items():
+            cpu = [x["cpu"] for x in rs]
+            wall = [x["wall"] for x in rs]
+            print(f"{name}: cpu min {min(cpu):.1f} median {statistics.median(cpu):.1f} ms; "
+                  f"wall min {min(wall):.1f} median {statistics.median(wall):.1f} ms")
+        hashes = {x["hash"] for rs in res.values() for x in rs}
+        print("outputs identical" if len(hashes) == 1 else f"OUTPUTS DIFFER: {sorted(hashes)}")
+
+
+if __name__ == "__main__":
+    main()
