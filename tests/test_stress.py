@@ -478,15 +478,18 @@ def test_motion_buffer_matches_projection(size, f, data):
     # A subnormal depth may read as 0 (invalid; flush-to-zero / denormals-are-zero, see the
     # forward warp's pinned cases): normal depths must be valid for a camera that did not move.
     normal = depth >= np.finfo(np.float32).tiny
+    # ... and whose camera-space point fits float32 (x = (u - cx) / f * z overflows near float max)
+    x, y = src.pixel_grid()
+    fits = np.maximum(np.abs(x - src.cx), np.abs(y - src.cy)) / f * depth.astype(np.float64) < F32_MAX / 2
     if motion == 0.0:
         np.testing.assert_allclose(mv, 0.0, atol=1e-3)
-        np.testing.assert_allclose(dz[normal], depth[normal], rtol=1e-5)
+        good = normal & fits
+        np.testing.assert_allclose(dz[good], depth[good], rtol=1e-5)
         return
     ok = dz > 0
     if not ok.any():
         return
     # reference: float64 un-projection and projection (ibrtools.camera)
-    x, y = src.pixel_grid()
     uv, zz = dst.project(src.unproject(depth))
     want = uv[ok] - np.stack([x[ok], y[ok]], -1)
     tol = 1e-4 * np.abs(want) + 1e-3  # float32 arithmetic in the kernel
@@ -643,7 +646,9 @@ def test_cross_view_prediction_in_range(size, f, data):
     assert np.all(pred[~seen] == 0)
     if seen.any():
         lo, hi = min(float(i.min()) for i in imgs), max(float(i.max()) for i in imgs)
-        assert pred[seen].min() >= lo and pred[seen].max() <= hi
+        # a subnormal colour may read as 0 (flush-to-zero set by another library in the process)
+        floor = 0.0 if lo < np.finfo(np.float32).tiny else lo
+        assert pred[seen].min() >= floor and pred[seen].max() <= hi
 
 
 @STRESS

@@ -263,9 +263,12 @@ void DepthWarpMotion(const ImageView<const float>& depth, const ImageView<const 
         const float px = z * (cxr + rx * a0x) + tx;
         const float py = z * (cyr + rx * a0y) + ty;
         const float pz = z * (czr + rx * a0z) + tz;
-        const float inv = 1.0f / (pz > 0.0f ? pz : 1.0f);
-        const float mx = fx * px * inv + cx - (float(x) + 0.5f);
-        const float my = fy * py * inv + cy - yi;
+        // px / q, not px * (1 / q): for z near float max, 1 / q is subnormal and reads as 0
+        // when another library in the process has set flush-to-zero (pytest-xdist workers): the
+        // motion was then off by the principal-point offset (tests/test_stress.py).
+        const float q = pz > 0.0f ? pz : 1.0f;
+        const float mx = fx * (px / q) + cx - (float(x) + 0.5f);
+        const float my = fy * (py / q) + cy - yi;
         // NaN-safe: every comparison with NaN is false.
         const bool ok = z > 0.0f && pz > 0.0f && std::fabs(mx) < kDepthWarpMaxMotion && std::fabs(my) < kDepthWarpMaxMotion;
         o[4 * x + 0] = ok ? mx : 0.0f;
