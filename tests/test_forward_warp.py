@@ -265,3 +265,32 @@ def test_bad_inputs():
         opts.side_threshold = -1.0
     with pytest.raises(BadValueError, match="blend_exponent"):
         opts.blend_exponent = float("nan")
+
+
+def test_segments_outside_the_target_change_nothing():
+    """Input segments whose vertices all project left or right of the target are never scanned
+    (forward_warp.h, "Parallel and deterministic"). A target twice as wide to the right (same
+    fx, cx, pose: the same pixel coordinates for x < W) scans them, and its left half must equal
+    the narrow target's result bit for bit -- also where triangles straddle the narrow edge."""
+    rng = np.random.default_rng(7)
+    src = Camera.from_fov(160, 120, 70, look_at([0, 0, 0], [0, 0, 1]))
+    dep = (2 + 2 * rng.random((120, 160))).astype(np.float32)
+    col = noise_image(120, 160)
+    pose = look_at([0.3, 0.05, 0], [0.9, 0, 4])
+    narrow = Camera(model="pinhole", width=96, height=110, fx=90.0, fy=90.0, cx=20.5, cy=55.0, cam_from_world=pose)
+    wide = Camera(model="pinhole", width=192, height=110, fx=90.0, fy=90.0, cx=20.5, cy=55.0, cam_from_world=pose)
+    opts = _core.WarpOptions()
+    opts.side_threshold = 10.0  # the same T for both widths (the automatic T scales with the size)
+    a = _core.forward_warp(col, dep, src.to_core(), narrow.to_core(), opts)
+    b = _core.forward_warp(col, dep, src.to_core(), wide.to_core(), opts)
+    assert (a[2] > 0).mean() > 0.5 and (b[2][:, 96:] > 0).any()  # content on both sides of the cut
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(x, y[:, :96])
+    # ... and to the left: cx + 96 puts the narrow image at x >= 96 of this one. The projected x
+    # differs from the narrow one's + 96 by at most a rounding of the double sum (far below the
+    # 1/256 px snap; it would have to straddle a snap boundary to change a vertex).
+    left = Camera(model="pinhole", width=192, height=110, fx=90.0, fy=90.0, cx=116.5, cy=55.0, cam_from_world=pose)
+    c = _core.forward_warp(col, dep, src.to_core(), left.to_core(), opts)
+    assert (c[2][:, :96] > 0).any()
+    for x, y in zip(a, c):
+        np.testing.assert_array_equal(x, y[:, 96:])

@@ -401,13 +401,36 @@ inline void SmallQuad(const Context& cx, const WarpVertex& A, const WarpVertex& 
   if (area0 <= 0 && area1 <= 0) return;  // back-facing or degenerate
   const std::int32_t sx = px0 * kSubpixel + kSubpixel / 2, sy = py0 * kSubpixel + kSubpixel / 2;
   // Triangle 0: edge e opposite vertex e (B -> C, C -> A, A -> B); triangle 1: D -> C, C -> B,
-  // B -> D.
-  std::int32_t ex0[3], ey0[3], er0[3], ex1[3], ey1[3], er1[3];
-  std::int64_t bias0[3], bias1[3];
-  SmallEdge(B, C, sx, sy, &ex0[0], &ey0[0], &er0[0], &bias0[0]);
-  SmallEdge(C, A, sx, sy, &ex0[1], &ey0[1], &er0[1], &bias0[1]);
-  SmallEdge(A, B, sx, sy, &ex0[2], &ey0[2], &er0[2], &bias0[2]);
-  SmallEdge(D, C, sx, sy, &ex1[0], &ey1[0], &er1[0], &bias1[0]);
+  // B -> D. The four edges B -> C, C -> A, A -> B, D -> C side by side (SSE2 lanes), the fifth
+  // (B -> D) scalar as SmallEdge. The products dx (sy - p.y) and dy (sx - p.x) have factors below
+  // 1280 (coordinates span < 5 px), so they and every edge value at the <= 4 x 4 centres (below
+  // 2^23) are integers that float holds exactly: float arithmetic gives the same integers as
+  // 32-bit integer arithmetic (SSE2 has no 32-bit multiply), and the same signs (-0 == 0).
+  const __m128i pxv = _mm_setr_epi32(B.x, C.x, A.x, D.x), pyv = _mm_setr_epi32(B.y, C.y, A.y, D.y);
+  const __m128i qxv = _mm_setr_epi32(C.x, A.x, B.x, C.x), qyv = _mm_setr_epi32(C.y, A.y, B.y, C.y);
+  const __m128i dxv = _mm_sub_epi32(qxv, pxv), dyv = _mm_sub_epi32(qyv, pyv);
+  const __m128i zero = _mm_setzero_si128();
+  // owns = dy > 0 || (dy == 0 && dx < 0); bias = 1 where the edge does not own its points.
+  const __m128i owns = _mm_or_si128(_mm_cmpgt_epi32(dyv, zero),
+                                    _mm_and_si128(_mm_cmpeq_epi32(dyv, zero), _mm_cmpgt_epi32(zero, dxv)));
+  const __m128i biasv = _mm_andnot_si128(owns, _mm_set1_epi32(1));
+  const __m128 fer = _mm_sub_ps(
+      _mm_sub_ps(_mm_mul_ps(_mm_cvtepi32_ps(dxv), _mm_cvtepi32_ps(_mm_sub_epi32(_mm_set1_epi32(sy), pyv))),
+                 _mm_mul_ps(_mm_cvtepi32_ps(dyv), _mm_cvtepi32_ps(_mm_sub_epi32(_mm_set1_epi32(sx), pxv)))),
+      _mm_cvtepi32_ps(biasv));
+  const __m128i exv = _mm_slli_epi32(_mm_sub_epi32(zero, dyv), 8), eyv = _mm_slli_epi32(dxv, 8);  // * kSubpixel
+  alignas(16) std::int32_t er4[4], ex4[4], ey4[4], b4[4];
+  _mm_store_si128(reinterpret_cast<__m128i*>(er4), _mm_cvtps_epi32(fer));
+  _mm_store_si128(reinterpret_cast<__m128i*>(ex4), exv);
+  _mm_store_si128(reinterpret_cast<__m128i*>(ey4), eyv);
+  _mm_store_si128(reinterpret_cast<__m128i*>(b4), biasv);
+  std::int32_t ex0[3] = {ex4[0], ex4[1], ex4[2]}, ey0[3] = {ey4[0], ey4[1], ey4[2]}, er0[3] = {er4[0], er4[1], er4[2]};
+  std::int32_t ex1[3], ey1[3], er1[3];
+  std::int64_t bias0[3] = {b4[0], b4[1], b4[2]}, bias1[3];
+  ex1[0] = ex4[3];
+  ey1[0] = ey4[3];
+  er1[0] = er4[3];
+  bias1[0] = b4[3];
   SmallEdge(B, D, sx, sy, &ex1[2], &ey1[2], &er1[2], &bias1[2]);
   ex1[1] = -ex0[0];
   ey1[1] = -ey0[0];
@@ -415,16 +438,19 @@ inline void SmallQuad(const Context& cx, const WarpVertex& A, const WarpVertex& 
   bias1[1] = 1 - bias0[0];
   unsigned m0 = 0, m1 = 0;  // bit 4 j + i: centre (px0 + i, py0 + j) covered
   if (nx <= 2 && ny <= 2) {
-    // Branch-free 2 x 2 (the common case); centres beyond nx / ny masked off afterwards.
-    for (int j = 0; j < 2; ++j) {
-      for (int i = 0; i < 2; ++i) {
-        const std::int32_t d = er0[0] + ex0[0] * i + ey0[0] * j;
-        const std::int32_t a1 = er0[1] + ex0[1] * i + ey0[1] * j, a2 = er0[2] + ex0[2] * i + ey0[2] * j;
-        const std::int32_t b0 = er1[0] + ex1[0] * i + ey1[0] * j, b2 = er1[2] + ex1[2] * i + ey1[2] * j;
-        m0 |= unsigned((d | a1 | a2) >= 0) << (4 * j + i);
-        m1 |= unsigned((~d | b0 | b2) >= 0) << (4 * j + i);
-      }
-    }
+    // Branch-free 2 x 2 (the common case); centres beyond nx / ny masked off afterwards. Per
+    // centre, the sign bits of the four lane edges: triangle 0 needs B -> C, C -> A, A -> B >= 0;
+    // triangle 1 needs B -> C < 0 (its C -> B = ~(B -> C) >= 0), D -> C >= 0 and B -> D >= 0.
+    const __m128 fex = _mm_cvtepi32_ps(exv), fey = _mm_cvtepi32_ps(eyv), fz = _mm_setzero_ps();
+    const __m128 e00 = fer, e10 = _mm_add_ps(fer, fex), e01 = _mm_add_ps(fer, fey), e11 = _mm_add_ps(e10, fey);
+    const unsigned n00 = unsigned(_mm_movemask_ps(_mm_cmplt_ps(e00, fz))), n10 = unsigned(_mm_movemask_ps(_mm_cmplt_ps(e10, fz)));
+    const unsigned n01 = unsigned(_mm_movemask_ps(_mm_cmplt_ps(e01, fz))), n11 = unsigned(_mm_movemask_ps(_mm_cmplt_ps(e11, fz)));
+    const std::int32_t bd = er1[2], bdx = ex1[2], bdy = ey1[2];
+    const unsigned c00 = (n00 & 7u) == 0, c10 = (n10 & 7u) == 0, c01 = (n01 & 7u) == 0, c11 = (n11 & 7u) == 0;
+    const unsigned d00 = (n00 & 9u) == 1u && bd >= 0, d10 = (n10 & 9u) == 1u && bd + bdx >= 0;
+    const unsigned d01 = (n01 & 9u) == 1u && bd + bdy >= 0, d11 = (n11 & 9u) == 1u && bd + bdx + bdy >= 0;
+    m0 = c00 | (c10 << 1) | (c01 << 4) | (c11 << 5);
+    m1 = d00 | (d10 << 1) | (d01 << 4) | (d11 << 5);
     const unsigned valid = (nx == 2 ? 3u : 1u) * (ny == 2 ? 0x11u : 1u);
     m0 &= valid;
     m1 &= valid;
