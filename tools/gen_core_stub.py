@@ -86,6 +86,7 @@ OVERRIDES: dict[str, dict[str, str]] = {
     "hybrid_select": {"gbuffer_depth": "_F32", "inside_grid": "_Bool | None", "pvm_valid": "_Bool | None",
                       "pvm_depth": "_F32 | None", "vd": "_F32 | None"},
     "interpolate_vertex_attribute": {"prim_id": "_I32", "bary": "_F32", "faces": "_I32", "attrib": "_F32"},
+    "sample_atlas": {"prim_id": "_I32", "bary": "_F32", "uv": "_F32", "atlas": "_F32"},
     "interpolate_vertex_values": {"prim_id": "_I32", "bary": "_F32", "faces": "_I32", "values": "_F32"},
     "metameric_composite": {"moments": "_F32", "mask": "_Bool | _U8", "noise": "collections.abc.Sequence[_F32]",
                             "bands": "collections.abc.Sequence[_F32]", "flow": "_F32 | _F64 | None"},

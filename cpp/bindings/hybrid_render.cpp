@@ -1,5 +1,6 @@
 // Binding of the hybrid rendering kernels (cpp/kernels/hybrid.h, cpp/kernels/ulr.h):
 // _core.interpolate_vertex_attribute (TM colour / view-dependent texture from the G-buffer),
+// _core.sample_atlas (TM colour from the texture atlas at the G-buffer's hits),
 // _core.ulr_penalty / _core.ulr_select (the shared ULR ranking, for tests and Python callers),
 // _core.ulr_blend (per-pixel ULR), _core.hybrid_select, _core.blur_selection,
 // _core.hybrid_composite. Thin: checks arrays (array.h) and values, allocates the outputs,
@@ -71,6 +72,40 @@ FArray InterpolateVertexAttributeBinding(const py::object& prim_obj, const py::o
     py::gil_scoped_release release;
     InterpolateVertexAttribute(prim.data(), bary.data(), static_cast<std::int64_t>(h) * w, faces.data(), attrib.data(),
                                channels, out.mutable_data());
+  }
+  return out;
+}
+
+FArray SampleAtlasBinding(const py::object& prim_obj, const py::object& bary_obj, const py::object& uv_obj,
+                          const py::object& atlas_obj) {
+  auto prim = CheckArray<std::int32_t>(prim_obj, "prim_id", {{"H", -1}, {"W", -1}});
+  const auto h = prim.shape(0), w = prim.shape(1);
+  auto bary = CheckArray<float>(bary_obj, "bary", {{"H", h}, {"W", w}, {"2", 2}});
+  auto uv = CheckArray<float>(uv_obj, "uv", {{"M", -1}, {"3", 3}, {"2", 2}});
+  auto atlas = CheckArray<float>(atlas_obj, "atlas", {{"h", -1}, {"w", -1}, {"3", 3}});
+  if (atlas.shape(0) < 1 || atlas.shape(1) < 1) {
+    throw ShapeError("atlas: expected at least 1 x 1 texels, got " + std::to_string(atlas.shape(0)) + " x " +
+                     std::to_string(atlas.shape(1)));
+  }
+  const auto m = uv.shape(0);
+  {
+    const float* t = uv.data();
+    for (py::ssize_t i = 0; i < 6 * m; ++i) {
+      if (!std::isfinite(t[i])) throw BadValueError("uv: expected finite coordinates");
+    }
+    const std::int32_t* p = prim.data();
+    for (py::ssize_t i = 0; i < h * w; ++i) {
+      if (p[i] < -1 || p[i] >= m) {
+        throw BadValueError("prim_id: " + std::to_string(p[i]) + " is not a face index in [-1, " + std::to_string(m) +
+                            ")");
+      }
+    }
+  }
+  FArray out = NewArray<float>({h, w, py::ssize_t(3)});
+  {
+    py::gil_scoped_release release;
+    SampleAtlas(prim.data(), bary.data(), static_cast<std::int64_t>(h) * w, uv.data(), ConstViewOf(atlas),
+                out.mutable_data());
   }
   return out;
 }
@@ -207,6 +242,10 @@ void BindHybridRender(py::module_& m) {
         py::arg("faces"), py::arg("attrib"),
         "Per-vertex attribute (N,) or (N, C) float32 interpolated at each pixel's hit (prim_id (H, W) int32, "
         "-1 = none; bary (H, W, 2) Embree (u, v)): (H, W) or (H, W, C), 0 where nothing is hit.");
+  m.def("sample_atlas", &SampleAtlasBinding, py::arg("prim_id"), py::arg("bary"), py::arg("uv"), py::arg("atlas"),
+        "TM colour from a texture atlas: atlas (h, w, 3) float32 read bilinearly (edge-clamped) at each pixel's hit "
+        "(prim_id (H, W) int32, -1 = none; bary (H, W, 2) Embree (u, v)) at the face's uv (M, 3, 2) float32 in atlas "
+        "pixels (x right, y down, centres at +0.5): (H, W, 3), 0 where nothing is hit.");
   m.def(
       "ulr_penalty",
       [](const std::vector<float>& p, const std::vector<float>& c_novel, const std::vector<float>& c_view,

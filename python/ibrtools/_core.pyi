@@ -17,7 +17,7 @@ _U8: typing.TypeAlias = numpy.typing.NDArray[numpy.uint8]
 _I8: typing.TypeAlias = numpy.typing.NDArray[numpy.int8]
 _Bool: typing.TypeAlias = numpy.typing.NDArray[numpy.bool_]
 _Light: typing.TypeAlias = tuple[str, collections.abc.Sequence[float], collections.abc.Sequence[float], bool]
-__all__: list[str] = ['Camera', 'CameraModel', 'DepthWarpMips', 'DibrAccumulator', 'EMBREE_VERSION', 'OcclusionScene', 'PvmRenderer', 'RayScene', 'WARP_DISOCCLUDED', 'WARP_SURFACE', 'WARP_UNCOVERED', 'WarpOptions', 'YMap', 'blur_selection', 'cross_view_prediction', 'cull_awoc_fill', 'cull_object_boxes', 'cull_project_boxes', 'dw_build_mips', 'dw_forward', 'dw_motion', 'dw_warp', 'forward_warp', 'get_num_threads', 'grid_maxflow', 'hybrid_composite', 'hybrid_select', 'interpolate_vertex_attribute', 'interpolate_vertex_values', 'metameric_composite', 'metameric_pushpull_moments', 'metameric_stack_moments', 'mip_build', 'mip_foveate_level', 'mip_lookup', 'mip_max_levels', 'poisson_blend', 'pushpull', 'pvm_slice', 'pvm_triangulate', 'set_num_threads', 'shadow_map_visibility', 'ssim', 'steerable_analyse', 'steerable_max_levels', 'steerable_synthesise', 'ulr_blend', 'ulr_penalty', 'ulr_select', 'warp_flow', 'warp_with_holes']
+__all__: list[str] = ['Camera', 'CameraModel', 'DepthWarpMips', 'DibrAccumulator', 'EMBREE_VERSION', 'OcclusionScene', 'PvmRenderer', 'RayScene', 'WARP_DISOCCLUDED', 'WARP_SURFACE', 'WARP_UNCOVERED', 'WarpOptions', 'YMap', 'blur_selection', 'cross_view_prediction', 'cull_awoc_fill', 'cull_object_boxes', 'cull_project_boxes', 'dw_build_mips', 'dw_forward', 'dw_motion', 'dw_warp', 'forward_warp', 'get_num_threads', 'grid_maxflow', 'hybrid_composite', 'hybrid_select', 'interpolate_vertex_attribute', 'interpolate_vertex_values', 'metameric_composite', 'metameric_pushpull_moments', 'metameric_stack_moments', 'mip_build', 'mip_foveate_level', 'mip_lookup', 'mip_max_levels', 'poisson_blend', 'pushpull', 'pvm_slice', 'pvm_triangulate', 'sample_atlas', 'set_num_threads', 'shadow_map_visibility', 'ssim', 'steerable_analyse', 'steerable_max_levels', 'steerable_synthesise', 'ulr_blend', 'ulr_penalty', 'ulr_select', 'warp_flow', 'warp_with_holes']
 
 class CameraModel:
     """
@@ -468,6 +468,11 @@ def pvm_slice(vertices: _F32, faces: _I32, face_view: _I32, n_views: typing.Supp
 def pvm_triangulate(depth: _F32, plane_field: _F32 | None, max_rel_jump: typing.SupportsFloat | typing.SupportsIndex=0.029999999329447746, plane_tol: typing.SupportsFloat | typing.SupportsIndex=0.0010000000474974513, max_block: typing.SupportsInt | typing.SupportsIndex=16) -> numpy.typing.NDArray[numpy.int32]:
     """
     Triangles over the pixel grid of depth float32 (H, W) (cpp/kernels/pvm.h PvmTriangulate): int32 (F, 3) vertex ids y * W + x (pixel centres), counter-clockwise seen from the camera; edges cut where the relative depth jump exceeds max_rel_jump; blocks of up to max_block quads merged where plane_field (float32 (H, W), 1/z for pinhole; None = no merging) is planar within plane_tol.
+    """
+
+def sample_atlas(prim_id: _I32, bary: _F32, uv: _F32, atlas: _F32) -> numpy.typing.NDArray[numpy.float32]:
+    """
+    TM colour from a texture atlas: atlas (h, w, 3) float32 read bilinearly (edge-clamped) at each pixel's hit (prim_id (H, W) int32, -1 = none; bary (H, W, 2) Embree (u, v)) at the face's uv (M, 3, 2) float32 in atlas pixels (x right, y down, centres at +0.5): (H, W, 3), 0 where nothing is hit.
     """
 
 def set_num_threads(num_threads: typing.SupportsInt | typing.SupportsIndex) -> None:

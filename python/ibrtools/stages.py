@@ -158,7 +158,8 @@ STAGES: dict[str, Stage] = {s.name: s for s in (
     Stage("depth", ("scene", "mesh"), ("depth.npz",), frozenset({"ulr", "pvm", "hybrid"}),
           "per-view depth rendered from the global mesh, for views without depth"),
     Stage("texture", ("scene", "mesh", "depth"), ("texture.npz",), frozenset({"tm", "hybrid"}),
-          "per-vertex colour of the global mesh by ULR-weighted blending of the views"),
+          "texture atlas and per-vertex colour of the global mesh by ULR-weighted blending of the views",
+          version=2),
     Stage("variance", ("scene", "mesh", "depth"), ("variance.npz",), frozenset({"hybrid"}),
           "per-vertex photometric standard deviation across the views that see it"),
     Stage("harmonise", ("scene", "mesh", "variance"), ("harmonise.npz",), frozenset({"hybrid"}),
@@ -362,7 +363,7 @@ def _params(name: str, options: dict) -> dict:
         if name == "mesh":
             return {k: o[k] for k in ("source", "resolution", "trunc_voxels", "max_edge_voxels", "max_faces")}
         if name == "texture":
-            return {k: o[k] for k in ("k_views", "depth_tol")}
+            return {k: o[k] for k in ("k_views", "depth_tol", "atlas_texel", "atlas_max_texels")}
         return {}
     if name == "pvm":
         return PvmOptions(**options.get("pvm", {})).to_dict()
@@ -399,14 +400,29 @@ def _run_depth(ctx: _Context) -> dict:
 
 
 def _run_texture(ctx: _Context) -> dict:
+    from .hybrid import atlas as A
     from .hybrid.globalmesh import GlobalMeshOptions, vertex_colors
 
     opts = GlobalMeshOptions(**ctx.options.get("mesh", {}))
     colors = {v.name: v.color for v in ctx.scene.views}
-    col, seen = vertex_colors(ctx.mesh(), ctx.cameras(), colors, ctx.depths(), opts)
-    save_npz(ctx.cache("texture") / "texture.npz", vertex_colors=col, seen=seen)
-    ctx.memo["texture"] = {"vertex_colors": col, "seen": seen}
-    return {"vertices": int(len(col)), "unseen": int((seen == 0).sum())}
+    mesh, cams, deps = ctx.mesh(), ctx.cameras(), ctx.depths()
+    col, seen = vertex_colors(mesh, cams, colors, deps, opts)
+    rec = {"vertices": int(len(col)), "unseen": int((seen == 0).sum())}
+    arrays = {"vertex_colors": col, "seen": seen}
+    # The atlas (issue 7): per-texel colour at about the input views' resolution; a mesh with too
+    # many faces for atlas_max_texels keeps the per-vertex colour only (TM renders that).
+    try:
+        lay = A.layout(mesh, opts.atlas_texel * A.texel_size(cams, deps), opts.atlas_max_texels)
+    except BadValueError as e:
+        rec["atlas"] = f"none ({e})"
+    else:
+        img, unseen = A.bake(mesh, lay, cams, colors, deps, col, opts)
+        arrays.update(atlas=img, uv=lay.uv)
+        rec.update(atlas=f"{img.shape[1]}x{img.shape[0]}", texel=float(f"{lay.texel:.4g}"),
+                   unseen_texels=round(unseen, 4))
+    save_npz(ctx.cache("texture") / "texture.npz", **arrays)
+    ctx.memo["texture"] = arrays
+    return rec
 
 
 def _run_variance(ctx: _Context) -> dict:

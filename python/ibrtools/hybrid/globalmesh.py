@@ -40,10 +40,14 @@ class GlobalMeshOptions:
     source: str = "auto"
     resolution: int = 384        # TSDF voxel = largest extent of the depth points / resolution
     trunc_voxels: float = 4.0    # TSDF truncation distance in voxels
-    max_edge_voxels: float = 1.0  # densify a given mesh to edges <= this many voxels
+    max_edge_voxels: float = 4.0  # densify a given mesh to edges <= this many voxels (colour: the atlas)
     max_faces: int = 4_000_000   # cap on densification
     k_views: int = 4             # ULR: views blended per vertex
     depth_tol: float = 0.02      # visibility: |z_vertex - z_view| <= depth_tol * z_view
+    # texture atlas (hybrid/atlas.py): texel = atlas_texel x the input views' median pixel
+    # footprint on the surface; at most atlas_max_texels (2048^2) texels (the texel grows to fit).
+    atlas_texel: float = 1.0
+    atlas_max_texels: int = 4_194_304
 
     def __post_init__(self) -> None:
         if self.source not in SOURCES:
@@ -56,6 +60,9 @@ class GlobalMeshOptions:
         check_int(self.k_views, "k_views", 1)
         if not check_float(self.depth_tol, "depth_tol") > 0:
             raise BadValueError("depth_tol: expected > 0")
+        if not check_float(self.atlas_texel, "atlas_texel") > 0:
+            raise BadValueError("atlas_texel: expected > 0")
+        check_int(self.atlas_max_texels, "atlas_max_texels", 16)
 
     def to_dict(self) -> dict:
         return {f.name: getattr(self, f.name) for f in fields(self)}
@@ -255,12 +262,21 @@ def vertex_colors(mesh: Mesh, cameras: Mapping[str, Camera], colors: Mapping[str
                   ) -> tuple[np.ndarray, np.ndarray]:
     """ULR-weighted blend of the views' colours at each vertex: (colors (N, 3) f32, seen (N,) int32
     = number of views that see the vertex). Vertices no view sees get colour 0."""
+    return point_colors(mesh.vertices, vertex_normals(mesh.vertices, mesh.faces), cameras, colors, depths, options)
+
+
+def point_colors(points: np.ndarray, normals: np.ndarray, cameras: Mapping[str, Camera],
+                 colors: Mapping[str, np.ndarray], depths: Mapping[str, np.ndarray],
+                 options: GlobalMeshOptions | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """ULR-weighted blend of the views' colours at surface points with unit normals (both (N, 3)):
+    (colors (N, 3) f32, seen (N,) int32). The per-vertex texture (:func:`vertex_colors`) and the
+    texture atlas (:mod:`ibrtools.hybrid.atlas`, per texel) share it. Points no view sees get 0."""
     options = options or GlobalMeshOptions()
     names = list(cameras)
     if not names:
         raise BadValueError("vertex colours: no views")
-    v = mesh.vertices.astype(np.float64)
-    nrm = vertex_normals(mesh.vertices, mesh.faces).astype(np.float64)
+    v = np.asarray(points, np.float64)
+    nrm = np.asarray(normals, np.float64)
     n_v, n_views = len(v), len(names)
     penalty = np.full((n_views, n_v), np.inf, np.float32)
     dist = np.full((n_views, n_v), np.inf, np.float32)

@@ -5,8 +5,10 @@ Every method starts from the **G-buffer** of the global mesh (the ``mesh`` stage
 casting (``ReferenceRenderer``, outputs depth, normal, prim_id, bary; no shading), one ray per
 pixel centre.
 
-* ``tm`` (textured mesh): the ``texture`` stage's per-vertex colour interpolated with the hit's
-  barycentrics (C++ ``_core.interpolate_vertex_attribute``). Pixels the mesh misses are holes.
+* ``tm`` (textured mesh): the ``texture`` stage's atlas read bilinearly at the hit's UV (the
+  face's UVs interpolated with the hit's barycentrics, C++ ``_core.sample_atlas``); a texture
+  stage from before the atlas (no ``atlas`` array): its per-vertex colour interpolated
+  (``_core.interpolate_vertex_attribute``). Pixels the mesh misses are holes.
 * ``ulr`` (per-pixel Unstructured Lumigraph, Buehler et al. 2001): at each G-buffer point the
   input views are ranked by the ULR penalty (cpp/kernels/ulr.h: angle + 0.5 x resolution term),
   views that do not see the point (outside the image, behind the surface, or the depth at the
@@ -116,13 +118,20 @@ class _GlobalMesh:
         self.build_ms = (time.perf_counter() - t0) * 1e3
         self.faces = np.ascontiguousarray(self.mesh.faces, np.int32)
         self.colors = None
+        self.atlas = self.uv = None
         if texture:
             tex = _stage(scene, "texture", method)
             self.colors = np.ascontiguousarray(tex["vertex_colors"], np.float32)
+            rerun = f"; rerun ibr-preprocess {scene.root} -o {scene.root} --stages texture --force"
             if self.colors.shape != (len(self.mesh.vertices), 3):
                 raise InputError(f"texture stage: vertex_colors shape {self.colors.shape} does not match the mesh's "
-                                 f"{len(self.mesh.vertices)} vertices; rerun ibr-preprocess {scene.root} "
-                                 f"-o {scene.root} --stages texture --force")
+                                 f"{len(self.mesh.vertices)} vertices" + rerun)
+            if "atlas" in tex:
+                self.atlas = np.ascontiguousarray(tex["atlas"], np.float32)
+                self.uv = np.ascontiguousarray(tex["uv"], np.float32)
+                if self.uv.shape != (len(self.faces), 3, 2) or self.atlas.ndim != 3 or self.atlas.shape[2] != 3:
+                    raise InputError(f"texture stage: atlas {self.atlas.shape} / uv {self.uv.shape} do not match the "
+                                     f"mesh's {len(self.faces)} faces" + rerun)
 
     def gbuffer(self, camera: Camera, normal: bool = True) -> dict:
         """depth, prim_id, bary (and the normal, for ULR's back-face test); hit = prim_id >= 0."""
@@ -130,6 +139,15 @@ class _GlobalMesh:
         out = self.renderer.render(camera, outputs=names, lights=[], ambient=0.0)
         out["hit"] = out["prim_id"] >= 0
         return out
+
+    def tm_color(self, gb: dict) -> np.ndarray:
+        """TM colour at the G-buffer's hits: the atlas when the texture stage has one, else the
+        per-vertex colour."""
+        from .. import _core
+
+        if self.atlas is not None:
+            return _core.sample_atlas(gb["prim_id"], gb["bary"], self.uv, self.atlas)
+        return self.interpolate(gb, self.colors)
 
     def interpolate(self, gb: dict, attrib: np.ndarray) -> np.ndarray:
         from .. import _core
@@ -178,7 +196,7 @@ def _views_for_ulr(scene: Scene, method: str, harmonised: bool, gm: "_GlobalMesh
 
 
 class TmMethod:
-    """Textured global mesh (per-vertex colour of the texture stage)."""
+    """Textured global mesh (the texture stage's atlas)."""
 
     name = "tm"
 
@@ -197,7 +215,7 @@ class TmMethod:
         t0 = time.perf_counter()
         gb = self._gm.gbuffer(camera, normal=False)
         t1 = time.perf_counter()
-        color = self._gm.interpolate(gb, self._gm.colors)
+        color = self._gm.tm_color(gb)
         t2 = time.perf_counter()
         return ({"color": color, "depth": gb["depth"], "hole": ~gb["hit"]},
                 {"gbuffer": (t1 - t0) * 1e3, "tm_shade": (t2 - t1) * 1e3})
@@ -239,7 +257,7 @@ class UlrMethod:
         seen = count > 0
         times = {"gbuffer": (t1 - t0) * 1e3, "ulr_blend": (t2 - t1) * 1e3}
         if self._gm.colors is not None:
-            tm = self._gm.interpolate(gb, self._gm.colors)
+            tm = self._gm.tm_color(gb)
             color = np.where(seen[..., None], ulr, tm)
             hole = ~gb["hit"]
             times["tm_fallback"] = (time.perf_counter() - t2) * 1e3
@@ -307,7 +325,7 @@ class HybridMethod:
         t0 = time.perf_counter()
         gb = self._gm.gbuffer(camera)
         t1 = time.perf_counter()
-        tm = self._gm.interpolate(gb, self._gm.colors)
+        tm = self._gm.tm_color(gb)
         vd = self._gm.interpolate(gb, self._vd) if self._vd is not None else None
         t2 = time.perf_counter()
         times["gbuffer"], times["tm_shade"] = (t1 - t0) * 1e3, (t2 - t1) * 1e3

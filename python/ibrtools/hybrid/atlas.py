@@ -1,0 +1,194 @@
+"""A UV texture atlas for the global mesh (issue 7: TM as a textured mesh, as the paper's TM is;
+docs/preprocess.md "Texture").
+
+* :func:`layout` — parameterisation and packing of our own: the faces are sorted by their
+  longest edge and paired; each pair gets a square cell of N x N texels (N = longest edge of the
+  pair / texel + 4, so every edge gets at least its length in texels), face A in the lower-left
+  corner with legs N - 3, face B in the upper-right corner with legs N - 4. Texel (i, j) of the
+  cell belongs to A when (i + 0.5) + (j + 0.5) <= N, else to B. A bilinear read at (x, y) touches
+  texel centres within 1 of x and of y, so sums of centres within 2 of x + y; A's diagonal lies
+  at x + y = N - 1 and B's at N + 2, so a bilinear lookup anywhere inside a face reads only
+  texels assigned to that face (tests/test_atlas.py checks it). Cells of one size form a grid
+  block; blocks are stacked (a loop over the distinct sizes, at most ``max_cell``). One chart per
+  face: no seams to cut, no distortion beyond mapping each triangle to a right isosceles one.
+  (open3d's UVAtlas, ``compute_uvatlas``, was not used: it takes minutes on 10^5 faces and
+  offers nothing the per-face charts need here.)
+* :func:`bake` — per texel, the world point of its face at the texel centre's barycentrics
+  (clamped to the face: texels outside it take the face's nearest point, which is the charts'
+  dilation) and the interpolated vertex normal; colour = the ULR-weighted blend of the views
+  that see the point, the same weights as the per-vertex texture
+  (:func:`ibrtools.hybrid.globalmesh.point_colors`); texels no view sees get the per-vertex colour.
+* :func:`texel_size` — the views' median pixel footprint on the surface (depth / focal length).
+
+Coordinates: ``uv`` (M, 3, 2) float32 in atlas pixels (x right, y down, pixel centres at
++0.5), as the sampling kernel (``_core.sample_atlas``) reads them; :func:`obj_uvs` converts to the
+OBJ convention of :class:`ibrtools.mesh.Mesh` (normalised, v up).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+
+from ..camera import PINHOLE, Camera
+from ..errors import BadValueError, DtypeError, ShapeError
+from ..mesh import Mesh
+from .globalmesh import GlobalMeshOptions, point_colors, vertex_normals
+
+MIN_CELL = 5  # B's legs of N - 4 texels: >= 1 texel
+CHUNK = 1 << 19  # texels per point_colors call (bounds the (views, texels) penalty arrays)
+
+
+@dataclass
+class AtlasLayout:
+    uv: np.ndarray          # (M, 3, 2) float32, atlas pixels
+    face_of_texel: np.ndarray  # (H, W) int32, -1 = unused
+    texel: float            # world units per texel
+
+
+def _check_mesh(mesh: Mesh) -> None:
+    if not isinstance(mesh, Mesh):
+        raise DtypeError(f"mesh: expected an ibrtools.Mesh, got {type(mesh).__name__}")
+    if len(mesh.faces) == 0:
+        raise BadValueError("texture atlas: the mesh has no faces")
+
+
+def texel_size(cameras: Mapping[str, Camera], depths: Mapping[str, np.ndarray]) -> float:
+    """Median over the views of (median valid depth) x (angle per pixel): the size of an input
+    pixel on the surface, in world units."""
+    sizes = []
+    for n, cam in cameras.items():
+        d = np.asarray(depths[n])
+        ok = d[np.isfinite(d) & (d > 0)]
+        if ok.size == 0:
+            continue
+        per_px = 1.0 / cam.fx if cam.model == PINHOLE else (cam.lon_range[1] - cam.lon_range[0]) / cam.width
+        sizes.append(float(np.median(ok)) * per_px)
+    if not sizes:
+        raise BadValueError("texture atlas: no view has a valid depth pixel (cannot choose the texel size)")
+    return float(np.median(sizes))
+
+
+def layout(mesh: Mesh, texel: float, max_texels: int = 4_194_304, max_cell: int = 256) -> AtlasLayout:
+    """Per-face charts packed in cells of face pairs (module docstring). ``texel``: world units per
+    texel; grown (by factors of 1.25) until the atlas holds at most ``max_texels``."""
+    _check_mesh(mesh)
+    if not (isinstance(texel, (int, float)) and math.isfinite(texel) and texel > 0):
+        raise BadValueError(f"texture atlas: texel size must be a finite number > 0, got {texel!r}")
+    if int(max_texels) < MIN_CELL * MIN_CELL:
+        raise BadValueError(f"texture atlas: max_texels must be >= {MIN_CELL * MIN_CELL}, got {max_texels}")
+    v = mesh.vertices.astype(np.float64)
+    f = mesh.faces
+    m = len(f)
+    e = np.stack([v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 1]], v[f[:, 0]] - v[f[:, 2]]], 1)
+    longest = np.linalg.norm(e, axis=-1).max(1)
+    order = np.argsort(longest, kind="stable")[::-1]  # largest first
+    n_pairs = (m + 1) // 2
+    pairs = np.full(2 * n_pairs, -1, np.int64)
+    pairs[:m] = order
+    pairs = pairs.reshape(n_pairs, 2)
+    pair_len = longest[pairs[:, 0]]  # the larger of the two
+    while True:
+        cell = np.clip(np.ceil(pair_len / texel).astype(np.int64) + MIN_CELL, MIN_CELL, max_cell)
+        total = int((cell * cell).sum())
+        if total <= max_texels or (cell == MIN_CELL).all():
+            break
+        texel *= 1.25
+    if total > max_texels:
+        raise BadValueError(f"texture atlas: {m} faces need at least {total} texels, more than max_texels "
+                            f"{max_texels}")
+    width = int(max(int(cell.max()), math.ceil(math.sqrt(total))))
+    sizes = np.unique(cell)[::-1]
+    # Block per cell size: a grid of width // N columns; blocks stacked top to bottom.
+    origin = np.zeros((n_pairs, 2), np.int64)
+    y0 = 0
+    for n in sizes:  # loop over distinct cell sizes (<= max_cell), not over faces
+        idx = np.flatnonzero(cell == n)
+        cols = width // n
+        k = np.arange(len(idx))
+        origin[idx, 0] = (k % cols) * n
+        origin[idx, 1] = y0 + (k // cols) * n
+        y0 += int(math.ceil(len(idx) / cols)) * n
+    height = y0
+    nf = cell.astype(np.float64)[:, None]
+    ox, oy = origin[:, 0:1].astype(np.float64), origin[:, 1:2].astype(np.float64)
+    # A: (1, 1), (N - 2, 1), (1, N - 2) (diagonal x + y = N - 1); B: (N - 1, N - 1), (3, N - 1),
+    # (N - 1, 3) (diagonal x + y = N + 2).
+    ua = np.stack([np.concatenate([ox + 1, oy + 1], 1), np.concatenate([ox + nf - 2, oy + 1], 1),
+                   np.concatenate([ox + 1, oy + nf - 2], 1)], 1)
+    ub = np.stack([np.concatenate([ox + nf - 1, oy + nf - 1], 1), np.concatenate([ox + 3, oy + nf - 1], 1),
+                   np.concatenate([ox + nf - 1, oy + 3], 1)], 1)
+    uv = np.zeros((m, 3, 2), np.float32)
+    uv[pairs[:, 0]] = ua
+    has_b = pairs[:, 1] >= 0
+    uv[pairs[has_b, 1]] = ub[has_b]
+    # Texel ownership: centre (i + 0.5, j + 0.5) in the cell; i + j + 1 <= N -> A, else B.
+    fot = np.full((height, width), -1, np.int32)
+    for n in sizes:
+        idx = np.flatnonzero(cell == n)
+        jj, ii = np.mgrid[0:n, 0:n]
+        is_a = (ii + jj + 1) <= n
+        owner = np.where(is_a[None], pairs[idx, 0][:, None, None], pairs[idx, 1][:, None, None])
+        ys = origin[idx, 1][:, None, None] + jj[None]
+        xs = origin[idx, 0][:, None, None] + ii[None]
+        fot[ys, xs] = owner
+    return AtlasLayout(uv, fot, float(texel))
+
+
+def texel_barycentrics(lay: AtlasLayout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """((ys, xs, face), bary (T, 3)) of the used texels: barycentrics of the texel centre in its
+    face's chart, clamped to the face (negative weights set to 0, renormalised)."""
+    ys, xs = np.nonzero(lay.face_of_texel >= 0)
+    face = lay.face_of_texel[ys, xs]
+    p = np.stack([xs + 0.5, ys + 0.5], 1).astype(np.float64)
+    t = lay.uv[face].astype(np.float64)
+    d1, d2, dp = t[:, 1] - t[:, 0], t[:, 2] - t[:, 0], p - t[:, 0]
+    det = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
+    b1 = (dp[:, 0] * d2[:, 1] - dp[:, 1] * d2[:, 0]) / det
+    b2 = (d1[:, 0] * dp[:, 1] - d1[:, 1] * dp[:, 0]) / det
+    bary = np.maximum(np.stack([1 - b1 - b2, b1, b2], 1), 0)
+    bary /= bary.sum(1, keepdims=True)
+    return (ys, xs, face), bary
+
+
+def bake(mesh: Mesh, lay: AtlasLayout, cameras: Mapping[str, Camera], colors: Mapping[str, np.ndarray],
+         depths: Mapping[str, np.ndarray], vertex_color: np.ndarray,
+         options: GlobalMeshOptions | None = None) -> tuple[np.ndarray, float]:
+    """The atlas image (H, W, 3) float32 and the fraction of used texels no view sees (those get
+    ``vertex_color`` interpolated; unused texels 0)."""
+    _check_mesh(mesh)
+    vc = np.asarray(vertex_color, np.float32)
+    if vc.shape != (len(mesh.vertices), 3):
+        raise ShapeError(f"vertex_color: expected shape ({len(mesh.vertices)}, 3), got {vc.shape}")
+    h, w = lay.face_of_texel.shape
+    if h == 0 or w == 0:
+        raise BadValueError("texture atlas: the layout has size 0")
+    (ys, xs, face), bary = texel_barycentrics(lay)
+    fv = mesh.faces[face]
+    vn = vertex_normals(mesh.vertices, mesh.faces)
+    img = np.zeros((h, w, 3), np.float32)
+    unseen = 0
+    for lo in range(0, len(face), CHUNK):
+        sl = slice(lo, lo + CHUNK)
+        b, f3 = bary[sl], fv[sl]
+        pts = np.einsum("tk,tkc->tc", b, mesh.vertices[f3].astype(np.float64))
+        nrm = np.einsum("tk,tkc->tc", b, vn[f3].astype(np.float64))
+        nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
+        col, seen = point_colors(pts, nrm, cameras, colors, depths, options)
+        miss = seen == 0
+        if miss.any():
+            col[miss] = np.einsum("tk,tkc->tc", b[miss], vc[f3[miss]]).astype(np.float32)
+        unseen += int(miss.sum())
+        img[ys[sl], xs[sl]] = col
+    return img, unseen / max(1, len(face))
+
+
+def obj_uvs(uv: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Atlas-pixel UVs -> OBJ convention (u = x / W, v = 1 - y / H), for :class:`ibrtools.mesh.Mesh`."""
+    h, w = size
+    out = np.empty_like(uv, dtype=np.float32)
+    out[..., 0] = uv[..., 0] / w
+    out[..., 1] = 1.0 - uv[..., 1] / h
+    return out
