@@ -68,6 +68,9 @@ def main(argv=None) -> int:
     p.add_argument("--exposure-jitter", type=float, default=0.1, help="per-view exposure jitter (default 0.1)")
     p.add_argument("--speed-size", default="1280x720", help="WxH of the timed frames (default 1280x720)")
     p.add_argument("--repeats", type=int, default=3, help="timed renders per target and method (default 3)")
+    p.add_argument("--max-edge-voxels", type=float, default=None,
+                   help="mesh.max_edge_voxels of the mesh stage (default: the pipeline's, 1; 4 gives a mesh "
+                        "coarse enough for the texture atlas)")
     p.add_argument("-j", "--threads", type=int, default=0, help="engine threads (default: all cores)")
     p.add_argument("--write-docs", action="store_true", help=f"replace the section in {DOCS.name}")
     args = p.parse_args(argv)
@@ -87,7 +90,9 @@ def main(argv=None) -> int:
                  "holdout_targets": args.targets, "depth_noise": args.depth_noise,
                  "exposure_jitter": args.exposure_jitter}
         t0 = time.perf_counter()
-        rows = preprocess("synth:objects", root, synth=synth, methods=["tm", "ulr", "pvm", "hybrid"])
+        stage_options = {"mesh": {"max_edge_voxels": args.max_edge_voxels}} if args.max_edge_voxels else None
+        rows = preprocess("synth:objects", root, synth=synth, methods=["tm", "ulr", "pvm", "hybrid"],
+                          stage_options=stage_options)
         prep_s = time.perf_counter() - t0
         stage_s = {r.name: (r.status, r.seconds) for r in rows}
         print(f"preprocess {prep_s:.1f} s: " + ", ".join(f"{k} {v[0]} {v[1]:.1f}s" for k, v in stage_s.items()),
@@ -140,7 +145,8 @@ def main(argv=None) -> int:
              "pvm_unfiltered": "PVM unfiltered (PVM-H-like)", "hybrid": "hybrid"}
     lines = [f"Hybrid IBR rendering (`python benchmarks/bench_hybrid.py --write-docs`), {machine()}, "
              f"{_core.get_num_threads()} threads. Scene: synth:objects, {args.views} input views of "
-             f"{size[0]}x{size[1]}, reconstructed (degraded) global mesh, depth noise {args.depth_noise}, "
+             f"{size[0]}x{size[1]}, reconstructed (degraded) global mesh (mesh.max_edge_voxels "
+             f"{args.max_edge_voxels or 'default'}), depth noise {args.depth_noise}, "
              f"exposure jitter {args.exposure_jitter}, glossy objects; {len(targets)} held-out targets no "
              f"stage reads. Preprocessing (tm, ulr, pvm, hybrid) took {prep_s:.1f} s "
              f"({', '.join(f'{k} {v[1]:.1f} s' + ('' if v[0] == 'ran' else f' {v[0]}') for k, v in stage_s.items())}).",

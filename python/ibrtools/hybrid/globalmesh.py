@@ -40,7 +40,7 @@ class GlobalMeshOptions:
     source: str = "auto"
     resolution: int = 384        # TSDF voxel = largest extent of the depth points / resolution
     trunc_voxels: float = 4.0    # TSDF truncation distance in voxels
-    max_edge_voxels: float = 4.0  # densify a given mesh to edges <= this many voxels (colour: the atlas)
+    max_edge_voxels: float = 1.0  # densify a given mesh to edges <= this many voxels
     max_faces: int = 4_000_000   # cap on densification
     k_views: int = 4             # ULR: views blended per vertex
     depth_tol: float = 0.02      # visibility: |z_vertex - z_view| <= depth_tol * z_view
