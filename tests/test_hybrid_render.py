@@ -295,6 +295,7 @@ def test_exact_mesh_tm_ulr_match_reference_on_diffuse(exact_scene):
     tm, ulr = methods.create("tm"), methods.create("ulr")
     tm.prepare(exact_scene)
     ulr.prepare(exact_scene)
+    assert tm._gm.atlas is not None  # TM reads the texture atlas (a small mesh: within the cap)
     for t in exact_scene.targets:
         ref, diffuse = _diffuse_seen(exact_scene, t.camera, None)
         o_tm, times = tm.render(t.camera)
