@@ -94,7 +94,7 @@ def test_render_matches_local_bit_for_bit(scene_dir, cluster, tmp_path):
     assert {"v001.png", "v001.exr", "v001.depth.exr", "p_a.png", "report.json"} <= set(files)
     assert local["failed"] == dist["failed"] == []
     assert dist["distributed"]["workers"] == 2 and dist["distributed"]["tasks"] == 4
-    assert dist["threads"] >= 1 and dist["summary"]["setup_ms"]  # the workers' preparation is reported
+    assert dist["threads"] == 1 and dist["summary"]["setup_ms"]  # 1 engine thread per task; the preparation reported
     # Progress as frames complete: 0 at the start, then 1..n (completion order), then n of n.
     done = [c[0] for c in calls]
     assert done == [0, 1, 2, 3, 4, 4] and all(c[1] == 4 for c in calls)
@@ -289,7 +289,7 @@ def test_preprocess_matches_local_bit_for_bit(scene_dir, cluster, tmp_path, caps
 
 def test_lazy_client_starts_nothing_unused():
     with D.LazyClient(None, 3) as lc:
-        assert lc._client is None and lc.task_threads == 1
+        assert lc._client is None and lc.task_threads == 0  # 0: the default, one engine thread per task
     with pytest.raises(BadValueError):
         D.LazyClient(None, -2)
 

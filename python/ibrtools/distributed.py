@@ -24,6 +24,7 @@ import json
 import logging
 import os
 import tempfile
+import threading
 import uuid
 from pathlib import Path
 from typing import Callable, Iterator
@@ -90,10 +91,22 @@ def open_client(scheduler: str | None = None, workers: int = 0, *, threads_per_w
             with _quiet(interrupted[0]):
                 client.close()
         return
-    cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=threads_per_worker, processes=True,
-                                       host="127.0.0.1", dashboard_address=None, silence_logs=logging.ERROR,
-                                       # no dashboard; the scheduler's HTTP endpoint on loopback too
-                                       scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
+    import dask
+
+    # Dask starts its worker processes with MALLOC_TRIM_THRESHOLD_=65536 (to hand freed memory
+    # back to the OS). Setting it turns off glibc's dynamic mmap threshold: every large array
+    # (a 1080p frame buffer) is then a fresh mmap, page-faulted anew for every frame, which a
+    # plain process does not pay (docs/distributed.md: the effect's size was not established on
+    # the loaded development machine). The nanny reads this environment when it is made (also
+    # for the replacement of a worker that died).
+    environ = {k: v for k, v in (dask.config.get("distributed.nanny.pre-spawn-environ", None) or {}).items()
+               if k != "MALLOC_TRIM_THRESHOLD_"}
+    with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
+        cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=threads_per_worker,
+                                           processes=True, host="127.0.0.1", dashboard_address=None,
+                                           silence_logs=logging.ERROR,
+                                           # no dashboard; the scheduler's HTTP endpoint on loopback too
+                                           scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
     try:
         client = distributed.Client(cluster, set_as_default=False)
         try:
@@ -174,20 +187,17 @@ def _workers(client) -> dict:
 # Worker side: what a task does. Module-level functions, so that workers import them by name.
 
 _PREPARED: dict[str, tuple] = {}
+# A prepared method holds per-frame state (frame_report), so the tasks of one worker process run
+# one at a time even when the worker has several Dask threads (give those cores to -j instead).
+_LOCK = threading.Lock()
 
 
 def _engine_threads(threads: int) -> int:
-    """Engine threads of a task on this worker: ``threads`` when given (-j), else this machine's
-    cores shared among the tasks the worker runs at once."""
-    if threads > 0:
-        return threads
-    try:
-        from distributed import get_worker
-
-        nthreads = max(1, int(get_worker().state.nthreads))
-    except (ImportError, ValueError, AttributeError):
-        nthreads = 1
-    return max(1, (os.cpu_count() or 1) // nthreads)
+    """Engine threads of a task: ``threads`` when given (-j), else 1. Dask's own model: a
+    worker's threads are the cores it may use, one task per thread, so a task gets one core
+    (``dask worker --nthreads`` = cores uses a machine; a worker that does not know its siblings
+    on the same machine must not take every core, or two of them oversubscribe it)."""
+    return threads if threads > 0 else 1
 
 
 def scene_stamp(root: str | os.PathLike) -> list:
@@ -240,6 +250,11 @@ def render_task(spec: dict, indices: list[int], names: list[str], scene_frames: 
     [(index, entry or None, failure or None, files)], "setup_ms" (of the worker's preparation),
     "prepared" (whether this task made it), "threads"}, or {"error": exception} when the scene
     or the method cannot be prepared."""
+    with _LOCK:
+        return _render_task(spec, indices, names, scene_frames)
+
+
+def _render_task(spec: dict, indices: list[int], names: list[str], scene_frames: list[str | None]) -> dict:
     from . import _core
     from .render.job import render_frame
 
@@ -327,8 +342,7 @@ class LazyClient:
     def __init__(self, scheduler: str | None = None, workers: int = 0, threads: int = 0):
         check_options(scheduler, workers)
         self.scheduler, self.workers = scheduler, workers
-        # Engine threads per task: -j, else one per worker process of a local cluster.
-        self.task_threads = int(threads) if threads or scheduler is not None else 1
+        self.task_threads = int(threads)  # engine threads per task: -j, else 1 (_engine_threads)
         self._stack = contextlib.ExitStack()
         self._client = None
 

@@ -530,8 +530,7 @@ def run_stages(root: str | os.PathLike, *, methods: list[str] | None = None, sta
     mesh) runs on the workers, which load the scene by path; the global stages (mesh fusion,
     texture, variance, harmonise, the PVM tiling) run here. The cluster is started only when such
     a stage runs; outputs are the same, bit for bit (docs/distributed.md). ``threads``: engine
-    threads per task (default: 1 on a local cluster, else the worker machine's cores shared
-    among its Dask threads)."""
+    threads per task (default 1: a Dask worker thread is a core)."""
     from . import distributed as D
 
     D.check_options(scheduler, workers)

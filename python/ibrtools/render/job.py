@@ -259,10 +259,10 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
     inpainting, into a foveated ventral metamer (:func:`ibrtools.foveate.foveate`, seed 0 and
     ``pooling`` or its default), timed as stage "foveate"; metrics then score the metamer.
 
-    ``workers`` N > 0 renders on a local Dask cluster of N processes (``threads`` engine threads
-    each, default 1), ``scheduler`` ADDRESS on an existing Dask cluster (``threads`` default:
-    the worker machine's cores shared among its Dask threads); the files are the same, bit for
-    bit, as a local run's (docs/distributed.md). The job's scene must be on disk (its ``root``).
+    ``workers`` N > 0 renders on a local Dask cluster of N processes, ``scheduler`` ADDRESS on an
+    existing Dask cluster; each task uses ``threads`` engine threads (default 1: a Dask worker
+    thread is a core); the files are the same, bit for bit, as a local run's
+    (docs/distributed.md). The job's scene must be on disk (its ``root``).
 
     A frame whose rendering raises is left out and listed in the report's "failed" ({"name",
     "error"}); the other frames are written. An interrupt (KeyboardInterrupt, SIGTERM through
@@ -304,11 +304,9 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
             raise BadValueError("--workers/--scheduler: the workers rebuild the job with render.job.plan(); "
                                 "this job was not made by plan() with JSON-able arguments")
         methods.create(name, params)  # bad parameters fail here, before a cluster is started
-        # Engine threads per task: -j, else one per worker process of a local cluster (its
-        # processes share this machine's cores), else the worker machine's cores (distributed.py).
+        # Engine threads per task: -j, else 1 (a Dask worker thread is a core; distributed.py).
         spec = {"root": str(Path(root).resolve()), "stamp": D.scene_stamp(root), "plan": job.spec,
-                "method": name, "params": dict(params or {}), "frame": frame_kw,
-                "threads": int(threads) if threads or scheduler is not None else 1}
+                "method": name, "params": dict(params or {}), "frame": frame_kw, "threads": int(threads)}
     else:
         method = methods.create(name, params)
         if threads:
