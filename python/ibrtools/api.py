@@ -180,6 +180,7 @@ def render(scene: Scene, camera: CameraLike, method: str = "auto", **params: Any
     ibrtools.errors.BadValueError: method: unknown method 'nerf' (expected one of auto, reference, dibr, warp, depthwarp, tm, ulr, pvm, hybrid)
     """
     from .render import methods
+    from .render.job import clean_color
 
     if not isinstance(scene, Scene):
         raise DtypeError(f"scene: expected an ibrtools.Scene, got {type(scene).__name__}")
@@ -195,17 +196,15 @@ def render(scene: Scene, camera: CameraLike, method: str = "auto", **params: Any
         t0 = time.perf_counter()
         out, stage_ms = prepared.render(cam)
         total_ms = (time.perf_counter() - t0) * 1e3
-    # As ibr-render writes its frames (render/job.py): no NaN/inf, holes black.
-    color = np.nan_to_num(np.asarray(out["color"], np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+    color = clean_color(out)  # as ibr-render writes its frames: no NaN/inf, holes black
     hole = out.get("hole")
     if hole is not None:
         hole = np.asarray(hole, bool)
-        color = np.where(hole[..., None], np.float32(0.0), color)
     depth = out.get("depth")
     selection = out.get("selection")
     rest = {k: v for k, v in out.items() if k not in ("color", "depth", "hole", "selection")}
     return RenderResult(
-        color=np.ascontiguousarray(color, np.float32), method=name, camera=cam,
+        color=color, method=name, camera=cam,
         depth=None if depth is None else np.ascontiguousarray(depth, np.float32), hole=hole,
         selection=None if selection is None else np.ascontiguousarray(selection, np.float32),
         outputs=rest, times_ms={**{k: float(v) for k, v in stage_ms.items()}, "total": total_ms},

@@ -397,6 +397,16 @@ def write_output(out_dir: Path, rel: str, kind: str, array: np.ndarray) -> Path:
     return path
 
 
+def clean_color(out: dict) -> np.ndarray:
+    """A method's colour as written (here and by ``Scene.render``): float32, C-contiguous, NaN/inf
+    as 0, holes (``out["hole"]``) black."""
+    color = np.nan_to_num(np.asarray(out["color"], np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+    hole = out.get("hole")
+    if hole is not None:
+        color = np.where(np.asarray(hole, bool)[..., None], np.float32(0.0), color)
+    return np.ascontiguousarray(color, np.float32)
+
+
 def render_frame(method, frame: Frame, *, inpaint: str, fov_kw: dict, float_out: bool, depth_out: bool
                  ) -> tuple[dict | None, dict | None, list[tuple[str, str, np.ndarray]]]:
     """Render one frame with a prepared ``method`` and post-process it: NaN guard, holes black,
@@ -417,10 +427,8 @@ def _render_frame(method, frame: Frame, *, inpaint, fov_kw, float_out, depth_out
     outputs: list[tuple[str, str, np.ndarray]] = []
     t0 = time.perf_counter()
     out, stage_ms = method.render(frame.camera)
-    color = np.nan_to_num(out["color"], nan=0.0, posinf=0.0, neginf=0.0)
+    color = clean_color(out)
     hole = out.get("hole")
-    if hole is not None:
-        color = np.where(hole[..., None], 0.0, color).astype(np.float32)
     inpaint_note = None
     if inpaint != "none":
         if hole is None or not hole.any():
