@@ -302,6 +302,8 @@ def test_interrupted_distributed_render_leaves_nothing(scene_dir, tmp_path, sig)
     import subprocess
     import sys
 
+    from procs import interruptible
+
     cam = native.load(scene_dir).views[0].camera.to_dict()
     s = 160 / cam["width"]
     cam.update(width=160, height=120, fx=cam["fx"] * s, fy=cam["fy"] * s, cx=cam["cx"] * s, cy=cam["cy"] * s)
@@ -310,7 +312,10 @@ def test_interrupted_distributed_render_leaves_nothing(scene_dir, tmp_path, sig)
     out = tmp_path / "out"
     argv = [sys.executable, "-c", "import sys; from ibrtools_cli.render import main; sys.exit(main())",
             str(scene_dir), "--method", "dibr", "--poses", str(poses), "--workers", "2", "-o", str(out), "-q"]
-    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
+    # SIGINT at its default action in the command even when this test inherited it ignored
+    # (a background job): tests/procs.py.
+    proc = subprocess.Popen(interruptible(argv), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            start_new_session=True)
     try:
         t0 = time.monotonic()
         while not (out / "f0003.png").exists():

@@ -22,6 +22,7 @@ from pathlib import Path
 import pytest
 
 from ibrtools.errors import MissingFileError
+from procs import interruptible
 
 BIN = Path(sys.executable).parent
 SIZE = "48x36"
@@ -36,24 +37,9 @@ def _command(name: str) -> list[str]:
     return [sys.executable, "-c", f"import sys; from {module} import main; sys.exit(main())"]
 
 
-# A process started with SIGINT ignored keeps it ignored across exec, and Python then installs no
-# KeyboardInterrupt handler: that is what a shell does to a background job (`make test &`,
-# `( pytest ... & )`: SIGINT and SIGQUIT set to SIG_IGN), and pytest's workers pass it on. The
-# command then, correctly, ignores SIGINT and renders all 1000 frames (exit 0 with the normal
-# build, the 120 s timeout under ASan): the flaky failures of the SIGINT case. The commands are
-# therefore started through this exec with SIGINT at its default action, whatever the test
-# process inherited.
-_SIGINT_DEFAULT = [sys.executable, "-c", "import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_DFL); "
-                   "os.execv(sys.argv[1], sys.argv[1:])"]
-
-
-def _interruptible(argv: list[str]) -> list[str]:
-    return _SIGINT_DEFAULT + argv
-
-
 def test_sigint_default_in_children():
     """The helper above works even when this process ignores SIGINT (the background-job case)."""
-    probe = _interruptible([sys.executable, "-c", "import signal; print(signal.getsignal(signal.SIGINT).__name__)"])
+    probe = interruptible([sys.executable, "-c", "import signal; print(signal.getsignal(signal.SIGINT).__name__)"])
     if threading.current_thread() is threading.main_thread():  # signal.signal: main thread only
         old = signal.signal(signal.SIGINT, signal.SIG_IGN)
         try:
@@ -73,7 +59,7 @@ def _temporaries(root: Path) -> list[Path]:
 
 def _run_until(argv: list[str], ready, sig, timeout: float = 120.0) -> int:
     """Start the command, wait until ``ready()`` holds, send ``sig``, return the exit code."""
-    proc = subprocess.Popen(_interruptible(argv), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(interruptible(argv), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     t0 = time.monotonic()
     try:
         while not ready():
