@@ -38,7 +38,7 @@ def _command(name: str) -> list[str]:
 
 
 def test_sigint_default_in_children():
-    """The helper above works even when this process ignores SIGINT (the background-job case)."""
+    """interruptible (tests/procs.py) works even when this process ignores SIGINT (the background-job case)."""
     probe = interruptible([sys.executable, "-c", "import signal; print(signal.getsignal(signal.SIGINT).__name__)"])
     if threading.current_thread() is threading.main_thread():  # signal.signal: main thread only
         old = signal.signal(signal.SIGINT, signal.SIG_IGN)
