@@ -108,18 +108,24 @@ def save(scene: Scene, path: str | os.PathLike, *, color_format: str = "png",
             doc["meshes"][kind] = {"path": rel}
         with open(tmp / SCENE_FILE, "w", encoding="utf-8") as fh:
             json.dump(doc, fh, indent=1)
-        if path.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old.", dir=path.parent))
-            os.replace(path, old / "scene")
-            os.replace(tmp, path)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, path)
+        _install(tmp, path)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     scene.root = path
     return path
+
+
+def _install(tmp: Path, path: Path) -> None:
+    """Put the finished scene directory ``tmp`` at ``path``: an existing scene is moved aside
+    first and removed after the rename, so ``path`` is never a half-written scene."""
+    if path.exists():
+        old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old.", dir=path.parent))
+        os.replace(path, old / "scene")
+        os.replace(tmp, path)
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        os.replace(tmp, path)
 
 
 def save_video(video: Scene, frames: dict[str, Scene], path: str | os.PathLike, *,
@@ -149,13 +155,7 @@ def save_video(video: Scene, frames: dict[str, Scene], path: str | os.PathLike, 
             doc["stages"] = _json_safe(video.stages)
         with open(tmp / SCENE_FILE, "w", encoding="utf-8") as fh:
             json.dump(doc, fh, indent=1)
-        if path.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old.", dir=path.parent))
-            os.replace(path, old / "scene")
-            os.replace(tmp, path)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, path)
+        _install(tmp, path)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
