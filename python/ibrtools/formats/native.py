@@ -106,9 +106,7 @@ def save(scene: Scene, path: str | os.PathLike, *, color_format: str = "png",
             rel = f"mesh/{kind}.{'obj' if textured else 'ply'}"
             write_mesh(tmp / rel, mesh)
             doc["meshes"][kind] = {"path": rel}
-        with open(tmp / SCENE_FILE, "w", encoding="utf-8") as fh:
-            json.dump(doc, fh, indent=1)
-        _install(tmp, path)
+        _install(tmp, path, doc)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -116,9 +114,12 @@ def save(scene: Scene, path: str | os.PathLike, *, color_format: str = "png",
     return path
 
 
-def _install(tmp: Path, path: Path) -> None:
-    """Put the finished scene directory ``tmp`` at ``path``: an existing scene is moved aside
-    first and removed after the rename, so ``path`` is never a half-written scene."""
+def _install(tmp: Path, path: Path, doc: dict) -> None:
+    """Write ``doc`` as the scene.json of the finished directory ``tmp`` and put it at ``path``: an
+    existing scene is moved aside first and removed after the rename, so ``path`` is never a
+    half-written scene."""
+    with open(tmp / SCENE_FILE, "w", encoding="utf-8") as fh:
+        json.dump(doc, fh, indent=1)
     if path.exists():
         old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old.", dir=path.parent))
         os.replace(path, old / "scene")
@@ -153,9 +154,7 @@ def save_video(video: Scene, frames: dict[str, Scene], path: str | os.PathLike, 
                      "meshes": {}}
         if video.stages:
             doc["stages"] = _json_safe(video.stages)
-        with open(tmp / SCENE_FILE, "w", encoding="utf-8") as fh:
-            json.dump(doc, fh, indent=1)
-        _install(tmp, path)
+        _install(tmp, path, doc)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
