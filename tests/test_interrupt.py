@@ -203,3 +203,20 @@ def test_atomic_path_signal_at_the_mask_calls(tmp_path, monkeypatch, when):
     monkeypatch.undo()
     assert real(signal.SIG_BLOCK, ()) == before
     assert not list(tmp_path.iterdir())
+
+
+def test_render_write_error_leaves_nothing(scene_dir, many_poses, tmp_path):
+    """Frames are written by a background thread while the next renders: a write that fails (here
+    the third frame's PNG path is a directory) fails the run, and the frames written before it go
+    too (all or nothing, like an interrupt)."""
+    from ibrtools.formats import native
+    from ibrtools.render import job as J
+
+    poses = tmp_path / "four.json"
+    poses.write_text(json.dumps(json.loads(many_poses.read_text())[:4]))
+    out = tmp_path / "out"
+    (out / "f0002.png").mkdir(parents=True)
+    with pytest.raises(OSError):
+        J.run(J.plan(native.load(scene_dir), poses=str(poses)), "dibr", out)
+    assert sorted(p.name for p in out.iterdir()) == ["f0002.png"]  # only the obstacle is left
+    assert not _temporaries(out)
