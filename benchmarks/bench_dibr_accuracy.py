@@ -1,6 +1,7 @@
 """DIBR accuracy on real data (issue 3 "Targets"), beside the RVS 4.0 figures of ANCHORS.md.
 
-    python benchmarks/bench_dibr_accuracy.py [--data ../shared/data] [--write docs/dibr.md]
+    python benchmarks/bench_dibr_accuracy.py [--data ../shared/data] [--write-docs | --write FILE]
+                                             [--blend-space linear|srgb] [--no-diagnostics]
 
 Protocols (the same as the RVS figures in ../shared/ANCHORS.md):
   lego       hold out r_0, r_50, r_100, r_150 in turn; synthesise each from the 4 best of the 39
@@ -21,6 +22,17 @@ scored pixels no selected input covers) beside them:
                   feature (hole filling belongs to ``--inpaint``); "n/a" without scipy.
 
 All comparisons are of sRGB encodings in [0, 1] (ibrtools.metrics.compare).
+
+Besides the table (the method's defaults) the run measures, unless --no-diagnostics:
+  blend space     the four cases again with ``blend_space=srgb`` (RVS blends stored code values);
+  ICL poses       whether ICL-NUIM's ground-truth poses agree with its own depth maps: the
+                  back wall of frame 1 fitted by a plane with the depth read as z and as ray
+                  distance; point-to-plane ICP (open3d) of the depth maps of each frame pair,
+                  started at the ground-truth relative pose (the correction it finds); frame 4
+                  from frame 1 alone with the ground-truth poses, shifted by the best integer
+                  offset, and with frame 1's pose re-registered to frame 4's depth by that ICP
+                  (a diagnostic: it uses the held-out frame's depth, so it is not a result).
+--write-docs replaces the "Accuracy" section of docs/dibr.md (--write FILE: of FILE).
 """
 from __future__ import annotations
 
@@ -165,6 +177,107 @@ def middlebury(data: Path, name: str, params=None) -> dict:
             "visible": float(vis.mean()), "ms": ms, "vis": three_ways(color, truth.color, hole, vis)}
 
 
+def _plane_rms(points: np.ndarray) -> float:
+    c = points - points.mean(0)
+    return float(np.linalg.svd(c, full_matrices=False)[1][-1] / np.sqrt(len(c)))
+
+
+def icl_poses(data: Path, params=None) -> dict | None:
+    """ICL-NUIM: do the ground-truth poses agree with the depth maps? (see the module doc).
+    None without open3d."""
+    try:
+        import open3d as o3d
+    except ImportError:
+        return None
+    from ibrtools.formats import load
+    from ibrtools.scene import Scene, View
+
+    scene = load(data / "icl_nuim_livingroom")
+    out: dict = {}
+    # Frame 1 faces the back wall: rows 80-135, columns 160-619 are wall only (below the ceiling
+    # light, above the picture). A plane stays a plane with z-depth; read as ray distance and
+    # converted, it would bend by ~5 % of the depth across these columns.
+    v1 = scene.view("1")
+    x, y = v1.camera.pixel_grid()
+    rays = v1.camera.rays_in_cam(x, y)[80:136, 160:620].reshape(-1, 3)
+    d = v1.depth[80:136, 160:620].reshape(-1, 1).astype(np.float64)
+    out["wall_rms_mm"] = {"z": 1e3 * _plane_rms(rays * d),
+                          "ray": 1e3 * _plane_rms(rays / np.linalg.norm(rays, axis=1, keepdims=True) * d)}
+
+    def cloud(v):
+        x, y = v.camera.pixel_grid()
+        pts = (v.camera.rays_in_cam(x, y) * v.depth[..., None]).reshape(-1, 3)[::3]
+        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+        pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.05, max_nn=30))
+        return pc
+
+    clouds = {k: cloud(scene.view(k)) for k in ("1", "4", "5")}
+    reg = o3d.pipelines.registration
+    out["pairs"], registered = [], {}
+    for a, b in (("1", "4"), ("5", "4"), ("1", "5")):
+        va, vb = scene.view(a), scene.view(b)
+        t_gt = vb.camera.cam_from_world @ va.camera.world_from_cam  # cam_b_from_cam_a
+        r = reg.registration_icp(clouds[a], clouds[b], 0.05, t_gt, reg.TransformationEstimationPointToPlane(),
+                                 reg.ICPConvergenceCriteria(max_iteration=100))
+        corr = r.transformation @ np.linalg.inv(t_gt)
+        angle = float(np.degrees(np.arccos(np.clip((np.trace(corr[:3, :3]) - 1) / 2, -1, 1))))
+        before = reg.evaluate_registration(clouds[a], clouds[b], 0.05, t_gt).inlier_rmse
+        out["pairs"].append({"pair": f"{a}->{b}", "angle_deg": angle, "shift_mm": 1e3 * float(np.linalg.norm(corr[:3, 3])),
+                             "rmse_mm_gt": 1e3 * before, "rmse_mm_icp": 1e3 * r.inlier_rmse})
+        if b == "4":
+            registered[a] = np.linalg.inv(r.transformation) @ vb.camera.cam_from_world
+    truth = scene.view("4")
+    color, hole, _, _ = _render(_sub(scene, ["1"]), ["1"], truth.camera, params)
+    out["psnr_1_gt"] = _psnr(color, truth.color, ~hole)
+    # the best integer offset of the frame-1 warp against the truth (interior, both covered)
+    from ibrtools.imageio import linear_to_srgb
+
+    g, t = linear_to_srgb(color), linear_to_srgb(truth.color)
+    best = (-np.inf, 0, 0)
+    for dy in range(-10, 11):
+        for dx in range(-10, 11):
+            m = ~hole & ~np.roll(hole, (dy, dx), (0, 1))
+            m[:12], m[-12:], m[:, :12], m[:, -12:] = False, False, False, False
+            e = float(((np.roll(g, (dy, dx), (0, 1)) - t) ** 2)[m].mean())
+            best = max(best, (10 * np.log10(1 / e), dy, dx))
+    out["psnr_1_shifted"], out["shift_1"] = best[0], (best[1], best[2])
+    v = scene.view("1")
+    reg_scene = Scene(views=[View.create("1", v.camera.with_pose(registered["1"]), color=v.color, depth=v.depth)],
+                      units="m")
+    color, hole, _, _ = _render(reg_scene, ["1"], truth.camera, params)
+    out["psnr_1_registered"] = _psnr(color, truth.color, ~hole)
+    return out
+
+
+def diagnostics(data: Path, params: dict, res: dict) -> list[str]:
+    """Lines for the section: the same cases with the other blend space, the ICL pose check."""
+    f = lambda v: "n/a" if v is None else f"{v:.2f}"  # noqa: E731
+    other = "srgb" if params.get("blend_space", "linear") == "linear" else "linear"
+    p2 = {**params, "blend_space": other}
+    L2, I2 = lego(data, p2), icl(data, p2)
+    T2, C2 = middlebury(data, "Teddy", p2), middlebury(data, "Cones", p2)
+    L, I, T, C = res["lego"], res["icl"], res["teddy"], res["cones"]
+    lines = ["", f"Blend space (RVS protocol column, this run): {params.get('blend_space', 'linear')} → {other}: "
+             f"lego object {f(L['object']['filled'])} → {f(L2['object']['filled'])}, "
+             f"ICL all {f(I['all']['filled'])} → {f(I2['all']['filled'])} "
+             f"(visible {f(I['all']['excluded'])} → {f(I2['all']['excluded'])}), "
+             f"Teddy {f(T['vis']['filled'])} → {f(T2['vis']['filled'])}, "
+             f"Cones {f(C['vis']['filled'])} → {f(C2['vis']['filled'])} dB."]
+    q = icl_poses(data, params)
+    if q is None:
+        lines.append("ICL pose check: n/a (needs open3d).")
+        return lines
+    pairs = "; ".join(f"{p['pair']} {p['angle_deg']:.2f}° and {p['shift_mm']:.0f} mm (ICP RMSE {p['rmse_mm_gt']:.1f} → "
+                      f"{p['rmse_mm_icp']:.1f} mm)" for p in q["pairs"])
+    lines += ["", f"ICL pose check: back wall of frame 1, plane-fit RMS {q['wall_rms_mm']['z']:.2f} mm with depth as z, "
+              f"{q['wall_rms_mm']['ray']:.2f} mm as ray distance. Point-to-plane ICP of the depth maps, from the "
+              f"ground-truth relative pose, corrects it by {pairs}. Frame 4 from frame 1 alone (holes excluded): "
+              f"{f(q['psnr_1_gt'])} dB with the ground-truth poses, {f(q['psnr_1_shifted'])} dB with the result "
+              f"shifted by (dy, dx) = {q['shift_1']} px, {f(q['psnr_1_registered'])} dB with frame 1's pose "
+              "registered to frame 4's depth (diagnostic only)."]
+    return lines
+
+
 def run(data: Path, params=None) -> tuple[str, dict]:
     res = {"lego": lego(data, params), "icl": icl(data, params),
            "teddy": middlebury(data, "Teddy", params), "cones": middlebury(data, "Cones", params)}
@@ -203,6 +316,9 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=shared_data())
     ap.add_argument("--write", type=Path, help="replace the 'Accuracy' section of this Markdown file")
+    ap.add_argument("--write-docs", action="store_true", help="replace the 'Accuracy' section of docs/dibr.md")
+    ap.add_argument("--blend-space", default="linear", choices=("linear", "srgb"))
+    ap.add_argument("--no-diagnostics", action="store_true", help="only the table (no blend-space / ICL pose runs)")
     ap.add_argument("--quality", default="side")
     ap.add_argument("--blend-exponent", type=float, default=5.0)
     ap.add_argument("--side-threshold", type=float, default=None, help="T in px (default: the method's)")
@@ -210,16 +326,19 @@ def main(argv=None) -> int:
     if not a.data.is_dir():
         print(f"real data not found at {a.data} (set IBR_SHARED_DATA)", file=sys.stderr)
         return 2
-    params = {"quality": a.quality, "blend_exponent": a.blend_exponent}
+    params = {"quality": a.quality, "blend_exponent": a.blend_exponent, "blend_space": a.blend_space}
     if a.side_threshold is not None:
         params["side_threshold"] = a.side_threshold
-    table, _ = run(a.data, params)
+    table, res = run(a.data, params)
+    if not a.no_diagnostics:
+        table += "\n" + "\n".join(diagnostics(a.data, params, res))
     print(table)
-    if a.write:
+    target = REPO / "docs" / "dibr.md" if a.write_docs else a.write
+    if target:
         sys.path.insert(0, str(Path(__file__).parent))
         from benchlib import write_section
 
-        write_section("Accuracy", table, a.write)
+        write_section("Accuracy", table, target)
     return 0
 
 
