@@ -316,6 +316,26 @@ def test_bad_inputs():
         warp_depth(d, cam, cam, DepthWarpParams(oriented="yes"))
     with pytest.raises(DtypeError, match="pixel_step"):
         warp_depth(d, cam, cam, DepthWarpParams(pixel_step=1))
+    with pytest.raises(DtypeError, match="unseen_reject"):
+        warp_depth(d, cam, cam, DepthWarpParams(unseen_reject="no"))
+    for bad_edge in (-0.5, float("inf")):
+        with pytest.raises(BadValueError, match="edge_motion"):
+            warp_depth(d, cam, cam, DepthWarpParams(edge_motion=bad_edge))
+    with pytest.raises(DtypeError, match="edge_motion"):
+        warp_depth(d, cam, cam, DepthWarpParams(edge_motion="half"))
+    # The binding's own checks (the front never sends these).
+    packed = _core.dw_motion(d[None], cam.to_core(), cam.to_core(), None, None)
+    mips = _core.dw_build_mips(packed)
+    with pytest.raises(BadValueError, match="seen_src, seen_dst"):
+        _core.dw_warp(packed, mips, H, W, seen_src=cam.to_core())
+    with pytest.raises(DtypeError, match="seen_src"):
+        _core.dw_warp(packed, mips, H, W, seen_src="cam", seen_dst=cam.to_core())
+    with pytest.raises(ShapeError, match="seen_src"):
+        _core.dw_warp(packed, mips, H, W, seen_src=cam_at(w=W + 1).to_core(), seen_dst=cam.to_core())
+    with pytest.raises(BadValueError, match="not supported by depthwarp"):
+        _core.dw_warp(packed, mips, H, W, seen_src=eq.to_core(), seen_dst=cam.to_core())
+    with pytest.raises(BadValueError, match="edge_motion"):
+        _core.dw_warp(packed, mips, H, W, edge_motion=float("nan"))
     with pytest.raises(DtypeError, match="params"):
         warp_depth(d, cam, cam, {"seeds": 4})
     ids = np.zeros((H, W), np.int32)
@@ -334,6 +354,51 @@ def test_bad_inputs():
         motion_buffer(d, cam, cam, object_ids=ids, object_motion=nonrigid)
     with pytest.raises(BadValueError, match="kind"):
         forward_warp_depth(d, cam, cam, "splat")
+
+
+def test_silhouette_test_keeps_the_foreground_to_its_footprint():
+    # A square at z = 2 in front of a plane at z = 8, sideways step with fractional motions (square
+    # -6.4 px, plane -1.6 px; a 4x4 patch at z = 1.5 in a corner, -8.5 px, widens the global bound
+    # so that seeds reach the square from beyond its edge). The square's edges lie on source pixel
+    # edges, so its true image in the target is its source pixels moved exactly (truth_two_planes).
+    # Without the silhouette test a seed in a square pixel converges when that pixel's centre
+    # moves within 0.5 px of p even if p lies beyond the square's moved edge: the square grows on
+    # its leading side (here the column of centres 29.5, 0.1 px beyond the edge at 29.6).
+    deep = two_plane_scene()
+    deep[0, :4, :4] = 1.5
+    src, dst = cam_at(), cam_at((0.16, 0.0, 0.0))
+    truth, on_fg = truth_two_planes(dst)
+    rows = slice(12, 60)  # away from the corner patch (truth_two_planes does not know it)
+    grown = {}
+    for edge in (0.0, 0.5):
+        r = warp_depth(deep, src, dst, DepthWarpParams(dilate=False, edge_motion=edge, bound="global"))
+        fg = ~r.hole[rows] & (r.depth[rows] == np.float32(2.0))
+        grown[edge] = int((fg & ~on_fg[rows]).sum())
+        assert fg[on_fg[rows]].all(), edge  # every pixel of the square's true image is found
+    assert grown[0.0] >= 20, grown  # the 24-row leading edge column (measured: 24)
+    assert grown[0.5] == 0
+
+
+def test_unseen_space_rejects_deep_samples_behind_the_frame_border():
+    # Layer 0: a plane at z = 2 filling the source image (and beyond it); layer 1: a plane at z = 8
+    # behind it. The target steps left by 0.6: its left strip sees the near plane's continuation,
+    # which the source never saw (outside its frame: source x = u - 24 < 0), so layer 0 has no
+    # solution there. Layer 1's plane converges at u > 6 (source x = u - 6), but the near plane
+    # hides it: accepting it gives depth 8 where the truth is 2. With the unseen-space test these
+    # pixels stay holes (never a wrong depth); elsewhere the near plane is found as before.
+    deep = np.stack([plane(2.0), plane(8.0)])
+    src, dst = cam_at(), cam_at((-0.6, 0.0, 0.0))
+    u = np.arange(W) + 0.5
+    strip = np.broadcast_to(((u > 6 + 1) & (u < 24 - 1))[None, :], (H, W))
+    seen = np.broadcast_to((u > 24 + 1)[None, :], (H, W))
+    off = warp_depth(deep, src, dst, DepthWarpParams(dilate=False, unseen_reject=False))
+    assert (off.depth[strip] == 8.0).all() and (off.layer[strip] == 1).all()
+    on = warp_depth(deep, src, dst, DepthWarpParams(dilate=False))
+    assert on.hole[strip].all()
+    np.testing.assert_array_equal(on.depth[seen], 2.0)
+    # The disocclusion case (test_disocclusion_stays_a_hole...) is a sideways step too: there the
+    # ray leaves the source's view only near the camera, far in front of the surface at that
+    # border, and layer 1 is still accepted (asserted there).
 
 
 def test_skip_farther_does_not_change_the_two_plane_result():

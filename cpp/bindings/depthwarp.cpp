@@ -303,7 +303,8 @@ void BindDepthwarp(py::module_& m) {
       "dw_warp",
       [](py::handle packed_obj, const MotionMips& mm, int dst_height, int dst_width, int seeds, int iters,
          float threshold, bool tight, int steps, float early_exit, std::uint32_t seed, bool dilate,
-         int dilate_min_neighbors, bool skip_farther, int tile, bool pixel_step) {
+         int dilate_min_neighbors, bool skip_farther, int tile, bool pixel_step, py::handle seen_src,
+         py::handle seen_dst, float edge_motion) {
         FloatArray packed = CheckPacked(packed_obj);
         if (packed.shape(0) != mm.num_layers || packed.shape(1) != mm.height || packed.shape(2) != mm.width) {
           throw ShapeError("mips: built for (" + std::to_string(mm.num_layers) + ", " + std::to_string(mm.height) +
@@ -339,6 +340,43 @@ void BindDepthwarp(py::module_& m) {
           throw BadValueError("tile: expected 1.." + std::to_string(kDepthWarpMaxTile) + ", got " + std::to_string(tile));
         }
         opt.tile = tile, opt.pixel_step = pixel_step;
+        if (!(edge_motion >= 0.0f) || !std::isfinite(edge_motion)) {
+          throw BadValueError("edge_motion: expected a finite number >= 0 (0 = off)");
+        }
+        opt.edge_motion = edge_motion;
+        DepthWarpSeen seen;
+        if (seen_src.is_none() != seen_dst.is_none()) {
+          throw BadValueError("seen_src, seen_dst: give both cameras (unseen-space rejection) or neither");
+        }
+        if (!seen_src.is_none()) {
+          Camera src, dst;
+          try {
+            src = seen_src.cast<Camera>();
+            dst = seen_dst.cast<Camera>();
+          } catch (const py::cast_error&) {
+            throw DtypeError("seen_src, seen_dst: expected _core.Camera objects");
+          }
+          CheckPinhole(src, "seen_src");
+          CheckPinhole(dst, "seen_dst");
+          if (src.width != mm.width || src.height != mm.height) {
+            throw ShapeError("seen_src: camera is " + std::to_string(src.width) + "x" + std::to_string(src.height) +
+                             " but the source layers are " + std::to_string(mm.width) + "x" + std::to_string(mm.height));
+          }
+          if (dst.width != dst_width || dst.height != dst_height) {
+            throw ShapeError("seen_dst: camera size differs from dst_width x dst_height");
+          }
+          // src_from_dst = src.cam_from_world * dst.world_from_cam (rigid: world_from_cam = (R^T, -R^T t)).
+          const glm::dmat3 r = src.rot * glm::transpose(dst.rot);
+          const glm::dvec3 t = src.trans - r * dst.trans;
+          for (int row = 0; row < 3; ++row) {
+            for (int col = 0; col < 3; ++col) seen.src_from_dst[4 * row + col] = r[col][row];
+            seen.src_from_dst[4 * row + 3] = t[row];
+          }
+          seen.dst_fx = dst.fx, seen.dst_fy = dst.fy, seen.dst_cx = dst.cx, seen.dst_cy = dst.cy;
+          seen.src_fx = src.fx, seen.src_fy = src.fy, seen.src_cx = src.cx, seen.src_cy = src.cy;
+          seen.src_width = src.width, seen.src_height = src.height;
+          opt.seen = &seen;
+        }
         FloatArray depth = NewArray<float>({dst_height, dst_width});
         py::array_t<std::int8_t, py::array::c_style> layer = NewArray<std::int8_t>({dst_height, dst_width});
         DepthWarpCounters counters;
@@ -379,9 +417,13 @@ void BindDepthwarp(py::module_& m) {
       py::arg("iters") = 3, py::arg("threshold") = 0.5f, py::arg("tight") = true, py::arg("steps") = 3,
       py::arg("early_exit") = 0.5f, py::arg("seed") = 0u, py::arg("dilate") = true,
       py::arg("dilate_min_neighbors") = 5, py::arg("skip_farther") = true, py::arg("tile") = 8,
-      py::arg("pixel_step") = true,
+      py::arg("pixel_step") = true, py::arg("seen_src") = py::none(), py::arg("seen_dst") = py::none(),
+      py::arg("edge_motion") = 0.0f,
       "Backward depth warp (DepthWarpBackward, then DepthWarpDilate when dilate): returns depth float32 "
-      "(H', W') (0 in holes), layer int8 (H', W') (-1 in holes) and a dict of counters and wall times.");
+      "(H', W') (0 in holes), layer int8 (H', W') (-1 in holes) and a dict of counters and wall times. "
+      "seen_src, seen_dst (pinhole Cameras, both or neither): unseen-space rejection of deep-layer samples "
+      "(DepthWarpSeen: a sample of layer >= 1 is accepted only where the target ray in front of it lies "
+      "inside the source camera's view).");
 
   m.def(
       "dw_forward",

@@ -137,10 +137,31 @@ inline float RadicalInverse2(std::uint32_t k) {
 }
 inline float Frac(float x) { return x - std::floor(x); }
 
+// Silhouette test of a converged sample (not in the paper; DepthWarpOptions::edge_motion): the
+// sample of source pixel P (packed entry s at offset `at`, layer jj) moves P's centre to within the
+// threshold of p, but its exact preimage w = p - V(P) may lie in another source pixel Q. Then p is
+// outside P's moved footprint: accepted when Q's motion (same layer, or the nearest non-empty one
+// above) differs from P's by less than edge_motion px - a continuous surface, p is in the crack
+// between two moved pixels - and not when the motion jumps (P is a silhouette pixel and p lies
+// beyond its edge: accepting it grows every foreground object by up to the threshold). w outside
+// the source image: accepted (nothing is known beyond the border).
+inline bool EdgeConsistent(const DepthWarpLayer* layers, int jj, std::ptrdiff_t at, const float* s, float wx,
+                           float wy, float edge2, int w, int h) {
+  if (!(edge2 > 0.0f)) return true;
+  if (!(wx >= 0.0f && wy >= 0.0f && wx < float(w) && wy < float(h))) return true;
+  const std::ptrdiff_t at_w = (std::ptrdiff_t(int(wy)) * w + int(wx)) * 4;
+  if (at_w == at) return true;
+  const float* t = layers[jj].packed.data + at_w;
+  for (int k = jj - 1; !(t[2] > 0.0f) && k >= 0; --k) t = layers[k].packed.data + at_w;
+  if (!(t[2] > 0.0f)) return false;
+  const float ex = t[0] - s[0], ey = t[1] - s[1];
+  return ex * ex + ey * ey < edge2;
+}
+
 // Fig. 3 fixed_point_search with Fig. 6 multi_layer_seed, for target centre (px, py), search
 // layer j, seed q. On convergence sets z and the layer the sample came from.
 inline bool FixedPointSearch(const DepthWarpLayer* layers, int j, float px, float py, float qx, float qy,
-                             int iters, float thr2, float* z, int* layer, std::int64_t* lookups) {
+                             int iters, float thr2, float edge2, float* z, int* layer, std::int64_t* lookups) {
   const int w = layers[0].packed.width, h = layers[0].packed.height;
   int empties = 0;
   for (int k = 0;; ++k) {
@@ -159,7 +180,7 @@ inline bool FixedPointSearch(const DepthWarpLayer* layers, int j, float px, floa
     }
     const float wx = px - s[0], wy = py - s[1];
     const float dx = qx - wx, dy = qy - wy;
-    if (dx * dx + dy * dy < thr2) {
+    if (dx * dx + dy * dy < thr2 && EdgeConsistent(layers, jj, at, s, wx, wy, edge2, w, h)) {
       *z = s[2];
       *layer = jj;
       return true;
@@ -168,6 +189,48 @@ inline bool FixedPointSearch(const DepthWarpLayer* layers, int j, float px, floa
     qx = wx;
     qy = wy;
   }
+}
+
+// DepthWarpSeen: may a sample at depth z be accepted at target pixel centre (px, py)? layer0 is
+// the source's layer 0 (its z_dst is the target depth of the surface the source saw at a pixel).
+inline bool SeenInFront(const DepthWarpSeen& s, const DepthWarpLayer& layer0, float px, float py, float z) {
+  const double* a = s.src_from_dst;
+  const double tx = (px - s.dst_cx) / s.dst_fx * z, ty = (py - s.dst_cy) / s.dst_fy * z, tz = z;
+  // X and the target centre A (the translation column) in source camera coordinates.
+  const double bx = a[0] * tx + a[1] * ty + a[2] * tz + a[3];
+  const double by = a[4] * tx + a[5] * ty + a[6] * tz + a[7];
+  const double bz = a[8] * tx + a[9] * ty + a[10] * tz + a[11];
+  double ax = a[3], ay = a[7], az = a[11];
+  if (!(bz > 0.0)) return false;
+  double t0 = 0.0;  // A's parameter on the target ray (0 = the target centre, 1 = X)
+  const double zc = s.near_fraction * bz;
+  if (az < zc) {  // clip the segment at source depth zc (bz > zc > az)
+    t0 = (zc - az) / (bz - az);
+    ax += t0 * (bx - ax), ay += t0 * (by - ay), az = zc;
+  }
+  const double W = s.src_width, H = s.src_height;
+  const double ua = s.src_fx * ax / az + s.src_cx, va = s.src_fy * ay / az + s.src_cy;
+  if (ua >= 0.0 && va >= 0.0 && ua <= W && va <= H) return true;
+  // The projected segment leaves the image: where (parameter l from X's end, Liang-Barsky)?
+  const double ub = s.src_fx * bx / bz + s.src_cx, vb = s.src_fy * by / bz + s.src_cy;
+  const double du = ua - ub, dv = va - vb;
+  double l = 1.0;
+  if (du < 0.0 && ub + du < 0.0) l = std::min(l, -ub / du);
+  if (du > 0.0 && ub + du > W) l = std::min(l, (W - ub) / du);
+  if (dv < 0.0 && vb + dv < 0.0) l = std::min(l, -vb / dv);
+  if (dv > 0.0 && vb + dv > H) l = std::min(l, (H - vb) / dv);
+  l = std::max(0.0, l);
+  // Source depth at the exit (inverse depth is affine in screen space), then its target depth
+  // (target depth is linear along the target ray: t0 + t (1 - t0) of z).
+  const double ze = 1.0 / (l / az + (1.0 - l) / bz);
+  const double t = std::fabs(bz - az) > 1e-12 * bz ? (ze - az) / (bz - az) : 1.0 - l;
+  const double ze_dst = (t0 + t * (1.0 - t0)) * z;
+  const int ix = std::min(int(W) - 1, std::max(0, int(ub + l * du)));
+  const int iy = std::min(int(H) - 1, std::max(0, int(vb + l * dv)));
+  const float d0 = layer0.packed.data[(std::ptrdiff_t(iy) * layer0.packed.width + ix) * 4 + 2];
+  // Seen unless the ray leaves the source's view at (or behind) a fraction of the depth of the
+  // surface the source saw at that border pixel: that surface may continue outside the frame.
+  return !(d0 > 0.0f) || ze_dst < s.border_fraction * double(d0);
 }
 
 inline void AtomicMin(std::uint64_t* p, std::uint64_t v) {
@@ -429,6 +492,7 @@ void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const Depth
   const int kT = std::max(1, std::min(kMaxT, opt.tile));
   const int tiles_x = (w + kT - 1) / kT, tiles_y = (h + kT - 1) / kT;
   const float thr2 = opt.threshold * opt.threshold;
+  const float edge2 = opt.edge_motion > 0.0f ? opt.edge_motion * opt.edge_motion : 0.0f;
   const int n_seeds = std::max(1, opt.seeds);
   const float inv_n = 1.0f / float(n_seeds);
   std::atomic<std::int64_t> converged{0}, early{0}, searched{0}, samples{0}, lookups{0};
@@ -514,8 +578,8 @@ void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const Depth
                 float z;
                 int from;
                 ++c_samples;
-                if (FixedPointSearch(layers, j, px, py, px - vx, py - vy, opt.iters, thr2, &z, &from, &c_lookups) &&
-                    z < best[at]) {
+                if (FixedPointSearch(layers, j, px, py, px - vx, py - vy, opt.iters, thr2, edge2, &z, &from, &c_lookups) &&
+                    z < best[at] && (from == 0 || opt.seen == nullptr || SeenInFront(*opt.seen, layers[0], px, py, z))) {
                   best[at] = z;
                   best_layer[at] = std::int8_t(from);
                 }

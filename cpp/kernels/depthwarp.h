@@ -117,6 +117,8 @@ void DepthWarpMipLevel1(const ImageView<const float>& packed, const float rot[4]
 void DepthWarpMipDown(const ImageView<const float>& in, const ImageView<const float>& in_z, const ImageView<float>& out,
                       const ImageView<float>& out_z);
 
+struct DepthWarpSeen;
+
 struct DepthWarpOptions {
   int seeds = 16;           // N
   int iters = 3;            // T: fixed-point updates after the seed
@@ -128,6 +130,30 @@ struct DepthWarpOptions {
   bool skip_farther = true; // skip a layer's search where its min z_dst cannot beat the depth found
   int tile = 8;             // target tile side for the bound narrowing (1..kDepthWarpMaxTile)
   bool pixel_step = true;   // one more narrowing step per pixel from the tile bound
+  float edge_motion = 0.0f; // px; silhouette test of converged samples (0 = off; depthwarp.cpp EdgeConsistent)
+  // Unseen-space rejection (not in the paper; see DepthWarpSeen). Null: off.
+  const DepthWarpSeen* seen = nullptr;
+};
+
+// Unseen-space rejection of deep samples (not in the paper). A sample of a layer >= 1 is a real
+// surface point X that the source saw hidden behind something. At target pixel p it is rejected
+// when the part of p's ray in front of X may hold a surface the source never saw because it lies
+// outside the source's frame: the ray's segment from the target centre to X (clipped at source
+// depth near_fraction * X's source depth, for a target centre behind or at the source camera)
+// leaves the source image, and it leaves at a target depth >= border_fraction * the target depth
+// of the surface the source saw at the border pixel where it leaves (that surface may continue
+// outside the frame and hide X). A segment leaving far in front of the border surface is accepted
+// (a sideways step leaves the source's view near the camera: rejecting those would reject the
+// disocclusions deep layers exist for). Without it, at frame borders where the target sees new
+// geometry, a deep layer (the ground under a building, the back of a facade) supplied depths that
+// were far too large (city, L = 4). Layer-0 samples are always accepted (as in the paper).
+struct DepthWarpSeen {
+  double src_from_dst[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};  // 3x4 row-major, static scene
+  double dst_fx = 1, dst_fy = 1, dst_cx = 0, dst_cy = 0;          // target intrinsics
+  double src_fx = 1, src_fy = 1, src_cx = 0, src_cy = 0;          // source intrinsics
+  int src_width = 0, src_height = 0;
+  double near_fraction = 1e-3;  // see above
+  double border_fraction = 0.5; // see above
 };
 
 struct DepthWarpLayer {

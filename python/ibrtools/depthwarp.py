@@ -56,12 +56,15 @@ class DepthWarpParams:
     pixel_step: bool = True  # one more narrowing step per pixel from its tile's bound
     skip_farther: bool = True  # skip a layer's search where its nearest possible depth cannot win (not in
     #                            the paper; False = every layer searched at every pixel, as in the paper)
+    edge_motion: float = 0.5  # px; silhouette test of a converged sample (0 = off; not in the paper)
+    unseen_reject: bool = True  # a deep-layer (>= 1) sample needs the target ray in front of it inside the
+    #                             source's view (not in the paper; docs/depthwarp.md, "unseen space")
 
     def checked(self) -> "DepthWarpParams":
         """A copy with every field checked (typed errors naming the field)."""
         if self.bound not in BOUNDS:
             raise BadValueError(f"bound: expected one of {BOUNDS}, got {self.bound!r}")
-        for name in ("oriented", "dilate", "skip_farther", "pixel_step"):
+        for name in ("oriented", "dilate", "skip_farther", "pixel_step", "unseen_reject"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise DtypeError(f"{name}: expected a bool, got {getattr(self, name)!r}")
         p = DepthWarpParams(
@@ -72,7 +75,8 @@ class DepthWarpParams:
             seed=check_int(self.seed, "seed", 0, 0xFFFFFFFF),
             dilate_min_neighbors=check_int(self.dilate_min_neighbors, "dilate_min_neighbors", 1, 8),
             pca_samples=check_int(self.pca_samples, "pca_samples", 2, 1024), skip_farther=bool(self.skip_farther),
-            tile=check_int(self.tile, "tile", 1, 16), pixel_step=bool(self.pixel_step))
+            tile=check_int(self.tile, "tile", 1, 16), pixel_step=bool(self.pixel_step),
+            unseen_reject=bool(self.unseen_reject), edge_motion=check_float(self.edge_motion, "edge_motion", 0.0))
         if not p.threshold > 0:
             raise BadValueError(f"threshold: expected a number > 0, got {p.threshold}")
         return p
@@ -192,7 +196,9 @@ def warp_depth(layers, src, dst, params=DepthWarpParams(), *, object_ids=None, o
     t2 = time.perf_counter()
     depth, layer, c = core.dw_warp(packed, mips, dst.height, dst.width, p.seeds, p.iters, p.threshold,
                                    p.bound == "tight", p.steps, p.early_exit, p.seed, p.dilate,
-                                   p.dilate_min_neighbors, p.skip_farther, p.tile, p.pixel_step)
+                                   p.dilate_min_neighbors, p.skip_farther, p.tile, p.pixel_step,
+                                   *((src.to_core(), dst.to_core()) if p.unseen_reject else (None, None)),
+                                   p.edge_motion)
     times = {"motion": (t1 - t0) * 1e3, "mipmap": (t2 - t1) * 1e3, "warp": c["warp_ms"], "dilate": c["dilate_ms"]}
     n = dst.height * dst.width
     stats = {
