@@ -58,8 +58,13 @@ int main(int argc, char** argv) {
     auto t0 = std::chrono::steady_clock::now(); double c0 = Cpu();
     ClearBlend(acc);
     for (int i = 0; i < nviews; ++i) {
+#ifdef IBR_FORWARD_WARP_BAND_LOCAL  // the kernels have it: no per-view buffers (as the binding)
+      ForwardWarp(ImageView<const float>(col[i].data(), cams[i].height, cams[i].width, 3), ImageView<const float>(dep[i].data(), cams[i].height, cams[i].width), cams[i], cams[nviews], opt, scratch,
+                  ImageView<float>(), ImageView<float>(), ImageView<float>(), nullptr, &acc);
+#else
       ForwardWarp(ImageView<const float>(col[i].data(), cams[i].height, cams[i].width, 3), ImageView<const float>(dep[i].data(), cams[i].height, cams[i].width), cams[i], cams[nviews], opt, scratch,
                   ImageView<float>(vc.data(), H, W, 3), ImageView<float>(vd.data(), H, W), ImageView<float>(vw.data(), H, W), vq.data(), &acc);
+#endif
     }
     auto t1 = std::chrono::steady_clock::now();
     ResolveBlend(acc, oc.data(), od.data(), oq.data(), oh.data());

@@ -140,10 +140,6 @@ class DibrAccumulator {
     buffers_.stretched_quality = stretched_quality;
     buffers_.stretched_holes = stretched_holes;
     buffers_.depth_tolerance = depth_tolerance;
-    view_color_.resize(3 * n);
-    view_depth_.resize(n);
-    view_weight_.resize(n);
-    view_quality_.resize(n);
     Buffers();
     py::gil_scoped_release release;
     ClearBlend(buffers_);
@@ -153,15 +149,14 @@ class DibrAccumulator {
                const WarpOptions& options) {
     InputView in = CheckInput(color_obj, depth_obj, camera);
     const ImageView<const float> color = ConstViewOf(in.color), depth = ConstViewOf(in.depth);
-    const int th = target_.height, tw = target_.width;
     WarpCounts counts;
     {
       py::gil_scoped_release release;
       const auto t0 = std::chrono::steady_clock::now();
       // The kernel adds the view to the sums only when its depth passed the checks below.
-      counts = ForwardWarp(color, depth, camera, target_, options, scratch_, ImageView<float>(view_color_.data(), th, tw, 3),
-                           ImageView<float>(view_depth_.data(), th, tw), ImageView<float>(view_weight_.data(), th, tw),
-                           view_quality_.data(), &buffers_);
+      // Band-local mode (forward_warp.h): no per-view full-size buffers.
+      counts = ForwardWarp(color, depth, camera, target_, options, scratch_, ImageView<float>(), ImageView<float>(),
+                           ImageView<float>(), nullptr, &buffers_);
       if (counts.bad_depths == 0 && counts.valid_vertices > 0) ++num_views_;
       last_ms_ = MsSince(t0);
     }
@@ -206,7 +201,6 @@ class DibrAccumulator {
 
   Camera target_;
   std::vector<float> sum_wc_, sum_w_, sum_w_invd_, sum_q_, max_q_;
-  std::vector<float> view_color_, view_depth_, view_weight_, view_quality_;
   WarpScratch scratch_;
   BlendBuffers buffers_;
   int num_views_ = 0;
@@ -301,6 +295,29 @@ void BindDibr(py::module_& m) {
       py::arg("options") = WarpOptions(),
       "Warp one view: (color (Ht, Wt, 3), depth (Ht, Wt) (0 = not covered), weight (Ht, Wt) = (q / d)^p "
       "(0 = not covered)). GIL released.");
+
+  m.def(
+      "set_warp_isa",
+      [](const std::string& name) {
+        WarpIsa isa;
+        if (name == "auto") {
+          isa = WarpIsa::kAuto;
+        } else if (name == "baseline") {
+          isa = WarpIsa::kBaseline;
+        } else if (name == "avx2") {
+          isa = WarpIsa::kAvx2;
+        } else {
+          throw BadValueError("isa: expected 'auto', 'baseline' or 'avx2', got '" + name + "'");
+        }
+        if (!SetWarpIsa(isa)) throw BadValueError("isa: 'avx2' asked but this CPU has no AVX2");
+      },
+      py::arg("isa"),
+      "Instruction set of the forward warp's hot loops (process-wide; for tests and benchmarks): 'auto' "
+      "(default: AVX2 clones when the CPU has AVX2), 'baseline' (SSE2) or 'avx2'. Results are identical.");
+  m.def(
+      "warp_isa", [] { return std::string(ActiveWarpIsa() == WarpIsa::kAvx2 ? "avx2" : "baseline"); },
+      "Instruction set the forward warp's hot loops use now: 'avx2' or 'baseline'.");
+  m.def("cpu_has_avx2", &CpuHasWarpAvx2, "Whether this CPU has AVX2 (run-time check).");
 
   m.attr("WARP_SURFACE") = int(kMaskSurface);
   m.attr("WARP_DISOCCLUDED") = int(kMaskDisoccluded);

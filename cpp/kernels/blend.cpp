@@ -63,21 +63,32 @@ bool Admit(const BlendBuffers& acc, std::ptrdiff_t i, float d, float q) {
 
 }  // namespace
 
+void AccumulateRow(const float* color, const float* depth, const float* weight, const float* quality,
+                   const BlendBuffers& acc, int y) {
+  const std::ptrdiff_t w = acc.width, o = std::ptrdiff_t(y) * w;
+  const bool visibility = acc.stretched_quality > 0.f || acc.depth_tolerance > 0.f;
+  float *swc = acc.sum_wc + 3 * o, *sw = acc.sum_w + o, *swi = acc.sum_w_invd + o, *sq = acc.sum_q + o,
+        *mq = acc.max_q + o;
+  for (std::ptrdiff_t x = 0; x < w; ++x) {
+    const float wi = weight[x];
+    if (!(wi > 0.f)) continue;
+    if (visibility && !Admit(acc, o + x, depth[x], quality[x])) continue;
+    swc[3 * x] += wi * color[3 * x];
+    swc[3 * x + 1] += wi * color[3 * x + 1];
+    swc[3 * x + 2] += wi * color[3 * x + 2];
+    sw[x] += wi;
+    swi[x] += wi / depth[x];  // depth > 0 where covered; +inf gives 0
+    sq[x] += quality[x];
+    mq[x] = std::max(mq[x], quality[x]);
+  }
+}
+
 void AccumulateRows(const float* color, const float* depth, const float* weight, const float* quality,
                     const BlendBuffers& acc, int y0, int y1) {
   const std::ptrdiff_t w = acc.width;
-  const bool visibility = acc.stretched_quality > 0.f || acc.depth_tolerance > 0.f;
-  for (std::ptrdiff_t i = y0 * w; i < std::ptrdiff_t(y1) * w; ++i) {
-    const float wi = weight[i];
-    if (!(wi > 0.f)) continue;
-    if (visibility && !Admit(acc, i, depth[i], quality[i])) continue;
-    acc.sum_wc[3 * i] += wi * color[3 * i];
-    acc.sum_wc[3 * i + 1] += wi * color[3 * i + 1];
-    acc.sum_wc[3 * i + 2] += wi * color[3 * i + 2];
-    acc.sum_w[i] += wi;
-    acc.sum_w_invd[i] += wi / depth[i];  // depth > 0 where covered; +inf gives 0
-    acc.sum_q[i] += quality[i];
-    acc.max_q[i] = std::max(acc.max_q[i], quality[i]);
+  for (int y = y0; y < y1; ++y) {
+    const std::ptrdiff_t o = std::ptrdiff_t(y) * w;
+    AccumulateRow(color + 3 * o, depth + o, weight + o, quality + o, acc, y);
   }
 }
 

@@ -52,6 +52,11 @@ void ClearBlend(const BlendBuffers& acc);
 void AccumulateRows(const float* color, const float* depth, const float* weight, const float* quality,
                     const BlendBuffers& acc, int y0, int y1);
 
+// The same for one target row y, the view's values given as row pointers (color (W, 3), depth,
+// weight, quality (W)): the warp's band-local buffers hold only the band being drawn.
+void AccumulateRow(const float* color, const float* depth, const float* weight, const float* quality,
+                   const BlendBuffers& acc, int y);
+
 // Writes colour (H, W, 3), depth (H, W), confidence (H, W), hole (H, W; 1 = hole) (all threads).
 void ResolveBlend(const BlendBuffers& acc, float* color, float* depth, float* confidence, std::uint8_t* hole);
 

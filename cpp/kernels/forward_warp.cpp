@@ -7,6 +7,7 @@
 #include <limits>
 
 #include <emmintrin.h>  // SSE2: part of x86-64, no build option needed
+#include <immintrin.h>  // AVX2: only in target("avx2") functions, called when the CPU has it
 
 #include "ibr/parallel.h"
 
@@ -19,6 +20,27 @@ constexpr int kSubpixel = 256;   // fixed point: 1/256 pixel
 constexpr float kGuardPixels = 16384.f;
 constexpr float kInf = std::numeric_limits<float>::infinity();
 constexpr std::int32_t kInvalid = std::numeric_limits<std::int32_t>::min();
+
+// Instruction-set dispatch (forward_warp.h, SetWarpIsa). The engine is built without -march
+// (SSE2 baseline); on a CPU with AVX2 the hot loops run in clones compiled for AVX2 (no FMA: the
+// same IEEE operations in the same order, so the same bits; tests/test_forward_warp.py compares
+// both paths). CallAvx2 compiles f's body, with every call inside it inlined (flatten), for AVX2.
+std::atomic<int> g_isa{-1};  // -1 auto, 0 baseline, 1 AVX2
+
+bool CpuHasAvx2() {
+  static const bool has = __builtin_cpu_supports("avx2");
+  return has;
+}
+
+inline bool UseAvx2() {
+  const int isa = g_isa.load(std::memory_order_relaxed);
+  return isa < 0 ? CpuHasAvx2() : isa == 1;
+}
+
+template <class F>
+__attribute__((target("avx2"), flatten)) void CallAvx2(const F& f) {
+  f();
+}
 
 // Floor / ceil of a / 256 (arithmetic shift: floor for negative a too).
 inline std::int64_t FloorSub(std::int64_t a) { return a >> 8; }
@@ -222,6 +244,7 @@ struct Shader : TriangleInterp {
   float q;
   bool combined;
   int tw;
+  int row0 = 0;  // target row of score[0] etc. (the band's first row with band-local buffers)
   float *score, *oc, *od, *oq;
 
   // Per-quad state: none for DIBR (triangles are judged alone, by their quality).
@@ -247,7 +270,7 @@ struct Shader : TriangleInterp {
     } else {
       s = std::max(id, 1.f / kMaxWeightDepth);
     }
-    const std::ptrdiff_t i = std::ptrdiff_t(py) * tw + px;
+    const std::ptrdiff_t i = std::ptrdiff_t(py - row0) * tw + px;
     if (s > score[i]) {
       score[i] = s;
       const float d = affine ? kInf : 1.f / id;
@@ -534,6 +557,83 @@ void RowSegmentRanges(const WarpVertex* vrow, int w, int num_segs, YRange* ry) {
 
 inline int NumSegments(int w) { return (std::max(1, w - 1) + kSegCols - 1) / kSegCols; }
 
+// Pinhole -> pinhole projection of one input row, four vertices per step (AVX2 doubles; the
+// target("avx2") clone of ProjectVertices' SSE2 pair loop): the very same operations in the
+// same order (no FMA), so the same bits as the scalar branch. RoundHalfAway, the bounds test
+// and InvDepth's clamp in lanes too (integer truncation of values below 2^31, exact compares;
+// max / min equal std::max / std::min for the non-NaN values of front lanes). Groups of four
+// with a depth that is not finite and > 0 go through the scalar rules. Returns the first
+// column not done (the caller finishes the row).
+struct PinholeProjection {
+  double rot[3][3], trans[3], fx, fy, cx, cy;
+  float lo_x, hi_x, lo_y, hi_y;
+};
+
+// RoundHalfAway of four doubles (|v| < 2^31 where the result is used): t = trunc(v), frac = v - t
+// (exact), t + (frac >= 0.5) - (frac <= -0.5).
+__attribute__((target("avx2"))) inline __m128i RoundHalfAway4(__m256d v) {
+  const __m256d one = _mm256_set1_pd(1.0);
+  const __m128i t = _mm256_cvttpd_epi32(v);
+  const __m256d frac = _mm256_sub_pd(v, _mm256_cvtepi32_pd(t));
+  const __m128i up = _mm256_cvtpd_epi32(_mm256_and_pd(_mm256_cmp_pd(frac, _mm256_set1_pd(0.5), _CMP_GE_OQ), one));
+  const __m128i dn = _mm256_cvtpd_epi32(_mm256_and_pd(_mm256_cmp_pd(frac, _mm256_set1_pd(-0.5), _CMP_LE_OQ), one));
+  return _mm_sub_epi32(_mm_add_epi32(t, up), dn);
+}
+
+template <class ScalarVertex>
+__attribute__((target("avx2"))) int ProjectPinholeRowAvx2(const float* drow, const double* ray_x, double ray_y,
+                                                            int w, const PinholeProjection& k, WarpVertex* vrow,
+                                                            std::int64_t& my_valid, ScalarVertex& scalar_vertex) {
+  const __m256d r02 = _mm256_set1_pd(k.rot[0][2]), r12 = _mm256_set1_pd(k.rot[1][2]), r22 = _mm256_set1_pd(k.rot[2][2]);
+  const __m256d r00 = _mm256_set1_pd(k.rot[0][0]), r10 = _mm256_set1_pd(k.rot[1][0]), r20 = _mm256_set1_pd(k.rot[2][0]);
+  const __m256d r01 = _mm256_set1_pd(k.rot[0][1]), r11 = _mm256_set1_pd(k.rot[1][1]), r21 = _mm256_set1_pd(k.rot[2][1]);
+  const __m256d tx = _mm256_set1_pd(k.trans[0]), ty = _mm256_set1_pd(k.trans[1]), tz = _mm256_set1_pd(k.trans[2]);
+  const __m256d fx = _mm256_set1_pd(k.fx), fy = _mm256_set1_pd(k.fy);
+  const __m256d tcx = _mm256_set1_pd(k.cx), tcy = _mm256_set1_pd(k.cy), ryv = _mm256_set1_pd(ray_y);
+  const __m256d one = _mm256_set1_pd(1.0), zero = _mm256_setzero_pd(), sub = _mm256_set1_pd(double(kSubpixel));
+  const __m256d lox = _mm256_set1_pd(double(k.lo_x)), hix = _mm256_set1_pd(double(k.hi_x));
+  const __m256d loy = _mm256_set1_pd(double(k.lo_y)), hiy = _mm256_set1_pd(double(k.hi_y));
+  const __m256d min_inv = _mm256_set1_pd(kMinInvDepth), max_inv = _mm256_set1_pd(kMaxInvDepth);
+  const __m128 finf = _mm_set1_ps(kInf), fzero = _mm_setzero_ps();
+  alignas(32) std::int32_t xs[4], ys[4];
+  alignas(32) float ips[4];
+  int u = 0;
+  for (; u + 4 <= w; u += 4) {
+    const __m128 d4 = _mm_loadu_ps(drow + u);
+    if (_mm_movemask_ps(_mm_and_ps(_mm_cmpgt_ps(d4, fzero), _mm_cmplt_ps(d4, finf))) != 15) {
+      for (int j = 0; j < 4; ++j) scalar_vertex(u + j);
+      continue;
+    }
+    const __m256d dd = _mm256_cvtps_pd(d4);
+    const __m256d rx = _mm256_mul_pd(_mm256_loadu_pd(ray_x + u), dd), ry = _mm256_mul_pd(ryv, dd), rz = dd;
+    const __m256d pz = _mm256_add_pd(_mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(r02, rx), _mm256_mul_pd(r12, ry)), _mm256_mul_pd(r22, rz)), tz);
+    const __m256d px = _mm256_add_pd(_mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(r00, rx), _mm256_mul_pd(r10, ry)), _mm256_mul_pd(r20, rz)), tx);
+    const __m256d py = _mm256_add_pd(_mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(r01, rx), _mm256_mul_pd(r11, ry)), _mm256_mul_pd(r21, rz)), ty);
+    const __m256d ipz = _mm256_div_pd(one, pz);
+    const __m256d x = _mm256_add_pd(_mm256_mul_pd(_mm256_mul_pd(fx, px), ipz), tcx);
+    const __m256d y = _mm256_add_pd(_mm256_mul_pd(_mm256_mul_pd(fy, py), ipz), tcy);
+    my_valid += 4;
+    // front && x > lo_x && x < hi_x && y > lo_y && y < hi_y (ordered compares: false for NaN)
+    __m256d ok = _mm256_cmp_pd(pz, zero, _CMP_GT_OQ);
+    ok = _mm256_and_pd(ok, _mm256_and_pd(_mm256_cmp_pd(x, lox, _CMP_GT_OQ), _mm256_cmp_pd(x, hix, _CMP_LT_OQ)));
+    ok = _mm256_and_pd(ok, _mm256_and_pd(_mm256_cmp_pd(y, loy, _CMP_GT_OQ), _mm256_cmp_pd(y, hiy, _CMP_LT_OQ)));
+    const int okm = _mm256_movemask_pd(ok);
+    if (okm == 0) {
+      for (int j = 0; j < 4; ++j) vrow[u + j] = WarpVertex{kInvalid, 0, 0.f};
+      continue;
+    }
+    // RoundHalfAway(v * 256): t = trunc, frac = v - t, t + (frac >= 0.5) - (frac <= -0.5); the
+    // compare masks are -1 / 0, so t - mask(frac >= 0.5) + mask(frac <= -0.5).
+    _mm_store_si128(reinterpret_cast<__m128i*>(xs), RoundHalfAway4(_mm256_mul_pd(x, sub)));
+    _mm_store_si128(reinterpret_cast<__m128i*>(ys), RoundHalfAway4(_mm256_mul_pd(y, sub)));
+    _mm_store_ps(ips, _mm256_cvtpd_ps(_mm256_min_pd(_mm256_max_pd(ipz, min_inv), max_inv)));
+    for (int j = 0; j < 4; ++j) {
+      vrow[u + j] = ((okm >> j) & 1) ? WarpVertex{xs[j], ys[j], ips[j]} : WarpVertex{kInvalid, 0, 0.f};
+    }
+  }
+  return u;
+}
+
 // Pass 1 of the mesh warp: every input pixel projected into the target (scratch.verts) and the
 // per-row segment y ranges (scratch.seg_y). Counts valid and bad depths.
 WarpCounts ProjectVertices(const ImageView<const float>& depth, const Camera& source, const Camera& target,
@@ -561,6 +661,7 @@ WarpCounts ProjectVertices(const ImageView<const float>& depth, const Camera& so
     for (int u = 0; u < w; ++u) scratch.ray_x[u] = (u + 0.5 - source.cx) / source.fx;
   }
   const double* ray_x = scratch.ray_x.data();
+  const bool avx2 = UseAvx2();
   std::atomic<std::int64_t> valid{0}, bad{0};
   ParallelFor(h, 8, [&](std::int64_t r0, std::int64_t r1) {
     std::int64_t my_valid = 0, my_bad = 0;
@@ -620,6 +721,22 @@ WarpCounts ProjectVertices(const ImageView<const float>& depth, const Camera& so
         o.inv = std::isinf(d) ? 0.f : InvDepth(1.0 / dt);
       };
       int u = 0;
+      if (pinholes && avx2) {
+        PinholeProjection k;
+        for (int a = 0; a < 3; ++a) {
+          for (int b = 0; b < 3; ++b) k.rot[a][b] = rot[a][b];
+          k.trans[a] = trans[a];
+        }
+        k.fx = target.fx;
+        k.fy = target.fy;
+        k.cx = target.cx;
+        k.cy = target.cy;
+        k.lo_x = lo_x;
+        k.hi_x = hi_x;
+        k.lo_y = lo_y;
+        k.hi_y = hi_y;
+        u = ProjectPinholeRowAvx2(drow, ray_x, ray_y, w, k, vrow, my_valid, scalar_vertex);
+      }
       if (pinholes) {
         // Two vertices per step (SSE2 doubles): the very same operations as the scalar pinhole
         // branch, in the same order (no FMA), so the same bits. Pairs with a depth that is not
@@ -791,8 +908,10 @@ void RasterBands(const Context& cx, const WarpScratch& scratch, int num_bands, b
   const int num_segs = NumSegments(w);
   const std::uint32_t* band_start = scratch.band_start.data();
   const std::uint32_t* band_segs = scratch.band_segs.data();
+  const bool avx2 = UseAvx2();
   ParallelFor(num_bands, 1, [&](std::int64_t b0, std::int64_t b1) {
     auto sh = make();
+    const auto bands = [&] {
     for (std::int64_t b = b0; b < b1; ++b) {
       const int y0 = static_cast<int>(b) * kBandRows, y1 = std::min(th, y0 + kBandRows);
       init(sh, y0, y1);
@@ -817,10 +936,26 @@ void RasterBands(const Context& cx, const WarpScratch& scratch, int num_bands, b
       }
       finish(sh, y0, y1);
     }
+    };
+    if (avx2) {
+      CallAvx2(bands);
+    } else {
+      bands();
+    }
   });
 }
 
 }  // namespace
+
+bool SetWarpIsa(WarpIsa isa) {
+  if (isa == WarpIsa::kAvx2 && !CpuHasAvx2()) return false;
+  g_isa.store(isa == WarpIsa::kAuto ? -1 : isa == WarpIsa::kAvx2 ? 1 : 0, std::memory_order_relaxed);
+  return true;
+}
+
+WarpIsa ActiveWarpIsa() { return UseAvx2() ? WarpIsa::kAvx2 : WarpIsa::kBaseline; }
+
+bool CpuHasWarpAvx2() { return CpuHasAvx2(); }
 
 float SideThreshold(const WarpOptions& options, const Camera& target) {
   if (options.side_threshold > 0.f) return options.side_threshold;
@@ -834,7 +969,6 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
                        float* out_quality, const BlendBuffers* accumulate) {
   const int h = depth.height, w = depth.width;
   const int th = target.height, tw = target.width;
-  scratch.score.resize(std::int64_t(th) * tw);
   WarpCounts counts = ProjectVertices(depth, source, target, scratch);
   // A view the front will reject (bad or no depth) never reaches the sums.
   const BlendBuffers* acc = counts.bad_depths == 0 && counts.valid_vertices > 0 ? accumulate : nullptr;
@@ -844,9 +978,59 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
   Context cx{&color, &depth, &source, &target, &options, scratch.verts.data(),
              SideThreshold(options, target), equirect_target, tw, th};
   const bool fast = options.quality == WarpQuality::kSide;
-  float* score = scratch.score.data();
   const float p = options.blend_exponent;
   std::atomic<std::int64_t> covered{0};
+  if (out_color.data == nullptr) {
+    // Band-local mode (accumulate only, forward_warp.h): each task draws its band into a
+    // thread's own band buffers (score, colour, depth, quality; a few MB, kept in cache) and adds
+    // it to the sums row by row. Colour and depth need no clearing: they are read only where the
+    // quality is > 0, i.e. where a fragment of this band wrote them.
+    if (acc == nullptr) return counts;  // a view the front rejects: nothing to draw into
+    const std::ptrdiff_t band_px = std::ptrdiff_t(kBandRows) * tw;
+    RasterBands(
+        cx, scratch, num_bands, fast,
+        [&] {
+          thread_local std::vector<float> band;  // grown once per thread, reused by every view
+          if (band.size() < std::size_t(7 * band_px)) band.resize(std::size_t(7 * band_px));
+          Shader sh;
+          sh.combined = options.depth_test == DepthTest::kCombined;
+          sh.tw = tw;
+          sh.score = band.data();
+          sh.oq = sh.score + band_px;
+          sh.od = sh.oq + band_px;
+          sh.oc = sh.od + band_px;  // 3 * band_px; then one row of weights
+          return sh;
+        },
+        [&](Shader& sh, int y0, int y1) {
+          sh.row0 = y0;
+          const std::ptrdiff_t n = std::ptrdiff_t(y1 - y0) * tw;
+          std::fill(sh.score, sh.score + n, -kInf);
+          std::fill(sh.oq, sh.oq + n, 0.f);
+        },
+        [&](Shader& sh, int y0, int y1) {
+          float* wrow = sh.oc + 3 * band_px;
+          std::int64_t my_covered = 0;
+          for (int y = y0; y < y1; ++y) {
+            const std::ptrdiff_t o = std::ptrdiff_t(y - y0) * tw;
+            const float *qrow = sh.oq + o, *drow = sh.od + o;
+            for (int x = 0; x < tw; ++x) {
+              const float q = qrow[x];
+              if (q > 0.f) {
+                wrow[x] = Weight(q, drow[x], p);
+                ++my_covered;
+              } else {
+                wrow[x] = 0.f;
+              }
+            }
+            AccumulateRow(sh.oc + 3 * o, drow, wrow, qrow, *acc, y);
+          }
+          covered += my_covered;
+        });
+    counts.covered_pixels = covered;
+    return counts;
+  }
+  scratch.score.resize(std::int64_t(th) * tw);
+  float* score = scratch.score.data();
   RasterBands(
       cx, scratch, num_bands, fast,
       [&] {

@@ -78,6 +78,16 @@ struct WarpOptions {
   bool discard_stretched = false; // paper Eq. 1: drop triangles whose quality reaches 0
 };
 
+// Instruction set of the hot loops (vertex projection, rasterisation): the engine is built for
+// the SSE2 baseline; on a CPU with AVX2 (checked at run time) clones compiled for AVX2 run
+// instead (no FMA: bit-identical results). kAuto (default) = AVX2 when the CPU has it.
+// SetWarpIsa is for tests and benchmarks (process-wide); returns false (and changes nothing)
+// when kAvx2 is asked on a CPU without it.
+enum class WarpIsa : int { kAuto = -1, kBaseline = 0, kAvx2 = 1 };
+bool SetWarpIsa(WarpIsa isa);
+WarpIsa ActiveWarpIsa();
+bool CpuHasWarpAvx2();
+
 // Side threshold used for a target camera (auto rule above when options.side_threshold == 0).
 float SideThreshold(const WarpOptions& options, const Camera& target);
 
@@ -122,7 +132,12 @@ struct WarpCounts {
 // the band's own task (one pass over the view's pixels while they are in cache), unless the
 // depth has NaN / negative values or no valid value (counts tell; the front then raises).
 // Weights are clamped to [1e-30, 1e30] so that sums over views stay finite.
-// Never throws (beyond std::bad_alloc from the scratch).
+// Band-local mode: with `accumulate` non-null, out_color.data may be null (then out_depth,
+// out_weight and out_quality are not used either): the view is drawn band by band into
+// per-thread buffers of one band and only added to the sums (no full-size per-view buffers:
+// less memory traffic; the same sums, bit for bit). A rejected view then draws nothing.
+// Never throws (beyond std::bad_alloc from the scratch and the per-thread band buffers).
+#define IBR_FORWARD_WARP_BAND_LOCAL 1
 WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<const float>& depth,
                        const Camera& source, const Camera& target, const WarpOptions& options,
                        WarpScratch& scratch, const ImageView<float>& out_color,

@@ -17,7 +17,7 @@ _U8: typing.TypeAlias = numpy.typing.NDArray[numpy.uint8]
 _I8: typing.TypeAlias = numpy.typing.NDArray[numpy.int8]
 _Bool: typing.TypeAlias = numpy.typing.NDArray[numpy.bool_]
 _Light: typing.TypeAlias = tuple[str, collections.abc.Sequence[float], collections.abc.Sequence[float], bool]
-__all__: list[str] = ['Camera', 'CameraModel', 'DepthWarpMips', 'DibrAccumulator', 'EMBREE_VERSION', 'OcclusionScene', 'PvmRenderer', 'RayScene', 'WARP_DISOCCLUDED', 'WARP_SURFACE', 'WARP_UNCOVERED', 'WarpOptions', 'YMap', 'blur_selection', 'cross_view_prediction', 'cull_awoc_fill', 'cull_object_boxes', 'cull_project_boxes', 'dw_build_mips', 'dw_forward', 'dw_motion', 'dw_warp', 'forward_warp', 'get_num_threads', 'grid_maxflow', 'hybrid_composite', 'hybrid_select', 'interpolate_vertex_attribute', 'interpolate_vertex_values', 'metameric_composite', 'metameric_pushpull_moments', 'metameric_stack_moments', 'mip_build', 'mip_foveate_level', 'mip_lookup', 'mip_max_levels', 'poisson_blend', 'pushpull', 'pvm_slice', 'pvm_triangulate', 'sample_atlas', 'set_num_threads', 'shadow_map_visibility', 'ssim', 'steerable_analyse', 'steerable_max_levels', 'steerable_synthesise', 'ulr_blend', 'ulr_penalty', 'ulr_select', 'warp_flow', 'warp_with_holes']
+__all__: list[str] = ['Camera', 'CameraModel', 'DepthWarpMips', 'DibrAccumulator', 'EMBREE_VERSION', 'OcclusionScene', 'PvmRenderer', 'RayScene', 'WARP_DISOCCLUDED', 'WARP_SURFACE', 'WARP_UNCOVERED', 'WarpOptions', 'YMap', 'blur_selection', 'cpu_has_avx2', 'cross_view_prediction', 'cull_awoc_fill', 'cull_object_boxes', 'cull_project_boxes', 'dw_build_mips', 'dw_forward', 'dw_motion', 'dw_warp', 'forward_warp', 'get_num_threads', 'grid_maxflow', 'hybrid_composite', 'hybrid_select', 'interpolate_vertex_attribute', 'interpolate_vertex_values', 'metameric_composite', 'metameric_pushpull_moments', 'metameric_stack_moments', 'mip_build', 'mip_foveate_level', 'mip_lookup', 'mip_max_levels', 'poisson_blend', 'pushpull', 'pvm_slice', 'pvm_triangulate', 'sample_atlas', 'set_num_threads', 'set_warp_isa', 'shadow_map_visibility', 'ssim', 'steerable_analyse', 'steerable_max_levels', 'steerable_synthesise', 'ulr_blend', 'ulr_penalty', 'ulr_select', 'warp_flow', 'warp_isa', 'warp_with_holes']
 
 class CameraModel:
     """
@@ -340,6 +340,11 @@ def blur_selection(label: _U8, sigma_blur: typing.SupportsFloat | typing.Support
     Gaussian-blurred one-hot selection weights (H, W, 3) = (TM, ULR, PVM), normalised to sum 1.
     """
 
+def cpu_has_avx2() -> bool:
+    """
+    Whether this CPU has AVX2 (run-time check).
+    """
+
 def cross_view_prediction(camera: Camera, depth: _F32, cameras: collections.abc.Sequence[Camera], depths: list[_F32], images: list[_F32], depth_tol: typing.SupportsFloat | typing.SupportsIndex, quantile: typing.SupportsFloat | typing.SupportsIndex=0.5) -> tuple[numpy.typing.NDArray[numpy.float32], numpy.typing.NDArray[numpy.int32]]:
     """
     Diffuse prediction of a view's pixels from other views (cpp/kernels/harmonise.h): camera (_core.Camera), depth (H, W) float32 (<= 0: no surface); cameras: list of _core.Camera, depths: list of their (Hk, Wk) float32 depth, images: list of their (Hk, Wk, 3) float32 colours; returns (prediction (H, W, 3) float32, n_seen (H, W) int32).
@@ -480,6 +485,11 @@ def set_num_threads(num_threads: typing.SupportsInt | typing.SupportsIndex) -> N
     Limit the engine's threads for every later call (0 = all cores).
     """
 
+def set_warp_isa(isa: str) -> None:
+    """
+    Instruction set of the forward warp's hot loops (process-wide; for tests and benchmarks): 'auto' (default: AVX2 clones when the CPU has AVX2), 'baseline' (SSE2) or 'avx2'. Results are identical.
+    """
+
 def shadow_map_visibility(view_depth: _F32, view: Camera, maps: _F32, cameras: collections.abc.Sequence[Camera], bias: typing.SupportsFloat | typing.SupportsIndex, slope_bias: typing.SupportsFloat | typing.SupportsIndex) -> numpy.typing.NDArray[numpy.float32]:
     """
     Fraction of the S shadow maps (S, Hs, Ws) in which each view pixel's surface point is lit (cpp/kernels/shadows.h); bias in shadow-map texels, slope_bias times the map's own depth slope.
@@ -523,6 +533,11 @@ def ulr_select(penalty: _F64, k: typing.SupportsInt | typing.SupportsIndex) -> t
 def warp_flow(color: _F32, depth: _F32, flow: _F32, stretch_threshold: typing.SupportsFloat | typing.SupportsIndex=2.0, depth_jump: typing.SupportsFloat | typing.SupportsIndex=0.10000000149011612) -> tuple[_F32, _F32, _U8]:
     """
     Warp one RGB-D image by a per-pixel motion field with background-depth holes (forward_warp.h, flow form): flow float32 (H, W, 2) = target - source position in pixels (x, y); depth orders the fragments (larger = farther; 0 = unknown). Returns (color, depth, mask) as warp_with_holes, of the input's size. GIL released.
+    """
+
+def warp_isa() -> str:
+    """
+    Instruction set the forward warp's hot loops use now: 'avx2' or 'baseline'.
     """
 
 def warp_with_holes(color: _F32, depth: _F32, camera: Camera, target_camera: Camera, stretch_threshold: typing.SupportsFloat | typing.SupportsIndex=2.0, depth_jump: typing.SupportsFloat | typing.SupportsIndex=0.10000000149011612) -> tuple[_F32, _F32, _U8]:
