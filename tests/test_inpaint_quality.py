@@ -3,8 +3,8 @@
 Middlebury Teddy and Cones: the left view warped into the right camera by ``_core.warp_with_holes``;
 the disoccluded pixels of the right view are scored against the real right view
 (benchmarks/bench_inpaint_quality.py defines every score). Only the relations the issue asks for
-that were *measured to hold* are asserted. The one measured not to hold (metameric "does not lose
-on FLIP": it loses on every case) is recorded in docs/inpaint_quality.md, not asserted.
+that were *measured to hold* are asserted; the one measured not to hold on Teddy (metameric's FLIP
+at or below depth-aware push-pull's) is a strict xfail, so that a change that reaches it is seen.
 """
 from __future__ import annotations
 
@@ -44,16 +44,45 @@ def results(name: str) -> dict:
     return _CACHE[name]
 
 
-def test_teddy_metameric_beats_pushpull_on_statistics():
-    # Measured (3 seeds): statistics distance D metameric 0.268 (every seed < 0.28) against
-    # classic push-pull 0.553 and depth-aware 0.363. Margin 0.05 (half the measured gap to the
-    # nearer push-pull): band statistics of a noise fill move by ~0.01 between seeds.
-    # NOT asserted elsewhere: on Art, Books, lego r_50/r_100 metameric is *worse* than (one of)
-    # the push-pulls on D (docs/inpaint_quality.md), so this is Teddy's relation, not a general one.
-    r = results("Teddy")
+@pytest.mark.parametrize("name", ["Teddy", "Cones"])
+def test_metameric_beats_pushpull_on_statistics(name):
+    # Measured (3 seeds): statistics distance D metameric 0.260 on Teddy against classic push-pull
+    # 0.553 / depth-aware 0.363; Cones 0.310 against 0.646 / 0.653 (every seed below both on all 8
+    # cases of docs/inpaint_quality.md). Margin 0.05 (half the smaller measured gap): band
+    # statistics of a noise fill move by ~0.01-0.02 between seeds.
+    r = results(name)
     best_pp = min(r["pushpull"]["stats"], r["pushpull_depth"]["stats"])
     for s in r["metameric"]["per_seed"]:
         assert s["stats"] < best_pp - 0.05, (s["stats"], best_pp)
+
+
+@pytest.mark.parametrize("name", ["Teddy", "Cones"])
+def test_metameric_keeps_the_pushpull_mean(name):
+    # The fill's mean is the depth-aware push-pull (ibrtools.metameric, step 4): the hole's mean
+    # colour ("bleed") is no worse than depth-aware push-pull's (measured Teddy 0.048 vs 0.073,
+    # Cones 0.052 vs 0.053; before the fix 0.217 / 0.112), and PSNR, which the noise lowers, stays
+    # within 2.5 dB of it (measured 0.3 / 1.8 dB below; before the fix 5.5 / 4.7 dB). Margins: 0.01
+    # on bleed and 2.5 dB cover the seed-to-seed spread (FLIP and PSNR move by ~0.02 / ~0.3 dB).
+    r = results(name)
+    mm, pd = r["metameric"], r["pushpull_depth"]
+    assert mm["bleed"] < pd["bleed"] + 0.01, (mm["bleed"], pd["bleed"])
+    assert mm["psnr"] > pd["psnr"] - 2.5, (mm["psnr"], pd["psnr"])
+
+
+def test_teddy_metameric_flip_not_worse_than_classic_pushpull():
+    # The issue's "does not lose on FLIP" against the classic push-pull (the paper's baseline):
+    # holds on Teddy by a wide margin (measured 0.399, seeds 0.397-0.403, against 0.489); also on
+    # Books and Art (tie), not on Cones, Dolls and the lego views (docs/inpaint_quality.md).
+    r = results("Teddy")
+    for s in r["metameric"]["per_seed"]:
+        assert s["flip"] < r["pushpull"]["flip"] - 0.05, (s["flip"], r["pushpull"]["flip"])
+
+
+@pytest.mark.xfail(strict=True, reason="measured: metameric FLIP 0.399 vs depth-aware push-pull 0.378 on Teddy "
+                   "(noise with the right statistics is not the true texture, and FLIP compares pixel by pixel)")
+def test_teddy_metameric_flip_not_worse_than_depth_aware_pushpull():
+    r = results("Teddy")
+    assert r["metameric"]["flip"] <= r["pushpull_depth"]["flip"]
 
 
 @pytest.mark.parametrize("name, margin", [("Teddy", 0.01), ("Cones", 0.003)])

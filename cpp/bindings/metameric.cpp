@@ -109,7 +109,7 @@ void BindMetameric(py::module_& m) {
   m.def(
       "metameric_composite",
       [](py::handle moments_obj, py::handle mask_obj, py::handle noise_obj, py::handle bands_obj,
-         py::handle flow_obj, int scale) {
+         py::handle flow_obj, int scale, bool delta) {
         std::vector<FloatArray> bands = CheckArrayList(bands_obj, "bands", -1, -1, -1, true);
         const py::ssize_t h = bands[0].shape(0), w = bands[0].shape(1), c = bands[0].shape(2);
         const py::ssize_t k = static_cast<py::ssize_t>(bands.size());
@@ -178,14 +178,61 @@ void BindMetameric(py::module_& m) {
                                                       static_cast<int>(h), static_cast<int>(w), 1);
         py::gil_scoped_release release;
         MetamericComposite(moments_view, mask_view, noise_views.data(), band_views.data(), static_cast<int>(k),
-                           flow, scale);
+                           flow, scale, delta);
       },
       py::arg("moments"), py::arg("mask"), py::arg("noise"), py::arg("bands"), py::arg("flow") = py::none(),
-      py::arg("scale") = 1,
+      py::arg("scale") = 1, py::arg("delta") = false,
       "Metameric synthesis of one level in place (cpp/kernels/metameric.h): where mask (bool or uint8 (h, w)) "
       "is set, bands[i] = mean + sqrt(max(0, E[X^2] - mean^2)) * noise[i] at the (flow-moved, wrapped) "
       "noise position, with mean, E[X^2] from moments float32 (h, w, 2kC); flow None or float32/float64 "
-      "full-resolution (H, W, 2), read at (y * scale, x * scale).");
+      "full-resolution (H, W, 2), read at (y * scale, x * scale). delta=True: bands[i] = sigma * noise[i] "
+      "where mask is set and 0 elsewhere (the band's change when the fill's mean is the band itself).");
+
+  m.def(
+      "metameric_encode",
+      [](py::handle image_obj) {
+        FloatArray image = CheckArray<float>(image_obj, "image", {{"H", -1}, {"W", -1}, {"C", -1}});
+        const py::ssize_t h = image.shape(0), w = image.shape(1), c = image.shape(2);
+        FloatArray out = NewArray<float>({h, w, c});
+        const ImageView<const float> in_view = ConstViewOf(image);
+        const ImageView<float> out_view = ViewOf(out);
+        py::gil_scoped_release release;
+        MetamericEncode(in_view, out_view);
+        return out;
+      },
+      py::arg("image"),
+      "Display encoding of metameric synthesis (cpp/kernels/metameric.h SrgbEncode): the sRGB curve of every "
+      "value of image float32 (H, W, C), odd-extended to negatives and unbounded above; NaN stays NaN. Returns "
+      "a new float32 (H, W, C) array.");
+
+  m.def(
+      "metameric_fill_holes",
+      [](py::handle image_obj, py::handle hole_obj, py::handle base_obj, py::handle change_obj, bool decode) {
+        FloatArray image = CheckArray<float>(image_obj, "image", {{"H", -1}, {"W", -1}, {"C", -1}});
+        const py::ssize_t h = image.shape(0), w = image.shape(1), c = image.shape(2);
+        py::array hole_arr;
+        if (py::isinstance<py::array>(hole_obj) &&
+            py::reinterpret_borrow<py::array>(hole_obj).dtype().equal(py::dtype::of<std::uint8_t>())) {
+          hole_arr = CheckArray<std::uint8_t>(hole_obj, "hole", {{"H", h}, {"W", w}});
+        } else {
+          hole_arr = CheckArray<bool>(hole_obj, "hole", {{"H", h}, {"W", w}});
+        }
+        FloatArray base = CheckArray<float>(base_obj, "base", {{"H", h}, {"W", w}, {"C", c}});
+        FloatArray change = CheckArray<float>(change_obj, "change", {{"H", h}, {"W", w}, {"C", c}});
+        FloatArray out = NewArray<float>({h, w, c});
+        const ImageView<const float> image_view = ConstViewOf(image), base_view = ConstViewOf(base),
+                                     change_view = ConstViewOf(change);
+        const ImageView<const std::uint8_t> hole_view(static_cast<const std::uint8_t*>(hole_arr.data()),
+                                                      static_cast<int>(h), static_cast<int>(w), 1);
+        const ImageView<float> out_view = ViewOf(out);
+        py::gil_scoped_release release;
+        MetamericFillHoles(image_view, hole_view, base_view, change_view, decode, out_view);
+        return out;
+      },
+      py::arg("image"), py::arg("hole"), py::arg("base"), py::arg("change"), py::arg("decode"),
+      "The result of metameric inpainting (cpp/kernels/metameric.h MetamericFillHoles): a new float32 (H, W, C) "
+      "array, image where hole (bool or uint8 (H, W)) is 0, base + change inside the holes (decoded from the "
+      "display encoding and clamped at 0 with decode=True); image, base, change float32 (H, W, C).");
 }
 
 }  // namespace ibr::bind

@@ -61,8 +61,37 @@ struct MetamericFlow {
   int width = 0;
 };
 
+// delta = false: the equation above (bands keep their values outside the mask). delta = true:
+// the band's *change* for a fill whose mean is the band's own value (python/ibrtools/metameric.py):
+//   band_i[y, x, ch] = sigma * noise_i[yy, xx, ch] where mask[y, x] != 0, 0 elsewhere
+// (every sample written), sigma from the moments as above.
 void MetamericComposite(const ImageView<const float>& moments, const ImageView<const std::uint8_t>& mask,
                         const ImageView<const float>* noise, const ImageView<float>* bands, int k,
-                        const MetamericFlow& flow, int scale);
+                        const MetamericFlow& flow, int scale, bool delta = false);
+
+// Display encoding of metameric synthesis (Walton et al. 2021 sec. 6: "all methods operate on
+// non-linear color (subject to display gamma) as they are concerned with perceived contrasts"):
+// the sRGB curve (IEC 61966-2-1) extended to every real number, odd (f(-v) = -f(v)) and
+// unbounded above with the same formula:
+//   SrgbEncode(v) = 12.92 v for |v| <= 0.0031308, sign(v) (1.055 |v|^(1/2.4) - 0.055) beyond;
+//   SrgbDecode(e) = e / 12.92 for |e| <= 0.04045, sign(e) ((|e| + 0.055) / 1.055)^2.4 beyond,
+// its exact inverse. The powers use a polynomial log2/exp2 (relative error ~1e-6, measured in
+// tests/test_metameric_kernels.py) instead of std::pow (~3x slower here); NaN stays NaN, +-inf
+// stays +-inf.
+float SrgbEncode(float v);
+float SrgbDecode(float e);
+
+// out = SrgbEncode(image) for every value (image and out (h, w, C), may be the same array).
+void MetamericEncode(const ImageView<const float>& image, const ImageView<float>& out);
+
+// The result of metameric inpainting from its pieces, per pixel:
+//   out = image                                      where hole == 0 (copied bit for bit),
+//   out = f(base + change)                            where hole != 0,
+// f = max(0, SrgbDecode(.)) with decode (negative light does not exist: the display-space noise can
+// dip below 0 next to black), the identity without. image, base, change, out (h, w, C); hole (h, w)
+// one byte per pixel; out may not alias base or change (it may alias image).
+void MetamericFillHoles(const ImageView<const float>& image, const ImageView<const std::uint8_t>& hole,
+                        const ImageView<const float>& base, const ImageView<const float>& change, bool decode,
+                        const ImageView<float>& out);
 
 }  // namespace ibr

@@ -17,7 +17,7 @@ _U8: typing.TypeAlias = numpy.typing.NDArray[numpy.uint8]
 _I8: typing.TypeAlias = numpy.typing.NDArray[numpy.int8]
 _Bool: typing.TypeAlias = numpy.typing.NDArray[numpy.bool_]
 _Light: typing.TypeAlias = tuple[str, collections.abc.Sequence[float], collections.abc.Sequence[float], bool]
-__all__: list[str] = ['Camera', 'CameraModel', 'DepthWarpMips', 'DibrAccumulator', 'EMBREE_VERSION', 'OcclusionScene', 'PvmRenderer', 'RayScene', 'WARP_DISOCCLUDED', 'WARP_SURFACE', 'WARP_UNCOVERED', 'WarpOptions', 'YMap', 'blur_selection', 'cpu_has_avx2', 'cross_view_prediction', 'cull_awoc_fill', 'cull_object_boxes', 'cull_project_boxes', 'dw_build_mips', 'dw_forward', 'dw_motion', 'dw_warp', 'forward_warp', 'get_num_threads', 'grid_maxflow', 'hybrid_composite', 'hybrid_select', 'interpolate_vertex_attribute', 'interpolate_vertex_values', 'metameric_composite', 'metameric_pushpull_moments', 'metameric_stack_moments', 'mip_build', 'mip_foveate_level', 'mip_lookup', 'mip_max_levels', 'poisson_blend', 'pushpull', 'pvm_slice', 'pvm_triangulate', 'sample_atlas', 'set_num_threads', 'set_warp_isa', 'shadow_map_visibility', 'ssim', 'steerable_analyse', 'steerable_max_levels', 'steerable_synthesise', 'ulr_blend', 'ulr_penalty', 'ulr_select', 'warp_flow', 'warp_isa', 'warp_with_holes']
+__all__: list[str] = ['Camera', 'CameraModel', 'DepthWarpMips', 'DibrAccumulator', 'EMBREE_VERSION', 'OcclusionScene', 'PvmRenderer', 'RayScene', 'WARP_DISOCCLUDED', 'WARP_SURFACE', 'WARP_UNCOVERED', 'WarpOptions', 'YMap', 'blur_selection', 'cpu_has_avx2', 'cross_view_prediction', 'cull_awoc_fill', 'cull_object_boxes', 'cull_project_boxes', 'dw_build_mips', 'dw_forward', 'dw_motion', 'dw_warp', 'forward_warp', 'get_num_threads', 'grid_maxflow', 'hybrid_composite', 'hybrid_select', 'interpolate_vertex_attribute', 'interpolate_vertex_values', 'metameric_composite', 'metameric_encode', 'metameric_fill_holes', 'metameric_pushpull_moments', 'metameric_stack_moments', 'mip_build', 'mip_foveate_level', 'mip_lookup', 'mip_max_levels', 'poisson_blend', 'pushpull', 'pvm_slice', 'pvm_triangulate', 'sample_atlas', 'set_num_threads', 'set_warp_isa', 'shadow_map_visibility', 'ssim', 'steerable_analyse', 'steerable_max_levels', 'steerable_synthesise', 'ulr_blend', 'ulr_penalty', 'ulr_select', 'warp_flow', 'warp_isa', 'warp_with_holes']
 
 class CameraModel:
     """
@@ -420,9 +420,19 @@ def interpolate_vertex_values(prim_id: _I32, bary: _F32, faces: _I32, values: _F
     Per-vertex values interpolated over the rendered triangles (cpp/kernels/harmonise.h): prim_id (H, W) int32 (-1: no triangle), bary (H, W, 2) float32, faces (M, 3) int32, values (N, C) float32; returns (H, W, C) float32, 0 where prim_id is -1.
     """
 
-def metameric_composite(moments: _F32, mask: _Bool | _U8, noise: collections.abc.Sequence[_F32], bands: collections.abc.Sequence[_F32], flow: _F32 | _F64 | None=None, scale: typing.SupportsInt | typing.SupportsIndex=1) -> None:
+def metameric_composite(moments: _F32, mask: _Bool | _U8, noise: collections.abc.Sequence[_F32], bands: collections.abc.Sequence[_F32], flow: _F32 | _F64 | None=None, scale: typing.SupportsInt | typing.SupportsIndex=1, delta: bool=False) -> None:
     """
-    Metameric synthesis of one level in place (cpp/kernels/metameric.h): where mask (bool or uint8 (h, w)) is set, bands[i] = mean + sqrt(max(0, E[X^2] - mean^2)) * noise[i] at the (flow-moved, wrapped) noise position, with mean, E[X^2] from moments float32 (h, w, 2kC); flow None or float32/float64 full-resolution (H, W, 2), read at (y * scale, x * scale).
+    Metameric synthesis of one level in place (cpp/kernels/metameric.h): where mask (bool or uint8 (h, w)) is set, bands[i] = mean + sqrt(max(0, E[X^2] - mean^2)) * noise[i] at the (flow-moved, wrapped) noise position, with mean, E[X^2] from moments float32 (h, w, 2kC); flow None or float32/float64 full-resolution (H, W, 2), read at (y * scale, x * scale). delta=True: bands[i] = sigma * noise[i] where mask is set and 0 elsewhere (the band's change when the fill's mean is the band itself).
+    """
+
+def metameric_encode(image: _F32) -> _F32:
+    """
+    Display encoding of metameric synthesis (cpp/kernels/metameric.h SrgbEncode): the sRGB curve of every value of image float32 (H, W, C), odd-extended to negatives and unbounded above; NaN stays NaN. Returns a new float32 (H, W, C) array.
+    """
+
+def metameric_fill_holes(image: _F32, hole: _Bool | _U8, base: _F32, change: _F32, decode: bool) -> _F32:
+    """
+    The result of metameric inpainting (cpp/kernels/metameric.h MetamericFillHoles): a new float32 (H, W, C) array, image where hole (bool or uint8 (H, W)) is 0, base + change inside the holes (decoded from the display encoding and clamped at 0 with decode=True); image, base, change float32 (H, W, C).
     """
 
 def metameric_pushpull_moments(bands: collections.abc.Sequence[_F32], mask: _U8, depth: _F32 | None, depth_threshold: typing.SupportsFloat | typing.SupportsIndex, gamma: typing.SupportsFloat | typing.SupportsIndex, out: _F32) -> None:

@@ -4,6 +4,11 @@ Walton et al. 2021, *Beyond Blur*, sec. 3; docs/inpaint.md, "Metameric").
 Holes are filled with content whose local statistics (per steerable band: mean and variance)
 match the surrounding background, instead of the smooth colour of push-pull:
 
+0. RGB is synthesised on display values: the sRGB encoding of the linear input (Walton et al.
+   sec. 6: "all methods operate on non-linear color (subject to display gamma) as they are
+   concerned with perceived contrasts, not with preserving energy"; the variance of a band is a
+   contrast, and a noise of the surroundings' linear variance is far too strong, in display terms,
+   next to dark content). The fill is decoded back to linear at the end (clamped at 0).
 1. pre-fill the holes by push-pull (our deviation from "holes zero", see :func:`metameric`) and
    analyse the image into the small-filter steerable pyramid (:mod:`ibrtools.steerable`, YCbCr
    for RGB);
@@ -11,20 +16,31 @@ match the surrounding background, instead of the smooth colour of push-pull:
    the 5x5 band filters; sec. 3.2) marks the band samples to replace;
 3. per level, push-pull X and X^2 of every band (depth-aware, Alg. 1, when a depth is given, with
    the depth sampled at the level's pixel centres; classic otherwise) inside that mask:
-   mean = pp(X), variance = max(0, pp(X^2) - pp(X)^2) (sec. 3.3.1);
-4. synthesise each band inside the mask as mean + sigma * noise, where the noise is white noise
+   variance = max(0, pp(X^2) - pp(X)^2) (sec. 3.3.1);
+4. the mean of the fill, the paper's mu_l + sum mu_ij, is the pyramid of the pre-fill itself: its
+   low-pass residual and its band coefficients inside the masks (the push-pull of the colours, a
+   convex operator as sec. 3.2 asks for the low-pass, run at full resolution with the exact hole
+   mask and depth). The paper's per-band pp(X) and a push-pull of the low-pass at level L are
+   the same kind of local mean but at the level's resolution, where a sample is a hole when any
+   pixel of its 2^L x 2^L block is and the band mask is dilated: they draw on samples up to
+   2^l (2 + 1) pixels away, across the depth edge beside a disocclusion, and moved the fill's mean
+   colour off the background (docs/inpaint_quality.md, findings: the measured "bleed");
+5. synthesise each band's change inside its mask as sigma * noise, where the noise is white noise
    analysed by the same pyramid (so filtered by the same band filter) and normalised to unit
-   variance per band and channel (sec. 3.4); the low-pass residual inside its mask is the
-   push-pull of the low-pass (no noise);
-5. collapse the pyramid and copy it into the holes only: outside the holes the output is the
-   input bit for bit.
+   variance per band and channel (sec. 3.4: "shaped to fit the distribution described by mu,
+   sigma"); collapse the pyramid of changes (the low-pass unchanged) and add it to the pre-fill
+   inside the holes only: outside the holes the output is the input bit for bit. Collapsing the
+   changes rather than the whole pyramid also keeps the 5x5 filters' reconstruction error
+   (docs/steerable.md) out of the holes: with no texture around (sigma = 0) the fill is exactly
+   the push-pull.
 
 The noise pyramid depends only on (size, channels, levels, orientations, seed), so it is built
 once and cached (Walton et al.: "this random pattern is held constant over time"); ``flow``
 moves it with the scene (sec. 3.4.1): the noise at pixel x is read at x + flow(x) (nearest
-sample of each level, wrapping at the borders). All per-pixel work is C++: steerable analysis /
-synthesis, push-pull, and cpp/kernels/metameric.h (the stacked [X, X^2] push-pull input of a
-level, the mean + sigma * noise composite inside its mask, in place); numpy builds the masks.
+sample of each level, wrapping at the borders). All per-pixel work is C++: display encoding,
+steerable analysis / synthesis, push-pull, and cpp/kernels/metameric.h (the stacked [X, X^2]
+push-pull input of a level, the sigma * noise composite inside its mask, in place, the
+decode-and-copy into the holes); numpy builds the masks.
 """
 from __future__ import annotations
 
@@ -68,10 +84,9 @@ def level_masks(hole: np.ndarray, levels: int) -> tuple[list[np.ndarray], np.nda
     dilated by the filter radius (2 px for 5x5): band samples whose filter reads a hole sample
     of the level. Level 0's mask also serves the high-pass residual (``levels`` = 0: only that).
     lowpass_mask (h_L, w_L): the hole mask down-sampled to level L and dilated by 2 as well: the
-    low-pass itself is filled by push-pull (convex, sec. 3.2 needs no dilation for it), but
-    synthesis up-samples it with the 5x5 L1 taps, so a hole pixel would read unfilled low-pass
-    samples of whatever lies next to the hole (a foreground edge bleeds through them:
-    tests/test_metameric.py, the disc test)."""
+    low-pass samples whose up-sampling (5x5 L1 taps) reaches a hole. :func:`metameric` does not
+    replace the low-pass (module docstring, step 4: it keeps the pre-fill's); the mask says which
+    low-pass samples a hole pixel's synthesis reads."""
     if levels == 0:
         return [_dilate(hole)], _dilate(hole)
     m, bands = hole, []
@@ -203,7 +218,8 @@ def _level_mask(mask: np.ndarray, hole: np.ndarray, scale: int) -> np.ndarray:
 
 def metameric(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = None, *, levels: int = 4,
               orientations: int = 2, seed: int = 0, flow: np.ndarray | None = None,
-              depth_threshold: float | None = None, gamma: float | None = None) -> np.ndarray:
+              depth_threshold: float | None = None, gamma: float | None = None,
+              display: bool | None = None) -> np.ndarray:
     """Fill the holes of ``image`` with a metamer of their surroundings (module docstring).
 
     image: float32 (H, W) or (H, W, C), H, W >= 3, finite outside the holes (values in holes are
@@ -213,7 +229,9 @@ def metameric(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = No
     levels (0 .. steerable.max_levels), orientations (2 or 4): the pyramid; seed (>= 0): the noise;
     flow: None or float32 (H, W, 2), per-pixel (dx, dy) offset at which the noise is sampled
     (motion since the frame the noise was anchored to); depth_threshold, gamma: the depth-aware
-    push-pull's (:func:`ibrtools.inpaint.pushpull` defaults when None).
+    push-pull's (:func:`ibrtools.inpaint.pushpull` defaults when None). display: synthesise on the
+    sRGB encoding of the (linear) values and decode the fill (clamped at 0); None (default) = True
+    for RGB (C = 3), False for other channel counts (module docstring, step 0).
 
     Returns a new float32 array of image's shape: ``image`` bit for bit outside the holes, the
     metamer inside. Deterministic for a given seed (and thread count independent). Raises
@@ -232,6 +250,8 @@ def metameric(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = No
         raise ShapeError(f"depth: expected float32 array of shape (H, W) = ({h}, {w}), got {depth.dtype} {depth.shape}")
     levels, orientations, seed = _check_options(levels, orientations, seed, h, w)
     flow = _check_flow(flow, h, w)
+    if display is not None and not isinstance(display, (bool, np.bool_)):
+        raise BadValueError(f"display: expected None, True or False, got {display!r}")
     hole = hole.astype(bool, copy=False)
     squeeze = image.ndim == 2
     x = image[..., None] if squeeze else image
@@ -244,22 +264,27 @@ def metameric(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = No
         return image.copy()
     if hole.all():
         raise BadValueError("hole: every pixel is a hole; metameric inpainting needs pixels outside the holes")
+    display = (c == 3) if display is None else bool(display)
     pp_kw = {}
     if depth is not None:
         pp_kw = {"depth_threshold": DEPTH_THRESHOLD if depth_threshold is None else depth_threshold,
                  "gamma": GAMMA if gamma is None else gamma}
 
+    x = np.ascontiguousarray(x)
+    # Step 0: display encoding (Walton et al. sec. 6: perceived contrasts, not energy).
+    xs = _core.metameric_encode(x) if display else x
     # Deviation (docs/inpaint.md): the holes are pre-filled by push-pull (depth-aware with
     # depth) before the analysis instead of set to zero. With zeros, every sample whose
     # filter chain (L0, L1, ..., band) reaches a hole is wrong, and for a warped frame with 10 %
     # scattered holes that is 72 % of level 2, 98 % of level 3 and 97 % of the low-pass at
     # 1024^2: the local colour would be lost. The smooth pre-fill has no edge at the hole's rim,
     # so the per-level masks of the paper (hole at the level dilated by the filter radius) hold.
-    filled = pushpull(x, hole, depth, **pp_kw)
+    # The pre-fill is also the fill's mean (step 4).
+    filled = pushpull(xs, hole, depth, **pp_kw)
     ycbcr = c == 3
     pyr = analyse(filled, levels, orientations, ycbcr=ycbcr)
     n_hp, n_bands, _ = _noise_pyramid_cached(h, w, c, levels, orientations, seed)
-    band_masks, lo_mask = level_masks(hole, levels)
+    band_masks, _ = level_masks(hole, levels)
 
     # One buffer for the moments of every level (level 0, with the high-pass, is the
     # largest; coarser levels use a contiguous prefix of it).
@@ -269,9 +294,10 @@ def metameric(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = No
     flow_c = None if flow is None else np.ascontiguousarray(flow)
 
     def fill(bands: list[np.ndarray], noise: list[np.ndarray], mask: np.ndarray, scale: int) -> None:
-        # One push-pull of [X..., X^2...] of every band of the level (sec. 3.3.1), then
-        # mean + sigma * noise on the masked samples only (sec. 3.4), written into the bands in
-        # place (both per-sample passes in C++: cpp/kernels/metameric.h).
+        # One push-pull of [X..., X^2...] of every band of the level (sec. 3.3.1), then the
+        # band's change sigma * noise on the masked samples, 0 elsewhere (sec. 3.4 with the mean
+        # of step 4), written over the bands in place (both per-sample passes in C++:
+        # cpp/kernels/metameric.h).
         mask = _level_mask(mask, hole, scale)
         d = None if depth is None else np.ascontiguousarray(depth[::scale, ::scale])
         hl, wl = mask.shape
@@ -279,7 +305,7 @@ def metameric(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = No
         # a reused buffer, computing [X, X^2] on the fly (no stacked copy of the level).
         moments = moments_buf[:hl * wl * 2 * len(bands) * c].reshape(hl, wl, 2 * len(bands) * c)
         _core.metameric_pushpull_moments(bands, mask.view(np.uint8), d, *pp_args, moments)
-        _core.metameric_composite(moments, mask, noise, bands, flow_c, scale)
+        _core.metameric_composite(moments, mask, noise, bands, flow_c, scale, True)
 
     # Level 0 also carries the high-pass residual (same resolution, same mask: one push-pull
     # call per level).
@@ -287,10 +313,9 @@ def metameric(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = No
          band_masks[0], 1)
     for l in range(1, levels):
         fill(pyr.bands[l], list(n_bands[l]), band_masks[l], 1 << l)
-    scale = 1 << levels
-    lo_mask = _level_mask(lo_mask, hole, scale)
-    d = None if depth is None else np.ascontiguousarray(depth[::scale, ::scale])
-    lowpass = pushpull(pyr.lowpass, lo_mask, d, **pp_kw)
-    rec = synthesise(SteerablePyramid(pyr.highpass, pyr.bands, lowpass, ycbcr=ycbcr))
-    out = np.where(hole[..., None], rec, x)
+    # The pyramid now holds the change of every band and no change of the low-pass: its collapse
+    # is the noise image, added to the pre-fill inside the holes (step 5).
+    pyr.lowpass[...] = 0.0
+    change = synthesise(SteerablePyramid(pyr.highpass, pyr.bands, pyr.lowpass, ycbcr=ycbcr))
+    out = _core.metameric_fill_holes(x, hole, filled, change, display)
     return out[..., 0] if squeeze else out
