@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstddef>
 #include <limits>
+#include <type_traits>
 
 #include <emmintrin.h>  // SSE2: part of x86-64, no build option needed
 #include <immintrin.h>  // AVX2: only in target("avx2") functions, called when the CPU has it
@@ -246,6 +247,9 @@ struct Shader : TriangleInterp {
   int tw;
   int row0 = 0;  // target row of score[0] etc. (the band's first row with band-local buffers)
   float *score, *oc, *od, *oq;
+
+  // RasterBlockRowAvx2 may set up 8 quads at once (BeginQuad is a no-op here).
+  static constexpr bool kQuadSimd = true;
 
   // Per-quad state: none for DIBR (triangles are judged alone, by their quality).
   inline void BeginQuad(const WarpVertex&, const WarpVertex&, const WarpVertex&, const WarpVertex&) {}
@@ -536,6 +540,203 @@ void RasterBlockRow(const Context& cx, int r, int u0, int u1, int y0, int y1, bo
   }
 }
 
+
+// RasterBlockRow for the DIBR shader, eight quads per AVX2 step (the target("avx2") clone only).
+// Per lane (quad), the same integer decisions as RasterBlockRow + SmallQuad: validity, bounding
+// box against the band and the image, the small-path conditions, both areas, the five edge
+// functions (32-bit integers: exact, as the scalar code), the <= 4 x 4 coverage masks of both
+// triangles, and the side quality's sqrt and division (IEEE lanes: the same floats as scalar;
+// the longest squared side is the integer dX^2 + dY^2 / 65536, exact in float below 2^24, which
+// the scalar float differences also give exactly for coordinates that span < 5 px). Then, quad
+// by quad in input order, the scalar shading of the covered centres (ShadeSmallTriangle's body)
+// or the general path (RasterTriangle) for quads the small path does not take: every fragment
+// arrives in the same order with the same values, so the outputs are bit-identical.
+__attribute__((target("avx2"))) inline __m256i CeilSub8(__m256i a) {
+  return _mm256_sub_epi32(_mm256_setzero_si256(), _mm256_srai_epi32(_mm256_sub_epi32(_mm256_setzero_si256(), a), 8));
+}
+
+template <class Sh>
+__attribute__((target("avx2"))) void RasterBlockRowAvx2(const Context& cx, int r, int u0, int u1, int y0, int y1,
+                                                         Sh& sh) {
+  const int w = cx.depth->width;
+  const WarpVertex* top = cx.verts + std::int64_t(r) * w;
+  const WarpVertex* bot = top + w;
+  const float* ctop = cx.color->data + 3 * (std::int64_t(r) * w);
+  const float* cbot = ctop + 3 * std::int64_t(w);
+  const __m256i zero = _mm256_setzero_si256(), one = _mm256_set1_epi32(1), invalid = _mm256_set1_epi32(kInvalid);
+  const __m256i half = _mm256_set1_epi32(kSubpixel / 2), three = _mm256_set1_epi32(3);
+  const __m256i vy0 = _mm256_set1_epi32(y0), vy1m = _mm256_set1_epi32(y1 - 1), vtwm = _mm256_set1_epi32(cx.tw - 1);
+  const __m256i seam = _mm256_set1_epi32(cx.equirect_target ? cx.tw * (kSubpixel / 2) : std::numeric_limits<std::int32_t>::max());
+  const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+  const __m256 fzero = _mm256_setzero_ps(), fone = _mm256_set1_ps(1.f), side_t = _mm256_set1_ps(cx.side_t);
+  const __m256 inv65536 = _mm256_set1_ps(1.f / float(kSubpixel * kSubpixel));
+  const bool discard = cx.options->discard_stretched;
+  // Per step: class (0 skip, 1 small, 2 general), coverage masks, the set-up corner, the edges
+  // (0 B->C, 1 C->A, 2 A->B, 3 D->C, 4 B->D: er at the corner, steps ex / ey, tie bias), the
+  // raw side qualities and 1 / area of both triangles.
+  alignas(32) std::int32_t cls[8], m0[8], m1[8], qx0[8], qy0[8], er[5][8], ex[5][8], ey[5][8], bias[5][8];
+  alignas(32) std::int32_t a0s[8], a1s[8];
+  alignas(32) float q0s[8], q1s[8], ia0[8], ia1[8];
+  for (int u = u0; u < u1; u += 8) {
+    const int n = std::min(8, u1 - u);
+    // Lanes past the segment's end re-read its last quad and are skipped.
+    const __m256i idx = _mm256_mullo_epi32(_mm256_min_epi32(lane, _mm256_set1_epi32(n - 1)), three);
+    const int* tb = reinterpret_cast<const int*>(top + u);
+    const int* bb = reinterpret_cast<const int*>(bot + u);
+    const __m256i Ax = _mm256_i32gather_epi32(tb, idx, 4), Ay = _mm256_i32gather_epi32(tb + 1, idx, 4);
+    const __m256i Bx = _mm256_i32gather_epi32(tb + 3, idx, 4), By = _mm256_i32gather_epi32(tb + 4, idx, 4);
+    const __m256i Cx = _mm256_i32gather_epi32(bb, idx, 4), Cy = _mm256_i32gather_epi32(bb + 1, idx, 4);
+    const __m256i Dx = _mm256_i32gather_epi32(bb + 3, idx, 4), Dy = _mm256_i32gather_epi32(bb + 4, idx, 4);
+    const __m256 Ai = _mm256_i32gather_ps(reinterpret_cast<const float*>(tb + 2), idx, 4);
+    const __m256 Bi = _mm256_i32gather_ps(reinterpret_cast<const float*>(tb + 5), idx, 4);
+    const __m256 Ci = _mm256_i32gather_ps(reinterpret_cast<const float*>(bb + 2), idx, 4);
+    const __m256 Di = _mm256_i32gather_ps(reinterpret_cast<const float*>(bb + 5), idx, 4);
+    const __m256i in_seg = _mm256_cmpgt_epi32(_mm256_set1_epi32(n), lane);
+    const __m256i bc_ok = _mm256_andnot_si256(_mm256_or_si256(_mm256_cmpeq_epi32(Bx, invalid), _mm256_cmpeq_epi32(Cx, invalid)), in_seg);
+    const __m256i ad_ok = _mm256_andnot_si256(_mm256_or_si256(_mm256_cmpeq_epi32(Ax, invalid), _mm256_cmpeq_epi32(Dx, invalid)), bc_ok);
+    // Bounding box (RasterBlockRow).
+    const __m256i mny = _mm256_min_epi32(_mm256_min_epi32(Ay, By), _mm256_min_epi32(Cy, Dy));
+    const __m256i mxy = _mm256_max_epi32(_mm256_max_epi32(Ay, By), _mm256_max_epi32(Cy, Dy));
+    const __m256i mnx = _mm256_min_epi32(_mm256_min_epi32(Ax, Bx), _mm256_min_epi32(Cx, Dx));
+    const __m256i mxx = _mm256_max_epi32(_mm256_max_epi32(Ax, Bx), _mm256_max_epi32(Cx, Dx));
+    __m256i by0 = CeilSub8(_mm256_sub_epi32(mny, half)), by1 = _mm256_srai_epi32(_mm256_sub_epi32(mxy, half), 8);
+    __m256i bx0 = CeilSub8(_mm256_sub_epi32(mnx, half)), bx1 = _mm256_srai_epi32(_mm256_sub_epi32(mxx, half), 8);
+    // culled: qy0 > qy1 || qy1 < y0 || qy0 >= y1 || qx0 > qx1 || qx1 < 0 || qx0 >= tw
+    __m256i culled = _mm256_or_si256(_mm256_cmpgt_epi32(by0, by1), _mm256_cmpgt_epi32(vy0, by1));
+    culled = _mm256_or_si256(culled, _mm256_cmpgt_epi32(by0, vy1m));
+    culled = _mm256_or_si256(culled, _mm256_or_si256(_mm256_cmpgt_epi32(bx0, bx1), _mm256_cmpgt_epi32(zero, bx1)));
+    culled = _mm256_or_si256(culled, _mm256_cmpgt_epi32(bx0, vtwm));
+    // small: extent <= 3 centres each way, the seam rule, every corner finite (inv != 0)
+    __m256i small = _mm256_andnot_si256(_mm256_cmpgt_epi32(_mm256_sub_epi32(bx1, bx0), three),
+                                        _mm256_andnot_si256(_mm256_cmpgt_epi32(_mm256_sub_epi32(by1, by0), three),
+                                                            _mm256_andnot_si256(_mm256_cmpgt_epi32(_mm256_sub_epi32(mxx, mnx), seam), ad_ok)));
+    const __m256 inf_any = _mm256_or_ps(_mm256_or_ps(_mm256_cmp_ps(Ai, fzero, _CMP_EQ_OQ), _mm256_cmp_ps(Bi, fzero, _CMP_EQ_OQ)),
+                                        _mm256_or_ps(_mm256_cmp_ps(Ci, fzero, _CMP_EQ_OQ), _mm256_cmp_ps(Di, fzero, _CMP_EQ_OQ)));
+    small = _mm256_andnot_si256(_mm256_or_si256(culled, _mm256_castps_si256(inf_any)), small);
+    // class: skip (B or C invalid, or A, D valid and culled), small, else general
+    const __m256i skip = _mm256_or_si256(_mm256_andnot_si256(bc_ok, _mm256_set1_epi32(-1)), _mm256_and_si256(ad_ok, culled));
+    const __m256i cl = _mm256_andnot_si256(skip, _mm256_blendv_epi8(_mm256_set1_epi32(2), one, small));
+    _mm256_store_si256(reinterpret_cast<__m256i*>(cls), cl);
+    if (_mm256_testz_si256(small, small)) {
+      if (_mm256_testz_si256(cl, cl)) continue;
+    } else {
+      // Clip the candidate centres to the band and the image.
+      bx0 = _mm256_max_epi32(bx0, zero);
+      bx1 = _mm256_min_epi32(bx1, vtwm);
+      by0 = _mm256_max_epi32(by0, vy0);
+      by1 = _mm256_min_epi32(by1, vy1m);
+      const __m256i nx = _mm256_sub_epi32(bx1, bx0), ny = _mm256_sub_epi32(by1, by0);  // count - 1
+      _mm256_store_si256(reinterpret_cast<__m256i*>(qx0), bx0);
+      _mm256_store_si256(reinterpret_cast<__m256i*>(qy0), by0);
+      const __m256i area0 = _mm256_sub_epi32(_mm256_mullo_epi32(_mm256_sub_epi32(Bx, Ax), _mm256_sub_epi32(Cy, Ay)),
+                                             _mm256_mullo_epi32(_mm256_sub_epi32(By, Ay), _mm256_sub_epi32(Cx, Ax)));
+      const __m256i area1 = _mm256_sub_epi32(_mm256_mullo_epi32(_mm256_sub_epi32(Dx, Bx), _mm256_sub_epi32(Cy, By)),
+                                             _mm256_mullo_epi32(_mm256_sub_epi32(Dy, By), _mm256_sub_epi32(Cx, Bx)));
+      _mm256_store_si256(reinterpret_cast<__m256i*>(a0s), area0);
+      _mm256_store_si256(reinterpret_cast<__m256i*>(a1s), area1);
+      const __m256i sx = _mm256_add_epi32(_mm256_slli_epi32(bx0, 8), half), sy = _mm256_add_epi32(_mm256_slli_epi32(by0, 8), half);
+      const __m256i px[5] = {Bx, Cx, Ax, Dx, Bx}, py[5] = {By, Cy, Ay, Dy, By};
+      const __m256i qxv[5] = {Cx, Ax, Bx, Cx, Dx}, qyv[5] = {Cy, Ay, By, Cy, Dy};
+      __m256i e_r[5], e_x[5], e_y[5], l2[5];
+      for (int e = 0; e < 5; ++e) {
+        const __m256i dx = _mm256_sub_epi32(qxv[e], px[e]), dy = _mm256_sub_epi32(qyv[e], py[e]);
+        const __m256i owns = _mm256_or_si256(_mm256_cmpgt_epi32(dy, zero),
+                                             _mm256_and_si256(_mm256_cmpeq_epi32(dy, zero), _mm256_cmpgt_epi32(zero, dx)));
+        const __m256i b = _mm256_andnot_si256(owns, one);
+        e_x[e] = _mm256_slli_epi32(_mm256_sub_epi32(zero, dy), 8);
+        e_y[e] = _mm256_slli_epi32(dx, 8);
+        e_r[e] = _mm256_sub_epi32(_mm256_sub_epi32(_mm256_mullo_epi32(dx, _mm256_sub_epi32(sy, py[e])),
+                                                   _mm256_mullo_epi32(dy, _mm256_sub_epi32(sx, px[e]))), b);
+        l2[e] = _mm256_add_epi32(_mm256_mullo_epi32(dx, dx), _mm256_mullo_epi32(dy, dy));
+        _mm256_store_si256(reinterpret_cast<__m256i*>(er[e]), e_r[e]);
+        _mm256_store_si256(reinterpret_cast<__m256i*>(ex[e]), e_x[e]);
+        _mm256_store_si256(reinterpret_cast<__m256i*>(ey[e]), e_y[e]);
+        _mm256_store_si256(reinterpret_cast<__m256i*>(bias[e]), b);
+      }
+      // Coverage of the candidate centres (i, j), i <= nx, j <= ny: triangle 0 needs B->C, C->A,
+      // A->B >= 0; triangle 1 needs B->C < 0 (its C->B = ~(B->C) >= 0), D->C >= 0, B->D >= 0.
+      const int max_nx = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_and_si256(_mm256_cmpgt_epi32(nx, one), small))) ? 3 :
+                         _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_and_si256(_mm256_cmpgt_epi32(nx, zero), small))) ? 1 : 0;
+      const int max_ny = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_and_si256(_mm256_cmpgt_epi32(ny, one), small))) ? 3 :
+                         _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_and_si256(_mm256_cmpgt_epi32(ny, zero), small))) ? 1 : 0;
+      __m256i c0 = zero, c1 = zero;
+      __m256i row[5] = {e_r[0], e_r[1], e_r[2], e_r[3], e_r[4]};
+      for (int j = 0; j <= max_ny; ++j) {
+        __m256i v[5] = {row[0], row[1], row[2], row[3], row[4]};
+        const __m256i jok = _mm256_cmpgt_epi32(_mm256_set1_epi32(j), ny);  // j > ny: outside
+        for (int i = 0; i <= max_nx; ++i) {
+          const __m256i out = _mm256_or_si256(jok, _mm256_cmpgt_epi32(_mm256_set1_epi32(i), nx));
+          const __m256i t0 = _mm256_or_si256(_mm256_or_si256(v[0], v[1]), v[2]);
+          const __m256i t1 = _mm256_or_si256(_mm256_or_si256(_mm256_xor_si256(v[0], _mm256_set1_epi32(-1)), v[3]), v[4]);
+          const __m256i bit = _mm256_set1_epi32(1 << (4 * j + i));
+          // sign bit clear = covered
+          c0 = _mm256_or_si256(c0, _mm256_andnot_si256(_mm256_or_si256(_mm256_srai_epi32(t0, 31), out), bit));
+          c1 = _mm256_or_si256(c1, _mm256_andnot_si256(_mm256_or_si256(_mm256_srai_epi32(t1, 31), out), bit));
+          for (int e = 0; e < 5; ++e) v[e] = _mm256_add_epi32(v[e], e_x[e]);
+        }
+        for (int e = 0; e < 5; ++e) row[e] = _mm256_add_epi32(row[e], e_y[e]);
+      }
+      c0 = _mm256_and_si256(c0, _mm256_and_si256(small, _mm256_cmpgt_epi32(area0, zero)));
+      c1 = _mm256_and_si256(c1, _mm256_and_si256(small, _mm256_cmpgt_epi32(area1, zero)));
+      _mm256_store_si256(reinterpret_cast<__m256i*>(m0), c0);
+      _mm256_store_si256(reinterpret_cast<__m256i*>(m1), c1);
+      // Side quality 1 - L / T (before the floor) of triangle 0 (AB, BC, CA) and 1 (BD, DC, CB),
+      // and float(1 / area): SmallQuad / ShadeSmallTriangle's values.
+      const __m256i l2t0 = _mm256_max_epi32(_mm256_max_epi32(l2[2], l2[0]), l2[1]);
+      const __m256i l2t1 = _mm256_max_epi32(_mm256_max_epi32(l2[4], l2[3]), l2[0]);
+      const __m256 L0 = _mm256_mul_ps(_mm256_cvtepi32_ps(l2t0), inv65536), L1 = _mm256_mul_ps(_mm256_cvtepi32_ps(l2t1), inv65536);
+      _mm256_store_ps(q0s, _mm256_sub_ps(fone, _mm256_div_ps(_mm256_sqrt_ps(L0), side_t)));
+      _mm256_store_ps(q1s, _mm256_sub_ps(fone, _mm256_div_ps(_mm256_sqrt_ps(L1), side_t)));
+      _mm256_store_ps(ia0, _mm256_div_ps(fone, _mm256_cvtepi32_ps(area0)));
+      _mm256_store_ps(ia1, _mm256_div_ps(fone, _mm256_cvtepi32_ps(area1)));
+    }
+    for (int k = 0; k < n; ++k) {
+      if (cls[k] == 0) continue;
+      const int uk = u + k;
+      if (cls[k] == 2) {
+        const std::uint32_t id = static_cast<std::uint32_t>(2 * (std::int64_t(r) * w + uk));
+        RasterTriangle(cx, id, y0, y1, sh);
+        RasterTriangle(cx, id + 1, y0, y1, sh);
+        continue;
+      }
+      const WarpVertex &A = top[uk], &B = top[uk + 1], &C = bot[uk], &D = bot[uk + 1];
+      const float *ca = ctop + 3 * uk, *cb = ca + 3, *cc = cbot + 3 * uk, *cd = cc + 3;
+      for (int t = 0; t < 2; ++t) {
+        unsigned mask = unsigned(t == 0 ? m0[k] : m1[k]);
+        if (mask == 0) continue;
+        float q = t == 0 ? q0s[k] : q1s[k];
+        if (q <= 0.f && discard) continue;
+        q = std::min(1.f, std::max(q, kQualityFloor));
+        // triangle 0 = (A, B, C): edges B->C, C->A, A->B; triangle 1 = (B, D, C): D->C, C->B, B->D
+        std::int32_t te_r[3], te_x[3], te_y[3];
+        std::int64_t tb[3];
+        if (t == 0) {
+          for (int e = 0; e < 3; ++e) {
+            te_r[e] = er[e][k];
+            te_x[e] = ex[e][k];
+            te_y[e] = ey[e][k];
+            tb[e] = bias[e][k];
+          }
+        } else {
+          te_r[0] = er[3][k], te_x[0] = ex[3][k], te_y[0] = ey[3][k], tb[0] = bias[3][k];
+          te_r[1] = ~er[0][k], te_x[1] = -ex[0][k], te_y[1] = -ey[0][k], tb[1] = 1 - bias[0][k];
+          te_r[2] = er[4][k], te_x[2] = ex[4][k], te_y[2] = ey[4][k], tb[2] = bias[4][k];
+        }
+        const float inv[3] = {t == 0 ? A.inv : B.inv, t == 0 ? B.inv : D.inv, C.inv};
+        const float* cols[3] = {t == 0 ? ca : cb, t == 0 ? cb : cd, cc};
+        sh.Setup(t == 0 ? ia0[k] : ia1[k], tb, q, inv, cols, false);
+        const int px0 = qx0[k], py0 = qy0[k];
+        do {
+          const int bit = __builtin_ctz(mask);
+          mask &= mask - 1;
+          const int i = bit & 3, j = bit >> 2;
+          sh.Shade(px0 + i, py0 + j, te_r[0] + te_x[0] * i + te_y[0] * j, te_r[1] + te_x[1] * i + te_y[1] * j,
+                   te_r[2] + te_x[2] * i + te_y[2] * j);
+        } while (mask != 0);
+      }
+    }
+  }
+}
 
 // Target y and x ranges (1/256 px) of a row's valid vertices per column segment (vertices u0 ..
 // u0 + kSegCols inclusive: the segment's quads).
@@ -911,7 +1112,7 @@ void RasterBands(const Context& cx, const WarpScratch& scratch, int num_bands, b
   const bool avx2 = UseAvx2();
   ParallelFor(num_bands, 1, [&](std::int64_t b0, std::int64_t b1) {
     auto sh = make();
-    const auto bands = [&] {
+    const auto bands = [&](auto simd) {
     for (std::int64_t b = b0; b < b1; ++b) {
       const int y0 = static_cast<int>(b) * kBandRows, y1 = std::min(th, y0 + kBandRows);
       init(sh, y0, y1);
@@ -932,15 +1133,22 @@ void RasterBands(const Context& cx, const WarpScratch& scratch, int num_bands, b
           }
         }
         const int r = static_cast<int>(id / std::uint32_t(num_segs)), s = static_cast<int>(id % std::uint32_t(num_segs));
-        RasterBlockRow(cx, r, s * kSegCols, std::min(w - 1, (s + 1) * kSegCols), y0, y1, fast, sh);
+        const int u0 = s * kSegCols, u1 = std::min(w - 1, (s + 1) * kSegCols);
+        if constexpr (decltype(simd)::value && std::decay_t<decltype(sh)>::kQuadSimd) {
+          if (fast) {
+            RasterBlockRowAvx2(cx, r, u0, u1, y0, y1, sh);
+            continue;
+          }
+        }
+        RasterBlockRow(cx, r, u0, u1, y0, y1, fast, sh);
       }
       finish(sh, y0, y1);
     }
     };
     if (avx2) {
-      CallAvx2(bands);
+      CallAvx2([&] { bands(std::true_type{}); });
     } else {
-      bands();
+      bands(std::false_type{});
     }
   });
 }
@@ -1080,6 +1288,7 @@ namespace {
 // Unstretched quads: interpolated colour and depth as in DIBR, key 0.5 d. Stretched quads: one
 // flat background depth for the whole quad, key 1 - 0.5 d, colour 0, mask kMaskDisoccluded.
 struct HoleShader : TriangleInterp {
+  static constexpr bool kQuadSimd = false;  // needs BeginQuad per quad: the scalar block-row loop
   int tw;
   float stretch2;    // squared stretch threshold, px^2
   float depth_jump1; // 1 + HoleWarpOptions::depth_jump
