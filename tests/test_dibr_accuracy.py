@@ -145,3 +145,21 @@ def test_middlebury_warp_has_no_subpixel_offset(bench, name):
     others = {dx: psnr(dx) for dx in (-0.25, -0.125, 0.125, 0.25)}
     assert max(others.values()) < p0 + 0.15, others
     assert max(others[-0.25], others[0.25]) < p0, others
+
+
+@needs_kernel
+def test_blend_space_srgb_caches_only_the_selected_views():
+    # The encoded colours are cached per input view, for the views of the current selection
+    # only: memory stays at k encoded copies whatever the number of inputs or frames.
+    views = []
+    for i in range(3):
+        cam = Camera.from_fov(24, 18, 60, look_at((0.6 * i, 0, -2), (0.6 * i, 0, 0)))
+        views.append(View.create(f"v{i}", cam, color=np.full((18, 24, 3), 0.2 * (i + 1), np.float32),
+                                 depth=np.full((18, 24), 2.0, np.float32)))
+    m = DibrMethod({"inputs": 1, "blend_space": "srgb"})
+    m.prepare(Scene(views=views))
+    for i in (0, 2, 1):
+        out, _ = m.render(views[i].camera)
+        assert m.frame_report()["selected"] == [f"v{i}"]
+        assert list(m._encoded) == [i]
+        np.testing.assert_allclose(out["color"][4:-4, 4:-4], 0.2 * (i + 1), rtol=1e-5)

@@ -159,7 +159,7 @@ class DibrMethod:
         self._scene = scene
         self._core_cams = [c.to_core() for c in self._views.cameras]
         self._options = None  # made at the first render (the kernel's WarpOptions)
-        self._encoded: dict[int, np.ndarray] = {}  # blend_space "srgb": encoded colour per view
+        self._encoded: dict[int, np.ndarray] = {}  # blend_space "srgb": encoded colour of the selected views
         return {"depth_ranges": ranges_ms}
 
     def select(self, camera: Camera) -> vs.Selection:
@@ -178,6 +178,8 @@ class DibrMethod:
         t1 = time.perf_counter()
         acc = _core.DibrAccumulator(camera.to_core(), float(self.params["stretched_quality"]),
                                     self.params["stretched_holes"], float(self.params["depth_tolerance"]))
+        for i in [i for i in self._encoded if i not in sel.indices]:
+            del self._encoded[i]  # the cache holds the selected views only (memory: k encoded copies)
         for i in sel.indices:
             v = self._scene.views[i]
             acc.add_view(self._input_color(i, v.color), np.ascontiguousarray(v.depth, np.float32),
