@@ -35,7 +35,7 @@ def crowd():
 # --- parameters ------------------------------------------------------------------------------
 def test_params_defaults_and_checks():
     p = check_params(None)
-    assert (p["layers"], p["seeds"], p["iters"], p["forward"], p["ground"]) == (3, 16, 3, "none", "auto")
+    assert (p["layers"], p["seeds"], p["iters"], p["forward"], p["ground"]) == (3, 16, 3, "none", "none")
     assert check_params({"layers": "2", "umbra": "true", "ground": "none"})["umbra"] is True
     for bad, msg in [({"layers": 0}, "--layers"), ({"seeds": -1}, "--seeds"), ({"iters": 0.5}, "--iters"),
                      ({"forward": "splat"}, "--forward"), ({"threshold": 0}, "threshold"),
@@ -127,7 +127,7 @@ def test_static_camera_warps_exactly(crowd):
 
 
 @needs_warp
-@pytest.mark.parametrize("params", [{"layers": 2, "seeds": 4, "umbra": True, "cull": True},
+@pytest.mark.parametrize("params", [{"layers": 2, "seeds": 4, "umbra": True, "cull": True, "ground": "auto"},
                                     {"layers": 2, "forward": "vfw"}])
 def test_path_report(crowd, tmp_path, params):
     job = render_job.plan(crowd, path="walk")
@@ -136,7 +136,8 @@ def test_path_report(crowd, tmp_path, params):
     f0, f1 = rep["frames"][0], rep["frames"][1]
     assert f0["depthwarp"]["source"] is None
     dw = f1["depthwarp"]
-    assert dw["layers"] == 2 and dw["ground_layer"] and dw["reference_ms"] > 0 and dw["warp_ms"] >= 0
+    assert dw["layers"] == 2 and dw["reference_ms"] > 0 and dw["warp_ms"] >= 0
+    assert bool(dw["ground_layer"]) == (params.get("ground") == "auto")  # the default is plain peeling
     assert {"peel", "reference"} <= set(f1["time_ms"]) and "motion" in f1["time_ms"] or params.get("forward")
     m = f1["metrics"]
     assert m["depth_ssim"] > 0.5 and 0 <= m["hole_fraction"] <= 1

@@ -5,9 +5,10 @@ For frame t of a pose sequence (``--poses``, ``--path``), the depth buffer of ca
 
   peel       the reference deep depth buffer of frame t - 1: L layers by depth peeling with the
              Embree reference renderer (``ReferenceRenderer.peel``), optionally with generalised
-             umbra culling towards camera t (``umbra``) and, on scenes with a ground object
-             (object id 0 of the synthetic presets) and L >= 2, the last layer = the ground alone
-             (the paper's sec. 4.1 set-up; ``ground``);
+             umbra culling towards camera t (``umbra``) and optionally (``ground``), for L >= 2,
+             the last layer = the ground alone (the paper's sec. 4.1 set-up; off by default: on
+             the three synthetic scenes it scored worse than plain peeling at L = 2, 3 and no
+             better at L = 4, docs/depthwarp.md);
   warp       ``ibrtools.depthwarp.warp_depth`` (motion buffers, min-max motion mipmaps, tight or
              oriented bounds, N seeds x T fixed-point iterations, cross-layer seeding, dilation) or,
              with ``forward`` vfw / afw, the forward baselines ``forward_warp_depth`` through the
@@ -43,8 +44,8 @@ Parameters (flags of ibr-render or ``--param key=value``)
   threshold         convergence threshold in pixels (default 0.5)
   oriented_bounds   PCA-oriented search bounds (default false)
   umbra             generalised umbra culling while peeling (default false)
-  ground            "auto" (object 0 as the ground layer when L >= 2 and the mesh has several
-                    objects), "none", or an object id
+  ground            "none" (default: L peeled layers), "auto" (object 0 as the ground layer
+                    when L >= 2 and the mesh has several objects), or an object id
   cull              warping-based occlusion culling (default false); turns dilation off (a
                     dilated hole holds an occluder's depth and could cull what shows through it)
   forward           "none" (the iterative backward warp), "vfw" or "afw" (forward baselines)
@@ -65,7 +66,7 @@ from ..scene import Scene
 from . import params as P
 
 DEFAULTS = {"layers": 3, "seeds": 16, "iters": 3, "threshold": 0.5, "oriented_bounds": False, "umbra": False,
-            "ground": "auto", "cull": False, "forward": "none", "dilate": True, "bound": "tight",
+            "ground": "none", "cull": False, "forward": "none", "dilate": True, "bound": "tight",
             "far_plane": True}
 FORWARD = ("none", "vfw", "afw")
 
