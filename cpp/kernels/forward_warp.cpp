@@ -555,6 +555,21 @@ __attribute__((target("avx2"))) inline __m256i CeilSub8(__m256i a) {
   return _mm256_sub_epi32(_mm256_setzero_si256(), _mm256_srai_epi32(_mm256_sub_epi32(_mm256_setzero_si256(), a), 8));
 }
 
+// Eight consecutive WarpVertex (12 bytes: x, y, inv) as three lanes vectors: three loads, two
+// blends and one permutation per field.
+__attribute__((target("avx2"))) inline void Deinterleave8(const WarpVertex* v, __m256i* x, __m256i* y, __m256* inv) {
+  static_assert(sizeof(WarpVertex) == 12, "WarpVertex: three 32-bit fields");
+  const __m256i* p = reinterpret_cast<const __m256i*>(v);
+  const __m256i a = _mm256_loadu_si256(p), b = _mm256_loadu_si256(p + 1), c = _mm256_loadu_si256(p + 2);
+  // a = x0 y0 i0 x1 y1 i1 x2 y2, b = i2 x3 y3 i3 x4 y4 i4 x5, c = y5 i5 x6 y6 i6 x7 y7 i7
+  *x = _mm256_permutevar8x32_epi32(_mm256_blend_epi32(_mm256_blend_epi32(a, b, 0x92), c, 0x24),
+                                   _mm256_setr_epi32(0, 3, 6, 1, 4, 7, 2, 5));
+  *y = _mm256_permutevar8x32_epi32(_mm256_blend_epi32(_mm256_blend_epi32(a, b, 0x24), c, 0x49),
+                                   _mm256_setr_epi32(1, 4, 7, 2, 5, 0, 3, 6));
+  *inv = _mm256_castsi256_ps(_mm256_permutevar8x32_epi32(_mm256_blend_epi32(_mm256_blend_epi32(a, b, 0x49), c, 0x92),
+                                                         _mm256_setr_epi32(2, 5, 0, 3, 6, 1, 4, 7)));
+}
+
 template <class Sh>
 __attribute__((target("avx2"))) void RasterBlockRowAvx2(const Context& cx, int r, int u0, int u1, int y0, int y1,
                                                          Sh& sh) {
@@ -579,18 +594,26 @@ __attribute__((target("avx2"))) void RasterBlockRowAvx2(const Context& cx, int r
   alignas(32) float q0s[8], q1s[8], ia0[8], ia1[8];
   for (int u = u0; u < u1; u += 8) {
     const int n = std::min(8, u1 - u);
-    // Lanes past the segment's end re-read its last quad and are skipped.
-    const __m256i idx = _mm256_mullo_epi32(_mm256_min_epi32(lane, _mm256_set1_epi32(n - 1)), three);
-    const int* tb = reinterpret_cast<const int*>(top + u);
-    const int* bb = reinterpret_cast<const int*>(bot + u);
-    const __m256i Ax = _mm256_i32gather_epi32(tb, idx, 4), Ay = _mm256_i32gather_epi32(tb + 1, idx, 4);
-    const __m256i Bx = _mm256_i32gather_epi32(tb + 3, idx, 4), By = _mm256_i32gather_epi32(tb + 4, idx, 4);
-    const __m256i Cx = _mm256_i32gather_epi32(bb, idx, 4), Cy = _mm256_i32gather_epi32(bb + 1, idx, 4);
-    const __m256i Dx = _mm256_i32gather_epi32(bb + 3, idx, 4), Dy = _mm256_i32gather_epi32(bb + 4, idx, 4);
-    const __m256 Ai = _mm256_i32gather_ps(reinterpret_cast<const float*>(tb + 2), idx, 4);
-    const __m256 Bi = _mm256_i32gather_ps(reinterpret_cast<const float*>(tb + 5), idx, 4);
-    const __m256 Ci = _mm256_i32gather_ps(reinterpret_cast<const float*>(bb + 2), idx, 4);
-    const __m256 Di = _mm256_i32gather_ps(reinterpret_cast<const float*>(bb + 5), idx, 4);
+    // Vertices u .. u + 8 of both rows as x, y, 1/d lanes (A, C: u + k; B, D: u + k + 1). A
+    // short group (the segment's end) copies its vertices first (lanes past the end repeat the
+    // last quad and are skipped): the full-width loads would read past the last row.
+    const WarpVertex *tv = top + u, *bv = bot + u;
+    WarpVertex pad[2][9];
+    if (n < 8) {
+      for (int k = 0; k < 9; ++k) {
+        const int kk = std::min(k, n);
+        pad[0][k] = top[u + kk];
+        pad[1][k] = bot[u + kk];
+      }
+      tv = pad[0];
+      bv = pad[1];
+    }
+    __m256i Ax, Ay, Bx, By, Cx, Cy, Dx, Dy;
+    __m256 Ai, Bi, Ci, Di;
+    Deinterleave8(tv, &Ax, &Ay, &Ai);
+    Deinterleave8(tv + 1, &Bx, &By, &Bi);
+    Deinterleave8(bv, &Cx, &Cy, &Ci);
+    Deinterleave8(bv + 1, &Dx, &Dy, &Di);
     const __m256i in_seg = _mm256_cmpgt_epi32(_mm256_set1_epi32(n), lane);
     const __m256i bc_ok = _mm256_andnot_si256(_mm256_or_si256(_mm256_cmpeq_epi32(Bx, invalid), _mm256_cmpeq_epi32(Cx, invalid)), in_seg);
     const __m256i ad_ok = _mm256_andnot_si256(_mm256_or_si256(_mm256_cmpeq_epi32(Ax, invalid), _mm256_cmpeq_epi32(Dx, invalid)), bc_ok);
