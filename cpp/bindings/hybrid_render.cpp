@@ -6,6 +6,7 @@
 // _core.hybrid_composite. Thin: checks arrays (array.h) and values, allocates the outputs,
 // releases the GIL around the kernels.
 #include <cmath>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -112,12 +113,13 @@ FArray SampleAtlasBinding(const py::object& prim_obj, const py::object& bary_obj
 
 py::tuple UlrBlendBinding(const Camera& novel, const py::object& depth_obj, const py::list& views_obj,
                           const py::object& normal_obj, const py::object& mask_obj, int k, double resolution_weight,
-                          double depth_tol) {
+                          double depth_tol, bool reference) {
   if (k < 1 || k > 64) throw BadValueError("k: expected 1 .. 64 views per pixel, got " + std::to_string(k));
   UlrOptions opt;
   opt.k = k;
   opt.resolution_weight = CheckFinite(resolution_weight, "resolution_weight", 0.0);
   opt.depth_tol = CheckFinite(depth_tol, "depth_tol", 0.0);
+  opt.reference = reference;
   auto depth = CheckArray<float>(depth_obj, "gbuffer_depth", {{"H", novel.height}, {"W", novel.width}});
   const auto h = depth.shape(0), w = depth.shape(1);
   FArray normal;
@@ -199,10 +201,10 @@ FArray BlurSelectionBinding(const py::object& label_obj, double sigma) {
     }
   }
   FArray out = NewArray<float>({h, w, 3});
-  std::vector<float> scratch(static_cast<std::size_t>(h) * w * 3);
+  std::unique_ptr<float[]> scratch(new float[static_cast<std::size_t>(h) * w * 3]);  // written before read
   {
     py::gil_scoped_release release;
-    BlurSelection(ConstViewOf(label), s, scratch.data(), ViewOf(out));
+    BlurSelection(ConstViewOf(label), s, scratch.get(), ViewOf(out));
   }
   return out;
 }
@@ -277,9 +279,10 @@ void BindHybridRender(py::module_& m) {
       "The k smallest finite penalties (cpp/kernels/ulr.h UlrSelect): (indices, weights summing to 1).");
   m.def("ulr_blend", &UlrBlendBinding, py::arg("camera"), py::arg("gbuffer_depth"), py::arg("views"), py::kw_only(),
         py::arg("normal") = py::none(), py::arg("pixel_mask") = py::none(), py::arg("k") = 4,
-        py::arg("resolution_weight") = 0.5, py::arg("depth_tol") = 0.02,
+        py::arg("resolution_weight") = 0.5, py::arg("depth_tol") = 0.02, py::arg("reference") = false,
         "Per-pixel ULR at the G-buffer's points: views = [(camera, color, depth), ...] -> (color (H, W, 3), "
-        "count (H, W) uint8 views used, 0 = none sees the point).");
+        "count (H, W) uint8 views used, 0 = none sees the point). reference=True: the scalar reference path "
+        "(double projections) instead of the fast one (float, SIMD over views; pinhole views only).");
   m.def("hybrid_select", &HybridSelectBinding, py::arg("gbuffer_depth"), py::kw_only(),
         py::arg("inside_grid") = py::none(), py::arg("pvm_valid") = py::none(), py::arg("pvm_depth") = py::none(),
         py::arg("vd") = py::none(), py::arg("geo_threshold") = 0.03, py::arg("tau_var") = 0.82,

@@ -49,6 +49,9 @@ struct UlrOptions {
   float depth_tol = 0.02f;
   // Input views behind the surface (angle between the G-buffer normal and the direction to the
   // view >= 90 degrees) are skipped when a normal is given.
+  // The scalar reference path (double projections, one view at a time) instead of the fast path
+  // (float, SIMD over views; used when every input view is pinhole). Tests compare the two.
+  bool reference = false;
 };
 
 // UlrPenalty (ulr.h) with b = c_novel - p and lb = |b| given (computed once per pixel) and a
@@ -65,6 +68,10 @@ float UlrPenaltyFast(const glm::vec3& p, const glm::vec3& b, float lb, const glm
 // color_out = sum_j w_j * bilinear(view_j colour at p's projection) (edge-clamped), count_out =
 // the number of views with positive weight (0 = no view sees p: colour 0, the caller falls back
 // to TM). Pixels not computed get colour 0 and count 0. normal may be empty (no back-face test).
+// When every input view is pinhole (and not options.reference) the penalties and the cheap tests
+// run four views at a time in float (SSE2) with the projection folded into one 3x4 matrix per
+// view; else the scalar path (double) runs. Both select and blend identically given the same
+// penalties; float rounding may flip a depth test at its tolerance (tests/test_ulr_fast.py).
 void UlrBlend(const Camera& novel, ImageView<const float> gbuffer_depth, ImageView<const float> normal,
               const std::uint8_t* pixel_mask, const UlrInputView* views, int num_views, const UlrOptions& options,
               ImageView<float> color_out, ImageView<std::uint8_t> count_out);

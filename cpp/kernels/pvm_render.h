@@ -115,6 +115,7 @@ struct PvmFrame {
   std::vector<std::int16_t> cand_view;
   std::vector<std::uint8_t> cand_rank;
   std::vector<std::uint8_t> cand_count;   // (H * W)
+  std::vector<std::uint32_t> cand_seen;   // (H * W) bit (view & 31) set when a view of that class is in the list
   std::vector<float> d_fg, d_bg;          // (H * W) cluster mean depths
   std::vector<std::uint8_t> n_fg, n_bg;   // cluster sizes (0 = none)
   std::vector<float> c_fg, c_bg;          // (H * W * 3) cluster colours

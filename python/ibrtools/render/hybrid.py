@@ -257,7 +257,8 @@ class UlrMethod:
         seen = count > 0
         times = {"gbuffer": (t1 - t0) * 1e3, "ulr_blend": (t2 - t1) * 1e3}
         if self._gm.colors is not None:
-            tm = self._gm.tm_color(gb)
+            # TM only where no view sees the point: the hits ULR coloured are masked out (prim -1)
+            tm = self._gm.tm_color({**gb, "prim_id": np.where(seen, np.int32(-1), gb["prim_id"])})
             color = np.where(seen[..., None], ulr, tm)
             hole = ~gb["hit"]
             times["tm_fallback"] = (time.perf_counter() - t2) * 1e3
@@ -367,7 +368,8 @@ class HybridMethod:
         hole &= weights.sum(-1) == 0
         times["composite"] = (time.perf_counter() - t5) * 1e3
         depth = np.where(label == 2, res.depth, gb["depth"]).astype(np.float32)
-        selection = np.einsum("hwk,kc->hwc", weights, SELECTION_COLORS).astype(np.float32)
+        # = weights @ SELECTION_COLORS (a permutation: red PVM, green TM, blue ULR), without the einsum
+        selection = np.ascontiguousarray(weights[..., [2, 0, 1]])
         n = label.size
         self._last = {"selection": {name: round(float((label == i).sum() / n), 4)
                                     for i, name in enumerate(("tm", "ulr", "pvm", "none"))},

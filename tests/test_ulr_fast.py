@@ -1,0 +1,122 @@
+"""The fast paths of the hybrid renderer's per-pixel kernels (issue 7, speed): ULR's SIMD loop over
+views against its scalar reference path, and the selection blur against a NumPy reference
+(cpp/kernels/hybrid.cpp; docs/hybrid.md "Speed")."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ibrtools import _core, look_at
+from ibrtools.camera import Camera
+
+
+def _scene(n_views=7, size=(67, 45), seed=0):
+    """A novel camera looking at a tilted, bumpy surface (depth per pixel) and n_views pinhole
+    views around it with random colour images and depth maps of the same surface (plus a box in
+    front of part of it in some views, so the occlusion test drops views)."""
+    rng = np.random.default_rng(seed)
+    w, h = size
+    novel = Camera.from_fov(w, h, 50, look_at([0.1, -0.2, 0], [0, 0, 6]))
+    gdepth = (6.0 + 0.3 * np.sin(np.arange(w)[None, :] / 5.0) + 0.02 * np.arange(h)[:, None]).astype(np.float32)
+    gdepth[:3] = 0.0  # no hit: no ULR
+    # World points of the G-buffer, to give each view a consistent depth map by projecting them.
+    cam = novel.to_core()
+    views = []
+    for i in range(n_views):
+        ang = 2 * np.pi * i / n_views
+        eye = [1.2 * np.cos(ang), 0.8 * np.sin(ang), 0.3 * i / n_views]
+        c = Camera.from_fov(w + 3 * i, h + 2 * i, 55, look_at(eye, [0, 0, 6]))
+        col = rng.random((c.height, c.width, 3), dtype=np.float32)
+        # The view's depth: the novel G-buffer's surface is roughly at z = 6 in the view too;
+        # a relative 1 % perturbation keeps most pixels within the 2 % test, some outside.
+        dep = np.full((c.height, c.width), 6.0, np.float32) * (1 + 0.03 * rng.random((c.height, c.width))).astype(np.float32)
+        if i % 3 == 1:
+            dep[: c.height // 2, : c.width // 2] = 2.0  # an occluder in this view
+        views.append((c.to_core(), col, dep))
+    normal = np.zeros((h, w, 3), np.float32)
+    normal[..., 2] = -1.0  # facing the cameras
+    return cam, gdepth, views, normal
+
+
+@pytest.mark.parametrize("n_views", [1, 4, 7, 13])
+def test_fast_ulr_matches_the_scalar_reference(n_views):
+    """Float projections (fast) against double (reference): positions differ by ~1e-4 px, so a
+    depth test exactly at its 2 % tolerance may flip; we allow 1 % of the pixels to differ in
+    the view count and require colours within 1e-3 elsewhere (measured on the 1280x720 bench
+    frames: at most 2 pixels of 716 k differ by more than 1e-3, PSNR against the reference
+    >= 97.8 dB, docs/hybrid.md)."""
+    cam, gdepth, views, normal = _scene(n_views)
+    for nrm in (None, normal):
+        cf, nf = _core.ulr_blend(cam, gdepth, views, normal=nrm)
+        cr, nr = _core.ulr_blend(cam, gdepth, views, normal=nrm, reference=True)
+        assert nr.max() > 0, "the setup must exercise the blend"
+        same = nf == nr
+        assert same.mean() >= 0.99
+        assert np.abs(cf - cr)[same].max() <= 1e-3
+        assert (nf[:3] == 0).all() and (cf[:3] == 0).all()
+
+
+def test_fast_ulr_with_a_mask_and_k():
+    cam, gdepth, views, normal = _scene(9)
+    mask = np.zeros(gdepth.shape, bool)
+    mask[10:30, 5:50] = True
+    for k in (1, 2, 4, 6):
+        cf, nf = _core.ulr_blend(cam, gdepth, views, normal=normal, pixel_mask=mask, k=k)
+        cr, nr = _core.ulr_blend(cam, gdepth, views, normal=normal, pixel_mask=mask, k=k, reference=True)
+        assert (nf[~mask] == 0).all() and (cf[~mask] == 0).all()
+        same = nf == nr
+        assert same.mean() >= 0.99 and np.abs(cf - cr)[same].max() <= 1e-3
+
+
+def test_equirect_input_views_take_the_scalar_path():
+    """The fast path is pinhole only: any equirect view sends the whole frame to the reference
+    path, so the two calls agree bit for bit."""
+    cam, gdepth, views, normal = _scene(4)
+    pano = Camera.equirect(64, 32, cam_from_world=look_at([0, 0, 0], [0, 0, 6])).to_core()
+    views = views + [(pano, np.ones((32, 64, 3), np.float32), np.full((32, 64), 6.0, np.float32))]
+    cf, nf = _core.ulr_blend(cam, gdepth, views, normal=normal)
+    cr, nr = _core.ulr_blend(cam, gdepth, views, normal=normal, reference=True)
+    np.testing.assert_array_equal(nf, nr)
+    np.testing.assert_array_equal(cf, cr)
+
+
+def test_ulr_reference_flag_rejects_a_non_bool():
+    cam, gdepth, views, _ = _scene(2)
+    with pytest.raises(TypeError):
+        _core.ulr_blend(cam, gdepth, views, reference="yes")
+
+
+def _blur_reference(label, sigma):
+    """The selection blur in NumPy (horizontal then vertical, edge-clamped, normalised)."""
+    r = int(np.ceil(3 * sigma)) if sigma > 0 else 0
+    taps = np.exp(-0.5 * np.arange(-r, r + 1) ** 2 / sigma**2) if r else np.ones(1)
+    onehot = np.stack([(label == c) for c in range(3)], -1).astype(np.float64)
+    h, w = label.shape
+    pad = np.pad(onehot, ((0, 0), (r, r), (0, 0)), mode="edge")
+    hor = sum(taps[d] * pad[:, d:d + w] for d in range(2 * r + 1))
+    pad = np.pad(hor, ((r, r), (0, 0), (0, 0)), mode="edge")
+    ver = sum(taps[d] * pad[d:d + h] for d in range(2 * r + 1))
+    s = ver.sum(-1, keepdims=True)
+    return np.where(s > 0, ver / np.where(s > 0, s, 1), 0.0)
+
+
+@pytest.mark.parametrize("sigma", [0.0, 0.7, 2.0, 4.0])
+def test_blur_selection_matches_numpy_and_keeps_the_support(sigma):
+    """The vertical-first planar blur against the horizontal-first definition: values within
+    1e-6 (float rounding), and the support (weight > 0, which decides where ULR and PVM run)
+    identical. Sizes just past the tile and grain boundaries; label 3 (none) contributes to none."""
+    rng = np.random.default_rng(1)
+    label = rng.choice(np.array([0, 1, 2, 3], np.uint8), size=(37, 53), p=[0.7, 0.05, 0.05, 0.2])
+    label[:, :9] = 3
+    got = _core.blur_selection(label, sigma)
+    ref = _blur_reference(label, sigma)
+    assert np.abs(got - ref).max() < 1e-6
+    np.testing.assert_array_equal(got > 0, ref > 0)
+
+
+def test_blur_selection_rows_of_nothing_stay_empty():
+    label = np.full((20, 30), 3, np.uint8)
+    label[15:, 10] = 2
+    got = _core.blur_selection(label, 1.0)
+    assert (got[:8] == 0).all()  # more than 3 sigma away from the only label
+    assert got[15:, 10, 2] == pytest.approx(1.0)
