@@ -781,6 +781,53 @@ void RowSegmentRanges(const WarpVertex* vrow, int w, int num_segs, YRange* ry) {
 
 inline int NumSegments(int w) { return (std::max(1, w - 1) + kSegCols - 1) / kSegCols; }
 
+// RowSegmentRanges, 16 vertices per AVX2 step (two Deinterleave8) plus the segment's last
+// vertex; integer min / max, so the same ranges. A short last segment goes the scalar way.
+__attribute__((target("avx2"))) inline std::int32_t HMin8(__m256i v) {
+  __m128i m = _mm_min_epi32(_mm256_castsi256_si128(v), _mm256_extracti128_si256(v, 1));
+  m = _mm_min_epi32(m, _mm_shuffle_epi32(m, 0x4e));
+  m = _mm_min_epi32(m, _mm_shuffle_epi32(m, 0xb1));
+  return _mm_cvtsi128_si32(m);
+}
+
+__attribute__((target("avx2"))) inline std::int32_t HMax8(__m256i v) {
+  __m128i m = _mm_max_epi32(_mm256_castsi256_si128(v), _mm256_extracti128_si256(v, 1));
+  m = _mm_max_epi32(m, _mm_shuffle_epi32(m, 0x4e));
+  m = _mm_max_epi32(m, _mm_shuffle_epi32(m, 0xb1));
+  return _mm_cvtsi128_si32(m);
+}
+
+__attribute__((target("avx2"))) void RowSegmentRangesAvx2(const WarpVertex* vrow, int w, int num_segs, YRange* ry) {
+  const __m256i inval = _mm256_set1_epi32(kInvalid), imax = _mm256_set1_epi32(std::numeric_limits<std::int32_t>::max());
+  const __m256i imin = _mm256_set1_epi32(std::numeric_limits<std::int32_t>::min());
+  for (int s = 0; s < num_segs; ++s) {
+    const int u0 = s * kSegCols;
+    if (std::min(w - 1, u0 + kSegCols) != u0 + kSegCols) {
+      RowSegmentRanges(vrow + u0, w - u0, 1, ry + s);  // the short last segment
+      continue;
+    }
+    __m256i x0, y0, x1, y1;
+    __m256 i0, i1;
+    Deinterleave8(vrow + u0, &x0, &y0, &i0);
+    Deinterleave8(vrow + u0 + 8, &x1, &y1, &i1);
+    const __m256i bad0 = _mm256_cmpeq_epi32(x0, inval), bad1 = _mm256_cmpeq_epi32(x1, inval);
+    // Invalid vertices (x = INT32_MIN, y = 0) get the neutral element of each reduction.
+    const __m256i lo = _mm256_min_epi32(_mm256_blendv_epi8(y0, imax, bad0), _mm256_blendv_epi8(y1, imax, bad1));
+    const __m256i hi = _mm256_max_epi32(_mm256_blendv_epi8(y0, imin, bad0), _mm256_blendv_epi8(y1, imin, bad1));
+    const __m256i xlo = _mm256_min_epi32(_mm256_blendv_epi8(x0, imax, bad0), _mm256_blendv_epi8(x1, imax, bad1));
+    const __m256i xhi = _mm256_max_epi32(x0, x1);  // INT32_MIN is already max's neutral element
+    YRange g = {HMin8(lo), HMax8(hi), HMin8(xlo), HMax8(xhi)};
+    const WarpVertex& last = vrow[u0 + kSegCols];
+    if (last.x != kInvalid) {
+      g.lo = std::min(g.lo, last.y);
+      g.hi = std::max(g.hi, last.y);
+      g.x_lo = std::min(g.x_lo, last.x);
+      g.x_hi = std::max(g.x_hi, last.x);
+    }
+    ry[s] = g;
+  }
+}
+
 // Pinhole -> pinhole projection of one input row, four vertices per step (AVX2 doubles; the
 // target("avx2") clone of ProjectVertices' SSE2 pair loop): the very same operations in the
 // same order (no FMA), so the same bits as the scalar branch. RoundHalfAway, the bounds test
@@ -1008,7 +1055,11 @@ WarpCounts ProjectVertices(const ImageView<const float>& depth, const Camera& so
       }
       for (; u < w; ++u) scalar_vertex(u);
       // Target y range of the row's valid vertices per column segment.
-      RowSegmentRanges(vrow, w, num_segs, seg_y + r * num_segs);
+      if (avx2) {
+        RowSegmentRangesAvx2(vrow, w, num_segs, seg_y + r * num_segs);
+      } else {
+        RowSegmentRanges(vrow, w, num_segs, seg_y + r * num_segs);
+      }
     }
     valid += my_valid;
     bad += my_bad;
