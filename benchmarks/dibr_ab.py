@@ -1,7 +1,7 @@
 """Interleaved A/B of the DIBR kernels (forward warp + streaming blend) without Python in the loop.
 
     python benchmarks/dibr_ab.py [--base REV] [--rounds 5] [--repeats 5] [--threads 1] [--views 4]
-                                 [--size 1920x1080]
+                                 [--size 1920x1080] [--plain]
 
 Builds benchmarks/dibr_ab/dibr_ab.cpp twice with the release flags of the engine (g++ -O3, no
 -march): once against cpp/kernels/{forward_warp,blend}.{h,cpp} of git revision --base (default
@@ -55,9 +55,9 @@ def build(kernels: Path, exe: Path) -> None:
     subprocess.run(cmd, check=True)
 
 
-def run(exe: Path, data: Path, threads: int, repeats: int, views: int) -> dict:
-    out = subprocess.run([str(exe), str(data), str(threads), str(repeats), str(views)], check=True,
-                         capture_output=True, text=True).stdout.split()
+def run(exe: Path, data: Path, threads: int, repeats: int, views: int, plain: bool = False) -> dict:
+    cmd = [str(exe), str(data), str(threads), str(repeats), str(views)] + (["plain"] if plain else [])
+    out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout.split()
     r = dict(zip(out[::2], out[1::2]))
     return {"cpu": float(r["cpu_ms"]), "wall": float(r["wall_ms"]), "hash": r["hash"]}
 
@@ -70,6 +70,9 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--views", type=int, default=4)
     ap.add_argument("--size", default="1920x1080")
+    ap.add_argument("--plain", action="store_true",
+                    help="blend without the visibility rules (bench_dibr.py's DibrAccumulator() defaults) instead of "
+                         "--method dibr's stretched_quality 0.1 + stretched_holes")
     a = ap.parse_args()
     w, h = (int(x) for x in a.size.lower().split("x"))
     with tempfile.TemporaryDirectory(prefix="dibr_ab_") as tmp:
@@ -89,7 +92,7 @@ def main() -> None:
         res: dict[str, list[dict]] = {k: [] for k in exes}
         for r in range(a.rounds):
             for name, exe in exes.items():
-                res[name].append(run(exe, data, a.threads, a.repeats, a.views))
+                res[name].append(run(exe, data, a.threads, a.repeats, a.views, a.plain))
                 x = res[name][-1]
                 print(f"round {r}: {name}: cpu {x['cpu']:.1f} ms, wall {x['wall']:.1f} ms, hash {x['hash']}", flush=True)
         for name, rs in res.items():

@@ -73,6 +73,10 @@ def run_all(src, dst, dep, quality):
     acc.add_view(col, dep, src.to_core(), opts)
     acc.add_view(col[::-1].copy(), dep[::-1].copy(), src.to_core(), opts)
     res += list(acc.result())
+    plain = _core.DibrAccumulator(dst.to_core())  # no visibility rules: the AVX2 accumulation
+    plain.add_view(col, dep, src.to_core(), opts)
+    plain.add_view(col[:, ::-1].copy(), dep[:, ::-1].copy(), src.to_core(), opts)
+    res += list(plain.result())
     res += list(_core.warp_with_holes(col, dep, src.to_core(), dst.to_core()))
     return res
 

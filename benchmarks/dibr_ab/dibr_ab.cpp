@@ -1,7 +1,8 @@
 // A/B driver of the DIBR kernels without Python (benchmarks/dibr_ab.py builds and runs it):
 // k colour + depth views -> one target, ClearBlend + k ForwardWarp (accumulating) + ResolveBlend,
 // the options of --method dibr (side_threshold 10, stretched_quality 0.1, stretched_holes).
-//   dibr_ab DIR THREADS REPEATS VIEWS
+//   dibr_ab DIR THREADS REPEATS VIEWS [plain]
+// (plain: no visibility rules across views, as benchmarks/bench_dibr.py's DibrAccumulator()).
 // DIR holds cams.txt (per view then the target: W H fx fy cx cy and the 3 x 4 cam_from_world, row
 // major) and c<i>.raw / d<i>.raw (float32 colour (H, W, 3) and depth (H, W)). Prints the minimum
 // over REPEATS runs (after one warm-up) of the process CPU time and of the wall time, and an
@@ -22,7 +23,7 @@ static std::vector<float> Load(const char* p, size_t n) {
   std::vector<float> v(n); FILE* f = fopen(p, "rb"); if (!f || fread(v.data(), 4, n, f) != n) { perror(p); exit(1); } fclose(f); return v;
 }
 int main(int argc, char** argv) {
-  if (argc < 5) { fprintf(stderr, "usage: dibr_ab DIR THREADS REPEATS VIEWS\n"); return 2; }
+  if (argc < 5) { fprintf(stderr, "usage: dibr_ab DIR THREADS REPEATS VIEWS [plain]\n"); return 2; }
   const char* dir = argv[1];
   int threads = atoi(argv[2]), reps = atoi(argv[3]), nviews = atoi(argv[4]);
   SetNumThreads(threads);
@@ -49,6 +50,7 @@ int main(int argc, char** argv) {
   std::vector<unsigned char> oh(n);
   BlendBuffers acc; acc.height = H; acc.width = W; acc.sum_wc = swc.data(); acc.sum_w = sw.data(); acc.sum_w_invd = swi.data();
   acc.sum_q = sq.data(); acc.max_q = mq.data(); acc.stretched_quality = 0.1f; acc.stretched_holes = true;
+  if (argc > 5 && strcmp(argv[5], "plain") == 0) { acc.stretched_quality = 0.f; acc.stretched_holes = false; }  // bench_dibr's DibrAccumulator()
   WarpOptions opt; opt.side_threshold = 10.f;
   WarpScratch scratch;
   double best_cpu = 1e30, best = 1e30, best_warp = 1e30, best_res = 1e30;

@@ -5,6 +5,8 @@
 #include <cstddef>
 #include <limits>
 
+#include <immintrin.h>  // AVX2: only in target("avx2") functions, called when the CPU has it
+
 #include "ibr/parallel.h"
 
 namespace ibr {
@@ -78,6 +80,58 @@ void AccumulateRow(const float* color, const float* depth, const float* weight, 
     swc[3 * x + 2] += wi * color[3 * x + 2];
     sw[x] += wi;
     swi[x] += wi / depth[x];  // depth > 0 where covered; +inf gives 0
+    sq[x] += quality[x];
+    mq[x] = std::max(mq[x], quality[x]);
+  }
+}
+
+// AccumulateRow without the visibility rules, eight pixels per AVX2 step (the warp calls it from
+// its AVX2 clone). Uncovered pixels keep their sums by a select (not by adding 0: the band-local
+// colour and depth of an uncovered pixel are stale), covered ones get the scalar loop's
+// operations (products, the division, the sums, max) lane by lane: the same bits.
+__attribute__((target("avx2"))) void AccumulateRowPlainAvx2(const float* color, const float* depth,
+                                                             const float* weight, const float* quality,
+                                                             const BlendBuffers& acc, int y) {
+  const std::ptrdiff_t w = acc.width, o = std::ptrdiff_t(y) * w;
+  float *swc = acc.sum_wc + 3 * o, *sw = acc.sum_w + o, *swi = acc.sum_w_invd + o, *sq = acc.sum_q + o,
+        *mq = acc.max_q + o;
+  // lane k of the three colour vectors holds channel (8 j + k) % 3 of pixel (8 j + k) / 3
+  const __m256i p0 = _mm256_setr_epi32(0, 0, 0, 1, 1, 1, 2, 2), p1 = _mm256_setr_epi32(2, 3, 3, 3, 4, 4, 4, 5);
+  const __m256i p2 = _mm256_setr_epi32(5, 5, 6, 6, 6, 7, 7, 7);
+  const __m256 zero = _mm256_setzero_ps();
+  std::ptrdiff_t x = 0;
+  for (; x + 8 <= w; x += 8) {
+    const __m256 wi = _mm256_loadu_ps(weight + x);
+    const __m256 cov = _mm256_cmp_ps(wi, zero, _CMP_GT_OQ);  // !(wi > 0): skipped
+    const int m = _mm256_movemask_ps(cov);
+    if (m == 0) continue;
+    const __m256 d = _mm256_loadu_ps(depth + x), q = _mm256_loadu_ps(quality + x);
+    _mm256_storeu_ps(sw + x, _mm256_blendv_ps(_mm256_loadu_ps(sw + x), _mm256_add_ps(_mm256_loadu_ps(sw + x), wi), cov));
+    const __m256 s_i = _mm256_loadu_ps(swi + x);
+    _mm256_storeu_ps(swi + x, _mm256_blendv_ps(s_i, _mm256_add_ps(s_i, _mm256_div_ps(wi, d)), cov));
+    const __m256 s_q = _mm256_loadu_ps(sq + x);
+    _mm256_storeu_ps(sq + x, _mm256_blendv_ps(s_q, _mm256_add_ps(s_q, q), cov));
+    // std::max(mq, q) = (mq < q) ? q : mq
+    const __m256 m_q = _mm256_loadu_ps(mq + x);
+    _mm256_storeu_ps(mq + x, _mm256_blendv_ps(m_q, _mm256_blendv_ps(m_q, q, _mm256_cmp_ps(m_q, q, _CMP_LT_OQ)), cov));
+    const __m256i covi = _mm256_castps_si256(cov);
+    const __m256i perm[3] = {p0, p1, p2};
+    for (int j = 0; j < 3; ++j) {
+      const __m256 wj = _mm256_permutevar8x32_ps(wi, perm[j]);
+      const __m256 cj = _mm256_castsi256_ps(_mm256_permutevar8x32_epi32(covi, perm[j]));
+      const __m256 s = _mm256_loadu_ps(swc + 3 * x + 8 * j);
+      const __m256 c = _mm256_loadu_ps(color + 3 * x + 8 * j);
+      _mm256_storeu_ps(swc + 3 * x + 8 * j, _mm256_blendv_ps(s, _mm256_add_ps(s, _mm256_mul_ps(wj, c)), cj));
+    }
+  }
+  for (; x < w; ++x) {
+    const float wi = weight[x];
+    if (!(wi > 0.f)) continue;
+    swc[3 * x] += wi * color[3 * x];
+    swc[3 * x + 1] += wi * color[3 * x + 1];
+    swc[3 * x + 2] += wi * color[3 * x + 2];
+    sw[x] += wi;
+    swi[x] += wi / depth[x];
     sq[x] += quality[x];
     mq[x] = std::max(mq[x], quality[x]);
   }

@@ -56,6 +56,10 @@ void AccumulateRows(const float* color, const float* depth, const float* weight,
 // weight, quality (W)): the warp's band-local buffers hold only the band being drawn.
 void AccumulateRow(const float* color, const float* depth, const float* weight, const float* quality,
                    const BlendBuffers& acc, int y);
+// AccumulateRow when neither visibility rule is on (stretched_quality == 0, depth_tolerance ==
+// 0), compiled for AVX2: call it only on a CPU with AVX2 (forward_warp.h, WarpIsa). Same bits.
+void AccumulateRowPlainAvx2(const float* color, const float* depth, const float* weight, const float* quality,
+                            const BlendBuffers& acc, int y);
 
 // Writes colour (H, W, 3), depth (H, W), confidence (H, W), hole (H, W; 1 = hole) (all threads).
 void ResolveBlend(const BlendBuffers& acc, float* color, float* depth, float* confidence, std::uint8_t* hole);

@@ -1269,6 +1269,7 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
     // quality is > 0, i.e. where a fragment of this band wrote them.
     if (acc == nullptr) return counts;  // a view the front rejects: nothing to draw into
     const std::ptrdiff_t band_px = std::ptrdiff_t(kBandRows) * tw;
+    const bool plain_avx2 = UseAvx2() && !(acc->stretched_quality > 0.f) && !(acc->depth_tolerance > 0.f);
     RasterBands(
         cx, scratch, num_bands, fast,
         [&] {
@@ -1304,7 +1305,11 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
                 wrow[x] = 0.f;
               }
             }
-            AccumulateRow(sh.oc + 3 * o, drow, wrow, qrow, *acc, y);
+            if (plain_avx2) {
+              AccumulateRowPlainAvx2(sh.oc + 3 * o, drow, wrow, qrow, *acc, y);
+            } else {
+              AccumulateRow(sh.oc + 3 * o, drow, wrow, qrow, *acc, y);
+            }
           }
           covered += my_covered;
         });
