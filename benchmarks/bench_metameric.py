@@ -1,7 +1,9 @@
 """Metameric inpainting speed at 1024^2 RGB with ~10 % holes: ibrtools.metameric (depth-aware and
 classic moments) vs ibrtools push-pull and OpenCV's cv2.inpaint (TELEA), same run.
 
-    python benchmarks/bench_metameric.py [--size 1024] [--repeats 7] [--write docs/benchmarks.md]
+    python benchmarks/bench_metameric.py [--size 1024] [--repeats 7] [--write docs/benchmarks.md | --write-docs]
+
+--write-docs is --write with its default file (docs/benchmarks.md, section "bench_metameric").
 
 The frame is bench_inpaint's (smooth colour texture with fine noise on a background plane at depth
 5-8, foreground discs at depth 2, hole discs of radius 2-12 px until 10 % of the pixels are holes,
@@ -39,36 +41,28 @@ def _stages(img, hole, depth, repeats: int) -> dict[str, float]:
     n_hp, n_bands, _ = mm._noise_pyramid_cached(h, w, 3, 4, 2, 0)
     for _ in range(repeats + 1):
         t = time.perf_counter()
-        filled = pushpull(img, hole, depth, depth_threshold=0.04, gamma=0.5)
+        xs = _core.metameric_encode(img)
+        t = tick("display encoding (C++ sRGB curve, whole frame)", t)
+        filled = pushpull(xs, hole, depth, depth_threshold=0.04, gamma=0.5)
         t = tick("pre-fill push-pull (RGB)", t)
         pyr = analyse(filled, 4, 2)
         t = tick("steerable analysis", t)
-        masks, lo_mask = mm.level_masks(hole, 4)
+        masks, _ = mm.level_masks(hole, 4)
         t = tick("level masks (numpy)", t)
-        buf = np.empty(h * w * 18, np.float32)
-        times = {"pp": 0.0, "comp": 0.0}
         for lv in range(4):
             bands = ([pyr.highpass] if lv == 0 else []) + pyr.bands[lv]
             noise = ([n_hp] if lv == 0 else []) + list(n_bands[lv])
-            k, s = len(bands), 1 << lv
+            s = 1 << lv
             mask = mm._level_mask(masks[lv], hole, s)
-            t1 = time.perf_counter()
-            moments = buf[:mask.size * 6 * k].reshape(mask.shape + (6 * k,))
-            _core.metameric_pushpull_moments(bands, mask.view(np.uint8), np.ascontiguousarray(depth[::s, ::s]),
-                                             0.04, 0.5, moments)
-            t2 = time.perf_counter()
-            _core.metameric_composite(moments, mask, noise, bands, None, s)
-            t3 = time.perf_counter()
-            times["pp"] += t2 - t1
-            times["comp"] += t3 - t2
-        acc.setdefault("moments push-pull (X, X^2 of the high-pass and 8 bands, computed on the fly; holes only)",
-                       []).append(times["pp"] * 1e3)
-        acc.setdefault("mean + sigma * noise in the masks (C++ metameric_composite)", []).append(times["comp"] * 1e3)
-        t = time.perf_counter()
-        rec = synthesise(SteerablePyramid(pyr.highpass, pyr.bands, pyr.lowpass))
-        t = tick("steerable synthesis", t)
-        np.where(hole[..., None], rec, img)
-        tick("copy into the holes (numpy where)", t)
+            _core.metameric_pushpull_change(bands, mask.view(np.uint8), np.ascontiguousarray(depth[::s, ::s]),
+                                            0.04, 0.5, noise, None, s)
+        t = tick("moments push-pull fused with sigma * noise (X, X^2 of the high-pass and 8 bands; "
+                 "C++ metameric_pushpull_change, 4 levels)", t)
+        pyr.lowpass[...] = 0.0
+        change = synthesise(SteerablePyramid(pyr.highpass, pyr.bands, pyr.lowpass))
+        t = tick("steerable synthesis (of the change)", t)
+        _core.metameric_fill_holes(img, hole, filled, change, True)
+        tick("decode + copy into the holes (C++ metameric_fill_holes)", t)
     return {k: float(np.median(v[1:])) for k, v in acc.items()}
 
 
@@ -134,11 +128,11 @@ def run(size: int, repeats: int) -> str:
         f"{threads_list[0]} thread{'s' if threads_list[0] > 1 else ''}"
         + (" - the target is met." if best <= 60 else f" - the target is missed by {best / 60:.1f}x."),
         "",
-        "Before the per-sample C++ kernels (cpp/kernels/metameric.h; commit a79125a, numpy stacking, gathers, "
-        "composite and scatters): 177 ms depth-aware / 127 ms classic on 2 threads (load 1.9), "
-        "the same outputs bit for bit (the steerable kernels also got faster since: analysis 11 -> 8, synthesis 14 -> 10 ms). "
-        "Before the fused moments push-pull (commit af0af67: a stacked [X, X^2] copy of each level, then push-pull of "
-        "the whole stack): 66 ms depth-aware on 2 threads (load 1.5).",
+        "Since commit 4bbb52f the fill's mean is the push-pull pre-fill and RGB is synthesised on display "
+        "(sRGB-encoded) values (docs/inpaint_quality.md: the quality fix); that adds a whole-frame encoding pass. "
+        "History of this figure: 177 ms before the per-sample C++ kernels (commit a79125a), 66 ms before the fused "
+        "moments push-pull (commit af0af67, load 1.5), 84 ms at the end of the previous session (quiet machine, "
+        "stage table then: moments push-pull 42, copy into holes 11, composite 8 ms).",
         "",
         "| implementation | time (ms) | vs TELEA | MAE in holes |",
         "|---|---:|---:|---:|",
@@ -146,14 +140,16 @@ def run(size: int, repeats: int) -> str:
     mid = ["", f"First call (builds and caches the unit-variance noise pyramid for this size and seed): "
            f"{first_ms:.0f} ms. Stage breakdown of one depth-aware call "
            f"({threads_list[0]} thread{'s' if threads_list[0] > 1 else ''}; the remainder of the total is the "
-           "low-pass push-pull, depth sub-sampling and Python overhead):", "",
+           "depth sub-sampling, mask fall-backs and Python overhead):", "",
            "| stage | time (ms) |", "|---|---:|"]
     tail = ["", load_note()]
     return "\n".join(head + rows + mid + stage_rows + tail) + "\n"
 
 
 def main(argv=None) -> int:
-    return size_repeats_main(__doc__, "bench_metameric", run, argv, min_size=32)
+    args = list(sys.argv[1:] if argv is None else argv)
+    args = ["--write" if a == "--write-docs" else a for a in args]
+    return size_repeats_main(__doc__, "bench_metameric", run, args, min_size=32)
 
 
 if __name__ == "__main__":

@@ -237,3 +237,95 @@ def test_display_kernels_bad_input():
         _core.metameric_fill_holes(img, hole, img, img[:4].copy(), True)
     with pytest.raises(DtypeError, match="hole"):
         _core.metameric_fill_holes(img, hole.astype(np.float32), img, img, True)
+
+
+@pytest.mark.parametrize("depth_aware,flow_dtype,scale", [(True, None, 1), (False, np.float32, 2), (True, np.float64, 1)])
+def test_pushpull_change_equals_moments_then_delta_composite(depth_aware, flow_dtype, scale):
+    # The fused kernel (PushPullMomentsChangeKernel) must give the bands the same values, bit for
+    # bit, as metameric_pushpull_moments followed by metameric_composite(delta=True): 3 bands of
+    # 3 channels (the unrolled 18-channel path) and 2 bands of 2 channels (the generic one).
+    rng = np.random.default_rng(8)
+    h, w = 41, 37
+    for k, c in ((3, 3), (2, 2)):
+        bands = [rng.standard_normal((h, w, c)).astype(np.float32) for _ in range(k)]
+        noise = [rng.standard_normal((h, w, c)).astype(np.float32) for _ in range(k)]
+        mask = np.zeros((h, w), np.uint8)
+        mask[5:20, 3:12] = 1
+        mask[30:, 20:] = 1
+        depth = (5 + rng.random((h, w))).astype(np.float32) if depth_aware else None
+        if depth_aware:
+            depth[10:14, :] = 1.0
+        flow = None
+        if flow_dtype is not None:
+            flow = (rng.integers(-40, 40, ((h - 1) * scale + 1, (w - 1) * scale + 1, 2)) * 0.5).astype(flow_dtype)
+        args = (0.04, 0.5) if depth_aware else (0.0, 0.0)
+        ref = [b.copy() for b in bands]
+        mom = np.empty((h, w, 2 * k * c), np.float32)
+        _core.metameric_pushpull_moments(ref, mask, depth, *args, mom)
+        _core.metameric_composite(mom, mask, noise, ref, flow, scale, delta=True)
+        out = [b.copy() for b in bands]
+        _core.metameric_pushpull_change(out, mask, depth, *args, noise, flow, scale)
+        for a, b in zip(out, ref):
+            np.testing.assert_array_equal(a, b)
+            assert np.all(a[mask == 0] == 0)
+
+
+def test_pushpull_change_classic_fallback():
+    # The depth-aware moments with the farthest depth in the holes only: push-pull's classic
+    # fallback (its own buffer on this path), still equal to the two-step result.
+    rng = np.random.default_rng(9)
+    hole = np.zeros((48, 48), np.uint8)
+    hole[15:30, 15:30] = 1
+    depth = np.full((48, 48), 2.0, np.float32)
+    depth[hole != 0] = 9.0
+    img = rng.random((48, 48, 3)).astype(np.float32)
+    # The path under test: the farthest depth (9) is hole only, so every block that holds it drops
+    # its valid samples (depth 2) and the 1x1 top has no data (cpp/kernels/pushpull.h, "Classic
+    # fallback"); the depth-aware fill then differs from the classic one only where depth-aware
+    # data reaches through the bilinear push.
+    aware, _ = _core.pushpull(img, hole, depth, 0.04, 0.5)
+    classic, _ = _core.pushpull(img, hole, None, 0.0, 0.0)
+    assert not np.array_equal(aware[hole != 0], classic[hole != 0])
+    bands = [rng.standard_normal((48, 48, 3)).astype(np.float32) for _ in range(3)]
+    noise = [rng.standard_normal((48, 48, 3)).astype(np.float32) for _ in range(3)]
+    ref = [b.copy() for b in bands]
+    mom = np.empty((48, 48, 18), np.float32)
+    _core.metameric_pushpull_moments(ref, hole, depth, 0.04, 0.5, mom)
+    _core.metameric_composite(mom, hole, noise, ref, None, 1, delta=True)
+    out = [b.copy() for b in bands]
+    _core.metameric_pushpull_change(out, hole, depth, 0.04, 0.5, noise)
+    for a, b in zip(out, ref):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_pushpull_change_bad_input():
+    bands, noise = _bands(2), _bands(2, seed=5)
+    mask = np.zeros((13, 11), np.uint8)
+    mask[2:5, 2:5] = 1
+    with pytest.raises(ShapeError, match="noise: expected one array per band"):
+        _core.metameric_pushpull_change(bands, mask, None, 0.0, 0.0, noise[:1])
+    with pytest.raises(ShapeError, match="mask"):
+        _core.metameric_pushpull_change(bands, mask[:5].copy(), None, 0.0, 0.0, noise)
+    with pytest.raises(ShapeError, match="depth"):
+        _core.metameric_pushpull_change(bands, mask, np.ones((3, 3), np.float32), 0.04, 0.5, noise)
+    with pytest.raises(BadValueError, match="gamma"):
+        _core.metameric_pushpull_change(bands, mask, None, 0.0, -1.0, noise)
+    with pytest.raises(BadValueError, match="depth_threshold"):
+        _core.metameric_pushpull_change(bands, mask, None, float("nan"), 0.0, noise)
+    with pytest.raises(BadValueError, match="scale"):
+        _core.metameric_pushpull_change(bands, mask, None, 0.0, 0.0, noise, None, 0)
+    with pytest.raises(ShapeError, match="flow"):
+        _core.metameric_pushpull_change(bands, mask, None, 0.0, 0.0, noise, np.zeros((13, 11, 2), np.float32), 2)
+    with pytest.raises(BadValueError, match=r"bands\[0\]: shares memory"):
+        _core.metameric_pushpull_change(bands, mask, None, 0.0, 0.0, [bands[0], noise[1]])
+    with pytest.raises(BadValueError, match="every sample is masked"):
+        _core.metameric_pushpull_change(bands, np.ones((13, 11), np.uint8), None, 0.0, 0.0, noise)
+    bad = [b.copy() for b in bands]
+    bad[1][0, 0, 0] = np.nan
+    with pytest.raises(BadValueError, match=r"bands\[1\]: contains 1 NaN"):
+        _core.metameric_pushpull_change(bad, mask, None, 0.0, 0.0, noise)
+    _core.metameric_pushpull_change(bad, mask, None, 0.0, 0.0, noise, None, 1, False)  # check_finite off
+    ro = bands[0].copy()
+    ro.setflags(write=False)
+    with pytest.raises(BadValueError, match="writeable"):
+        _core.metameric_pushpull_change([ro, bands[1]], mask, None, 0.0, 0.0, noise)

@@ -94,6 +94,8 @@ OVERRIDES: dict[str, dict[str, str]] = {
     "metameric_pushpull_moments": {"bands": "collections.abc.Sequence[_F32]", "mask": "_U8",
                                    "depth": "_F32 | None", "out": "_F32"},
     "metameric_stack_moments": {"bands": "collections.abc.Sequence[_F32]", "out": "_F32"},
+    "metameric_pushpull_change": {"bands": "collections.abc.Sequence[_F32]", "mask": "_U8", "depth": "_F32 | None",
+                                  "noise": "collections.abc.Sequence[_F32]", "flow": "_F32 | _F64 | None"},
     "metameric_encode": {"image": "_F32", "return": "_F32"},
     "metameric_fill_holes": {"image": "_F32", "hole": "_Bool | _U8", "base": "_F32", "change": "_F32",
                              "return": "_F32"},

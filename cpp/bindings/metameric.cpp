@@ -31,6 +31,45 @@ void CheckNoAlias(const std::vector<FloatArray>& written, const std::vector<py::
   }
 }
 
+// The noise flow of a level of h x w samples at `scale`: None, or float32/float64 (H, W, 2) finite,
+// large enough to be read at (y * scale, x * scale). `keep` holds the checked array.
+MetamericFlow CheckFlow(py::handle flow_obj, py::ssize_t h, py::ssize_t w, int scale, py::array* keep) {
+  MetamericFlow flow;
+  if (scale < 1) throw BadValueError("scale: expected an integer >= 1, got " + std::to_string(scale));
+  if (flow_obj.is_none()) return flow;
+  py::array& flow_arr = *keep;
+  const bool f64 = py::isinstance<py::array>(flow_obj) &&
+                   py::reinterpret_borrow<py::array>(flow_obj).dtype().equal(py::dtype::of<double>());
+  if (f64) {
+    auto a = CheckArray<double>(flow_obj, "flow", {{"H", -1}, {"W", -1}, {"2", 2}});
+    flow.f64 = a.data();
+    flow_arr = a;
+  } else {
+    auto a = CheckArray<float>(flow_obj, "flow", {{"H", -1}, {"W", -1}, {"2", 2}});
+    flow.f32 = a.data();
+    flow_arr = a;
+  }
+  flow.height = static_cast<int>(flow_arr.shape(0));
+  flow.width = static_cast<int>(flow_arr.shape(1));
+  if ((h - 1) * static_cast<py::ssize_t>(scale) >= flow.height ||
+      (w - 1) * static_cast<py::ssize_t>(scale) >= flow.width) {
+    throw ShapeError("flow: expected the full-resolution flow of a level of " + std::to_string(h) + "x" +
+                     std::to_string(w) + " samples at scale " + std::to_string(scale) + " (at least " +
+                     std::to_string((h - 1) * scale + 1) + "x" + std::to_string((w - 1) * scale + 1) +
+                     " pixels), got " + DescribeShape(flow_arr));
+  }
+  std::int64_t bad = 0;
+  {
+    py::gil_scoped_release release;
+    const std::int64_t n = std::int64_t(flow.height) * flow.width * 2;
+    for (std::int64_t i = 0; i < n; ++i) {
+      bad += flow.f64 ? !std::isfinite(flow.f64[i]) : !std::isfinite(flow.f32[i]);
+    }
+  }
+  if (bad) throw BadValueError("flow: contains " + std::to_string(bad) + " NaN or infinite values");
+  return flow;
+}
+
 }  // namespace
 
 void BindMetameric(py::module_& m) {
@@ -122,40 +161,8 @@ void BindMetameric(py::module_& m) {
         } else {
           mask_arr = CheckArray<bool>(mask_obj, "mask", {{"h", h}, {"w", w}});
         }
-        if (scale < 1) throw BadValueError("scale: expected an integer >= 1, got " + std::to_string(scale));
-        MetamericFlow flow;
         py::array flow_arr;
-        if (!flow_obj.is_none()) {
-          const bool f64 = py::isinstance<py::array>(flow_obj) &&
-                           py::reinterpret_borrow<py::array>(flow_obj).dtype().equal(py::dtype::of<double>());
-          if (f64) {
-            auto a = CheckArray<double>(flow_obj, "flow", {{"H", -1}, {"W", -1}, {"2", 2}});
-            flow.f64 = a.data();
-            flow_arr = a;
-          } else {
-            auto a = CheckArray<float>(flow_obj, "flow", {{"H", -1}, {"W", -1}, {"2", 2}});
-            flow.f32 = a.data();
-            flow_arr = a;
-          }
-          flow.height = static_cast<int>(flow_arr.shape(0));
-          flow.width = static_cast<int>(flow_arr.shape(1));
-          if ((h - 1) * static_cast<py::ssize_t>(scale) >= flow.height ||
-              (w - 1) * static_cast<py::ssize_t>(scale) >= flow.width) {
-            throw ShapeError("flow: expected the full-resolution flow of a level of " + std::to_string(h) + "x" +
-                             std::to_string(w) + " samples at scale " + std::to_string(scale) +
-                             " (at least " + std::to_string((h - 1) * scale + 1) + "x" +
-                             std::to_string((w - 1) * scale + 1) + " pixels), got " + DescribeShape(flow_arr));
-          }
-          std::int64_t bad = 0;
-          {
-            py::gil_scoped_release release;
-            const std::int64_t n = std::int64_t(flow.height) * flow.width * 2;
-            for (std::int64_t i = 0; i < n; ++i) {
-              bad += flow.f64 ? !std::isfinite(flow.f64[i]) : !std::isfinite(flow.f32[i]);
-            }
-          }
-          if (bad) throw BadValueError("flow: contains " + std::to_string(bad) + " NaN or infinite values");
-        }
+        const MetamericFlow flow = CheckFlow(flow_obj, h, w, scale, &flow_arr);
         std::vector<py::array> others(noise.begin(), noise.end());
         others.push_back(moments);
         others.push_back(mask_arr);
@@ -187,6 +194,87 @@ void BindMetameric(py::module_& m) {
       "noise position, with mean, E[X^2] from moments float32 (h, w, 2kC); flow None or float32/float64 "
       "full-resolution (H, W, 2), read at (y * scale, x * scale). delta=True: bands[i] = sigma * noise[i] "
       "where mask is set and 0 elsewhere (the band's change when the fill's mean is the band itself).");
+
+  m.def(
+      "metameric_pushpull_change",
+      [](py::handle bands_obj, py::handle mask_obj, py::handle depth_obj, double depth_threshold, double gamma,
+         py::handle noise_obj, py::handle flow_obj, int scale, bool check_finite) {
+        std::vector<FloatArray> bands = CheckArrayList(bands_obj, "bands", -1, -1, -1, true);
+        const py::ssize_t h = bands[0].shape(0), w = bands[0].shape(1);
+        const py::ssize_t k = static_cast<py::ssize_t>(bands.size());
+        std::vector<FloatArray> noise = CheckPairedArrayList(noise_obj, "noise", bands, "band");
+        auto mask = CheckArray<std::uint8_t>(mask_obj, "mask", {{"h", h}, {"w", w}});
+        PushPullOptions options;
+        FloatArray depth;
+        if (!depth_obj.is_none()) {
+          depth = CheckArray<float>(depth_obj, "depth", {{"h", h}, {"w", w}});
+          options.depth_aware = true;
+        }
+        if (!(std::isfinite(gamma) && gamma >= 0.0)) {
+          throw BadValueError("gamma: expected a finite number >= 0, got " + std::to_string(gamma));
+        }
+        if (!(std::isfinite(depth_threshold) && depth_threshold >= 0.0)) {
+          throw BadValueError("depth_threshold: expected a finite number >= 0, got " + std::to_string(depth_threshold));
+        }
+        options.gamma = static_cast<float>(gamma);
+        options.depth_threshold = static_cast<float>(depth_threshold);
+        py::array flow_arr;
+        const MetamericFlow flow = CheckFlow(flow_obj, h, w, scale, &flow_arr);
+        for (std::size_t i = 0; i < bands.size(); ++i) {
+          for (std::size_t j = 0; j < bands.size(); ++j) {
+            if (i != j && Overlaps(bands[i], bands[j])) {
+              throw BadValueError("bands[" + std::to_string(i) + "]: shares memory with bands[" +
+                                  std::to_string(j) + "] (each is written in place)");
+            }
+          }
+        }
+        std::vector<py::array> others(noise.begin(), noise.end());
+        others.push_back(mask);
+        if (options.depth_aware) others.push_back(depth);
+        if (flow_arr) others.push_back(flow_arr);
+        CheckNoAlias(bands, others, "bands", true);
+        std::vector<ImageView<const float>> views;
+        std::vector<ImageView<float>> band_views;
+        for (FloatArray& b : bands) {
+          views.push_back(ConstViewOf(b));
+          band_views.push_back(ViewOf(b));
+        }
+        std::vector<ImageView<const float>> noise_views;
+        for (FloatArray& n : noise) noise_views.push_back(ConstViewOf(n));
+        const ImageView<const std::uint8_t> mask_view = ConstViewOf(mask);
+        const ImageView<const float> depth_view = options.depth_aware ? ConstViewOf(depth) : ImageView<const float>();
+        MetamericSynth synth;
+        synth.noise = noise_views.data();
+        synth.bands = band_views.data();
+        synth.k = static_cast<int>(k);
+        synth.flow = flow;
+        synth.scale = scale;
+        PushPullStatus status;
+        {
+          py::gil_scoped_release release;
+          for (std::size_t i = 0; check_finite && i < views.size(); ++i) {
+            if (const std::int64_t bad = CountNonFiniteOutsideHoles(views[i], mask_view)) {
+              throw BadValueError("bands[" + std::to_string(i) + "]: contains " + std::to_string(bad) +
+                                  " NaN or infinite values outside the mask");
+            }
+          }
+          status = PushPullMomentsChangeKernel(views.data(), static_cast<int>(k), mask_view, depth_view, options, synth);
+        }
+        if (status == PushPullStatus::kNoValidPixel) {
+          throw BadValueError("mask: every sample is masked; the moments need samples outside the mask");
+        }
+      },
+      py::arg("bands"), py::arg("mask"), py::arg("depth"), py::arg("depth_threshold"), py::arg("gamma"),
+      py::arg("noise"), py::arg("flow") = py::none(), py::arg("scale") = 1, py::arg("check_finite") = true,
+      "One level of metameric synthesis in place (cpp/kernels/pushpull.h PushPullMomentsChangeKernel): "
+      "metameric_pushpull_moments then metameric_composite(..., delta=True) without the moments image, the "
+      "same values bit for bit. bands k float32 (h, w, C) arrays, read, then overwritten with their change "
+      "(sigma * noise where mask (uint8 (h, w)) is set, 0 elsewhere); depth float32 (h, w) or None; noise k "
+      "float32 (h, w, C); flow None or float32/float64 full-resolution (H, W, 2), read at (y * scale, x * scale). "
+      "Raises BadValueError when every sample is masked (the bands are then left as they were) and, with "
+      "check_finite (default), for NaN or infinite band values outside the mask; check_finite=False skips that "
+      "scan for callers whose bands come from analysing a finite image (ibrtools.metameric: the pre-fill is "
+      "checked finite by push-pull's front).");
 
   m.def(
       "metameric_encode",

@@ -6,6 +6,7 @@
 #include <cstring>
 #include <limits>
 #include <memory>
+#include <type_traits>
 #include <vector>
 
 #include "ibr/parallel.h"
@@ -153,6 +154,92 @@ void Pull(const Src& src, int channels, bool depth_aware, float threshold, const
   });
 }
 
+// PULL of level 0 of the moments (MomentsSource) into level 1: Pull's arithmetic, operation by
+// operation (so the same values bit for bit), but the children's [X, X^2] are read from the bands
+// and squared in registers instead of being stacked into rows of 2kC floats first (measured: the
+// stacking was about a third of this pass).
+template <int kC, int kK = 0, int kCh = 0>
+void PullMoments(const MomentsSource& src, bool depth_aware, float threshold, const Level& dst) {
+  const int C = kC > 0 ? kC : src.channels();
+  const int k = kK > 0 ? kK : src.k, c = kCh > 0 ? kCh : src.bands[0].channels, kc = k * c;
+  const int sh = src.h(), sw = src.w();
+  ParallelFor(dst.h, RowGrain(dst.w), [&](std::int64_t y0, std::int64_t y1) {
+    float acc[kC > 0 ? kC : 1];
+    std::vector<float> acc_dyn(kC > 0 ? 0 : C);
+    float* sum = kC > 0 ? acc : acc_dyn.data();
+    for (int Y = static_cast<int>(y0); Y < static_cast<int>(y1); ++Y) {
+      const int sy0 = 2 * Y, sy1 = std::min(2 * Y + 1, sh - 1);
+      const bool has_row1 = sy1 != sy0;
+      const std::uint8_t* v0 = src.VRow(sy0);
+      const std::uint8_t* v1 = src.VRow(sy1);
+      const float* d0 = depth_aware ? src.DRow(sy0) : nullptr;
+      const float* d1 = depth_aware ? src.DRow(sy1) : nullptr;
+      float* out_c = dst.c + std::ptrdiff_t(Y) * dst.w * C;
+      float* out_v = dst.v + std::ptrdiff_t(Y) * dst.w;
+      float* out_d = depth_aware ? dst.d + std::ptrdiff_t(Y) * dst.w : nullptr;
+      for (int X = 0; X < dst.w; ++X) {
+        const int sx0 = 2 * X, sx1 = std::min(2 * X + 1, sw - 1);
+        const bool has_col1 = sx1 != sx0;
+        const bool exists[4] = {true, has_col1, has_row1, has_row1 && has_col1};
+        const int n = 1 + has_col1 + has_row1 + (has_row1 && has_col1);
+        float v[4] = {MomentsSource::V(v0, sx0), has_col1 ? MomentsSource::V(v0, sx1) : 0.0f,
+                      has_row1 ? MomentsSource::V(v1, sx0) : 0.0f,
+                      (has_row1 && has_col1) ? MomentsSource::V(v1, sx1) : 0.0f};
+        if (depth_aware) {
+          const float d[4] = {d0[sx0], d0[sx1], d1[sx0], d1[sx1]};
+          float ref = -1.0f;
+          for (int i = 0; i < 4; ++i) {
+            if (exists[i] && Known(d[i])) ref = std::max(ref, d[i]);
+          }
+          for (int i = 0; i < 4; ++i) {
+            if (Known(d[i]) && ref - d[i] > threshold) v[i] = 0.0f;
+          }
+          out_d[X] = ref > 0.0f ? ref : kNaN;
+        }
+        float* out = out_c + std::ptrdiff_t(X) * C;
+        const std::ptrdiff_t o00 = std::ptrdiff_t(sx0) * c, o01 = std::ptrdiff_t(sx1) * c;
+        if (n == 4 && v[0] == 1.0f && v[1] == 1.0f && v[2] == 1.0f && v[3] == 1.0f) {
+          for (int b = 0; b < k; ++b) {
+            const float* r0 = src.bands[b].Row(sy0);
+            const float* r1 = src.bands[b].Row(sy1);
+            for (int ch = 0; ch < c; ++ch) {
+              const float x0 = r0[o00 + ch], x1 = r0[o01 + ch], x2 = r1[o00 + ch], x3 = r1[o01 + ch];
+              out[b * c + ch] = 0.25f * ((x0 + x1) + (x2 + x3));
+              const float q0 = x0 * x0, q1 = x1 * x1, q2 = x2 * x2, q3 = x3 * x3;
+              out[kc + b * c + ch] = 0.25f * ((q0 + q1) + (q2 + q3));
+            }
+          }
+          out_v[X] = 1.0f;
+          continue;
+        }
+        float wsum = 0.0f;
+        for (int q = 0; q < C; ++q) sum[q] = 0.0f;
+        for (int i = 0; i < 4; ++i) {
+          if (!(v[i] > 0.0f)) continue;  // never touch the colour of a hole
+          const int yy = i < 2 ? sy0 : sy1;
+          const std::ptrdiff_t ox = (i & 1) ? o01 : o00;
+          for (int b = 0; b < k; ++b) {
+            const float* r = src.bands[b].Row(yy) + ox;
+            for (int ch = 0; ch < c; ++ch) {
+              const float x = r[ch], q = x * x;
+              sum[b * c + ch] += v[i] * x;
+              sum[kc + b * c + ch] += v[i] * q;
+            }
+          }
+          wsum += v[i];
+        }
+        if (wsum > 0.0f) {
+          const float inv = 1.0f / wsum;
+          for (int q = 0; q < C; ++q) out[q] = sum[q] * inv;
+        } else {
+          for (int q = 0; q < C; ++q) out[q] = 0.0f;
+        }
+        out_v[X] = wsum / static_cast<float>(n);
+      }
+    }
+  });
+}
+
 // Bilinear up-sampling taps from a coarse axis of size n_coarse to fine index i: pixel centres
 // at +0.5 give the fine centre (i + 0.5) / 2 - 0.5 in coarse pixels, i.e. 3/4 of the parent and
 // 1/4 of its neighbour on i's side, clamped at the border.
@@ -219,17 +306,45 @@ void CopyRow(const Src& src, int y, const ImageView<float>& out) {
   if (r != o) std::memcpy(o, r, sizeof(float) * std::size_t(src.w()) * src.channels());
 }
 
-template <int kC, class Src>
-void PushToOutput(const Level& coarse, const Src& src, bool holes_only, const ImageView<float>& out) {
+// Where the level-0 fill of a hole pixel goes. OutSink: straight into `out` (push-pull's result).
+// ChangeSink (metameric, PushPullMomentsChangeKernel): the pixel's moments go through the
+// metameric composite (metameric.h MetamericChangeSample) into the bands, and each row of the
+// bands is first cleared (the change is 0 outside the mask). Row(y) is called once per row
+// before its pixels; Begin returns where the pixel's C values are written, End consumes them.
+struct OutSink {
+  const ImageView<float>& out;
+  void Row(int) const {}
+  float* Begin(int y, int x, float*) const { return &out.At(y, x, 0); }
+  void End(int, int, const float*) const {}
+};
+
+struct ChangeSink {
+  const MetamericSynth& synth;
+  void Row(int y) const { MetamericZeroRow(synth, y); }
+  float* Begin(int, int, float* scratch) const { return scratch; }
+  void End(int y, int x, const float* moments) const { MetamericChangeSample(synth, y, x, moments); }
+};
+
+template <int kC, class Src, class Sink>
+void PushToOutput(const Level& coarse, const Src& src, bool holes_only, const ImageView<float>& out,
+                  const Sink& sink) {
   const int C = kC > 0 ? kC : src.channels();
   const int height = src.h(), width = src.w();
   const Taps ty = MakeTaps(height, coarse.h), tx = MakeTaps(width, coarse.w);
   ParallelFor(height, RowGrain(width), [&](std::int64_t y0, std::int64_t y1) {
+    float ubuf[kC > 0 ? kC : 1];
+    std::vector<float> udyn(kC > 0 ? 0 : C);
+    float* scratch = kC > 0 ? ubuf : udyn.data();
     for (int y = static_cast<int>(y0); y < static_cast<int>(y1); ++y) {
       const std::uint8_t* hrow = src.VRow(y);
       if (!holes_only) CopyRow(src, y, out);
+      sink.Row(y);
       for (int x = 0; x < width; ++x) {
-        if (hrow[x]) Up<kC>(coarse, C, ty, tx, y, x, &out.At(y, x, 0));
+        if (hrow[x]) {
+          float* u = sink.Begin(y, x, scratch);
+          Up<kC>(coarse, C, ty, tx, y, x, u);
+          sink.End(y, x, u);
+        }
       }
     }
   });
@@ -243,8 +358,8 @@ bool Complete(const Level& l, float gamma) {
   return std::all_of(l.v, l.v + n, [](float v) { return v >= 1.0f; });
 }
 
-template <int kC, class Src>
-PushPullStatus Run(const Src& src, const PushPullOptions& options, const ImageView<float>& out) {
+template <int kC, class Src, class Sink>
+PushPullStatus Run(const Src& src, const PushPullOptions& options, const ImageView<float>& out, const Sink& sink) {
   const int C = src.channels();
   const ImageView<const std::uint8_t>& hole = src.hole;
   const ImageView<const float>& depth = src.depth;
@@ -258,6 +373,9 @@ PushPullStatus Run(const Src& src, const PushPullOptions& options, const ImageVi
         for (int y = static_cast<int>(y0); y < static_cast<int>(y1); ++y) CopyRow(src, y, out);
       });
     }
+    ParallelFor(height, RowGrain(width), [&](std::int64_t y0, std::int64_t y1) {
+      for (int y = static_cast<int>(y0); y < static_cast<int>(y1); ++y) sink.Row(y);
+    });
     return PushPullStatus::kNoHole;
   }
   const bool depth_aware = options.depth_aware && !depth.Empty();
@@ -319,7 +437,20 @@ PushPullStatus Run(const Src& src, const PushPullOptions& options, const ImageVi
   std::size_t top = 0;
   for (std::size_t i = 0; i < levels.size(); ++i) {
     if (i == 0) {
-      Pull<kC>(src, C, depth_aware, threshold, levels[0]);
+      if constexpr (std::is_same<Src, MomentsSource>::value) {
+        // 3-channel (YCbCr) bands: the band and channel loops unrolled at compile time.
+        if constexpr (kC > 0 && kC % 6 == 0) {
+          if (src.bands[0].channels == 3) {
+            PullMoments<kC, kC / 6, 3>(src, depth_aware, threshold, levels[0]);
+          } else {
+            PullMoments<kC>(src, depth_aware, threshold, levels[0]);
+          }
+        } else {
+          PullMoments<kC>(src, depth_aware, threshold, levels[0]);
+        }
+      } else {
+        Pull<kC>(src, C, depth_aware, threshold, levels[0]);
+      }
     } else {
       Pull<kC>(LevelSource{levels[i - 1], C}, C, depth_aware, threshold, levels[i]);
     }
@@ -330,7 +461,7 @@ PushPullStatus Run(const Src& src, const PushPullOptions& options, const ImageVi
   if (Complete(t, 0.0f)) {
     // PUSH: the top keeps its colour (nothing coarser to mix with).
     for (std::size_t i = top; i-- > 0;) Push<kC>(levels[i + 1], C, options.gamma, levels[i]);
-    PushToOutput<kC>(levels[0], src, options.holes_only, out);
+    PushToOutput<kC>(levels[0], src, options.holes_only, out, sink);
     return PushPullStatus::kOk;
   }
   // Only the 1x1 top can be incomplete here. Classic: impossible (the image has a valid pixel).
@@ -361,24 +492,33 @@ PushPullStatus Run(const Src& src, const PushPullOptions& options, const ImageVi
   classic.gamma = 0.0f;
   classic.holes_only = options.holes_only;
   const ImageView<const float> no_depth;
-  Run<kC>(src.WithoutDepth(no_depth), classic, out);  // kOk: the image has a valid pixel
+  // The classic fill goes to `out` (OutSink), or, for a sink that consumes the values, to a
+  // buffer of its own (only on this rare path).
+  constexpr bool kToOut = std::is_same<Sink, OutSink>::value;
+  std::unique_ptr<float[]> classic_buf(kToOut ? nullptr : new float[n0 * C]);
+  const ImageView<float> cls = kToOut ? out : ImageView<float>(classic_buf.get(), height, width, C);
+  Run<kC>(src.WithoutDepth(no_depth), classic, cls, OutSink{cls});  // kOk: the image has a valid pixel
   const Level& f1 = levels[0];
   const Level& s1 = s_levels[0];
   const Taps ty = MakeTaps(height, f1.h), tx = MakeTaps(width, f1.w);
   ParallelFor(height, RowGrain(width), [&](std::int64_t y0, std::int64_t y1) {
-    float fbuf[kC > 0 ? kC : 1];
-    std::vector<float> fdyn(kC > 0 ? 0 : C);
+    float fbuf[kC > 0 ? kC : 1], ubuf[kC > 0 ? kC : 1];
+    std::vector<float> fdyn(kC > 0 ? 0 : C), udyn(kC > 0 ? 0 : C);
     float* f = kC > 0 ? fbuf : fdyn.data();
+    float* scratch = kC > 0 ? ubuf : udyn.data();
     for (int y = static_cast<int>(y0); y < static_cast<int>(y1); ++y) {
       const std::uint8_t* hrow = hole.Row(y);
+      sink.Row(y);
       for (int x = 0; x < width; ++x) {
         if (!hrow[x]) continue;
         float s;
         Up<kC>(f1, C, ty, tx, y, x, f);
         Up<1>(s1, 1, ty, tx, y, x, &s);
         // s = 0 (no depth-aware data reaches the pixel): f = 0 exactly and out stays classic.
-        float* o = &out.At(y, x, 0);
-        for (int k = 0; k < C; ++k) o[k] = f[k] + (1.0f - s) * o[k];
+        const float* c = &cls.At(y, x, 0);
+        float* o = sink.Begin(y, x, scratch);
+        for (int k = 0; k < C; ++k) o[k] = f[k] + (1.0f - s) * c[k];
+        sink.End(y, x, o);
       }
     }
   });
@@ -392,12 +532,13 @@ PushPullStatus PushPullKernel(const ImageView<const float>& image,
                               const ImageView<const float>& depth, const PushPullOptions& options,
                               const ImageView<float>& out) {
   const InputSource src{image, hole, depth};
+  const OutSink sink{out};
   switch (image.channels) {
-    case 1: return Run<1>(src, options, out);
-    case 2: return Run<2>(src, options, out);
-    case 3: return Run<3>(src, options, out);
-    case 4: return Run<4>(src, options, out);
-    default: return Run<0>(src, options, out);
+    case 1: return Run<1>(src, options, out, sink);
+    case 2: return Run<2>(src, options, out, sink);
+    case 3: return Run<3>(src, options, out, sink);
+    case 4: return Run<4>(src, options, out, sink);
+    default: return Run<0>(src, options, out, sink);
   }
 }
 
@@ -410,12 +551,31 @@ PushPullStatus PushPullMomentsKernel(const ImageView<const float>* bands, int k,
   const MomentsSource src{bands, k, hole, depth};
   // [X, X^2] of 2 or 3 RGB/YCbCr bands (2 or 4 orientations, the high-pass at level 0): a fixed
   // channel count lets the compiler unroll and vectorise the per-pixel loops.
+  const OutSink sink{out};
   switch (src.channels()) {
-    case 12: return Run<12>(src, o, out);
-    case 18: return Run<18>(src, o, out);
-    case 24: return Run<24>(src, o, out);
-    case 30: return Run<30>(src, o, out);
-    default: return Run<0>(src, o, out);
+    case 12: return Run<12>(src, o, out, sink);
+    case 18: return Run<18>(src, o, out, sink);
+    case 24: return Run<24>(src, o, out, sink);
+    case 30: return Run<30>(src, o, out, sink);
+    default: return Run<0>(src, o, out, sink);
+  }
+}
+
+PushPullStatus PushPullMomentsChangeKernel(const ImageView<const float>* bands, int k,
+                                           const ImageView<const std::uint8_t>& hole,
+                                           const ImageView<const float>& depth, const PushPullOptions& options,
+                                           const MetamericSynth& synth) {
+  PushPullOptions o = options;
+  o.holes_only = true;
+  const MomentsSource src{bands, k, hole, depth};
+  const ChangeSink sink{synth};
+  const ImageView<float> none;  // holes_only: never written (the sink takes the values)
+  switch (src.channels()) {
+    case 12: return Run<12>(src, o, none, sink);
+    case 18: return Run<18>(src, o, none, sink);
+    case 24: return Run<24>(src, o, none, sink);
+    case 30: return Run<30>(src, o, none, sink);
+    default: return Run<0>(src, o, none, sink);
   }
 }
 

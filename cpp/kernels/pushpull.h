@@ -103,6 +103,20 @@ PushPullStatus PushPullMomentsKernel(const ImageView<const float>* bands, int k,
                                      const ImageView<const float>& depth, const PushPullOptions& options,
                                      const ImageView<float>& out);
 
+// PushPullMomentsKernel fused with the metameric composite (metameric.h MetamericSynth): instead of
+// writing the moments of the hole (mask) samples, each goes through MetamericChangeSample into
+// synth.bands, and every row of synth.bands is cleared first, so on return the bands hold the
+// level's change (sigma * noise in the mask, 0 elsewhere): the same values, bit for bit, as
+// PushPullMomentsKernel then MetamericComposite(delta = true), without the (h, w, 2kC) moments
+// image (75 MB at 1024^2, page-faulted anew on every call). synth.bands may be the same memory as
+// `bands`: they are written only after the last read of `bands`. Allocates a classic fill of
+// (h, w, 2kC) only on the kClassicFallback path.
+struct MetamericSynth;
+PushPullStatus PushPullMomentsChangeKernel(const ImageView<const float>* bands, int k,
+                                           const ImageView<const std::uint8_t>& hole,
+                                           const ImageView<const float>& depth, const PushPullOptions& options,
+                                           const MetamericSynth& synth);
+
 // Number of non-finite values of image at pixels where hole == 0 (multithreaded).
 std::int64_t CountNonFiniteOutsideHoles(const ImageView<const float>& image,
                                         const ImageView<const std::uint8_t>& hole);

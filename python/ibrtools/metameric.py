@@ -38,9 +38,9 @@ The noise pyramid depends only on (size, channels, levels, orientations, seed), 
 once and cached (Walton et al.: "this random pattern is held constant over time"); ``flow``
 moves it with the scene (sec. 3.4.1): the noise at pixel x is read at x + flow(x) (nearest
 sample of each level, wrapping at the borders). All per-pixel work is C++: display encoding,
-steerable analysis / synthesis, push-pull, and cpp/kernels/metameric.h (the stacked [X, X^2]
-push-pull input of a level, the sigma * noise composite inside its mask, in place, the
-decode-and-copy into the holes); numpy builds the masks.
+steerable analysis / synthesis, push-pull (of the colours, and of each level's moments fused with
+the sigma * noise composite of cpp/kernels/metameric.h), the decode-and-copy into the holes;
+numpy builds the masks.
 """
 from __future__ import annotations
 
@@ -286,26 +286,21 @@ def metameric(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = No
     n_hp, n_bands, _ = _noise_pyramid_cached(h, w, c, levels, orientations, seed)
     band_masks, _ = level_masks(hole, levels)
 
-    # One buffer for the moments of every level (level 0, with the high-pass, is the
-    # largest; coarser levels use a contiguous prefix of it).
-    k0 = 1 + (orientations if levels else 0)
-    moments_buf = np.empty(h * w * 2 * k0 * c, np.float32)
     pp_args = (float(pp_kw["depth_threshold"]), float(pp_kw["gamma"])) if pp_kw else (0.0, 0.0)
     flow_c = None if flow is None else np.ascontiguousarray(flow)
 
     def fill(bands: list[np.ndarray], noise: list[np.ndarray], mask: np.ndarray, scale: int) -> None:
-        # One push-pull of [X..., X^2...] of every band of the level (sec. 3.3.1), then the
-        # band's change sigma * noise on the masked samples, 0 elsewhere (sec. 3.4 with the mean
-        # of step 4), written over the bands in place (both per-sample passes in C++:
-        # cpp/kernels/metameric.h).
+        # One push-pull of [X..., X^2...] of every band of the level (sec. 3.3.1), each masked
+        # sample's moments turned at once into the band's change sigma * noise (sec. 3.4 with the
+        # mean of step 4), 0 outside the mask, written over the bands in place: one C++ pass
+        # (cpp/kernels/pushpull.h PushPullMomentsChangeKernel; [X, X^2] computed on the fly, no
+        # moments image).
         mask = _level_mask(mask, hole, scale)
         d = None if depth is None else np.ascontiguousarray(depth[::scale, ::scale])
-        hl, wl = mask.shape
-        # The composite reads the moments inside the mask only: the kernel fills just those, into
-        # a reused buffer, computing [X, X^2] on the fly (no stacked copy of the level).
-        moments = moments_buf[:hl * wl * 2 * len(bands) * c].reshape(hl, wl, 2 * len(bands) * c)
-        _core.metameric_pushpull_moments(bands, mask.view(np.uint8), d, *pp_args, moments)
-        _core.metameric_composite(moments, mask, noise, bands, flow_c, scale, True)
+        # check_finite only without the display encoding: encoded values are below ~1e16 in
+        # magnitude (the curve of float32's largest value), so the analysis of the (finite,
+        # checked by push-pull's front) pre-fill cannot overflow; linear values can.
+        _core.metameric_pushpull_change(bands, mask.view(np.uint8), d, *pp_args, noise, flow_c, scale, not display)
 
     # Level 0 also carries the high-pass residual (same resolution, same mask: one push-pull
     # call per level).
