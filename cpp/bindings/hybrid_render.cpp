@@ -17,6 +17,8 @@
 #include "array.h"
 #include "ibr/camera.h"
 #include "ibr/errors.h"
+#include "kernels/atlas8.h"
+#include "kernels/gbuffer_raster.h"
 #include "kernels/hybrid.h"
 #include "kernels/ulr.h"
 #include "module.h"
@@ -83,10 +85,19 @@ FArray SampleAtlasBinding(const py::object& prim_obj, const py::object& bary_obj
   const auto h = prim.shape(0), w = prim.shape(1);
   auto bary = CheckArray<float>(bary_obj, "bary", {{"H", h}, {"W", w}, {"2", 2}});
   auto uv = CheckArray<float>(uv_obj, "uv", {{"M", -1}, {"3", 3}, {"2", 2}});
-  auto atlas = CheckArray<float>(atlas_obj, "atlas", {{"h", -1}, {"w", -1}, {"3", 3}});
-  if (atlas.shape(0) < 1 || atlas.shape(1) < 1) {
-    throw ShapeError("atlas: expected at least 1 x 1 texels, got " + std::to_string(atlas.shape(0)) + " x " +
-                     std::to_string(atlas.shape(1)));
+  // float32 (h, w, 3) linear RGB, or uint8 (h, w, 4) sRGB RGBA (kernels/atlas8.h).
+  const bool srgb8 = py::isinstance<py::array>(atlas_obj) &&
+                     py::reinterpret_borrow<py::array>(atlas_obj).dtype().is(py::dtype::of<std::uint8_t>());
+  py::array_t<float, py::array::c_style> atlas;
+  py::array_t<std::uint8_t, py::array::c_style> atlas8;
+  if (srgb8) {
+    atlas8 = CheckArray<std::uint8_t>(atlas_obj, "atlas", {{"h", -1}, {"w", -1}, {"4", 4}});
+  } else {
+    atlas = CheckArray<float>(atlas_obj, "atlas", {{"h", -1}, {"w", -1}, {"3", 3}});
+  }
+  const auto ah = srgb8 ? atlas8.shape(0) : atlas.shape(0), aw = srgb8 ? atlas8.shape(1) : atlas.shape(1);
+  if (ah < 1 || aw < 1) {
+    throw ShapeError("atlas: expected at least 1 x 1 texels, got " + std::to_string(ah) + " x " + std::to_string(aw));
   }
   const auto m = uv.shape(0);
   {
@@ -105,9 +116,54 @@ FArray SampleAtlasBinding(const py::object& prim_obj, const py::object& bary_obj
   FArray out = NewArray<float>({h, w, py::ssize_t(3)});
   {
     py::gil_scoped_release release;
-    SampleAtlas(prim.data(), bary.data(), static_cast<std::int64_t>(h) * w, uv.data(), ConstViewOf(atlas),
-                out.mutable_data());
+    if (srgb8) {
+      SampleAtlasSrgb8(prim.data(), bary.data(), static_cast<std::int64_t>(h) * w, uv.data(), ConstViewOf(atlas8),
+                       out.mutable_data());
+    } else {
+      SampleAtlas(prim.data(), bary.data(), static_cast<std::int64_t>(h) * w, uv.data(), ConstViewOf(atlas),
+                  out.mutable_data());
+    }
   }
+  return out;
+}
+
+py::dict RasterGBufferBinding(const Camera& camera, const py::object& vertices_obj, const py::object& faces_obj,
+                              bool normal) {
+  if (camera.model != CameraModel::kPinhole) {
+    throw BadValueError("raster_gbuffer: pinhole cameras only (use the ray caster for equirect)");
+  }
+  if (camera.width < 1 || camera.height < 1) throw BadValueError("raster_gbuffer: the camera has no pixels");
+  auto vertices = CheckArray<float>(vertices_obj, "vertices", {{"N", -1}, {"3", 3}});
+  auto faces = CheckArray<std::int32_t>(faces_obj, "faces", {{"M", -1}, {"3", 3}});
+  const auto n = vertices.shape(0), m = faces.shape(0);
+  {
+    const float* v = vertices.data();
+    for (py::ssize_t i = 0; i < 3 * n; ++i) {
+      if (!std::isfinite(v[i])) throw BadValueError("vertices: expected finite coordinates");
+    }
+    const std::int32_t* f = faces.data();
+    for (py::ssize_t i = 0; i < 3 * m; ++i) {
+      if (f[i] < 0 || f[i] >= n) {
+        throw BadValueError("faces: index " + std::to_string(f[i]) + " out of range for " + std::to_string(n) +
+                            " vertices");
+      }
+    }
+  }
+  const py::ssize_t h = camera.height, w = camera.width;
+  FArray depth = NewArray<float>({h, w});
+  auto prim = NewArray<std::int32_t>({h, w});
+  FArray bary = NewArray<float>({h, w, py::ssize_t(2)});
+  FArray nrm = normal ? NewArray<float>({h, w, py::ssize_t(3)}) : FArray();
+  {
+    py::gil_scoped_release release;
+    RasterGBuffer(camera, vertices.data(), n, faces.data(), m, depth.mutable_data(), prim.mutable_data(),
+                  bary.mutable_data(), normal ? nrm.mutable_data() : nullptr);
+  }
+  py::dict out;
+  out["depth"] = depth;
+  out["prim_id"] = prim;
+  out["bary"] = bary;
+  if (normal) out["normal"] = nrm;
   return out;
 }
 
@@ -244,8 +300,15 @@ void BindHybridRender(py::module_& m) {
         py::arg("faces"), py::arg("attrib"),
         "Per-vertex attribute (N,) or (N, C) float32 interpolated at each pixel's hit (prim_id (H, W) int32, "
         "-1 = none; bary (H, W, 2) Embree (u, v)): (H, W) or (H, W, C), 0 where nothing is hit.");
+  m.def("raster_gbuffer", &RasterGBufferBinding, py::arg("camera"), py::arg("vertices"), py::arg("faces"),
+        py::kw_only(), py::arg("normal") = true,
+        "G-buffer of a triangle mesh by rasterisation (pinhole cameras): the nearest face at each pixel centre, "
+        "as the Embree ray caster gives it. vertices (N, 3) float32 world, faces (M, 3) int32. Returns a dict: depth "
+        "(H, W) float32 z (0 = no hit), prim_id (H, W) int32 (-1), bary (H, W, 2) float32 Embree (u, v), and with "
+        "normal=True the unit geometric normal (H, W, 3) in world axes facing the camera.");
   m.def("sample_atlas", &SampleAtlasBinding, py::arg("prim_id"), py::arg("bary"), py::arg("uv"), py::arg("atlas"),
-        "TM colour from a texture atlas: atlas (h, w, 3) float32 read bilinearly (edge-clamped) at each pixel's hit "
+        "TM colour from a texture atlas: atlas (h, w, 3) float32 linear RGB, or (h, w, 4) uint8 sRGB RGBA (decoded to "
+        "linear per texel, alpha unused), read bilinearly (edge-clamped) at each pixel's hit "
         "(prim_id (H, W) int32, -1 = none; bary (H, W, 2) Embree (u, v)) at the face's uv (M, 3, 2) float32 in atlas "
         "pixels (x right, y down, centres at +0.5): (H, W, 3), 0 where nothing is hit.");
   m.def(

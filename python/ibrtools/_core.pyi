@@ -17,7 +17,7 @@ _U8: typing.TypeAlias = numpy.typing.NDArray[numpy.uint8]
 _I8: typing.TypeAlias = numpy.typing.NDArray[numpy.int8]
 _Bool: typing.TypeAlias = numpy.typing.NDArray[numpy.bool_]
 _Light: typing.TypeAlias = tuple[str, collections.abc.Sequence[float], collections.abc.Sequence[float], bool]
-__all__: list[str] = ['Camera', 'CameraModel', 'DepthWarpMips', 'DibrAccumulator', 'EMBREE_VERSION', 'OcclusionScene', 'PvmRenderer', 'RayScene', 'WARP_DISOCCLUDED', 'WARP_SURFACE', 'WARP_UNCOVERED', 'WarpOptions', 'YMap', 'blur_selection', 'cpu_has_avx2', 'cross_view_prediction', 'cull_awoc_fill', 'cull_object_boxes', 'cull_project_boxes', 'dw_build_mips', 'dw_forward', 'dw_motion', 'dw_warp', 'forward_warp', 'get_num_threads', 'grid_maxflow', 'hybrid_composite', 'hybrid_select', 'interpolate_vertex_attribute', 'interpolate_vertex_values', 'metameric_composite', 'metameric_encode', 'metameric_fill_holes', 'metameric_pushpull_change', 'metameric_pushpull_moments', 'metameric_stack_moments', 'mip_build', 'mip_foveate_level', 'mip_lookup', 'mip_max_levels', 'poisson_blend', 'pushpull', 'pvm_slice', 'pvm_triangulate', 'sample_atlas', 'set_num_threads', 'set_warp_isa', 'shadow_map_visibility', 'ssim', 'steerable_analyse', 'steerable_max_levels', 'steerable_synthesise', 'ulr_blend', 'ulr_penalty', 'ulr_select', 'warp_flow', 'warp_isa', 'warp_with_holes']
+__all__: list[str] = ['Camera', 'CameraModel', 'DepthWarpMips', 'DibrAccumulator', 'EMBREE_VERSION', 'OcclusionScene', 'PvmRenderer', 'RayScene', 'WARP_DISOCCLUDED', 'WARP_SURFACE', 'WARP_UNCOVERED', 'WarpOptions', 'YMap', 'blur_selection', 'cpu_has_avx2', 'cross_view_prediction', 'cull_awoc_fill', 'cull_object_boxes', 'cull_project_boxes', 'dw_build_mips', 'dw_forward', 'dw_motion', 'dw_warp', 'forward_warp', 'get_num_threads', 'grid_maxflow', 'hybrid_composite', 'hybrid_select', 'interpolate_vertex_attribute', 'interpolate_vertex_values', 'metameric_composite', 'metameric_encode', 'metameric_fill_holes', 'metameric_pushpull_moments', 'metameric_stack_moments', 'mip_build', 'mip_foveate_level', 'mip_lookup', 'mip_max_levels', 'poisson_blend', 'pushpull', 'pvm_slice', 'pvm_triangulate', 'raster_gbuffer', 'sample_atlas', 'set_num_threads', 'set_warp_isa', 'shadow_map_visibility', 'ssim', 'steerable_analyse', 'steerable_max_levels', 'steerable_synthesise', 'ulr_blend', 'ulr_penalty', 'ulr_select', 'warp_flow', 'warp_isa', 'warp_with_holes']
 
 class CameraModel:
     """
@@ -435,11 +435,6 @@ def metameric_fill_holes(image: _F32, hole: _Bool | _U8, base: _F32, change: _F3
     The result of metameric inpainting (cpp/kernels/metameric.h MetamericFillHoles): a new float32 (H, W, C) array, image where hole (bool or uint8 (H, W)) is 0, base + change inside the holes (decoded from the display encoding and clamped at 0 with decode=True); image, base, change float32 (H, W, C).
     """
 
-def metameric_pushpull_change(bands: collections.abc.Sequence[_F32], mask: _U8, depth: _F32 | None, depth_threshold: typing.SupportsFloat | typing.SupportsIndex, gamma: typing.SupportsFloat | typing.SupportsIndex, noise: collections.abc.Sequence[_F32], flow: _F32 | _F64 | None=None, scale: typing.SupportsInt | typing.SupportsIndex=1, check_finite: bool=True) -> None:
-    """
-    One level of metameric synthesis in place (cpp/kernels/pushpull.h PushPullMomentsChangeKernel): metameric_pushpull_moments then metameric_composite(..., delta=True) without the moments image, the same values bit for bit. bands k float32 (h, w, C) arrays, read, then overwritten with their change (sigma * noise where mask (uint8 (h, w)) is set, 0 elsewhere); depth float32 (h, w) or None; noise k float32 (h, w, C); flow None or float32/float64 full-resolution (H, W, 2), read at (y * scale, x * scale). Raises BadValueError when every sample is masked (the bands are then left as they were) and, with check_finite (default), for NaN or infinite band values outside the mask; check_finite=False skips that scan for callers whose bands come from analysing a finite image (ibrtools.metameric: the pre-fill is checked finite by push-pull's front).
-    """
-
 def metameric_pushpull_moments(bands: collections.abc.Sequence[_F32], mask: _U8, depth: _F32 | None, depth_threshold: typing.SupportsFloat | typing.SupportsIndex, gamma: typing.SupportsFloat | typing.SupportsIndex, out: _F32) -> None:
     """
     Push-pull of one level's moments (cpp/kernels/pushpull.h PushPullMomentsKernel): bands = k float32 (h, w, C) arrays; mask uint8 (h, w), non-zero = fill; depth float32 (h, w) or None (classic); writes the masked samples of out float32 (h, w, 2kC): push-pull of [X_0..X_{k-1}, X_0^2..X_{k-1}^2].
@@ -490,9 +485,14 @@ def pvm_triangulate(depth: _F32, plane_field: _F32 | None, max_rel_jump: typing.
     Triangles over the pixel grid of depth float32 (H, W) (cpp/kernels/pvm.h PvmTriangulate): int32 (F, 3) vertex ids y * W + x (pixel centres), counter-clockwise seen from the camera; edges cut where the relative depth jump exceeds max_rel_jump; blocks of up to max_block quads merged where plane_field (float32 (H, W), 1/z for pinhole; None = no merging) is planar within plane_tol.
     """
 
-def sample_atlas(prim_id: _I32, bary: _F32, uv: _F32, atlas: _F32) -> numpy.typing.NDArray[numpy.float32]:
+def raster_gbuffer(camera: Camera, vertices: _F32, faces: _I32, *, normal: bool=True) -> dict[str, numpy.typing.NDArray[typing.Any]]:
     """
-    TM colour from a texture atlas: atlas (h, w, 3) float32 read bilinearly (edge-clamped) at each pixel's hit (prim_id (H, W) int32, -1 = none; bary (H, W, 2) Embree (u, v)) at the face's uv (M, 3, 2) float32 in atlas pixels (x right, y down, centres at +0.5): (H, W, 3), 0 where nothing is hit.
+    G-buffer of a triangle mesh by rasterisation (pinhole cameras): the nearest face at each pixel centre, as the Embree ray caster gives it. vertices (N, 3) float32 world, faces (M, 3) int32. Returns a dict: depth (H, W) float32 z (0 = no hit), prim_id (H, W) int32 (-1), bary (H, W, 2) float32 Embree (u, v), and with normal=True the unit geometric normal (H, W, 3) in world axes facing the camera.
+    """
+
+def sample_atlas(prim_id: _I32, bary: _F32, uv: _F32, atlas: _F32 | _U8) -> numpy.typing.NDArray[numpy.float32]:
+    """
+    TM colour from a texture atlas: atlas (h, w, 3) float32 linear RGB, or (h, w, 4) uint8 sRGB RGBA (decoded to linear per texel, alpha unused), read bilinearly (edge-clamped) at each pixel's hit (prim_id (H, W) int32, -1 = none; bary (H, W, 2) Embree (u, v)) at the face's uv (M, 3, 2) float32 in atlas pixels (x right, y down, centres at +0.5): (H, W, 3), 0 where nothing is hit.
     """
 
 def set_num_threads(num_threads: typing.SupportsInt | typing.SupportsIndex) -> None:

@@ -154,16 +154,18 @@ class Stage:
 
 STAGES: dict[str, Stage] = {s.name: s for s in (
     Stage("mesh", ("scene",), ("mesh.npz",), frozenset({"tm", "ulr", "pvm", "hybrid"}),
-          "global mesh: reconstructed mesh, else TSDF fusion of the depth maps, else ground truth"),
+          "global mesh: reconstructed mesh, else TSDF fusion of the depth maps, else ground truth; "
+          "dense (per-vertex statistics) and render (G-buffer, atlas) versions of the same surface",
+          version=2),
     Stage("depth", ("scene", "mesh"), ("depth.npz",), frozenset({"ulr", "pvm", "hybrid"}),
           "per-view depth rendered from the global mesh, for views without depth"),
     Stage("texture", ("scene", "mesh", "depth"), ("texture.npz",), frozenset({"tm", "hybrid"}),
-          "texture atlas and per-vertex colour of the global mesh by ULR-weighted blending of the views",
-          version=2),
+          "texture atlas and per-vertex colour of the render mesh by ULR-weighted blending of the "
+          "gain-compensated views", version=3),
     Stage("variance", ("scene", "mesh", "depth"), ("variance.npz",), frozenset({"hybrid"}),
           "per-vertex photometric standard deviation across the views that see it"),
     Stage("harmonise", ("scene", "mesh", "variance"), ("harmonise.npz",), frozenset({"hybrid"}),
-          "diffuse harmonisation, graph-cut view-dependent masks, Poisson re-injection"),
+          "diffuse harmonisation, graph-cut view-dependent masks, Poisson re-injection", version=2),
     Stage("pvm", ("scene", "depth"), ("tiles.npz",), frozenset({"pvm", "hybrid"}),
           "per-view meshes sliced into a two-level voxel grid of tiles"),
 )}
@@ -348,10 +350,20 @@ class _Context:
         return out
 
     def mesh(self):
+        """The dense global mesh (per-vertex statistics)."""
         from .mesh import Mesh
 
         d = self.get("mesh")
         return Mesh(d["vertices"], d["faces"], object_ids=d["object_ids"], kind="reconstructed")
+
+    def render_mesh(self):
+        """The render mesh (G-buffer, atlas): the dense mesh when the mesh stage stored no other."""
+        from .mesh import Mesh
+
+        d = self.get("mesh")
+        if "render_vertices" not in d:
+            return self.mesh()
+        return Mesh(d["render_vertices"], d["render_faces"], object_ids=d["render_object_ids"], kind="reconstructed")
 
 
 def _params(name: str, options: dict) -> dict:
@@ -361,7 +373,8 @@ def _params(name: str, options: dict) -> dict:
     if name in ("mesh", "texture", "depth"):
         o = GlobalMeshOptions(**options.get("mesh", {})).to_dict()
         if name == "mesh":
-            return {k: o[k] for k in ("source", "resolution", "trunc_voxels", "max_edge_voxels", "max_faces")}
+            return {k: o[k] for k in ("source", "resolution", "trunc_voxels", "max_edge_voxels", "max_faces",
+                                      "render_edge_voxels")}
         if name == "texture":
             return {k: o[k] for k in ("k_views", "depth_tol", "atlas_texel", "atlas_max_texels")}
         return {}
@@ -371,11 +384,15 @@ def _params(name: str, options: dict) -> dict:
 
 
 def _run_mesh(ctx: _Context) -> dict:
-    from .hybrid.globalmesh import GlobalMeshOptions, build_global_mesh
+    from .hybrid.globalmesh import GlobalMeshOptions, build_global_mesh, build_render_mesh
 
     opts = GlobalMeshOptions(**ctx.options.get("mesh", {}))
     mesh, rec = build_global_mesh(ctx.scene, opts)
     arrays = {"vertices": mesh.vertices, "faces": mesh.faces, "object_ids": mesh.object_ids}
+    render = build_render_mesh(ctx.scene, mesh, rec["source"], opts)
+    if render is not mesh:
+        arrays.update(render_vertices=render.vertices, render_faces=render.faces, render_object_ids=render.object_ids)
+    rec["render_faces"] = int(len(render.faces))
     save_npz(ctx.cache("mesh") / "mesh.npz", **arrays)
     ctx.memo["mesh"] = arrays
     return rec
@@ -402,12 +419,21 @@ def _run_depth(ctx: _Context) -> dict:
 def _run_texture(ctx: _Context) -> dict:
     from .hybrid import atlas as A
     from .hybrid.globalmesh import GlobalMeshOptions, vertex_colors
+    from .hybrid.variance import vertex_statistics
 
     opts = GlobalMeshOptions(**ctx.options.get("mesh", {}))
-    colors = {v.name: v.color for v in ctx.scene.views}
-    mesh, cams, deps = ctx.mesh(), ctx.cameras(), ctx.depths()
+    mesh, cams, deps = ctx.render_mesh(), ctx.cameras(), ctx.depths()
+    # The views with their global per-channel gain divided out (variance.vertex_statistics on the
+    # render mesh: the gains, geometric mean 1 over the views, as the variance stage estimates them
+    # on the dense mesh): the atlas then has one exposure, the one the harmonised images ULR blends
+    # are brought to, instead of a blend-weighted mix of the views' exposures (docs/preprocess.md
+    # "Texture").
+    gains = vertex_statistics(ctx.scene, mesh)["gains"]
+    colors = {v.name: (v.color / np.asarray(gains.get(v.name, np.ones(3)), np.float32)[None, None]).astype(np.float32)
+              for v in ctx.scene.views}
     col, seen = vertex_colors(mesh, cams, colors, deps, opts)
-    rec = {"vertices": int(len(col)), "unseen": int((seen == 0).sum())}
+    rec = {"vertices": int(len(col)), "unseen": int((seen == 0).sum()),
+           "gain_spread": round(float(np.ptp(np.log([np.asarray(g) for g in gains.values()]))), 4) if gains else 0.0}
     arrays = {"vertex_colors": col, "seen": seen}
     # The atlas (issue 7): per-texel colour at about the input views' resolution; a mesh with too
     # many faces for atlas_max_texels keeps the per-vertex colour only (TM renders that).
@@ -417,7 +443,10 @@ def _run_texture(ctx: _Context) -> dict:
         rec["atlas"] = f"none ({e})"
     else:
         img, unseen = A.bake(mesh, lay, cams, colors, deps, col, opts)
-        arrays.update(atlas=img, uv=lay.uv)
+        # Stored as 8-bit sRGB RGBA (A.to_srgb8): a third of the bytes of float32 RGB, which is what
+        # the TM read is bound by (cache misses; cpp/kernels/atlas8.h); 8-bit sRGB is the inputs' own
+        # precision.
+        arrays.update(atlas=A.to_srgb8(img), uv=lay.uv)
         rec.update(atlas=f"{img.shape[1]}x{img.shape[0]}", texel=float(f"{lay.texel:.4g}"),
                    unseen_texels=round(unseen, 4))
     save_npz(ctx.cache("texture") / "texture.npz", **arrays)
@@ -456,6 +485,9 @@ def _run_harmonise(ctx: _Context) -> dict | str:
     for n, m in res.masks.items():
         arrays[f"mask/{n}"] = np.asarray(m, bool)
     arrays["vd_texture"] = np.asarray(res.vd_texture, np.float32)
+    render = ctx.render_mesh()
+    if len(render.vertices) != len(res.vd_texture) or not np.array_equal(render.vertices, ctx.mesh().vertices):
+        arrays["vd_render"] = H.vd_at_points(ctx.mesh().vertices, res.vd_texture, render.vertices)
     save_npz(ctx.cache("harmonise") / "harmonise.npz", **arrays)
     stats = {k: (float(f"{v:.4g}") if isinstance(v, float) else v) for k, v in (res.stats or {}).items()
              if isinstance(v, (int, float, str))}

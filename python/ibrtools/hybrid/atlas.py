@@ -185,6 +185,23 @@ def bake(mesh: Mesh, lay: AtlasLayout, cameras: Mapping[str, Camera], colors: Ma
     return img, unseen / max(1, len(face))
 
 
+def to_srgb8(img: np.ndarray) -> np.ndarray:
+    """Linear RGB (H, W, 3) float -> (H, W, 4) uint8 sRGB RGBA (alpha 255; values clipped to [0, 1]),
+    the storage ``_core.sample_atlas`` reads fastest (cpp/kernels/atlas8.h)."""
+    from ..imageio import linear_to_srgb
+
+    a = np.asarray(img)
+    if a.ndim != 3 or a.shape[2] != 3:
+        raise ShapeError(f"atlas: expected shape (H, W, 3), got {a.shape}")
+    if a.dtype.kind != "f":
+        raise DtypeError(f"atlas: expected a float array, got {a.dtype}")
+    out = np.full(a.shape[:2] + (4,), 255, np.uint8)
+    for lo in range(0, a.shape[0], 512):  # bounded float64 temporaries
+        sl = np.clip(np.nan_to_num(a[lo:lo + 512].astype(np.float32)), 0.0, 1.0)
+        out[lo:lo + 512, :, :3] = np.round(linear_to_srgb(sl) * 255.0).astype(np.uint8)
+    return out
+
+
 def obj_uvs(uv: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """Atlas-pixel UVs -> OBJ convention (u = x / W, v = 1 - y / H), for :class:`ibrtools.mesh.Mesh`."""
     h, w = size

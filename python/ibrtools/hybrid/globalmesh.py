@@ -41,6 +41,12 @@ class GlobalMeshOptions:
     resolution: int = 384        # TSDF voxel = largest extent of the depth points / resolution
     trunc_voxels: float = 4.0    # TSDF truncation distance in voxels
     max_edge_voxels: float = 1.0  # densify a given mesh to edges <= this many voxels
+    # The render mesh (issue 7): the same surface densified only to edges <= render_edge_voxels
+    # (a given mesh; a fused mesh is used as it is). TM's atlas, the G-buffer of tm / ulr / hybrid
+    # and ULR's occlusion depth use it; the dense mesh above carries the per-vertex statistics
+    # (variance, harmonisation, view-dependent texture). Midpoint subdivision does not move the
+    # surface, so both meshes have the same geometry.
+    render_edge_voxels: float = 16.0
     max_faces: int = 4_000_000   # cap on densification
     k_views: int = 4             # ULR: views blended per vertex
     depth_tol: float = 0.02      # visibility: |z_vertex - z_view| <= depth_tol * z_view
@@ -56,6 +62,8 @@ class GlobalMeshOptions:
         check_float(self.trunc_voxels, "trunc_voxels", 1.0)
         if not check_float(self.max_edge_voxels, "max_edge_voxels") > 0:
             raise BadValueError("max_edge_voxels: expected > 0")
+        if not check_float(self.render_edge_voxels, "render_edge_voxels") > 0:
+            raise BadValueError("render_edge_voxels: expected > 0")
         check_int(self.max_faces, "max_faces", 1)
         check_int(self.k_views, "k_views", 1)
         if not check_float(self.depth_tol, "depth_tol") > 0:
@@ -352,7 +360,8 @@ def mesh_scale(mesh: Mesh) -> float:
 
 def build_global_mesh(scene: Scene, options: GlobalMeshOptions | None = None,
                       depths: Mapping[str, np.ndarray] | None = None) -> tuple[Mesh, dict]:
-    """The untextured global mesh and a record {source, vertices, faces, voxel}."""
+    """The untextured global mesh and a record {source, vertices, faces, voxel}. The render mesh
+    (:func:`build_render_mesh`) is the same surface, less densified."""
     options = options or GlobalMeshOptions()
     src = choose_source(scene, options.source)
     if src == "fusion":
@@ -369,3 +378,15 @@ def build_global_mesh(scene: Scene, options: GlobalMeshOptions | None = None,
         mesh = densify(given, options.max_edge_voxels * voxel, options.max_faces)
     return mesh, {"source": src, "vertices": int(len(mesh.vertices)), "faces": int(len(mesh.faces)),
                   "voxel": float(f"{voxel:.4g}")}
+
+
+def build_render_mesh(scene: Scene, dense: Mesh, source: str, options: GlobalMeshOptions | None = None) -> Mesh:
+    """The render mesh (``GlobalMeshOptions.render_edge_voxels``): the given mesh (``source``
+    reconstructed / ground_truth) densified to edges <= render_edge_voxels voxels; a fused mesh
+    (``source`` fusion) is ``dense`` itself. At most as many faces as ``dense``."""
+    options = options or GlobalMeshOptions()
+    if source == "fusion" or options.render_edge_voxels <= options.max_edge_voxels:
+        return dense
+    given = scene.meshes[source]
+    voxel = mesh_scale(given) / options.resolution
+    return densify(given, options.render_edge_voxels * voxel, options.max_faces)

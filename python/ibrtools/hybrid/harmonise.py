@@ -450,3 +450,24 @@ def harmonise(scene: Scene, mesh: Mesh, std: np.ndarray, params: HarmoniseParams
     vd_texture = (acc / np.maximum(cnt, 1)).astype(np.float32)
     stats["time_s"] = time.perf_counter() - t0
     return HarmoniseResult(images, masks, vd_texture, stats, None)
+
+
+def vd_at_points(vertices: np.ndarray, vd_texture: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """The view-dependent texture (per vertex of ``vertices``) at ``points`` (P, 3): the value of
+    the nearest vertex (scipy cKDTree). Used for the render mesh, whose vertices are vertices of the
+    dense mesh (a coarser densification of the same given mesh), so the lookup is exact there."""
+    from scipy.spatial import cKDTree
+
+    v = np.asarray(vertices, np.float64)
+    vd = np.asarray(vd_texture, np.float32)
+    pts = np.asarray(points, np.float64)
+    if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
+        raise ShapeError(f"vertices: expected shape (N >= 1, 3), got {v.shape}")
+    if vd.shape != (len(v),):
+        raise ShapeError(f"vd_texture: expected shape ({len(v)},), got {vd.shape}")
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ShapeError(f"points: expected shape (P, 3), got {pts.shape}")
+    if len(pts) == 0:
+        return np.zeros(0, np.float32)
+    _, idx = cKDTree(v).query(pts, k=1)
+    return np.ascontiguousarray(vd[idx], np.float32)

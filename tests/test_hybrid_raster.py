@@ -1,0 +1,132 @@
+"""The rasterised G-buffer of TM / ULR / hybrid (_core.raster_gbuffer, cpp/kernels/gbuffer_raster.h)
+against the Embree ray caster, and the 8-bit sRGB atlas read (cpp/kernels/atlas8.h) against the
+float32 one."""
+import numpy as np
+import pytest
+
+from ibrtools import _core
+from ibrtools.camera import Camera, look_at
+from ibrtools.errors import BadValueError, ShapeError
+from ibrtools.hybrid import atlas as A
+from ibrtools.hybrid.globalmesh import densify
+from ibrtools.render.reference import ReferenceRenderer
+from ibrtools.synth import make_scene
+
+
+@pytest.fixture(scope="module")
+def scene_mesh():
+    scene = make_scene("objects", size=(96, 72), views=2, seed=1, reconstructed=True, holdout_targets=1)
+    return scene, scene.meshes["reconstructed"]
+
+
+def _compare(mesh, cam):
+    ref = ReferenceRenderer(mesh).render(cam, outputs=("depth", "normal", "prim_id", "bary"), lights=[], ambient=0.0)
+    r = _core.raster_gbuffer(cam.to_core(), np.ascontiguousarray(mesh.vertices, np.float32), mesh.faces)
+    return ref, r
+
+
+def test_raster_matches_the_ray_caster(scene_mesh):
+    scene, mesh = scene_mesh
+    cams = [v.camera for v in scene.views] + [t.camera for t in scene.targets]
+    # Also a camera close to the ground looking along it: faces cross the camera plane (clipping).
+    cams.append(Camera.pinhole(80, 60, 50.0, 50.0, 40.0, 30.0, look_at((0.0, -0.3, 0.0), (5.0, 0.0, 5.0), up=(0.0, -1.0, 0.0))))
+    for cam in cams:
+        ref, r = _compare(mesh, cam)
+        hit = ref["prim_id"] >= 0
+        # Faces may differ only where a pixel centre lies on an edge (within rounding): a few
+        # pixels in a thousand at most; coverage (hit or not) the same up to such silhouette ties.
+        assert (ref["prim_id"] != r["prim_id"]).mean() < 0.003
+        assert ((r["prim_id"] >= 0) != hit).mean() < 0.002
+        same = hit & (ref["prim_id"] == r["prim_id"])
+        assert same.sum() > 0.3 * hit.size
+        # Same face: depth and barycentrics agree to Embree's float rounding (its watertight
+        # intersection works in float32: |du| up to ~1e-3 on faces spanning the view).
+        assert np.max(np.abs(ref["depth"][same] - r["depth"][same]) / ref["depth"][same]) < 1e-4
+        assert np.max(np.abs(ref["bary"][same] - r["bary"][same])) < 2e-3
+        assert np.max(np.abs(ref["normal"][same] - r["normal"][same])) < 1e-3
+        # No hit: depth 0, prim -1, bary and normal 0.
+        miss = r["prim_id"] < 0
+        assert np.all(r["depth"][miss] == 0) and np.all(r["bary"][miss] == 0) and np.all(r["normal"][miss] == 0)
+        assert np.all(r["depth"][~miss] > 0)
+
+
+def test_raster_nearest_face_wins_and_faces_behind_the_camera_are_cut():
+    cam = Camera.pinhole(32, 32, 32.0, 32.0, 16.0, 16.0, np.eye(4))
+    # Two parallel quads at z = 2 and z = 1 (the nearer, smaller one in front) and one behind
+    # the camera (z = -1), which must not appear.
+    def quad(z, s):
+        return np.array([[-s, -s, z], [s, -s, z], [s, s, z], [-s, s, z]], np.float32)
+    v = np.concatenate([quad(2.0, 2.0), quad(1.0, 0.25), quad(-1.0, 3.0)])
+    f = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7], [8, 9, 10], [8, 10, 11]], np.int32)
+    r = _core.raster_gbuffer(cam.to_core(), v, f, normal=False)
+    assert "normal" not in r
+    assert np.all(r["prim_id"] >= 0) and np.all(r["prim_id"] < 4)
+    centre = r["prim_id"][12:20, 12:20]
+    assert np.all((centre == 2) | (centre == 3))
+    assert np.allclose(r["depth"][14:18, 14:18], 1.0, rtol=1e-6)
+    assert np.allclose(r["depth"][0, 0], 2.0, rtol=1e-6)
+
+
+def test_raster_independent_of_thread_count(scene_mesh):
+    scene, mesh = scene_mesh
+    cam = scene.targets[0].camera
+    v = np.ascontiguousarray(mesh.vertices, np.float32)
+    n = _core.get_num_threads()
+    try:
+        _core.set_num_threads(1)
+        one = _core.raster_gbuffer(cam.to_core(), v, mesh.faces)
+        _core.set_num_threads(2)
+        two = _core.raster_gbuffer(cam.to_core(), v, mesh.faces)
+    finally:
+        _core.set_num_threads(n)
+    for k in one:
+        assert np.array_equal(one[k], two[k]), k
+
+
+def test_raster_bad_input():
+    cam = Camera.pinhole(8, 8, 8.0, 8.0, 4.0, 4.0, np.eye(4))
+    v = np.zeros((3, 3), np.float32)
+    f = np.array([[0, 1, 2]], np.int32)
+    eq = Camera.equirect(16, 8, cam_from_world=np.eye(4))
+    with pytest.raises(BadValueError, match="pinhole"):
+        _core.raster_gbuffer(eq.to_core(), v, f)
+    with pytest.raises(BadValueError, match="out of range"):
+        _core.raster_gbuffer(cam.to_core(), v, np.array([[0, 1, 3]], np.int32))
+    with pytest.raises(BadValueError, match="finite"):
+        _core.raster_gbuffer(cam.to_core(), np.full((3, 3), np.nan, np.float32), f)
+    with pytest.raises(ShapeError):
+        _core.raster_gbuffer(cam.to_core(), np.zeros((3, 2), np.float32), f)
+    with pytest.raises(ShapeError):
+        _core.raster_gbuffer(cam.to_core(), v, np.zeros((1, 4), np.int32))
+    # No faces: everything a miss.
+    r = _core.raster_gbuffer(cam.to_core(), v, np.zeros((0, 3), np.int32))
+    assert np.all(r["prim_id"] == -1) and np.all(r["depth"] == 0)
+
+
+def test_srgb8_atlas_reads_as_the_float_atlas_within_quantisation():
+    rng = np.random.default_rng(0)
+    mesh = densify(Mesh_wall(), 0.5)
+    lay = A.layout(mesh, texel=0.05)
+    atlas = rng.random(lay.face_of_texel.shape + (3,), dtype=np.float32)
+    a8 = A.to_srgb8(atlas)
+    assert a8.dtype == np.uint8 and a8.shape == atlas.shape[:2] + (4,) and np.all(a8[..., 3] == 255)
+    cam = Camera.pinhole(64, 64, 64.0, 64.0, 32.0, 32.0,
+                         look_at((0.0, 0.0, 0.0), (0.0, 0.0, 2.0), up=(0.0, -1.0, 0.0)))
+    gb = ReferenceRenderer(mesh).render(cam, outputs=("prim_id", "bary"), lights=[], ambient=0.0)
+    f = _core.sample_atlas(gb["prim_id"], gb["bary"], lay.uv, atlas)
+    g = _core.sample_atlas(gb["prim_id"], gb["bary"], lay.uv, a8)
+    # 8-bit sRGB: half a code step is at most 0.5/255 in sRGB; in linear light that is at most
+    # ~0.0045 absolute (the steepest part, near 1) and 0.5/255/12.92 in the linear toe.
+    assert np.max(np.abs(f - g)) < 0.005
+    assert np.all(g[gb["prim_id"] < 0] == 0)
+    with pytest.raises(ShapeError):
+        _core.sample_atlas(gb["prim_id"], gb["bary"], lay.uv, a8[..., :3].copy())
+    with pytest.raises(ShapeError):
+        A.to_srgb8(atlas[..., :2])
+
+
+def Mesh_wall():
+    from ibrtools.mesh import Mesh
+
+    v = np.array([[-1, -1, 2], [1, -1, 2], [1, 1, 2], [-1, 1, 2]], np.float32)
+    return Mesh(v, np.array([[0, 2, 1], [0, 3, 2]], np.int32))
