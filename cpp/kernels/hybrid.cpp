@@ -289,6 +289,9 @@ void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, Ima
   const float* M6 = vt.m[6].data(); const float* M7 = vt.m[7].data(); const float* M8 = vt.m[8].data();
   const float* M9 = vt.m[9].data(); const float* M10 = vt.m[10].data(); const float* M11 = vt.m[11].data();
   const int nv = num_views;
+  const bool novel_pinhole = novel.model == CameraModel::kPinhole;
+  const glm::vec3 col_step(world_from_cam * glm::dvec3(1.0 / novel.fx, 0.0, 0.0));
+  const float cnx = c_novel.x, cny = c_novel.y, cnz = c_novel.z;
   ParallelFor2D(H, W, 64, [&](int y0, int y1, int x0, int x1) {
     const std::size_t nv_padded = vt.w.size();
     std::vector<float> pen(nv_padded), qx(nv_padded), qy(nv_padded), qz(nv_padded);
@@ -300,15 +303,26 @@ void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, Ima
       const float* drow = gbuffer_depth.Row(y);
       float* crow = color_out.Row(y);
       std::uint8_t* nrow = count_out.Row(y);
+      // World direction of pixel (0, y)'s ray (camera z = 1) and its change per column.
+      const glm::vec3 row_dir(world_from_cam * novel.RayInCam(0.5, y + 0.5));
       for (int x = x0; x < x1; ++x) {
         crow[3 * x] = crow[3 * x + 1] = crow[3 * x + 2] = 0.f;
         nrow[x] = 0;
         const float t = drow[x];
         if (!(t > 0.f) || !std::isfinite(t)) continue;
         if (pixel_mask && !pixel_mask[std::int64_t(y) * W + x]) continue;
-        const glm::dvec3 p_cam = novel.RayInCam(x + 0.5, y + 0.5) * double(t);
-        const glm::vec3 p(world_from_cam * p_cam + c_novel_d);
-        const float px = p.x, py = p.y, pz = p.z;  // (double, as the scalar path: the same point)
+        // p = centre + t * (world direction of the pixel's ray), the direction affine in x along
+        // the row (pinhole novel camera; equirect: per pixel, as the scalar path).
+        float px, py, pz;
+        if (novel_pinhole) {
+          const float fxp = float(x);
+          px = cnx + t * (row_dir.x + fxp * col_step.x);
+          py = cny + t * (row_dir.y + fxp * col_step.y);
+          pz = cnz + t * (row_dir.z + fxp * col_step.z);
+        } else {
+          const glm::vec3 p(world_from_cam * (novel.RayInCam(x + 0.5, y + 0.5) * double(t)) + c_novel_d);
+          px = p.x, py = p.y, pz = p.z;
+        }
         float nx = 0.f, ny = 0.f, nz = 0.f;
         if (use_normal) nx = normal.At(y, x, 0), ny = normal.At(y, x, 1), nz = normal.At(y, x, 2);
         const float bx = c_novel.x - px, by = c_novel.y - py, bz = c_novel.z - pz;
