@@ -866,8 +866,6 @@ __attribute__((target("avx2"))) int ProjectPinholeRowAvx2(const float* drow, con
   const __m256d loy = _mm256_set1_pd(double(k.lo_y)), hiy = _mm256_set1_pd(double(k.hi_y));
   const __m256d min_inv = _mm256_set1_pd(kMinInvDepth), max_inv = _mm256_set1_pd(kMaxInvDepth);
   const __m128 finf = _mm_set1_ps(kInf), fzero = _mm_setzero_ps();
-  alignas(32) std::int32_t xs[4], ys[4];
-  alignas(32) float ips[4];
   int u = 0;
   for (; u + 4 <= w; u += 4) {
     const __m128 d4 = _mm_loadu_ps(drow + u);
@@ -895,12 +893,22 @@ __attribute__((target("avx2"))) int ProjectPinholeRowAvx2(const float* drow, con
     }
     // RoundHalfAway(v * 256): t = trunc, frac = v - t, t + (frac >= 0.5) - (frac <= -0.5); the
     // compare masks are -1 / 0, so t - mask(frac >= 0.5) + mask(frac <= -0.5).
-    _mm_store_si128(reinterpret_cast<__m128i*>(xs), RoundHalfAway4(_mm256_mul_pd(x, sub)));
-    _mm_store_si128(reinterpret_cast<__m128i*>(ys), RoundHalfAway4(_mm256_mul_pd(y, sub)));
-    _mm_store_ps(ips, _mm256_cvtpd_ps(_mm256_min_pd(_mm256_max_pd(ipz, min_inv), max_inv)));
-    for (int j = 0; j < 4; ++j) {
-      vrow[u + j] = ((okm >> j) & 1) ? WarpVertex{xs[j], ys[j], ips[j]} : WarpVertex{kInvalid, 0, 0.f};
-    }
+    // Invalid lanes: x = kInvalid, y = 0, inv = 0 (as the scalar rules); then the four
+    // vertices interleaved into 48 bytes (x0 y0 i0 x1 y1 i1 x2 y2 | i2 x3 y3 i3).
+    const __m128i okv = _mm256_castsi256_si128(
+        _mm256_permutevar8x32_epi32(_mm256_castpd_si256(ok), _mm256_setr_epi32(0, 2, 4, 6, 0, 2, 4, 6)));
+    const __m128i X = _mm_blendv_epi8(_mm_set1_epi32(kInvalid), RoundHalfAway4(_mm256_mul_pd(x, sub)), okv);
+    const __m128i Y = _mm_and_si128(RoundHalfAway4(_mm256_mul_pd(y, sub)), okv);
+    const __m128i I = _mm_and_si128(_mm_castps_si128(_mm256_cvtpd_ps(_mm256_min_pd(_mm256_max_pd(ipz, min_inv), max_inv))), okv);
+    const __m256i xy = _mm256_set_m128i(Y, X), ii = _mm256_set_m128i(I, I);
+    const __m256i out0 = _mm256_blend_epi32(_mm256_permutevar8x32_epi32(xy, _mm256_setr_epi32(0, 4, 0, 1, 5, 1, 2, 6)),
+                                            _mm256_permutevar8x32_epi32(ii, _mm256_setr_epi32(0, 0, 0, 0, 0, 1, 0, 0)), 0x24);
+    const __m256i out1 = _mm256_blend_epi32(_mm256_permutevar8x32_epi32(xy, _mm256_setr_epi32(0, 3, 7, 0, 0, 0, 0, 0)),
+                                            _mm256_permutevar8x32_epi32(ii, _mm256_setr_epi32(2, 0, 0, 3, 0, 0, 0, 0)), 0x09);
+    static_assert(sizeof(WarpVertex) == 12, "WarpVertex: three 32-bit fields");
+    char* dst = reinterpret_cast<char*>(vrow + u);
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(dst), out0);
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(dst + 32), _mm256_castsi256_si128(out1));
   }
   return u;
 }
