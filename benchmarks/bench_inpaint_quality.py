@@ -1,7 +1,9 @@
 """Hole-filling quality on real disocclusions (issue 5 "Targets", quality part; docs/inpaint_quality.md).
 
-    python benchmarks/bench_inpaint_quality.py [--data ../shared/data] [--write docs/inpaint_quality.md]
-                                               [--cases teddy,cones,art,books,dolls,lego_r_0,...]
+    python benchmarks/bench_inpaint_quality.py [--data ../shared/data] [--write docs/inpaint_quality.md |
+                                               --write-docs] [--cases teddy,cones,art,books,dolls,lego_r_0,...]
+
+--write-docs is --write docs/inpaint_quality.md (the table between its inpaint_quality markers).
 
 Cases (real data from ../shared/data, or $IBR_SHARED_DATA; the script exits cleanly when absent):
   Middlebury  Teddy, Cones (im2 -> im6), Art, Books, Dolls (view1 -> view5): the left view and its
@@ -306,7 +308,10 @@ def main(argv=None) -> int:
     ap.add_argument("--data", type=Path, default=shared_data())
     ap.add_argument("--cases", default="", help="comma-separated subset (teddy, cones, art, books, dolls, lego_r_0, ...)")
     ap.add_argument("--write", type=Path, default=None, help="replace the <!-- inpaint_quality --> table in this file")
+    ap.add_argument("--write-docs", action="store_true", help="--write docs/inpaint_quality.md")
     a = ap.parse_args(argv)
+    if a.write_docs and a.write is None:
+        a.write = REPO / "docs" / "inpaint_quality.md"
     if not a.data.is_dir():
         print(f"bench_inpaint_quality: no shared data at {a.data} (set IBR_SHARED_DATA); nothing measured")
         return 0

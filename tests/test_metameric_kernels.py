@@ -217,6 +217,21 @@ def test_fill_holes():
     np.testing.assert_array_equal(out[hole], (base + change)[hole])
     out2 = _core.metameric_fill_holes(img, hole.view(np.uint8), base, change, True)
     np.testing.assert_array_equal(out2[~hole], img[~hole])
+    # out= the change's or the image's own memory: the same values as a new array.
+    for decode in (False, True):
+        fresh = _core.metameric_fill_holes(img, hole, base, change, decode)
+        ch2, im2 = change.copy(), img.copy()
+        assert _core.metameric_fill_holes(img, hole, base, ch2, decode, ch2) is ch2
+        assert _core.metameric_fill_holes(im2, hole, base, change, decode, im2) is im2
+        np.testing.assert_array_equal(ch2, fresh)
+        np.testing.assert_array_equal(im2, fresh)
+    with pytest.raises(BadValueError, match="out: shares memory"):
+        _core.metameric_fill_holes(img, hole, base, change, True, base)
+    buf = np.zeros(2 * change.size, np.float32)
+    shifted_change = buf[:change.size].reshape(change.shape)
+    shifted_change[...] = change
+    with pytest.raises(BadValueError, match="out: shares memory"):  # overlaps change, not the same array
+        _core.metameric_fill_holes(img, hole, base, shifted_change, True, buf[3:3 + change.size].reshape(change.shape))
     ref = _srgb_encode_f64(img)  # decode(encode(v)) = v: check the decode through a known pair
     dec = _core.metameric_fill_holes(img, hole, ref.astype(np.float32), np.zeros_like(img), True)
     np.testing.assert_allclose(dec[hole], img[hole], rtol=1e-5, atol=1e-7)

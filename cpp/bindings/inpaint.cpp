@@ -72,9 +72,13 @@ void BindInpaint(py::module_& m) {
         } else {
           out = has_c ? CheckArray<float>(out_obj, "out", {{"H", h}, {"W", w}, {"C", c}}, true)
                       : CheckArray<float>(out_obj, "out", {{"H", h}, {"W", w}}, true);
-          if (Overlaps(out, image) || (depth_obj.is_none() ? false : Overlaps(out, depth)) ||
+          // In place (out is image itself) only with holes_only: the kernel then reads the pixels outside
+          // the holes and writes those inside them (pushpull.h).
+          const bool in_place = holes_only && out.data() == image.data();
+          if ((Overlaps(out, image) && !in_place) || (depth_obj.is_none() ? false : Overlaps(out, depth)) ||
               Overlaps(out, py::reinterpret_borrow<py::array>(hole_keep))) {
-            throw BadValueError("out: shares memory with image, hole or depth (it is written)");
+            throw BadValueError("out: shares memory with image, hole or depth (it is written; out may be image "
+                                "itself with holes_only=True)");
           }
         }
         const ImageView<float> out_view(out.mutable_data(), static_cast<int>(h), static_cast<int>(w),
@@ -98,7 +102,8 @@ void BindInpaint(py::module_& m) {
       py::arg("gamma") = 0.0, py::arg("out") = py::none(), py::arg("holes_only") = false,
       "Push-pull hole filling (cpp/kernels/pushpull.h). image float32 (H, W) or (H, W, C); hole bool or "
       "uint8 (H, W), non-zero = hole; depth float32 (H, W) or None (classic); out: None (a new array) or "
-      "a writeable float32 array of image's shape to fill; holes_only: write the hole pixels of out only. "
+      "a writeable float32 array of image's shape to fill (image itself with holes_only: in place); holes_only: "
+      "write the hole pixels of out only. "
       "Returns (out, no_hole) where no_hole says the image had no hole.");
 }
 

@@ -295,7 +295,8 @@ void BindMetameric(py::module_& m) {
 
   m.def(
       "metameric_fill_holes",
-      [](py::handle image_obj, py::handle hole_obj, py::handle base_obj, py::handle change_obj, bool decode) {
+      [](py::handle image_obj, py::handle hole_obj, py::handle base_obj, py::handle change_obj, bool decode,
+         py::handle out_obj) {
         FloatArray image = CheckArray<float>(image_obj, "image", {{"H", -1}, {"W", -1}, {"C", -1}});
         const py::ssize_t h = image.shape(0), w = image.shape(1), c = image.shape(2);
         py::array hole_arr;
@@ -307,7 +308,20 @@ void BindMetameric(py::module_& m) {
         }
         FloatArray base = CheckArray<float>(base_obj, "base", {{"H", h}, {"W", w}, {"C", c}});
         FloatArray change = CheckArray<float>(change_obj, "change", {{"H", h}, {"W", w}, {"C", c}});
-        FloatArray out = NewArray<float>({h, w, c});
+        FloatArray out;
+        if (out_obj.is_none()) {
+          out = NewArray<float>({h, w, c});
+        } else {
+          out = CheckArray<float>(out_obj, "out", {{"H", h}, {"W", w}, {"C", c}}, true);
+          // out may be exactly image's or change's memory (read before written, pixel by pixel), nothing
+          // else of the call's.
+          auto same = [](const py::array& a, const py::array& b) { return a.data() == b.data(); };
+          if ((Overlaps(out, image) && !same(out, image)) || (Overlaps(out, change) && !same(out, change)) ||
+              Overlaps(out, base) || Overlaps(out, hole_arr)) {
+            throw BadValueError("out: shares memory with base or hole, or overlaps image or change without being "
+                                "the same array");
+          }
+        }
         const ImageView<const float> image_view = ConstViewOf(image), base_view = ConstViewOf(base),
                                      change_view = ConstViewOf(change);
         const ImageView<const std::uint8_t> hole_view(static_cast<const std::uint8_t*>(hole_arr.data()),
@@ -318,9 +332,11 @@ void BindMetameric(py::module_& m) {
         return out;
       },
       py::arg("image"), py::arg("hole"), py::arg("base"), py::arg("change"), py::arg("decode"),
-      "The result of metameric inpainting (cpp/kernels/metameric.h MetamericFillHoles): a new float32 (H, W, C) "
-      "array, image where hole (bool or uint8 (H, W)) is 0, base + change inside the holes (decoded from the "
-      "display encoding and clamped at 0 with decode=True); image, base, change float32 (H, W, C).");
+      py::arg("out") = py::none(),
+      "The result of metameric inpainting (cpp/kernels/metameric.h MetamericFillHoles): image where hole (bool or "
+      "uint8 (H, W)) is 0, base + change inside the holes (decoded from the display encoding and clamped at 0 with "
+      "decode=True); image, base, change float32 (H, W, C). Returns out: a new float32 (H, W, C) array, or the given "
+      "writeable one, which may be image or change itself (not base).");
 }
 
 }  // namespace ibr::bind

@@ -127,6 +127,21 @@ void MetamericFillHoles(const ImageView<const float>& image, const ImageView<con
       const float* b = base.Row(y);
       const float* d = change.Row(y);
       float* o = out.Row(y);
+      if (o == d) {
+        // out is change's memory: pixel by pixel, each value read before it is written.
+        for (int x = 0; x < w; ++x) {
+          const std::ptrdiff_t i0 = std::ptrdiff_t(x) * c;
+          if (m[x]) {
+            for (int ch = 0; ch < c; ++ch) {
+              const float v = b[i0 + ch] + d[i0 + ch];
+              o[i0 + ch] = decode ? std::max(0.0f, Decode(v)) : v;
+            }
+          } else {
+            for (int ch = 0; ch < c; ++ch) o[i0 + ch] = in[i0 + ch];
+          }
+        }
+        continue;
+      }
       if (o != in) std::memcpy(o, in, sizeof(float) * std::size_t(w) * c);
       for (int x = 0; x < w; ++x) {
         if (!m[x]) continue;
@@ -153,25 +168,11 @@ void MetamericZeroRow(const MetamericSynth& synth, int y) {
   }
 }
 
-void MetamericChangeSample(const MetamericSynth& synth, int y, int x, const float* mx) {
-  const ImageView<float>* bands = synth.bands;
-  const int c = bands[0].channels, h = bands[0].height, w = bands[0].width, k = synth.k, kc = k * c;
-  int yy = y, xx = x;
+void MetamericFlowPosition(const MetamericSynth& synth, int y, int x, int* yy, int* xx) {
   const MetamericFlow& flow = synth.flow;
-  if (flow.f32) Positions(flow.f32, flow.width, y, x, synth.scale, h, w, &yy, &xx);
-  if (flow.f64) Positions(flow.f64, flow.width, y, x, synth.scale, h, w, &yy, &xx);
-  for (int i = 0; i < k; ++i) {
-    const float* n = &synth.noise[i].At(yy, xx);
-    float* b = &bands[i].At(y, x);
-    for (int ch = 0; ch < c; ++ch) {
-      const float mean = mx[i * c + ch];
-      const float sq = mx[kc + i * c + ch];
-      const float mm = mean * mean;  // as MetamericComposite
-      const float d = sq - mm;
-      const float sigma = d > 0.0f ? std::sqrt(d) : 0.0f;
-      b[ch] = sigma * n[ch];
-    }
-  }
+  const int h = synth.bands[0].height, w = synth.bands[0].width;
+  if (flow.f32) Positions(flow.f32, flow.width, y, x, synth.scale, h, w, yy, xx);
+  if (flow.f64) Positions(flow.f64, flow.width, y, x, synth.scale, h, w, yy, xx);
 }
 
 void MetamericComposite(const ImageView<const float>& moments, const ImageView<const std::uint8_t>& mask,

@@ -25,6 +25,7 @@
 // never allocate. Multithreaded over rows with ibr::ParallelFor; every sample is independent, so
 // the result is identical for any thread count.
 #pragma once
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
 
@@ -82,10 +83,30 @@ struct MetamericSynth {
 };
 // Row y of every band set to 0 (the change outside the mask).
 void MetamericZeroRow(const MetamericSynth& synth, int y);
+// The noise position (yy, xx) of sample (y, x) with synth.flow set (MetamericComposite's rule).
+void MetamericFlowPosition(const MetamericSynth& synth, int y, int x, int* yy, int* xx);
 // The change of sample (y, x) from its moments (2kC floats, the layout of MetamericComposite's
 // moments): band_i[y, x, ch] = sigma * noise_i[yy, xx, ch], the same arithmetic as
-// MetamericComposite(..., delta = true), so the results are identical bit for bit.
-void MetamericChangeSample(const MetamericSynth& synth, int y, int x, const float* moments);
+// MetamericComposite(..., delta = true), so the results are identical bit for bit. Inline: it
+// runs once per masked sample inside the push (pushpull.cpp).
+inline void MetamericChangeSample(const MetamericSynth& synth, int y, int x, const float* mx) {
+  const ImageView<float>* bands = synth.bands;
+  const int c = bands[0].channels, k = synth.k, kc = k * c;
+  int yy = y, xx = x;
+  if (synth.flow.f32 || synth.flow.f64) MetamericFlowPosition(synth, y, x, &yy, &xx);
+  for (int i = 0; i < k; ++i) {
+    const float* n = &synth.noise[i].At(yy, xx);
+    float* b = &bands[i].At(y, x);
+    for (int ch = 0; ch < c; ++ch) {
+      const float mean = mx[i * c + ch];
+      const float sq = mx[kc + i * c + ch];
+      const float mm = mean * mean;  // as MetamericComposite
+      const float d = sq - mm;
+      const float sigma = d > 0.0f ? std::sqrt(d) : 0.0f;
+      b[ch] = sigma * n[ch];
+    }
+  }
+}
 
 // Display encoding of metameric synthesis (Walton et al. 2021 sec. 6: "all methods operate on
 // non-linear color (subject to display gamma) as they are concerned with perceived contrasts"):
@@ -108,7 +129,7 @@ void MetamericEncode(const ImageView<const float>& image, const ImageView<float>
 //   out = f(base + change)                            where hole != 0,
 // f = max(0, SrgbDecode(.)) with decode (negative light does not exist: the display-space noise can
 // dip below 0 next to black), the identity without. image, base, change, out (h, w, C); hole (h, w)
-// one byte per pixel; out may not alias base or change (it may alias image).
+// one byte per pixel; out may be the memory of image or of change (not of base).
 void MetamericFillHoles(const ImageView<const float>& image, const ImageView<const std::uint8_t>& hole,
                         const ImageView<const float>& base, const ImageView<const float>& change, bool decode,
                         const ImageView<float>& out);

@@ -59,7 +59,9 @@
 // every hole beside it; the fallback must only take what Alg. 1 leaves empty at every scale.
 //
 // Shapes: image (H, W, C) float32, hole (H, W) one byte per pixel (non-zero = hole), depth
-// (H, W) float32 or empty, out (H, W, C) float32 (may not alias image). H, W, C >= 1.
+// (H, W) float32 or empty, out (H, W, C) float32 (may not alias image, except out == image with
+// holes_only: only pixels outside the holes are read and only hole pixels written, after every
+// read). H, W, C >= 1.
 // The front (cpp/bindings/inpaint.cpp) checks shapes, finiteness outside holes and options.
 // Multithreaded over the rows of each level with ibr::ParallelFor; every pixel is computed
 // independently, so the result is identical for any thread count. Scratch for levels >= 1 is

@@ -430,9 +430,9 @@ def metameric_encode(image: _F32) -> _F32:
     Display encoding of metameric synthesis (cpp/kernels/metameric.h SrgbEncode): the sRGB curve of every value of image float32 (H, W, C), odd-extended to negatives and unbounded above; NaN stays NaN. Returns a new float32 (H, W, C) array.
     """
 
-def metameric_fill_holes(image: _F32, hole: _Bool | _U8, base: _F32, change: _F32, decode: bool) -> _F32:
+def metameric_fill_holes(image: _F32, hole: _Bool | _U8, base: _F32, change: _F32, decode: bool, out: _F32 | None=None) -> _F32:
     """
-    The result of metameric inpainting (cpp/kernels/metameric.h MetamericFillHoles): a new float32 (H, W, C) array, image where hole (bool or uint8 (H, W)) is 0, base + change inside the holes (decoded from the display encoding and clamped at 0 with decode=True); image, base, change float32 (H, W, C).
+    The result of metameric inpainting (cpp/kernels/metameric.h MetamericFillHoles): image where hole (bool or uint8 (H, W)) is 0, base + change inside the holes (decoded from the display encoding and clamped at 0 with decode=True); image, base, change float32 (H, W, C). Returns out: a new float32 (H, W, C) array, or the given writeable one, which may be image or change itself (not base).
     """
 
 def metameric_pushpull_change(bands: collections.abc.Sequence[_F32], mask: _U8, depth: _F32 | None, depth_threshold: typing.SupportsFloat | typing.SupportsIndex, gamma: typing.SupportsFloat | typing.SupportsIndex, noise: collections.abc.Sequence[_F32], flow: _F32 | _F64 | None=None, scale: typing.SupportsInt | typing.SupportsIndex=1, check_finite: bool=True) -> None:
@@ -477,7 +477,7 @@ def poisson_blend(boundary: _F32, source: _F32, mask: _Bool, tol: typing.Support
 
 def pushpull(image: _F32, hole: _Bool | _U8, depth: _F32 | None=None, depth_threshold: typing.SupportsFloat | typing.SupportsIndex=0.04, gamma: typing.SupportsFloat | typing.SupportsIndex=0.0, out: _F32 | None=None, holes_only: bool=False) -> tuple[numpy.typing.NDArray[numpy.float32], bool]:
     """
-    Push-pull hole filling (cpp/kernels/pushpull.h). image float32 (H, W) or (H, W, C); hole bool or uint8 (H, W), non-zero = hole; depth float32 (H, W) or None (classic); out: None (a new array) or a writeable float32 array of image's shape to fill; holes_only: write the hole pixels of out only. Returns (out, no_hole) where no_hole says the image had no hole.
+    Push-pull hole filling (cpp/kernels/pushpull.h). image float32 (H, W) or (H, W, C); hole bool or uint8 (H, W), non-zero = hole; depth float32 (H, W) or None (classic); out: None (a new array) or a writeable float32 array of image's shape to fill (image itself with holes_only: in place); holes_only: write the hole pixels of out only. Returns (out, no_hole) where no_hole says the image had no hole.
     """
 
 def pvm_slice(vertices: _F32, faces: _I32, face_view: _I32, n_views: typing.SupportsInt | typing.SupportsIndex, origin: collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], cell: collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], coarse: typing.SupportsInt | typing.SupportsIndex=32, sub: typing.SupportsInt | typing.SupportsIndex=4) -> dict[str, numpy.typing.NDArray[typing.Any]]:

@@ -239,7 +239,7 @@ def metameric(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = No
     bad options or an all-hole image.
     """
     from . import _core
-    from .inpaint import DEPTH_THRESHOLD, GAMMA, _arrays, pushpull
+    from .inpaint import DEPTH_THRESHOLD, GAMMA, _arrays
     from .steerable import SteerablePyramid, analyse, synthesise
 
     image, hole, depth = _arrays(image, hole, depth)
@@ -271,8 +271,9 @@ def metameric(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = No
                  "gamma": GAMMA if gamma is None else gamma}
 
     x = np.ascontiguousarray(x)
-    # Step 0: display encoding (Walton et al. sec. 6: perceived contrasts, not energy).
-    xs = _core.metameric_encode(x) if display else x
+    # Step 0: display encoding (Walton et al. sec. 6: perceived contrasts, not energy), into an
+    # array of ours that the pre-fill then fills in place.
+    xs = _core.metameric_encode(x) if display else x.copy()
     # Deviation (docs/inpaint.md): the holes are pre-filled by push-pull (depth-aware with
     # depth) before the analysis instead of set to zero. With zeros, every sample whose
     # filter chain (L0, L1, ..., band) reaches a hole is wrong, and for a warped frame with 10 %
@@ -280,13 +281,14 @@ def metameric(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = No
     # 1024^2: the local colour would be lost. The smooth pre-fill has no edge at the hole's rim,
     # so the per-level masks of the paper (hole at the level dilated by the filter radius) hold.
     # The pre-fill is also the fill's mean (step 4).
-    filled = pushpull(xs, hole, depth, **pp_kw)
+    # (pushpull() with out=xs, holes_only: the same checks and fill, no new array and no copy.)
+    pp_args = (float(pp_kw["depth_threshold"]), float(pp_kw["gamma"])) if pp_kw else (0.0, 0.0)
+    filled, _ = _core.pushpull(xs, hole, depth, *pp_args, xs, True)
     ycbcr = c == 3
     pyr = analyse(filled, levels, orientations, ycbcr=ycbcr)
     n_hp, n_bands, _ = _noise_pyramid_cached(h, w, c, levels, orientations, seed)
     band_masks, _ = level_masks(hole, levels)
 
-    pp_args = (float(pp_kw["depth_threshold"]), float(pp_kw["gamma"])) if pp_kw else (0.0, 0.0)
     flow_c = None if flow is None else np.ascontiguousarray(flow)
 
     def fill(bands: list[np.ndarray], noise: list[np.ndarray], mask: np.ndarray, scale: int) -> None:
@@ -312,5 +314,6 @@ def metameric(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = No
     # is the noise image, added to the pre-fill inside the holes (step 5).
     pyr.lowpass[...] = 0.0
     change = synthesise(SteerablePyramid(pyr.highpass, pyr.bands, pyr.lowpass, ycbcr=ycbcr))
-    out = _core.metameric_fill_holes(x, hole, filled, change, display)
+    # Written over `change` (ours, already in memory: a fresh output array would be page-faulted).
+    out = _core.metameric_fill_holes(x, hole, filled, change, display, change)
     return out[..., 0] if squeeze else out
