@@ -304,6 +304,12 @@ def test_out_and_holes_only(depth_aware):
     clean = np.nan_to_num(img)  # the far-ground image has NaN in its (now absent) holes
     assert _core.pushpull(clean, np.zeros_like(hole), d, *args, out=out3, holes_only=True)[1]
     assert np.all(out3 == -7.0)
+    # In place (out is image itself, holes_only): the holes get the same fill, the rest is kept;
+    # the far-ground scene also runs the classic fallback in place.
+    inplace = img.copy()
+    got, _ = _core.pushpull(inplace, hole, d, *args, out=inplace, holes_only=True)
+    assert got is inplace
+    assert np.array_equal(inplace[hole], full[hole]) and np.array_equal(inplace[~hole], img[~hole])
 
 
 def test_out_bad_input():
@@ -317,7 +323,12 @@ def test_out_bad_input():
     with pytest.raises(BadValueError, match="out.*read-only"):
         _core.pushpull(img, hole, None, 0.0, 0.0, out=ro)
     with pytest.raises(BadValueError, match="out: shares memory"):
-        _core.pushpull(img, hole, None, 0.0, 0.0, out=img)
+        _core.pushpull(img, hole, None, 0.0, 0.0, out=img)  # in place only with holes_only
+    with pytest.raises(BadValueError, match="out: shares memory"):  # overlapping, not the same array
+        buf = np.zeros(img.size + 3, np.float32)
+        a = buf[:img.size].reshape(img.shape)
+        a[...] = img
+        _core.pushpull(a, hole, None, 0.0, 0.0, out=buf[3:].reshape(img.shape), holes_only=True)
     with pytest.raises(BadValueError, match="out: shares memory"):
         _core.pushpull(img, hole, depth, 0.04, 0.5, out=depth)
 
