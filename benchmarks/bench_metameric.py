@@ -28,7 +28,6 @@ def _stages(img, hole, depth, repeats: int) -> dict[str, float]:
     """Median time of each stage of metameric() (the same calls, timed one by one)."""
     from ibrtools import _core
     from ibrtools import metameric as mm
-    from ibrtools.inpaint import pushpull
     from ibrtools.steerable import SteerablePyramid, analyse, synthesise
 
     acc: dict[str, list[float]] = {}
@@ -43,8 +42,8 @@ def _stages(img, hole, depth, repeats: int) -> dict[str, float]:
         t = time.perf_counter()
         xs = _core.metameric_encode(img)
         t = tick("display encoding (C++ sRGB curve, whole frame)", t)
-        filled = pushpull(xs, hole, depth, depth_threshold=0.04, gamma=0.5)
-        t = tick("pre-fill push-pull (RGB)", t)
+        filled, _ = _core.pushpull(xs, hole, depth, 0.04, 0.5, xs, True)
+        t = tick("pre-fill push-pull (RGB, in place into the encoded copy)", t)
         pyr = analyse(filled, 4, 2)
         t = tick("steerable analysis", t)
         masks, _ = mm.level_masks(hole, 4)
@@ -61,7 +60,7 @@ def _stages(img, hole, depth, repeats: int) -> dict[str, float]:
         pyr.lowpass[...] = 0.0
         change = synthesise(SteerablePyramid(pyr.highpass, pyr.bands, pyr.lowpass))
         t = tick("steerable synthesis (of the change)", t)
-        _core.metameric_fill_holes(img, hole, filled, change, True)
+        _core.metameric_fill_holes(img, hole, filled, change, True, change)
         tick("decode + copy into the holes (C++ metameric_fill_holes)", t)
     return {k: float(np.median(v[1:])) for k, v in acc.items()}
 
