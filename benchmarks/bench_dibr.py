@@ -1,6 +1,6 @@
 """DIBR (forward mesh warp + streaming blend, _core.DibrAccumulator) vs a naive point splat.
 
-    python benchmarks/bench_dibr.py [--repeats 5] [--quick] [--write-docs]
+    python benchmarks/bench_dibr.py [--repeats 5] [--quick] [--write-docs] [--isa auto|baseline|avx2]
 
 Scene: ``ibrtools.synth.make_scene("objects", views=8)`` (textured ground, boxes, spheres, a
 cylinder; 8 input cameras on a ring, one target half-way between two of them; colour and
@@ -103,7 +103,10 @@ def main():
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--quick", action="store_true", help="fewer cases (no 4K, no 1-thread runs)")
     ap.add_argument("--write-docs", action="store_true")
+    ap.add_argument("--isa", default="auto", choices=("auto", "baseline", "avx2"),
+                    help="instruction set of the warp's hot loops (_core.set_warp_isa; results are identical)")
     a = ap.parse_args()
+    _core.set_warp_isa(a.isa)
     cases = [((1920, 1080), k) for k in (1, 2, 4, 8)]
     sizes = [(512, 512), (1024, 1024)] + ([] if a.quick else [(3840, 2160)])
     cases += [(s, 4) for s in sizes]
@@ -130,7 +133,9 @@ def main():
         "(reset, k × add_view, result()); \"warp\" is the kernel time per view (vertex projection, triangle "
         "binning, rasterisation, accumulation); \"normalise\" is result(). Naive splat: nearest-pixel point "
         "splat with a z-buffer over all inputs (numpy, in this script). PSNR against the rendered ground "
-        "truth over all pixels, and over the pixels both methods cover.",
+        "truth over all pixels, and over the pixels both methods cover. Instruction set of the warp's hot "
+        f"loops: {_core.warp_isa()} (`_core.warp_isa()`; AVX2 clones when the CPU has it, bit-identical to "
+        "the SSE2 baseline; docs/dibr.md, \"Speed\").",
         "",
         "| size | k | threads | total ms | warp ms/view | normalise ms | PSNR dB | PSNR both | holes % "
         "| splat PSNR | splat PSNR both | splat holes % |",
