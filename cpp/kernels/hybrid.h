@@ -70,8 +70,9 @@ float UlrPenaltyFast(const glm::vec3& p, const glm::vec3& b, float lb, const glm
 // to TM). Pixels not computed get colour 0 and count 0. normal may be empty (no back-face test).
 // When every input view is pinhole (and not options.reference) the penalties and the cheap tests
 // run four views at a time in float (SSE2) with the projection folded into one 3x4 matrix per
-// view; else the scalar path (double) runs. Both select and blend identically given the same
-// penalties; float rounding may flip a depth test at its tolerance (tests/test_ulr_fast.py).
+// view, and the depth test done for every view that passed the cheap tests before one selection
+// (the same views pass as with the lazy test, so the same selection); else the scalar path
+// (double) runs. Float rounding may flip a depth test at its tolerance (tests/test_ulr_fast.py).
 void UlrBlend(const Camera& novel, ImageView<const float> gbuffer_depth, ImageView<const float> normal,
               const std::uint8_t* pixel_mask, const UlrInputView* views, int num_views, const UlrOptions& options,
               ImageView<float> color_out, ImageView<std::uint8_t> count_out);
