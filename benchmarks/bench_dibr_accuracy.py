@@ -31,14 +31,10 @@ Besides the table (the method's defaults) the run measures, unless --no-diagnost
                   started at the ground-truth relative pose (the correction it finds); frame 4
                   from frame 1 alone with the ground-truth poses, shifted by the best integer
                   offset, and with frame 1's pose re-registered to frame 4's depth by that ICP
-                  (a diagnostic: it uses the held-out frame's depth, so it is not a result);
-  shared edges    Middlebury's target pixel centres all lie exactly on horizontal edges of the
-                  implicit mesh (a rectified pair moves pixels along rows); the kernel's tie
-                  rule gives such a sample to one of the two triangles sharing the edge. Emulated
-                  "inclusive" edges (both triangles offered, the within-view test keeps the one
-                  with the larger q / d^3, as for any overlap): the target moved by +-0.01 px in y
-                  (beyond the 1/256 px snap, far below any image effect), rendered twice, and per
-                  pixel the fragment with the larger q / d^3 kept (confidence = q for one view).
+                  (a diagnostic: it uses the held-out frame's depth, so it is not a result).
+(Earlier revisions also emulated "inclusive" shared mesh edges on Middlebury by rendering twice
+with the target moved +-0.01 px in y; the kernel now has inclusive edges, so that diagnostic is
+gone: docs/dibr.md "Middlebury: samples on shared mesh edges".)
 --write-docs replaces the "Accuracy" section of docs/dibr.md (--write FILE: of FILE).
 """
 from __future__ import annotations
@@ -256,32 +252,6 @@ def icl_poses(data: Path, params=None) -> dict | None:
     return out
 
 
-def middlebury_shared_edges(data: Path, name: str, params=None) -> dict:
-    """Middlebury right view with "inclusive" shared edges emulated (see the module doc)."""
-    from ibrtools.camera import Camera
-    from ibrtools.formats import load
-
-    scene = load(data / "middlebury" / name, "middlebury")
-    truth = scene.view("right")
-    c0 = truth.camera
-    best = None
-    for eps in (0.01, -0.01):
-        cam = Camera.pinhole(c0.width, c0.height, c0.fx, c0.fy, c0.cx, c0.cy + eps, c0.cam_from_world)
-        from ibrtools.render.dibr import DibrMethod
-
-        m = DibrMethod({"inputs": ["left"], **(params or {})})
-        m.prepare(_sub(scene, ["left"]))
-        out, _ = m.render(cam)
-        score = np.where(out["hole"], -1.0, out["confidence"] / np.maximum(out["depth"], 1e-6) ** 3)
-        if best is None:
-            best = [score, out["color"].copy(), out["hole"].copy()]
-        else:
-            t = score > best[0]
-            best[0][t], best[1][t], best[2][t] = score[t], out["color"][t], out["hole"][t]
-    color = np.where(best[2][..., None], 0.0, best[1]).astype(np.float32)
-    return three_ways(color, truth.color, best[2], visible_in_both_right(scene))
-
-
 def diagnostics(data: Path, params: dict, res: dict) -> list[str]:
     """Lines for the section: the same cases with the other blend space, the ICL pose check."""
     f = lambda v: "n/a" if v is None else f"{v:.2f}"  # noqa: E731
@@ -296,12 +266,6 @@ def diagnostics(data: Path, params: dict, res: dict) -> list[str]:
              f"(visible {f(I['all']['excluded'])} → {f(I2['all']['excluded'])}), "
              f"Teddy {f(T['vis']['filled'])} → {f(T2['vis']['filled'])}, "
              f"Cones {f(C['vis']['filled'])} → {f(C2['vis']['filled'])} dB."]
-    edges = {n: middlebury_shared_edges(data, n, params) for n in ("Teddy", "Cones")}
-    lines += ["", "Shared edges (Middlebury, RVS protocol column): with inclusive edges emulated, Teddy "
-              f"{f(T['vis']['filled'])} → {f(edges['Teddy']['filled'])} (holes excluded {f(T['vis']['excluded'])} → "
-              f"{f(edges['Teddy']['excluded'])}, holes {100 * T['vis']['hole']:.2f} → {100 * edges['Teddy']['hole']:.2f} %), "
-              f"Cones {f(C['vis']['filled'])} → {f(edges['Cones']['filled'])} (holes excluded {f(C['vis']['excluded'])} → "
-              f"{f(edges['Cones']['excluded'])}, holes {100 * C['vis']['hole']:.2f} → {100 * edges['Cones']['hole']:.2f} %) dB."]
     q = icl_poses(data, params)
     if q is None:
         lines.append("ICL pose check: n/a (needs open3d).")

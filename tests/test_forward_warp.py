@@ -294,3 +294,69 @@ def test_segments_outside_the_target_change_nothing():
     assert (c[2][:, :96] > 0).any()
     for x, y in zip(a, c):
         np.testing.assert_array_equal(x, y[:, 96:])
+
+
+def _rectified_pair(w_, h_, z=4.0, shift_px=0.25):
+    """Source and target pinhole cameras of a rectified pair: the target is the source moved by
+    shift_px * z / f along x, so a plane at depth z moves by exactly -shift_px (a multiple of the
+    1/256 px snap) and every target pixel centre lies on a horizontal edge of the input mesh
+    (its y equals a vertex row's)."""
+    f = 100.0
+    src = Camera(model="pinhole", width=w_, height=h_, fx=f, fy=f, cx=w_ / 2, cy=h_ / 2, cam_from_world=np.eye(4))
+    moved = np.eye(4)
+    moved[0, 3] = -shift_px * z / f  # the camera at x = +shift z / f: the scene moves left
+    dst = Camera(model="pinhole", width=w_, height=h_, fx=f, fy=f, cx=w_ / 2, cy=h_ / 2, cam_from_world=moved)
+    return src, dst
+
+
+def _closed_triangle_coverage(valid: np.ndarray, shift_px: float) -> np.ndarray:
+    """Expected coverage with inclusive edges for _rectified_pair: target centre (x + 0.5, y + 0.5)
+    is the source point (x + 0.5 + shift, y + 0.5), on the horizontal edge from vertex (u, y) to
+    (u + 1, y), u = x (0 < shift < 1). That edge belongs to triangle 0 of quad (u, y) (third vertex
+    (u, y + 1)) and to triangle 1 of quad (u, y - 1) (third vertex (u + 1, y - 1)); the centre is
+    covered iff the edge's two vertices are valid and so is one of the two third vertices. (The
+    exclusive rule gave it to triangle 1 only: the third vertex (u + 1, y - 1) had to be valid.)"""
+    h_, w_ = valid.shape
+    assert 0.0 < shift_px < 1.0
+    v = np.zeros((h_ + 2, w_ + 2), bool)  # padded: vertex (u, y) at [y + 1, u + 1]
+    v[1:-1, 1:-1] = valid
+    u = np.arange(w_)
+    y = np.arange(h_)[:, None]
+    edge = v[y + 1, u + 1] & v[y + 1, u + 2]
+    return edge & (v[y + 2, u + 1] | v[y, u + 2])
+
+
+@pytest.mark.parametrize("isa", ["baseline", "avx2"])
+def test_inclusive_shared_edges_rectified_pair(isa):
+    """Fill rule of the DIBR shader: a target centre exactly on the edge shared by two triangles
+    is offered to both, so it stays covered when one of them is dropped (unknown depth). A
+    rectified pair puts every target centre on a horizontal mesh edge. One unknown depth pixel
+    drops the quads around it; the centre on the top edge of the quad below it (whose lower
+    triangle is intact) must stay covered. Coverage everywhere equals the union of the closed
+    valid triangles (computed independently above): no cracks, nothing else changed. Colour is
+    a ramp in the source x, so it is checked analytically (tolerance: float32 interpolation of
+    values < 64, 1e-4 absolute)."""
+    if isa == "avx2" and not _core.cpu_has_avx2():
+        pytest.skip("this CPU has no AVX2: only the baseline path runs")
+    w_, h_, shift = 48, 32, 0.25
+    src, dst = _rectified_pair(w_, h_, shift_px=shift)
+    dep = np.full((h_, w_), 4.0, np.float32)
+    u0, v0 = 20, 10
+    dep[v0 - 1, u0] = 0.0  # drops triangle 1 of quad (u0 - 1, v0 - 1), the owner of row v0's edge
+    rng = np.random.default_rng(11)
+    dep[16:, :][rng.random((h_ - 16, w_)) < 0.1] = 0.0  # more unknown pixels in the lower half
+    ramp = np.broadcast_to(np.arange(w_, dtype=np.float32)[None, :, None] + 0.5, (h_, w_, 3)).copy()
+    _core.set_warp_isa(isa)
+    try:
+        c, d, wt = _core.forward_warp(ramp, dep, src.to_core(), dst.to_core(), _core.WarpOptions())
+    finally:
+        _core.set_warp_isa("auto")
+    cov = wt > 0
+    expect = _closed_triangle_coverage(dep > 0, shift)
+    # the probe: target pixel (v0, u0 - 1) lies on the edge (u0 - 1, v0) - (u0, v0); the exclusive
+    # rule would have lost it (its owner touches the unknown vertex), the inclusive rule keeps it
+    exclusive_owner_ok = dep[v0 - 1, u0] > 0
+    assert not exclusive_owner_ok and expect[v0, u0 - 1] and cov[v0, u0 - 1]
+    np.testing.assert_array_equal(cov, expect)
+    np.testing.assert_allclose(c[..., 0][cov], (np.arange(w_) + 0.5 + shift)[None, :].repeat(h_, 0)[cov], atol=1e-4)
+    np.testing.assert_allclose(d[cov], 4.0, rtol=1e-5)

@@ -55,6 +55,13 @@ def cases():
     eq_dst = Camera(model="equirect", width=100, height=50, cam_from_world=look_at([0.1, 0.05, 0], [0, 0, 1]))
     out.append(("pinhole -> equirect", src, eq_dst, rough_depth(71, 97, 6)))
     out.append(("equirect -> equirect", eq_src, eq_dst, eq_dep))
+    # rectified pair: every target centre exactly on a horizontal mesh edge (inclusive-edge ties
+    # between the two triangles sharing it, in the small-quad and general paths alike)
+    rect_src = Camera(model="pinhole", width=97, height=71, fx=80.0, fy=80.0, cx=48.5, cy=35.5, cam_from_world=np.eye(4))
+    moved = np.eye(4)
+    moved[0, 3] = -0.05
+    rect_dst = Camera(model="pinhole", width=97, height=71, fx=80.0, fy=80.0, cx=48.5, cy=35.5, cam_from_world=moved)
+    out.append(("rectified (shared edges)", rect_src, rect_dst, rough_depth(71, 97, 7)))
     return out
 
 

@@ -98,18 +98,19 @@ inline float Weight(float q, float d, float p) {
 // Fixed-point edge functions of a triangle with vertices X, Y (1/256 px), set up at the pixel
 // centre (px0 + 0.5, py0 + 0.5). Edge e is opposite vertex e: from vertex e+1 to vertex e+2;
 // E_e / area2 = barycentric e. e_row includes the tie-rule bias (-1 on edges the triangle
-// does not own), so "covered" is simply E_0, E_1, E_2 >= 0.
+// does not own), so "covered" is simply E_0, E_1, E_2 >= 0. inclusive (the DIBR shader): every
+// edge owns its points (bias 0), so a centre on an edge shared by two triangles goes to both.
 struct Edges {
   std::int64_t ex[3], ey[3], e_row[3], bias[3];
 };
 
-inline void SetupEdges(const std::int64_t X[3], const std::int64_t Y[3], int px0, int py0, Edges* E) {
+inline void SetupEdges(const std::int64_t X[3], const std::int64_t Y[3], int px0, int py0, bool inclusive, Edges* E) {
   const std::int64_t sx = std::int64_t(px0) * kSubpixel + kSubpixel / 2;
   const std::int64_t sy = std::int64_t(py0) * kSubpixel + kSubpixel / 2;
   for (int e = 0; e < 3; ++e) {
     const int a = (e + 1) % 3, b = (e + 2) % 3;
     const std::int64_t dx = X[b] - X[a], dy = Y[b] - Y[a];
-    const bool owns = dy > 0 || (dy == 0 && dx < 0);
+    const bool owns = inclusive || dy > 0 || (dy == 0 && dx < 0);
     E->ex[e] = -dy * kSubpixel;  // step in x
     E->ey[e] = dx * kSubpixel;   // step in y
     E->bias[e] = owns ? 0 : 1;
@@ -250,6 +251,9 @@ struct Shader : TriangleInterp {
 
   // RasterBlockRowAvx2 may set up 8 quads at once (BeginQuad is a no-op here).
   static constexpr bool kQuadSimd = true;
+  // Inclusive edges: a centre exactly on an edge shared by two triangles of the view is offered
+  // to both and the depth test keeps one (forward_warp.h): one fragment per pixel per view.
+  static constexpr bool kInclusiveEdges = true;
 
   // Per-quad state: none for DIBR (triangles are judged alone, by their quality).
   inline void BeginQuad(const WarpVertex&, const WarpVertex&, const WarpVertex&, const WarpVertex&) {}
@@ -315,7 +319,7 @@ void RasterTriangle(const Context& cx, std::uint32_t id, int band_y0, int band_y
   if (px0 > px1 || py0 > py1) return;
 
   Edges E;
-  SetupEdges(X, Y, px0, py0, &E);
+  SetupEdges(X, Y, px0, py0, Sh::kInclusiveEdges, &E);
   const std::int64_t *ex = E.ex, *ey = E.ey;
   std::int64_t* e_row = E.e_row;
   // Small triangles (<= 2 x 2 candidate centres): test them directly.
@@ -399,10 +403,10 @@ inline void ShadeSmallTriangle(const Context& cx, const WarpVertex& v0, const Wa
 
 // Edge function of the edge from p to q (32 bits, 1/256 px) set up at centre (sx, sy) / 256,
 // tie-rule bias included (as SetupEdges).
-inline void SmallEdge(const WarpVertex& p, const WarpVertex& q, std::int32_t sx, std::int32_t sy, std::int32_t* ex,
-                      std::int32_t* ey, std::int32_t* er, std::int64_t* bias) {
+inline void SmallEdge(const WarpVertex& p, const WarpVertex& q, std::int32_t sx, std::int32_t sy, bool inclusive,
+                      std::int32_t* ex, std::int32_t* ey, std::int32_t* er, std::int64_t* bias) {
   const std::int32_t dx = q.x - p.x, dy = q.y - p.y;
-  const bool owns = dy > 0 || (dy == 0 && dx < 0);
+  const bool owns = inclusive || dy > 0 || (dy == 0 && dx < 0);
   *ex = -dy * kSubpixel;
   *ey = dx * kSubpixel;
   *bias = owns ? 0 : 1;
@@ -440,7 +444,7 @@ inline void SmallQuad(const Context& cx, const WarpVertex& A, const WarpVertex& 
   // owns = dy > 0 || (dy == 0 && dx < 0); bias = 1 where the edge does not own its points.
   const __m128i owns = _mm_or_si128(_mm_cmpgt_epi32(dyv, zero),
                                     _mm_and_si128(_mm_cmpeq_epi32(dyv, zero), _mm_cmpgt_epi32(zero, dxv)));
-  const __m128i biasv = _mm_andnot_si128(owns, _mm_set1_epi32(1));
+  const __m128i biasv = Sh::kInclusiveEdges ? zero : _mm_andnot_si128(owns, _mm_set1_epi32(1));
   const __m128 fer = _mm_sub_ps(
       _mm_sub_ps(_mm_mul_ps(_mm_cvtepi32_ps(dxv), _mm_cvtepi32_ps(_mm_sub_epi32(_mm_set1_epi32(sy), pyv))),
                  _mm_mul_ps(_mm_cvtepi32_ps(dyv), _mm_cvtepi32_ps(_mm_sub_epi32(_mm_set1_epi32(sx), pxv)))),
@@ -458,24 +462,34 @@ inline void SmallQuad(const Context& cx, const WarpVertex& A, const WarpVertex& 
   ey1[0] = ey4[3];
   er1[0] = er4[3];
   bias1[0] = b4[3];
-  SmallEdge(B, D, sx, sy, &ex1[2], &ey1[2], &er1[2], &bias1[2]);
+  SmallEdge(B, D, sx, sy, Sh::kInclusiveEdges, &ex1[2], &ey1[2], &er1[2], &bias1[2]);
   ex1[1] = -ex0[0];
   ey1[1] = -ey0[0];
-  er1[1] = ~er0[0];
-  bias1[1] = 1 - bias0[0];
+  // C -> B: exclusive, -e - 1 = ~e of the biased B -> C; inclusive (no bias), -e.
+  er1[1] = Sh::kInclusiveEdges ? -er0[0] : ~er0[0];
+  bias1[1] = Sh::kInclusiveEdges ? 0 : 1 - bias0[0];
   unsigned m0 = 0, m1 = 0;  // bit 4 j + i: centre (px0 + i, py0 + j) covered
   if (nx <= 2 && ny <= 2) {
     // Branch-free 2 x 2 (the common case); centres beyond nx / ny masked off afterwards. Per
     // centre, the sign bits of the four lane edges: triangle 0 needs B -> C, C -> A, A -> B >= 0;
-    // triangle 1 needs B -> C < 0 (its C -> B = ~(B -> C) >= 0), D -> C >= 0 and B -> D >= 0.
+    // triangle 1 needs B -> C < 0 (its C -> B = ~(B -> C) >= 0; inclusive: B -> C <= 0, its
+    // C -> B = -(B -> C) >= 0), D -> C >= 0 and B -> D >= 0.
     const __m128 fex = _mm_cvtepi32_ps(exv), fey = _mm_cvtepi32_ps(eyv), fz = _mm_setzero_ps();
     const __m128 e00 = fer, e10 = _mm_add_ps(fer, fex), e01 = _mm_add_ps(fer, fey), e11 = _mm_add_ps(e10, fey);
     const unsigned n00 = unsigned(_mm_movemask_ps(_mm_cmplt_ps(e00, fz))), n10 = unsigned(_mm_movemask_ps(_mm_cmplt_ps(e10, fz)));
     const unsigned n01 = unsigned(_mm_movemask_ps(_mm_cmplt_ps(e01, fz))), n11 = unsigned(_mm_movemask_ps(_mm_cmplt_ps(e11, fz)));
     const std::int32_t bd = er1[2], bdx = ex1[2], bdy = ey1[2];
     const unsigned c00 = (n00 & 7u) == 0, c10 = (n10 & 7u) == 0, c01 = (n01 & 7u) == 0, c11 = (n11 & 7u) == 0;
-    const unsigned d00 = (n00 & 9u) == 1u && bd >= 0, d10 = (n10 & 9u) == 1u && bd + bdx >= 0;
-    const unsigned d01 = (n01 & 9u) == 1u && bd + bdy >= 0, d11 = (n11 & 9u) == 1u && bd + bdx + bdy >= 0;
+    // Bit 0 of z: B -> C excludes the centre from triangle 0's side (< 0, or inclusive <= 0).
+    unsigned z00 = n00, z10 = n10, z01 = n01, z11 = n11;
+    if constexpr (Sh::kInclusiveEdges) {
+      z00 = ~unsigned(_mm_movemask_ps(_mm_cmpgt_ps(e00, fz)));
+      z10 = ~unsigned(_mm_movemask_ps(_mm_cmpgt_ps(e10, fz)));
+      z01 = ~unsigned(_mm_movemask_ps(_mm_cmpgt_ps(e01, fz)));
+      z11 = ~unsigned(_mm_movemask_ps(_mm_cmpgt_ps(e11, fz)));
+    }
+    const unsigned d00 = (z00 & 1u) && !(n00 & 8u) && bd >= 0, d10 = (z10 & 1u) && !(n10 & 8u) && bd + bdx >= 0;
+    const unsigned d01 = (z01 & 1u) && !(n01 & 8u) && bd + bdy >= 0, d11 = (z11 & 1u) && !(n11 & 8u) && bd + bdx + bdy >= 0;
     m0 = c00 | (c10 << 1) | (c01 << 4) | (c11 << 5);
     m1 = d00 | (d10 << 1) | (d01 << 4) | (d11 << 5);
     const unsigned valid = (nx == 2 ? 3u : 1u) * (ny == 2 ? 0x11u : 1u);
@@ -488,7 +502,7 @@ inline void SmallQuad(const Context& cx, const WarpVertex& A, const WarpVertex& 
         const std::int32_t a1 = er0[1] + ex0[1] * i + ey0[1] * j, a2 = er0[2] + ex0[2] * i + ey0[2] * j;
         const std::int32_t b0 = er1[0] + ex1[0] * i + ey1[0] * j, b2 = er1[2] + ex1[2] * i + ey1[2] * j;
         m0 |= unsigned((d | a1 | a2) >= 0) << (4 * j + i);
-        m1 |= unsigned((~d | b0 | b2) >= 0) << (4 * j + i);
+        m1 |= unsigned(((Sh::kInclusiveEdges ? -d : ~d) | b0 | b2) >= 0) << (4 * j + i);
       }
     }
   }
@@ -665,7 +679,7 @@ __attribute__((target("avx2"))) void RasterBlockRowAvx2(const Context& cx, int r
         const __m256i dx = _mm256_sub_epi32(qxv[e], px[e]), dy = _mm256_sub_epi32(qyv[e], py[e]);
         const __m256i owns = _mm256_or_si256(_mm256_cmpgt_epi32(dy, zero),
                                              _mm256_and_si256(_mm256_cmpeq_epi32(dy, zero), _mm256_cmpgt_epi32(zero, dx)));
-        const __m256i b = _mm256_andnot_si256(owns, one);
+        const __m256i b = Sh::kInclusiveEdges ? zero : _mm256_andnot_si256(owns, one);
         e_x[e] = _mm256_slli_epi32(_mm256_sub_epi32(zero, dy), 8);
         e_y[e] = _mm256_slli_epi32(dx, 8);
         e_r[e] = _mm256_sub_epi32(_mm256_sub_epi32(_mm256_mullo_epi32(dx, _mm256_sub_epi32(sy, py[e])),
@@ -677,7 +691,8 @@ __attribute__((target("avx2"))) void RasterBlockRowAvx2(const Context& cx, int r
         _mm256_store_si256(reinterpret_cast<__m256i*>(bias[e]), b);
       }
       // Coverage of the candidate centres (i, j), i <= nx, j <= ny: triangle 0 needs B->C, C->A,
-      // A->B >= 0; triangle 1 needs B->C < 0 (its C->B = ~(B->C) >= 0), D->C >= 0, B->D >= 0.
+      // A->B >= 0; triangle 1 needs B->C < 0 (its C->B = ~(B->C) >= 0; inclusive: B->C <= 0,
+      // C->B = -(B->C) >= 0), D->C >= 0, B->D >= 0.
       const int max_nx = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_and_si256(_mm256_cmpgt_epi32(nx, one), small))) ? 3 :
                          _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_and_si256(_mm256_cmpgt_epi32(nx, zero), small))) ? 1 : 0;
       const int max_ny = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_and_si256(_mm256_cmpgt_epi32(ny, one), small))) ? 3 :
@@ -690,7 +705,8 @@ __attribute__((target("avx2"))) void RasterBlockRowAvx2(const Context& cx, int r
         for (int i = 0; i <= max_nx; ++i) {
           const __m256i out = _mm256_or_si256(jok, _mm256_cmpgt_epi32(_mm256_set1_epi32(i), nx));
           const __m256i t0 = _mm256_or_si256(_mm256_or_si256(v[0], v[1]), v[2]);
-          const __m256i t1 = _mm256_or_si256(_mm256_or_si256(_mm256_xor_si256(v[0], _mm256_set1_epi32(-1)), v[3]), v[4]);
+          const __m256i cb = Sh::kInclusiveEdges ? _mm256_sub_epi32(zero, v[0]) : _mm256_xor_si256(v[0], _mm256_set1_epi32(-1));
+          const __m256i t1 = _mm256_or_si256(_mm256_or_si256(cb, v[3]), v[4]);
           const __m256i bit = _mm256_set1_epi32(1 << (4 * j + i));
           // sign bit clear = covered
           c0 = _mm256_or_si256(c0, _mm256_andnot_si256(_mm256_or_si256(_mm256_srai_epi32(t0, 31), out), bit));
@@ -742,7 +758,8 @@ __attribute__((target("avx2"))) void RasterBlockRowAvx2(const Context& cx, int r
           }
         } else {
           te_r[0] = er[3][k], te_x[0] = ex[3][k], te_y[0] = ey[3][k], tb[0] = bias[3][k];
-          te_r[1] = ~er[0][k], te_x[1] = -ex[0][k], te_y[1] = -ey[0][k], tb[1] = 1 - bias[0][k];
+          te_r[1] = Sh::kInclusiveEdges ? -er[0][k] : ~er[0][k], te_x[1] = -ex[0][k], te_y[1] = -ey[0][k];
+          tb[1] = Sh::kInclusiveEdges ? 0 : 1 - bias[0][k];
           te_r[2] = er[4][k], te_x[2] = ex[4][k], te_y[2] = ey[4][k], tb[2] = bias[4][k];
         }
         const float inv[3] = {t == 0 ? A.inv : B.inv, t == 0 ? B.inv : D.inv, C.inv};
@@ -1376,6 +1393,7 @@ namespace {
 // flat background depth for the whole quad, key 1 - 0.5 d, colour 0, mask kMaskDisoccluded.
 struct HoleShader : TriangleInterp {
   static constexpr bool kQuadSimd = false;  // needs BeginQuad per quad: the scalar block-row loop
+  static constexpr bool kInclusiveEdges = false;  // the exclusive tie rule (forward_warp.h)
   int tw;
   float stretch2;    // squared stretch threshold, px^2
   float depth_jump1; // 1 + HoleWarpOptions::depth_jump

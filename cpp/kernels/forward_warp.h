@@ -11,10 +11,16 @@
 // vertex are dropped (never clipped: a straddling triangle would cover the screen). Depth
 // +inf (sky of an equirect view) is a direction: it is rotated into the target, not moved.
 //
-// Rasterisation. Vertex positions are snapped to 1/256 pixel; integer edge functions with a
+// Rasterisation. Vertex positions are snapped to 1/256 pixel; integer edge functions, sampled at
+// pixel centres (x + 0.5, y + 0.5). Fill rule of the DIBR shader (ForwardWarp): inclusive edges
+// -- a centre exactly on an edge (or vertex) is inside every triangle that has it, so a centre on
+// an edge shared by two triangles of the view is offered to both and the within-view depth test
+// below keeps one of them (no double blending: one fragment per pixel per view; no cracks). This
+// matters in rectified pairs (Middlebury), where every target centre lies exactly on a horizontal
+// edge: with an exclusive rule the sample was lost whenever its one owning triangle was dropped
+// (unknown depth) or stretched. The hole mode (WarpWithHoles below) keeps the exclusive
 // top-left-style tie rule (an edge owns its points iff dy > 0, or dy == 0 and dx < 0, so of two
-// triangles sharing an edge exactly one owns it): no cracks, no double coverage. Sampled at
-// pixel centres (x + 0.5, y + 0.5). Triangles whose winding is reversed in the target
+// triangles sharing an edge exactly one owns it: no cracks, no double coverage). Triangles whose winding is reversed in the target
 // (back-facing) or whose snapped area is 0 are discarded; on an equirect target, triangles
 // spanning more than half the width straddle the longitude seam and are dropped. Vertices more
 // than 16384 px outside the image drop their triangle (fixed-point range).
@@ -147,8 +153,8 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
 // ---- Warp with background-depth holes ---------------------------------------------------------
 // dos Anjos et al., "Metameric Inpainting for Image Warping", sec. 3.1, Eq. 1. One RGB-D view is
 // warped into a target camera (or by a per-pixel flow field) with the rasteriser above (same
-// implicit mesh, projection, 1/256 px snap, edge functions and tie rule, back-face and seam
-// rules, band-parallel deterministic structure) and a different shader:
+// implicit mesh, projection, 1/256 px snap, edge functions, back-face and seam
+// rules, band-parallel deterministic structure; the exclusive tie rule) and a different shader:
 //
 // Stretched quad. A quad (2x2 input pixel centres = the mesh's two triangles) is stretched when
 // the longest of its five edges (4 sides + the diagonal) in the target is longer than
