@@ -165,3 +165,56 @@ def test_bad_input():
         _core.sample_atlas(prim, bary, np.full((1, 3, 2), np.nan, np.float32), np.zeros((4, 4, 3), np.float32))
     with pytest.raises(ShapeError):
         _core.sample_atlas(prim, np.zeros((2, 3, 2), np.float32), uv, np.zeros((4, 4, 3), np.float32))
+
+
+def _two_walls():
+    """The wall at z = 2 (seen by camera()) and a copy at z = -2 (behind the camera)."""
+    a = densify(wall(2.0), 0.3)
+    b = densify(wall(-2.0), 0.3)
+    return Mesh(np.concatenate([a.vertices, b.vertices]),
+                np.concatenate([a.faces, b.faces + len(a.vertices)]).astype(np.int32))
+
+
+def test_face_footprint_scale():
+    mesh = _two_walls()
+    cam = camera()  # f = 64 px, the near wall at depth 2: footprint 2 / 64 per pixel
+    half = len(mesh.faces) // 2
+    s = A.face_footprint_scale(mesh, {"a": cam}, texel=2.0 / 64, limits=(0.5, 8.0))
+    assert s.shape == (len(mesh.faces),)
+    assert np.allclose(s[:half], 1.0, rtol=1e-5)  # every near-wall centroid is at depth 2
+    assert np.all(s[half:] == 8.0)  # behind the camera: no view holds it, the upper limit
+    assert np.allclose(A.face_footprint_scale(mesh, {"a": cam}, texel=1.0 / 64)[:half], 2.0, rtol=1e-5)
+
+
+def test_layout_face_scale_and_shelf_packing():
+    mesh = _two_walls()
+    half = len(mesh.faces) // 2
+    scale = np.where(np.arange(len(mesh.faces)) < half, 1.0, 4.0)
+    lay = A.layout(mesh, texel=0.02, face_scale=scale)
+    # Each face's chart edges get at least the face's edge length in its own texels.
+    ev = mesh.vertices[mesh.faces[:, 1]] - mesh.vertices[mesh.faces[:, 0]]
+    eu = lay.uv[:, 1] - lay.uv[:, 0]
+    assert np.all(np.linalg.norm(eu, axis=1) + 1e-3 >= np.linalg.norm(ev, axis=1) / (0.02 * scale))
+    # The coarse half gets smaller charts than the fine half.
+    d1, d2 = lay.uv[:, 1] - lay.uv[:, 0], lay.uv[:, 2] - lay.uv[:, 0]
+    area = np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
+    assert area[half:].max() < area[:half].min()
+    # Shelf packing: cells of two sizes fill the atlas with little waste (cells cover >= 80 %).
+    cells = (lay.face_of_texel >= 0).sum()
+    assert cells >= 0.8 * lay.face_of_texel.size
+    # Lookups inside every face still read only its own texels.
+    rng = np.random.default_rng(1)
+    b = rng.dirichlet((1, 1, 1), size=(len(mesh.faces), 8))
+    p = np.einsum("fsk,fkc->fsc", b, lay.uv.astype(np.float64))
+    x0 = np.floor(p[..., 0] - 0.5).astype(int)
+    y0 = np.floor(p[..., 1] - 0.5).astype(int)
+    own = np.arange(len(mesh.faces))[:, None]
+    for dy in (0, 1):
+        for dx in (0, 1):
+            assert np.all(lay.face_of_texel[y0 + dy, x0 + dx] == own)
+    with pytest.raises(ShapeError):
+        A.layout(mesh, 0.02, face_scale=np.ones(3))
+    with pytest.raises(BadValueError, match="face_scale"):
+        A.layout(mesh, 0.02, face_scale=np.zeros(len(mesh.faces)))
+    with pytest.raises(DtypeError):
+        A.face_footprint_scale("mesh", {"a": camera()}, 0.1)

@@ -43,6 +43,8 @@ def test_render_mesh_is_the_same_surface_with_fewer_faces():
     assert same is dense
     with pytest.raises(BadValueError, match="render_edge_voxels"):
         GlobalMeshOptions(render_edge_voxels=0.0)
+    with pytest.raises(BadValueError, match="atlas_adaptive"):
+        GlobalMeshOptions(atlas_adaptive="yes")
 
 
 def test_fused_mesh_renders_itself():

@@ -161,7 +161,7 @@ STAGES: dict[str, Stage] = {s.name: s for s in (
           "per-view depth rendered from the global mesh, for views without depth"),
     Stage("texture", ("scene", "mesh", "depth"), ("texture.npz",), frozenset({"tm", "hybrid"}),
           "texture atlas and per-vertex colour of the render mesh by ULR-weighted blending of the "
-          "gain-compensated views", version=3),
+          "gain-compensated views", version=4),
     Stage("variance", ("scene", "mesh", "depth"), ("variance.npz",), frozenset({"hybrid"}),
           "per-vertex photometric standard deviation across the views that see it"),
     Stage("harmonise", ("scene", "mesh", "variance"), ("harmonise.npz",), frozenset({"hybrid"}),
@@ -376,7 +376,7 @@ def _params(name: str, options: dict) -> dict:
             return {k: o[k] for k in ("source", "resolution", "trunc_voxels", "max_edge_voxels", "max_faces",
                                       "render_edge_voxels")}
         if name == "texture":
-            return {k: o[k] for k in ("k_views", "depth_tol", "atlas_texel", "atlas_max_texels")}
+            return {k: o[k] for k in ("k_views", "depth_tol", "atlas_texel", "atlas_max_texels", "atlas_adaptive")}
         return {}
     if name == "pvm":
         return PvmOptions(**options.get("pvm", {})).to_dict()
@@ -438,7 +438,9 @@ def _run_texture(ctx: _Context) -> dict:
     # The atlas (issue 7): per-texel colour at about the input views' resolution; a mesh with too
     # many faces for atlas_max_texels keeps the per-vertex colour only (TM renders that).
     try:
-        lay = A.layout(mesh, opts.atlas_texel * A.texel_size(cams, deps), opts.atlas_max_texels)
+        texel = opts.atlas_texel * A.texel_size(cams, deps)
+        scale = A.face_footprint_scale(mesh, cams, texel) if opts.atlas_adaptive else None
+        lay = A.layout(mesh, texel, opts.atlas_max_texels, face_scale=scale)
     except BadValueError as e:
         rec["atlas"] = f"none ({e})"
     else:

@@ -71,9 +71,12 @@ def texel_size(cameras: Mapping[str, Camera], depths: Mapping[str, np.ndarray]) 
     return float(np.median(sizes))
 
 
-def layout(mesh: Mesh, texel: float, max_texels: int = 4_194_304, max_cell: int = 256) -> AtlasLayout:
+def layout(mesh: Mesh, texel: float, max_texels: int = 4_194_304, max_cell: int = 256,
+           face_scale: np.ndarray | None = None) -> AtlasLayout:
     """Per-face charts packed in cells of face pairs (module docstring). ``texel``: world units per
-    texel; grown (by factors of 1.25) until the atlas holds at most ``max_texels``."""
+    texel; grown (by factors of 1.25) until the atlas holds at most ``max_texels``. ``face_scale``
+    (M,) > 0: face f gets texels of ``texel * face_scale[f]`` (:func:`face_footprint_scale`: finer
+    where the views see the surface finely); None = 1 everywhere."""
     _check_mesh(mesh)
     if not (isinstance(texel, (int, float)) and math.isfinite(texel) and texel > 0):
         raise BadValueError(f"texture atlas: texel size must be a finite number > 0, got {texel!r}")
@@ -84,6 +87,13 @@ def layout(mesh: Mesh, texel: float, max_texels: int = 4_194_304, max_cell: int 
     m = len(f)
     e = np.stack([v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 1]], v[f[:, 0]] - v[f[:, 2]]], 1)
     longest = np.linalg.norm(e, axis=-1).max(1)
+    if face_scale is not None:
+        fs = np.asarray(face_scale, np.float64)
+        if fs.shape != (m,):
+            raise ShapeError(f"face_scale: expected shape ({m},), got {fs.shape}")
+        if not (np.all(np.isfinite(fs)) and np.all(fs > 0)):
+            raise BadValueError("face_scale: expected finite values > 0")
+        longest = longest / fs  # in units of the face's own texel
     order = np.argsort(longest, kind="stable")[::-1]  # largest first
     n_pairs = (m + 1) // 2
     pairs = np.full(2 * n_pairs, -1, np.int64)
@@ -101,16 +111,19 @@ def layout(mesh: Mesh, texel: float, max_texels: int = 4_194_304, max_cell: int 
                             f"{max_texels}")
     width = int(max(int(cell.max()), math.ceil(math.sqrt(total))))
     sizes = np.unique(cell)[::-1]
-    # Block per cell size: a grid of width // N columns; blocks stacked top to bottom.
+    # Shelf packing: the cells in decreasing size (pairs are sorted by length, so cell is
+    # non-increasing) fill rows ("shelves") left to right; a shelf is as tall as its first cell.
+    # One iteration per shelf (about sqrt(pairs) of them), not per face.
     origin = np.zeros((n_pairs, 2), np.int64)
-    y0 = 0
-    for n in sizes:  # loop over distinct cell sizes (<= max_cell), not over faces
-        idx = np.flatnonzero(cell == n)
-        cols = width // n
-        k = np.arange(len(idx))
-        origin[idx, 0] = (k % cols) * n
-        origin[idx, 1] = y0 + (k // cols) * n
-        y0 += int(math.ceil(len(idx) / cols)) * n
+    csum = np.concatenate([[0], np.cumsum(cell)])
+    start, y0 = 0, 0
+    while start < n_pairs:
+        end = int(np.searchsorted(csum, csum[start] + width, side="right")) - 1  # cells start..end-1 fit
+        end = max(end, start + 1)
+        origin[start:end, 0] = csum[start:end] - csum[start]
+        origin[start:end, 1] = y0
+        y0 += int(cell[start])
+        start = end
     height = y0
     nf = cell.astype(np.float64)[:, None]
     ox, oy = origin[:, 0:1].astype(np.float64), origin[:, 1:2].astype(np.float64)
@@ -135,6 +148,26 @@ def layout(mesh: Mesh, texel: float, max_texels: int = 4_194_304, max_cell: int 
         xs = origin[idx, 0][:, None, None] + ii[None]
         fot[ys, xs] = owner
     return AtlasLayout(uv, fot, float(texel))
+
+
+def face_footprint_scale(mesh: Mesh, cameras: Mapping[str, Camera], texel: float,
+                         limits: tuple[float, float] = (0.5, 8.0)) -> np.ndarray:
+    """(M,) per-face texel scale: the finest input-pixel footprint on the face (over the views
+    whose image holds the face's centroid in front of the camera: depth x angle per pixel; no
+    occlusion test) divided by ``texel``, clipped to ``limits``; faces no view holds get the upper
+    limit. Surface the views see from far away needs no texel per input-pixel-at-median-depth."""
+    _check_mesh(mesh)
+    c = mesh.vertices[mesh.faces].astype(np.float64).mean(1)
+    best = np.full(len(c), np.inf)
+    for cam in cameras.values():
+        xy, z = cam.project(c)
+        with np.errstate(invalid="ignore"):
+            ok = (np.isfinite(z) & (z > 0) & (xy[:, 0] >= 0) & (xy[:, 0] < cam.width)
+                  & (xy[:, 1] >= 0) & (xy[:, 1] < cam.height))
+        per_px = 1.0 / cam.fx if cam.model == PINHOLE else (cam.lon_range[1] - cam.lon_range[0]) / cam.width
+        best[ok] = np.minimum(best[ok], z[ok] * per_px)
+    scale = np.where(np.isfinite(best), best / texel, limits[1])
+    return np.clip(scale, limits[0], limits[1])
 
 
 def texel_barycentrics(lay: AtlasLayout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

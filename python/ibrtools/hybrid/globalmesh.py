@@ -54,6 +54,9 @@ class GlobalMeshOptions:
     # footprint on the surface; at most atlas_max_texels (2048^2) texels (the texel grows to fit).
     atlas_texel: float = 1.0
     atlas_max_texels: int = 4_194_304
+    # per-face texel size following the finest footprint of the views on the face
+    # (atlas.face_footprint_scale, clipped to 0.5-8x); False: one texel size for every face.
+    atlas_adaptive: bool = True
 
     def __post_init__(self) -> None:
         if self.source not in SOURCES:
@@ -71,6 +74,8 @@ class GlobalMeshOptions:
         if not check_float(self.atlas_texel, "atlas_texel") > 0:
             raise BadValueError("atlas_texel: expected > 0")
         check_int(self.atlas_max_texels, "atlas_max_texels", 16)
+        if not isinstance(self.atlas_adaptive, (bool, np.bool_)):
+            raise BadValueError(f"atlas_adaptive: expected true or false, got {self.atlas_adaptive!r}")
 
     def to_dict(self) -> dict:
         return {f.name: getattr(self, f.name) for f in fields(self)}
