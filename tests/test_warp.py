@@ -165,7 +165,13 @@ def test_dibr_is_unaffected():
     # The hole mode shares DIBR's rasteriser; forward_warp's own output is pinned by
     # test_forward_warp.py / test_dibr.py. Here: the same inputs through both, the surface agrees.
     col, depth = _square_scene()
-    c0, c1 = _cam().to_core(), _cam(-0.4).to_core()
+    # DIBR's shader has inclusive edges, the hole mode the exclusive tie rule (forward_warp.h): a
+    # centre exactly on a shared edge (here every centre: _cam(-0.4) is a rectified pair) may go to
+    # different triangles. The target is moved off those ties by 0.0123 in y.
+    m = np.eye(4)
+    m[0, 3], m[1, 3], m[2, 3] = 0.4, 0.0123, 4.0
+    c0 = _cam().to_core()
+    c1 = Camera(model="pinhole", width=W, height=H, fx=50.0, fy=50.0, cx=W / 2, cy=H / 2, cam_from_world=m).to_core()
     o = _core.WarpOptions()
     o.depth_test = "nearest"
     o.discard_stretched = True
