@@ -100,7 +100,7 @@ def _blur_reference(label, sigma):
     return np.where(s > 0, ver / np.where(s > 0, s, 1), 0.0)
 
 
-@pytest.mark.parametrize("sigma", [0.0, 0.7, 2.0, 4.0])
+@pytest.mark.parametrize("sigma", [0.0, 0.7, 2.0, 4.0, 16.0])
 def test_blur_selection_matches_numpy_and_keeps_the_support(sigma):
     """The vertical-first planar blur against the horizontal-first definition: values within
     1e-6 (float rounding), and the support (weight > 0, which decides where ULR and PVM run)
@@ -112,6 +112,16 @@ def test_blur_selection_matches_numpy_and_keeps_the_support(sigma):
     ref = _blur_reference(label, sigma)
     assert np.abs(got - ref).max() < 1e-6
     np.testing.assert_array_equal(got > 0, ref > 0)
+
+
+def test_blur_selection_with_a_method_nobody_chose():
+    """A label absent from the frame (here ULR) is skipped: its weight is exactly 0 everywhere,
+    the others as the NumPy definition."""
+    rng = np.random.default_rng(2)
+    label = rng.choice(np.array([0, 2, 3], np.uint8), size=(29, 41), p=[0.6, 0.2, 0.2])
+    got = _core.blur_selection(label, 3.0)
+    assert (got[..., 1] == 0).all()
+    assert np.abs(got - _blur_reference(label, 3.0)).max() < 1e-6
 
 
 def test_blur_selection_rows_of_nothing_stay_empty():

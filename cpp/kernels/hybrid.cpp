@@ -498,6 +498,15 @@ void BlurSelection(ImageView<const std::uint8_t> label, float sigma, float* scra
   // ULR and PVM are computed, is the same as the horizontal-first order's; values agree to float
   // rounding).
   const std::int64_t plane = std::int64_t(H) * W;
+  // Labels present anywhere: a method no pixel chose has weight 0 everywhere (exactly what its
+  // convolution would give) and its passes are skipped (e.g. ULR when the photometric test never
+  // fires; at sigma_blur 16 each pass is 97 taps).
+  bool has[3] = {false, false, false};
+  for (int y = 0; y < H && !(has[0] && has[1] && has[2]); ++y) {
+    const std::uint8_t* lrow = label.Row(y);
+    for (int x = 0; x < W; ++x)
+      if (lrow[x] < 3) has[lrow[x]] = true;
+  }
   ParallelFor(H, 8, [&](std::int64_t b, std::int64_t e) {
     for (int y = int(b); y < int(e); ++y) {
       float* a0 = scratch + std::int64_t(y) * W;
@@ -507,11 +516,12 @@ void BlurSelection(ImageView<const std::uint8_t> label, float sigma, float* scra
       for (int d = -r; d <= r; ++d) {
         const std::uint8_t* lrow = label.Row(std::clamp(y + d, 0, H - 1));
         const float t = taps[d + r];
-        for (int x = 0; x < W; ++x) {
-          const std::uint8_t l = lrow[x];
-          a0[x] += l == 0 ? t : 0.f;
-          a1[x] += l == 1 ? t : 0.f;
-          a2[x] += l == 2 ? t : 0.f;
+        // One channel per sweep (measured faster than three selects per element in one sweep).
+        for (int c = 0; c < 3; ++c) {
+          if (!has[c]) continue;
+          float* a = scratch + c * plane + std::int64_t(y) * W;
+          const std::uint8_t lc = std::uint8_t(c);
+          for (int x = 0; x < W; ++x) a[x] += lrow[x] == lc ? t : 0.f;
         }
       }
     }
@@ -521,6 +531,10 @@ void BlurSelection(ImageView<const std::uint8_t> label, float sigma, float* scra
     std::vector<float> pad(std::size_t(W) + 2 * r), acc(3 * std::size_t(W));
     for (int y = int(b); y < int(e); ++y) {
       for (int c = 0; c < 3; ++c) {
+        if (!has[c]) {
+          std::fill(acc.begin() + std::size_t(c) * W, acc.begin() + std::size_t(c + 1) * W, 0.f);
+          continue;
+        }
         const float* src = scratch + c * plane + std::int64_t(y) * W;
         for (int x = 0; x < r; ++x) pad[x] = src[0], pad[std::size_t(W) + r + x] = src[W - 1];
         std::copy(src, src + W, pad.begin() + r);
