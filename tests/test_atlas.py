@@ -218,3 +218,18 @@ def test_layout_face_scale_and_shelf_packing():
         A.layout(mesh, 0.02, face_scale=np.zeros(len(mesh.faces)))
     with pytest.raises(DtypeError):
         A.face_footprint_scale("mesh", {"a": camera()}, 0.1)
+
+
+def test_layout_places_neighbouring_faces_in_neighbouring_cells():
+    mesh = densify(wall(), 0.05)  # ~3000 faces of one size: one length bin
+    lay = A.layout(mesh, texel=0.01)
+    cell_pos = lay.uv.mean(1)
+    centre = mesh.vertices[mesh.faces].mean(1)
+    # The atlas distance between the cells of the nearest surface neighbours, against random pairs.
+    from scipy.spatial import cKDTree
+
+    _, nn = cKDTree(centre).query(centre, k=2)
+    near = np.linalg.norm(cell_pos - cell_pos[nn[:, 1]], axis=1)
+    rng = np.random.default_rng(0)
+    rand = np.linalg.norm(cell_pos - cell_pos[rng.permutation(len(centre))], axis=1)
+    assert np.median(near) < 0.2 * np.median(rand)

@@ -1,15 +1,18 @@
 """A UV texture atlas for the global mesh (issue 7: TM as a textured mesh, as the paper's TM is;
 docs/preprocess.md "Texture").
 
-* :func:`layout` — parameterisation and packing of our own: the faces are sorted by their
-  longest edge and paired; each pair gets a square cell of N x N texels (N = longest edge of the
+* :func:`layout` — parameterisation and packing of our own: the faces are binned by their
+  longest edge in texels (bins a factor 1.25 wide, largest first), ordered along a Morton curve
+  of their centroids within a bin (neighbouring faces get neighbouring cells) and paired; each
+  pair gets a square cell of N x N texels (N = longest edge of the
   pair / texel + 4, so every edge gets at least its length in texels), face A in the lower-left
   corner with legs N - 3, face B in the upper-right corner with legs N - 4. Texel (i, j) of the
   cell belongs to A when (i + 0.5) + (j + 0.5) <= N, else to B. A bilinear read at (x, y) touches
   texel centres within 1 of x and of y, so sums of centres within 2 of x + y; A's diagonal lies
   at x + y = N - 1 and B's at N + 2, so a bilinear lookup anywhere inside a face reads only
-  texels assigned to that face (tests/test_atlas.py checks it). Cells of one size form a grid
-  block; blocks are stacked (a loop over the distinct sizes, at most ``max_cell``). One chart per
+  texels assigned to that face (tests/test_atlas.py checks it). Cells are shelf-packed in that
+  order (rows as tall as their tallest cell; a loop over the rows). ``face_scale`` gives faces
+  their own texel size (:func:`face_footprint_scale`). One chart per
   face: no seams to cut, no distortion beyond mapping each triangle to a right isosceles one.
   (open3d's UVAtlas, ``compute_uvatlas``, was not used: it takes minutes on 10^5 faces and
   offers nothing the per-face charts need here.)
@@ -94,12 +97,17 @@ def layout(mesh: Mesh, texel: float, max_texels: int = 4_194_304, max_cell: int 
         if not (np.all(np.isfinite(fs)) and np.all(fs > 0)):
             raise BadValueError("face_scale: expected finite values > 0")
         longest = longest / fs  # in units of the face's own texel
-    order = np.argsort(longest, kind="stable")[::-1]  # largest first
+    # Order: faces binned by length in texels (bins a factor 1.25 wide), largest bin first; within
+    # a bin by the Morton code of the centroid, so that neighbours on the surface (and on the
+    # screen) get neighbouring cells and the TM read walks the atlas instead of jumping at every
+    # face (cache misses: docs/hybrid.md "Figures").
+    length_bin = np.floor(np.log(np.maximum(longest, 1e-30)) / math.log(1.25))
+    order = np.lexsort((_morton(v[f].mean(1)), -length_bin))
     n_pairs = (m + 1) // 2
     pairs = np.full(2 * n_pairs, -1, np.int64)
     pairs[:m] = order
     pairs = pairs.reshape(n_pairs, 2)
-    pair_len = longest[pairs[:, 0]]  # the larger of the two
+    pair_len = np.maximum(longest[pairs[:, 0]], np.where(pairs[:, 1] >= 0, longest[pairs[:, 1]], 0.0))
     while True:
         cell = np.clip(np.ceil(pair_len / texel).astype(np.int64) + MIN_CELL, MIN_CELL, max_cell)
         total = int((cell * cell).sum())
@@ -111,9 +119,9 @@ def layout(mesh: Mesh, texel: float, max_texels: int = 4_194_304, max_cell: int 
                             f"{max_texels}")
     width = int(max(int(cell.max()), math.ceil(math.sqrt(total))))
     sizes = np.unique(cell)[::-1]
-    # Shelf packing: the cells in decreasing size (pairs are sorted by length, so cell is
-    # non-increasing) fill rows ("shelves") left to right; a shelf is as tall as its first cell.
-    # One iteration per shelf (about sqrt(pairs) of them), not per face.
+    # Shelf packing: the cells in that order (sizes non-increasing up to the 1.25 bin width) fill
+    # rows ("shelves") left to right; a shelf is as tall as its tallest cell. One iteration per
+    # shelf (about sqrt(pairs) of them), not per face.
     origin = np.zeros((n_pairs, 2), np.int64)
     csum = np.concatenate([[0], np.cumsum(cell)])
     start, y0 = 0, 0
@@ -122,7 +130,7 @@ def layout(mesh: Mesh, texel: float, max_texels: int = 4_194_304, max_cell: int 
         end = max(end, start + 1)
         origin[start:end, 0] = csum[start:end] - csum[start]
         origin[start:end, 1] = y0
-        y0 += int(cell[start])
+        y0 += int(cell[start:end].max())
         start = end
     height = y0
     nf = cell.astype(np.float64)[:, None]
@@ -168,6 +176,22 @@ def face_footprint_scale(mesh: Mesh, cameras: Mapping[str, Camera], texel: float
         best[ok] = np.minimum(best[ok], z[ok] * per_px)
     scale = np.where(np.isfinite(best), best / texel, limits[1])
     return np.clip(scale, limits[0], limits[1])
+
+
+def _morton(points: np.ndarray) -> np.ndarray:
+    """Morton (Z-order) codes of 3-D points quantised to 1024 steps per axis of their bounds."""
+    p = np.asarray(points, np.float64)
+    lo = p.min(0)
+    span = max(float((p.max(0) - lo).max()), 1e-12)
+    q = np.clip(((p - lo) / span * 1023.0).astype(np.int64), 0, 1023)
+
+    def spread(x: np.ndarray) -> np.ndarray:  # 10 bits -> every third bit of 30
+        x = (x | (x << 16)) & 0x030000FF
+        x = (x | (x << 8)) & 0x0300F00F
+        x = (x | (x << 4)) & 0x030C30C3
+        return (x | (x << 2)) & 0x09249249
+
+    return spread(q[:, 0]) | (spread(q[:, 1]) << 1) | (spread(q[:, 2]) << 2)
 
 
 def texel_barycentrics(lay: AtlasLayout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
