@@ -23,6 +23,27 @@ def data_dir():
     return d
 
 
+def need_data(sub: str) -> Path:
+    """The shared data set ``sub`` (a path under the data root), or skip the test with the reason."""
+    d = shared_data() / sub
+    if not d.is_dir():
+        pytest.skip(f"{sub} not found in the shared data at {shared_data()} (set IBR_SHARED_DATA)")
+    return d
+
+
+@pytest.fixture(scope="module")
+def dibr_accuracy_bench():
+    """benchmarks/bench_dibr_accuracy.py as a module (its protocols are what the real-data DIBR tests check)."""
+    if not shared_data().is_dir():
+        pytest.skip(f"real data not found at {shared_data()} (set IBR_SHARED_DATA)")
+    import sys
+
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    import bench_dibr_accuracy
+
+    return bench_dibr_accuracy
+
+
 @pytest.fixture
 def rng():
     return np.random.default_rng(1234)

@@ -3,12 +3,11 @@ accuracy on real data (benchmarks/bench_dibr_accuracy.py protocols)."""
 from __future__ import annotations
 
 import json
-import sys
 
 import numpy as np
 import pytest
 
-from conftest import REPO, shared_data
+from conftest import need_data, shared_data
 from ibrtools import _core
 from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError, InputError
@@ -132,17 +131,11 @@ DATA = shared_data()
 
 
 @pytest.fixture(scope="module")
-def bench():
-    if not DATA.is_dir():
-        pytest.skip(f"real data not found at {DATA} (set IBR_SHARED_DATA)")
-    sys.path.insert(0, str(REPO / "benchmarks"))
-    import bench_dibr_accuracy
-    return bench_dibr_accuracy
+def bench(dibr_accuracy_bench):
+    return dibr_accuracy_bench
 
 
-def _need(sub):
-    if not (DATA / sub).is_dir():
-        pytest.skip(f"{sub} not in the shared data")
+_need = need_data
 
 
 def test_bench_scoring_three_ways(bench):
