@@ -7,6 +7,10 @@
 
 #include "ibr/parallel.h"
 
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
 namespace ibr {
 namespace {
 
@@ -213,6 +217,153 @@ void FoveateRows(const ImageView<float>* bands, int k, const ImageView<const flo
   }
 }
 
+// The change of one band row chunk from its moment planes (MetamericComposite's operations in the
+// same order): out[j] = (mean + sigma * noise) - band, sigma = d > 0 ? sqrt(d) : 0 with
+// d = sq - mean^2, over n contiguous floats. SSE2 lanes compute the same IEEE values as the scalar
+// tail (sqrtps is correctly rounded; the compare-and-mask gives 0 for d <= 0 as the scalar select).
+inline void CompositeChange(const float* __restrict mean, const float* __restrict sq, const float* __restrict nz,
+                            float* __restrict b, int n) {
+  int j = 0;
+#if defined(__SSE2__)
+  const __m128 zero = _mm_setzero_ps();
+  for (; j + 4 <= n; j += 4) {
+    const __m128 mv = _mm_loadu_ps(mean + j);
+    const __m128 d = _mm_sub_ps(_mm_loadu_ps(sq + j), _mm_mul_ps(mv, mv));
+    const __m128 sigma = _mm_and_ps(_mm_sqrt_ps(d), _mm_cmpgt_ps(d, zero));
+    const __m128 nv = _mm_add_ps(mv, _mm_mul_ps(sigma, _mm_loadu_ps(nz + j)));
+    _mm_storeu_ps(b + j, _mm_sub_ps(nv, _mm_loadu_ps(b + j)));
+  }
+#endif
+  for (; j < n; ++j) {
+    const float mm = mean[j] * mean[j];
+    const float d = sq[j] - mm;
+    const float sigma = d > 0.0f ? std::sqrt(d) : 0.0f;
+    const float s = sigma * nz[j];
+    const float nv = mean[j] + s;
+    b[j] = nv - b[j];
+  }
+}
+
+// FoveateRows for kK bands of kC channels fixed at compile time: a row is done in chunks of
+// kChunk samples, first the moments of every sample (both trilinear levels summed in registers)
+// into per-band planes laid out as the band rows, then the composite over each band's contiguous
+// chunk (CompositeChange, vectorised), then the unpooled samples (lam <= 0) set to 0. The same
+// float operations in the same order as FoveateRows<2 kK kC>: bit-identical output.
+template <int kK, int kC>
+void FoveateRowsFixed(const ImageView<float>* bands, const ImageView<const float>* mip, int n,
+                      const ImageView<const float>& level_map, const ImageView<const float>* noise, int y0,
+                      int y1) {
+  constexpr int kc = kK * kC, nm = 2 * kc, kChunk = 64;
+  const float top = static_cast<float>(n);
+  const int width = bands[0].width;
+  alignas(16) float mean[kK][kChunk * kC];
+  alignas(16) float sq[kK][kChunk * kC];
+  AxisTap rows[32];
+  for (int y = y0; y < y1; ++y) {
+    const float* lam_row = level_map.Row(y);
+    for (int l = 1; l <= n; ++l) rows[l] = AxisAt(y, l, mip[l - 1].height);
+    float* brow[kK];
+    const float* nrow[kK];
+    for (int i = 0; i < kK; ++i) {
+      brow[i] = bands[i].Row(y);
+      nrow[i] = noise[i].Row(y);
+    }
+    for (int x0 = 0; x0 < width; x0 += kChunk) {
+      const int cn = std::min(kChunk, width - x0);
+      bool any_unpooled = false;
+      for (int dx = 0; dx < cn; ++dx) {
+        const int x = x0 + dx;
+        const float lam_raw = lam_row[x];
+        const std::ptrdiff_t o = static_cast<std::ptrdiff_t>(dx) * kC;
+        if (!(lam_raw > 0.0f)) {  // not pooled: set to 0 below
+          any_unpooled = true;
+          for (int i = 0; i < kK; ++i) {
+            for (int ch = 0; ch < kC; ++ch) mean[i][o + ch] = sq[i][o + ch] = 0.0f;
+          }
+          continue;
+        }
+        const float lam = std::min(lam_raw, top);
+        int l0 = static_cast<int>(std::floor(lam));
+        if (l0 > n - 1) l0 = n - 1;
+        const float t = lam - static_cast<float>(l0);
+        // m = (1 - t) * B(l0) + t * B(l0 + 1) summed in registers: the same two terms, added in the
+        // same order as Accumulate<false> then Accumulate<true>.
+        if (t > 0.0f) {
+          const Taps tb = FastTapsAt(mip[l0], rows[l0 + 1], l0 + 1, x);
+          const float v00 = t * (1.0f - tb.fx) * (1.0f - tb.fy), v01 = t * tb.fx * (1.0f - tb.fy);
+          const float v10 = t * (1.0f - tb.fx) * tb.fy, v11 = t * tb.fx * tb.fy;
+          const float* __restrict pa = tb.r0 + tb.x0;
+          const float* __restrict pb = tb.r0 + tb.x1;
+          const float* __restrict pc = tb.r1 + tb.x0;
+          const float* __restrict pd = tb.r1 + tb.x1;
+          if (l0 == 0) {  // the stack's level 0: the pixel's own [X, X^2]
+            const float w0 = 1.0f - t;
+            for (int i = 0; i < kK; ++i) {
+              const float* b = brow[i] + static_cast<std::ptrdiff_t>(x) * kC;
+              for (int ch = 0; ch < kC; ++ch) {
+                const int j = i * kC + ch, q = kc + j;
+                const float v = b[ch];
+                mean[i][o + ch] = w0 * v + (v00 * pa[j] + v01 * pb[j] + v10 * pc[j] + v11 * pd[j]);
+                sq[i][o + ch] = w0 * (v * v) + (v00 * pa[q] + v01 * pb[q] + v10 * pc[q] + v11 * pd[q]);
+              }
+            }
+          } else {
+            const Taps ta = FastTapsAt(mip[l0 - 1], rows[l0], l0, x);
+            const float w = 1.0f - t;
+            const float u00 = w * (1.0f - ta.fx) * (1.0f - ta.fy), u01 = w * ta.fx * (1.0f - ta.fy);
+            const float u10 = w * (1.0f - ta.fx) * ta.fy, u11 = w * ta.fx * ta.fy;
+            const float* __restrict qa = ta.r0 + ta.x0;
+            const float* __restrict qb = ta.r0 + ta.x1;
+            const float* __restrict qc = ta.r1 + ta.x0;
+            const float* __restrict qd = ta.r1 + ta.x1;
+            float m[nm];
+            for (int j = 0; j < nm; ++j) {
+              m[j] = (u00 * qa[j] + u01 * qb[j] + u10 * qc[j] + u11 * qd[j]) +
+                     (v00 * pa[j] + v01 * pb[j] + v10 * pc[j] + v11 * pd[j]);
+            }
+            for (int i = 0; i < kK; ++i) {
+              for (int ch = 0; ch < kC; ++ch) {
+                mean[i][o + ch] = m[i * kC + ch];
+                sq[i][o + ch] = m[kc + i * kC + ch];
+              }
+            }
+          }
+          continue;
+        }
+        float m[nm];  // t == 0: one level
+        if (l0 == 0) {
+          for (int i = 0; i < kK; ++i) {
+            const float* b = brow[i] + static_cast<std::ptrdiff_t>(x) * kC;
+            for (int ch = 0; ch < kC; ++ch) {
+              const float v = b[ch];
+              m[i * kC + ch] = 1.0f * v;
+              m[kc + i * kC + ch] = 1.0f * (v * v);
+            }
+          }
+        } else {
+          Accumulate<nm, false>(FastTapsAt(mip[l0 - 1], rows[l0], l0, x), 1.0f, nm, m);
+        }
+        for (int i = 0; i < kK; ++i) {
+          for (int ch = 0; ch < kC; ++ch) {
+            mean[i][o + ch] = m[i * kC + ch];
+            sq[i][o + ch] = m[kc + i * kC + ch];
+          }
+        }
+      }
+      const std::ptrdiff_t off = static_cast<std::ptrdiff_t>(x0) * kC;
+      for (int i = 0; i < kK; ++i) CompositeChange(mean[i], sq[i], nrow[i] + off, brow[i] + off, cn * kC);
+      if (any_unpooled) {
+        for (int dx = 0; dx < cn; ++dx) {
+          if (lam_row[x0 + dx] > 0.0f) continue;
+          for (int i = 0; i < kK; ++i) {
+            for (int ch = 0; ch < kC; ++ch) brow[i][static_cast<std::ptrdiff_t>(x0 + dx) * kC + ch] = 0.0f;
+          }
+        }
+      }
+    }
+  }
+}
+
 }  // namespace
 
 void MipDownMoments(const ImageView<const float>* bands, int k, const ImageView<float>& out) {
@@ -232,8 +383,13 @@ void MipDownMoments(const ImageView<const float>* bands, int k, const ImageView<
 void MipFoveateChange(const ImageView<float>* bands, int k, const ImageView<const float>* mip, int n,
                       const ImageView<const float>& level_map, const ImageView<const float>* noise) {
   const int nm = 2 * k * bands[0].channels;
+  const bool rgb = bands[0].channels == 3;
   ParallelFor(bands[0].height, RowGrain(bands[0].width), [&](std::int64_t y0, std::int64_t y1) {
     const int a = static_cast<int>(y0), b = static_cast<int>(y1);
+    if (rgb && k == 3) return FoveateRowsFixed<3, 3>(bands, mip, n, level_map, noise, a, b);
+    if (rgb && k == 2) return FoveateRowsFixed<2, 3>(bands, mip, n, level_map, noise, a, b);
+    if (rgb && k == 5) return FoveateRowsFixed<5, 3>(bands, mip, n, level_map, noise, a, b);
+    if (rgb && k == 4) return FoveateRowsFixed<4, 3>(bands, mip, n, level_map, noise, a, b);
     switch (nm) {
       case 12: FoveateRows<12>(bands, k, mip, n, level_map, noise, a, b); break;
       case 18: FoveateRows<18>(bands, k, mip, n, level_map, noise, a, b); break;
