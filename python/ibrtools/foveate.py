@@ -216,7 +216,8 @@ def foveate(image: np.ndarray, fixation: tuple[float, float] = (0.5, 0.5), *, po
             np.subtract(nb, b, out=b)  # the band's change, in place
     pyr.lowpass[...] = 0
     delta = synthesise(SteerablePyramid(pyr.highpass, pyr.bands, pyr.lowpass, ycbcr=pyr.ycbcr))
-    out = np.where(fovea[..., None], x, x + delta)
+    out = np.add(x, delta, out=delta)  # one pass, in the fresh (H, W, C) float32 collapse
+    out[fovea] = x[fovea]  # the fovea bit for bit (a few pixels: no full-frame select)
     return out[..., 0] if image.ndim == 2 else out
 
 
