@@ -250,9 +250,10 @@ inline void CompositeChange(const float* __restrict mean, const float* __restric
 // chunk (CompositeChange, vectorised), then the unpooled samples (lam <= 0) set to 0. The same
 // float operations in the same order as FoveateRows<2 kK kC>: bit-identical output.
 template <int kK, int kC>
-void FoveateRowsFixed(const ImageView<float>* bands, const ImageView<const float>* mip, int n,
-                      const ImageView<const float>& level_map, const ImageView<const float>* noise, int y0,
-                      int y1) {
+__attribute__((always_inline)) inline void FoveateRowsFixed(const ImageView<float>* bands,
+                                                            const ImageView<const float>* mip, int n,
+                                                            const ImageView<const float>& level_map,
+                                                            const ImageView<const float>* noise, int y0, int y1) {
   constexpr int kc = kK * kC, nm = 2 * kc, kChunk = 64;
   const float top = static_cast<float>(n);
   const int width = bands[0].width;
@@ -364,6 +365,28 @@ void FoveateRowsFixed(const ImageView<float>* bands, const ImageView<const float
   }
 }
 
+#if defined(__x86_64__) && defined(__GNUC__)
+// The same code compiled with AVX2 lanes (no FMA: every product and sum rounds as in the SSE2 build,
+// so the output is bit-identical), used when the CPU has AVX2.
+template <int kK, int kC>
+__attribute__((target("avx2"))) void FoveateRowsFixedAvx2(const ImageView<float>* bands,
+                                                          const ImageView<const float>* mip, int n,
+                                                          const ImageView<const float>& level_map,
+                                                          const ImageView<const float>* noise, int y0, int y1) {
+  FoveateRowsFixed<kK, kC>(bands, mip, n, level_map, noise, y0, y1);
+}
+#endif
+
+template <int kK, int kC>
+void FoveateRowsBest(const ImageView<float>* bands, const ImageView<const float>* mip, int n,
+                     const ImageView<const float>& level_map, const ImageView<const float>* noise, int y0, int y1) {
+#if defined(__x86_64__) && defined(__GNUC__)
+  static const bool avx2 = __builtin_cpu_supports("avx2");
+  if (avx2) return FoveateRowsFixedAvx2<kK, kC>(bands, mip, n, level_map, noise, y0, y1);
+#endif
+  FoveateRowsFixed<kK, kC>(bands, mip, n, level_map, noise, y0, y1);
+}
+
 }  // namespace
 
 void MipDownMoments(const ImageView<const float>* bands, int k, const ImageView<float>& out) {
@@ -386,10 +409,10 @@ void MipFoveateChange(const ImageView<float>* bands, int k, const ImageView<cons
   const bool rgb = bands[0].channels == 3;
   ParallelFor(bands[0].height, RowGrain(bands[0].width), [&](std::int64_t y0, std::int64_t y1) {
     const int a = static_cast<int>(y0), b = static_cast<int>(y1);
-    if (rgb && k == 3) return FoveateRowsFixed<3, 3>(bands, mip, n, level_map, noise, a, b);
-    if (rgb && k == 2) return FoveateRowsFixed<2, 3>(bands, mip, n, level_map, noise, a, b);
-    if (rgb && k == 5) return FoveateRowsFixed<5, 3>(bands, mip, n, level_map, noise, a, b);
-    if (rgb && k == 4) return FoveateRowsFixed<4, 3>(bands, mip, n, level_map, noise, a, b);
+    if (rgb && k == 3) return FoveateRowsBest<3, 3>(bands, mip, n, level_map, noise, a, b);
+    if (rgb && k == 2) return FoveateRowsBest<2, 3>(bands, mip, n, level_map, noise, a, b);
+    if (rgb && k == 5) return FoveateRowsBest<5, 3>(bands, mip, n, level_map, noise, a, b);
+    if (rgb && k == 4) return FoveateRowsBest<4, 3>(bands, mip, n, level_map, noise, a, b);
     switch (nm) {
       case 12: FoveateRows<12>(bands, k, mip, n, level_map, noise, a, b); break;
       case 18: FoveateRows<18>(bands, k, mip, n, level_map, noise, a, b); break;
