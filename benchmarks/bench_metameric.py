@@ -125,13 +125,14 @@ def run(size: int, repeats: int) -> str:
         "'vs TELEA' is OpenCV's time over the row's, same run. Target: metameric <= 60 ms "
         f"(dos Anjos et al.: 17.9 ms on an RTX 2070). Measured: {best:.0f} ms on "
         f"{threads_list[0]} thread{'s' if threads_list[0] > 1 else ''}"
-        + (" - the target is met." if best <= 60 else f" - the target is missed by {best / 60:.1f}x."),
+        + (" - the target is met." if best <= 60 else f" - the target is missed by {best / 60:.2f}x."),
         "",
         "Since commit 4bbb52f the fill's mean is the push-pull pre-fill and RGB is synthesised on display "
         "(sRGB-encoded) values (docs/inpaint_quality.md: the quality fix); that adds a whole-frame encoding pass. "
         "History of this figure: 177 ms before the per-sample C++ kernels (commit a79125a), 66 ms before the fused "
         "moments push-pull (commit af0af67, load 1.5), 84 ms at the end of the previous session (quiet machine, "
-        "stage table then: moments push-pull 42, copy into holes 11, composite 8 ms).",
+        "stage table then: moments push-pull 42, copy into holes 11, composite 8 ms), 62-65 ms on the quiet machine "
+        "before the AVX2 build of the sRGB curves (the lead's run of this script at 20:57).",
         "",
         "| implementation | time (ms) | vs TELEA | MAE in holes |",
         "|---|---:|---:|---:|",
@@ -139,7 +140,7 @@ def run(size: int, repeats: int) -> str:
     mid = ["", f"First call (builds and caches the unit-variance noise pyramid for this size and seed): "
            f"{first_ms:.0f} ms. Stage breakdown of one depth-aware call "
            f"({threads_list[0]} thread{'s' if threads_list[0] > 1 else ''}; the remainder of the total is the "
-           "depth sub-sampling, mask fall-backs and Python overhead):", "",
+           "depth sub-sampling per level, mask fall-backs and Python overhead):", "",
            "| stage | time (ms) |", "|---|---:|"]
     tail = ["", load_note()]
     return "\n".join(head + rows + mid + stage_rows + tail) + "\n"
