@@ -525,6 +525,22 @@ PushPullStatus Run(const Src& src, const PushPullOptions& options, const ImageVi
   return PushPullStatus::kClassicFallback;
 }
 
+// Number of NaN / inf among row[0..n): on the bits (exponent all ones), branch-free; built for AVX2
+// and the portable default (GCC function multi-versioning, as cpp/kernels/steerable.cpp; integer
+// work only, so the same count either way).
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
+__attribute__((target_clones("avx2", "default")))
+#endif
+std::int64_t CountNonFiniteRun(const float* row, std::ptrdiff_t n) {
+  std::int32_t bad = 0;
+  for (std::ptrdiff_t i = 0; i < n; ++i) {
+    std::uint32_t bits;
+    std::memcpy(&bits, &row[i], sizeof bits);
+    bad += (bits & 0x7f800000u) == 0x7f800000u;
+  }
+  return bad;
+}
+
 }  // namespace
 
 PushPullStatus PushPullKernel(const ImageView<const float>& image,
@@ -592,6 +608,9 @@ std::int64_t CountNonFiniteOutsideHoles(const ImageView<const float>& image,
       for (int y = y0; y < y1; ++y) {
         const float* row = image.Row(y);
         const std::uint8_t* hrow = hole.Row(y);
+        // The common case first: no non-finite value anywhere in the row (one contiguous,
+        // vectorised scan); only a row that has some is counted pixel by pixel below.
+        if (CountNonFiniteRun(row, std::ptrdiff_t(image.width) * image.channels) == 0) continue;
         // Branch-free (vectorisable): a float is NaN or inf when its exponent bits are all ones.
         const int C = image.channels;
         for (int x = 0; x < image.width; ++x) {
