@@ -32,6 +32,10 @@
 //   Requires 2kC <= kMipMaxMomentChannels (the per-sample buffer on the stack; the front checks).
 //   Matches mip_build + mip_lookup + metameric_composite + subtraction to float rounding (the level-0
 //   bilinear taps of weight 0 are skipped; compilers may contract differently: ~1 ulp).
+//   RGB bands (C = 3, k = 2..5) take a fixed-size path (row chunks: moments of both levels summed in
+//   registers into per-band planes, then the composite over contiguous floats in SIMD lanes; an AVX2
+//   build of it, without FMA, when the CPU has AVX2) with the same float operations in the same order:
+//   bit-identical to the generic path (tests/test_mip_foveate_level.py, against a numpy reference).
 //
 // Shapes (row, col, channel), C-contiguous, float32; level_map (H, W) finite. The front
 // (cpp/bindings/mip.cpp) checks everything; kernels trust their inputs, never throw and never
