@@ -63,8 +63,8 @@ def run(size: int, repeats: int) -> str:
             pyr.lowpass[...] = 0
             d = synthesise(SteerablePyramid(pyr.highpass, pyr.bands, pyr.lowpass))
             t3 = time.perf_counter()
-            fovea = lam0 <= 0  # foveate's last step: one in-place add, then the few fovea pixels copied
-            out = np.add(img, d, out=d)
+            _, fovea = fv._fovea_index(size, size, fix, fv.POOLING, fv.FOV_DEG)  # cached, as in foveate
+            out = np.add(img, d, out=d)  # foveate's last step: one in-place add, the few fovea pixels copied
             out[fovea] = img[fovea]
             t4 = time.perf_counter()
             for k, v in (("steerable analysis", t1 - t0),

@@ -123,6 +123,18 @@ def _level_map(h: int, w: int, fixation: tuple[float, float], pooling: float, fo
     return lam
 
 
+@functools.lru_cache(maxsize=4)
+def _fovea_index(h: int, w: int, fixation: tuple[float, float], pooling: float,
+                 fov: float) -> tuple[bool, tuple[np.ndarray, np.ndarray]]:
+    """(every pixel is in the fovea, (rows, cols) of the fovea pixels) for _level_map's arguments
+    (cached with it: a fixed fixation finds them once)."""
+    fovea = _level_map(h, w, fixation, pooling, fov) <= 0
+    ys, xs = np.nonzero(fovea)
+    ys.setflags(write=False)
+    xs.setflags(write=False)
+    return bool(fovea.all()), (ys, xs)
+
+
 def level_map(shape: tuple[int, int], fixation: tuple[float, float], *, pooling: float = POOLING,
               fov: float = FOV_DEG) -> np.ndarray:
     """log2 of the pooling region edge length in pixels at every pixel of an image of ``shape``
@@ -187,10 +199,10 @@ def foveate(image: np.ndarray, fixation: tuple[float, float] = (0.5, 0.5), *, po
     from .metameric import _noise_pyramid_cached
     from .steerable import SteerablePyramid, synthesise
 
-    image, x, _, (levels, orientations, seed), lam0, pyr, groups = _prepare(
+    image, x, geom, (levels, orientations, seed), lam0, pyr, groups = _prepare(
         image, fixation, pooling, levels, orientations, seed, fov)
-    fovea = lam0 <= 0
-    if fovea.all():
+    all_fovea, fovea = _fovea_index(*lam0.shape, *geom)
+    if all_fovea:
         return image.copy()
     h, w, c = x.shape
     n_hp, n_bands, _ = _noise_pyramid_cached(h, w, c, levels, orientations, seed)
@@ -217,7 +229,7 @@ def foveate(image: np.ndarray, fixation: tuple[float, float] = (0.5, 0.5), *, po
     pyr.lowpass[...] = 0
     delta = synthesise(SteerablePyramid(pyr.highpass, pyr.bands, pyr.lowpass, ycbcr=pyr.ycbcr))
     out = np.add(x, delta, out=delta)  # one pass, in the fresh (H, W, C) float32 collapse
-    out[fovea] = x[fovea]  # the fovea bit for bit (a few pixels: no full-frame select)
+    out[fovea] = x[fovea]  # the fovea bit for bit (a few pixels, cached indices: no full-frame pass)
     return out[..., 0] if image.ndim == 2 else out
 
 
