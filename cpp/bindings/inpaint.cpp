@@ -10,6 +10,7 @@
 #include "ibr/errors.h"
 #include "kernels/pushpull.h"
 #include "module.h"
+#include "pushpull_args.h"
 
 namespace ibr::bind {
 namespace {
@@ -47,22 +48,9 @@ void BindInpaint(py::module_& m) {
         }
         py::object hole_keep;
         const ImageView<const std::uint8_t> hole = HoleView(hole_obj, h, w, &hole_keep);
-        if (!(std::isfinite(gamma) && gamma >= 0.0)) {
-          throw BadValueError("gamma: expected a finite number >= 0, got " + std::to_string(gamma));
-        }
-        if (!(std::isfinite(depth_threshold) && depth_threshold >= 0.0)) {
-          throw BadValueError("depth_threshold: expected a finite number >= 0, got " + std::to_string(depth_threshold));
-        }
-        PushPullOptions options;
-        options.gamma = static_cast<float>(gamma);
-        options.depth_threshold = static_cast<float>(depth_threshold);
         FloatArray depth;
-        ImageView<const float> depth_view;
-        if (!depth_obj.is_none()) {
-          depth = CheckArray<float>(depth_obj, "depth", {{"H", h}, {"W", w}});
-          depth_view = ConstViewOf(depth);
-          options.depth_aware = true;
-        }
+        PushPullOptions options = CheckPushPullArgs(depth_obj, h, w, depth_threshold, gamma, &depth);
+        const ImageView<const float> depth_view = options.depth_aware ? ConstViewOf(depth) : ImageView<const float>();
         const ImageView<const float> image_view(image.data(), static_cast<int>(h), static_cast<int>(w),
                                                 static_cast<int>(c));
         options.holes_only = holes_only;

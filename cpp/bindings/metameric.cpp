@@ -13,6 +13,7 @@
 #include "kernels/metameric.h"
 #include "kernels/pushpull.h"
 #include "module.h"
+#include "pushpull_args.h"
 
 namespace ibr::bind {
 namespace {
@@ -101,20 +102,8 @@ void BindMetameric(py::module_& m) {
         const py::ssize_t k = static_cast<py::ssize_t>(bands.size());
         auto hole = CheckArray<std::uint8_t>(hole_obj, "mask", {{"h", h}, {"w", w}});
         FloatArray out = CheckArray<float>(out_obj, "out", {{"h", h}, {"w", w}, {"2kC", 2 * k * c}}, true);
-        PushPullOptions options;
         FloatArray depth;
-        if (!depth_obj.is_none()) {
-          depth = CheckArray<float>(depth_obj, "depth", {{"h", h}, {"w", w}});
-          options.depth_aware = true;
-        }
-        if (!(std::isfinite(gamma) && gamma >= 0.0)) {
-          throw BadValueError("gamma: expected a finite number >= 0, got " + std::to_string(gamma));
-        }
-        if (!(std::isfinite(depth_threshold) && depth_threshold >= 0.0)) {
-          throw BadValueError("depth_threshold: expected a finite number >= 0, got " + std::to_string(depth_threshold));
-        }
-        options.gamma = static_cast<float>(gamma);
-        options.depth_threshold = static_cast<float>(depth_threshold);
+        const PushPullOptions options = CheckPushPullArgs(depth_obj, h, w, depth_threshold, gamma, &depth);
         std::vector<py::array> ins(bands.begin(), bands.end());
         ins.push_back(hole);
         if (options.depth_aware) ins.push_back(depth);
@@ -204,20 +193,8 @@ void BindMetameric(py::module_& m) {
         const py::ssize_t k = static_cast<py::ssize_t>(bands.size());
         std::vector<FloatArray> noise = CheckPairedArrayList(noise_obj, "noise", bands, "band");
         auto mask = CheckArray<std::uint8_t>(mask_obj, "mask", {{"h", h}, {"w", w}});
-        PushPullOptions options;
         FloatArray depth;
-        if (!depth_obj.is_none()) {
-          depth = CheckArray<float>(depth_obj, "depth", {{"h", h}, {"w", w}});
-          options.depth_aware = true;
-        }
-        if (!(std::isfinite(gamma) && gamma >= 0.0)) {
-          throw BadValueError("gamma: expected a finite number >= 0, got " + std::to_string(gamma));
-        }
-        if (!(std::isfinite(depth_threshold) && depth_threshold >= 0.0)) {
-          throw BadValueError("depth_threshold: expected a finite number >= 0, got " + std::to_string(depth_threshold));
-        }
-        options.gamma = static_cast<float>(gamma);
-        options.depth_threshold = static_cast<float>(depth_threshold);
+        const PushPullOptions options = CheckPushPullArgs(depth_obj, h, w, depth_threshold, gamma, &depth);
         py::array flow_arr;
         const MetamericFlow flow = CheckFlow(flow_obj, h, w, scale, &flow_arr);
         for (std::size_t i = 0; i < bands.size(); ++i) {
