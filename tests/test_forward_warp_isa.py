@@ -130,7 +130,6 @@ def test_band_local_accumulation_equals_per_view_buffers():
         swc = np.zeros((dst.height, dst.width, 3), np.float32)
         sw = np.zeros((dst.height, dst.width), np.float32)
         swi = np.zeros_like(sw)
-        sq = np.zeros_like(sw)
         for col, d in views:
             acc.add_view(col, d, src.to_core(), opts)
             c, dd, w = _core.forward_warp(col, d, src.to_core(), dst.to_core(), opts)
@@ -139,7 +138,6 @@ def test_band_local_accumulation_equals_per_view_buffers():
             sw[m] += w[m]
             with np.errstate(divide="ignore"):
                 swi[m] += w[m] / dd[m]
-            sq[m] += 1  # placeholder: confidence is compared through the hole mask below
         color, depth, conf, hole = acc.result()
         np.testing.assert_array_equal(hole, ~(sw > 0), err_msg=name)
         m = sw > 0
