@@ -38,11 +38,9 @@ def gbuffer(mesh, cam):
     return ReferenceRenderer(mesh).render(cam, outputs=("depth", "prim_id", "bary"), lights=[], ambient=0.0)
 
 
-def test_layout_every_bilinear_lookup_inside_a_face_reads_its_own_texels():
-    mesh = densify(wall(), 0.3)
-    lay = A.layout(mesh, texel=0.05)
-    rng = np.random.default_rng(0)
-    b = rng.dirichlet((1, 1, 1), size=(len(mesh.faces), 8))  # points inside every face
+def _assert_lookups_read_own_texels(mesh, lay, seed: int) -> None:
+    """Bilinear lookups at random points inside every face read only texels of that face."""
+    b = np.random.default_rng(seed).dirichlet((1, 1, 1), size=(len(mesh.faces), 8))
     p = np.einsum("fsk,fkc->fsc", b, lay.uv.astype(np.float64))
     x0 = np.floor(p[..., 0] - 0.5).astype(int)
     y0 = np.floor(p[..., 1] - 0.5).astype(int)
@@ -50,6 +48,12 @@ def test_layout_every_bilinear_lookup_inside_a_face_reads_its_own_texels():
     for dy in (0, 1):
         for dx in (0, 1):
             assert np.all(lay.face_of_texel[y0 + dy, x0 + dx] == own)
+
+
+def test_layout_every_bilinear_lookup_inside_a_face_reads_its_own_texels():
+    mesh = densify(wall(), 0.3)
+    lay = A.layout(mesh, texel=0.05)
+    _assert_lookups_read_own_texels(mesh, lay, seed=0)
     # Edges get at least their length in texels.
     ev = mesh.vertices[mesh.faces[:, 1]] - mesh.vertices[mesh.faces[:, 0]]
     eu = lay.uv[:, 1] - lay.uv[:, 0]
@@ -203,15 +207,7 @@ def test_layout_face_scale_and_shelf_packing():
     cells = (lay.face_of_texel >= 0).sum()
     assert cells >= 0.8 * lay.face_of_texel.size
     # Lookups inside every face still read only its own texels.
-    rng = np.random.default_rng(1)
-    b = rng.dirichlet((1, 1, 1), size=(len(mesh.faces), 8))
-    p = np.einsum("fsk,fkc->fsc", b, lay.uv.astype(np.float64))
-    x0 = np.floor(p[..., 0] - 0.5).astype(int)
-    y0 = np.floor(p[..., 1] - 0.5).astype(int)
-    own = np.arange(len(mesh.faces))[:, None]
-    for dy in (0, 1):
-        for dx in (0, 1):
-            assert np.all(lay.face_of_texel[y0 + dy, x0 + dx] == own)
+    _assert_lookups_read_own_texels(mesh, lay, seed=1)
     with pytest.raises(ShapeError):
         A.layout(mesh, 0.02, face_scale=np.ones(3))
     with pytest.raises(BadValueError, match="face_scale"):
