@@ -1,4 +1,4 @@
-// 8-bit sRGB texture atlas read (atlas8.h).
+// TM texture atlas reads, float32 and 8-bit sRGB (atlas8.h).
 #include "kernels/atlas8.h"
 
 #include <algorithm>
@@ -22,12 +22,13 @@ const std::array<float, 256>& SrgbToLinear() {
   return lut;
 }
 
-}  // namespace
 
-void SampleAtlasSrgb8(const std::int32_t* prim_id, const float* bary, std::int64_t num_pixels, const float* uv,
-                      ImageView<const std::uint8_t> atlas, float* out) {
-  const float* lut = SrgbToLinear().data();
-  const int aw = atlas.width, ah = atlas.height;
+// The one atlas read loop: per pixel, the hit face's UVs interpolated with the barycentrics,
+// then a bilinear read (texel centres at +0.5, clamped to the edge texels) of channel c of texel
+// (x, y) through `texel(row_y, x, c)` (linear float); black where prim_id < 0.
+template <class Texel, class RowOf>
+void SampleAtlasBilinear(const std::int32_t* prim_id, const float* bary, std::int64_t num_pixels, const float* uv,
+                         int aw, int ah, RowOf row_of, Texel texel, float* out) {
   ParallelFor(num_pixels, 16384, [&](std::int64_t b, std::int64_t e) {
     for (std::int64_t i = b; i < e; ++i) {
       float* o = out + 3 * i;
@@ -39,21 +40,37 @@ void SampleAtlasSrgb8(const std::int32_t* prim_id, const float* bary, std::int64
       const double u = bary[2 * i], v = bary[2 * i + 1], w = 1.0 - u - v;
       const float* t = uv + 6 * std::int64_t(f);
       const double x = w * t[0] + u * t[2] + v * t[4], y = w * t[1] + u * t[3] + v * t[5];
-      // Bilinear, pixel centres at +0.5, clamped to the edge texels (as Bilinear3 in hybrid.cpp).
       const double fx = std::clamp(x - 0.5, 0.0, double(aw - 1)), fy = std::clamp(y - 0.5, 0.0, double(ah - 1));
       const int x0 = std::min(static_cast<int>(fx), aw - 1), y0 = std::min(static_cast<int>(fy), ah - 1);
       const int x1 = std::min(x0 + 1, aw - 1), y1 = std::min(y0 + 1, ah - 1);
       const float ax = float(fx - x0), ay = float(fy - y0);
-      const std::uint8_t* r0 = atlas.Row(y0);
-      const std::uint8_t* r1 = atlas.Row(y1);
-      const std::uint8_t *p00 = r0 + 4 * x0, *p01 = r0 + 4 * x1, *p10 = r1 + 4 * x0, *p11 = r1 + 4 * x1;
+      const auto r0 = row_of(y0);
+      const auto r1 = row_of(y1);
       for (int c = 0; c < 3; ++c) {
-        const float top = lut[p00[c]] + ax * (lut[p01[c]] - lut[p00[c]]);
-        const float bot = lut[p10[c]] + ax * (lut[p11[c]] - lut[p10[c]]);
+        const float t00 = texel(r0, x0, c), t01 = texel(r0, x1, c), t10 = texel(r1, x0, c), t11 = texel(r1, x1, c);
+        const float top = t00 + ax * (t01 - t00);
+        const float bot = t10 + ax * (t11 - t10);
         o[c] = top + ay * (bot - top);
       }
     }
   });
+}
+
+}  // namespace
+
+void SampleAtlas(const std::int32_t* prim_id, const float* bary, std::int64_t num_pixels, const float* uv,
+                 ImageView<const float> atlas, float* out) {
+  SampleAtlasBilinear(
+      prim_id, bary, num_pixels, uv, atlas.width, atlas.height, [&](int y) { return atlas.Row(y); },
+      [](const float* row, int x, int c) { return row[3 * x + c]; }, out);
+}
+
+void SampleAtlasSrgb8(const std::int32_t* prim_id, const float* bary, std::int64_t num_pixels, const float* uv,
+                      ImageView<const std::uint8_t> atlas, float* out) {
+  const float* lut = SrgbToLinear().data();
+  SampleAtlasBilinear(
+      prim_id, bary, num_pixels, uv, atlas.width, atlas.height, [&](int y) { return atlas.Row(y); },
+      [lut](const std::uint8_t* row, int x, int c) { return lut[row[4 * x + c]]; }, out);
 }
 
 }  // namespace ibr

@@ -54,29 +54,6 @@ inline glm::vec3 Bilinear3(const ImageView<const float>& img, double x, double y
   return out;
 }
 
-}  // namespace
-
-void SampleAtlas(const std::int32_t* prim_id, const float* bary, std::int64_t num_pixels, const float* uv,
-                 ImageView<const float> atlas, float* out) {
-  ParallelFor(num_pixels, 16384, [&](std::int64_t b, std::int64_t e) {
-    for (std::int64_t i = b; i < e; ++i) {
-      float* o = out + 3 * i;
-      const std::int32_t f = prim_id[i];
-      if (f < 0) {
-        o[0] = o[1] = o[2] = 0.f;
-        continue;
-      }
-      const double u = bary[2 * i], v = bary[2 * i + 1], w = 1.0 - u - v;
-      const float* t = uv + 6 * std::int64_t(f);
-      const glm::vec3 c = Bilinear3(atlas, w * t[0] + u * t[2] + v * t[4], w * t[1] + u * t[3] + v * t[5]);
-      o[0] = c[0];
-      o[1] = c[1];
-      o[2] = c[2];
-    }
-  });
-}
-
-namespace {
 
 // atan2(y, x) for y >= 0 (an angle in [0, pi]) by a minimax polynomial of atan on [0, 1]
 // (Abramowitz and Stegun 4.4.49, 9th order odd polynomial, max error 1e-5 rad): ~4x faster than

@@ -25,14 +25,6 @@ namespace ibr {
 void InterpolateVertexAttribute(const std::int32_t* prim_id, const float* bary, std::int64_t num_pixels,
                                 const std::int32_t* faces, const float* attrib, int channels, float* out);
 
-// ---- TM: texture atlas ---------------------------------------------------------------------
-// out(pixel) = bilinear read of atlas (h, w, 3) at uv = (1 - u - v) uv[f, 0] + u uv[f, 1] +
-// v uv[f, 2] for the hit face f = prim_id (uv (M, 3, 2) in atlas pixels, x right, y down, pixel
-// centres at +0.5; reads clamped to the atlas's edge texels); 0 where prim_id < 0. Prim ids
-// already checked to lie in [-1, M); the atlas is at least 1 x 1.
-void SampleAtlas(const std::int32_t* prim_id, const float* bary, std::int64_t num_pixels, const float* uv,
-                 ImageView<const float> atlas, float* out);
-
 // ---- per-pixel ULR --------------------------------------------------------------------------
 struct UlrInputView {
   Camera camera;
