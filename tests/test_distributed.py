@@ -287,6 +287,22 @@ def test_preprocess_matches_local_bit_for_bit(scene_dir, cluster, tmp_path, caps
     S.stage_output(tmp_path / "dist", "pvm")  # recorded with its hash
 
 
+def test_local_workers_drop_only_the_lost_heartbeat(cluster):
+    # A local cluster's shutdown can cut off a worker's heartbeat: its traceback is dropped in
+    # the worker (the plugin open_client registers), every other worker record passes.
+    import logging
+
+    _, client = cluster
+    client.register_plugin(D._ignore_sigint_plugin(), name="ibrtools-ignore-sigint")
+
+    def passes(msg: str) -> bool:
+        rec = logging.LogRecord("distributed.worker", logging.ERROR, __file__, 1, msg, None, None)
+        return bool(logging.getLogger("distributed.worker").filter(rec))
+
+    for verdicts in client.run(lambda: [passes(D.HEARTBEAT_LOST), passes("Compute Failed")]).values():
+        assert verdicts == [False, True]
+
+
 def test_lazy_client_starts_nothing_unused():
     with D.LazyClient(None, 3) as lc:
         assert lc._client is None and lc.task_threads == 0  # 0: the default, one engine thread per task

@@ -149,9 +149,22 @@ def _quiet(on: bool) -> Iterator[None]:
                 logging.getLogger(n).setLevel(lvl)
 
 
+HEARTBEAT_LOST = "Failed to communicate with scheduler during heartbeat."
+
+
+def _drop_lost_heartbeat(record: logging.LogRecord) -> bool:
+    """Logging filter of a local cluster's workers: a heartbeat that finds the scheduler's
+    connection closed. The scheduler lives in the command's own process, so this only happens
+    while the command shuts the cluster down (Ctrl-C, SIGTERM, the end of a run): the worker's
+    traceback of it is not the user's concern. Every other record passes."""
+    return record.msg != HEARTBEAT_LOST
+
+
 def _ignore_sigint_plugin():
-    """A worker plugin that makes the worker process ignore SIGINT (defined here, not at module
-    level, so that importing this module does not import dask)."""
+    """A worker plugin of the local cluster: the worker process ignores SIGINT (the command
+    handles it and stops the cluster) and does not print the traceback of the heartbeat that
+    the cluster's shutdown cuts off (:func:`_drop_lost_heartbeat`). Defined here, not at module
+    level, so that importing this module does not import dask."""
     from distributed.diagnostics.plugin import WorkerPlugin
 
     class IgnoreSigint(WorkerPlugin):
@@ -159,6 +172,7 @@ def _ignore_sigint_plugin():
             import signal
             import threading
 
+            logging.getLogger("distributed.worker").addFilter(_drop_lost_heartbeat)
             if threading.current_thread() is threading.main_thread():
                 signal.signal(signal.SIGINT, signal.SIG_IGN)
 
