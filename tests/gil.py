@@ -30,3 +30,15 @@ def stamps_in_middle(t0: float, t1: float, stamps: list[float]) -> int:
     """How many stamps fall in the middle half of [t0, t1] (away from thread start/stop)."""
     lo, hi = t0 + 0.25 * (t1 - t0), t1 - 0.25 * (t1 - t0)
     return sum(lo < s < hi for s in stamps)
+
+
+def runs_python_during(work: Callable[[], object], tries: int = 3, min_span: float = 0.02) -> bool:
+    """Whether this thread ran Python in the middle of ``work()`` (run in another thread), in any
+    of ``tries`` attempts that lasted at least ``min_span`` s. Retrying keeps the check's power (a
+    kernel that holds the GIL leaves no stamp in any attempt) while a heavily loaded machine that
+    did not schedule this thread during one short attempt does not fail it."""
+    for _ in range(tries):
+        t0, t1, stamps = stamps_during(work)
+        if t1 - t0 >= min_span and stamps_in_middle(t0, t1, stamps) > 0:
+            return True
+    return False

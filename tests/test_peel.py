@@ -201,7 +201,7 @@ def test_gil_released_during_peel():
     from pathlib import Path
 
     sys.path.insert(0, str(Path(__file__).parent))
-    from gil import stamps_during, stamps_in_middle
+    from gil import runs_python_during
 
     r = ReferenceRenderer(_box_scene())
     old = _core.get_num_threads()
@@ -212,8 +212,6 @@ def test_gil_released_during_peel():
         # Size the image so that one call lasts ~80 ms (>> the 5 ms switch interval).
         scale = min(8.0, max(1.0, math.sqrt(0.08 / max(time.perf_counter() - t, 1e-4))))
         cam = _ring_cam(30, w=int(160 * scale), h=int(120 * scale))
-        t0, t1, stamps = stamps_during(lambda: r.peel(cam, 8))
+        assert runs_python_during(lambda: r.peel(cam, 8)), "no Python ran during the peels (or each lasted < 20 ms)"
     finally:
         _core.set_num_threads(old)
-    assert t1 - t0 > 0.02, "peel too short for this check"
-    assert stamps_in_middle(t0, t1, stamps) > 0
