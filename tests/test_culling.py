@@ -304,7 +304,7 @@ def test_exact_depth_never_culls_a_visible_object(seed, n):
 
 def test_gil_released_during_awoc_fill():
     """Structural (STYLE.md 6): AwocFill runs without the GIL (negative control: tests/gil.py)."""
-    from gil import stamps_during, stamps_in_middle
+    from gil import runs_python_during
 
     h, w = 540, 960
     rng = np.random.default_rng(0)
@@ -317,8 +317,6 @@ def test_gil_released_during_awoc_fill():
             for _ in range(5):
                 hole = np.ones((h, w), bool)
                 _core.cull_awoc_fill(depth, hole, motion, dst, 3)
-        t0, t1, stamps = stamps_during(work)
-        assert t1 - t0 > 0.02, "kernel too short for this check"
-        assert stamps_in_middle(t0, t1, stamps) > 0
+        assert runs_python_during(work), "no Python ran during the kernel (or it lasted < 20 ms)"
     finally:
         _core.set_num_threads(0)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import scipy.sparse.linalg as sla
 
-from gil import stamps_during, stamps_in_middle
+from gil import runs_python_during
 from ibrtools import _core
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
 from ibrtools.solvers import poisson_blend, poisson_system
@@ -160,5 +160,4 @@ def test_gil_released(restore_threads):
     mask = np.zeros((H, W), bool)
     mask[1:-1, 1:-1] = True
     _core.set_num_threads(1)
-    t0, t1, stamps = stamps_during(lambda: _core.poisson_blend(boundary, boundary * 0.5, mask))
-    assert stamps_in_middle(t0, t1, stamps) > 0
+    assert runs_python_during(lambda: _core.poisson_blend(boundary, boundary * 0.5, mask), min_span=0.0)

@@ -18,7 +18,7 @@ import time
 
 import numpy as np
 import pytest
-from gil import stamps_during, stamps_in_middle
+from gil import runs_python_during
 
 from ibrtools import BadValueError, Camera, DtypeError, Mesh, ShapeError, _core, look_at
 from ibrtools.render.reference import Light, ReferenceRenderer, default_lights
@@ -416,9 +416,8 @@ def test_gil_released_during_render(restore_threads):
     r.render(Camera.from_fov(160, 120, 60, pose), outputs=("color",), lights=lights, packet=1)
     scale = min(8.0, max(1.0, math.sqrt(0.08 / max(time.perf_counter() - t, 1e-4))))
     cam = Camera.from_fov(int(160 * scale), int(120 * scale), 60, pose)
-    t0, t1, stamps = stamps_during(lambda: r.render(cam, outputs=("color",), lights=lights, packet=1))
-    assert t1 - t0 > 0.02, "render too short for this check"
-    assert stamps_in_middle(t0, t1, stamps) > 0
+    assert runs_python_during(lambda: r.render(cam, outputs=("color",), lights=lights, packet=1)), \
+        "no Python ran during the render (or it lasted < 20 ms)"
     # (Negative control: tests/gil.py.)
 
 

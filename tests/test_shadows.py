@@ -179,7 +179,7 @@ def test_bad_inputs(scene):
 def test_gil_released_during_shadow_kernels(scene):
     """Structural (STYLE.md 6): while the shadow-map test and the traced reference run in another
     thread, this thread executes Python code (negative control: tests/gil.py)."""
-    from gil import stamps_during, stamps_in_middle
+    from gil import runs_python_during
 
     from ibrtools import _core
     r, depth = scene
@@ -194,9 +194,7 @@ def test_gil_released_during_shadow_kernels(scene):
         for work in (lambda: [_core.shadow_map_visibility(depth, view.to_core(), maps, core_cams, 0.5, 1.0)
                               for _ in range(20)],
                      lambda: [occ.visibility(depth, view.to_core(), pos, 1e-4) for _ in range(5)]):
-            t0, t1, stamps = stamps_during(work)
-            assert t1 - t0 > 0.02, "kernel too short for this check"
-            assert stamps_in_middle(t0, t1, stamps) > 0
+            assert runs_python_during(work), "no Python ran during the kernel (or it lasted < 20 ms)"
     finally:
         _core.set_num_threads(0)  # back to all cores (the default)
 
