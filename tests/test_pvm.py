@@ -7,7 +7,7 @@ import pytest
 from ibrtools import _core
 from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
-from ibrtools.hybrid.pvm import PvmOptions, PvmTiles, build_tiles, view_mesh
+from ibrtools.hybrid.pvm import PvmOptions, PvmTiles, build_tiles, grid_bounds, view_mesh
 
 
 def cam(w=33, h=25, eye=(0.0, 0.0, 0.0), target=(0.0, 0.0, 1.0), f=30.0):
@@ -162,6 +162,25 @@ def test_tiles_reassemble_the_pvm_and_lie_in_their_cells(tmp_path):
     assert u.views == t.views and u.coarse == 4 and u.sub == 4
     for name in ("vertices", "faces", "face_offsets", "tile_view", "tile_cell", "coarse_offsets", "pvm_faces"):
         np.testing.assert_array_equal(getattr(u, name), getattr(t, name))
+
+
+def test_grid_cells_are_cubic_and_cover_a_flat_scene():
+    # A flat scene (10 x 0.5 x 4): the fine cells are cubes of the largest extent / (coarse * sub)
+    # (the grid was per axis: 0.5 / 128 tall cells that noisy triangles crossed several times).
+    rng = np.random.default_rng(0)
+    v = (rng.random((500, 3)) * [10.0, 0.5, 4.0] + [-3.0, 1.0, 2.0]).astype(np.float32)
+    origin, cell = grid_bounds(v, 32, 4)
+    v64 = v.astype(np.float64)
+    side = float((v64.max(0) - v64.min(0)).max()) * (1 + 2e-4)  # padded by 1e-4 of it on each side
+    np.testing.assert_allclose(cell, side / 128, rtol=1e-12)
+    # Centred on the bounds, covering every vertex with the padding along the longest axis.
+    np.testing.assert_allclose(origin + 64 * cell, (v64.min(0) + v64.max(0)) / 2, rtol=1e-12)
+    assert np.all(v >= origin) and np.all(v <= origin + 128 * cell)
+    assert v[:, 0].min() - origin[0] == pytest.approx(1e-4 * side / (1 + 2e-4), rel=1e-6)
+    with pytest.raises(BadValueError, match="empty"):
+        grid_bounds(np.zeros((0, 3), np.float32), 32, 4)
+    with pytest.raises(BadValueError, match="one point"):
+        grid_bounds(np.ones((3, 3), np.float32), 32, 4)
 
 
 def test_same_result_for_any_thread_count():

@@ -134,6 +134,22 @@ def test_identical_depths_make_one_stable_cluster():
         np.testing.assert_array_equal(again.color, res.color)
 
 
+def test_inside_grid_is_the_surface_box_not_the_cubic_grid():
+    # The plane z = 5 (x, y within +-2.4): the grid's cubic cells make its box ~4.7 deep in z, but
+    # inside_grid tests the surface's box (the tiles' bounds, padded by 1e-4 of an extent). A
+    # camera at z = 4 (inside the cube) looking away from the plane: no ray meets the surface box.
+    scene = _plane_scene(2, same_pose=False)
+    r = _renderer(scene)
+    t = r.tiles
+    assert t.origin[2] < 4.0 < t.origin[2] + t.cell[2] * t.coarse * t.sub  # the camera is inside the grid
+    away = Camera.from_fov(24, 16, 50.0, look_at((0.0, 0.0, 4.0), (0.0, 0.0, 0.0)))
+    res = r.render(away)
+    assert not res.inside_grid.any() and not res.valid.any()
+    # Looking at the plane from there: every ray meets it, inside the box.
+    towards = Camera.from_fov(24, 16, 30.0, look_at((0.0, 0.0, 4.0), (0.0, 0.0, 5.0)))
+    assert r.render(towards).inside_grid.all()
+
+
 def test_two_clusters_filtered_blend_and_vote():
     """A pixel list with a near plane (1 view) and a far plane (2 views): Eq. 2 with tau 0.83
     picks the far (2 >= 0.83 * 1); unfiltered keeps the near cluster's colour, filtered is pulled

@@ -3,6 +3,7 @@
 // images, and the per-frame buffers; render() runs the five stages with the GIL released and
 // returns the outputs and per-stage times. Thin: checks arrays (array.h) and values, the
 // kernels do the work. Python: ibrtools.hybrid.pvm_render.
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <string>
@@ -145,6 +146,29 @@ class PvmRendererCore {
     }
     tiles_.grid.coarse = coarse;
     tiles_.grid.sub = sub;
+    // inside_grid's box: the union of the tiles' AABBs (= the bounds of the PVM vertices), each side
+    // padded by 1e-4 of its extent (an axis flatter than 1e-6 of the largest: of the largest), as
+    // grid_bounds pads the grid; no tiles: the grid's box.
+    double lo[3] = {HUGE_VAL, HUGE_VAL, HUGE_VAL}, hi[3] = {-HUGE_VAL, -HUGE_VAL, -HUGE_VAL};
+    for (std::int64_t i = 0; i < static_cast<std::int64_t>(nt); ++i) {
+      for (int a = 0; a < 3; ++a) {
+        lo[a] = std::min(lo[a], static_cast<double>(tb[6 * i + a]));
+        hi[a] = std::max(hi[a], static_cast<double>(tb[6 * i + 3 + a]));
+      }
+    }
+    if (nt > 0) {
+      const double big = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]});
+      for (int a = 0; a < 3; ++a) {
+        const double ext = hi[a] - lo[a] > 1e-6 * big ? hi[a] - lo[a] : big;
+        tiles_.box[a] = lo[a] - 1e-4 * ext;
+        tiles_.box[3 + a] = hi[a] + 1e-4 * ext;
+      }
+    } else {
+      for (int a = 0; a < 3; ++a) {
+        tiles_.box[a] = origin[a];
+        tiles_.box[3 + a] = origin[a] + cell[a] * coarse * sub;
+      }
+    }
   }
 
   py::dict Render(const Camera& camera, py::handle gbuffer_obj, py::handle mask_obj, bool filtered, float sigma,
@@ -251,7 +275,7 @@ class PvmRendererCore {
       }
       PvmCluster(views, camera, mptr, o, !depth_only, frame_);
       lap(3);
-      PvmFilter(tiles_.grid, camera, mptr, o, !depth_only, frame_, color.mutable_data(), depth.mutable_data(), vote.mutable_data(),
+      PvmFilter(tiles_.box, camera, mptr, o, !depth_only, frame_, color.mutable_data(), depth.mutable_data(), vote.mutable_data(),
                 reinterpret_cast<std::uint8_t*>(valid.mutable_data()),
                 reinterpret_cast<std::uint8_t*>(inside.mutable_data()));
       lap(4);

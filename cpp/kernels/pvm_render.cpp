@@ -644,7 +644,7 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
   });
 }
 
-void PvmFilter(const PvmGrid& grid, const Camera& camera, const std::uint8_t* pixel_mask,
+void PvmFilter(const double* box, const Camera& camera, const std::uint8_t* pixel_mask,
                const PvmRenderOptions& options, bool colours, const PvmFrame& frame, float* color, float* depth, float* vote,
                std::uint8_t* valid, std::uint8_t* inside_grid) {
   const int h = camera.height, w = camera.width;
@@ -657,11 +657,8 @@ void PvmFilter(const PvmGrid& grid, const Camera& camera, const std::uint8_t* pi
       gauss[static_cast<std::size_t>((dy + r) * side + dx + r)] =
           options.sigma > 0.f ? std::exp(-(dx * dx + dy * dy) / (2.f * options.sigma * options.sigma))
                               : (dx == 0 && dy == 0 ? 1.f : 0.f);
-  double lo[3], hi[3];
-  for (int a = 0; a < 3; ++a) {
-    lo[a] = grid.origin[a];
-    hi[a] = grid.origin[a] + grid.cell[a] * grid.coarse * grid.sub;
-  }
+  const double* lo = box;
+  const double* hi = box + 3;
   const glm::dvec3 c_novel = camera.CentreInWorld();
   const float* dfg = frame.d_fg.data();
   const float* dbg = frame.d_bg.data();

@@ -74,6 +74,10 @@ struct PvmTileArrays {
   const std::int64_t* coarse_offsets = nullptr;  // (coarse^3 + 1,)
   std::int64_t num_tiles = 0;
   PvmGrid grid{};
+  // Finite box of the surface (lo xyz, hi xyz; world): the bounds of the tiles, padded. A pixel is
+  // inside_grid when its ray meets this box. Not the grid's own box: the fine cells are cubes
+  // (pvm.py grid_bounds), so the grid extends far beyond a flat scene along its short axes.
+  double box[6] = {0, 0, 0, 0, 0, 0};
 };
 
 // The input views the tiles refer to: cameras, linear RGB float images (H_v, W_v, 3) and which
@@ -135,10 +139,10 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
 // and sizes only (no image sampling; the hybrid method's depth pass).
 void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t* pixel_mask,
                 const PvmRenderOptions& options, bool colours, PvmFrame& frame);
-// Stage 5. Outputs (H, W, 3) color, (H, W) depth, vote, valid and inside_grid; pixels outside
+// Stage 5. box: PvmTileArrays::box. Outputs (H, W, 3) color, (H, W) depth, vote, valid and inside_grid; pixels outside
 // the mask or without candidates get colour 0, depth 0, vote 0, valid 0. colours = false after a
 // PvmCluster without colours: no Eq. 1 (colour stays 0), depth / vote / valid as usual.
-void PvmFilter(const PvmGrid& grid, const Camera& camera, const std::uint8_t* pixel_mask,
+void PvmFilter(const double* box, const Camera& camera, const std::uint8_t* pixel_mask,
                const PvmRenderOptions& options, bool colours, const PvmFrame& frame, float* color, float* depth, float* vote,
                std::uint8_t* valid, std::uint8_t* inside_grid);
 

@@ -196,21 +196,27 @@ class PvmTiles:
 
 
 def grid_bounds(vertices: np.ndarray, coarse: int, sub: int) -> tuple[np.ndarray, np.ndarray]:
-    """Origin and fine cell size of the grid over ``vertices``' bounds (padded by 1e-4 of the
-    extent so that no vertex sits on the outer faces; a flat axis gets the largest extent)."""
+    """Origin and fine cell size of the grid over ``vertices``' bounds: cubic cells, the largest
+    extent (padded by 1e-4 of it on each side) split into ``coarse * sub`` cells, the grid centred on
+    the bounds (so it reaches beyond them along the shorter axes).
+
+    Why cubes: with a cell per axis of that axis's extent / 128, a flat scene (objects on a ground
+    plane: 24.7 m x 1.7 m x 24.7 m) got 1.3 cm tall cells against 19 cm wide ones, and per-view
+    meshes of noisy depth (vertices jittered along the rays by ~1 % of the depth) crossed several
+    of those thin slabs per triangle: slicing multiplied the 2.9 M PVM triangles by 6.5 (18.8 M
+    tile triangles) and the per-view depth pass drew 2.6 M triangles per 1280x720 frame. Cubic
+    19 cm cells: 8.8 M tile triangles, 1.4 M drawn (docs/pvm_render.md, "Speed")."""
     if len(vertices) == 0:
         raise BadValueError("PVM bounds: empty (no view has a valid depth pixel forming a triangle)")
     lo = vertices.min(0).astype(np.float64)
     hi = vertices.max(0).astype(np.float64)
-    ext = hi - lo
-    big = ext.max()
+    big = float((hi - lo).max())
     if not big > 0:
         raise BadValueError(f"PVM bounds: empty (all vertices at one point {lo.tolist()})")
-    ext = np.where(ext > 1e-6 * big, ext, big)
-    centre = (lo + hi) / 2
-    ext = ext * (1 + 2e-4)
+    side = big * (1 + 2e-4)
     n = coarse * sub
-    return centre - ext / 2, ext / n
+    centre = (lo + hi) / 2
+    return centre - side / 2, np.full(3, side / n)
 
 
 def build_tiles(cameras: Mapping[str, Camera], depths: Mapping[str, np.ndarray],
