@@ -62,6 +62,11 @@ def cases():
     moved[0, 3] = -0.05
     rect_dst = Camera(model="pinhole", width=97, height=71, fx=80.0, fy=80.0, cx=48.5, cy=35.5, cam_from_world=moved)
     out.append(("rectified (shared edges)", rect_src, rect_dst, rough_depth(71, 97, 7)))
+    # magnified about 2-3x: small-path triangles that cover two to four centres (the lanes shade
+    # a triangle's first centre, the others one by one), some sliver triangles of area 0 or
+    # back-facing across the depth jumps
+    out.append(("magnified 2-3x (multi-centre triangles)", src,
+                Camera.from_fov(150, 120, 40, look_at([0.05, 0.02, 0.1], [0.1, 0.05, 4])), rough_depth(71, 97, 8)))
     return out
 
 
@@ -69,12 +74,14 @@ def noise(h, w, seed):
     return np.random.default_rng(seed).random((h, w, 3), dtype=np.float32)
 
 
-def run_all(src, dst, dep, quality):
+def run_all(src, dst, dep, quality, depth_test="combined", discard_stretched=False):
     """Every public entry point that goes through the hot loops, for one case."""
     col = noise(src.height, src.width, 9)
     opts = _core.WarpOptions()
     opts.quality = quality
     opts.side_threshold = 10.0
+    opts.depth_test = depth_test
+    opts.discard_stretched = discard_stretched
     res = list(_core.forward_warp(col, dep, src.to_core(), dst.to_core(), opts))
     acc = _core.DibrAccumulator(dst.to_core(), 0.1, True, 0.0)
     acc.add_view(col, dep, src.to_core(), opts)
@@ -101,6 +108,46 @@ def test_avx2_and_baseline_paths_are_bit_identical(quality, restore_isa):
         assert covered > 0.005, name  # the case draws something
         for a, b in zip(out["baseline"], out["avx2"]):
             np.testing.assert_array_equal(a, b, err_msg=name)
+
+
+@needs_avx2
+@pytest.mark.parametrize("depth_test, discard", [("nearest", False), ("combined", True)])
+def test_avx2_and_baseline_identical_for_every_depth_test_and_discard(depth_test, discard, restore_isa):
+    """The lane shading of the AVX2 raster step (score of either depth test, Eq. 1's discard of
+    stretched triangles folded into the coverage masks) against the scalar baseline."""
+    for name, src, dst, dep in cases():
+        out = {}
+        for isa in ("baseline", "avx2"):
+            _core.set_warp_isa(isa)
+            out[isa] = run_all(src, dst, dep, "side", depth_test, discard)
+        assert (out["baseline"][2] > 0).mean() > 0.005, name
+        for a, b in zip(out["baseline"], out["avx2"]):
+            np.testing.assert_array_equal(a, b, err_msg=name)
+
+
+@needs_avx2
+def test_avx2_and_baseline_identical_on_random_meshes(restore_isa):
+    """Random depth (pixel-wise noise over several octaves: slivers, degenerate and back-facing
+    triangles, stretched ones across jumps) seen from random targets at 0.5x to 3x scale, with
+    input widths that leave every length of the last 8-quad group."""
+    rng = np.random.default_rng(21)
+    for trial in range(8):
+        h, w = int(rng.integers(9, 40)), int(rng.integers(9, 50))
+        src = Camera.from_fov(w, h, float(rng.uniform(40, 90)), look_at([0, 0, 0], [0, 0, 1]))
+        dep = (2.0 + rng.random((h, w)) * rng.choice([0.01, 0.3, 3.0])).astype(np.float32)
+        dep[rng.random((h, w)) < 0.1] = 0.0
+        eye = rng.normal(0, 0.2, 3)
+        tw, th = int(w * rng.uniform(0.5, 3.0)) + 2, int(h * rng.uniform(0.5, 3.0)) + 2
+        dst = Camera.from_fov(tw, th, float(rng.uniform(30, 90)), look_at(eye, [0, 0, 3]))
+        col = noise(h, w, trial)
+        out = {}
+        for isa in ("baseline", "avx2"):
+            _core.set_warp_isa(isa)
+            acc = _core.DibrAccumulator(dst.to_core())
+            acc.add_view(col, dep, src.to_core())
+            out[isa] = list(_core.forward_warp(col, dep, src.to_core(), dst.to_core())) + list(acc.result())
+        for a, b in zip(out["baseline"], out["avx2"]):
+            np.testing.assert_array_equal(a, b, err_msg=f"trial {trial}")
 
 
 @needs_avx2

@@ -569,19 +569,80 @@ __attribute__((target("avx2"))) inline __m256i CeilSub8(__m256i a) {
   return _mm256_sub_epi32(_mm256_setzero_si256(), _mm256_srai_epi32(_mm256_sub_epi32(_mm256_setzero_si256(), a), 8));
 }
 
-// Eight consecutive WarpVertex (12 bytes: x, y, inv) as three lanes vectors: three loads, two
-// blends and one permutation per field.
-__attribute__((target("avx2"))) inline void Deinterleave8(const WarpVertex* v, __m256i* x, __m256i* y, __m256* inv) {
-  static_assert(sizeof(WarpVertex) == 12, "WarpVertex: three 32-bit fields");
+// Eight consecutive records of three 32-bit fields (WarpVertex: x, y, inv; an RGB pixel: r, g,
+// b) as three lanes vectors: three loads, two blends and one permutation per field.
+__attribute__((target("avx2"))) inline void Deinterleave8x3(const void* v, __m256i* f0, __m256i* f1, __m256i* f2) {
   const __m256i* p = reinterpret_cast<const __m256i*>(v);
   const __m256i a = _mm256_loadu_si256(p), b = _mm256_loadu_si256(p + 1), c = _mm256_loadu_si256(p + 2);
   // a = x0 y0 i0 x1 y1 i1 x2 y2, b = i2 x3 y3 i3 x4 y4 i4 x5, c = y5 i5 x6 y6 i6 x7 y7 i7
-  *x = _mm256_permutevar8x32_epi32(_mm256_blend_epi32(_mm256_blend_epi32(a, b, 0x92), c, 0x24),
-                                   _mm256_setr_epi32(0, 3, 6, 1, 4, 7, 2, 5));
-  *y = _mm256_permutevar8x32_epi32(_mm256_blend_epi32(_mm256_blend_epi32(a, b, 0x24), c, 0x49),
-                                   _mm256_setr_epi32(1, 4, 7, 2, 5, 0, 3, 6));
-  *inv = _mm256_castsi256_ps(_mm256_permutevar8x32_epi32(_mm256_blend_epi32(_mm256_blend_epi32(a, b, 0x49), c, 0x92),
-                                                         _mm256_setr_epi32(2, 5, 0, 3, 6, 1, 4, 7)));
+  *f0 = _mm256_permutevar8x32_epi32(_mm256_blend_epi32(_mm256_blend_epi32(a, b, 0x92), c, 0x24),
+                                    _mm256_setr_epi32(0, 3, 6, 1, 4, 7, 2, 5));
+  *f1 = _mm256_permutevar8x32_epi32(_mm256_blend_epi32(_mm256_blend_epi32(a, b, 0x24), c, 0x49),
+                                    _mm256_setr_epi32(1, 4, 7, 2, 5, 0, 3, 6));
+  *f2 = _mm256_permutevar8x32_epi32(_mm256_blend_epi32(_mm256_blend_epi32(a, b, 0x49), c, 0x92),
+                                    _mm256_setr_epi32(2, 5, 0, 3, 6, 1, 4, 7));
+}
+
+__attribute__((target("avx2"))) inline void Deinterleave8(const WarpVertex* v, __m256i* x, __m256i* y, __m256* inv) {
+  static_assert(sizeof(WarpVertex) == 12, "WarpVertex: three 32-bit fields");
+  __m256i i;
+  Deinterleave8x3(v, x, y, &i);
+  *inv = _mm256_castsi256_ps(i);
+}
+
+// Eight consecutive RGB pixels (24 floats) as r, g, b lanes.
+__attribute__((target("avx2"))) inline void DeinterleaveRgb8(const float* c, __m256* r, __m256* g, __m256* b) {
+  __m256i x, y, z;
+  Deinterleave8x3(c, &x, &y, &z);
+  *r = _mm256_castsi256_ps(x);
+  *g = _mm256_castsi256_ps(y);
+  *b = _mm256_castsi256_ps(z);
+}
+
+// One triangle of each of the eight quads of a step, shaded in lanes at its first covered centre
+// (Shader::Shade's operations, lane by lane, in the same order and without FMA: the same bits):
+// the score, 1 / d and the colour, stored for the in-order depth test of RasterBlockRowAvx2.
+struct FirstFragments {
+  alignas(32) float s[8], d[8], q[8], r[8], g[8], b[8];
+};
+
+__attribute__((target("avx2"))) inline void ShadeFirst8(__m256i mask, const __m256i er[3], const __m256i ex[3],
+                                                        const __m256i ey[3], __m256 inv_area, __m256 q,
+                                                        const __m256 inv[3], const __m256 col[3][3], bool combined,
+                                                        FirstFragments* out) {
+  // First covered centre: bit = log2(lowest set bit) from the float exponent (exact: <= 2^15).
+  const __m256i lsb = _mm256_and_si256(mask, _mm256_sub_epi32(_mm256_setzero_si256(), mask));
+  const __m256i bit = _mm256_sub_epi32(_mm256_srli_epi32(_mm256_castps_si256(_mm256_cvtepi32_ps(lsb)), 23),
+                                       _mm256_set1_epi32(127));
+  const __m256i i = _mm256_and_si256(bit, _mm256_set1_epi32(3)), j = _mm256_srai_epi32(bit, 2);
+  __m256 b[3];
+  for (int e = 0; e < 3; ++e) {
+    const __m256i v = _mm256_add_epi32(_mm256_add_epi32(er[e], _mm256_mullo_epi32(ex[e], i)), _mm256_mullo_epi32(ey[e], j));
+    b[e] = _mm256_mul_ps(_mm256_cvtepi32_ps(v), inv_area);
+  }
+  // TriangleInterp::InvDepth: b0 a0 + b1 a1 + b2 a2, left to right
+  const __m256 id = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(b[0], inv[0]), _mm256_mul_ps(b[1], inv[1])),
+                                  _mm256_mul_ps(b[2], inv[2]));
+  __m256 s;
+  if (combined) {
+    const __m256 ic = _mm256_min_ps(_mm256_max_ps(id, _mm256_set1_ps(1.f / kMaxWeightDepth)),
+                                    _mm256_set1_ps(1.f / kMinWeightDepth));
+    s = _mm256_mul_ps(q, _mm256_mul_ps(_mm256_mul_ps(ic, ic), ic));
+  } else {
+    s = _mm256_max_ps(id, _mm256_set1_ps(1.f / kMaxWeightDepth));
+  }
+  const __m256 d = _mm256_div_ps(_mm256_set1_ps(1.f), id);
+  _mm256_store_ps(out->s, s);
+  _mm256_store_ps(out->d, d);
+  _mm256_store_ps(out->q, q);
+  float* dst[3] = {out->r, out->g, out->b};
+  for (int ch = 0; ch < 3; ++ch) {
+    // SetupInterp's a_c = colour * (1 / d) per vertex, then Color: (b0 a_c0 + b1 a_c1 + b2 a_c2) d
+    const __m256 c = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(b[0], _mm256_mul_ps(col[0][ch], inv[0])),
+                                                 _mm256_mul_ps(b[1], _mm256_mul_ps(col[1][ch], inv[1]))),
+                                   _mm256_mul_ps(b[2], _mm256_mul_ps(col[2][ch], inv[2])));
+    _mm256_store_ps(dst[ch], _mm256_mul_ps(c, d));
+  }
 }
 
 template <class Sh>
@@ -606,21 +667,64 @@ __attribute__((target("avx2"))) void RasterBlockRowAvx2(const Context& cx, int r
   alignas(32) std::int32_t cls[8], m0[8], m1[8], qx0[8], qy0[8], er[5][8], ex[5][8], ey[5][8], bias[5][8];
   alignas(32) std::int32_t a0s[8], a1s[8];
   alignas(32) float q0s[8], q1s[8], ia0[8], ia1[8];
+  FirstFragments first[2];  // per triangle (0, 1) of each quad: its first covered centre, shaded
+  // Covered centres `rest` (bit 4 j + i) of triangle t of quad k after its first: scalar shading
+  // (ShadeSmallTriangle's), in bit order.
+  const auto shade_rest = [&](int u, int k, int t, unsigned rest) {
+    const int uk = u + k;
+    const WarpVertex &A = top[uk], &B = top[uk + 1], &C = bot[uk], &D = bot[uk + 1];
+    const float *ca = ctop + 3 * uk, *cb = ca + 3, *cc = cbot + 3 * uk, *cd = cc + 3;
+    // triangle 0 = (A, B, C): edges B->C, C->A, A->B; triangle 1 = (B, D, C): D->C, C->B, B->D
+    std::int32_t te_r[3], te_x[3], te_y[3];
+    std::int64_t tb[3];
+    if (t == 0) {
+      for (int e = 0; e < 3; ++e) {
+        te_r[e] = er[e][k];
+        te_x[e] = ex[e][k];
+        te_y[e] = ey[e][k];
+        tb[e] = bias[e][k];
+      }
+    } else {
+      te_r[0] = er[3][k], te_x[0] = ex[3][k], te_y[0] = ey[3][k], tb[0] = bias[3][k];
+      te_r[1] = Sh::kInclusiveEdges ? -er[0][k] : ~er[0][k], te_x[1] = -ex[0][k], te_y[1] = -ey[0][k];
+      tb[1] = Sh::kInclusiveEdges ? 0 : 1 - bias[0][k];
+      te_r[2] = er[4][k], te_x[2] = ex[4][k], te_y[2] = ey[4][k], tb[2] = bias[4][k];
+    }
+    const float inv[3] = {t == 0 ? A.inv : B.inv, t == 0 ? B.inv : D.inv, C.inv};
+    const float* cols[3] = {t == 0 ? ca : cb, t == 0 ? cb : cd, cc};
+    sh.Setup(t == 0 ? ia0[k] : ia1[k], tb, t == 0 ? q0s[k] : q1s[k], inv, cols, false);
+    const int px0 = qx0[k], py0 = qy0[k];
+    do {
+      const int bit = __builtin_ctz(rest);
+      rest &= rest - 1;
+      const int i = bit & 3, j = bit >> 2;
+      sh.Shade(px0 + i, py0 + j, te_r[0] + te_x[0] * i + te_y[0] * j, te_r[1] + te_x[1] * i + te_y[1] * j,
+               te_r[2] + te_x[2] * i + te_y[2] * j);
+    } while (rest != 0);
+  };
   for (int u = u0; u < u1; u += 8) {
     const int n = std::min(8, u1 - u);
     // Vertices u .. u + 8 of both rows as x, y, 1/d lanes (A, C: u + k; B, D: u + k + 1). A
     // short group (the segment's end) copies its vertices first (lanes past the end repeat the
     // last quad and are skipped): the full-width loads would read past the last row.
     const WarpVertex *tv = top + u, *bv = bot + u;
+    const float *tc = ctop + 3 * u, *bc = cbot + 3 * u;
     WarpVertex pad[2][9];
+    float cpad[2][27];
     if (n < 8) {
       for (int k = 0; k < 9; ++k) {
         const int kk = std::min(k, n);
         pad[0][k] = top[u + kk];
         pad[1][k] = bot[u + kk];
+        for (int ch = 0; ch < 3; ++ch) {
+          cpad[0][3 * k + ch] = ctop[3 * (u + kk) + ch];
+          cpad[1][3 * k + ch] = cbot[3 * (u + kk) + ch];
+        }
       }
       tv = pad[0];
       bv = pad[1];
+      tc = cpad[0];
+      bc = cpad[1];
     }
     __m256i Ax, Ay, Bx, By, Cx, Cy, Dx, Dy;
     __m256 Ai, Bi, Ci, Di;
@@ -717,63 +821,104 @@ __attribute__((target("avx2"))) void RasterBlockRowAvx2(const Context& cx, int r
       }
       c0 = _mm256_and_si256(c0, _mm256_and_si256(small, _mm256_cmpgt_epi32(area0, zero)));
       c1 = _mm256_and_si256(c1, _mm256_and_si256(small, _mm256_cmpgt_epi32(area1, zero)));
-      _mm256_store_si256(reinterpret_cast<__m256i*>(m0), c0);
-      _mm256_store_si256(reinterpret_cast<__m256i*>(m1), c1);
       // Side quality 1 - L / T (before the floor) of triangle 0 (AB, BC, CA) and 1 (BD, DC, CB),
       // and float(1 / area): SmallQuad / ShadeSmallTriangle's values.
       const __m256i l2t0 = _mm256_max_epi32(_mm256_max_epi32(l2[2], l2[0]), l2[1]);
       const __m256i l2t1 = _mm256_max_epi32(_mm256_max_epi32(l2[4], l2[3]), l2[0]);
       const __m256 L0 = _mm256_mul_ps(_mm256_cvtepi32_ps(l2t0), inv65536), L1 = _mm256_mul_ps(_mm256_cvtepi32_ps(l2t1), inv65536);
-      _mm256_store_ps(q0s, _mm256_sub_ps(fone, _mm256_div_ps(_mm256_sqrt_ps(L0), side_t)));
-      _mm256_store_ps(q1s, _mm256_sub_ps(fone, _mm256_div_ps(_mm256_sqrt_ps(L1), side_t)));
-      _mm256_store_ps(ia0, _mm256_div_ps(fone, _mm256_cvtepi32_ps(area0)));
-      _mm256_store_ps(ia1, _mm256_div_ps(fone, _mm256_cvtepi32_ps(area1)));
-    }
-    for (int k = 0; k < n; ++k) {
-      if (cls[k] == 0) continue;
-      const int uk = u + k;
-      if (cls[k] == 2) {
-        const std::uint32_t id = static_cast<std::uint32_t>(2 * (std::int64_t(r) * w + uk));
-        RasterTriangle(cx, id, y0, y1, sh);
-        RasterTriangle(cx, id + 1, y0, y1, sh);
-        continue;
+      const __m256 rq0 = _mm256_sub_ps(fone, _mm256_div_ps(_mm256_sqrt_ps(L0), side_t));
+      const __m256 rq1 = _mm256_sub_ps(fone, _mm256_div_ps(_mm256_sqrt_ps(L1), side_t));
+      const __m256 iav0 = _mm256_div_ps(fone, _mm256_cvtepi32_ps(area0));
+      const __m256 iav1 = _mm256_div_ps(fone, _mm256_cvtepi32_ps(area1));
+      _mm256_store_ps(ia0, iav0);
+      _mm256_store_ps(ia1, iav1);
+      // Paper Eq. 1 option: a triangle whose quality reaches 0 draws nothing. Then the floored
+      // quality min(1, max(q, kQualityFloor)) (no NaN: max / min give std::max / std::min's value).
+      if (discard) {
+        c0 = _mm256_andnot_si256(_mm256_castps_si256(_mm256_cmp_ps(rq0, fzero, _CMP_LE_OQ)), c0);
+        c1 = _mm256_andnot_si256(_mm256_castps_si256(_mm256_cmp_ps(rq1, fzero, _CMP_LE_OQ)), c1);
       }
-      const WarpVertex &A = top[uk], &B = top[uk + 1], &C = bot[uk], &D = bot[uk + 1];
-      const float *ca = ctop + 3 * uk, *cb = ca + 3, *cc = cbot + 3 * uk, *cd = cc + 3;
-      for (int t = 0; t < 2; ++t) {
-        unsigned mask = unsigned(t == 0 ? m0[k] : m1[k]);
-        if (mask == 0) continue;
-        float q = t == 0 ? q0s[k] : q1s[k];
-        if (q <= 0.f && discard) continue;
-        q = std::min(1.f, std::max(q, kQualityFloor));
-        // triangle 0 = (A, B, C): edges B->C, C->A, A->B; triangle 1 = (B, D, C): D->C, C->B, B->D
-        std::int32_t te_r[3], te_x[3], te_y[3];
-        std::int64_t tb[3];
-        if (t == 0) {
-          for (int e = 0; e < 3; ++e) {
-            te_r[e] = er[e][k];
-            te_x[e] = ex[e][k];
-            te_y[e] = ey[e][k];
-            tb[e] = bias[e][k];
-          }
-        } else {
-          te_r[0] = er[3][k], te_x[0] = ex[3][k], te_y[0] = ey[3][k], tb[0] = bias[3][k];
-          te_r[1] = Sh::kInclusiveEdges ? -er[0][k] : ~er[0][k], te_x[1] = -ex[0][k], te_y[1] = -ey[0][k];
-          tb[1] = Sh::kInclusiveEdges ? 0 : 1 - bias[0][k];
-          te_r[2] = er[4][k], te_x[2] = ex[4][k], te_y[2] = ey[4][k], tb[2] = bias[4][k];
+      const __m256 floor_q = _mm256_set1_ps(kQualityFloor);
+      const __m256 q0 = _mm256_min_ps(_mm256_max_ps(rq0, floor_q), fone), q1 = _mm256_min_ps(_mm256_max_ps(rq1, floor_q), fone);
+      _mm256_store_ps(q0s, q0);
+      _mm256_store_ps(q1s, q1);
+      _mm256_store_si256(reinterpret_cast<__m256i*>(m0), c0);
+      _mm256_store_si256(reinterpret_cast<__m256i*>(m1), c1);
+      // Each triangle's first covered centre shaded in lanes (its further centres, rare, are
+      // shaded one by one below). Colours of A, B (top row) and C, D (bottom row) as lanes.
+      const bool any0 = !_mm256_testz_si256(c0, c0), any1 = !_mm256_testz_si256(c1, c1);
+      if (any0 || any1) {
+        __m256 cA[3], cB[3], cC[3], cD[3];
+        DeinterleaveRgb8(tc, &cA[0], &cA[1], &cA[2]);
+        DeinterleaveRgb8(tc + 3, &cB[0], &cB[1], &cB[2]);
+        DeinterleaveRgb8(bc, &cC[0], &cC[1], &cC[2]);
+        DeinterleaveRgb8(bc + 3, &cD[0], &cD[1], &cD[2]);
+        if (any0) {
+          // triangle 0 = (A, B, C): edges B->C, C->A, A->B
+          const __m256 inv[3] = {Ai, Bi, Ci};
+          const __m256 col[3][3] = {{cA[0], cA[1], cA[2]}, {cB[0], cB[1], cB[2]}, {cC[0], cC[1], cC[2]}};
+          ShadeFirst8(c0, e_r, e_x, e_y, iav0, q0, inv, col, sh.combined, &first[0]);
         }
-        const float inv[3] = {t == 0 ? A.inv : B.inv, t == 0 ? B.inv : D.inv, C.inv};
-        const float* cols[3] = {t == 0 ? ca : cb, t == 0 ? cb : cd, cc};
-        sh.Setup(t == 0 ? ia0[k] : ia1[k], tb, q, inv, cols, false);
-        const int px0 = qx0[k], py0 = qy0[k];
-        do {
-          const int bit = __builtin_ctz(mask);
-          mask &= mask - 1;
-          const int i = bit & 3, j = bit >> 2;
-          sh.Shade(px0 + i, py0 + j, te_r[0] + te_x[0] * i + te_y[0] * j, te_r[1] + te_x[1] * i + te_y[1] * j,
-                   te_r[2] + te_x[2] * i + te_y[2] * j);
-        } while (mask != 0);
+        if (any1) {
+          // triangle 1 = (B, D, C): edges D->C, C->B (inclusive: -(B->C)), B->D
+          static_assert(Sh::kInclusiveEdges, "the lanes of C->B assume the inclusive rule (no bias)");
+          const __m256i t_r[3] = {e_r[3], _mm256_sub_epi32(zero, e_r[0]), e_r[4]};
+          const __m256i t_x[3] = {e_x[3], _mm256_sub_epi32(zero, e_x[0]), e_x[4]};
+          const __m256i t_y[3] = {e_y[3], _mm256_sub_epi32(zero, e_y[0]), e_y[4]};
+          const __m256 inv[3] = {Bi, Di, Ci};
+          const __m256 col[3][3] = {{cB[0], cB[1], cB[2]}, {cD[0], cD[1], cD[2]}, {cC[0], cC[1], cC[2]}};
+          ShadeFirst8(c1, t_r, t_x, t_y, iav1, q1, inv, col, sh.combined, &first[1]);
+        }
       }
+      // The fragments in input order: quad by quad, triangle 0 before 1 (bit 2 k + t of `order`;
+      // a quad for the general path is an event at bit 2 k). Each triangle's first covered
+      // centre takes the lane values through a depth test without a data-dependent branch (a
+      // losing fragment's writes go to a dummy slot); a later fragment at the same pixel reads
+      // what an earlier one wrote, as in Shader::Shade. Further centres of the same triangle
+      // (rare) are shaded one by one right after it.
+      const auto spread = [](unsigned x) {  // bit k -> bit 2 k (k < 8)
+        x = (x | (x << 4)) & 0x0f0fu;
+        x = (x | (x << 2)) & 0x3333u;
+        return (x | (x << 1)) & 0x5555u;
+      };
+      const __m256i general = _mm256_cmpeq_epi32(cl, _mm256_set1_epi32(2));
+      unsigned order =
+          spread(unsigned(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_or_si256(_mm256_cmpgt_epi32(c0, zero), general))))) |
+          (spread(unsigned(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpgt_epi32(c1, zero))))) << 1);
+      alignas(32) float dummy[4];
+      while (order != 0) {
+        const int bo = __builtin_ctz(order);
+        order &= order - 1;
+        const int k = bo >> 1, t = bo & 1;
+        if (cls[k] == 2) {
+          const std::uint32_t id = static_cast<std::uint32_t>(2 * (std::int64_t(r) * w + u + k));
+          RasterTriangle(cx, id, y0, y1, sh);
+          RasterTriangle(cx, id + 1, y0, y1, sh);
+          continue;
+        }
+        const FirstFragments& f = first[t];
+        const unsigned mask = unsigned(t == 0 ? m0[k] : m1[k]);
+        const int bit = __builtin_ctz(mask);
+        const std::ptrdiff_t i = std::ptrdiff_t(qy0[k] + (bit >> 2) - sh.row0) * sh.tw + qx0[k] + (bit & 3);
+        const bool win = f.s[k] > sh.score[i];
+        *(win ? sh.score + i : dummy) = f.s[k];
+        float* const c = win ? sh.oc + 3 * i : dummy;
+        c[0] = f.r[k];
+        c[1] = f.g[k];
+        c[2] = f.b[k];
+        *(win ? sh.od + i : dummy) = f.d[k];
+        *(win ? sh.oq + i : dummy) = f.q[k];
+        const unsigned rest = mask & (mask - 1);
+        if (rest != 0) shade_rest(u, k, t, rest);
+      }
+      continue;
+    }
+    // No quad for the small path in this step: only the general path (or nothing).
+    for (int k = 0; k < n; ++k) {
+      if (cls[k] != 2) continue;
+      const std::uint32_t id = static_cast<std::uint32_t>(2 * (std::int64_t(r) * w + u + k));
+      RasterTriangle(cx, id, y0, y1, sh);
+      RasterTriangle(cx, id + 1, y0, y1, sh);
     }
   }
 }
