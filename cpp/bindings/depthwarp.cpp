@@ -139,7 +139,8 @@ MotionInputs CheckMotionInputs(const py::handle& layers_obj, const Camera& src, 
   return in;
 }
 
-FloatArray ComputeMotion(const MotionInputs& in, const Camera& src, const Camera& dst, const py::handle& out_obj) {
+// The packed (L, H, W, 4) output of a motion computation: `out` (checked) or a new array.
+FloatArray MotionOutput(const MotionInputs& in, const py::handle& out_obj) {
   FloatArray packed = out_obj.is_none()
                           ? NewArray<float>({in.num_layers, in.height, in.width, 4})
                           : CheckArray<float>(out_obj, "out", {{"L", in.num_layers}, {"H", in.height}, {"W", in.width}, {"4", 4}},
@@ -147,6 +148,11 @@ FloatArray ComputeMotion(const MotionInputs& in, const Camera& src, const Camera
   if (!out_obj.is_none() && (Overlaps(packed, in.layers) || (in.has_ids && Overlaps(packed, in.ids)))) {
     throw BadValueError("out: shares memory with an input");
   }
+  return packed;
+}
+
+FloatArray ComputeMotion(const MotionInputs& in, const Camera& src, const Camera& dst, const py::handle& out_obj) {
+  FloatArray packed = MotionOutput(in, out_obj);
   DepthWarpMover mover{&src, &dst, in.dst_from_src.data(), in.num_motions};
   const std::int64_t plane = std::int64_t(in.height) * in.width;
   float* out = packed.mutable_data();
@@ -188,6 +194,55 @@ FloatArray CheckPacked(const py::handle& obj) {
     throw ShapeError("packed: expected 1..127 layers of at least 1x1 pixels, got " + DescribeShape(p));
   }
   return p;
+}
+
+// The MotionMips object to fill: `reuse` (a DepthWarpMips) or a new one, sized for (nl, hh, ww);
+// a reused object of the same size keeps its buffers (no page faults).
+py::object PrepareMips(const py::object& reuse, int nl, int hh, int ww) {
+  if (!reuse.is_none() && !py::isinstance<MotionMips>(reuse)) {
+    throw DtypeError("reuse: expected a DepthWarpMips or None");
+  }
+  py::object result = reuse.is_none() ? py::cast(MotionMips()) : reuse;
+  MotionMips& mm = result.cast<MotionMips&>();
+  if (mm.num_layers != nl || mm.height != hh || mm.width != ww) {
+    mm = MotionMips();
+    mm.num_layers = nl, mm.height = hh, mm.width = ww;
+    mm.levels.resize(nl);
+    mm.zlevels.resize(nl);
+    mm.dims.resize(nl);
+    mm.rot.resize(nl);
+    mm.axes.resize(nl);
+    for (int j = 0; j < nl; ++j) {
+      int h = hh, w = ww;
+      while (h > 1 || w > 1) {
+        h = (h + 1) / 2, w = (w + 1) / 2;
+        mm.dims[j].push_back({h, w});
+        mm.levels[j].emplace_back(std::size_t(h) * w * 4);
+        mm.zlevels[j].emplace_back(std::size_t(h) * w);
+      }
+    }
+  }
+  return result;
+}
+
+ImageView<float> MipView(MotionMips& mm, int j, std::size_t l) {
+  return ImageView<float>(mm.levels[j][l].data(), mm.dims[j][l].first, mm.dims[j][l].second, 4);
+}
+ImageView<float> ZMipView(MotionMips& mm, int j, std::size_t l) {
+  return ImageView<float>(mm.zlevels[j][l].data(), mm.dims[j][l].first, mm.dims[j][l].second);
+}
+
+// Levels first_level.. (1-based) of layer j; level 1 from the packed layer pv. GIL released by the caller.
+void FillMips(MotionMips& mm, int j, const ImageView<const float>& pv, std::size_t first_level) {
+  for (std::size_t l = first_level - 1; l < mm.levels[j].size(); ++l) {
+    if (l == 0) {
+      DepthWarpMipLevel1(pv, mm.rot[j].data(), MipView(mm, j, 0), ZMipView(mm, j, 0));
+    } else {
+      const ImageView<float> in = MipView(mm, j, l - 1), in_z = ZMipView(mm, j, l - 1);
+      DepthWarpMipDown(ImageView<const float>(in.data, in.height, in.width, 4),
+                       ImageView<const float>(in_z.data, in_z.height, in_z.width), MipView(mm, j, l), ZMipView(mm, j, l));
+    }
+  }
 }
 
 // Y-map: the front owns the levels; the kernels fill and read them.
@@ -245,32 +300,10 @@ void BindDepthwarp(py::module_& m) {
       [](py::handle packed_obj, bool oriented, int pca_grid, py::object reuse) -> py::object {
         FloatArray packed = CheckPacked(packed_obj);
         if (pca_grid < 2 || pca_grid > 1024) throw BadValueError("pca_grid: expected 2..1024, got " + std::to_string(pca_grid));
-        if (!reuse.is_none() && !py::isinstance<MotionMips>(reuse)) {
-          throw DtypeError("reuse: expected a DepthWarpMips or None");
-        }
-        py::object result = reuse.is_none() ? py::cast(MotionMips()) : reuse;
-        MotionMips& mm = result.cast<MotionMips&>();
         const int nl = static_cast<int>(packed.shape(0)), hh = static_cast<int>(packed.shape(1)),
                   ww = static_cast<int>(packed.shape(2));
-        if (mm.num_layers != nl || mm.height != hh || mm.width != ww) {
-          // (Re)allocate; a reused object of the same size keeps its buffers (no page faults).
-          mm = MotionMips();
-          mm.num_layers = nl, mm.height = hh, mm.width = ww;
-          mm.levels.resize(nl);
-          mm.zlevels.resize(nl);
-          mm.dims.resize(nl);
-          mm.rot.resize(nl);
-          mm.axes.resize(nl);
-          for (int j = 0; j < nl; ++j) {
-            int h = hh, w = ww;
-            while (h > 1 || w > 1) {
-              h = (h + 1) / 2, w = (w + 1) / 2;
-              mm.dims[j].push_back({h, w});
-              mm.levels[j].emplace_back(std::size_t(h) * w * 4);
-              mm.zlevels[j].emplace_back(std::size_t(h) * w);
-            }
-          }
-        }
+        py::object result = PrepareMips(reuse, nl, hh, ww);
+        MotionMips& mm = result.cast<MotionMips&>();
         const std::int64_t plane = std::int64_t(hh) * ww * 4;
         const float* pd = packed.data();
         {
@@ -278,18 +311,7 @@ void BindDepthwarp(py::module_& m) {
           for (int j = 0; j < nl; ++j) {
             ImageView<const float> pv(pd + j * plane, hh, ww, 4);
             mm.axes[j] = static_cast<int>(DepthWarpChooseAxes(pv, oriented, pca_grid, mm.rot[j].data()));
-            for (std::size_t l = 0; l < mm.levels[j].size(); ++l) {
-              const int lh = mm.dims[j][l].first, lw = mm.dims[j][l].second;
-              ImageView<float> out(mm.levels[j][l].data(), lh, lw, 4);
-              ImageView<float> out_z(mm.zlevels[j][l].data(), lh, lw);
-              if (l == 0) {
-                DepthWarpMipLevel1(pv, mm.rot[j].data(), out, out_z);
-              } else {
-                const int ph = mm.dims[j][l - 1].first, pw = mm.dims[j][l - 1].second;
-                DepthWarpMipDown(ImageView<const float>(mm.levels[j][l - 1].data(), ph, pw, 4),
-                                 ImageView<const float>(mm.zlevels[j][l - 1].data(), ph, pw), out, out_z);
-              }
-            }
+            FillMips(mm, j, pv, 1);
           }
         }
         return result;
@@ -298,6 +320,57 @@ void BindDepthwarp(py::module_& m) {
       "Min-max motion mipmaps (DepthWarpChooseAxes, DepthWarpMipLevel1/Down) of packed float32 "
       "(L, H, W, 4) from dw_motion; oriented: try PCA axes of a pca_grid x pca_grid sample per layer. "
       "reuse: a DepthWarpMips to refill (returned; its buffers are kept when the size matches).");
+
+  m.def(
+      "dw_motion_mips",
+      [](py::handle layers, const Camera& src, const Camera& dst, py::handle ids, py::handle motion, bool oriented,
+         int pca_grid, py::handle out, py::object reuse) {
+        MotionInputs in = CheckMotionInputs(layers, src, dst, ids, motion);
+        if (pca_grid < 2 || pca_grid > 1024) throw BadValueError("pca_grid: expected 2..1024, got " + std::to_string(pca_grid));
+        FloatArray packed = MotionOutput(in, out);
+        py::object result = PrepareMips(reuse, in.num_layers, in.height, in.width);
+        MotionMips& mm = result.cast<MotionMips&>();
+        DepthWarpMover mover{&src, &dst, in.dst_from_src.data(), in.num_motions};
+        const std::int64_t plane = std::int64_t(in.height) * in.width;
+        float* pd = packed.mutable_data();
+        double motion_ms = 0, mipmap_ms = 0;
+        {
+          py::gil_scoped_release release;
+          for (int j = 0; j < in.num_layers; ++j) {
+            ImageView<const float> d(in.layers.data() + j * plane, in.height, in.width);
+            ImageView<const std::int32_t> idv(in.has_ids ? in.ids.data() + j * plane : nullptr, in.height, in.width);
+            const ImageView<const std::int32_t>* idp = in.has_ids ? &idv : nullptr;
+            ImageView<float> pv(pd + j * plane * 4, in.height, in.width, 4);
+            const ImageView<const float> pcv(pv.data, in.height, in.width, 4);
+            auto t0 = std::chrono::steady_clock::now();
+            std::size_t first = 1;
+            if (!oriented && !mm.levels[j].empty()) {
+              // Axis-aligned bounds: level 1 is built in the motion pass (same results, one pass).
+              mm.rot[j] = {1.0f, 0.0f, 0.0f, 1.0f};
+              mm.axes[j] = static_cast<int>(DepthWarpAxes::kAxisAligned);
+              DepthWarpMotionMipLevel1(d, idp, mover, pv, MipView(mm, j, 0), ZMipView(mm, j, 0));
+              first = 2;
+              motion_ms += MsSince(t0);
+              t0 = std::chrono::steady_clock::now();
+            } else {
+              DepthWarpMotion(d, idp, mover, pv);
+              motion_ms += MsSince(t0);
+              t0 = std::chrono::steady_clock::now();
+              mm.axes[j] = static_cast<int>(DepthWarpChooseAxes(pcv, oriented, pca_grid, mm.rot[j].data()));
+            }
+            FillMips(mm, j, pcv, first);
+            mipmap_ms += MsSince(t0);
+          }
+        }
+        return py::make_tuple(packed, result, motion_ms, mipmap_ms);
+      },
+      py::arg("layers"), py::arg("src"), py::arg("dst"), py::arg("object_ids") = py::none(),
+      py::arg("object_motion") = py::none(), py::arg("oriented") = false, py::arg("pca_grid") = 16,
+      py::arg("out") = py::none(), py::arg("reuse") = py::none(),
+      "dw_motion followed by dw_build_mips in one call: (packed float32 (L, H, W, 4), DepthWarpMips, motion_ms, "
+      "mipmap_ms). With axis-aligned bounds (oriented false) level 1 of the mipmaps is built in the motion pass "
+      "(DepthWarpMotionMipLevel1: bit-identical, without re-reading the packed buffer) and its time counts as "
+      "motion_ms. out / reuse: buffers to refill, as in dw_motion / dw_build_mips.");
 
   m.def(
       "dw_warp",
@@ -391,13 +464,10 @@ void BindDepthwarp(py::module_& m) {
           warp_ms = MsSince(t0);
           if (dilate) {
             t0 = std::chrono::steady_clock::now();
-            // Per-thread copies of the input kept between calls (no fresh pages per frame).
-            static thread_local std::vector<float> d_in;
+            // In place, from a per-thread copy of the layers kept between calls (no fresh pages per frame).
             static thread_local std::vector<std::int8_t> l_in;
-            d_in.assign(dv.data, dv.data + dv.NumPixels());
             l_in.assign(lv.data, lv.data + lv.NumPixels());
-            dilated = DepthWarpDilate(ImageView<const float>(d_in.data(), dst_height, dst_width),
-                                      ImageView<const std::int8_t>(l_in.data(), dst_height, dst_width),
+            dilated = DepthWarpDilate(ImageView<const std::int8_t>(l_in.data(), dst_height, dst_width),
                                       dilate_min_neighbors, dv, lv);
             dilate_ms = MsSince(t0);
           }

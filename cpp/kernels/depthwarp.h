@@ -114,6 +114,13 @@ DepthWarpAxes DepthWarpChooseAxes(const ImageView<const float>& packed, bool try
 // out (h1, w1, 4) motion bounds and out_z (h1, w1) the min z_dst of the block's valid pixels (+inf if none).
 void DepthWarpMipLevel1(const ImageView<const float>& packed, const float rot[4], const ImageView<float>& out,
                         const ImageView<float>& out_z);
+// DepthWarpMotion followed by DepthWarpMipLevel1 with the identity rotation (axis-aligned bounds),
+// in one pass over the rows: each pair of packed rows is reduced to its level-1 texel row while it
+// is still in cache (saves re-reading the 16 bytes per pixel of the packed buffer). Results are
+// bit-identical to the two calls (same arithmetic in the same order). out / out_z: level 1.
+void DepthWarpMotionMipLevel1(const ImageView<const float>& depth, const ImageView<const std::int32_t>* ids,
+                              const DepthWarpMover& mover, const ImageView<float>& packed, const ImageView<float>& out,
+                              const ImageView<float>& out_z);
 void DepthWarpMipDown(const ImageView<const float>& in, const ImageView<const float>& in_z, const ImageView<float>& out,
                       const ImageView<float>& out_z);
 
@@ -177,10 +184,11 @@ void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const Depth
                        const ImageView<float>& depth_out, const ImageView<std::int8_t>& layer_out,
                        DepthWarpCounters* counters);
 
-// depth/layer in -> out (distinct buffers); returns the number of filled holes.
-std::int64_t DepthWarpDilate(const ImageView<const float>& depth_in, const ImageView<const std::int8_t>& layer_in,
-                             int min_neighbors, const ImageView<float>& depth_out,
-                             const ImageView<std::int8_t>& layer_out);
+// In place on the warp's depth / layer: layer_in is an unmodified copy of `layer` (holes and
+// converged neighbours are read from it; converged pixels' depths are never written, so reading
+// them from `depth` is safe). Only the filled holes are written; returns their number.
+std::int64_t DepthWarpDilate(const ImageView<const std::int8_t>& layer_in, int min_neighbors,
+                             const ImageView<float>& depth, const ImageView<std::int8_t>& layer);
 
 enum class DepthWarpForwardKind : int { kVfw = 0, kAfw = 1 };
 
