@@ -8,6 +8,11 @@
 #include <limits>
 #include <mutex>
 
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#include <xmmintrin.h>
+#endif
+
 #include "ibr/parallel.h"
 
 namespace ibr {
@@ -349,7 +354,43 @@ struct StaticMotion {
     const double ry = (y + 0.5 - s.cy) / s.fy;
     const float cxr = float(a[1] * ry + a[2]), cyr = float(a[5] * ry + a[6]), czr = float(a[9] * ry + a[10]);
     const float yi = float(y) + 0.5f;
-    for (int x = 0; x < w; ++x) {
+    int x = 0;
+#if defined(__SSE2__)
+    // Four pixels at a time, the scalar loop's operations in the same order (so the same bits;
+    // tests/test_depthwarp_speed.py checks against the scalar loop). GCC does not vectorise the
+    // scalar loop: with trapping math it keeps the comparisons' control flow.
+    {
+      const __m128 v_cxr = _mm_set1_ps(cxr), v_cyr = _mm_set1_ps(cyr), v_czr = _mm_set1_ps(czr);
+      const __m128 v_a0x = _mm_set1_ps(a0x), v_a0y = _mm_set1_ps(a0y), v_a0z = _mm_set1_ps(a0z);
+      const __m128 v_tx = _mm_set1_ps(tx), v_ty = _mm_set1_ps(ty), v_tz = _mm_set1_ps(tz);
+      const __m128 v_fx = _mm_set1_ps(fx), v_fy = _mm_set1_ps(fy), v_cx = _mm_set1_ps(cx), v_cy = _mm_set1_ps(cy);
+      const __m128 v_scx = _mm_set1_ps(scx), v_yi = _mm_set1_ps(yi), half = _mm_set1_ps(0.5f);
+      const __m128 zero = _mm_setzero_ps(), one = _mm_set1_ps(1.0f), big = _mm_set1_ps(kDepthWarpMaxMotion);
+      const __m128 abs_mask = _mm_castsi128_ps(_mm_set1_epi32(0x7fffffff));
+      for (; x + 4 <= w && mover->simd; x += 4) {
+        const __m128 z = _mm_loadu_ps(d + x);
+        const __m128 xc = _mm_add_ps(_mm_cvtepi32_ps(_mm_setr_epi32(x, x + 1, x + 2, x + 3)), half);
+        const __m128 rx = _mm_sub_ps(xc, v_scx);
+        const __m128 px = _mm_add_ps(_mm_mul_ps(z, _mm_add_ps(v_cxr, _mm_mul_ps(rx, v_a0x))), v_tx);
+        const __m128 py = _mm_add_ps(_mm_mul_ps(z, _mm_add_ps(v_cyr, _mm_mul_ps(rx, v_a0y))), v_ty);
+        const __m128 pz = _mm_add_ps(_mm_mul_ps(z, _mm_add_ps(v_czr, _mm_mul_ps(rx, v_a0z))), v_tz);
+        const __m128 pos = _mm_cmpgt_ps(pz, zero);
+        const __m128 q = _mm_or_ps(_mm_and_ps(pos, pz), _mm_andnot_ps(pos, one));
+        const __m128 mx = _mm_sub_ps(_mm_add_ps(_mm_mul_ps(v_fx, _mm_div_ps(px, q)), v_cx), xc);
+        const __m128 my = _mm_sub_ps(_mm_add_ps(_mm_mul_ps(v_fy, _mm_div_ps(py, q)), v_cy), v_yi);
+        const __m128 ok = _mm_and_ps(_mm_and_ps(_mm_cmpgt_ps(z, zero), pos),
+                                     _mm_and_ps(_mm_cmplt_ps(_mm_and_ps(mx, abs_mask), big),
+                                                _mm_cmplt_ps(_mm_and_ps(my, abs_mask), big)));
+        __m128 r0 = _mm_and_ps(ok, mx), r1 = _mm_and_ps(ok, my), r2 = _mm_and_ps(ok, pz), r3 = zero;
+        _MM_TRANSPOSE4_PS(r0, r1, r2, r3);  // -> one (mx, my, z_dst, 0) per pixel
+        _mm_storeu_ps(o + 4 * x, r0);
+        _mm_storeu_ps(o + 4 * x + 4, r1);
+        _mm_storeu_ps(o + 4 * x + 8, r2);
+        _mm_storeu_ps(o + 4 * x + 12, r3);
+      }
+    }
+#endif
+    for (; x < w; ++x) {
       const float z = d[x];
       const float rx = float(x) + 0.5f - scx;
       const float px = z * (cxr + rx * a0x) + tx;
@@ -381,6 +422,20 @@ inline void MotionRow(const ImageView<const float>& depth, const ImageView<const
   }
 }
 }  // namespace
+
+void DepthWarpCountBadDepth(const float* depth, std::int64_t n, std::int64_t* nonfinite, std::int64_t* negative) {
+  std::atomic<std::int64_t> bad{0}, neg{0};
+  ParallelFor(n, std::int64_t(1) << 16, [&](std::int64_t a, std::int64_t b) {
+    std::int64_t lb = 0, ln = 0;
+    for (std::int64_t i = a; i < b; ++i) {
+      const float v = depth[i];
+      lb += !(std::fabs(v) <= std::numeric_limits<float>::max());  // NaN or +-inf
+      ln += v < 0.0f;
+    }
+    bad += lb, neg += ln;
+  });
+  *nonfinite = bad, *negative = neg;
+}
 
 void DepthWarpMotion(const ImageView<const float>& depth, const ImageView<const std::int32_t>* ids,
                      const DepthWarpMover& mover, const ImageView<float>& packed) {

@@ -92,7 +92,11 @@ struct DepthWarpMover {
   const Camera* dst = nullptr;
   const double* dst_from_src = nullptr;
   int num_motions = 0;
+  bool simd = true;  // static scene: SSE2 over 4 pixels (same bits as the scalar loop; false: scalar only, for tests)
 };
+
+// The front's input check of depth layers (n floats): counts NaN / infinite and negative values.
+void DepthWarpCountBadDepth(const float* depth, std::int64_t n, std::int64_t* nonfinite, std::int64_t* negative);
 
 void DepthWarpMotion(const ImageView<const float>& depth, const ImageView<const std::int32_t>* ids,
                      const DepthWarpMover& mover, const ImageView<float>& packed);

@@ -375,9 +375,9 @@ def dw_forward(layers: _F32, src: Camera, dst: Camera, object_ids: _I32 | None=N
     Forward depth warp baselines (DepthWarpForward, 'vfw' quad splats / 'afw' atomic-min points, both with the half-pixel support expansion): (depth (H', W') float32, layer int8, motion_ms, warp_ms).
     """
 
-def dw_motion(layers: _F32, src: Camera, dst: Camera, object_ids: _I32 | None=None, object_motion: _F64 | None=None, out: _F32 | None=None) -> numpy.typing.NDArray[numpy.float32]:
+def dw_motion(layers: _F32, src: Camera, dst: Camera, object_ids: _I32 | None=None, object_motion: _F64 | None=None, out: _F32 | None=None, simd: bool=True) -> numpy.typing.NDArray[numpy.float32]:
     """
-    Exact motion buffers (cpp/kernels/depthwarp.h DepthWarpMotion) of layers float32 (L, H, W) z in src (0 = empty) into dst: float32 (L, H, W, 4) = (mx, my, z_dst, 0); z_dst = 0 marks invalid pixels. object_ids int32 (L, H, W) in -1..K-1 with object_motion float64 (K, 4, 4) new_world_from_old_world. out: an existing writeable float32 (L, H, W, 4) array to fill (and return) instead of a new one.
+    Exact motion buffers (cpp/kernels/depthwarp.h DepthWarpMotion) of layers float32 (L, H, W) z in src (0 = empty) into dst: float32 (L, H, W, 4) = (mx, my, z_dst, 0); z_dst = 0 marks invalid pixels. object_ids int32 (L, H, W) in -1..K-1 with object_motion float64 (K, 4, 4) new_world_from_old_world. out: an existing writeable float32 (L, H, W, 4) array to fill (and return) instead of a new one. simd=False: the scalar loop for every pixel (the same bits as the default SSE2 path; for tests).
     """
 
 def dw_motion_mips(layers: _F32, src: Camera, dst: Camera, object_ids: _I32 | None=None, object_motion: _F64 | None=None, oriented: bool=False, pca_grid: typing.SupportsInt | typing.SupportsIndex=16, out: _F32 | None=None, reuse: DepthWarpMips | None=None) -> tuple[_F32, DepthWarpMips, float, float]:
