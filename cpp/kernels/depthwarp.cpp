@@ -655,7 +655,7 @@ void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const Depth
           }
           const bool tile_one = std::max(bt.u1 - bt.u0, bt.w1 - bt.w0) < opt.early_exit;
           const bool step = opt.tight && !tile_one && opt.steps > 0 && opt.pixel_step;
-          const Region v = MotionBox(l, bt);  // SourceRegion(l, bt, p, p) = p - (x1, y1) .. p - (x0, y0)
+          const Region mb = MotionBox(l, bt);  // SourceRegion(l, bt, p, p) = p - (x1, y1) .. p - (x0, y0)
           {
             // Prefetch the source rows the searches will read first (the tile shifted by the
             // bound's centre motion): a tile's short row segments in several rows defeat the
@@ -674,6 +674,30 @@ void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const Depth
               }
             }
           }
+          if (tile_one) {
+            // Homogeneous motion over the whole tile: every pixel runs one search from the tile
+            // bound's centre (the general loop below with b = bt, one seed; the same arithmetic).
+            const float eu = bt.u1 - bt.u0, ew = bt.w1 - bt.w0;
+            const float u = bt.u0 + 0.5f * eu, w1 = bt.w0 + 0.5f * ew;
+            const float vx = l.rot[0] * u + l.rot[2] * w1, vy = l.rot[1] * u + l.rot[3] * w1;
+            for (int y = y0; y < y1; ++y) {
+              const float py = y + 0.5f;
+              for (int x = x0; x < x1; ++x) {
+                const float px = x + 0.5f;
+                const int at = (y - y0) * kT + (x - x0);
+                if (opt.skip_farther && bt.zmin >= best[at]) continue;
+                ++c_search, ++c_early, ++c_samples;
+                float z;
+                int from;
+                if (FixedPointSearch(layers, j, px, py, px - vx, py - vy, opt.iters, thr2, edge2, &z, &from, &c_lookups) &&
+                    z < best[at] && (from == 0 || opt.seen == nullptr || SeenInFront(*opt.seen, layers[0], px, py, z))) {
+                  best[at] = z;
+                  best_layer[at] = std::int8_t(from);
+                }
+              }
+            }
+            continue;
+          }
           for (int y = y0; y < y1; ++y) {
             const float py = y + 0.5f;
             for (int x = x0; x < x1; ++x) {
@@ -688,7 +712,7 @@ void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const Depth
                 // texels' min z read first: a search skip_farther rules out does not need the
                 // motion texels (the same result as intersecting first, for less memory traffic).
                 Corners c;
-                if (!PixelCorners(l, Region{px - v.x1, py - v.y1, px - v.x0, py - v.y0}, &c)) continue;
+                if (!PixelCorners(l, Region{px - mb.x1, py - mb.y1, px - mb.x0, py - mb.y0}, &c)) continue;
                 if (opt.skip_farther && std::max(bt.zmin, CornersZmin(l, c)) >= best[at]) continue;
                 b = Intersect(b, CornersBound(l, c));
                 if (!b.Valid()) continue;
