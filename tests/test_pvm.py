@@ -7,7 +7,8 @@ import pytest
 from ibrtools import _core
 from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
-from ibrtools.hybrid.pvm import PvmOptions, PvmTiles, build_tiles, grid_bounds, view_mesh
+from ibrtools.hybrid.pvm import (MAX_PLANE_TOL, PvmOptions, PvmTiles, build_tiles, depth_noise, grid_bounds,
+                                  plane_tolerance, view_mesh)
 
 
 def cam(w=33, h=25, eye=(0.0, 0.0, 0.0), target=(0.0, 0.0, 1.0), f=30.0):
@@ -64,6 +65,50 @@ def test_slanted_plane_merges_and_stays_on_plane():
     pc = (v.astype(np.float64) - c.centre) @ c.cam_from_world[:3, :3].T
     np.testing.assert_allclose(pc[:, 2], 3 + 0.5 * pc[:, 0], rtol=1e-5)
     np.testing.assert_allclose(areas(v, f).sum(), areas(v1, f1).sum(), rtol=1e-4)
+
+
+def test_depth_noise_estimate_and_the_merge_tolerance():
+    c = cam(129, 97, f=100.0)
+    x, y = c.pixel_grid()
+    depth = (3.0 / (1 - 0.5 * (x - c.cx) / c.fx)).astype(np.float32)  # a slanted plane, exact
+    assert depth_noise(depth) < 1e-6  # 1/z affine: every second difference vanishes (float32 rounding)
+    assert plane_tolerance(c, depth) == PvmOptions().plane_tol
+    rng = np.random.default_rng(3)
+    for sigma in (0.005, 0.01, 0.02):
+        noisy = (depth * (1 + sigma * rng.standard_normal(depth.shape))).astype(np.float32)
+        # 25 k triples: the MAD estimate's own spread is ~1 %; 5 % is 5 of those.
+        assert depth_noise(noisy) == pytest.approx(sigma, rel=0.05)
+        assert plane_tolerance(c, noisy) == pytest.approx(4 * depth_noise(noisy), rel=1e-12)
+    noisy = (depth * (1 + 0.01 * rng.standard_normal(depth.shape))).astype(np.float32)
+    # A step of 20 % (a discontinuity) and unknown pixels do not move the estimate.
+    stepped = noisy.copy()
+    stepped[:, 64:] *= 1.2
+    stepped[::7, ::5] = 0
+    assert depth_noise(stepped) == pytest.approx(depth_noise(noisy), rel=0.05)
+    # Merging at the noise-matched tolerance: far fewer triangles than at 0.1 %; noise_tol 0 = plane_tol.
+    v, f = view_mesh(c, noisy)
+    v0, f0 = view_mesh(c, noisy, PvmOptions(noise_tol=0))
+    assert len(f) < len(f0) / 8
+    # Every vertex is still a pixel centre at its own (noisy) depth.
+    pc = (v.astype(np.float64) - c.centre) @ c.cam_from_world[:3, :3].T
+    u = np.round(pc[:, 0] / pc[:, 2] * c.fx + c.cx - 0.5).astype(int)
+    w = np.round(pc[:, 1] / pc[:, 2] * c.fy + c.cy - 0.5).astype(int)
+    np.testing.assert_allclose(pc[:, 2], noisy[w, u], rtol=1e-5)
+    # Capped: wildly inconsistent depth keeps MAX_PLANE_TOL.
+    assert plane_tolerance(c, depth, PvmOptions(noise_tol=1e6, plane_tol=0.0)) == 0.0  # exact: 0 noise
+    wild = (depth * (1 + 0.2 * rng.random(depth.shape))).astype(np.float32)
+    assert plane_tolerance(c, wild, PvmOptions(noise_tol=100)) == MAX_PLANE_TOL
+    # Equirect views are never merged: plane_tol.
+    eq = Camera.equirect(64, 32)
+    assert plane_tolerance(eq, np.ones((32, 64), np.float32)) == PvmOptions().plane_tol
+    # Too few triples: 0.
+    assert depth_noise(np.ones((2, 2), np.float32)) == 0.0
+    with pytest.raises(ShapeError, match="depth"):
+        depth_noise(np.ones((4, 4, 1), np.float32))
+    with pytest.raises(DtypeError, match="depth"):
+        depth_noise(np.ones((4, 4), np.int32))
+    with pytest.raises(BadValueError, match="noise_tol"):
+        PvmOptions(noise_tol=-1)
 
 
 def test_depth_discontinuity_is_cut():

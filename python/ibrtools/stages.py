@@ -167,7 +167,8 @@ STAGES: dict[str, Stage] = {s.name: s for s in (
     Stage("harmonise", ("scene", "mesh", "variance"), ("harmonise.npz",), frozenset({"hybrid"}),
           "diffuse harmonisation, graph-cut view-dependent masks, Poisson re-injection", version=2),
     Stage("pvm", ("scene", "depth"), ("tiles.npz",), frozenset({"pvm", "hybrid"}),
-          "per-view meshes sliced into a two-level voxel grid of tiles (cubic cells)", version=2),
+          "per-view meshes (merge tolerance matched to the depth noise) sliced into a two-level voxel grid of "
+          "tiles (cubic cells)", version=3),
 )}
 ORDER = tuple(STAGES)
 ALL_METHODS = ("reference", "dibr", "warp", "depthwarp", "tm", "ulr", "pvm", "hybrid")
