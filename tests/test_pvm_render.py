@@ -195,8 +195,12 @@ def test_empty_candidate_lists_are_invalid_without_nan(exact):
     assert not res.valid.any() and np.isfinite(res.color).all()
 
 
-def test_pixel_mask_restricts_without_changing_the_result(exact):
-    scene, r = exact
+@pytest.mark.parametrize("sigma", [3.0, 2.5])
+def test_pixel_mask_restricts_without_changing_the_result(exact, sigma):
+    # sigma 2.5: Eq. 1's window radius (2 sigma rounded up to a multiple of filter_step 2: 6 px) is
+    # wider than 2 sigma rounded up (5 px); the masked render must cluster that whole window too.
+    scene, r0 = exact
+    r = PvmRenderer(scene, {"sigma": sigma}, tiles=r0.tiles, images={v.name: v.color for v in scene.views})
     t = scene.targets[0]
     full = r.render(t.camera, gbuffer_depth=t.depth)
     mask = np.zeros(t.depth.shape, bool)
@@ -206,6 +210,11 @@ def test_pixel_mask_restricts_without_changing_the_result(exact):
     np.testing.assert_array_equal(part.valid[mask], full.valid[mask])
     np.testing.assert_array_equal(part.color[mask], full.color[mask])
     np.testing.assert_array_equal(part.depth[mask], full.depth[mask])
+    # The depth pass, then resolve of the mask (colours only there, the clusters reused): the same.
+    r.depth_pass(t.camera, gbuffer_depth=t.depth)
+    res = r.resolve(t.camera, pixel_mask=mask)
+    np.testing.assert_array_equal(res.color[mask], full.color[mask])
+    assert (res.color[~mask] == 0).all()
 
 
 def test_depth_pass_then_resolve_equals_render(exact):

@@ -273,7 +273,8 @@ class PvmRendererCore {
         PvmRasterise(tiles_, views, camera, o, frame_);
         lap(2);
       }
-      PvmCluster(views, camera, mptr, o, !depth_only, frame_);
+      // resolve: the depth pass clustered every pixel (it takes no mask); only the masked colours remain.
+      PvmCluster(views, camera, mptr, o, !depth_only, frame_, resolve);
       lap(3);
       PvmFilter(tiles_.box, camera, mptr, o, !depth_only, frame_, color.mutable_data(), depth.mutable_data(), vote.mutable_data(),
                 reinterpret_cast<std::uint8_t*>(valid.mutable_data()),

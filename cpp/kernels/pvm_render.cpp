@@ -475,20 +475,28 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
 }
 
 void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t* pixel_mask,
-                const PvmRenderOptions& options, bool colours, PvmFrame& frame) {
+                const PvmRenderOptions& options, bool colours, PvmFrame& frame, bool reuse_clusters) {
   const int h = camera.height, w = camera.width;
   const int K = std::min(std::max(1, options.max_candidates), kPvmMaxCandidates);
   const std::int64_t npix = static_cast<std::int64_t>(h) * w;
-  frame.d_fg.assign(static_cast<std::size_t>(npix), 0.f);
-  frame.d_bg.assign(static_cast<std::size_t>(npix), 0.f);
-  frame.n_fg.assign(static_cast<std::size_t>(npix), 0);
-  frame.n_bg.assign(static_cast<std::size_t>(npix), 0);
-  frame.c_fg.assign(static_cast<std::size_t>(npix * 3), 0.f);
-  frame.c_bg.assign(static_cast<std::size_t>(npix * 3), 0.f);
-  // The filter reads clusters up to R pixels around a masked pixel: resolve the mask dilated by R.
+  reuse_clusters = reuse_clusters && colours && frame.d_fg.size() == static_cast<std::size_t>(npix);
+  if (!reuse_clusters) {
+    frame.d_fg.assign(static_cast<std::size_t>(npix), 0.f);
+    frame.d_bg.assign(static_cast<std::size_t>(npix), 0.f);
+    frame.n_fg.assign(static_cast<std::size_t>(npix), 0);
+    frame.n_bg.assign(static_cast<std::size_t>(npix), 0);
+  }
+  // Colours are read (PvmFilter) only at masked pixels with a candidate, where they are written.
+  frame.c_fg.resize(static_cast<std::size_t>(npix * 3));
+  frame.c_bg.resize(static_cast<std::size_t>(npix * 3));
+  // The filter reads clusters up to R pixels around a masked pixel: cluster the mask dilated by R
+  // (with reuse_clusters they exist everywhere already).
   std::vector<std::uint8_t> need;
-  if (pixel_mask != nullptr) {
-    const int r = options.filtered ? static_cast<int>(std::ceil(options.radius_sigmas * options.sigma)) : 0;
+  if (pixel_mask != nullptr && !reuse_clusters) {
+    // PvmFilter's window radius (a multiple of filter_step; was ceil(radius_sigmas * sigma), short of
+    // it when that is not a multiple of the step, so a masked render could differ from a full one).
+    const int step = std::max(1, options.filter_step);
+    const int r = options.filtered ? static_cast<int>(std::ceil(options.radius_sigmas * options.sigma / step)) * step : 0;
     std::vector<std::uint8_t> rows(static_cast<std::size_t>(npix), 0);
     need.assign(static_cast<std::size_t>(npix), 0);
     ParallelFor(h, 8, [&](std::int64_t a, std::int64_t b) {
@@ -535,7 +543,8 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
     for (std::int64_t y = a; y < b; ++y) {
       for (int x = 0; x < w; ++x) {
         const std::int64_t p = y * w + x;
-        if (!need.empty() && !need[static_cast<std::size_t>(p)]) continue;
+        const bool masked = pixel_mask == nullptr || pixel_mask[p];
+        if (reuse_clusters ? !masked : (!need.empty() && !need[static_cast<std::size_t>(p)])) continue;
         const int n = frame.cand_count[static_cast<std::size_t>(p)];
         if (n == 0) continue;
         const float* d = frame.cand_depth.data() + p * K;
@@ -580,7 +589,7 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
           }
           m0 = s / n;
         }
-        if (!colours) {
+        if (!colours || !masked) {  // a pixel of the dilation ring: Eq. 1 reads its clusters, not its colours
           int k1 = 0;
           for (int i = 0; i < n; ++i) k1 += bg[i] ? 1 : 0;
           frame.d_fg[static_cast<std::size_t>(p)] = static_cast<float>(m0);
@@ -699,9 +708,11 @@ void PvmFilter(const double* box, const Camera& camera, const std::uint8_t* pixe
         const float* c0 = frame.c_fg.data() + 3 * p;
         const float* c1 = frame.c_bg.data() + 3 * p;
         if (n1 == 0) {
-          out[0] = c0[0];
-          out[1] = c0[1];
-          out[2] = c0[2];
+          if (colours) {  // without colours (the depth pass) PvmCluster wrote none: colour stays 0
+            out[0] = c0[0];
+            out[1] = c0[1];
+            out[2] = c0[2];
+          }
           depth[p] = dfg[p];
           vote[p] = 1.f;
           continue;
@@ -710,7 +721,8 @@ void PvmFilter(const double* box, const Camera& camera, const std::uint8_t* pixe
         const bool pick_bg = static_cast<float>(n1) >= options.tau_depth * static_cast<float>(n0);
         depth[p] = pick_bg ? dbg[p] : dfg[p];
         vote[p] = static_cast<float>(pick_bg ? n1 : n0) / static_cast<float>(n0 + n1);
-        if (!options.filtered || !colours) {
+        if (!colours) continue;
+        if (!options.filtered) {
           out[0] = c0[0];
           out[1] = c0[1];
           out[2] = c0[2];

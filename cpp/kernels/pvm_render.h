@@ -136,9 +136,14 @@ void PvmSelectTiles(const PvmTileArrays& tiles, const PvmViews& views, const std
 void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camera& camera,
                   const PvmRenderOptions& options, PvmFrame& frame);
 // Stage 4. pixel_mask (H, W) or nullptr = all pixels. colours = false: the clusters' depths
-// and sizes only (no image sampling; the hybrid method's depth pass).
+// and sizes only (no image sampling; the hybrid method's depth pass). The clusters (depths,
+// sizes) are computed on the mask dilated by the filter radius (Eq. 1 reads the neighbours'),
+// the colours only on the mask (the filter reads a pixel's own colours only).
+// reuse_clusters = true: the frame's clusters are this frame's at every pixel (a PvmCluster
+// without mask ran after the last PvmRasterise): only the masked pixels' colours are computed, by
+// the same 2-means (so the same clusters); the other pixels' colours are left unspecified.
 void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t* pixel_mask,
-                const PvmRenderOptions& options, bool colours, PvmFrame& frame);
+                const PvmRenderOptions& options, bool colours, PvmFrame& frame, bool reuse_clusters = false);
 // Stage 5. box: PvmTileArrays::box. Outputs (H, W, 3) color, (H, W) depth, vote, valid and inside_grid; pixels outside
 // the mask or without candidates get colour 0, depth 0, vote 0, valid 0. colours = false after a
 // PvmCluster without colours: no Eq. 1 (colour stays 0), depth / vote / valid as usual.
