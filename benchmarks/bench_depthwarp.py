@@ -17,7 +17,8 @@ method's depth PSNR / SSIM (``ibrtools.render.depthwarp.depth_scores``: z / far,
    comparison) vs VFW and AFW at L = 1 and L = 4; means over the frames.
 2. Speed: on ``crowd``, ``warp_depth`` with N = 4, L = 3, T = 3 (motion buffers and mipmaps
    included: the call's wall time) against ``ReferenceRenderer.render(camera, outputs=("depth",))``
-   of the same frame, alternated for --repeats rounds, medians (and, as a second, separately labelled
+   of the same frame, alternated for --repeats rounds, medians of wall and of process CPU time (all
+   threads; less sensitive to other jobs on a shared machine) (and, as a second, separately labelled
    comparison, the Embree peeling of the same frame's 3-layer deep buffer); and the N / L / T scaling table
    (Table 3), one factor varied at a time around N = 4, L = 3, T = 3; and the depth peeling cost
    and fill per layer, plain vs generalised umbra culling towards the next frame (Table 4).

@@ -115,16 +115,18 @@ def main(argv=None) -> int:
            f"Reference depth render (Embree, depth only) of frame {a.frame}: **{ref_ms:.1f} ms**; depth peeling of "
            f"frame {a.frame - 1}: " + ", ".join(f"L={L} {peel_ms[L]:.0f} ms" for L in l_list) + ".",
            "",
-           f"Headline (N = 4, L = {L3}, T = 3, tight bound): warp + mipmaps **{warp_mip:.1f} ms** = "
-           f"**{ref_ms / warp_mip:.1f}x** faster than the reference render (target >= 5x); with the motion "
-           f"buffers {with_motion:.1f} ms ({ref_ms / with_motion:.1f}x). Quality {quality(hres.depth)[0]:.2f} dB / "
+           f"Headline (N = 4, L = {L3}, T = 3, tight bound): warp + mipmaps + motion buffers **{with_motion:.1f} ms**: "
+           f"reference / warp = **{ref_ms / with_motion:.2f}x** (target >= 5x: "
+           f"{'met' if ref_ms / with_motion >= 5 else 'MISSED'}); without the motion buffers {warp_mip:.1f} ms "
+           f"({ref_ms / warp_mip:.2f}x; level 1 of the axis-aligned mipmaps is built in the motion pass and counted "
+           f"there, so this excludes it). Quality {quality(hres.depth)[0]:.2f} dB / "
            f"SSIM {quality(hres.depth)[1]:.4f}, holes {100 * hres.stats['hole_fraction']:.1f} % (sky included). "
            f"The paper's per-pixel narrowing and every-layer search (tile=1, pixel_step=False, "
            f"skip_farther=False): warp + mipmaps {pt['warp'] + pt['mipmap']:.1f} ms, "
            f"{quality(pres.depth)[0]:.2f} dB / {quality(pres.depth)[1]:.4f}.",
            "",
            "Warp time (ms, T = 3, no dilation) by seeds N and layers L, tight and global bound; MMC = motion-mipmap "
-           "construction, MB = motion buffers (all L layers):",
+           "construction (levels >= 2), MB = motion buffers with mipmap level 1 (one pass; all L layers):",
            "",
            "| L | " + " | ".join(f"tight N={n}" for n in n_list) + " | " + " | ".join(f"global N={n}" for n in n_list) +
            " | MMC | MB |",
