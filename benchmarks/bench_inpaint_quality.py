@@ -21,6 +21,15 @@ background depth in the holes), metameric (depth-aware moments; 4 levels, 2 orie
 0, 1, 2: the table gives the mean over seeds), OpenCV TELEA (``cv2.inpaint`` radius 3 on the 8-bit
 sRGB image, as in bench_inpaint.py). ibrtools fills linear RGB (the engine's colour); every score
 compares sRGB encodings in [0, 1] (``ibrtools.imageio.linear_to_srgb``, as ibrtools.metrics).
+Two diagnostic rows take metameric apart (docs/inpaint_quality.md, "Why metameric loses on FLIP"):
+  sigma = 0       metameric's mean alone: its pre-fill, the depth-aware push-pull of the display
+                  (sRGB-encoded) values, decoded; metameric = this + the noise.
+  truth's sigma   metameric's synthesis (same pre-fill, same noise, same masks, same collapse) with
+                  sigma taken from the *ground truth* instead of the push-pulled moments: the local
+                  standard deviation of each truth band (Gaussian window of 2 samples at the band's
+                  level, E[X^2] - E[X]^2). An oracle: the best the moment estimate could be.
+The criteria lines also give metameric's signed log variance ratio per band (fill vs truth, the
+terms of Dvar with their sign, mean over Y, Cb, Cr and seeds): > 0 = more variance than the truth.
 
 Scores, over the scored hole pixels only. Every method is scored on the *composite*: the ground
 truth outside the scored holes, the method's fill inside them, so nothing but the fill differs:
@@ -56,9 +65,13 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-METHODS = ("none", "pushpull", "pushpull_depth", "metameric", "telea")
+METHODS = ("none", "pushpull", "pushpull_depth", "metameric", "telea", "metameric_mean", "metameric_oracle")
 LABELS = {"none": "no fill (black)", "pushpull": "push-pull, classic", "pushpull_depth": "push-pull, depth-aware",
-          "metameric": "metameric (depth-aware)", "telea": "OpenCV TELEA r=3"}
+          "metameric": "metameric (depth-aware)", "telea": "OpenCV TELEA r=3",
+          "metameric_mean": "diagnostic: metameric, sigma = 0",
+          "metameric_oracle": "diagnostic: metameric, truth's sigma"}
+SEEDED = ("metameric", "metameric_oracle")
+ORACLE_WINDOW = 2.0  # Gaussian sigma, in samples of the band's level, of the truth's local variance
 SEEDS = (0, 1, 2)
 LEVELS, ORIENTATIONS = 4, 2
 EPS_VAR = (1.0 / 255.0) ** 2 / 12.0
@@ -132,6 +145,10 @@ def fill(case: dict, method: str, seed: int = 0) -> np.ndarray:
         return pushpull(color, hole, depth)
     if method == "metameric":
         return metameric(color, hole, depth, levels=LEVELS, orientations=ORIENTATIONS, seed=seed)
+    if method == "metameric_mean":
+        return _metameric_parts(case, None)
+    if method == "metameric_oracle":
+        return _metameric_parts(case, seed)
     if method == "telea":
         import cv2
 
@@ -140,6 +157,42 @@ def fill(case: dict, method: str, seed: int = 0) -> np.ndarray:
         lin = srgb_to_linear(out[..., ::-1].astype(np.float32) / 255.0).astype(np.float32)
         return np.where(hole[..., None], lin, color).astype(np.float32)
     raise ValueError(method)
+
+
+def _metameric_parts(case: dict, seed: int | None) -> np.ndarray:
+    """Metameric's pipeline (ibrtools.metameric.metameric, steps 0-5) from its public pieces, with the
+    noise's sigma from the ground truth (seed given) or without noise (seed None: the pre-fill
+    alone). Both reuse metameric's own pre-fill, noise pyramid, level masks and collapse; only
+    sigma differs from :func:`fill`'s "metameric"."""
+    from ibrtools import _core
+    from ibrtools.inpaint import pushpull
+    from ibrtools.metameric import _level_mask, level_masks, noise_pyramid
+    from ibrtools.steerable import SteerablePyramid, analyse, synthesise
+    from scipy import ndimage
+
+    color, hole, depth = case["color"], case["hole"], case["depth"]
+    x = np.ascontiguousarray(color, np.float32)
+    filled = pushpull(_core.metameric_encode(x), hole, depth)  # display values, depth-aware (step 1)
+    if seed is None:
+        change = np.zeros_like(filled)
+    else:
+        h, w = hole.shape
+        truth = analyse(_core.metameric_encode(np.ascontiguousarray(case["truth"], np.float32)), LEVELS,
+                        ORIENTATIONS, ycbcr=True)
+        noise = noise_pyramid(h, w, 3, LEVELS, ORIENTATIONS, seed)
+        masks, _ = level_masks(hole, LEVELS)
+
+        def band(t: np.ndarray, n: np.ndarray, level: int) -> np.ndarray:
+            win = (ORACLE_WINDOW, ORACLE_WINDOW, 0)
+            m, q = ndimage.gaussian_filter(t, win), ndimage.gaussian_filter(t * t, win)
+            mask = _level_mask(masks[level], hole, 1 << level)
+            return np.where(mask[..., None], np.sqrt(np.maximum(q - m * m, 0)) * n, 0).astype(np.float32)
+
+        change = synthesise(SteerablePyramid(
+            band(truth.highpass, noise.highpass, 0),
+            [[band(t, n, l) for t, n in zip(truth.bands[l], noise.bands[l])] for l in range(LEVELS)],
+            np.zeros_like(truth.lowpass), ycbcr=True))
+    return _core.metameric_fill_holes(x, hole, filled, np.ascontiguousarray(change, np.float32), True)
 
 
 # --- scores -------------------------------------------------------------------------------------
@@ -169,6 +222,13 @@ def band_stats(srgb: np.ndarray, mask: np.ndarray) -> list[tuple[float, float] |
             v = b[..., c][r].astype(np.float64)
             out.append((float(v.mean()), float(v.var())))
     return out
+
+
+def signed_log_var(fill_stats, truth_stats) -> list[float | None]:
+    """ln(var_fill + eps) - ln(var_truth + eps) per band-channel (the terms of Dvar with their sign),
+    None where either has too few samples."""
+    return [None if f is None or t is None else float(np.log(f[1] + EPS_VAR) - np.log(t[1] + EPS_VAR))
+            for f, t in zip(fill_stats, truth_stats)]
 
 
 def stats_distance(fill_stats, truth_stats) -> tuple[float, float]:
@@ -212,10 +272,12 @@ def score(filled: np.ndarray, case: dict, truth_stats=None) -> dict:
     a, b = linear_to_srgb(comp), linear_to_srgb(truth)
     _, fmap = metrics.flip(comp, truth, return_map=True)
     truth_stats = truth_stats if truth_stats is not None else band_stats(b, scored)
-    dmean, dvar = stats_distance(band_stats(a, scored), truth_stats)
+    fill_stats = band_stats(a, scored)
+    dmean, dvar = stats_distance(fill_stats, truth_stats)
     return {"psnr": metrics.psnr(a, b, 1.0, mask=scored), "ssim": metrics.ssim(a, b, 1.0, mask=scored),
             "flip": float(fmap[scored].mean(dtype=np.float64)), "dmean": dmean, "dvar": dvar,
-            "stats": dmean + dvar, "bleed": component_mean_error(a, b, scored)}
+            "stats": dmean + dvar, "bleed": component_mean_error(a, b, scored),
+            "signed": signed_log_var(fill_stats, truth_stats)}
 
 
 def evaluate(case: dict, methods=METHODS, seeds=SEEDS) -> dict:
@@ -226,15 +288,17 @@ def evaluate(case: dict, methods=METHODS, seeds=SEEDS) -> dict:
     res = {}
     for m in methods:
         rows, ms = [], []
-        for seed in (seeds if m == "metameric" else (0,)):
+        for seed in (seeds if m in SEEDED else (0,)):
             t0 = time.perf_counter()
             f = fill(case, m, seed)
             ms.append((time.perf_counter() - t0) * 1e3)
             rows.append(score(f, case, truth_stats))
         res[m] = {k: (None if any(r[k] is None for r in rows) else float(np.mean([r[k] for r in rows])))
-                  for k in rows[0]}
+                  for k in rows[0] if k != "signed"}
+        res[m]["signed"] = [None if any(r["signed"][i] is None for r in rows)
+                            else float(np.mean([r["signed"][i] for r in rows])) for i in range(len(rows[0]["signed"]))]
         res[m]["ms"] = float(np.median(ms))
-        if m == "metameric":
+        if m in SEEDED:
             res[m]["per_seed"] = rows
     return res
 
@@ -264,12 +328,12 @@ def _f(v, fmt):
 
 
 def table(results: list[tuple[dict, dict]]) -> str:
-    lines = ["| case (scored holes) | method | PSNR dB ↑ | SSIM ↑ | FLIP ↓ | stats D ↓ (Dmean + Dvar) | "
-             "bleed ↓ | fill ms |", "|---|---|---|---|---|---|---|---|"]
+    lines = [("| case (scored holes) | method | PSNR dB ↑ | SSIM ↑ | FLIP ↓ | stats D ↓ (Dmean + Dvar) | "
+              "bleed ↓ | fill ms |"), "|---|---|---|---|---|---|---|---|"]
     for case, res in results:
         n = int(case["scored"].sum())
         head = f"{case['name']} ({n} px, {100 * n / case['scored'].size:.1f} %)"
-        for i, m in enumerate(METHODS):
+        for i, m in enumerate(m for m in METHODS if m in res):
             r = res[m]
             lines.append(f"| {head if i == 0 else ''} | {LABELS[m]} | {_f(r['psnr'], '.2f')} | {_f(r['ssim'], '.3f')} | "
                          f"{_f(r['flip'], '.3f')} | {r['stats']:.3f} ({r['dmean']:.3f} + {r['dvar']:.3f}) | "
@@ -277,30 +341,53 @@ def table(results: list[tuple[dict, dict]]) -> str:
     return "\n".join(lines)
 
 
+def band_groups(signed: list[float | None]) -> str:
+    """Signed log variance ratios per band (mean over Y, Cb, Cr; '–' where absent): high-pass,
+    level 0..3 (mean over orientations), low-pass."""
+    k = 3 * ORIENTATIONS
+    groups = [("hp", signed[0:3])] + [(f"L{l}", signed[3 + l * k:3 + (l + 1) * k]) for l in range(LEVELS)] \
+        + [("lo", signed[3 + LEVELS * k:])]
+    out = []
+    for name, vals in groups:
+        v = [x for x in vals if x is not None]
+        out.append(f"{name} {'–' if not v else format(float(np.mean(v)), '+.2f')}")
+    return " ".join(out)
+
+
 def criteria(results: list[tuple[dict, dict]]) -> list[str]:
-    """The issue's relations, case by case."""
+    """The issue's relations, case by case, and metameric taken apart (module doc)."""
     out = []
     for case, res in results:
         mm, pp, pd = res["metameric"], res["pushpull"], res["pushpull_depth"]
         seeds = mm["per_seed"]
-        out.append(f"{case['name']}: stats metameric {mm['stats']:.3f} vs push-pull classic {pp['stats']:.3f} / "
-                   f"depth-aware {pd['stats']:.3f} (every seed below both: "
-                   f"{all(s['stats'] < min(pp['stats'], pd['stats']) for s in seeds)}); "
-                   f"FLIP metameric {mm['flip']:.3f} vs {pp['flip']:.3f} / {pd['flip']:.3f} "
-                   f"(seeds {', '.join(format(s['flip'], '.3f') for s in seeds)}); "
-                   f"bleed depth-aware {_f(pd['bleed'], '.4f')} vs classic {_f(pp['bleed'], '.4f')}")
+        line = (f"{case['name']}: stats metameric {mm['stats']:.3f} vs push-pull classic {pp['stats']:.3f} / "
+                f"depth-aware {pd['stats']:.3f} (every seed below both: "
+                f"{all(s['stats'] < min(pp['stats'], pd['stats']) for s in seeds)}); "
+                f"FLIP metameric {mm['flip']:.3f} vs {pp['flip']:.3f} / {pd['flip']:.3f} "
+                f"(seeds {', '.join(format(s['flip'], '.3f') for s in seeds)}); "
+                f"bleed depth-aware {_f(pd['bleed'], '.4f')} vs classic {_f(pp['bleed'], '.4f')}")
+        if "metameric_mean" in res and "metameric_oracle" in res:
+            z, o = res["metameric_mean"], res["metameric_oracle"]
+            line += (f"; FLIP sigma = 0 {z['flip']:.3f} → metameric {mm['flip']:.3f} → truth's sigma {o['flip']:.3f} "
+                     f"(stats {z['stats']:.3f} → {mm['stats']:.3f} → {o['stats']:.3f}); "
+                     f"metameric signed ln var ratio: {band_groups(mm['signed'])}")
+        out.append(line)
     return out
 
 
 def run(data: Path, which=None) -> tuple[str, list]:
     results = []
+    t_all = time.perf_counter()
     for case in cases(data, which):
         t0 = time.perf_counter()
         res = evaluate(case)
         print(f"{case['name']}: {time.perf_counter() - t0:.1f} s", file=sys.stderr)
         light = {k: case[k] for k in ("name", "scored", "source")}
         results.append((light, res))
-    return table(results), results
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    note = (f"(run: {time.perf_counter() - t_all:.0f} s for {len(results)} cases; 1-minute load average at the end "
+            f"{load:.2f}; fill ms are medians of the calls and depend on that load)")
+    return table(results) + "\n\n" + note, results
 
 
 def main(argv=None) -> int:

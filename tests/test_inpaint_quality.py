@@ -5,6 +5,9 @@ the disoccluded pixels of the right view are scored against the real right view
 (benchmarks/bench_inpaint_quality.py defines every score). Only the relations the issue asks for
 that were *measured to hold* are asserted; the one measured not to hold on Teddy (metameric's FLIP
 at or below depth-aware push-pull's) is a strict xfail, so that a change that reaches it is seen.
+The cause of that miss is pinned on Teddy with the bench's two diagnostic fills (metameric with
+sigma = 0, and with the ground truth's own band sigma): FLIP rises with the noise, and more with
+the true statistics than with the estimated ones.
 """
 from __future__ import annotations
 
@@ -32,6 +35,9 @@ def _bench():
 
 
 _CACHE: dict[str, dict] = {}
+# Teddy also gets the two diagnostic fills (metameric's sigma = 0 and the truth's sigma); Cones
+# only what its tests use (the file stays ~15 s).
+_DIAGNOSTICS = {"Teddy": ("metameric_mean", "metameric_oracle")}
 
 
 def results(name: str) -> dict:
@@ -40,7 +46,7 @@ def results(name: str) -> dict:
     if name not in _CACHE:
         B = _bench()
         case = B.middlebury_case(DATA, name)
-        _CACHE[name] = B.evaluate(case, methods=("pushpull", "pushpull_depth", "metameric"))
+        _CACHE[name] = B.evaluate(case, methods=("pushpull", "pushpull_depth", "metameric") + _DIAGNOSTICS.get(name, ()))
     return _CACHE[name]
 
 
@@ -78,11 +84,38 @@ def test_teddy_metameric_flip_not_worse_than_classic_pushpull():
         assert s["flip"] < r["pushpull"]["flip"] - 0.05, (s["flip"], r["pushpull"]["flip"])
 
 
-@pytest.mark.xfail(strict=True, reason="measured: metameric FLIP 0.399 vs depth-aware push-pull 0.378 on Teddy "
-                   "(noise with the right statistics is not the true texture, and FLIP compares pixel by pixel)")
+@pytest.mark.xfail(strict=True, reason="measured: metameric FLIP 0.399 (seeds 0.397-0.403) vs depth-aware push-pull "
+                   "0.378 on Teddy. Cause (docs/inpaint_quality.md): the noise itself. Without it (sigma = 0) metameric "
+                   "scores 0.349, with the ground truth's own band sigma 0.425: FLIP compares pixel by pixel, and an "
+                   "independent texture with the right statistics differs from the true one more than a smooth fill does")
 def test_teddy_metameric_flip_not_worse_than_depth_aware_pushpull():
     r = results("Teddy")
     assert r["metameric"]["flip"] <= r["pushpull_depth"]["flip"]
+
+
+def test_teddy_noise_with_truer_statistics_costs_more_flip():
+    # The cause of the xfail above. Measured on Teddy (3 seeds): FLIP 0.349 with sigma = 0 (metameric's
+    # mean alone), 0.399 with the push-pulled sigma (metameric), 0.425 with the ground truth's own
+    # local band sigma (an oracle estimate), while the statistics distance D falls 0.395 -> 0.260 ->
+    # 0.218. Better statistics buy D and cost FLIP. Margins: 0.02 on FLIP steps of 0.05 and 0.026
+    # (FLIP moves by <= 0.006 between seeds, so the 3-seed means move less); 0.1 on D steps of 0.135 /
+    # 0.177 (sigma = 0 to either noisy fill).
+    r = results("Teddy")
+    zero, mm, oracle = r["metameric_mean"], r["metameric"], r["metameric_oracle"]
+    assert zero["flip"] < mm["flip"] - 0.02, (zero["flip"], mm["flip"])
+    assert mm["flip"] < oracle["flip"] - 0.01, (mm["flip"], oracle["flip"])
+    assert oracle["stats"] < zero["stats"] - 0.1 and mm["stats"] < zero["stats"] - 0.1, (oracle["stats"], mm["stats"], zero["stats"])
+
+
+def test_teddy_metameric_mean_beats_linear_depth_aware_pushpull():
+    # Metameric's mean is the depth-aware push-pull of the *display* (sRGB-encoded) values; on Teddy it
+    # beats the linear depth-aware push-pull on FLIP (measured 0.349 vs 0.378), PSNR (16.96 vs 15.89 dB)
+    # and bleed (0.046 vs 0.073), so at sigma = 0 metameric is not "the" depth-aware push-pull of the
+    # table. Deterministic fills: margins (0.015, 0.5 dB) only absorb kernel changes that move a fill a little.
+    r = results("Teddy")
+    zero, pd = r["metameric_mean"], r["pushpull_depth"]
+    assert zero["flip"] < pd["flip"] - 0.015, (zero["flip"], pd["flip"])
+    assert zero["psnr"] > pd["psnr"] + 0.5, (zero["psnr"], pd["psnr"])
 
 
 @pytest.mark.parametrize("name, margin", [("Teddy", 0.01), ("Cones", 0.003)])
