@@ -25,6 +25,14 @@ All comparisons are of sRGB encodings in [0, 1] (ibrtools.metrics.compare).
 
 Besides the table (the method's defaults) the run measures, unless --no-diagnostics:
   blend space     the four cases again with ``blend_space=srgb`` (RVS blends stored code values);
+  lego spread     every one of the 40 lego views held out in turn (leave-one-out, 4 best of the
+                  other 39, defaults): mean / median / range of the object-pixel PSNR, how many
+                  views reach RVS's 25.9 dB, and its correlation with the distance from the held-out
+                  camera to the nearest input camera (the anchors do not name RVS's held-out views);
+  lego depth      the nerf importer's depth de-quantisation (option depth_dequantize=N, off by
+                  default): N chosen among DEQUANTIZE_ROUNDS on the validation views
+                  LEGO_VALIDATION (disjoint from the test views), then the test views with that N,
+                  in linear and in sRGB blend space;
   ICL poses       whether ICL-NUIM's ground-truth poses agree with its own depth maps: the
                   back wall of frame 1 fitted by a plane with the depth read as z and as ray
                   distance; point-to-plane ICP (open3d) of the depth maps of each frame pair,
@@ -49,6 +57,10 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 LEGO_HELDOUT = ("r_0", "r_50", "r_100", "r_150")
+# Views that choose the number of rounds of the nerf importer's depth de-quantisation (disjoint
+# from LEGO_HELDOUT, spread around the orbit): the test views never pick a parameter.
+LEGO_VALIDATION = ("r_10", "r_25", "r_60", "r_75", "r_110", "r_125", "r_160", "r_175")
+DEQUANTIZE_ROUNDS = (0, 2, 5, 10)
 # RVS 4.0 on the same protocols, from ../shared/ANCHORS.md.
 RVS = {"lego object": 25.9, "lego all": 23.9, "Teddy visible": 29.6, "Cones visible": 28.2,
        "ICL all": 32.5, "ICL visible": 34.9}
@@ -106,12 +118,40 @@ def three_ways(color, truth, hole, mask=None) -> dict:
             "hole": float(hole[region].mean())}
 
 
-def lego(data: Path, params=None, heldout=LEGO_HELDOUT) -> dict:
+def pixel_classes(color, truth, hole, obj, alpha, depth) -> dict:
+    """Where the squared error of the object pixels lies (RVS protocol: holes nearest-filled, sRGB):
+    "silhouette" = object pixels within 3 px of a pixel with alpha <= 0.5; "depth edge" = the
+    other object pixels within 2 px of a jump of the held-out view's own depth (> 2 % between
+    4-neighbours, or known next to unknown); "interior" = the rest. Per class: the share of the
+    object pixels, the share of their squared error, and the class's PSNR."""
+    from scipy import ndimage
+
+    from ibrtools.imageio import linear_to_srgb
+
+    filled = nearest_fill(color, hole)
+    se = ((linear_to_srgb(color if filled is None else filled) - linear_to_srgb(truth)) ** 2).mean(-1)
+    sil = obj & (ndimage.distance_transform_edt(alpha > 0.5) <= 3)
+    z = depth.astype(np.float64)
+    jump = np.zeros(z.shape, bool)
+    for a, b, sl_a, sl_b in ((z[1:], z[:-1], np.s_[1:], np.s_[:-1]), (z[:, 1:], z[:, :-1], np.s_[:, 1:], np.s_[:, :-1])):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            j = ((a > 0) != (b > 0)) | ((a > 0) & (b > 0) & (np.abs(a - b) > 0.02 * np.minimum(a, b)))
+        jump[sl_a] |= j
+        jump[sl_b] |= j
+    edge = obj & ~sil & ndimage.binary_dilation(jump, iterations=2)
+    classes = {"silhouette": sil, "depth edge": edge, "interior": obj & ~sil & ~edge}
+    total = float(se[obj].sum())
+    return {k: {"pixels": float(m.sum() / obj.sum()), "error": float(se[m].sum() / total),
+                "psnr": float(10 * np.log10(1.0 / se[m].mean())) if m.any() else None} for k, m in classes.items()}
+
+
+def lego(data: Path, params=None, heldout=LEGO_HELDOUT, options=None) -> dict:
+    """``heldout`` views in turn from the 4 best of the others; ``options`` of the nerf importer."""
     from ibrtools import metrics
     from ibrtools.formats import load
     from ibrtools.imageio import read_pixels
 
-    scene = load(data / "nerf_lego", "nerf", {"background": "black"})
+    scene = load(data / "nerf_lego", "nerf", {"background": "black", **(options or {})})
     names = [v.name for v in scene.views]
     rows = []
     for h in heldout:
@@ -121,7 +161,8 @@ def lego(data: Path, params=None, heldout=LEGO_HELDOUT) -> dict:
         alpha = rgba[..., 3].astype(np.float64) / np.iinfo(rgba.dtype).max
         obj = alpha > 0.99
         m = metrics.compare(color, truth.color, hole_mask=hole)
-        rows.append({"psnr_all": m["psnr"], "ssim_all": m["ssim"], "psnr_object": _psnr(color, truth.color, obj),
+        rows.append({"classes": pixel_classes(color, truth.color, hole, obj, alpha, truth.depth),
+                     "psnr_all": m["psnr"], "ssim_all": m["ssim"], "psnr_object": _psnr(color, truth.color, obj),
                      "hole_object": float(hole[obj].mean()), "ms": ms, "selected": rep["selected"],
                      "object": three_ways(color, truth.color, hole, obj),
                      # Over all pixels the holes are the background (no depth: v = 0 in the depth
@@ -252,8 +293,37 @@ def icl_poses(data: Path, params=None) -> dict | None:
     return out
 
 
+def lego_spread(data: Path, params=None) -> dict:
+    """Every lego view held out in turn (see the module doc, "lego spread")."""
+    from ibrtools.formats import load
+
+    scene = load(data / "nerf_lego", "nerf", {"background": "black"})
+    names = [v.name for v in scene.views]
+    centres = np.array([v.camera.centre for v in scene.views])
+    dist = np.linalg.norm(centres[:, None] - centres[None], axis=-1)
+    np.fill_diagonal(dist, np.inf)
+    res = lego(data, params, heldout=tuple(names))
+    obj = np.array([r["object"]["filled"] for r in res["rows"]])
+    near = dist.min(axis=1)
+    return {"names": names, "object": obj, "all": np.array([r["all"]["black"] for r in res["rows"]]),
+            "nearest": near, "corr": float(np.corrcoef(near, obj)[0, 1])}
+
+
+def lego_dequantized(data: Path, params=None) -> dict:
+    """The nerf importer's depth de-quantisation: rounds chosen on LEGO_VALIDATION, scored on
+    LEGO_HELDOUT (see the module doc, "lego depth")."""
+    params = params or {}
+    val = {n: lego(data, params, LEGO_VALIDATION, {"depth_dequantize": n})["object"]["filled"]
+           for n in DEQUANTIZE_ROUNDS}
+    best = max(val, key=lambda n: val[n])
+    test = {space: lego(data, {**params, "blend_space": space}, LEGO_HELDOUT, {"depth_dequantize": best})
+            for space in ("linear", "srgb")}
+    return {"validation": val, "rounds": best, "test": test}
+
+
 def diagnostics(data: Path, params: dict, res: dict) -> list[str]:
-    """Lines for the section: the same cases with the other blend space, the ICL pose check."""
+    """Lines for the section: the same cases with the other blend space, the lego spread over
+    all held-out views and the depth de-quantisation, the ICL pose check."""
     f = lambda v: "n/a" if v is None else f"{v:.2f}"  # noqa: E731
     other = "srgb" if params.get("blend_space", "linear") == "linear" else "linear"
     p2 = {**params, "blend_space": other}
@@ -266,6 +336,28 @@ def diagnostics(data: Path, params: dict, res: dict) -> list[str]:
              f"(visible {f(I['all']['excluded'])} → {f(I2['all']['excluded'])}), "
              f"Teddy {f(T['vis']['filled'])} → {f(T2['vis']['filled'])}, "
              f"Cones {f(C['vis']['filled'])} → {f(C2['vis']['filled'])} dB."]
+    sp = lego_spread(data, params)
+    o = sp["object"]
+    above = [n for n, v in zip(sp["names"], o) if v >= RVS["lego object"]]
+    lines += ["", f"lego spread (every one of the {len(o)} views held out in turn, 4 best of the other {len(o) - 1}, "
+              f"this run's parameters, object pixels nearest-filled): mean {o.mean():.2f} dB, median {np.median(o):.2f}, "
+              f"range {o.min():.2f} ({sp['names'][int(o.argmin())]}) – {o.max():.2f} ({sp['names'][int(o.argmax())]}); "
+              f"all pixels holes black mean {sp['all'].mean():.2f}. {len(above)} of {len(o)} reach RVS's "
+              f"{RVS['lego object']} dB ({', '.join(above) or 'none'}: the nearest input camera "
+              f"{', '.join(f'{d:.2f}' for n, d in zip(sp['names'], sp['nearest']) if n in above)} units away, "
+              f"against a median of {np.median(sp['nearest']):.2f} over all views). Correlation of the object PSNR "
+              f"with the distance to the nearest input camera: {sp['corr']:.2f}. Mean of {', '.join(LEGO_HELDOUT)} "
+              f"(the table): {np.mean([v for n, v in zip(sp['names'], o) if n in LEGO_HELDOUT]):.2f}."]
+    dq = lego_dequantized(data, {k: v for k, v in params.items() if k != "blend_space"})
+    lt, st = dq["test"]["linear"], dq["test"]["srgb"]
+    lines += ["", "lego depth de-quantisation (nerf importer option `depth_dequantize=N`, off by default): "
+              f"object PSNR on the validation views {', '.join(LEGO_VALIDATION)} for N = "
+              f"{' / '.join(str(n) for n in dq['validation'])}: "
+              f"{' / '.join(f(v) for v in dq['validation'].values())} dB; chosen N = {dq['rounds']}. "
+              f"Test views ({', '.join(LEGO_HELDOUT)}), RVS protocol: object {f(lt['object']['filled'])} dB linear, "
+              f"{f(st['object']['filled'])} dB with blend_space=srgb (RVS {RVS['lego object']}); all pixels holes black "
+              f"{f(lt['all']['black'])} / {f(st['all']['black'])}; per view object (linear): "
+              + ", ".join(f"{h} {f(r['object']['filled'])}" for h, r in zip(LEGO_HELDOUT, lt["rows"])) + "."]
     q = icl_poses(data, params)
     if q is None:
         lines.append("ICL pose check: n/a (needs open3d).")
@@ -309,6 +401,13 @@ def run(data: Path, params=None) -> tuple[str, dict]:
                  "figure (see `lego` in the bench).")
     lines.append("SSIM: holes black for lego and ICL, holes excluded for Middlebury (visible-in-both mask).")
     lines.append(f"lego per held-out view, object pixels / all pixels holes black (dB): {per}.")
+    cls = []
+    for k in L["rows"][0]["classes"]:
+        c = [r["classes"][k] for r in L["rows"]]
+        cls.append(f"{k} {100 * np.mean([x['pixels'] for x in c]):.0f} % of the pixels, "
+                   f"{100 * np.mean([x['error'] for x in c]):.0f} % of the squared error, "
+                   f"{np.mean([x['psnr'] for x in c]):.2f} dB")
+    lines.append(f"lego object pixels by class (mean over the 4 views; see `pixel_classes` in the bench): {'; '.join(cls)}.")
     sel = "; ".join(f"{h}: {', '.join(r['selected'])}" for h, r in zip(LEGO_HELDOUT, L["rows"]))
     lines.append("")
     lines.append(f"lego views chosen by view selection: {sel}.")
