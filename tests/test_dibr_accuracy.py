@@ -230,3 +230,14 @@ def test_lego_dequantized_depth_stays_in_the_stored_bins():
     assert np.array_equal(deq.depth > 0, known) and np.array_equal(plain.depth > 0, known)
     diff = np.abs(deq.depth - plain.depth) * to_ray
     assert diff[known].max() <= 0.5 * 8 / 255 * (1 + 1e-4) and diff[known].mean() > 1e-3
+
+
+@needs_kernel
+def test_lego_dequantized_depth_improves_the_weak_view(bench):
+    # docs/dibr.md, "lego object pixels": held-out r_100 (nearest inputs 1.25 units away, where the
+    # 8-bit depth steps misregister most) measured 20.83 dB on object pixels (RVS protocol) with
+    # the stored codes and 22.75 dB with depth_dequantize=5. The floor asks for +1 dB.
+    _need("nerf_lego")
+    plain = bench.lego(DATA, heldout=("r_100",))["object"]["filled"]
+    deq = bench.lego(DATA, heldout=("r_100",), options={"depth_dequantize": 5})["object"]["filled"]
+    assert deq > plain + 1.0, (plain, deq)
