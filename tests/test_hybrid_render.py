@@ -316,6 +316,25 @@ def test_exact_mesh_tm_ulr_match_reference_on_diffuse(exact_scene):
         assert not np.isnan(o_ulr["color"]).any()
 
 
+def test_ulr_method_tm_fallback_equals_the_frame_wide_choice(exact_scene):
+    """UlrMethod reads TM only at the hits no view sees and writes it into the ULR image in place:
+    the image is np.where(seen, ULR, TM of the whole frame), bit for bit. One input view only, so
+    that many hits are unseen."""
+    from ibrtools.render import methods
+
+    ulr = methods.create("ulr")
+    ulr.prepare(exact_scene)
+    ulr._views = ulr._views[:1]
+    cam = exact_scene.targets[0].camera
+    out, _ = ulr.render(cam)
+    gb = ulr._gm.gbuffer(cam)
+    c, n = _core.ulr_blend(cam.to_core(), gb["depth"], ulr._views, normal=gb["normal"])
+    seen = n > 0
+    assert (gb["hit"] & ~seen).sum() > 20 and seen.sum() > 20
+    np.testing.assert_array_equal(out["color"], np.where(seen[..., None], c, ulr._gm.tm_color(gb)))
+    np.testing.assert_array_equal(out["hole"], ~gb["hit"])
+
+
 @needs_pvm
 def test_exact_mesh_hybrid_matches_reference_on_diffuse(exact_scene):
     from ibrtools.render import methods

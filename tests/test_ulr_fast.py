@@ -1,5 +1,6 @@
 """The fast paths of the hybrid renderer's per-pixel kernels (issue 7, speed): ULR's SIMD loop over
-views against its scalar reference path, and the selection blur against a NumPy reference
+views against its scalar reference path (and its AVX2 loop against its SSE2 one), and the
+selection blur against a NumPy reference
 (cpp/kernels/hybrid.cpp; docs/hybrid.md "Speed")."""
 from __future__ import annotations
 
@@ -78,6 +79,49 @@ def test_equirect_input_views_take_the_scalar_path():
     cr, nr = _core.ulr_blend(cam, gdepth, views, normal=normal, reference=True)
     np.testing.assert_array_equal(nf, nr)
     np.testing.assert_array_equal(cf, cr)
+
+
+@pytest.mark.parametrize("n_views", [1, 4, 7, 8, 12, 13])
+def test_avx2_and_sse2_view_loops_give_the_same_bits(n_views):
+    """The per-view loop runs 8 views per AVX2 step (when the CPU has it) and the rest 4 at a time
+    in SSE2: the same IEEE operations lane for lane, no FMA, so the same image and counts as the
+    SSE2-only loop (simd="sse2"), bit for bit. View counts around the 4 / 8 boundaries. On a CPU
+    without AVX2 both calls take the SSE2 loop and the test holds trivially."""
+    cam, gdepth, views, normal = _scene(n_views, seed=n_views)
+    for nrm in (None, normal):
+        ca, na = _core.ulr_blend(cam, gdepth, views, normal=nrm)
+        cs, ns = _core.ulr_blend(cam, gdepth, views, normal=nrm, simd="sse2")
+        assert na.max() > 0
+        np.testing.assert_array_equal(na, ns)
+        np.testing.assert_array_equal(ca, cs)
+
+
+def test_fast_ulr_reads_the_last_pixel_of_a_view():
+    """The SSE2 bilinear read loads four floats per texel (RGB and the next pixel's red); at a
+    view's last pixel the fourth is past the image, so that texel is read channel by channel. A
+    view of 3 x 2 pixels seeing the whole G-buffer makes most reads touch its last pixel: the fast
+    path agrees with the scalar reference (1e-5: float against double positions of the same texels)."""
+    w, h = 24, 16
+    novel = Camera.from_fov(w, h, 40, look_at([0, 0, 0], [0, 0, 5]))
+    gdepth = np.full((h, w), 5.0, np.float32)
+    small = Camera.from_fov(3, 2, 60, look_at([0.05, 0.02, 0], [0, 0, 5]))
+    col = np.arange(18, dtype=np.float32).reshape(2, 3, 3) / 17
+    views = [(small.to_core(), col, np.full((2, 3), 5.0, np.float32))]
+    cf, nf = _core.ulr_blend(novel.to_core(), gdepth, views)
+    cr, nr = _core.ulr_blend(novel.to_core(), gdepth, views, reference=True)
+    np.testing.assert_array_equal(nf, nr)
+    assert nf.mean() > 0.5
+    assert np.abs(cf - cr).max() <= 1e-5
+    # red above the second-to-last texel's (12/17) needs weight on the last one (15/17): read
+    assert (cf[..., 0] > col[1, 1, 0] + 0.01).sum() > 10
+
+
+def test_ulr_simd_rejects_an_unknown_value():
+    from ibrtools.errors import BadValueError
+
+    cam, gdepth, views, _ = _scene(2)
+    with pytest.raises(BadValueError, match="simd"):
+        _core.ulr_blend(cam, gdepth, views, simd="avx9")
 
 
 def test_ulr_reference_flag_rejects_a_non_bool():

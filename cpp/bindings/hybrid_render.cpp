@@ -169,13 +169,18 @@ py::dict RasterGBufferBinding(const Camera& camera, const py::object& vertices_o
 
 py::tuple UlrBlendBinding(const Camera& novel, const py::object& depth_obj, const py::list& views_obj,
                           const py::object& normal_obj, const py::object& mask_obj, int k, double resolution_weight,
-                          double depth_tol, bool reference) {
+                          double depth_tol, bool reference, const std::string& simd) {
   if (k < 1 || k > 64) throw BadValueError("k: expected 1 .. 64 views per pixel, got " + std::to_string(k));
   UlrOptions opt;
   opt.k = k;
   opt.resolution_weight = CheckFinite(resolution_weight, "resolution_weight", 0.0);
   opt.depth_tol = CheckFinite(depth_tol, "depth_tol", 0.0);
   opt.reference = reference;
+  if (simd == "sse2") {
+    opt.simd = UlrSimd::kSse2;
+  } else if (simd != "auto") {
+    throw BadValueError("simd: expected 'auto' or 'sse2', got '" + simd + "'");
+  }
   auto depth = CheckArray<float>(depth_obj, "gbuffer_depth", {{"H", novel.height}, {"W", novel.width}});
   const auto h = depth.shape(0), w = depth.shape(1);
   FArray normal;
@@ -343,9 +348,11 @@ void BindHybridRender(py::module_& m) {
   m.def("ulr_blend", &UlrBlendBinding, py::arg("camera"), py::arg("gbuffer_depth"), py::arg("views"), py::kw_only(),
         py::arg("normal") = py::none(), py::arg("pixel_mask") = py::none(), py::arg("k") = 4,
         py::arg("resolution_weight") = 0.5, py::arg("depth_tol") = 0.02, py::arg("reference") = false,
+        py::arg("simd") = "auto",
         "Per-pixel ULR at the G-buffer's points: views = [(camera, color, depth), ...] -> (color (H, W, 3), "
         "count (H, W) uint8 views used, 0 = none sees the point). reference=True: the scalar reference path "
-        "(double projections) instead of the fast one (float, SIMD over views; pinhole views only).");
+        "(double projections) instead of the fast one (float, SIMD over views; pinhole views only). "
+        "simd='sse2': the fast path's per-view loop in SSE2 even on an AVX2 CPU (the same bits; for tests).");
   m.def("hybrid_select", &HybridSelectBinding, py::arg("gbuffer_depth"), py::kw_only(),
         py::arg("inside_grid") = py::none(), py::arg("pvm_valid") = py::none(), py::arg("pvm_depth") = py::none(),
         py::arg("vd") = py::none(), py::arg("geo_threshold") = 0.03, py::arg("tau_var") = 0.82,

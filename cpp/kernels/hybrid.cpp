@@ -9,7 +9,7 @@
 #include "kernels/ulr.h"
 
 #if defined(__SSE2__)
-#include <emmintrin.h>
+#include <immintrin.h>  // SSE2; AVX2 only inside target("avx2") functions, called when the CPU has it
 #endif
 
 namespace ibr {
@@ -183,7 +183,10 @@ void UlrBlendScalar(const Camera& novel, ImageView<const float> gbuffer_depth, I
 }
 
 // Bilinear3 in float, accumulated: acc += weight * bilinear(img at (x, y)). The same clamping
-// (positions come from the in-image test, x in [0, w), y in [0, h)).
+// (positions come from the in-image test, x in [0, w), y in [0, h)). acc holds 4 floats: the
+// three channels are interpolated at once in SSE2 (the same operations per lane as the scalar
+// loop, so the same bits; the fourth lane reads the next pixel's red, acc[3] is unused), except
+// at the image's last pixel, whose fourth float is past the end.
 inline void Bilinear3Add(const ImageView<const float>& img, float x, float y, float weight, float* acc) {
   const float fx = std::min(std::max(x - 0.5f, 0.f), float(img.width - 1));
   const float fy = std::min(std::max(y - 0.5f, 0.f), float(img.height - 1));
@@ -194,6 +197,17 @@ inline void Bilinear3Add(const ImageView<const float>& img, float x, float y, fl
   const float* b = img.Row(y0) + 3 * x1;
   const float* c = img.Row(y1) + 3 * x0;
   const float* d = img.Row(y1) + 3 * x1;
+#if defined(__SSE2__)
+  if (y1 < img.height - 1 || x1 < img.width - 1) {
+    const __m128 A = _mm_loadu_ps(a), B = _mm_loadu_ps(b), C = _mm_loadu_ps(c), D = _mm_loadu_ps(d);
+    const __m128 AX = _mm_set1_ps(ax);
+    const __m128 top = _mm_add_ps(A, _mm_mul_ps(AX, _mm_sub_ps(B, A)));
+    const __m128 bot = _mm_add_ps(C, _mm_mul_ps(AX, _mm_sub_ps(D, C)));
+    const __m128 v = _mm_add_ps(top, _mm_mul_ps(_mm_set1_ps(ay), _mm_sub_ps(bot, top)));
+    _mm_storeu_ps(acc, _mm_add_ps(_mm_loadu_ps(acc), _mm_mul_ps(_mm_set1_ps(weight), v)));
+    return;
+  }
+#endif
   for (int k = 0; k < 3; ++k) {
     const float top = a[k] + ax * (b[k] - a[k]);
     const float bot = c[k] + ax * (d[k] - c[k]);
@@ -214,23 +228,33 @@ inline float FastAtan2PosSelect(float y, float x) {
 }
 
 // Per-view constants of the fast path, one array per quantity (structure of arrays: the loop over
-// views reads each contiguously and the compiler turns it into SIMD over views). The projection
-// folds the intrinsics into the pose: (x z, y z, z) = P (p, 1) with P's rows fx R0 + cx R2,
-// fy R1 + cy R2 and R2 (and the same combination of t), in float.
+// views reads each contiguously, SIMD over views). The projection folds the intrinsics into the
+// pose: (x z, y z, z) = P (p, 1) with P's rows fx R0 + cx R2, fy R1 + cy R2 and R2 (and the same
+// combination of t), in float. The depth maps' pointers, strides and last column / row for the
+// branch-free depth test.
 struct UlrViewTable {
   int n = 0;
-  std::vector<float> cx, cy, cz, w, h;
+  int n4 = 0;  // n rounded up to a multiple of 4: where the SIMD loops end
+  std::vector<float> cx, cy, cz, w, h, wlast, hlast;
   std::vector<float> m[12];
-  // Padded to a multiple of 4 views with views of size 0 x 0 (every point is outside them).
+  std::vector<const float*> depth;
+  std::vector<std::ptrdiff_t> depth_stride;
+  // Padded to a multiple of 8 views with views of size 0 x 0 (every point is outside them).
   explicit UlrViewTable(const UlrInputView* views, int num_views) : n(num_views) {
-    const int padded = (num_views + 3) / 4 * 4;
-    cx.assign(padded, 0.f), cy.assign(padded, 0.f), cz.assign(padded, 0.f), w.assign(padded, 0.f), h.assign(padded, 0.f);
+    n4 = (num_views + 3) / 4 * 4;
+    const int padded = (num_views + 7) / 8 * 8;
+    for (auto* a : {&cx, &cy, &cz, &w, &h, &wlast, &hlast}) a->assign(padded, 0.f);
     for (auto& a : m) a.assign(padded, 0.f);
+    depth.assign(padded, nullptr);
+    depth_stride.assign(padded, 0);
     for (int i = 0; i < n; ++i) {
       const Camera& c = views[i].camera;
       const glm::dvec3 o = c.CentreInWorld();
       cx[i] = float(o.x), cy[i] = float(o.y), cz[i] = float(o.z);
       w[i] = float(views[i].depth.width), h[i] = float(views[i].depth.height);
+      wlast[i] = float(views[i].depth.width - 1), hlast[i] = float(views[i].depth.height - 1);
+      depth[i] = views[i].depth.data;
+      depth_stride[i] = views[i].depth.row_stride;
       for (int j = 0; j < 3; ++j) {  // glm is column-major: rot[col][row]
         m[j][i] = float(c.fx * c.rot[j][0] + c.cx * c.rot[j][2]);
         m[4 + j][i] = float(c.fy * c.rot[j][1] + c.cy * c.rot[j][2]);
@@ -243,11 +267,210 @@ struct UlrViewTable {
   }
 };
 
+// One G-buffer point of the fast path: p, b = c_novel - p, |b|, the normal (0 without one).
+struct UlrPoint {
+  float px, py, pz, bx, by, bz, lb, nx, ny, nz;
+};
+
+// Outputs of the per-view loop: penalty (+inf when a cheap test fails), projection (x, y) in
+// pixels and z of p in every view.
+struct UlrViewOut {
+  float* pen;
+  float* qx;
+  float* qy;
+  float* qz;
+};
+
+// Penalties and cheap tests of all views, scalar: the reference for the SIMD versions (the same
+// float operations in the same order, so the same bits) and the loop on CPUs without SSE2.
+inline void UlrViewsScalar(const UlrPoint& q, const UlrViewTable& t, bool use_normal, float rw, int i0,
+                           const UlrViewOut& o) {
+  for (int i = i0; i < t.n; ++i) {
+    const float ax = t.cx[i] - q.px, ay = t.cy[i] - q.py, az = t.cz[i] - q.pz;
+    const float la = std::sqrt(ax * ax + ay * ay + az * az);
+    const float crx = ay * q.bz - az * q.by, cry = az * q.bx - ax * q.bz, crz = ax * q.by - ay * q.bx;
+    const float cr = std::sqrt(crx * crx + cry * cry + crz * crz);
+    const float dt = ax * q.bx + ay * q.by + az * q.bz;
+    const float ratio = la / q.lb - 1.f;
+    const float pn = FastAtan2PosSelect(cr, dt) + rw * (ratio > 0.f ? ratio : 0.f);
+    const float X = t.m[0][i] * q.px + t.m[1][i] * q.py + t.m[2][i] * q.pz + t.m[3][i];
+    const float Y = t.m[4][i] * q.px + t.m[5][i] * q.py + t.m[6][i] * q.pz + t.m[7][i];
+    const float Z = t.m[8][i] * q.px + t.m[9][i] * q.py + t.m[10][i] * q.pz + t.m[11][i];
+    const float iz = 1.f / (Z > 0.f ? Z : 1.f);
+    const float vx = X * iz, vy = Y * iz;
+    const float facing = q.nx * ax + q.ny * ay + q.nz * az;
+    const int ok = (!use_normal | (facing > 0.f)) & (la > 0.f) & (la <= 3.4e38f) & (pn <= 3.4e38f) & (Z > 0.f) &
+                   (vx >= 0.f) & (vy >= 0.f) & (vx < t.w[i]) & (vy < t.h[i]);
+    o.pen[i] = ok ? pn : INFINITY;
+    o.qx[i] = vx;
+    o.qy[i] = vy;
+    o.qz[i] = Z;
+  }
+}
+
+#if defined(__SSE2__)
+// Views i0 .. i0 + 3 in SSE2 (part of x86-64): UlrViewsScalar's operations, four lanes at a time.
+inline void UlrViews4(const UlrPoint& q, const UlrViewTable& t, bool use_normal, float rw, int i0,
+                      const UlrViewOut& o) {
+  const __m128 Px = _mm_set1_ps(q.px), Py = _mm_set1_ps(q.py), Pz = _mm_set1_ps(q.pz);
+  const __m128 Bx = _mm_set1_ps(q.bx), By = _mm_set1_ps(q.by), Bz = _mm_set1_ps(q.bz), Lb = _mm_set1_ps(q.lb);
+  const __m128 Nx = _mm_set1_ps(q.nx), Ny = _mm_set1_ps(q.ny), Nz = _mm_set1_ps(q.nz);
+  const __m128 zero = _mm_setzero_ps(), one = _mm_set1_ps(1.f), big = _mm_set1_ps(3.4e38f);
+  const __m128 inf = _mm_set1_ps(INFINITY), Rw = _mm_set1_ps(rw), sign = _mm_set1_ps(-0.f);
+  const __m128 half_pi = _mm_set1_ps(1.57079633f), pi = _mm_set1_ps(3.14159265f);
+  const __m128 facing_any = use_normal ? zero : _mm_castsi128_ps(_mm_set1_epi32(-1));
+  const __m128 ax = _mm_sub_ps(_mm_loadu_ps(&t.cx[i0]), Px);
+  const __m128 ay = _mm_sub_ps(_mm_loadu_ps(&t.cy[i0]), Py);
+  const __m128 az = _mm_sub_ps(_mm_loadu_ps(&t.cz[i0]), Pz);
+  const __m128 la = _mm_sqrt_ps(_mm_add_ps(_mm_add_ps(_mm_mul_ps(ax, ax), _mm_mul_ps(ay, ay)), _mm_mul_ps(az, az)));
+  const __m128 crx = _mm_sub_ps(_mm_mul_ps(ay, Bz), _mm_mul_ps(az, By));
+  const __m128 cry = _mm_sub_ps(_mm_mul_ps(az, Bx), _mm_mul_ps(ax, Bz));
+  const __m128 crz = _mm_sub_ps(_mm_mul_ps(ax, By), _mm_mul_ps(ay, Bx));
+  const __m128 cr = _mm_sqrt_ps(_mm_add_ps(_mm_add_ps(_mm_mul_ps(crx, crx), _mm_mul_ps(cry, cry)), _mm_mul_ps(crz, crz)));
+  const __m128 dt = _mm_add_ps(_mm_add_ps(_mm_mul_ps(ax, Bx), _mm_mul_ps(ay, By)), _mm_mul_ps(az, Bz));
+  // FastAtan2PosSelect(cr, dt)
+  const __m128 adt = _mm_andnot_ps(sign, dt);
+  const __m128 swap = _mm_cmpgt_ps(cr, adt);
+  const __m128 num = _mm_or_ps(_mm_and_ps(swap, adt), _mm_andnot_ps(swap, cr));
+  const __m128 den = _mm_or_ps(_mm_and_ps(swap, cr), _mm_andnot_ps(swap, adt));
+  const __m128 denpos = _mm_cmpgt_ps(den, zero);
+  const __m128 tt = _mm_div_ps(num, _mm_or_ps(_mm_and_ps(denpos, den), _mm_andnot_ps(denpos, one)));
+  const __m128 t2 = _mm_mul_ps(tt, tt);
+  __m128 r = _mm_add_ps(_mm_set1_ps(-0.0851330f), _mm_mul_ps(t2, _mm_set1_ps(0.0208351f)));
+  r = _mm_add_ps(_mm_set1_ps(0.1801410f), _mm_mul_ps(t2, r));
+  r = _mm_add_ps(_mm_set1_ps(-0.3302995f), _mm_mul_ps(t2, r));
+  r = _mm_add_ps(_mm_set1_ps(0.9998660f), _mm_mul_ps(t2, r));
+  r = _mm_mul_ps(tt, r);
+  r = _mm_or_ps(_mm_and_ps(swap, _mm_sub_ps(half_pi, r)), _mm_andnot_ps(swap, r));
+  const __m128 neg = _mm_cmplt_ps(dt, zero);
+  r = _mm_or_ps(_mm_and_ps(neg, _mm_sub_ps(pi, r)), _mm_andnot_ps(neg, r));
+  const __m128 ratio = _mm_sub_ps(_mm_div_ps(la, Lb), one);
+  const __m128 pn = _mm_add_ps(r, _mm_mul_ps(Rw, _mm_max_ps(ratio, zero)));
+  const __m128 X = _mm_add_ps(_mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_loadu_ps(&t.m[0][i0]), Px), _mm_mul_ps(_mm_loadu_ps(&t.m[1][i0]), Py)),
+                                         _mm_mul_ps(_mm_loadu_ps(&t.m[2][i0]), Pz)), _mm_loadu_ps(&t.m[3][i0]));
+  const __m128 Y = _mm_add_ps(_mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_loadu_ps(&t.m[4][i0]), Px), _mm_mul_ps(_mm_loadu_ps(&t.m[5][i0]), Py)),
+                                         _mm_mul_ps(_mm_loadu_ps(&t.m[6][i0]), Pz)), _mm_loadu_ps(&t.m[7][i0]));
+  const __m128 Z = _mm_add_ps(_mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_loadu_ps(&t.m[8][i0]), Px), _mm_mul_ps(_mm_loadu_ps(&t.m[9][i0]), Py)),
+                                         _mm_mul_ps(_mm_loadu_ps(&t.m[10][i0]), Pz)), _mm_loadu_ps(&t.m[11][i0]));
+  const __m128 zpos = _mm_cmpgt_ps(Z, zero);
+  const __m128 iz = _mm_div_ps(one, _mm_or_ps(_mm_and_ps(zpos, Z), _mm_andnot_ps(zpos, one)));
+  const __m128 vx = _mm_mul_ps(X, iz), vy = _mm_mul_ps(Y, iz);
+  const __m128 facing = _mm_add_ps(_mm_add_ps(_mm_mul_ps(Nx, ax), _mm_mul_ps(Ny, ay)), _mm_mul_ps(Nz, az));
+  __m128 ok = _mm_or_ps(facing_any, _mm_cmpgt_ps(facing, zero));
+  ok = _mm_and_ps(ok, _mm_cmpgt_ps(la, zero));
+  ok = _mm_and_ps(ok, _mm_cmple_ps(la, big));
+  ok = _mm_and_ps(ok, _mm_cmple_ps(pn, big));
+  ok = _mm_and_ps(ok, zpos);
+  ok = _mm_and_ps(ok, _mm_cmpge_ps(vx, zero));
+  ok = _mm_and_ps(ok, _mm_cmpge_ps(vy, zero));
+  ok = _mm_and_ps(ok, _mm_cmplt_ps(vx, _mm_loadu_ps(&t.w[i0])));
+  ok = _mm_and_ps(ok, _mm_cmplt_ps(vy, _mm_loadu_ps(&t.h[i0])));
+  _mm_storeu_ps(o.pen + i0, _mm_or_ps(_mm_and_ps(ok, pn), _mm_andnot_ps(ok, inf)));
+  _mm_storeu_ps(o.qx + i0, vx);
+  _mm_storeu_ps(o.qy + i0, vy);
+  _mm_storeu_ps(o.qz + i0, Z);
+}
+
+void UlrViewsSse2(const UlrPoint& q, const UlrViewTable& t, bool use_normal, float rw, const UlrViewOut& o) {
+  for (int i0 = 0; i0 < t.n4; i0 += 4) UlrViews4(q, t, use_normal, rw, i0, o);
+}
+
+#if defined(__GNUC__)
+#define IBR_ULR_AVX2 1
+// Eight views per step in AVX2 (without FMA: the same IEEE operations as UlrViews4 lane for lane,
+// so the same bits; the comparisons are the ordered, non-signalling forms of SSE's, false on NaN
+// as there), the rest (up to 4 views) by UlrViews4. Called when the CPU has AVX2 (UlrBlendFast):
+// 12 views take one 8-wide and one 4-wide step instead of three 4-wide ones.
+__attribute__((target("avx2"))) void UlrViewsAvx2(const UlrPoint& q, const UlrViewTable& t, bool use_normal,
+                                                   float rw, const UlrViewOut& o) {
+  const __m256 Px = _mm256_set1_ps(q.px), Py = _mm256_set1_ps(q.py), Pz = _mm256_set1_ps(q.pz);
+  const __m256 Bx = _mm256_set1_ps(q.bx), By = _mm256_set1_ps(q.by), Bz = _mm256_set1_ps(q.bz);
+  const __m256 Lb = _mm256_set1_ps(q.lb);
+  const __m256 Nx = _mm256_set1_ps(q.nx), Ny = _mm256_set1_ps(q.ny), Nz = _mm256_set1_ps(q.nz);
+  const __m256 zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.f), big = _mm256_set1_ps(3.4e38f);
+  const __m256 inf = _mm256_set1_ps(INFINITY), Rw = _mm256_set1_ps(rw), sign = _mm256_set1_ps(-0.f);
+  const __m256 half_pi = _mm256_set1_ps(1.57079633f), pi = _mm256_set1_ps(3.14159265f);
+  const __m256 facing_any = use_normal ? zero : _mm256_castsi256_ps(_mm256_set1_epi32(-1));
+  int i0 = 0;
+  for (; i0 + 8 <= t.n4; i0 += 8) {
+    const __m256 ax = _mm256_sub_ps(_mm256_loadu_ps(&t.cx[i0]), Px);
+    const __m256 ay = _mm256_sub_ps(_mm256_loadu_ps(&t.cy[i0]), Py);
+    const __m256 az = _mm256_sub_ps(_mm256_loadu_ps(&t.cz[i0]), Pz);
+    const __m256 la = _mm256_sqrt_ps(
+        _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(ax, ax), _mm256_mul_ps(ay, ay)), _mm256_mul_ps(az, az)));
+    const __m256 crx = _mm256_sub_ps(_mm256_mul_ps(ay, Bz), _mm256_mul_ps(az, By));
+    const __m256 cry = _mm256_sub_ps(_mm256_mul_ps(az, Bx), _mm256_mul_ps(ax, Bz));
+    const __m256 crz = _mm256_sub_ps(_mm256_mul_ps(ax, By), _mm256_mul_ps(ay, Bx));
+    const __m256 cr = _mm256_sqrt_ps(
+        _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(crx, crx), _mm256_mul_ps(cry, cry)), _mm256_mul_ps(crz, crz)));
+    const __m256 dt = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(ax, Bx), _mm256_mul_ps(ay, By)), _mm256_mul_ps(az, Bz));
+    const __m256 adt = _mm256_andnot_ps(sign, dt);
+    const __m256 swap = _mm256_cmp_ps(cr, adt, _CMP_GT_OQ);
+    const __m256 num = _mm256_blendv_ps(cr, adt, swap);
+    const __m256 den = _mm256_blendv_ps(adt, cr, swap);
+    const __m256 denpos = _mm256_cmp_ps(den, zero, _CMP_GT_OQ);
+    const __m256 tt = _mm256_div_ps(num, _mm256_blendv_ps(one, den, denpos));
+    const __m256 t2 = _mm256_mul_ps(tt, tt);
+    __m256 r = _mm256_add_ps(_mm256_set1_ps(-0.0851330f), _mm256_mul_ps(t2, _mm256_set1_ps(0.0208351f)));
+    r = _mm256_add_ps(_mm256_set1_ps(0.1801410f), _mm256_mul_ps(t2, r));
+    r = _mm256_add_ps(_mm256_set1_ps(-0.3302995f), _mm256_mul_ps(t2, r));
+    r = _mm256_add_ps(_mm256_set1_ps(0.9998660f), _mm256_mul_ps(t2, r));
+    r = _mm256_mul_ps(tt, r);
+    r = _mm256_blendv_ps(r, _mm256_sub_ps(half_pi, r), swap);
+    const __m256 neg = _mm256_cmp_ps(dt, zero, _CMP_LT_OQ);
+    r = _mm256_blendv_ps(r, _mm256_sub_ps(pi, r), neg);
+    const __m256 ratio = _mm256_sub_ps(_mm256_div_ps(la, Lb), one);
+    const __m256 pn = _mm256_add_ps(r, _mm256_mul_ps(Rw, _mm256_max_ps(ratio, zero)));
+    const __m256 X = _mm256_add_ps(
+        _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(_mm256_loadu_ps(&t.m[0][i0]), Px), _mm256_mul_ps(_mm256_loadu_ps(&t.m[1][i0]), Py)),
+                      _mm256_mul_ps(_mm256_loadu_ps(&t.m[2][i0]), Pz)),
+        _mm256_loadu_ps(&t.m[3][i0]));
+    const __m256 Y = _mm256_add_ps(
+        _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(_mm256_loadu_ps(&t.m[4][i0]), Px), _mm256_mul_ps(_mm256_loadu_ps(&t.m[5][i0]), Py)),
+                      _mm256_mul_ps(_mm256_loadu_ps(&t.m[6][i0]), Pz)),
+        _mm256_loadu_ps(&t.m[7][i0]));
+    const __m256 Z = _mm256_add_ps(
+        _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(_mm256_loadu_ps(&t.m[8][i0]), Px), _mm256_mul_ps(_mm256_loadu_ps(&t.m[9][i0]), Py)),
+                      _mm256_mul_ps(_mm256_loadu_ps(&t.m[10][i0]), Pz)),
+        _mm256_loadu_ps(&t.m[11][i0]));
+    const __m256 zpos = _mm256_cmp_ps(Z, zero, _CMP_GT_OQ);
+    const __m256 iz = _mm256_div_ps(one, _mm256_blendv_ps(one, Z, zpos));
+    const __m256 vx = _mm256_mul_ps(X, iz), vy = _mm256_mul_ps(Y, iz);
+    const __m256 facing = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(Nx, ax), _mm256_mul_ps(Ny, ay)), _mm256_mul_ps(Nz, az));
+    __m256 ok = _mm256_or_ps(facing_any, _mm256_cmp_ps(facing, zero, _CMP_GT_OQ));
+    ok = _mm256_and_ps(ok, _mm256_cmp_ps(la, zero, _CMP_GT_OQ));
+    ok = _mm256_and_ps(ok, _mm256_cmp_ps(la, big, _CMP_LE_OQ));
+    ok = _mm256_and_ps(ok, _mm256_cmp_ps(pn, big, _CMP_LE_OQ));
+    ok = _mm256_and_ps(ok, zpos);
+    ok = _mm256_and_ps(ok, _mm256_cmp_ps(vx, zero, _CMP_GE_OQ));
+    ok = _mm256_and_ps(ok, _mm256_cmp_ps(vy, zero, _CMP_GE_OQ));
+    ok = _mm256_and_ps(ok, _mm256_cmp_ps(vx, _mm256_loadu_ps(&t.w[i0]), _CMP_LT_OQ));
+    ok = _mm256_and_ps(ok, _mm256_cmp_ps(vy, _mm256_loadu_ps(&t.h[i0]), _CMP_LT_OQ));
+    _mm256_storeu_ps(o.pen + i0, _mm256_blendv_ps(inf, pn, ok));
+    _mm256_storeu_ps(o.qx + i0, vx);
+    _mm256_storeu_ps(o.qy + i0, vy);
+    _mm256_storeu_ps(o.qz + i0, Z);
+  }
+  if (i0 < t.n4) UlrViews4(q, t, use_normal, rw, i0, o);
+}
+#endif  // __GNUC__
+#endif  // __SSE2__
+
+bool UlrCpuHasAvx2() {
+#if defined(IBR_ULR_AVX2)
+  static const bool has = __builtin_cpu_supports("avx2");
+  return has;
+#else
+  return false;
+#endif
+}
+
 // The fast path of UlrBlend for pinhole input views: penalties, back-face, behind-the-camera and
-// outside-the-image tests of all views in one branch-free float loop (SIMD over views), then the
-// same lazy depth test, selection and blend as the scalar path. Differences from the scalar path:
-// float instead of double projections (positions agree within ~1e-4 px at the synthetic scenes'
-// scale), so a depth test exactly at its tolerance may flip (tests/test_ulr_fast.py bounds it).
+// outside-the-image tests of all views in one branch-free float loop (SIMD over views: AVX2 when
+// the CPU has it, else SSE2), then the depth test of every view that passed them (branch-free),
+// the selection and the blend. Differences from the scalar path: float instead of double
+// projections (positions agree within ~1e-4 px at the synthetic scenes' scale), so a depth test
+// exactly at its tolerance may flip (tests/test_ulr_fast.py bounds it).
 void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, ImageView<const float> normal,
                   const std::uint8_t* pixel_mask, const UlrInputView* views, int num_views, const UlrOptions& options,
                   ImageView<float> color_out, ImageView<std::uint8_t> count_out) {
@@ -259,20 +482,30 @@ void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, Ima
   const bool use_normal = !normal.Empty();
   const float rw = options.resolution_weight, tol = options.depth_tol;
   const glm::dmat3 world_from_cam = glm::transpose(novel.rot);
-  const float* VCX = vt.cx.data(); const float* VCY = vt.cy.data(); const float* VCZ = vt.cz.data();
-  const float* VW = vt.w.data(); const float* VH = vt.h.data();
-  const float* M0 = vt.m[0].data(); const float* M1 = vt.m[1].data(); const float* M2 = vt.m[2].data();
-  const float* M3 = vt.m[3].data(); const float* M4 = vt.m[4].data(); const float* M5 = vt.m[5].data();
-  const float* M6 = vt.m[6].data(); const float* M7 = vt.m[7].data(); const float* M8 = vt.m[8].data();
-  const float* M9 = vt.m[9].data(); const float* M10 = vt.m[10].data(); const float* M11 = vt.m[11].data();
   const int nv = num_views;
   const bool novel_pinhole = novel.model == CameraModel::kPinhole;
   const glm::vec3 col_step(world_from_cam * glm::dvec3(1.0 / novel.fx, 0.0, 0.0));
   const float cnx = c_novel.x, cny = c_novel.y, cnz = c_novel.z;
+  using ViewsFn = void (*)(const UlrPoint&, const UlrViewTable&, bool, float, const UlrViewOut&);
+  ViewsFn views_fn = nullptr;
+#if defined(__SSE2__)
+  views_fn = UlrViewsSse2;
+#if defined(IBR_ULR_AVX2)
+  if (options.simd != UlrSimd::kSse2 && UlrCpuHasAvx2()) views_fn = UlrViewsAvx2;
+#endif
+#endif
   ParallelFor2D(H, W, 64, [&](int y0, int y1, int x0, int x1) {
     const std::size_t nv_padded = vt.w.size();
     std::vector<float> pen(nv_padded), qx(nv_padded), qy(nv_padded), qz(nv_padded);
-    float* PEN = pen.data(); float* QX = qx.data(); float* QY = qy.data(); float* QZ = qz.data();
+    const UlrViewOut vo{pen.data(), qx.data(), qy.data(), qz.data()};
+    float* PEN = vo.pen;
+    const float* QX = vo.qx;
+    const float* QY = vo.qy;
+    const float* QZ = vo.qz;
+    const float* const* DP = vt.depth.data();
+    const std::ptrdiff_t* DS = vt.depth_stride.data();
+    const float* WL = vt.wlast.data();
+    const float* HL = vt.hlast.data();
     int index[64];
     float weight[64];
     for (int y = y0; y < y1; ++y) {
@@ -289,132 +522,55 @@ void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, Ima
         if (pixel_mask && !pixel_mask[std::int64_t(y) * W + x]) continue;
         // p = centre + t * (world direction of the pixel's ray), the direction affine in x along
         // the row (pinhole novel camera; equirect: per pixel, as the scalar path).
-        float px, py, pz;
+        UlrPoint q;
         if (novel_pinhole) {
           const float fxp = float(x);
-          px = cnx + t * (row_dir.x + fxp * col_step.x);
-          py = cny + t * (row_dir.y + fxp * col_step.y);
-          pz = cnz + t * (row_dir.z + fxp * col_step.z);
+          q.px = cnx + t * (row_dir.x + fxp * col_step.x);
+          q.py = cny + t * (row_dir.y + fxp * col_step.y);
+          q.pz = cnz + t * (row_dir.z + fxp * col_step.z);
         } else {
           const glm::vec3 p(world_from_cam * (novel.RayInCam(x + 0.5, y + 0.5) * double(t)) + c_novel_d);
-          px = p.x, py = p.y, pz = p.z;
+          q.px = p.x, q.py = p.y, q.pz = p.z;
         }
-        float nx = 0.f, ny = 0.f, nz = 0.f;
-        if (use_normal) nx = normal.At(y, x, 0), ny = normal.At(y, x, 1), nz = normal.At(y, x, 2);
-        const float bx = c_novel.x - px, by = c_novel.y - py, bz = c_novel.z - pz;
-        const float lb = std::sqrt(bx * bx + by * by + bz * bz);
-        if (!(lb > 0.f) || !std::isfinite(lb)) continue;  // every penalty is +inf
-        int i0 = 0;
-#if defined(__SSE2__)
-        // Four views per step in SSE2 (part of x86-64); the same float operations in the same
-        // order as the scalar loop below, so both give the same penalties and positions.
-        {
-          const __m128 Px = _mm_set1_ps(px), Py = _mm_set1_ps(py), Pz = _mm_set1_ps(pz);
-          const __m128 Bx = _mm_set1_ps(bx), By = _mm_set1_ps(by), Bz = _mm_set1_ps(bz), Lb = _mm_set1_ps(lb);
-          const __m128 Nx = _mm_set1_ps(nx), Ny = _mm_set1_ps(ny), Nz = _mm_set1_ps(nz);
-          const __m128 zero = _mm_setzero_ps(), one = _mm_set1_ps(1.f), big = _mm_set1_ps(3.4e38f);
-          const __m128 inf = _mm_set1_ps(INFINITY), Rw = _mm_set1_ps(rw), sign = _mm_set1_ps(-0.f);
-          const __m128 half_pi = _mm_set1_ps(1.57079633f), pi = _mm_set1_ps(3.14159265f);
-          const __m128 facing_any = use_normal ? zero : _mm_castsi128_ps(_mm_set1_epi32(-1));
-          for (; i0 < nv; i0 += 4) {  // the table is padded to a multiple of 4
-            const __m128 ax = _mm_sub_ps(_mm_loadu_ps(VCX + i0), Px);
-            const __m128 ay = _mm_sub_ps(_mm_loadu_ps(VCY + i0), Py);
-            const __m128 az = _mm_sub_ps(_mm_loadu_ps(VCZ + i0), Pz);
-            const __m128 la = _mm_sqrt_ps(_mm_add_ps(_mm_add_ps(_mm_mul_ps(ax, ax), _mm_mul_ps(ay, ay)), _mm_mul_ps(az, az)));
-            const __m128 crx = _mm_sub_ps(_mm_mul_ps(ay, Bz), _mm_mul_ps(az, By));
-            const __m128 cry = _mm_sub_ps(_mm_mul_ps(az, Bx), _mm_mul_ps(ax, Bz));
-            const __m128 crz = _mm_sub_ps(_mm_mul_ps(ax, By), _mm_mul_ps(ay, Bx));
-            const __m128 cr = _mm_sqrt_ps(_mm_add_ps(_mm_add_ps(_mm_mul_ps(crx, crx), _mm_mul_ps(cry, cry)), _mm_mul_ps(crz, crz)));
-            const __m128 dt = _mm_add_ps(_mm_add_ps(_mm_mul_ps(ax, Bx), _mm_mul_ps(ay, By)), _mm_mul_ps(az, Bz));
-            // FastAtan2PosSelect(cr, dt)
-            const __m128 adt = _mm_andnot_ps(sign, dt);
-            const __m128 swap = _mm_cmpgt_ps(cr, adt);
-            const __m128 num = _mm_or_ps(_mm_and_ps(swap, adt), _mm_andnot_ps(swap, cr));
-            const __m128 den = _mm_or_ps(_mm_and_ps(swap, cr), _mm_andnot_ps(swap, adt));
-            const __m128 denpos = _mm_cmpgt_ps(den, zero);
-            const __m128 t = _mm_div_ps(num, _mm_or_ps(_mm_and_ps(denpos, den), _mm_andnot_ps(denpos, one)));
-            const __m128 t2 = _mm_mul_ps(t, t);
-            __m128 r = _mm_add_ps(_mm_set1_ps(-0.0851330f), _mm_mul_ps(t2, _mm_set1_ps(0.0208351f)));
-            r = _mm_add_ps(_mm_set1_ps(0.1801410f), _mm_mul_ps(t2, r));
-            r = _mm_add_ps(_mm_set1_ps(-0.3302995f), _mm_mul_ps(t2, r));
-            r = _mm_add_ps(_mm_set1_ps(0.9998660f), _mm_mul_ps(t2, r));
-            r = _mm_mul_ps(t, r);
-            r = _mm_or_ps(_mm_and_ps(swap, _mm_sub_ps(half_pi, r)), _mm_andnot_ps(swap, r));
-            const __m128 neg = _mm_cmplt_ps(dt, zero);
-            r = _mm_or_ps(_mm_and_ps(neg, _mm_sub_ps(pi, r)), _mm_andnot_ps(neg, r));
-            const __m128 ratio = _mm_sub_ps(_mm_div_ps(la, Lb), one);
-            const __m128 pn = _mm_add_ps(r, _mm_mul_ps(Rw, _mm_max_ps(ratio, zero)));
-            const __m128 X = _mm_add_ps(_mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_loadu_ps(M0 + i0), Px), _mm_mul_ps(_mm_loadu_ps(M1 + i0), Py)),
-                                                   _mm_mul_ps(_mm_loadu_ps(M2 + i0), Pz)), _mm_loadu_ps(M3 + i0));
-            const __m128 Y = _mm_add_ps(_mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_loadu_ps(M4 + i0), Px), _mm_mul_ps(_mm_loadu_ps(M5 + i0), Py)),
-                                                   _mm_mul_ps(_mm_loadu_ps(M6 + i0), Pz)), _mm_loadu_ps(M7 + i0));
-            const __m128 Z = _mm_add_ps(_mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_loadu_ps(M8 + i0), Px), _mm_mul_ps(_mm_loadu_ps(M9 + i0), Py)),
-                                                   _mm_mul_ps(_mm_loadu_ps(M10 + i0), Pz)), _mm_loadu_ps(M11 + i0));
-            const __m128 zpos = _mm_cmpgt_ps(Z, zero);
-            const __m128 iz = _mm_div_ps(one, _mm_or_ps(_mm_and_ps(zpos, Z), _mm_andnot_ps(zpos, one)));
-            const __m128 vx = _mm_mul_ps(X, iz), vy = _mm_mul_ps(Y, iz);
-            const __m128 facing = _mm_add_ps(_mm_add_ps(_mm_mul_ps(Nx, ax), _mm_mul_ps(Ny, ay)), _mm_mul_ps(Nz, az));
-            __m128 ok = _mm_or_ps(facing_any, _mm_cmpgt_ps(facing, zero));
-            ok = _mm_and_ps(ok, _mm_cmpgt_ps(la, zero));
-            ok = _mm_and_ps(ok, _mm_cmple_ps(la, big));
-            ok = _mm_and_ps(ok, _mm_cmple_ps(pn, big));
-            ok = _mm_and_ps(ok, zpos);
-            ok = _mm_and_ps(ok, _mm_cmpge_ps(vx, zero));
-            ok = _mm_and_ps(ok, _mm_cmpge_ps(vy, zero));
-            ok = _mm_and_ps(ok, _mm_cmplt_ps(vx, _mm_loadu_ps(VW + i0)));
-            ok = _mm_and_ps(ok, _mm_cmplt_ps(vy, _mm_loadu_ps(VH + i0)));
-            _mm_storeu_ps(PEN + i0, _mm_or_ps(_mm_and_ps(ok, pn), _mm_andnot_ps(ok, inf)));
-            _mm_storeu_ps(QX + i0, vx);
-            _mm_storeu_ps(QY + i0, vy);
-            _mm_storeu_ps(QZ + i0, Z);
-          }
+        q.nx = q.ny = q.nz = 0.f;
+        if (use_normal) q.nx = normal.At(y, x, 0), q.ny = normal.At(y, x, 1), q.nz = normal.At(y, x, 2);
+        q.bx = c_novel.x - q.px, q.by = c_novel.y - q.py, q.bz = c_novel.z - q.pz;
+        q.lb = std::sqrt(q.bx * q.bx + q.by * q.by + q.bz * q.bz);
+        if (!(q.lb > 0.f) || !std::isfinite(q.lb)) continue;  // every penalty is +inf
+        if (views_fn) {
+          views_fn(q, vt, use_normal, rw, vo);
+        } else {
+          UlrViewsScalar(q, vt, use_normal, rw, 0, vo);
         }
-#endif
-        for (int i = i0; i < nv; ++i) {
-          const float ax = VCX[i] - px, ay = VCY[i] - py, az = VCZ[i] - pz;
-          const float la = std::sqrt(ax * ax + ay * ay + az * az);
-          const float crx = ay * bz - az * by, cry = az * bx - ax * bz, crz = ax * by - ay * bx;
-          const float cr = std::sqrt(crx * crx + cry * cry + crz * crz);
-          const float dt = ax * bx + ay * by + az * bz;
-          const float ratio = la / lb - 1.f;
-          const float pn = FastAtan2PosSelect(cr, dt) + rw * (ratio > 0.f ? ratio : 0.f);
-          const float X = M0[i] * px + M1[i] * py + M2[i] * pz + M3[i];
-          const float Y = M4[i] * px + M5[i] * py + M6[i] * pz + M7[i];
-          const float Z = M8[i] * px + M9[i] * py + M10[i] * pz + M11[i];
-          const float iz = 1.f / (Z > 0.f ? Z : 1.f);
-          const float vx = X * iz, vy = Y * iz;
-          const float facing = nx * ax + ny * ay + nz * az;
-          const int ok = (!use_normal | (facing > 0.f)) & (la > 0.f) & (la <= 3.4e38f) & (pn <= 3.4e38f) &
-                         (Z > 0.f) & (vx >= 0.f) & (vy >= 0.f) & (vx < VW[i]) & (vy < VH[i]);
-          PEN[i] = ok ? pn : INFINITY;
-          QX[i] = vx;
-          QY[i] = vy;
-          QZ[i] = Z;
-        }
-        // The depth test of every view that passed the cheap tests, before any selection: the
-        // views' depth reads are independent loads the CPU overlaps, where the lazy scheme (test
-        // the selected views, drop failures, select again; the scalar path) waits for each miss
-        // in turn (perf: that load was the loop's hottest instruction). The same views pass, so
-        // the selection and the blend are the lazy scheme's, bit for bit.
+        // The depth test of every view, before any selection and without branches: the views'
+        // depth reads are independent loads the CPU overlaps, where the lazy scheme (test the
+        // selected views, drop failures, select again; the scalar path) waits for each in turn,
+        // and a branch per view mispredicts. Views that failed the cheap tests read a clamped
+        // texel and stay at +inf. The same views pass as with the lazy test, so the selection and
+        // the blend are the lazy scheme's, bit for bit (measured again with this loop: the lazy
+        // scheme 107 ms against 104.5 per frame, single-thread CPU, min of 8, load ~9).
         for (int i = 0; i < nv; ++i) {
-          if (!(PEN[i] < INFINITY)) continue;
-          const UlrInputView& v = views[i];
-          const float dv = v.depth.At(std::min(int(QY[i]), v.depth.height - 1), std::min(int(QX[i]), v.depth.width - 1));
-          if (!(dv > 0.f && std::isfinite(dv) && std::abs(QZ[i] - dv) <= tol * dv)) PEN[i] = INFINITY;
+          float fx = QX[i] > 0.f ? QX[i] : 0.f;  // NaN -> 0
+          float fy = QY[i] > 0.f ? QY[i] : 0.f;
+          fx = fx < WL[i] ? fx : WL[i];
+          fy = fy < HL[i] ? fy : HL[i];
+          const float dv = DP[i][std::ptrdiff_t(int(fy)) * DS[i] + int(fx)];
+          const bool ok = (PEN[i] < INFINITY) & (dv > 0.f) & (dv <= 3.4028235e38f) & (std::abs(QZ[i] - dv) <= tol * dv);
+          PEN[i] = ok ? PEN[i] : INFINITY;
         }
         const int m = UlrSelect(PEN, nv, k, index, weight);
         int used = 0;
-        glm::vec3 col(0.f);
+        float col[4] = {0.f, 0.f, 0.f, 0.f};
         for (int j = 0; j < m; ++j) {
           if (!(weight[j] > 0.f)) continue;
           const int i = index[j];
-          Bilinear3Add(views[i].color, QX[i], QY[i], weight[j], &col.x);
+          Bilinear3Add(views[i].color, QX[i], QY[i], weight[j], col);
           ++used;
         }
         if (used > 0) {
-          crow[3 * x] = col.x;
-          crow[3 * x + 1] = col.y;
-          crow[3 * x + 2] = col.z;
+          crow[3 * x] = col[0];
+          crow[3 * x + 1] = col[1];
+          crow[3 * x + 2] = col[2];
           nrow[x] = std::uint8_t(std::min(used, 255));
         }
       }

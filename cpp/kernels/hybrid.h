@@ -32,6 +32,8 @@ struct UlrInputView {
   ImageView<const float> depth;  // (h, w) the view's depth (z / distance), 0 = unknown
 };
 
+enum class UlrSimd { kAuto, kSse2 };
+
 struct UlrOptions {
   int k = 4;                       // views kept per pixel (UlrSelect: the k-th gets weight 0)
   float resolution_weight = 0.5f;  // UlrPenalty's resolution term
@@ -44,6 +46,9 @@ struct UlrOptions {
   // The scalar reference path (double projections, one view at a time) instead of the fast path
   // (float, SIMD over views; used when every input view is pinhole). Tests compare the two.
   bool reference = false;
+  // The fast path's per-view loop: AVX2 (8 views per step) when the CPU has it, else SSE2; kSse2
+  // forces SSE2 (tests: both give the same bits).
+  UlrSimd simd = UlrSimd::kAuto;
 };
 
 // UlrPenalty (ulr.h) with b = c_novel - p and lb = |b| given (computed once per pixel) and a
@@ -61,8 +66,9 @@ float UlrPenaltyFast(const glm::vec3& p, const glm::vec3& b, float lb, const glm
 // the number of views with positive weight (0 = no view sees p: colour 0, the caller falls back
 // to TM). Pixels not computed get colour 0 and count 0. normal may be empty (no back-face test).
 // When every input view is pinhole (and not options.reference) the penalties and the cheap tests
-// run four views at a time in float (SSE2) with the projection folded into one 3x4 matrix per
-// view, and the depth test done for every view that passed the cheap tests before one selection
+// run eight views at a time in AVX2 when the CPU has it and four at a time in SSE2 otherwise (the
+// same bits), in float with the projection folded into one 3x4 matrix per view, and the depth
+// test done, without branches, for every view that passed the cheap tests before one selection
 // (the same views pass as with the lazy test, so the same selection); else the scalar path
 // (double) runs. Float rounding may flip a depth test at its tolerance (tests/test_ulr_fast.py).
 void UlrBlend(const Camera& novel, ImageView<const float> gbuffer_depth, ImageView<const float> normal,

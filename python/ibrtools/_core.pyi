@@ -540,9 +540,9 @@ def steerable_synthesise(highpass: _F32, bands: collections.abc.Sequence[collect
     Steerable pyramid synthesis (collapse) of (highpass, bands[level][orientation], lowpass) as returned by steerable_analyse; returns the image float32 (H, W, C).
     """
 
-def ulr_blend(camera: Camera, gbuffer_depth: _F32, views: list[tuple[Camera, _F32, _F32]], *, normal: _F32 | None=None, pixel_mask: _Bool | None=None, k: typing.SupportsInt | typing.SupportsIndex=4, resolution_weight: typing.SupportsFloat | typing.SupportsIndex=0.5, depth_tol: typing.SupportsFloat | typing.SupportsIndex=0.02, reference: bool=False) -> tuple[_F32, _U8]:
+def ulr_blend(camera: Camera, gbuffer_depth: _F32, views: list[tuple[Camera, _F32, _F32]], *, normal: _F32 | None=None, pixel_mask: _Bool | None=None, k: typing.SupportsInt | typing.SupportsIndex=4, resolution_weight: typing.SupportsFloat | typing.SupportsIndex=0.5, depth_tol: typing.SupportsFloat | typing.SupportsIndex=0.02, reference: bool=False, simd: str='auto') -> tuple[_F32, _U8]:
     """
-    Per-pixel ULR at the G-buffer's points: views = [(camera, color, depth), ...] -> (color (H, W, 3), count (H, W) uint8 views used, 0 = none sees the point). reference=True: the scalar reference path (double projections) instead of the fast one (float, SIMD over views; pinhole views only).
+    Per-pixel ULR at the G-buffer's points: views = [(camera, color, depth), ...] -> (color (H, W, 3), count (H, W) uint8 views used, 0 = none sees the point). reference=True: the scalar reference path (double projections) instead of the fast one (float, SIMD over views; pinhole views only). simd='sse2': the fast path's per-view loop in SSE2 even on an AVX2 CPU (the same bits; for tests).
     """
 
 def ulr_penalty(p: collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], c_novel: collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], c_view: collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], resolution_weight: typing.SupportsFloat | typing.SupportsIndex=0.5, fast: bool=False) -> float:

