@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <vector>
 
 #include "ibr/parallel.h"
@@ -456,6 +457,27 @@ __attribute__((target("avx2"))) void UlrViewsAvx2(const UlrPoint& q, const UlrVi
 #endif  // __GNUC__
 #endif  // __SSE2__
 
+// Software prefetch of base[offset] (offset in floats; any value: the address is computed as an
+// integer and a prefetch never faults, so a wrong guess costs a wasted line fill, nothing else).
+inline void PrefetchAt(const float* base, std::ptrdiff_t offset) {
+#if defined(__GNUC__)
+  const std::uintptr_t a = reinterpret_cast<std::uintptr_t>(base) + std::uintptr_t(offset) * sizeof(float);
+  __builtin_prefetch(reinterpret_cast<const void*>(a));
+#else
+  (void)base, (void)offset;
+#endif
+}
+
+// The depth and colour texels a pixel will read, predicted kPrefetchAhead pixels ahead along the
+// row from the last two pixels' texels in each view (the projection of the G-buffer moves
+// steadily across a view along a row of the target, but in any direction: for a view turned 90
+// degrees from the target a row of the target walks down a column of the view, a new cache line
+// per pixel, which the hardware prefetchers do not follow across 12 views at once). Measured:
+// the depth test's reads were the loop's largest stall (perf); 2 pixels ahead: ulr_blend min
+// 103.6 -> 90.7 ms, median 106.4 -> 97.6 per frame (single-thread CPU, 6 rounds interleaved
+// in one process, load ~10); 1 and 4 pixels ahead did less.
+constexpr std::ptrdiff_t kPrefetchAhead = 2;
+
 bool UlrCpuHasAvx2() {
 #if defined(IBR_ULR_AVX2)
   static const bool has = __builtin_cpu_supports("avx2");
@@ -508,6 +530,8 @@ void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, Ima
     const float* HL = vt.hlast.data();
     int index[64];
     float weight[64];
+    // Each view's depth texel offset at the last two pixels computed (the prefetch's predictor).
+    std::vector<std::ptrdiff_t> prev_off(nv_padded, 0), prev2_off(nv_padded, 0);
     for (int y = y0; y < y1; ++y) {
       const float* drow = gbuffer_depth.Row(y);
       float* crow = color_out.Row(y);
@@ -554,7 +578,11 @@ void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, Ima
           float fy = QY[i] > 0.f ? QY[i] : 0.f;
           fx = fx < WL[i] ? fx : WL[i];
           fy = fy < HL[i] ? fy : HL[i];
-          const float dv = DP[i][std::ptrdiff_t(int(fy)) * DS[i] + int(fx)];
+          const std::ptrdiff_t off = std::ptrdiff_t(int(fy)) * DS[i] + int(fx);
+          const float dv = DP[i][off];
+          PrefetchAt(DP[i], off + kPrefetchAhead * (off - prev_off[i]));
+          prev2_off[i] = prev_off[i];
+          prev_off[i] = off;
           const bool ok = (PEN[i] < INFINITY) & (dv > 0.f) & (dv <= 3.4028235e38f) & (std::abs(QZ[i] - dv) <= tol * dv);
           PEN[i] = ok ? PEN[i] : INFINITY;
         }
@@ -565,6 +593,11 @@ void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, Ima
           if (!(weight[j] > 0.f)) continue;
           const int i = index[j];
           Bilinear3Add(views[i].color, QX[i], QY[i], weight[j], col);
+          // The texels this view's colour read will want kPrefetchAhead pixels on (its depth
+          // texel's offset and step, in the colour image: 3 floats a pixel), rows y and y + 1.
+          const std::ptrdiff_t ahead = prev_off[i] + kPrefetchAhead * (prev_off[i] - prev2_off[i]);
+          PrefetchAt(views[i].color.data, 3 * ahead);
+          PrefetchAt(views[i].color.data, 3 * ahead + views[i].color.row_stride);
           ++used;
         }
         if (used > 0) {
