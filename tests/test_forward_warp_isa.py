@@ -74,7 +74,7 @@ def noise(h, w, seed):
     return np.random.default_rng(seed).random((h, w, 3), dtype=np.float32)
 
 
-def run_all(src, dst, dep, quality, depth_test="combined", discard_stretched=False):
+def run_all(src, dst, dep, quality, depth_test="combined", discard_stretched=False, blend_exponent=5.0):
     """Every public entry point that goes through the hot loops, for one case."""
     col = noise(src.height, src.width, 9)
     opts = _core.WarpOptions()
@@ -82,6 +82,7 @@ def run_all(src, dst, dep, quality, depth_test="combined", discard_stretched=Fal
     opts.side_threshold = 10.0
     opts.depth_test = depth_test
     opts.discard_stretched = discard_stretched
+    opts.blend_exponent = blend_exponent
     res = list(_core.forward_warp(col, dep, src.to_core(), dst.to_core(), opts))
     acc = _core.DibrAccumulator(dst.to_core(), 0.1, True, 0.0)
     acc.add_view(col, dep, src.to_core(), opts)
@@ -111,15 +112,17 @@ def test_avx2_and_baseline_paths_are_bit_identical(quality, restore_isa):
 
 
 @needs_avx2
-@pytest.mark.parametrize("depth_test, discard", [("nearest", False), ("combined", True)])
-def test_avx2_and_baseline_identical_for_every_depth_test_and_discard(depth_test, discard, restore_isa):
+@pytest.mark.parametrize("depth_test, discard, p", [("nearest", False, 5.0), ("combined", True, 3.0),
+                                                    ("combined", False, 2.5)])
+def test_avx2_and_baseline_identical_for_every_depth_test_and_discard(depth_test, discard, p, restore_isa):
     """The lane shading of the AVX2 raster step (score of either depth test, Eq. 1's discard of
-    stretched triangles folded into the coverage masks) against the scalar baseline."""
+    stretched triangles folded into the coverage masks) and the AVX2 band weights (p = 5 and 3 in
+    lanes, other p scalar) against the scalar baseline."""
     for name, src, dst, dep in cases():
         out = {}
         for isa in ("baseline", "avx2"):
             _core.set_warp_isa(isa)
-            out[isa] = run_all(src, dst, dep, "side", depth_test, discard)
+            out[isa] = run_all(src, dst, dep, "side", depth_test, discard, p)
         assert (out["baseline"][2] > 0).mean() > 0.005, name
         for a, b in zip(out["baseline"], out["avx2"]):
             np.testing.assert_array_equal(a, b, err_msg=name)

@@ -1075,6 +1075,33 @@ __attribute__((target("avx2"))) int ProjectPinholeRowAvx2(const float* drow, con
   return u;
 }
 
+// Weight() of a band row, eight pixels per AVX2 step, for p = 5 or 3 (the products of Weight in
+// its order; max / min give std::max / std::min's values for these non-NaN operands): w = 0 where
+// q <= 0 (not covered; the depth there is stale). Adds the covered pixels to `covered`; returns
+// the first column not done.
+__attribute__((target("avx2"))) int WeightRowAvx2(const float* q, const float* d, float* w, int n, float p,
+                                                  std::int64_t& covered) {
+  const __m256 zero = _mm256_setzero_ps(), dlo = _mm256_set1_ps(kMinWeightDepth), dhi = _mm256_set1_ps(kMaxWeightDepth);
+  const __m256 wlo = _mm256_set1_ps(1e-30f), whi = _mm256_set1_ps(1e30f);
+  const bool five = p == 5.f;
+  int x = 0;
+  for (; x + 8 <= n; x += 8) {
+    const __m256 qv = _mm256_loadu_ps(q + x);
+    const __m256 cov = _mm256_cmp_ps(qv, zero, _CMP_GT_OQ);
+    const int m = _mm256_movemask_ps(cov);
+    if (m == 0) {
+      _mm256_storeu_ps(w + x, zero);
+      continue;
+    }
+    covered += __builtin_popcount(unsigned(m));
+    const __m256 xv = _mm256_div_ps(qv, _mm256_min_ps(_mm256_max_ps(_mm256_loadu_ps(d + x), dlo), dhi));
+    const __m256 x2 = _mm256_mul_ps(xv, xv);
+    const __m256 wv = five ? _mm256_mul_ps(_mm256_mul_ps(x2, x2), xv) : _mm256_mul_ps(x2, xv);
+    _mm256_storeu_ps(w + x, _mm256_and_ps(_mm256_min_ps(_mm256_max_ps(wv, wlo), whi), cov));
+  }
+  return x;
+}
+
 // Pass 1 of the mesh warp: every input pixel projected into the target (scratch.verts) and the
 // per-row segment y ranges (scratch.seg_y). Counts valid and bad depths.
 WarpCounts ProjectVertices(const ImageView<const float>& depth, const Camera& source, const Camera& target,
@@ -1440,6 +1467,7 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
     if (acc == nullptr) return counts;  // a view the front rejects: nothing to draw into
     const std::ptrdiff_t band_px = std::ptrdiff_t(kBandRows) * tw;
     const bool plain_avx2 = UseAvx2() && !(acc->stretched_quality > 0.f) && !(acc->depth_tolerance > 0.f);
+    const bool avx2_weights = UseAvx2() && (p == 5.f || p == 3.f);
     RasterBands(
         cx, scratch, num_bands, fast,
         [&] {
@@ -1466,7 +1494,9 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
           for (int y = y0; y < y1; ++y) {
             const std::ptrdiff_t o = std::ptrdiff_t(y - y0) * tw;
             const float *qrow = sh.oq + o, *drow = sh.od + o;
-            for (int x = 0; x < tw; ++x) {
+            int x = 0;
+            if (avx2_weights) x = WeightRowAvx2(qrow, drow, wrow, tw, p, my_covered);
+            for (; x < tw; ++x) {
               const float q = qrow[x];
               if (q > 0.f) {
                 wrow[x] = Weight(q, drow[x], p);
