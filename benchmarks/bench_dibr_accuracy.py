@@ -77,7 +77,9 @@ def _sub(scene, keep: list[str]):
     return Scene(views=views, units=scene.units, source=scene.source, root=scene.root)
 
 
-def _render(scene, inputs, camera, params=None):
+def _render(scene, inputs, camera, params=None, outputs=None):
+    """(colour with holes black, hole mask, stage times, frame report); ``outputs``: a dict that
+    receives the method's raw outputs (colour, depth, confidence, hole)."""
     from ibrtools.render.dibr import DibrMethod
 
     m = DibrMethod({"inputs": inputs, **(params or {})})
@@ -86,6 +88,8 @@ def _render(scene, inputs, camera, params=None):
     out, ms = m.render(camera)
     ms["total"] = (time.perf_counter() - t0) * 1e3
     color = np.where(out["hole"][..., None], 0.0, out["color"]).astype(np.float32)
+    if outputs is not None:
+        outputs.update(out)
     return color, out["hole"], ms, m.frame_report()
 
 
@@ -118,12 +122,15 @@ def three_ways(color, truth, hole, mask=None) -> dict:
             "hole": float(hole[region].mean())}
 
 
-def pixel_classes(color, truth, hole, obj, alpha, depth) -> dict:
+def pixel_classes(color, truth, hole, obj, alpha, depth, warped_depth=None) -> dict:
     """Where the squared error of the object pixels lies (RVS protocol: holes nearest-filled, sRGB):
     "silhouette" = object pixels within 3 px of a pixel with alpha <= 0.5; "depth edge" = the
     other object pixels within 2 px of a jump of the held-out view's own depth (> 2 % between
     4-neighbours, or known next to unknown); "interior" = the rest. Per class: the share of the
-    object pixels, the share of their squared error, and the class's PSNR."""
+    object pixels, the share of their squared error, and the class's PSNR. With ``warped_depth``
+    (the method's output depth) also "wrong surface": covered object pixels whose output depth
+    differs from the held-out view's own depth by more than 2 %, with "farther" the share of
+    them where ours is the farther surface."""
     from scipy import ndimage
 
     from ibrtools.imageio import linear_to_srgb
@@ -141,8 +148,13 @@ def pixel_classes(color, truth, hole, obj, alpha, depth) -> dict:
     edge = obj & ~sil & ndimage.binary_dilation(jump, iterations=2)
     classes = {"silhouette": sil, "depth edge": edge, "interior": obj & ~sil & ~edge}
     total = float(se[obj].sum())
-    return {k: {"pixels": float(m.sum() / obj.sum()), "error": float(se[m].sum() / total),
-                "psnr": float(10 * np.log10(1.0 / se[m].mean())) if m.any() else None} for k, m in classes.items()}
+    out = {k: {"pixels": float(m.sum() / obj.sum()), "error": float(se[m].sum() / total),
+               "psnr": float(10 * np.log10(1.0 / se[m].mean())) if m.any() else None} for k, m in classes.items()}
+    if warped_depth is not None:
+        wrong = obj & ~hole & (z > 0) & (np.abs(warped_depth - z) > 0.02 * z)
+        out["wrong surface"] = {"pixels": float(wrong.sum() / obj.sum()), "error": float(se[wrong].sum() / total),
+                                "farther": float((wrong & (warped_depth > z)).sum() / max(int(wrong.sum()), 1))}
+    return out
 
 
 def lego(data: Path, params=None, heldout=LEGO_HELDOUT, options=None) -> dict:
@@ -156,12 +168,13 @@ def lego(data: Path, params=None, heldout=LEGO_HELDOUT, options=None) -> dict:
     rows = []
     for h in heldout:
         truth = scene.view(h)
-        color, hole, ms, rep = _render(_sub(scene, [n for n in names if n != h]), 4, truth.camera, params)
+        raw: dict = {}
+        color, hole, ms, rep = _render(_sub(scene, [n for n in names if n != h]), 4, truth.camera, params, raw)
         rgba, _ = read_pixels(data / "nerf_lego" / "test" / f"{h}.png")
         alpha = rgba[..., 3].astype(np.float64) / np.iinfo(rgba.dtype).max
         obj = alpha > 0.99
         m = metrics.compare(color, truth.color, hole_mask=hole)
-        rows.append({"classes": pixel_classes(color, truth.color, hole, obj, alpha, truth.depth),
+        rows.append({"classes": pixel_classes(color, truth.color, hole, obj, alpha, truth.depth, raw["depth"]),
                      "psnr_all": m["psnr"], "ssim_all": m["ssim"], "psnr_object": _psnr(color, truth.color, obj),
                      "hole_object": float(hole[obj].mean()), "ms": ms, "selected": rep["selected"],
                      "object": three_ways(color, truth.color, hole, obj),
@@ -402,12 +415,17 @@ def run(data: Path, params=None) -> tuple[str, dict]:
     lines.append("SSIM: holes black for lego and ICL, holes excluded for Middlebury (visible-in-both mask).")
     lines.append(f"lego per held-out view, object pixels / all pixels holes black (dB): {per}.")
     cls = []
-    for k in L["rows"][0]["classes"]:
+    for k in ("silhouette", "depth edge", "interior"):
         c = [r["classes"][k] for r in L["rows"]]
         cls.append(f"{k} {100 * np.mean([x['pixels'] for x in c]):.0f} % of the pixels, "
                    f"{100 * np.mean([x['error'] for x in c]):.0f} % of the squared error, "
                    f"{np.mean([x['psnr'] for x in c]):.2f} dB")
     lines.append(f"lego object pixels by class (mean over the 4 views; see `pixel_classes` in the bench): {'; '.join(cls)}.")
+    ws = [r["classes"]["wrong surface"] for r in L["rows"]]
+    lines.append("lego object pixels where our depth is another surface than the held-out view's (> 2 % off; "
+                 "share of the object pixels / of their squared error / ours farther, per view): "
+                 + ", ".join(f"{h} {100 * w['pixels']:.0f} / {100 * w['error']:.0f} / {100 * w['farther']:.0f} %"
+                             for h, w in zip(LEGO_HELDOUT, ws)) + ".")
     sel = "; ".join(f"{h}: {', '.join(r['selected'])}" for h, r in zip(LEGO_HELDOUT, L["rows"]))
     lines.append("")
     lines.append(f"lego views chosen by view selection: {sel}.")
