@@ -233,6 +233,9 @@ def test_depth_pass_then_resolve_equals_render(exact):
     assert set(res.times_ms) == {"cluster & blend", "spatial filter"}
     np.testing.assert_array_equal(res.color[mask], full.color[mask])
     assert (res.color[~mask] == 0).all()
+    # inside_grid: kept from the depth pass (no second ray-box test), the same as a full render's.
+    np.testing.assert_array_equal(res.inside_grid, full.inside_grid)
+    assert res.inside_grid.any() and not res.inside_grid.all()
     # Resolve again (unfiltered), same kept lists.
     u = r.resolve(t.camera, pixel_mask=mask, filtered=False)
     ref_u = r.render(t.camera, gbuffer_depth=t.depth, filtered=False)

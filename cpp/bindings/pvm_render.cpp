@@ -278,7 +278,7 @@ class PvmRendererCore {
       lap(3);
       PvmFilter(tiles_.box, camera, mptr, o, !depth_only, frame_, color.mutable_data(), depth.mutable_data(), vote.mutable_data(),
                 reinterpret_cast<std::uint8_t*>(valid.mutable_data()),
-                reinterpret_cast<std::uint8_t*>(inside.mutable_data()));
+                reinterpret_cast<std::uint8_t*>(inside.mutable_data()), resolve);
       lap(4);
     }
     if (!resolve) {

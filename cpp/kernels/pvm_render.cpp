@@ -654,9 +654,13 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
 }
 
 void PvmFilter(const double* box, const Camera& camera, const std::uint8_t* pixel_mask,
-               const PvmRenderOptions& options, bool colours, const PvmFrame& frame, float* color, float* depth, float* vote,
-               std::uint8_t* valid, std::uint8_t* inside_grid) {
+               const PvmRenderOptions& options, bool colours, PvmFrame& frame, float* color, float* depth, float* vote,
+               std::uint8_t* valid, std::uint8_t* inside_grid, bool reuse_inside) {
   const int h = camera.height, w = camera.width;
+  const std::size_t npix = static_cast<std::size_t>(h) * static_cast<std::size_t>(w);
+  reuse_inside = reuse_inside && frame.inside.size() == npix;
+  if (!reuse_inside) frame.inside.resize(npix);
+  std::uint8_t* kept_inside = frame.inside.data();
   const int step = std::max(1, options.filter_step);
   const int r = static_cast<int>(std::ceil(options.radius_sigmas * options.sigma / step)) * step;
   const int side = 2 * r + 1;
@@ -682,20 +686,24 @@ void PvmFilter(const double* box, const Camera& camera, const std::uint8_t* pixe
     for (std::int64_t y = a; y < b; ++y) {
       for (int x = 0; x < w; ++x) {
         const std::int64_t p = y * w + x;
-        // Ray against the grid's finite box (slabs).
-        const glm::dvec3 dir = camera.WorldFromCamDir(camera.RayInCam(x + 0.5, y + 0.5));
-        double t0 = 0.0, t1 = std::numeric_limits<double>::infinity();
-        for (int k = 0; k < 3; ++k) {
-          if (dir[k] == 0.0) {
-            if (c_novel[k] < lo[k] || c_novel[k] > hi[k]) t1 = -1.0;
-            continue;
+        if (reuse_inside) {
+          inside_grid[p] = kept_inside[p];
+        } else {
+          // Ray against the surface's box (slabs).
+          const glm::dvec3 dir = camera.WorldFromCamDir(camera.RayInCam(x + 0.5, y + 0.5));
+          double t0 = 0.0, t1 = std::numeric_limits<double>::infinity();
+          for (int k = 0; k < 3; ++k) {
+            if (dir[k] == 0.0) {
+              if (c_novel[k] < lo[k] || c_novel[k] > hi[k]) t1 = -1.0;
+              continue;
+            }
+            double ta = (lo[k] - c_novel[k]) / dir[k], tb = (hi[k] - c_novel[k]) / dir[k];
+            if (ta > tb) std::swap(ta, tb);
+            t0 = std::max(t0, ta);
+            t1 = std::min(t1, tb);
           }
-          double ta = (lo[k] - c_novel[k]) / dir[k], tb = (hi[k] - c_novel[k]) / dir[k];
-          if (ta > tb) std::swap(ta, tb);
-          t0 = std::max(t0, ta);
-          t1 = std::min(t1, tb);
+          inside_grid[p] = kept_inside[p] = t0 <= t1 ? 1 : 0;
         }
-        inside_grid[p] = t0 <= t1 ? 1 : 0;
         float* out = color + 3 * p;
         out[0] = out[1] = out[2] = 0.f;
         depth[p] = 0.f;

@@ -123,6 +123,7 @@ struct PvmFrame {
   std::vector<float> d_fg, d_bg;          // (H * W) cluster mean depths
   std::vector<std::uint8_t> n_fg, n_bg;   // cluster sizes (0 = none)
   std::vector<float> c_fg, c_bg;          // (H * W * 3) cluster colours
+  std::vector<std::uint8_t> inside;       // (H * W) inside_grid of the last PvmFilter that computed it
   std::int64_t triangles = 0;             // triangles drawn (summed over the bands they touch)
 };
 
@@ -147,8 +148,10 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
 // Stage 5. box: PvmTileArrays::box. Outputs (H, W, 3) color, (H, W) depth, vote, valid and inside_grid; pixels outside
 // the mask or without candidates get colour 0, depth 0, vote 0, valid 0. colours = false after a
 // PvmCluster without colours: no Eq. 1 (colour stays 0), depth / vote / valid as usual.
+// inside_grid is kept in frame.inside; reuse_inside = true (same camera as the PvmFilter that
+// computed it, e.g. resolve after a depth pass): copied from there instead of the per-pixel ray-box test.
 void PvmFilter(const double* box, const Camera& camera, const std::uint8_t* pixel_mask,
-               const PvmRenderOptions& options, bool colours, const PvmFrame& frame, float* color, float* depth, float* vote,
-               std::uint8_t* valid, std::uint8_t* inside_grid);
+               const PvmRenderOptions& options, bool colours, PvmFrame& frame, float* color, float* depth, float* vote,
+               std::uint8_t* valid, std::uint8_t* inside_grid, bool reuse_inside = false);
 
 }  // namespace ibr
