@@ -412,9 +412,31 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
           // a pixel and cover none (the same value when computed; no division otherwise).
           double inv = 0.0;
           bool have_inv = false;
+          // Per row, the columns where all three edge functions can be >= 0: each edge function is
+          // e(px) = c - dy * (px - x0) along the row; its sign changes at px = x0 + c / dy. The span
+          // is widened by one pixel on each side (the exact test below decides; the span only skips
+          // pixel centres whose edge function is negative by far more than its rounding).
+          const double ex[3] = {bx, qx, ax}, ey[3] = {by, qy, ay};
+          const double edx[3] = {qx - bx, ax - qx, bx - ax}, edy[3] = {qy - by, ay - qy, by - ay};
           for (int y = ra; y <= rb; ++y) {
             const double py = y + 0.5;
-            for (int x = ca; x <= cb; ++x) {
+            double lo_x = ca, hi_x = cb;
+            for (int k = 0; k < 3; ++k) {
+              const double c = edx[k] * (py - ey[k]);  // e at px = ex[k]
+              if (edy[k] == 0.0) {
+                if (c < 0.0) hi_x = lo_x - 1.0;  // the whole row is outside this edge
+                continue;
+              }
+              const double cross = ex[k] + c / edy[k] - 0.5;  // column index where e = 0
+              if (edy[k] < 0.0) {
+                lo_x = std::max(lo_x, std::floor(cross) - 1.0);  // e grows with px: px >= cross
+              } else {
+                hi_x = std::min(hi_x, std::ceil(cross) + 1.0);   // e falls with px: px <= cross
+              }
+            }
+            if (!(lo_x <= hi_x)) continue;
+            const int xa = static_cast<int>(lo_x), xb = static_cast<int>(hi_x);
+            for (int x = xa; x <= xb; ++x) {
               const double px = x + 0.5;
               const double e0 = (qx - bx) * (py - by) - (qy - by) * (px - bx);
               const double e1 = (ax - qx) * (py - qy) - (ay - qy) * (px - qx);
