@@ -125,11 +125,33 @@ def open_client(scheduler: str | None = None, workers: int = 0, *, threads_per_w
 
 @contextlib.contextmanager
 def _note_interrupt(flag: list) -> Iterator[None]:
+    """Marks ``flag`` when the block is interrupted; meanwhile the client's event loop does not
+    print the traceback of dask's own Ctrl-C bug (:func:`_drop_cancel_before_start`)."""
+    tornado_log = logging.getLogger("tornado.application")
+    tornado_log.addFilter(_drop_cancel_before_start)
     try:
         yield
     except KeyboardInterrupt:  # Ctrl-C, or SIGTERM through the commands' handler
         flag[0] = True
         raise
+    finally:
+        tornado_log.removeFilter(_drop_cancel_before_start)
+
+
+def _drop_cancel_before_start(record: logging.LogRecord) -> bool:
+    """Logging filter of the client's event loop: an interrupt that reaches ``distributed.utils.sync``
+    before its call has started schedules a ``cancel`` callback that reads the not-yet-assigned
+    future and raises NameError on the loop thread (dask 2026.8), which tornado logs with a
+    traceback, racing the command's own shutdown. Harmless (there is nothing to cancel); dropped.
+    Every other record passes."""
+    exc = record.exc_info[1] if record.exc_info else None
+    if not isinstance(exc, NameError) or exc.__traceback__ is None:
+        return True
+    tb = exc.__traceback__
+    while tb.tb_next is not None:
+        tb = tb.tb_next
+    code = tb.tb_frame.f_code
+    return not (code.co_name == "cancel" and code.co_filename.replace(os.sep, "/").endswith("distributed/utils.py"))
 
 
 @contextlib.contextmanager
