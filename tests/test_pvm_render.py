@@ -233,6 +233,13 @@ def test_depth_pass_then_resolve_equals_render(exact):
     assert set(res.times_ms) == {"cluster & blend", "spatial filter"}
     np.testing.assert_array_equal(res.color[mask], full.color[mask])
     assert (res.color[~mask] == 0).all()
+    # A masked render keeps clusters only near its mask: a resolve after it re-clusters (the same
+    # colours as after the depth pass, which clustered every pixel).
+    other = np.zeros(t.depth.shape, bool)
+    other[5:15, 5:25] = True
+    r.render(t.camera, gbuffer_depth=t.depth, pixel_mask=other)
+    again = r.resolve(t.camera, pixel_mask=mask)
+    np.testing.assert_array_equal(again.color, res.color)
     # inside_grid: kept from the depth pass (no second ray-box test), the same as a full render's.
     np.testing.assert_array_equal(res.inside_grid, full.inside_grid)
     assert res.inside_grid.any() and not res.inside_grid.all()

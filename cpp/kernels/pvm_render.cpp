@@ -275,6 +275,7 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
   frame.cand_rank.resize(static_cast<std::size_t>(npix * K));
   frame.cand_count.resize(static_cast<std::size_t>(npix));
   frame.cand_seen.resize(static_cast<std::size_t>(npix));
+  frame.clusters_everywhere = false;  // new candidate lists: the kept clusters are stale
   const glm::dvec3 c_novel = camera.CentreInWorld();
   // Camera as float rows for the per-vertex projection (world -> camera -> pixels).
   float rot[9], trans[3];
@@ -501,8 +502,11 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
   const int h = camera.height, w = camera.width;
   const int K = std::min(std::max(1, options.max_candidates), kPvmMaxCandidates);
   const std::int64_t npix = static_cast<std::int64_t>(h) * w;
-  reuse_clusters = reuse_clusters && colours && frame.d_fg.size() == static_cast<std::size_t>(npix);
+  reuse_clusters = reuse_clusters && colours && frame.clusters_everywhere &&
+                   frame.d_fg.size() == static_cast<std::size_t>(npix) && frame.bg_bits.size() == static_cast<std::size_t>(npix);
   if (!reuse_clusters) {
+    frame.clusters_everywhere = pixel_mask == nullptr;  // set now: the loop below fills them
+    frame.bg_bits.resize(static_cast<std::size_t>(npix));
     frame.d_fg.assign(static_cast<std::size_t>(npix), 0.f);
     frame.d_bg.assign(static_cast<std::size_t>(npix), 0.f);
     frame.n_fg.assign(static_cast<std::size_t>(npix), 0);
@@ -571,15 +575,22 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
         if (n == 0) continue;
         const float* d = frame.cand_depth.data() + p * K;
         const std::int16_t* vv = frame.cand_view.data() + p * K;
+        double m0 = 0.0, m1 = 0.0;
+        bool two = false;
+        if (reuse_clusters) {  // the depth pass's clusters: membership bits, two = a background exists
+          const unsigned bits = frame.bg_bits[static_cast<std::size_t>(p)];
+          for (int i = 0; i < n; ++i) bg[i] = ((bits >> i) & 1u) != 0;
+          two = frame.n_bg[static_cast<std::size_t>(p)] > 0;
+        } else {
         // 2-means on the depths.
         float lo = d[0], hi = d[0];
         for (int i = 1; i < n; ++i) {
           lo = std::min(lo, d[i]);
           hi = std::max(hi, d[i]);
         }
-        double m0 = lo, m1 = hi;
+        m0 = lo, m1 = hi;
         for (int i = 0; i < n; ++i) bg[i] = false;
-        bool two = hi - lo > options.merge_rel * lo;
+        two = hi - lo > options.merge_rel * lo;
         if (two) {
           for (int it = 0; it < 16; ++it) {
             bool changed = false;
@@ -611,6 +622,10 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
           }
           m0 = s / n;
         }
+        unsigned bits = 0;
+        for (int i = 0; i < n; ++i) bits |= (bg[i] ? 1u : 0u) << i;
+        frame.bg_bits[static_cast<std::size_t>(p)] = static_cast<std::uint16_t>(bits);
+        }  // 2-means
         if (!colours || !masked) {  // a pixel of the dilation ring: Eq. 1 reads its clusters, not its colours
           int k1 = 0;
           for (int i = 0; i < n; ++i) k1 += bg[i] ? 1 : 0;
@@ -662,6 +677,7 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
           out[0] = c3[0];
           out[1] = c3[1];
           out[2] = c3[2];
+          if (reuse_clusters) continue;  // kept: the same depths and sizes
           if (k == 0) {
             frame.d_fg[static_cast<std::size_t>(p)] = static_cast<float>(m0);
             frame.n_fg[static_cast<std::size_t>(p)] = static_cast<std::uint8_t>(m);

@@ -123,6 +123,8 @@ struct PvmFrame {
   std::vector<float> d_fg, d_bg;          // (H * W) cluster mean depths
   std::vector<std::uint8_t> n_fg, n_bg;   // cluster sizes (0 = none)
   std::vector<float> c_fg, c_bg;          // (H * W * 3) cluster colours
+  std::vector<std::uint16_t> bg_bits;     // (H * W) bit i set: candidate i is in the background cluster
+  bool clusters_everywhere = false;       // d/n/bg_bits hold this frame's clusters at every pixel
   std::vector<std::uint8_t> inside;       // (H * W) inside_grid of the last PvmFilter that computed it
   std::int64_t triangles = 0;             // triangles drawn (summed over the bands they touch)
 };
@@ -140,9 +142,9 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
 // and sizes only (no image sampling; the hybrid method's depth pass). The clusters (depths,
 // sizes) are computed on the mask dilated by the filter radius (Eq. 1 reads the neighbours'),
 // the colours only on the mask (the filter reads a pixel's own colours only).
-// reuse_clusters = true: the frame's clusters are this frame's at every pixel (a PvmCluster
-// without mask ran after the last PvmRasterise): only the masked pixels' colours are computed, by
-// the same 2-means (so the same clusters); the other pixels' colours are left unspecified.
+// reuse_clusters = true and frame.clusters_everywhere (a PvmCluster without mask ran after the
+// last PvmRasterise): only the masked pixels' colours are computed, from the kept clusters (the
+// 2-means is not redone); the other pixels' colours are left unspecified. Otherwise ignored.
 void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t* pixel_mask,
                 const PvmRenderOptions& options, bool colours, PvmFrame& frame, bool reuse_clusters = false);
 // Stage 5. box: PvmTileArrays::box. Outputs (H, W, 3) color, (H, W) depth, vote, valid and inside_grid; pixels outside
