@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 import pytest
-from gil import stamps_during, stamps_in_middle
+from gil import runs_python_during
 
 from ibrtools import BadValueError, Camera, DtypeError, ShapeError, _core, look_at
 
@@ -214,9 +214,7 @@ def test_gil_released(restore_threads):
         for _ in range(6):
             acc.add_view(col, dep, cam.to_core())
 
-    t0, t1, stamps = stamps_during(work)
-    assert t1 - t0 > 0.02, "warp too short for this check"
-    assert stamps_in_middle(t0, t1, stamps) > 0
+    assert runs_python_during(work), "no Python ran during the warps (or they lasted < 20 ms)"
 
 
 def test_result_never_nan_and_holes_black():

@@ -189,12 +189,11 @@ def test_outside_grid_is_ulr_only():
 
 
 def test_ulr_blend_releases_the_gil():
-    from gil import stamps_during, stamps_in_middle
+    from gil import runs_python_during
 
     novel, gdepth, views = _plane_setup((641, 481))
     many = views * 8  # 16 views: long enough a run to sample
-    t0, t1, stamps = stamps_during(lambda: _core.ulr_blend(novel.to_core(), gdepth, many))
-    assert stamps_in_middle(t0, t1, stamps) > 0
+    assert runs_python_during(lambda: _core.ulr_blend(novel.to_core(), gdepth, many), min_span=0.0)
 
 
 # ---- bad input ---------------------------------------------------------------------------------
