@@ -396,12 +396,16 @@ class HybridMethod:
         times["ulr_blend"] = (t5 - t4) * 1e3
         color = _core.hybrid_composite(weights, tm, ulr=ulr, ulr_count=count, pvm=pvm_color,
                                        pvm_valid=valid if pvm_color is not None else None)
+        # No blurred weight at all (weights >= 0: their sum is 0 exactly when each is; three
+        # compares instead of numpy's sum over a length-3 axis: 2 ms against 12 at 1280x720).
         hole = label == 3
-        hole &= weights.sum(-1) == 0
+        hole &= (weights[..., 0] == 0) & (weights[..., 1] == 0) & (weights[..., 2] == 0)
         times["composite"] = (time.perf_counter() - t5) * 1e3
         depth = np.where(label == 2, res.depth, gb["depth"]).astype(np.float32)
-        # = weights @ SELECTION_COLORS (a permutation: red PVM, green TM, blue ULR), without the einsum
-        selection = np.ascontiguousarray(weights[..., [2, 0, 1]])
+        # = weights @ SELECTION_COLORS (a permutation: red PVM, green TM, blue ULR), without the einsum;
+        # three channel copies (1.3 ms at 1280x720) instead of fancy indexing (5.8 ms)
+        selection = np.empty_like(weights)
+        selection[..., 0], selection[..., 1], selection[..., 2] = weights[..., 2], weights[..., 0], weights[..., 1]
         n = label.size
         self._last = {"selection": {name: round(float((label == i).sum() / n), 4)
                                     for i, name in enumerate(("tm", "ulr", "pvm", "none"))},
