@@ -1,0 +1,239 @@
+"""Hybrid IBR quality on held-out NeRF-synthetic lego views (issue 7, the real-data case): TM, ULR,
+PVM (filtered), an unfiltered PVM blend and hybrid, the global mesh made by TSDF fusion of the
+input views' depth maps.
+
+    python benchmarks/bench_hybrid_lego.py [--scale 2] [-j N] [--keep DIR] [--write-docs]
+
+Protocol (the DIBR lego protocol of benchmarks/bench_dibr_accuracy.py): the nerf importer on
+../shared/data/nerf_lego (or $IBR_SHARED_DATA/nerf_lego), RGBA composited over black; the held-out
+views are LEGO_HELDOUT (r_0 r_50 r_100 r_150). They are removed from the scene's input views
+BEFORE preprocessing and stored as the scene's targets (ground truth no stage reads): the fusion
+(mesh), texture, variance, harmonise and PVM stages and the ULR / PVM blends see only the other
+36 views, so no ground truth leaks. No parameter is tuned: every stage and method runs with its
+defaults (``--methods tm,ulr,pvm,hybrid``; the mesh stage's source is "auto" = fusion, since the
+data set has no mesh).
+
+``--scale S`` (default 2) divides the 800x800 images by S before preprocessing (there is no
+importer option for it): colour, the held-out ground truth and alpha by the mean of each SxS
+block (in linear light, exact for pixel centres at +0.5), the z-depth by the sample at the
+block's (S//2, S//2) pixel (0.5 source pixel off the block centre; depth is 8-bit coarse anyway),
+the mask (alpha > 0.5) as the block mean >= 0.5; cameras by ``Camera.scaled``. ``--scale 1`` is
+the full resolution.
+
+Scores (``ibrtools.metrics``: PSNR and SSIM on sRGB, FLIP): per held-out view and their mean,
+over all pixels (holes black, background black in both) and over the object pixels (alpha > 0.99
+of the held-out r_N.png, as in the DIBR protocol; holes black; SSIM = the mean of the SSIM map
+over them, FLIP = the mean of the FLIP map over them). Hybrid "beats" a method when its mean is
+better (PSNR, SSIM higher; FLIP lower). With --write-docs, replaces the "Hybrid rendering: lego"
+section of docs/benchmarks.md.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from benchlib import DOCS, load_note, machine, write_section
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_dibr_accuracy import LEGO_HELDOUT  # noqa: E402  (the same held-out views)
+from bench_hybrid import PvmOnly  # noqa: E402  (PVM alone, filtered or not)
+
+ORDER = ["tm", "ulr", "pvm", "pvm_unfiltered", "hybrid"]
+NAMES = {"tm": "TM (textured mesh)", "ulr": "ULR (per-pixel)", "pvm": "PVM (clustered, filtered)",
+         "pvm_unfiltered": "PVM unfiltered", "hybrid": "hybrid"}
+
+
+def shared_data() -> Path:
+    return Path(os.environ.get("IBR_SHARED_DATA", REPO.parent / "shared" / "data"))
+
+
+def _block_mean(a: np.ndarray, s: int) -> np.ndarray:
+    if s == 1:
+        return a
+    h, w = a.shape[0] // s, a.shape[1] // s
+    a = a[:h * s, :w * s]
+    return a.reshape(h, s, w, s, *a.shape[2:]).mean(axis=(1, 3))
+
+
+def _scaled_view(v, s: int):
+    from ibrtools.scene import View
+
+    if s == 1:
+        return v
+    cam = v.camera.scaled(v.camera.width // s, v.camera.height // s)
+    color = _block_mean(v.color.astype(np.float64), s).astype(np.float32)
+    depth = None
+    if v.has_depth:
+        d = v.depth
+        depth = np.ascontiguousarray(d[s // 2::s, s // 2::s][:cam.height, :cam.width])
+    mask = None
+    if v.has_mask:
+        mask = _block_mean(v.mask.astype(np.float64), s) >= 0.5
+    return View.create(v.name, cam, color=color, depth=depth, mask=mask)
+
+
+def _alpha(data: Path, name: str, s: int) -> np.ndarray:
+    from ibrtools.imageio import read_pixels
+
+    rgba, _ = read_pixels(data / "nerf_lego" / "test" / f"{name}.png")
+    alpha = rgba[..., 3].astype(np.float64) / np.iinfo(rgba.dtype).max
+    return _block_mean(alpha, s)
+
+
+def score(color: np.ndarray, truth: np.ndarray, obj: np.ndarray) -> dict:
+    """All pixels and object pixels (holes already black in ``color``)."""
+    from ibrtools import metrics
+
+    m_all = metrics.compare(color, truth)
+    m_obj = metrics.compare(color, truth, mask=obj)
+    out = {"psnr": m_all["psnr"], "ssim": m_all["ssim"], "psnr_obj": m_obj["psnr_masked"],
+           "ssim_obj": m_obj["ssim_masked"], "flip": None, "flip_obj": None}
+    if metrics.flip_available():
+        f, fmap = metrics.flip(color, truth, return_map=True)
+        out["flip"] = f
+        out["flip_obj"] = float(fmap[obj].mean(dtype=np.float64))
+    return out
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--scale", type=int, default=2, help="divide the 800x800 images by this (default 2: 400x400)")
+    p.add_argument("-j", "--threads", type=int, default=0, help="engine threads (default: all cores)")
+    p.add_argument("--keep", default=None, metavar="DIR",
+                   help="preprocess into DIR and keep it (default: a temporary directory)")
+    p.add_argument("--write-docs", action="store_true", help=f"replace the section in {DOCS.name}")
+    args = p.parse_args(argv)
+    if args.scale < 1:
+        p.error("--scale must be >= 1")
+    data = shared_data()
+    if not (data / "nerf_lego" / "transforms_test.json").exists():
+        print(f"skipped: {data / 'nerf_lego'} is absent (set IBR_SHARED_DATA)", file=sys.stderr)
+        return 0
+
+    from ibrtools import _core
+    from ibrtools.formats import load, native
+    from ibrtools.render import methods
+    from ibrtools.scene import Scene
+    from ibrtools.stages import run_stages
+
+    if args.threads:
+        _core.set_num_threads(args.threads)
+    t_start = time.perf_counter()
+    full = load(data / "nerf_lego", "nerf", {"background": "black"})
+    held = [v for v in full.views if v.name in LEGO_HELDOUT]
+    inputs = [v for v in full.views if v.name not in LEGO_HELDOUT]
+    assert len(held) == len(LEGO_HELDOUT), [v.name for v in held]
+    s = args.scale
+    scene = Scene(views=[_scaled_view(v, s) for v in inputs], targets=[_scaled_view(v, s) for v in held],
+                  units=full.units, source={**full.source, "bench_hybrid_lego": {"scale": s,
+                                                                                  "heldout": list(LEGO_HELDOUT)}})
+    w, h = scene.views[0].camera.width, scene.views[0].camera.height
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(args.keep) if args.keep else Path(tmp) / "lego"
+        native.save(scene, root)
+        t0 = time.perf_counter()
+        rows = run_stages(root, methods=["tm", "ulr", "pvm", "hybrid"])
+        prep_s = time.perf_counter() - t0
+        failed = [r for r in rows if r.status == "failed"]
+        stage_s = {r.name: (r.status, r.seconds) for r in rows}
+        details = {r.name: r.details for r in rows}
+        print(f"preprocess {prep_s:.1f} s: " + ", ".join(f"{k} {v[0]} {v[1]:.1f}s" for k, v in stage_s.items()),
+              file=sys.stderr)
+        if failed:
+            for r in failed:
+                print(f"stage {r.name} failed: {r.reason}", file=sys.stderr)
+            return 1
+        scene = native.load(root)
+        stored_inputs = {v.name for v in scene.views}
+        assert not stored_inputs & set(LEGO_HELDOUT), "a held-out view is an input"
+        renderers = {}
+        for name in ("tm", "ulr", "hybrid"):
+            m = methods.create(name)
+            m.prepare(scene)
+            renderers[name] = m
+        renderers["pvm"] = PvmOnly(scene, filtered=True)
+        renderers["pvm_unfiltered"] = PvmOnly(scene, filtered=False)
+        per_view: dict[str, dict[str, dict]] = {n: {} for n in ORDER}
+        selection = []
+        for t in scene.targets:
+            obj = _alpha(data, t.name, s) > 0.99
+            for n in ORDER:
+                out, _ = renderers[n].render(t.camera)
+                color = np.nan_to_num(out["color"]).astype(np.float32)
+                hole = out.get("hole")
+                if hole is not None:
+                    color = np.where(hole[..., None], 0.0, color).astype(np.float32)
+                per_view[n][t.name] = score(color, t.color, obj)
+                if n == "hybrid":
+                    selection.append(renderers[n].frame_report()["selection"])
+            print(f"{t.name}: " + ", ".join(f"{n} {per_view[n][t.name]['psnr']:.2f}" for n in ORDER), file=sys.stderr)
+    total_s = time.perf_counter() - t_start
+    keys = ["psnr", "ssim", "flip", "psnr_obj", "ssim_obj", "flip_obj"]
+    mean = {n: {k: (None if any(r[k] is None for r in per_view[n].values())
+                    else float(np.mean([r[k] for r in per_view[n].values()]))) for k in keys} for n in ORDER}
+
+    def f(x, d):
+        return "n/a" if x is None else f"{x:.{d}f}"
+
+    views = [t for t in LEGO_HELDOUT]
+    lines = [f"Hybrid IBR on held-out lego views (`python benchmarks/bench_hybrid_lego.py --scale {s} --write-docs`), "
+             f"{machine()}, {_core.get_num_threads()} threads. NeRF-synthetic lego (../shared/data/nerf_lego, "
+             f"RGBA over black), {len(inputs)} input views at {w}x{h} (800x800 / {s}, block mean), held out "
+             f"{' '.join(views)} (the DIBR lego protocol; removed before preprocessing, so no stage reads them). "
+             f"Global mesh by TSDF fusion of the inputs' depth maps (mesh source auto; "
+             f"{details.get('mesh', {}).get('render_faces', '?')} render-mesh faces, atlas "
+             f"{details.get('texture', {}).get('atlas', '?')}). Default parameters "
+             f"everywhere. Preprocessing (tm, ulr, pvm, hybrid) took {prep_s:.1f} s "
+             f"({', '.join(f'{k} {v[1]:.1f} s' + ('' if v[0] == 'ran' else f' {v[0]}') for k, v in stage_s.items())}); "
+             f"whole run {total_s:.0f} s.", "",
+             "Mean over the held-out views (all pixels: holes and background black; object: alpha > 0.99, "
+             "holes black):", "",
+             "| method | PSNR dB | SSIM | FLIP | object PSNR dB | object SSIM | object FLIP |",
+             "|---|---:|---:|---:|---:|---:|---:|"]
+    for n in ORDER:
+        r = mean[n]
+        lines.append(f"| {NAMES[n]} | {f(r['psnr'], 2)} | {f(r['ssim'], 4)} | {f(r['flip'], 4)} | "
+                     f"{f(r['psnr_obj'], 2)} | {f(r['ssim_obj'], 4)} | {f(r['flip_obj'], 4)} |")
+    lines += ["", "Per view, PSNR dB all / object:", "",
+              "| method | " + " | ".join(views) + " |", "|---|" + "---:|" * len(views)]
+    for n in ORDER:
+        lines.append(f"| {NAMES[n]} | " + " | ".join(
+            f"{f(per_view[n][v]['psnr'], 2)} / {f(per_view[n][v]['psnr_obj'], 2)}" for v in views) + " |")
+    lines += ["", "Per view, SSIM all / object and FLIP all / object:", "",
+              "| method | " + " | ".join(views) + " |", "|---|" + "---:|" * len(views)]
+    for n in ORDER:
+        lines.append(f"| {NAMES[n]} | " + " | ".join(
+            f"{f(per_view[n][v]['ssim'], 3)} / {f(per_view[n][v]['ssim_obj'], 3)}, "
+            f"{f(per_view[n][v]['flip'], 3)} / {f(per_view[n][v]['flip_obj'], 3)}" for v in views) + " |")
+
+    def beats(k, lower=False):
+        hv = mean["hybrid"][k]
+        if hv is None:
+            return "n/a"
+        won = [n for n in ("tm", "ulr", "pvm") if mean[n][k] is not None and (hv < mean[n][k] if lower else hv > mean[n][k])]
+        return ", ".join(won) or "none"
+
+    all3 = all(beats(k, k.startswith("flip")) == "tm, ulr, pvm" for k in ("psnr", "ssim", "flip"))
+    sel = {k: float(np.mean([x[k] for x in selection])) for k in selection[0]} if selection else {}
+    lines += ["", f"Hybrid beats, on the mean over the held-out views: PSNR {beats('psnr')}; SSIM {beats('ssim')}; "
+              f"FLIP (lower) {beats('flip', True)}; object PSNR {beats('psnr_obj')}; object SSIM "
+              f"{beats('ssim_obj')}; object FLIP {beats('flip_obj', True)}. Target (hybrid better than each of TM, "
+              f"ULR and PVM on the all-pixel means): {'met' if all3 else 'missed'}. Mean hybrid selection: "
+              + ", ".join(f"{k} {100 * v:.1f} %" for k, v in sel.items()) + ".", "", load_note()]
+    text = "\n".join(lines)
+    print(text)
+    if args.write_docs:
+        write_section("Hybrid rendering: lego", text)
+        print(f"wrote the 'Hybrid rendering: lego' section of {DOCS}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
