@@ -145,6 +145,14 @@ def test_bad_input():
         A.layout(wall(), 0.1, max_texels=0)
     with pytest.raises(BadValueError, match="more than max_texels"):
         A.layout(densify(wall(), 0.1), 0.1, max_texels=64)
+    # A budget between the smallest possible cells (MIN_CELL + 1 texels a side for a pair with a
+    # length) and MIN_CELL-sized ones: an error, not a layout whose texel grew to infinity.
+    dense = densify(wall(), 0.1)
+    n_pairs = (len(dense.faces) + 1) // 2
+    with pytest.raises(BadValueError, match="more than max_texels"):
+        A.layout(dense, 0.1, max_texels=A.MIN_CELL ** 2 * n_pairs + 1)
+    fits = A.layout(dense, 0.1, max_texels=(A.MIN_CELL + 1) ** 2 * n_pairs)
+    assert np.isfinite(fits.texel)
     lay = A.layout(wall(), 0.1)
     empty = A.AtlasLayout(lay.uv, np.zeros((0, 0), np.int32), 0.1)
     cam = camera()

@@ -108,10 +108,14 @@ def layout(mesh: Mesh, texel: float, max_texels: int = 4_194_304, max_cell: int 
     pairs[:m] = order
     pairs = pairs.reshape(n_pairs, 2)
     pair_len = np.maximum(longest[pairs[:, 0]], np.where(pairs[:, 1] >= 0, longest[pairs[:, 1]], 0.0))
+    # The smallest cell a pair can get: MIN_CELL + 1 when it has a positive length (the ceil is
+    # >= 1 for any finite texel), MIN_CELL for a degenerate pair. Growing the texel stops there:
+    # growing on would only end when the texel overflows to infinity.
+    floor = np.where(pair_len > 0, MIN_CELL + 1, MIN_CELL)
     while True:
-        cell = np.clip(np.ceil(pair_len / texel).astype(np.int64) + MIN_CELL, MIN_CELL, max_cell)
+        cell = np.clip(np.ceil(pair_len / texel).astype(np.int64) + MIN_CELL, floor, max_cell)
         total = int((cell * cell).sum())
-        if total <= max_texels or (cell == MIN_CELL).all():
+        if total <= max_texels or (cell <= floor).all():
             break
         texel *= 1.25
     if total > max_texels:
