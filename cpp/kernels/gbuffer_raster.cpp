@@ -133,7 +133,6 @@ void Raster(const ScreenTri& t, int r0, int r1, int width, float* best_iz, std::
 void RasterGBuffer(const Camera& camera, const float* vertices, std::int64_t num_vertices, const std::int32_t* faces,
                    std::int64_t num_faces, float* depth, std::int32_t* prim_id, float* bary, float* normal) {
   const int w = camera.width, h = camera.height;
-  const std::int64_t np = static_cast<std::int64_t>(w) * h;
   // Camera-space vertices.
   std::vector<glm::dvec3> pc(static_cast<std::size_t>(num_vertices));
   ParallelFor(num_vertices, 16384, [&](std::int64_t b, std::int64_t e) {

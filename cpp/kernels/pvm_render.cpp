@@ -651,9 +651,10 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
           col[i][0] = col[i][1] = col[i][2] = 0.f;
           if (cam.ProjectCam(cam.CamFromWorld(pw), &ix, &iy, &iz)) {
             Sample(views.images[v], cam.width, cam.height, ix, iy, col[i]);
-            const glm::vec3 p(pw);
-            const glm::vec3 b = c_novel - p;
-            pen[i] = UlrPenaltyFast(p, b, glm::length(b), centres[static_cast<std::size_t>(v)], options.resolution_weight);
+            const glm::vec3 pf(pw);
+            const glm::vec3 to_novel = c_novel - pf;
+            pen[i] = UlrPenaltyFast(pf, to_novel, glm::length(to_novel), centres[static_cast<std::size_t>(v)],
+                                    options.resolution_weight);
           }
         }
         for (int k = 0; k < (two ? 2 : 1); ++k) {
