@@ -48,12 +48,14 @@ gone: docs/dibr.md "Middlebury: samples on shared mesh edges".)
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from benchlib import shared_data  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 LEGO_HELDOUT = ("r_0", "r_50", "r_100", "r_150")
@@ -64,10 +66,6 @@ DEQUANTIZE_ROUNDS = (0, 2, 5, 10)
 # RVS 4.0 on the same protocols, from ../shared/ANCHORS.md.
 RVS = {"lego object": 25.9, "lego all": 23.9, "Teddy visible": 29.6, "Cones visible": 28.2,
        "ICL all": 32.5, "ICL visible": 34.9}
-
-
-def shared_data() -> Path:
-    return Path(os.environ.get("IBR_SHARED_DATA", REPO.parent / "shared" / "data"))
 
 
 def _sub(scene, keep: list[str]):

@@ -39,7 +39,7 @@ import numpy as np
 from scipy.ndimage import binary_dilation
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from benchlib import DOCS, machine, write_section  # noqa: E402
+from benchlib import DOCS, machine, shared_data, write_section  # noqa: E402
 
 from ibrtools.hybrid import globalmesh as gm  # noqa: E402
 from ibrtools.hybrid.harmonise import LUMA, HarmoniseParams, _depth_edges, colour_range, harmonise  # noqa: E402
@@ -188,11 +188,6 @@ def fountain_case(root: Path, mesh_res: int) -> dict:
             "v_after": vertex_disagreement(sc, mesh, res.images), "spread": res.stats["gain_spread_log"],
             "gains": {k: np.round(g, 3).tolist() for k, g in st["gains"].items()},
             "mask": float(np.mean([m.mean() for m in res.masks.values()])), "t": t}
-
-
-def shared_data() -> Path:
-    env = os.environ.get("IBR_SHARED_DATA")
-    return Path(env) if env else Path(__file__).resolve().parents[2] / "shared" / "data"
 
 
 def run(size, views, jitters, seed, mesh_res, real: bool) -> str:

@@ -30,7 +30,6 @@ section of docs/benchmarks.md.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import tempfile
 import time
@@ -38,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchlib import DOCS, load_note, machine, write_section
+from benchlib import DOCS, load_note, machine, shared_data, write_section
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -48,10 +47,6 @@ from bench_hybrid import PvmOnly  # noqa: E402  (PVM alone, filtered or not)
 ORDER = ["tm", "ulr", "pvm", "pvm_unfiltered", "hybrid"]
 NAMES = {"tm": "TM (textured mesh)", "ulr": "ULR (per-pixel)", "pvm": "PVM (clustered, filtered)",
          "pvm_unfiltered": "PVM unfiltered", "hybrid": "hybrid"}
-
-
-def shared_data() -> Path:
-    return Path(os.environ.get("IBR_SHARED_DATA", REPO.parent / "shared" / "data"))
 
 
 def _block_mean(a: np.ndarray, s: int) -> np.ndarray:

@@ -1,5 +1,5 @@
 """What every benchmark script shares: timing (median after a warm-up), the machine's
-description, and replacing one marked section of docs/benchmarks.md."""
+description, replacing one marked section of docs/benchmarks.md, and where the shared real data is."""
 from __future__ import annotations
 
 import os
@@ -10,6 +10,12 @@ import time
 from pathlib import Path
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
+
+
+def shared_data() -> Path:
+    """The real test data: $IBR_SHARED_DATA, else ../shared/data beside the repository."""
+    env = os.environ.get("IBR_SHARED_DATA")
+    return Path(env) if env else Path(__file__).resolve().parents[2] / "shared" / "data"
 
 
 def median_ms(fn, repeats: int, warmup: bool = True) -> float:
