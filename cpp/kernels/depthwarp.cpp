@@ -674,6 +674,19 @@ void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const Depth
               }
             }
           }
+          // One fixed-point search of pixel (px, py) in layer j from the seed motion (vx, vy): a
+          // converged sample nearer than the pixel's best becomes its best (a sample from a deeper
+          // layer only if the unseen-space test SeenInFront accepts it).
+          auto search_from = [&](float px, float py, int at, float vx, float vy) {
+            float z;
+            int from;
+            ++c_samples;
+            if (FixedPointSearch(layers, j, px, py, px - vx, py - vy, opt.iters, thr2, edge2, &z, &from, &c_lookups) &&
+                z < best[at] && (from == 0 || opt.seen == nullptr || SeenInFront(*opt.seen, layers[0], px, py, z))) {
+              best[at] = z;
+              best_layer[at] = std::int8_t(from);
+            }
+          };
           if (tile_one) {
             // Homogeneous motion over the whole tile: every pixel runs one search from the tile
             // bound's centre (the general loop below with b = bt, one seed; the same arithmetic).
@@ -686,14 +699,8 @@ void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const Depth
                 const float px = x + 0.5f;
                 const int at = (y - y0) * kT + (x - x0);
                 if (opt.skip_farther && bt.zmin >= best[at]) continue;
-                ++c_search, ++c_early, ++c_samples;
-                float z;
-                int from;
-                if (FixedPointSearch(layers, j, px, py, px - vx, py - vy, opt.iters, thr2, edge2, &z, &from, &c_lookups) &&
-                    z < best[at] && (from == 0 || opt.seen == nullptr || SeenInFront(*opt.seen, layers[0], px, py, z))) {
-                  best[at] = z;
-                  best_layer[at] = std::int8_t(from);
-                }
+                ++c_search, ++c_early;
+                search_from(px, py, at, vx, vy);
               }
             }
             continue;
@@ -735,15 +742,7 @@ void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const Depth
                   sw = Frac(RadicalInverse2(std::uint32_t(k)) + j2);
                 }
                 const float u = b.u0 + su * eu, v = b.w0 + sw * ew;
-                const float vx = l.rot[0] * u + l.rot[2] * v, vy = l.rot[1] * u + l.rot[3] * v;
-                float z;
-                int from;
-                ++c_samples;
-                if (FixedPointSearch(layers, j, px, py, px - vx, py - vy, opt.iters, thr2, edge2, &z, &from, &c_lookups) &&
-                    z < best[at] && (from == 0 || opt.seen == nullptr || SeenInFront(*opt.seen, layers[0], px, py, z))) {
-                  best[at] = z;
-                  best_layer[at] = std::int8_t(from);
-                }
+                search_from(px, py, at, l.rot[0] * u + l.rot[2] * v, l.rot[1] * u + l.rot[3] * v);
               }
             }
           }
