@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 import pytest
-from gil import stamps_during
+from gil import runs_python_during
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
@@ -190,9 +190,7 @@ def test_core_ssim_releases_the_gil():
     # While the worker thread is inside the kernel, the main thread must be able to run:
     # any main-thread timestamp strictly inside the call proves the GIL was released.
     a, b = _pair((1024, 1024), 2)
-    t0, t1, stamps = stamps_during(lambda: _core.ssim(a, b, 1.0, True))
-    inside = [s for s in stamps if t0 < s < t1]
-    assert len(inside) > 10
+    assert runs_python_during(lambda: _core.ssim(a, b, 1.0, True)), "no Python ran during the kernel (or it lasted < 20 ms)"
 
 
 # --- PSNR / MSE ------------------------------------------------------------------------------

@@ -296,22 +296,21 @@ def test_kernels_release_the_gil():
     from pathlib import Path
 
     sys.path.insert(0, str(Path(__file__).parent))
-    from gil import stamps_during, stamps_in_middle
+    from gil import runs_python_during
 
     rng = np.random.default_rng(3)
     depth = (2 + 0.2 * rng.random((600, 800))).astype(np.float32)  # rough: nothing merges
     _core.set_num_threads(1)
     try:
-        t0, t1, stamps = stamps_during(lambda: [_core.pvm_triangulate(depth, 1 / depth, 0.5, 1e-3, 16)
-                                                for _ in range(3)])
-        assert stamps_in_middle(t0, t1, stamps) > 10
+        assert runs_python_during(lambda: [_core.pvm_triangulate(depth, 1 / depth, 0.5, 1e-3, 16)
+                                           for _ in range(3)]), "no Python ran during pvm_triangulate"
         # 200 k small triangles (side ~0.04 in a grid of 1/16 cells: many are clipped).
         base = rng.random((200_000, 1, 3))
         v = (base + 0.04 * rng.random((200_000, 3, 3))).reshape(-1, 3).astype(np.float32)
         f = np.arange(len(v), dtype=np.int32).reshape(-1, 3)
         fv = np.zeros(len(f), np.int32)
-        t0, t1, stamps = stamps_during(lambda: _core.pvm_slice(v, f, fv, 1, [0, 0, 0], [1 / 16] * 3, 4, 4))
-        assert stamps_in_middle(t0, t1, stamps) > 10
+        assert runs_python_during(lambda: _core.pvm_slice(v, f, fv, 1, [0, 0, 0], [1 / 16] * 3, 4, 4)), \
+            "no Python ran during pvm_slice"
     finally:
         _core.set_num_threads(0)
 
