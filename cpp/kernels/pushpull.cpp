@@ -505,7 +505,7 @@ PushPullStatus Run(const Src& src, const PushPullOptions& options, const ImageVi
     float fbuf[kC > 0 ? kC : 1], ubuf[kC > 0 ? kC : 1];
     std::vector<float> fdyn(kC > 0 ? 0 : C), udyn(kC > 0 ? 0 : C);
     float* f = kC > 0 ? fbuf : fdyn.data();
-    float* scratch = kC > 0 ? ubuf : udyn.data();
+    float* pixel_buf = kC > 0 ? ubuf : udyn.data();
     for (int y = static_cast<int>(y0); y < static_cast<int>(y1); ++y) {
       const std::uint8_t* hrow = hole.Row(y);
       sink.Row(y);
@@ -516,7 +516,7 @@ PushPullStatus Run(const Src& src, const PushPullOptions& options, const ImageVi
         Up<1>(s1, 1, ty, tx, y, x, &s);
         // s = 0 (no depth-aware data reaches the pixel): f = 0 exactly and out stays classic.
         const float* c = &cls.At(y, x, 0);
-        float* o = sink.Begin(y, x, scratch);
+        float* o = sink.Begin(y, x, pixel_buf);
         for (int k = 0; k < C; ++k) o[k] = f[k] + (1.0f - s) * c[k];
         sink.End(y, x, o);
       }
