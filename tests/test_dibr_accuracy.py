@@ -90,6 +90,30 @@ def bench(dibr_accuracy_bench):
 _need = need_data
 
 
+def test_visible_in_inputs_uses_the_ground_truth_geometry(bench):
+    # A wall at z = 5 with a box in front (z = 2) seen by a target; an input beside it sees the wall
+    # only (its depth is the wall's everywhere): the wall pixels are visible, the box's are not (the
+    # input's depth 5 is not within 5 % of the box point's 2 + shift), pixels that land outside the
+    # input's image are not, unknown target depth is not; the target seen by itself is visible.
+    w = h = 48
+    cam_t = Camera.pinhole(w, h, 40.0, 40.0, w / 2, h / 2)
+    cam_i = Camera.pinhole(w, h, 40.0, 40.0, w / 2, h / 2, cam_from_world=look_at((1.0, 0, 0), (1.0, 0, 5.0)))
+    d_t = np.full((h, w), 5.0, np.float32)
+    d_t[20:28, 20:28] = 2.0
+    d_t[0, 0] = 0.0
+    col = np.zeros((h, w, 3), np.float32)
+    scene = Scene(views=[View.create("t", cam_t, color=col, depth=d_t),
+                         View.create("i", cam_i, color=col, depth=np.full((h, w), 5.0, np.float32))])
+    vis = bench.visible_in_inputs(scene, "t", ["i"])
+    assert not vis[20:28, 20:28].any()                      # the box: the input sees the wall there
+    assert not vis[0, 0]                                     # unknown depth
+    uv, _ = cam_i.project(cam_t.unproject(np.where(d_t > 0, d_t, 1.0)))
+    inside = (uv[..., 0] >= 0) & (uv[..., 0] < w)
+    wall = (d_t == 5.0)
+    assert vis[wall & inside].all() and not vis[~inside].any()
+    assert bench.visible_in_inputs(scene, "t", ["t"]).sum() == (d_t > 0).sum()
+
+
 def test_icl_depth_is_z_not_ray_distance():
     # ICL-NUIM depth PNGs are often said to hold the distance along the ray. Frame 1 faces the
     # back wall: with the importer's z reading, 3-D points of a wall patch fit a plane to
