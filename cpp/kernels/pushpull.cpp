@@ -541,6 +541,22 @@ std::int64_t CountNonFiniteRun(const float* row, std::ptrdiff_t n) {
   return bad;
 }
 
+// [X, X^2] of 2 or 3 RGB/YCbCr bands (2 or 4 orientations, the high-pass at level 0): a fixed
+// channel count lets the compiler unroll and vectorise the per-pixel loops. Moments are only
+// filled in the holes.
+template <class Sink>
+PushPullStatus RunMoments(const MomentsSource& src, PushPullOptions o, const ImageView<float>& out,
+                          const Sink& sink) {
+  o.holes_only = true;
+  switch (src.channels()) {
+    case 12: return Run<12>(src, o, out, sink);
+    case 18: return Run<18>(src, o, out, sink);
+    case 24: return Run<24>(src, o, out, sink);
+    case 30: return Run<30>(src, o, out, sink);
+    default: return Run<0>(src, o, out, sink);
+  }
+}
+
 }  // namespace
 
 PushPullStatus PushPullKernel(const ImageView<const float>& image,
@@ -562,37 +578,17 @@ PushPullStatus PushPullMomentsKernel(const ImageView<const float>* bands, int k,
                                      const ImageView<const std::uint8_t>& hole,
                                      const ImageView<const float>& depth, const PushPullOptions& options,
                                      const ImageView<float>& out) {
-  PushPullOptions o = options;
-  o.holes_only = true;
   const MomentsSource src{bands, k, hole, depth};
-  // [X, X^2] of 2 or 3 RGB/YCbCr bands (2 or 4 orientations, the high-pass at level 0): a fixed
-  // channel count lets the compiler unroll and vectorise the per-pixel loops.
-  const OutSink sink{out};
-  switch (src.channels()) {
-    case 12: return Run<12>(src, o, out, sink);
-    case 18: return Run<18>(src, o, out, sink);
-    case 24: return Run<24>(src, o, out, sink);
-    case 30: return Run<30>(src, o, out, sink);
-    default: return Run<0>(src, o, out, sink);
-  }
+  return RunMoments(src, options, out, OutSink{out});
 }
 
 PushPullStatus PushPullMomentsChangeKernel(const ImageView<const float>* bands, int k,
                                            const ImageView<const std::uint8_t>& hole,
                                            const ImageView<const float>& depth, const PushPullOptions& options,
                                            const MetamericSynth& synth) {
-  PushPullOptions o = options;
-  o.holes_only = true;
   const MomentsSource src{bands, k, hole, depth};
-  const ChangeSink sink{synth};
   const ImageView<float> none;  // holes_only: never written (the sink takes the values)
-  switch (src.channels()) {
-    case 12: return Run<12>(src, o, none, sink);
-    case 18: return Run<18>(src, o, none, sink);
-    case 24: return Run<24>(src, o, none, sink);
-    case 30: return Run<30>(src, o, none, sink);
-    default: return Run<0>(src, o, none, sink);
-  }
+  return RunMoments(src, options, none, ChangeSink{synth});
 }
 
 std::int64_t CountNonFiniteOutsideHoles(const ImageView<const float>& image,

@@ -51,6 +51,26 @@ struct Hit {
   glm::vec3 ng;       // Embree's unnormalised geometric normal (either orientation)
 };
 
+// Lane k of a ray packet: a ray from org along dir starting at tnear, no hit yet.
+template <typename RayHitN>
+inline void SetLane(RayHitN& rh, int k, const glm::vec3& org, const glm::vec3& dir, float tnear) {
+  rh.ray.org_x[k] = org.x;
+  rh.ray.org_y[k] = org.y;
+  rh.ray.org_z[k] = org.z;
+  rh.ray.dir_x[k] = dir.x;
+  rh.ray.dir_y[k] = dir.y;
+  rh.ray.dir_z[k] = dir.z;
+  rh.ray.tnear[k] = tnear;
+  rh.ray.tfar[k] = kInf;
+  rh.ray.time[k] = 0.f;
+  rh.ray.mask[k] = 0xFFFFFFFFu;
+  rh.ray.id[k] = static_cast<unsigned>(k);
+  rh.ray.flags[k] = 0;
+  rh.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
+  rh.hit.primID[k] = RTC_INVALID_GEOMETRY_ID;
+  rh.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
+}
+
 // Traces every pixel of the camera, in tiles (ParallelFor2D) and packets of N rays laid out
 // as BW x BH pixel blocks, and calls fn(py, px, dir, hit, query) for each pixel. The
 // partition depends only on the image size: results do not depend on the thread count.
@@ -71,21 +91,7 @@ void TracePackets(const EmbreeScene& scene, const CameraRays& rays, int tile, Fn
           valid[k] = ok ? -1 : 0;
           const glm::vec3 d = ok ? rays.Dir(px, py) : glm::vec3(0.f, 0.f, 1.f);
           dx[k] = d.x, dy[k] = d.y, dz[k] = d.z;
-          rh.ray.org_x[k] = rays.origin.x;
-          rh.ray.org_y[k] = rays.origin.y;
-          rh.ray.org_z[k] = rays.origin.z;
-          rh.ray.dir_x[k] = d.x;
-          rh.ray.dir_y[k] = d.y;
-          rh.ray.dir_z[k] = d.z;
-          rh.ray.tnear[k] = 0.f;
-          rh.ray.tfar[k] = kInf;
-          rh.ray.time[k] = 0.f;
-          rh.ray.mask[k] = 0xFFFFFFFFu;
-          rh.ray.id[k] = static_cast<unsigned>(k);
-          rh.ray.flags[k] = 0;
-          rh.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
-          rh.hit.primID[k] = RTC_INVALID_GEOMETRY_ID;
-          rh.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
+          SetLane(rh, k, rays.origin, d, 0.f);
         }
         if constexpr (N == 8) query.Intersect8(valid, handle, &rh);
         else query.Intersect16(valid, handle, &rh);
@@ -464,21 +470,7 @@ void PeelCamera(const EmbreeScene& scene, const Camera& camera, const PeelOption
           bool any = false;
           for (int k = 0; k < N; ++k) {
             any |= valid[k] != 0;
-            rh.ray.org_x[k] = rays.origin.x;
-            rh.ray.org_y[k] = rays.origin.y;
-            rh.ray.org_z[k] = rays.origin.z;
-            rh.ray.dir_x[k] = dir[k].x;
-            rh.ray.dir_y[k] = dir[k].y;
-            rh.ray.dir_z[k] = dir[k].z;
-            rh.ray.tnear[k] = tnear[k];
-            rh.ray.tfar[k] = kInf;
-            rh.ray.time[k] = 0.f;
-            rh.ray.mask[k] = 0xFFFFFFFFu;
-            rh.ray.id[k] = static_cast<unsigned>(k);
-            rh.ray.flags[k] = 0;
-            rh.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
-            rh.hit.primID[k] = RTC_INVALID_GEOMETRY_ID;
-            rh.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
+            SetLane(rh, k, rays.origin, dir[k], tnear[k]);
           }
           if (any) query.Intersect16(valid, handle, &rh);
           for (int k = 0; k < N; ++k) {
