@@ -108,3 +108,107 @@ def test_dibr_method_checks_visibility_params(params, msg):
     with pytest.raises(BadValueError, match=msg):
         check_params(params)
     assert check_params({"stretched_holes": "false"})["stretched_holes"] is False
+
+
+# ---- Fresh sums (BlendBuffers::fresh): no clearing pass; the first view after construction or
+# reset() writes every pixel's sums. Tolerances: none (the same bits as adding to cleared sums).
+
+ACC_OPTIONS = [dict(), dict(stretched_quality=0.1, stretched_holes=True), dict(depth_tolerance=0.05)]
+
+
+def noisy_view(seed: int, depth: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    d = (depth + rng.random((H, W)) * np.where(rng.random((H, W)) < 0.2, 3.0, 0.05)).astype(np.float32)
+    d[rng.random((H, W)) < 0.05] = 0.0  # unknown: pixels no triangle covers
+    return rng.random((H, W, 3), dtype=np.float32), d
+
+
+@pytest.fixture(params=["baseline", "avx2"])
+def isa(request):
+    if request.param == "avx2" and not _core.cpu_has_avx2():
+        pytest.skip("this CPU has no AVX2")
+    _core.set_warp_isa(request.param)
+    yield request.param
+    _core.set_warp_isa("auto")
+
+
+@pytest.mark.parametrize("kwargs", ACC_OPTIONS)
+def test_reset_forgets_every_view_bit_for_bit(kwargs, isa):
+    """A reused accumulator (reset, then views) equals a new one with the same views, and the
+    sums of the views before reset() leave no trace (the fresh view writes every pixel)."""
+    views = [noisy_view(s) for s in range(3)]
+    used = _core.DibrAccumulator(cam(0.05).to_core(), **kwargs)
+    for c, d in views:
+        used.add_view(c, d, cam().to_core())
+    assert used.num_views == 3
+    used.reset()
+    assert used.num_views == 0
+    for c, d in views[1:]:
+        used.add_view(c, d, cam(0.1).to_core())
+    new = _core.DibrAccumulator(cam(0.05).to_core(), **kwargs)
+    for c, d in views[1:]:
+        new.add_view(c, d, cam(0.1).to_core())
+    for a, b in zip(used.result(), new.result()):
+        np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("kwargs", ACC_OPTIONS)
+def test_result_without_views_is_all_holes(kwargs, isa):
+    acc = _core.DibrAccumulator(cam().to_core(), **kwargs)
+    for _ in range(2):
+        col, depth, conf, hole = acc.result()
+        assert hole.all() and not col.any() and not depth.any() and not conf.any()
+        c, d = noisy_view(1)
+        acc.add_view(c, d, cam().to_core())
+        assert not acc.result()[3].all()
+        acc.reset()
+
+
+def test_rejected_first_view_keeps_the_sums_fresh(isa):
+    """A view rejected after the kernel ran (bad depth, non-finite colour) writes nothing: the
+    next good view is still the first one."""
+    c, d = noisy_view(2)
+    bad_d = d.copy()
+    bad_d[4, 5] = -1.0
+    bad_c = c.copy()
+    bad_c[1, 2, 0] = np.nan
+    bad_c[7, 8, 2] = np.inf
+    bad_c[9, 9, 1] = -np.inf
+    acc = _core.DibrAccumulator(cam().to_core())
+    with pytest.raises(BadValueError, match="depth: 1 values are NaN or negative"):
+        acc.add_view(c, bad_d, cam().to_core())
+    with pytest.raises(BadValueError, match="color: 3 values are NaN or infinite"):
+        acc.add_view(bad_c, d, cam().to_core())
+    assert acc.num_views == 0 and acc.result()[3].all()
+    acc.add_view(c, d, cam().to_core())
+    ref = _core.DibrAccumulator(cam().to_core())
+    ref.add_view(c, d, cam().to_core())
+    for a, b in zip(acc.result(), ref.result()):
+        np.testing.assert_array_equal(a, b)
+    # ... and a rejected later view leaves the sums of the good ones unchanged
+    with pytest.raises(BadValueError, match="color: 3 values"):
+        acc.add_view(bad_c, d, cam().to_core())
+    assert acc.num_views == 1
+    for a, b in zip(acc.result(), ref.result()):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_add_view_colour_check_counts_every_row(isa):
+    """The colour check runs in the kernel's row tasks (all rows, any width, the last values of
+    a row past the eight-wide steps); the count is exact. forward_warp checks before the kernel."""
+    c, d = noisy_view(3)
+    acc = _core.DibrAccumulator(cam().to_core())
+    for y, x, ch in [(0, 0, 0), (H - 1, W - 1, 2), (H // 2, W - 1, 1), (5, 0, 0), (6, 7, 1)]:
+        bad = c.copy()
+        bad[y, x, ch] = np.nan
+        with pytest.raises(BadValueError, match="color: 1 values are NaN or infinite"):
+            acc.add_view(bad, d, cam().to_core())
+        with pytest.raises(BadValueError, match="color: 1 values are NaN or infinite"):
+            _core.forward_warp(bad, d, cam().to_core(), cam().to_core())
+    odd = np.full((7, 5, 3), np.inf, np.float32)  # 105 values: 13 steps of 8 and one left over
+    small = Camera.pinhole(5, 7, 10.0, 10.0, 2.5, 3.5, np.eye(4))
+    with pytest.raises(BadValueError, match="color: 105 values are NaN or infinite"):
+        _core.DibrAccumulator(small.to_core()).add_view(odd, np.ones((7, 5), np.float32), small.to_core())
+    # colour errors come before depth errors, as in forward_warp
+    with pytest.raises(BadValueError, match="color: 105 values"):
+        _core.DibrAccumulator(small.to_core()).add_view(odd, np.full((7, 5), np.nan, np.float32), small.to_core())

@@ -1,6 +1,8 @@
 // A/B driver of the DIBR kernels without Python (benchmarks/dibr_ab.py builds and runs it):
-// k colour + depth views -> one target, ClearBlend + k ForwardWarp (accumulating) + ResolveBlend,
-// the options of --method dibr (side_threshold 10, stretched_quality 0.1, stretched_holes).
+// k colour + depth views -> one target, ClearBlend (or, with kernels that have BlendBuffers::fresh, none:
+// the first view writes the sums, as _core.DibrAccumulator does) + k ForwardWarp (accumulating) + ResolveBlend,
+// the options of --method dibr (side_threshold 10, stretched_quality 0.1, stretched_holes). Older kernels
+// (without check_color) do not check the colour: the binding did that before calling them (serially).
 //   dibr_ab DIR THREADS REPEATS VIEWS [plain]
 // (plain: no visibility rules across views, as benchmarks/bench_dibr.py's DibrAccumulator()).
 // DIR holds cams.txt (per view then the target: W H fx fy cx cy and the 3 x 4 cam_from_world, row
@@ -58,14 +60,25 @@ int main(int argc, char** argv) {
   if (reps < 1) reps = 1;
   for (int rep = 0; rep <= reps; ++rep) {
     auto t0 = std::chrono::steady_clock::now(); double c0 = Cpu();
+#ifdef IBR_BLEND_FRESH  // the kernels have it: the first view writes the sums (no clearing pass, as the binding)
+    acc.fresh = true;
+#else
     ClearBlend(acc);
+#endif
     for (int i = 0; i < nviews; ++i) {
 #ifdef IBR_FORWARD_WARP_BAND_LOCAL  // the kernels have it: no per-view buffers (as the binding)
       ForwardWarp(ImageView<const float>(col[i].data(), cams[i].height, cams[i].width, 3), ImageView<const float>(dep[i].data(), cams[i].height, cams[i].width), cams[i], cams[nviews], opt, scratch,
-                  ImageView<float>(), ImageView<float>(), ImageView<float>(), nullptr, &acc);
+                  ImageView<float>(), ImageView<float>(), ImageView<float>(), nullptr, &acc
+#ifdef IBR_FORWARD_WARP_CHECK_COLOR  // the binding's finite-colour check, in the kernel's projection pass
+                  , true
+#endif
+                  );
 #else
       ForwardWarp(ImageView<const float>(col[i].data(), cams[i].height, cams[i].width, 3), ImageView<const float>(dep[i].data(), cams[i].height, cams[i].width), cams[i], cams[nviews], opt, scratch,
                   ImageView<float>(vc.data(), H, W, 3), ImageView<float>(vd.data(), H, W), ImageView<float>(vw.data(), H, W), vq.data(), &acc);
+#endif
+#ifdef IBR_BLEND_FRESH
+      acc.fresh = false;
 #endif
     }
     auto t1 = std::chrono::steady_clock::now();

@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cstdint>
 #include <cstring>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -50,6 +51,10 @@ DepthTest ParseDepthTest(const std::string& s) {
 // the output image (found by tests/test_stress.py; DESIGN.md: NaN never leaks into an output).
 // A float is not finite when its exponent bits are all set; the integer OR-reduction vectorises
 // (one pass over the colour, about a millisecond per 1080p view).
+void ThrowBadColor(std::int64_t bad) {
+  throw BadValueError("color: " + std::to_string(bad) + " values are NaN or infinite (expected finite colour)");
+}
+
 void CheckFiniteColor(const py::array_t<float, py::array::c_style>& color) {
   const float* p = color.data();
   const std::ptrdiff_t n = color.size();
@@ -62,7 +67,7 @@ void CheckFiniteColor(const py::array_t<float, py::array::c_style>& color) {
   if (any) {
     std::ptrdiff_t bad = 0;
     for (std::ptrdiff_t i = 0; i < n; ++i) bad += !std::isfinite(p[i]);
-    throw BadValueError("color: " + std::to_string(bad) + " values are NaN or infinite (expected finite colour)");
+    ThrowBadColor(bad);
   }
 }
 
@@ -71,11 +76,14 @@ struct InputView {
   py::array_t<float, py::array::c_style> color, depth;
 };
 
-InputView CheckInput(const py::handle& color_obj, const py::handle& depth_obj, const Camera& camera) {
+// finite_color: also check that the colour is finite here (false: the kernel counts it,
+// WarpCounts::bad_colors, and the caller raises after it).
+InputView CheckInput(const py::handle& color_obj, const py::handle& depth_obj, const Camera& camera,
+                     bool finite_color = true) {
   InputView v;
   v.depth = CheckArray<float>(depth_obj, "depth", {{"H", camera.height}, {"W", camera.width}});
   v.color = CheckArray<float>(color_obj, "color", {{"H", camera.height}, {"W", camera.width}, {"3", 3}});
-  CheckFiniteColor(v.color);
+  if (finite_color) CheckFiniteColor(v.color);
   if (camera.height < 2 || camera.width < 2) {
     throw ShapeError("depth: the view must be at least 2 x 2 pixels to form triangles, got " +
                      std::to_string(camera.height) + " x " + std::to_string(camera.width));
@@ -131,35 +139,39 @@ class DibrAccumulator {
     if (stretched_holes && stretched_quality == 0.f) {
       throw BadValueError("stretched_holes: needs stretched_quality > 0 to say which fragments are stretched");
     }
+    // Not cleared: the sums start "fresh" (blend.h), the first view writes them.
     const std::size_t n = std::size_t(target.width) * target.height;
-    sum_wc_.resize(3 * n);
-    sum_w_.resize(n);
-    sum_w_invd_.resize(n);
-    sum_q_.resize(n);
-    max_q_.resize(n);
+    sum_wc_.reset(new float[3 * n]);
+    sum_w_.reset(new float[n]);
+    sum_w_invd_.reset(new float[n]);
+    sum_q_.reset(new float[n]);
+    max_q_.reset(new float[n]);
     buffers_.stretched_quality = stretched_quality;
     buffers_.stretched_holes = stretched_holes;
     buffers_.depth_tolerance = depth_tolerance;
     Buffers();
-    py::gil_scoped_release release;
-    ClearBlend(buffers_);
   }
 
   void AddView(const py::object& color_obj, const py::object& depth_obj, const Camera& camera,
                const WarpOptions& options) {
-    InputView in = CheckInput(color_obj, depth_obj, camera);
+    // The colour's finiteness is counted by the kernel, in its parallel projection pass.
+    InputView in = CheckInput(color_obj, depth_obj, camera, false);
     const ImageView<const float> color = ConstViewOf(in.color), depth = ConstViewOf(in.depth);
     WarpCounts counts;
     {
       py::gil_scoped_release release;
       const auto t0 = std::chrono::steady_clock::now();
-      // The kernel adds the view to the sums only when its depth passed the checks below.
-      // Band-local mode (forward_warp.h): no per-view full-size buffers.
+      // The kernel adds the view to the sums only when its colour and depth passed the checks
+      // below. Band-local mode (forward_warp.h): no per-view full-size buffers.
       counts = ForwardWarp(color, depth, camera, target_, options, scratch_, ImageView<float>(), ImageView<float>(),
-                           ImageView<float>(), nullptr, &buffers_);
-      if (counts.bad_depths == 0 && counts.valid_vertices > 0) ++num_views_;
+                           ImageView<float>(), nullptr, &buffers_, true);
+      if (counts.bad_depths == 0 && counts.valid_vertices > 0 && counts.bad_colors == 0) {
+        ++num_views_;
+        buffers_.fresh = false;  // the view wrote every pixel's sums
+      }
       last_ms_ = MsSince(t0);
     }
+    if (counts.bad_colors > 0) ThrowBadColor(counts.bad_colors);
     CheckCounts(counts);
   }
 
@@ -173,14 +185,18 @@ class DibrAccumulator {
     auto* o = reinterpret_cast<std::uint8_t*>(hole.mutable_data());
     {
       py::gil_scoped_release release;
+      if (buffers_.fresh) {  // no view since reset(): empty sums
+        ClearBlend(buffers_);
+        buffers_.fresh = false;
+      }
       ResolveBlend(buffers_, c, d, q, o);
     }
     return py::make_tuple(color, depth, conf, hole);
   }
 
+  // The next view writes the sums instead of adding to them (BlendBuffers::fresh): no clearing pass.
   void Reset() {
-    py::gil_scoped_release release;
-    ClearBlend(buffers_);
+    buffers_.fresh = true;
     num_views_ = 0;
   }
 
@@ -192,15 +208,16 @@ class DibrAccumulator {
   void Buffers() {
     buffers_.height = target_.height;
     buffers_.width = target_.width;
-    buffers_.sum_wc = sum_wc_.data();
-    buffers_.sum_w = sum_w_.data();
-    buffers_.sum_w_invd = sum_w_invd_.data();
-    buffers_.sum_q = sum_q_.data();
-    buffers_.max_q = max_q_.data();
+    buffers_.sum_wc = sum_wc_.get();
+    buffers_.sum_w = sum_w_.get();
+    buffers_.sum_w_invd = sum_w_invd_.get();
+    buffers_.sum_q = sum_q_.get();
+    buffers_.max_q = max_q_.get();
+    buffers_.fresh = true;
   }
 
   Camera target_;
-  std::vector<float> sum_wc_, sum_w_, sum_w_invd_, sum_q_, max_q_;
+  std::unique_ptr<float[]> sum_wc_, sum_w_, sum_w_invd_, sum_q_, max_q_;  // uninitialised: fresh
   WarpScratch scratch_;
   BlendBuffers buffers_;
   int num_views_ = 0;

@@ -69,8 +69,29 @@ void AccumulateRow(const float* color, const float* depth, const float* weight, 
                    const BlendBuffers& acc, int y) {
   const std::ptrdiff_t w = acc.width, o = std::ptrdiff_t(y) * w;
   const bool visibility = acc.stretched_quality > 0.f || acc.depth_tolerance > 0.f;
+  const bool use_mq = acc.stretched_quality > 0.f;
   float *swc = acc.sum_wc + 3 * o, *sw = acc.sum_w + o, *swi = acc.sum_w_invd + o, *sq = acc.sum_q + o,
         *mq = acc.max_q + o;
+  if (acc.fresh) {
+    // Sums taken as 0 (blend.h): every pixel written; Admit admits every fragment into empty sums.
+    for (std::ptrdiff_t x = 0; x < w; ++x) {
+      const float wi = weight[x];
+      if (!(wi > 0.f)) {
+        swc[3 * x] = swc[3 * x + 1] = swc[3 * x + 2] = 0.f;
+        sw[x] = swi[x] = sq[x] = 0.f;
+        if (use_mq) mq[x] = 0.f;
+        continue;
+      }
+      swc[3 * x] = 0.f + wi * color[3 * x];
+      swc[3 * x + 1] = 0.f + wi * color[3 * x + 1];
+      swc[3 * x + 2] = 0.f + wi * color[3 * x + 2];
+      sw[x] = 0.f + wi;
+      swi[x] = 0.f + wi / depth[x];
+      sq[x] = 0.f + quality[x];
+      if (use_mq) mq[x] = std::max(0.f, quality[x]);
+    }
+    return;
+  }
   for (std::ptrdiff_t x = 0; x < w; ++x) {
     const float wi = weight[x];
     if (!(wi > 0.f)) continue;
@@ -81,20 +102,25 @@ void AccumulateRow(const float* color, const float* depth, const float* weight, 
     sw[x] += wi;
     swi[x] += wi / depth[x];  // depth > 0 where covered; +inf gives 0
     sq[x] += quality[x];
-    mq[x] = std::max(mq[x], quality[x]);
+    if (use_mq) mq[x] = std::max(mq[x], quality[x]);
   }
 }
 
-// AccumulateRow without the visibility rules, eight pixels per AVX2 step (the warp calls it from
-// its AVX2 clone). Uncovered pixels keep their sums by a select (not by adding 0: the band-local
-// colour and depth of an uncovered pixel are stale), covered ones get the scalar loop's
-// operations (products, the division, the sums, max) lane by lane: the same bits.
-__attribute__((target("avx2"))) void AccumulateRowPlainAvx2(const float* color, const float* depth,
-                                                             const float* weight, const float* quality,
-                                                             const BlendBuffers& acc, int y) {
+// A running sum's eight lanes, or 0 for fresh sums (not read).
+template <bool kFresh>
+__attribute__((target("avx2"))) inline __m256 LoadSum(const float* p) {
+  return kFresh ? _mm256_setzero_ps() : _mm256_loadu_ps(p);
+}
+
+// fresh (blend.h): the sums are taken as 0 and not read; uncovered pixels get 0, covered ones
+// 0 + the view's values (the same bits as adding them to cleared sums). max_q is not kept here
+// (no visibility rule: stretched_quality == 0).
+template <bool kFresh>
+__attribute__((target("avx2"))) inline void AccumulateRowPlainAvx2T(const float* color, const float* depth,
+                                                                     const float* weight, const float* quality,
+                                                                     const BlendBuffers& acc, int y) {
   const std::ptrdiff_t w = acc.width, o = std::ptrdiff_t(y) * w;
-  float *swc = acc.sum_wc + 3 * o, *sw = acc.sum_w + o, *swi = acc.sum_w_invd + o, *sq = acc.sum_q + o,
-        *mq = acc.max_q + o;
+  float *swc = acc.sum_wc + 3 * o, *sw = acc.sum_w + o, *swi = acc.sum_w_invd + o, *sq = acc.sum_q + o;
   // lane k of the three colour vectors holds channel (8 j + k) % 3 of pixel (8 j + k) / 3
   const __m256i p0 = _mm256_setr_epi32(0, 0, 0, 1, 1, 1, 2, 2), p1 = _mm256_setr_epi32(2, 3, 3, 3, 4, 4, 4, 5);
   const __m256i p2 = _mm256_setr_epi32(5, 5, 6, 6, 6, 7, 7, 7);
@@ -104,36 +130,63 @@ __attribute__((target("avx2"))) void AccumulateRowPlainAvx2(const float* color, 
     const __m256 wi = _mm256_loadu_ps(weight + x);
     const __m256 cov = _mm256_cmp_ps(wi, zero, _CMP_GT_OQ);  // !(wi > 0): skipped
     const int m = _mm256_movemask_ps(cov);
-    if (m == 0) continue;
+    if (m == 0) {
+      if (kFresh) {
+        _mm256_storeu_ps(sw + x, zero);
+        _mm256_storeu_ps(swi + x, zero);
+        _mm256_storeu_ps(sq + x, zero);
+        for (int j = 0; j < 3; ++j) _mm256_storeu_ps(swc + 3 * x + 8 * j, zero);
+      }
+      continue;
+    }
     const __m256 d = _mm256_loadu_ps(depth + x), q = _mm256_loadu_ps(quality + x);
-    _mm256_storeu_ps(sw + x, _mm256_blendv_ps(_mm256_loadu_ps(sw + x), _mm256_add_ps(_mm256_loadu_ps(sw + x), wi), cov));
-    const __m256 s_i = _mm256_loadu_ps(swi + x);
+    const __m256 s_w = LoadSum<kFresh>(sw + x);
+    _mm256_storeu_ps(sw + x, _mm256_blendv_ps(s_w, _mm256_add_ps(s_w, wi), cov));
+    const __m256 s_i = LoadSum<kFresh>(swi + x);
     _mm256_storeu_ps(swi + x, _mm256_blendv_ps(s_i, _mm256_add_ps(s_i, _mm256_div_ps(wi, d)), cov));
-    const __m256 s_q = _mm256_loadu_ps(sq + x);
+    const __m256 s_q = LoadSum<kFresh>(sq + x);
     _mm256_storeu_ps(sq + x, _mm256_blendv_ps(s_q, _mm256_add_ps(s_q, q), cov));
-    // std::max(mq, q) = (mq < q) ? q : mq
-    const __m256 m_q = _mm256_loadu_ps(mq + x);
-    _mm256_storeu_ps(mq + x, _mm256_blendv_ps(m_q, _mm256_blendv_ps(m_q, q, _mm256_cmp_ps(m_q, q, _CMP_LT_OQ)), cov));
     const __m256i covi = _mm256_castps_si256(cov);
     const __m256i perm[3] = {p0, p1, p2};
     for (int j = 0; j < 3; ++j) {
       const __m256 wj = _mm256_permutevar8x32_ps(wi, perm[j]);
       const __m256 cj = _mm256_castsi256_ps(_mm256_permutevar8x32_epi32(covi, perm[j]));
-      const __m256 s = _mm256_loadu_ps(swc + 3 * x + 8 * j);
+      const __m256 s = LoadSum<kFresh>(swc + 3 * x + 8 * j);
       const __m256 c = _mm256_loadu_ps(color + 3 * x + 8 * j);
       _mm256_storeu_ps(swc + 3 * x + 8 * j, _mm256_blendv_ps(s, _mm256_add_ps(s, _mm256_mul_ps(wj, c)), cj));
     }
   }
   for (; x < w; ++x) {
     const float wi = weight[x];
-    if (!(wi > 0.f)) continue;
-    swc[3 * x] += wi * color[3 * x];
-    swc[3 * x + 1] += wi * color[3 * x + 1];
-    swc[3 * x + 2] += wi * color[3 * x + 2];
-    sw[x] += wi;
-    swi[x] += wi / depth[x];
-    sq[x] += quality[x];
-    mq[x] = std::max(mq[x], quality[x]);
+    if (!(wi > 0.f)) {
+      if (kFresh) {
+        swc[3 * x] = swc[3 * x + 1] = swc[3 * x + 2] = 0.f;
+        sw[x] = swi[x] = sq[x] = 0.f;
+      }
+      continue;
+    }
+    const float b_wc0 = kFresh ? 0.f : swc[3 * x], b_wc1 = kFresh ? 0.f : swc[3 * x + 1],
+                b_wc2 = kFresh ? 0.f : swc[3 * x + 2];
+    swc[3 * x] = b_wc0 + wi * color[3 * x];
+    swc[3 * x + 1] = b_wc1 + wi * color[3 * x + 1];
+    swc[3 * x + 2] = b_wc2 + wi * color[3 * x + 2];
+    sw[x] = (kFresh ? 0.f : sw[x]) + wi;
+    swi[x] = (kFresh ? 0.f : swi[x]) + wi / depth[x];
+    sq[x] = (kFresh ? 0.f : sq[x]) + quality[x];
+  }
+}
+
+// AccumulateRow without the visibility rules, eight pixels per AVX2 step (the warp calls it from
+// its AVX2 clone). Uncovered pixels keep their sums by a select (not by adding 0: the band-local
+// colour and depth of an uncovered pixel are stale), covered ones get the scalar loop's
+// operations (products, the division, the sums) lane by lane: the same bits.
+__attribute__((target("avx2"))) void AccumulateRowPlainAvx2(const float* color, const float* depth,
+                                                             const float* weight, const float* quality,
+                                                             const BlendBuffers& acc, int y) {
+  if (acc.fresh) {
+    AccumulateRowPlainAvx2T<true>(color, depth, weight, quality, acc, y);
+  } else {
+    AccumulateRowPlainAvx2T<false>(color, depth, weight, quality, acc, y);
   }
 }
 

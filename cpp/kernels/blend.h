@@ -41,11 +41,20 @@ struct BlendBuffers {
   float stretched_quality = 0.f;  // see "Visibility across views"; 0 = off
   bool stretched_holes = false;
   float depth_tolerance = 0.f;    // relative; 0 = off
+  // The sums hold no view yet and their memory is not cleared (any bits): the next accumulation
+  // of a whole view (every target row, as ForwardWarp does) writes each pixel's sums as if they
+  // were 0 (0 + the view's values, the same bits as ClearBlend then adding; 0 where the view has
+  // no fragment) instead of reading them. The caller clears the flag after that view. Saves the
+  // clearing pass and the first view's read of the sums. ResolveBlend needs fresh == false.
+  bool fresh = false;
 };
+#define IBR_BLEND_FRESH 1  // BlendBuffers::fresh exists (benchmarks/dibr_ab builds older kernels too)
 
 // Zeroes the sums (all threads).
 void ClearBlend(const BlendBuffers& acc);
 
+// max_q is read and written only when stretched_quality > 0 (the only rule that uses it; without
+// it ResolveBlend does not read it either).
 // Adds rows [y0, y1) of one warped view (colour (H, W, 3), depth (H, W), weight (H, W),
 // quality (H, W); weight 0 = not covered) to the sums. Single-threaded over those rows (the
 // warp calls it per band, in the band's task).

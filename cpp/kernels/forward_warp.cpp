@@ -4,6 +4,7 @@
 #include <atomic>
 #include <cmath>
 #include <cstddef>
+#include <cstring>
 #include <limits>
 #include <type_traits>
 
@@ -1104,8 +1105,33 @@ __attribute__((target("avx2"))) int WeightRowAvx2(const float* q, const float* d
 
 // Pass 1 of the mesh warp: every input pixel projected into the target (scratch.verts) and the
 // per-row segment y ranges (scratch.seg_y). Counts valid and bad depths.
+// Non-finite values (exponent bits all set) among n floats, eight per AVX2 step.
+__attribute__((target("avx2"))) std::int64_t CountNonFiniteAvx2(const float* p, std::ptrdiff_t n) {
+  const __m256i e = _mm256_set1_epi32(0x7f800000);
+  std::int64_t bad = 0;
+  std::ptrdiff_t i = 0;
+  for (; i + 8 <= n; i += 8) {
+    const __m256i v = _mm256_and_si256(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(p + i)), e);
+    bad += __builtin_popcount(unsigned(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(v, e)))));
+  }
+  for (; i < n; ++i) bad += !std::isfinite(p[i]);
+  return bad;
+}
+
+std::int64_t CountNonFinite(const float* p, std::ptrdiff_t n) {
+  std::int64_t bad = 0;
+  for (std::ptrdiff_t i = 0; i < n; ++i) {
+    std::uint32_t u;
+    std::memcpy(&u, p + i, sizeof u);
+    bad += (u & 0x7f800000u) == 0x7f800000u;
+  }
+  return bad;
+}
+
+// check_color: colour (H, W, 3) rows counted for NaN / inf values in the same row tasks
+// (counts.bad_colors).
 WarpCounts ProjectVertices(const ImageView<const float>& depth, const Camera& source, const Camera& target,
-                           WarpScratch& scratch) {
+                           WarpScratch& scratch, const ImageView<const float>* check_color = nullptr) {
   WarpCounts counts;
   const int h = depth.height, w = depth.width;
   const int th = target.height, tw = target.width;
@@ -1130,9 +1156,18 @@ WarpCounts ProjectVertices(const ImageView<const float>& depth, const Camera& so
   }
   const double* ray_x = scratch.ray_x.data();
   const bool avx2 = UseAvx2();
-  std::atomic<std::int64_t> valid{0}, bad{0};
+  std::atomic<std::int64_t> valid{0}, bad{0}, bad_colors{0};
   ParallelFor(h, 8, [&](std::int64_t r0, std::int64_t r1) {
     std::int64_t my_valid = 0, my_bad = 0;
+    if (check_color != nullptr) {
+      const std::ptrdiff_t n_c = std::ptrdiff_t(check_color->width) * check_color->channels;
+      std::int64_t my_bad_colors = 0;
+      for (std::int64_t r = r0; r < r1; ++r) {
+        const float* crow = check_color->Row(static_cast<int>(r));
+        my_bad_colors += avx2 ? CountNonFiniteAvx2(crow, n_c) : CountNonFinite(crow, n_c);
+      }
+      bad_colors += my_bad_colors;
+    }
     for (std::int64_t r = r0; r < r1; ++r) {
       const float* drow = depth.Row(static_cast<int>(r));
       WarpVertex* vrow = verts + r * w;
@@ -1263,6 +1298,7 @@ WarpCounts ProjectVertices(const ImageView<const float>& depth, const Camera& so
   });
   counts.valid_vertices = valid;
   counts.bad_depths = bad;
+  counts.bad_colors = bad_colors;
   return counts;
 }
 
@@ -1445,12 +1481,13 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
                        const Camera& source, const Camera& target, const WarpOptions& options,
                        WarpScratch& scratch, const ImageView<float>& out_color,
                        const ImageView<float>& out_depth, const ImageView<float>& out_weight,
-                       float* out_quality, const BlendBuffers* accumulate) {
+                       float* out_quality, const BlendBuffers* accumulate, bool check_color) {
   const int h = depth.height, w = depth.width;
   const int th = target.height, tw = target.width;
-  WarpCounts counts = ProjectVertices(depth, source, target, scratch);
-  // A view the front will reject (bad or no depth) never reaches the sums.
-  const BlendBuffers* acc = counts.bad_depths == 0 && counts.valid_vertices > 0 ? accumulate : nullptr;
+  WarpCounts counts = ProjectVertices(depth, source, target, scratch, check_color ? &color : nullptr);
+  // A view the front will reject (bad or no depth, non-finite colour) never reaches the sums.
+  const BlendBuffers* acc =
+      counts.bad_depths == 0 && counts.valid_vertices > 0 && counts.bad_colors == 0 ? accumulate : nullptr;
 
   const int num_bands = BuildBandLists(scratch, h, w, th, tw);
   const bool equirect_target = target.model == CameraModel::kEquirect;

@@ -129,6 +129,7 @@ struct WarpCounts {
   std::int64_t covered_pixels = 0;  // target pixels written (hole mode: surface pixels)
   std::int64_t disoccluded_pixels = 0;  // hole mode: pixels only stretched quads cover
   std::int64_t bad_flow = 0;        // flow form: non-finite flow vectors (the front rejects these)
+  std::int64_t bad_colors = 0;      // with check_color: NaN or infinite colour values (the front rejects these)
 };
 
 // color (H, W, 3) and depth (H, W) of the input, `source` camera of size W x H; outputs of the
@@ -142,13 +143,17 @@ struct WarpCounts {
 // out_weight and out_quality are not used either): the view is drawn band by band into
 // per-thread buffers of one band and only added to the sums (no full-size per-view buffers:
 // less memory traffic; the same sums, bit for bit). A rejected view then draws nothing.
+// check_color: count the colour values that are NaN or infinite (counts.bad_colors; in the
+// projection pass, rows in parallel, instead of a serial pass before the call); a view with any
+// is not added to the sums either (the front then raises).
 // Never throws (beyond std::bad_alloc from the scratch and the per-thread band buffers).
 #define IBR_FORWARD_WARP_BAND_LOCAL 1
+#define IBR_FORWARD_WARP_CHECK_COLOR 1  // check_color exists (benchmarks/dibr_ab builds older kernels too)
 WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<const float>& depth,
                        const Camera& source, const Camera& target, const WarpOptions& options,
                        WarpScratch& scratch, const ImageView<float>& out_color,
                        const ImageView<float>& out_depth, const ImageView<float>& out_weight,
-                       float* out_quality, const BlendBuffers* accumulate = nullptr);
+                       float* out_quality, const BlendBuffers* accumulate = nullptr, bool check_color = false);
 
 // ---- Warp with background-depth holes ---------------------------------------------------------
 // dos Anjos et al., "Metameric Inpainting for Image Warping", sec. 3.1, Eq. 1. One RGB-D view is
