@@ -187,3 +187,120 @@ def test_equirect_cube_faces_and_fusion_of_a_room():
     err = np.abs(np.abs(m.vertices).max(axis=1) - 2.0) / voxel
     # Measured: median 0.09, 95th percentile 0.41, max 0.76 voxel.
     assert np.median(err) < 0.2 and np.percentile(err, 95) < 0.6 and err.max() < 1.0
+
+
+# -- the point-colour kernel (_core.point_colors, cpp/kernels/atlas8.cpp) against numpy ------------
+def _sample_bilinear_ref(img, x, y):
+    h, w = img.shape[:2]
+    xf, yf = np.clip(x - 0.5, 0, w - 1), np.clip(y - 0.5, 0, h - 1)
+    x0 = np.minimum(xf.astype(np.int64), w - 2 if w > 1 else 0)
+    y0 = np.minimum(yf.astype(np.int64), h - 2 if h > 1 else 0)
+    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+    tx, ty = (xf - x0)[:, None], (yf - y0)[:, None]
+    top = img[y0, x0] * (1 - tx) + img[y0, x1] * tx
+    bot = img[y1, x0] * (1 - tx) + img[y1, x1] * tx
+    return top * (1 - ty) + bot * ty
+
+
+def point_colors_ref(v, nrm, cameras, colors, depths, k_views=4, depth_tol=0.02):
+    """The numpy implementation point_colors had before the kernel (same float32/float64 steps)."""
+    names = list(cameras)
+    n_v, n_views = len(v), len(names)
+    penalty = np.full((n_views, n_v), np.inf, np.float32)
+    dist = np.full((n_views, n_v), np.inf, np.float32)
+    for i, n in enumerate(names):
+        cam, d = cameras[n], depths[n]
+        xy, z = cam.project(v)
+        with np.errstate(invalid="ignore"):
+            inside = (np.isfinite(z) & (xy[:, 0] >= 0) & (xy[:, 0] < cam.width)
+                      & (xy[:, 1] >= 0) & (xy[:, 1] < cam.height))
+        idx = np.flatnonzero(inside)
+        px = np.minimum(xy[idx, 0].astype(np.int64), cam.width - 1)
+        py = np.minimum(xy[idx, 1].astype(np.int64), cam.height - 1)
+        dz = d[py, px]
+        vis = np.isfinite(dz) & (dz > 0) & (np.abs(z[idx] - dz) <= np.float32(depth_tol) * dz)
+        idx = idx[vis]
+        to_cam = cam.centre[None] - v[idx]
+        r = np.linalg.norm(to_cam, axis=1)
+        ang = np.arccos(np.clip(np.einsum("ij,ij->i", to_cam, nrm[idx]) / np.maximum(r, 1e-12), -1, 1))
+        ok = ang < np.pi / 2 - 1e-3
+        penalty[i, idx[ok]] = ang[ok]
+        dist[i, idx[ok]] = r[ok]
+    seen = np.isfinite(penalty).sum(0).astype(np.int32)
+    dmin = np.min(dist, axis=0)
+    with np.errstate(invalid="ignore"):
+        penalty = penalty + np.float32(0.5) * np.maximum(np.float32(0), dist / np.where(np.isfinite(dmin), dmin, np.float32(1)) - np.float32(1))
+    k = min(k_views, n_views)
+    thresh = np.partition(penalty, k, axis=0)[k] if n_views > k else np.full(n_v, np.inf, np.float32)
+    acc = np.zeros((n_v, 3), np.float64)
+    wsum = np.zeros(n_v, np.float64)
+    for i, n in enumerate(names):
+        p = penalty[i]
+        use = np.flatnonzero(np.isfinite(p) & (p < thresh))
+        t = thresh[use]
+        w = np.where(np.isfinite(t), np.float32(1) - p[use] / np.where(t > 0, t, np.float32(1)), np.float32(1))
+        w = np.maximum(w, np.float32(1e-3))
+        xy, _ = cameras[n].project(v[use])
+        acc[use] += w[:, None] * _sample_bilinear_ref(colors[n], xy[:, 0], xy[:, 1])
+        wsum[use] += w
+    out = np.where(wsum[:, None] > 0, acc / np.where(wsum > 0, wsum, 1)[:, None], 0).astype(np.float32)
+    return out, seen
+
+
+def test_point_colors_kernel_matches_the_numpy_reference():
+    """Seven views (pinhole around a bumpy wall, one equirect; k = 4 of them, so the (k+1)-th
+    penalty threshold, the resolution term, the depth test and the back-face test all act; one
+    view's depth has an occluder band and unknown pixels). The kernel does the numpy steps in the
+    same precision; only the 3x3 projection's summation order may differ (~1e-16 relative in the
+    image position), hence 1e-5 and not bit equality; ``seen`` must be equal."""
+    from ibrtools.hybrid.globalmesh import point_colors
+
+    rng = np.random.default_rng(3)
+    mesh = densify(wall(size=1.0), 0.1)
+    v = mesh.vertices.astype(np.float64).copy()
+    v[:, 2] += 0.05 * np.sin(3 * v[:, 0]) * np.cos(2 * v[:, 1])  # not a plane: varied normals
+    mesh = Mesh(v.astype(np.float32), mesh.faces)
+    eyes = [(-0.6, 0.1, 0.0), (0.5, -0.2, 0.3), (0.0, 0.0, -0.5), (0.3, 0.4, 0.8), (-0.2, -0.5, 0.2),
+            (0.0, 0.0, 3.5)]  # the last one behind the wall: back-facing
+    cams = {f"p{i}": cam_at(e, w=48 + 4 * i, h=36) for i, e in enumerate(eyes)}
+    cams["eq"] = Camera.equirect(64, 32, cam_from_world=look_at((0.1, 0.1, -0.2), (0.0, 0.0, 2.0), up=(0.0, -1.0, 0.0)))
+    depths = depth_from_mesh(mesh, cams)
+    depths["p1"][10:14] = 1.0  # an occluder band in front of the wall
+    depths["p2"][:, :5] = 0.0  # unknown depth
+    colors = {n: rng.random((c.height, c.width, 3)).astype(np.float32) for n, c in cams.items()}
+    vn = vertex_normals(mesh.vertices, mesh.faces).astype(np.float64)
+    pts = mesh.vertices.astype(np.float64)
+    for k in (1, 4, 8):
+        ref, seen_ref = point_colors_ref(pts, vn, cams, colors, depths, k_views=k)
+        got, seen = point_colors(pts, vn, cams, colors, depths, GlobalMeshOptions(k_views=k))
+        assert got.dtype == np.float32 and seen.dtype == np.int32
+        np.testing.assert_array_equal(seen, seen_ref)
+        assert (seen >= 3).any() and (seen == 0).any() and (seen < len(cams)).all()
+        np.testing.assert_allclose(got, ref, rtol=0, atol=1e-5)
+
+
+def test_point_colors_bad_input():
+    from ibrtools import _core
+    from ibrtools.errors import ShapeError
+    from ibrtools.hybrid.globalmesh import point_colors
+
+    c = cam_at((0.0, 0.0, 0.0))
+    col, dep = np.zeros((30, 40, 3), np.float32), np.full((30, 40), 2.0, np.float32)
+    p = np.zeros((5, 3))
+    with pytest.raises(BadValueError, match="no views"):
+        point_colors(p, p, {}, {}, {})
+    with pytest.raises(ShapeError, match="points, normals"):
+        point_colors(p, p[:4], {"a": c}, {"a": col}, {"a": dep})
+    with pytest.raises(ShapeError, match="view 'a'"):
+        point_colors(p, p, {"a": c}, {"a": col[:-1]}, {"a": dep})
+    views = [(c.to_core(), col, dep)]
+    with pytest.raises(BadValueError, match="k"):
+        _core.point_colors(p, p, views, k=0)
+    with pytest.raises(BadValueError, match="depth_tol"):
+        _core.point_colors(p, p, views, depth_tol=float("nan"))
+    with pytest.raises(DtypeError, match="points"):
+        _core.point_colors(p.astype(np.float32), p, views)
+    with pytest.raises(BadValueError, match="views"):
+        _core.point_colors(p, p, [])
+    with pytest.raises(DtypeError, match=r"views\[0\]"):
+        _core.point_colors(p, p, [(c.to_core(), col)])

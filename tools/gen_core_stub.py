@@ -91,6 +91,8 @@ OVERRIDES: dict[str, dict[str, str]] = {
                       "pvm_depth": "_F32 | None", "vd": "_F32 | None"},
     "interpolate_vertex_attribute": {"prim_id": "_I32", "bary": "_F32", "faces": "_I32", "attrib": "_F32"},
     "sample_atlas": {"prim_id": "_I32", "bary": "_F32", "uv": "_F32", "atlas": "_F32 | _U8"},
+    "point_colors": {"points": "_F64", "normals": "_F64", "views": "list[tuple[Camera, _F32, _F32]]",
+                     "return": "tuple[_F32, _I32]"},
     "raster_gbuffer": {"vertices": "_F32", "faces": "_I32", "return": _ARRAYS},
     "interpolate_vertex_values": {"prim_id": "_I32", "bary": "_F32", "faces": "_I32", "values": "_F32"},
     "metameric_composite": {"moments": "_F32", "mask": "_Bool | _U8", "noise": "collections.abc.Sequence[_F32]",

@@ -127,6 +127,47 @@ FArray SampleAtlasBinding(const py::object& prim_obj, const py::object& bary_obj
   return out;
 }
 
+// _core.point_colors (kernels/atlas8.h PointColors): the texture bake's ULR-weighted colour at points.
+py::tuple PointColorsBinding(const py::object& points_obj, const py::object& normals_obj, const py::list& views_obj,
+                             int k, double depth_tol) {
+  if (k < 1) throw BadValueError("k: expected >= 1 views per point, got " + std::to_string(k));
+  PointColorOptions opt;
+  opt.k = k;
+  opt.depth_tol = CheckFinite(depth_tol, "depth_tol", 0.0);
+  auto points = CheckArray<double>(points_obj, "points", {{"N", -1}, {"3", 3}});
+  const auto n = points.shape(0);
+  auto normals = CheckArray<double>(normals_obj, "normals", {{"N", n}, {"3", 3}});
+  if (views_obj.size() == 0) throw BadValueError("views: expected at least one (camera, color, depth)");
+  std::vector<FArray> keep;
+  std::vector<UlrInputView> views;
+  for (std::size_t i = 0; i < views_obj.size(); ++i) {
+    const std::string nm = "views[" + std::to_string(i) + "]";
+    py::handle item = views_obj[i];
+    if (!py::isinstance<py::tuple>(item) || py::len(item) != 3) throw DtypeError(nm + ": expected a (camera, color, depth) tuple");
+    py::tuple t = py::reinterpret_borrow<py::tuple>(item);
+    if (!py::isinstance<Camera>(t[0])) throw DtypeError(nm + "[0]: expected a _core.Camera");
+    UlrInputView v;
+    v.camera = t[0].cast<Camera>();
+    const std::string cn = nm + ".color", dn = nm + ".depth";
+    auto c = CheckArray<float>(t[1], cn.c_str(), {{"h", v.camera.height}, {"w", v.camera.width}, {"3", 3}});
+    auto d = CheckArray<float>(t[2], dn.c_str(), {{"h", v.camera.height}, {"w", v.camera.width}});
+    if (v.camera.width < 1 || v.camera.height < 1) throw ShapeError(nm + ": expected a camera of at least 1 x 1 pixels");
+    v.color = ConstViewOf(c);
+    v.depth = ConstViewOf(d);
+    keep.push_back(c);
+    keep.push_back(d);
+    views.push_back(v);
+  }
+  FArray color = NewArray<float>({n, py::ssize_t(3)});
+  auto seen = py::array_t<std::int32_t, py::array::c_style>(std::vector<py::ssize_t>{n});
+  {
+    py::gil_scoped_release release;
+    PointColors(points.data(), normals.data(), static_cast<std::int64_t>(n), views.data(),
+                static_cast<int>(views.size()), opt, color.mutable_data(), seen.mutable_data());
+  }
+  return py::make_tuple(color, seen);
+}
+
 py::dict RasterGBufferBinding(const Camera& camera, const py::object& vertices_obj, const py::object& faces_obj,
                               bool normal) {
   if (camera.model != CameraModel::kPinhole) {
@@ -316,6 +357,11 @@ void BindHybridRender(py::module_& m) {
         "linear per texel, alpha unused), read bilinearly (edge-clamped) at each pixel's hit "
         "(prim_id (H, W) int32, -1 = none; bary (H, W, 2) Embree (u, v)) at the face's uv (M, 3, 2) float32 in atlas "
         "pixels (x right, y down, centres at +0.5): (H, W, 3), 0 where nothing is hit.");
+  m.def("point_colors", &PointColorsBinding, py::arg("points"), py::arg("normals"), py::arg("views"), py::kw_only(),
+        py::arg("k") = 4, py::arg("depth_tol") = 0.02,
+        "ULR-weighted colour of the views at surface points (the texture bake; kernels/atlas8.h PointColors): "
+        "points, normals (N, 3) float64 (unit normals), views = [(camera, color (h, w, 3), depth (h, w)), ...] -> "
+        "(color (N, 3) float32, 0 where no view sees the point; seen (N,) int32 views that see it).");
   m.def(
       "ulr_penalty",
       [](const std::vector<float>& p, const std::vector<float>& c_novel, const std::vector<float>& c_view,

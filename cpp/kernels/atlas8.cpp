@@ -4,6 +4,8 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <limits>
+#include <vector>
 
 #include "ibr/parallel.h"
 
@@ -71,6 +73,84 @@ void SampleAtlasSrgb8(const std::int32_t* prim_id, const float* bary, std::int64
   SampleAtlasBilinear(
       prim_id, bary, num_pixels, uv, atlas.width, atlas.height, [&](int y) { return atlas.Row(y); },
       [lut](const std::uint8_t* row, int x, int c) { return lut[row[4 * x + c]]; }, out);
+}
+
+void PointColors(const double* points, const double* normals, std::int64_t n, const UlrInputView* views,
+                 int num_views, const PointColorOptions& options, float* color, std::int32_t* seen) {
+  constexpr float kInf = std::numeric_limits<float>::infinity();
+  const double max_angle = M_PI / 2 - 1e-3;
+  const int k = std::min(options.k, num_views);
+  std::vector<glm::dvec3> centres(num_views);
+  for (int i = 0; i < num_views; ++i) centres[i] = views[i].camera.CentreInWorld();
+  ParallelFor(n, 4096, [&](std::int64_t b, std::int64_t e) {
+    std::vector<float> pen(num_views), dist(num_views), sorted(num_views);
+    std::vector<double> px(num_views), py(num_views);
+    for (std::int64_t i = b; i < e; ++i) {
+      const glm::dvec3 p(points[3 * i], points[3 * i + 1], points[3 * i + 2]);
+      const glm::dvec3 nrm(normals[3 * i], normals[3 * i + 1], normals[3 * i + 2]);
+      int n_seen = 0;
+      float dmin = kInf;
+      for (int v = 0; v < num_views; ++v) {
+        pen[v] = dist[v] = kInf;
+        const Camera& cam = views[v].camera;
+        double x, y, z;
+        if (!cam.ProjectCam(cam.CamFromWorld(p), &x, &y, &z)) continue;
+        if (!(std::isfinite(z) && x >= 0 && x < cam.width && y >= 0 && y < cam.height)) continue;
+        const int ix = std::min(static_cast<int>(x), cam.width - 1), iy = std::min(static_cast<int>(y), cam.height - 1);
+        const float dz = views[v].depth.Row(iy)[ix];
+        if (!(std::isfinite(dz) && dz > 0 && std::abs(z - double(dz)) <= double(options.depth_tol * dz))) continue;
+        const glm::dvec3 to_cam = centres[v] - p;
+        const double r = glm::length(to_cam);
+        const double ang = std::acos(std::clamp(glm::dot(to_cam, nrm) / std::max(r, 1e-12), -1.0, 1.0));
+        if (!(ang < max_angle)) continue;
+        pen[v] = static_cast<float>(ang);
+        dist[v] = static_cast<float>(r);
+        dmin = std::min(dmin, dist[v]);
+        px[v] = x;
+        py[v] = y;
+        ++n_seen;
+      }
+      seen[i] = n_seen;
+      float* o = color + 3 * i;
+      if (n_seen == 0) {
+        o[0] = o[1] = o[2] = 0.f;
+        continue;
+      }
+      for (int v = 0; v < num_views; ++v) {
+        if (pen[v] < kInf) pen[v] = pen[v] + 0.5f * std::max(0.f, dist[v] / dmin - 1.f);
+      }
+      float thresh = kInf;
+      if (num_views > k) {  // the (k+1)-th smallest penalty (infinite ones included)
+        sorted.assign(pen.begin(), pen.end());
+        std::nth_element(sorted.begin(), sorted.begin() + k, sorted.end());
+        thresh = sorted[k];
+      }
+      double acc[3] = {0, 0, 0}, wsum = 0;
+      for (int v = 0; v < num_views; ++v) {
+        if (!(pen[v] < kInf && pen[v] < thresh)) continue;
+        float w = 1.f;
+        if (thresh < kInf) w = 1.f - pen[v] / (thresh > 0 ? thresh : 1.f);
+        w = std::max(w, 1e-3f);
+        // Bilinear, centres at +0.5, clamped to the edge (x0 <= w - 2: the right edge reads with tx = 1).
+        const ImageView<const float>& img = views[v].color;
+        const double xf = std::clamp(px[v] - 0.5, 0.0, double(img.width - 1));
+        const double yf = std::clamp(py[v] - 0.5, 0.0, double(img.height - 1));
+        const int x0 = std::min(static_cast<int>(xf), img.width > 1 ? img.width - 2 : 0);
+        const int y0 = std::min(static_cast<int>(yf), img.height > 1 ? img.height - 2 : 0);
+        const int x1 = std::min(x0 + 1, img.width - 1), y1 = std::min(y0 + 1, img.height - 1);
+        const double tx = xf - x0, ty = yf - y0;
+        const float* r0 = img.Row(y0);
+        const float* r1 = img.Row(y1);
+        for (int c = 0; c < 3; ++c) {
+          const double top = r0[3 * x0 + c] * (1 - tx) + r0[3 * x1 + c] * tx;
+          const double bot = r1[3 * x0 + c] * (1 - tx) + r1[3 * x1 + c] * tx;
+          acc[c] += w * (top * (1 - ty) + bot * ty);
+        }
+        wsum += w;
+      }
+      for (int c = 0; c < 3; ++c) o[c] = wsum > 0 ? static_cast<float>(acc[c] / wsum) : 0.f;
+    }
+  });
 }
 
 }  // namespace ibr

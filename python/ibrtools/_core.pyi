@@ -17,7 +17,7 @@ _U8: typing.TypeAlias = numpy.typing.NDArray[numpy.uint8]
 _I8: typing.TypeAlias = numpy.typing.NDArray[numpy.int8]
 _Bool: typing.TypeAlias = numpy.typing.NDArray[numpy.bool_]
 _Light: typing.TypeAlias = tuple[str, collections.abc.Sequence[float], collections.abc.Sequence[float], bool]
-__all__: list[str] = ['Camera', 'CameraModel', 'DepthWarpMips', 'DibrAccumulator', 'EMBREE_VERSION', 'OcclusionScene', 'PvmRenderer', 'RayScene', 'WARP_DISOCCLUDED', 'WARP_SURFACE', 'WARP_UNCOVERED', 'WarpOptions', 'YMap', 'blur_selection', 'cpu_has_avx2', 'cross_view_prediction', 'cull_awoc_fill', 'cull_object_boxes', 'cull_project_boxes', 'dw_build_mips', 'dw_forward', 'dw_motion', 'dw_motion_mips', 'dw_warp', 'forward_warp', 'get_num_threads', 'grid_maxflow', 'hybrid_composite', 'hybrid_select', 'interpolate_vertex_attribute', 'interpolate_vertex_values', 'metameric_composite', 'metameric_encode', 'metameric_fill_holes', 'metameric_pushpull_change', 'metameric_pushpull_moments', 'metameric_stack_moments', 'mip_build', 'mip_foveate_level', 'mip_lookup', 'mip_max_levels', 'poisson_blend', 'pushpull', 'pvm_slice', 'pvm_triangulate', 'raster_gbuffer', 'sample_atlas', 'set_num_threads', 'set_warp_isa', 'shadow_map_visibility', 'ssim', 'steerable_analyse', 'steerable_max_levels', 'steerable_synthesise', 'ulr_blend', 'ulr_penalty', 'ulr_select', 'warp_flow', 'warp_isa', 'warp_with_holes']
+__all__: list[str] = ['Camera', 'CameraModel', 'DepthWarpMips', 'DibrAccumulator', 'EMBREE_VERSION', 'OcclusionScene', 'PvmRenderer', 'RayScene', 'WARP_DISOCCLUDED', 'WARP_SURFACE', 'WARP_UNCOVERED', 'WarpOptions', 'YMap', 'blur_selection', 'cpu_has_avx2', 'cross_view_prediction', 'cull_awoc_fill', 'cull_object_boxes', 'cull_project_boxes', 'dw_build_mips', 'dw_forward', 'dw_motion', 'dw_motion_mips', 'dw_warp', 'forward_warp', 'get_num_threads', 'grid_maxflow', 'hybrid_composite', 'hybrid_select', 'interpolate_vertex_attribute', 'interpolate_vertex_values', 'metameric_composite', 'metameric_encode', 'metameric_fill_holes', 'metameric_pushpull_change', 'metameric_pushpull_moments', 'metameric_stack_moments', 'mip_build', 'mip_foveate_level', 'mip_lookup', 'mip_max_levels', 'point_colors', 'poisson_blend', 'pushpull', 'pvm_slice', 'pvm_triangulate', 'raster_gbuffer', 'sample_atlas', 'set_num_threads', 'set_warp_isa', 'shadow_map_visibility', 'ssim', 'steerable_analyse', 'steerable_max_levels', 'steerable_synthesise', 'ulr_blend', 'ulr_penalty', 'ulr_select', 'warp_flow', 'warp_isa', 'warp_with_holes']
 
 class CameraModel:
     """
@@ -473,6 +473,11 @@ def mip_lookup(levels: collections.abc.Sequence[_F32], level: _F32) -> numpy.typ
 def mip_max_levels(height: typing.SupportsInt | typing.SupportsIndex, width: typing.SupportsInt | typing.SupportsIndex) -> int:
     """
     Number of MIP levels above an (height, width) image (ceil halving down to 1x1).
+    """
+
+def point_colors(points: _F64, normals: _F64, views: list[tuple[Camera, _F32, _F32]], *, k: typing.SupportsInt | typing.SupportsIndex=4, depth_tol: typing.SupportsFloat | typing.SupportsIndex=0.02) -> tuple[_F32, _I32]:
+    """
+    ULR-weighted colour of the views at surface points (the texture bake; kernels/atlas8.h PointColors): points, normals (N, 3) float64 (unit normals), views = [(camera, color (h, w, 3), depth (h, w)), ...] -> (color (N, 3) float32, 0 where no view sees the point; seen (N,) int32 views that see it).
     """
 
 def poisson_blend(boundary: _F32, source: _F32, mask: _Bool, tol: typing.SupportsFloat | typing.SupportsIndex=1e-06, max_iter: typing.SupportsInt | typing.SupportsIndex=200, smooth_sweeps: typing.SupportsInt | typing.SupportsIndex=1, coarse_scale: typing.SupportsFloat | typing.SupportsIndex=1.8) -> tuple[_F32, dict[str, typing.Any]]:

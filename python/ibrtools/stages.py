@@ -161,7 +161,7 @@ STAGES: dict[str, Stage] = {s.name: s for s in (
           "per-view depth rendered from the global mesh, for views without depth"),
     Stage("texture", ("scene", "mesh", "depth"), ("texture.npz",), frozenset({"tm", "hybrid"}),
           "texture atlas and per-vertex colour of the render mesh by ULR-weighted blending of the "
-          "gain-compensated views", version=4),
+          "gain-compensated views", version=5),
     Stage("variance", ("scene", "mesh", "depth"), ("variance.npz",), frozenset({"hybrid"}),
           "per-vertex photometric standard deviation across the views that see it"),
     Stage("harmonise", ("scene", "mesh", "variance"), ("harmonise.npz",), frozenset({"hybrid"}),

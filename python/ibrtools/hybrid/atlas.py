@@ -38,7 +38,7 @@ import numpy as np
 from ..camera import PINHOLE, Camera
 from ..errors import BadValueError, DtypeError, ShapeError
 from ..mesh import Mesh
-from .globalmesh import GlobalMeshOptions, point_colors, vertex_normals
+from .globalmesh import ATLAS_MAX_TEXELS, ATLAS_TEXELS_LIMIT, GlobalMeshOptions, point_colors, vertex_normals
 
 MIN_CELL = 5  # B's legs of N - 4 texels: >= 1 texel
 CHUNK = 1 << 19  # texels per point_colors call (bounds the (views, texels) penalty arrays)
@@ -74,7 +74,7 @@ def texel_size(cameras: Mapping[str, Camera], depths: Mapping[str, np.ndarray]) 
     return float(np.median(sizes))
 
 
-def layout(mesh: Mesh, texel: float, max_texels: int = 4_194_304, max_cell: int = 256,
+def layout(mesh: Mesh, texel: float, max_texels: int = ATLAS_MAX_TEXELS, max_cell: int = 256,
            face_scale: np.ndarray | None = None) -> AtlasLayout:
     """Per-face charts packed in cells of face pairs (module docstring). ``texel``: world units per
     texel; grown (by factors of 1.25) until the atlas holds at most ``max_texels``. ``face_scale``
@@ -83,8 +83,9 @@ def layout(mesh: Mesh, texel: float, max_texels: int = 4_194_304, max_cell: int 
     _check_mesh(mesh)
     if not (isinstance(texel, (int, float)) and math.isfinite(texel) and texel > 0):
         raise BadValueError(f"texture atlas: texel size must be a finite number > 0, got {texel!r}")
-    if int(max_texels) < MIN_CELL * MIN_CELL:
-        raise BadValueError(f"texture atlas: max_texels must be >= {MIN_CELL * MIN_CELL}, got {max_texels}")
+    if not MIN_CELL * MIN_CELL <= int(max_texels) <= ATLAS_TEXELS_LIMIT:
+        raise BadValueError(f"texture atlas: max_texels must be in [{MIN_CELL * MIN_CELL}, {ATLAS_TEXELS_LIMIT}], "
+                            f"got {max_texels}")
     v = mesh.vertices.astype(np.float64)
     f = mesh.faces
     m = len(f)
@@ -198,11 +199,16 @@ def _morton(points: np.ndarray) -> np.ndarray:
     return spread(q[:, 0]) | (spread(q[:, 1]) << 1) | (spread(q[:, 2]) << 2)
 
 
-def texel_barycentrics(lay: AtlasLayout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """((ys, xs, face), bary (T, 3)) of the used texels: barycentrics of the texel centre in its
-    face's chart, clamped to the face (negative weights set to 0, renormalised)."""
-    ys, xs = np.nonzero(lay.face_of_texel >= 0)
-    face = lay.face_of_texel[ys, xs]
+def texel_barycentrics(lay: AtlasLayout, rows: slice | None = None
+                       ) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], np.ndarray]:
+    """((ys, xs, face), bary (T, 3)) of the used texels (of the atlas rows ``rows``, default all):
+    barycentrics of the texel centre in its face's chart, clamped to the face (negative weights set
+    to 0, renormalised)."""
+    fot = lay.face_of_texel if rows is None else lay.face_of_texel[rows]
+    ys, xs = np.nonzero(fot >= 0)
+    face = fot[ys, xs]
+    if rows is not None and rows.start:
+        ys = ys + rows.start
     p = np.stack([xs + 0.5, ys + 0.5], 1).astype(np.float64)
     t = lay.uv[face].astype(np.float64)
     d1, d2, dp = t[:, 1] - t[:, 0], t[:, 2] - t[:, 0], p - t[:, 0]
@@ -226,14 +232,17 @@ def bake(mesh: Mesh, lay: AtlasLayout, cameras: Mapping[str, Camera], colors: Ma
     h, w = lay.face_of_texel.shape
     if h == 0 or w == 0:
         raise BadValueError("texture atlas: the layout has size 0")
-    (ys, xs, face), bary = texel_barycentrics(lay)
-    fv = mesh.faces[face]
     vn = vertex_normals(mesh.vertices, mesh.faces)
     img = np.zeros((h, w, 3), np.float32)
-    unseen = 0
-    for lo in range(0, len(face), CHUNK):
-        sl = slice(lo, lo + CHUNK)
-        b, f3 = bary[sl], fv[sl]
+    unseen = used = 0
+    # Bands of about CHUNK texels (whole atlas rows): the per-texel temporaries (~200 bytes a
+    # texel with point_colors' (views, texels) arrays) stay bounded whatever the atlas size.
+    band = max(1, CHUNK // w)
+    for lo in range(0, h, band):
+        (ys, xs, face), b = texel_barycentrics(lay, slice(lo, min(h, lo + band)))
+        if len(face) == 0:
+            continue
+        f3 = mesh.faces[face]
         pts = np.einsum("tk,tkc->tc", b, mesh.vertices[f3].astype(np.float64))
         nrm = np.einsum("tk,tkc->tc", b, vn[f3].astype(np.float64))
         nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
@@ -242,8 +251,9 @@ def bake(mesh: Mesh, lay: AtlasLayout, cameras: Mapping[str, Camera], colors: Ma
         if miss.any():
             col[miss] = np.einsum("tk,tkc->tc", b[miss], vc[f3[miss]]).astype(np.float32)
         unseen += int(miss.sum())
-        img[ys[sl], xs[sl]] = col
-    return img, unseen / max(1, len(face))
+        used += len(face)
+        img[ys, xs] = col
+    return img, unseen / max(1, used)
 
 
 def to_srgb8(img: np.ndarray) -> np.ndarray:

@@ -26,11 +26,21 @@ import numpy as np
 
 from ..camera import PINHOLE, Camera
 from ..checks import check_float, check_int
-from ..errors import BadValueError, DtypeError
+from ..errors import BadValueError, DtypeError, ShapeError
 from ..mesh import Mesh
 from ..scene import Scene
 
 SOURCES = ("auto", "reconstructed", "ground_truth", "fusion")
+# The texture atlas's default texel cap: 2^25 texels = 128 MiB of 8-bit sRGB RGBA (an 8192 x 4096
+# atlas), held in memory by the TM render; the bake holds ~20 bytes a texel more while it runs
+# (float32 RGB image, int32 face map: ~0.7 GB at the cap). Chosen by memory: a scene's atlas gets
+# the texels its layout asks at the views' pixel footprint up to it (docs/preprocess.md "Texture").
+# The old cap, 2^22 (2048^2), held no atlas for a fused mesh of 10^6 faces (>= 36 texels a face
+# pair), which then fell back to per-vertex colour.
+ATLAS_MAX_TEXELS = 1 << 25
+# Upper limit of atlas_max_texels: 4 GiB of RGBA; atlas sides stay far below 2^24, where float32
+# uv (integer texel corners) stop being exact.
+ATLAS_TEXELS_LIMIT = 1 << 30
 
 
 @dataclass(frozen=True)
@@ -51,9 +61,10 @@ class GlobalMeshOptions:
     k_views: int = 4             # ULR: views blended per vertex
     depth_tol: float = 0.02      # visibility: |z_vertex - z_view| <= depth_tol * z_view
     # texture atlas (hybrid/atlas.py): texel = atlas_texel x the input views' median pixel
-    # footprint on the surface; at most atlas_max_texels (2048^2) texels (the texel grows to fit).
+    # footprint on the surface; at most atlas_max_texels texels (the texel grows to fit). The cap
+    # is a memory bound (ATLAS_MAX_TEXELS: 128 MiB of 8-bit RGBA), not a quality knob.
     atlas_texel: float = 1.0
-    atlas_max_texels: int = 4_194_304
+    atlas_max_texels: int = ATLAS_MAX_TEXELS
     # per-face texel size following the finest footprint of the views on the face
     # (atlas.face_footprint_scale, clipped to 0.5-8x); False: one texel size for every face.
     atlas_adaptive: bool = True
@@ -74,6 +85,9 @@ class GlobalMeshOptions:
         if not check_float(self.atlas_texel, "atlas_texel") > 0:
             raise BadValueError("atlas_texel: expected > 0")
         check_int(self.atlas_max_texels, "atlas_max_texels", 16)
+        if self.atlas_max_texels > ATLAS_TEXELS_LIMIT:
+            raise BadValueError(f"atlas_max_texels: expected at most {ATLAS_TEXELS_LIMIT} (2^30), got "
+                                f"{self.atlas_max_texels}")
         if not isinstance(self.atlas_adaptive, (bool, np.bool_)):
             raise BadValueError(f"atlas_adaptive: expected true or false, got {self.atlas_adaptive!r}")
 
@@ -258,18 +272,6 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return (n / np.where(norm > 0, norm, 1)).astype(np.float32)
 
 
-def _sample_bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """img (H, W, C) at continuous coordinates (pixel centres at +0.5), clamped to the edge."""
-    h, w = img.shape[:2]
-    xf, yf = np.clip(x - 0.5, 0, w - 1), np.clip(y - 0.5, 0, h - 1)
-    x0, y0 = np.minimum(xf.astype(np.int64), w - 2 if w > 1 else 0), np.minimum(yf.astype(np.int64), h - 2 if h > 1 else 0)
-    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
-    tx, ty = (xf - x0)[:, None], (yf - y0)[:, None]
-    top = img[y0, x0] * (1 - tx) + img[y0, x1] * tx
-    bot = img[y1, x0] * (1 - tx) + img[y1, x1] * tx
-    return top * (1 - ty) + bot * ty
-
-
 def vertex_colors(mesh: Mesh, cameras: Mapping[str, Camera], colors: Mapping[str, np.ndarray],
                   depths: Mapping[str, np.ndarray], options: GlobalMeshOptions | None = None
                   ) -> tuple[np.ndarray, np.ndarray]:
@@ -283,64 +285,37 @@ def point_colors(points: np.ndarray, normals: np.ndarray, cameras: Mapping[str, 
                  options: GlobalMeshOptions | None = None) -> tuple[np.ndarray, np.ndarray]:
     """ULR-weighted blend of the views' colours at surface points with unit normals (both (N, 3)):
     (colors (N, 3) f32, seen (N,) int32). The per-vertex texture (:func:`vertex_colors`) and the
-    texture atlas (:mod:`ibrtools.hybrid.atlas`, per texel) share it. Points no view sees get 0."""
+    texture atlas (:mod:`ibrtools.hybrid.atlas`, per texel) share it. Points no view sees get 0.
+
+    Per point and view: visible when it projects inside the image, in front, within
+    ``depth_tol`` of the view's depth at its pixel and seen from the front (angle between the
+    normal and the direction to the camera < 90 degrees - 1e-3 rad); penalty = that angle + 0.5
+    max(0, distance / nearest such view's distance - 1) (Buehler et al.'s resolution term); the
+    views below the (k+1)-th smallest penalty are blended with weights max(1e-3, 1 - p / p_(k+1))
+    (a point seen by one view keeps its colour) of their bilinear colour. The kernel is
+    ``_core.point_colors`` (cpp/kernels/atlas8.h; the numpy version it replaced, kept as the
+    reference in tests/test_globalmesh.py, gives the same bits)."""
+    from .. import _core
+
     options = options or GlobalMeshOptions()
     names = list(cameras)
     if not names:
         raise BadValueError("vertex colours: no views")
-    v = np.asarray(points, np.float64)
-    nrm = np.asarray(normals, np.float64)
-    n_v, n_views = len(v), len(names)
-    penalty = np.full((n_views, n_v), np.inf, np.float32)
-    dist = np.full((n_views, n_v), np.inf, np.float32)
-    for i, n in enumerate(names):
-        cam, d = cameras[n], depths[n]
-        xy, z = cam.project(v)
-        with np.errstate(invalid="ignore"):
-            inside = (np.isfinite(z) & (xy[:, 0] >= 0) & (xy[:, 0] < cam.width)
-                      & (xy[:, 1] >= 0) & (xy[:, 1] < cam.height))
-        idx = np.flatnonzero(inside)
-        px = np.minimum(xy[idx, 0].astype(np.int64), cam.width - 1)
-        py = np.minimum(xy[idx, 1].astype(np.int64), cam.height - 1)
-        dz = d[py, px]
-        # Depth test: the view's own depth (z for pinhole, ray distance for equirect, as project()).
-        vis = np.isfinite(dz) & (dz > 0) & (np.abs(z[idx] - dz) <= options.depth_tol * dz)
-        idx = idx[vis]
-        to_cam = cam.centre[None] - v[idx]
-        r = np.linalg.norm(to_cam, axis=1)
-        cosang = np.einsum("ij,ij->i", to_cam, nrm[idx]) / np.maximum(r, 1e-12)
-        ang = np.arccos(np.clip(cosang, -1, 1))
-        ok = ang < np.pi / 2 - 1e-3  # seen from the front
-        penalty[i, idx[ok]] = ang[ok]
-        dist[i, idx[ok]] = r[ok]
-    seen = np.isfinite(penalty).sum(0).astype(np.int32)
-    # Resolution penalty (Buehler et al.): a view farther than the nearest one that sees the vertex
-    # samples it more coarsely.
-    dmin = np.min(dist, axis=0)
-    with np.errstate(invalid="ignore"):
-        penalty = penalty + 0.5 * np.maximum(0, dist / np.where(np.isfinite(dmin), dmin, 1) - 1)
-    k = min(options.k_views, n_views)
-    if n_views > k:
-        thresh = np.partition(penalty, k, axis=0)[k]  # the (k+1)-th smallest penalty
-    else:
-        thresh = np.full(n_v, np.inf, np.float32)
-    acc = np.zeros((n_v, 3), np.float64)
-    wsum = np.zeros(n_v, np.float64)
-    for i, n in enumerate(names):
-        p = penalty[i]
-        use = np.flatnonzero(np.isfinite(p) & (p < thresh))
-        if len(use) == 0:
-            continue
-        t = thresh[use]
-        w = np.where(np.isfinite(t), 1 - p[use] / np.where(t > 0, t, 1), 1.0)
-        w = np.maximum(w, 1e-3)  # a vertex seen by one view only keeps its colour
+    v = np.ascontiguousarray(points, np.float64)
+    nrm = np.ascontiguousarray(normals, np.float64)
+    if v.ndim != 2 or v.shape[1] != 3 or nrm.shape != v.shape:
+        raise ShapeError(f"points, normals: expected two (N, 3) arrays, got {v.shape} and {nrm.shape}")
+    views = []
+    for n in names:
         cam = cameras[n]
-        xy, _ = cam.project(v[use])
-        col = _sample_bilinear(colors[n], xy[:, 0], xy[:, 1])
-        acc[use] += w[:, None] * col
-        wsum[use] += w
-    out = np.where(wsum[:, None] > 0, acc / np.where(wsum > 0, wsum, 1)[:, None], 0).astype(np.float32)
-    return np.ascontiguousarray(out), seen
+        col = np.ascontiguousarray(colors[n], np.float32)
+        dep = np.ascontiguousarray(depths[n], np.float32)
+        if col.shape != (cam.height, cam.width, 3) or dep.shape != (cam.height, cam.width):
+            raise ShapeError(f"view {n!r}: expected colour ({cam.height}, {cam.width}, 3) and depth "
+                             f"({cam.height}, {cam.width}), got {col.shape} and {dep.shape}")
+        views.append((cam.to_core(), col, dep))
+    col, seen = _core.point_colors(v, nrm, views, k=int(options.k_views), depth_tol=float(options.depth_tol))
+    return col, seen
 
 
 def depth_from_mesh(mesh: Mesh, cameras: Mapping[str, Camera]) -> dict[str, np.ndarray]:
