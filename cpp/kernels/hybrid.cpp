@@ -637,28 +637,103 @@ void HybridSelect(ImageView<const float> gbuffer_depth, const std::uint8_t* insi
                   const float* pvm_depth, const float* vd, const HybridSelectOptions& options,
                   ImageView<std::uint8_t> label_out) {
   const int H = gbuffer_depth.height, W = gbuffer_depth.width;
-  ParallelFor(std::int64_t(H) * W, 16384, [&](std::int64_t b, std::int64_t e) {
-    for (std::int64_t i = b; i < e; ++i) {
-      const int y = int(i / W), x = int(i % W);
-      const float g = gbuffer_depth.At(y, x);
-      const bool hit = g > 0.f && std::isfinite(g);
-      std::uint8_t lab;
-      if (inside_grid && !inside_grid[i]) {
-        lab = hit ? kLabelUlr : kLabelNone;
-      } else if (pvm_valid && pvm_valid[i] &&
-                 (!hit || !(std::abs(pvm_depth[i] - g) <= options.geo_threshold))) {
-        lab = kLabelPvm;
-      } else if (!hit) {
-        lab = kLabelNone;
-      } else if (vd && vd[i] > options.tau_var) {
-        lab = kLabelUlr;
-      } else {
-        lab = kLabelTm;
+  // By rows (no division per pixel to find its row and column).
+  ParallelFor(H, 8, [&](std::int64_t b, std::int64_t e) {
+    for (int y = int(b); y < int(e); ++y) {
+      const float* grow = gbuffer_depth.Row(y);
+      std::uint8_t* lrow = label_out.Row(y);
+      for (int x = 0; x < W; ++x) {
+        const std::int64_t i = std::int64_t(y) * W + x;
+        const float g = grow[x];
+        const bool hit = g > 0.f && std::isfinite(g);
+        std::uint8_t lab;
+        if (inside_grid && !inside_grid[i]) {
+          lab = hit ? kLabelUlr : kLabelNone;
+        } else if (pvm_valid && pvm_valid[i] &&
+                   (!hit || !(std::abs(pvm_depth[i] - g) <= options.geo_threshold))) {
+          lab = kLabelPvm;
+        } else if (!hit) {
+          lab = kLabelNone;
+        } else if (vd && vd[i] > options.tau_var) {
+          lab = kLabelUlr;
+        } else {
+          lab = kLabelTm;
+        }
+        lrow[x] = lab;
       }
-      label_out.At(y, x) = lab;
     }
   });
 }
+
+namespace {
+
+#if defined(IBR_ULR_AVX2)
+// BlurSelection's two passes in AVX2, eight columns per register and the sum over the taps kept
+// in registers (no store per tap): each output is the same sum in the same order (tap -r first,
+// starting from 0; mul then add, no FMA) as the SSE2 / scalar loops, so the same bits.
+// Vertical: a_c[x] = sum_d taps[d] * (label(clamp(y + d - r), x) == c) for the labels c with
+// has[c], written to planes[c] + x.
+__attribute__((target("avx2"))) void BlurVerticalAvx2(const std::uint8_t* const* rows, const float* taps, int ntaps,
+                                                      int W, const bool* has, float* const* planes) {
+  const __m256i l0 = _mm256_set1_epi32(0), l1 = _mm256_set1_epi32(1), l2 = _mm256_set1_epi32(2);
+  int x = 0;
+  for (; x + 8 <= W; x += 8) {
+    __m256 a0 = _mm256_setzero_ps(), a1 = _mm256_setzero_ps(), a2 = _mm256_setzero_ps();
+    for (int d = 0; d < ntaps; ++d) {
+      const __m256i lab = _mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(rows[d] + x)));
+      const __m256 t = _mm256_set1_ps(taps[d]);
+      a0 = _mm256_add_ps(a0, _mm256_and_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(lab, l0)), t));
+      a1 = _mm256_add_ps(a1, _mm256_and_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(lab, l1)), t));
+      a2 = _mm256_add_ps(a2, _mm256_and_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(lab, l2)), t));
+    }
+    if (has[0]) _mm256_storeu_ps(planes[0] + x, a0);
+    if (has[1]) _mm256_storeu_ps(planes[1] + x, a1);
+    if (has[2]) _mm256_storeu_ps(planes[2] + x, a2);
+  }
+  for (; x < W; ++x) {
+    float a[3] = {0.f, 0.f, 0.f};
+    for (int d = 0; d < ntaps; ++d) {
+      const std::uint8_t l = rows[d][x];
+      for (int c = 0; c < 3; ++c) a[c] += l == c ? taps[d] : 0.f;
+    }
+    for (int c = 0; c < 3; ++c)
+      if (has[c]) planes[c][x] = a[c];
+  }
+}
+
+// Horizontal: out[x] = sum_d taps[d] * pad[x + d].
+__attribute__((target("avx2"))) void BlurHorizontalAvx2(const float* pad, const float* taps, int ntaps, int W,
+                                                        float* out) {
+  int x = 0;
+  for (; x + 32 <= W; x += 32) {
+    __m256 a0 = _mm256_setzero_ps(), a1 = _mm256_setzero_ps(), a2 = _mm256_setzero_ps(), a3 = _mm256_setzero_ps();
+    for (int d = 0; d < ntaps; ++d) {
+      const __m256 t = _mm256_set1_ps(taps[d]);
+      const float* in = pad + x + d;
+      a0 = _mm256_add_ps(a0, _mm256_mul_ps(t, _mm256_loadu_ps(in)));
+      a1 = _mm256_add_ps(a1, _mm256_mul_ps(t, _mm256_loadu_ps(in + 8)));
+      a2 = _mm256_add_ps(a2, _mm256_mul_ps(t, _mm256_loadu_ps(in + 16)));
+      a3 = _mm256_add_ps(a3, _mm256_mul_ps(t, _mm256_loadu_ps(in + 24)));
+    }
+    _mm256_storeu_ps(out + x, a0);
+    _mm256_storeu_ps(out + x + 8, a1);
+    _mm256_storeu_ps(out + x + 16, a2);
+    _mm256_storeu_ps(out + x + 24, a3);
+  }
+  for (; x + 8 <= W; x += 8) {
+    __m256 a0 = _mm256_setzero_ps();
+    for (int d = 0; d < ntaps; ++d) a0 = _mm256_add_ps(a0, _mm256_mul_ps(_mm256_set1_ps(taps[d]), _mm256_loadu_ps(pad + x + d)));
+    _mm256_storeu_ps(out + x, a0);
+  }
+  for (; x < W; ++x) {
+    float a = 0.f;
+    for (int d = 0; d < ntaps; ++d) a += taps[d] * pad[x + d];
+    out[x] = a;
+  }
+}
+#endif  // IBR_ULR_AVX2
+
+}  // namespace
 
 void BlurSelection(ImageView<const std::uint8_t> label, float sigma, float* scratch, ImageView<float> weights_out) {
   const int H = label.height, W = label.width;
@@ -681,7 +756,23 @@ void BlurSelection(ImageView<const std::uint8_t> label, float sigma, float* scra
     for (int x = 0; x < W; ++x)
       if (lrow[x] < 3) has[lrow[x]] = true;
   }
+  // AVX2 when the CPU has it (the same bits, BlurVerticalAvx2 / BlurHorizontalAvx2): the sums
+  // over the taps in registers, eight columns at a time.
+  const bool avx2 = UlrCpuHasAvx2();
+  const int ntaps = 2 * r + 1;
   ParallelFor(H, 8, [&](std::int64_t b, std::int64_t e) {
+#if defined(IBR_ULR_AVX2)
+    if (avx2) {
+      std::vector<const std::uint8_t*> rows(static_cast<std::size_t>(ntaps));
+      for (int y = int(b); y < int(e); ++y) {
+        for (int d = -r; d <= r; ++d) rows[std::size_t(d + r)] = label.Row(std::clamp(y + d, 0, H - 1));
+        float* planes[3];
+        for (int c = 0; c < 3; ++c) planes[c] = scratch + c * plane + std::int64_t(y) * W;
+        BlurVerticalAvx2(rows.data(), taps.data(), ntaps, W, has, planes);
+      }
+      return;
+    }
+#endif
     for (int y = int(b); y < int(e); ++y) {
       float* a0 = scratch + std::int64_t(y) * W;
       float* a1 = a0 + plane;
@@ -713,6 +804,12 @@ void BlurSelection(ImageView<const std::uint8_t> label, float sigma, float* scra
         for (int x = 0; x < r; ++x) pad[x] = src[0], pad[std::size_t(W) + r + x] = src[W - 1];
         std::copy(src, src + W, pad.begin() + r);
         float* out = acc.data() + std::size_t(c) * W;
+#if defined(IBR_ULR_AVX2)
+        if (avx2) {
+          BlurHorizontalAvx2(pad.data(), taps.data(), ntaps, W, out);
+          continue;
+        }
+#endif
         for (int x = 0; x < W; ++x) out[x] = 0.f;
         for (int d = 0; d <= 2 * r; ++d) {
           const float t = taps[d];
@@ -739,15 +836,21 @@ void HybridComposite(ImageView<const float> weights, ImageView<const float> tm, 
                      const std::uint8_t* ulr_count, const float* pvm, const std::uint8_t* pvm_valid,
                      ImageView<float> color_out) {
   const int H = weights.height, W = weights.width;
-  ParallelFor(std::int64_t(H) * W, 16384, [&](std::int64_t b, std::int64_t e) {
-    for (std::int64_t i = b; i < e; ++i) {
-      const int y = int(i / W), x = int(i % W);
-      const float* w = &weights.At(y, x, 0);
-      const float* t = &tm.At(y, x, 0);
-      const float* u = (ulr && ulr_count && ulr_count[i] > 0) ? ulr + 3 * i : t;
-      const float* v = (pvm && pvm_valid && pvm_valid[i]) ? pvm + 3 * i : u;
-      float* o = &color_out.At(y, x, 0);
-      for (int c = 0; c < 3; ++c) o[c] = w[0] * t[c] + w[1] * u[c] + w[2] * v[c];
+  // By rows (no division per pixel to find its row and column).
+  ParallelFor(H, 8, [&](std::int64_t b, std::int64_t e) {
+    for (int y = int(b); y < int(e); ++y) {
+      const float* wrow = weights.Row(y);
+      const float* trow = tm.Row(y);
+      float* orow = color_out.Row(y);
+      for (int x = 0; x < W; ++x) {
+        const std::int64_t i = std::int64_t(y) * W + x;
+        const float* w = wrow + 3 * x;
+        const float* t = trow + 3 * x;
+        const float* u = (ulr && ulr_count && ulr_count[i] > 0) ? ulr + 3 * i : t;
+        const float* v = (pvm && pvm_valid && pvm_valid[i]) ? pvm + 3 * i : u;
+        float* o = orow + 3 * x;
+        for (int c = 0; c < 3; ++c) o[c] = w[0] * t[c] + w[1] * u[c] + w[2] * v[c];
+      }
     }
   });
 }
