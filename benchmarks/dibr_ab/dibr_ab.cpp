@@ -82,7 +82,11 @@ int main(int argc, char** argv) {
 #endif
     }
     auto t1 = std::chrono::steady_clock::now();
+#ifdef IBR_BLEND_RESOLVE_AVX2  // as the binding: AVX2 when the warp uses it
+    ResolveBlend(acc, oc.data(), od.data(), oq.data(), oh.data(), ActiveWarpIsa() == WarpIsa::kAvx2);
+#else
     ResolveBlend(acc, oc.data(), od.data(), oq.data(), oh.data());
+#endif
     auto t2 = std::chrono::steady_clock::now(); double c2 = Cpu();
     double a = std::chrono::duration<double, std::milli>(t1 - t0).count(), b = std::chrono::duration<double, std::milli>(t2 - t1).count();
     if (rep > 0) { best_cpu = std::min(best_cpu, c2 - c0); best = std::min(best, a + b); best_warp = std::min(best_warp, a); best_res = std::min(best_res, b); }

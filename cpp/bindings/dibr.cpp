@@ -189,7 +189,7 @@ class DibrAccumulator {
         ClearBlend(buffers_);
         buffers_.fresh = false;
       }
-      ResolveBlend(buffers_, c, d, q, o);
+      ResolveBlend(buffers_, c, d, q, o, ActiveWarpIsa() == WarpIsa::kAvx2);
     }
     return py::make_tuple(color, depth, conf, hole);
   }

@@ -71,6 +71,10 @@ void AccumulateRowPlainAvx2(const float* color, const float* depth, const float*
                             const BlendBuffers& acc, int y);
 
 // Writes colour (H, W, 3), depth (H, W), confidence (H, W), hole (H, W; 1 = hole) (all threads).
-void ResolveBlend(const BlendBuffers& acc, float* color, float* depth, float* confidence, std::uint8_t* hole);
+// avx2: eight pixels per step, compiled for AVX2 (call it so only on a CPU with AVX2; the same
+// bits; the warp's ISA switch decides, forward_warp.h ActiveWarpIsa).
+void ResolveBlend(const BlendBuffers& acc, float* color, float* depth, float* confidence, std::uint8_t* hole,
+                  bool avx2 = false);
+#define IBR_BLEND_RESOLVE_AVX2 1  // ResolveBlend has the avx2 flag (benchmarks/dibr_ab)
 
 }  // namespace ibr
