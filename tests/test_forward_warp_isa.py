@@ -229,3 +229,38 @@ def test_set_warp_isa_bad_input(restore_isa):
     assert _core.warp_isa() == "baseline"
     _core.set_warp_isa("auto")
     assert _core.warp_isa() == ("avx2" if _core.cpu_has_avx2() else "baseline")
+
+
+@pytest.fixture
+def restore_threads():
+    yield
+    _core.set_num_threads(0)
+
+
+def test_band_lists_and_band_order_change_no_result(restore_threads):
+    """The band lists are built in parallel over chunks of 64 input block rows and pass 2 takes
+    the bands by decreasing segment count (forward_warp.cpp, BuildBandLists): a tall input (5
+    chunks) seen by a tilted target (bands of very different loads), on 1 and 2 threads and
+    both ISAs, against the baseline on one thread, bit for bit."""
+    h, w = 300, 41
+    src = Camera.from_fov(w, h, 60, look_at([0, 0, 0], [0, 0, 1]))
+    dst = Camera.from_fov(90, 170, 70, look_at([0.1, 0.3, 0.05], [0.2, -0.4, 4]))
+    dep = rough_depth(h, w, 13)
+    col = noise(h, w, 14)
+    out = []
+    isas = ("baseline", "avx2") if _core.cpu_has_avx2() else ("baseline",)
+    try:
+        for isa in isas:
+            _core.set_warp_isa(isa)
+            for n in (1, 2):
+                _core.set_num_threads(n)
+                acc = _core.DibrAccumulator(dst.to_core(), 0.1, True, 0.0)
+                acc.add_view(col, dep, src.to_core())
+                acc.add_view(col[::-1].copy(), dep[::-1].copy(), src.to_core())
+                out.append(list(acc.result()) + list(_core.forward_warp(col, dep, src.to_core(), dst.to_core())))
+    finally:
+        _core.set_warp_isa("auto")
+    assert (~out[0][3]).mean() > 0.2  # the case draws something
+    for other in out[1:]:
+        for a, b in zip(out[0], other):
+            np.testing.assert_array_equal(a, b)

@@ -1357,52 +1357,88 @@ WarpCounts FlowVertices(const ImageView<const float>& depth, const float* flow, 
 
 // Per target band of kBandRows rows, the (block row, column segment) pairs whose vertices' y
 // range reaches it and whose x range reaches a centre column of the target (tw wide)
-// (scratch.band_start / band_segs). Returns the number of bands.
+// (scratch.band_start / band_segs). Returns the number of bands. A counting sort, in parallel
+// over chunks of kListRows block rows (the chunks depend on the sizes only): per chunk, each
+// segment's band range and the chunk's count per band; then the offsets of (band, chunk) in
+// band order, chunk order; then each chunk writes its ids. Per band the ids stay in input order.
+constexpr int kListRows = 64;
+
 int BuildBandLists(WarpScratch& scratch, int h, int w, int th, int tw) {
   const int num_segs = NumSegments(w);
   const int block_rows = std::max(0, h - 1);
   const int num_bands = (th + kBandRows - 1) / kBandRows;
+  const int num_chunks = (block_rows + kListRows - 1) / kListRows;
   const YRange* seg_y = scratch.seg_y.data();
-  // Per band, the (block row, column segment) pairs whose vertices' y range reaches it, in input
-  // order (counting sort: a segment touches few bands, so a band never scans the others).
   // Centre rows of a y range: [CeilSub(lo - 128), FloorSub(hi - 128)].
   std::vector<std::uint32_t>& band_start = scratch.band_start;
   std::vector<std::uint32_t>& band_segs = scratch.band_segs;
   std::vector<std::uint32_t>& seg_bands = scratch.seg_bands;
+  std::vector<std::uint32_t>& fill = scratch.band_fill;  // per chunk, per band: count, then offset
   band_start.assign(std::size_t(num_bands) + 1, 0u);
   seg_bands.resize(2 * std::size_t(block_rows) * num_segs);
-  for (int r = 0; r < block_rows; ++r) {
-    const YRange* ya = seg_y + std::int64_t(r) * num_segs;
-    const YRange* yb = ya + num_segs;
-    std::uint32_t* sb = seg_bands.data() + 2 * std::int64_t(r) * num_segs;
-    for (int s = 0; s < num_segs; ++s) {
-      const std::int32_t lo = std::min(ya[s].lo, yb[s].lo), hi = std::max(ya[s].hi, yb[s].hi);
-      sb[2 * s] = 1u;  // no band (first > last)
-      sb[2 * s + 1] = 0u;
-      if (lo > hi) continue;
-      // Every triangle of the segment lies in its vertices' x range: none covers a centre column
-      // of the target when that range holds none (RasterBlockRow / RasterTriangle clip to it).
-      const std::int32_t xlo = std::min(ya[s].x_lo, yb[s].x_lo), xhi = std::max(ya[s].x_hi, yb[s].x_hi);
-      if (FloorSub(std::int64_t(xhi) - kSubpixel / 2) < 0 || CeilSub(std::int64_t(xlo) - kSubpixel / 2) > tw - 1) continue;
-      const std::int64_t c0 = std::max<std::int64_t>(0, CeilSub(std::int64_t(lo) - kSubpixel / 2));
-      const std::int64_t c1 = std::min<std::int64_t>(th - 1, FloorSub(std::int64_t(hi) - kSubpixel / 2));
-      if (c0 > c1) continue;
-      const std::uint32_t b_lo = static_cast<std::uint32_t>(c0 / kBandRows), b_hi = static_cast<std::uint32_t>(c1 / kBandRows);
-      sb[2 * s] = b_lo;
-      sb[2 * s + 1] = b_hi;
-      for (std::uint32_t b = b_lo; b <= b_hi; ++b) ++band_start[b + 1];
+  fill.assign(std::size_t(num_chunks) * num_bands, 0u);
+  ParallelFor(num_chunks, 1, [&](std::int64_t c0_, std::int64_t c1_) {
+    for (std::int64_t c = c0_; c < c1_; ++c) {
+      std::uint32_t* count = fill.data() + c * num_bands;
+      const int r_end = std::min<int>(block_rows, int(c + 1) * kListRows);
+      for (int r = int(c) * kListRows; r < r_end; ++r) {
+        const YRange* ya = seg_y + std::int64_t(r) * num_segs;
+        const YRange* yb = ya + num_segs;
+        std::uint32_t* sb = seg_bands.data() + 2 * std::int64_t(r) * num_segs;
+        for (int s = 0; s < num_segs; ++s) {
+          const std::int32_t lo = std::min(ya[s].lo, yb[s].lo), hi = std::max(ya[s].hi, yb[s].hi);
+          sb[2 * s] = 1u;  // no band (first > last)
+          sb[2 * s + 1] = 0u;
+          if (lo > hi) continue;
+          // Every triangle of the segment lies in its vertices' x range: none covers a centre
+          // column of the target when that range holds none (RasterBlockRow / RasterTriangle
+          // clip to it).
+          const std::int32_t xlo = std::min(ya[s].x_lo, yb[s].x_lo), xhi = std::max(ya[s].x_hi, yb[s].x_hi);
+          if (FloorSub(std::int64_t(xhi) - kSubpixel / 2) < 0 || CeilSub(std::int64_t(xlo) - kSubpixel / 2) > tw - 1) {
+            continue;
+          }
+          const std::int64_t c0 = std::max<std::int64_t>(0, CeilSub(std::int64_t(lo) - kSubpixel / 2));
+          const std::int64_t c1 = std::min<std::int64_t>(th - 1, FloorSub(std::int64_t(hi) - kSubpixel / 2));
+          if (c0 > c1) continue;
+          const std::uint32_t b_lo = static_cast<std::uint32_t>(c0 / kBandRows), b_hi = static_cast<std::uint32_t>(c1 / kBandRows);
+          sb[2 * s] = b_lo;
+          sb[2 * s + 1] = b_hi;
+          for (std::uint32_t b = b_lo; b <= b_hi; ++b) ++count[b];
+        }
+      }
+    }
+  });
+  std::uint32_t total = 0;
+  for (int b = 0; b < num_bands; ++b) {
+    band_start[b] = total;
+    for (int c = 0; c < num_chunks; ++c) {
+      const std::uint32_t n = fill[std::size_t(c) * num_bands + b];
+      fill[std::size_t(c) * num_bands + b] = total;
+      total += n;
     }
   }
-  for (int b = 0; b < num_bands; ++b) band_start[b + 1] += band_start[b];
-  band_segs.resize(band_start[num_bands]);
-  {
-    std::vector<std::uint32_t>& fill = scratch.band_fill;
-    fill.assign(band_start.begin(), band_start.end() - 1);
-    const std::uint32_t num_ids = static_cast<std::uint32_t>(std::size_t(block_rows) * num_segs);
-    for (std::uint32_t id = 0; id < num_ids; ++id) {
-      for (std::uint32_t b = seg_bands[2 * id]; b <= seg_bands[2 * id + 1]; ++b) band_segs[fill[b]++] = id;
+  band_start[num_bands] = total;
+  band_segs.resize(total);
+  ParallelFor(num_chunks, 1, [&](std::int64_t c0_, std::int64_t c1_) {
+    for (std::int64_t c = c0_; c < c1_; ++c) {
+      std::uint32_t* off = fill.data() + c * num_bands;
+      const std::uint32_t id0 = static_cast<std::uint32_t>(c * kListRows * num_segs);
+      const std::uint32_t id1 = static_cast<std::uint32_t>(std::min<std::int64_t>(block_rows, (c + 1) * kListRows) * num_segs);
+      for (std::uint32_t id = id0; id < id1; ++id) {
+        for (std::uint32_t b = seg_bands[2 * id]; b <= seg_bands[2 * id + 1]; ++b) band_segs[off[b]++] = id;
+      }
     }
-  }
+  });
+  // Pass 2 takes the bands with the most segments first, so that the last tasks of a view are
+  // short ones and no thread waits long for the others at its end (bands own their pixels: the
+  // order changes no result).
+  std::vector<std::uint32_t>& order = scratch.band_order;
+  order.resize(num_bands);
+  for (int b = 0; b < num_bands; ++b) order[b] = static_cast<std::uint32_t>(b);
+  std::sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) {
+    const std::uint32_t na = band_start[a + 1] - band_start[a], nb = band_start[b + 1] - band_start[b];
+    return na != nb ? na > nb : a < b;
+  });
   return num_bands;
 }
 
@@ -1416,11 +1452,13 @@ void RasterBands(const Context& cx, const WarpScratch& scratch, int num_bands, b
   const int num_segs = NumSegments(w);
   const std::uint32_t* band_start = scratch.band_start.data();
   const std::uint32_t* band_segs = scratch.band_segs.data();
+  const std::uint32_t* band_order = scratch.band_order.data();
   const bool avx2 = UseAvx2();
-  ParallelFor(num_bands, 1, [&](std::int64_t b0, std::int64_t b1) {
+  ParallelFor(num_bands, 1, [&](std::int64_t i0, std::int64_t i1) {
     auto sh = make();
     const auto bands = [&](auto simd) {
-    for (std::int64_t b = b0; b < b1; ++b) {
+    for (std::int64_t i = i0; i < i1; ++i) {
+      const std::int64_t b = band_order[i];
       const int y0 = static_cast<int>(b) * kBandRows, y1 = std::min(th, y0 + kBandRows);
       init(sh, y0, y1);
       for (std::uint32_t k = band_start[b]; k < band_start[b + 1]; ++k) {

@@ -119,6 +119,7 @@ struct WarpScratch {
   std::vector<std::uint32_t> band_start;      // per band: start in band_segs (+ end)
   std::vector<std::uint32_t> band_fill;
   std::vector<std::uint32_t> band_segs;       // per band: segment ids (row * segments + s)
+  std::vector<std::uint32_t> band_order;      // bands by decreasing segment count (the task order)
   std::vector<float> score;                   // per target pixel: q / d^3 of the kept fragment
   std::vector<double> depth_key;              // hole mode, per target pixel: Eq. 1 key of the kept fragment
 };
