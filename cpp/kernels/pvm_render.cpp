@@ -7,7 +7,7 @@
 #include <limits>
 
 #if defined(__SSE2__)
-#include <emmintrin.h>
+#include <immintrin.h>  // SSE2; AVX2 only inside target("avx2") functions, called when the CPU has it
 #endif
 
 #include "ibr/parallel.h"
@@ -84,6 +84,56 @@ inline __m128 ExpNeg4(__m128 x) {
   const __m128i bits = _mm_slli_epi32(_mm_add_epi32(_mm_cvttps_epi32(n), _mm_set1_epi32(127)), 23);
   return _mm_and_ps(ok, _mm_mul_ps(p, _mm_castsi128_ps(bits)));
 }
+
+#if defined(__GNUC__)
+#define IBR_PVM_AVX2 1
+// ExpNeg4 in eight lanes (AVX2, no FMA): the same operations lane for lane, so the same bits.
+__attribute__((target("avx2"))) inline __m256 ExpNeg8(__m256 x) {
+  const __m256 ok = _mm256_cmp_ps(x, _mm256_set1_ps(87.f), _CMP_LT_OQ);
+  const __m256 y = _mm256_mul_ps(x, _mm256_set1_ps(-1.44269504f));
+  __m256 n = _mm256_cvtepi32_ps(_mm256_cvttps_epi32(y));
+  n = _mm256_sub_ps(n, _mm256_and_ps(_mm256_cmp_ps(n, y, _CMP_GT_OQ), _mm256_set1_ps(1.f)));
+  const __m256 f = _mm256_sub_ps(y, n);
+  __m256 p = _mm256_add_ps(_mm256_set1_ps(0.00961812911f), _mm256_mul_ps(f, _mm256_set1_ps(0.00133335581f)));
+  p = _mm256_add_ps(_mm256_set1_ps(0.0555041087f), _mm256_mul_ps(f, p));
+  p = _mm256_add_ps(_mm256_set1_ps(0.240226507f), _mm256_mul_ps(f, p));
+  p = _mm256_add_ps(_mm256_set1_ps(0.693147182f), _mm256_mul_ps(f, p));
+  p = _mm256_add_ps(_mm256_set1_ps(1.f), _mm256_mul_ps(f, p));
+  const __m256i bits = _mm256_slli_epi32(_mm256_add_epi32(_mm256_cvttps_epi32(n), _mm256_set1_epi32(127)), 23);
+  return _mm256_and_ps(ok, _mm256_mul_ps(p, _mm256_castsi256_ps(bits)));
+}
+
+// PvmFilter's Eq. 1 sums over np (a multiple of 4) window pairs: the exponentials of eight pairs
+// per step (ExpNeg8), accumulated into the four-lane sums as two four-pair steps in pair order,
+// so l0 / l1 get exactly the SSE2 loop's bits.
+__attribute__((target("avx2"))) void PairSumsAvx2(const float* pw, const float* pd, int np, float alpha, float di0,
+                                                  float di1, float* l0, float* l1) {
+  const __m256 A = _mm256_set1_ps(alpha), D0 = _mm256_set1_ps(di0), D1 = _mm256_set1_ps(di1);
+  const __m256 sign = _mm256_set1_ps(-0.f);
+  __m128 s0 = _mm_setzero_ps(), s1 = _mm_setzero_ps();
+  int k = 0;
+  for (; k + 8 <= np; k += 8) {
+    const __m256 wt = _mm256_loadu_ps(pw + k), d = _mm256_loadu_ps(pd + k);
+    const __m256 e0 = _mm256_mul_ps(wt, ExpNeg8(_mm256_mul_ps(A, _mm256_andnot_ps(sign, _mm256_sub_ps(d, D0)))));
+    const __m256 e1 = _mm256_mul_ps(wt, ExpNeg8(_mm256_mul_ps(A, _mm256_andnot_ps(sign, _mm256_sub_ps(d, D1)))));
+    s0 = _mm_add_ps(_mm_add_ps(s0, _mm256_castps256_ps128(e0)), _mm256_extractf128_ps(e0, 1));
+    s1 = _mm_add_ps(_mm_add_ps(s1, _mm256_castps256_ps128(e1)), _mm256_extractf128_ps(e1, 1));
+  }
+  if (k < np) {
+    const __m128 A4 = _mm_set1_ps(alpha), sign4 = _mm_set1_ps(-0.f);
+    const __m128 wt = _mm_loadu_ps(pw + k), d = _mm_loadu_ps(pd + k);
+    s0 = _mm_add_ps(s0, _mm_mul_ps(wt, ExpNeg4(_mm_mul_ps(A4, _mm_andnot_ps(sign4, _mm_sub_ps(d, _mm_set1_ps(di0)))))));
+    s1 = _mm_add_ps(s1, _mm_mul_ps(wt, ExpNeg4(_mm_mul_ps(A4, _mm_andnot_ps(sign4, _mm_sub_ps(d, _mm_set1_ps(di1)))))));
+  }
+  _mm_storeu_ps(l0, s0);
+  _mm_storeu_ps(l1, s1);
+}
+
+bool PvmCpuHasAvx2() {
+  static const bool has = __builtin_cpu_supports("avx2");
+  return has;
+}
+#endif  // __GNUC__
 #endif
 
 // The edge a->b owns its pixels exactly on it when it is a "top-left" edge under this one
@@ -719,6 +769,9 @@ void PvmFilter(const double* box, const Camera& camera, const std::uint8_t* pixe
   // Pairs of the Eq. 1 window: (2 R / step + 1)^2 neighbours, two clusters each, padded to 4.
   const std::size_t per_axis = static_cast<std::size_t>(2 * (r / step) + 1);
   const std::size_t max_pairs = 2 * per_axis * per_axis + 4;
+#if defined(IBR_PVM_AVX2)
+  const bool avx2 = PvmCpuHasAvx2();  // Eq. 1's exponentials eight at a time (PairSumsAvx2: same bits)
+#endif
   ParallelFor(h, 4, [&](std::int64_t a, std::int64_t b) {
     std::vector<float> pair_w(max_pairs), pair_d(max_pairs);
     (void)pair_w, (void)pair_d;
@@ -801,6 +854,13 @@ void PvmFilter(const double* box, const Camera& camera, const std::uint8_t* pixe
             }
           }
           while (np & 3) pw[np] = 0.f, pd[np++] = di0;
+          alignas(16) float l0[4], l1[4];
+#if defined(IBR_PVM_AVX2)
+          if (avx2) {
+            PairSumsAvx2(pw, pd, np, options.alpha, di0, di1, l0, l1);
+          } else
+#endif
+          {
           const __m128 A = _mm_set1_ps(options.alpha), D0 = _mm_set1_ps(di0), D1 = _mm_set1_ps(di1);
           const __m128 sign = _mm_set1_ps(-0.f);
           __m128 s0 = _mm_setzero_ps(), s1 = _mm_setzero_ps();
@@ -809,9 +869,9 @@ void PvmFilter(const double* box, const Camera& camera, const std::uint8_t* pixe
             s0 = _mm_add_ps(s0, _mm_mul_ps(wt, ExpNeg4(_mm_mul_ps(A, _mm_andnot_ps(sign, _mm_sub_ps(d, D0))))));
             s1 = _mm_add_ps(s1, _mm_mul_ps(wt, ExpNeg4(_mm_mul_ps(A, _mm_andnot_ps(sign, _mm_sub_ps(d, D1))))));
           }
-          alignas(16) float l0[4], l1[4];
           _mm_store_ps(l0, s0);
           _mm_store_ps(l1, s1);
+          }
           w0 = (static_cast<double>(l0[0]) + l0[1]) + (static_cast<double>(l0[2]) + l0[3]);
           w1 = (static_cast<double>(l1[0]) + l1[1]) + (static_cast<double>(l1[2]) + l1[3]);
         }
