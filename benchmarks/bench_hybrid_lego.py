@@ -13,7 +13,8 @@ BEFORE preprocessing and stored as the scene's targets (ground truth no stage re
 defaults (``--methods tm,ulr,pvm,hybrid``; the mesh stage's source is "auto" = fusion, since the
 data set has no mesh).
 
-``--scale S`` (default 1: the full 800x800, ~5 min on 2 loaded cores) divides the 800x800 images
+``--scale S`` (default 1: the full 800x800, ~9 min on 2 cores at load ~4 with the texture atlas of
+texture stage version 5, ~5 min before) divides the 800x800 images
 by S before preprocessing (there is no importer option for it): colour, the held-out ground truth and alpha by the mean of each SxS
 block (in linear light, exact for pixel centres at +0.5), the z-depth by the sample at the
 block's (S//2, S//2) pixel (0.5 source pixel off the block centre; depth is 8-bit coarse anyway),

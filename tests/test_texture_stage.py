@@ -45,6 +45,14 @@ def test_render_mesh_is_the_same_surface_with_fewer_faces():
         GlobalMeshOptions(render_edge_voxels=0.0)
     with pytest.raises(BadValueError, match="atlas_adaptive"):
         GlobalMeshOptions(atlas_adaptive="yes")
+    # The atlas cap: a memory bound of 2^25 texels by default (docs/preprocess.md "Texture"), at
+    # most 2^30, at least 16.
+    assert GlobalMeshOptions().atlas_max_texels == 2 ** 25
+    GlobalMeshOptions(atlas_max_texels=2 ** 30)
+    with pytest.raises(BadValueError, match="atlas_max_texels"):
+        GlobalMeshOptions(atlas_max_texels=2 ** 30 + 1)
+    with pytest.raises(BadValueError, match="atlas_max_texels"):
+        GlobalMeshOptions(atlas_max_texels=8)
 
 
 def test_fused_mesh_renders_itself():

@@ -84,10 +84,7 @@ class GlobalMeshOptions:
             raise BadValueError("depth_tol: expected > 0")
         if not check_float(self.atlas_texel, "atlas_texel") > 0:
             raise BadValueError("atlas_texel: expected > 0")
-        check_int(self.atlas_max_texels, "atlas_max_texels", 16)
-        if self.atlas_max_texels > ATLAS_TEXELS_LIMIT:
-            raise BadValueError(f"atlas_max_texels: expected at most {ATLAS_TEXELS_LIMIT} (2^30), got "
-                                f"{self.atlas_max_texels}")
+        check_int(self.atlas_max_texels, "atlas_max_texels", 16, ATLAS_TEXELS_LIMIT)
         if not isinstance(self.atlas_adaptive, (bool, np.bool_)):
             raise BadValueError(f"atlas_adaptive: expected true or false, got {self.atlas_adaptive!r}")
 
