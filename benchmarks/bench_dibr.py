@@ -7,7 +7,7 @@ cylinder; 8 input cameras on a ring, one target half-way between two of them; co
 z-depth rendered by the reference ray caster, so the target's colour is ground truth). The
 k inputs nearest to the target (camera centres) are used. For each case, after one warm-up,
 the median of --repeats runs of: reset, add_view per input (the kernel's own wall time of the
-warp + accumulation is ``last_add_ms``), result() (normalise). Cases: k = 1, 2, 4, 8 at
+warp + accumulation, with the colour check, is ``last_add_ms``), result() (normalise). Cases: k = 1, 2, 4, 8 at
 1920x1080 and k = 4 at 512x512, 1024x1024, 1920x1080, 3840x2160; on 2 threads and on 1.
 
 Baseline, measured in the same run on the same inputs: a naive forward splat in numpy --
@@ -130,8 +130,9 @@ def main():
         "`synth.make_scene(\"objects\", views=8)` (textured planes, boxes, spheres), target half-way between "
         "two ring cameras, the k nearest inputs; the same size for inputs and target. Default options (RVS: "
         "quality 'side', T auto, combined depth test, weight (q/d)^5). \"total\" is wall time from Python "
-        "(reset, k × add_view, result()); \"warp\" is the kernel time per view (vertex projection, triangle "
-        "binning, rasterisation, accumulation); \"normalise\" is result(). Naive splat: nearest-pixel point "
+        "(reset, k × add_view, result()); \"warp\" is the kernel time per view (vertex projection with the "
+        "colour's finiteness check, triangle binning, rasterisation, accumulation; the first view after "
+        "reset() writes the sums, there is no clearing pass); \"normalise\" is result(). Naive splat: nearest-pixel point "
         "splat with a z-buffer over all inputs (numpy, in this script). PSNR against the rendered ground "
         "truth over all pixels, and over the pixels both methods cover. Instruction set of the warp's hot "
         f"loops: {_core.warp_isa()} (`_core.warp_isa()`; AVX2 clones when the CPU has it, bit-identical to "

@@ -1,8 +1,9 @@
 // A/B driver of the DIBR kernels without Python (benchmarks/dibr_ab.py builds and runs it):
 // k colour + depth views -> one target, ClearBlend (or, with kernels that have BlendBuffers::fresh, none:
 // the first view writes the sums, as _core.DibrAccumulator does) + k ForwardWarp (accumulating) + ResolveBlend,
-// the options of --method dibr (side_threshold 10, stretched_quality 0.1, stretched_holes). Older kernels
-// (without check_color) do not check the colour: the binding did that before calling them (serially).
+// the options of --method dibr (side_threshold 10, stretched_quality 0.1, stretched_holes). The colour's
+// finiteness is checked as the binding does it: by the kernel (check_color) or, for older kernels, by the
+// binding's serial loop before each view (both inside the timed region).
 //   dibr_ab DIR THREADS REPEATS VIEWS [plain]
 // (plain: no visibility rules across views, as benchmarks/bench_dibr.py's DibrAccumulator()).
 // DIR holds cams.txt (per view then the target: W H fx fy cx cy and the 3 x 4 cam_from_world, row
@@ -15,6 +16,7 @@ static double Cpu() { timespec t; clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t); r
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <cstdint>
 #include <vector>
 #include <algorithm>
 #include "ibr/parallel.h"
@@ -66,6 +68,15 @@ int main(int argc, char** argv) {
     ClearBlend(acc);
 #endif
     for (int i = 0; i < nviews; ++i) {
+#ifndef IBR_FORWARD_WARP_CHECK_COLOR
+      // Older kernels: the binding checked the colour before the kernel, serially (its loop).
+      {
+        std::uint32_t any = 0;
+        const float* cp = col[i].data();
+        for (size_t k = 0; k < col[i].size(); ++k) { std::uint32_t u; std::memcpy(&u, cp + k, 4); any |= std::uint32_t((u & 0x7f800000u) == 0x7f800000u); }
+        if (any) { fprintf(stderr, "non-finite colour\n"); return 1; }
+      }
+#endif
 #ifdef IBR_FORWARD_WARP_BAND_LOCAL  // the kernels have it: no per-view buffers (as the binding)
       ForwardWarp(ImageView<const float>(col[i].data(), cams[i].height, cams[i].width, 3), ImageView<const float>(dep[i].data(), cams[i].height, cams[i].width), cams[i], cams[nviews], opt, scratch,
                   ImageView<float>(), ImageView<float>(), ImageView<float>(), nullptr, &acc
