@@ -127,6 +127,31 @@ FArray SampleAtlasBinding(const py::object& prim_obj, const py::object& bary_obj
   return out;
 }
 
+// The input views of ULR and of the texture bake: each (camera, colour (h, w, 3), depth (h, w)) with
+// (h, w) the camera's size; the checked arrays are appended to `keep` (the views point into them).
+std::vector<UlrInputView> InputViews(const py::list& views_obj, std::vector<FArray>& keep) {
+  std::vector<UlrInputView> views;
+  for (std::size_t i = 0; i < views_obj.size(); ++i) {
+    const std::string nm = "views[" + std::to_string(i) + "]";
+    py::handle item = views_obj[i];
+    if (!py::isinstance<py::tuple>(item) || py::len(item) != 3) throw DtypeError(nm + ": expected a (camera, color, depth) tuple");
+    py::tuple t = py::reinterpret_borrow<py::tuple>(item);
+    if (!py::isinstance<Camera>(t[0])) throw DtypeError(nm + "[0]: expected a _core.Camera");
+    UlrInputView v;
+    v.camera = t[0].cast<Camera>();
+    if (v.camera.width < 1 || v.camera.height < 1) throw ShapeError(nm + ": expected a camera of at least 1 x 1 pixels");
+    const std::string cn = nm + ".color", dn = nm + ".depth";
+    auto c = CheckArray<float>(t[1], cn.c_str(), {{"h", v.camera.height}, {"w", v.camera.width}, {"3", 3}});
+    auto d = CheckArray<float>(t[2], dn.c_str(), {{"h", v.camera.height}, {"w", v.camera.width}});
+    v.color = ConstViewOf(c);
+    v.depth = ConstViewOf(d);
+    keep.push_back(c);
+    keep.push_back(d);
+    views.push_back(v);
+  }
+  return views;
+}
+
 // _core.point_colors (kernels/atlas8.h PointColors): the texture bake's ULR-weighted colour at points.
 py::tuple PointColorsBinding(const py::object& points_obj, const py::object& normals_obj, const py::list& views_obj,
                              int k, double depth_tol) {
@@ -139,25 +164,7 @@ py::tuple PointColorsBinding(const py::object& points_obj, const py::object& nor
   auto normals = CheckArray<double>(normals_obj, "normals", {{"N", n}, {"3", 3}});
   if (views_obj.size() == 0) throw BadValueError("views: expected at least one (camera, color, depth)");
   std::vector<FArray> keep;
-  std::vector<UlrInputView> views;
-  for (std::size_t i = 0; i < views_obj.size(); ++i) {
-    const std::string nm = "views[" + std::to_string(i) + "]";
-    py::handle item = views_obj[i];
-    if (!py::isinstance<py::tuple>(item) || py::len(item) != 3) throw DtypeError(nm + ": expected a (camera, color, depth) tuple");
-    py::tuple t = py::reinterpret_borrow<py::tuple>(item);
-    if (!py::isinstance<Camera>(t[0])) throw DtypeError(nm + "[0]: expected a _core.Camera");
-    UlrInputView v;
-    v.camera = t[0].cast<Camera>();
-    const std::string cn = nm + ".color", dn = nm + ".depth";
-    auto c = CheckArray<float>(t[1], cn.c_str(), {{"h", v.camera.height}, {"w", v.camera.width}, {"3", 3}});
-    auto d = CheckArray<float>(t[2], dn.c_str(), {{"h", v.camera.height}, {"w", v.camera.width}});
-    if (v.camera.width < 1 || v.camera.height < 1) throw ShapeError(nm + ": expected a camera of at least 1 x 1 pixels");
-    v.color = ConstViewOf(c);
-    v.depth = ConstViewOf(d);
-    keep.push_back(c);
-    keep.push_back(d);
-    views.push_back(v);
-  }
+  const std::vector<UlrInputView> views = InputViews(views_obj, keep);
   FArray color = NewArray<float>({n, py::ssize_t(3)});
   auto seen = py::array_t<std::int32_t, py::array::c_style>(std::vector<py::ssize_t>{n});
   {
@@ -228,28 +235,8 @@ py::tuple UlrBlendBinding(const Camera& novel, const py::object& depth_obj, cons
   if (!normal_obj.is_none()) normal = CheckArray<float>(normal_obj, "normal", {{"H", h}, {"W", w}, {"3", 3}});
   py::array_t<bool, py::array::c_style> mask;
   if (!mask_obj.is_none()) mask = CheckArray<bool>(mask_obj, "pixel_mask", {{"H", h}, {"W", w}});
-  // Each view: (camera, colour (h, w, 3), depth (h, w)) with (h, w) the camera's size.
   std::vector<FArray> keep;
-  std::vector<UlrInputView> views;
-  for (std::size_t i = 0; i < views_obj.size(); ++i) {
-    const std::string nm = "views[" + std::to_string(i) + "]";
-    py::handle item = views_obj[i];
-    if (!py::isinstance<py::tuple>(item) || py::len(item) != 3) {
-      throw DtypeError(nm + ": expected a (camera, color, depth) tuple");
-    }
-    py::tuple t = py::reinterpret_borrow<py::tuple>(item);
-    if (!py::isinstance<Camera>(t[0])) throw DtypeError(nm + "[0]: expected a _core.Camera");
-    UlrInputView v;
-    v.camera = t[0].cast<Camera>();
-    const std::string cn = nm + ".color", dn = nm + ".depth";
-    auto c = CheckArray<float>(t[1], cn.c_str(), {{"h", v.camera.height}, {"w", v.camera.width}, {"3", 3}});
-    auto d = CheckArray<float>(t[2], dn.c_str(), {{"h", v.camera.height}, {"w", v.camera.width}});
-    v.color = ConstViewOf(c);
-    v.depth = ConstViewOf(d);
-    keep.push_back(c);
-    keep.push_back(d);
-    views.push_back(v);
-  }
+  const std::vector<UlrInputView> views = InputViews(views_obj, keep);
   FArray color = NewArray<float>({h, w, 3});
   auto count = py::array_t<std::uint8_t, py::array::c_style>(std::vector<py::ssize_t>{h, w});
   {
