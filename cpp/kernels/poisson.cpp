@@ -25,7 +25,7 @@ struct Level {
   std::vector<std::uint8_t> m;
   std::vector<float> diag, inv_diag, wr, wd;  // wr: weight to (y, x + 1); wd: to (y + 1, x)
   std::vector<float> x, b;
-  std::int64_t Index(int y, int x) const { return std::int64_t(y + 1) * stride + (x + 1); }
+  std::int64_t Index(int row, int col) const { return std::int64_t(row + 1) * stride + (col + 1); }
   std::int64_t Size() const { return std::int64_t(h + 2) * stride; }
   void Allocate() {
     stride = w + 2;
