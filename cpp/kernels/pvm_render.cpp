@@ -54,14 +54,17 @@ inline void Sample(const float* img, int w, int h, double x, double y, float* ou
 
 // exp(-x) for x >= 0 (0 beyond 87): 2^(-x log2 e) as an exponent in the float's bits times a
 // degree-5 polynomial for the fraction (relative error < 2e-7, as std::exp's float rounding);
-// the spatial filter evaluates it 4 times per neighbour.
+// the spatial filter evaluates it 4 times per neighbour. The constants serve the scalar, SSE2 and
+// AVX2 forms (same Horner order in each, so the same bits).
+constexpr float kExpCut = 87.f, kLog2e = 1.44269504f;
+constexpr float kExp1 = 0.693147182f, kExp2 = 0.240226507f, kExp3 = 0.0555041087f, kExp4 = 0.00961812911f,
+                kExp5 = 0.00133335581f;
 inline float ExpNeg(float x) {
-  if (!(x < 87.f)) return 0.f;
-  const float y = -x * 1.44269504f;
+  if (!(x < kExpCut)) return 0.f;
+  const float y = -x * kLog2e;
   const float n = std::floor(y);
   const float f = y - n;
-  const float p = 1.f + f * (0.693147182f + f * (0.240226507f + f * (0.0555041087f + f * (0.00961812911f +
-                  f * 0.00133335581f))));
+  const float p = 1.f + f * (kExp1 + f * (kExp2 + f * (kExp3 + f * (kExp4 + f * kExp5))));
   const std::int32_t bits = (static_cast<std::int32_t>(n) + 127) << 23;
   float scale;
   std::memcpy(&scale, &bits, sizeof scale);
@@ -71,15 +74,15 @@ inline float ExpNeg(float x) {
 #if defined(__SSE2__)
 // ExpNeg of four lanes (x >= 0; 0 where x >= 87 or NaN): the same steps as ExpNeg.
 inline __m128 ExpNeg4(__m128 x) {
-  const __m128 ok = _mm_cmplt_ps(x, _mm_set1_ps(87.f));
-  const __m128 y = _mm_mul_ps(x, _mm_set1_ps(-1.44269504f));
+  const __m128 ok = _mm_cmplt_ps(x, _mm_set1_ps(kExpCut));
+  const __m128 y = _mm_mul_ps(x, _mm_set1_ps(-kLog2e));
   __m128 n = _mm_cvtepi32_ps(_mm_cvttps_epi32(y));                  // trunc toward 0 (y <= 0)
   n = _mm_sub_ps(n, _mm_and_ps(_mm_cmpgt_ps(n, y), _mm_set1_ps(1.f)));  // floor
   const __m128 f = _mm_sub_ps(y, n);
-  __m128 p = _mm_add_ps(_mm_set1_ps(0.00961812911f), _mm_mul_ps(f, _mm_set1_ps(0.00133335581f)));
-  p = _mm_add_ps(_mm_set1_ps(0.0555041087f), _mm_mul_ps(f, p));
-  p = _mm_add_ps(_mm_set1_ps(0.240226507f), _mm_mul_ps(f, p));
-  p = _mm_add_ps(_mm_set1_ps(0.693147182f), _mm_mul_ps(f, p));
+  __m128 p = _mm_add_ps(_mm_set1_ps(kExp4), _mm_mul_ps(f, _mm_set1_ps(kExp5)));
+  p = _mm_add_ps(_mm_set1_ps(kExp3), _mm_mul_ps(f, p));
+  p = _mm_add_ps(_mm_set1_ps(kExp2), _mm_mul_ps(f, p));
+  p = _mm_add_ps(_mm_set1_ps(kExp1), _mm_mul_ps(f, p));
   p = _mm_add_ps(_mm_set1_ps(1.f), _mm_mul_ps(f, p));
   const __m128i bits = _mm_slli_epi32(_mm_add_epi32(_mm_cvttps_epi32(n), _mm_set1_epi32(127)), 23);
   return _mm_and_ps(ok, _mm_mul_ps(p, _mm_castsi128_ps(bits)));
@@ -89,15 +92,15 @@ inline __m128 ExpNeg4(__m128 x) {
 #define IBR_PVM_AVX2 1
 // ExpNeg4 in eight lanes (AVX2, no FMA): the same operations lane for lane, so the same bits.
 __attribute__((target("avx2"))) inline __m256 ExpNeg8(__m256 x) {
-  const __m256 ok = _mm256_cmp_ps(x, _mm256_set1_ps(87.f), _CMP_LT_OQ);
-  const __m256 y = _mm256_mul_ps(x, _mm256_set1_ps(-1.44269504f));
+  const __m256 ok = _mm256_cmp_ps(x, _mm256_set1_ps(kExpCut), _CMP_LT_OQ);
+  const __m256 y = _mm256_mul_ps(x, _mm256_set1_ps(-kLog2e));
   __m256 n = _mm256_cvtepi32_ps(_mm256_cvttps_epi32(y));
   n = _mm256_sub_ps(n, _mm256_and_ps(_mm256_cmp_ps(n, y, _CMP_GT_OQ), _mm256_set1_ps(1.f)));
   const __m256 f = _mm256_sub_ps(y, n);
-  __m256 p = _mm256_add_ps(_mm256_set1_ps(0.00961812911f), _mm256_mul_ps(f, _mm256_set1_ps(0.00133335581f)));
-  p = _mm256_add_ps(_mm256_set1_ps(0.0555041087f), _mm256_mul_ps(f, p));
-  p = _mm256_add_ps(_mm256_set1_ps(0.240226507f), _mm256_mul_ps(f, p));
-  p = _mm256_add_ps(_mm256_set1_ps(0.693147182f), _mm256_mul_ps(f, p));
+  __m256 p = _mm256_add_ps(_mm256_set1_ps(kExp4), _mm256_mul_ps(f, _mm256_set1_ps(kExp5)));
+  p = _mm256_add_ps(_mm256_set1_ps(kExp3), _mm256_mul_ps(f, p));
+  p = _mm256_add_ps(_mm256_set1_ps(kExp2), _mm256_mul_ps(f, p));
+  p = _mm256_add_ps(_mm256_set1_ps(kExp1), _mm256_mul_ps(f, p));
   p = _mm256_add_ps(_mm256_set1_ps(1.f), _mm256_mul_ps(f, p));
   const __m256i bits = _mm256_slli_epi32(_mm256_add_epi32(_mm256_cvttps_epi32(n), _mm256_set1_epi32(127)), 23);
   return _mm256_and_ps(ok, _mm256_mul_ps(p, _mm256_castsi256_ps(bits)));
