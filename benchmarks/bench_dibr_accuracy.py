@@ -32,10 +32,11 @@ Besides the table (the method's defaults) the run measures, unless --no-diagnost
                   other 39, defaults): mean / median / range of the object-pixel PSNR, how many
                   views reach RVS's 25.9 dB, and its correlation with the distance from the held-out
                   camera to the nearest input camera (the anchors do not name RVS's held-out views);
-  lego depth      the nerf importer's depth de-quantisation (option depth_dequantize=N, off by
-                  default): N chosen among DEQUANTIZE_ROUNDS on the validation views
-                  LEGO_VALIDATION (disjoint from the test views), then the test views with that N,
-                  in linear and in sRGB blend space;
+  lego depth      the nerf importer's depth de-quantisation (option depth_dequantize=auto|N,
+                  default auto = 5 rounds for 8-bit depth PNGs such as lego's): the object PSNR
+                  for N in DEQUANTIZE_ROUNDS on the validation views LEGO_VALIDATION (disjoint
+                  from the test views; the auto value was chosen there), and the test views
+                  with the stored codes (N = 0) beside the table's (auto);
   ICL poses       whether ICL-NUIM's ground-truth poses agree with its own depth maps: the
                   back wall of frame 1 fitted by a plane with the depth read as z and as ray
                   distance; point-to-plane ICP (open3d) of the depth maps of each frame pair,
@@ -357,15 +358,15 @@ def lego_spread(data: Path, params=None) -> dict:
 
 
 def lego_dequantized(data: Path, params=None) -> dict:
-    """The nerf importer's depth de-quantisation: rounds chosen on LEGO_VALIDATION, scored on
-    LEGO_HELDOUT (see the module doc, "lego depth")."""
+    """The nerf importer's depth de-quantisation: N swept on LEGO_VALIDATION, and LEGO_HELDOUT
+    with the stored codes (N = 0; see the module doc, "lego depth")."""
+    from ibrtools.formats.nerf import AUTO_DEQUANTIZE
+
     params = params or {}
     val = {n: lego(data, params, LEGO_VALIDATION, {"depth_dequantize": n})["object"]["filled"]
            for n in DEQUANTIZE_ROUNDS}
-    best = max(val, key=lambda n: val[n])
-    test = {space: lego(data, {**params, "blend_space": space}, LEGO_HELDOUT, {"depth_dequantize": best})
-            for space in ("linear", "srgb")}
-    return {"validation": val, "rounds": best, "test": test}
+    return {"validation": val, "best": max(val, key=lambda n: val[n]), "auto": AUTO_DEQUANTIZE["uint8"],
+            "stored": lego(data, params, LEGO_HELDOUT, {"depth_dequantize": 0})}
 
 
 def diagnostics(data: Path, params: dict, res: dict) -> list[str]:
@@ -395,16 +396,16 @@ def diagnostics(data: Path, params: dict, res: dict) -> list[str]:
               f"against a median of {np.median(sp['nearest']):.2f} over all views). Correlation of the object PSNR "
               f"with the distance to the nearest input camera: {sp['corr']:.2f}. Mean of {', '.join(LEGO_HELDOUT)} "
               f"(the table): {np.mean([v for n, v in zip(sp['names'], o) if n in LEGO_HELDOUT]):.2f}."]
-    dq = lego_dequantized(data, {k: v for k, v in params.items() if k != "blend_space"})
-    lt, st = dq["test"]["linear"], dq["test"]["srgb"]
-    lines += ["", "lego depth de-quantisation (nerf importer option `depth_dequantize=N`, off by default): "
-              f"object PSNR on the validation views {', '.join(LEGO_VALIDATION)} for N = "
-              f"{' / '.join(str(n) for n in dq['validation'])}: "
-              f"{' / '.join(f(v) for v in dq['validation'].values())} dB; chosen N = {dq['rounds']}. "
-              f"Test views ({', '.join(LEGO_HELDOUT)}), RVS protocol: object {f(lt['object']['filled'])} dB linear, "
-              f"{f(st['object']['filled'])} dB with blend_space=srgb (RVS {RVS['lego object']}); all pixels holes black "
-              f"{f(lt['all']['black'])} / {f(st['all']['black'])}; per view object (linear): "
-              + ", ".join(f"{h} {f(r['object']['filled'])}" for h, r in zip(LEGO_HELDOUT, lt["rows"])) + "."]
+    dq = lego_dequantized(data, params)
+    st = dq["stored"]
+    lines += ["", "lego depth de-quantisation (nerf importer option `depth_dequantize=auto|N`; auto = "
+              f"{dq['auto']} rounds for 8-bit depth such as lego's, the table's setting): object PSNR on the validation "
+              f"views {', '.join(LEGO_VALIDATION)} for N = {' / '.join(str(n) for n in dq['validation'])}: "
+              f"{' / '.join(f(v) for v in dq['validation'].values())} dB (best N = {dq['best']}). "
+              f"Test views ({', '.join(LEGO_HELDOUT)}) with the stored codes (N = 0), RVS protocol, this run's "
+              f"parameters: object {f(st['object']['filled'])} dB (table: {f(L['object']['filled'])}), all pixels "
+              f"holes black {f(st['all']['black'])} (table: {f(L['all']['black'])}); per view object: "
+              + ", ".join(f"{h} {f(r['object']['filled'])}" for h, r in zip(LEGO_HELDOUT, st["rows"])) + "."]
     q = icl_poses(data, params)
     if q is None:
         lines.append("ICL pose check: n/a (needs open3d).")

@@ -242,7 +242,7 @@ def test_lego_dequantized_depth_stays_in_the_stored_bins():
     from ibrtools.formats import load
     from ibrtools.imageio import read_pixels
 
-    plain = load(DATA / "nerf_lego", "nerf", {"split": "test"}).view("r_0")
+    plain = load(DATA / "nerf_lego", "nerf", {"split": "test", "depth_dequantize": 0}).view("r_0")
     scene = load(DATA / "nerf_lego", "nerf", {"split": "test", "depth_dequantize": 3})
     deq = scene.view("r_0")
     assert "de-quantised (3 rounds)" in scene.source["notes"]
@@ -254,6 +254,11 @@ def test_lego_dequantized_depth_stays_in_the_stored_bins():
     assert np.array_equal(deq.depth > 0, known) and np.array_equal(plain.depth > 0, known)
     diff = np.abs(deq.depth - plain.depth) * to_ray
     assert diff[known].max() <= 0.5 * 8 / 255 * (1 + 1e-4) and diff[known].mean() > 1e-3
+    # the lego depth PNGs are 8-bit: the default (auto) de-quantises them with AUTO_DEQUANTIZE's 5 rounds
+    auto = load(DATA / "nerf_lego", "nerf", {"split": "test"})
+    np.testing.assert_array_equal(auto.view("r_0").depth,
+                                  load(DATA / "nerf_lego", "nerf", {"split": "test", "depth_dequantize": 5}).view("r_0").depth)
+    assert "auto (8-bit: 5 rounds" in auto.source["notes"]
 
 
 @needs_kernel
@@ -262,6 +267,6 @@ def test_lego_dequantized_depth_improves_the_weak_view(bench):
     # 8-bit depth steps misregister most) measured 20.83 dB on object pixels (RVS protocol) with
     # the stored codes and 22.75 dB with depth_dequantize=5. The floor asks for +1 dB.
     _need("nerf_lego")
-    plain = bench.lego(DATA, heldout=("r_100",))["object"]["filled"]
+    plain = bench.lego(DATA, heldout=("r_100",), options={"depth_dequantize": 0})["object"]["filled"]
     deq = bench.lego(DATA, heldout=("r_100",), options={"depth_dequantize": 5})["object"]["filled"]
     assert deq > plain + 1.0, (plain, deq)

@@ -143,3 +143,66 @@ def test_round_trip_native(tmp_path):
     native.save(scene, tmp_path / "out")
     back = native.load(tmp_path / "out", {})
     assert back.views[0].camera.allclose(scene.views[0].camera, 1e-9)
+
+
+# --- depth_dequantize=auto|N (module doc: coarse 8-bit codes are de-quantised, fine 16-bit are not) ---
+def _ramp_depth(tmp_path, dtype):
+    """The fixture with a depth PNG of ``dtype`` holding a ramp of 0.3 code per pixel along x
+    (terraces ~3 px wide): de-quantisation changes it, the stored codes do not."""
+    tmp_path.mkdir(exist_ok=True)
+    make_set(tmp_path)
+    codes = np.rint(100 + 0.3 * np.arange(W)).astype(dtype)
+    depth = np.zeros((H, W, 4), dtype)
+    depth[..., 0] = codes
+    depth[..., 3] = np.iinfo(dtype).max
+    write_png(tmp_path / "test" / "r_0_depth_0001.png", depth)
+    full = float(np.iinfo(dtype).max)
+    cam = nerf.load(tmp_path, {"depth": "none"}).views[0].camera
+    stored = cam.depth_ray_to_z(nerf.decode_depth(depth[..., 0], full, 8.0)).astype(np.float32)
+    return stored, full, depth[..., 0]
+
+
+def test_dequantize_auto_picks_rounds_by_bit_depth(tmp_path):
+    # 8-bit: auto = the explicit 5 rounds (and not the stored codes); 16-bit: auto = the codes
+    # as stored (0 rounds), though the same ramp would be smoothed by an explicit N.
+    assert nerf.AUTO_DEQUANTIZE == {"uint8": 5, "uint16": 0}
+    assert nerf.dequantize_rounds(None, "uint8") == 5 and nerf.dequantize_rounds(None, "uint16") == 0
+    assert nerf.dequantize_rounds(2, "uint8") == 2 and nerf.dequantize_rounds(0, "uint8") == 0
+    assert nerf.dequantize_rounds(7, "uint16") == 7
+    stored, _, _ = _ramp_depth(tmp_path / "a", np.uint8)
+    auto = nerf.load(tmp_path / "a", {})
+    assert "auto (8-bit: 5 rounds, 16-bit: 0)" in auto.source["notes"]
+    five = nerf.load(tmp_path / "a", {"depth_dequantize": 5}).views[0].depth
+    np.testing.assert_array_equal(auto.views[0].depth, five)
+    assert np.abs(auto.views[0].depth - stored).max() > 1e-4
+    stored16, _, _ = _ramp_depth(tmp_path / "b", np.uint16)
+    np.testing.assert_array_equal(nerf.load(tmp_path / "b", {"depth_dequantize": "auto"}).views[0].depth, stored16)
+    assert np.abs(nerf.load(tmp_path / "b", {"depth_dequantize": 5}).views[0].depth - stored16).max() > 0
+
+
+def test_dequantize_explicit_overrides_auto(tmp_path):
+    # depth_dequantize=0 keeps the stored 8-bit codes exactly; N = 2 (a string, as the CLI's
+    # --opt passes it) equals dequantize_codes with 2 rounds; the notes name the explicit N.
+    stored, full, codes = _ramp_depth(tmp_path, np.uint8)
+    off = nerf.load(tmp_path, {"depth_dequantize": 0})
+    np.testing.assert_array_equal(off.views[0].depth, stored)
+    assert "de-quantised" not in off.source["notes"]
+    two = nerf.load(tmp_path, {"depth_dequantize": "2"})
+    assert "de-quantised (2 rounds)" in two.source["notes"]
+    cam = two.views[0].camera
+    want = cam.depth_ray_to_z(nerf.decode_depth(nerf.dequantize_codes(codes, full, 2), full, 8.0)).astype(np.float32)
+    np.testing.assert_array_equal(two.views[0].depth, want)
+
+
+def test_dequantize_option_bad_values(tmp_path):
+    from ibrtools.errors import DtypeError
+
+    make_set(tmp_path)
+    for bad in ("Auto-5", "many", True, None, 1.5, "-"):
+        with pytest.raises(DtypeError, match="depth_dequantize: expected auto or an integer"):
+            nerf.load(tmp_path, {"depth_dequantize": bad})
+    for bad in (-1, "-3"):
+        with pytest.raises(BadValueError, match="depth_dequantize.*>= 0"):
+            nerf.load(tmp_path, {"depth_dequantize": bad})
+    with pytest.raises(DtypeError, match="depth_dequantize=auto: no rule for float32"):
+        nerf.dequantize_rounds(None, "float32")

@@ -21,13 +21,21 @@ Convention converted from
     pinhole camera (``Camera.depth_ray_to_z``). Looked up as ``<stem>_depth_0001.png``,
     ``<stem>_depth.png``. A free two-parameter fit ``a - b v/255`` of the lego depth maps to each
     other gives a = 7.97, b = 7.94, i.e. this encoding with scale 8.
-  * Depth de-quantisation (option ``depth_dequantize=N``, default 0 = off): 8-bit codes are
-    coarse (lego: steps of 8/255 = 0.031 units, ~0.8 % of the depth), so a smooth surface is
-    stored as flat terraces one code apart, which misregisters warps by up to ~1 px at the lego
-    views' baselines. N rounds of bin-constrained smoothing (``dequantize_codes``) turn the
-    terraces into ramps while every value stays inside its quantisation bin (it still rounds to
-    the stored code) and nothing is smoothed across a step of two codes or more (depth edges).
-    Measured with ``--method dibr`` on lego (docs/dibr.md, "Accuracy").
+  * Depth de-quantisation (option ``depth_dequantize=auto|N``, default auto): a smooth surface
+    stored in integer codes is a staircase of flat terraces one code apart. N rounds of
+    bin-constrained smoothing (``dequantize_codes``) turn the terraces into ramps while every
+    value stays inside its quantisation bin (it still rounds to the stored code) and nothing is
+    smoothed across a step of two codes or more (depth edges). The principle of ``auto``: undo
+    the quantisation where it is coarse enough to misregister a warp, leave it where it is not.
+    A warp between views a baseline b apart moves a pixel by f·b·Δ/z² for a depth error Δ.
+    8-bit codes (lego: steps of depth_scale/255 = 0.031 units, ~0.8 % of the depth — the data
+    README's "coarse" warning) misregister by up to ~1 px at the lego views' baselines
+    (1111 px · 0.9 · 0.016 / 4² ≈ 1 px for half a step), on one-pixel textures: ``auto`` = 5
+    rounds (chosen on validation views, docs/dibr.md "Accuracy"). 16-bit codes are 257× finer
+    (steps of 0.00012 units, 0.003 % of the depth, < 0.01 px at any such baseline): their
+    terraces are invisible to a warp and smoothing could only round off depth edges (the same
+    smoothing of Middlebury's fine quarter-pixel codes loses 0.1 dB), so ``auto`` = 0 there.
+    An explicit N overrides ``auto`` for every depth file (0 = the stored codes as they are).
 
 A path may be a ``transforms*.json`` file or a folder holding ``transforms_{train,val,test}.json``
 and/or ``transforms.json``. Every split found becomes views named by the image stem
@@ -38,7 +46,8 @@ Options
   background=black|white     compositing colour for RGBA images (default black)
   depth_scale=8              ray distance encoded by v = 0 (default 8)
   depth=auto|none            read depth PNGs when present (default auto)
-  depth_dequantize=N         rounds of bin-constrained smoothing of the depth codes (default 0)
+  depth_dequantize=auto|N    rounds of bin-constrained smoothing of the depth codes (default auto:
+                             5 for 8-bit depth PNGs, 0 for 16-bit)
 """
 from __future__ import annotations
 
@@ -63,9 +72,14 @@ OPTIONS = {
     "background": "black|white: compositing colour of RGBA images",
     "depth_scale": "ray distance encoded by v = 0 (default 8)",
     "depth": "auto|none",
-    "depth_dequantize": "rounds of bin-constrained smoothing of the depth codes (default 0 = off)",
+    "depth_dequantize": "auto|N: rounds of bin-constrained smoothing of the depth codes "
+                        "(default auto = 5 for 8-bit depth PNGs, 0 for 16-bit; 0 = off)",
 }
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".exr", ".tif", ".tiff", "")
+# depth_dequantize=auto: rounds by the depth PNG's sample format (module doc: coarse 8-bit codes are
+# de-quantised, fine 16-bit codes are not). 5 = the best of 0/2/5/10 on the lego validation views
+# (benchmarks/bench_dibr_accuracy.py, LEGO_VALIDATION; never the test views).
+AUTO_DEQUANTIZE = {"uint8": 5, "uint16": 0}
 # Blender/OpenGL camera axes (x right, y up, looking along -z) -> OpenCV (x right, y down, z fwd).
 GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])
 
@@ -209,7 +223,32 @@ def dequantize_codes(v: np.ndarray, vmax: float, iterations: int) -> np.ndarray:
     return np.where(valid, x, code).astype(np.float32)
 
 
-def _load_depth(path: Path, camera: Camera, depth_scale: float, dequantize: int = 0) -> np.ndarray:
+def dequantize_rounds(option: int | None, fmt: str) -> int:
+    """Rounds of ``dequantize_codes`` for a depth PNG of sample format ``fmt`` ("uint8" or
+    "uint16"): ``option`` when given (an explicit ``depth_dequantize=N``), else (``auto``,
+    None) by the coarseness of the codes, ``AUTO_DEQUANTIZE``."""
+    if option is not None:
+        return option
+    if fmt not in AUTO_DEQUANTIZE:
+        raise DtypeError(f"depth_dequantize=auto: no rule for {fmt} depth codes (8- or 16-bit only)")
+    return AUTO_DEQUANTIZE[fmt]
+
+
+def _dequantize_option(options: dict) -> int | None:
+    """The ``depth_dequantize`` option: None for ``auto`` (the default: rounds by the bit depth
+    of each depth PNG), else the explicit number of rounds (an integer >= 0)."""
+    raw = options.get("depth_dequantize", "auto")
+    if isinstance(raw, str) and raw.strip().lower() == "auto":
+        return None
+    if isinstance(raw, bool) or raw is None:
+        raise DtypeError(f"option depth_dequantize: expected auto or an integer >= 0, got {raw!r}")
+    try:
+        return opt_int(options, "depth_dequantize", None, minimum=0)
+    except DtypeError:
+        raise DtypeError(f"option depth_dequantize: expected auto or an integer >= 0, got {raw!r}") from None
+
+
+def _load_depth(path: Path, camera: Camera, depth_scale: float, dequantize: int | None = None) -> np.ndarray:
     arr, fmt = read_pixels(path)  # the depth PNGs have an alpha channel: never premultiply v
     if fmt not in ("uint8", "uint16"):
         raise DtypeError(f"{path}: expected an 8- or 16-bit depth PNG (Blender encoding), got {fmt}")
@@ -217,7 +256,7 @@ def _load_depth(path: Path, camera: Camera, depth_scale: float, dequantize: int 
         raise ShapeError(f"{path}: depth is {arr.shape[1]}x{arr.shape[0]}, expected "
                          f"{camera.width}x{camera.height} (its colour image)")
     vmax = 255.0 if fmt == "uint8" else 65535.0
-    ray = decode_depth(dequantize_codes(arr[..., 0], vmax, dequantize), vmax, depth_scale)
+    ray = decode_depth(dequantize_codes(arr[..., 0], vmax, dequantize_rounds(dequantize, fmt)), vmax, depth_scale)
     return np.ascontiguousarray(camera.depth_ray_to_z(ray).astype(np.float32))
 
 
@@ -268,7 +307,7 @@ def load(path: Path, options: dict) -> Scene:
     background = {"black": 0.0, "white": 1.0}[opt_choice(options, "background", "black", ("black", "white"))]
     depth_scale = opt_float(options, "depth_scale", 8.0, positive=True)
     use_depth = opt_choice(options, "depth", "auto", ("auto", "none")) == "auto"
-    dequantize = opt_int(options, "depth_dequantize", 0, minimum=0) or 0
+    dequantize = _dequantize_option(options)
     if not path.exists():
         raise MissingFileError(f"{path}: no such file or directory")
     files = _json_files(path)
@@ -315,7 +354,9 @@ def load(path: Path, options: dict) -> Scene:
              "mask = alpha > 0.5"]
     if any(e[4] is not None for e in entries):
         notes.append(f"depth: ray distance = {depth_scale:g} * (1 - v/vmax), v = 0 unknown, converted to z"
-                     + (f"; codes de-quantised ({dequantize} rounds)" if dequantize else ""))
+                     + (f"; codes de-quantised: auto (8-bit: {AUTO_DEQUANTIZE['uint8']} rounds, "
+                        f"16-bit: {AUTO_DEQUANTIZE['uint16']})" if dequantize is None
+                        else f"; codes de-quantised ({dequantize} rounds)" if dequantize else ""))
     return Scene(views=views, units="unknown",
                  source={"format": NAME, "path": str(path), "files": [str(f) for _, f in files],
                          "background": "white" if background else "black", "notes": "; ".join(notes)},
