@@ -212,3 +212,48 @@ def test_add_view_colour_check_counts_every_row(isa):
     # colour errors come before depth errors, as in forward_warp
     with pytest.raises(BadValueError, match="color: 105 values"):
         _core.DibrAccumulator(small.to_core()).add_view(odd, np.full((7, 5), np.nan, np.float32), small.to_core())
+
+
+# ---- Reused memory (cpp/bindings/dibr.cpp, AccumulatorStorage): a destroyed accumulator leaves
+# its sums and scratch as the one spare; a new accumulator of the same target size takes them
+# (any bits: the sums start fresh). Tolerances: none (bit for bit).
+
+@pytest.mark.parametrize("kwargs", ACC_OPTIONS)
+def test_new_accumulator_on_a_freed_ones_memory_is_bit_identical(kwargs, isa):
+    import gc
+    views = [noisy_view(s) for s in range(4, 7)]
+    ref = _core.DibrAccumulator(cam(0.05).to_core(), **kwargs)
+    for c, d in views:
+        ref.add_view(c, d, cam().to_core())
+    expected = ref.result()
+    for dirty_kwargs in ACC_OPTIONS:
+        # A freed accumulator with other views and options (its sums and max_q hold their values)
+        dirty = _core.DibrAccumulator(cam(-0.1).to_core(), **dirty_kwargs)
+        for c, d in (noisy_view(9, 1.0), noisy_view(10, 5.0)):
+            dirty.add_view(c, d, cam(0.2).to_core())
+        dirty.result()
+        del dirty
+        gc.collect()
+        new = _core.DibrAccumulator(cam(0.05).to_core(), **kwargs)  # takes the spare
+        for c, d in views:
+            new.add_view(c, d, cam().to_core())
+        for a, b in zip(new.result(), expected):
+            np.testing.assert_array_equal(a, b)
+        del new
+    # A live accumulator's memory is its own: another one's views do not reach it.
+    other = _core.DibrAccumulator(cam(0.05).to_core(), **kwargs)
+    other.add_view(*noisy_view(11, 3.0), cam().to_core())
+    for a, b in zip(ref.result(), expected):
+        np.testing.assert_array_equal(a, b)
+    # Another target size: the spare is not taken (freed); results as a new accumulator's.
+    del other
+    small = Camera.pinhole(W // 2, H // 2, 20.0, 20.0, W / 4, H / 4, np.eye(4))
+    s1 = _core.DibrAccumulator(small.to_core(), **kwargs)
+    s1.add_view(*views[0], cam().to_core())
+    r1 = s1.result()
+    del s1
+    s2 = _core.DibrAccumulator(small.to_core(), **kwargs)
+    s2.add_view(*views[0], cam().to_core())
+    for a, b in zip(s2.result(), r1):
+        np.testing.assert_array_equal(a, b)
+    assert not r1[3].all()

@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <cstring>
 #include <memory>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -126,6 +127,48 @@ double MsSince(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
 }
 
+// The memory of a DibrAccumulator: the running sums of its target size (uninitialised: the sums
+// start "fresh", blend.h, and the first view writes every pixel) and the warp's scratch.
+struct AccumulatorStorage {
+  std::size_t pixels = 0;
+  std::unique_ptr<float[]> sum_wc, sum_w, sum_w_invd, sum_q, max_q;
+  WarpScratch scratch;
+};
+
+// One spare storage, the last one a destroyed accumulator left: the renderer makes a new
+// accumulator per frame (render/dibr.py), and 58 MB of new sums + 25 MB of new vertex scratch
+// at 1080p cost page faults (the kernel zeroes every page on first touch) in each frame's first
+// views -- about 20 ms of CPU per frame, measured (docs/dibr.md, "Speed"). A new accumulator of
+// the same target size takes the spare (any bits in the sums are fine: they start fresh); one of
+// another size frees it. So at most one unused set (83 MB at 1080p) stays allocated.
+std::mutex g_spare_mutex;
+std::unique_ptr<AccumulatorStorage> g_spare;
+
+std::unique_ptr<AccumulatorStorage> TakeStorage(std::size_t n) {
+  std::unique_ptr<AccumulatorStorage> s;
+  {
+    std::lock_guard<std::mutex> lock(g_spare_mutex);
+    s = std::move(g_spare);
+  }
+  if (s && s->pixels == n) return s;
+  s.reset();  // another size: free it before allocating
+  s = std::make_unique<AccumulatorStorage>();
+  s->pixels = n;
+  s->sum_wc.reset(new float[3 * n]);
+  s->sum_w.reset(new float[n]);
+  s->sum_w_invd.reset(new float[n]);
+  s->sum_q.reset(new float[n]);
+  s->max_q.reset(new float[n]);
+  return s;
+}
+
+void ReturnStorage(std::unique_ptr<AccumulatorStorage> s) {
+  std::unique_ptr<AccumulatorStorage> old;
+  std::lock_guard<std::mutex> lock(g_spare_mutex);
+  old = std::move(g_spare);  // freed after the lock is released (declared before the guard)
+  g_spare = std::move(s);
+}
+
 class DibrAccumulator {
  public:
   DibrAccumulator(const Camera& target, float stretched_quality, bool stretched_holes, float depth_tolerance)
@@ -140,17 +183,18 @@ class DibrAccumulator {
       throw BadValueError("stretched_holes: needs stretched_quality > 0 to say which fragments are stretched");
     }
     // Not cleared: the sums start "fresh" (blend.h), the first view writes them.
-    const std::size_t n = std::size_t(target.width) * target.height;
-    sum_wc_.reset(new float[3 * n]);
-    sum_w_.reset(new float[n]);
-    sum_w_invd_.reset(new float[n]);
-    sum_q_.reset(new float[n]);
-    max_q_.reset(new float[n]);
+    storage_ = TakeStorage(std::size_t(target.width) * target.height);
     buffers_.stretched_quality = stretched_quality;
     buffers_.stretched_holes = stretched_holes;
     buffers_.depth_tolerance = depth_tolerance;
     Buffers();
   }
+
+  ~DibrAccumulator() {
+    if (storage_) ReturnStorage(std::move(storage_));
+  }
+  DibrAccumulator(const DibrAccumulator&) = delete;
+  DibrAccumulator& operator=(const DibrAccumulator&) = delete;
 
   void AddView(const py::object& color_obj, const py::object& depth_obj, const Camera& camera,
                const WarpOptions& options) {
@@ -163,7 +207,7 @@ class DibrAccumulator {
       const auto t0 = std::chrono::steady_clock::now();
       // The kernel adds the view to the sums only when its colour and depth passed the checks
       // below. Band-local mode (forward_warp.h): no per-view full-size buffers.
-      counts = ForwardWarp(color, depth, camera, target_, options, scratch_, ImageView<float>(), ImageView<float>(),
+      counts = ForwardWarp(color, depth, camera, target_, options, storage_->scratch, ImageView<float>(), ImageView<float>(),
                            ImageView<float>(), nullptr, &buffers_, true);
       if (counts.bad_depths == 0 && counts.valid_vertices > 0 && counts.bad_colors == 0) {
         ++num_views_;
@@ -208,17 +252,16 @@ class DibrAccumulator {
   void Buffers() {
     buffers_.height = target_.height;
     buffers_.width = target_.width;
-    buffers_.sum_wc = sum_wc_.get();
-    buffers_.sum_w = sum_w_.get();
-    buffers_.sum_w_invd = sum_w_invd_.get();
-    buffers_.sum_q = sum_q_.get();
-    buffers_.max_q = max_q_.get();
+    buffers_.sum_wc = storage_->sum_wc.get();
+    buffers_.sum_w = storage_->sum_w.get();
+    buffers_.sum_w_invd = storage_->sum_w_invd.get();
+    buffers_.sum_q = storage_->sum_q.get();
+    buffers_.max_q = storage_->max_q.get();
     buffers_.fresh = true;
   }
 
   Camera target_;
-  std::unique_ptr<float[]> sum_wc_, sum_w_, sum_w_invd_, sum_q_, max_q_;  // uninitialised: fresh
-  WarpScratch scratch_;
+  std::unique_ptr<AccumulatorStorage> storage_;  // sums (uninitialised: fresh) and scratch
   BlendBuffers buffers_;
   int num_views_ = 0;
   double last_ms_ = 0.0;
