@@ -2,7 +2,8 @@
 PVM (filtered), an unfiltered PVM blend and hybrid, the global mesh made by TSDF fusion of the
 input views' depth maps.
 
-    python benchmarks/bench_hybrid_lego.py [--scale 1] [-j N] [--keep DIR] [--write-docs]
+    python benchmarks/bench_hybrid_lego.py [--scale 1] [-j N] [--keep DIR] [--validation]
+        [--depth-dequantize N] [--methods tm,ulr,...] [--options JSON] [--write-docs]
 
 Protocol (the DIBR lego protocol of benchmarks/bench_dibr_accuracy.py): the nerf importer on
 ../shared/data/nerf_lego (or $IBR_SHARED_DATA/nerf_lego), RGBA composited over black; the held-out
@@ -12,6 +13,13 @@ BEFORE preprocessing and stored as the scene's targets (ground truth no stage re
 36 views, so no ground truth leaks. No parameter is tuned: every stage and method runs with its
 defaults (``--methods tm,ulr,pvm,hybrid``; the mesh stage's source is "auto" = fusion, since the
 data set has no mesh).
+
+Validation protocol (``--validation``, for choosing anything; never with --write-docs): the
+targets are LEGO_VALIDATION (r_10 r_60 r_110 r_160), removed from the inputs together with the
+held-out views (32 inputs), so nothing chosen on it has seen r_0 r_50 r_100 r_150.
+``--depth-dequantize N`` passes the nerf importer's option (bin-constrained smoothing of the
+8-bit depth codes; default: the importer's default). ``--options JSON`` passes stage options to
+``run_stages`` (e.g. ``'{"mesh": {"k_views": 8}}'``); ``--methods`` limits the rendered methods.
 
 ``--scale S`` (default 1: the full 800x800, ~9 min on 2 cores at load ~4 with the texture atlas of
 texture stage version 5, ~5 min before) divides the 800x800 images
@@ -31,6 +39,7 @@ section of docs/benchmarks.md.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import tempfile
 import time
@@ -45,6 +54,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_dibr_accuracy import LEGO_HELDOUT  # noqa: E402  (the same held-out views)
 from bench_hybrid import PvmOnly  # noqa: E402  (PVM alone, filtered or not)
 
+LEGO_VALIDATION = ("r_10", "r_60", "r_110", "r_160")
 ORDER = ["tm", "ulr", "pvm", "pvm_unfiltered", "hybrid"]
 NAMES = {"tm": "TM (textured mesh)", "ulr": "ULR (per-pixel)", "pvm": "PVM (clustered, filtered)",
          "pvm_unfiltered": "PVM unfiltered", "hybrid": "hybrid"}
@@ -105,9 +115,23 @@ def main(argv=None) -> int:
     p.add_argument("--keep", default=None, metavar="DIR",
                    help="preprocess into DIR and keep it (default: a temporary directory)")
     p.add_argument("--write-docs", action="store_true", help=f"replace the section in {DOCS.name}")
+    p.add_argument("--validation", action="store_true",
+                   help="targets r_10 r_60 r_110 r_160, inputs without them and the held-out views (for choosing)")
+    p.add_argument("--depth-dequantize", type=int, default=None, metavar="N",
+                   help="nerf importer option depth_dequantize (default: the importer's default)")
+    p.add_argument("--methods", default=",".join(ORDER), help=f"methods to render (default {','.join(ORDER)})")
+    p.add_argument("--options", default=None, metavar="JSON", help="stage options for run_stages (JSON object)")
     args = p.parse_args(argv)
     if args.scale < 1:
         p.error("--scale must be >= 1")
+    order = [m for m in args.methods.split(",") if m]
+    if not order or any(m not in ORDER for m in order):
+        p.error(f"--methods: expected a comma-separated subset of {','.join(ORDER)}")
+    if args.validation and args.write_docs:
+        p.error("--write-docs scores the held-out views: not with --validation")
+    stage_options = json.loads(args.options) if args.options else {}
+    if not isinstance(stage_options, dict):
+        p.error("--options: expected a JSON object")
     data = shared_data()
     if not (data / "nerf_lego" / "transforms_test.json").exists():
         print(f"skipped: {data / 'nerf_lego'} is absent (set IBR_SHARED_DATA)", file=sys.stderr)
@@ -122,20 +146,27 @@ def main(argv=None) -> int:
     if args.threads:
         _core.set_num_threads(args.threads)
     t_start = time.perf_counter()
-    full = load(data / "nerf_lego", "nerf", {"background": "black"})
-    held = [v for v in full.views if v.name in LEGO_HELDOUT]
-    inputs = [v for v in full.views if v.name not in LEGO_HELDOUT]
-    assert len(held) == len(LEGO_HELDOUT), [v.name for v in held]
+    imp = {"background": "black"}
+    if args.depth_dequantize is not None:
+        imp["depth_dequantize"] = args.depth_dequantize
+    full = load(data / "nerf_lego", "nerf", imp)
+    targets = LEGO_VALIDATION if args.validation else LEGO_HELDOUT
+    excluded = set(LEGO_HELDOUT) | set(targets)
+    held = [v for v in full.views if v.name in targets]
+    inputs = [v for v in full.views if v.name not in excluded]
+    assert len(held) == len(targets), [v.name for v in held]
     s = args.scale
     scene = Scene(views=[_scaled_view(v, s) for v in inputs], targets=[_scaled_view(v, s) for v in held],
                   units=full.units, source={**full.source, "bench_hybrid_lego": {"scale": s,
-                                                                                  "heldout": list(LEGO_HELDOUT)}})
+                                                                                  "heldout": list(targets),
+                                                                                  "excluded": sorted(excluded)}})
     w, h = scene.views[0].camera.width, scene.views[0].camera.height
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(args.keep) if args.keep else Path(tmp) / "lego"
         native.save(scene, root)
         t0 = time.perf_counter()
-        rows = run_stages(root, methods=["tm", "ulr", "pvm", "hybrid"])
+        need = sorted({"pvm" if m.startswith("pvm") else m for m in order})
+        rows = run_stages(root, methods=need, options=stage_options)
         prep_s = time.perf_counter() - t0
         failed = [r for r in rows if r.status == "failed"]
         stage_s = {r.name: (r.status, r.seconds) for r in rows}
@@ -148,19 +179,22 @@ def main(argv=None) -> int:
             return 1
         scene = native.load(root)
         stored_inputs = {v.name for v in scene.views}
-        assert not stored_inputs & set(LEGO_HELDOUT), "a held-out view is an input"
+        assert not stored_inputs & excluded, "a held-out view is an input"
         renderers = {}
         for name in ("tm", "ulr", "hybrid"):
-            m = methods.create(name)
-            m.prepare(scene)
-            renderers[name] = m
-        renderers["pvm"] = PvmOnly(scene, filtered=True)
-        renderers["pvm_unfiltered"] = PvmOnly(scene, filtered=False)
-        per_view: dict[str, dict[str, dict]] = {n: {} for n in ORDER}
+            if name in order:
+                m = methods.create(name)
+                m.prepare(scene)
+                renderers[name] = m
+        if "pvm" in order:
+            renderers["pvm"] = PvmOnly(scene, filtered=True)
+        if "pvm_unfiltered" in order:
+            renderers["pvm_unfiltered"] = PvmOnly(scene, filtered=False)
+        per_view: dict[str, dict[str, dict]] = {n: {} for n in order}
         selection = []
         for t in scene.targets:
             obj = _alpha(data, t.name, s) > 0.99
-            for n in ORDER:
+            for n in order:
                 out, _ = renderers[n].render(t.camera)
                 color = np.nan_to_num(out["color"]).astype(np.float32)
                 hole = out.get("hole")
@@ -169,21 +203,25 @@ def main(argv=None) -> int:
                 per_view[n][t.name] = score(color, t.color, obj)
                 if n == "hybrid":
                     selection.append(renderers[n].frame_report()["selection"])
-            print(f"{t.name}: " + ", ".join(f"{n} {per_view[n][t.name]['psnr']:.2f}" for n in ORDER), file=sys.stderr)
+            print(f"{t.name}: " + ", ".join(f"{n} {per_view[n][t.name]['psnr']:.2f}" for n in order), file=sys.stderr)
     total_s = time.perf_counter() - t_start
     keys = ["psnr", "ssim", "flip", "psnr_obj", "ssim_obj", "flip_obj"]
     mean = {n: {k: (None if any(r[k] is None for r in per_view[n].values())
-                    else float(np.mean([r[k] for r in per_view[n].values()]))) for k in keys} for n in ORDER}
+                    else float(np.mean([r[k] for r in per_view[n].values()]))) for k in keys} for n in order}
 
     def f(x, d):
         return "n/a" if x is None else f"{x:.{d}f}"
 
-    views = [t for t in LEGO_HELDOUT]
+    views = list(targets)
     lines = [f"Hybrid IBR on held-out lego views (`python benchmarks/bench_hybrid_lego.py --scale {s} --write-docs`), "
              f"{machine()}, {_core.get_num_threads()} threads. NeRF-synthetic lego (../shared/data/nerf_lego, "
              f"RGBA over black), {len(inputs)} input views at {w}x{h}"
              + ("" if s == 1 else f" (800x800 / {s}, block mean)") + ", held out "
-             f"{' '.join(views)} (the DIBR lego protocol; removed before preprocessing, so no stage reads them). "
+             f"{' '.join(views)} ("
+             + ("validation protocol: removed with r_0 r_50 r_100 r_150" if args.validation else "the DIBR lego protocol")
+             + "; removed before preprocessing, so no stage reads them). "
+             + (f"Importer option depth_dequantize={args.depth_dequantize}. " if args.depth_dequantize is not None else "")
+             + (f"Stage options {json.dumps(stage_options)}. " if stage_options else "") +
              f"Global mesh by TSDF fusion of the inputs' depth maps (mesh source auto; "
              f"{details.get('mesh', {}).get('render_faces', '?')} render-mesh faces, atlas "
              f"{details.get('texture', {}).get('atlas', '?')}). Default parameters "
@@ -194,27 +232,27 @@ def main(argv=None) -> int:
              "holes black):", "",
              "| method | PSNR dB | SSIM | FLIP | object PSNR dB | object SSIM | object FLIP |",
              "|---|---:|---:|---:|---:|---:|---:|"]
-    for n in ORDER:
+    for n in order:
         r = mean[n]
         lines.append(f"| {NAMES[n]} | {f(r['psnr'], 2)} | {f(r['ssim'], 4)} | {f(r['flip'], 4)} | "
                      f"{f(r['psnr_obj'], 2)} | {f(r['ssim_obj'], 4)} | {f(r['flip_obj'], 4)} |")
     lines += ["", "Per view, PSNR dB all / object:", "",
               "| method | " + " | ".join(views) + " |", "|---|" + "---:|" * len(views)]
-    for n in ORDER:
+    for n in order:
         lines.append(f"| {NAMES[n]} | " + " | ".join(
             f"{f(per_view[n][v]['psnr'], 2)} / {f(per_view[n][v]['psnr_obj'], 2)}" for v in views) + " |")
     lines += ["", "Per view, SSIM all / object and FLIP all / object:", "",
               "| method | " + " | ".join(views) + " |", "|---|" + "---:|" * len(views)]
-    for n in ORDER:
+    for n in order:
         lines.append(f"| {NAMES[n]} | " + " | ".join(
             f"{f(per_view[n][v]['ssim'], 3)} / {f(per_view[n][v]['ssim_obj'], 3)}, "
             f"{f(per_view[n][v]['flip'], 3)} / {f(per_view[n][v]['flip_obj'], 3)}" for v in views) + " |")
 
     def beats(k, lower=False):
-        hv = mean["hybrid"][k]
+        hv = mean["hybrid"][k] if "hybrid" in mean else None
         if hv is None:
             return "n/a"
-        won = [n for n in ("tm", "ulr", "pvm") if mean[n][k] is not None and (hv < mean[n][k] if lower else hv > mean[n][k])]
+        won = [n for n in ("tm", "ulr", "pvm") if n in mean and mean[n][k] is not None and (hv < mean[n][k] if lower else hv > mean[n][k])]
         return ", ".join(won) or "none"
 
     all3 = all(beats(k, k.startswith("flip")) == "tm, ulr, pvm" for k in ("psnr", "ssim", "flip"))

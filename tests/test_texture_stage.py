@@ -115,3 +115,8 @@ def test_texture_stage_bakes_gain_compensated_views_on_the_render_mesh(tmp_path)
     spread_jit = S._read_doc(dj)["stages"]["texture"]["details"]["gain_spread"]
     spread_ref = S._read_doc(d)["stages"]["texture"]["details"]["gain_spread"]
     assert spread_ref < 0.1 and spread_jit > 3 * spread_ref + 0.2, (spread_ref, spread_jit)
+    # The gain model (hybrid/gainmodel.py, default "auto"): independent jitter is exposure, and
+    # the stage divides the gains out as they are (the 4 views' leave-one-out residual ratio is
+    # far above gain_max_ratio 0.5).
+    rec_jit = S._read_doc(dj)["stages"]["texture"]["details"]
+    assert rec_jit["gain_model"] == "exposure" and rec_jit["gain_ratio"] > 0.5, rec_jit

@@ -161,7 +161,7 @@ STAGES: dict[str, Stage] = {s.name: s for s in (
           "per-view depth rendered from the global mesh, for views without depth"),
     Stage("texture", ("scene", "mesh", "depth"), ("texture.npz",), frozenset({"tm", "hybrid"}),
           "texture atlas and per-vertex colour of the render mesh by ULR-weighted blending of the "
-          "gain-compensated views", version=5),
+          "gain-compensated views", version=6),
     Stage("variance", ("scene", "mesh", "depth"), ("variance.npz",), frozenset({"hybrid"}),
           "per-vertex photometric standard deviation across the views that see it"),
     Stage("harmonise", ("scene", "mesh", "variance"), ("harmonise.npz",), frozenset({"hybrid"}),
@@ -377,7 +377,8 @@ def _params(name: str, options: dict) -> dict:
             return {k: o[k] for k in ("source", "resolution", "trunc_voxels", "max_edge_voxels", "max_faces",
                                       "render_edge_voxels")}
         if name == "texture":
-            return {k: o[k] for k in ("k_views", "depth_tol", "atlas_texel", "atlas_max_texels", "atlas_adaptive")}
+            return {k: o[k] for k in ("k_views", "depth_tol", "atlas_texel", "atlas_max_texels", "atlas_adaptive",
+                                      "gain_model", "gain_max_ratio", "bake_normal_rounds")}
         return {}
     if name == "pvm":
         return PvmOptions(**options.get("pvm", {})).to_dict()
@@ -419,6 +420,7 @@ def _run_depth(ctx: _Context) -> dict:
 
 def _run_texture(ctx: _Context) -> dict:
     from .hybrid import atlas as A
+    from .hybrid.gainmodel import exposure_gains
     from .hybrid.globalmesh import GlobalMeshOptions, vertex_colors
     from .hybrid.variance import vertex_statistics
 
@@ -429,12 +431,16 @@ def _run_texture(ctx: _Context) -> dict:
     # on the dense mesh): the atlas then has one exposure, the one the harmonised images ULR blends
     # are brought to, instead of a blend-weighted mix of the views' exposures (docs/preprocess.md
     # "Texture").
+    # Only the part of the gains that looks like exposure (hybrid/gainmodel.py, gain_model): a
+    # gain that follows the viewing direction smoothly is shading, which the texture keeps.
     gains = vertex_statistics(ctx.scene, mesh)["gains"]
+    spread = round(float(np.ptp(np.log([np.asarray(g) for g in gains.values()]))), 4) if gains else 0.0
+    gains, gain_rec = exposure_gains(gains, cams, mode=opts.gain_model, max_ratio=opts.gain_max_ratio)
     colors = {v.name: (v.color / np.asarray(gains.get(v.name, np.ones(3)), np.float32)[None, None]).astype(np.float32)
               for v in ctx.scene.views}
     col, seen = vertex_colors(mesh, cams, colors, deps, opts)
-    rec = {"vertices": int(len(col)), "unseen": int((seen == 0).sum()),
-           "gain_spread": round(float(np.ptp(np.log([np.asarray(g) for g in gains.values()]))), 4) if gains else 0.0}
+    rec = {"vertices": int(len(col)), "unseen": int((seen == 0).sum()), "gain_spread": spread,
+           "gain_model": gain_rec["model"], "gain_ratio": gain_rec["ratio"]}
     arrays = {"vertex_colors": col, "seen": seen}
     # The atlas (issue 7): per-texel colour at about the input views' resolution; a mesh with too
     # many faces for atlas_max_texels keeps the per-vertex colour only (TM renders that).

@@ -38,7 +38,8 @@ import numpy as np
 from ..camera import PINHOLE, Camera
 from ..errors import BadValueError, DtypeError, ShapeError
 from ..mesh import Mesh
-from .globalmesh import ATLAS_MAX_TEXELS, ATLAS_TEXELS_LIMIT, GlobalMeshOptions, point_colors, vertex_normals
+from .globalmesh import (ATLAS_MAX_TEXELS, ATLAS_TEXELS_LIMIT, GlobalMeshOptions, point_colors, smooth_normals,
+                         vertex_normals)
 
 MIN_CELL = 5  # B's legs of N - 4 texels: >= 1 texel
 CHUNK = 1 << 19  # texels per point_colors call (bounds the (views, texels) penalty arrays)
@@ -233,6 +234,9 @@ def bake(mesh: Mesh, lay: AtlasLayout, cameras: Mapping[str, Camera], colors: Ma
     if h == 0 or w == 0:
         raise BadValueError("texture atlas: the layout has size 0")
     vn = vertex_normals(mesh.vertices, mesh.faces)
+    rounds = (options or GlobalMeshOptions()).bake_normal_rounds
+    if rounds:
+        vn = smooth_normals(vn, mesh.faces, rounds)
     img = np.zeros((h, w, 3), np.float32)
     unseen = used = 0
     # Bands of about CHUNK texels (whole atlas rows): the per-texel temporaries (~200 bytes a

@@ -68,6 +68,16 @@ class GlobalMeshOptions:
     # per-face texel size following the finest footprint of the views on the face
     # (atlas.face_footprint_scale, clipped to 0.5-8x); False: one texel size for every face.
     atlas_adaptive: bool = True
+    # Which part of the views' estimated gains the texture stage divides out (hybrid/gainmodel.py):
+    # "auto" = all of it when it looks like exposure jitter, only the part not explained by a
+    # smooth function of the viewing direction when it looks like shading; "exposure" = all of it
+    # (texture stage version 5); "none" = nothing.
+    gain_model: str = "auto"
+    gain_max_ratio: float = 0.5
+    # Rounds of 1-ring averaging of the vertex normals the bake ranks views by and tests
+    # front-facing with (smooth_normals): a fused surface's normals are voxel-noisy, and a
+    # per-texel ranking on them mixes differently misregistered views between neighbouring texels.
+    bake_normal_rounds: int = 0
 
     def __post_init__(self) -> None:
         if self.source not in SOURCES:
@@ -87,6 +97,13 @@ class GlobalMeshOptions:
         check_int(self.atlas_max_texels, "atlas_max_texels", 16, ATLAS_TEXELS_LIMIT)
         if not isinstance(self.atlas_adaptive, (bool, np.bool_)):
             raise BadValueError(f"atlas_adaptive: expected true or false, got {self.atlas_adaptive!r}")
+        from .gainmodel import GAIN_MODES
+
+        if self.gain_model not in GAIN_MODES:
+            raise BadValueError(f"gain_model: expected one of {GAIN_MODES}, got {self.gain_model!r}")
+        if not check_float(self.gain_max_ratio, "gain_max_ratio") >= 0:
+            raise BadValueError("gain_max_ratio: expected >= 0")
+        check_int(self.bake_normal_rounds, "bake_normal_rounds", 0, 10_000)
 
     def to_dict(self) -> dict:
         return {f.name: getattr(self, f.name) for f in fields(self)}
@@ -267,6 +284,37 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
             n[:, a] += np.bincount(faces[:, k], weights=fn[:, a], minlength=len(v))
     norm = np.linalg.norm(n, axis=1, keepdims=True)
     return (n / np.where(norm > 0, norm, 1)).astype(np.float32)
+
+
+def smooth_normals(normals: np.ndarray, faces: np.ndarray, rounds: int) -> np.ndarray:
+    """``rounds`` rounds of 1-ring averaging of unit vertex normals (N, 3): each round replaces a
+    vertex's normal by the normalised sum of its own and its edge neighbours' (each neighbour
+    once, however many faces share the edge). Vertices in no face, and zero sums, keep their
+    normal. float32 (N, 3)."""
+    import scipy.sparse as sp
+
+    rounds = check_int(rounds, "rounds", 0)
+    n = np.asarray(normals, np.float64)
+    if n.ndim != 2 or n.shape[1] != 3:
+        raise ShapeError(f"normals: expected shape (N, 3), got {n.shape}")
+    f = np.asarray(faces)
+    if f.ndim != 2 or f.shape[1] != 3:
+        raise ShapeError(f"faces: expected shape (M, 3), got {f.shape}")
+    if len(f) and (f.min() < 0 or f.max() >= len(n)):
+        raise BadValueError(f"faces: vertex index outside 0..{len(n) - 1}")
+    if rounds == 0 or len(f) == 0:
+        return n.astype(np.float32)
+    nv = len(n)
+    i = np.concatenate([f[:, 0], f[:, 1], f[:, 2], f[:, 1], f[:, 2], f[:, 0]]).astype(np.int64)
+    j = np.concatenate([f[:, 1], f[:, 2], f[:, 0], f[:, 0], f[:, 1], f[:, 2]]).astype(np.int64)
+    adj = sp.csr_matrix((np.ones(len(i)), (i, j)), shape=(nv, nv))
+    adj.data[:] = 1.0  # duplicates summed by the constructor: each neighbour once
+    adj = (adj + sp.identity(nv, format="csr")).tocsr()
+    for _ in range(rounds):
+        s = adj @ n
+        norm = np.linalg.norm(s, axis=1, keepdims=True)
+        n = np.where(norm > 1e-12, s / np.where(norm > 1e-12, norm, 1.0), n)
+    return n.astype(np.float32)
 
 
 def vertex_colors(mesh: Mesh, cameras: Mapping[str, Camera], colors: Mapping[str, np.ndarray],
