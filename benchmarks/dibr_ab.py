@@ -12,11 +12,13 @@ process CPU time and the wall time of ClearBlend + views x ForwardWarp (accumula
 ResolveBlend with the options of ``--method dibr``, and a hash of the outputs: the two builds must
 print the same hash (bit-identical results). On a shared machine compare the CPU times (the wall
 time of one thread is what the load leaves of a core); the script reports the minimum and median
-over the rounds. Needs g++ and TBB's headers (the engine's build dependencies).
+over the rounds, the median CPU / wall ratio (≈ the thread count when both threads ran all the time) and
+the load average at the start and the end. Needs g++ and TBB's headers (the engine's build dependencies).
 """
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import subprocess
 import tempfile
@@ -90,6 +92,7 @@ def main() -> None:
         build(base, exes["A (" + a.base + ")"])
         build(ROOT / "cpp", exes["B (working tree)"])
         res: dict[str, list[dict]] = {k: [] for k in exes}
+        print(f"1-minute load average at the start: {os.getloadavg()[0]:.2f}", flush=True)
         for r in range(a.rounds):
             for name, exe in exes.items():
                 res[name].append(run(exe, data, a.threads, a.repeats, a.views, a.plain))
@@ -98,8 +101,11 @@ def main() -> None:
         for name, rs in res.items():
             cpu = [x["cpu"] for x in rs]
             wall = [x["wall"] for x in rs]
+            ratio = statistics.median(c / w for c, w in zip(cpu, wall))
             print(f"{name}: cpu min {min(cpu):.1f} median {statistics.median(cpu):.1f} ms; "
-                  f"wall min {min(wall):.1f} median {statistics.median(wall):.1f} ms")
+                  f"wall min {min(wall):.1f} median {statistics.median(wall):.1f} ms; cpu / wall median {ratio:.2f} "
+                  f"(≈ threads when the machine is free)")
+        print(f"1-minute load average at the end: {os.getloadavg()[0]:.2f}")
         hashes = {x["hash"] for rs in res.values() for x in rs}
         print("outputs identical" if len(hashes) == 1 else f"OUTPUTS DIFFER: {sorted(hashes)}")
 
