@@ -378,7 +378,8 @@ def _params(name: str, options: dict) -> dict:
                                       "render_edge_voxels")}
         if name == "texture":
             return {k: o[k] for k in ("k_views", "depth_tol", "atlas_texel", "atlas_max_texels", "atlas_adaptive",
-                                      "gain_model", "gain_max_ratio", "bake_normal_rounds")}
+                                      "gain_model", "gain_max_ratio", "bake_normal_rounds",
+                                      "bake_label_weight")}
         return {}
     if name == "pvm":
         return PvmOptions(**options.get("pvm", {})).to_dict()

@@ -233,10 +233,20 @@ def bake(mesh: Mesh, lay: AtlasLayout, cameras: Mapping[str, Camera], colors: Ma
     h, w = lay.face_of_texel.shape
     if h == 0 or w == 0:
         raise BadValueError("texture atlas: the layout has size 0")
+    opts = options or GlobalMeshOptions()
     vn = vertex_normals(mesh.vertices, mesh.faces)
-    rounds = (options or GlobalMeshOptions()).bake_normal_rounds
-    if rounds:
-        vn = smooth_normals(vn, mesh.faces, rounds)
+    if opts.bake_normal_rounds:
+        vn = smooth_normals(vn, mesh.faces, opts.bake_normal_rounds)
+    labels = None
+    if opts.bake_label_weight > 0:
+        from .texlabel import UNSEEN_COST, face_data_cost, face_edges, potts_labels
+
+        names = list(cameras)
+        cost = face_data_cost(mesh, cameras, depths, opts.depth_tol)
+        lab = potts_labels(cost, face_edges(mesh.faces), opts.bake_label_weight)
+        # -1: no view sees the face's centroid (the per-texel blend decides there).
+        labels = np.where(cost[np.arange(len(lab)), lab] < UNSEEN_COST, lab, -1)
+        one = GlobalMeshOptions(**{**opts.to_dict(), "k_views": 1})
     img = np.zeros((h, w, 3), np.float32)
     unseen = used = 0
     # Bands of about CHUNK texels (whole atlas rows): the per-texel temporaries (~200 bytes a
@@ -250,7 +260,20 @@ def bake(mesh: Mesh, lay: AtlasLayout, cameras: Mapping[str, Camera], colors: Ma
         pts = np.einsum("tk,tkc->tc", b, mesh.vertices[f3].astype(np.float64))
         nrm = np.einsum("tk,tkc->tc", b, vn[f3].astype(np.float64))
         nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
-        col, seen = point_colors(pts, nrm, cameras, colors, depths, options)
+        if labels is None:
+            col, seen = point_colors(pts, nrm, cameras, colors, depths, options)
+        else:
+            col = np.zeros((len(face), 3), np.float32)
+            seen = np.zeros(len(face), np.int32)
+            tl = labels[face]
+            for j in np.unique(tl[tl >= 0]):
+                sel = np.flatnonzero(tl == j)
+                n = names[j]
+                c1, s1 = point_colors(pts[sel], nrm[sel], {n: cameras[n]}, {n: colors[n]}, {n: depths[n]}, one)
+                col[sel], seen[sel] = c1, s1
+            rest = np.flatnonzero(seen == 0)
+            if len(rest):
+                col[rest], seen[rest] = point_colors(pts[rest], nrm[rest], cameras, colors, depths, options)
         miss = seen == 0
         if miss.any():
             col[miss] = np.einsum("tk,tkc->tc", b[miss], vc[f3[miss]]).astype(np.float32)

@@ -78,6 +78,10 @@ class GlobalMeshOptions:
     # front-facing with (smooth_normals): a fused surface's normals are voxel-noisy, and a
     # per-texel ranking on them mixes differently misregistered views between neighbouring texels.
     bake_normal_rounds: int = 0
+    # > 0: the atlas takes one view per face (hybrid/texlabel.py: projected-area data term, Potts
+    # smoothness of this weight on the face adjacency, alpha-expansion); texels that view does not
+    # see, and faces no view sees, keep the per-texel ULR blend. 0: the per-texel blend everywhere.
+    bake_label_weight: float = 0.0
 
     def __post_init__(self) -> None:
         if self.source not in SOURCES:
@@ -104,6 +108,8 @@ class GlobalMeshOptions:
         if not check_float(self.gain_max_ratio, "gain_max_ratio") >= 0:
             raise BadValueError("gain_max_ratio: expected >= 0")
         check_int(self.bake_normal_rounds, "bake_normal_rounds", 0, 10_000)
+        if not check_float(self.bake_label_weight, "bake_label_weight") >= 0:
+            raise BadValueError("bake_label_weight: expected >= 0")
 
     def to_dict(self) -> dict:
         return {f.name: getattr(self, f.name) for f in fields(self)}
