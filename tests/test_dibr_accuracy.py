@@ -270,3 +270,117 @@ def test_lego_dequantized_depth_improves_the_weak_view(bench):
     plain = bench.lego(DATA, heldout=("r_100",), options={"depth_dequantize": 0})["object"]["filled"]
     deq = bench.lego(DATA, heldout=("r_100",), options={"depth_dequantize": 5})["object"]["filled"]
     assert deq > plain + 1.0, (plain, deq)
+
+
+# --- per-view weights: WarpOptions.view_weight (kernel) and distance_exponent (DibrMethod) -------
+@pytest.fixture(params=["baseline", "avx2"])
+def isa(request):
+    if request.param == "avx2" and not _core.cpu_has_avx2():
+        pytest.skip("this CPU has no AVX2")
+    _core.set_warp_isa(request.param)
+    yield request.param
+    _core.set_warp_isa("auto")
+
+
+def _plane_cam(x: float = 0.0) -> Camera:
+    return Camera.from_fov(24, 18, 60, look_at((x, 0, -2), (x, 0, 0)))
+
+
+@needs_kernel
+def test_view_weight_default_and_bad_values():
+    o = _core.WarpOptions()
+    assert o.view_weight == 1.0
+    o.view_weight = 0.25
+    assert o.view_weight == 0.25
+    for bad in (0.0, -1.0, 1.5, 1e-7, float("nan"), float("inf")):
+        with pytest.raises(BadValueError, match="view_weight"):
+            o.view_weight = bad
+    assert o.view_weight == 0.25
+
+
+@needs_kernel
+def test_view_weight_scales_the_fragment_weights(isa):
+    # forward_warp's weight output is (q / d)^p times the factor (a power of two: exact), colour
+    # and depth are unchanged, uncovered pixels stay 0.
+    rng = np.random.default_rng(5)
+    color = rng.uniform(0, 1, (18, 24, 3)).astype(np.float32)
+    depth = (2.0 + 0.3 * rng.uniform(0, 1, (18, 24))).astype(np.float32)
+    src, dst = _plane_cam().to_core(), _plane_cam(0.1).to_core()
+    o1, o4 = _core.WarpOptions(), _core.WarpOptions()
+    o4.view_weight = 0.25
+    c1, d1, w1 = _core.forward_warp(color, depth, src, dst, o1)
+    c4, d4, w4 = _core.forward_warp(color, depth, src, dst, o4)
+    np.testing.assert_array_equal(c1, c4)
+    np.testing.assert_array_equal(d1, d4)
+    assert (w1 > 0).sum() > 0.5 * w1.size
+    np.testing.assert_array_equal(w4, 0.25 * w1)
+
+
+@needs_kernel
+def test_view_weight_weights_the_blend(isa):
+    # Two views with the same camera and depth and constant colours a, b (equal (q / d)^p): with
+    # factors 1 and 1/4 the blend is (a + b / 4) / (5 / 4); confidence (the sum of q) and the
+    # hole mask do not depend on the factors.
+    cam = _plane_cam().to_core()
+    depth = np.full((18, 24), 2.0, np.float32)
+    a, b = 0.1, 0.9
+    out = {}
+    for f in (1.0, 0.25):
+        acc = _core.DibrAccumulator(cam, 0.1, True, 0.0)
+        o = _core.WarpOptions()
+        acc.add_view(np.full((18, 24, 3), a, np.float32), depth, cam, o)
+        o.view_weight = f
+        acc.add_view(np.full((18, 24, 3), b, np.float32), depth, cam, o)
+        out[f] = acc.result()
+    inner = (slice(2, -2), slice(2, -2))
+    np.testing.assert_allclose(out[1.0][0][inner], (a + b) / 2, rtol=1e-6)
+    np.testing.assert_allclose(out[0.25][0][inner], (a + b / 4) / 1.25, rtol=1e-6)
+    np.testing.assert_array_equal(out[1.0][2], out[0.25][2])
+    np.testing.assert_array_equal(out[1.0][3], out[0.25][3])
+
+
+def test_distance_exponent_default_and_bad_values():
+    assert check_params(None)["distance_exponent"] == 0.0
+    assert check_params({"distance_exponent": "2"})["distance_exponent"] == 2.0
+    for bad in (-1, "far", True, float("nan"), 17):
+        with pytest.raises(BadValueError, match="distance_exponent"):
+            DibrMethod({"distance_exponent": bad})
+
+
+def test_distance_exponent_view_factors():
+    # (b_min / b_i)^beta by the camera centres' distances to the target (1, 2, 4 here); 0 = all 1;
+    # an input at the target's own centre gets 1 and the others the floor 1e-6.
+    target = Camera.from_fov(24, 18, 60, look_at((0, 0, -2), (0, 0, 0)))
+    views = [View.create(f"v{i}", Camera.from_fov(24, 18, 60, look_at((x, 0, -2), (x, 0, 0))),
+                         color=np.zeros((18, 24, 3), np.float32), depth=np.full((18, 24), 2.0, np.float32))
+             for i, x in enumerate((2.0, 1.0, 4.0, 0.0))]
+    m = DibrMethod({"distance_exponent": 1})
+    m.prepare(Scene(views=views))
+    np.testing.assert_allclose(m.view_factors(target, [0, 1, 2]), [0.5, 1.0, 0.25])
+    m.params["distance_exponent"] = 2.0
+    np.testing.assert_allclose(m.view_factors(target, [0, 1, 2]), [0.25, 1.0, 0.0625])
+    assert m.view_factors(target, [3, 1]) == [1.0, 1e-6]
+    m.params["distance_exponent"] = 0.0
+    assert m.view_factors(target, [0, 1, 2]) == [1.0, 1.0, 1.0]
+
+
+@needs_kernel
+def test_distance_exponent_favours_the_nearer_view():
+    # Two inputs 0.01 and 0.03 units from the target, both fronto-parallel views of the same plane,
+    # constant colours a (near) and b (far): beta = 1 blends (a + b / 3) / (4 / 3) where both
+    # cover the pixel; beta = 0 (RVS) weights them by (q / d)^p alone (equal here: same depth).
+    target = Camera.from_fov(24, 18, 40, look_at((0, 0, -4), (0, 0, 0)))
+    depth = np.full((18, 24), 4.0, np.float32)
+    a, b = 0.1, 0.9
+    views = [View.create("near", Camera.from_fov(24, 18, 40, look_at((0.01, 0, -4), (0.01, 0, 0))),
+                         color=np.full((18, 24, 3), a, np.float32), depth=depth),
+             View.create("far", Camera.from_fov(24, 18, 40, look_at((0.03, 0, -4), (0.03, 0, 0))),
+                         color=np.full((18, 24, 3), b, np.float32), depth=depth)]
+    inner = (slice(3, -3), slice(3, -3))
+    for beta, want in ((0, (a + b) / 2), (1, (a + b / 3) / (4 / 3))):
+        m = DibrMethod({"inputs": ["near", "far"], "distance_exponent": beta})
+        m.prepare(Scene(views=views))
+        out, _ = m.render(target)
+        assert m.frame_report().get("view_factors") == (None if beta == 0 else [1.0, pytest.approx(1 / 3, rel=1e-5)])
+        assert not out["hole"][inner].any()
+        np.testing.assert_allclose(out["color"][inner], want, rtol=1e-4)

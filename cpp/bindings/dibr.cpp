@@ -298,6 +298,13 @@ void BindDibr(py::module_& m) {
           "'combined' (paper Eq. 2: largest q / d^3 wins) or 'nearest' (plain z-buffer).")
       .def_readwrite("discard_stretched", &WarpOptions::discard_stretched,
                      "Drop triangles whose quality reaches 0 (paper Eq. 1) instead of flooring it (RVS).")
+      .def_property(
+          "view_weight", [](const WarpOptions& o) { return o.view_weight; },
+          [](WarpOptions& o, float v) {
+            if (!(v >= 1e-6f && v <= 1.f)) throw BadValueError("view_weight: expected a value in [1e-6, 1]");
+            o.view_weight = v;
+          },
+          "Per-view factor on every fragment weight, w = view_weight * (q / d)^p, in [1e-6, 1]; 1 = RVS.")
       .def("effective_side_threshold", [](const WarpOptions& o, const Camera& t) { return SideThreshold(o, t); },
            py::arg("target_camera"), "T used for this target camera.")
       .def("__repr__", [](const WarpOptions& o) {

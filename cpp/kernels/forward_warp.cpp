@@ -96,6 +96,13 @@ inline float Weight(float q, float d, float p) {
   return std::min(std::max(w, 1e-30f), 1e30f);
 }
 
+// WarpOptions::view_weight on a row of fragment weights (0 stays 0: not covered). Weights are
+// in [1e-30, 1e30] and the factor in [1e-6, 1], so the product stays a finite, positive, normal
+// float (floored at 1e-36). The same scalar multiply on every ISA path (bit-identical).
+inline void ScaleRow(float* w, int n, float factor) {
+  for (int x = 0; x < n; ++x) w[x] = w[x] > 0.f ? std::max(w[x] * factor, 1e-36f) : 0.f;
+}
+
 // Fixed-point edge functions of a triangle with vertices X, Y (1/256 px), set up at the pixel
 // centre (px0 + 0.5, py0 + 0.5). Edge e is opposite vertex e: from vertex e+1 to vertex e+2;
 // E_e / area2 = barycentric e. e_row includes the tie-rule bias (-1 on edges the triangle
@@ -1533,6 +1540,7 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
              SideThreshold(options, target), equirect_target, tw, th};
   const bool fast = options.quality == WarpQuality::kSide;
   const float p = options.blend_exponent;
+  const float vw = options.view_weight;
   std::atomic<std::int64_t> covered{0};
   if (out_color.data == nullptr) {
     // Band-local mode (accumulate only, forward_warp.h): each task draws its band into a
@@ -1580,6 +1588,7 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
                 wrow[x] = 0.f;
               }
             }
+            if (vw != 1.f) ScaleRow(wrow, tw, vw);
             if (plain_avx2) {
               AccumulateRowPlainAvx2(sh.oc + 3 * o, drow, wrow, qrow, *acc, y);
             } else {
@@ -1627,6 +1636,7 @@ WarpCounts ForwardWarp(const ImageView<const float>& color, const ImageView<cons
               out_weight.data[i] = 0.f;
             }
           }
+          if (vw != 1.f) ScaleRow(out_weight.data + std::ptrdiff_t(y) * tw, tw, vw);
           if (acc) AccumulateRows(out_color.data, out_depth.data, out_weight.data, out_quality, *acc, y, y + 1);
         }
         covered += my_covered;

@@ -82,6 +82,10 @@ struct WarpOptions {
   float blend_exponent = 5.f;     // p in w = (q / d)^p (RVS); the paper's Eq. 2 is q / d^3
   DepthTest depth_test = DepthTest::kCombined;
   bool discard_stretched = false; // paper Eq. 1: drop triangles whose quality reaches 0
+  // A factor on every fragment weight of the view, w = view_weight * (q / d)^p, in [1e-6, 1]: a
+  // per-view blending weight (e.g. by the input camera's distance to the target, as MPEG's VSRS
+  // weights its two views; docs/dibr.md). 1 = RVS. Never changes which fragment a view keeps.
+  float view_weight = 1.f;
 };
 
 // Instruction set of the hot loops (vertex projection, rasterisation): the engine is built for

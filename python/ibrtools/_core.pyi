@@ -208,6 +208,16 @@ class WarpOptions:
     def side_threshold(self, arg1: typing.SupportsFloat | typing.SupportsIndex) -> None:
         ...
 
+    @property
+    def view_weight(self) -> float:
+        """
+        Per-view factor on every fragment weight, w = view_weight * (q / d)^p, in [1e-6, 1]; 1 = RVS.
+        """
+
+    @view_weight.setter
+    def view_weight(self, arg1: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+
 class DibrAccumulator:
     """
     Streaming DIBR into one target camera: add_view warps a colour + depth view and adds it to running sums (constant memory); result() blends (paper Eq. 3).

@@ -26,6 +26,10 @@ Parameters (``ibr-render --inputs/--quality/--blend-exponent`` or ``--param key=
   blend_space     linear (default) | srgb: the values that are interpolated and blended. "srgb"
                   warps and blends the sRGB-encoded colours (what RVS does: it blends the stored
                   YUV code values) and decodes the result; see docs/dibr.md, "Accuracy"
+  distance_exponent  beta >= 0: each selected view's fragment weights are multiplied by
+                  (b_min / b_i)^beta, b_i = the distance from its camera centre to the target's,
+                  b_min the smallest (the nearest view keeps factor 1; MPEG VSRS weights its two
+                  views by inverse baseline distance, beta = 1); 0 = RVS (every view alike)
 """
 from __future__ import annotations
 
@@ -54,7 +58,7 @@ QUALITIES = ("side", "shape", "depth", "normal")
 DEFAULTS = {"inputs": vs.DEFAULT_K, "quality": "side", "blend_exponent": 5.0, "side_threshold": 10.0,
             "samples": vs.DEFAULT_SAMPLES, "seed": vs.DEFAULT_SEED,
             "stretched_quality": 0.1, "stretched_holes": True, "depth_tolerance": 0.0,
-            "blend_space": "linear"}
+            "blend_space": "linear", "distance_exponent": 0.0}
 # blend_space "srgb": the kernel interpolates and blends the sRGB encodings of the colours (RVS
 # blends the stored code values) and the result is decoded. The weighted mean of misregistered
 # samples is the estimate of least squared error in the space it is taken in, so blending in the
@@ -105,6 +109,7 @@ def check_params(params: dict | None) -> dict:
     if p["blend_space"] not in BLEND_SPACES:
         raise BadValueError(f"--param blend_space: expected one of {', '.join(BLEND_SPACES)}, "
                             f"got {p['blend_space']!r}")
+    p["distance_exponent"] = P.number(p["distance_exponent"], "--param distance_exponent", 0.0, maximum=16.0)
     p["samples"] = P.integer(p["samples"], "--param samples", 1)
     p["seed"] = P.integer(p["seed"], "--param seed", 0)
     return p
@@ -180,10 +185,15 @@ class DibrMethod:
                                     self.params["stretched_holes"], float(self.params["depth_tolerance"]))
         for i in [i for i in self._encoded if i not in sel.indices]:
             del self._encoded[i]  # the cache holds the selected views only (memory: k encoded copies)
-        for i in sel.indices:
+        factors = self.view_factors(camera, sel.indices)
+        for i, f in zip(sel.indices, factors):
             v = self._scene.views[i]
+            opts = self._options
+            if f != 1.0:
+                opts = self.warp_options()
+                opts.view_weight = f
             acc.add_view(self._input_color(i, v.color), np.ascontiguousarray(v.depth, np.float32),
-                         self._core_cams[i], self._options)
+                         self._core_cams[i], opts)
         t2 = time.perf_counter()
         color, depth, confidence, hole = acc.result()
         if self.params["blend_space"] == "srgb":
@@ -196,8 +206,21 @@ class DibrMethod:
             "candidates": len(sel.candidates),
             "skipped_no_overlap": int(sel.skipped),
         }
+        if self.params["distance_exponent"] > 0:
+            self.last_frame["view_factors"] = [round(f, 6) for f in factors]
         out = {"color": color, "depth": depth, "confidence": confidence, "hole": hole}
         return out, {"select": (t1 - t0) * 1e3, "warp": (t2 - t1) * 1e3, "blend": (t3 - t2) * 1e3}
+
+    def view_factors(self, camera: Camera, indices) -> list[float]:
+        """Per-view weight factors (b_min / b_i)^distance_exponent of the views ``indices`` for
+        the target ``camera`` (module doc), in [1e-6, 1]; all 1 when the exponent is 0. A view
+        at the target's own centre (b_i = 0) gets 1 and the others the floor 1e-6."""
+        beta = float(self.params["distance_exponent"])
+        if beta == 0.0 or len(indices) == 0:
+            return [1.0] * len(indices)
+        b = np.array([np.linalg.norm(self._views.cameras[i].centre - camera.centre) for i in indices])
+        b = np.maximum(b, 1e-9 * (1.0 + float(b.max())))
+        return [float(x) for x in np.clip((b.min() / b) ** beta, 1e-6, 1.0)]
 
     def _input_color(self, i: int, color: np.ndarray) -> np.ndarray:
         """View i's colour as the kernel blends it: linear, or its sRGB encoding (cached)."""
