@@ -37,6 +37,11 @@ Besides the table (the method's defaults) the run measures, unless --no-diagnost
                   for N in DEQUANTIZE_ROUNDS on the validation views LEGO_VALIDATION (disjoint
                   from the test views; the auto value was chosen there), and the test views
                   with the stored codes (N = 0) beside the table's (auto);
+  distance        per-view weights by camera distance (``--param distance_exponent=beta``, off by
+                  default): beta chosen among DISTANCE_EXPONENTS on LEGO_VALIDATION, then the test
+                  views with it (linear and sRGB blend space) and with beta = 1 (MPEG VSRS's
+                  inverse-baseline weighting), and ICL-NUIM with the chosen beta (Middlebury has
+                  one input view: a per-view factor cannot change it);
   ICL poses       whether ICL-NUIM's ground-truth poses agree with its own depth maps: the
                   back wall of frame 1 fitted by a plane with the depth read as z and as ray
                   distance; point-to-plane ICP (open3d) of the depth maps of each frame pair,
@@ -67,6 +72,8 @@ LEGO_HELDOUT = ("r_0", "r_50", "r_100", "r_150")
 # from LEGO_HELDOUT, spread around the orbit): the test views never pick a parameter.
 LEGO_VALIDATION = ("r_10", "r_25", "r_60", "r_75", "r_110", "r_125", "r_160", "r_175")
 DEQUANTIZE_ROUNDS = (0, 2, 5, 10)
+# Exponents of the per-view distance weights (dibr's distance_exponent) tried on LEGO_VALIDATION.
+DISTANCE_EXPONENTS = (0, 1, 2, 3, 4)
 # RVS 4.0 on the same protocols, from ../shared/ANCHORS.md.
 # ICL-NUIM "visible": a target pixel is visible when an input's depth agrees with its ground-truth
 # surface point within this fraction of the depth (visible_in_inputs); the sweep shows how much the
@@ -369,6 +376,19 @@ def lego_dequantized(data: Path, params=None) -> dict:
             "stored": lego(data, params, LEGO_HELDOUT, {"depth_dequantize": 0})}
 
 
+def distance_weighting(data: Path, params=None) -> dict:
+    """Per-view distance weights: beta swept on LEGO_VALIDATION, the test views and ICL-NUIM with
+    the chosen beta (see the module doc, "distance")."""
+    params = {k: v for k, v in (params or {}).items() if k != "distance_exponent"}
+    val = {b: lego(data, {**params, "distance_exponent": b}, LEGO_VALIDATION)["object"]["filled"]
+           for b in DISTANCE_EXPONENTS}
+    best = max(val, key=lambda b: val[b])
+    chosen = {**params, "distance_exponent": best}
+    return {"validation": val, "best": best, "test": lego(data, chosen),
+            "test_srgb": lego(data, {**chosen, "blend_space": "srgb"}),
+            "test_vsrs": lego(data, {**params, "distance_exponent": 1}), "icl": icl(data, chosen)}
+
+
 def diagnostics(data: Path, params: dict, res: dict) -> list[str]:
     """Lines for the section: the same cases with the other blend space, the lego spread over
     all held-out views and the depth de-quantisation, the ICL pose check."""
@@ -406,6 +426,20 @@ def diagnostics(data: Path, params: dict, res: dict) -> list[str]:
               f"parameters: object {f(st['object']['filled'])} dB (table: {f(L['object']['filled'])}), all pixels "
               f"holes black {f(st['all']['black'])} (table: {f(L['all']['black'])}); per view object: "
               + ", ".join(f"{h} {f(r['object']['filled'])}" for h, r in zip(LEGO_HELDOUT, st["rows"])) + "."]
+    dw = distance_weighting(data, params)
+    t, ts, tv, di = dw["test"], dw["test_srgb"], dw["test_vsrs"], dw["icl"]
+    space = params.get("blend_space", "linear")
+    lines += ["", "Per-view distance weights (`--param distance_exponent=beta`, off by default: each selected view's "
+              "weights times (b_min / b_i)^beta, b_i its camera's distance to the target): object PSNR on the validation "
+              f"views for beta = {' / '.join(str(b) for b in dw['validation'])}: "
+              f"{' / '.join(f(v) for v in dw['validation'].values())} dB; chosen beta = {dw['best']}. Test views, RVS "
+              f"protocol: object {f(t['object']['filled'])} dB {space} (table: {f(L['object']['filled'])}; per view "
+              + ", ".join(f"{h} {f(r['object']['filled'])}" for h, r in zip(LEGO_HELDOUT, t["rows"]))
+              + f"), {f(ts['object']['filled'])} dB with blend_space=srgb as well (RVS {RVS['lego object']}); all pixels "
+              f"holes black {f(t['all']['black'])} (table: {f(L['all']['black'])}); beta = 1 (VSRS) object "
+              f"{f(tv['object']['filled'])}. ICL-NUIM with beta = {dw['best']}: all {f(di['all']['filled'])} "
+              f"(table: {f(I['all']['filled'])}), visible in an input {f(di['vis']['filled'])} (table: "
+              f"{f(I['vis']['filled'])}) dB; Middlebury (one input view) unchanged."]
     q = icl_poses(data, params)
     if q is None:
         lines.append("ICL pose check: n/a (needs open3d).")
@@ -480,11 +514,14 @@ def main(argv=None) -> int:
     ap.add_argument("--quality", default="side")
     ap.add_argument("--blend-exponent", type=float, default=5.0)
     ap.add_argument("--side-threshold", type=float, default=None, help="T in px (default: the method's)")
+    ap.add_argument("--distance-exponent", type=float, default=0.0,
+                    help="per-view distance weights of the table's runs (dibr's distance_exponent; default 0 = RVS)")
     a = ap.parse_args(argv)
     if not a.data.is_dir():
         print(f"real data not found at {a.data} (set IBR_SHARED_DATA)", file=sys.stderr)
         return 2
-    params = {"quality": a.quality, "blend_exponent": a.blend_exponent, "blend_space": a.blend_space}
+    params = {"quality": a.quality, "blend_exponent": a.blend_exponent, "blend_space": a.blend_space,
+              "distance_exponent": a.distance_exponent}
     if a.side_threshold is not None:
         params["side_threshold"] = a.side_threshold
     table, res = run(a.data, params)

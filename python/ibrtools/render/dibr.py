@@ -54,7 +54,9 @@ QUALITIES = ("side", "shape", "depth", "normal")
 # stretched foreground). Measured (docs/dibr.md): lego all pixels +1.4 dB, RVS-protocol
 # (nearest-filled) figures within +-0.1 dB. depth_tolerance stays 0 (RVS: every view's front
 # fragment is blended): 0.02-0.05 gains +1.7 dB on exact synthetic depth but loses 0.16 dB on
-# ICL-NUIM's noisy depth.
+# ICL-NUIM's noisy depth. distance_exponent stays 0 (RVS: every selected view alike): beta = 4,
+# chosen on lego validation views, gains +1.7 dB on lego object pixels but loses 0.3-0.6 dB on
+# ICL-NUIM, whose nearest input has the worse ground-truth pose (docs/dibr.md, "lego object pixels").
 DEFAULTS = {"inputs": vs.DEFAULT_K, "quality": "side", "blend_exponent": 5.0, "side_threshold": 10.0,
             "samples": vs.DEFAULT_SAMPLES, "seed": vs.DEFAULT_SEED,
             "stretched_quality": 0.1, "stretched_holes": True, "depth_tolerance": 0.0,
@@ -63,7 +65,7 @@ DEFAULTS = {"inputs": vs.DEFAULT_K, "quality": "side", "blend_exponent": 5.0, "s
 # blends the stored code values) and the result is decoded. The weighted mean of misregistered
 # samples is the estimate of least squared error in the space it is taken in, so blending in the
 # display encoding is what an sRGB PSNR rewards: measured (docs/dibr.md, "Accuracy") lego object
-# pixels +0.57 dB, ICL-NUIM -0.04 dB, Middlebury -0.01 dB. Not the default: the encode is cached
+# pixels +0.69 dB, ICL-NUIM -0.03 dB, Middlebury -0.01 dB. Not the default: the encode is cached
 # per input view, but the decode of the result costs ~70 ms per 1080p frame in numpy.
 BLEND_SPACES = ("linear", "srgb")
 
