@@ -3,7 +3,7 @@ PVM (filtered), an unfiltered PVM blend and hybrid, the global mesh made by TSDF
 input views' depth maps.
 
     python benchmarks/bench_hybrid_lego.py [--scale 1] [-j N] [--keep DIR] [--validation]
-        [--depth-dequantize N] [--methods tm,ulr,...] [--options JSON] [--write-docs]
+        [--depth-dequantize N] [--methods tm,ulr,...] [--options JSON] [--reuse] [--write-docs]
 
 Protocol (the DIBR lego protocol of benchmarks/bench_dibr_accuracy.py): the nerf importer on
 ../shared/data/nerf_lego (or $IBR_SHARED_DATA/nerf_lego), RGBA composited over black; the held-out
@@ -19,7 +19,9 @@ targets are LEGO_VALIDATION (r_10 r_60 r_110 r_160), removed from the inputs tog
 held-out views (32 inputs), so nothing chosen on it has seen r_0 r_50 r_100 r_150.
 ``--depth-dequantize N`` passes the nerf importer's option (bin-constrained smoothing of the
 8-bit depth codes; default: the importer's default). ``--options JSON`` passes stage options to
-``run_stages`` (e.g. ``'{"mesh": {"k_views": 8}}'``); ``--methods`` limits the rendered methods.
+``run_stages`` (e.g. ``'{"mesh": {"k_views": 8}}'``); ``--methods`` limits the rendered methods;
+``--reuse`` (with ``--keep DIR``) takes the scene an earlier run with the same protocol saved in
+DIR instead of saving it again, so that only the stages whose parameters changed run.
 
 ``--scale S`` (default 1: the full 800x800, ~9 min on 2 cores at load ~4 with the texture atlas of
 texture stage version 5, ~5 min before) divides the 800x800 images
@@ -120,6 +122,8 @@ def main(argv=None) -> int:
     p.add_argument("--depth-dequantize", type=int, default=None, metavar="N",
                    help="nerf importer option depth_dequantize (default: the importer's default)")
     p.add_argument("--methods", default=",".join(ORDER), help=f"methods to render (default {','.join(ORDER)})")
+    p.add_argument("--reuse", action="store_true",
+                   help="with --keep: reuse the scene DIR holds (same protocol) and its stage cache instead of re-importing")
     p.add_argument("--options", default=None, metavar="JSON", help="stage options for run_stages (JSON object)")
     args = p.parse_args(argv)
     if args.scale < 1:
@@ -127,6 +131,8 @@ def main(argv=None) -> int:
     order = [m for m in args.methods.split(",") if m]
     if not order or any(m not in ORDER for m in order):
         p.error(f"--methods: expected a comma-separated subset of {','.join(ORDER)}")
+    if args.reuse and not args.keep:
+        p.error("--reuse needs --keep DIR")
     if args.validation and args.write_docs:
         p.error("--write-docs scores the held-out views: not with --validation")
     stage_options = json.loads(args.options) if args.options else {}
@@ -159,11 +165,21 @@ def main(argv=None) -> int:
     scene = Scene(views=[_scaled_view(v, s) for v in inputs], targets=[_scaled_view(v, s) for v in held],
                   units=full.units, source={**full.source, "bench_hybrid_lego": {"scale": s,
                                                                                   "heldout": list(targets),
-                                                                                  "excluded": sorted(excluded)}})
+                                                                                  "excluded": sorted(excluded),
+                                                                                  "dequantize": args.depth_dequantize}})
     w, h = scene.views[0].camera.width, scene.views[0].camera.height
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(args.keep) if args.keep else Path(tmp) / "lego"
-        native.save(scene, root)
+        if args.reuse and (root / "scene.json").exists():
+            # The scene saved by an earlier run with the same protocol (its stage cache is reused
+            # for the stages whose parameters did not change).
+            prev = native.load(root).source.get("bench_hybrid_lego", {})
+            if prev.get("scale") != s or prev.get("heldout") != list(targets) or "dequantize" not in prev \
+                    or prev["dequantize"] != args.depth_dequantize:
+                print(f"--reuse: {root} was made with other --scale / targets / --depth-dequantize", file=sys.stderr)
+                return 1
+        else:
+            native.save(scene, root)
         t0 = time.perf_counter()
         need = sorted({"pvm" if m.startswith("pvm") else m for m in order})
         rows = run_stages(root, methods=need, options=stage_options)

@@ -120,3 +120,22 @@ def test_texture_stage_bakes_gain_compensated_views_on_the_render_mesh(tmp_path)
     # far above gain_max_ratio 0.5).
     rec_jit = S._read_doc(dj)["stages"]["texture"]["details"]
     assert rec_jit["gain_model"] == "exposure" and rec_jit["gain_ratio"] > 0.5, rec_jit
+    # A reconstructed mesh keeps k_views / bake_normal_rounds (4, 0); a fused one would take
+    # fused_k_views / fused_normal_rounds (GlobalMeshOptions.texture_options).
+    assert (rec_jit["k_views"], rec_jit["normal_rounds"]) == (4, 0), rec_jit
+
+
+def test_texture_options_by_mesh_source():
+    o = GlobalMeshOptions(k_views=3, bake_normal_rounds=1, fused_k_views=6, fused_normal_rounds=5)
+    for src in ("reconstructed", "ground_truth"):
+        assert o.texture_options(src) is o
+    f = o.texture_options("fusion")
+    assert (f.k_views, f.bake_normal_rounds) == (6, 5)
+    assert {k: v for k, v in f.to_dict().items() if k not in ("k_views", "bake_normal_rounds")} == \
+        {k: v for k, v in o.to_dict().items() if k not in ("k_views", "bake_normal_rounds")}
+    d = GlobalMeshOptions().texture_options("fusion")
+    assert (d.k_views, d.bake_normal_rounds) == (8, 8)
+    with pytest.raises(BadValueError, match="fused_k_views"):
+        GlobalMeshOptions(fused_k_views=0)
+    with pytest.raises(BadValueError, match="fused_normal_rounds"):
+        GlobalMeshOptions(fused_normal_rounds=-1)

@@ -161,7 +161,7 @@ STAGES: dict[str, Stage] = {s.name: s for s in (
           "per-view depth rendered from the global mesh, for views without depth"),
     Stage("texture", ("scene", "mesh", "depth"), ("texture.npz",), frozenset({"tm", "hybrid"}),
           "texture atlas and per-vertex colour of the render mesh by ULR-weighted blending of the "
-          "gain-compensated views", version=6),
+          "gain-compensated views", version=7),
     Stage("variance", ("scene", "mesh", "depth"), ("variance.npz",), frozenset({"hybrid"}),
           "per-vertex photometric standard deviation across the views that see it"),
     Stage("harmonise", ("scene", "mesh", "variance"), ("harmonise.npz",), frozenset({"hybrid"}),
@@ -379,7 +379,7 @@ def _params(name: str, options: dict) -> dict:
         if name == "texture":
             return {k: o[k] for k in ("k_views", "depth_tol", "atlas_texel", "atlas_max_texels", "atlas_adaptive",
                                       "gain_model", "gain_max_ratio", "bake_normal_rounds",
-                                      "bake_label_weight")}
+                                      "bake_label_weight", "fused_k_views", "fused_normal_rounds")}
         return {}
     if name == "pvm":
         return PvmOptions(**options.get("pvm", {})).to_dict()
@@ -422,10 +422,12 @@ def _run_depth(ctx: _Context) -> dict:
 def _run_texture(ctx: _Context) -> dict:
     from .hybrid import atlas as A
     from .hybrid.gainmodel import exposure_gains
-    from .hybrid.globalmesh import GlobalMeshOptions, vertex_colors
+    from .hybrid.globalmesh import GlobalMeshOptions, choose_source, vertex_colors
     from .hybrid.variance import vertex_statistics
 
     opts = GlobalMeshOptions(**ctx.options.get("mesh", {}))
+    # A fused mesh blends more views on smoothed normals (GlobalMeshOptions.texture_options).
+    opts = opts.texture_options(choose_source(ctx.scene, opts.source))
     mesh, cams, deps = ctx.render_mesh(), ctx.cameras(), ctx.depths()
     # The views with their global per-channel gain divided out (variance.vertex_statistics on the
     # render mesh: the gains, geometric mean 1 over the views, as the variance stage estimates them
@@ -441,7 +443,8 @@ def _run_texture(ctx: _Context) -> dict:
               for v in ctx.scene.views}
     col, seen = vertex_colors(mesh, cams, colors, deps, opts)
     rec = {"vertices": int(len(col)), "unseen": int((seen == 0).sum()), "gain_spread": spread,
-           "gain_model": gain_rec["model"], "gain_ratio": gain_rec["ratio"]}
+           "gain_model": gain_rec["model"], "gain_ratio": gain_rec["ratio"], "k_views": opts.k_views,
+           "normal_rounds": opts.bake_normal_rounds}
     arrays = {"vertex_colors": col, "seen": seen}
     # The atlas (issue 7): per-texel colour at about the input views' resolution; a mesh with too
     # many faces for atlas_max_texels keeps the per-vertex colour only (TM renders that).

@@ -78,6 +78,13 @@ class GlobalMeshOptions:
     # front-facing with (smooth_normals): a fused surface's normals are voxel-noisy, and a
     # per-texel ranking on them mixes differently misregistered views between neighbouring texels.
     bake_normal_rounds: int = 0
+    # The same two for a mesh made by TSDF fusion (texture_options): its normals are voxel-noisy
+    # and its surface ~1 voxel off, so each view's sample is misregistered differently; blending
+    # more views, ranked on smoothed normals, averages that out (lego validation, docs/hybrid.md).
+    # A given (reconstructed / ground-truth) mesh keeps k_views and bake_normal_rounds (the
+    # synth bench scenes lose 0.6 dB of TM with 8 rounds of smoothing across their sharp edges).
+    fused_k_views: int = 8
+    fused_normal_rounds: int = 8
     # > 0: the atlas takes one view per face (hybrid/texlabel.py: projected-area data term, Potts
     # smoothness of this weight on the face adjacency, alpha-expansion); texels that view does not
     # see, and faces no view sees, keep the per-texel ULR blend. 0: the per-texel blend everywhere.
@@ -108,11 +115,22 @@ class GlobalMeshOptions:
         if not check_float(self.gain_max_ratio, "gain_max_ratio") >= 0:
             raise BadValueError("gain_max_ratio: expected >= 0")
         check_int(self.bake_normal_rounds, "bake_normal_rounds", 0, 10_000)
+        check_int(self.fused_k_views, "fused_k_views", 1)
+        check_int(self.fused_normal_rounds, "fused_normal_rounds", 0, 10_000)
         if not check_float(self.bake_label_weight, "bake_label_weight") >= 0:
             raise BadValueError("bake_label_weight: expected >= 0")
 
     def to_dict(self) -> dict:
         return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    def texture_options(self, source: str) -> "GlobalMeshOptions":
+        """The options the texture bake uses on a mesh from ``source`` (choose_source's answer):
+        for "fusion", k_views and bake_normal_rounds replaced by fused_k_views and
+        fused_normal_rounds; otherwise these options."""
+        if source != "fusion":
+            return self
+        return GlobalMeshOptions(**{**self.to_dict(), "k_views": self.fused_k_views,
+                                    "bake_normal_rounds": self.fused_normal_rounds})
 
 
 def choose_source(scene: Scene, source: str = "auto") -> str:
