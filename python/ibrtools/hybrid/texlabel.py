@@ -21,7 +21,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..checks import check_float, check_int
-from ..errors import BadValueError, ShapeError
+from ..errors import BadValueError, NotBuiltError, ShapeError
 from ..mesh import Mesh
 
 UNSEEN_COST = 1e3
@@ -111,7 +111,10 @@ def potts_labels(cost: np.ndarray, edges: np.ndarray, weight: float, sweeps: int
     argmin: ``sweeps`` passes over the labels (each expansion is one s-t min-cut; the energy never
     increases; stops early when a pass changes nothing). Labels no face can take cheaply
     (all costs >= UNSEEN_COST) are skipped."""
-    import maxflow
+    try:
+        import maxflow
+    except ImportError as e:  # an optional dependency (the test and bench extras)
+        raise NotBuiltError("face labels need PyMaxflow (pip install PyMaxflow)") from e
 
     c = np.asarray(cost, np.float64)
     if c.ndim != 2 or c.shape[1] < 1:
