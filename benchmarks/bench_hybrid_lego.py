@@ -23,8 +23,8 @@ held-out views (32 inputs), so nothing chosen on it has seen r_0 r_50 r_100 r_15
 ``--reuse`` (with ``--keep DIR``) takes the scene an earlier run with the same protocol saved in
 DIR instead of saving it again, so that only the stages whose parameters changed run.
 
-``--scale S`` (default 1: the full 800x800, ~9 min on 2 cores at load ~4 with the texture atlas of
-texture stage version 5, ~5 min before) divides the 800x800 images
+``--scale S`` (default 1: the full 800x800; 2 min 52 s on 2 cores at load ~1.8 with texture stage
+version 7, peak RSS 6.0 GB; ~9 min at load ~4 with version 5) divides the 800x800 images
 by S before preprocessing (there is no importer option for it): colour, the held-out ground truth and alpha by the mean of each SxS
 block (in linear light, exact for pixel centres at +0.5), the z-depth by the sample at the
 block's (S//2, S//2) pixel (0.5 source pixel off the block centre; depth is 8-bit coarse anyway),
