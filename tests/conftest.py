@@ -47,3 +47,29 @@ def dibr_accuracy_bench():
 @pytest.fixture
 def rng():
     return np.random.default_rng(1234)
+
+
+@pytest.fixture(params=["baseline", "avx2"])
+def isa(request):
+    """The forward-warp kernel's instruction set for one test (both paths; AVX2 skipped without it),
+    restored to "auto" afterwards."""
+    from ibrtools import _core
+
+    if request.param == "avx2" and not _core.cpu_has_avx2():
+        pytest.skip("this CPU has no AVX2")
+    _core.set_warp_isa(request.param)
+    yield request.param
+    _core.set_warp_isa("auto")
+
+
+def wall(zw: float = 2.0, size: float = 1.0):
+    """A square mesh (two triangles) in the plane z = zw, half-width ``size``, facing -z (towards
+    cameras at z < zw)."""
+    from ibrtools.hybrid.globalmesh import vertex_normals
+    from ibrtools.mesh import Mesh
+
+    v = np.array([[-size, -size, zw], [size, -size, zw], [size, size, zw], [-size, size, zw]], np.float32)
+    f = np.array([[0, 2, 1], [0, 3, 2]], np.int32)
+    if vertex_normals(v, f)[0, 2] > 0:
+        f = f[:, [0, 2, 1]]
+    return Mesh(v, f)

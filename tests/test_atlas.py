@@ -4,21 +4,13 @@ independence."""
 import numpy as np
 import pytest
 
+from conftest import wall
 from ibrtools import _core
 from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
 from ibrtools.hybrid import atlas as A
-from ibrtools.hybrid.globalmesh import densify, vertex_colors, vertex_normals
+from ibrtools.hybrid.globalmesh import densify, vertex_colors
 from ibrtools.mesh import Mesh
-
-
-def wall(zw=2.0, size=1.0):
-    """The plane z = zw facing -z (towards a camera at the origin)."""
-    v = np.array([[-size, -size, zw], [size, -size, zw], [size, size, zw], [-size, size, zw]], np.float32)
-    f = np.array([[0, 2, 1], [0, 3, 2]], np.int32)
-    if vertex_normals(v, f)[0, 2] > 0:
-        f = f[:, [0, 2, 1]]
-    return Mesh(v, f)
 
 
 def camera(w=64, h=64, f=64.0):

@@ -123,15 +123,6 @@ def noisy_view(seed: int, depth: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
     return rng.random((H, W, 3), dtype=np.float32), d
 
 
-@pytest.fixture(params=["baseline", "avx2"])
-def isa(request):
-    if request.param == "avx2" and not _core.cpu_has_avx2():
-        pytest.skip("this CPU has no AVX2")
-    _core.set_warp_isa(request.param)
-    yield request.param
-    _core.set_warp_isa("auto")
-
-
 @pytest.mark.parametrize("kwargs", ACC_OPTIONS)
 def test_reset_forgets_every_view_bit_for_bit(kwargs, isa):
     """A reused accumulator (reset, then views) equals a new one with the same views, and the

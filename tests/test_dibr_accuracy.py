@@ -273,15 +273,6 @@ def test_lego_dequantized_depth_improves_the_weak_view(bench):
 
 
 # --- per-view weights: WarpOptions.view_weight (kernel) and distance_exponent (DibrMethod) -------
-@pytest.fixture(params=["baseline", "avx2"])
-def isa(request):
-    if request.param == "avx2" and not _core.cpu_has_avx2():
-        pytest.skip("this CPU has no AVX2")
-    _core.set_warp_isa(request.param)
-    yield request.param
-    _core.set_warp_isa("auto")
-
-
 def _plane_cam(x: float = 0.0) -> Camera:
     return Camera.from_fov(24, 18, 60, look_at((x, 0, -2), (x, 0, 0)))
 

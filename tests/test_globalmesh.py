@@ -4,6 +4,7 @@ bad input."""
 import numpy as np
 import pytest
 
+from conftest import wall
 from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
 from ibrtools.hybrid.globalmesh import (GlobalMeshOptions, build_global_mesh, choose_source, densify,
@@ -21,16 +22,6 @@ def quad(z=0.0, size=1.0, kind="ground_truth"):
     return Mesh(v, f, kind=kind)
 
 
-def wall(zw=2.0, size=3.0):
-    """The plane z = zw facing -z (towards cameras at z < zw)."""
-    v = np.array([[-size, -size, zw], [size, -size, zw], [size, size, zw], [-size, size, zw]], np.float32)
-    f = np.array([[0, 2, 1], [0, 3, 2]], np.int32)
-    n = vertex_normals(v, f)
-    if n[0, 2] > 0:
-        f = f[:, [0, 2, 1]]
-    return Mesh(v, f)
-
-
 def cam_at(eye, w=40, h=30, f=30.0, target=(0.0, 0.0, 2.0)):
     return Camera.pinhole(w, h, f, f, w / 2, h / 2, look_at(eye, target, up=(0.0, -1.0, 0.0)))
 
@@ -41,7 +32,7 @@ def test_choose_source():
     col = np.zeros((30, 40, 3), np.float32)
     with_depth = [View.create("a", c, color=col, depth=d)]
     no_depth = [View.create("a", c, color=col)]
-    gt, rec = wall(), Mesh(wall().vertices, wall().faces, kind="reconstructed")
+    gt, rec = wall(size=3.0), Mesh(wall(size=3.0).vertices, wall(size=3.0).faces, kind="reconstructed")
     assert choose_source(Scene(views=with_depth, meshes={"ground_truth": gt, "reconstructed": rec})) == "reconstructed"
     # Ground truth is not used when depth can be fused: no leak of ground truth into a method.
     assert choose_source(Scene(views=with_depth, meshes={"ground_truth": gt})) == "fusion"
@@ -59,7 +50,7 @@ def test_choose_source():
 
 def test_fusion_of_a_plane_lies_on_it():
     cams = {f"v{i}": cam_at((x, 0.0, 0.0)) for i, x in enumerate((-0.3, 0.0, 0.3))}
-    depths = {n: depth_from_mesh(wall(), {n: c})[n] for n, c in cams.items()}
+    depths = {n: depth_from_mesh(wall(size=3.0), {n: c})[n] for n, c in cams.items()}
     m = fuse_depth(cams, depths, GlobalMeshOptions(resolution=64))
     assert m.kind == "reconstructed" and len(m.faces) > 100
     voxel = float(np.ptp(np.concatenate([c.unproject(depths[n]).reshape(-1, 3) for n, c in cams.items()]),
@@ -72,7 +63,7 @@ def test_fusion_of_a_plane_lies_on_it():
 
 def test_depth_from_mesh_exact_plane():
     c = cam_at((0.0, 0.0, 0.0))
-    d = depth_from_mesh(wall(), {"a": c})["a"]
+    d = depth_from_mesh(wall(size=3.0), {"a": c})["a"]
     np.testing.assert_allclose(d, 2.0, rtol=1e-5)  # z-depth of the plane z = 2 (float32 ray hits)
     d = depth_from_mesh(quad(z=5.0, size=0.1), {"a": c})["a"]
     assert np.all(d == 0)  # nothing hit: 0 = unknown
@@ -127,7 +118,7 @@ def test_vertex_colors_blend_and_depth_test():
 def test_build_global_mesh_from_given_mesh_and_errors():
     c = cam_at((0.0, 0.0, 0.0))
     v = View.create("a", c, color=np.zeros((30, 40, 3), np.float32))
-    mesh, rec = build_global_mesh(Scene(views=[v], meshes={"ground_truth": wall()}),
+    mesh, rec = build_global_mesh(Scene(views=[v], meshes={"ground_truth": wall(size=3.0)}),
                                   GlobalMeshOptions(resolution=16))
     assert rec["source"] == "ground_truth" and len(mesh.faces) > 2
     # Degenerate: all vertices at one point.

@@ -8,22 +8,13 @@ import itertools
 import numpy as np
 import pytest
 
+from conftest import wall
 from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError, ShapeError
 from ibrtools.hybrid import atlas as A
 from ibrtools.hybrid.globalmesh import (GlobalMeshOptions, densify, depth_from_mesh, point_colors, vertex_colors,
                                         vertex_normals)
 from ibrtools.hybrid.texlabel import UNSEEN_COST, face_data_cost, face_edges, potts_energy, potts_labels
-from ibrtools.mesh import Mesh
-
-
-def wall(zw=2.0, size=1.0):
-    """The plane z = zw facing -z (towards cameras at z < zw)."""
-    v = np.array([[-size, -size, zw], [size, -size, zw], [size, size, zw], [-size, size, zw]], np.float32)
-    f = np.array([[0, 2, 1], [0, 3, 2]], np.int32)
-    if vertex_normals(v, f)[0, 2] > 0:
-        f = f[:, [0, 2, 1]]
-    return Mesh(v, f)
 
 
 def cam_at(eye, w=48, h=48, f=48.0):
