@@ -3,7 +3,8 @@ PVM (filtered), an unfiltered PVM blend and hybrid, the global mesh made by TSDF
 input views' depth maps.
 
     python benchmarks/bench_hybrid_lego.py [--scale 1] [-j N] [--keep DIR] [--validation]
-        [--depth-dequantize N] [--methods tm,ulr,...] [--options JSON] [--reuse] [--write-docs]
+        [--depth-dequantize N] [--methods tm,ulr,...] [--options JSON] [--hybrid-params JSON]
+        [--reuse] [--write-docs]
 
 Protocol (the DIBR lego protocol of benchmarks/bench_dibr_accuracy.py): the nerf importer on
 ../shared/data/nerf_lego (or $IBR_SHARED_DATA/nerf_lego), RGBA composited over black; the held-out
@@ -22,6 +23,11 @@ held-out views (32 inputs), so nothing chosen on it has seen r_0 r_50 r_100 r_15
 ``run_stages`` (e.g. ``'{"mesh": {"k_views": 8}}'``); ``--methods`` limits the rendered methods;
 ``--reuse`` (with ``--keep DIR``) takes the scene an earlier run with the same protocol saved in
 DIR instead of saving it again, so that only the stages whose parameters changed run.
+``--hybrid-params JSON`` gives the hybrid method render parameters (e.g. ``'{"tau_var": 0.1}'``;
+checked before anything runs; no stage reads them, so ``--reuse`` re-runs no stage), for scoring
+a setting chosen on the validation protocol (docs/hybrid.md "Parameters chosen by a sweep on lego
+validation views"; the sweep itself: ``ibr-bench DIR --method hybrid --sweep ...`` on the scene
+``--keep DIR`` saved).
 
 ``--scale S`` (default 1: the full 800x800; 2 min 52 s on 2 cores at load ~1.8 with texture stage
 version 7, peak RSS 6.0 GB; ~9 min at load ~4 with version 5) divides the 800x800 images
@@ -125,6 +131,8 @@ def main(argv=None) -> int:
     p.add_argument("--reuse", action="store_true",
                    help="with --keep: reuse the scene DIR holds (same protocol) and its stage cache instead of re-importing")
     p.add_argument("--options", default=None, metavar="JSON", help="stage options for run_stages (JSON object)")
+    p.add_argument("--hybrid-params", default=None, metavar="JSON",
+                   help="hybrid render parameters (JSON object, e.g. '{\"tau_var\": 0.1}'; default: HYBRID_DEFAULTS)")
     args = p.parse_args(argv)
     if args.scale < 1:
         p.error("--scale must be >= 1")
@@ -138,6 +146,12 @@ def main(argv=None) -> int:
     stage_options = json.loads(args.options) if args.options else {}
     if not isinstance(stage_options, dict):
         p.error("--options: expected a JSON object")
+    hybrid_params = json.loads(args.hybrid_params) if args.hybrid_params else {}
+    if not isinstance(hybrid_params, dict):
+        p.error("--hybrid-params: expected a JSON object")
+    from ibrtools.render.hybrid import check_params
+
+    check_params("hybrid", hybrid_params)  # a bad key or value fails here, before the data is read
     data = shared_data()
     if not (data / "nerf_lego" / "transforms_test.json").exists():
         print(f"skipped: {data / 'nerf_lego'} is absent (set IBR_SHARED_DATA)", file=sys.stderr)
@@ -199,7 +213,7 @@ def main(argv=None) -> int:
         renderers = {}
         for name in ("tm", "ulr", "hybrid"):
             if name in order:
-                m = methods.create(name)
+                m = methods.create(name, hybrid_params if name == "hybrid" else None)
                 m.prepare(scene)
                 renderers[name] = m
         if "pvm" in order:
@@ -237,11 +251,13 @@ def main(argv=None) -> int:
              + ("validation protocol: removed with r_0 r_50 r_100 r_150" if args.validation else "the DIBR lego protocol")
              + "; removed before preprocessing, so no stage reads them). "
              + (f"Importer option depth_dequantize={args.depth_dequantize}. " if args.depth_dequantize is not None else "")
-             + (f"Stage options {json.dumps(stage_options)}. " if stage_options else "") +
+             + (f"Stage options {json.dumps(stage_options)}. " if stage_options else "")
+             + (f"Hybrid parameters {json.dumps(hybrid_params)} (the rest at their defaults). " if hybrid_params else "") +
              f"Global mesh by TSDF fusion of the inputs' depth maps (mesh source auto; "
              f"{details.get('mesh', {}).get('render_faces', '?')} render-mesh faces, atlas "
-             f"{details.get('texture', {}).get('atlas', '?')}). Default parameters "
-             f"everywhere. Preprocessing (tm, ulr, pvm, hybrid) took {prep_s:.1f} s "
+             f"{details.get('texture', {}).get('atlas', '?')}). "
+             + ("Default parameters everywhere" if not (stage_options or hybrid_params) else "Other parameters at their defaults")
+             + f". Preprocessing (tm, ulr, pvm, hybrid) took {prep_s:.1f} s "
              f"({', '.join(f'{k} {v[1]:.1f} s' + ('' if v[0] == 'ran' else f' {v[0]}') for k, v in stage_s.items())}); "
              f"whole run {total_s:.0f} s.", "",
              "Mean over the held-out views (all pixels: holes and background black; object: alpha > 0.99, "

@@ -1,0 +1,50 @@
+"""benchmarks/bench_hybrid_lego.py --hybrid-params: the hybrid render parameters of a setting chosen
+by a sweep on the lego validation views (docs/hybrid.md "Parameters chosen by a sweep on lego
+validation views"). Only the argument checks run here (no data is read): a bad key or value must
+fail before the minutes-long preprocessing starts."""
+from __future__ import annotations
+
+import importlib
+import sys
+from pathlib import Path
+
+import pytest
+
+from ibrtools.errors import BadValueError
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def bench():
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    try:
+        return importlib.import_module("bench_hybrid_lego")
+    finally:
+        sys.path.remove(str(REPO / "benchmarks"))
+
+
+def test_good_params_pass_the_check_and_reach_the_data_lookup(bench, tmp_path, monkeypatch, capsys):
+    # An empty data directory: the checks pass, then the bench skips (returns 0) naming the data.
+    monkeypatch.setenv("IBR_SHARED_DATA", str(tmp_path))
+    assert bench.main(["--validation", "--hybrid-params", '{"tau_var": 0.1, "geo_threshold": 0.02}']) == 0
+    assert "nerf_lego" in capsys.readouterr().err
+
+
+def test_unknown_hybrid_param_fails_before_the_data_is_read(bench, tmp_path, monkeypatch):
+    monkeypatch.setenv("IBR_SHARED_DATA", str(tmp_path))
+    with pytest.raises(BadValueError, match="tau_vra"):
+        bench.main(["--hybrid-params", '{"tau_vra": 0.1}'])
+
+
+def test_bad_hybrid_param_value_fails(bench, tmp_path, monkeypatch):
+    monkeypatch.setenv("IBR_SHARED_DATA", str(tmp_path))
+    with pytest.raises(BadValueError, match="sigma_blur"):
+        bench.main(["--hybrid-params", '{"sigma_blur": -1}'])
+
+
+def test_hybrid_params_must_be_a_json_object(bench, tmp_path, monkeypatch):
+    monkeypatch.setenv("IBR_SHARED_DATA", str(tmp_path))
+    with pytest.raises(SystemExit) as e:
+        bench.main(["--hybrid-params", "[0.1]"])
+    assert e.value.code == 2
