@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import sys
 import tempfile
 import time
@@ -243,7 +244,8 @@ def main(argv=None) -> int:
         return "n/a" if x is None else f"{x:.{d}f}"
 
     views = list(targets)
-    lines = [f"Hybrid IBR on held-out lego views (`python benchmarks/bench_hybrid_lego.py --scale {s} --write-docs`), "
+    cmd = shlex.join(["python", "benchmarks/bench_hybrid_lego.py", *(sys.argv[1:] if argv is None else argv)])
+    lines = [f"Hybrid IBR on held-out lego views (`{cmd}`), "
              f"{machine()}, {_core.get_num_threads()} threads. NeRF-synthetic lego (../shared/data/nerf_lego, "
              f"RGBA over black), {len(inputs)} input views at {w}x{h}"
              + ("" if s == 1 else f" (800x800 / {s}, block mean)") + ", held out "
