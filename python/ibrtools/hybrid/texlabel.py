@@ -72,26 +72,22 @@ def face_data_cost(mesh: Mesh, cameras: Mapping[str, Camera], depths: Mapping[st
         dep = np.asarray(depths[n], np.float32)
         if dep.shape != (cam.height, cam.width):
             raise ShapeError(f"view {n!r}: expected depth ({cam.height}, {cam.width}), got {dep.shape}")
-        cfw = np.asarray(cam.cam_from_world, np.float64)
-        pc = tri @ cfw[:3, :3].T + cfw[:3, 3]  # (F, 3, 3) in camera
-        z = pc[..., 2]
+        xy, z = cam.project(tri)  # (F, 3, 2), (F, 3); NaN where a corner is not in front
         front = (z > 1e-9).all(1)
-        zs = np.where(z > 1e-9, z, 1.0)
-        px = cam.fx * pc[..., 0] / zs + cam.cx
-        py = cam.fy * pc[..., 1] / zs + cam.cy
-        a = 0.5 * np.abs((px[:, 1] - px[:, 0]) * (py[:, 2] - py[:, 0]) - (px[:, 2] - px[:, 0]) * (py[:, 1] - py[:, 0]))
+        px, py = xy[..., 0], xy[..., 1]
+        with np.errstate(invalid="ignore"):
+            a = 0.5 * np.abs((px[:, 1] - px[:, 0]) * (py[:, 2] - py[:, 0]) - (px[:, 2] - px[:, 0]) * (py[:, 1] - py[:, 0]))
         # The centroid: inside the image, in front, facing the camera, within depth_tol of the view.
-        cc = cen @ cfw[:3, :3].T + cfw[:3, 3]
-        czs = np.where(cc[:, 2] > 1e-9, cc[:, 2], 1.0)
-        u = cam.fx * cc[:, 0] / czs + cam.cx
-        w = cam.fy * cc[:, 1] / czs + cam.cy
-        inside = front & (cc[:, 2] > 1e-9) & (u >= 0) & (u < cam.width) & (w >= 0) & (w < cam.height)
-        iu = np.clip(u.astype(np.int64), 0, cam.width - 1)
-        iw = np.clip(w.astype(np.int64), 0, cam.height - 1)
-        dz = dep[iw, iu].astype(np.float64)
-        centre = -cfw[:3, :3].T @ cfw[:3, 3]
+        cxy, cz = cam.project(cen)
+        u, w = cxy[:, 0], cxy[:, 1]
+        with np.errstate(invalid="ignore"):
+            inside = front & (cz > 1e-9) & (u >= 0) & (u < cam.width) & (w >= 0) & (w < cam.height)
+        iu = np.where(inside, np.nan_to_num(u), 0).astype(np.int64)
+        iw = np.where(inside, np.nan_to_num(w), 0).astype(np.int64)
+        dz = np.where(inside, dep[iw, iu], 0.0).astype(np.float64)
+        centre = cam.centre
         facing = np.einsum("fc,fc->f", fn, centre[None] - cen) > 0
-        ok = inside & facing & (dz > 0) & (np.abs(cc[:, 2] - dz) <= tol * dz)
+        ok = inside & facing & (dz > 0) & (np.abs(np.where(inside, cz, 0.0) - dz) <= tol * dz)
         area[:, j] = np.where(ok, a, 0.0)
     best = area.max(1, keepdims=True)
     cost = np.where(area > 0, 1.0 - area / np.where(best > 0, best, 1.0), UNSEEN_COST)
