@@ -144,12 +144,17 @@ def main(argv=None) -> int:
         p.error("--reuse needs --keep DIR")
     if args.validation and args.write_docs:
         p.error("--write-docs scores the held-out views: not with --validation")
-    stage_options = json.loads(args.options) if args.options else {}
-    if not isinstance(stage_options, dict):
-        p.error("--options: expected a JSON object")
-    hybrid_params = json.loads(args.hybrid_params) if args.hybrid_params else {}
-    if not isinstance(hybrid_params, dict):
-        p.error("--hybrid-params: expected a JSON object")
+    def json_object(text: str | None, flag: str) -> dict:
+        try:
+            obj = json.loads(text) if text else {}
+        except json.JSONDecodeError as e:
+            p.error(f"{flag}: not valid JSON ({e})")
+        if not isinstance(obj, dict):
+            p.error(f"{flag}: expected a JSON object")
+        return obj
+
+    stage_options = json_object(args.options, "--options")
+    hybrid_params = json_object(args.hybrid_params, "--hybrid-params")
     from ibrtools.render.hybrid import check_params
 
     check_params("hybrid", hybrid_params)  # a bad key or value fails here, before the data is read

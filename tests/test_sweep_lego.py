@@ -48,3 +48,12 @@ def test_hybrid_params_must_be_a_json_object(bench, tmp_path, monkeypatch):
     with pytest.raises(SystemExit) as e:
         bench.main(["--hybrid-params", "[0.1]"])
     assert e.value.code == 2
+
+
+@pytest.mark.parametrize("flag", ["--hybrid-params", "--options"])
+def test_malformed_json_is_a_usage_error_naming_the_flag(bench, tmp_path, monkeypatch, capsys, flag):
+    monkeypatch.setenv("IBR_SHARED_DATA", str(tmp_path))
+    with pytest.raises(SystemExit) as e:
+        bench.main([flag, "{tau_var: 0.1"])
+    assert e.value.code == 2
+    assert f"{flag}: not valid JSON" in capsys.readouterr().err
