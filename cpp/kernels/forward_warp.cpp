@@ -612,17 +612,22 @@ __attribute__((target("avx2"))) inline void DeinterleaveRgb8(const float* c, __m
 // the score, 1 / d and the colour, stored for the in-order depth test of RasterBlockRowAvx2.
 struct FirstFragments {
   alignas(32) float s[8], d[8], q[8], r[8], g[8], b[8];
+  alignas(32) std::int32_t pix[8];  // the centre's index in the band buffers, (y - row0) tw + x
 };
 
 __attribute__((target("avx2"))) inline void ShadeFirst8(__m256i mask, const __m256i er[3], const __m256i ex[3],
                                                         const __m256i ey[3], __m256 inv_area, __m256 q,
                                                         const __m256 inv[3], const __m256 col[3][3], bool combined,
-                                                        FirstFragments* out) {
+                                                        __m256i x0, __m256i y0_band, __m256i tw, FirstFragments* out) {
   // First covered centre: bit = log2(lowest set bit) from the float exponent (exact: <= 2^15).
   const __m256i lsb = _mm256_and_si256(mask, _mm256_sub_epi32(_mm256_setzero_si256(), mask));
   const __m256i bit = _mm256_sub_epi32(_mm256_srli_epi32(_mm256_castps_si256(_mm256_cvtepi32_ps(lsb)), 23),
                                        _mm256_set1_epi32(127));
   const __m256i i = _mm256_and_si256(bit, _mm256_set1_epi32(3)), j = _mm256_srai_epi32(bit, 2);
+  // x0, y0_band: the set-up corner (y relative to the band's first row); the band buffers are
+  // < 2^31 floats, so the 32-bit index is exact.
+  _mm256_store_si256(reinterpret_cast<__m256i*>(out->pix),
+                     _mm256_add_epi32(_mm256_mullo_epi32(_mm256_add_epi32(y0_band, j), tw), _mm256_add_epi32(x0, i)));
   __m256 b[3];
   for (int e = 0; e < 3; ++e) {
     const __m256i v = _mm256_add_epi32(_mm256_add_epi32(er[e], _mm256_mullo_epi32(ex[e], i)), _mm256_mullo_epi32(ey[e], j));
@@ -857,6 +862,7 @@ __attribute__((target("avx2"))) void RasterBlockRowAvx2(const Context& cx, int r
       const bool any0 = !_mm256_testz_si256(c0, c0), any1 = !_mm256_testz_si256(c1, c1);
       if (any0 || any1) {
         __m256 cA[3], cB[3], cC[3], cD[3];
+        const __m256i yb0 = _mm256_sub_epi32(by0, _mm256_set1_epi32(sh.row0)), vtw = _mm256_set1_epi32(sh.tw);
         DeinterleaveRgb8(tc, &cA[0], &cA[1], &cA[2]);
         DeinterleaveRgb8(tc + 3, &cB[0], &cB[1], &cB[2]);
         DeinterleaveRgb8(bc, &cC[0], &cC[1], &cC[2]);
@@ -865,7 +871,7 @@ __attribute__((target("avx2"))) void RasterBlockRowAvx2(const Context& cx, int r
           // triangle 0 = (A, B, C): edges B->C, C->A, A->B
           const __m256 inv[3] = {Ai, Bi, Ci};
           const __m256 col[3][3] = {{cA[0], cA[1], cA[2]}, {cB[0], cB[1], cB[2]}, {cC[0], cC[1], cC[2]}};
-          ShadeFirst8(c0, e_r, e_x, e_y, iav0, q0, inv, col, sh.combined, &first[0]);
+          ShadeFirst8(c0, e_r, e_x, e_y, iav0, q0, inv, col, sh.combined, bx0, yb0, vtw, &first[0]);
         }
         if (any1) {
           // triangle 1 = (B, D, C): edges D->C, C->B (inclusive: -(B->C)), B->D
@@ -875,7 +881,7 @@ __attribute__((target("avx2"))) void RasterBlockRowAvx2(const Context& cx, int r
           const __m256i t_y[3] = {e_y[3], _mm256_sub_epi32(zero, e_y[0]), e_y[4]};
           const __m256 inv[3] = {Bi, Di, Ci};
           const __m256 col[3][3] = {{cB[0], cB[1], cB[2]}, {cD[0], cD[1], cD[2]}, {cC[0], cC[1], cC[2]}};
-          ShadeFirst8(c1, t_r, t_x, t_y, iav1, q1, inv, col, sh.combined, &first[1]);
+          ShadeFirst8(c1, t_r, t_x, t_y, iav1, q1, inv, col, sh.combined, bx0, yb0, vtw, &first[1]);
         }
       }
       // The fragments in input order: quad by quad, triangle 0 before 1 (bit 2 k + t of `order`;
@@ -906,8 +912,7 @@ __attribute__((target("avx2"))) void RasterBlockRowAvx2(const Context& cx, int r
         }
         const FirstFragments& f = first[t];
         const unsigned mask = unsigned(t == 0 ? m0[k] : m1[k]);
-        const int bit = __builtin_ctz(mask);
-        const std::ptrdiff_t i = std::ptrdiff_t(qy0[k] + (bit >> 2) - sh.row0) * sh.tw + qx0[k] + (bit & 3);
+        const std::ptrdiff_t i = f.pix[k];
         const bool win = f.s[k] > sh.score[i];
         *(win ? sh.score + i : dummy) = f.s[k];
         float* const c = win ? sh.oc + 3 * i : dummy;
