@@ -38,7 +38,7 @@ TARGETS_MS = {"tm": 20.0, "ulr": 80.0, "hybrid": 250.0}
 EDGE_PX = 3
 
 
-def _depth_edges(depth) -> np.ndarray:
+def depth_edges(depth) -> np.ndarray:
     """Pixels within EDGE_PX of a relative depth step > 5 % (or a hit / miss boundary)."""
     from scipy.ndimage import binary_dilation
 
@@ -50,6 +50,29 @@ def _depth_edges(depth) -> np.ndarray:
         e[sl_a] |= step
         e[sl_b] |= step
     return binary_dilation(e, iterations=EDGE_PX) if e.any() else e
+
+
+def add_edge_error(acc: list, color, truth, edges) -> None:
+    """acc = [squared error, count]: += the sRGB squared error of color against truth on the edge pixels."""
+    if edges is not None and edges.any():
+        d = srgb(color)[edges] - srgb(truth)[edges]
+        acc[0] += float(np.sum(d.astype(np.float64) ** 2))
+        acc[1] += int(d.size)
+
+
+def edge_lines(edge_se: dict, edge_px: int, names: dict, what: str) -> list[str]:
+    """The near-occlusion-edge table (pooled squared error -> PSNR per method) and the
+    filtered-vs-unfiltered PVM sentence. what: whose true depth the edges come from."""
+    edge_psnr = {n: (float("nan") if cnt == 0 else float("inf") if se <= 0 else 10 * np.log10(cnt / se))
+                 for n, (se, cnt) in edge_se.items()}
+    lines = ["", f"Near occlusion edges ({edge_px} pixels within {EDGE_PX} px of a depth step > 5 % in {what}; "
+             "PSNR of the pooled squared error on sRGB):", "", "| method | edge PSNR dB |", "|---|---:|"]
+    lines += [f"| {names[n]} | {edge_psnr[n]:.2f} |" for n in edge_se]
+    if "pvm" in edge_psnr and "pvm_unfiltered" in edge_psnr:
+        gain = edge_psnr["pvm"] - edge_psnr["pvm_unfiltered"]
+        lines += ["", f"Filtered PVM {'beats' if gain > 0 else 'does not beat'} the unfiltered blend near occlusion "
+                  f"edges ({gain:+.2f} dB)."]
+    return lines
 
 
 def srgb(img) -> np.ndarray:
@@ -140,7 +163,7 @@ def main(argv=None) -> int:
         edge_se = {n: [0.0, 0] for n in order}
         selection = []
         for t in targets:
-            edges = _depth_edges(t.depth) if t.has_depth else None
+            edges = depth_edges(t.depth) if t.has_depth else None
             for n in order:
                 out, _ = renderers[n].render(t.camera)
                 color = np.nan_to_num(out["color"]).astype(np.float32)
@@ -150,15 +173,11 @@ def main(argv=None) -> int:
                 m = compare(color, t.color)
                 for k in quality[n]:
                     quality[n][k].append(float(m[k]))
-                if edges is not None and edges.any():
-                    d = srgb(color)[edges] - srgb(t.color)[edges]
-                    edge_se[n][0] += float(np.sum(d.astype(np.float64) ** 2))
-                    edge_se[n][1] += int(d.size)
+                add_edge_error(edge_se[n], color, t.color, edges)
                 if n == "hybrid":
                     selection.append(renderers[n].frame_report()["selection"])
         mean = {n: {k: float(np.mean(v)) for k, v in quality[n].items()} for n in order}
-        edge_psnr = {n: (10 * np.log10(1.0 / (se / cnt)) if cnt else float("nan")) for n, (se, cnt) in edge_se.items()}
-        edge_px = sum(int(_depth_edges(t.depth).sum()) for t in targets if t.has_depth)
+        edge_px = sum(int(depth_edges(t.depth).sum()) for t in targets if t.has_depth)
 
         # ---- speed at --speed-size ------------------------------------------------------------
         # Wall time and the process's CPU time (all threads) per frame: under load the wall time
@@ -196,14 +215,7 @@ def main(argv=None) -> int:
              "| method | PSNR dB | SSIM | FLIP |", "|---|---:|---:|---:|"]
     for n in order:
         lines.append(f"| {names[n]} | {mean[n]['psnr']:.2f} | {mean[n]['ssim']:.4f} | {mean[n]['flip']:.4f} |")
-    lines += ["", f"Near occlusion edges ({edge_px} pixels within {EDGE_PX} px of a depth step > 5 % in the "
-              "targets' true depth; PSNR of the pooled squared error on sRGB):", "",
-              "| method | edge PSNR dB |", "|---|---:|"]
-    for n in order:
-        lines.append(f"| {names[n]} | {edge_psnr[n]:.2f} |")
-    filt = edge_psnr["pvm"] > edge_psnr["pvm_unfiltered"]
-    lines += ["", f"Filtered PVM {'beats' if filt else 'does not beat'} the unfiltered blend near occlusion edges "
-              f"({edge_psnr['pvm'] - edge_psnr['pvm_unfiltered']:+.2f} dB)."]
+    lines += edge_lines(edge_se, edge_px, names, "the targets' true depth")
     beats = [n for n in ("tm", "ulr", "pvm") if mean["hybrid"]["psnr"] > mean[n]["psnr"]]
     beats_ssim = [n for n in ("tm", "ulr", "pvm") if mean["hybrid"]["ssim"] > mean[n]["ssim"]]
     beats_flip = [n for n in ("tm", "ulr", "pvm") if mean["hybrid"]["flip"] < mean[n]["flip"]]

@@ -41,7 +41,10 @@ Scores (``ibrtools.metrics``: PSNR and SSIM on sRGB, FLIP): per held-out view an
 over all pixels (holes black, background black in both) and over the object pixels (alpha > 0.99
 of the held-out r_N.png, as in the DIBR protocol; holes black; SSIM = the mean of the SSIM map
 over them, FLIP = the mean of the FLIP map over them). Hybrid "beats" a method when its mean is
-better (PSNR, SSIM higher; FLIP lower). With --write-docs, replaces the "Hybrid rendering: lego"
+better (PSNR, SSIM higher; FLIP lower). Near occlusion edges (the filtered-vs-unfiltered PVM target),
+as in benchmarks/bench_hybrid.py: the pixels within 3 px of a relative step > 5 % of the held-out view's
+depth map (or of its object / background boundary), PSNR of the squared error pooled over the views.
+With --write-docs, replaces the "Hybrid rendering: lego"
 section of docs/benchmarks.md.
 """
 from __future__ import annotations
@@ -61,7 +64,7 @@ from benchlib import DOCS, load_note, machine, shared_data, write_section
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_dibr_accuracy import LEGO_HELDOUT  # noqa: E402  (the same held-out views)
-from bench_hybrid import PvmOnly  # noqa: E402  (PVM alone, filtered or not)
+from bench_hybrid import PvmOnly, add_edge_error, depth_edges, edge_lines  # noqa: E402  (as in the synthetic bench)
 
 LEGO_VALIDATION = ("r_10", "r_60", "r_110", "r_160")
 ORDER = ["tm", "ulr", "pvm", "pvm_unfiltered", "hybrid"]
@@ -228,8 +231,12 @@ def main(argv=None) -> int:
             renderers["pvm_unfiltered"] = PvmOnly(scene, filtered=False)
         per_view: dict[str, dict[str, dict]] = {n: {} for n in order}
         selection = []
+        edge_se = {n: [0.0, 0] for n in order}  # near occlusion edges of the held-out views' true depth
+        edge_px = 0
         for t in scene.targets:
             obj = _alpha(data, t.name, s) > 0.99
+            edges = depth_edges(t.depth) if t.has_depth else None
+            edge_px += 0 if edges is None else int(edges.sum())
             for n in order:
                 out, _ = renderers[n].render(t.camera)
                 color = np.nan_to_num(out["color"]).astype(np.float32)
@@ -237,6 +244,7 @@ def main(argv=None) -> int:
                 if hole is not None:
                     color = np.where(hole[..., None], 0.0, color).astype(np.float32)
                 per_view[n][t.name] = score(color, t.color, obj)
+                add_edge_error(edge_se[n], color, t.color, edges)
                 if n == "hybrid":
                     selection.append(renderers[n].frame_report()["selection"])
             print(f"{t.name}: " + ", ".join(f"{n} {per_view[n][t.name]['psnr']:.2f}" for n in order), file=sys.stderr)
@@ -286,6 +294,9 @@ def main(argv=None) -> int:
         lines.append(f"| {NAMES[n]} | " + " | ".join(
             f"{f(per_view[n][v]['ssim'], 3)} / {f(per_view[n][v]['ssim_obj'], 3)}, "
             f"{f(per_view[n][v]['flip'], 3)} / {f(per_view[n][v]['flip_obj'], 3)}" for v in views) + " |")
+
+    lines += edge_lines(edge_se, edge_px, NAMES, "the held-out views' depth maps (the data set's; background = "
+                        "no depth, so silhouettes count)")
 
     def beats(k, lower=False):
         hv = mean["hybrid"][k] if "hybrid" in mean else None
