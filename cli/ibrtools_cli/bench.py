@@ -1,7 +1,7 @@
 """ibr-bench: run time against error of a method over a sweep of its parameters on held-out
 views (ibrtools.render.sweep; Prakash et al. 2021 sec. 7).
 
-    ibr-bench SCENE --method hybrid --sweep sigma=1:3:5,alpha=7 --sweep tau_var=0.5:0.82 -o out/sweep
+    ibr-bench SCENE --method hybrid --sweep sigma=1:3:5,alpha=7 --sweep tau_var=0:0.1:0.82 -o out/sweep
 """
 from __future__ import annotations
 
@@ -33,7 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
                "are the Cartesian product. Any --param key=value of the method can be swept.\n\n"
                "examples:\n"
                "  ibr-bench scenes/objects --method hybrid --sweep sigma=1:3:5,gamma=3:7 "
-               "--sweep tau_var=0.5:0.82 -o out/sweep\n"
+               "--sweep tau_var=0:0.1:0.82 -o out/sweep\n"
                "  ibr-bench scenes/objects --method ulr --sweep k=2:4:8 --holdout v003 -o out/ulr --json -q > ulr.json\n"
                "  (then open out/sweep/report.html in a browser)")
     p.add_argument("scene", metavar="SCENE", help="scene directory (ibr-preprocess output)")
