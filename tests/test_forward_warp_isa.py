@@ -154,6 +154,34 @@ def test_avx2_and_baseline_identical_on_random_meshes(restore_isa):
 
 
 @needs_avx2
+@pytest.mark.parametrize("shift", [1 / 512, -1 / 512])
+def test_avx2_vertex_snap_rounds_exact_ties_as_the_baseline(shift, restore_isa):
+    """The AVX2 projection's 1/256 px snap (RoundHalfAway4) on exact ties. Same pose, fx = fy = 64,
+    depth 2, the target's principal point moved by (k + 1/2) / 256 px: every projected coordinate
+    is exact (powers of two), so x * 256 ends in exactly +0.5 (shift > 0: n + 0.5, n even: half to
+    even would round down) or, with the target moved right, -0.5 for the vertices left of the
+    image (half up would round toward zero); half away from zero is the rule of both paths. A tie
+    rounded the other way moves the vertex by 1/256 px, which changes the edge functions, hence
+    coverage and barycentrics."""
+    h, w = 24, 40
+    src = Camera(model="pinhole", width=w, height=h, fx=64.0, fy=64.0, cx=20.0, cy=12.0, cam_from_world=np.eye(4))
+    off = 0.0 if shift > 0 else -10.0
+    dst = Camera(model="pinhole", width=w, height=h, fx=64.0, fy=64.0, cx=20.0 + off + shift, cy=12.0 + off + shift,
+                 cam_from_world=np.eye(4))
+    dep = np.full((h, w), 2.0, np.float32)
+    col = noise(h, w, 15)
+    out = {}
+    for isa in ("baseline", "avx2"):
+        _core.set_warp_isa(isa)
+        acc = _core.DibrAccumulator(dst.to_core())
+        acc.add_view(col, dep, src.to_core())
+        out[isa] = list(_core.forward_warp(col, dep, src.to_core(), dst.to_core())) + list(acc.result())
+    assert (out["baseline"][2] > 0).mean() > 0.3  # the case draws something
+    for a, b in zip(out["baseline"], out["avx2"]):
+        np.testing.assert_array_equal(a, b)
+
+
+@needs_avx2
 def test_avx2_and_baseline_flow_warp_identical(restore_isa):
     rng = np.random.default_rng(11)
     h, w = 50, 70
