@@ -128,6 +128,17 @@ def test_avx2_and_baseline_identical_for_every_depth_test_and_discard(depth_test
             np.testing.assert_array_equal(a, b, err_msg=name)
 
 
+def warp_and_blend_both_isas(col, dep, src, dst) -> dict:
+    """{isa: forward_warp's outputs + a one-view DibrAccumulator's result} for both ISAs."""
+    out = {}
+    for isa in ("baseline", "avx2"):
+        _core.set_warp_isa(isa)
+        acc = _core.DibrAccumulator(dst.to_core())
+        acc.add_view(col, dep, src.to_core())
+        out[isa] = list(_core.forward_warp(col, dep, src.to_core(), dst.to_core())) + list(acc.result())
+    return out
+
+
 @needs_avx2
 def test_avx2_and_baseline_identical_on_random_meshes(restore_isa):
     """Random depth (pixel-wise noise over several octaves: slivers, degenerate and back-facing
@@ -142,13 +153,7 @@ def test_avx2_and_baseline_identical_on_random_meshes(restore_isa):
         eye = rng.normal(0, 0.2, 3)
         tw, th = int(w * rng.uniform(0.5, 3.0)) + 2, int(h * rng.uniform(0.5, 3.0)) + 2
         dst = Camera.from_fov(tw, th, float(rng.uniform(30, 90)), look_at(eye, [0, 0, 3]))
-        col = noise(h, w, trial)
-        out = {}
-        for isa in ("baseline", "avx2"):
-            _core.set_warp_isa(isa)
-            acc = _core.DibrAccumulator(dst.to_core())
-            acc.add_view(col, dep, src.to_core())
-            out[isa] = list(_core.forward_warp(col, dep, src.to_core(), dst.to_core())) + list(acc.result())
+        out = warp_and_blend_both_isas(noise(h, w, trial), dep, src, dst)
         for a, b in zip(out["baseline"], out["avx2"]):
             np.testing.assert_array_equal(a, b, err_msg=f"trial {trial}")
 
@@ -169,13 +174,7 @@ def test_avx2_vertex_snap_rounds_exact_ties_as_the_baseline(shift, restore_isa):
     dst = Camera(model="pinhole", width=w, height=h, fx=64.0, fy=64.0, cx=20.0 + off + shift, cy=12.0 + off + shift,
                  cam_from_world=np.eye(4))
     dep = np.full((h, w), 2.0, np.float32)
-    col = noise(h, w, 15)
-    out = {}
-    for isa in ("baseline", "avx2"):
-        _core.set_warp_isa(isa)
-        acc = _core.DibrAccumulator(dst.to_core())
-        acc.add_view(col, dep, src.to_core())
-        out[isa] = list(_core.forward_warp(col, dep, src.to_core(), dst.to_core())) + list(acc.result())
+    out = warp_and_blend_both_isas(noise(h, w, 15), dep, src, dst)
     assert (out["baseline"][2] > 0).mean() > 0.3  # the case draws something
     for a, b in zip(out["baseline"], out["avx2"]):
         np.testing.assert_array_equal(a, b)
