@@ -422,7 +422,7 @@ def hybrid_composite(weights: _F32, tm: _F32, *, ulr: _F32 | None=None, ulr_coun
 
 def hybrid_select(gbuffer_depth: _F32, *, inside_grid: _Bool | None=None, pvm_valid: _Bool | None=None, pvm_depth: _F32 | None=None, vd: _F32 | None=None, geo_threshold: typing.SupportsFloat | typing.SupportsIndex=0.03, tau_var: typing.SupportsFloat | typing.SupportsIndex=0.82) -> numpy.typing.NDArray[numpy.uint8]:
     """
-    Per-pixel method (Prakash et al. 2021 Fig. 7): uint8 (H, W) 0 TM, 1 ULR, 2 PVM, 3 nothing to render.
+    Per-pixel method (Prakash et al. 2021 Fig. 7): uint8 (H, W) 0 TM, 1 ULR, 2 PVM, 3 nothing to render. Defaults: the paper's values; --method hybrid passes its own (render/hybrid.py HYBRID_DEFAULTS: tau_var 0).
     """
 
 def interpolate_vertex_attribute(prim_id: _I32, bary: _F32, faces: _I32, attrib: _F32) -> numpy.typing.NDArray[numpy.float32]:
