@@ -113,6 +113,17 @@ IBR_AVX2_CLONES void EncodeRun(const float* in, float* o, std::int64_t n) {
   for (std::int64_t i = 0; i < n; ++i) o[i] = Encode(in[i]);
 }
 
+// o[i] = Encode of in[i] clamped to [0, 1] (NaN -> 0: the comparisons are false), and exactly 1
+// at 1 (the polynomial gives 1 - 2^-24 there).
+IBR_AVX2_CLONES void EncodeUnitRun(const float* in, float* o, std::int64_t n) {
+  for (std::int64_t i = 0; i < n; ++i) {
+    const float x = in[i];
+    const float v = Select(x > 0.0f, x, 0.0f);
+    const bool below = v < 1.0f;
+    o[i] = Select(below, Encode(Select(below, v, 1.0f)), 1.0f);
+  }
+}
+
 // o[i] = max(0, Decode(b[i] + d[i])) (o may be d).
 IBR_AVX2_CLONES void DecodeSumRun(const float* b, const float* d, float* o, std::ptrdiff_t n) {
   for (std::ptrdiff_t i = 0; i < n; ++i) o[i] = std::max(0.0f, Decode(b[i] + d[i]));
@@ -131,6 +142,14 @@ void MetamericEncode(const ImageView<const float>& image, const ImageView<float>
       float* o = out.Row(y);
       EncodeRun(in, o, n);
     }
+  });
+}
+
+void LinearToSrgb(const float* in, float* out, std::int64_t n) {
+  const std::int64_t chunk = std::int64_t(1) << 16;  // values per task
+  ParallelFor((n + chunk - 1) / chunk, 1, [&](std::int64_t c0, std::int64_t c1) {
+    const std::int64_t i0 = c0 * chunk, i1 = std::min(n, c1 * chunk);
+    EncodeUnitRun(in + i0, out + i0, i1 - i0);
   });
 }
 

@@ -121,6 +121,12 @@ inline void MetamericChangeSample(const MetamericSynth& synth, int y, int x, con
 float SrgbEncode(float v);
 float SrgbDecode(float e);
 
+// The display encoding of linear colour for images, metrics and 8-bit files (Python:
+// ibrtools.imageio.linear_to_srgb): out[i] = SrgbEncode(in[i] clamped to [0, 1]), NaN -> 0, for n
+// values (in and out may be the same memory); multithreaded. Within 1e-6 (relative) of the
+// IEC 61966-2-1 curve, like SrgbEncode.
+void LinearToSrgb(const float* in, float* out, std::int64_t n);
+
 // out = SrgbEncode(image) for every value (image and out (h, w, C), may be the same array).
 void MetamericEncode(const ImageView<const float>& image, const ImageView<float>& out);
 

@@ -1,0 +1,88 @@
+"""ibrtools.imageio.linear_to_srgb: the C++ display encoding (_core.linear_to_srgb) against an
+independent float64 evaluation of the IEC 61966-2-1 curve, its edges (NaN, infinities, out of
+range, the linear toe's end, exact 0 and 1), shapes and dtypes, and its thread-independence."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ibrtools import _core
+from ibrtools.imageio import linear_to_srgb
+
+
+def srgb64(v) -> np.ndarray:
+    """The curve in float64 (numpy), clipped to [0, 1], NaN -> 0."""
+    v = np.clip(np.nan_to_num(np.asarray(v, np.float64), nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
+    return np.where(v <= 0.0031308, v * 12.92, 1.055 * np.power(v, 1 / 2.4) - 0.055)
+
+
+def test_matches_the_float64_curve_over_the_unit_interval():
+    rng = np.random.default_rng(3)
+    x = np.concatenate([np.linspace(0.0, 1.0, 1_000_001, dtype=np.float32),
+                        rng.random(500_000, dtype=np.float32),
+                        np.geomspace(1e-12, 1.0, 100_000).astype(np.float32)])
+    got = linear_to_srgb(x).astype(np.float64)
+    want = srgb64(x)
+    assert np.abs(got - want).max() <= 2.5e-7  # about 2 float32 ulps near 1
+    above = want > 1e-3
+    assert (np.abs(got - want)[above] / want[above]).max() <= 1e-6
+    # 8-bit codes as the image writers make them: at most a rare tie flips by one code
+    codes, codes64 = np.round(got * 255.0), np.round(want * 255.0)
+    assert np.abs(codes - codes64).max() <= 1 and (codes != codes64).mean() < 1e-5
+
+
+def test_monotonic_on_a_dense_sorted_grid():
+    x = np.linspace(0.0, 1.0, 2_000_001, dtype=np.float32)
+    assert np.all(np.diff(linear_to_srgb(x)) >= 0.0)
+
+
+def test_edges():
+    x = np.array([np.nan, -np.nan, np.inf, -np.inf, -1.0, -0.0, 0.0, 1e-30, 0.0031308, 0.0031309, 0.5,
+                  np.nextafter(np.float32(1.0), np.float32(0.0)), 1.0, 1.5, 3e38], np.float32)
+    got = linear_to_srgb(x)
+    assert got.dtype == np.float32 and np.all(np.isfinite(got))
+    np.testing.assert_array_equal(got[:7], [0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0])
+    np.testing.assert_array_equal(got[12:], [1.0, 1.0, 1.0])  # exactly 1 at and above 1
+    np.testing.assert_allclose(got[7:12], srgb64(x[7:12]), rtol=1e-6, atol=1e-12)
+    # the toe's end: the step from the linear to the power branch as the float64 curve makes it
+    step64 = float(np.diff(srgb64(x[8:10]))[0])
+    assert abs(float(got[9]) - float(got[8]) - step64) < 3e-7
+
+
+@pytest.mark.parametrize("shape", [(), (0,), (7,), (5, 3), (0, 3), (4, 6, 3), (3, 4, 5, 2)])
+def test_shapes_and_dtypes(shape):
+    rng = np.random.default_rng(len(shape))
+    x64 = rng.uniform(-0.5, 1.5, shape)
+    got = linear_to_srgb(x64)
+    assert got.shape == np.shape(x64) and got.dtype == np.float32
+    np.testing.assert_allclose(got, srgb64(x64.astype(np.float32)), rtol=1e-6, atol=2.5e-7)
+
+
+def test_non_contiguous_input_and_lists():
+    x = np.random.default_rng(9).random((20, 30, 3), dtype=np.float32)
+    view = x[::2, ::3, 1:]
+    np.testing.assert_array_equal(linear_to_srgb(view), linear_to_srgb(np.ascontiguousarray(view)))
+    np.testing.assert_array_equal(linear_to_srgb([0.25, 0.75]), linear_to_srgb(np.array([0.25, 0.75], np.float32)))
+
+
+def test_same_bits_on_one_and_two_threads():
+    x = np.random.default_rng(4).uniform(-0.1, 1.1, (301, 257, 3)).astype(np.float32)
+    try:
+        _core.set_num_threads(1)
+        one = linear_to_srgb(x)
+        _core.set_num_threads(2)
+        two = linear_to_srgb(x)
+    finally:
+        _core.set_num_threads(0)
+    np.testing.assert_array_equal(one, two)
+
+
+def test_core_function_rejects_other_arrays_with_one_line():
+    from ibrtools.errors import DtypeError, ShapeError
+
+    with pytest.raises(DtypeError, match="values: expected a float32 array, got float64"):
+        _core.linear_to_srgb(np.zeros((2, 3)))
+    with pytest.raises(DtypeError, match="values: expected a numpy float32 array, got list"):
+        _core.linear_to_srgb([0.5])
+    with pytest.raises(ShapeError, match="C-contiguous"):
+        _core.linear_to_srgb(np.zeros((4, 6), np.float32)[:, ::2])
