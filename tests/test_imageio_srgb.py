@@ -1,19 +1,27 @@
-"""ibrtools.imageio.linear_to_srgb: the C++ display encoding (_core.linear_to_srgb) against an
-independent float64 evaluation of the IEC 61966-2-1 curve, its edges (NaN, infinities, out of
-range, the linear toe's end, exact 0 and 1), shapes and dtypes, and its thread-independence."""
+"""ibrtools.imageio.linear_to_srgb and srgb_to_linear: the C++ encoding and decoding
+(_core.linear_to_srgb, _core.srgb_to_linear) against an independent float64 evaluation of the
+IEC 61966-2-1 curve, their edges (NaN, infinities, out of range, the linear toe's end, exact 0 and
+1), shapes and dtypes, the round trip, and thread-independence."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
 from ibrtools import _core
-from ibrtools.imageio import linear_to_srgb
+from ibrtools.imageio import linear_to_srgb, srgb_to_linear
 
 
 def srgb64(v) -> np.ndarray:
     """The curve in float64 (numpy), clipped to [0, 1], NaN -> 0."""
     v = np.clip(np.nan_to_num(np.asarray(v, np.float64), nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
     return np.where(v <= 0.0031308, v * 12.92, 1.055 * np.power(v, 1 / 2.4) - 0.055)
+
+
+def linear64(e) -> np.ndarray:
+    """The decoding in float64 (numpy), the toe continued below 0 and the power above 1."""
+    e = np.asarray(e, np.float64)
+    with np.errstate(invalid="ignore"):
+        return np.where(e <= 0.04045, e / 12.92, ((e + 0.055) / 1.055) ** 2.4)
 
 
 def test_matches_the_float64_curve_over_the_unit_interval():
@@ -86,3 +94,50 @@ def test_core_function_rejects_other_arrays_with_one_line():
         _core.linear_to_srgb([0.5])
     with pytest.raises(ShapeError, match="C-contiguous"):
         _core.linear_to_srgb(np.zeros((4, 6), np.float32)[:, ::2])
+
+
+def test_decoding_matches_the_float64_curve():
+    rng = np.random.default_rng(5)
+    e = np.concatenate([np.linspace(0.0, 1.0, 1_000_001, dtype=np.float32), rng.random(500_000, dtype=np.float32),
+                        rng.uniform(-2.0, 3.0, 100_000).astype(np.float32)])
+    got, want = srgb_to_linear(e).astype(np.float64), linear64(e)
+    assert (np.abs(got - want) / np.maximum(np.abs(want), 1e-30)).max() <= 1e-6
+    codes = np.arange(256, dtype=np.float32) / 255.0  # what the importers decode
+    np.testing.assert_allclose(srgb_to_linear(codes), linear64(codes), rtol=1e-6, atol=0)
+    assert srgb_to_linear(np.float32(1.0)) == 1.0 and srgb_to_linear(np.float32(0.0)) == 0.0
+
+
+def test_decoding_edges_and_round_trip():
+    e = np.array([np.nan, np.inf, -np.inf, -1.0, -0.05, 0.04045, 0.0405, 2.0], np.float32)
+    got = srgb_to_linear(e)
+    assert np.isnan(got[0]) and got[1] == np.inf and got[2] == -np.inf
+    np.testing.assert_allclose(got[3:], linear64(e[3:]), rtol=1e-6)
+    assert np.all(np.diff(srgb_to_linear(np.linspace(-1.0, 2.0, 1_000_001, dtype=np.float32))) >= 0.0)
+    v = np.linspace(0.0, 1.0, 200_001, dtype=np.float32)
+    np.testing.assert_allclose(srgb_to_linear(linear_to_srgb(v)), v, rtol=2e-6, atol=1e-9)
+
+
+@pytest.mark.parametrize("fn", [linear_to_srgb, srgb_to_linear])
+@pytest.mark.parametrize("shape", [(), (0,), (4, 6, 3), (3, 4, 5, 2)])
+def test_shape_is_kept(fn, shape):
+    got = fn(np.full(shape, 0.5))
+    assert got.shape == shape and got.dtype == np.float32
+
+
+def test_decoding_same_bits_on_one_and_two_threads():
+    e = np.random.default_rng(6).uniform(-0.1, 1.1, (301, 257, 3)).astype(np.float32)
+    try:
+        _core.set_num_threads(1)
+        one = srgb_to_linear(e)
+        _core.set_num_threads(2)
+        two = srgb_to_linear(e)
+    finally:
+        _core.set_num_threads(0)
+    np.testing.assert_array_equal(one, two)
+
+
+def test_core_decoding_rejects_other_arrays_with_one_line():
+    from ibrtools.errors import DtypeError
+
+    with pytest.raises(DtypeError, match="values: expected a float32 array, got int64"):
+        _core.srgb_to_linear(np.zeros(3, np.int64))

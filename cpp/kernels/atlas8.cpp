@@ -12,7 +12,7 @@
 namespace ibr {
 namespace {
 
-const std::array<float, 256>& SrgbToLinear() {
+const std::array<float, 256>& SrgbToLinearLut() {
   static const std::array<float, 256> lut = [] {
     std::array<float, 256> t{};
     for (int i = 0; i < 256; ++i) {
@@ -69,7 +69,7 @@ void SampleAtlas(const std::int32_t* prim_id, const float* bary, std::int64_t nu
 
 void SampleAtlasSrgb8(const std::int32_t* prim_id, const float* bary, std::int64_t num_pixels, const float* uv,
                       ImageView<const std::uint8_t> atlas, float* out) {
-  const float* lut = SrgbToLinear().data();
+  const float* lut = SrgbToLinearLut().data();
   SampleAtlasBilinear(
       prim_id, bary, num_pixels, uv, atlas.width, atlas.height, [&](int y) { return atlas.Row(y); },
       [lut](const std::uint8_t* row, int x, int c) { return lut[row[4 * x + c]]; }, out);

@@ -124,6 +124,15 @@ IBR_AVX2_CLONES void EncodeUnitRun(const float* in, float* o, std::int64_t n) {
   }
 }
 
+// o[i] = the sRGB decoding of in[i] with the linear toe extended below 0 (x / 12.92 for every
+// x <= 0.04045) and the power above 1; NaN stays NaN, +-inf stay +-inf.
+IBR_AVX2_CLONES void DecodeStdRun(const float* in, float* o, std::int64_t n) {
+  for (std::int64_t i = 0; i < n; ++i) {
+    const float x = in[i];
+    o[i] = Select(x <= 0.04045f, x * (1.0f / 12.92f), Decode(x));
+  }
+}
+
 // o[i] = max(0, Decode(b[i] + d[i])) (o may be d).
 IBR_AVX2_CLONES void DecodeSumRun(const float* b, const float* d, float* o, std::ptrdiff_t n) {
   for (std::ptrdiff_t i = 0; i < n; ++i) o[i] = std::max(0.0f, Decode(b[i] + d[i]));
@@ -145,13 +154,20 @@ void MetamericEncode(const ImageView<const float>& image, const ImageView<float>
   });
 }
 
-void LinearToSrgb(const float* in, float* out, std::int64_t n) {
+namespace {
+// run(in + i0, out + i0, count) over n values in parallel chunks.
+template <class Run>
+void ParallelValues(const float* in, float* out, std::int64_t n, Run run) {
   const std::int64_t chunk = std::int64_t(1) << 16;  // values per task
   ParallelFor((n + chunk - 1) / chunk, 1, [&](std::int64_t c0, std::int64_t c1) {
     const std::int64_t i0 = c0 * chunk, i1 = std::min(n, c1 * chunk);
-    EncodeUnitRun(in + i0, out + i0, i1 - i0);
+    run(in + i0, out + i0, i1 - i0);
   });
 }
+}  // namespace
+
+void LinearToSrgb(const float* in, float* out, std::int64_t n) { ParallelValues(in, out, n, EncodeUnitRun); }
+void SrgbToLinear(const float* in, float* out, std::int64_t n) { ParallelValues(in, out, n, DecodeStdRun); }
 
 void MetamericFillHoles(const ImageView<const float>& image, const ImageView<const std::uint8_t>& hole,
                         const ImageView<const float>& base, const ImageView<const float>& change, bool decode,

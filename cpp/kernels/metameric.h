@@ -127,6 +127,11 @@ float SrgbDecode(float e);
 // IEC 61966-2-1 curve, like SrgbEncode.
 void LinearToSrgb(const float* in, float* out, std::int64_t n);
 
+// Its inverse for stored colour (Python: ibrtools.imageio.srgb_to_linear): out[i] = in[i] / 12.92
+// for in[i] <= 0.04045 (negative values included), ((in[i] + 0.055) / 1.055)^2.4 above (beyond 1
+// too); NaN stays NaN. Within 1e-5 (relative) of the exact curve, like SrgbDecode.
+void SrgbToLinear(const float* in, float* out, std::int64_t n);
+
 // out = SrgbEncode(image) for every value (image and out (h, w, C), may be the same array).
 void MetamericEncode(const ImageView<const float>& image, const ImageView<float>& out);
 

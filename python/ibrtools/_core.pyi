@@ -17,7 +17,7 @@ _U8: typing.TypeAlias = numpy.typing.NDArray[numpy.uint8]
 _I8: typing.TypeAlias = numpy.typing.NDArray[numpy.int8]
 _Bool: typing.TypeAlias = numpy.typing.NDArray[numpy.bool_]
 _Light: typing.TypeAlias = tuple[str, collections.abc.Sequence[float], collections.abc.Sequence[float], bool]
-__all__: list[str] = ['Camera', 'CameraModel', 'DepthWarpMips', 'DibrAccumulator', 'EMBREE_VERSION', 'OcclusionScene', 'PvmRenderer', 'RayScene', 'WARP_DISOCCLUDED', 'WARP_SURFACE', 'WARP_UNCOVERED', 'WarpOptions', 'YMap', 'blur_selection', 'cpu_has_avx2', 'cross_view_prediction', 'cull_awoc_fill', 'cull_object_boxes', 'cull_project_boxes', 'dw_build_mips', 'dw_forward', 'dw_motion', 'dw_motion_mips', 'dw_warp', 'forward_warp', 'get_num_threads', 'grid_maxflow', 'hybrid_composite', 'hybrid_select', 'interpolate_vertex_attribute', 'interpolate_vertex_values', 'linear_to_srgb', 'metameric_composite', 'metameric_encode', 'metameric_fill_holes', 'metameric_pushpull_change', 'metameric_pushpull_moments', 'metameric_stack_moments', 'mip_build', 'mip_foveate_level', 'mip_lookup', 'mip_max_levels', 'point_colors', 'poisson_blend', 'pushpull', 'pvm_slice', 'pvm_triangulate', 'raster_gbuffer', 'sample_atlas', 'set_num_threads', 'set_warp_isa', 'shadow_map_visibility', 'ssim', 'steerable_analyse', 'steerable_max_levels', 'steerable_synthesise', 'ulr_blend', 'ulr_penalty', 'ulr_select', 'warp_flow', 'warp_isa', 'warp_with_holes']
+__all__: list[str] = ['Camera', 'CameraModel', 'DepthWarpMips', 'DibrAccumulator', 'EMBREE_VERSION', 'OcclusionScene', 'PvmRenderer', 'RayScene', 'WARP_DISOCCLUDED', 'WARP_SURFACE', 'WARP_UNCOVERED', 'WarpOptions', 'YMap', 'blur_selection', 'cpu_has_avx2', 'cross_view_prediction', 'cull_awoc_fill', 'cull_object_boxes', 'cull_project_boxes', 'dw_build_mips', 'dw_forward', 'dw_motion', 'dw_motion_mips', 'dw_warp', 'forward_warp', 'get_num_threads', 'grid_maxflow', 'hybrid_composite', 'hybrid_select', 'interpolate_vertex_attribute', 'interpolate_vertex_values', 'linear_to_srgb', 'metameric_composite', 'metameric_encode', 'metameric_fill_holes', 'metameric_pushpull_change', 'metameric_pushpull_moments', 'metameric_stack_moments', 'mip_build', 'mip_foveate_level', 'mip_lookup', 'mip_max_levels', 'point_colors', 'poisson_blend', 'pushpull', 'pvm_slice', 'pvm_triangulate', 'raster_gbuffer', 'sample_atlas', 'set_num_threads', 'set_warp_isa', 'shadow_map_visibility', 'srgb_to_linear', 'ssim', 'steerable_analyse', 'steerable_max_levels', 'steerable_synthesise', 'ulr_blend', 'ulr_penalty', 'ulr_select', 'warp_flow', 'warp_isa', 'warp_with_holes']
 
 class CameraModel:
     """
@@ -538,6 +538,11 @@ def set_warp_isa(isa: str) -> None:
 def shadow_map_visibility(view_depth: _F32, view: Camera, maps: _F32, cameras: collections.abc.Sequence[Camera], bias: typing.SupportsFloat | typing.SupportsIndex, slope_bias: typing.SupportsFloat | typing.SupportsIndex) -> numpy.typing.NDArray[numpy.float32]:
     """
     Fraction of the S shadow maps (S, Hs, Ws) in which each view pixel's surface point is lit (cpp/kernels/shadows.h); bias in shadow-map texels, slope_bias times the map's own depth slope.
+    """
+
+def srgb_to_linear(values: _F32) -> _F32:
+    """
+    The decoding of stored sRGB colour (cpp/kernels/metameric.h SrgbToLinear; Python: ibrtools.imageio.srgb_to_linear): v / 12.92 for v <= 0.04045 (negative values included), ((v + 0.055) / 1.055)^2.4 above (beyond 1 too), NaN stays NaN, for every value of a C-contiguous float32 array of any shape; within 1e-5 (relative) of the exact curve. Returns a new float32 array of the same shape.
     """
 
 def ssim(a: _F32, b: _F32, data_range: typing.SupportsFloat | typing.SupportsIndex=1.0, return_map: bool=False, win_size: typing.SupportsInt | typing.SupportsIndex=7, k1: typing.SupportsFloat | typing.SupportsIndex=0.01, k2: typing.SupportsFloat | typing.SupportsIndex=0.03, sample_covariance: bool=True) -> tuple[float, _F32 | None]:

@@ -246,7 +246,7 @@ def srgb_encode(v: np.ndarray) -> np.ndarray:
 
 
 def srgb_decode(e: np.ndarray) -> np.ndarray:
-    """The inverse of ``srgb_encode`` (0 stays 0, so holes stay black)."""
-    e = np.maximum(np.asarray(e, np.float32), 0.0)
-    return np.ascontiguousarray(np.where(e <= 0.04045, e / 12.92, np.power((e + 0.055) / 1.055, 2.4)),
-                                np.float32)
+    """The inverse of ``srgb_encode`` (0 stays 0, so holes stay black; C++ ``_core.srgb_to_linear``)."""
+    from .. import _core
+
+    return _core.srgb_to_linear(np.ascontiguousarray(np.maximum(np.asarray(e, np.float32), 0.0)))
