@@ -52,6 +52,13 @@ def depth_edges(depth) -> np.ndarray:
     return binary_dilation(e, iterations=EDGE_PX) if e.any() else e
 
 
+def frame_color(out: dict) -> np.ndarray:
+    """A method's output colour as it is scored: float32, NaN -> 0, holes black."""
+    color = np.nan_to_num(out["color"]).astype(np.float32)
+    hole = out.get("hole")
+    return color if hole is None else np.where(hole[..., None], 0.0, color).astype(np.float32)
+
+
 def add_edge_error(acc: list, color, truth, edges) -> None:
     """acc = [squared error, count]: += the sRGB squared error of color against truth on the edge pixels."""
     if edges is not None and edges.any():
@@ -161,15 +168,14 @@ def main(argv=None) -> int:
         # depth discontinuity of the target's true depth (relative step > 5 %); squared error on
         # sRGB pooled over the targets' edge pixels.
         edge_se = {n: [0.0, 0] for n in order}
+        edge_px = 0
         selection = []
         for t in targets:
             edges = depth_edges(t.depth) if t.has_depth else None
+            edge_px += 0 if edges is None else int(edges.sum())
             for n in order:
                 out, _ = renderers[n].render(t.camera)
-                color = np.nan_to_num(out["color"]).astype(np.float32)
-                hole = out.get("hole")
-                if hole is not None:
-                    color = np.where(hole[..., None], 0.0, color).astype(np.float32)
+                color = frame_color(out)
                 m = compare(color, t.color)
                 for k in quality[n]:
                     quality[n][k].append(float(m[k]))
@@ -177,7 +183,6 @@ def main(argv=None) -> int:
                 if n == "hybrid":
                     selection.append(renderers[n].frame_report()["selection"])
         mean = {n: {k: float(np.mean(v)) for k, v in quality[n].items()} for n in order}
-        edge_px = sum(int(depth_edges(t.depth).sum()) for t in targets if t.has_depth)
 
         # ---- speed at --speed-size ------------------------------------------------------------
         # Wall time and the process's CPU time (all threads) per frame: under load the wall time

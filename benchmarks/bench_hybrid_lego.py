@@ -64,7 +64,7 @@ from benchlib import DOCS, load_note, machine, shared_data, write_section
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_dibr_accuracy import LEGO_HELDOUT  # noqa: E402  (the same held-out views)
-from bench_hybrid import PvmOnly, add_edge_error, depth_edges, edge_lines  # noqa: E402  (as in the synthetic bench)
+from bench_hybrid import PvmOnly, add_edge_error, depth_edges, edge_lines, frame_color  # noqa: E402  (as in the synthetic bench)
 
 LEGO_VALIDATION = ("r_10", "r_60", "r_110", "r_160")
 ORDER = ["tm", "ulr", "pvm", "pvm_unfiltered", "hybrid"]
@@ -239,10 +239,7 @@ def main(argv=None) -> int:
             edge_px += 0 if edges is None else int(edges.sum())
             for n in order:
                 out, _ = renderers[n].render(t.camera)
-                color = np.nan_to_num(out["color"]).astype(np.float32)
-                hole = out.get("hole")
-                if hole is not None:
-                    color = np.where(hole[..., None], 0.0, color).astype(np.float32)
+                color = frame_color(out)
                 per_view[n][t.name] = score(color, t.color, obj)
                 add_edge_error(edge_se[n], color, t.color, edges)
                 if n == "hybrid":

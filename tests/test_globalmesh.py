@@ -32,7 +32,8 @@ def test_choose_source():
     col = np.zeros((30, 40, 3), np.float32)
     with_depth = [View.create("a", c, color=col, depth=d)]
     no_depth = [View.create("a", c, color=col)]
-    gt, rec = wall(size=3.0), Mesh(wall(size=3.0).vertices, wall(size=3.0).faces, kind="reconstructed")
+    gt = wall(size=3.0)
+    rec = Mesh(gt.vertices, gt.faces, kind="reconstructed")
     assert choose_source(Scene(views=with_depth, meshes={"ground_truth": gt, "reconstructed": rec})) == "reconstructed"
     # Ground truth is not used when depth can be fused: no leak of ground truth into a method.
     assert choose_source(Scene(views=with_depth, meshes={"ground_truth": gt})) == "fusion"
