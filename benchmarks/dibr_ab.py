@@ -1,7 +1,7 @@
 """Interleaved A/B of the DIBR kernels (forward warp + streaming blend) without Python in the loop.
 
     python benchmarks/dibr_ab.py [--base REV] [--rounds 5] [--repeats 5] [--threads 1] [--views 4]
-                                 [--size 1920x1080] [--plain]
+                                 [--size 1920x1080] [--plain] [--srgb | --srgb-b]
 
 Builds benchmarks/dibr_ab/dibr_ab.cpp twice with the release flags of the engine (g++ -O3, no
 -march): once against cpp/kernels/{forward_warp,blend}.{h,cpp} of git revision --base (default
@@ -14,6 +14,11 @@ print the same hash (bit-identical results). On a shared machine compare the CPU
 time of one thread is what the load leaves of a core); the script reports the minimum and median
 over the rounds, the median CPU / wall ratio (≈ the thread count when both threads ran all the time) and
 the load average at the start and the end. Needs g++ and TBB's headers (the engine's build dependencies).
+--srgb runs both sides in the blend space "srgb" of ``--method dibr`` (inputs sRGB-encoded before the timing,
+as the renderer caches them; the result decoded: inside ResolveBlend where the kernels have it, else by a
+separate SrgbToLinear pass, timed: the hashes of the two forms differ, the resolve's decoding reads the
+curve from a table, cpp/kernels/blend.h); --srgb-b only the B side (the cost of srgb against linear; the
+hashes then differ by design). The sRGB curve is cpp/kernels/metameric.{h,cpp}, taken from the same revision.
 """
 from __future__ import annotations
 
@@ -29,7 +34,7 @@ import numpy as np
 from ibrtools import synth
 
 ROOT = Path(__file__).resolve().parents[1]
-KERNEL_FILES = ("forward_warp.h", "forward_warp.cpp", "blend.h", "blend.cpp")
+KERNEL_FILES = ("forward_warp.h", "forward_warp.cpp", "blend.h", "blend.cpp", "metameric.h", "metameric.cpp")
 
 
 def dump_scene(out: Path, size: tuple[int, int], k: int) -> None:
@@ -53,15 +58,17 @@ def build(kernels: Path, exe: Path) -> None:
     cmd = ["g++", "-std=c++17", "-O3", "-DGLM_FORCE_XYZW_ONLY", f"-I{kernels}", f"-I{ROOT / 'cpp'}",
            "-o", str(exe), str(ROOT / "benchmarks" / "dibr_ab" / "dibr_ab.cpp"),
            str(kernels / "kernels" / "forward_warp.cpp"), str(kernels / "kernels" / "blend.cpp"),
+           str(kernels / "kernels" / "metameric.cpp"),
            str(ROOT / "cpp" / "ibr" / "parallel.cpp"), "-ltbb", "-lpthread"]
     subprocess.run(cmd, check=True)
 
 
-def run(exe: Path, data: Path, threads: int, repeats: int, views: int, plain: bool = False) -> dict:
-    cmd = [str(exe), str(data), str(threads), str(repeats), str(views)] + (["plain"] if plain else [])
+def run(exe: Path, data: Path, threads: int, repeats: int, views: int, plain: bool = False, srgb: bool = False) -> dict:
+    cmd = [str(exe), str(data), str(threads), str(repeats), str(views)] + (["plain"] if plain else []) + \
+        (["srgb"] if srgb else [])
     out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout.split()
     r = dict(zip(out[::2], out[1::2]))
-    return {"cpu": float(r["cpu_ms"]), "wall": float(r["wall_ms"]), "hash": r["hash"]}
+    return {"cpu": float(r["cpu_ms"]), "wall": float(r["wall_ms"]), "resolve": float(r["resolve_ms"]), "hash": r["hash"]}
 
 
 def main() -> None:
@@ -75,6 +82,9 @@ def main() -> None:
     ap.add_argument("--plain", action="store_true",
                     help="blend without the visibility rules (bench_dibr.py's DibrAccumulator() defaults) instead of "
                          "--method dibr's stretched_quality 0.1 + stretched_holes")
+    g = ap.add_mutually_exclusive_group()
+    g.add_argument("--srgb", action="store_true", help="both sides in the blend space srgb (see the module doc)")
+    g.add_argument("--srgb-b", action="store_true", help="only the B side (working tree) in the blend space srgb")
     a = ap.parse_args()
     w, h = (int(x) for x in a.size.lower().split("x"))
     with tempfile.TemporaryDirectory(prefix="dibr_ab_") as tmp:
@@ -85,9 +95,12 @@ def main() -> None:
         base = tmp / "base"
         (base / "kernels").mkdir(parents=True)
         for f in KERNEL_FILES:
-            src = subprocess.run(["git", "-C", str(ROOT), "show", f"{a.base}:cpp/kernels/{f}"], check=True,
-                                 capture_output=True).stdout
-            (base / "kernels" / f).write_bytes(src)
+            got = subprocess.run(["git", "-C", str(ROOT), "show", f"{a.base}:cpp/kernels/{f}"], capture_output=True)
+            if got.returncode != 0 and f.startswith("metameric"):  # older than the sRGB curve: the tree's
+                got = subprocess.CompletedProcess([], 0, (ROOT / "cpp" / "kernels" / f).read_bytes())
+            elif got.returncode != 0:
+                raise SystemExit(f"git show {a.base}:cpp/kernels/{f} failed: {got.stderr.decode().strip()}")
+            (base / "kernels" / f).write_bytes(got.stdout)
         exes = {"A (" + a.base + ")": tmp / "a.bin", "B (working tree)": tmp / "b.bin"}
         build(base, exes["A (" + a.base + ")"])
         build(ROOT / "cpp", exes["B (working tree)"])
@@ -95,19 +108,26 @@ def main() -> None:
         print(f"1-minute load average at the start: {os.getloadavg()[0]:.2f}", flush=True)
         for r in range(a.rounds):
             for name, exe in exes.items():
-                res[name].append(run(exe, data, a.threads, a.repeats, a.views, a.plain))
+                srgb = a.srgb or (a.srgb_b and name.startswith("B"))
+                res[name].append(run(exe, data, a.threads, a.repeats, a.views, a.plain, srgb))
                 x = res[name][-1]
-                print(f"round {r}: {name}: cpu {x['cpu']:.1f} ms, wall {x['wall']:.1f} ms, hash {x['hash']}", flush=True)
+                print(f"round {r}: {name}: cpu {x['cpu']:.1f} ms, wall {x['wall']:.1f} ms, resolve wall "
+                      f"{x['resolve']:.2f} ms, hash {x['hash']}", flush=True)
         for name, rs in res.items():
             cpu = [x["cpu"] for x in rs]
             wall = [x["wall"] for x in rs]
             ratio = statistics.median(c / w for c, w in zip(cpu, wall))
+            res_w = [x["resolve"] for x in rs]
             print(f"{name}: cpu min {min(cpu):.1f} median {statistics.median(cpu):.1f} ms; "
                   f"wall min {min(wall):.1f} median {statistics.median(wall):.1f} ms; cpu / wall median {ratio:.2f} "
-                  f"(≈ threads when the machine is free)")
+                  f"(≈ threads when the machine is free); resolve wall min {min(res_w):.2f} median "
+                  f"{statistics.median(res_w):.2f} ms")
         print(f"1-minute load average at the end: {os.getloadavg()[0]:.2f}")
         hashes = {x["hash"] for rs in res.values() for x in rs}
-        print("outputs identical" if len(hashes) == 1 else f"OUTPUTS DIFFER: {sorted(hashes)}")
+        if a.srgb_b:
+            print("outputs differ by design (--srgb-b)" if len(hashes) == 2 else f"hashes: {sorted(hashes)}")
+        else:
+            print("outputs identical" if len(hashes) == 1 else f"OUTPUTS DIFFER: {sorted(hashes)}")
 
 
 if __name__ == "__main__":

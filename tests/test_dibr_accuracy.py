@@ -44,8 +44,44 @@ def test_srgb_encode_decode_round_trip():
     assert e[0] == 0 and e[5] == pytest.approx(1.0, abs=1e-6) and e[4] == pytest.approx(0.7354, abs=1e-4)
     assert e[1] == pytest.approx(0.01292, rel=1e-5) and e[6] > 1.0
     np.testing.assert_allclose(srgb_decode(e), v, rtol=2e-6, atol=1e-9)
-    assert srgb_encode(np.array([-1.0, np.nan], np.float32)).tolist() == [0.0, 0.0]
+    # negative light is 0; NaN stays NaN (views reject NaN colour; add_view would too)
+    neg_nan = srgb_encode(np.array([-1.0, np.nan], np.float32))
+    assert neg_nan[0] == 0 and np.isnan(neg_nan[1])
     assert e.dtype == np.float32 and srgb_decode(e).dtype == np.float32
+    # any shape (the C++ curve works on rows): an image, a scalar, an empty array
+    img = np.random.default_rng(1).uniform(-0.1, 2.0, (5, 7, 3)).astype(np.float32)
+    want = np.where(img <= 0.0031308, 12.92 * np.maximum(img, 0), 1.055 * np.maximum(img, 0.0) ** (1 / 2.4) - 0.055)
+    np.testing.assert_allclose(srgb_encode(img), want, rtol=1e-6, atol=1e-7)
+    assert srgb_encode(np.float32(0.5)).shape == () and srgb_encode(np.zeros((0, 3), np.float32)).shape == (0, 3)
+
+
+@needs_kernel
+def test_blend_space_srgb_render_is_the_decoded_srgb_blend():
+    # The renderer's srgb frame (inputs encoded by srgb_encode, decoded inside the kernel's
+    # resolve) against the same blend done without the fused decode: encoded views into a
+    # DibrAccumulator, result() in the encoded space, then srgb_decode. 1e-6: the resolve reads the
+    # curve from a table (tests/test_forward_warp_isa.py::test_srgb_resolve_decodes_the_blend).
+    rng = np.random.default_rng(5)
+    views = []
+    for i in range(3):
+        cam = Camera.from_fov(37, 29, 60, look_at((0.3 * i - 0.3, 0.1 * i, -2), (0, 0, 0)))
+        depth = (2.0 + 0.3 * rng.random((29, 37))).astype(np.float32)
+        views.append(View.create(f"v{i}", cam, color=rng.uniform(0, 1.5, (29, 37, 3)).astype(np.float32), depth=depth))
+    target = Camera.from_fov(37, 29, 60, look_at((0.05, 0.05, -2), (0, 0, 0)))
+    m = DibrMethod({"inputs": [v.name for v in views], "blend_space": "srgb"})
+    m.prepare(Scene(views=views))
+    out, _ = m.render(target)
+    p = m.params
+    acc = _core.DibrAccumulator(target.to_core(), p["stretched_quality"], p["stretched_holes"], p["depth_tolerance"])
+    for name in m.frame_report()["selected"]:
+        v = next(x for x in views if x.name == name)
+        acc.add_view(srgb_encode(v.color), v.depth, v.camera.to_core(), m.warp_options())
+    enc, depth, _, hole = acc.result()
+    assert (~hole).mean() > 0.5
+    np.testing.assert_allclose(out["color"], srgb_decode(enc), rtol=0, atol=1e-6)
+    np.testing.assert_array_equal(out["depth"], depth)
+    np.testing.assert_array_equal(out["hole"], hole)
+    assert (out["color"][hole] == 0).all()
 
 
 @needs_kernel

@@ -92,6 +92,8 @@ def run_all(src, dst, dep, quality, depth_test="combined", discard_stretched=Fal
     plain.add_view(col, dep, src.to_core(), opts)
     plain.add_view(col[:, ::-1].copy(), dep[:, ::-1].copy(), src.to_core(), opts)
     res += list(plain.result())
+    # the resolve's sRGB decoding (blend space "srgb"; the colour only: the rest does not depend on it)
+    res += [acc.result(srgb_to_linear=True)[0], plain.result(srgb_to_linear=True)[0]]
     res += list(_core.warp_with_holes(col, dep, src.to_core(), dst.to_core()))
     return res
 
@@ -223,6 +225,63 @@ def test_band_local_accumulation_equals_per_view_buffers():
             ref_d = np.where(swi[m] > 0, sw[m] / swi[m], np.inf).astype(np.float32)
         np.testing.assert_array_equal(depth[m], ref_d, err_msg=name)
         assert (color[~m] == 0).all() and (conf[~m] == 0).all() and (conf[m] > 0).all()
+
+
+ISAS = ["baseline", pytest.param("avx2", marks=needs_avx2)]
+
+
+@pytest.mark.parametrize("isa", ISAS)
+def test_srgb_resolve_decodes_the_blend(isa, restore_isa):
+    """result(srgb_to_linear=True) (blend space "srgb": the views' colours are sRGB encodings) is
+    result() with its colour decoded by _core.srgb_to_linear, done inside the resolve. Tolerance
+    1e-6 absolute: in [0, 1] the resolve reads the curve from a table of 4097 of its own values
+    with linear interpolation (cpp/kernels/blend.cpp; measured 2.4e-7 here, the lerp's error
+    bound is 2.5e-8 plus the curve's own polynomial wiggle between nodes); outside [0, 1] (HDR
+    encodings above 1, negative colour) it is the curve itself, the same bits. Depth, confidence
+    and hole are unchanged bit for bit, holes stay exactly 0, nothing is NaN. Both visibility
+    settings, every warp case (widths that are not multiples of 8: the scalar tail of the rows;
+    targets of 50-120 rows: several 16-row tasks), colour in [0, 1) and spread over [-0.5, 2.5)."""
+    _core.set_warp_isa(isa)
+    opts = _core.WarpOptions()
+    opts.side_threshold = 10.0  # as --method dibr (the auto T makes the magnified case all stretched)
+    for name, src, dst, dep in cases():
+        for scale, offset in ((1.0, 0.0), (3.0, -0.5)):
+            col = (noise(src.height, src.width, 9) * np.float32(scale) + np.float32(offset)).astype(np.float32)
+            for rules in ((0.1, True, 0.0), (0.0, False, 0.0)):
+                acc = _core.DibrAccumulator(dst.to_core(), *rules)
+                acc.add_view(col, dep, src.to_core(), opts)
+                acc.add_view(col[::-1].copy(), dep[::-1].copy(), src.to_core(), opts)
+                lin = acc.result()
+                enc = acc.result(srgb_to_linear=True)
+                hole = lin[3]
+                assert (~hole).mean() > 0.005, name
+                want = _core.srgb_to_linear(lin[0])
+                np.testing.assert_allclose(enc[0], want, rtol=0, atol=1e-6, err_msg=name)
+                outside = ~((lin[0] >= 0) & (lin[0] <= 1))
+                np.testing.assert_array_equal(enc[0][outside], want[outside], err_msg=name)
+                for a, b in zip(lin[1:], enc[1:]):
+                    np.testing.assert_array_equal(a, b, err_msg=name)
+                assert (enc[0][hole] == 0).all() and not np.signbit(enc[0][hole]).any(), name
+                assert np.isfinite(enc[0]).all(), name
+
+
+@pytest.mark.parametrize("isa", ISAS)
+def test_srgb_resolve_is_exact_on_the_table_nodes(isa, restore_isa):
+    """Blended encodings k / 4096 (the float32 values in [0, 1] that are nodes of the resolve's
+    table) decode to exactly _core.srgb_to_linear's value. An identity warp of a view whose colours
+    run through every node from 0 to 1 gives most pixels their own colour back exactly (the rest
+    differ by an ulp: colour * (1 / d) * d); every resolved node must decode exactly."""
+    _core.set_warp_isa(isa)
+    h, w = 40, 120
+    cam = Camera.from_fov(w, h, 50, look_at([0, 0, 0], [0, 0, 1]))
+    col = ((np.arange(h * w * 3) % 4097).astype(np.float32) / np.float32(4096)).reshape(h, w, 3)
+    acc = _core.DibrAccumulator(cam.to_core())
+    acc.add_view(col, np.full((h, w), 2.0, np.float32), cam.to_core())
+    lin, _, _, hole = acc.result()
+    enc = acc.result(srgb_to_linear=True)[0]
+    node = ~hole[..., None] & (lin * np.float32(4096) == np.floor(lin * np.float32(4096))) & (lin <= 1)
+    assert node.mean() > 0.8 and {0.0, 1.0} <= set(np.unique(lin[node]).tolist())
+    np.testing.assert_array_equal(enc[node], _core.srgb_to_linear(lin)[node])
 
 
 def test_rejected_view_leaves_the_sums_unchanged():

@@ -4,8 +4,11 @@
 // the options of --method dibr (side_threshold 10, stretched_quality 0.1, stretched_holes). The colour's
 // finiteness is checked as the binding does it: by the kernel (check_color) or, for older kernels, by the
 // binding's serial loop before each view (both inside the timed region).
-//   dibr_ab DIR THREADS REPEATS VIEWS [plain]
-// (plain: no visibility rules across views, as benchmarks/bench_dibr.py's DibrAccumulator()).
+//   dibr_ab DIR THREADS REPEATS VIEWS [plain] [srgb]
+// (plain: no visibility rules across views, as benchmarks/bench_dibr.py's DibrAccumulator(); srgb: the blend
+// space "srgb" of --method dibr: the views' colours are sRGB-encoded before the timing, as the renderer caches
+// them, and the blended colour is decoded -- inside ResolveBlend with kernels that have BlendSpace, else by a
+// separate SrgbToLinear pass over the result, timed, as the renderer did before).
 // DIR holds cams.txt (per view then the target: W H fx fy cx cy and the 3 x 4 cam_from_world, row
 // major) and c<i>.raw / d<i>.raw (float32 colour (H, W, 3) and depth (H, W)). Prints the minimum
 // over REPEATS runs (after one warm-up) of the process CPU time and of the wall time, and an
@@ -22,12 +25,19 @@ static double Cpu() { timespec t; clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t); r
 #include "ibr/parallel.h"
 #include "kernels/forward_warp.h"
 #include "kernels/blend.h"
+#include "kernels/metameric.h"
 using namespace ibr;
 static std::vector<float> Load(const char* p, size_t n) {
   std::vector<float> v(n); FILE* f = fopen(p, "rb"); if (!f || fread(v.data(), 4, n, f) != n) { perror(p); exit(1); } fclose(f); return v;
 }
 int main(int argc, char** argv) {
-  if (argc < 5) { fprintf(stderr, "usage: dibr_ab DIR THREADS REPEATS VIEWS [plain]\n"); return 2; }
+  if (argc < 5) { fprintf(stderr, "usage: dibr_ab DIR THREADS REPEATS VIEWS [plain] [srgb]\n"); return 2; }
+  bool plain = false, srgb = false;
+  for (int a = 5; a < argc; ++a) {
+    if (strcmp(argv[a], "plain") == 0) plain = true;
+    else if (strcmp(argv[a], "srgb") == 0) srgb = true;
+    else { fprintf(stderr, "unknown option %s\n", argv[a]); return 2; }
+  }
   const char* dir = argv[1];
   int threads = atoi(argv[2]), reps = atoi(argv[3]), nviews = atoi(argv[4]);
   SetNumThreads(threads);
@@ -49,12 +59,13 @@ int main(int argc, char** argv) {
     const size_t ni = size_t(cams[i].width) * cams[i].height;
     snprintf(p, sizeof p, "%s/c%d.raw", dir, i); col[i] = Load(p, 3 * ni);
     snprintf(p, sizeof p, "%s/d%d.raw", dir, i); dep[i] = Load(p, ni);
+    if (srgb) for (float& v : col[i]) v = SrgbEncode(std::max(v, 0.f));  // render/dibr.py srgb_encode (cached there)
   }
   std::vector<float> swc(3 * n), sw(n), swi(n), sq(n), mq(n), vc(3 * n), vd(n), vw(n), vq(n), oc(3 * n), od(n), oq(n);
   std::vector<unsigned char> oh(n);
   BlendBuffers acc; acc.height = H; acc.width = W; acc.sum_wc = swc.data(); acc.sum_w = sw.data(); acc.sum_w_invd = swi.data();
   acc.sum_q = sq.data(); acc.max_q = mq.data(); acc.stretched_quality = 0.1f; acc.stretched_holes = true;
-  if (argc > 5 && strcmp(argv[5], "plain") == 0) { acc.stretched_quality = 0.f; acc.stretched_holes = false; }  // bench_dibr's DibrAccumulator()
+  if (plain) { acc.stretched_quality = 0.f; acc.stretched_holes = false; }  // bench_dibr's DibrAccumulator()
   WarpOptions opt; opt.side_threshold = 10.f;
   WarpScratch scratch;
   double best_cpu = 1e30, best = 1e30, best_warp = 1e30, best_res = 1e30;
@@ -93,10 +104,16 @@ int main(int argc, char** argv) {
 #endif
     }
     auto t1 = std::chrono::steady_clock::now();
-#ifdef IBR_BLEND_RESOLVE_AVX2  // as the binding: AVX2 when the warp uses it
+#if defined(IBR_BLEND_RESOLVE_SRGB)  // as the binding: AVX2 when the warp uses it; the decode in the resolve
+    ResolveBlend(acc, oc.data(), od.data(), oq.data(), oh.data(), ActiveWarpIsa() == WarpIsa::kAvx2,
+                 srgb ? BlendSpace::kSrgb : BlendSpace::kLinear);
+#else
+#ifdef IBR_BLEND_RESOLVE_AVX2
     ResolveBlend(acc, oc.data(), od.data(), oq.data(), oh.data(), ActiveWarpIsa() == WarpIsa::kAvx2);
 #else
     ResolveBlend(acc, oc.data(), od.data(), oq.data(), oh.data());
+#endif
+    if (srgb) SrgbToLinear(oc.data(), oc.data(), std::int64_t(oc.size()));  // _core.srgb_to_linear's pass
 #endif
     auto t2 = std::chrono::steady_clock::now(); double c2 = Cpu();
     double a = std::chrono::duration<double, std::milli>(t1 - t0).count(), b = std::chrono::duration<double, std::milli>(t2 - t1).count();

@@ -219,7 +219,9 @@ class DibrAccumulator {
     CheckCounts(counts);
   }
 
-  py::tuple Result() {
+  // srgb_to_linear: the views' colours were sRGB encodings (render/dibr.py, blend_space "srgb");
+  // the resolve decodes the blended colour row by row (blend.h BlendSpace::kSrgb).
+  py::tuple Result(bool srgb_to_linear) {
     const py::ssize_t h = target_.height, w = target_.width;
     auto color = NewArray<float>({h, w, 3});
     auto depth = NewArray<float>({h, w});
@@ -233,7 +235,8 @@ class DibrAccumulator {
         ClearBlend(buffers_);
         buffers_.fresh = false;
       }
-      ResolveBlend(buffers_, c, d, q, o, ActiveWarpIsa() == WarpIsa::kAvx2);
+      ResolveBlend(buffers_, c, d, q, o, ActiveWarpIsa() == WarpIsa::kAvx2,
+                   srgb_to_linear ? BlendSpace::kSrgb : BlendSpace::kLinear);
     }
     return py::make_tuple(color, depth, conf, hole);
   }
@@ -328,9 +331,12 @@ void BindDibr(py::module_& m) {
            py::arg("options") = WarpOptions(),
            "color float32 (H, W, 3) linear, depth float32 (H, W) (pinhole: z, equirect: ray distance; 0 = "
            "unknown, +inf = at infinity), camera: _core.Camera of size W x H. GIL released.")
-      .def("result", &DibrAccumulator::Result,
+      .def("result", &DibrAccumulator::Result, py::arg("srgb_to_linear") = false,
            "(color (H, W, 3) f32, depth (H, W) f32 (0 in holes), confidence (H, W) f32 = sum over views of "
-           "the kept triangle quality in (0, 1], hole (H, W) bool).")
+           "the kept triangle quality in (0, 1], hole (H, W) bool). srgb_to_linear: the added colours were "
+           "sRGB encodings (blend space 'srgb'); the blended colour is decoded inside the resolve with the "
+           "curve of _core.srgb_to_linear (read from a table of it in [0, 1]: within 1e-6 of srgb_to_linear of "
+           "result()'s colour; holes stay 0). GIL released.")
       .def("reset", &DibrAccumulator::Reset, "Forget every view added.")
       .def_property_readonly("num_views", &DibrAccumulator::NumViews)
       .def_property_readonly("last_add_ms", &DibrAccumulator::LastMs,

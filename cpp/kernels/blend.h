@@ -70,11 +70,23 @@ void AccumulateRow(const float* color, const float* depth, const float* weight, 
 void AccumulateRowPlainAvx2(const float* color, const float* depth, const float* weight, const float* quality,
                             const BlendBuffers& acc, int y);
 
+// The space of the colours in the sums, i.e. of the views given to the warp. kSrgb: they are sRGB
+// encodings (the DIBR blend space "srgb": RVS blends stored code values, docs/dibr.md "Blend
+// space") and ResolveBlend decodes the blended colour to linear with the curve of SrgbToLinear
+// (cpp/kernels/metameric.h: x / 12.92 up to 0.04045, the power above, beyond 1 too), row by row
+// while the row is in cache instead of a second pass over the image. In [0, 1] the curve is read
+// from a table of its values (4097 nodes, linear interpolation: within 1e-6 of SrgbToLinear, exact
+// at the nodes; blend.cpp says why), outside it evaluated. Holes stay exactly 0.
+enum class BlendSpace : int { kLinear = 0, kSrgb = 1 };
+
 // Writes colour (H, W, 3), depth (H, W), confidence (H, W), hole (H, W; 1 = hole) (all threads).
 // avx2: eight pixels per step, compiled for AVX2 (call it so only on a CPU with AVX2; the same
-// bits; the warp's ISA switch decides, forward_warp.h ActiveWarpIsa).
+// bits; the warp's ISA switch decides, forward_warp.h ActiveWarpIsa); the sRGB decoding follows
+// the same flag, with the same bits. Depth, confidence and hole do not depend on the space; the
+// colour of BlendSpace::kSrgb is that of kLinear decoded by SrgbToLinear, within 1e-6.
 void ResolveBlend(const BlendBuffers& acc, float* color, float* depth, float* confidence, std::uint8_t* hole,
-                  bool avx2 = false);
+                  bool avx2 = false, BlendSpace space = BlendSpace::kLinear);
 #define IBR_BLEND_RESOLVE_AVX2 1  // ResolveBlend has the avx2 flag (benchmarks/dibr_ab)
+#define IBR_BLEND_RESOLVE_SRGB 1  // ResolveBlend has the BlendSpace argument (benchmarks/dibr_ab)
 
 }  // namespace ibr

@@ -168,6 +168,7 @@ void ParallelValues(const float* in, float* out, std::int64_t n, Run run) {
 
 void LinearToSrgb(const float* in, float* out, std::int64_t n) { ParallelValues(in, out, n, EncodeUnitRun); }
 void SrgbToLinear(const float* in, float* out, std::int64_t n) { ParallelValues(in, out, n, DecodeStdRun); }
+void SrgbToLinearRun(const float* in, float* out, std::int64_t n) { DecodeStdRun(in, out, n); }
 
 void MetamericFillHoles(const ImageView<const float>& image, const ImageView<const std::uint8_t>& hole,
                         const ImageView<const float>& base, const ImageView<const float>& change, bool decode,

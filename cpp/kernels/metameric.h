@@ -132,6 +132,12 @@ void LinearToSrgb(const float* in, float* out, std::int64_t n);
 // too); NaN stays NaN. Within 1e-5 (relative) of the exact curve, like SrgbDecode.
 void SrgbToLinear(const float* in, float* out, std::int64_t n);
 
+// SrgbToLinear's curve for n values on the calling thread, for kernels that use it inside their own
+// parallel loops (the sRGB blend space of DIBR: cpp/kernels/blend.h ResolveBlend), so that the
+// curve exists once. The same bits as SrgbToLinear (the AVX2 clone and the portable loop agree:
+// no FMA). in and out may be the same memory.
+void SrgbToLinearRun(const float* in, float* out, std::int64_t n);
+
 // out = SrgbEncode(image) for every value (image and out (h, w, C), may be the same array).
 void MetamericEncode(const ImageView<const float>& image, const ImageView<float>& out);
 

@@ -238,9 +238,9 @@ class DibrAccumulator:
         Forget every view added.
         """
 
-    def result(self) -> tuple[_F32, _F32, _F32, _Bool]:
+    def result(self, srgb_to_linear: bool=False) -> tuple[_F32, _F32, _F32, _Bool]:
         """
-        (color (H, W, 3) f32, depth (H, W) f32 (0 in holes), confidence (H, W) f32 = sum over views of the kept triangle quality in (0, 1], hole (H, W) bool).
+        (color (H, W, 3) f32, depth (H, W) f32 (0 in holes), confidence (H, W) f32 = sum over views of the kept triangle quality in (0, 1], hole (H, W) bool). srgb_to_linear: the added colours were sRGB encodings (blend space 'srgb'); the blended colour is decoded inside the resolve with the curve of _core.srgb_to_linear (read from a table of it in [0, 1]: within 1e-6 of srgb_to_linear of result()'s colour; holes stay 0). GIL released.
         """
 
     @property

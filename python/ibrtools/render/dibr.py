@@ -197,9 +197,8 @@ class DibrMethod:
             acc.add_view(self._input_color(i, v.color), np.ascontiguousarray(v.depth, np.float32),
                          self._core_cams[i], opts)
         t2 = time.perf_counter()
-        color, depth, confidence, hole = acc.result()
-        if self.params["blend_space"] == "srgb":
-            color = srgb_decode(color)
+        # blend_space "srgb": the kernel decodes the blended colour in its resolve (row by row).
+        color, depth, confidence, hole = acc.result(srgb_to_linear=self.params["blend_space"] == "srgb")
         t3 = time.perf_counter()
         views = self._scene.views
         self.last_frame = {
@@ -238,15 +237,23 @@ class DibrMethod:
 
 
 def srgb_encode(v: np.ndarray) -> np.ndarray:
-    """sRGB encoding (IEC 61966-2-1) of linear colour, negative values as 0 and values above 1
-    on the same curve (not clipped: HDR inputs keep their range through the blend)."""
-    v = np.maximum(np.nan_to_num(np.asarray(v, np.float32), nan=0.0), 0.0)
-    return np.ascontiguousarray(np.where(v <= 0.0031308, v * 12.92, 1.055 * np.power(v, 1 / 2.4) - 0.055),
-                                np.float32)
+    """sRGB encoding (IEC 61966-2-1) of linear colour as a float32 array of v's shape: negative
+    values as 0, values above 1 on the same curve (not clipped: HDR inputs keep their range
+    through the blend), NaN stays NaN (``add_view`` then rejects the view, as in linear space).
+    The C++ curve ``_core.metameric_encode`` (cpp/kernels/metameric.h SrgbEncode, within 1e-6 of
+    the exact curve) after the clamp at 0; not ``_core.linear_to_srgb``, which clips above 1."""
+    from .. import _core
+
+    a = np.maximum(np.asarray(v, np.float32), np.float32(0.0))
+    if a.size == 0:
+        return np.ascontiguousarray(a)
+    rows = a.shape[0] if a.ndim >= 2 else 1  # the kernel runs rows in parallel
+    return _core.metameric_encode(np.ascontiguousarray(a).reshape(rows, -1, 1)).reshape(a.shape)
 
 
 def srgb_decode(e: np.ndarray) -> np.ndarray:
-    """The inverse of ``srgb_encode`` (0 stays 0, so holes stay black; C++ ``_core.srgb_to_linear``)."""
+    """The inverse of ``srgb_encode`` (0 stays 0, so holes stay black; C++ ``_core.srgb_to_linear``,
+    the curve that ``DibrAccumulator.result(srgb_to_linear=True)`` applies in the kernel)."""
     from .. import _core
 
     return _core.srgb_to_linear(np.ascontiguousarray(np.maximum(np.asarray(e, np.float32), 0.0)))
