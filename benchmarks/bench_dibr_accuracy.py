@@ -27,7 +27,10 @@ scored pixels no selected input covers) beside them:
 All comparisons are of sRGB encodings in [0, 1] (ibrtools.metrics.compare).
 
 Besides the table (the method's defaults) the run measures, unless --no-diagnostics:
-  blend space     the four cases again with ``blend_space=srgb`` (RVS blends stored code values);
+  blend space     the four cases again in the other blend space (``blend_space``: srgb, the default,
+                  blends sRGB encodings as RVS blends stored code values; linear blends linear light),
+                  and the lego object PSNR of both spaces on the validation views LEGO_VALIDATION and
+                  over the 40-view spread (the default was chosen there, not on the test views);
   lego spread     every one of the 40 lego views held out in turn (leave-one-out, 4 best of the
                   other 39, defaults): mean / median / range of the object-pixel PSNR, how many
                   views reach RVS's 25.9 dB, and its correlation with the distance from the held-out
@@ -385,27 +388,47 @@ def distance_weighting(data: Path, params=None) -> dict:
     best = max(val, key=lambda b: val[b])
     chosen = {**params, "distance_exponent": best}
     return {"validation": val, "best": best, "test": lego(data, chosen),
-            "test_srgb": lego(data, {**chosen, "blend_space": "srgb"}),
+            "test_other": lego(data, {**chosen, "blend_space": _other_space(params)}),
             "test_vsrs": lego(data, {**params, "distance_exponent": 1}), "icl": icl(data, chosen)}
+
+
+def _space(params: dict) -> str:
+    from ibrtools.render.dibr import DEFAULTS
+
+    return params.get("blend_space", DEFAULTS["blend_space"])
+
+
+def _other_space(params: dict) -> str:
+    return "linear" if _space(params) == "srgb" else "srgb"
 
 
 def diagnostics(data: Path, params: dict, res: dict) -> list[str]:
     """Lines for the section: the same cases with the other blend space, the lego spread over
     all held-out views and the depth de-quantisation, the ICL pose check."""
     f = lambda v: "n/a" if v is None else f"{v:.2f}"  # noqa: E731
-    other = "srgb" if params.get("blend_space", "linear") == "linear" else "linear"
+    space, other = _space(params), _other_space(params)
     p2 = {**params, "blend_space": other}
     L2, I2 = lego(data, p2), icl(data, p2)
     T2, C2 = middlebury(data, "Teddy", p2), middlebury(data, "Cones", p2)
     L, I, T, C = res["lego"], res["icl"], res["teddy"], res["cones"]
-    lines = ["", f"Blend space (RVS protocol column, this run): {params.get('blend_space', 'linear')} → {other}: "
+    sp, sp2 = lego_spread(data, params), lego_spread(data, p2)
+    val = {sp_: lego(data, pp, LEGO_VALIDATION)["rows"] for sp_, pp in ((space, params), (other, p2))}
+    v1 = np.array([r["object"]["filled"] for r in val[space]])
+    v2 = np.array([r["object"]["filled"] for r in val[other]])
+    o, o2 = sp["object"], sp2["object"]
+    per_view = ", ".join(f"{n} {a:.2f} / {b:.2f}" for n, a, b in zip(LEGO_VALIDATION, v1, v2))
+    lines = ["", f"Blend space (RVS protocol column, this run): {space} → {other}: "
              f"lego object {f(L['object']['filled'])} → {f(L2['object']['filled'])}, "
              f"ICL all {f(I['all']['filled'])} → {f(I2['all']['filled'])} "
              f"(visible in an input {f(I['vis']['filled'])} → {f(I2['vis']['filled'])}), "
              f"Teddy {f(T['vis']['filled'])} → {f(T2['vis']['filled'])}, "
-             f"Cones {f(C['vis']['filled'])} → {f(C2['vis']['filled'])} dB."]
-    sp = lego_spread(data, params)
-    o = sp["object"]
+             f"Cones {f(C['vis']['filled'])} → {f(C2['vis']['filled'])} dB. "
+             f"Where the default was chosen, lego object pixels (RVS protocol): validation views "
+             f"{', '.join(LEGO_VALIDATION)} {v1.mean():.2f} → {v2.mean():.2f} dB ({int((v1 > v2).sum())} of {len(v1)} "
+             f"views higher in {space}; per view {per_view}); "
+             f"spread over all {len(o)} held-out views mean {o.mean():.2f} → {o2.mean():.2f}, median {np.median(o):.2f} → "
+             f"{np.median(o2):.2f} ({int((o > o2).sum())} of {len(o)} views higher in {space}), all pixels holes black "
+             f"mean {sp['all'].mean():.2f} → {sp2['all'].mean():.2f} dB."]
     above = [n for n, v in zip(sp["names"], o) if v >= RVS["lego object"]]
     lines += ["", f"lego spread (every one of the {len(o)} views held out in turn, 4 best of the other {len(o) - 1}, "
               f"this run's parameters, object pixels nearest-filled): mean {o.mean():.2f} dB, median {np.median(o):.2f}, "
@@ -427,15 +450,14 @@ def diagnostics(data: Path, params: dict, res: dict) -> list[str]:
               f"holes black {f(st['all']['black'])} (table: {f(L['all']['black'])}); per view object: "
               + ", ".join(f"{h} {f(r['object']['filled'])}" for h, r in zip(LEGO_HELDOUT, st["rows"])) + "."]
     dw = distance_weighting(data, params)
-    t, ts, tv, di = dw["test"], dw["test_srgb"], dw["test_vsrs"], dw["icl"]
-    space = params.get("blend_space", "linear")
+    t, ts, tv, di = dw["test"], dw["test_other"], dw["test_vsrs"], dw["icl"]
     lines += ["", "Per-view distance weights (`--param distance_exponent=beta`, off by default: each selected view's "
               "weights times (b_min / b_i)^beta, b_i its camera's distance to the target): object PSNR on the validation "
               f"views for beta = {' / '.join(str(b) for b in dw['validation'])}: "
               f"{' / '.join(f(v) for v in dw['validation'].values())} dB; chosen beta = {dw['best']}. Test views, RVS "
               f"protocol: object {f(t['object']['filled'])} dB {space} (table: {f(L['object']['filled'])}; per view "
               + ", ".join(f"{h} {f(r['object']['filled'])}" for h, r in zip(LEGO_HELDOUT, t["rows"]))
-              + f"), {f(ts['object']['filled'])} dB with blend_space=srgb as well (RVS {RVS['lego object']}); all pixels "
+              + f"), {f(ts['object']['filled'])} dB with blend_space={other} instead (RVS {RVS['lego object']}); all pixels "
               f"holes black {f(t['all']['black'])} (table: {f(L['all']['black'])}); beta = 1 (VSRS) object "
               f"{f(tv['object']['filled'])}. ICL-NUIM with beta = {dw['best']}: all {f(di['all']['filled'])} "
               f"(table: {f(I['all']['filled'])}), visible in an input {f(di['vis']['filled'])} (table: "
@@ -509,7 +531,7 @@ def main(argv=None) -> int:
     ap.add_argument("--data", type=Path, default=shared_data())
     ap.add_argument("--write", type=Path, help="replace the 'Accuracy' section of this Markdown file")
     ap.add_argument("--write-docs", action="store_true", help="replace the 'Accuracy' section of docs/dibr.md")
-    ap.add_argument("--blend-space", default="linear", choices=("linear", "srgb"))
+    ap.add_argument("--blend-space", default=None, choices=("linear", "srgb"), help="default: the method's (srgb)")
     ap.add_argument("--no-diagnostics", action="store_true", help="only the table (no blend-space / ICL pose runs)")
     ap.add_argument("--quality", default="side")
     ap.add_argument("--blend-exponent", type=float, default=5.0)
@@ -520,8 +542,9 @@ def main(argv=None) -> int:
     if not a.data.is_dir():
         print(f"real data not found at {a.data} (set IBR_SHARED_DATA)", file=sys.stderr)
         return 2
-    params = {"quality": a.quality, "blend_exponent": a.blend_exponent, "blend_space": a.blend_space,
-              "distance_exponent": a.distance_exponent}
+    params = {"quality": a.quality, "blend_exponent": a.blend_exponent, "distance_exponent": a.distance_exponent}
+    if a.blend_space is not None:
+        params["blend_space"] = a.blend_space
     if a.side_threshold is not None:
         params["side_threshold"] = a.side_threshold
     table, res = run(a.data, params)

@@ -28,7 +28,8 @@ def _render(views, camera, **params):
 
 # --- blend_space ---------------------------------------------------------------------------
 def test_blend_space_default_and_bad_values():
-    assert check_params(None)["blend_space"] == "linear"
+    assert check_params(None)["blend_space"] == "srgb"  # chosen on validation views (docs/dibr.md "Blend space")
+    assert check_params({"blend_space": "linear"})["blend_space"] == "linear"
     assert check_params({"blend_space": "srgb"})["blend_space"] == "srgb"
     for bad in ("sRGB", "gamma", "", 1, None):
         with pytest.raises(BadValueError, match="blend_space"):
@@ -109,7 +110,7 @@ def test_blend_space_decides_what_is_averaged():
     a, b = np.float32(0.05), np.float32(0.8)
     views = [View.create(n, cam, color=np.full((18, 24, 3), c, np.float32), depth=depth) for n, c in (("a", a), ("b", b))]
     inner = (slice(2, -2), slice(2, -2))
-    lin = _render(views, cam)["color"][inner]
+    lin = _render(views, cam, blend_space="linear")["color"][inner]
     srgb = _render(views, cam, blend_space="srgb")["color"][inner]
     want_srgb = srgb_decode((srgb_encode(np.array([a])) + srgb_encode(np.array([b]))) / 2)[0]
     np.testing.assert_allclose(lin, (a + b) / 2, rtol=1e-5)
@@ -394,8 +395,9 @@ def test_distance_exponent_view_factors():
 @needs_kernel
 def test_distance_exponent_favours_the_nearer_view():
     # Two inputs 0.01 and 0.03 units from the target, both fronto-parallel views of the same plane,
-    # constant colours a (near) and b (far): beta = 1 blends (a + b / 3) / (4 / 3) where both
-    # cover the pixel; beta = 0 (RVS) weights them by (q / d)^p alone (equal here: same depth).
+    # constant colours a (near) and b (far), blended in linear light: beta = 1 blends
+    # (a + b / 3) / (4 / 3) where both cover the pixel; beta = 0 (RVS) weights them by (q / d)^p
+    # alone (equal here: same depth).
     target = Camera.from_fov(24, 18, 40, look_at((0, 0, -4), (0, 0, 0)))
     depth = np.full((18, 24), 4.0, np.float32)
     a, b = 0.1, 0.9
@@ -405,7 +407,7 @@ def test_distance_exponent_favours_the_nearer_view():
                          color=np.full((18, 24, 3), b, np.float32), depth=depth)]
     inner = (slice(3, -3), slice(3, -3))
     for beta, want in ((0, (a + b) / 2), (1, (a + b / 3) / (4 / 3))):
-        m = DibrMethod({"inputs": ["near", "far"], "distance_exponent": beta})
+        m = DibrMethod({"inputs": ["near", "far"], "distance_exponent": beta, "blend_space": "linear"})
         m.prepare(Scene(views=views))
         out, _ = m.render(target)
         assert m.frame_report().get("view_factors") == (None if beta == 0 else [1.0, pytest.approx(1 / 3, rel=1e-5)])

@@ -23,9 +23,11 @@ Parameters (``ibr-render --inputs/--quality/--blend-exponent`` or ``--param key=
   side_threshold  T in target pixels for the "side" quality (default 10, RVS's absolute value);
                   0 = the kernel's resolution-scaled default
   samples, seed   Monte Carlo samples per target for view selection (default 4000) and the seed
-  blend_space     linear (default) | srgb: the values that are interpolated and blended. "srgb"
+  blend_space     srgb (default) | linear: the values that are interpolated and blended. "srgb"
                   warps and blends the sRGB-encoded colours (what RVS does: it blends the stored
-                  YUV code values) and decodes the result; see docs/dibr.md, "Accuracy"
+                  YUV code values; each selected view is encoded once and cached) and the kernel
+                  decodes the result in its resolve; "linear" blends linear light; see
+                  docs/dibr.md, "Blend space"
   distance_exponent  beta >= 0: each selected view's fragment weights are multiplied by
                   (b_min / b_i)^beta, b_i = the distance from its camera centre to the target's,
                   b_min the smallest (the nearest view keeps factor 1; MPEG VSRS weights its two
@@ -60,13 +62,16 @@ QUALITIES = ("side", "shape", "depth", "normal")
 DEFAULTS = {"inputs": vs.DEFAULT_K, "quality": "side", "blend_exponent": 5.0, "side_threshold": 10.0,
             "samples": vs.DEFAULT_SAMPLES, "seed": vs.DEFAULT_SEED,
             "stretched_quality": 0.1, "stretched_holes": True, "depth_tolerance": 0.0,
-            "blend_space": "linear", "distance_exponent": 0.0}
-# blend_space "srgb": the kernel interpolates and blends the sRGB encodings of the colours (RVS
-# blends the stored code values) and the result is decoded. The weighted mean of misregistered
-# samples is the estimate of least squared error in the space it is taken in, so blending in the
-# display encoding is what an sRGB PSNR rewards: measured (docs/dibr.md, "Accuracy") lego object
-# pixels +0.69 dB, ICL-NUIM -0.03 dB, Middlebury -0.01 dB. Not the default: the encode is cached
-# per input view, but the decode of the result costs ~70 ms per 1080p frame in numpy.
+            "blend_space": "srgb", "distance_exponent": 0.0}
+# blend_space "srgb" (the default since 2026-11-22): the kernel interpolates and blends the sRGB
+# encodings of the colours (RVS blends the stored code values) and decodes the result in its
+# resolve (DibrAccumulator.result(srgb_to_linear=True)). The weighted mean of misregistered samples
+# is the estimate of least squared error in the space it is taken in, so blending in the display
+# encoding is what an sRGB PSNR rewards. Chosen on data that picks no other parameter (docs/dibr.md,
+# "Blend space"): lego object pixels on the 8 validation views 22.84 -> 23.35 dB (all 8 gain), over
+# the 40-view spread 23.40 -> 23.91 (39 of 40 gain), the synthetic bench_dibr job 29.32 -> 29.39 dB;
+# it costs ~4.5 ms of one core per 1080p frame (the decode, ~2.7 % of the job's CPU; the encode is
+# once per input view, ~19 ms at 1080p). ICL-NUIM loses 0.03 dB (still above RVS), Middlebury 0.01.
 BLEND_SPACES = ("linear", "srgb")
 
 
