@@ -87,14 +87,13 @@ def _scaled_view(v, s: int):
         return v
     cam = v.camera.scaled(v.camera.width // s, v.camera.height // s)
     color = _block_mean(v.color.astype(np.float64), s).astype(np.float32)
-    depth = None
-    if v.has_depth:
-        d = v.depth
-        depth = np.ascontiguousarray(d[s // 2::s, s // 2::s][:cam.height, :cam.width])
+    def sample(d):
+        return None if d is None else np.ascontiguousarray(d[s // 2::s, s // 2::s][:cam.height, :cam.width])
+
     mask = None
     if v.has_mask:
         mask = _block_mean(v.mask.astype(np.float64), s) >= 0.5
-    return View.create(v.name, cam, color=color, depth=depth, mask=mask)
+    return View.create(v.name, cam, color=color, depth=sample(v.depth), mask=mask, depth_stored=sample(v.depth_stored))
 
 
 def _alpha(data: Path, name: str, s: int) -> np.ndarray:

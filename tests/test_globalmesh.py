@@ -62,6 +62,30 @@ def test_fusion_of_a_plane_lies_on_it():
     assert vertex_normals(m.vertices, m.faces)[:, 2].mean() < -0.9
 
 
+def test_fusion_reads_the_stored_depth_when_the_importer_filtered_it():
+    # View.fusion_depth: a view with depth_stored fuses that (here the plane z = 2) and not its
+    # filtered depth (here moved to z = 2.2); without depth_stored the depth itself is fused.
+    cams = {f"v{i}": cam_at((x, 0.0, 0.0)) for i, x in enumerate((-0.3, 0.0, 0.3))}
+    exact = {n: depth_from_mesh(wall(size=3.0), {n: c})[n] for n, c in cams.items()}
+    col = np.zeros((30, 40, 3), np.float32)
+    opts = GlobalMeshOptions(resolution=64)
+
+    def fused_z(**stored):
+        views = [View.create(n, c, color=col, depth=np.where(exact[n] > 0, exact[n] * 1.1, 0).astype(np.float32),
+                             **({"depth_stored": exact[n]} if stored else {})) for n, c in cams.items()]
+        mesh, rec = build_global_mesh(Scene(views=views), opts)
+        assert rec.get("views_depth_as_stored", 0) == (3 if stored else 0)
+        return float(np.median(mesh.vertices[:, 2]))
+
+    assert abs(fused_z(stored=True) - 2.0) < 0.02
+    assert abs(fused_z() - 2.2) < 0.02
+    c = cams["v0"]
+    with pytest.raises(BadValueError, match="depth_stored given without depth"):
+        View.create("a", c, color=col, depth_stored=exact["v0"])
+    with pytest.raises(ShapeError, match="depth_stored"):
+        View.create("a", c, color=col, depth=exact["v0"], depth_stored=exact["v0"][:, :5])
+
+
 def test_depth_from_mesh_exact_plane():
     c = cam_at((0.0, 0.0, 0.0))
     d = depth_from_mesh(wall(size=3.0), {"a": c})["a"]

@@ -194,6 +194,31 @@ def test_dequantize_explicit_overrides_auto(tmp_path):
     np.testing.assert_array_equal(two.views[0].depth, want)
 
 
+def test_dequantized_views_keep_the_stored_depth_for_fusion(tmp_path):
+    # Where the codes are de-quantised (8-bit auto, any explicit N > 0) the view also keeps the
+    # depth as stored, fusion_depth reads it, and a native save / load keeps it; where nothing
+    # was filtered (16-bit auto, N = 0) there is no second copy and fusion_depth is the depth.
+    from ibrtools.formats import native
+
+    stored, _, _ = _ramp_depth(tmp_path / "a", np.uint8)
+    v = nerf.load(tmp_path / "a", {}).views[0]
+    assert v.has_depth_stored
+    np.testing.assert_array_equal(v.depth_stored, stored)
+    assert v.fusion_depth is v.depth_stored and np.abs(v.depth - stored).max() > 1e-4
+    off = nerf.load(tmp_path / "a", {"depth_dequantize": 0}).views[0]
+    assert not off.has_depth_stored and off.depth_stored is None and off.fusion_depth is off.depth
+    stored16, _, _ = _ramp_depth(tmp_path / "b", np.uint16)
+    assert not nerf.load(tmp_path / "b", {}).views[0].has_depth_stored
+    two = nerf.load(tmp_path / "b", {"depth_dequantize": 2}).views[0]
+    np.testing.assert_array_equal(two.depth_stored, stored16)
+    scene = nerf.load(tmp_path / "a", {})
+    native.save(scene, tmp_path / "out")
+    back = native.load(tmp_path / "out").views[0]
+    assert (tmp_path / "out" / "images" / "r_0.depth_stored.exr").is_file()
+    np.testing.assert_array_equal(back.depth_stored, stored)
+    np.testing.assert_array_equal(back.depth, scene.views[0].depth)
+
+
 def test_dequantize_option_bad_values(tmp_path):
     from ibrtools.errors import DtypeError
 

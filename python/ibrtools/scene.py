@@ -5,6 +5,9 @@ In memory:
   View.depth  (H, W) float32: z for pinhole, ray distance for equirect; 0 = unknown,
               +inf = at infinity (sky); never NaN or negative (checked on import)
   View.mask   (H, W) bool, true = pixel belongs to the scene content (optional)
+  View.depth_stored  (H, W) float32, as View.depth: the depth as the data set stored it, present
+              only when the importer filtered View.depth (the nerf importer's de-quantisation of
+              8-bit codes); multi-view fusion reads it (``fusion_depth``)
 Images are loaded lazily from their files the first time they are used.
 """
 from __future__ import annotations
@@ -51,9 +54,10 @@ class View:
     _color: _Lazy = field(default_factory=_Lazy, repr=False)
     _depth: _Lazy = field(default_factory=_Lazy, repr=False)
     _mask: _Lazy = field(default_factory=_Lazy, repr=False)
+    _depth_stored: _Lazy = field(default_factory=_Lazy, repr=False)
 
     @classmethod
-    def create(cls, name: str, camera: Camera, color=None, depth=None, mask=None) -> "View":
+    def create(cls, name: str, camera: Camera, color=None, depth=None, mask=None, depth_stored=None) -> "View":
         """A view from arrays, or from callables that load them, or None."""
         def lazy(v, what):
             if v is None:
@@ -62,8 +66,10 @@ class View:
                 return _Lazy(loader=v, source=getattr(v, "source", None))
             return _Lazy(value=_check_image(v, f"view {name!r} {what}", camera, what))
 
-        view = cls(name, camera, lazy(color, "color"), lazy(depth, "depth"), lazy(mask, "mask"))
-        return view
+        if depth_stored is not None and depth is None:
+            raise BadValueError(f"view {name!r}: depth_stored given without depth")
+        return cls(name, camera, lazy(color, "color"), lazy(depth, "depth"), lazy(mask, "mask"),
+                   lazy(depth_stored, "depth_stored"))
 
     def _get(self, which: str) -> np.ndarray | None:
         lazy: _Lazy = getattr(self, "_" + which)
@@ -85,6 +91,23 @@ class View:
     @property
     def mask(self) -> np.ndarray | None:
         return self._get("mask")
+
+    @property
+    def depth_stored(self) -> np.ndarray | None:
+        return self._get("depth_stored")
+
+    @property
+    def has_depth_stored(self) -> bool:
+        return self._depth_stored.present
+
+    @property
+    def fusion_depth(self) -> np.ndarray | None:
+        """The depth multi-view fusion reads: as the data set stored it when the importer filtered
+        ``depth``, else ``depth``. A per-view filter (de-quantisation) makes each view's error
+        follow the surface's shape, alike in every view, where the stored codes' rounding error
+        differs from view to view and averages out in the fusion (docs/hybrid.md "Fusion reads
+        the stored depth")."""
+        return self.depth_stored if self.has_depth_stored else self.depth
 
     @property
     def has_color(self) -> bool:
@@ -113,7 +136,7 @@ def _check_image(v: np.ndarray, name: str, camera: Camera, what: str) -> np.ndar
         if not np.all(np.isfinite(v)):
             raise BadValueError(f"{name}: colour contains NaN or infinity")
         return np.ascontiguousarray(v)
-    if what == "depth":
+    if what in ("depth", "depth_stored"):
         return np.ascontiguousarray(check_depth(v, name, hw))
     if v.dtype != np.bool_:
         raise DtypeError(f"{name}: expected a bool mask, got {v.dtype}")

@@ -251,7 +251,7 @@ def scene_content_key(root: Path) -> str:
     rels = []
     for group in ("views", "targets"):
         for e in doc.get(group, []):
-            rels += [e[k] for k in ("color", "depth", "mask") if isinstance(e, dict) and e.get(k)]
+            rels += [e[k] for k in ("color", "depth", "mask", "depth_stored") if isinstance(e, dict) and e.get(k)]
     mesh_files = [root / m["path"] for m in (doc.get("meshes") or {}).values() if isinstance(m, dict) and "path" in m]
     cache = (root / CACHE_DIR).resolve()
     for d in sorted({f.parent for f in mesh_files}):

@@ -66,6 +66,10 @@ def _write_view(root: Path, view: View, kind: str, color_format: str) -> dict:
         rel = f"{kind}/{stem}.depth.exr"
         write_depth(root / rel, view.depth)
         entry["depth"] = rel
+    if view.has_depth_stored:
+        rel = f"{kind}/{stem}.depth_stored.exr"
+        write_depth(root / rel, view.depth_stored)
+        entry["depth_stored"] = rel
     if view.has_mask:
         rel = f"{kind}/{stem}.mask.png"
         write_image(root / rel, view.mask.astype("float32"))
@@ -167,7 +171,7 @@ def _read_view(root: Path, entry, where: str, need_color: bool) -> View:
         raise FormatError(f"{where}: expected an object with 'name' and 'camera'")
     camera = Camera.from_dict(entry.get("camera"), f"{where}.camera")
     loaders = {}
-    for key, fn in (("color", read_image), ("depth", read_depth), ("mask", read_mask)):
+    for key, fn in (("color", read_image), ("depth", read_depth), ("mask", read_mask), ("depth_stored", read_depth)):
         rel = entry.get(key)
         if rel is None:
             if key == "color" and need_color:

@@ -36,6 +36,9 @@ Convention converted from
     terraces are invisible to a warp and smoothing could only round off depth edges (the same
     smoothing of Middlebury's fine quarter-pixel codes loses 0.1 dB), so ``auto`` = 0 there.
     An explicit N overrides ``auto`` for every depth file (0 = the stored codes as they are).
+    Where the codes are de-quantised the view also keeps the depth as stored
+    (``View.depth_stored``): the global mesh's TSDF fusion reads that (``View.fusion_depth``),
+    every warp and blend the de-quantised depth.
 
 A path may be a ``transforms*.json`` file or a folder holding ``transforms_{train,val,test}.json``
 and/or ``transforms.json``. Every split found becomes views named by the image stem
@@ -260,7 +263,8 @@ def _load_depth(path: Path, camera: Camera, depth_scale: float, dequantize: int 
     return np.ascontiguousarray(camera.depth_ray_to_z(ray).astype(np.float32))
 
 
-def _has_alpha(path: Path) -> bool:
+def _header(path: Path) -> tuple[int, str]:
+    """(channels, sample format such as "uint8") of an image, from its header alone."""
     from ..imageio import _geterror, _oiio
 
     oiio = _oiio()
@@ -268,9 +272,23 @@ def _has_alpha(path: Path) -> bool:
     if inp is None:
         raise FormatError(f"{path}: not a readable image ({_geterror(oiio, 'unknown format')})")
     try:
-        return inp.spec().nchannels in (2, 4)
+        spec = inp.spec()
+        return int(spec.nchannels), str(spec.format)
     finally:
         inp.close()
+
+
+def _has_alpha(path: Path) -> bool:
+    return _header(path)[0] in (2, 4)
+
+
+def _filters_depth(path: Path, dequantize: int | None) -> bool:
+    """Whether loading the depth PNG ``path`` de-quantises its codes (then the view also keeps
+    the depth as stored, ``View.depth_stored``, for multi-view fusion)."""
+    if dequantize is not None:
+        return dequantize > 0
+    fmt = _header(path)[1]
+    return fmt in AUTO_DEQUANTIZE and AUTO_DEQUANTIZE[fmt] > 0
 
 
 def _camera(meta: dict, frame: dict, image: Path, where: str) -> Camera:
@@ -346,7 +364,9 @@ def load(path: Path, options: dict) -> Scene:
             name, camera,
             color=FileLoader(image, _load_color, image, background),
             depth=FileLoader(depth, _load_depth, depth, camera, depth_scale, dequantize) if depth is not None else None,
-            mask=mask))
+            mask=mask,
+            depth_stored=(FileLoader(depth, _load_depth, depth, camera, depth_scale, 0)
+                          if depth is not None and _filters_depth(depth, dequantize) else None)))
     dup = sorted({v.name for v in views if [w.name for w in views].count(v.name) > 1})
     if dup:
         raise FormatError(f"{path}: duplicate view names {dup[:5]} (two frames name the same image)")

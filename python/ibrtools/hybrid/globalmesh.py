@@ -8,6 +8,10 @@ docs/preprocess.md says what is chosen and why.
   else an error. ``reconstructed`` / ``ground_truth`` / ``fusion`` force one.
 * :func:`fuse_depth` — open3d UniformTSDFVolume over the views' depth maps, marching cubes;
   voxel = the depth points' largest extent / ``resolution`` (default 384), truncation 4 voxels.
+  :func:`build_global_mesh` fuses each view's ``fusion_depth``: the depth as the data set stored
+  it where the importer filtered it (de-quantised 8-bit codes), so that the views' rounding
+  errors, which differ from view to view, average out (docs/hybrid.md "Fusion reads the stored
+  depth").
 * :func:`densify` — midpoint subdivision of edges longer than ``max_edge`` (per-vertex colour
   needs vertices about as dense as the texture detail it should hold).
 * :func:`vertex_colors` — per-vertex colour by ULR-weighted blending (Buehler et al. 2001) of
@@ -413,9 +417,11 @@ def build_global_mesh(scene: Scene, options: GlobalMeshOptions | None = None,
     (:func:`build_render_mesh`) is the same surface, less densified."""
     options = options or GlobalMeshOptions()
     src = choose_source(scene, options.source)
+    stored = 0
     if src == "fusion":
         cams = {v.name: v.camera for v in scene.views}
-        deps = depths or {v.name: v.depth for v in scene.views}
+        stored = 0 if depths else sum(v.has_depth_stored for v in scene.views)
+        deps = depths or {v.name: v.fusion_depth for v in scene.views}
         lo, hi = depth_extent(cams, deps)
         mesh = fuse_depth(cams, deps, options, extent=(lo, hi))
         voxel = float((hi - lo).max() / options.resolution)  # (up to the truncation margin)
@@ -426,7 +432,7 @@ def build_global_mesh(scene: Scene, options: GlobalMeshOptions | None = None,
         voxel = mesh_scale(given) / options.resolution
         mesh = densify(given, options.max_edge_voxels * voxel, options.max_faces)
     return mesh, {"source": src, "vertices": int(len(mesh.vertices)), "faces": int(len(mesh.faces)),
-                  "voxel": float(f"{voxel:.4g}")}
+                  "voxel": float(f"{voxel:.4g}"), **({"views_depth_as_stored": stored} if stored else {})}
 
 
 def build_render_mesh(scene: Scene, dense: Mesh, source: str, options: GlobalMeshOptions | None = None) -> Mesh:
