@@ -56,9 +56,10 @@ QUALITIES = ("side", "shape", "depth", "normal")
 # stretched foreground). Measured (docs/dibr.md): lego all pixels +1.4 dB, RVS-protocol
 # (nearest-filled) figures within +-0.1 dB. depth_tolerance stays 0 (RVS: every view's front
 # fragment is blended): 0.02-0.05 gains +1.7 dB on exact synthetic depth but loses 0.16 dB on
-# ICL-NUIM's noisy depth. distance_exponent stays 0 (RVS: every selected view alike): beta = 4,
-# chosen on lego validation views, gains +1.7 dB on lego object pixels but loses 0.3-0.6 dB on
-# ICL-NUIM, whose nearest input has the worse ground-truth pose (docs/dibr.md, "lego object pixels").
+# ICL-NUIM's noisy depth. distance_exponent stays 0 (RVS: every selected view alike): beta chosen
+# on lego validation views (3 with the srgb blend space, 4 with linear) gains +1.4-1.7 dB on lego
+# object pixels but loses 0.3-0.6 dB on ICL-NUIM, whose nearest input has the worse ground-truth
+# pose (docs/dibr.md, "lego object pixels").
 DEFAULTS = {"inputs": vs.DEFAULT_K, "quality": "side", "blend_exponent": 5.0, "side_threshold": 10.0,
             "samples": vs.DEFAULT_SAMPLES, "seed": vs.DEFAULT_SEED,
             "stretched_quality": 0.1, "stretched_holes": True, "depth_tolerance": 0.0,
