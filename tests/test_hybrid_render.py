@@ -2,6 +2,7 @@
 (cpp/kernels/ulr.h, cpp/kernels/hybrid.h, python/ibrtools/render/hybrid.py)."""
 from __future__ import annotations
 
+import copy
 import importlib.util
 import math
 
@@ -371,6 +372,32 @@ def test_exact_mesh_hybrid_matches_reference_on_diffuse(exact_scene):
         assert out["selection"].shape == out["color"].shape and not np.isnan(out["color"]).any()
         e = np.abs(out["color"] - ref).mean(-1)[diffuse & ~out["hole"]]
         assert np.median(e) < 0.015, np.median(e)
+
+
+def test_geo_threshold_default_by_units_and_voxel(exact_scene):
+    # 3 cm in a length unit; one voxel of the global mesh where the units are not a length; 3 cm
+    # read as metres when there is no usable voxel either. The method takes the mesh stage's voxel.
+    from ibrtools.render import methods
+    from ibrtools.render.hybrid import GEO_THRESHOLD_VOXELS, geo_threshold_for
+
+    assert geo_threshold_for("m") == pytest.approx(0.03) and geo_threshold_for("m", 0.5) == pytest.approx(0.03)
+    assert geo_threshold_for("cm") == pytest.approx(3.0) and geo_threshold_for(" MM ") == pytest.approx(30.0)
+    assert geo_threshold_for("unknown", 0.006) == pytest.approx(0.006 * GEO_THRESHOLD_VOXELS)
+    assert geo_threshold_for("disparity", 0.25) == pytest.approx(0.25 * GEO_THRESHOLD_VOXELS)
+    for bad in (None, 0.0, -1.0, float("nan"), float("inf")):
+        assert geo_threshold_for("unknown", bad) == pytest.approx(0.03)
+    if not HAVE_PVM:
+        return
+    hy = methods.create("hybrid")
+    hy.prepare(exact_scene)
+    hy.render(exact_scene.targets[0].camera)
+    assert exact_scene.units == "m" and hy.frame_report()["geo_threshold"] == pytest.approx(0.03)
+    unitless = copy.copy(exact_scene)
+    unitless.units = "unknown"
+    hy.prepare(unitless)
+    hy.render(exact_scene.targets[0].camera)
+    voxel = exact_scene.stages.get("mesh", {}).get("details", {}).get("voxel")
+    assert voxel and hy.frame_report()["geo_threshold"] == pytest.approx(voxel * GEO_THRESHOLD_VOXELS)
 
 
 @needs_pvm
