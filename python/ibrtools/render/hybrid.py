@@ -119,6 +119,16 @@ def geo_threshold_for(units: str, voxel: float | None = None) -> float:
     return 0.03
 
 
+def _stage_record(scene: Scene, stage: str) -> dict:
+    """The stage's record in the scene directory's scene.json ({} when none): read from the file,
+    not ``scene.stages``, since stages may have run after the scene was loaded."""
+    from ..stages import _read_doc
+
+    if scene.root is None:
+        return {}
+    return (_read_doc(scene.root).get("stages") or {}).get(stage) or {}
+
+
 def _stage(scene: Scene, stage: str, method: str):
     from ..stages import load_npz, stage_output
 
@@ -207,9 +217,7 @@ def _views_for_ulr(scene: Scene, method: str, harmonised: bool, gm: "_GlobalMesh
     images: dict = {}
     source = "original"
     if harmonised and scene.root is not None:
-        from ..stages import _read_doc
-
-        rec = ((_read_doc(scene.root).get("stages") or {}).get("harmonise") or {})
+        rec = _stage_record(scene, "harmonise")
         if rec.get("outputs"):
             h = _stage(scene, "harmonise", method)
             images = {k[len("image/"):]: v for k, v in h.items() if k.startswith("image/")}
@@ -277,11 +285,8 @@ class UlrMethod:
         self._last: dict = {}
 
     def prepare(self, scene: Scene) -> dict[str, float]:
-        from ..stages import _read_doc
-
         t0 = time.perf_counter()
-        has_tex = scene.root is not None and bool(
-            ((_read_doc(scene.root).get("stages") or {}).get("texture") or {}).get("outputs"))
+        has_tex = bool(_stage_record(scene, "texture").get("outputs"))
         self._gm = _GlobalMesh(scene, "ulr", texture=has_tex)
         self._views, self._source = _views_for_ulr(scene, "ulr", self.params["harmonised"],
                                                    self._gm if self.params["occlusion"] == "mesh" else None)
@@ -349,9 +354,7 @@ class HybridMethod:
                                                    self._gm if self.params["occlusion"] == "mesh" else None)
         self._vd = None
         h = None
-        from ..stages import _read_doc
-
-        rec = ((_read_doc(scene.root).get("stages") or {}).get("harmonise") or {})
+        rec = _stage_record(scene, "harmonise")
         if rec.get("outputs"):
             h = _stage(scene, "harmonise", "hybrid")
         elif not rec.get("skipped"):
@@ -363,7 +366,7 @@ class HybridMethod:
                 raise InputError(f"harmonise stage: vd_texture shape {self._vd.shape} does not match the mesh; "
                                  f"rerun ibr-preprocess {scene.root} -o {scene.root} --stages harmonise --force")
         p = self.params
-        voxel = (((_read_doc(scene.root).get("stages") or {}).get("mesh") or {}).get("details") or {}).get("voxel")
+        voxel = (_stage_record(scene, "mesh").get("details") or {}).get("voxel")
         self._geo = (geo_threshold_for(scene.units, voxel if isinstance(voxel, (int, float)) else None)
                      if p["geo_threshold"] is None else p["geo_threshold"])
         t1 = time.perf_counter()
