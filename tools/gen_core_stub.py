@@ -105,6 +105,7 @@ OVERRIDES: dict[str, dict[str, str]] = {
     "metameric_encode": {"image": "_F32", "return": "_F32"},
     "linear_to_srgb": {"values": "_F32", "return": "_F32"},
     "srgb_to_linear": {"values": "_F32", "return": "_F32"},
+    "srgb_encode_unclipped": {"values": "_F32", "return": "_F32"},
     "metameric_fill_holes": {"image": "_F32", "hole": "_Bool | _U8", "base": "_F32", "change": "_F32",
                              "out": "_F32 | None", "return": "_F32"},
     "mip_build": {"image": "_F32", "return": "list[_F32]"},

@@ -10,6 +10,7 @@
 
 #include "array.h"
 #include "ibr/errors.h"
+#include "kernels/forward_warp.h"  // ActiveWarpIsa: the process-wide instruction set
 #include "kernels/metameric.h"
 #include "kernels/pushpull.h"
 #include "module.h"
@@ -94,6 +95,11 @@ py::array_t<float> MapValues(const py::handle& values_obj, void (*kernel)(const 
   py::gil_scoped_release release;
   kernel(in, o, n);
   return out;
+}
+
+// LinearToSrgbUnclipped on the instruction set the warp uses (set_warp_isa: tests compare both).
+void EncodeUnclippedActiveIsa(const float* in, float* out, std::int64_t n) {
+  LinearToSrgbUnclipped(in, out, n, ActiveWarpIsa() == WarpIsa::kAvx2);
 }
 
 }  // namespace
@@ -301,6 +307,16 @@ void BindMetameric(py::module_& m) {
       "ibrtools.imageio.linear_to_srgb): the IEC 61966-2-1 sRGB curve of every value of a C-contiguous "
       "float32 array of any shape, clamped to [0, 1] first, NaN -> 0; within 1e-6 (relative) of the exact "
       "curve. Returns a new float32 array of the same shape.");
+  m.def(
+      "srgb_encode_unclipped", [](py::handle values) { return MapValues(values, EncodeUnclippedActiveIsa); },
+      py::arg("values"),
+      "The sRGB encoding of linear colour for blending in sRGB space (cpp/kernels/metameric.h "
+      "LinearToSrgbUnclipped; Python: ibrtools.render.dibr.srgb_encode): the IEC 61966-2-1 curve of every value "
+      "of a C-contiguous float32 array of any shape, negative values and -inf -> 0, not clipped above 1, +inf "
+      "stays +inf, NaN stays NaN; within 1e-6 of the exact curve (absolute in [0, 1], relative above), exact at 0 "
+      "and 1. A table in [0, 1] "
+      "(AVX2 gathers when set_warp_isa allows: the same bits either way). Returns a new float32 array of the "
+      "same shape.");
   m.def(
       "srgb_to_linear", [](py::handle values) { return MapValues(values, SrgbToLinear); }, py::arg("values"),
       "The decoding of stored sRGB colour (cpp/kernels/metameric.h SrgbToLinear; Python: "
