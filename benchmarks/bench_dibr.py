@@ -134,6 +134,30 @@ def run_renderer(scene, repeats, threads, fresh=False):
     return dict(total=statistics.median(x[0] for x in runs), cpu=statistics.median(x[1] for x in runs), **med)
 
 
+def run_encode(repeats):
+    """The sRGB encode of one 1920x1080 RGB input view (blend_space srgb; paid once per view and
+    frame with fresh inputs): ``dibr.srgb_encode`` (the table, _core.srgb_encode_unclipped) and the
+    curve per value (``_core.metameric_encode`` after numpy's clamp at 0: the encode before
+    2026-11-22 fourth session), random values in [0, 1), 1 and 2 threads, interleaved; median ms."""
+    from ibrtools.render.dibr import srgb_encode
+
+    def curve(v):
+        a = np.maximum(v, np.float32(0.0))
+        return _core.metameric_encode(a.reshape(a.shape[0], -1, 1)).reshape(a.shape)
+
+    img = np.random.default_rng(0).random((1080, 1920, 3), dtype=np.float32)
+    times = {}
+    for _ in range(max(repeats, 5)):
+        for threads in (1, 2):
+            _core.set_num_threads(threads)
+            for name, f in (("table", srgb_encode), ("curve", curve)):
+                t = time.perf_counter()
+                f(img)
+                times.setdefault((name, threads), []).append((time.perf_counter() - t) * 1e3)
+    _core.set_num_threads(0)
+    return {k: statistics.median(v) for k, v in times.items()}
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeats", type=int, default=5)
@@ -205,6 +229,14 @@ def main():
               f"`dibr.srgb_encode`, which the frames above take from the cache), median of {a.repeats}: "
               f"{rf['total']:.1f} ms wall ({rf['cpu']:.1f} ms CPU): prepare {rf['prepare']:.1f}, select "
               f"{rf['select']:.1f}, warp with the encode {rf['warp']:.1f}, blend {rf['blend']:.1f} ms."]
+    enc = run_encode(a.repeats)
+    print(f"sRGB encode of a 1920x1080 RGB view: table (dibr.srgb_encode) {enc['table', 1]:.1f} ms on 1 thread, "
+          f"{enc['table', 2]:.1f} on 2; the curve per value {enc['curve', 1]:.1f} / {enc['curve', 2]:.1f} ms", flush=True)
+    lines += ["", f"The sRGB encode of one 1920×1080 RGB input view (random values in [0, 1), median of "
+              f"{max(a.repeats, 5)}, interleaved): `dibr.srgb_encode` (a table of the curve, "
+              f"`_core.srgb_encode_unclipped`) {enc['table', 1]:.1f} ms on 1 thread, {enc['table', 2]:.1f} ms on 2; "
+              f"the curve per value (`_core.metameric_encode`, the encode before) {enc['curve', 1]:.1f} / "
+              f"{enc['curve', 2]:.1f} ms."]
     lines += ["", "Target (issue 3): 4 × 1080p → 1080p in ≤ 100 ms on 2 cores (RVS 4.0: 5.0 s single-threaded)."]
     text = "\n".join(lines)
     print(text)
