@@ -1,13 +1,15 @@
 """DIBR (forward mesh warp + streaming blend, _core.DibrAccumulator) vs a naive point splat.
 
     python benchmarks/bench_dibr.py [--repeats 5] [--quick] [--write-docs] [--isa auto|baseline|avx2]
+        [--blend-space srgb|linear]
 
 Scene: ``ibrtools.synth.make_scene("objects", views=8)`` (textured ground, boxes, spheres, a
 cylinder; 8 input cameras on a ring, one target half-way between two of them; colour and
 z-depth rendered by the reference ray caster, so the target's colour is ground truth). The
 k inputs nearest to the target (camera centres) are used. For each case, after one warm-up,
-the median (and the minimum) of --repeats runs of: reset, add_view per input (the kernel's own wall time of the
-warp + accumulation, with the colour check, is ``last_add_ms``), result() (normalise). Cases: k = 1, 2, 4, 8 at
+the median (and the minimum) of --repeats runs of: reset, per input the sRGB encode when the blend space is
+srgb (the renderer's default; ``--blend-space``) and add_view (the kernel's own wall time of the warp +
+accumulation, with the colour check, is ``last_add_ms``), result() (normalise, with the decode for srgb). Cases: k = 1, 2, 4, 8 at
 1920x1080 and k = 4 at 512x512, 1024x1024, 1920x1080, 3840x2160; on 2 threads and on 1.
 
 Baseline, measured in the same run on the same inputs: a naive forward splat in numpy --
@@ -63,7 +65,13 @@ def naive_splat(inputs, target):
     return out.reshape(h, w, 3), ~cov.reshape(h, w)
 
 
-def run_case(scene, k, repeats, threads):
+def run_case(scene, k, repeats, threads, space="linear"):
+    """One case; ``space`` "srgb": the renderer's default blend space, so each input's sRGB encode
+    (``dibr.srgb_encode``) is inside the timed job (every repeat, as for fresh inputs) and result()
+    decodes in its resolve."""
+    from ibrtools.render.dibr import srgb_encode
+
+    srgb = space == "srgb"
     tgt = scene.targets[0]
     c0 = tgt.camera.centre
     views = sorted(scene.views, key=lambda v: float(np.linalg.norm(v.camera.centre - c0)))[:k]
@@ -77,16 +85,21 @@ def run_case(scene, k, repeats, threads):
         t0 = time.perf_counter()
         c0 = time.process_time()
         acc.reset()
-        per = []
+        per, enc = [], []
         for c, d, cam in ins:
+            if srgb:
+                te = time.perf_counter()
+                c = srgb_encode(c)
+                enc.append((time.perf_counter() - te) * 1e3)
             acc.add_view(c, d, cam, opts)
             per.append(acc.last_add_ms)
         t1 = time.perf_counter()
-        out = acc.result()
+        out = acc.result(srgb_to_linear=srgb)
         t2 = time.perf_counter()
         c2 = time.process_time()
         if r > 0:
-            runs.append(((t2 - t0) * 1e3, statistics.mean(per), (t2 - t1) * 1e3, (c2 - c0) * 1e3))
+            runs.append(((t2 - t0) * 1e3, statistics.mean(per), (t2 - t1) * 1e3, (c2 - c0) * 1e3,
+                         statistics.mean(enc) if enc else 0.0))
     _core.set_num_threads(0)
     load = max(load, os.getloadavg()[0])
     total = statistics.median(x[0] for x in runs)
@@ -94,13 +107,15 @@ def run_case(scene, k, repeats, threads):
     cpu = statistics.median(x[3] for x in runs)
     warp = statistics.median(x[1] for x in runs)
     norm = statistics.median(x[2] for x in runs)
+    encode = statistics.median(x[4] for x in runs)
     col, _, _, hole = out
     gt = tgt.color
     t = time.perf_counter()
     splat, splat_hole = naive_splat(views, tgt.camera)
     splat_ms = (time.perf_counter() - t) * 1e3
     both = ~hole & ~splat_hole
-    return dict(total=total, total_min=total_min, cpu=cpu, load=load, warp=warp, norm=norm, psnr=psnr(col, gt), psnr_both=psnr(col, gt, both),
+    return dict(total=total, total_min=total_min, cpu=cpu, load=load, warp=warp, norm=norm, encode=encode,
+                psnr=psnr(col, gt), psnr_both=psnr(col, gt, both),
                 holes=float(hole.mean()), splat_psnr=psnr(splat, gt), splat_psnr_both=psnr(splat, gt, both),
                 splat_holes=float(splat_hole.mean()), splat_ms=splat_ms)
 
@@ -165,7 +180,12 @@ def main():
     ap.add_argument("--write-docs", action="store_true")
     ap.add_argument("--isa", default="auto", choices=("auto", "baseline", "avx2"),
                     help="instruction set of the warp's hot loops (_core.set_warp_isa; results are identical)")
+    ap.add_argument("--blend-space", default=None, choices=("srgb", "linear"),
+                    help="blend space of the timed job (default: the renderer's, render/dibr.py DEFAULTS)")
     a = ap.parse_args()
+    from ibrtools.render.dibr import DEFAULTS
+
+    space = a.blend_space or DEFAULTS["blend_space"]
     _core.set_warp_isa(a.isa)
     cases = [((1920, 1080), k) for k in (1, 2, 4, 8)]
     sizes = [(512, 512), (1024, 1024)] + ([] if a.quick else [(3840, 2160)])
@@ -176,11 +196,12 @@ def main():
         if size not in scenes:
             scenes[size] = synth.make_scene("objects", size=size, views=8, holdout_targets=1)
         for threads in ((2,) if a.quick else (2, 1)):
-            r = run_case(scenes[size], k, a.repeats, threads)
+            r = run_case(scenes[size], k, a.repeats, threads, space)
             rows.append((size, k, threads, r))
             print(f"{size[0]}x{size[1]} k={k} threads={threads}: total {r['total']:.1f} ms (min {r['total_min']:.1f}, "
                   f"CPU {r['cpu']:.1f} ms, load {r['load']:.1f}) "
-                  f"(warp+acc {r['warp']:.1f} ms/view, normalise {r['norm']:.1f} ms); PSNR {r['psnr']:.2f} dB "
+                  f"(encode {r['encode']:.1f}, warp+acc {r['warp']:.1f} ms/view, normalise {r['norm']:.1f} ms); "
+                  f"PSNR {r['psnr']:.2f} dB "
                   f"(both-covered {r['psnr_both']:.2f}), holes {100 * r['holes']:.2f} %; naive splat "
                   f"PSNR {r['splat_psnr']:.2f} (both-covered {r['splat_psnr_both']:.2f}), holes "
                   f"{100 * r['splat_holes']:.2f} %, {r['splat_ms']:.0f} ms (numpy)", flush=True)
@@ -190,26 +211,30 @@ def main():
         f"`benchmarks/bench_dibr.py`, {machine()}; median of {a.repeats} runs after a warm-up. Scene: "
         "`synth.make_scene(\"objects\", views=8)` (textured planes, boxes, spheres), target half-way between "
         "two ring cameras, the k nearest inputs; the same size for inputs and target. Default options (RVS: "
-        "quality 'side', T auto, combined depth test, weight (q/d)^5). \"total\" is wall time from Python "
-        "(reset, k × add_view, result()), median and minimum; \"CPU\" is the process CPU time of the same "
+        "quality 'side', T auto, combined depth test, weight (q/d)^5), blend space "
+        f"{space}" + (" (the renderer's default: each input's sRGB encode, `dibr.srgb_encode`, is inside the "
+                      "timed job, as for fresh inputs, and result() decodes in its resolve)" if space == "srgb" else "")
+        + ". \"total\" is wall time from Python "
+        "(reset, k × (encode +) add_view, result()), median and minimum; \"CPU\" is the process CPU time of the same "
         "frames (all threads, median): on a shared machine CPU time and the CPU / wall ratio (≈ 2 when both "
         "threads ran all the time) are the robust figures, wall time is what the load left of the cores; \"load\" "
         "is the larger 1-minute load average at the start and the end of the case (2 = both cores busy). "
         "\"warp\" is the kernel time per view (vertex projection with the "
         "colour's finiteness check, triangle binning, rasterisation, accumulation; the first view after "
-        "reset() writes the sums, there is no clearing pass); \"normalise\" is result(). Naive splat: nearest-pixel point "
+        "reset() writes the sums, there is no clearing pass); \"encode\" the sRGB encode per view; \"normalise\" is "
+        "result(). Naive splat: nearest-pixel point "
         "splat with a z-buffer over all inputs (numpy, in this script). PSNR against the rendered ground "
         "truth over all pixels, and over the pixels both methods cover. Instruction set of the warp's hot "
         f"loops: {_core.warp_isa()} (`_core.warp_isa()`; AVX2 clones when the CPU has it, bit-identical to "
         "the SSE2 baseline; docs/dibr.md, \"Speed\").",
         "",
-        "| size | k | threads | total ms | min ms | CPU ms | load | warp ms/view | normalise ms | PSNR dB | PSNR both "
-        "| holes % | splat PSNR | splat PSNR both | splat holes % |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| size | k | threads | total ms | min ms | CPU ms | load | encode ms/view | warp ms/view | normalise ms | PSNR dB "
+        "| PSNR both | holes % | splat PSNR | splat PSNR both | splat holes % |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for size, k, th, r in rows:
         lines.append(f"| {size[0]}×{size[1]} | {k} | {th} | {r['total']:.1f} | {r['total_min']:.1f} | {r['cpu']:.1f} | "
-                     f"{r['load']:.1f} | {r['warp']:.1f} | {r['norm']:.1f} | "
+                     f"{r['load']:.1f} | {r['encode']:.1f} | {r['warp']:.1f} | {r['norm']:.1f} | "
                      f"{r['psnr']:.2f} | {r['psnr_both']:.2f} | {100 * r['holes']:.2f} | {r['splat_psnr']:.2f} | "
                      f"{r['splat_psnr_both']:.2f} | {100 * r['splat_holes']:.2f} |")
     rr = run_renderer(scenes[(1920, 1080)], a.repeats, 2)
