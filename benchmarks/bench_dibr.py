@@ -238,25 +238,18 @@ def main():
                      f"{r['psnr']:.2f} | {r['psnr_both']:.2f} | {100 * r['holes']:.2f} | {r['splat_psnr']:.2f} | "
                      f"{r['splat_psnr_both']:.2f} | {100 * r['splat_holes']:.2f} |")
     rr = run_renderer(scenes[(1920, 1080)], a.repeats, 2)
-    print(f"renderer frame 1920x1080 k=4 threads=2: total {rr['total']:.1f} ms (CPU {rr['cpu']:.1f}); select "
-          f"{rr['select']:.1f}, warp {rr['warp']:.1f}, blend {rr['blend']:.1f} ms", flush=True)
     lines += ["", f"The renderer's frame (`ibr-render --method dibr`, `DibrMethod.render`: view selection among the 8 "
               f"inputs, a new accumulator, 4 views, result(); the inputs' sRGB encodings from the cache), 1920×1080 on "
               f"2 threads, median of {a.repeats}: "
               f"{rr['total']:.1f} ms wall ({rr['cpu']:.1f} ms CPU): select {rr['select']:.1f}, warp "
               f"{rr['warp']:.1f}, blend {rr['blend']:.1f} ms."]
     rf = run_renderer(scenes[(1920, 1080)], a.repeats, 2, fresh=True)
-    print(f"renderer frame, fresh inputs, 1920x1080 k=4 threads=2: total {rf['total']:.1f} ms (CPU {rf['cpu']:.1f}); "
-          f"prepare {rf['prepare']:.1f}, select {rf['select']:.1f}, warp + encode {rf['warp']:.1f}, blend "
-          f"{rf['blend']:.1f} ms", flush=True)
     lines += ["", f"The same frame with fresh inputs (video: a new `DibrMethod` and `prepare()` per frame, so every "
               f"frame also pays the depth ranges of the 8 views and the sRGB encode of the 4 selected ones, "
               f"`dibr.srgb_encode`, which the frames above take from the cache), median of {a.repeats}: "
               f"{rf['total']:.1f} ms wall ({rf['cpu']:.1f} ms CPU): prepare {rf['prepare']:.1f}, select "
               f"{rf['select']:.1f}, warp with the encode {rf['warp']:.1f}, blend {rf['blend']:.1f} ms."]
     enc = run_encode(a.repeats)
-    print(f"sRGB encode of a 1920x1080 RGB view: table (dibr.srgb_encode) {enc['table', 1]:.1f} ms on 1 thread, "
-          f"{enc['table', 2]:.1f} on 2; the curve per value {enc['curve', 1]:.1f} / {enc['curve', 2]:.1f} ms", flush=True)
     lines += ["", f"The sRGB encode of one 1920×1080 RGB input view (random values in [0, 1), median of "
               f"{max(a.repeats, 5)}, interleaved): `dibr.srgb_encode` (a table of the curve, "
               f"`_core.srgb_encode_unclipped`) {enc['table', 1]:.1f} ms on 1 thread, {enc['table', 2]:.1f} ms on 2; "
