@@ -11,7 +11,8 @@ from conftest import need_data, shared_data
 from ibrtools import _core
 from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError
-from ibrtools.render.dibr import DibrMethod, check_params, srgb_decode, srgb_encode
+from ibrtools.imageio import srgb_to_linear
+from ibrtools.render.dibr import DibrMethod, check_params, srgb_encode
 from ibrtools.scene import Scene, View
 
 DATA = shared_data()
@@ -44,11 +45,11 @@ def test_srgb_encode_decode_round_trip():
     e = srgb_encode(v)
     assert e[0] == 0 and e[5] == pytest.approx(1.0, abs=1e-6) and e[4] == pytest.approx(0.7354, abs=1e-4)
     assert e[1] == pytest.approx(0.01292, rel=1e-5) and e[6] > 1.0
-    np.testing.assert_allclose(srgb_decode(e), v, rtol=2e-6, atol=1e-9)
+    np.testing.assert_allclose(srgb_to_linear(e), v, rtol=2e-6, atol=1e-9)
     # negative light is 0; NaN stays NaN (views reject NaN colour; add_view would too)
     neg_nan = srgb_encode(np.array([-1.0, np.nan], np.float32))
     assert neg_nan[0] == 0 and np.isnan(neg_nan[1])
-    assert e.dtype == np.float32 and srgb_decode(e).dtype == np.float32
+    assert e.dtype == np.float32 and srgb_to_linear(e).dtype == np.float32
     # any shape (the C++ curve works on rows): an image, a scalar, an empty array
     img = np.random.default_rng(1).uniform(-0.1, 2.0, (5, 7, 3)).astype(np.float32)
     want = np.where(img <= 0.0031308, 12.92 * np.maximum(img, 0), 1.055 * np.maximum(img, 0.0) ** (1 / 2.4) - 0.055)
@@ -60,7 +61,7 @@ def test_srgb_encode_decode_round_trip():
 def test_blend_space_srgb_render_is_the_decoded_srgb_blend():
     # The renderer's srgb frame (inputs encoded by srgb_encode, decoded inside the kernel's
     # resolve) against the same blend done without the fused decode: encoded views into a
-    # DibrAccumulator, result() in the encoded space, then srgb_decode. 1e-6: the resolve reads the
+    # DibrAccumulator, result() in the encoded space, then srgb_to_linear. 1e-6: the resolve reads the
     # curve from a table (tests/test_forward_warp_isa.py::test_srgb_resolve_decodes_the_blend).
     rng = np.random.default_rng(5)
     views = []
@@ -79,7 +80,7 @@ def test_blend_space_srgb_render_is_the_decoded_srgb_blend():
         acc.add_view(srgb_encode(v.color), v.depth, v.camera.to_core(), m.warp_options())
     enc, depth, _, hole = acc.result()
     assert (~hole).mean() > 0.5
-    np.testing.assert_allclose(out["color"], srgb_decode(enc), rtol=0, atol=1e-6)
+    np.testing.assert_allclose(out["color"], srgb_to_linear(enc), rtol=0, atol=1e-6)
     np.testing.assert_array_equal(out["depth"], depth)
     np.testing.assert_array_equal(out["hole"], hole)
     assert (out["color"][hole] == 0).all()
@@ -112,7 +113,7 @@ def test_blend_space_decides_what_is_averaged():
     inner = (slice(2, -2), slice(2, -2))
     lin = _render(views, cam, blend_space="linear")["color"][inner]
     srgb = _render(views, cam, blend_space="srgb")["color"][inner]
-    want_srgb = srgb_decode((srgb_encode(np.array([a])) + srgb_encode(np.array([b]))) / 2)[0]
+    want_srgb = srgb_to_linear((srgb_encode(np.array([a])) + srgb_encode(np.array([b]))) / 2)[0]
     np.testing.assert_allclose(lin, (a + b) / 2, rtol=1e-5)
     np.testing.assert_allclose(srgb, want_srgb, rtol=1e-5)
     assert want_srgb < (a + b) / 2 - 0.1  # the two spaces really differ here (0.309 vs 0.425)

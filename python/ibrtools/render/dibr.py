@@ -255,10 +255,3 @@ def srgb_encode(v: np.ndarray) -> np.ndarray:
     a = np.asarray(v, np.float32)
     return _core.srgb_encode_unclipped(a if a.flags.c_contiguous else a.copy())  # 0-d arrays stay 0-d
 
-
-def srgb_decode(e: np.ndarray) -> np.ndarray:
-    """The inverse of ``srgb_encode`` (0 stays 0, so holes stay black; C++ ``_core.srgb_to_linear``,
-    the curve that ``DibrAccumulator.result(srgb_to_linear=True)`` applies in the kernel)."""
-    from .. import _core
-
-    return _core.srgb_to_linear(np.ascontiguousarray(np.maximum(np.asarray(e, np.float32), 0.0)))
