@@ -34,15 +34,6 @@ def sweep() -> np.ndarray:
     return np.concatenate([dense, logs, around_toe, near]).astype(np.float32)
 
 
-@pytest.fixture(params=["baseline", "avx2"])
-def isa(request):
-    if request.param == "avx2" and not _core.cpu_has_avx2():
-        pytest.skip("CPU without AVX2")
-    _core.set_warp_isa(request.param)
-    yield request.param
-    _core.set_warp_isa("auto")
-
-
 def test_within_1e6_of_the_float64_curve_in_0_1(isa):
     # Table lerp 2.3e-8 + the nodes' polynomial error + float rounding: measured 1.8e-7 (SrgbEncode
     # itself 1.5e-7). The bound 1e-6 is the brief's; 3e-7 pins the measured accuracy (a table with
