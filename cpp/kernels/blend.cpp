@@ -4,7 +4,6 @@
 #include <cmath>
 #include <cstddef>
 #include <limits>
-#include <vector>
 
 #include <immintrin.h>  // AVX2: only in target("avx2") functions, called when the CPU has it
 
@@ -262,82 +261,6 @@ void ResolvePixels(const BlendBuffers& acc, std::ptrdiff_t i0, std::ptrdiff_t i1
   }
 }
 
-// The sRGB decoding of the resolve (BlendSpace::kSrgb). The curve is SrgbToLinear's
-// (metameric.h); evaluated per value it is compute-bound (two polynomials, ~85 AVX2 instructions
-// per 8 values): the resolve of 1080p went from 3.4 to 14.6 ms of one core, +7 % of the job's CPU,
-// fused into the resolve or not (benchmarks/dibr_ab.py --srgb-b; docs/dibr.md "Blend space").
-// Blended encodings of LDR colour lie in [0, 1], so there the resolve reads the curve from a table
-// of its values at the kSrgbSteps + 2 nodes i / kSrgbSteps (made once by SrgbToLinearRun: the
-// curve exists once) and interpolates linearly: two gathers and six operations per 8 values, the
-// resolve 3.4 -> 8.1 ms. Within 1e-6 (absolute) of SrgbToLinear (measured 2.4e-7: the lerp's error
-// h^2 / 8 max|f''| = 2.5e-8, ~1e-7 at the toe's joint, and the polynomial curve's own wiggle between
-// the nodes), 1000x below the smallest 8-bit step (3e-4 linear, at the darkest codes); exact at the
-// nodes, so 0 (holes) stays exactly 0. Values outside [0, 1] (HDR encodings above 1, negative colour) take
-// the curve itself. The AVX2 loop is the scalar loop's operations lane by lane (no FMA): the same bits.
-constexpr int kSrgbSteps = 4096;
-
-const float* SrgbTable() {
-  static const std::vector<float> table = [] {
-    std::vector<float> x(kSrgbSteps + 2), t(kSrgbSteps + 2);
-    for (int i = 0; i < kSrgbSteps + 2; ++i) x[i] = float(i) / float(kSrgbSteps);  // exact (power of two)
-    SrgbToLinearRun(x.data(), t.data(), std::int64_t(t.size()));
-    return t;
-  }();
-  return table.data();
-}
-
-inline bool InTable(float e) { return e >= 0.f && e <= 1.f; }  // false for NaN
-
-// The table's value at e in [0, 1].
-inline float Lerp(const float* table, float e) {
-  const float s = e * float(kSrgbSteps);  // exact (power of two)
-  const int k = int(s);                   // floor (s >= 0); k <= kSrgbSteps
-  const float f = s - float(k);           // exact
-  const float t0 = table[k];
-  return t0 + f * (table[k + 1] - t0);
-}
-
-// v[0, m), m <= 8, in place, value by value: the table in [0, 1], the curve elsewhere (one call of
-// the curve for the block when it has such values: HDR images cost the curve, not a call per value).
-inline void SrgbDecodeBlock(const float* table, float* v, int m) {
-  bool outside = false;
-  for (int k = 0; k < m; ++k) outside |= !InTable(v[k]);
-  float c[8];
-  if (outside) SrgbToLinearRun(v, c, m);
-  for (int k = 0; k < m; ++k) v[k] = InTable(v[k]) ? Lerp(table, v[k]) : c[k];
-}
-
-// Eight values per step: Lerp lane by lane (the gathers read table[k], table[k + 1]); a step with
-// a value outside the table is done by SrgbDecodeBlock.
-__attribute__((target("avx2"))) void SrgbDecodeRowAvx2(const float* table, float* v, std::ptrdiff_t n) {
-  const __m256 scale = _mm256_set1_ps(float(kSrgbSteps)), zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.f);
-  std::ptrdiff_t i = 0;
-  for (; i + 8 <= n; i += 8) {
-    const __m256 e = _mm256_loadu_ps(v + i);
-    const __m256 in = _mm256_and_ps(_mm256_cmp_ps(e, zero, _CMP_GE_OQ), _mm256_cmp_ps(e, one, _CMP_LE_OQ));
-    if (_mm256_movemask_ps(in) != 0xff) {
-      SrgbDecodeBlock(table, v + i, 8);
-      continue;
-    }
-    const __m256 s = _mm256_mul_ps(e, scale);
-    const __m256i k = _mm256_cvttps_epi32(s);
-    const __m256 f = _mm256_sub_ps(s, _mm256_cvtepi32_ps(k));
-    const __m256 t0 = _mm256_i32gather_ps(table, k, 4), t1 = _mm256_i32gather_ps(table + 1, k, 4);
-    _mm256_storeu_ps(v + i, _mm256_add_ps(t0, _mm256_mul_ps(f, _mm256_sub_ps(t1, t0))));
-  }
-  if (i < n) SrgbDecodeBlock(table, v + i, int(n - i));
-}
-
-// v[0, n) decoded in place.
-void SrgbDecodeRow(float* v, std::ptrdiff_t n, bool avx2) {
-  const float* table = SrgbTable();
-  if (avx2) {
-    SrgbDecodeRowAvx2(table, v, n);
-    return;
-  }
-  for (std::ptrdiff_t i = 0; i < n; i += 8) SrgbDecodeBlock(table, v + i, int(std::min<std::ptrdiff_t>(8, n - i)));
-}
-
 }  // namespace
 
 void ResolveBlend(const BlendBuffers& acc, float* color, float* depth, float* confidence, std::uint8_t* hole,
@@ -352,7 +275,7 @@ void ResolveBlend(const BlendBuffers& acc, float* color, float* depth, float* co
     // A hole's 0 decodes to 0 (0 / 12.92).
     for (std::int64_t y = y0; y < y1; ++y) {
       ResolvePixels(acc, y * w, (y + 1) * w, color, depth, confidence, hole, avx2);
-      SrgbDecodeRow(color + 3 * y * w, 3 * w, avx2);
+      SrgbToLinearTableRun(color + 3 * y * w, 3 * w, avx2);
     }
   });
 }
