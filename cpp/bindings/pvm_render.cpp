@@ -57,7 +57,7 @@ class PvmRendererCore {
   PvmRendererCore(py::handle vertices, py::handle faces, py::handle face_offsets, py::handle vertex_offsets,
                   py::handle tile_view, py::handle tile_cell, py::handle tile_bounds, py::handle coarse_offsets, std::vector<double> origin,
                   std::vector<double> cell, int coarse, int sub, std::vector<Camera> cameras, py::list images,
-                  py::handle enabled) {
+                  py::handle enabled, py::handle depths) {
     vertices_ = CheckArray<float>(vertices, "vertices", {{"V", -1}, {"3", 3}});
     faces_ = CheckArray<std::int32_t>(faces, "faces", {{"F", -1}, {"3", 3}});
     tile_view_ = CheckArray<std::int32_t>(tile_view, "tile_view", {{"T", -1}});
@@ -89,6 +89,17 @@ class PvmRendererCore {
       images_.push_back(CheckArray<float>(images[static_cast<std::size_t>(v)], name.c_str(),
                                           {{"H_v", cameras[v].height}, {"W_v", cameras[v].width}, {"3", 3}}));
       image_ptrs_.push_back(images_.back().data());
+    }
+    if (!depths.is_none()) {  // the free-space count's depth maps (pvm_render.h, stage 4)
+      if (!py::isinstance<py::list>(depths) || static_cast<int>(py::len(depths)) != nv) {
+        throw ShapeError("depths: expected None or a list of one depth map per camera (" + std::to_string(nv) + ")");
+      }
+      for (int v = 0; v < nv; ++v) {
+        const std::string name = "depths[" + std::to_string(v) + "]";
+        depths_.push_back(CheckArray<float>(py::reinterpret_borrow<py::list>(depths)[static_cast<std::size_t>(v)], name.c_str(),
+                                            {{"H_v", cameras[v].height}, {"W_v", cameras[v].width}}));
+        depth_ptrs_.push_back(depths_.back().data());
+      }
     }
     auto en = CheckArray<bool>(enabled, "enabled", {{"views", nv}});
     enabled_.assign(en.data(), en.data() + nv);
@@ -174,7 +185,7 @@ class PvmRendererCore {
   py::dict Render(const Camera& camera, py::handle gbuffer_obj, py::handle mask_obj, bool filtered, float sigma,
                   float alpha, float gamma, float tau_depth, int max_tiles, int max_candidates, int ulr_k,
                   float merge_rel, float radius_sigmas, int margin, float near, bool cull_back, float max_angle_deg, int ray_stride, int filter_step,
-                  const std::string& mode) {
+                  bool free_space, float free_space_tol, const std::string& mode) {
     const bool depth_only = mode == "depth", resolve = mode == "resolve";
     if (!depth_only && !resolve && mode != "full") {
       throw BadValueError("mode: expected full, depth or resolve, got " + mode);
@@ -215,6 +226,8 @@ class PvmRendererCore {
     finite_min(radius_sigmas, "radius_sigmas", 0.f, false);
     finite_min(near, "near", 0.f, true);
     finite_min(max_angle_deg, "max_angle", 0.f, true);
+    finite_min(free_space_tol, "free_space_tol", 0.f, false);
+    if (free_space_tol >= 1.f) throw BadValueError("free_space_tol: expected < 1, got " + std::to_string(free_space_tol));
     if (radius_sigmas * sigma > 64.f) throw BadValueError("radius_sigmas * sigma: expected <= 64 pixels");
     if (max_tiles < 1 || max_tiles > 255) throw BadValueError("max_tiles: expected 1 .. 255, got " + std::to_string(max_tiles));
     if (max_candidates < 1 || max_candidates > kPvmMaxCandidates) {
@@ -243,12 +256,15 @@ class PvmRendererCore {
     o.cull_back = cull_back;
     o.ray_stride = ray_stride;
     o.filter_step = filter_step;
+    o.free_space = free_space;
+    o.free_space_tol = free_space_tol;
     o.max_angle = max_angle_deg >= 180.f ? 3.15f : max_angle_deg * 3.14159265f / 180.f;
     PvmViews views;
     views.count = static_cast<int>(cameras_.size());
     views.cameras = cameras_.data();
     views.images = image_ptrs_.data();
     views.enabled = enabled_.data();
+    views.depths = depth_ptrs_.empty() ? nullptr : depth_ptrs_.data();
     auto color = NewArray<float>({h, w, 3});
     auto depth = NewArray<float>({h, w});
     auto vote = NewArray<float>({h, w});
@@ -333,6 +349,8 @@ class PvmRendererCore {
   F32 tile_bounds_;
   std::vector<F32> images_;
   std::vector<const float*> image_ptrs_;
+  std::vector<F32> depths_;  // empty: no free-space count
+  std::vector<const float*> depth_ptrs_;
   std::vector<std::uint8_t> enabled_;
   std::vector<Camera> cameras_;
   PvmTileArrays tiles_;
@@ -349,20 +367,23 @@ void BindPvmRender(py::module_& m) {
                               "Not thread-safe: one render at a time per object (it reuses its frame buffers).")
       .def(py::init<py::handle, py::handle, py::handle, py::handle, py::handle, py::handle, py::handle, py::handle,
                     std::vector<double>,
-                    std::vector<double>, int, int, std::vector<Camera>, py::list, py::handle>(),
+                    std::vector<double>, int, int, std::vector<Camera>, py::list, py::handle, py::handle>(),
            py::arg("vertices"), py::arg("faces"), py::arg("face_offsets"), py::arg("vertex_offsets"),
            py::arg("tile_view"), py::arg("tile_cell"), py::arg("tile_bounds"), py::arg("coarse_offsets"), py::arg("origin"), py::arg("cell"), py::arg("coarse"), py::arg("sub"),
-           py::arg("cameras"), py::arg("images"), py::arg("enabled"),
+           py::arg("cameras"), py::arg("images"), py::arg("enabled"), py::arg("depths") = py::none(),
            "Arrays as in tiles.npz (docs/FORMAT.md), tile_view indexing `cameras`; images float32 (H_v, W_v, 3) "
-           "linear RGB per camera; enabled bool (views,): views the renderer may use.")
+           "linear RGB per camera; enabled bool (views,): views the renderer may use; depths None or float32 "
+           "(H_v, W_v) per camera (the views' depth, for render's free_space count).")
       .def("render", &PvmRendererCore::Render, py::arg("camera"), py::arg("gbuffer_depth") = py::none(),
            py::arg("pixel_mask") = py::none(), py::arg("filtered") = true, py::arg("sigma") = 3.f,
            py::arg("alpha") = 7.f, py::arg("gamma") = 7.f, py::arg("tau_depth") = 0.83f, py::arg("max_tiles") = 12,
            py::arg("max_candidates") = 12, py::arg("ulr_k") = 4, py::arg("merge_rel") = 0.02f,
            py::arg("radius_sigmas") = 2.f, py::arg("margin") = 1, py::arg("near") = 1e-3f,
-           py::arg("cull_back") = true, py::arg("max_angle") = 60.f, py::arg("ray_stride") = 8, py::arg("filter_step") = 2, py::arg("mode") = "full",
+           py::arg("cull_back") = true, py::arg("max_angle") = 60.f, py::arg("ray_stride") = 8, py::arg("filter_step") = 2,
+           py::arg("free_space") = true, py::arg("free_space_tol") = 0.02f, py::arg("mode") = "full",
            "dict: color (H, W, 3), depth (H, W) (Eq. 2 vote), vote (H, W), valid, inside_grid (H, W) bool, "
-           "times_ms per stage, visible_coarse, tiles, triangles. mode: full (all stages); depth (stages "
+           "times_ms per stage, visible_coarse, tiles, triangles. free_space: a background candidate counts in Eq. 1 / "
+           "Eq. 2 only when its view sees past the foreground point (needs depths; pvm_render.h). mode: full (all stages); depth (stages "
            "1-4 without colours: depth, vote, valid, inside_grid; colour 0; the frame is kept); resolve "
            "(colours of pixel_mask from the kept depth pass: stages 4-5 only).")
       .def("candidates", &PvmRendererCore::Candidates, py::arg("height"), py::arg("width"),

@@ -550,6 +550,25 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
   for (std::int64_t c : tri_count) frame.triangles += c;
 }
 
+// True when the view (camera, depth map) sees past world point p: p projects into its image and
+// the view's depth at every pixel of the 3 x 3 around p's projection is >= (1 - tol) x p's depth
+// in the view (depth 0, NaN or inf: nothing there). The free-space count of PvmCluster.
+static bool SeesPast(const Camera& cam, const float* depth, const glm::dvec3& p, float tol) {
+  double ix = 0, iy = 0, iz = 0;
+  if (!cam.ProjectCam(cam.CamFromWorld(p), &ix, &iy, &iz)) return false;
+  if (!(ix >= 0.0 && iy >= 0.0 && ix < cam.width && iy < cam.height)) return false;
+  const int px = static_cast<int>(ix), py = static_cast<int>(iy);
+  const double limit = (1.0 - static_cast<double>(tol)) * iz;
+  for (int y = std::max(0, py - 1); y <= std::min(cam.height - 1, py + 1); ++y) {
+    const float* row = depth + static_cast<std::size_t>(y) * static_cast<std::size_t>(cam.width);
+    for (int x = std::max(0, px - 1); x <= std::min(cam.width - 1, px + 1); ++x) {
+      const float d = row[x];
+      if (d > 0.f && std::isfinite(d) && d < limit) return false;
+    }
+  }
+  return true;
+}
+
 void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t* pixel_mask,
                 const PvmRenderOptions& options, bool colours, PvmFrame& frame, bool reuse_clusters) {
   const int h = camera.height, w = camera.width;
@@ -612,6 +631,7 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
   std::vector<glm::vec3> centres(static_cast<std::size_t>(views.count));
   for (int v = 0; v < views.count; ++v) centres[static_cast<std::size_t>(v)] = Centre(views.cameras[v]);
   const int ulr_k = std::max(1, options.ulr_k);
+  const bool free_space = options.free_space && views.depths != nullptr;
   ParallelFor(h, 4, [&](std::int64_t a, std::int64_t b) {
     float col[kPvmMaxCandidates][3];
     float pen[kPvmMaxCandidates];
@@ -679,14 +699,27 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
         for (int i = 0; i < n; ++i) bits |= (bg[i] ? 1u : 0u) << i;
         frame.bg_bits[static_cast<std::size_t>(p)] = static_cast<std::uint16_t>(bits);
         }  // 2-means
+        // #N_bg: the background candidates, or with free_space those whose view sees past the
+        // foreground point (pvm_render.h, stage 4). None counted: one cluster, the foreground.
+        int k1 = 0;
+        for (int i = 0; i < n; ++i) k1 += bg[i] ? 1 : 0;
+        int counted = k1;
+        if (reuse_clusters) {
+          counted = frame.n_bg[static_cast<std::size_t>(p)];
+        } else if (two && free_space) {
+          const glm::dvec3 fg_point = c_novel_d + camera.WorldFromCamDir(camera.RayInCam(x + 0.5, y + 0.5)) * m0;
+          counted = 0;
+          for (int i = 0; i < n; ++i) {
+            if (bg[i] && SeesPast(views.cameras[vv[i]], views.depths[vv[i]], fg_point, options.free_space_tol)) ++counted;
+          }
+        }
+        const bool two_counted = two && counted > 0;
         if (!colours || !masked) {  // a pixel of the dilation ring: Eq. 1 reads its clusters, not its colours
-          int k1 = 0;
-          for (int i = 0; i < n; ++i) k1 += bg[i] ? 1 : 0;
           frame.d_fg[static_cast<std::size_t>(p)] = static_cast<float>(m0);
           frame.n_fg[static_cast<std::size_t>(p)] = static_cast<std::uint8_t>(n - k1);
-          if (two) {
+          if (two_counted) {
             frame.d_bg[static_cast<std::size_t>(p)] = static_cast<float>(m1);
-            frame.n_bg[static_cast<std::size_t>(p)] = static_cast<std::uint8_t>(k1);
+            frame.n_bg[static_cast<std::size_t>(p)] = static_cast<std::uint8_t>(counted);
           }
           continue;
         }
@@ -710,7 +743,7 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
                                     options.resolution_weight);
           }
         }
-        for (int k = 0; k < (two ? 2 : 1); ++k) {
+        for (int k = 0; k < (two_counted ? 2 : 1); ++k) {
           int m = 0;
           float sub_pen[kPvmMaxCandidates];
           for (int i = 0; i < n; ++i)
@@ -737,7 +770,7 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
             frame.n_fg[static_cast<std::size_t>(p)] = static_cast<std::uint8_t>(m);
           } else {
             frame.d_bg[static_cast<std::size_t>(p)] = static_cast<float>(m1);
-            frame.n_bg[static_cast<std::size_t>(p)] = static_cast<std::uint8_t>(m);
+            frame.n_bg[static_cast<std::size_t>(p)] = static_cast<std::uint8_t>(counted);
           }
         }
       }

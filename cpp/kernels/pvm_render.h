@@ -38,6 +38,13 @@
 //     penalties at their own surface points); a candidate's colour is its view's image sampled
 //     bilinearly at the projection of the candidate's surface point (projective texturing of the
 //     PVM by its own image).
+//     Free space (free_space, with views.depths): a background candidate counts in #N_bg (Eq. 1,
+//     Eq. 2) only when its view sees past the foreground point P (the foreground mean on the
+//     pixel's ray): P projects into the view and the view's depth at every pixel of the 3 x 3
+//     around P's projection is >= (1 - free_space_tol) x P's depth in the view (0, NaN or inf:
+//     nothing there). A view in which P is hidden, or outside its image, sees a surface behind P
+//     that is really there but says nothing about P. With no counted background candidate the
+//     pixel has one cluster (the foreground: its colour is the foreground members' blend).
 //  5. PvmFilter         "spatial filter": Eq. 1, W_{i,k} = sum_{j in Omega_i} sum_{k'} G_sigma(i, j)
 //     exp(-alpha |d_{j,k'} - d_{i,k}|) #N_{j,k'} (the paper writes d_{j,k'} - d_{i,k}; the
 //     absolute value makes the falloff symmetric), Omega_i the window of radius
@@ -87,6 +94,9 @@ struct PvmViews {
   const Camera* cameras = nullptr;
   const float* const* images = nullptr;
   const std::uint8_t* enabled = nullptr;
+  // Per view its depth map (H_v, W_v) as the view's convention (z for pinhole, ray distance for
+  // equirect; 0, NaN or inf = nothing seen), for the free-space count; nullptr: not given.
+  const float* const* depths = nullptr;
 };
 
 struct PvmRenderOptions {
@@ -107,6 +117,8 @@ struct PvmRenderOptions {
   float radius_sigmas = 2.f; // filter window radius R = ceil(radius_sigmas * sigma / step) * step
   int filter_step = 2;       // Eq. 1 sums every filter_step-th neighbour per axis (1 = all)
   float tau_depth = 0.83f;   // Eq. 2
+  bool free_space = true;    // count a background candidate only when its view sees past the foreground (needs views.depths)
+  float free_space_tol = 0.02f;  // relative: the view's depth must be >= (1 - tol) x the foreground point's depth
   bool filtered = true;
 };
 

@@ -57,7 +57,7 @@ from .pvm import PvmTiles
 DEFAULTS = {"sigma": 3.0, "alpha": 7.0, "gamma": 7.0, "tau_depth": 0.83, "max_tiles": 12,
             "max_candidates": 12, "ulr_k": 4, "merge_rel": 0.02, "radius_sigmas": 2.0, "margin": 1,
             "near": 1e-3, "cull_back": True, "max_angle": 60.0, "ray_stride": 8, "filter_step": 2,
-            "filtered": True}
+            "filtered": True, "free_space": True, "free_space_tol": 0.02}
 
 STAGE_NAMES = {"voxel_lookup": "voxel lookup", "tile_sort": "tile sort",
                "per_view_depth_pass": "per-view depth pass", "cluster_blend": "cluster & blend",
@@ -85,6 +85,10 @@ def check_params(params: dict | None) -> dict:
         raise BadValueError(f"--param filter_step: expected <= 16, got {p['filter_step']}")
     p["cull_back"] = P.boolean(p["cull_back"], "--param cull_back")
     p["filtered"] = P.boolean(p["filtered"], "--param filtered")
+    p["free_space"] = P.boolean(p["free_space"], "--param free_space")
+    p["free_space_tol"] = P.number(p["free_space_tol"], "--param free_space_tol", 0.0)
+    if p["free_space_tol"] >= 1:
+        raise BadValueError(f"--param free_space_tol: expected < 1, got {p['free_space_tol']}")
     if p["max_tiles"] > 255:
         raise BadValueError(f"--param max_tiles: expected <= 255, got {p['max_tiles']}")
     if p["max_candidates"] > 16:
@@ -155,12 +159,38 @@ def load_images(scene: Scene) -> dict[str, np.ndarray]:
     return out
 
 
+def load_depths(scene: Scene) -> dict[str, np.ndarray] | None:
+    """Each input view's depth as the pvm stage read it (its own, else the depth stage's render of
+    the global mesh), for the free-space count; None when some view has neither."""
+    from .. import stages
+
+    rendered = None
+    out = {}
+    for v in scene.views:
+        if v.has_depth:
+            out[v.name] = np.ascontiguousarray(v.depth, np.float32)
+            continue
+        if rendered is None:
+            if scene.root is None:
+                return None
+            try:
+                rendered = stages.load_npz(stages.stage_output(scene.root, "depth"))
+            except (MissingFileError, BadValueError):
+                return None
+        if v.name not in rendered:
+            return None
+        out[v.name] = np.ascontiguousarray(rendered[v.name], np.float32)
+    return out
+
+
 class PvmRenderer:
-    """PVM renderer of a scene (see the module doc). ``tiles`` / ``images`` override what is loaded
-    from the scene's cache (tests build tiles in memory with hybrid.pvm.build_tiles)."""
+    """PVM renderer of a scene (see the module doc). ``tiles`` / ``images`` / ``depths`` override
+    what is loaded from the scene (tests build tiles in memory with hybrid.pvm.build_tiles).
+    ``free_space`` (attribute): whether the free-space count runs (the parameter is on and every
+    view has a depth map)."""
 
     def __init__(self, scene: Scene, params: dict | None = None, *, tiles: PvmTiles | None = None,
-                 images: dict[str, np.ndarray] | None = None):
+                 images: dict[str, np.ndarray] | None = None, depths: dict[str, np.ndarray] | None = None):
         from .. import _core
 
         if not isinstance(scene, Scene):
@@ -180,7 +210,10 @@ class PvmRenderer:
         if not present:
             raise InputError(f"PVM rendering: none of the tiles' views {self.tiles.views[:5]} is an input view "
                              f"of the scene; rerun {_preprocess_hint(scene)}")
-        cams, imgs, enabled = [], [], []
+        if self.params["free_space"] and depths is None:
+            depths = load_depths(scene)
+        self.free_space = bool(self.params["free_space"] and depths is not None)
+        cams, imgs, deps, enabled = [], [], [], []
         stand_in = None
         for n in self.tiles.views:
             if n in by_name:
@@ -193,13 +226,21 @@ class PvmRenderer:
                                      f"{(v.camera.height, v.camera.width, 3)}, got {img.shape}")
                 cams.append(v.camera.to_core())
                 imgs.append(np.ascontiguousarray(img, np.float32))
+                if self.free_space:
+                    dep = depths.get(n) if depths is not None else None
+                    if dep is None or dep.shape != (v.camera.height, v.camera.width):
+                        raise ShapeError(f"depth of {n}: expected (H, W) = {(v.camera.height, v.camera.width)}, got "
+                                         f"{None if dep is None else dep.shape}")
+                    deps.append(np.ascontiguousarray(dep, np.float32))
                 enabled.append(True)
             else:
                 if stand_in is None:
-                    stand_in = (by_name[present[0]].camera.to_core(),
-                                np.ascontiguousarray(images[present[0]], np.float32))
+                    p0 = present[0]
+                    stand_in = (by_name[p0].camera.to_core(), np.ascontiguousarray(images[p0], np.float32),
+                                np.zeros((by_name[p0].camera.height, by_name[p0].camera.width), np.float32))
                 cams.append(stand_in[0])
                 imgs.append(stand_in[1])
+                deps.append(stand_in[2])
                 enabled.append(False)
         self.disabled_views = unknown
         t = self.tiles
@@ -207,7 +248,8 @@ class PvmRenderer:
             t.vertices, t.faces, np.ascontiguousarray(t.face_offsets, np.int64),
             np.ascontiguousarray(t.vertex_offsets, np.int64), t.tile_view, t.tile_cell, t.tile_bounds,
             np.ascontiguousarray(t.coarse_offsets, np.int64), [float(x) for x in t.origin],
-            [float(x) for x in t.cell], int(t.coarse), int(t.sub), cams, imgs, np.array(enabled, bool))
+            [float(x) for x in t.cell], int(t.coarse), int(t.sub), cams, imgs, np.array(enabled, bool),
+            deps if self.free_space else None)
 
     def render(self, camera: Camera, gbuffer_depth: np.ndarray | None = None,
                pixel_mask: np.ndarray | None = None, filtered: bool | None = None) -> PvmResult:
@@ -237,7 +279,8 @@ class PvmRenderer:
         out = self._core.render(camera.to_core(), gbuffer_depth, pixel_mask, filt, p["sigma"], p["alpha"],
                                 p["gamma"], p["tau_depth"], p["max_tiles"], p["max_candidates"], p["ulr_k"],
                                 p["merge_rel"], p["radius_sigmas"], p["margin"], p["near"], p["cull_back"],
-                                p["max_angle"], p["ray_stride"], p["filter_step"], mode)
+                                p["max_angle"], p["ray_stride"], p["filter_step"], self.free_space,
+                                p["free_space_tol"], mode)
         times = {STAGE_NAMES[k]: float(v) for k, v in out["times_ms"].items()}
         if mode == "resolve":
             times = {k: times[k] for k in ("cluster & blend", "spatial filter")}

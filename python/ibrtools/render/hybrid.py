@@ -64,7 +64,8 @@ ULR_DEFAULTS = {"k": 4, "resolution_weight": 0.5, "depth_tol": 0.02, "harmonised
 # monotonically from 0.82 down to 0 (docs/hybrid.md "tau_var").
 # geo_threshold None = geo_threshold_for(the scene's units, the mesh stage's voxel).
 HYBRID_DEFAULTS = {**ULR_DEFAULTS, "sigma": 3.0, "alpha": 7.0, "gamma": 7.0, "tau_depth": 0.83,
-                   "tau_var": 0.0, "sigma_blur": 16.0, "geo_threshold": None, "filtered": True}
+                   "tau_var": 0.0, "sigma_blur": 16.0, "geo_threshold": None, "filtered": True,
+                   "free_space": True, "free_space_tol": 0.02}
 STAGES_FOR = {"tm": ("mesh", "texture"), "ulr": ("mesh", "depth"),
               "hybrid": ("mesh", "depth", "texture", "variance", "harmonise", "pvm")}
 _UNIT_METRES = {"m": 1.0, "meter": 1.0, "metre": 1.0, "meters": 1.0, "metres": 1.0, "cm": 0.01, "mm": 0.001,
@@ -94,6 +95,10 @@ def check_params(method: str, params: dict | None) -> dict:
         if p["geo_threshold"] is not None:
             p["geo_threshold"] = P.number(p["geo_threshold"], "--param geo_threshold", 0.0)
         p["filtered"] = P.boolean(p["filtered"], "--param filtered")
+        p["free_space"] = P.boolean(p["free_space"], "--param free_space")
+        p["free_space_tol"] = P.number(p["free_space_tol"], "--param free_space_tol", 0.0)
+        if p["free_space_tol"] >= 1:
+            raise BadValueError(f"--param free_space_tol: expected < 1, got {p['free_space_tol']}")
     return p
 
 
@@ -370,7 +375,7 @@ class HybridMethod:
         self._geo = (geo_threshold_for(scene.units, voxel if isinstance(voxel, (int, float)) else None)
                      if p["geo_threshold"] is None else p["geo_threshold"])
         t1 = time.perf_counter()
-        pvm_params = {k: p[k] for k in ("sigma", "alpha", "gamma", "tau_depth")}
+        pvm_params = {k: p[k] for k in ("sigma", "alpha", "gamma", "tau_depth", "free_space", "free_space_tol")}
         self._pvm = PvmRenderer(scene, pvm_params)
         t2 = time.perf_counter()
         return {"load": (t1 - t0) * 1e3 - self._gm.build_ms, "bvh": self._gm.build_ms, "pvm_load": (t2 - t1) * 1e3}
