@@ -346,3 +346,158 @@ def test_method_pvm_cli(tmp_path, capsys):
     capsys.readouterr()
     assert render.main([str(d2), "--method", "pvm", "-o", str(tmp_path / "o2")]) != 0
     assert "ibr-preprocess" in capsys.readouterr().err
+
+
+def _two_plane_scene():
+    """A near plane (view v0, z = 3, colour 0.9) and a far plane (v1, v2, z = 5, colour 0.2), all three
+    views at the target's pose (the scene of test_two_clusters_filtered_blend_and_vote)."""
+    w, h = 48, 32
+    cams = [Camera.from_fov(w, h, 50.0, look_at((0.0, 0.0, 0.0), (0.0, 0.0, 5.0))) for _ in range(3)]
+    depths = [np.full((h, w), 3.0, np.float32), np.full((h, w), 5.0, np.float32), np.full((h, w), 5.0, np.float32)]
+    colors = [np.full((h, w, 3), c, np.float32) for c in (0.9, 0.2, 0.2)]
+    views = [View.create(f"v{i}", c, color=col, depth=d) for i, (c, col, d) in enumerate(zip(cams, colors, depths))]
+    return Scene(views=views, targets=[], paths={}, meshes={}, units="m", source={}), cams[0]
+
+
+@pytest.mark.parametrize("far_view_depth, counted", [
+    (5.0, True),              # the far views see past the near point (their own depth, behind it)
+    (3.0, True),              # ... or see exactly it
+    (2.95, True),             # 1.7 % in front of it: within free_space_tol 0.02
+    (2.9, False),             # 3.3 % in front: the near point is hidden in those views
+    (1.0, False),
+    (0.0, True),              # nothing there (0, NaN, inf): they see past it
+    (float("nan"), True),
+    (float("inf"), True),
+])
+def test_free_space_counts_a_background_candidate_only_when_its_view_sees_past_the_foreground(
+        far_view_depth, counted):
+    """The PVMs are built from the views' own depth (far plane at 5); the free-space test reads the
+    depth maps given to the renderer, here the far views' set to far_view_depth: when the near
+    point (z = 3) is hidden in them, their background candidates say nothing about it and the
+    pixel has one cluster, the near plane (vote 1, depth 3, its colour, filtered or not)."""
+    scene, cam = _two_plane_scene()
+    tiles = build_tiles({v.name: v.camera for v in scene.views}, {v.name: v.depth for v in scene.views})
+    images = {v.name: v.color for v in scene.views}
+    fs_depths = {"v0": scene.views[0].depth,
+                 **{n: np.full_like(scene.views[0].depth, far_view_depth) for n in ("v1", "v2")}}
+    r = PvmRenderer(scene, tiles=tiles, images=images, depths=fs_depths)
+    assert r.free_space
+    res = r.render(cam)
+    cand = r.candidates(cam)
+    inner = np.zeros((cam.height, cam.width), bool)
+    inner[8:-8, 8:-8] = True
+    assert (cand["count"][inner] == 3).all() and (cand["n_fg"][inner] == 1).all()
+    if counted:
+        assert (cand["n_bg"][inner] == 2).all()
+        np.testing.assert_allclose(res.depth[inner], 5.0, rtol=1e-5)  # Eq. 2: 2 >= 0.83 * 1
+        np.testing.assert_allclose(res.vote[inner], 2 / 3, rtol=1e-6)
+        a = 2.0 ** 7 / (1 + 2.0 ** 7)
+        np.testing.assert_allclose(res.color[inner], a * 0.2 + (1 - a) * 0.9, atol=1e-4)
+    else:
+        assert (cand["n_bg"][inner] == 0).all()
+        np.testing.assert_allclose(res.depth[inner], 3.0, rtol=1e-5)
+        assert (res.vote[inner] == 1.0).all()
+        np.testing.assert_allclose(res.color[inner], 0.9, atol=1e-6)  # the near members' colour only
+    # free_space off: the paper's count, every background candidate (the same as counted above).
+    off = PvmRenderer(scene, {"free_space": False}, tiles=tiles, images=images, depths=fs_depths)
+    assert not off.free_space
+    res_off = off.render(cam)
+    assert (off.candidates(cam)["n_bg"][inner] == 2).all()
+    np.testing.assert_allclose(res_off.depth[inner], 5.0, rtol=1e-5)
+    assert np.isfinite(res.color).all() and np.isfinite(res_off.color).all()
+
+
+def _two_means(d, merge_rel):
+    """The 2-means of pvm_render.h stage 4, written out independently (float64): background
+    membership, foreground and background means, whether there are two clusters."""
+    lo, hi = d.min(), d.max()
+    m0, m1 = lo, hi
+    bg = np.zeros(d.size, bool)
+    two = hi - lo > merge_rel * lo
+    if two:
+        for it in range(16):
+            to_bg = np.abs(d - m1) < np.abs(d - m0)
+            changed = it == 0 or (to_bg != bg).any()
+            bg = to_bg
+            m0, m1 = d[~bg].mean(), d[bg].mean()
+            if not changed:
+                break
+        two = m1 - m0 > merge_rel * m0
+    if not two:
+        return np.zeros(d.size, bool), d.mean(), 0.0, False
+    return bg, m0, m1, True
+
+
+def _sees_past(cam, depth, p, tol):
+    """pvm_render.cpp SeesPast, independently: p in the image and no depth of the 3 x 3 around its
+    projection in front of (1 - tol) x its depth."""
+    xy, z = cam.project(p)
+    if not np.isfinite(z) or not (0 <= xy[0] < cam.width and 0 <= xy[1] < cam.height):
+        return False
+    px, py = int(xy[0]), int(xy[1])
+    win = depth[max(0, py - 1):py + 2, max(0, px - 1):px + 2]
+    hidden = (win > 0) & np.isfinite(win) & (win < (1 - tol) * z)
+    return not hidden.any()
+
+
+def test_free_space_count_matches_an_independent_implementation(exact):
+    """On the exact objects scene (a target at 96 x 72): the renderer's cluster sizes and Eq. 2
+    depth against the 2-means and the free-space test written out in numpy from its candidate
+    lists and the views' depth maps."""
+    scene, r = exact
+    cam = scene.targets[0].camera.scaled(96, 72)
+    res = r.render(cam)
+    cand = r.candidates(cam)
+    views = r.tiles.views
+    by_name = {v.name: v for v in scene.views}
+    xs, ys = cam.pixel_grid()
+    rays = cam.rays_in_cam(xs, ys) @ cam.world_from_cam[:3, :3].T
+    agree, two_px, fewer = 0, 0, 0
+    n_valid = int(res.valid.sum())
+    for y, x in zip(*np.nonzero(res.valid)):
+        n = cand["count"][y, x]
+        d = cand["depth"][y, x, :n].astype(np.float64)
+        bg, m0, m1, two = _two_means(d, 0.02)
+        counted = 0
+        if two:
+            p = cam.centre + rays[y, x] * m0
+            for i in np.nonzero(bg)[0]:
+                v = by_name[views[cand["view"][y, x, i]]]
+                counted += _sees_past(v.camera, v.depth, p, 0.02)
+            two_px += 1
+            fewer += counted < bg.sum()
+        n_fg = n - bg.sum()
+        pick_bg = counted > 0 and counted >= 0.83 * n_fg
+        want_depth = m1 if pick_bg else m0
+        ok = (cand["n_fg"][y, x] == n_fg and cand["n_bg"][y, x] == counted
+              and abs(res.depth[y, x] - want_depth) <= 1e-5 * want_depth)
+        agree += ok
+    assert two_px > 50 and fewer > 10  # the test sees both clusters and views that do not see past
+    assert agree >= n_valid - max(1, n_valid // 1000)  # float rounding at a threshold: at most 0.1 %
+
+
+def test_free_space_off_without_depth_maps_and_bad_depths():
+    scene, cam = _two_plane_scene()
+    tiles = build_tiles({v.name: v.camera for v in scene.views}, {v.name: v.depth for v in scene.views})
+    images = {v.name: v.color for v in scene.views}
+    # A scene whose views have no depth and no directory (no depth stage): the paper's count.
+    bare = Scene(views=[View.create(v.name, v.camera, color=v.color) for v in scene.views], targets=[], paths={},
+                 meshes={}, units="m", source={})
+    r = PvmRenderer(bare, tiles=tiles, images=images)
+    assert not r.free_space
+    r.render(cam)
+    with pytest.raises(ShapeError, match="depth of v1"):
+        PvmRenderer(scene, tiles=tiles, images=images,
+                    depths={"v0": scene.views[0].depth, "v1": np.zeros((3, 3), np.float32), "v2": scene.views[2].depth})
+    with pytest.raises(BadValueError, match="free_space_tol"):
+        PvmRenderer(scene, {"free_space_tol": 1.0}, tiles=tiles, images=images)
+    with pytest.raises(BadValueError, match="free_space"):
+        PvmRenderer(scene, {"free_space": "maybe"}, tiles=tiles, images=images)
+    t = r.tiles
+    with pytest.raises(ShapeError, match="depths"):
+        _core.PvmRenderer(t.vertices, t.faces, np.ascontiguousarray(t.face_offsets, np.int64),
+                          np.ascontiguousarray(t.vertex_offsets, np.int64), t.tile_view, t.tile_cell, t.tile_bounds,
+                          np.ascontiguousarray(t.coarse_offsets, np.int64), [float(x) for x in t.origin],
+                          [float(x) for x in t.cell], int(t.coarse), int(t.sub),
+                          [v.camera.to_core() for v in scene.views], [v.color for v in scene.views],
+                          np.ones(3, bool), [scene.views[0].depth])

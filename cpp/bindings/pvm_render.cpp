@@ -339,6 +339,14 @@ class PvmRendererCore {
     out["count"] = count;
     out["depth"] = depth;
     out["view"] = view;
+    if (frame_.clusters_everywhere && frame_.n_fg.size() == npix) {  // cluster sizes #N_fg, #N_bg (Eq. 1, 2)
+      auto n_fg = NewArray<std::uint8_t>({h, w});
+      auto n_bg = NewArray<std::uint8_t>({h, w});
+      std::copy(frame_.n_fg.begin(), frame_.n_fg.end(), n_fg.mutable_data());
+      std::copy(frame_.n_bg.begin(), frame_.n_bg.end(), n_bg.mutable_data());
+      out["n_fg"] = n_fg;
+      out["n_bg"] = n_bg;
+    }
     return out;
   }
 
@@ -387,7 +395,9 @@ void BindPvmRender(py::module_& m) {
            "1-4 without colours: depth, vote, valid, inside_grid; colour 0; the frame is kept); resolve "
            "(colours of pixel_mask from the kept depth pass: stages 4-5 only).")
       .def("candidates", &PvmRendererCore::Candidates, py::arg("height"), py::arg("width"),
-           py::arg("max_candidates") = 12, "The last frame's per-pixel candidate lists (count, depth, view).");
+           py::arg("max_candidates") = 12,
+           "The last frame's per-pixel candidate lists (count, depth, view) and, when it clustered every pixel, "
+           "the cluster sizes n_fg, n_bg (the counted background: free_space).");
 }
 
 }  // namespace ibr::bind

@@ -291,5 +291,8 @@ class PvmRenderer:
 
     def candidates(self, camera: Camera) -> dict[str, np.ndarray]:
         """The last rendered frame's per-pixel candidate lists (count (H, W), depth and view
-        (H, W, K); entries past count unspecified), for tests and inspection."""
+        (H, W, K); entries past count unspecified) and, when that frame clustered every pixel (no
+        pixel mask), the cluster sizes ``n_fg``, ``n_bg`` (H, W) of Eq. 1 / Eq. 2 (``n_bg`` counts
+        only the background candidates whose view sees past the foreground, with ``free_space``;
+        0 = one cluster), for tests and inspection."""
         return self._core.candidates(camera.height, camera.width, self.params["max_candidates"])
