@@ -402,6 +402,7 @@ def test_free_space_counts_a_background_candidate_only_when_its_view_sees_past_t
     off = PvmRenderer(scene, {"free_space": False}, tiles=tiles, images=images, depths=fs_depths)
     assert not off.free_space
     res_off = off.render(cam)
+    assert res.stats["free_space"] is True and res_off.stats["free_space"] is False
     assert (off.candidates(cam)["n_bg"][inner] == 2).all()
     np.testing.assert_allclose(res_off.depth[inner], 5.0, rtol=1e-5)
     assert np.isfinite(res.color).all() and np.isfinite(res_off.color).all()
@@ -485,7 +486,7 @@ def test_free_space_off_without_depth_maps_and_bad_depths():
                  meshes={}, units="m", source={})
     r = PvmRenderer(bare, tiles=tiles, images=images)
     assert not r.free_space
-    r.render(cam)
+    assert r.render(cam).stats["free_space"] == "not run: no depth maps"  # said in report.json
     with pytest.raises(ShapeError, match="depth of v1"):
         PvmRenderer(scene, tiles=tiles, images=images,
                     depths={"v0": scene.views[0].depth, "v1": np.zeros((3, 3), np.float32), "v2": scene.views[2].depth})

@@ -105,7 +105,8 @@ class PvmResult:
     """One PVM frame (arrays (H, W[, 3])): color f32 linear; depth f32 z of the cluster picked by
     the vote of Eq. 2 (0 where invalid); valid bool (some candidate); vote f32 the winning
     cluster's share of the candidates; inside_grid bool (the pixel's ray meets the PVM grid's
-    box); times_ms per stage; stats (visible coarse cells, kept tiles, rasterised triangles)."""
+    box); times_ms per stage; stats (visible coarse cells, kept tiles, rasterised triangles, whether
+    the free-space count ran)."""
 
     color: np.ndarray
     depth: np.ndarray
@@ -285,7 +286,10 @@ class PvmRenderer:
         if mode == "resolve":
             times = {k: times[k] for k in ("cluster & blend", "spatial filter")}
         stats = {"visible_coarse": int(out["visible_coarse"]), "tiles": int(out["tiles"]),
-                 "triangles": int(out["triangles"])}
+                 "triangles": int(out["triangles"]),
+                 # whether Eq. 1 / Eq. 2 counted background candidates by free space (off when asked,
+                 # or when some view has no depth map: "not run: no depth maps")
+                 "free_space": self.free_space if self.free_space or not p["free_space"] else "not run: no depth maps"}
         return PvmResult(color=out["color"], depth=out["depth"], valid=out["valid"], vote=out["vote"],
                          inside_grid=out["inside_grid"], times_ms=times, stats=stats)
 

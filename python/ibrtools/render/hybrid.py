@@ -442,7 +442,8 @@ class HybridMethod:
         self._last = {"selection": {name: round(float((label == i).sum() / n), 4)
                                     for i, name in enumerate(("tm", "ulr", "pvm", "none"))},
                       "ulr_pixels": int(need_ulr.sum()), "pvm_pixels": int(need_pvm.sum()),
-                      "geo_threshold": self._geo, "images": self._source}
+                      "geo_threshold": self._geo, "images": self._source,
+                      "free_space": (res.stats or {}).get("free_space")}
         return {"color": color, "depth": depth, "hole": hole, "selection": selection, "label": label}, times
 
     def frame_report(self) -> dict:
