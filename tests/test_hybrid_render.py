@@ -272,6 +272,12 @@ def test_method_params_and_missing_stages(tmp_path):
         methods.create("ulr", {"k": 0})
     with pytest.raises(BadValueError, match="depth_tol"):
         methods.create("ulr", {"depth_tol": -1})
+    # The hybrid's PVM parameters go through the PVM renderer's checks.
+    for bad, name in (({"free_space_tol": 1.5}, "free_space_tol"), ({"free_space": "sometimes"}, "free_space"),
+                      ({"sigma": 0}, "sigma"), ({"tau_depth": -1}, "tau_depth")):
+        with pytest.raises(BadValueError, match=name):
+            methods.create("hybrid", bad)
+    assert methods.create("hybrid", {"free_space": "false"}).params["free_space"] is False
     m = methods.create("tm")
     with pytest.raises(InputError, match="ibr-preprocess"):
         m.prepare(Scene(views=[], targets=[]))

@@ -66,6 +66,8 @@ ULR_DEFAULTS = {"k": 4, "resolution_weight": 0.5, "depth_tol": 0.02, "harmonised
 HYBRID_DEFAULTS = {**ULR_DEFAULTS, "sigma": 3.0, "alpha": 7.0, "gamma": 7.0, "tau_depth": 0.83,
                    "tau_var": 0.0, "sigma_blur": 16.0, "geo_threshold": None, "filtered": True,
                    "free_space": True, "free_space_tol": 0.02}
+# The hybrid parameters that are the PVM renderer's (checked by it, passed to it).
+PVM_KEYS = ("sigma", "alpha", "gamma", "tau_depth", "free_space", "free_space_tol")
 STAGES_FOR = {"tm": ("mesh", "texture"), "ulr": ("mesh", "depth"),
               "hybrid": ("mesh", "depth", "texture", "variance", "harmonise", "pvm")}
 _UNIT_METRES = {"m": 1.0, "meter": 1.0, "metre": 1.0, "meters": 1.0, "metres": 1.0, "cm": 0.01, "mm": 0.001,
@@ -87,18 +89,15 @@ def check_params(method: str, params: dict | None) -> dict:
     if p["occlusion"] not in ("mesh", "views"):
         raise BadValueError(f"--param occlusion: expected 'mesh' or 'views', got {p['occlusion']!r}")
     if method == "hybrid":
-        for key in ("sigma", "alpha", "gamma"):
-            p[key] = P.number(p[key], f"--param {key}", 0.0, strict=True)
-        p["tau_depth"] = P.number(p["tau_depth"], "--param tau_depth", 0.0)
+        from ..hybrid.pvm_render import check_params as check_pvm_params
+
+        pvm = check_pvm_params({k: p[k] for k in PVM_KEYS})  # the PVM renderer's own checks
+        p.update({k: pvm[k] for k in PVM_KEYS})
         p["tau_var"] = P.number(p["tau_var"], "--param tau_var")
         p["sigma_blur"] = P.number(p["sigma_blur"], "--param sigma_blur", 0.0, maximum=1000.0)
         if p["geo_threshold"] is not None:
             p["geo_threshold"] = P.number(p["geo_threshold"], "--param geo_threshold", 0.0)
         p["filtered"] = P.boolean(p["filtered"], "--param filtered")
-        p["free_space"] = P.boolean(p["free_space"], "--param free_space")
-        p["free_space_tol"] = P.number(p["free_space_tol"], "--param free_space_tol", 0.0)
-        if p["free_space_tol"] >= 1:
-            raise BadValueError(f"--param free_space_tol: expected < 1, got {p['free_space_tol']}")
     return p
 
 
@@ -375,7 +374,7 @@ class HybridMethod:
         self._geo = (geo_threshold_for(scene.units, voxel if isinstance(voxel, (int, float)) else None)
                      if p["geo_threshold"] is None else p["geo_threshold"])
         t1 = time.perf_counter()
-        pvm_params = {k: p[k] for k in ("sigma", "alpha", "gamma", "tau_depth", "free_space", "free_space_tol")}
+        pvm_params = {k: p[k] for k in PVM_KEYS}
         self._pvm = PvmRenderer(scene, pvm_params)
         t2 = time.perf_counter()
         return {"load": (t1 - t0) * 1e3 - self._gm.build_ms, "bvh": self._gm.build_ms, "pvm_load": (t2 - t1) * 1e3}
