@@ -502,3 +502,41 @@ def test_free_space_off_without_depth_maps_and_bad_depths():
                           [float(x) for x in t.cell], int(t.coarse), int(t.sub),
                           [v.camera.to_core() for v in scene.views], [v.color for v in scene.views],
                           np.ones(3, bool), [scene.views[0].depth])
+
+
+@pytest.mark.parametrize("scale, counted", [(1.0, True), (0.97, False)])
+def test_free_space_reads_equirect_views_as_ray_distance(scale, counted):
+    """Equirect input views (v1, v2 at the origin: a sphere of radius 5) behind a pinhole near plane
+    (v0, z = 3). The free-space maps of v1 and v2 are scale x the distance to the near plane along
+    each of their rays: at 1.0 they see exactly the near point (counted), at 0.97 it is hidden (3 %,
+    beyond free_space_tol). With z instead of the ray distance the test would flip away from the
+    image centre (cos of the angle < 0.97)."""
+    w, h = 48, 32
+    pin = Camera.from_fov(w, h, 50.0, look_at((0.0, 0.0, 0.0), (0.0, 0.0, 5.0)))
+    eq = Camera.equirect(512, 256)
+    xs, ys = eq.pixel_grid()
+    dz = eq.rays_in_cam(xs, ys)[..., 2]  # unit rays, camera = world axes
+    with np.errstate(divide="ignore"):
+        plane_dist = np.where(dz > 0.05, 3.0 / dz, 0.0).astype(np.float32)
+    views = [View.create("v0", pin, color=np.full((h, w, 3), 0.9, np.float32), depth=np.full((h, w), 3.0, np.float32))]
+    views += [View.create(f"v{i}", eq, color=np.full((256, 512, 3), 0.2, np.float32),
+                          depth=np.full((256, 512), 5.0, np.float32)) for i in (1, 2)]
+    scene = Scene(views=views, targets=[], paths={}, meshes={}, units="m", source={})
+    tiles = build_tiles({v.name: v.camera for v in views}, {v.name: v.depth for v in views})
+    fs = {"v0": views[0].depth, "v1": plane_dist * np.float32(scale), "v2": plane_dist * np.float32(scale)}
+    r = PvmRenderer(scene, tiles=tiles, images={v.name: v.color for v in views}, depths=fs)
+    res = r.render(pin)
+    cand = r.candidates(pin)
+    inner = np.zeros((h, w), bool)
+    inner[6:-6, 6:-6] = True
+    both = inner & (cand["count"] == 3)
+    assert both.mean() > 0.5 * inner.mean()
+    # The image's corners are > 20 degrees off axis, where cos < 0.97: z and distance disagree there.
+    xg, yg = pin.pixel_grid()
+    off_axis = np.degrees(np.arctan(np.hypot((xg - pin.cx) / pin.fx, (yg - pin.cy) / pin.fy))) > 15
+    assert (both & off_axis).sum() >= 20
+    assert (cand["n_bg"][both] == (2 if counted else 0)).all()
+    if counted:  # Eq. 2: 2 >= 0.83 x 1, the sphere (z = 5 cos of the angle)
+        assert (res.depth[both] > 4.0).all()
+    else:
+        np.testing.assert_allclose(res.depth[both], 3.0, rtol=1e-5)
