@@ -129,6 +129,14 @@ def test_views_without_depth_get_depth_from_the_mesh(tmp_path, capsys):
     assert out["pvm"]["status"] == "ran" and out["pvm"]["pvm_faces"] > 0
     dep = S.load_npz(d / "cache" / "depth" / "depth.npz")
     np.testing.assert_allclose(dep["v0"][dep["v0"] > 0], 2.0, rtol=1e-4)  # plane z = 2 seen head on
+    # The PVM renderer's free-space count reads the same depth the PVMs were built from.
+    from ibrtools.hybrid.pvm_render import PvmRenderer, load_depths
+
+    scene = native.load(d)
+    depths = load_depths(scene)
+    assert depths is not None and set(depths) == {"v0", "v1"}
+    np.testing.assert_array_equal(depths["v0"], dep["v0"])
+    assert PvmRenderer(scene).free_space
     # And without a mesh and without depth: a clear error, exit 2.
     native.save(Scene(views=views), tmp_path / "src2")
     assert preprocess.main([str(tmp_path / "src2"), "-o", str(tmp_path / "s2"), "--methods", "pvm"]) == 2
