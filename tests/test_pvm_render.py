@@ -152,19 +152,25 @@ def test_inside_grid_is_the_surface_box_not_the_cubic_grid():
     assert r.render(towards).inside_grid.all()
 
 
-def test_two_clusters_filtered_blend_and_vote():
-    """A pixel list with a near plane (1 view) and a far plane (2 views): Eq. 2 with tau 0.83
-    picks the far (2 >= 0.83 * 1); unfiltered keeps the near cluster's colour, filtered is pulled
-    to the far cluster (more members, W^7)."""
+def _two_plane_scene():
+    """A near plane (view v0, z = 3, colour 0.9) and a far plane (v1, v2, z = 5, colour 0.2), all three
+    views at the target's pose."""
     w, h = 48, 32
     cams = [Camera.from_fov(w, h, 50.0, look_at((0.0, 0.0, 0.0), (0.0, 0.0, 5.0))) for _ in range(3)]
     depths = [np.full((h, w), 3.0, np.float32), np.full((h, w), 5.0, np.float32), np.full((h, w), 5.0, np.float32)]
     colors = [np.full((h, w, 3), c, np.float32) for c in (0.9, 0.2, 0.2)]
     views = [View.create(f"v{i}", c, color=col, depth=d) for i, (c, col, d) in enumerate(zip(cams, colors, depths))]
-    scene = Scene(views=views, targets=[], paths={}, meshes={}, units="m", source={})
+    return Scene(views=views, targets=[], paths={}, meshes={}, units="m", source={}), cams[0]
+
+
+def test_two_clusters_filtered_blend_and_vote():
+    """A pixel list with a near plane (1 view) and a far plane (2 views): Eq. 2 with tau 0.83
+    picks the far (2 >= 0.83 * 1); unfiltered keeps the near cluster's colour, filtered is pulled
+    to the far cluster (more members, W^7)."""
+    scene, cam = _two_plane_scene()
     r = _renderer(scene)
-    res_f = r.render(cams[0], filtered=True)
-    res_u = r.render(cams[0], filtered=False)
+    res_f = r.render(cam, filtered=True)
+    res_u = r.render(cam, filtered=False)
     # Pixels with both planes (the near view's PVM ends half a pixel inside its image border).
     v = res_f.valid & res_u.valid & (res_f.vote < 1)
     assert v.mean() > 0.8
@@ -348,17 +354,6 @@ def test_method_pvm_cli(tmp_path, capsys):
     capsys.readouterr()
     assert render.main([str(d2), "--method", "pvm", "-o", str(tmp_path / "o2")]) != 0
     assert "ibr-preprocess" in capsys.readouterr().err
-
-
-def _two_plane_scene():
-    """A near plane (view v0, z = 3, colour 0.9) and a far plane (v1, v2, z = 5, colour 0.2), all three
-    views at the target's pose (the scene of test_two_clusters_filtered_blend_and_vote)."""
-    w, h = 48, 32
-    cams = [Camera.from_fov(w, h, 50.0, look_at((0.0, 0.0, 0.0), (0.0, 0.0, 5.0))) for _ in range(3)]
-    depths = [np.full((h, w), 3.0, np.float32), np.full((h, w), 5.0, np.float32), np.full((h, w), 5.0, np.float32)]
-    colors = [np.full((h, w, 3), c, np.float32) for c in (0.9, 0.2, 0.2)]
-    views = [View.create(f"v{i}", c, color=col, depth=d) for i, (c, col, d) in enumerate(zip(cams, colors, depths))]
-    return Scene(views=views, targets=[], paths={}, meshes={}, units="m", source={}), cams[0]
 
 
 @pytest.mark.parametrize("far_view_depth, counted", [

@@ -94,9 +94,10 @@ class PvmRendererCore {
       if (!py::isinstance<py::list>(depths) || static_cast<int>(py::len(depths)) != nv) {
         throw ShapeError("depths: expected None or a list of one depth map per camera (" + std::to_string(nv) + ")");
       }
+      const py::list depth_list = py::reinterpret_borrow<py::list>(depths);
       for (int v = 0; v < nv; ++v) {
         const std::string name = "depths[" + std::to_string(v) + "]";
-        depths_.push_back(CheckArray<float>(py::reinterpret_borrow<py::list>(depths)[static_cast<std::size_t>(v)], name.c_str(),
+        depths_.push_back(CheckArray<float>(depth_list[static_cast<std::size_t>(v)], name.c_str(),
                                             {{"H_v", cameras[v].height}, {"W_v", cameras[v].width}}));
         depth_ptrs_.push_back(depths_.back().data());
       }

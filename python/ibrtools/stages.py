@@ -311,6 +311,22 @@ def load_npz(path: Path) -> dict[str, np.ndarray]:
         return {k: z[k] for k in z.files}
 
 
+def view_depths(views, load_rendered) -> dict[str, np.ndarray]:
+    """Each view's depth: its own, else the depth stage's rendering of the global mesh
+    (``load_rendered()`` gives the depth stage's arrays; called once, and only when some view has
+    no depth). KeyError naming the view when the depth stage has none for it."""
+    rendered = None
+    out = {}
+    for v in views:
+        if v.has_depth:
+            out[v.name] = v.depth
+            continue
+        if rendered is None:
+            rendered = load_rendered()
+        out[v.name] = rendered[v.name]
+    return out
+
+
 class _Context:
     """What the stages of one run share: the scene, its root, outputs already in memory, and
     the Dask cluster of a distributed run (``cluster``: a distributed.LazyClient, or None)."""
@@ -339,16 +355,8 @@ class _Context:
     def depths(self, names: list[str] | None = None) -> dict:
         """Each view's depth (of the views ``names``, default all): its own, or the one the depth
         stage rendered from the mesh."""
-        rendered = None
-        out = {}
-        for v in self.scene.views if names is None else [self.scene.view(n) for n in names]:
-            if v.has_depth:
-                out[v.name] = v.depth
-            else:
-                if rendered is None:
-                    rendered = self.get("depth")
-                out[v.name] = rendered[v.name]
-        return out
+        views = self.scene.views if names is None else [self.scene.view(n) for n in names]
+        return view_depths(views, lambda: self.get("depth"))
 
     def mesh(self):
         """The dense global mesh (per-vertex statistics)."""

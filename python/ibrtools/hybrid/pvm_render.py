@@ -161,27 +161,20 @@ def load_images(scene: Scene) -> dict[str, np.ndarray]:
 
 
 def load_depths(scene: Scene) -> dict[str, np.ndarray] | None:
-    """Each input view's depth as the pvm stage read it (its own, else the depth stage's render of
-    the global mesh), for the free-space count; None when some view has neither."""
+    """Each input view's depth as the pvm stage read it (``stages.view_depths``: its own, else the
+    depth stage's render of the global mesh), for the free-space count; None when some view has
+    neither."""
     from .. import stages
 
-    rendered = None
-    out = {}
-    for v in scene.views:
-        if v.has_depth:
-            out[v.name] = np.ascontiguousarray(v.depth, np.float32)
-            continue
-        if rendered is None:
-            if scene.root is None:
-                return None
-            try:
-                rendered = stages.load_npz(stages.stage_output(scene.root, "depth"))
-            except (MissingFileError, BadValueError):
-                return None
-        if v.name not in rendered:
-            return None
-        out[v.name] = np.ascontiguousarray(rendered[v.name], np.float32)
-    return out
+    def rendered() -> dict[str, np.ndarray]:
+        if scene.root is None:
+            raise MissingFileError("the scene has no directory with a depth stage")
+        return stages.load_npz(stages.stage_output(scene.root, "depth"))
+
+    try:
+        return stages.view_depths(scene.views, rendered)
+    except (KeyError, MissingFileError, BadValueError):
+        return None
 
 
 class PvmRenderer:
@@ -214,6 +207,9 @@ class PvmRenderer:
         if self.params["free_space"] and depths is None:
             depths = load_depths(scene)
         self.free_space = bool(self.params["free_space"] and depths is not None)
+        # stats["free_space"]: whether Eq. 1 / Eq. 2 counted background candidates by free space
+        self._free_space_report: bool | str = (self.free_space if self.free_space or not self.params["free_space"]
+                                               else "not run: no depth maps")
         cams, imgs, deps, enabled = [], [], [], []
         stand_in = None
         for n in self.tiles.views:
@@ -238,10 +234,12 @@ class PvmRenderer:
                 if stand_in is None:
                     p0 = present[0]
                     stand_in = (by_name[p0].camera.to_core(), np.ascontiguousarray(images[p0], np.float32),
-                                np.zeros((by_name[p0].camera.height, by_name[p0].camera.width), np.float32))
+                                np.zeros((by_name[p0].camera.height, by_name[p0].camera.width), np.float32)
+                                if self.free_space else None)
                 cams.append(stand_in[0])
                 imgs.append(stand_in[1])
-                deps.append(stand_in[2])
+                if self.free_space:
+                    deps.append(stand_in[2])
                 enabled.append(False)
         self.disabled_views = unknown
         t = self.tiles
@@ -286,10 +284,7 @@ class PvmRenderer:
         if mode == "resolve":
             times = {k: times[k] for k in ("cluster & blend", "spatial filter")}
         stats = {"visible_coarse": int(out["visible_coarse"]), "tiles": int(out["tiles"]),
-                 "triangles": int(out["triangles"]),
-                 # whether Eq. 1 / Eq. 2 counted background candidates by free space (off when asked,
-                 # or when some view has no depth map: "not run: no depth maps")
-                 "free_space": self.free_space if self.free_space or not p["free_space"] else "not run: no depth maps"}
+                 "triangles": int(out["triangles"]), "free_space": self._free_space_report}
         return PvmResult(color=out["color"], depth=out["depth"], valid=out["valid"], vote=out["vote"],
                          inside_grid=out["inside_grid"], times_ms=times, stats=stats)
 

@@ -45,6 +45,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import BadValueError, InputError, MissingFileError
+from ..hybrid.pvm_render import DEFAULTS as PVM_DEFAULTS, check_params as check_pvm_params
 from ..mesh import Mesh
 from ..scene import Scene
 from . import params as P
@@ -63,11 +64,10 @@ ULR_DEFAULTS = {"k": 4, "resolution_weight": 0.5, "depth_tol": 0.02, "harmonised
 # chosen on synth:objects seed 1 and the lego validation views, where every metric improves
 # monotonically from 0.82 down to 0 (docs/hybrid.md "tau_var").
 # geo_threshold None = geo_threshold_for(the scene's units, the mesh stage's voxel).
-HYBRID_DEFAULTS = {**ULR_DEFAULTS, "sigma": 3.0, "alpha": 7.0, "gamma": 7.0, "tau_depth": 0.83,
-                   "tau_var": 0.0, "sigma_blur": 16.0, "geo_threshold": None, "filtered": True,
-                   "free_space": True, "free_space_tol": 0.02}
-# The hybrid parameters that are the PVM renderer's (checked by it, passed to it).
+# The hybrid parameters that are the PVM renderer's: its defaults, checked by it, passed to it.
 PVM_KEYS = ("sigma", "alpha", "gamma", "tau_depth", "free_space", "free_space_tol")
+HYBRID_DEFAULTS = {**ULR_DEFAULTS, **{k: PVM_DEFAULTS[k] for k in PVM_KEYS},
+                   "tau_var": 0.0, "sigma_blur": 16.0, "geo_threshold": None, "filtered": True}
 STAGES_FOR = {"tm": ("mesh", "texture"), "ulr": ("mesh", "depth"),
               "hybrid": ("mesh", "depth", "texture", "variance", "harmonise", "pvm")}
 _UNIT_METRES = {"m": 1.0, "meter": 1.0, "metre": 1.0, "meters": 1.0, "metres": 1.0, "cm": 0.01, "mm": 0.001,
@@ -89,8 +89,6 @@ def check_params(method: str, params: dict | None) -> dict:
     if p["occlusion"] not in ("mesh", "views"):
         raise BadValueError(f"--param occlusion: expected 'mesh' or 'views', got {p['occlusion']!r}")
     if method == "hybrid":
-        from ..hybrid.pvm_render import check_params as check_pvm_params
-
         pvm = check_pvm_params({k: p[k] for k in PVM_KEYS})  # the PVM renderer's own checks
         p.update({k: pvm[k] for k in PVM_KEYS})
         p["tau_var"] = P.number(p["tau_var"], "--param tau_var")
@@ -228,20 +226,21 @@ def _views_for_ulr(scene: Scene, method: str, harmonised: bool, gm: "_GlobalMesh
             source = "harmonised"
         elif rec.get("skipped"):
             source = f"original (harmonise skipped: {rec['skipped']})"
-    rendered = None
+    depths: dict = {}
+    if gm is None:
+        from ..stages import view_depths
+
+        try:
+            depths = view_depths(scene.views, lambda: _stage(scene, "depth", method))
+        except KeyError as e:
+            raise InputError(f"--method {method}: view {e.args[0]!r} has no depth and the depth stage has none; "
+                             f"rerun ibr-preprocess {scene.root} -o {scene.root} --stages depth --force") from None
     out = []
     for v in scene.views:
         if gm is not None:
             depth = gm.renderer.render(v.camera, outputs=("depth",), lights=[], ambient=0.0)["depth"]
-        elif v.has_depth:
-            depth = v.depth
         else:
-            if rendered is None:
-                rendered = _stage(scene, "depth", method)
-            if v.name not in rendered:
-                raise InputError(f"--method {method}: view {v.name!r} has no depth and the depth stage has none; "
-                                 f"rerun ibr-preprocess {scene.root} -o {scene.root} --stages depth --force")
-            depth = rendered[v.name]
+            depth = depths[v.name]
         color = images.get(v.name)
         if color is None:
             color = v.color
