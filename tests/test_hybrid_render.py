@@ -255,6 +255,9 @@ def test_kernels_bad_input():
         _core.blur_selection(np.full((2, 2), 7, np.uint8), 1.0)
     with pytest.raises(BadValueError):
         _core.blur_selection(np.zeros((2, 2), np.uint8), -1.0)
+    for mw in (-0.1, 0.5, float("nan")):
+        with pytest.raises(BadValueError, match="min_weight"):
+            _core.blur_selection(np.zeros((2, 2), np.uint8), 1.0, mw)
     with pytest.raises(ShapeError):
         _core.hybrid_composite(np.zeros((2, 2, 3), np.float32), np.zeros((2, 3, 3), np.float32))
     with pytest.raises(BadValueError):
@@ -274,7 +277,7 @@ def test_method_params_and_missing_stages(tmp_path):
         methods.create("ulr", {"depth_tol": -1})
     # The hybrid's PVM parameters go through the PVM renderer's checks.
     for bad, name in (({"free_space_tol": 1.5}, "free_space_tol"), ({"free_space": "sometimes"}, "free_space"),
-                      ({"sigma": 0}, "sigma"), ({"tau_depth": -1}, "tau_depth")):
+                      ({"sigma": 0}, "sigma"), ({"tau_depth": -1}, "tau_depth"), ({"min_weight": 0.4}, "min_weight")):
         with pytest.raises(BadValueError, match=name):
             methods.create("hybrid", bad)
     assert methods.create("hybrid", {"free_space": "false"}).params["free_space"] is False

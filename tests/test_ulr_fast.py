@@ -158,6 +158,26 @@ def test_blur_selection_matches_numpy_and_keeps_the_support(sigma):
     np.testing.assert_array_equal(got > 0, ref > 0)
 
 
+@pytest.mark.parametrize("min_weight", [0.01, 0.05, 1 / 3])
+def test_blur_selection_min_weight_matches_numpy(min_weight):
+    """min_weight: the NumPy blur with weights below it set to 0 and the rest normalised again.
+    Every pixel with any weight keeps one (the largest of three summing to 1 is >= 1/3), the
+    support shrinks (where ULR and PVM run) and min_weight 0 is the plain blur."""
+    rng = np.random.default_rng(3)
+    label = rng.choice(np.array([0, 1, 2, 3], np.uint8), size=(41, 57), p=[0.6, 0.1, 0.1, 0.2])
+    label[:, :12] = 3
+    ref = _blur_reference(label, 4.0)
+    cut = np.where(ref < min_weight, 0.0, ref)
+    s = cut.sum(-1, keepdims=True)
+    cut = np.where(s > 0, cut / np.where(s > 0, s, 1), 0.0)
+    got = _core.blur_selection(label, 4.0, min_weight)
+    assert np.abs(got - cut).max() < 1e-5
+    np.testing.assert_array_equal(got.sum(-1) > 0, ref.sum(-1) > 0)  # no pixel loses every method
+    assert ((got > 0) & (got < min_weight * (1 - 1e-6))).sum() == 0
+    assert (got > 0).sum() < (ref > 0).sum()
+    np.testing.assert_array_equal(_core.blur_selection(label, 4.0, 0.0), _core.blur_selection(label, 4.0))
+
+
 def test_blur_selection_with_a_method_nobody_chose():
     """A label absent from the frame (here ULR) is skipped: its weight is exactly 0 everywhere,
     the others as the NumPy definition."""

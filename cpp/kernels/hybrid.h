@@ -56,6 +56,16 @@ struct UlrOptions {
 float UlrPenaltyFast(const glm::vec3& p, const glm::vec3& b, float lb, const glm::vec3& c_view,
                      float resolution_weight);
 
+// Points p_i and the centres c_i of the views they are seen from, as arrays of n floats each,
+// padded to a multiple of 8 (UlrPenaltiesFast reads the padding, and writes pen[] up to it).
+struct UlrPoints {
+  const float *px, *py, *pz, *cx, *cy, *cz;
+};
+
+// pen[i] = UlrPenaltyFast(p_i, c_novel - p_i, |c_novel - p_i|, c_i, resolution_weight) for i < n,
+// the same bits (AVX2, eight points per step, when the CPU has it): the PVM renderer's candidates.
+void UlrPenaltiesFast(const UlrPoints& points, int n, const glm::vec3& c_novel, float resolution_weight, float* pen);
+
 // For every pixel with gbuffer_depth > 0 (and pixel_mask != 0 when a mask is given): the world
 // point p = centre + depth * ray; penalties UlrPenalty(p, novel centre, view centre) of every
 // input view; the best k by UlrSelect among the views that see p: the back-face (when a normal
@@ -98,9 +108,14 @@ void HybridSelect(ImageView<const float> gbuffer_depth, const std::uint8_t* insi
 // Blurs the one-hot selection (TM, ULR, PVM) with a separable Gaussian of standard deviation
 // sigma pixels (radius ceil(3 sigma), edge-clamped; sigma = 0: no blur) and normalises the three
 // weights to sum 1 where any is positive. kLabelNone contributes to none (its pixels get the
-// weights of their neighbours, or all 0). weights_out (H, W, 3) = (tm, ulr, pvm); scratch holds
-// 3 * H * W floats.
-void BlurSelection(ImageView<const std::uint8_t> label, float sigma, float* scratch, ImageView<float> weights_out);
+// weights of their neighbours, or all 0). Then a normalised weight below min_weight (in [0, 1/3]:
+// the largest of three weights summing to 1 is >= 1/3, so one is always kept) becomes 0 and the
+// others are normalised again: a method's colour is needed only where its weight is > 0, and the
+// Gaussian's tail would otherwise ask for it 3 sigma beyond every pixel that chose it, at weights
+// (1e-3) that cannot show in the composite. min_weight 0: the plain blur. weights_out (H, W, 3) =
+// (tm, ulr, pvm); scratch holds 3 * H * W floats.
+void BlurSelection(ImageView<const std::uint8_t> label, float sigma, float min_weight, float* scratch,
+                   ImageView<float> weights_out);
 
 // color = w_tm * tm + w_ulr * ulr' + w_pvm * pvm', where a method without a result at the pixel
 // falls back: ulr' = ulr where ulr_count > 0 else tm; pvm' = pvm where pvm_valid else ulr'.

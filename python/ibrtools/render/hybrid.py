@@ -67,7 +67,7 @@ ULR_DEFAULTS = {"k": 4, "resolution_weight": 0.5, "depth_tol": 0.02, "harmonised
 # The hybrid parameters that are the PVM renderer's: its defaults, checked by it, passed to it.
 PVM_KEYS = ("sigma", "alpha", "gamma", "tau_depth", "free_space", "free_space_tol")
 HYBRID_DEFAULTS = {**ULR_DEFAULTS, **{k: PVM_DEFAULTS[k] for k in PVM_KEYS},
-                   "tau_var": 0.0, "sigma_blur": 16.0, "geo_threshold": None, "filtered": True}
+                   "tau_var": 0.0, "sigma_blur": 16.0, "min_weight": 0.05, "geo_threshold": None, "filtered": True}
 STAGES_FOR = {"tm": ("mesh", "texture"), "ulr": ("mesh", "depth"),
               "hybrid": ("mesh", "depth", "texture", "variance", "harmonise", "pvm")}
 _UNIT_METRES = {"m": 1.0, "meter": 1.0, "metre": 1.0, "meters": 1.0, "metres": 1.0, "cm": 0.01, "mm": 0.001,
@@ -93,6 +93,7 @@ def check_params(method: str, params: dict | None) -> dict:
         p.update({k: pvm[k] for k in PVM_KEYS})
         p["tau_var"] = P.number(p["tau_var"], "--param tau_var")
         p["sigma_blur"] = P.number(p["sigma_blur"], "--param sigma_blur", 0.0, maximum=1000.0)
+        p["min_weight"] = P.number(p["min_weight"], "--param min_weight", 0.0, maximum=1.0 / 3.0)
         if p["geo_threshold"] is not None:
             p["geo_threshold"] = P.number(p["geo_threshold"], "--param geo_threshold", 0.0)
         p["filtered"] = P.boolean(p["filtered"], "--param filtered")
@@ -404,7 +405,7 @@ class HybridMethod:
         label = _core.hybrid_select(gb["depth"], inside_grid=inside, pvm_valid=valid,
                                     pvm_depth=np.ascontiguousarray(res.depth, np.float32), vd=vd,
                                     geo_threshold=self._geo, tau_var=p["tau_var"])
-        weights = _core.blur_selection(label, p["sigma_blur"])
+        weights = _core.blur_selection(label, p["sigma_blur"], p["min_weight"])
         need_ulr = (weights[..., 1] > 0) | ((weights[..., 2] > 0) & ~valid)
         need_pvm = (weights[..., 2] > 0) & valid
         t4 = time.perf_counter()
