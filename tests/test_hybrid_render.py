@@ -12,6 +12,7 @@ import pytest
 from ibrtools import _core, look_at
 from ibrtools.camera import Camera
 from ibrtools.errors import BadValueError, DtypeError, InputError, MissingFileError, ShapeError
+from ibrtools.render.hybrid import SELECTION_COLORS
 
 HAVE_PVM = importlib.util.find_spec("ibrtools.hybrid.pvm_render") is not None
 needs_pvm = pytest.mark.skipif(not HAVE_PVM, reason="ibrtools.hybrid.pvm_render (PVM rendering) not built yet")
@@ -263,6 +264,37 @@ def test_kernels_bad_input():
     with pytest.raises(BadValueError):
         _core.hybrid_composite(np.zeros((2, 2, 3), np.float32), np.zeros((2, 2, 3), np.float32),
                                ulr=np.zeros((2, 2, 3), np.float32))
+
+
+def test_hybrid_needs_and_frame_outputs_match_numpy():
+    """The masks and outputs the hybrid frame computes in C++ against their NumPy definitions,
+    on random weights (with exact zeros), labels and depths, sizes past the row grain."""
+    rng = np.random.default_rng(5)
+    h, w = 37, 61
+    weights = rng.random((h, w, 3)).astype(np.float32)
+    weights[rng.random((h, w, 3)) < 0.4] = 0.0
+    weights[:5] = 0.0
+    valid = rng.random((h, w)) < 0.6
+    label = rng.integers(0, 4, (h, w)).astype(np.uint8)
+    gdepth = rng.random((h, w)).astype(np.float32)
+    pdepth = rng.random((h, w)).astype(np.float32)
+    need_ulr, need_pvm, n_ulr, n_pvm = _core.hybrid_needs(weights, valid)
+    ref_ulr = (weights[..., 1] > 0) | ((weights[..., 2] > 0) & ~valid)
+    ref_pvm = (weights[..., 2] > 0) & valid
+    np.testing.assert_array_equal(need_ulr, ref_ulr)
+    np.testing.assert_array_equal(need_pvm, ref_pvm)
+    assert (n_ulr, n_pvm) == (int(ref_ulr.sum()), int(ref_pvm.sum()))
+    fo = _core.hybrid_frame_outputs(label, weights, gdepth, pdepth)
+    np.testing.assert_array_equal(fo["hole"], (label == 3) & (weights.sum(-1) == 0))
+    np.testing.assert_array_equal(fo["depth"], np.where(label == 2, pdepth, gdepth))
+    np.testing.assert_array_equal(fo["selection"], weights @ SELECTION_COLORS)
+    assert fo["label_counts"] == tuple(int((label == i).sum()) for i in range(4))
+    with pytest.raises(BadValueError, match="label"):
+        _core.hybrid_frame_outputs(np.full((h, w), 4, np.uint8), weights, gdepth, pdepth)
+    with pytest.raises(ShapeError, match="pvm_depth"):
+        _core.hybrid_frame_outputs(label, weights, gdepth, pdepth[:, :-1])
+    with pytest.raises(ShapeError, match="pvm_valid"):
+        _core.hybrid_needs(weights, valid[:-1])
 
 
 def test_method_params_and_missing_stages(tmp_path):

@@ -28,6 +28,13 @@ namespace {
 
 using FArray = py::array_t<float, py::array::c_style>;
 
+void CheckLabels(const py::array_t<std::uint8_t, py::array::c_style>& label) {
+  const std::uint8_t* l = label.data();
+  for (py::ssize_t i = 0; i < label.size(); ++i) {
+    if (l[i] > kLabelNone) throw BadValueError("label: values must be 0 (TM), 1 (ULR), 2 (PVM) or 3 (none)");
+  }
+}
+
 const std::uint8_t* BoolData(const py::array_t<bool, py::array::c_style>& a) {
   return reinterpret_cast<const std::uint8_t*>(a.data());
 }
@@ -286,12 +293,7 @@ FArray BlurSelectionBinding(const py::object& label_obj, double sigma, double mi
   if (!(min_weight <= 1.0 / 3.0))
     throw BadValueError("min_weight: expected a weight in [0, 1/3], got " + std::to_string(min_weight));
   const auto h = label.shape(0), w = label.shape(1);
-  {
-    const std::uint8_t* l = label.data();
-    for (py::ssize_t i = 0; i < h * w; ++i) {
-      if (l[i] > kLabelNone) throw BadValueError("label: values must be 0 (TM), 1 (ULR), 2 (PVM) or 3 (none)");
-    }
-  }
+  CheckLabels(label);
   FArray out = NewArray<float>({h, w, 3});
   std::unique_ptr<float[]> scratch(new float[static_cast<std::size_t>(h) * w * 3]);  // written before read
   {
@@ -326,6 +328,47 @@ FArray HybridCompositeBinding(const py::object& weights_obj, const py::object& t
                     ulr_obj.is_none() ? nullptr : count.data(), pvm_obj.is_none() ? nullptr : pvm.data(),
                     pvm_obj.is_none() ? nullptr : BoolData(valid), ViewOf(out));
   }
+  return out;
+}
+
+py::tuple HybridNeedsBinding(const py::object& weights_obj, const py::object& valid_obj) {
+  auto weights = CheckArray<float>(weights_obj, "weights", {{"H", -1}, {"W", -1}, {"3", 3}});
+  const auto h = weights.shape(0), w = weights.shape(1);
+  auto valid = CheckArray<bool>(valid_obj, "pvm_valid", {{"H", h}, {"W", w}});
+  auto need_ulr = NewArray<bool>({h, w});
+  auto need_pvm = NewArray<bool>({h, w});
+  std::int64_t counts[2] = {0, 0};
+  {
+    py::gil_scoped_release release;
+    HybridNeeds(ConstViewOf(weights), BoolData(valid), reinterpret_cast<std::uint8_t*>(need_ulr.mutable_data()),
+                reinterpret_cast<std::uint8_t*>(need_pvm.mutable_data()), counts);
+  }
+  return py::make_tuple(need_ulr, need_pvm, counts[0], counts[1]);
+}
+
+py::dict HybridFrameOutputsBinding(const py::object& label_obj, const py::object& weights_obj,
+                                   const py::object& gdepth_obj, const py::object& pvm_depth_obj) {
+  auto label = CheckArray<std::uint8_t>(label_obj, "label", {{"H", -1}, {"W", -1}});
+  const auto h = label.shape(0), w = label.shape(1);
+  CheckLabels(label);
+  auto weights = CheckArray<float>(weights_obj, "weights", {{"H", h}, {"W", w}, {"3", 3}});
+  auto gdepth = CheckArray<float>(gdepth_obj, "gbuffer_depth", {{"H", h}, {"W", w}});
+  auto pdepth = CheckArray<float>(pvm_depth_obj, "pvm_depth", {{"H", h}, {"W", w}});
+  auto hole = NewArray<bool>({h, w});
+  FArray depth = NewArray<float>({h, w});
+  FArray selection = NewArray<float>({h, w, 3});
+  std::int64_t counts[4] = {0, 0, 0, 0};
+  {
+    py::gil_scoped_release release;
+    HybridFrameOutputs(ConstViewOf(label), ConstViewOf(weights), gdepth.data(), pdepth.data(),
+                       reinterpret_cast<std::uint8_t*>(hole.mutable_data()), depth.mutable_data(),
+                       selection.mutable_data(), counts);
+  }
+  py::dict out;
+  out["hole"] = hole;
+  out["depth"] = depth;
+  out["selection"] = selection;
+  out["label_counts"] = py::make_tuple(counts[0], counts[1], counts[2], counts[3]);
   return out;
 }
 
@@ -401,6 +444,13 @@ void BindHybridRender(py::module_& m) {
         py::arg("ulr") = py::none(), py::arg("ulr_count") = py::none(), py::arg("pvm") = py::none(),
         py::arg("pvm_valid") = py::none(),
         "Composite of TM, ULR and PVM colours by the selection weights, with fallbacks (PVM -> ULR -> TM).");
+  m.def("hybrid_needs", &HybridNeedsBinding, py::arg("weights"), py::arg("pvm_valid"),
+        "Where the composite needs colours: (need_ulr, need_pvm, n_ulr, n_pvm). need_pvm = PVM weight > 0 and "
+        "pvm_valid; need_ulr = ULR weight > 0, or PVM weight > 0 where the PVM is not valid.");
+  m.def("hybrid_frame_outputs", &HybridFrameOutputsBinding, py::arg("label"), py::arg("weights"),
+        py::arg("gbuffer_depth"), py::arg("pvm_depth"),
+        "The hybrid frame's hole (label none, no weight), depth (PVM's where the label is PVM, else the G-buffer's), "
+        "selection image (red PVM, green TM, blue ULR weights) and label_counts (tm, ulr, pvm, none).");
 }
 
 }  // namespace ibr::bind

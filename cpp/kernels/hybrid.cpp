@@ -2,6 +2,7 @@
 #include "kernels/hybrid.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -907,6 +908,55 @@ void BlurSelection(ImageView<const std::uint8_t> label, float sigma, float min_w
       }
     }
   });
+}
+
+void HybridNeeds(ImageView<const float> weights, const std::uint8_t* pvm_valid, std::uint8_t* need_ulr,
+                 std::uint8_t* need_pvm, std::int64_t counts[2]) {
+  const int H = weights.height, W = weights.width;
+  std::atomic<std::int64_t> n_ulr{0}, n_pvm{0};
+  ParallelFor(H, 8, [&](std::int64_t b, std::int64_t e) {
+    std::int64_t nu = 0, np = 0;
+    for (int y = int(b); y < int(e); ++y) {
+      const float* wrow = weights.Row(y);
+      for (int x = 0; x < W; ++x) {
+        const std::int64_t i = std::int64_t(y) * W + x;
+        const bool pvm = wrow[3 * x + 2] > 0.f, valid = pvm_valid[i] != 0;
+        const bool u = wrow[3 * x + 1] > 0.f || (pvm && !valid), p = pvm && valid;
+        need_ulr[i] = u;
+        need_pvm[i] = p;
+        nu += u, np += p;
+      }
+    }
+    n_ulr += nu;
+    n_pvm += np;
+  });
+  counts[0] = n_ulr, counts[1] = n_pvm;
+}
+
+void HybridFrameOutputs(ImageView<const std::uint8_t> label, ImageView<const float> weights, const float* gbuffer_depth,
+                        const float* pvm_depth, std::uint8_t* hole, float* depth, float* selection,
+                        std::int64_t counts[4]) {
+  const int H = label.height, W = label.width;
+  std::atomic<std::int64_t> total[4] = {{0}, {0}, {0}, {0}};
+  ParallelFor(H, 8, [&](std::int64_t b, std::int64_t e) {
+    std::int64_t n[4] = {0, 0, 0, 0};
+    for (int y = int(b); y < int(e); ++y) {
+      const std::uint8_t* lrow = label.Row(y);
+      const float* wrow = weights.Row(y);
+      for (int x = 0; x < W; ++x) {
+        const std::int64_t i = std::int64_t(y) * W + x;
+        const std::uint8_t l = lrow[x];
+        const float* wt = wrow + 3 * x;
+        ++n[l];  // 0..3 (the binding checks)
+        hole[i] = l == kLabelNone && wt[0] == 0.f && wt[1] == 0.f && wt[2] == 0.f;
+        depth[i] = l == kLabelPvm ? pvm_depth[i] : gbuffer_depth[i];
+        float* s = selection + 3 * i;
+        s[0] = wt[2], s[1] = wt[0], s[2] = wt[1];
+      }
+    }
+    for (int c = 0; c < 4; ++c) total[c] += n[c];
+  });
+  for (int c = 0; c < 4; ++c) counts[c] = total[c];
 }
 
 void HybridComposite(ImageView<const float> weights, ImageView<const float> tm, const float* ulr,

@@ -117,6 +117,20 @@ void HybridSelect(ImageView<const float> gbuffer_depth, const std::uint8_t* insi
 void BlurSelection(ImageView<const std::uint8_t> label, float sigma, float min_weight, float* scratch,
                    ImageView<float> weights_out);
 
+// Where the composite needs ULR and PVM colours, from the blurred weights (H, W, 3) = (tm, ulr,
+// pvm) and the PVM's valid pixels (pvm_valid: it has candidates): need_pvm = pvm weight > 0 and
+// valid; need_ulr = ulr weight > 0, or pvm weight > 0 without valid PVM (its fallback). Returns
+// the counts of both in counts[0] (ulr), counts[1] (pvm).
+void HybridNeeds(ImageView<const float> weights, const std::uint8_t* pvm_valid, std::uint8_t* need_ulr,
+                 std::uint8_t* need_pvm, std::int64_t counts[2]);
+
+// The frame's other outputs: hole = label none and no blurred weight; depth = the PVM depth where
+// the label is PVM, else the G-buffer's; selection (H, W, 3) = the weights as colours (red PVM,
+// green TM, blue ULR); counts[4] = the pixels of each label (tm, ulr, pvm, none).
+void HybridFrameOutputs(ImageView<const std::uint8_t> label, ImageView<const float> weights, const float* gbuffer_depth,
+                        const float* pvm_depth, std::uint8_t* hole, float* depth, float* selection,
+                        std::int64_t counts[4]);
+
 // color = w_tm * tm + w_ulr * ulr' + w_pvm * pvm', where a method without a result at the pixel
 // falls back: ulr' = ulr where ulr_count > 0 else tm; pvm' = pvm where pvm_valid else ulr'.
 // Pixels whose weights are all 0 get colour 0. ulr / pvm (and their masks) may be null (weight

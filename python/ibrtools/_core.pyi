@@ -17,7 +17,7 @@ _U8: typing.TypeAlias = numpy.typing.NDArray[numpy.uint8]
 _I8: typing.TypeAlias = numpy.typing.NDArray[numpy.int8]
 _Bool: typing.TypeAlias = numpy.typing.NDArray[numpy.bool_]
 _Light: typing.TypeAlias = tuple[str, collections.abc.Sequence[float], collections.abc.Sequence[float], bool]
-__all__: list[str] = ['Camera', 'CameraModel', 'DepthWarpMips', 'DibrAccumulator', 'EMBREE_VERSION', 'OcclusionScene', 'PvmRenderer', 'RayScene', 'WARP_DISOCCLUDED', 'WARP_SURFACE', 'WARP_UNCOVERED', 'WarpOptions', 'YMap', 'blur_selection', 'cpu_has_avx2', 'cross_view_prediction', 'cull_awoc_fill', 'cull_object_boxes', 'cull_project_boxes', 'dw_build_mips', 'dw_forward', 'dw_motion', 'dw_motion_mips', 'dw_warp', 'forward_warp', 'get_num_threads', 'grid_maxflow', 'hybrid_composite', 'hybrid_select', 'interpolate_vertex_attribute', 'interpolate_vertex_values', 'linear_to_srgb', 'metameric_composite', 'metameric_encode', 'metameric_fill_holes', 'metameric_pushpull_change', 'metameric_pushpull_moments', 'metameric_stack_moments', 'mip_build', 'mip_foveate_level', 'mip_lookup', 'mip_max_levels', 'point_colors', 'poisson_blend', 'pushpull', 'pvm_slice', 'pvm_triangulate', 'raster_gbuffer', 'sample_atlas', 'set_num_threads', 'set_warp_isa', 'shadow_map_visibility', 'srgb_encode_unclipped', 'srgb_to_linear', 'ssim', 'steerable_analyse', 'steerable_max_levels', 'steerable_synthesise', 'ulr_blend', 'ulr_penalty', 'ulr_select', 'warp_flow', 'warp_isa', 'warp_with_holes']
+__all__: list[str] = ['Camera', 'CameraModel', 'DepthWarpMips', 'DibrAccumulator', 'EMBREE_VERSION', 'OcclusionScene', 'PvmRenderer', 'RayScene', 'WARP_DISOCCLUDED', 'WARP_SURFACE', 'WARP_UNCOVERED', 'WarpOptions', 'YMap', 'blur_selection', 'cpu_has_avx2', 'cross_view_prediction', 'cull_awoc_fill', 'cull_object_boxes', 'cull_project_boxes', 'dw_build_mips', 'dw_forward', 'dw_motion', 'dw_motion_mips', 'dw_warp', 'forward_warp', 'get_num_threads', 'grid_maxflow', 'hybrid_composite', 'hybrid_frame_outputs', 'hybrid_needs', 'hybrid_select', 'interpolate_vertex_attribute', 'interpolate_vertex_values', 'linear_to_srgb', 'metameric_composite', 'metameric_encode', 'metameric_fill_holes', 'metameric_pushpull_change', 'metameric_pushpull_moments', 'metameric_stack_moments', 'mip_build', 'mip_foveate_level', 'mip_lookup', 'mip_max_levels', 'point_colors', 'poisson_blend', 'pushpull', 'pvm_slice', 'pvm_triangulate', 'raster_gbuffer', 'sample_atlas', 'set_num_threads', 'set_warp_isa', 'shadow_map_visibility', 'srgb_encode_unclipped', 'srgb_to_linear', 'ssim', 'steerable_analyse', 'steerable_max_levels', 'steerable_synthesise', 'ulr_blend', 'ulr_penalty', 'ulr_select', 'warp_flow', 'warp_isa', 'warp_with_holes']
 
 class CameraModel:
     """
@@ -418,6 +418,16 @@ def grid_maxflow(source_cap: _I64 | _F64, sink_cap: _I64 | _F64, right: _I64 | _
 def hybrid_composite(weights: _F32, tm: _F32, *, ulr: _F32 | None=None, ulr_count: _U8 | None=None, pvm: _F32 | None=None, pvm_valid: _Bool | None=None) -> numpy.typing.NDArray[numpy.float32]:
     """
     Composite of TM, ULR and PVM colours by the selection weights, with fallbacks (PVM -> ULR -> TM).
+    """
+
+def hybrid_frame_outputs(label: _U8, weights: _F32, gbuffer_depth: _F32, pvm_depth: _F32) -> dict[str, typing.Any]:
+    """
+    The hybrid frame's hole (label none, no weight), depth (PVM's where the label is PVM, else the G-buffer's), selection image (red PVM, green TM, blue ULR weights) and label_counts (tm, ulr, pvm, none).
+    """
+
+def hybrid_needs(weights: _F32, pvm_valid: _Bool) -> tuple[_Bool, _Bool, int, int]:
+    """
+    Where the composite needs colours: (need_ulr, need_pvm, n_ulr, n_pvm). need_pvm = PVM weight > 0 and pvm_valid; need_ulr = ULR weight > 0, or PVM weight > 0 where the PVM is not valid.
     """
 
 def hybrid_select(gbuffer_depth: _F32, *, inside_grid: _Bool | None=None, pvm_valid: _Bool | None=None, pvm_depth: _F32 | None=None, vd: _F32 | None=None, geo_threshold: typing.SupportsFloat | typing.SupportsIndex=0.03, tau_var: typing.SupportsFloat | typing.SupportsIndex=0.82) -> numpy.typing.NDArray[numpy.uint8]:
