@@ -176,6 +176,11 @@ def test_blur_selection_min_weight_matches_numpy(min_weight):
     assert ((got > 0) & (got < min_weight * (1 - 1e-6))).sum() == 0
     assert (got > 0).sum() < (ref > 0).sum()
     np.testing.assert_array_equal(_core.blur_selection(label, 4.0, 0.0), _core.blur_selection(label, 4.0))
+    # Three near-equal weights (rows labelled y mod 3) at the largest min_weight, 1/3: finite,
+    # summing to 1 (one weight is always kept; if rounding put all three below, all are kept).
+    stripes = np.repeat((np.arange(300) % 3).astype(np.uint8)[:, None], 4, 1)
+    got = _core.blur_selection(stripes, 7.0, 1 / 3)
+    assert np.isfinite(got).all() and np.abs(got.sum(-1) - 1).max() < 1e-6
 
 
 def test_blur_selection_with_a_method_nobody_chose():

@@ -5,7 +5,6 @@
 #include <atomic>
 #include <cmath>
 #include <cstdint>
-#include <limits>
 #include <vector>
 
 #include "ibr/parallel.h"
@@ -621,74 +620,7 @@ void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, Ima
   });
 }
 
-#if defined(IBR_ULR_AVX2)
-// UlrPenaltiesFast, eight points per step (the last step's lanes past n read and write the
-// arrays' padding): UlrPenaltyFast's operations lane for lane in the same order (mul then add, no
-// FMA; glm's dot is (x x + y y) + z z, its cross the same products), so the same bits; the tests
-// of UlrPenaltyFast as ordered compares (false on NaN).
-// glm::length of eight vectors: sqrt((x x + y y) + z z).
-__attribute__((target("avx2"))) inline __m256 Length8(__m256 x, __m256 y, __m256 z) {
-  return _mm256_sqrt_ps(_mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(x, x), _mm256_mul_ps(y, y)), _mm256_mul_ps(z, z)));
-}
-
-__attribute__((target("avx2"))) int UlrPenaltiesAvx2(const UlrPoints& q, int n, const glm::vec3& c_novel, float rw,
-                                                     float* pen) {
-  const __m256 Cx = _mm256_set1_ps(c_novel.x), Cy = _mm256_set1_ps(c_novel.y), Cz = _mm256_set1_ps(c_novel.z);
-  const __m256 zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.f);
-  const __m256 fmax = _mm256_set1_ps(std::numeric_limits<float>::max()), inf = _mm256_set1_ps(INFINITY);
-  const __m256 Rw = _mm256_set1_ps(rw), sign = _mm256_set1_ps(-0.f);
-  const __m256 half_pi = _mm256_set1_ps(1.57079633f), pi = _mm256_set1_ps(3.14159265f);
-  int i0 = 0;
-  for (; i0 < n; i0 += 8) {
-    const __m256 Px = _mm256_loadu_ps(q.px + i0), Py = _mm256_loadu_ps(q.py + i0), Pz = _mm256_loadu_ps(q.pz + i0);
-    const __m256 bx = _mm256_sub_ps(Cx, Px), by = _mm256_sub_ps(Cy, Py), bz = _mm256_sub_ps(Cz, Pz);
-    const __m256 lb = Length8(bx, by, bz);
-    const __m256 ax = _mm256_sub_ps(_mm256_loadu_ps(q.cx + i0), Px);
-    const __m256 ay = _mm256_sub_ps(_mm256_loadu_ps(q.cy + i0), Py);
-    const __m256 az = _mm256_sub_ps(_mm256_loadu_ps(q.cz + i0), Pz);
-    const __m256 la = Length8(ax, ay, az);
-    const __m256 cr = Length8(_mm256_sub_ps(_mm256_mul_ps(ay, bz), _mm256_mul_ps(by, az)),
-                          _mm256_sub_ps(_mm256_mul_ps(az, bx), _mm256_mul_ps(bz, ax)),
-                          _mm256_sub_ps(_mm256_mul_ps(ax, by), _mm256_mul_ps(bx, ay)));
-    const __m256 dt = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(ax, bx), _mm256_mul_ps(ay, by)), _mm256_mul_ps(az, bz));
-    const __m256 adt = _mm256_andnot_ps(sign, dt);
-    const __m256 swap = _mm256_cmp_ps(cr, adt, _CMP_GT_OQ);
-    const __m256 num = _mm256_blendv_ps(cr, adt, swap);
-    const __m256 den = _mm256_blendv_ps(adt, cr, swap);
-    const __m256 denpos = _mm256_cmp_ps(den, zero, _CMP_GT_OQ);
-    const __m256 tt = _mm256_div_ps(num, _mm256_blendv_ps(one, den, denpos));
-    const __m256 t2 = _mm256_mul_ps(tt, tt);
-    __m256 r = _mm256_add_ps(_mm256_set1_ps(kAtan7), _mm256_mul_ps(t2, _mm256_set1_ps(kAtan9)));
-    r = _mm256_add_ps(_mm256_set1_ps(kAtan5), _mm256_mul_ps(t2, r));
-    r = _mm256_add_ps(_mm256_set1_ps(kAtan3), _mm256_mul_ps(t2, r));
-    r = _mm256_add_ps(_mm256_set1_ps(kAtan1), _mm256_mul_ps(t2, r));
-    r = _mm256_and_ps(_mm256_mul_ps(tt, r), denpos);  // FastAtan2Pos: 0 when den <= 0
-    r = _mm256_blendv_ps(r, _mm256_sub_ps(half_pi, r), _mm256_and_ps(swap, denpos));
-    r = _mm256_blendv_ps(r, _mm256_sub_ps(pi, r), _mm256_and_ps(_mm256_cmp_ps(dt, zero, _CMP_LT_OQ), denpos));
-    const __m256 ratio = _mm256_sub_ps(_mm256_div_ps(la, lb), one);
-    const __m256 pn = _mm256_add_ps(r, _mm256_mul_ps(Rw, _mm256_max_ps(ratio, zero)));
-    __m256 ok = _mm256_and_ps(_mm256_cmp_ps(la, zero, _CMP_GT_OQ), _mm256_cmp_ps(lb, zero, _CMP_GT_OQ));
-    ok = _mm256_and_ps(ok, _mm256_and_ps(_mm256_cmp_ps(la, fmax, _CMP_LE_OQ), _mm256_cmp_ps(lb, fmax, _CMP_LE_OQ)));
-    ok = _mm256_and_ps(ok, _mm256_cmp_ps(pn, fmax, _CMP_LE_OQ));
-    _mm256_storeu_ps(pen + i0, _mm256_blendv_ps(inf, pn, ok));
-  }
-  return i0;
-}
-#endif  // IBR_ULR_AVX2
-
 }  // namespace
-
-void UlrPenaltiesFast(const UlrPoints& q, int n, const glm::vec3& c_novel, float resolution_weight, float* pen) {
-  int i0 = 0;
-#if defined(IBR_ULR_AVX2)
-  if (UlrCpuHasAvx2()) i0 = UlrPenaltiesAvx2(q, n, c_novel, resolution_weight, pen);
-#endif
-  for (int i = i0; i < n; ++i) {
-    const glm::vec3 p(q.px[i], q.py[i], q.pz[i]);
-    const glm::vec3 b = c_novel - p;
-    pen[i] = UlrPenaltyFast(p, b, glm::length(b), glm::vec3(q.cx[i], q.cy[i], q.cz[i]), resolution_weight);
-  }
-}
 
 void UlrBlend(const Camera& novel, ImageView<const float> gbuffer_depth, ImageView<const float> normal,
               const std::uint8_t* pixel_mask, const UlrInputView* views, int num_views, const UlrOptions& options,
@@ -896,11 +828,10 @@ void BlurSelection(ImageView<const std::uint8_t> label, float sigma, float min_w
         const float inv = sum > 0.f ? 1.f / sum : 0.f;
         float a = w0[x] * inv, b = w1[x] * inv, c = w2[x] * inv;
         if (min_weight > 0.f && sum > 0.f && (a < min_weight || b < min_weight || c < min_weight)) {
-          a = a < min_weight ? 0.f : a;
-          b = b < min_weight ? 0.f : b;
-          c = c < min_weight ? 0.f : c;
-          const float kept = a + b + c;  // >= 1/3 - rounding: the largest weight is kept
-          a /= kept, b /= kept, c /= kept;
+          const float ka = a < min_weight ? 0.f : a, kb = b < min_weight ? 0.f : b, kc = c < min_weight ? 0.f : c;
+          // >= 1/3 but for rounding (three equal weights at min_weight = 1/3): then all are kept
+          const float kept = ka + kb + kc;
+          if (kept > 0.f) a = ka / kept, b = kb / kept, c = kc / kept;
         }
         orow[3 * x] = a;
         orow[3 * x + 1] = b;

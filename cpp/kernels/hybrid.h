@@ -56,16 +56,6 @@ struct UlrOptions {
 float UlrPenaltyFast(const glm::vec3& p, const glm::vec3& b, float lb, const glm::vec3& c_view,
                      float resolution_weight);
 
-// Points p_i and the centres c_i of the views they are seen from, as arrays of n floats each,
-// padded to a multiple of 8 (UlrPenaltiesFast reads the padding, and writes pen[] up to it).
-struct UlrPoints {
-  const float *px, *py, *pz, *cx, *cy, *cz;
-};
-
-// pen[i] = UlrPenaltyFast(p_i, c_novel - p_i, |c_novel - p_i|, c_i, resolution_weight) for i < n,
-// the same bits (AVX2, eight points per step, when the CPU has it): the PVM renderer's candidates.
-void UlrPenaltiesFast(const UlrPoints& points, int n, const glm::vec3& c_novel, float resolution_weight, float* pen);
-
 // For every pixel with gbuffer_depth > 0 (and pixel_mask != 0 when a mask is given): the world
 // point p = centre + depth * ray; penalties UlrPenalty(p, novel centre, view centre) of every
 // input view; the best k by UlrSelect among the views that see p: the back-face (when a normal

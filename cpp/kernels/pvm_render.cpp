@@ -633,15 +633,8 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
   const int ulr_k = std::max(1, options.ulr_k);
   const bool free_space = options.free_space && views.depths != nullptr;
   ParallelFor(h, 4, [&](std::int64_t a, std::int64_t b) {
-    glm::dvec3 pw[kPvmMaxCandidates];
+    float col[kPvmMaxCandidates][3];
     float pen[kPvmMaxCandidates];
-    double ix[kPvmMaxCandidates], iy[kPvmMaxCandidates];
-    std::uint8_t proj[kPvmMaxCandidates];
-    static_assert(kPvmMaxCandidates % 8 == 0, "UlrPenaltiesFast's padding");
-    float pfx[kPvmMaxCandidates] = {}, pfy[kPvmMaxCandidates] = {}, pfz[kPvmMaxCandidates] = {};  // the points
-    float cvx[kPvmMaxCandidates] = {}, cvy[kPvmMaxCandidates] = {}, cvz[kPvmMaxCandidates] = {};  // their views' centres
-    const UlrPoints points{pfx, pfy, pfz, cvx, cvy, cvz};
-    constexpr std::uint8_t kUnprojected = 0, kProjected = 1, kBehind = 2;
     int member[kPvmMaxCandidates];
     bool bg[kPvmMaxCandidates];
     std::vector<int> index(static_cast<std::size_t>(ulr_k));
@@ -730,36 +723,26 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
           }
           continue;
         }
-        // Candidate penalties at every candidate; colours only where the blend reads them. The
-        // penalty as the ULR method's per-pixel loop computes it (UlrPenaltiesFast: UlrPenaltyFast's
-        // bits, eight candidates per AVX2 step; polynomial atan2 within 1e-5 rad of UlrPenalty's
-        // std::atan2, which cost as much as the rest of this loop). It needs no projection, so a candidate is
-        // projected only when the selection picks it (a candidate behind its view's camera is
-        // +inf, and the selection is redone without it: the same selection as projecting every
-        // candidate first) and its colour read only when its weight is > 0 (ULR's weight is 0 at
-        // the k-th view: 3 reads per cluster instead of one per candidate).
+        // Candidate colours and penalties.
         const glm::dvec3 ray = camera.WorldFromCamDir(camera.RayInCam(x + 0.5, y + 0.5));
         for (int i = 0; i < n; ++i) {
-          pw[i] = c_novel_d + ray * static_cast<double>(d[i]);
-          pfx[i] = static_cast<float>(pw[i].x), pfy[i] = static_cast<float>(pw[i].y), pfz[i] = static_cast<float>(pw[i].z);
-          const glm::vec3& c = centres[static_cast<std::size_t>(vv[i])];
-          cvx[i] = c.x, cvy[i] = c.y, cvz[i] = c.z;
-          proj[i] = kUnprojected;
+          // The penalty as the ULR method's per-pixel loop computes it (UlrPenaltyFast: the novel
+          // side once per candidate point, polynomial atan2 within 1e-5 rad of UlrPenalty's
+          // std::atan2, which cost as much as the rest of this loop).
+          const glm::dvec3 pw = c_novel_d + ray * static_cast<double>(d[i]);
+          const int v = vv[i];
+          const Camera& cam = views.cameras[v];
+          double ix = 0, iy = 0, iz = 0;
+          pen[i] = std::numeric_limits<float>::infinity();
+          col[i][0] = col[i][1] = col[i][2] = 0.f;
+          if (cam.ProjectCam(cam.CamFromWorld(pw), &ix, &iy, &iz)) {
+            Sample(views.images[v], cam.width, cam.height, ix, iy, col[i]);
+            const glm::vec3 pf(pw);
+            const glm::vec3 to_novel = c_novel - pf;
+            pen[i] = UlrPenaltyFast(pf, to_novel, glm::length(to_novel), centres[static_cast<std::size_t>(v)],
+                                    options.resolution_weight);
+          }
         }
-        UlrPenaltiesFast(points, n, c_novel, options.resolution_weight, pen);
-        // Projects candidate i once (proj[i] = kProjected, its image position in ix[i], iy[i]) or
-        // marks it behind its view (kBehind).
-        const auto project = [&](int i) {
-          if (proj[i] != kUnprojected) return proj[i] == kProjected;
-          const Camera& cam = views.cameras[vv[i]];
-          double iz = 0;
-          proj[i] = cam.ProjectCam(cam.CamFromWorld(pw[i]), &ix[i], &iy[i], &iz) ? kProjected : kBehind;
-          return proj[i] == kProjected;
-        };
-        const auto colour = [&](int i, float* c3) {  // 0 behind the view
-          c3[0] = c3[1] = c3[2] = 0.f;
-          if (project(i)) Sample(views.images[vv[i]], views.cameras[vv[i]].width, views.cameras[vv[i]].height, ix[i], iy[i], c3);
-        };
         for (int k = 0; k < (two_counted ? 2 : 1); ++k) {
           int m = 0;
           float sub_pen[kPvmMaxCandidates];
@@ -769,28 +752,13 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
               sub_pen[m++] = pen[i];
             }
           float c3[3] = {0.f, 0.f, 0.f};
-          int sel = 0;
-          for (bool again = true; again;) {
-            sel = UlrSelect(sub_pen, m, ulr_k, index.data(), weight.data());
-            again = false;
-            for (int j = 0; j < sel; ++j) {
-              const int jm = index[static_cast<std::size_t>(j)];
-              if (!project(member[jm])) sub_pen[jm] = std::numeric_limits<float>::infinity(), again = true;
-            }
-          }
-          float ci[3];
+          const int sel = UlrSelect(sub_pen, m, ulr_k, index.data(), weight.data());
           if (sel == 0) {  // no candidate projects into its view: unweighted mean
-            for (int j = 0; j < m; ++j) {
-              colour(member[j], ci);
-              for (int q = 0; q < 3; ++q) c3[q] += ci[q] / static_cast<float>(m);
-            }
+            for (int j = 0; j < m; ++j)
+              for (int q = 0; q < 3; ++q) c3[q] += col[member[j]][q] / static_cast<float>(m);
           } else {
-            for (int j = 0; j < sel; ++j) {
-              const float wj = weight[static_cast<std::size_t>(j)];
-              if (!(wj > 0.f)) continue;  // adds 0 (colours are finite)
-              colour(member[index[static_cast<std::size_t>(j)]], ci);
-              for (int q = 0; q < 3; ++q) c3[q] += wj * ci[q];
-            }
+            for (int j = 0; j < sel; ++j)
+              for (int q = 0; q < 3; ++q) c3[q] += weight[static_cast<std::size_t>(j)] * col[member[index[static_cast<std::size_t>(j)]]][q];
           }
           float* out = (k == 0 ? frame.c_fg.data() : frame.c_bg.data()) + 3 * p;
           out[0] = c3[0];
