@@ -406,8 +406,8 @@ class HybridMethod:
             times[k] = float(v)  # the PVM stages of Table 2: voxel lookup, tile sort, ...
         inside = np.ascontiguousarray(res.inside_grid, bool)
         valid = np.ascontiguousarray(res.valid, bool)
-        label = _core.hybrid_select(gb["depth"], inside_grid=inside, pvm_valid=valid,
-                                    pvm_depth=np.ascontiguousarray(res.depth, np.float32), vd=vd,
+        pvm_depth = np.ascontiguousarray(res.depth, np.float32)
+        label = _core.hybrid_select(gb["depth"], inside_grid=inside, pvm_valid=valid, pvm_depth=pvm_depth, vd=vd,
                                     geo_threshold=self._geo, tau_var=p["tau_var"])
         weights = _core.blur_selection(label, p["sigma_blur"], p["min_weight"])
         need_ulr, need_pvm, n_ulr, n_pvm = _core.hybrid_needs(weights, valid)
@@ -432,7 +432,7 @@ class HybridMethod:
                                        pvm_valid=valid if pvm_color is not None else None)
         # hole (no label, no blurred weight), depth (PVM's where chosen), the selection image
         # (= weights @ SELECTION_COLORS) and the label counts in one pass (numpy: ~15 ms at 1280x720)
-        fo = _core.hybrid_frame_outputs(label, weights, gb["depth"], np.ascontiguousarray(res.depth, np.float32))
+        fo = _core.hybrid_frame_outputs(label, weights, gb["depth"], pvm_depth)
         times["composite"] = (time.perf_counter() - t5) * 1e3
         n = label.size
         self._last = {"selection": {name: round(fo["label_counts"][i] / n, 4)
