@@ -734,14 +734,141 @@ __attribute__((target("avx2"))) void BlurHorizontalAvx2(const float* pad, const 
 }
 #endif  // IBR_ULR_AVX2
 
-}  // namespace
+// The blurred weights (w0, w1, w2) of one pixel normalised to sum 1 (all 0 where none is
+// positive), then min_weight applied (BlurSelection), into out[0..3).
+inline void StoreSelectionWeights(float w0, float w1, float w2, float min_weight, float* out) {
+  const float sum = w0 + w1 + w2;
+  const float inv = sum > 0.f ? 1.f / sum : 0.f;
+  float a = w0 * inv, b = w1 * inv, c = w2 * inv;
+  if (min_weight > 0.f && sum > 0.f && (a < min_weight || b < min_weight || c < min_weight)) {
+    const float ka = a < min_weight ? 0.f : a, kb = b < min_weight ? 0.f : b, kc = c < min_weight ? 0.f : c;
+    // >= 1/3 but for rounding (three equal weights at min_weight = 1/3): then all are kept
+    const float kept = ka + kb + kc;
+    if (kept > 0.f) a = ka / kept, b = kb / kept, c = kc / kept;
+  }
+  out[0] = a;
+  out[1] = b;
+  out[2] = c;
+}
 
-void BlurSelection(ImageView<const std::uint8_t> label, float sigma, float min_weight, float* scratch,
-                   ImageView<float> weights_out) {
-  const int H = label.height, W = label.width;
+// Separable Gaussian taps of standard deviation sigma, radius ceil(3 sigma) (one tap of 1 at 0).
+std::vector<float> GaussTaps(float sigma) {
   const int r = sigma > 0.f ? int(std::ceil(3.f * sigma)) : 0;
   std::vector<float> taps(2 * r + 1);
   for (int d = -r; d <= r; ++d) taps[d + r] = r ? std::exp(-0.5f * d * d / (sigma * sigma)) : 1.f;
+  return taps;
+}
+
+// BlurSelection's decimated form (see hybrid.h): the one-hot planes averaged over f x f blocks of
+// the label image edge-replicated by a margin M beyond the blur's reach (the full blur's edge
+// clamp: the edge pixels' labels, not their blocks' means, continue past the edge), blurred at
+// 1 / f of the resolution with a Gaussian whose variance plus the block mean's ((f^2 - 1) / 12
+// px^2) and the bilinear upsampling's (~(f^2 - 1) / 6) is sigma^2, and read back bilinearly at
+// each pixel (block centres at f j + (f - 1) / 2 - M).
+void BlurSelectionDecimated(ImageView<const std::uint8_t> label, float sigma, float min_weight, int f,
+                            ImageView<float> weights_out) {
+  const int H = label.height, W = label.width;
+  const int margin = (int(std::ceil(3.f * sigma / float(f))) + 1) * f;
+  const int hl = (H + 2 * margin + f - 1) / f, wl = (W + 2 * margin + f - 1) / f;
+  const std::size_t plane = std::size_t(hl) * wl;
+  std::vector<float> lo(3 * plane), tmp(3 * plane);
+  const float block = 1.f / float(f * f);
+  ParallelFor(hl, 4, [&](std::int64_t b, std::int64_t e) {
+    for (int by = int(b); by < int(e); ++by) {
+      for (int bx = 0; bx < wl; ++bx) {
+        int n[4] = {0, 0, 0, 0};
+        for (int y = by * f - margin; y < by * f + f - margin; ++y) {
+          const std::uint8_t* lrow = label.Row(std::clamp(y, 0, H - 1));
+          for (int x = bx * f - margin; x < bx * f + f - margin; ++x) ++n[lrow[std::clamp(x, 0, W - 1)] & 3];
+        }
+        for (int c = 0; c < 3; ++c) lo[c * plane + std::size_t(by) * wl + bx] = float(n[c]) * block;
+      }
+    }
+  });
+  const float var = sigma * sigma - float(f * f - 1) / 4.f;
+  const std::vector<float> taps = GaussTaps(std::sqrt(std::max(var, 0.f)) / float(f));
+  const int r = int(taps.size() / 2);
+  ParallelFor(3 * std::int64_t(hl), 8, [&](std::int64_t b, std::int64_t e) {  // vertical, lo -> tmp
+    for (std::int64_t cy = b; cy < e; ++cy) {
+      const std::size_t c = std::size_t(cy / hl);
+      const int y = int(cy % hl);
+      float* out = tmp.data() + c * plane + std::size_t(y) * wl;
+      std::fill(out, out + wl, 0.f);
+      for (int d = -r; d <= r; ++d) {
+        const float* in = lo.data() + c * plane + std::size_t(std::clamp(y + d, 0, hl - 1)) * wl;
+        const float t = taps[std::size_t(d + r)];
+        for (int x = 0; x < wl; ++x) out[x] += t * in[x];
+      }
+    }
+  });
+  ParallelFor(3 * std::int64_t(hl), 8, [&](std::int64_t b, std::int64_t e) {  // horizontal, tmp -> lo
+    std::vector<float> pad(std::size_t(wl) + 2 * r);
+    for (std::int64_t cy = b; cy < e; ++cy) {
+      const float* in = tmp.data() + std::size_t(cy) * wl;  // plane c, row y: consecutive rows
+      float* out = lo.data() + std::size_t(cy) * wl;
+      for (int x = 0; x < r; ++x) pad[std::size_t(x)] = in[0], pad[std::size_t(wl + r + x)] = in[wl - 1];
+      std::copy(in, in + wl, pad.begin() + r);
+      std::fill(out, out + wl, 0.f);
+      for (int d = 0; d <= 2 * r; ++d) {
+        const float t = taps[std::size_t(d)];
+        const float* s = pad.data() + d;
+        for (int x = 0; x < wl; ++x) out[x] += t * s[x];
+      }
+    }
+  });
+  // Bilinear read-back: low-resolution coordinate u = (x + M - (f - 1) / 2) / f (clamped).
+  const auto axis = [f, margin](int n, int nl, std::vector<int>& i0, std::vector<float>& frac) {
+    i0.resize(std::size_t(n)), frac.resize(std::size_t(n));
+    for (int x = 0; x < n; ++x) {
+      const float u = (float(x + margin) - 0.5f * float(f - 1)) / float(f);
+      int j = int(std::floor(u));
+      float t = u - float(j);
+      if (j < 0) j = 0, t = 0.f;
+      if (j >= nl - 1) j = nl - 1, t = 0.f;
+      i0[std::size_t(x)] = j, frac[std::size_t(x)] = t;
+    }
+  };
+  std::vector<int> x0, y0;
+  std::vector<float> fx, fy;
+  axis(W, wl, x0, fx);
+  axis(H, hl, y0, fy);
+  ParallelFor(H, 8, [&](std::int64_t b, std::int64_t e) {
+    for (int y = int(b); y < int(e); ++y) {
+      const std::size_t ra = std::size_t(y0[std::size_t(y)]) * wl;
+      const std::size_t rb = std::min(std::size_t(y0[std::size_t(y)] + 1), std::size_t(hl - 1)) * wl;
+      const float ty = fy[std::size_t(y)];
+      float* orow = weights_out.Row(y);
+      for (int x = 0; x < W; ++x) {
+        const std::size_t ca = std::size_t(x0[std::size_t(x)]);
+        const std::size_t cb = std::min(ca + 1, std::size_t(wl - 1));
+        const float tx = fx[std::size_t(x)];
+        float w[3];
+        for (int c = 0; c < 3; ++c) {
+          const float* q = lo.data() + std::size_t(c) * plane;
+          const float top = q[ra + ca] + tx * (q[ra + cb] - q[ra + ca]);
+          const float bot = q[rb + ca] + tx * (q[rb + cb] - q[rb + ca]);
+          w[c] = std::max(top + ty * (bot - top), 0.f);  // >= 0 (rounding)
+        }
+        StoreSelectionWeights(w[0], w[1], w[2], min_weight, orow + 3 * x);
+      }
+    }
+  });
+}
+
+}  // namespace
+
+int BlurSelectionFactor(float sigma) { return sigma >= 8.f ? std::min(4, int(sigma / 4.f)) : 1; }
+
+void BlurSelection(ImageView<const std::uint8_t> label, float sigma, float min_weight, float* scratch,
+                   ImageView<float> weights_out, bool decimate) {
+  const int f = decimate ? BlurSelectionFactor(sigma) : 1;
+  if (f > 1) {
+    BlurSelectionDecimated(label, sigma, min_weight, f, weights_out);
+    return;
+  }
+  const int H = label.height, W = label.width;
+  const std::vector<float> taps = GaussTaps(sigma);
+  const int r = int(taps.size() / 2);
   // Vertical pass first, on the one-hot planes, into scratch as three planes (TM, ULR, PVM) of
   // H x W: the inner loops run along rows (contiguous, vectorised), unlike a horizontal pass over
   // interleaved channels. Sums of non-negative terms: a weight is 0 exactly where no label of its
@@ -823,20 +950,7 @@ void BlurSelection(ImageView<const std::uint8_t> label, float sigma, float min_w
       const float* w0 = acc.data();
       const float* w1 = w0 + W;
       const float* w2 = w1 + W;
-      for (int x = 0; x < W; ++x) {
-        const float sum = w0[x] + w1[x] + w2[x];
-        const float inv = sum > 0.f ? 1.f / sum : 0.f;
-        float a = w0[x] * inv, b = w1[x] * inv, c = w2[x] * inv;
-        if (min_weight > 0.f && sum > 0.f && (a < min_weight || b < min_weight || c < min_weight)) {
-          const float ka = a < min_weight ? 0.f : a, kb = b < min_weight ? 0.f : b, kc = c < min_weight ? 0.f : c;
-          // >= 1/3 but for rounding (three equal weights at min_weight = 1/3): then all are kept
-          const float kept = ka + kb + kc;
-          if (kept > 0.f) a = ka / kept, b = kb / kept, c = kc / kept;
-        }
-        orow[3 * x] = a;
-        orow[3 * x + 1] = b;
-        orow[3 * x + 2] = c;
-      }
+      for (int x = 0; x < W; ++x) StoreSelectionWeights(w0[x], w1[x], w2[x], min_weight, orow + 3 * x);
     }
   });
 }

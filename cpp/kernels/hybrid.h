@@ -104,8 +104,16 @@ void HybridSelect(ImageView<const float> gbuffer_depth, const std::uint8_t* insi
 // Gaussian's tail would otherwise ask for it 3 sigma beyond every pixel that chose it, at weights
 // (1e-3) that cannot show in the composite. min_weight 0: the plain blur. weights_out (H, W, 3) =
 // (tm, ulr, pvm); scratch holds 3 * H * W floats.
+// decimate: for a wide blur (sigma >= 8: f = BlurSelectionFactor(sigma) > 1) the blur runs at 1 / f
+// of the resolution on f x f block means and is read back bilinearly, with the variances matched
+// (a Gaussian of the same sigma to ~1e-3 in the weights; ~10x less work at sigma 16, where the full
+// blur has 97 taps a pass); the weights' support then is the blur's at the lower resolution.
 void BlurSelection(ImageView<const std::uint8_t> label, float sigma, float min_weight, float* scratch,
-                   ImageView<float> weights_out);
+                   ImageView<float> weights_out, bool decimate = false);
+
+// The block size of BlurSelection's decimated form: 1 (full resolution) below sigma 8, else
+// min(4, floor(sigma / 4)).
+int BlurSelectionFactor(float sigma);
 
 // Where the composite needs ULR and PVM colours, from the blurred weights (H, W, 3) = (tm, ulr,
 // pvm) and the PVM's valid pixels (pvm_valid: it has candidates): need_pvm = pvm weight > 0 and

@@ -409,7 +409,7 @@ class HybridMethod:
         pvm_depth = np.ascontiguousarray(res.depth, np.float32)
         label = _core.hybrid_select(gb["depth"], inside_grid=inside, pvm_valid=valid, pvm_depth=pvm_depth, vd=vd,
                                     geo_threshold=self._geo, tau_var=p["tau_var"])
-        weights = _core.blur_selection(label, p["sigma_blur"], p["min_weight"])
+        weights = _core.blur_selection(label, p["sigma_blur"], p["min_weight"], decimate=True)
         need_ulr, need_pvm, n_ulr, n_pvm = _core.hybrid_needs(weights, valid)
         t4 = time.perf_counter()
         times["masking"] = (t4 - t3) * 1e3
