@@ -81,19 +81,21 @@ def test_equirect_input_views_take_the_scalar_path():
     np.testing.assert_array_equal(cf, cr)
 
 
-@pytest.mark.parametrize("n_views", [1, 4, 7, 8, 12, 13])
-def test_avx2_and_sse2_view_loops_give_the_same_bits(n_views):
-    """The per-view loop runs 8 views per AVX2 step (when the CPU has it) and the rest 4 at a time
-    in SSE2: the same IEEE operations lane for lane, no FMA, so the same image and counts as the
-    SSE2-only loop (simd="sse2"), bit for bit. View counts around the 4 / 8 boundaries. On a CPU
-    without AVX2 both calls take the SSE2 loop and the test holds trivially."""
+@pytest.mark.parametrize("n_views", [1, 4, 7, 8, 12, 13, 16, 17])
+def test_avx512_avx2_and_sse2_view_loops_give_the_same_bits(n_views):
+    """The per-view loop runs 16 views per AVX-512F step (when the CPU has it; simd="auto"), or 8
+    per AVX2 step and the rest 4 at a time in SSE2 (simd="avx2"), or SSE2 only (simd="sse2"): the
+    same IEEE operations lane for lane, no FMA, so the same image and counts, bit for bit. View
+    counts around the 4 / 8 / 16 boundaries. On a CPU without AVX-512 / AVX2 the calls take the
+    narrower loop and the test holds trivially for them."""
     cam, gdepth, views, normal = _scene(n_views, seed=n_views)
     for nrm in (None, normal):
-        ca, na = _core.ulr_blend(cam, gdepth, views, normal=nrm)
         cs, ns = _core.ulr_blend(cam, gdepth, views, normal=nrm, simd="sse2")
-        assert na.max() > 0
-        np.testing.assert_array_equal(na, ns)
-        np.testing.assert_array_equal(ca, cs)
+        assert ns.max() > 0
+        for simd in ("auto", "avx2"):
+            c, n = _core.ulr_blend(cam, gdepth, views, normal=nrm, simd=simd)
+            np.testing.assert_array_equal(n, ns)
+            np.testing.assert_array_equal(c, cs)
 
 
 def test_fast_ulr_reads_the_last_pixel_of_a_view():

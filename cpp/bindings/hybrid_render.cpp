@@ -233,8 +233,10 @@ py::tuple UlrBlendBinding(const Camera& novel, const py::object& depth_obj, cons
   opt.reference = reference;
   if (simd == "sse2") {
     opt.simd = UlrSimd::kSse2;
+  } else if (simd == "avx2") {
+    opt.simd = UlrSimd::kAvx2;
   } else if (simd != "auto") {
-    throw BadValueError("simd: expected 'auto' or 'sse2', got '" + simd + "'");
+    throw BadValueError("simd: expected 'auto', 'avx2' or 'sse2', got '" + simd + "'");
   }
   auto depth = CheckArray<float>(depth_obj, "gbuffer_depth", {{"H", novel.height}, {"W", novel.width}});
   const auto h = depth.shape(0), w = depth.shape(1);
@@ -431,7 +433,7 @@ void BindHybridRender(py::module_& m) {
         "Per-pixel ULR at the G-buffer's points: views = [(camera, color, depth), ...] -> (color (H, W, 3), "
         "count (H, W) uint8 views used, 0 = none sees the point). reference=True: the scalar reference path "
         "(double projections) instead of the fast one (float, SIMD over views; pinhole views only). "
-        "simd='sse2': the fast path's per-view loop in SSE2 even on an AVX2 CPU (the same bits; for tests).");
+        "simd='avx2' / 'sse2': the fast path's per-view loop at most AVX2 / in SSE2 even where the CPU has more (the same bits; for tests).");
   m.def("hybrid_select", &HybridSelectBinding, py::arg("gbuffer_depth"), py::kw_only(),
         py::arg("inside_grid") = py::none(), py::arg("pvm_valid") = py::none(), py::arg("pvm_depth") = py::none(),
         py::arg("vd") = py::none(), py::arg("geo_threshold") = 0.03, py::arg("tau_var") = 0.82,

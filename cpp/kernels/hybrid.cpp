@@ -249,10 +249,10 @@ struct UlrViewTable {
   std::vector<float> m[12];
   std::vector<const float*> depth;
   std::vector<std::ptrdiff_t> depth_stride;
-  // Padded to a multiple of 8 views with views of size 0 x 0 (every point is outside them).
+  // Padded to a multiple of 16 views with views of size 0 x 0 (every point is outside them).
   explicit UlrViewTable(const UlrInputView* views, int num_views) : n(num_views) {
     n4 = (num_views + 3) / 4 * 4;
-    const int padded = (num_views + 7) / 8 * 8;
+    const int padded = (num_views + 15) / 16 * 16;
     for (auto* a : {&cx, &cy, &cz, &w, &h, &wlast, &hlast}) a->assign(padded, 0.f);
     for (auto& a : m) a.assign(padded, 0.f);
     depth.assign(padded, nullptr);
@@ -463,6 +463,76 @@ __attribute__((target("avx2"))) void UlrViewsAvx2(const UlrPoint& q, const UlrVi
   }
   if (i0 < t.n4) UlrViews4(q, t, use_normal, rw, i0, o);
 }
+
+// Sixteen views per step in AVX-512F (UlrViewsAvx2's operations lane for lane: the same bits; the
+// compares as mask registers, blends by mask): 9-16 views in one step instead of an 8-wide and a
+// 4-wide one. Called when the CPU has AVX-512F (UlrBlendFast); the table is padded to 16 views.
+// AVX-512F brings FMA, which GCC would contract mul + add into (other bits): contraction off here.
+__attribute__((target("avx512f"), optimize("fp-contract=off"))) void UlrViewsAvx512(const UlrPoint& q, const UlrViewTable& t, bool use_normal,
+                                                       float rw, const UlrViewOut& o) {
+  const __m512 Px = _mm512_set1_ps(q.px), Py = _mm512_set1_ps(q.py), Pz = _mm512_set1_ps(q.pz);
+  const __m512 Bx = _mm512_set1_ps(q.bx), By = _mm512_set1_ps(q.by), Bz = _mm512_set1_ps(q.bz);
+  const __m512 Lb = _mm512_set1_ps(q.lb);
+  const __m512 Nx = _mm512_set1_ps(q.nx), Ny = _mm512_set1_ps(q.ny), Nz = _mm512_set1_ps(q.nz);
+  const __m512 zero = _mm512_setzero_ps(), one = _mm512_set1_ps(1.f), big = _mm512_set1_ps(3.4e38f);
+  const __m512 inf = _mm512_set1_ps(INFINITY), Rw = _mm512_set1_ps(rw);
+  const __m512 half_pi = _mm512_set1_ps(1.57079633f), pi = _mm512_set1_ps(3.14159265f);
+  for (int i0 = 0; i0 < t.n4; i0 += 16) {
+    const __m512 ax = _mm512_sub_ps(_mm512_loadu_ps(&t.cx[i0]), Px);
+    const __m512 ay = _mm512_sub_ps(_mm512_loadu_ps(&t.cy[i0]), Py);
+    const __m512 az = _mm512_sub_ps(_mm512_loadu_ps(&t.cz[i0]), Pz);
+    const __m512 la = _mm512_sqrt_ps(
+        _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(ax, ax), _mm512_mul_ps(ay, ay)), _mm512_mul_ps(az, az)));
+    const __m512 crx = _mm512_sub_ps(_mm512_mul_ps(ay, Bz), _mm512_mul_ps(az, By));
+    const __m512 cry = _mm512_sub_ps(_mm512_mul_ps(az, Bx), _mm512_mul_ps(ax, Bz));
+    const __m512 crz = _mm512_sub_ps(_mm512_mul_ps(ax, By), _mm512_mul_ps(ay, Bx));
+    const __m512 cr = _mm512_sqrt_ps(
+        _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(crx, crx), _mm512_mul_ps(cry, cry)), _mm512_mul_ps(crz, crz)));
+    const __m512 dt = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(ax, Bx), _mm512_mul_ps(ay, By)), _mm512_mul_ps(az, Bz));
+    const __m512 adt = _mm512_abs_ps(dt);
+    const __mmask16 swap = _mm512_cmp_ps_mask(cr, adt, _CMP_GT_OQ);
+    const __m512 num = _mm512_mask_blend_ps(swap, cr, adt);
+    const __m512 den = _mm512_mask_blend_ps(swap, adt, cr);
+    const __mmask16 denpos = _mm512_cmp_ps_mask(den, zero, _CMP_GT_OQ);
+    const __m512 tt = _mm512_div_ps(num, _mm512_mask_blend_ps(denpos, one, den));
+    const __m512 t2 = _mm512_mul_ps(tt, tt);
+    __m512 r = _mm512_add_ps(_mm512_set1_ps(kAtan7), _mm512_mul_ps(t2, _mm512_set1_ps(kAtan9)));
+    r = _mm512_add_ps(_mm512_set1_ps(kAtan5), _mm512_mul_ps(t2, r));
+    r = _mm512_add_ps(_mm512_set1_ps(kAtan3), _mm512_mul_ps(t2, r));
+    r = _mm512_add_ps(_mm512_set1_ps(kAtan1), _mm512_mul_ps(t2, r));
+    r = _mm512_mul_ps(tt, r);
+    r = _mm512_mask_blend_ps(swap, r, _mm512_sub_ps(half_pi, r));
+    r = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(dt, zero, _CMP_LT_OQ), r, _mm512_sub_ps(pi, r));
+    const __m512 ratio = _mm512_sub_ps(_mm512_div_ps(la, Lb), one);
+    const __m512 pn = _mm512_add_ps(r, _mm512_mul_ps(Rw, _mm512_max_ps(ratio, zero)));
+    const __m512 X = _mm512_add_ps(
+        _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(_mm512_loadu_ps(&t.m[0][i0]), Px), _mm512_mul_ps(_mm512_loadu_ps(&t.m[1][i0]), Py)),
+                      _mm512_mul_ps(_mm512_loadu_ps(&t.m[2][i0]), Pz)),
+        _mm512_loadu_ps(&t.m[3][i0]));
+    const __m512 Y = _mm512_add_ps(
+        _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(_mm512_loadu_ps(&t.m[4][i0]), Px), _mm512_mul_ps(_mm512_loadu_ps(&t.m[5][i0]), Py)),
+                      _mm512_mul_ps(_mm512_loadu_ps(&t.m[6][i0]), Pz)),
+        _mm512_loadu_ps(&t.m[7][i0]));
+    const __m512 Z = _mm512_add_ps(
+        _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(_mm512_loadu_ps(&t.m[8][i0]), Px), _mm512_mul_ps(_mm512_loadu_ps(&t.m[9][i0]), Py)),
+                      _mm512_mul_ps(_mm512_loadu_ps(&t.m[10][i0]), Pz)),
+        _mm512_loadu_ps(&t.m[11][i0]));
+    const __mmask16 zpos = _mm512_cmp_ps_mask(Z, zero, _CMP_GT_OQ);
+    const __m512 iz = _mm512_div_ps(one, _mm512_mask_blend_ps(zpos, one, Z));
+    const __m512 vx = _mm512_mul_ps(X, iz), vy = _mm512_mul_ps(Y, iz);
+    const __m512 facing = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(Nx, ax), _mm512_mul_ps(Ny, ay)), _mm512_mul_ps(Nz, az));
+    __mmask16 ok = use_normal ? _mm512_cmp_ps_mask(facing, zero, _CMP_GT_OQ) : __mmask16(0xFFFF);
+    ok &= _mm512_cmp_ps_mask(la, zero, _CMP_GT_OQ) & _mm512_cmp_ps_mask(la, big, _CMP_LE_OQ);
+    ok &= _mm512_cmp_ps_mask(pn, big, _CMP_LE_OQ) & zpos;
+    ok &= _mm512_cmp_ps_mask(vx, zero, _CMP_GE_OQ) & _mm512_cmp_ps_mask(vy, zero, _CMP_GE_OQ);
+    ok &= _mm512_cmp_ps_mask(vx, _mm512_loadu_ps(&t.w[i0]), _CMP_LT_OQ);
+    ok &= _mm512_cmp_ps_mask(vy, _mm512_loadu_ps(&t.h[i0]), _CMP_LT_OQ);
+    _mm512_storeu_ps(o.pen + i0, _mm512_mask_blend_ps(ok, inf, pn));
+    _mm512_storeu_ps(o.qx + i0, vx);
+    _mm512_storeu_ps(o.qy + i0, vy);
+    _mm512_storeu_ps(o.qz + i0, Z);
+  }
+}
 #endif  // __GNUC__
 #endif  // __SSE2__
 
@@ -496,6 +566,15 @@ bool UlrCpuHasAvx2() {
 #endif
 }
 
+bool UlrCpuHasAvx512() {
+#if defined(IBR_ULR_AVX2)
+  static const bool has = __builtin_cpu_supports("avx512f");
+  return has;
+#else
+  return false;
+#endif
+}
+
 // The fast path of UlrBlend for pinhole input views: penalties, back-face, behind-the-camera and
 // outside-the-image tests of all views in one branch-free float loop (SIMD over views: AVX2 when
 // the CPU has it, else SSE2), then the depth test of every view that passed them (branch-free),
@@ -523,6 +602,7 @@ void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, Ima
   views_fn = UlrViewsSse2;
 #if defined(IBR_ULR_AVX2)
   if (options.simd != UlrSimd::kSse2 && UlrCpuHasAvx2()) views_fn = UlrViewsAvx2;
+  if (options.simd == UlrSimd::kAuto && UlrCpuHasAvx512()) views_fn = UlrViewsAvx512;
 #endif
 #endif
   ParallelFor2D(H, W, 64, [&](int y0, int y1, int x0, int x1) {

@@ -32,7 +32,7 @@ struct UlrInputView {
   ImageView<const float> depth;  // (h, w) the view's depth (z / distance), 0 = unknown
 };
 
-enum class UlrSimd { kAuto, kSse2 };
+enum class UlrSimd { kAuto, kSse2, kAvx2 };
 
 struct UlrOptions {
   int k = 4;                       // views kept per pixel (UlrSelect: the k-th gets weight 0)
@@ -46,8 +46,8 @@ struct UlrOptions {
   // The scalar reference path (double projections, one view at a time) instead of the fast path
   // (float, SIMD over views; used when every input view is pinhole). Tests compare the two.
   bool reference = false;
-  // The fast path's per-view loop: AVX2 (8 views per step) when the CPU has it, else SSE2; kSse2
-  // forces SSE2 (tests: both give the same bits).
+  // The fast path's per-view loop: AVX-512F (16 views per step) when the CPU has it, else AVX2 (8),
+  // else SSE2 (4); kAvx2 stops at AVX2, kSse2 forces SSE2 (tests: all give the same bits).
   UlrSimd simd = UlrSimd::kAuto;
 };
 
