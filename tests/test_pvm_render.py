@@ -163,6 +163,24 @@ def _two_plane_scene():
     return Scene(views=views, targets=[], paths={}, meshes={}, units="m", source={}), cams[0]
 
 
+def test_rasterised_candidates_have_no_cracks():
+    """The per-view meshes of the two-plane scene, seen from their own pose: their vertices sit on
+    pixel centres, so most pixel centres lie exactly on shared triangle edges, where the edge rule
+    and the rasteriser's per-row column spans (kSpanSlack) decide. Every pixel away from the
+    border gets one candidate from each of the three views, at its plane's depth (a span that cut a
+    pixel off would leave a crack with two)."""
+    scene, cam = _two_plane_scene()
+    r = _renderer(scene)
+    r.render(cam, filtered=False)
+    c = r.candidates(cam)
+    inner = (slice(1, -1), slice(1, -1))
+    assert (c["count"][inner] == 3).all()
+    d = np.sort(c["depth"][inner][..., :3], axis=-1)
+    np.testing.assert_allclose(d, np.broadcast_to([3.0, 5.0, 5.0], d.shape), rtol=1e-5)
+    v = np.sort(c["view"][inner][..., :3], axis=-1)
+    assert (v == np.array([0, 1, 2])).all()
+
+
 def test_two_clusters_filtered_blend_and_vote():
     """A pixel list with a near plane (1 view) and a far plane (2 views): Eq. 2 with tau 0.83
     picks the far (2 >= 0.83 * 1); unfiltered keeps the near cluster's colour, filtered is pulled

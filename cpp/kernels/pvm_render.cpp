@@ -317,6 +317,10 @@ void PvmSelectTiles(const PvmTileArrays& tiles, const PvmViews& views, const std
   }
 }
 
+// Slack of PvmRasterise's per-row column spans, in pixels (was a whole pixel each side: 2-3 extra
+// exact tests per row of a triangle, most of which cover no pixel centre).
+constexpr double kSpanSlack = 1e-6;
+
 void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camera& camera,
                   const PvmRenderOptions& options, PvmFrame& frame) {
   (void)views;
@@ -468,8 +472,9 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
           bool have_inv = false;
           // Per row, the columns where all three edge functions can be >= 0: each edge function is
           // e(px) = c - dy * (px - x0) along the row; its sign changes at px = x0 + c / dy. The span
-          // is widened by one pixel on each side (the exact test below decides; the span only skips
-          // pixel centres whose edge function is negative by far more than its rounding).
+          // is widened by kSpanSlack on each side (the exact test below decides; the span only skips
+          // pixel centres whose edge function is negative by far more than its rounding: the
+          // crossing is two roundings, ~1e-12 px, from the exact one inside the bounding box).
           const double ex[3] = {bx, qx, ax}, ey[3] = {by, qy, ay};
           const double edx[3] = {qx - bx, ax - qx, bx - ax}, edy[3] = {qy - by, ay - qy, by - ay};
           for (int y = ra; y <= rb; ++y) {
@@ -483,9 +488,9 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
               }
               const double cross = ex[k] + c / edy[k] - 0.5;  // column index where e = 0
               if (edy[k] < 0.0) {
-                lo_x = std::max(lo_x, std::floor(cross) - 1.0);  // e grows with px: px >= cross
+                lo_x = std::max(lo_x, std::ceil(cross - kSpanSlack));  // e grows with px: px >= cross
               } else {
-                hi_x = std::min(hi_x, std::ceil(cross) + 1.0);   // e falls with px: px <= cross
+                hi_x = std::min(hi_x, std::floor(cross + kSpanSlack));  // e falls with px: px <= cross
               }
             }
             if (!(lo_x <= hi_x)) continue;
