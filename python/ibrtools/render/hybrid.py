@@ -23,7 +23,8 @@ ones.
   Eq. 2, ``tau_depth``) farther than ``geo_threshold`` (3 cm when the scene's units are a length;
   one voxel of the global mesh when they are not, :func:`geo_threshold_for`) from the global
   depth -> PVM; else the view-dependent texture (``harmonise`` stage) above ``tau_var`` -> ULR;
-  else TM. The one-hot selection is blurred (Gaussian ``sigma_blur`` = 16 px), weights below
+  else TM. The one-hot selection is blurred (Gaussian ``sigma_blur`` = 16 px; at 1/4 resolution,
+  variance matched, docs/hybrid.md), weights below
   ``min_weight`` (0.05) dropped and the rest normalised again, and the three colours composited;
   ULR is computed only where its weight is positive (or where a PVM pixel without candidates
   falls back to it). The PVM colour comes from
