@@ -297,7 +297,9 @@ FArray BlurSelectionBinding(const py::object& label_obj, double sigma, double mi
   const auto h = label.shape(0), w = label.shape(1);
   CheckLabels(label);
   FArray out = NewArray<float>({h, w, 3});
-  std::unique_ptr<float[]> scratch(new float[static_cast<std::size_t>(h) * w * 3]);  // written before read
+  // The full-resolution blur's planes (written before read); the decimated one needs none.
+  std::unique_ptr<float[]> scratch;
+  if (!decimate || BlurSelectionFactor(s) == 1) scratch.reset(new float[static_cast<std::size_t>(h) * w * 3]);
   {
     py::gil_scoped_release release;
     BlurSelection(ConstViewOf(label), s, mw, scratch.get(), ViewOf(out), decimate);

@@ -642,10 +642,11 @@ void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, Ima
 #if defined(__SSE2__)
   views_fn = UlrViewsSse2;
 #if defined(IBR_ULR_AVX2)
+  const bool avx512 = options.simd == UlrSimd::kAuto && UlrCpuHasAvx512();
   if (options.simd != UlrSimd::kSse2 && UlrCpuHasAvx2()) views_fn = UlrViewsAvx2;
-  if (options.simd == UlrSimd::kAuto && UlrCpuHasAvx512()) views_fn = UlrViewsAvx512;
+  if (avx512) views_fn = UlrViewsAvx512;
+  const bool depth_avx512 = avx512 && vt.offsets32;  // the depth test too, where the offsets fit int32
 #endif
-  const bool depth_avx512 = views_fn != nullptr && options.simd == UlrSimd::kAuto && UlrCpuHasAvx512() && vt.offsets32;
 #endif
   ParallelFor2D(H, W, 64, [&](int y0, int y1, int x0, int x1) {
     const std::size_t nv_padded = vt.w.size();
@@ -884,6 +885,28 @@ inline void StoreSelectionWeights(float w0, float w1, float w2, float min_weight
   out[2] = c;
 }
 
+// One row of a separable blur, edge-clamped: out[x] = sum_d taps[d] src[clamp(x + d - r)] for x < W
+// (taps of length 2 r + 1), through pad (W + 2 r floats); AVX2 when avx2 (BlurHorizontalAvx2: the
+// same sums in the same order, so the same bits).
+void BlurRowClamped(const float* src, int W, const std::vector<float>& taps, bool avx2, float* pad, float* out) {
+  const int r = int(taps.size() / 2);
+  for (int x = 0; x < r; ++x) pad[x] = src[0], pad[W + r + x] = src[W - 1];
+  std::copy(src, src + W, pad + r);
+#if defined(IBR_ULR_AVX2)
+  if (avx2) {
+    BlurHorizontalAvx2(pad, taps.data(), int(taps.size()), W, out);
+    return;
+  }
+#endif
+  (void)avx2;
+  for (int x = 0; x < W; ++x) out[x] = 0.f;
+  for (int d = 0; d <= 2 * r; ++d) {
+    const float t = taps[std::size_t(d)];
+    const float* in = pad + d;
+    for (int x = 0; x < W; ++x) out[x] += t * in[x];
+  }
+}
+
 // Separable Gaussian taps of standard deviation sigma, radius ceil(3 sigma) (one tap of 1 at 0).
 std::vector<float> GaussTaps(float sigma) {
   const int r = sigma > 0.f ? int(std::ceil(3.f * sigma)) : 0;
@@ -934,20 +957,11 @@ void BlurSelectionDecimated(ImageView<const std::uint8_t> label, float sigma, fl
       }
     }
   });
+  const bool avx2 = UlrCpuHasAvx2();
   ParallelFor(3 * std::int64_t(hl), 8, [&](std::int64_t b, std::int64_t e) {  // horizontal, tmp -> lo
     std::vector<float> pad(std::size_t(wl) + 2 * r);
-    for (std::int64_t cy = b; cy < e; ++cy) {
-      const float* in = tmp.data() + std::size_t(cy) * wl;  // plane c, row y: consecutive rows
-      float* out = lo.data() + std::size_t(cy) * wl;
-      for (int x = 0; x < r; ++x) pad[std::size_t(x)] = in[0], pad[std::size_t(wl + r + x)] = in[wl - 1];
-      std::copy(in, in + wl, pad.begin() + r);
-      std::fill(out, out + wl, 0.f);
-      for (int d = 0; d <= 2 * r; ++d) {
-        const float t = taps[std::size_t(d)];
-        const float* s = pad.data() + d;
-        for (int x = 0; x < wl; ++x) out[x] += t * s[x];
-      }
-    }
+    for (std::int64_t cy = b; cy < e; ++cy)  // plane c, row y: consecutive rows of tmp and lo
+      BlurRowClamped(tmp.data() + std::size_t(cy) * wl, wl, taps, avx2, pad.data(), lo.data() + std::size_t(cy) * wl);
   });
   // Bilinear read-back: low-resolution coordinate u = (x + M - (f - 1) / 2) / f (clamped).
   const auto axis = [f, margin](int n, int nl, std::vector<int>& i0, std::vector<float>& frac) {
@@ -1062,22 +1076,8 @@ void BlurSelection(ImageView<const std::uint8_t> label, float sigma, float min_w
           std::fill(acc.begin() + std::size_t(c) * W, acc.begin() + std::size_t(c + 1) * W, 0.f);
           continue;
         }
-        const float* src = scratch + c * plane + std::int64_t(y) * W;
-        for (int x = 0; x < r; ++x) pad[x] = src[0], pad[std::size_t(W) + r + x] = src[W - 1];
-        std::copy(src, src + W, pad.begin() + r);
-        float* out = acc.data() + std::size_t(c) * W;
-#if defined(IBR_ULR_AVX2)
-        if (avx2) {
-          BlurHorizontalAvx2(pad.data(), taps.data(), ntaps, W, out);
-          continue;
-        }
-#endif
-        for (int x = 0; x < W; ++x) out[x] = 0.f;
-        for (int d = 0; d <= 2 * r; ++d) {
-          const float t = taps[d];
-          const float* in = pad.data() + d;
-          for (int x = 0; x < W; ++x) out[x] += t * in[x];
-        }
+        BlurRowClamped(scratch + c * plane + std::int64_t(y) * W, W, taps, avx2, pad.data(),
+                       acc.data() + std::size_t(c) * W);
       }
       float* orow = weights_out.Row(y);
       const float* w0 = acc.data();

@@ -103,7 +103,7 @@ void HybridSelect(ImageView<const float> gbuffer_depth, const std::uint8_t* insi
 // others are normalised again: a method's colour is needed only where its weight is > 0, and the
 // Gaussian's tail would otherwise ask for it 3 sigma beyond every pixel that chose it, at weights
 // (1e-3) that cannot show in the composite. min_weight 0: the plain blur. weights_out (H, W, 3) =
-// (tm, ulr, pvm); scratch holds 3 * H * W floats.
+// (tm, ulr, pvm); scratch holds 3 * H * W floats (unread, may be null, when the blur is decimated).
 // decimate: for a wide blur (sigma >= 8: f = BlurSelectionFactor(sigma) > 1) the blur runs at 1 / f
 // of the resolution on f x f block means and is read back bilinearly, with the variances matched
 // (a Gaussian of the same sigma to ~1e-3 in the weights; ~10x less work at sigma 16, where the full
