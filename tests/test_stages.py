@@ -96,6 +96,23 @@ def test_parameter_change_reruns_that_stage_only(built, capsys):
     assert run(d, "--stages", "pvm", capsys=capsys)["pvm"]["status"] == "ran"
 
 
+def test_a_native_scene_is_preprocessed_in_place(built, tmp_path, capsys):
+    # `ibr-preprocess SCENE -o SCENE --stages S`: what the renderers' error messages say to run.
+    d, _ = built
+    (d / "cache" / "texture" / "texture.npz").unlink(missing_ok=True)
+    assert preprocess.main([str(d), "-o", str(d), "--stages", "texture", "--set", "mesh.resolution=32",
+                            "--json"]) == 0
+    out = {r["stage"]: r for r in json.loads(capsys.readouterr().out)}
+    assert out["import"]["status"] == "up to date" and "in place" in out["import"]["reason"]
+    assert out["texture"]["status"] == "ran" and out["mesh"]["status"] == "up to date", out
+    # A directory that holds no scene cannot be its own input.
+    (tmp_path / "empty").mkdir()
+    assert preprocess.main([str(tmp_path / "empty"), "-o", str(tmp_path / "empty")]) != 0
+    err = capsys.readouterr().err
+    assert "output is the input" in err and "scene.json" in err
+    assert not (tmp_path / "empty" / "scene.json").exists()
+
+
 def test_changed_scene_content_reruns_derived_stages(tmp_path, capsys):
     d = tmp_path / "s"
     run(d, "--methods", "pvm", capsys=capsys)

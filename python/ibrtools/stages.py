@@ -83,7 +83,14 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
     else:
         src = Path(input_spec)
         if src.resolve() == output.resolve():
-            raise BadValueError(f"-o {output}: output is the input; choose another directory")
+            # A native scene preprocessed in place (`ibr-preprocess SCENE -o SCENE --stages ...`,
+            # what the renderers' error messages suggest): nothing to import.
+            if not (output / "scene.json").is_file():
+                raise BadValueError(f"-o {output}: output is the input and it holds no native scene "
+                                    f"(scene.json); choose another directory")
+            record = _existing_record(output, "import") or {}
+            return StageResult("import", "up to date", "the input is the scene itself (preprocessed in place)", 0.0,
+                               {k: record[k] for k in ("views", "targets") if k in record})
         params = {"format": fmt, "options": options, "version": IMPORT_STAGE_VERSION}
         key = hash_inputs(src, params)
     record = _existing_record(output, "import")
@@ -165,7 +172,8 @@ STAGES: dict[str, Stage] = {s.name: s for s in (
     Stage("variance", ("scene", "mesh", "depth"), ("variance.npz",), frozenset({"hybrid"}),
           "per-vertex photometric standard deviation across the views that see it"),
     Stage("harmonise", ("scene", "mesh", "variance"), ("harmonise.npz",), frozenset({"hybrid"}),
-          "diffuse harmonisation, graph-cut view-dependent masks, Poisson re-injection", version=2),
+          "diffuse harmonisation (exposure gains, or the paper's local ratio field and Poisson re-injection), "
+          "graph-cut view-dependent masks", version=3),
     Stage("pvm", ("scene", "depth"), ("tiles.npz",), frozenset({"pvm", "hybrid"}),
           "per-view meshes (merge tolerance matched to the depth noise) sliced into a two-level voxel grid of "
           "tiles (cubic cells)", version=3),
