@@ -23,7 +23,8 @@ ones.
   Eq. 2, ``tau_depth``) farther than ``geo_threshold`` (3 cm when the scene's units are a length;
   one voxel of the global mesh when they are not, :func:`geo_threshold_for`) from the global
   depth -> PVM; else the view-dependent texture (``harmonise`` stage) above ``tau_var`` -> ULR;
-  else TM. The one-hot selection is blurred (Gaussian ``sigma_blur`` = 16 px; at 1/4 resolution,
+  else TM (``tau_var`` = -1 by default: never, TM is ULR's fallback where no view sees the point;
+  0: TM where no view found the surface view-dependent). The one-hot selection is blurred (Gaussian ``sigma_blur`` = 16 px; at 1/4 resolution,
   variance matched, docs/hybrid.md), weights below
   ``min_weight`` (0.05) dropped and the rest normalised again, and the three colours composited;
   ULR is computed only where its weight is positive (or where a PVM pixel without candidates
@@ -61,10 +62,14 @@ ULR_DEFAULTS = {"k": 4, "resolution_weight": 0.5, "depth_tol": 0.02, "harmonised
 # sigma, alpha, gamma, tau_depth: the paper's sweep values (sec. 7). sigma_blur 16 px (the
 # paper: 4): chosen on synth:objects seed 1, a scene no reported figure uses (12 views of
 # 480x360, 4 targets: sigma_blur 4 / 8 / 12 / 16 -> hybrid 30.50 / 30.63 / 30.72 / 30.78 dB,
-# SSIM 0.9316 / 0.9326 / 0.9332 / 0.9336; docs/hybrid.md "Figures"). tau_var 0 (the paper: 0.82,
+# SSIM 0.9316 / 0.9326 / 0.9332 / 0.9336; docs/hybrid.md "Figures"). tau_var -1 (the paper: 0.82,
 # which our view-dependent texture, an average of per-view binary masks, almost never reaches):
-# chosen on synth:objects seed 1 and the lego validation views, where every metric improves
-# monotonically from 0.82 down to 0 (docs/hybrid.md "tau_var").
+# below every vd value, so reliable geometry always goes to ULR and TM is left as ULR's fallback
+# where no view sees the point. Chosen on synth:objects seed 1 and the lego validation views:
+# every metric improves monotonically from 0.82 down to 0 (docs/hybrid.md "tau_var"), and again
+# from 0 to -1 once the harmonised images keep the views' shading (harmonise diffuse="exposure":
+# lego 27.45 / 0.9358 / 0.0559 -> 27.67 / 0.9406 / 0.0520, synth 31.31 / 0.9397 / 0.0641 -> 31.55 /
+# 0.9431 / 0.0599; docs/hybrid.md "Fifth round"). tau_var 0 keeps the paper's TM branch (vd = 0 -> TM).
 # min_weight 0.05 (the paper: 0, no threshold): the largest value costing <= 0.01 dB on synth:objects
 # seed 1 and the lego validation views; ULR / PVM colours then run on 37 / 53 % of a 1280x720 frame
 # instead of 60 / 75 % (docs/hybrid.md "Fourth round").
@@ -72,7 +77,7 @@ ULR_DEFAULTS = {"k": 4, "resolution_weight": 0.5, "depth_tol": 0.02, "harmonised
 # The hybrid parameters that are the PVM renderer's: its defaults, checked by it, passed to it.
 PVM_KEYS = ("sigma", "alpha", "gamma", "tau_depth", "free_space", "free_space_tol")
 HYBRID_DEFAULTS = {**ULR_DEFAULTS, **{k: PVM_DEFAULTS[k] for k in PVM_KEYS},
-                   "tau_var": 0.0, "sigma_blur": 16.0, "min_weight": 0.05, "geo_threshold": None, "filtered": True}
+                   "tau_var": -1.0, "sigma_blur": 16.0, "min_weight": 0.05, "geo_threshold": None, "filtered": True}
 STAGES_FOR = {"tm": ("mesh", "texture"), "ulr": ("mesh", "depth"),
               "hybrid": ("mesh", "depth", "texture", "variance", "harmonise", "pvm")}
 _UNIT_METRES = {"m": 1.0, "meter": 1.0, "metre": 1.0, "meters": 1.0, "metres": 1.0, "cm": 0.01, "mm": 0.001,
