@@ -1,7 +1,11 @@
 """Multi-view harmonisation (Prakash et al. 2021, sec. 4.1 and 4.2; issue 6 items 5-8).
 docs/harmonise.md states the energy, the thresholds and where we deviate from the paper.
 
-Per input view, in linear RGB:
+Per input view, in linear RGB (``diffuse="exposure"``, the default, replaces step 1's ratio field
+and step 3 by one division per view: the view over the exposure part of its global gain, split
+from view-dependent shading by :func:`ibrtools.hybrid.gainmodel.exposure_gains`, the texture
+stage's model; the mask and the view-dependent texture as below. ``diffuse="local"``: the paper's
+steps 1-3. docs/harmonise.md "Diffuse step" gives the measurements that chose the default):
 
 1. **Diffuse harmonisation** (sec. 4.1). T = the mesh colour rendered into the view (Embree,
    :class:`~ibrtools.render.reference.ReferenceRenderer`): by default (``t_source="views"``) the

@@ -24,8 +24,8 @@ ones.
   one voxel of the global mesh when they are not, :func:`geo_threshold_for`) from the global
   depth -> PVM; else the view-dependent texture (``harmonise`` stage) above ``tau_var`` -> ULR;
   else TM (``tau_var`` = -1 by default: never, TM is ULR's fallback where no view sees the point;
-  0: TM where no view found the surface view-dependent). The one-hot selection is blurred (Gaussian ``sigma_blur`` = 16 px; at 1/4 resolution,
-  variance matched, docs/hybrid.md), weights below
+  0: TM where no view found the surface view-dependent). The one-hot selection is blurred
+  (Gaussian ``sigma_blur`` = 16 px; at 1/4 resolution, variance matched, docs/hybrid.md), weights below
   ``min_weight`` (0.05) dropped and the rest normalised again, and the three colours composited;
   ULR is computed only where its weight is positive (or where a PVM pixel without candidates
   falls back to it). The PVM colour comes from
