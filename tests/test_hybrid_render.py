@@ -144,6 +144,15 @@ def test_selection_rules_of_fig7():
     # outside -> ULR; 10 cm off -> PVM; no PVM + vd high -> ULR; 1 cm off + vd high -> ULR;
     # global misses, PVM has a surface -> PVM; 1 cm off, vd low -> TM.
     assert lab.tolist() == [[1, 2, 1, 1, 2, 0]]
+    # tau_var below 0 (the method's default -1): the photometric test sends every pixel of agreeing
+    # geometry to ULR, with or without a view-dependent texture (none = 0 everywhere).
+    for v in (vd, None):
+        lab = _core.hybrid_select(g, inside_grid=inside, pvm_valid=valid, pvm_depth=pdepth, vd=v,
+                                  geo_threshold=0.03, tau_var=-1.0)
+        assert lab.tolist() == [[1, 2, 1, 1, 2, 1]]
+    lab = _core.hybrid_select(g, inside_grid=inside, pvm_valid=valid, pvm_depth=pdepth, geo_threshold=0.03,
+                              tau_var=0.0)
+    assert lab.tolist() == [[1, 2, 0, 0, 2, 0]]
 
 
 def test_all_empty_candidates_fall_back_without_nan():
@@ -413,6 +422,25 @@ def test_exact_mesh_hybrid_matches_reference_on_diffuse(exact_scene):
         assert out["selection"].shape == out["color"].shape and not np.isnan(out["color"]).any()
         e = np.abs(out["color"] - ref).mean(-1)[diffuse & ~out["hole"]]
         assert np.median(e) < 0.015, np.median(e)
+
+
+@needs_pvm
+@pytest.mark.parametrize("tau_var", [-1.0, 0.0])
+def test_hybrid_tm_shaded_where_read_equals_the_full_frame_shade(exact_scene, monkeypatch, tau_var):
+    # TM is shaded only at the pixels the composite reads (a TM weight, or ULR's fallback where no
+    # view sees the point) when they are few; the frame is the one a full-frame shade gives, bit for bit.
+    from ibrtools.render import hybrid as H, methods
+
+    t = exact_scene.targets[0]
+    frames = {}
+    for share in (0.0, 1.0):  # 0: always the full frame; 1: always the subset
+        monkeypatch.setattr(H, "TM_SUBSET_MAX", share)
+        hy = methods.create("hybrid", {"tau_var": tau_var})
+        hy.prepare(exact_scene)
+        frames[share], _ = hy.render(t.camera)
+    for k in ("color", "selection", "hole", "depth"):
+        np.testing.assert_array_equal(frames[0.0][k], frames[1.0][k])
+    assert 0 < hy.frame_report()["tm_pixels"] < t.camera.width * t.camera.height or tau_var == 0.0
 
 
 def test_geo_threshold_default_by_units_and_voxel(exact_scene):

@@ -789,7 +789,7 @@ void HybridSelect(ImageView<const float> gbuffer_depth, const std::uint8_t* insi
           lab = kLabelPvm;
         } else if (!hit) {
           lab = kLabelNone;
-        } else if (vd && vd[i] > options.tau_var) {
+        } else if ((vd ? vd[i] : 0.f) > options.tau_var) {  // no vd: 0 (tau_var < 0: always ULR)
           lab = kLabelUlr;
         } else {
           lab = kLabelTm;

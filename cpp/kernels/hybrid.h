@@ -81,7 +81,7 @@ enum HybridLabel : std::uint8_t { kLabelTm = 0, kLabelUlr = 1, kLabelPvm = 2, kL
 struct HybridSelectOptions {
   float geo_threshold = 0.03f;  // |PVM depth - global depth| above this -> PVM (3 cm in scene units)
   float tau_var = 0.82f;        // view-dependent texture above this -> ULR
-};  // the paper's values; --method hybrid passes its own (render/hybrid.py HYBRID_DEFAULTS: tau_var 0)
+};  // the paper's values; --method hybrid passes its own (render/hybrid.py HYBRID_DEFAULTS: tau_var -1)
 
 // Per pixel, with global hit = gbuffer_depth > 0:
 //   !inside_grid                                              -> ULR (kLabelNone if no global hit)

@@ -74,6 +74,9 @@ ULR_DEFAULTS = {"k": 4, "resolution_weight": 0.5, "depth_tol": 0.02, "harmonised
 # seed 1 and the lego validation views; ULR / PVM colours then run on 37 / 53 % of a 1280x720 frame
 # instead of 60 / 75 % (docs/hybrid.md "Fourth round").
 # geo_threshold None = geo_threshold_for(the scene's units, the mesh stage's voxel).
+# TM is shaded at the pixels the composite reads alone when they are at most this share of the
+# frame (a (1, n) G-buffer: indexing costs more per pixel than the full-frame shade).
+TM_SUBSET_MAX = 0.25
 # The hybrid parameters that are the PVM renderer's: its defaults, checked by it, passed to it.
 PVM_KEYS = ("sigma", "alpha", "gamma", "tau_depth", "free_space", "free_space_tol")
 HYBRID_DEFAULTS = {**ULR_DEFAULTS, **{k: PVM_DEFAULTS[k] for k in PVM_KEYS},
@@ -217,6 +220,13 @@ class _GlobalMesh:
             return _core.sample_atlas(gb["prim_id"], gb["bary"], self.uv, self.atlas)
         return self.interpolate(gb, self.colors)
 
+    def tm_color_at(self, gb: dict, pixels: np.ndarray, out: np.ndarray) -> None:
+        """TM colour written into ``out`` (H, W, 3) at the flat pixel indices ``pixels`` only (a
+        (1, n) G-buffer of those pixels: the same values as :meth:`tm_color` there)."""
+        if pixels.size:
+            sub = {"prim_id": gb["prim_id"].reshape(1, -1)[:, pixels], "bary": gb["bary"].reshape(1, -1, 2)[:, pixels]}
+            out.reshape(-1, 3)[pixels] = self.tm_color(sub).reshape(-1, 3)
+
     def interpolate(self, gb: dict, attrib: np.ndarray) -> np.ndarray:
         from .. import _core
 
@@ -326,12 +336,8 @@ class UlrMethod:
             # the ULR image in place; elsewhere ULR's colour stands (0 where nothing is hit, as
             # TM's): the same image as np.where(seen, ulr, tm over the frame), ~5 ms less serial
             # NumPy per 1280x720 frame.
-            fb = np.flatnonzero(gb["hit"] & ~seen)
             color = ulr
-            if fb.size:
-                sub = {"prim_id": gb["prim_id"].reshape(1, -1)[:, fb],
-                       "bary": gb["bary"].reshape(1, -1, 2)[:, fb]}
-                color.reshape(-1, 3)[fb] = self._gm.tm_color(sub).reshape(-1, 3)
+            self._gm.tm_color_at(gb, np.flatnonzero(gb["hit"] & ~seen), color)
             hole = ~gb["hit"]
             times["tm_fallback"] = (time.perf_counter() - t2) * 1e3
         else:
@@ -399,10 +405,11 @@ class HybridMethod:
         t0 = time.perf_counter()
         gb = self._gm.gbuffer(camera)
         t1 = time.perf_counter()
-        tm = self._gm.tm_color(gb)
-        vd = self._gm.interpolate(gb, self._vd) if self._vd is not None else None
+        # The view-dependent texture lies in [0, 1]: with tau_var < 0 the test sends every pixel to
+        # ULR whatever it is, and it is not interpolated.
+        vd = self._gm.interpolate(gb, self._vd) if self._vd is not None and p["tau_var"] >= 0 else None
         t2 = time.perf_counter()
-        times["gbuffer"], times["tm_shade"] = (t1 - t0) * 1e3, (t2 - t1) * 1e3
+        times["gbuffer"], times["vd"] = (t1 - t0) * 1e3, (t2 - t1) * 1e3
         # PVM in two passes: the depth pass (candidates of the visible voxels, 2-means, the Eq. 2
         # vote) at every pixel, which the geometric test needs; colours (cluster blend, spatial
         # filter) only where the blurred mask gives PVM a weight (resolve, below).
@@ -434,16 +441,30 @@ class HybridMethod:
             ulr, count = None, None
         t5 = time.perf_counter()
         times["ulr_blend"] = (t5 - t4) * 1e3
+        # TM where the composite reads it: a TM weight, or ULR's fallback where ULR is needed and no
+        # view sees the point. With tau_var < 0 that is a few pixels: shaded there alone (elsewhere
+        # TM's weight is 0 and the zeros give the same composite, bit for bit).
+        need_tm = weights[..., 0] > 0
+        if count is not None:
+            need_tm |= need_ulr & (count == 0)
+        n_tm = int(np.count_nonzero(need_tm))
+        if n_tm > TM_SUBSET_MAX * need_tm.size:
+            tm = self._gm.tm_color(gb)
+        else:
+            tm = np.zeros(gb["depth"].shape + (3,), np.float32)
+            self._gm.tm_color_at(gb, np.flatnonzero(need_tm), tm)
+        t6 = time.perf_counter()
+        times["tm_shade"] = (t6 - t5) * 1e3
         color = _core.hybrid_composite(weights, tm, ulr=ulr, ulr_count=count, pvm=pvm_color,
                                        pvm_valid=valid if pvm_color is not None else None)
         # hole (no label, no blurred weight), depth (PVM's where chosen), the selection image
         # (= weights @ SELECTION_COLORS) and the label counts in one pass (numpy: ~15 ms at 1280x720)
         fo = _core.hybrid_frame_outputs(label, weights, gb["depth"], pvm_depth)
-        times["composite"] = (time.perf_counter() - t5) * 1e3
+        times["composite"] = (time.perf_counter() - t6) * 1e3
         n = label.size
         self._last = {"selection": {name: round(fo["label_counts"][i] / n, 4)
                                     for i, name in enumerate(("tm", "ulr", "pvm", "none"))},
-                      "ulr_pixels": int(n_ulr), "pvm_pixels": int(n_pvm),
+                      "ulr_pixels": int(n_ulr), "pvm_pixels": int(n_pvm), "tm_pixels": n_tm,
                       "geo_threshold": self._geo, "images": self._source,
                       "free_space": (res.stats or {}).get("free_space")}
         return {"color": color, "depth": fo["depth"], "hole": fo["hole"], "selection": fo["selection"],
