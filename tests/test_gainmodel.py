@@ -8,7 +8,7 @@ import pytest
 
 from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError, ShapeError
-from ibrtools.hybrid.gainmodel import exposure_gains, gain_smoothness
+from ibrtools.hybrid.gainmodel import exposure_gains, gain_smoothness, global_shrink
 
 
 def ring(n=24, elevation=0.5):
@@ -137,3 +137,49 @@ def test_bad_input():
         gain_smoothness(g, eq)
     out, rec = exposure_gains(g, eq)  # the stage's call: an equirect scene keeps its gains
     assert rec["model"] == "exposure" and all(np.array_equal(out[n], g[n]) for n in g)
+
+
+def test_global_shrink_hand_checked():
+    # r = +-0.1 about the views' mean (mean square 0.01); half differences d = +-0.1 in every
+    # view, channel and split: s2 = 0.01 / 4 = 0.0025, f = 1 - 0.0025 / 0.01 = 0.75.
+    c = np.log(np.array([1.1, 0.9, 1.0]))
+    gains = {"a": np.exp(c + 0.1), "b": np.exp(c - 0.1)}
+    half = {n: np.exp(np.log(g)[None] + np.array([[0.05], [-0.05], [0.05], [-0.05]])) for n, g in gains.items()}
+    out, f = global_shrink(gains, half)
+    assert f == pytest.approx(0.75)
+    np.testing.assert_allclose(np.log(out["a"]), c + 0.075, atol=1e-12)
+    np.testing.assert_allclose(np.log(out["b"]), c - 0.075, atol=1e-12)
+
+
+def test_global_gains_kept_local_ones_shrunk_away():
+    cams = ring(12)
+    jit = jitter_gains(cams)
+    # An exposure scales the whole image: every half measures the same gain -> kept (bit for bit
+    # up to exp(log)).
+    same = {n: np.repeat(np.asarray(g)[None], 4, 0) for n, g in jit.items()}
+    out, rec = exposure_gains(jit, cams, half_gains=same)
+    assert rec["model"] == "exposure" and rec["shrink"] == 1.0
+    for n in jit:
+        np.testing.assert_allclose(out[n], jit[n], rtol=1e-12)
+    # Halves that disagree by more than the views do: the "gains" are not global -> nothing divided.
+    rng = np.random.default_rng(1)
+    noisy = {n: np.asarray(g)[None] * np.exp(rng.normal(0, 0.5, (4, 3))) for n, g in jit.items()}
+    out, rec = exposure_gains(jit, cams, half_gains=noisy)
+    assert rec["shrink"] == 0.0
+    lo = np.log(np.array(list(out.values())))
+    np.testing.assert_allclose(lo - lo.mean(0), 0.0, atol=1e-12)
+    # Without half gains: no shrink step.
+    assert exposure_gains(jit, cams)[1]["shrink"] is None
+
+
+def test_global_shrink_bad_input():
+    g = {"a": np.ones(3), "b": np.full(3, 1.2)}
+    with pytest.raises(BadValueError, match="half_gains"):
+        global_shrink(g, {"a": np.ones((4, 3))})
+    with pytest.raises(ShapeError, match="half_gains"):
+        global_shrink(g, {"a": np.ones((2, 3)), "b": np.ones((2, 3))})
+    with pytest.raises(BadValueError, match="half_gains"):
+        global_shrink(g, {"a": np.ones((4, 3)), "b": np.zeros((4, 3))})
+    # Identical gains (nothing to shrink): f = 0 and the common level, never NaN.
+    out, f = global_shrink({"a": np.ones(3), "b": np.ones(3)}, {"a": np.ones((4, 3)), "b": np.ones((4, 3))})
+    assert f == 0.0 and all(np.array_equal(v, np.ones(3)) for v in out.values())

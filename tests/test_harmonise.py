@@ -128,14 +128,15 @@ def test_glossy_scene_masks_highlights_and_keeps_them(base, mode):
             assert v["poisson"]["converged"] and v["exposure_gain"] is None
     else:
         # The original divided by one gain per view and channel, masks included (no re-injection);
-        # independent jitter is exposure to the gain model, so the whole gain is divided out.
-        assert res.stats["gain_model"] == "exposure"
+        # independent jitter is exposure to the gain model and global (the image's halves agree),
+        # so the whole gain is divided out, up to the shrink factor's last digits.
+        assert res.stats["gain_model"] == "exposure" and res.stats["gain_shrink"] > 0.99
         for v in scene.views:
             rec = res.stats["views"][v.name]
             assert rec["poisson"] is None
             g = np.asarray(rec["exposure_gain"], np.float32)
             np.testing.assert_allclose(res.images[v.name], np.maximum(v.color / g, 0), rtol=1e-6, atol=1e-7)
-            np.testing.assert_allclose(g, 1.0 / np.asarray(rec["gain"]), rtol=1e-6)
+            np.testing.assert_allclose(g, 1.0 / np.asarray(rec["gain"]), rtol=2e-3)
 
 
 def test_variance_of_a_view_dependent_patch():

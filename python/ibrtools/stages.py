@@ -168,12 +168,12 @@ STAGES: dict[str, Stage] = {s.name: s for s in (
           "per-view depth rendered from the global mesh, for views without depth"),
     Stage("texture", ("scene", "mesh", "depth"), ("texture.npz",), frozenset({"tm", "hybrid"}),
           "texture atlas and per-vertex colour of the render mesh by ULR-weighted blending of the "
-          "gain-compensated views", version=7),
+          "gain-compensated views", version=8),
     Stage("variance", ("scene", "mesh", "depth"), ("variance.npz",), frozenset({"hybrid"}),
           "per-vertex photometric standard deviation across the views that see it"),
     Stage("harmonise", ("scene", "mesh", "variance"), ("harmonise.npz",), frozenset({"hybrid"}),
           "diffuse harmonisation (exposure gains, or the paper's local ratio field and Poisson re-injection), "
-          "graph-cut view-dependent masks", version=3),
+          "graph-cut view-dependent masks", version=4),
     Stage("pvm", ("scene", "depth"), ("tiles.npz",), frozenset({"pvm", "hybrid"}),
           "per-view meshes (merge tolerance matched to the depth noise) sliced into a two-level voxel grid of "
           "tiles (cubic cells)", version=3),
@@ -452,14 +452,18 @@ def _run_texture(ctx: _Context) -> dict:
     # "Texture").
     # Only the part of the gains that looks like exposure (hybrid/gainmodel.py, gain_model): a
     # gain that follows the viewing direction smoothly is shading, which the texture keeps.
-    gains = vertex_statistics(ctx.scene, mesh)["gains"]
+    st = vertex_statistics(ctx.scene, mesh)
+    gains = st["gains"]
     spread = round(float(np.ptp(np.log([np.asarray(g) for g in gains.values()]))), 4) if gains else 0.0
-    gains, gain_rec = exposure_gains(gains, cams, mode=opts.gain_model, max_ratio=opts.gain_max_ratio)
+    # What is not global (the halves of a view's image disagree) is shrunk away (gainmodel.py).
+    gains, gain_rec = exposure_gains(gains, cams, mode=opts.gain_model, max_ratio=opts.gain_max_ratio,
+                                     half_gains=st["half_gains"] or None)
     colors = {v.name: (v.color / np.asarray(gains.get(v.name, np.ones(3)), np.float32)[None, None]).astype(np.float32)
               for v in ctx.scene.views}
     col, seen = vertex_colors(mesh, cams, colors, deps, opts)
     rec = {"vertices": int(len(col)), "unseen": int((seen == 0).sum()), "gain_spread": spread,
-           "gain_model": gain_rec["model"], "gain_ratio": gain_rec["ratio"], "k_views": opts.k_views,
+           "gain_model": gain_rec["model"], "gain_ratio": gain_rec["ratio"], "gain_shrink": gain_rec["shrink"],
+           "k_views": opts.k_views,
            "normal_rounds": opts.bake_normal_rounds}
     arrays = {"vertex_colors": col, "seen": seen}
     # The atlas (issue 7): per-texel colour at about the input views' resolution; a mesh with too

@@ -1,4 +1,4 @@
-"""Which part of the views' estimated global gains is exposure (issue 7, the texture stage).
+"""Which part of the views' estimated global gains is exposure (issue 7: the texture and harmonise stages).
 
 :func:`ibrtools.hybrid.variance.vertex_statistics` estimates one per-channel gain per view (the
 median ratio of its colours to the vertex means). It cannot tell an exposure change from
@@ -18,6 +18,17 @@ like:
   residual ``exp(log g - prediction)`` (re-centred to geometric mean 1) is divided out.
 
 A view with no neighbour within 3 sigma keeps its prediction at the mean log-gain.
+
+**Is what is left global?** (``half_gains``, optional.) An exposure scales the whole image; a
+"gain" that differs between the halves of the image is local appearance (shading, highlights, the
+mesh's errors) that a median over the image happened to turn into a number. Given each view's
+gain measured on its left / right / top / bottom halves, the noise variance of a view's log-gain
+is taken as ``s2`` = mean over views, channels and both splits of (half difference)^2 / 4, and
+the gains to divide out (their log, about the views' mean ``c``) are shrunk by the positive-part
+James-Stein factor ``f = max(0, 1 - s2 / mean(r^2))``, r = log g - c: ``exp(c + f r)``. On NeRF
+lego (no exposure differences) the residual after the shading model is 0.021 rms against a
+half-split noise of 0.025: f = 0, nothing is divided out; on a synthetic scene with exposure
+jitter 0.1, 0.104 against 0.0003: f = 1.000 (docs/harmonise.md "Is the gain global").
 """
 from __future__ import annotations
 
@@ -77,13 +88,37 @@ def gain_smoothness(gains: Mapping[str, np.ndarray], cameras: Mapping[str, Camer
     return ratio, {n: pred[i] for i, n in enumerate(names)}
 
 
+def global_shrink(gains: Mapping[str, np.ndarray], half_gains: Mapping[str, np.ndarray]) -> tuple[dict[str, np.ndarray], float]:
+    """(the gains shrunk towards their common level, f): the "Is what is left global?" step of the
+    module docstring. ``half_gains``: per view (4, 3), the gain measured on the image's left,
+    right, top and bottom halves (the same convention as ``gains``)."""
+    names = list(gains)
+    missing = [n for n in names if n not in half_gains]
+    if missing:
+        raise BadValueError(f"half_gains: no half-image gains for view(s) {missing}")
+    lg = np.log(np.array([np.asarray(gains[n], np.float64) for n in names]).reshape(-1, 3))
+    hg = np.array([np.asarray(half_gains[n], np.float64) for n in names])
+    if hg.shape != (len(names), 4, 3):
+        raise ShapeError(f"half_gains: expected one (4, 3) array per view, got shape {hg.shape}")
+    if not (np.isfinite(hg).all() and (hg > 0).all()):
+        raise BadValueError("half_gains: expected finite positive values")
+    lh = np.log(hg)
+    s2 = float(np.mean(np.concatenate([lh[:, 0] - lh[:, 1], lh[:, 2] - lh[:, 3]]) ** 2) / 4)
+    centre = lg.mean(0)
+    r = lg - centre
+    ms = float(np.mean(r ** 2))
+    f = max(0.0, 1.0 - s2 / ms) if ms > 0 else 0.0
+    return {n: np.exp(centre + f * r[i]) for i, n in enumerate(names)}, f
+
+
 def exposure_gains(gains: Mapping[str, np.ndarray], cameras: Mapping[str, Camera], *, mode: str = "auto",
-                   sigma_deg: float = SIGMA_DEG, max_ratio: float = MAX_RATIO
-                   ) -> tuple[dict[str, np.ndarray], dict]:
+                   sigma_deg: float = SIGMA_DEG, max_ratio: float = MAX_RATIO,
+                   half_gains: Mapping[str, np.ndarray] | None = None) -> tuple[dict[str, np.ndarray], dict]:
     """The gains to divide out of the views and a record {"ratio", "model": "exposure" |
-    "shading" | "none"}. ``mode``: "auto" (the test of the module docstring), "exposure" (the
-    gains unchanged), "none" (every gain 1). Fewer than 3 views or an equirect view: "auto"
-    keeps the gains."""
+    "shading" | "none", "shrink": f or None}. ``mode``: "auto" (the test of the module docstring),
+    "exposure" (the gains unchanged), "none" (every gain 1). Fewer than 3 views or an equirect view:
+    "auto" keeps the gains. ``half_gains`` (per view (4, 3): the gain on the image's left / right /
+    top / bottom halves): what the model keeps is then shrunk by :func:`global_shrink`."""
     if mode not in GAIN_MODES:
         raise BadValueError(f"gain model: expected one of {GAIN_MODES}, got {mode!r}")
     mr = check_float(max_ratio, "max_ratio")
@@ -91,14 +126,20 @@ def exposure_gains(gains: Mapping[str, np.ndarray], cameras: Mapping[str, Camera
         raise BadValueError(f"max_ratio: expected >= 0, got {max_ratio!r}")
     out = {n: np.asarray(g, np.float64) for n, g in gains.items()}
     if mode == "none":
-        return {n: np.ones_like(g) for n, g in out.items()}, {"ratio": None, "model": "none"}
+        return {n: np.ones_like(g) for n, g in out.items()}, {"ratio": None, "model": "none", "shrink": None}
+    ratio: float | None = None
+    model = "exposure"
     # Fewer than 3 views, or a view without an optical axis (equirect): the test cannot run.
-    if (mode == "exposure" or len(out) < 3
+    if not (mode == "exposure" or len(out) < 3
             or any(n in cameras and cameras[n].model != "pinhole" for n in out)):
-        return out, {"ratio": None, "model": "exposure"}
-    ratio, pred = gain_smoothness(out, cameras, sigma_deg)
-    if ratio >= mr:
-        return out, {"ratio": round(ratio, 4), "model": "exposure"}
-    res = {n: np.log(out[n]) - pred[n] for n in out}
-    centre = np.mean(list(res.values()), axis=0)
-    return {n: np.exp(r - centre) for n, r in res.items()}, {"ratio": round(ratio, 4), "model": "shading"}
+        ratio, pred = gain_smoothness(out, cameras, sigma_deg)
+        if ratio < mr:
+            model = "shading"
+            res = {n: np.log(out[n]) - pred[n] for n in out}
+            centre = np.mean(list(res.values()), axis=0)
+            out = {n: np.exp(r - centre) for n, r in res.items()}
+    f = None
+    if half_gains is not None and len(out) >= 2:
+        out, f = global_shrink(out, half_gains)
+        f = round(f, 4)
+    return out, {"ratio": None if ratio is None else round(ratio, 4), "model": model, "shrink": f}

@@ -194,6 +194,17 @@ def _global_gain(img, t, valid) -> np.ndarray:
     return np.median(t[ok].astype(np.float64) / img[ok], axis=0)
 
 
+def _half_gains(img, t, valid) -> np.ndarray:
+    """(4, 3): :func:`_global_gain` on the left, right, top and bottom halves of the image."""
+    h, w = valid.shape
+    out = []
+    for part in (np.s_[:, : w // 2], np.s_[:, w // 2:], np.s_[: h // 2, :], np.s_[h // 2:, :]):
+        m = np.zeros_like(valid)
+        m[part] = valid[part]
+        out.append(_global_gain(img, t, m))
+    return np.array(out)
+
+
 SCALE_LEVEL_SIGMA = 4.0  # the reduced-resolution blur keeps sigma / factor >= 4 px (factor <= 8)
 SCALE_MAX_FACTOR = 8
 
@@ -420,11 +431,15 @@ def harmonise(scene: Scene, mesh: Mesh, std: np.ndarray, params: HarmoniseParams
     else:
         # The part of the global gains that looks like exposure (the texture stage's model, so the
         # atlas and these images share one exposure): a gain that follows the viewing direction
-        # smoothly is shading, which the images keep. The view's gain is T / I; the model's, I / T.
+        # smoothly is shading, which the images keep, and what is not global (the halves of the
+        # image disagree) is shrunk away. The view's gain is T / I; the model's, I / T.
         cams_by_name = {n: scene.view(n).camera for n in per_view}
-        exposure, gain_rec = exposure_gains({n: 1.0 / pv[6] for n, pv in per_view.items()}, cams_by_name)
+        halves = {n: 1.0 / _half_gains(pv[0], pv[1], pv[3]) for n, pv in per_view.items()}
+        exposure, gain_rec = exposure_gains({n: 1.0 / pv[6] for n, pv in per_view.items()}, cams_by_name,
+                                            half_gains=halves)
         stats["gain_model"] = gain_rec["model"]
         stats["gain_ratio"] = gain_rec["ratio"]
+        stats["gain_shrink"] = gain_rec["shrink"]
         for name, pv in per_view.items():
             hms[name] = pv[0] / np.asarray(exposure[name], np.float32)
     # Pass 3: view-dependent mask and Poisson re-injection.

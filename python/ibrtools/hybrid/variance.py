@@ -113,12 +113,15 @@ def vertex_statistics(scene: Scene, mesh: Mesh, *, depth_tol: float = DEPTH_TOL,
     """Per-vertex mean and standard deviation of the views' colours (after each view's global
     per-channel gain is divided out when ``compensate_gains``), the number of views that see
     each vertex and the per-view gains. Returns {"mean" (N, 3) f32, "std" (N, 3) f32,
-    "count" (N,) i32, "gains": {view: (3,) f64}, "samples": [VertexSamples]}."""
+    "count" (N,) i32, "gains": {view: (3,) f64}, "half_gains": {view: (4, 3) f64} (the gain on
+    the view's left / right / top / bottom image half, for gainmodel.exposure_gains; {} without
+    gain compensation), "samples": [VertexSamples]}."""
     check_inputs(scene, mesh)
     if samples is None:
         samples = list(visible_samples(scene, mesh, renderer, depth_tol))
     n = len(mesh.vertices)
     gains = {s.name: np.ones(3) for s in samples}
+    half_gains: dict[str, np.ndarray] = {}
     count = np.zeros(n)
     for s in samples:
         count += np.bincount(s.index, minlength=n)
@@ -148,13 +151,13 @@ def vertex_statistics(scene: Scene, mesh: Mesh, *, depth_tol: float = DEPTH_TOL,
             sh = count[s.index] >= 2
             c = colors64[s.name][sh]
             keep = (c > 1e-3).all(1)
-            shared[s.name] = (s.index[sh][keep], c[keep])
+            shared[s.name] = (s.index[sh][keep], c[keep], s.x[sh][keep], s.y[sh][keep])
         # Alternate gains (robust: medians) and means until the gains settle (each vertex is seen
         # by a subset of the views, so the means mix gains: convergence is geometric, not one step).
         for _ in range(GAIN_ITERATIONS):
             before = {k: g.copy() for k, g in gains.items()}
             for s in samples:
-                idx, c = shared[s.name]
+                idx, c = shared[s.name][:2]
                 m = mean[idx]
                 ok = (m > 1e-3).all(1)
                 if ok.sum() >= 16:
@@ -166,10 +169,22 @@ def vertex_statistics(scene: Scene, mesh: Mesh, *, depth_tol: float = DEPTH_TOL,
             mean, var = moments()
             if max(float(np.abs(np.log(gains[k] / before[k])).max()) for k in gains) < 1e-4:
                 break
+        # The same median ratio on each half of the view's image (at the converged means): an
+        # exposure scales the whole image, so the halves of an exposure gain agree.
+        for s in samples:
+            idx, c, x, y = shared[s.name]
+            cam = scene.view(s.name).camera
+            m = mean[idx]
+            ok = (m > 1e-3).all(1)
+            halves = []
+            for part in (x < cam.width / 2, x >= cam.width / 2, y < cam.height / 2, y >= cam.height / 2):
+                sel = ok & part
+                halves.append(np.median(c[sel] / m[sel], axis=0) if sel.sum() >= 16 else gains[s.name])
+            half_gains[s.name] = np.array(halves)
     std = np.where(count[:, None] >= 2, np.sqrt(var), 0.0)
     mean = np.where(count[:, None] >= 1, mean, 0.0)
     return {"mean": mean.astype(np.float32), "std": std.astype(np.float32), "count": count.astype(np.int32),
-            "gains": gains, "samples": samples}
+            "gains": gains, "half_gains": half_gains, "samples": samples}
 
 
 def variance_mesh(scene: Scene, mesh: Mesh, *, depth_tol: float = DEPTH_TOL) -> np.ndarray:
