@@ -88,7 +88,8 @@ def gain_smoothness(gains: Mapping[str, np.ndarray], cameras: Mapping[str, Camer
     return ratio, {n: pred[i] for i, n in enumerate(names)}
 
 
-def global_shrink(gains: Mapping[str, np.ndarray], half_gains: Mapping[str, np.ndarray]) -> tuple[dict[str, np.ndarray], float]:
+def global_shrink(gains: Mapping[str, np.ndarray],
+                  half_gains: Mapping[str, np.ndarray]) -> tuple[dict[str, np.ndarray], float]:
     """(the gains shrunk towards their common level, f): the "Is what is left global?" step of the
     module docstring. ``half_gains``: per view (4, 3), the gain measured on the image's left,
     right, top and bottom halves (the same convention as ``gains``)."""
