@@ -104,7 +104,7 @@ struct PvmRenderOptions {
   int max_candidates = 12;   // candidates per pixel (<= kPvmMaxCandidates)
   int margin = 1;            // dilation of the G-buffer's coarse cells, in cells
   int ray_stride = 8;        // cells in front of the G-buffer on every ray_stride-th ray (0 = off)
-  int ulr_k = 4;             // ULR k within a cluster (weight 0 at the k-th)
+  int ulr_k = 3;             // ULR k within a cluster (weight 0 at the k-th; pvm_render.py DEFAULTS)
   float resolution_weight = 0.5f;  // ULR resolution penalty weight (ulr.h)
   float max_angle = 3.15f;   // radians: a view whose ray to the fine cell's centre makes a larger angle
                              // with the novel camera's is not ranked for that cell (> pi: no limit)
