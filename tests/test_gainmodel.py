@@ -8,7 +8,7 @@ import pytest
 
 from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError, ShapeError
-from ibrtools.hybrid.gainmodel import exposure_gains, gain_smoothness, global_shrink
+from ibrtools.hybrid.gainmodel import HALF_MIN_SAMPLES, exposure_gains, gain_halves, gain_smoothness, global_shrink
 
 
 def ring(n=24, elevation=0.5):
@@ -183,3 +183,21 @@ def test_global_shrink_bad_input():
     # Identical gains (nothing to shrink): f = 0 and the common level, never NaN.
     out, f = global_shrink({"a": np.ones(3), "b": np.ones(3)}, {"a": np.ones((4, 3)), "b": np.ones((4, 3))})
     assert f == 0.0 and all(np.array_equal(v, np.ones(3)) for v in out.values())
+
+
+def test_gain_halves_split_and_sparse_half():
+    # 40 samples on a 10 x 8 image: ratio 2 left of x = 5, 3 right of it; top / bottom mixed.
+    rng = np.random.default_rng(0)
+    x = np.concatenate([rng.uniform(0, 5, 20), rng.uniform(5, 10, 20)])
+    y = rng.uniform(0, 8, 40)
+    ratio = np.where((x < 5)[:, None], 2.0, 3.0) * np.ones((1, 3))
+    h = gain_halves(ratio, x, y, 10, 8, np.full(3, 2.5))
+    np.testing.assert_array_equal(h[0], 2.0)
+    np.testing.assert_array_equal(h[1], 3.0)
+    for k, part in ((2, y < 4), (3, y >= 4)):
+        np.testing.assert_array_equal(h[k], np.median(ratio[part], axis=0))
+    # A half with fewer than HALF_MIN_SAMPLES samples takes the whole image's gain: no evidence.
+    few = np.concatenate([np.full(HALF_MIN_SAMPLES - 1, 1.0), np.full(30, 9.0)])
+    h = gain_halves(np.ones((len(few), 3)), few, np.full(len(few), 4.0), 10, 8, np.full(3, 1.7))
+    np.testing.assert_array_equal(h[0], 1.7)
+    np.testing.assert_array_equal(h[1], 1.0)

@@ -173,7 +173,7 @@ STAGES: dict[str, Stage] = {s.name: s for s in (
           "per-vertex photometric standard deviation across the views that see it"),
     Stage("harmonise", ("scene", "mesh", "variance"), ("harmonise.npz",), frozenset({"hybrid"}),
           "diffuse harmonisation (exposure gains, or the paper's local ratio field and Poisson re-injection), "
-          "graph-cut view-dependent masks", version=4),
+          "graph-cut view-dependent masks", version=5),
     Stage("pvm", ("scene", "depth"), ("tiles.npz",), frozenset({"pvm", "hybrid"}),
           "per-view meshes (merge tolerance matched to the depth noise) sliced into a two-level voxel grid of "
           "tiles (cubic cells)", version=3),

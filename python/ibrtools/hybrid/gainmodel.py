@@ -88,6 +88,22 @@ def gain_smoothness(gains: Mapping[str, np.ndarray], cameras: Mapping[str, Camer
     return ratio, {n: pred[i] for i, n in enumerate(names)}
 
 
+HALF_MIN_SAMPLES = 16  # a half with fewer samples keeps the whole image's gain (no evidence either way)
+
+
+def gain_halves(ratio: np.ndarray, x: np.ndarray, y: np.ndarray, width: int, height: int,
+               whole: np.ndarray) -> np.ndarray:
+    """(4, 3): the per-channel median of ``ratio`` (n, 3), one row per sample of a view at ``x``,
+    ``y`` (pixels, centres at +0.5), over the samples in the left, right, top and bottom half of
+    its ``width`` x ``height`` image: the view's gain measured on each half, for
+    :func:`global_shrink`. A half with fewer than ``HALF_MIN_SAMPLES`` samples gets ``whole``
+    (the gain on the whole image), so that it says nothing against it."""
+    out = []
+    for part in (x < width / 2, x >= width / 2, y < height / 2, y >= height / 2):
+        out.append(np.median(ratio[part], axis=0) if np.count_nonzero(part) >= HALF_MIN_SAMPLES else whole)
+    return np.array(out, np.float64).reshape(4, 3)
+
+
 def global_shrink(gains: Mapping[str, np.ndarray],
                   half_gains: Mapping[str, np.ndarray]) -> tuple[dict[str, np.ndarray], float]:
     """(the gains shrunk towards their common level, f): the "Is what is left global?" step of the

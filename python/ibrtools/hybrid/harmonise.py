@@ -69,7 +69,7 @@ from ..errors import BadValueError, DtypeError, ShapeError
 from ..mesh import Mesh
 from ..scene import Scene
 from ..solvers import grid_maxflow, poisson_blend
-from .gainmodel import exposure_gains
+from .gainmodel import exposure_gains, gain_halves
 from .variance import DEPTH_TOL, check_inputs, vertex_statistics, visible_samples
 
 LUMA = np.array([0.2126, 0.7152, 0.0722])  # Rec. 709 weights of linear RGB
@@ -184,25 +184,29 @@ def _weights(sat: tuple, hit: np.ndarray, std_pix: np.ndarray, rng_c: np.ndarray
     return valid, sat_hi & hit, high_var
 
 
-def _global_gain(img, t, valid) -> np.ndarray:
-    """Median of T / I per channel over the weighted pixels (1 where there are too few)."""
+def _gain_pixels(img, t, valid) -> np.ndarray:
+    """The weighted pixels where T / I is defined (both > 1e-3 in every channel)."""
     ok = valid.copy()
     for c in range(3):  # per channel: numpy's reductions over a last axis of 3 are slow
         ok &= (img[..., c] > 1e-3) & (t[..., c] > 1e-3)
+    return ok
+
+
+def _global_gain(img, t, valid) -> np.ndarray:
+    """Median of T / I per channel over the weighted pixels (1 where there are too few)."""
+    ok = _gain_pixels(img, t, valid)
     if ok.sum() < 16:
         return np.ones(3)
     return np.median(t[ok].astype(np.float64) / img[ok], axis=0)
 
 
-def _half_gains(img, t, valid) -> np.ndarray:
-    """(4, 3): :func:`_global_gain` on the left, right, top and bottom halves of the image."""
-    h, w = valid.shape
-    out = []
-    for part in (np.s_[:, : w // 2], np.s_[:, w // 2:], np.s_[: h // 2, :], np.s_[h // 2:, :]):
-        m = np.zeros_like(valid)
-        m[part] = valid[part]
-        out.append(_global_gain(img, t, m))
-    return np.array(out)
+def _half_gains(img, t, valid, whole: np.ndarray) -> np.ndarray:
+    """(4, 3): the median of T / I on the left, right, top and bottom halves of the image
+    (gainmodel.gain_halves; ``whole`` = :func:`_global_gain` for a half with too few pixels)."""
+    ok = _gain_pixels(img, t, valid)
+    ys, xs = np.nonzero(ok)
+    h, w = ok.shape
+    return gain_halves(t[ok].astype(np.float64) / img[ok], xs + 0.5, ys + 0.5, w, h, whole)
 
 
 SCALE_LEVEL_SIGMA = 4.0  # the reduced-resolution blur keeps sigma / factor >= 4 px (factor <= 8)
@@ -434,7 +438,7 @@ def harmonise(scene: Scene, mesh: Mesh, std: np.ndarray, params: HarmoniseParams
         # smoothly is shading, which the images keep, and what is not global (the halves of the
         # image disagree) is shrunk away. The view's gain is T / I; the model's, I / T.
         cams_by_name = {n: scene.view(n).camera for n in per_view}
-        halves = {n: 1.0 / _half_gains(pv[0], pv[1], pv[3]) for n, pv in per_view.items()}
+        halves = {n: 1.0 / _half_gains(pv[0], pv[1], pv[3], pv[6]) for n, pv in per_view.items()}
         exposure, gain_rec = exposure_gains({n: 1.0 / pv[6] for n, pv in per_view.items()}, cams_by_name,
                                             half_gains=halves)
         stats["gain_model"] = gain_rec["model"]

@@ -25,6 +25,7 @@ import numpy as np
 from ..errors import BadValueError, DtypeError
 from ..mesh import Mesh
 from ..scene import Scene
+from .gainmodel import gain_halves
 
 DEPTH_TOL = 0.01  # |z_vertex - z_rendered| <= 1 % of z: a vertex on the rendered surface
 GAIN_ITERATIONS = 30  # at most; stops when no gain moves by more than 1e-4 (log)
@@ -176,11 +177,7 @@ def vertex_statistics(scene: Scene, mesh: Mesh, *, depth_tol: float = DEPTH_TOL,
             cam = scene.view(s.name).camera
             m = mean[idx]
             ok = (m > 1e-3).all(1)
-            halves = []
-            for part in (x < cam.width / 2, x >= cam.width / 2, y < cam.height / 2, y >= cam.height / 2):
-                sel = ok & part
-                halves.append(np.median(c[sel] / m[sel], axis=0) if sel.sum() >= 16 else gains[s.name])
-            half_gains[s.name] = np.array(halves)
+            half_gains[s.name] = gain_halves(c[ok] / m[ok], x[ok], y[ok], cam.width, cam.height, gains[s.name])
     std = np.where(count[:, None] >= 2, np.sqrt(var), 0.0)
     mean = np.where(count[:, None] >= 1, mean, 0.0)
     return {"mean": mean.astype(np.float32), "std": std.astype(np.float32), "count": count.astype(np.int32),
