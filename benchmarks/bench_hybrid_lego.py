@@ -307,7 +307,15 @@ def main(argv=None) -> int:
               f"FLIP (lower) {beats('flip', True)}; object PSNR {beats('psnr_obj')}; object SSIM "
               f"{beats('ssim_obj')}; object FLIP {beats('flip_obj', True)}. Target (hybrid better than each of TM, "
               f"ULR and PVM on the all-pixel means): {'met' if all3 else 'missed'}. Mean hybrid selection: "
-              + ", ".join(f"{k} {100 * v:.1f} %" for k, v in sel.items()) + ".", "", load_note()]
+              + ", ".join(f"{k} {100 * v:.1f} %" for k, v in sel.items()) + "."]
+    if "hybrid" in mean:  # the margins unrounded: a "beats" the table's digits cannot show
+        lines += ["", "Hybrid minus each method on the all-pixel means (PSNR dB, SSIM, FLIP; FLIP lower is better): "
+                  + "; ".join(f"{n} {mean['hybrid']['psnr'] - mean[n]['psnr']:+.3f} / "
+                              f"{mean['hybrid']['ssim'] - mean[n]['ssim']:+.5f} / "
+                              + ("n/a" if mean[n]['flip'] is None or mean['hybrid']['flip'] is None
+                                 else f"{mean['hybrid']['flip'] - mean[n]['flip']:+.5f}")
+                              for n in ("tm", "ulr", "pvm") if n in mean) + "."]
+    lines += ["", load_note()]
     text = "\n".join(lines)
     print(text)
     if args.write_docs:

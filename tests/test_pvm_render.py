@@ -136,6 +136,34 @@ def test_identical_depths_make_one_stable_cluster():
         np.testing.assert_array_equal(again.color, res.color)
 
 
+@pytest.mark.parametrize("n_views", [1, 2, 3])
+def test_min_views_empties_lists_of_too_few_views_where_the_global_mesh_has_no_surface(n_views):
+    """min_views (default 2): where the G-buffer is empty (right half), a pixel keeps its
+    candidates only when at least min_views views put one there; where it has a surface (left
+    half) every list is kept. Checked against the lists of min_views = 1 (no list emptied)."""
+    scene = _plane_scene(n_views, same_pose=False)
+    cam = scene.views[0].camera
+    gbuf = np.full((cam.height, cam.width), 5.0, np.float32)
+    gbuf[:, cam.width // 2:] = 0.0
+    gbuf[0, -1], gbuf[1, -1] = np.nan, np.inf  # no surface either
+    # ray_stride 1: every ray looks up the cells in front of an empty G-buffer (all of them here)
+    r1 = _renderer(scene, {"min_views": 1, "ray_stride": 1})
+    all_lists = r1.render(cam, gbuffer_depth=gbuf)
+    count = r1.candidates(cam)["count"].astype(int)
+    assert all_lists.valid[:, cam.width // 2:].mean() > 0.8  # the lists the rule acts on exist
+    np.testing.assert_array_equal(all_lists.valid, count > 0)
+    hit = np.isfinite(gbuf) & (gbuf > 0)
+    for min_views in (2, 3, 4):
+        r = _renderer(scene, {"min_views": min_views, "ray_stride": 1})
+        res = r.render(cam, gbuffer_depth=gbuf)
+        np.testing.assert_array_equal(res.valid, all_lists.valid & (hit | (count >= min_views)))
+        kept = res.valid
+        np.testing.assert_array_equal(res.color[kept], all_lists.color[kept])  # one plane: no neighbour changes it
+        assert not res.color[~kept].any() and np.isfinite(res.color).all()
+        # Without a G-buffer nothing says the surface is absent: no list is emptied.
+        np.testing.assert_array_equal(r.render(cam).valid, r1.render(cam).valid)
+
+
 def test_inside_grid_is_the_surface_box_not_the_cubic_grid():
     # The plane z = 5 (x, y within +-2.4): the grid's cubic cells make its box ~4.7 deep in z, but
     # inside_grid tests the surface's box (the tiles' bounds, padded by 1e-4 of an extent). A
@@ -317,7 +345,8 @@ def test_bad_input(exact):
     with pytest.raises(NotBuiltError):
         r.render(eq)
     for bad in ({"sigma": 0}, {"gamma": -1}, {"max_candidates": 17}, {"max_tiles": 0}, {"nope": 1},
-                {"max_angle": 0}, {"filtered": "maybe"}, {"alpha": float("nan")}):
+                {"max_angle": 0}, {"filtered": "maybe"}, {"alpha": float("nan")}, {"min_views": 0},
+                {"min_views": 17}, {"min_views": 1.5}):
         with pytest.raises(BadValueError):
             PvmRenderer(scene, bad, tiles=r.tiles, images={v.name: v.color for v in scene.views})
     with pytest.raises(DtypeError):

@@ -186,7 +186,7 @@ class PvmRendererCore {
   py::dict Render(const Camera& camera, py::handle gbuffer_obj, py::handle mask_obj, bool filtered, float sigma,
                   float alpha, float gamma, float tau_depth, int max_tiles, int max_candidates, int ulr_k,
                   float merge_rel, float radius_sigmas, int margin, float near, bool cull_back, float max_angle_deg, int ray_stride, int filter_step,
-                  bool free_space, float free_space_tol, const std::string& mode) {
+                  bool free_space, float free_space_tol, int min_views, const std::string& mode) {
     const bool depth_only = mode == "depth", resolve = mode == "resolve";
     if (!depth_only && !resolve && mode != "full") {
       throw BadValueError("mode: expected full, depth or resolve, got " + mode);
@@ -239,6 +239,10 @@ class PvmRendererCore {
     if (filter_step < 1 || filter_step > 16) {
       throw BadValueError("filter_step: expected 1 .. 16, got " + std::to_string(filter_step));
     }
+    if (min_views < 1 || min_views > kPvmMaxCandidates) {
+      throw BadValueError("min_views: expected 1 .. " + std::to_string(kPvmMaxCandidates) + ", got " +
+                          std::to_string(min_views));
+    }
     if (ray_stride < 0) throw BadValueError("ray_stride: expected >= 0, got " + std::to_string(ray_stride));
     if (margin < 0 || margin > 32) throw BadValueError("margin: expected 0 .. 32, got " + std::to_string(margin));
     PvmRenderOptions o;
@@ -259,6 +263,7 @@ class PvmRendererCore {
     o.filter_step = filter_step;
     o.free_space = free_space;
     o.free_space_tol = free_space_tol;
+    o.min_views = min_views;
     o.max_angle = max_angle_deg >= 180.f ? 3.15f : max_angle_deg * 3.14159265f / 180.f;
     PvmViews views;
     views.count = static_cast<int>(cameras_.size());
@@ -288,6 +293,7 @@ class PvmRendererCore {
         PvmSelectTiles(tiles_, views, frame_.visible, camera, o, frame_);
         lap(1);
         PvmRasterise(tiles_, views, camera, o, frame_);
+        PvmDropOffMesh(camera, gptr, o.min_views, frame_);
         lap(2);
       }
       // resolve: the depth pass clustered every pixel (it takes no mask); only the masked colours remain.
@@ -386,13 +392,14 @@ void BindPvmRender(py::module_& m) {
       .def("render", &PvmRendererCore::Render, py::arg("camera"), py::arg("gbuffer_depth") = py::none(),
            py::arg("pixel_mask") = py::none(), py::arg("filtered") = true, py::arg("sigma") = 3.f,
            py::arg("alpha") = 7.f, py::arg("gamma") = 7.f, py::arg("tau_depth") = 0.83f, py::arg("max_tiles") = 12,
-           py::arg("max_candidates") = 12, py::arg("ulr_k") = 4, py::arg("merge_rel") = 0.02f,
+           py::arg("max_candidates") = 12, py::arg("ulr_k") = 3, py::arg("merge_rel") = 0.02f,
            py::arg("radius_sigmas") = 2.f, py::arg("margin") = 1, py::arg("near") = 1e-3f,
            py::arg("cull_back") = true, py::arg("max_angle") = 60.f, py::arg("ray_stride") = 8, py::arg("filter_step") = 2,
-           py::arg("free_space") = true, py::arg("free_space_tol") = 0.02f, py::arg("mode") = "full",
+           py::arg("free_space") = true, py::arg("free_space_tol") = 0.02f, py::arg("min_views") = 2, py::arg("mode") = "full",
            "dict: color (H, W, 3), depth (H, W) (Eq. 2 vote), vote (H, W), valid, inside_grid (H, W) bool, "
            "times_ms per stage, visible_coarse, tiles, triangles. free_space: a background candidate counts in Eq. 1 / "
-           "Eq. 2 only when its view sees past the foreground point (needs depths; pvm_render.h). mode: full (all stages); depth (stages "
+           "Eq. 2 only when its view sees past the foreground point (needs depths; pvm_render.h). min_views: where "
+           "gbuffer_depth has no surface, candidate lists of fewer views are emptied (1: never). mode: full (all stages); depth (stages "
            "1-4 without colours: depth, vote, valid, inside_grid; colour 0; the frame is kept); resolve "
            "(colours of pixel_mask from the kept depth pass: stages 4-5 only).")
       .def("candidates", &PvmRendererCore::Candidates, py::arg("height"), py::arg("width"),

@@ -555,6 +555,19 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
   for (std::int64_t c : tri_count) frame.triangles += c;
 }
 
+void PvmDropOffMesh(const Camera& camera, const float* gbuffer_depth, int min_views, PvmFrame& frame) {
+  if (gbuffer_depth == nullptr || min_views <= 1) return;
+  const int h = camera.height, w = camera.width;
+  std::uint8_t* count = frame.cand_count.data();
+  const std::uint8_t need = static_cast<std::uint8_t>(std::min(min_views, 255));
+  ParallelFor(h, 16, [&](std::int64_t a, std::int64_t b) {
+    for (std::int64_t p = a * w; p < b * w; ++p) {
+      const float g = gbuffer_depth[p];
+      if (count[p] != 0 && count[p] < need && !(g > 0.f && std::isfinite(g))) count[p] = 0;
+    }
+  });
+}
+
 // True when the view (camera, depth map) sees past world point p: p projects into its image and
 // the view's depth at every pixel of the 3 x 3 around p's projection is >= (1 - tol) x p's depth
 // in the view (depth 0, NaN or inf: nothing there). The free-space count of PvmCluster.

@@ -30,6 +30,12 @@
 //     AABB covers (in kept order); each band is one task that projects a tile's vertices once
 //     and draws its triangles clipped to the band, in that order: results are identical for
 //     any thread count, and no per-triangle buffer is ever built.
+//     Off the global mesh (PvmDropOffMesh, timed with this stage): where the G-buffer has no
+//     surface (z 0, NaN or inf), a pixel's list is emptied when it holds fewer than `min_views`
+//     entries (= views, one entry per view): the global mesh, fused from every view's depth, has
+//     nothing there, and a surface one view alone puts there is not confirmed by any other (at
+//     silhouettes it is the per-view mesh's own edge reaching past the object). Without a
+//     G-buffer, or min_views 1, no list is emptied (the paper: any candidate counts).
 //  4. PvmCluster        "cluster & blend": per pixel 2-means on the candidate depths
 //     (initialised at the smallest and largest; assignment to the nearer mean, ties to the
 //     foreground; at most 16 iterations), merged into one cluster when the two means differ by
@@ -118,6 +124,7 @@ struct PvmRenderOptions {
   int filter_step = 2;       // Eq. 1 sums every filter_step-th neighbour per axis (1 = all)
   float tau_depth = 0.83f;   // Eq. 2
   bool free_space = true;    // count a background candidate only when its view sees past the foreground (needs views.depths)
+  int min_views = 2;         // where the G-buffer is empty: candidate lists of fewer views are emptied (1: none are)
   float free_space_tol = 0.02f;  // relative: the view's depth must be >= (1 - tol) x the foreground point's depth
   bool filtered = true;
 };
@@ -150,6 +157,9 @@ void PvmSelectTiles(const PvmTileArrays& tiles, const PvmViews& views, const std
 // Stage 3. camera must be pinhole.
 void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camera& camera,
                   const PvmRenderOptions& options, PvmFrame& frame);
+// Stage 3, continued: gbuffer_depth (H, W) z (camera's size); where it has no surface, lists of
+// fewer than min_views entries get count 0. No-op for gbuffer_depth nullptr or min_views <= 1.
+void PvmDropOffMesh(const Camera& camera, const float* gbuffer_depth, int min_views, PvmFrame& frame);
 // Stage 4. pixel_mask (H, W) or nullptr = all pixels. colours = false: the clusters' depths
 // and sizes only (no image sampling; the hybrid method's depth pass). The clusters (depths,
 // sizes) are computed on the mask dilated by the filter radius (Eq. 1 reads the neighbours'),

@@ -59,7 +59,7 @@ from .pvm import PvmTiles
 DEFAULTS = {"sigma": 3.0, "alpha": 7.0, "gamma": 7.0, "tau_depth": 0.83, "max_tiles": 12,
             "max_candidates": 12, "ulr_k": 3, "merge_rel": 0.02, "radius_sigmas": 2.0, "margin": 1,
             "near": 1e-3, "cull_back": True, "max_angle": 60.0, "ray_stride": 8, "filter_step": 2,
-            "filtered": True, "free_space": True, "free_space_tol": 0.02}
+            "filtered": True, "free_space": True, "free_space_tol": 0.02, "min_views": 2}
 
 STAGE_NAMES = {"voxel_lookup": "voxel lookup", "tile_sort": "tile sort",
                "per_view_depth_pass": "per-view depth pass", "cluster_blend": "cluster & blend",
@@ -83,6 +83,7 @@ def check_params(params: dict | None) -> dict:
     p["margin"] = P.integer(p["margin"], "--param margin", 0)
     p["ray_stride"] = P.integer(p["ray_stride"], "--param ray_stride", 0)
     p["filter_step"] = P.integer(p["filter_step"], "--param filter_step", 1)
+    p["min_views"] = P.integer(p["min_views"], "--param min_views", 1)
     if p["filter_step"] > 16:
         raise BadValueError(f"--param filter_step: expected <= 16, got {p['filter_step']}")
     p["cull_back"] = P.boolean(p["cull_back"], "--param cull_back")
@@ -93,8 +94,9 @@ def check_params(params: dict | None) -> dict:
         raise BadValueError(f"--param free_space_tol: expected < 1, got {p['free_space_tol']}")
     if p["max_tiles"] > 255:
         raise BadValueError(f"--param max_tiles: expected <= 255, got {p['max_tiles']}")
-    if p["max_candidates"] > 16:
-        raise BadValueError(f"--param max_candidates: expected <= 16, got {p['max_candidates']}")
+    for key in ("max_candidates", "min_views"):
+        if p[key] > 16:
+            raise BadValueError(f"--param {key}: expected <= 16, got {p[key]}")
     if p["margin"] > 32:
         raise BadValueError(f"--param margin: expected <= 32, got {p['margin']}")
     if p["sigma"] * p["radius_sigmas"] > 64:
@@ -281,7 +283,7 @@ class PvmRenderer:
                                 p["gamma"], p["tau_depth"], p["max_tiles"], p["max_candidates"], p["ulr_k"],
                                 p["merge_rel"], p["radius_sigmas"], p["margin"], p["near"], p["cull_back"],
                                 p["max_angle"], p["ray_stride"], p["filter_step"], self.free_space,
-                                p["free_space_tol"], mode)
+                                p["free_space_tol"], p["min_views"], mode)
         times = {STAGE_NAMES[k]: float(v) for k, v in out["times_ms"].items()}
         if mode == "resolve":
             times = {k: times[k] for k in ("cluster & blend", "spatial filter")}
