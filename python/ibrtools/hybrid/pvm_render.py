@@ -13,6 +13,8 @@ gives a :class:`PvmResult`:
   camera), the best ``max_tiles`` = 12 kept;
 * those tiles rasterised into per-pixel candidate lists (<= 12: depth, view; the colour is the
   view's image at the candidate's surface point), one per view (nearest fragment);
+* where ``gbuffer_depth`` has no surface, lists of fewer than ``min_views`` = 2 views emptied (a
+  surface the global mesh lacks needs two views to vouch for it; 1 = the paper, any candidate);
 * per pixel 2-means on the candidate depths, ULR-weighted colour per cluster, the spatial filter of
   Eq. 1 and the gamma-power blend (``filtered=True``), or the foreground cluster's colour
   (``filtered=False``: the unfiltered PVM-H-like baseline);
@@ -55,7 +57,10 @@ from .pvm import PvmTiles
 # synth:objects at 256x192 the thin object's pixels with a candidate at its depth went from 60 %
 # to the frustum lookup's 93-98 %; at 1280x720 stride 8 costs 57 ms against 153 ms for stride 4,
 # same tiles). filter_step 2: Eq. 1 sums every 2nd neighbour per axis (7 x 7 of 13 x 13), 3.4x
-# fewer terms (docs/pvm_render.md, "Speed").
+# fewer terms (docs/pvm_render.md, "Speed"); min_views 2: where the G-buffer has no surface, a
+# one-view candidate list is emptied (silhouette overshoot of a per-view mesh): chosen on the
+# selection scenes, where it beat 1 (the paper) in every metric for hybrid and PVM alone, and 3 in
+# PSNR and SSIM (FLIP equal) (docs/pvm_render.md "min_views").
 DEFAULTS = {"sigma": 3.0, "alpha": 7.0, "gamma": 7.0, "tau_depth": 0.83, "max_tiles": 12,
             "max_candidates": 12, "ulr_k": 3, "merge_rel": 0.02, "radius_sigmas": 2.0, "margin": 1,
             "near": 1e-3, "cull_back": True, "max_angle": 60.0, "ray_stride": 8, "filter_step": 2,
