@@ -22,6 +22,7 @@ With --write-docs, replaces the "Hybrid rendering" section of docs/benchmarks.md
 from __future__ import annotations
 
 import argparse
+import shlex
 import statistics
 import sys
 import tempfile
@@ -208,7 +209,8 @@ def main(argv=None) -> int:
 
     names = {"tm": "TM (textured mesh)", "ulr": "ULR (per-pixel)", "pvm": "PVM (clustered, filtered)",
              "pvm_unfiltered": "PVM unfiltered (PVM-H-like)", "hybrid": "hybrid"}
-    lines = [f"Hybrid IBR rendering (`python benchmarks/bench_hybrid.py --write-docs`), {machine()}, "
+    cmd = shlex.join(["python", "benchmarks/bench_hybrid.py", *(sys.argv[1:] if argv is None else argv)])
+    lines = [f"Hybrid IBR rendering (`{cmd}`), {machine()}, "
              f"{_core.get_num_threads()} threads. Scene: synth:objects, {args.views} input views of "
              f"{size[0]}x{size[1]}, reconstructed (degraded) global mesh (mesh.max_edge_voxels "
              f"{args.max_edge_voxels or 'default'}; {details.get('mesh', {}).get('render_faces', '?')} render-mesh faces, "
