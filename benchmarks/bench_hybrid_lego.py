@@ -18,7 +18,11 @@ data set has no mesh).
 Validation protocol (``--validation``, for choosing anything; never with --write-docs): the
 targets are LEGO_VALIDATION (r_10 r_60 r_110 r_160), removed from the inputs together with the
 held-out views (32 inputs), so nothing chosen on it has seen r_0 r_50 r_100 r_150.
-``--depth-dequantize N`` passes the nerf importer's option (bin-constrained smoothing of the
+Further held-out folds (``--fold K``, K = 1, 3 ... 9; never for choosing, never with --write-docs):
+the 40 views as 10 folds of 4 views 50 apart (fold 0 = the held-out views, fold 2 = validation);
+fold K's views r_5K r_5K+50 r_5K+100 r_5K+150 are the targets and are removed from the inputs (36
+inputs, as in the held-out protocol): how far a result on the held-out views carries over.
+``--json PATH`` writes the per-view and mean scores. ``--depth-dequantize N`` passes the nerf importer's option (bin-constrained smoothing of the
 8-bit depth codes; default: the importer's default). ``--options JSON`` passes stage options to
 ``run_stages`` (e.g. ``'{"mesh": {"k_views": 8}}'``); ``--methods`` limits the rendered methods;
 ``--reuse`` (with ``--keep DIR``) takes the scene an earlier run with the same protocol saved in
@@ -67,6 +71,13 @@ from bench_dibr_accuracy import LEGO_HELDOUT  # noqa: E402  (the same held-out v
 from bench_hybrid import PvmOnly, add_edge_error, depth_edges, edge_lines, frame_color  # noqa: E402  (as in the synthetic bench)
 
 LEGO_VALIDATION = ("r_10", "r_60", "r_110", "r_160")
+# The data set's 40 views r_0, r_5 ... r_195 as 10 folds of 4, 50 apart: fold 0 is LEGO_HELDOUT, fold 2
+# LEGO_VALIDATION; the others (--fold) are further held-out sets.
+FOLDS = (1, 3, 4, 5, 6, 7, 8, 9)
+
+
+def fold_views(k: int) -> tuple[str, ...]:
+    return tuple(f"r_{5 * k + 50 * i}" for i in range(4))
 ORDER = ["tm", "ulr", "pvm", "pvm_unfiltered", "hybrid"]
 NAMES = {"tm": "TM (textured mesh)", "ulr": "ULR (per-pixel)", "pvm": "PVM (clustered, filtered)",
          "pvm_unfiltered": "PVM unfiltered", "hybrid": "hybrid"}
@@ -128,6 +139,10 @@ def main(argv=None) -> int:
     p.add_argument("--write-docs", action="store_true", help=f"replace the section in {DOCS.name}")
     p.add_argument("--validation", action="store_true",
                    help="targets r_10 r_60 r_110 r_160, inputs without them and the held-out views (for choosing)")
+    p.add_argument("--fold", type=int, default=None, metavar="K",
+                   help="targets r_5K r_5K+50 r_5K+100 r_5K+150 (K 1, 3-9), removed from the inputs alone: a further "
+                        "held-out set, for how far a result carries over (not for choosing)")
+    p.add_argument("--json", default=None, metavar="PATH", help="also write the per-view and mean scores as JSON")
     p.add_argument("--depth-dequantize", type=int, default=None, metavar="N",
                    help="nerf importer option depth_dequantize (default: the importer's default)")
     p.add_argument("--methods", default=",".join(ORDER), help=f"methods to render (default {','.join(ORDER)})")
@@ -146,6 +161,8 @@ def main(argv=None) -> int:
         p.error("--reuse needs --keep DIR")
     if args.validation and args.write_docs:
         p.error("--write-docs scores the held-out views: not with --validation")
+    if args.fold is not None and (args.validation or args.write_docs or args.fold not in FOLDS):
+        p.error(f"--fold: expected one of {', '.join(map(str, FOLDS))}, without --validation and --write-docs")
     def json_object(text: str | None, flag: str) -> dict:
         try:
             obj = json.loads(text) if text else {}
@@ -178,8 +195,12 @@ def main(argv=None) -> int:
     if args.depth_dequantize is not None:
         imp["depth_dequantize"] = args.depth_dequantize
     full = load(data / "nerf_lego", "nerf", imp)
-    targets = LEGO_VALIDATION if args.validation else LEGO_HELDOUT
-    excluded = set(LEGO_HELDOUT) | set(targets)
+    if args.fold is not None:
+        targets = fold_views(args.fold)
+        excluded = set(targets)
+    else:
+        targets = LEGO_VALIDATION if args.validation else LEGO_HELDOUT
+        excluded = set(LEGO_HELDOUT) | set(targets)
     held = [v for v in full.views if v.name in targets]
     inputs = [v for v in full.views if v.name not in excluded]
     assert len(held) == len(targets), [v.name for v in held]
@@ -259,7 +280,8 @@ def main(argv=None) -> int:
              f"RGBA over black), {len(inputs)} input views at {w}x{h}"
              + ("" if s == 1 else f" (800x800 / {s}, block mean)") + ", held out "
              f"{' '.join(views)} ("
-             + ("validation protocol: removed with r_0 r_50 r_100 r_150" if args.validation else "the DIBR lego protocol")
+             + ("validation protocol: removed with r_0 r_50 r_100 r_150" if args.validation
+                else f"fold {args.fold}: removed from the inputs" if args.fold is not None else "the DIBR lego protocol")
              + "; removed before preprocessing, so no stage reads them). "
              + (f"Importer option depth_dequantize={args.depth_dequantize}. " if args.depth_dequantize is not None else "")
              + (f"Stage options {json.dumps(stage_options)}. " if stage_options else "")
@@ -318,6 +340,9 @@ def main(argv=None) -> int:
     lines += ["", load_note()]
     text = "\n".join(lines)
     print(text)
+    if args.json:
+        Path(args.json).write_text(json.dumps({"targets": list(targets), "inputs": len(inputs), "mean": mean,
+                                               "per_view": per_view}, indent=1))
     if args.write_docs:
         write_section("Hybrid rendering: lego", text)
         print(f"wrote the 'Hybrid rendering: lego' section of {DOCS}", file=sys.stderr)
