@@ -124,8 +124,8 @@ struct PvmRenderOptions {
   int filter_step = 2;       // Eq. 1 sums every filter_step-th neighbour per axis (1 = all)
   float tau_depth = 0.83f;   // Eq. 2
   bool free_space = true;    // count a background candidate only when its view sees past the foreground (needs views.depths)
-  int min_views = 2;         // where the G-buffer is empty: candidate lists of fewer views are emptied (1: none are)
   float free_space_tol = 0.02f;  // relative: the view's depth must be >= (1 - tol) x the foreground point's depth
+  int min_views = 2;         // where the G-buffer is empty: candidate lists of fewer views are emptied (1: none are)
   bool filtered = true;
 };
 
