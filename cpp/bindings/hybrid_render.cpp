@@ -430,7 +430,7 @@ void BindHybridRender(py::module_& m) {
       "The k smallest finite penalties (cpp/kernels/ulr.h UlrSelect): (indices, weights summing to 1).");
   m.def("ulr_blend", &UlrBlendBinding, py::arg("camera"), py::arg("gbuffer_depth"), py::arg("views"), py::kw_only(),
         py::arg("normal") = py::none(), py::arg("pixel_mask") = py::none(), py::arg("k") = 4,
-        py::arg("resolution_weight") = 0.5, py::arg("depth_tol") = 0.02, py::arg("reference") = false,
+        py::arg("resolution_weight") = 0.5, py::arg("depth_tol") = 0.005, py::arg("reference") = false,
         py::arg("simd") = "auto",
         "Per-pixel ULR at the G-buffer's points: views = [(camera, color, depth), ...] -> (color (H, W, 3), "
         "count (H, W) uint8 views used, 0 = none sees the point). reference=True: the scalar reference path "

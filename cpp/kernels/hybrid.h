@@ -39,8 +39,9 @@ struct UlrOptions {
   float resolution_weight = 0.5f;  // UlrPenalty's resolution term
   // Occlusion test: the input view sees the point when its depth at the point's (nearest) pixel
   // agrees with the point's depth in that view within depth_tol * view depth (relative: depth
-  // maps and the global mesh err in proportion to distance; 2 % as the texture stage).
-  float depth_tol = 0.02f;
+  // maps and the global mesh err in proportion to distance). 0.5 %: the ULR method's default
+  // (python/ibrtools/render/hybrid.py ULR_DEFAULTS, chosen on the selection scenes; docs/hybrid.md).
+  float depth_tol = 0.005f;
   // Input views behind the surface (angle between the G-buffer normal and the direction to the
   // view >= 90 degrees) are skipped when a normal is given.
   // The scalar reference path (double projections, one view at a time) instead of the fast path

@@ -580,7 +580,7 @@ def steerable_synthesise(highpass: _F32, bands: collections.abc.Sequence[collect
     Steerable pyramid synthesis (collapse) of (highpass, bands[level][orientation], lowpass) as returned by steerable_analyse; returns the image float32 (H, W, C).
     """
 
-def ulr_blend(camera: Camera, gbuffer_depth: _F32, views: list[tuple[Camera, _F32, _F32]], *, normal: _F32 | None=None, pixel_mask: _Bool | None=None, k: typing.SupportsInt | typing.SupportsIndex=4, resolution_weight: typing.SupportsFloat | typing.SupportsIndex=0.5, depth_tol: typing.SupportsFloat | typing.SupportsIndex=0.02, reference: bool=False, simd: str='auto') -> tuple[_F32, _U8]:
+def ulr_blend(camera: Camera, gbuffer_depth: _F32, views: list[tuple[Camera, _F32, _F32]], *, normal: _F32 | None=None, pixel_mask: _Bool | None=None, k: typing.SupportsInt | typing.SupportsIndex=4, resolution_weight: typing.SupportsFloat | typing.SupportsIndex=0.5, depth_tol: typing.SupportsFloat | typing.SupportsIndex=0.005, reference: bool=False, simd: str='auto') -> tuple[_F32, _U8]:
     """
     Per-pixel ULR at the G-buffer's points: views = [(camera, color, depth), ...] -> (color (H, W, 3), count (H, W) uint8 views used, 0 = none sees the point). reference=True: the scalar reference path (double projections) instead of the fast one (float, SIMD over views; pinhole views only). simd='avx2' / 'sse2': the fast path's per-view loop at most AVX2 / in SSE2 even where the CPU has more (the same bits; for tests).
     """
