@@ -22,8 +22,8 @@ Further held-out folds (``--fold K``, K = 1, 3 ... 9; never for choosing, never 
 the 40 views as 10 folds of 4 views 50 apart (fold 0 = the held-out views, fold 2 = validation);
 fold K's views r_5K r_5K+50 r_5K+100 r_5K+150 are the targets and are removed from the inputs (36
 inputs, as in the held-out protocol): how far a result on the held-out views carries over.
-``--json PATH`` writes the per-view and mean scores. ``--depth-dequantize N`` passes the nerf importer's option (bin-constrained smoothing of the
-8-bit depth codes; default: the importer's default). ``--options JSON`` passes stage options to
+``--json PATH`` writes the per-view and mean scores. ``--depth-dequantize N`` passes the nerf
+importer's option (bin-constrained smoothing of the 8-bit depth codes; default: the importer's default). ``--options JSON`` passes stage options to
 ``run_stages`` (e.g. ``'{"mesh": {"k_views": 8}}'``); ``--methods`` limits the rendered methods;
 ``--reuse`` (with ``--keep DIR``) takes the scene an earlier run with the same protocol saved in
 DIR instead of saving it again, so that only the stages whose parameters changed run.
@@ -71,6 +71,9 @@ from bench_dibr_accuracy import LEGO_HELDOUT  # noqa: E402  (the same held-out v
 from bench_hybrid import PvmOnly, add_edge_error, depth_edges, edge_lines, frame_color  # noqa: E402  (as in the synthetic bench)
 
 LEGO_VALIDATION = ("r_10", "r_60", "r_110", "r_160")
+ORDER = ["tm", "ulr", "pvm", "pvm_unfiltered", "hybrid"]
+NAMES = {"tm": "TM (textured mesh)", "ulr": "ULR (per-pixel)", "pvm": "PVM (clustered, filtered)",
+         "pvm_unfiltered": "PVM unfiltered", "hybrid": "hybrid"}
 # The data set's 40 views r_0, r_5 ... r_195 as 10 folds of 4, 50 apart: fold 0 is LEGO_HELDOUT, fold 2
 # LEGO_VALIDATION; the others (--fold) are further held-out sets.
 FOLDS = (1, 3, 4, 5, 6, 7, 8, 9)
@@ -78,9 +81,6 @@ FOLDS = (1, 3, 4, 5, 6, 7, 8, 9)
 
 def fold_views(k: int) -> tuple[str, ...]:
     return tuple(f"r_{5 * k + 50 * i}" for i in range(4))
-ORDER = ["tm", "ulr", "pvm", "pvm_unfiltered", "hybrid"]
-NAMES = {"tm": "TM (textured mesh)", "ulr": "ULR (per-pixel)", "pvm": "PVM (clustered, filtered)",
-         "pvm_unfiltered": "PVM unfiltered", "hybrid": "hybrid"}
 
 
 def _block_mean(a: np.ndarray, s: int) -> np.ndarray:

@@ -57,3 +57,23 @@ def test_malformed_json_is_a_usage_error_naming_the_flag(bench, tmp_path, monkey
         bench.main([flag, "{tau_var: 0.1"])
     assert e.value.code == 2
     assert f"{flag}: not valid JSON" in capsys.readouterr().err
+
+
+def test_folds_partition_the_forty_views(bench):
+    """--fold: 10 folds of 4 views cover r_0, r_5 ... r_195 once each; fold 0 is the held-out set,
+    fold 2 the validation set, and --fold offers exactly the others."""
+    folds = [bench.fold_views(k) for k in range(10)]
+    names = [n for f in folds for n in f]
+    assert sorted(names, key=lambda n: int(n[2:])) == [f"r_{i}" for i in range(0, 200, 5)]
+    assert folds[0] == bench.LEGO_HELDOUT and folds[2] == bench.LEGO_VALIDATION
+    assert set(bench.FOLDS) == set(range(10)) - {0, 2}
+
+
+@pytest.mark.parametrize("argv", [["--fold", "0"], ["--fold", "2"], ["--fold", "10"], ["--fold", "3", "--validation"],
+                                  ["--fold", "3", "--write-docs"]])
+def test_bad_fold_is_a_usage_error(bench, tmp_path, monkeypatch, capsys, argv):
+    monkeypatch.setenv("IBR_SHARED_DATA", str(tmp_path))
+    with pytest.raises(SystemExit) as e:
+        bench.main(argv)
+    assert e.value.code == 2
+    assert "--fold" in capsys.readouterr().err
