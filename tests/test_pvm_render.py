@@ -405,8 +405,10 @@ def test_method_pvm_cli(tmp_path, capsys):
 
 @pytest.mark.parametrize("far_view_depth, counted", [
     (5.0, True),              # the far views see past the near point (their own depth, behind it)
-    (3.0, True),              # ... or see exactly it
-    (2.95, True),             # 1.7 % in front of it: within free_space_tol 0.02
+    (3.03, True),             # 1 % behind it: beyond free_space_point_tol 0.005
+    (3.01, False),            # 0.3 % behind: within it, they see the near point itself
+    (3.0, False),             # ... or exactly it: their far candidates come from their meshes' edge cuts
+    (2.95, False),            # 1.7 % in front of it: within free_space_tol 0.02, still the point itself
     (2.9, False),             # 3.3 % in front: the near point is hidden in those views
     (1.0, False),
     (0.0, True),              # nothing there (0, NaN, inf): they see past it
@@ -473,17 +475,19 @@ def _two_means(d, merge_rel):
     return bg, m0, m1, True
 
 
-def _sees_past(cam, depth, p, tol):
-    """pvm_render.cpp SeesPast, independently: p in the image and no depth of the 3 x 3 around its
-    projection in front of (1 - tol) x its depth."""
+def _sees_past(cam, depth, p, tol, point_tol):
+    """pvm_render.cpp SeesPast, independently: p in the image, no depth of the 3 x 3 around its
+    projection in front of (1 - tol) x its depth, and most of them beyond (1 + point_tol) x it or
+    empty."""
     xy, z = cam.project(p)
     if not np.isfinite(z) or not (0 <= xy[0] < cam.width and 0 <= xy[1] < cam.height):
         return False
     px, py = int(xy[0]), int(xy[1])
     win = depth[max(0, py - 1):py + 2, max(0, px - 1):px + 2]
-    hidden = (win > 0) & np.isfinite(win) & (win < (1 - tol) * z)
-    return not hidden.any()
-
+    surface = (win > 0) & np.isfinite(win)
+    if (surface & (win < (1 - tol) * z)).any():
+        return False
+    return 2 * int((~surface | (win > (1 + point_tol) * z)).sum()) > win.size
 
 def test_free_space_count_matches_an_independent_implementation(exact):
     """On the exact objects scene (a target at 96 x 72): the renderer's cluster sizes and Eq. 2
@@ -508,7 +512,7 @@ def test_free_space_count_matches_an_independent_implementation(exact):
             p = cam.centre + rays[y, x] * m0
             for i in np.nonzero(bg)[0]:
                 v = by_name[views[cand["view"][y, x, i]]]
-                counted += _sees_past(v.camera, v.depth, p, 0.02)
+                counted += _sees_past(v.camera, v.depth, p, 0.02, 0.005)
             two_px += 1
             fewer += counted < bg.sum()
         n_fg = n - bg.sum()
@@ -536,6 +540,11 @@ def test_free_space_off_without_depth_maps_and_bad_depths():
                     depths={"v0": scene.views[0].depth, "v1": np.zeros((3, 3), np.float32), "v2": scene.views[2].depth})
     with pytest.raises(BadValueError, match="free_space_tol"):
         PvmRenderer(scene, {"free_space_tol": 1.0}, tiles=tiles, images=images)
+    for bad in (-0.001, float("nan"), "near"):
+        with pytest.raises(BadValueError, match="free_space_point_tol"):
+            PvmRenderer(scene, {"free_space_point_tol": bad}, tiles=tiles, images=images)
+    with pytest.raises(BadValueError, match="free_space_point_tol"):  # the kernel binding's own check
+        r._core.render(cam.to_core(), free_space_point_tol=-1.0)
     with pytest.raises(BadValueError, match="free_space"):
         PvmRenderer(scene, {"free_space": "maybe"}, tiles=tiles, images=images)
     t = r.tiles
@@ -548,13 +557,14 @@ def test_free_space_off_without_depth_maps_and_bad_depths():
                           np.ones(3, bool), [scene.views[0].depth])
 
 
-@pytest.mark.parametrize("scale, counted", [(1.0, True), (0.97, False)])
+@pytest.mark.parametrize("scale, counted", [(1.03, True), (1.0, False), (0.97, False)])
 def test_free_space_reads_equirect_views_as_ray_distance(scale, counted):
     """Equirect input views (v1, v2 at the origin: a sphere of radius 5) behind a pinhole near plane
     (v0, z = 3). The free-space maps of v1 and v2 are scale x the distance to the near plane along
-    each of their rays: at 1.0 they see exactly the near point (counted), at 0.97 it is hidden (3 %,
-    beyond free_space_tol). With z instead of the ray distance the test would flip away from the
-    image centre (cos of the angle < 0.97)."""
+    each of their rays: at 1.03 they see past the near point (counted), at 1.0 they see exactly it
+    (within free_space_point_tol: not counted), at 0.97 it is hidden (3 %, beyond free_space_tol).
+    With z instead of the ray distance the test would flip away from the image centre (at 1.0 the
+    map would read beyond the point once cos of the angle < 0.995, at 0.97 once < 0.97)."""
     w, h = 48, 32
     pin = Camera.from_fov(w, h, 50.0, look_at((0.0, 0.0, 0.0), (0.0, 0.0, 5.0)))
     eq = Camera.equirect(512, 256)

@@ -568,23 +568,32 @@ void PvmDropOffMesh(const Camera& camera, const float* gbuffer_depth, int min_vi
   });
 }
 
-// True when the view (camera, depth map) sees past world point p: p projects into its image and
-// the view's depth at every pixel of the 3 x 3 around p's projection is >= (1 - tol) x p's depth
-// in the view (depth 0, NaN or inf: nothing there). The free-space count of PvmCluster.
-static bool SeesPast(const Camera& cam, const float* depth, const glm::dvec3& p, float tol) {
+// True when the view (camera, depth map) sees past world point p: p projects into its image, no
+// pixel of the 3 x 3 around p's projection (clipped to the image) has a depth < (1 - tol) x p's
+// depth in the view (p hidden there), and most of them (more than half) have a depth >
+// (1 + point_tol) x p's depth or none (0, NaN, inf): a view whose depth there is p's own sees p
+// itself, and a background candidate of its per-view mesh on the ray through p comes from the
+// mesh's depth-edge cut (a thin surface seen at a grazing angle), not from free space. The
+// free-space count of PvmCluster.
+static bool SeesPast(const Camera& cam, const float* depth, const glm::dvec3& p, float tol, float point_tol) {
   double ix = 0, iy = 0, iz = 0;
   if (!cam.ProjectCam(cam.CamFromWorld(p), &ix, &iy, &iz)) return false;
   if (!(ix >= 0.0 && iy >= 0.0 && ix < cam.width && iy < cam.height)) return false;
   const int px = static_cast<int>(ix), py = static_cast<int>(iy);
-  const double limit = (1.0 - static_cast<double>(tol)) * iz;
+  const double in_front = (1.0 - static_cast<double>(tol)) * iz;
+  const double beyond = (1.0 + static_cast<double>(point_tol)) * iz;
+  int n = 0, n_beyond = 0;
   for (int y = std::max(0, py - 1); y <= std::min(cam.height - 1, py + 1); ++y) {
     const float* row = depth + static_cast<std::size_t>(y) * static_cast<std::size_t>(cam.width);
     for (int x = std::max(0, px - 1); x <= std::min(cam.width - 1, px + 1); ++x) {
       const float d = row[x];
-      if (d > 0.f && std::isfinite(d) && d < limit) return false;
+      const bool surface = d > 0.f && std::isfinite(d);
+      if (surface && d < in_front) return false;
+      ++n;
+      n_beyond += !surface || d > beyond;
     }
   }
-  return true;
+  return 2 * n_beyond > n;
 }
 
 void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t* pixel_mask,
@@ -728,7 +737,8 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
           const glm::dvec3 fg_point = c_novel_d + camera.WorldFromCamDir(camera.RayInCam(x + 0.5, y + 0.5)) * m0;
           counted = 0;
           for (int i = 0; i < n; ++i) {
-            if (bg[i] && SeesPast(views.cameras[vv[i]], views.depths[vv[i]], fg_point, options.free_space_tol)) ++counted;
+            if (bg[i] && SeesPast(views.cameras[vv[i]], views.depths[vv[i]], fg_point, options.free_space_tol,
+                                     options.free_space_point_tol)) ++counted;
           }
         }
         const bool two_counted = two && counted > 0;

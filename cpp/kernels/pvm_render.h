@@ -46,11 +46,13 @@
 //     PVM by its own image).
 //     Free space (free_space, with views.depths): a background candidate counts in #N_bg (Eq. 1,
 //     Eq. 2) only when its view sees past the foreground point P (the foreground mean on the
-//     pixel's ray): P projects into the view and the view's depth at every pixel of the 3 x 3
-//     around P's projection is >= (1 - free_space_tol) x P's depth in the view (0, NaN or inf:
-//     nothing there). A view in which P is hidden, or outside its image, sees a surface behind P
-//     that is really there but says nothing about P. With no counted background candidate the
-//     pixel has one cluster (the foreground: its colour is the foreground members' blend).
+//     pixel's ray): P projects into the view, no pixel of the 3 x 3 around P's projection has a
+//     depth < (1 - free_space_tol) x P's depth in the view (P hidden: the view sees a surface
+//     behind P that is really there but says nothing about P), and more than half of them have a
+//     depth > (1 + free_space_point_tol) x P's depth or none (0, NaN or inf). A view whose depth
+//     there is P's own sees P itself: its background candidate comes from its mesh's depth-edge
+//     cut (a thin surface at a grazing angle), not from free space. With no counted background
+//     candidate the pixel has one cluster (the foreground: its colour is the foreground members' blend).
 //  5. PvmFilter         "spatial filter": Eq. 1, W_{i,k} = sum_{j in Omega_i} sum_{k'} G_sigma(i, j)
 //     exp(-alpha |d_{j,k'} - d_{i,k}|) #N_{j,k'} (the paper writes d_{j,k'} - d_{i,k}; the
 //     absolute value makes the falloff symmetric), Omega_i the window of radius
@@ -125,6 +127,7 @@ struct PvmRenderOptions {
   float tau_depth = 0.83f;   // Eq. 2
   bool free_space = true;    // count a background candidate only when its view sees past the foreground (needs views.depths)
   float free_space_tol = 0.02f;  // relative: the view's depth must be >= (1 - tol) x the foreground point's depth
+  float free_space_point_tol = 0.005f;  // relative: and mostly > (1 + point_tol) x it (within: the view sees the point)
   int min_views = 2;         // where the G-buffer is empty: candidate lists of fewer views are emptied (1: none are)
   bool filtered = true;
 };
