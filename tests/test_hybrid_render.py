@@ -318,7 +318,7 @@ def test_method_params_and_missing_stages(tmp_path):
         methods.create("ulr", {"depth_tol": -1})
     # The hybrid's PVM parameters go through the PVM renderer's checks.
     for bad, name in (({"free_space_tol": 1.5}, "free_space_tol"), ({"free_space": "sometimes"}, "free_space"),
-                      ({"free_space_point_tol": -0.01}, "free_space_point_tol"),
+                      ({"free_space_point_tol": -0.01}, "free_space_point_tol"), ({"tau_empty": -1}, "tau_empty"),
                       ({"sigma": 0}, "sigma"), ({"tau_depth": -1}, "tau_depth"), ({"min_weight": 0.4}, "min_weight")):
         with pytest.raises(BadValueError, match=name):
             methods.create("hybrid", bad)

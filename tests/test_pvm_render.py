@@ -525,6 +525,79 @@ def test_free_space_count_matches_an_independent_implementation(exact):
     assert agree >= n_valid - max(1, n_valid // 1000)  # float rounding at a threshold: at most 0.1 %
 
 
+@pytest.mark.parametrize("other_depth, tau_empty, empty", [
+    (0.0, 2.5, True),         # three views see nothing there (the gap's far side is empty): 3 >= 2.5 x 1
+    (5.0, 2.5, True),         # ... or a surface well behind the near point
+    (3.0, 2.5, False),        # they see the near point itself
+    (2.0, 2.5, False),        # it is hidden from them
+    (0.0, 3.5, False),        # 3 views < 3.5 x 1
+    (0.0, 0.0, False),        # off
+])
+def test_tau_empty_empties_a_surface_the_other_views_see_through(other_depth, tau_empty, empty):
+    """One view (v0) puts a near plane (z = 3) on every ray; three more views at the same pose have
+    no surface in their depth but a corner, so no candidate elsewhere: the lists hold one candidate.
+    Their free-space maps (other_depth) say whether they see past the near point: when at least
+    tau_empty x 1 of them do, the plane is a sheet spanning a gap and the pixel is emptied (not
+    valid, colour 0, never NaN), else the near plane is rendered."""
+    w, h = 48, 32
+    cam = Camera.from_fov(w, h, 50.0, look_at((0.0, 0.0, 0.0), (0.0, 0.0, 5.0)))
+    views = [View.create("v0", cam, color=np.full((h, w, 3), 0.9, np.float32), depth=np.full((h, w), 3.0, np.float32))]
+    corner = np.zeros((h, w), np.float32)
+    corner[:3, :3] = 5.0  # a depth map needs some surface: a corner patch, outside the pixels checked
+    views += [View.create(f"v{i}", cam, color=np.full((h, w, 3), 0.2, np.float32), depth=corner) for i in (1, 2, 3)]
+    scene = Scene(views=views, targets=[], paths={}, meshes={}, units="m", source={})
+    tiles = build_tiles({v.name: v.camera for v in views}, {v.name: v.depth for v in views})
+    fs = {"v0": views[0].depth, **{f"v{i}": np.full((h, w), other_depth, np.float32) for i in (1, 2, 3)}}
+    r = PvmRenderer(scene, {"tau_empty": tau_empty}, tiles=tiles, images={v.name: v.color for v in views}, depths=fs)
+    res = r.render(cam)
+    inner = np.zeros((h, w), bool)
+    inner[6:-6, 6:-6] = True
+    assert np.isfinite(res.color).all() and np.isfinite(res.depth).all()
+    if empty:
+        assert not res.valid[inner].any() and (r.candidates(cam)["count"][inner] == 0).all()
+        assert (res.color[inner] == 0).all() and (res.depth[inner] == 0).all()
+    else:
+        assert res.valid[inner].all()
+        np.testing.assert_allclose(res.depth[inner], 3.0, rtol=1e-5)
+        np.testing.assert_allclose(res.color[inner], 0.9, atol=1e-5)
+    # The hybrid two-pass path (depth pass, then colours on a mask) empties the same pixels.
+    dp = r.depth_pass(cam)
+    assert (np.asarray(dp.valid, bool) == res.valid).all()
+
+
+def test_tau_empty_matches_an_independent_implementation(exact):
+    """On the exact objects scene (a target at 96 x 72, tau_empty 1 so that silhouettes give some):
+    the pixels tau_empty empties against numpy: the one-cluster pixels of the lists without it whose
+    point at least ceil(tau_empty x n_fg) views without a candidate in the list, within max_angle (60
+    degrees) of the target's ray, see past (_sees_past)."""
+    scene, r = exact
+    cam = scene.targets[0].camera.scaled(96, 72)
+    r0 = PvmRenderer(scene, {"tau_empty": 0}, tiles=r.tiles, images={v.name: v.color for v in scene.views})
+    r1 = PvmRenderer(scene, {"tau_empty": 1.0}, tiles=r.tiles, images={v.name: v.color for v in scene.views})
+    res0, res1 = r0.render(cam), r1.render(cam)
+    cand, views = r0.candidates(cam), r0.tiles.views
+    xs, ys = cam.pixel_grid()
+    rays = cam.rays_in_cam(xs, ys) @ cam.world_from_cam[:3, :3].T
+    want = np.zeros(res0.valid.shape, bool)
+    for y, x in zip(*np.nonzero(res0.valid & (cand["n_bg"] == 0))):
+        p = cam.centre + rays[y, x] * float(res0.depth[y, x])
+        need = np.ceil(1.0 * cand["n_fg"][y, x])
+        listed = {views[i] for i in cand["view"][y, x, :cand["count"][y, x]]}
+        past = 0
+        for v in scene.views:
+            if v.name in listed:  # a view with a candidate here does not see through it
+                continue
+            a, b = v.camera.centre - p, cam.centre - p
+            if a @ b < np.cos(np.radians(60.0)) * np.linalg.norm(a) * np.linalg.norm(b):
+                continue
+            past += _sees_past(v.camera, v.depth, p, 0.02, 0.005)
+        want[y, x] = past >= need
+    got = res0.valid & ~res1.valid
+    assert not (res1.valid & ~res0.valid).any()
+    assert want.sum() >= 5  # the test sees some
+    assert (got != want).sum() <= max(1, want.sum() // 50)  # float rounding at a threshold
+
+
 def test_free_space_off_without_depth_maps_and_bad_depths():
     scene, cam = _two_plane_scene()
     tiles = build_tiles({v.name: v.camera for v in scene.views}, {v.name: v.depth for v in scene.views})
@@ -540,11 +613,14 @@ def test_free_space_off_without_depth_maps_and_bad_depths():
                     depths={"v0": scene.views[0].depth, "v1": np.zeros((3, 3), np.float32), "v2": scene.views[2].depth})
     with pytest.raises(BadValueError, match="free_space_tol"):
         PvmRenderer(scene, {"free_space_tol": 1.0}, tiles=tiles, images=images)
-    for bad in (-0.001, float("nan"), "near"):
-        with pytest.raises(BadValueError, match="free_space_point_tol"):
-            PvmRenderer(scene, {"free_space_point_tol": bad}, tiles=tiles, images=images)
+    for key in ("free_space_point_tol", "tau_empty"):
+        for bad in (-0.001, float("nan"), "near"):
+            with pytest.raises(BadValueError, match=key):
+                PvmRenderer(scene, {key: bad}, tiles=tiles, images=images)
     with pytest.raises(BadValueError, match="free_space_point_tol"):  # the kernel binding's own check
         r._core.render(cam.to_core(), free_space_point_tol=-1.0)
+    with pytest.raises(BadValueError, match="tau_empty"):
+        r._core.render(cam.to_core(), tau_empty=float("inf"))
     with pytest.raises(BadValueError, match="free_space"):
         PvmRenderer(scene, {"free_space": "maybe"}, tiles=tiles, images=images)
     t = r.tiles

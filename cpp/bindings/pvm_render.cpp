@@ -186,7 +186,7 @@ class PvmRendererCore {
   py::dict Render(const Camera& camera, py::handle gbuffer_obj, py::handle mask_obj, bool filtered, float sigma,
                   float alpha, float gamma, float tau_depth, int max_tiles, int max_candidates, int ulr_k,
                   float merge_rel, float radius_sigmas, int margin, float near, bool cull_back, float max_angle_deg, int ray_stride, int filter_step,
-                  bool free_space, float free_space_tol, float free_space_point_tol, int min_views,
+                  bool free_space, float free_space_tol, float free_space_point_tol, float tau_empty, int min_views,
                   const std::string& mode) {
     const bool depth_only = mode == "depth", resolve = mode == "resolve";
     if (!depth_only && !resolve && mode != "full") {
@@ -231,6 +231,7 @@ class PvmRendererCore {
     finite_min(free_space_tol, "free_space_tol", 0.f, false);
     if (free_space_tol >= 1.f) throw BadValueError("free_space_tol: expected < 1, got " + std::to_string(free_space_tol));
     finite_min(free_space_point_tol, "free_space_point_tol", 0.f, false);
+    finite_min(tau_empty, "tau_empty", 0.f, false);
     if (radius_sigmas * sigma > 64.f) throw BadValueError("radius_sigmas * sigma: expected <= 64 pixels");
     if (max_tiles < 1 || max_tiles > 255) throw BadValueError("max_tiles: expected 1 .. 255, got " + std::to_string(max_tiles));
     if (max_candidates < 1 || max_candidates > kPvmMaxCandidates) {
@@ -266,6 +267,7 @@ class PvmRendererCore {
     o.free_space = free_space;
     o.free_space_tol = free_space_tol;
     o.free_space_point_tol = free_space_point_tol;
+    o.tau_empty = tau_empty;
     o.min_views = min_views;
     o.max_angle = max_angle_deg >= 180.f ? 3.15f : max_angle_deg * 3.14159265f / 180.f;
     PvmViews views;
@@ -399,10 +401,11 @@ void BindPvmRender(py::module_& m) {
            py::arg("radius_sigmas") = 2.f, py::arg("margin") = 1, py::arg("near") = 1e-3f,
            py::arg("cull_back") = true, py::arg("max_angle") = 60.f, py::arg("ray_stride") = 8, py::arg("filter_step") = 2,
            py::arg("free_space") = true, py::arg("free_space_tol") = 0.02f,
-           py::arg("free_space_point_tol") = 0.005f, py::arg("min_views") = 2, py::arg("mode") = "full",
+           py::arg("free_space_point_tol") = 0.005f, py::arg("tau_empty") = 2.f, py::arg("min_views") = 2, py::arg("mode") = "full",
            "dict: color (H, W, 3), depth (H, W) (Eq. 2 vote), vote (H, W), valid, inside_grid (H, W) bool, "
            "times_ms per stage, visible_coarse, tiles, triangles. free_space: a background candidate counts in Eq. 1 / "
-           "Eq. 2 only when its view sees past the foreground point (needs depths; pvm_render.h). min_views: where "
+           "Eq. 2 only when its view sees past the foreground point (needs depths; pvm_render.h); with it, tau_empty > 0 "
+           "empties a one-cluster pixel seen past by >= tau_empty x n_fg views without a candidate. min_views: where "
            "gbuffer_depth has no surface, candidate lists of fewer views are emptied (1: never). mode: full (all stages); depth (stages "
            "1-4 without colours: depth, vote, valid, inside_grid; colour 0; the frame is kept); resolve "
            "(colours of pixel_mask from the kept depth pass: stages 4-5 only).")

@@ -596,6 +596,53 @@ static bool SeesPast(const Camera& cam, const float* depth, const glm::dvec3& p,
   return 2 * n_beyond > n;
 }
 
+// True when the surface point P at depth `depth` on the ray of pixel (x, y), a one-cluster pixel
+// with n_fg candidates, is seen through: at least tau_empty x n_fg of the enabled views within
+// max_angle of the novel camera's ray at P (the views PvmSelectTiles may rank there) see past P
+// (SeesPast). Their per-view meshes put nothing on the ray near P, so the candidates at P are the
+// sheets other views' meshes span across a gap (a through-hole seen obliquely). Stops as soon as
+// the answer is known (most surfaces: after the views that cannot reach the count are skipped).
+// True when the surface point P at depth `depth` on the ray of pixel (x, y), a one-cluster pixel
+// with n_fg foreground candidates (of the views vv[0 .. n)), is seen through: at least
+// tau_empty x n_fg of the enabled views without a candidate on the ray, within max_angle of the
+// novel camera's ray at P (the views PvmSelectTiles may rank there), see past P (SeesPast). Their
+// per-view meshes put nothing on the ray near P, so the candidates at P are sheets that other
+// views' meshes span across a gap (a through-hole seen obliquely). The cheap part first: most
+// surfaces have too few views without a candidate to reach the count, and nothing is projected.
+static bool SeenThrough(const PvmViews& views, const std::vector<glm::vec3>& centres, const Camera& camera, int x,
+                        int y, double depth, int n_fg, const std::int16_t* vv, int n, const PvmRenderOptions& options,
+                        std::vector<int>& others) {
+  const int need = static_cast<int>(std::ceil(static_cast<double>(options.tau_empty) * std::max(1, n_fg)));
+  if (need > views.count - n) return false;
+  const glm::dvec3 c_novel = camera.CentreInWorld();
+  const glm::dvec3 p = c_novel + camera.WorldFromCamDir(camera.RayInCam(x + 0.5, y + 0.5)) * depth;
+  const glm::vec3 pf(p), to_novel = glm::vec3(c_novel) - pf;
+  // angle <= max_angle as dot >= cos * |a| |b| without square roots (cos >= 0: max_angle <= 90 deg).
+  const bool limited = options.max_angle < 3.1415926f;
+  const float cos_max = limited ? std::cos(options.max_angle) : -1.f;
+  const float cos2 = cos_max * cos_max, len2_novel = glm::dot(to_novel, to_novel);
+  others.clear();
+  for (int v = 0; v < views.count; ++v) {
+    if (!views.enabled[v] || std::find(vv, vv + n, static_cast<std::int16_t>(v)) != vv + n) continue;
+    const glm::vec3 to_view = centres[static_cast<std::size_t>(v)] - pf;
+    const float dot = glm::dot(to_view, to_novel), len2 = glm::dot(to_view, to_view) * len2_novel;
+    bool ok = len2 > 0.f;
+    if (ok && limited) ok = cos_max >= 0.f ? dot >= 0.f && dot * dot >= cos2 * len2 : dot >= 0.f || dot * dot <= cos2 * len2;
+    if (ok) others.push_back(v);
+  }
+  const int m = static_cast<int>(others.size());
+  int past = 0;
+  for (int i = 0; i < m; ++i) {
+    if (past + (m - i) < need) return false;
+    const int v = others[static_cast<std::size_t>(i)];
+    if (SeesPast(views.cameras[v], views.depths[v], p, options.free_space_tol, options.free_space_point_tol) &&
+        ++past >= need) {
+      return true;
+    }
+  }
+  return false;
+}
+
 void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t* pixel_mask,
                 const PvmRenderOptions& options, bool colours, PvmFrame& frame, bool reuse_clusters) {
   const int h = camera.height, w = camera.width;
@@ -666,6 +713,8 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
     bool bg[kPvmMaxCandidates];
     std::vector<int> index(static_cast<std::size_t>(ulr_k));
     std::vector<float> weight(static_cast<std::size_t>(ulr_k));
+    std::vector<int> others;  // SeenThrough's views
+    others.reserve(static_cast<std::size_t>(views.count));
     for (std::int64_t y = a; y < b; ++y) {
       for (int x = 0; x < w; ++x) {
         const std::int64_t p = y * w + x;
@@ -742,6 +791,11 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
           }
         }
         const bool two_counted = two && counted > 0;
+        if (!reuse_clusters && !two_counted && free_space && options.tau_empty > 0.f &&
+            SeenThrough(views, centres, camera, x, y, m0, n - k1, vv, n, options, others)) {
+          frame.cand_count[static_cast<std::size_t>(p)] = 0;  // empty: n_fg stays 0, so not valid
+          continue;
+        }
         if (!colours || !masked) {  // a pixel of the dilation ring: Eq. 1 reads its clusters, not its colours
           frame.d_fg[static_cast<std::size_t>(p)] = static_cast<float>(m0);
           frame.n_fg[static_cast<std::size_t>(p)] = static_cast<std::uint8_t>(n - k1);

@@ -53,6 +53,12 @@
 //     there is P's own sees P itself: its background candidate comes from its mesh's depth-edge
 //     cut (a thin surface at a grazing angle), not from free space. With no counted background
 //     candidate the pixel has one cluster (the foreground: its colour is the foreground members' blend).
+//     Seen through (tau_empty > 0, with free space): a one-cluster pixel (no counted background)
+//     whose point P is seen past (as above) by at least tau_empty x n_fg of the enabled views that
+//     have no candidate on the pixel's ray and lie within max_angle of the novel camera's ray at P
+//     has its list emptied (no surface: not valid). Those views' meshes put nothing on the ray near
+//     P; the candidates are sheets that the per-view meshes of views seeing a gap's inner walls
+//     obliquely span across it (lego's technic-beam holes).
 //  5. PvmFilter         "spatial filter": Eq. 1, W_{i,k} = sum_{j in Omega_i} sum_{k'} G_sigma(i, j)
 //     exp(-alpha |d_{j,k'} - d_{i,k}|) #N_{j,k'} (the paper writes d_{j,k'} - d_{i,k}; the
 //     absolute value makes the falloff symmetric), Omega_i the window of radius
@@ -128,6 +134,7 @@ struct PvmRenderOptions {
   bool free_space = true;    // count a background candidate only when its view sees past the foreground (needs views.depths)
   float free_space_tol = 0.02f;  // relative: the view's depth must be >= (1 - tol) x the foreground point's depth
   float free_space_point_tol = 0.005f;  // relative: and mostly > (1 + point_tol) x it (within: the view sees the point)
+  float tau_empty = 2.f;     // with free_space: a one-cluster pixel is empty when >= tau_empty x n_fg views see past it (0: off)
   int min_views = 2;         // where the G-buffer is empty: candidate lists of fewer views are emptied (1: none are)
   bool filtered = true;
 };
