@@ -597,12 +597,6 @@ static bool SeesPast(const Camera& cam, const float* depth, const glm::dvec3& p,
 }
 
 // True when the surface point P at depth `depth` on the ray of pixel (x, y), a one-cluster pixel
-// with n_fg candidates, is seen through: at least tau_empty x n_fg of the enabled views within
-// max_angle of the novel camera's ray at P (the views PvmSelectTiles may rank there) see past P
-// (SeesPast). Their per-view meshes put nothing on the ray near P, so the candidates at P are the
-// sheets other views' meshes span across a gap (a through-hole seen obliquely). Stops as soon as
-// the answer is known (most surfaces: after the views that cannot reach the count are skipped).
-// True when the surface point P at depth `depth` on the ray of pixel (x, y), a one-cluster pixel
 // with n_fg foreground candidates (of the views vv[0 .. n)), is seen through: at least
 // tau_empty x n_fg of the enabled views without a candidate on the ray, within max_angle of the
 // novel camera's ray at P (the views PvmSelectTiles may rank there), see past P (SeesPast). Their
@@ -611,15 +605,13 @@ static bool SeesPast(const Camera& cam, const float* depth, const glm::dvec3& p,
 // surfaces have too few views without a candidate to reach the count, and nothing is projected.
 static bool SeenThrough(const PvmViews& views, const std::vector<glm::vec3>& centres, const Camera& camera, int x,
                         int y, double depth, int n_fg, const std::int16_t* vv, int n, const PvmRenderOptions& options,
-                        std::vector<int>& others) {
+                        bool limited, float cos_max, std::vector<int>& others) {
   const int need = static_cast<int>(std::ceil(static_cast<double>(options.tau_empty) * std::max(1, n_fg)));
   if (need > views.count - n) return false;
   const glm::dvec3 c_novel = camera.CentreInWorld();
   const glm::dvec3 p = c_novel + camera.WorldFromCamDir(camera.RayInCam(x + 0.5, y + 0.5)) * depth;
   const glm::vec3 pf(p), to_novel = glm::vec3(c_novel) - pf;
-  // angle <= max_angle as dot >= cos * |a| |b| without square roots (cos >= 0: max_angle <= 90 deg).
-  const bool limited = options.max_angle < 3.1415926f;
-  const float cos_max = limited ? std::cos(options.max_angle) : -1.f;
+  // angle <= max_angle (limited) as dot >= cos_max |a| |b| without square roots.
   const float cos2 = cos_max * cos_max, len2_novel = glm::dot(to_novel, to_novel);
   others.clear();
   for (int v = 0; v < views.count; ++v) {
@@ -715,6 +707,8 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
     std::vector<float> weight(static_cast<std::size_t>(ulr_k));
     std::vector<int> others;  // SeenThrough's views
     others.reserve(static_cast<std::size_t>(views.count));
+    const bool limited = options.max_angle < 3.1415926f;
+    const float cos_max = limited ? std::cos(options.max_angle) : -1.f;
     for (std::int64_t y = a; y < b; ++y) {
       for (int x = 0; x < w; ++x) {
         const std::int64_t p = y * w + x;
@@ -792,7 +786,7 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
         }
         const bool two_counted = two && counted > 0;
         if (!reuse_clusters && !two_counted && free_space && options.tau_empty > 0.f &&
-            SeenThrough(views, centres, camera, x, y, m0, n - k1, vv, n, options, others)) {
+            SeenThrough(views, centres, camera, x, y, m0, n - k1, vv, n, options, limited, cos_max, others)) {
           frame.cand_count[static_cast<std::size_t>(p)] = 0;  // empty: n_fg stays 0, so not valid
           continue;
         }
