@@ -445,25 +445,23 @@ def test_hybrid_tm_shaded_where_read_equals_the_full_frame_shade(exact_scene, mo
 
 
 def test_geo_threshold_default_by_units_and_voxel(exact_scene):
-    # 2 cm in a length unit; 2/3 of a voxel of the global mesh where the units are not a length; 2 cm
+    # 3 cm in a length unit; one voxel of the global mesh where the units are not a length; 3 cm
     # read as metres when there is no usable voxel either. The method takes the mesh stage's voxel.
     from ibrtools.render import methods
     from ibrtools.render.hybrid import GEO_THRESHOLD_VOXELS, geo_threshold_for
 
-    assert GEO_THRESHOLD_VOXELS == pytest.approx(2 / 3)
-    assert geo_threshold_for("m") == pytest.approx(0.02) and geo_threshold_for("m", 0.5) == pytest.approx(0.02)
-    assert geo_threshold_for("cm") == pytest.approx(2.0) and geo_threshold_for(" MM ") == pytest.approx(20.0)
-    assert geo_threshold_for("km") == pytest.approx(2e-5)
-    assert geo_threshold_for("unknown", 0.006) == pytest.approx(0.004)
-    assert geo_threshold_for("disparity", 0.25) == pytest.approx(0.25 * 2 / 3)
+    assert geo_threshold_for("m") == pytest.approx(0.03) and geo_threshold_for("m", 0.5) == pytest.approx(0.03)
+    assert geo_threshold_for("cm") == pytest.approx(3.0) and geo_threshold_for(" MM ") == pytest.approx(30.0)
+    assert geo_threshold_for("unknown", 0.006) == pytest.approx(0.006 * GEO_THRESHOLD_VOXELS)
+    assert geo_threshold_for("disparity", 0.25) == pytest.approx(0.25 * GEO_THRESHOLD_VOXELS)
     for bad in (None, 0.0, -1.0, float("nan"), float("inf")):
-        assert geo_threshold_for("unknown", bad) == pytest.approx(0.02)
+        assert geo_threshold_for("unknown", bad) == pytest.approx(0.03)
     if not HAVE_PVM:
         return
     hy = methods.create("hybrid")
     hy.prepare(exact_scene)
     hy.render(exact_scene.targets[0].camera)
-    assert exact_scene.units == "m" and hy.frame_report()["geo_threshold"] == pytest.approx(0.02)
+    assert exact_scene.units == "m" and hy.frame_report()["geo_threshold"] == pytest.approx(0.03)
     unitless = copy.copy(exact_scene)
     unitless.units = "unknown"
     hy.prepare(unitless)

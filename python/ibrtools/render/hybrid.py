@@ -20,9 +20,8 @@ ones.
   (``harmonise`` stage; the original images when the stage was skipped) bilinearly. Pixels no
   view sees fall back to TM when the scene has the ``texture`` stage (else they are holes).
 * ``hybrid`` (Fig. 7): per pixel, outside the PVM grid -> ULR; PVM depth (the cluster vote of
-  Eq. 2, ``tau_depth``) farther than ``geo_threshold`` (2 cm when the scene's units are a length,
-  the paper's 3 cm with ``--param``; 2/3 of a voxel of the global mesh when they are not,
-  :func:`geo_threshold_for`) from the global
+  Eq. 2, ``tau_depth``) farther than ``geo_threshold`` (3 cm when the scene's units are a length;
+  one voxel of the global mesh when they are not, :func:`geo_threshold_for`) from the global
   depth -> PVM; else the view-dependent texture (``harmonise`` stage) above ``tau_var`` -> ULR;
   else TM (``tau_var`` = -1 by default: never, TM is ULR's fallback where no view sees the point;
   0: TM where no view found the surface view-dependent). The one-hot selection is blurred
@@ -121,29 +120,26 @@ def check_params(method: str, params: dict | None) -> dict:
     return p
 
 
-# geo_threshold in a scene whose units are a length: 2 cm (the paper's 3 cm until the ninth session);
-# in a scene without a length unit: this many voxels of the global mesh (1 until then; chosen on the
-# lego validation views, docs/hybrid.md "geo_threshold without a length unit"). Both scaled by 2/3 in
-# the ninth session, when the PVM free-space rules had made PVM reliable nearer the mesh: better on
-# both selection scenes in PSNR, SSIM and FLIP (docs/hybrid.md "Seventh round").
-GEO_THRESHOLD_METRES = 0.02
-GEO_THRESHOLD_VOXELS = 2.0 / 3.0
+# geo_threshold in a scene without a length unit: this many voxels of the global mesh. Chosen on
+# the lego validation views (docs/hybrid.md "geo_threshold without a length unit"): 0.5 / 1 / 1.7 /
+# 2.5 voxels -> hybrid 26.90 / 27.10 / 27.03 / 26.95 dB, the best mean rank of PSNR, SSIM and FLIP at 1.
+GEO_THRESHOLD_VOXELS = 1.0
 
 
 def geo_threshold_for(units: str, voxel: float | None = None) -> float:
     """The geometric-uncertainty threshold of the hybrid choice (Fig. 7) for a scene in ``units``
-    whose global mesh has voxels of ``voxel`` (the mesh stage's record). ``GEO_THRESHOLD_METRES``
-    (2 cm; the paper's 3 cm with ``--param geo_threshold``) converted to the units when they are a
-    length (m, cm, mm, km). Otherwise ("unknown": nerf and COLMAP scenes are up to scale;
-    "disparity") centimetres mean nothing, and the threshold is ``GEO_THRESHOLD_VOXELS`` (2/3)
-    voxels: the global mesh is a TSDF fusion at that voxel (or a given mesh sampled at it), so the
-    mesh's own error is of that scale. 2 cm read as metres when there is no voxel either."""
+    whose global mesh has voxels of ``voxel`` (the mesh stage's record). The paper's 3 cm
+    converted to the units when they are a length (m, cm, mm, km). Otherwise ("unknown": nerf
+    and COLMAP scenes are up to scale; "disparity") 3 cm means nothing, and the threshold is
+    ``GEO_THRESHOLD_VOXELS`` voxels: the global mesh is a TSDF fusion at that voxel (or a given
+    mesh sampled at it), so a PVM depth nearer to it than that is within the mesh's own error.
+    3 cm read as metres when there is no voxel either."""
     metres = _UNIT_METRES.get(str(units).strip().lower())
     if metres is not None:
-        return GEO_THRESHOLD_METRES / metres
+        return 0.03 / metres
     if voxel is not None and math.isfinite(voxel) and voxel > 0:
         return GEO_THRESHOLD_VOXELS * float(voxel)
-    return GEO_THRESHOLD_METRES
+    return 0.03
 
 
 def _stage_record(scene: Scene, stage: str) -> dict:
