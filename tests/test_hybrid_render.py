@@ -316,6 +316,10 @@ def test_method_params_and_missing_stages(tmp_path):
         methods.create("ulr", {"k": 0})
     with pytest.raises(BadValueError, match="depth_tol"):
         methods.create("ulr", {"depth_tol": -1})
+    for method in ("ulr", "hybrid"):
+        with pytest.raises(BadValueError, match="resample"):
+            methods.create(method, {"resample": "lanczos"})
+    assert methods.create("hybrid", {"resample": "bilinear"}).params["resample"] == "bilinear"
     # The hybrid's PVM parameters go through the PVM renderer's checks.
     for bad, name in (({"free_space_tol": 1.5}, "free_space_tol"), ({"free_space": "sometimes"}, "free_space"),
                       ({"free_space_point_tol": -0.01}, "free_space_point_tol"), ({"tau_empty": -1}, "tau_empty"),

@@ -3,6 +3,7 @@
 gets PVM candidates at its depth, identical depths make one cluster, empty candidate lists give
 valid = False without NaN, the pixel mask restricts the work without changing the result, thread
 count independence, the GIL is released, the CLI method, bad input."""
+import dataclasses
 import json
 
 import numpy as np
@@ -18,6 +19,7 @@ from ibrtools.scene import Scene, View
 from ibrtools.synth import make_scene
 
 from gil import runs_python_during
+from resample_ref import bilinear, catmull_rom
 
 
 def _renderer(scene, params=None):
@@ -134,6 +136,29 @@ def test_identical_depths_make_one_stable_cluster():
         # Same inputs, same output (the 2-means has no random start).
         again = r.render(cam)
         np.testing.assert_array_equal(again.color, res.color)
+
+
+@pytest.mark.parametrize("resample, ref", [("cubic", catmull_rom), ("bilinear", bilinear)])
+def test_candidate_colours_are_read_as_numpy_reads_them(resample, ref):
+    """One view of a plane with a random image; the target at its pose with the principal point
+    moved by (-0.3, -0.6) px: each target pixel centre lands at (x + 0.8, y + 1.1) in the view,
+    and the PVM colour (one candidate, one cluster) is the view's image read there, against an
+    independent NumPy Catmull-Rom / bilinear read (tests/resample_ref.py)."""
+    w, h = 32, 24
+    cam = Camera.from_fov(w, h, 50.0, look_at((0.0, 0.0, 0.0), (0.0, 0.0, 5.0)))
+    img = np.random.default_rng(5).random((h, w, 3), dtype=np.float32)
+    scene = Scene(views=[View.create("v0", cam, color=img, depth=np.full((h, w), 5.0, np.float32))], targets=[],
+                  paths={}, meshes={}, units="m", source={})
+    r = _renderer(scene, {"resample": resample})
+    target = dataclasses.replace(cam, cx=cam.cx - 0.3, cy=cam.cy - 0.6)
+    res = r.render(target)
+    ys, xs = np.mgrid[0:h, 0:w]
+    inner = (slice(4, h - 4), slice(4, w - 4))
+    assert res.valid[inner].all()
+    want = ref(img.astype(np.float64), xs + 0.8, ys + 1.1)
+    np.testing.assert_allclose(res.color[inner], want[inner], atol=2e-5)
+    with pytest.raises(BadValueError, match="resample"):
+        _renderer(scene, {"resample": "nearest"})
 
 
 @pytest.mark.parametrize("n_views", [1, 2, 3])
@@ -621,6 +646,8 @@ def test_free_space_off_without_depth_maps_and_bad_depths():
         r._core.render(cam.to_core(), free_space_point_tol=-1.0)
     with pytest.raises(BadValueError, match="tau_empty"):
         r._core.render(cam.to_core(), tau_empty=float("inf"))
+    with pytest.raises(BadValueError, match="resample"):  # the binding's own check
+        r._core.render(cam.to_core(), resample="bicubic")
     with pytest.raises(BadValueError, match="free_space"):
         PvmRenderer(scene, {"free_space": "maybe"}, tiles=tiles, images=images)
     t = r.tiles

@@ -7,8 +7,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+import dataclasses
+
 from ibrtools import _core, look_at
 from ibrtools.camera import Camera
+
+from resample_ref import bilinear, catmull_rom
 
 
 def _scene(n_views=7, size=(67, 45), seed=0):
@@ -98,24 +102,81 @@ def test_avx512_avx2_and_sse2_view_loops_give_the_same_bits(n_views):
             np.testing.assert_array_equal(c, cs)
 
 
-def test_fast_ulr_reads_the_last_pixel_of_a_view():
-    """The SSE2 bilinear read loads four floats per texel (RGB and the next pixel's red); at a
-    view's last pixel the fourth is past the image, so that texel is read channel by channel. A
-    view of 3 x 2 pixels seeing the whole G-buffer makes most reads touch its last pixel: the fast
-    path agrees with the scalar reference (1e-5: float against double positions of the same texels)."""
+@pytest.mark.parametrize("resample", ["bilinear", "cubic"])
+def test_fast_ulr_reads_the_last_pixel_of_a_view(resample):
+    """The SSE2 bilinear and cubic reads load four floats per texel (RGB and the next pixel's red);
+    at a view's last pixel the fourth is past the image, so that texel is read channel by channel
+    (the sanitizer jobs run this). A view of 3 x 2 pixels seeing the whole G-buffer makes most reads
+    touch its last pixel: the fast path agrees with the scalar reference (1e-5: float against
+    double positions of the same texels)."""
     w, h = 24, 16
     novel = Camera.from_fov(w, h, 40, look_at([0, 0, 0], [0, 0, 5]))
     gdepth = np.full((h, w), 5.0, np.float32)
     small = Camera.from_fov(3, 2, 60, look_at([0.05, 0.02, 0], [0, 0, 5]))
     col = np.arange(18, dtype=np.float32).reshape(2, 3, 3) / 17
     views = [(small.to_core(), col, np.full((2, 3), 5.0, np.float32))]
-    cf, nf = _core.ulr_blend(novel.to_core(), gdepth, views)
-    cr, nr = _core.ulr_blend(novel.to_core(), gdepth, views, reference=True)
+    cf, nf = _core.ulr_blend(novel.to_core(), gdepth, views, resample=resample)
+    cr, nr = _core.ulr_blend(novel.to_core(), gdepth, views, resample=resample, reference=True)
     np.testing.assert_array_equal(nf, nr)
     assert nf.mean() > 0.5
     assert np.abs(cf - cr).max() <= 1e-5
     # red above the second-to-last texel's (12/17) needs weight on the last one (15/17): read
     assert (cf[..., 0] > col[1, 1, 0] + 0.01).sum() > 10
+
+
+@pytest.mark.parametrize("resample, ref", [("cubic", catmull_rom), ("bilinear", bilinear)])
+@pytest.mark.parametrize("reference", [False, True])
+@pytest.mark.parametrize("dx, dy", [(0.25, 0.5), (0.7, 0.1), (-0.4, -0.85)])
+def test_ulr_colour_reads_match_numpy(resample, ref, reference, dx, dy):
+    """One view and a novel camera at its pose whose principal point is moved by (-dx, -dy): every
+    novel pixel centre projects to the view at (x + 0.5 + dx, y + 0.5 + dy), so the blend of the
+    one view is its image read there, against an independent NumPy Catmull-Rom (Keys' piecewise
+    kernel) or bilinear read, fast and reference paths. Also: a constant image stays constant (the
+    weights sum to 1) and a linear ramp is reproduced (Catmull-Rom interpolates linear data)."""
+    w, h = 40, 30
+    view = Camera.from_fov(w, h, 50, look_at([0, 0, 0], [0, 0, 5]))
+    novel = dataclasses.replace(view, cx=view.cx - dx, cy=view.cy - dy)
+    gdepth = np.full((h, w), 5.0, np.float32)
+    ys, xs = np.mgrid[0:h, 0:w]
+    inner = (slice(3, h - 3), slice(3, w - 3))  # every tap inside the image
+    rng = np.random.default_rng(3)
+    ramp = np.stack([0.01 * xs + 0.02 * ys + 0.1, 0.5 - 0.005 * xs, 0.02 * ys], -1).astype(np.float32)
+    for img, exact in ((rng.random((h, w, 3), dtype=np.float32), False), (np.full((h, w, 3), 0.37, np.float32), True),
+                       (ramp, True)):
+        views = [(view.to_core(), img, np.full((h, w), 5.0, np.float32))]
+        col, n = _core.ulr_blend(novel.to_core(), gdepth, views, resample=resample, reference=reference)
+        assert (n[inner] == 1).all()
+        want = ref(img.astype(np.float64), xs + 0.5 + dx, ys + 0.5 + dy)
+        np.testing.assert_allclose(col[inner], want[inner], atol=2e-5)
+        if exact:  # constant and linear data come back as they are, at the shifted position
+            true = np.stack([0.01 * (xs + dx) + 0.02 * (ys + dy) + 0.1, 0.5 - 0.005 * (xs + dx), 0.02 * (ys + dy)], -1)
+            np.testing.assert_allclose(col[inner], (true if img is ramp else img)[inner], atol=2e-5)
+
+
+def test_cubic_read_is_never_negative_and_never_nan():
+    """Catmull-Rom rings at a step (negative lobes): a black pixel next to a white one reads
+    negative before the clamp; the blend is clamped at 0, and a 1 x 1 view (every tap the same
+    pixel) reads that pixel."""
+    w, h = 20, 14
+    view = Camera.from_fov(w, h, 50, look_at([0, 0, 0], [0, 0, 5]))
+    novel = dataclasses.replace(view, cx=view.cx - 0.5)
+    img = np.zeros((h, w, 3), np.float32)
+    img[:, w // 2:] = 1.0
+    col, n = _core.ulr_blend(novel.to_core(), np.full((h, w), 5.0, np.float32),
+                             [(view.to_core(), img, np.full((h, w), 5.0, np.float32))])
+    assert np.isfinite(col).all() and col.min() >= 0.0 and col.max() > 1.0  # overshoot on the bright side stays
+    tiny = Camera.from_fov(1, 1, 80, look_at([0, 0, 0], [0, 0, 5]))
+    col, n = _core.ulr_blend(view.to_core(), np.full((h, w), 5.0, np.float32),
+                             [(tiny.to_core(), np.full((1, 1, 3), 0.6, np.float32), np.full((1, 1), 5.0, np.float32))])
+    assert (n > 0).any() and np.allclose(col[n > 0], 0.6, atol=1e-6)
+
+
+def test_ulr_resample_rejects_an_unknown_value():
+    from ibrtools.errors import BadValueError
+
+    cam, gdepth, views, _ = _scene(2)
+    with pytest.raises(BadValueError, match="resample"):
+        _core.ulr_blend(cam, gdepth, views, resample="lanczos")
 
 
 def test_ulr_simd_rejects_an_unknown_value():

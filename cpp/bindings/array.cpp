@@ -66,4 +66,11 @@ bool Overlaps(const py::array& a, const py::array& b) {
   return a0 < b0 + b.nbytes() && b0 < a0 + a.nbytes();
 }
 
+bool ParseResample(const std::string& resample) {
+  if (resample != "cubic" && resample != "bilinear") {
+    throw BadValueError("resample: expected 'cubic' or 'bilinear', got '" + resample + "'");
+  }
+  return resample == "cubic";
+}
+
 }  // namespace ibr::bind

@@ -102,4 +102,8 @@ std::vector<py::array_t<float, py::array::c_style>> CheckPairedArrayList(
 // Whether two arrays' memory ranges overlap (an in-place output must not alias an input).
 bool Overlaps(const py::array& a, const py::array& b);
 
+// The `resample` argument of the ULR and PVM colour reads: "cubic" (Catmull-Rom,
+// kernels/resample.h) -> true, "bilinear" -> false; anything else is a BadValueError.
+bool ParseResample(const std::string& resample);
+
 }  // namespace ibr::bind

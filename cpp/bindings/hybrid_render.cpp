@@ -224,13 +224,14 @@ py::dict RasterGBufferBinding(const Camera& camera, const py::object& vertices_o
 
 py::tuple UlrBlendBinding(const Camera& novel, const py::object& depth_obj, const py::list& views_obj,
                           const py::object& normal_obj, const py::object& mask_obj, int k, double resolution_weight,
-                          double depth_tol, bool reference, const std::string& simd) {
+                          double depth_tol, const std::string& resample, bool reference, const std::string& simd) {
   if (k < 1 || k > 64) throw BadValueError("k: expected 1 .. 64 views per pixel, got " + std::to_string(k));
   UlrOptions opt;
   opt.k = k;
   opt.resolution_weight = CheckFinite(resolution_weight, "resolution_weight", 0.0);
   opt.depth_tol = CheckFinite(depth_tol, "depth_tol", 0.0);
   opt.reference = reference;
+  opt.cubic = ParseResample(resample);
   if (simd == "sse2") {
     opt.simd = UlrSimd::kSse2;
   } else if (simd == "avx2") {
@@ -430,10 +431,11 @@ void BindHybridRender(py::module_& m) {
       "The k smallest finite penalties (cpp/kernels/ulr.h UlrSelect): (indices, weights summing to 1).");
   m.def("ulr_blend", &UlrBlendBinding, py::arg("camera"), py::arg("gbuffer_depth"), py::arg("views"), py::kw_only(),
         py::arg("normal") = py::none(), py::arg("pixel_mask") = py::none(), py::arg("k") = 4,
-        py::arg("resolution_weight") = 0.5, py::arg("depth_tol") = 0.005, py::arg("reference") = false,
-        py::arg("simd") = "auto",
+        py::arg("resolution_weight") = 0.5, py::arg("depth_tol") = 0.005, py::arg("resample") = "cubic",
+        py::arg("reference") = false, py::arg("simd") = "auto",
         "Per-pixel ULR at the G-buffer's points: views = [(camera, color, depth), ...] -> (color (H, W, 3), "
-        "count (H, W) uint8 views used, 0 = none sees the point). reference=True: the scalar reference path "
+        "count (H, W) uint8 views used, 0 = none sees the point). resample: the views' colour reads, 'cubic' "
+        "(Catmull-Rom, clamped at 0) or 'bilinear'. reference=True: the scalar reference path "
         "(double projections) instead of the fast one (float, SIMD over views; pinhole views only). "
         "simd='avx2' / 'sse2': the fast path's per-view loop at most AVX2 / in SSE2 even where the CPU has more (the same bits; for tests).");
   m.def("hybrid_select", &HybridSelectBinding, py::arg("gbuffer_depth"), py::kw_only(),

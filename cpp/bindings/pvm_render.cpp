@@ -187,7 +187,7 @@ class PvmRendererCore {
                   float alpha, float gamma, float tau_depth, int max_tiles, int max_candidates, int ulr_k,
                   float merge_rel, float radius_sigmas, int margin, float near, bool cull_back, float max_angle_deg, int ray_stride, int filter_step,
                   bool free_space, float free_space_tol, float free_space_point_tol, float tau_empty, int min_views,
-                  const std::string& mode) {
+                  const std::string& resample, const std::string& mode) {
     const bool depth_only = mode == "depth", resolve = mode == "resolve";
     if (!depth_only && !resolve && mode != "full") {
       throw BadValueError("mode: expected full, depth or resolve, got " + mode);
@@ -268,6 +268,7 @@ class PvmRendererCore {
     o.free_space_tol = free_space_tol;
     o.free_space_point_tol = free_space_point_tol;
     o.tau_empty = tau_empty;
+    o.cubic = ParseResample(resample);
     o.min_views = min_views;
     o.max_angle = max_angle_deg >= 180.f ? 3.15f : max_angle_deg * 3.14159265f / 180.f;
     PvmViews views;
@@ -401,12 +402,14 @@ void BindPvmRender(py::module_& m) {
            py::arg("radius_sigmas") = 2.f, py::arg("margin") = 1, py::arg("near") = 1e-3f,
            py::arg("cull_back") = true, py::arg("max_angle") = 60.f, py::arg("ray_stride") = 8, py::arg("filter_step") = 2,
            py::arg("free_space") = true, py::arg("free_space_tol") = 0.02f,
-           py::arg("free_space_point_tol") = 0.005f, py::arg("tau_empty") = 2.f, py::arg("min_views") = 2, py::arg("mode") = "full",
+           py::arg("free_space_point_tol") = 0.005f, py::arg("tau_empty") = 2.f, py::arg("min_views") = 2,
+           py::arg("resample") = "cubic", py::arg("mode") = "full",
            "dict: color (H, W, 3), depth (H, W) (Eq. 2 vote), vote (H, W), valid, inside_grid (H, W) bool, "
            "times_ms per stage, visible_coarse, tiles, triangles. free_space: a background candidate counts in Eq. 1 / "
            "Eq. 2 only when its view sees past the foreground point (needs depths; pvm_render.h); with it, tau_empty > 0 "
            "empties a one-cluster pixel seen past by >= tau_empty x n_fg views without a candidate. min_views: where "
-           "gbuffer_depth has no surface, candidate lists of fewer views are emptied (1: never). mode: full (all stages); depth (stages "
+           "gbuffer_depth has no surface, candidate lists of fewer views are emptied (1: never). resample: the candidates' "
+           "colour reads, 'cubic' (Catmull-Rom, clamped at 0) or 'bilinear'. mode: full (all stages); depth (stages "
            "1-4 without colours: depth, vote, valid, inside_grid; colour 0; the frame is kept); resolve "
            "(colours of pixel_mask from the kept depth pass: stages 4-5 only).")
       .def("candidates", &PvmRendererCore::Candidates, py::arg("height"), py::arg("width"),

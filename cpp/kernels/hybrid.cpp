@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "ibr/parallel.h"
+#include "kernels/resample.h"
 #include "kernels/ulr.h"
 
 #if defined(__SSE2__)
@@ -179,7 +180,14 @@ void UlrBlendScalar(const Camera& novel, ImageView<const float> gbuffer_depth, I
         for (int j = 0; j < m; ++j) {
           if (!(weight[j] > 0.f)) continue;
           const int i = index[j];
-          col += weight[j] * Bilinear3(views[i].color, proj[3 * i], proj[3 * i + 1]);
+          if (options.cubic) {
+            float c[3] = {0.f, 0.f, 0.f};
+            const ImageView<const float>& img = views[i].color;
+            CubicRgbAdd(img.data, img.row_stride, img.width, img.height, float(proj[3 * i]), float(proj[3 * i + 1]), 1.f, c);
+            col += weight[j] * glm::vec3(c[0], c[1], c[2]);
+          } else {
+            col += weight[j] * Bilinear3(views[i].color, proj[3 * i], proj[3 * i + 1]);
+          }
           ++used;
         }
         if (used > 0) {
@@ -632,6 +640,7 @@ void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, Ima
   const int k = std::max(1, std::min(options.k, 64));
   const bool use_normal = !normal.Empty();
   const float rw = options.resolution_weight, tol = options.depth_tol;
+  const bool cubic = options.cubic;
   const glm::dmat3 world_from_cam = glm::transpose(novel.rot);
   const int nv = num_views;
   const bool novel_pinhole = novel.model == CameraModel::kPinhole;
@@ -735,7 +744,12 @@ void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, Ima
         for (int j = 0; j < m; ++j) {
           if (!(weight[j] > 0.f)) continue;
           const int i = index[j];
-          Bilinear3Add(views[i].color, QX[i], QY[i], weight[j], col);
+          const ImageView<const float>& img = views[i].color;
+          if (cubic) {
+            CubicRgbAdd(img.data, img.row_stride, img.width, img.height, QX[i], QY[i], weight[j], col);
+          } else {
+            Bilinear3Add(img, QX[i], QY[i], weight[j], col);
+          }
           // The texels this view's colour read will want kPrefetchAhead pixels on (its depth
           // texel's offset and step, in the colour image: 3 floats a pixel), rows y and y + 1.
           const std::ptrdiff_t ahead = prev_off[i] + kPrefetchAhead * (prev_off[i] - prev2_off[i]);

@@ -47,6 +47,9 @@ struct UlrOptions {
   // The scalar reference path (double projections, one view at a time) instead of the fast path
   // (float, SIMD over views; used when every input view is pinhole). Tests compare the two.
   bool reference = false;
+  // Colour reads: Catmull-Rom (resample.h; sharper: a bilinear read at sub-pixel positions is a
+  // 2-tap box per axis, and the blend of several views piles the blurs up) or bilinear (false).
+  bool cubic = true;
   // The fast path's per-view loop: AVX-512F (16 views per step) when the CPU has it, else AVX2 (8),
   // else SSE2 (4); kAvx2 stops at AVX2, kSse2 forces SSE2 (tests: all give the same bits).
   UlrSimd simd = UlrSimd::kAuto;

@@ -12,6 +12,7 @@
 
 #include "ibr/parallel.h"
 #include "kernels/hybrid.h"  // UlrPenaltyFast
+#include "kernels/resample.h"
 #include "kernels/ulr.h"
 
 namespace ibr {
@@ -32,8 +33,13 @@ inline int CoarseAxis(const PvmGrid& g, int a, double x) {
 inline glm::vec3 Centre(const Camera& c) { return glm::vec3(c.CentreInWorld()); }
 
 // Bilinear read of an (h, w, 3) image at continuous image coordinates (pixel centres at +0.5),
-// clamped to the image.
-inline void Sample(const float* img, int w, int h, double x, double y, float* out) {
+// clamped to the image; with cubic, Catmull-Rom (resample.h, as the ULR blend).
+inline void Sample(const float* img, int w, int h, double x, double y, bool cubic, float* out) {
+  if (cubic) {
+    out[0] = out[1] = out[2] = 0.f;
+    CubicRgbAdd(img, static_cast<std::ptrdiff_t>(w) * 3, w, h, static_cast<float>(x), static_cast<float>(y), 1.f, out);
+    return;
+  }
   double sx = x - 0.5, sy = y - 0.5;
   sx = std::min(std::max(sx, 0.0), static_cast<double>(w - 1));
   sy = std::min(std::max(sy, 0.0), static_cast<double>(h - 1));
@@ -812,7 +818,7 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
           pen[i] = std::numeric_limits<float>::infinity();
           col[i][0] = col[i][1] = col[i][2] = 0.f;
           if (cam.ProjectCam(cam.CamFromWorld(pw), &ix, &iy, &iz)) {
-            Sample(views.images[v], cam.width, cam.height, ix, iy, col[i]);
+            Sample(views.images[v], cam.width, cam.height, ix, iy, options.cubic, col[i]);
             const glm::vec3 pf(pw);
             const glm::vec3 to_novel = c_novel - pf;
             pen[i] = UlrPenaltyFast(pf, to_novel, glm::length(to_novel), centres[static_cast<std::size_t>(v)],

@@ -137,6 +137,7 @@ struct PvmRenderOptions {
   float tau_empty = 2.f;     // with free_space: a one-cluster pixel is empty when >= tau_empty x n_fg views see past it (0: off)
   int min_views = 2;         // where the G-buffer is empty: candidate lists of fewer views are emptied (1: none are)
   bool filtered = true;
+  bool cubic = true;         // candidate colours read with Catmull-Rom (resample.h, as the ULR blend), else bilinear
 };
 
 // Per-frame buffers (sized by the functions).

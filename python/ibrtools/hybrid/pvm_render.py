@@ -65,12 +65,16 @@ from .pvm import PvmTiles
 # count as seeing past it; chosen on the selection scenes (docs/pvm_render.md "Free space").
 # tau_empty 2: a one-cluster pixel seen past by >= 2 x n_fg views without a candidate there is
 # emptied (a sheet across a gap); chosen on the selection scenes over 0 (off) / 1.5 / 2 / 2.5 / 3 / 4
-# (docs/pvm_render.md "Seen through").
+# (docs/pvm_render.md "Seen through"). resample "cubic": the candidates' colours are read with
+# Catmull-Rom, as the ULR blend's (cpp/kernels/resample.h; "bilinear" until the ninth session).
 DEFAULTS = {"sigma": 3.0, "alpha": 7.0, "gamma": 7.0, "tau_depth": 0.83, "max_tiles": 12,
             "max_candidates": 12, "ulr_k": 3, "merge_rel": 0.02, "radius_sigmas": 2.0, "margin": 1,
             "near": 1e-3, "cull_back": True, "max_angle": 60.0, "ray_stride": 8, "filter_step": 2,
             "filtered": True, "free_space": True, "free_space_tol": 0.02,
-            "free_space_point_tol": 0.005, "tau_empty": 2.0, "min_views": 2}
+            "free_space_point_tol": 0.005, "tau_empty": 2.0, "min_views": 2, "resample": "cubic"}
+
+# How the views' colours are read at sub-pixel positions (the ULR method takes the same values).
+RESAMPLE = ("cubic", "bilinear")
 
 STAGE_NAMES = {"voxel_lookup": "voxel lookup", "tile_sort": "tile sort",
                "per_view_depth_pass": "per-view depth pass", "cluster_blend": "cluster & blend",
@@ -105,6 +109,8 @@ def check_params(params: dict | None) -> dict:
         raise BadValueError(f"--param free_space_tol: expected < 1, got {p['free_space_tol']}")
     p["free_space_point_tol"] = P.number(p["free_space_point_tol"], "--param free_space_point_tol", 0.0)
     p["tau_empty"] = P.number(p["tau_empty"], "--param tau_empty", 0.0)
+    if p["resample"] not in RESAMPLE:
+        raise BadValueError(f"--param resample: expected 'cubic' or 'bilinear', got {p['resample']!r}")
     if p["max_tiles"] > 255:
         raise BadValueError(f"--param max_tiles: expected <= 255, got {p['max_tiles']}")
     for key in ("max_candidates", "min_views"):
@@ -296,7 +302,8 @@ class PvmRenderer:
                                 p["gamma"], p["tau_depth"], p["max_tiles"], p["max_candidates"], p["ulr_k"],
                                 p["merge_rel"], p["radius_sigmas"], p["margin"], p["near"], p["cull_back"],
                                 p["max_angle"], p["ray_stride"], p["filter_step"], self.free_space,
-                                p["free_space_tol"], p["free_space_point_tol"], p["tau_empty"], p["min_views"], mode)
+                                p["free_space_tol"], p["free_space_point_tol"], p["tau_empty"], p["min_views"],
+                                p["resample"], mode)
         times = {STAGE_NAMES[k]: float(v) for k, v in out["times_ms"].items()}
         if mode == "resolve":
             times = {k: times[k] for k in ("cluster & blend", "spatial filter")}

@@ -48,7 +48,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import BadValueError, InputError, MissingFileError
-from ..hybrid.pvm_render import DEFAULTS as PVM_DEFAULTS, check_params as check_pvm_params
+from ..hybrid.pvm_render import DEFAULTS as PVM_DEFAULTS, RESAMPLE, check_params as check_pvm_params
 from ..mesh import Mesh
 from ..scene import Scene
 from . import params as P
@@ -64,7 +64,8 @@ from . import params as P
 # 27.99 dB, FLIP 0.0502 -> 0.0487; synth 31.75 -> 31.87, 0.0596 -> 0.0588; ULR alone better too).
 # The rejected views are those where the point sits at a depth edge of the view (its bilinear colour
 # mixes both sides) or is seen at a grazing angle (docs/hybrid.md "Sixth round").
-ULR_DEFAULTS = {"k": 4, "resolution_weight": 0.5, "depth_tol": 0.005, "harmonised": True, "occlusion": "mesh"}
+ULR_DEFAULTS = {"k": 4, "resolution_weight": 0.5, "depth_tol": 0.005, "harmonised": True, "occlusion": "mesh",
+                "resample": "cubic"}
 # sigma, alpha, gamma, tau_depth: the paper's sweep values (sec. 7). sigma_blur 16 px (the
 # paper: 4): chosen on synth:objects seed 1, a scene no reported figure uses (12 views of
 # 480x360, 4 targets: sigma_blur 4 / 8 / 12 / 16 -> hybrid 30.50 / 30.63 / 30.72 / 30.78 dB,
@@ -85,7 +86,7 @@ ULR_DEFAULTS = {"k": 4, "resolution_weight": 0.5, "depth_tol": 0.005, "harmonise
 TM_SUBSET_MAX = 0.25
 # The hybrid parameters that are the PVM renderer's: its defaults, checked by it, passed to it.
 PVM_KEYS = ("sigma", "alpha", "gamma", "tau_depth", "free_space", "free_space_tol", "free_space_point_tol", "tau_empty",
-            "ulr_k", "min_views")
+            "ulr_k", "min_views", "resample")
 HYBRID_DEFAULTS = {**ULR_DEFAULTS, **{k: PVM_DEFAULTS[k] for k in PVM_KEYS},
                    "tau_var": -1.0, "sigma_blur": 16.0, "min_weight": 0.05, "geo_threshold": None, "filtered": True}
 STAGES_FOR = {"tm": ("mesh", "texture"), "ulr": ("mesh", "depth"),
@@ -108,6 +109,8 @@ def check_params(method: str, params: dict | None) -> dict:
     p["harmonised"] = P.boolean(p["harmonised"], "--param harmonised")
     if p["occlusion"] not in ("mesh", "views"):
         raise BadValueError(f"--param occlusion: expected 'mesh' or 'views', got {p['occlusion']!r}")
+    if p["resample"] not in RESAMPLE:
+        raise BadValueError(f"--param resample: expected 'cubic' or 'bilinear', got {p['resample']!r}")
     if method == "hybrid":
         pvm = check_pvm_params({k: p[k] for k in PVM_KEYS})  # the PVM renderer's own checks
         p.update({k: pvm[k] for k in PVM_KEYS})
@@ -333,7 +336,8 @@ class UlrMethod:
         gb = self._gm.gbuffer(camera)
         t1 = time.perf_counter()
         ulr, count = _core.ulr_blend(camera.to_core(), gb["depth"], self._views, normal=gb["normal"], k=p["k"],
-                                     resolution_weight=p["resolution_weight"], depth_tol=p["depth_tol"])
+                                     resolution_weight=p["resolution_weight"], depth_tol=p["depth_tol"],
+                                     resample=p["resample"])
         t2 = time.perf_counter()
         seen = count > 0
         times = {"gbuffer": (t1 - t0) * 1e3, "ulr_blend": (t2 - t1) * 1e3}
@@ -443,7 +447,7 @@ class HybridMethod:
         if n_ulr:
             ulr, count = _core.ulr_blend(camera.to_core(), gb["depth"], self._views, normal=gb["normal"],
                                          pixel_mask=need_ulr, k=p["k"], resolution_weight=p["resolution_weight"],
-                                         depth_tol=p["depth_tol"])
+                                         depth_tol=p["depth_tol"], resample=p["resample"])
         else:
             ulr, count = None, None
         t5 = time.perf_counter()

@@ -1,0 +1,78 @@
+// Reading an input view's colour at a continuous image position: the per-pixel ULR blend
+// (hybrid.cpp) and the PVM candidates' colours (pvm_render.cpp) share these.
+//
+// Bilinear interpolation at a position between pixel centres is a 2-tap box on each axis: it
+// blurs (at half a pixel it averages two pixels), and a blend of 3-4 views reprojected to
+// sub-pixel positions piles those blurs up. Catmull-Rom (the cubic convolution kernel with a =
+// -0.5, Keys 1981) interpolates the samples, reproduces linear ramps exactly and keeps more of
+// the detail; its negative lobes can ring at a step, so the result is clamped at 0 (linear
+// radiance is never negative). Positions: pixel centres at +0.5, clamped to the edge pixels (the
+// 4 x 4 neighbourhood is clamped too, so a read at the border repeats the edge).
+#pragma once
+#include <algorithm>
+#include <cstddef>
+#if defined(__SSE2__)
+#include <immintrin.h>
+#endif
+
+namespace ibr {
+
+// Catmull-Rom weights of the 4 taps at offsets -1, 0, 1, 2 for fraction t in [0, 1]; they sum to 1.
+inline void CatmullRomWeights(float t, float w[4]) {
+  const float t2 = t * t, t3 = t2 * t;
+  w[0] = 0.5f * (-t3 + 2.f * t2 - t);
+  w[1] = 0.5f * (3.f * t3 - 5.f * t2 + 2.f);
+  w[2] = 0.5f * (-3.f * t3 + 4.f * t2 + t);
+  w[3] = 0.5f * (t3 - t2);
+}
+
+// acc[0..3) += weight * max(0, Catmull-Rom of an (h, w, 3) image, rows row_stride floats apart, at
+// (x, y)). SSE2 where available (the same sums in another order: within float rounding of the
+// scalar loop, which stays for the image's last pixel and for other CPUs).
+inline void CubicRgbAdd(const float* data, std::ptrdiff_t row_stride, int w, int h, float x, float y, float weight,
+                        float* acc) {
+  const float fx = std::min(std::max(x - 0.5f, 0.f), static_cast<float>(w - 1));
+  const float fy = std::min(std::max(y - 0.5f, 0.f), static_cast<float>(h - 1));
+  const int x0 = static_cast<int>(fx), y0 = static_cast<int>(fy);
+  float wx[4], wy[4];
+  CatmullRomWeights(fx - static_cast<float>(x0), wx);
+  CatmullRomWeights(fy - static_cast<float>(y0), wy);
+  int col[4];
+  for (int i = 0; i < 4; ++i) col[i] = 3 * std::min(std::max(x0 - 1 + i, 0), w - 1);
+#if defined(__SSE2__)
+  // Four floats per tap (RGB and the next pixel's red, unused): the three channels at once. Not
+  // where a tap is the image's last pixel, whose fourth float is past the end.
+  if (y0 + 2 < h - 1 || x0 + 2 < w - 1) {
+    __m128 sum = _mm_setzero_ps();
+    for (int j = 0; j < 4; ++j) {
+      const float* row = data + static_cast<std::ptrdiff_t>(std::min(std::max(y0 - 1 + j, 0), h - 1)) * row_stride;
+      __m128 r = _mm_mul_ps(_mm_set1_ps(wx[0]), _mm_loadu_ps(row + col[0]));
+      r = _mm_add_ps(r, _mm_mul_ps(_mm_set1_ps(wx[1]), _mm_loadu_ps(row + col[1])));
+      r = _mm_add_ps(r, _mm_mul_ps(_mm_set1_ps(wx[2]), _mm_loadu_ps(row + col[2])));
+      r = _mm_add_ps(r, _mm_mul_ps(_mm_set1_ps(wx[3]), _mm_loadu_ps(row + col[3])));
+      sum = _mm_add_ps(sum, _mm_mul_ps(_mm_set1_ps(wy[j]), r));
+    }
+    alignas(16) float o[4];
+    _mm_store_ps(o, _mm_max_ps(sum, _mm_setzero_ps()));
+    for (int k = 0; k < 3; ++k) acc[k] += weight * o[k];
+    return;
+  }
+#endif
+  float out[3] = {0.f, 0.f, 0.f};
+  for (int j = 0; j < 4; ++j) {
+    const float* row = data + static_cast<std::ptrdiff_t>(std::min(std::max(y0 - 1 + j, 0), h - 1)) * row_stride;
+    float r[3] = {0.f, 0.f, 0.f};
+    for (int i = 0; i < 4; ++i) {
+      const float* q = row + col[i];
+      r[0] += wx[i] * q[0];
+      r[1] += wx[i] * q[1];
+      r[2] += wx[i] * q[2];
+    }
+    out[0] += wy[j] * r[0];
+    out[1] += wy[j] * r[1];
+    out[2] += wy[j] * r[2];
+  }
+  for (int k = 0; k < 3; ++k) acc[k] += weight * std::max(out[k], 0.f);
+}
+
+}  // namespace ibr
