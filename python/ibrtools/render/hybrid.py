@@ -17,7 +17,8 @@ ones.
   point's pixel differs by more than ``depth_tol`` = 0.5 % relative; that depth is the global mesh
   rendered into the view, ``occlusion=mesh``, or the view's own, ``occlusion=views``) are dropped, the best
   ``k`` = 4 are blended with weights falling to 0 at the 4th, reading the harmonised images
-  (``harmonise`` stage; the original images when the stage was skipped) bilinearly. Pixels no
+  (``harmonise`` stage; the original images when the stage was skipped) with Catmull-Rom
+  (``resample`` = cubic; ``bilinear`` on request). Pixels no
   view sees fall back to TM when the scene has the ``texture`` stage (else they are holes).
 * ``hybrid`` (Fig. 7): per pixel, outside the PVM grid -> ULR; PVM depth (the cluster vote of
   Eq. 2, ``tau_depth``) farther than ``geo_threshold`` (3 cm when the scene's units are a length;
@@ -63,7 +64,9 @@ from . import params as P
 # synth:objects seed 1) over 0.0025 / 0.01 / 0.02 / 0.04: best PSNR on both (hybrid lego 27.80 ->
 # 27.99 dB, FLIP 0.0502 -> 0.0487; synth 31.75 -> 31.87, 0.0596 -> 0.0588; ULR alone better too).
 # The rejected views are those where the point sits at a depth edge of the view (its bilinear colour
-# mixes both sides) or is seen at a grazing angle (docs/hybrid.md "Sixth round").
+# mixes both sides) or is seen at a grazing angle (docs/hybrid.md "Sixth round"). resample "cubic": the
+# views' colours are read with Catmull-Rom (cpp/kernels/resample.h), sharper than bilinear; chosen on
+# the selection scenes (docs/hybrid.md "Seventh round"; the PVM renderer reads its candidates the same way).
 ULR_DEFAULTS = {"k": 4, "resolution_weight": 0.5, "depth_tol": 0.005, "harmonised": True, "occlusion": "mesh",
                 "resample": "cubic"}
 # sigma, alpha, gamma, tau_depth: the paper's sweep values (sec. 7). sigma_blur 16 px (the
