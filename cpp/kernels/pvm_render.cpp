@@ -32,8 +32,8 @@ inline int CoarseAxis(const PvmGrid& g, int a, double x) {
 
 inline glm::vec3 Centre(const Camera& c) { return glm::vec3(c.CentreInWorld()); }
 
-// Bilinear read of an (h, w, 3) image at continuous image coordinates (pixel centres at +0.5),
-// clamped to the image; with cubic, Catmull-Rom (resample.h, as the ULR blend).
+// Colour of an (h, w, 3) image at continuous image coordinates (pixel centres at +0.5), clamped to
+// the image: Catmull-Rom with cubic (resample.h, as the ULR blend), else bilinear.
 inline void Sample(const float* img, int w, int h, double x, double y, bool cubic, float* out) {
   if (cubic) {
     out[0] = out[1] = out[2] = 0.f;
