@@ -13,7 +13,8 @@ def _keys(s):
 
 
 def catmull_rom(img, x, y):
-    """Catmull-Rom read of (h, w, 3) img at positions x, y (same shape), clamped at 0."""
+    """Catmull-Rom read of (h, w, 3) img at positions x, y (same shape), each channel clamped to the
+    range of the 2 x 2 texels a bilinear read uses."""
     h, w = img.shape[:2]
     fx = np.clip(np.asarray(x, np.float64) - 0.5, 0, w - 1)
     fy = np.clip(np.asarray(y, np.float64) - 0.5, 0, h - 1)
@@ -23,7 +24,8 @@ def catmull_rom(img, x, y):
         for i in range(-1, 3):
             wgt = _keys(fx - (x0 + i)) * _keys(fy - (y0 + j))
             out += wgt[..., None] * img[np.clip(y0 + j, 0, h - 1), np.clip(x0 + i, 0, w - 1)]
-    return np.maximum(out, 0.0)
+    near = np.stack([img[np.clip(y0 + j, 0, h - 1), np.clip(x0 + i, 0, w - 1)] for j in (0, 1) for i in (0, 1)])
+    return np.clip(out, near.min(0), near.max(0))
 
 
 def bilinear(img, x, y):

@@ -153,20 +153,26 @@ def test_ulr_colour_reads_match_numpy(resample, ref, reference, dx, dy):
             np.testing.assert_allclose(col[inner], (true if img is ramp else img)[inner], atol=2e-5)
 
 
-def test_cubic_read_is_never_negative_and_never_nan():
-    """Catmull-Rom rings at a step (negative lobes): a black pixel next to a white one reads
-    negative before the clamp; the blend is clamped at 0, and a 1 x 1 view (every tap the same
-    pixel) reads that pixel."""
+def test_cubic_read_does_not_ring_at_a_step():
+    """Catmull-Rom rings at a step (negative lobes: under 0 on the dark side, over 1 on the bright
+    one); the read is clamped to its 2 x 2 texels' range, so a step from 0 to 1 reads within [0, 1],
+    and it is still sharper than bilinear there (nearer the step's sides). A 1 x 1 view (every tap
+    the same pixel) reads that pixel."""
     w, h = 20, 14
     view = Camera.from_fov(w, h, 50, look_at([0, 0, 0], [0, 0, 5]))
-    novel = dataclasses.replace(view, cx=view.cx - 0.5)
+    novel = dataclasses.replace(view, cx=view.cx - 0.3)
     img = np.zeros((h, w, 3), np.float32)
     img[:, w // 2:] = 1.0
-    col, n = _core.ulr_blend(novel.to_core(), np.full((h, w), 5.0, np.float32),
-                             [(view.to_core(), img, np.full((h, w), 5.0, np.float32))])
-    assert np.isfinite(col).all() and col.min() >= 0.0 and col.max() > 1.0  # overshoot on the bright side stays
+    depth = np.full((h, w), 5.0, np.float32)
+    views = [(view.to_core(), img, depth)]
+    cub, n = _core.ulr_blend(novel.to_core(), depth, views)
+    lin, _ = _core.ulr_blend(novel.to_core(), depth, views, resample="bilinear")
+    assert np.isfinite(cub).all() and cub.min() >= 0.0 and cub.max() <= 1.0
+    inner = (slice(2, h - 2), slice(2, w - 2))
+    assert (np.abs(cub - 0.5)[inner] >= np.abs(lin - 0.5)[inner] - 1e-6).all()  # never blurrier
+    assert (np.abs(cub - 0.5)[inner] > np.abs(lin - 0.5)[inner] + 0.01).any()  # sharper at the step
     tiny = Camera.from_fov(1, 1, 80, look_at([0, 0, 0], [0, 0, 5]))
-    col, n = _core.ulr_blend(view.to_core(), np.full((h, w), 5.0, np.float32),
+    col, n = _core.ulr_blend(view.to_core(), depth,
                              [(tiny.to_core(), np.full((1, 1, 3), 0.6, np.float32), np.full((1, 1), 5.0, np.float32))])
     assert (n > 0).any() and np.allclose(col[n > 0], 0.6, atol=1e-6)
 

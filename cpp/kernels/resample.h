@@ -5,9 +5,12 @@
 // blurs (at half a pixel it averages two pixels), and a blend of 3-4 views reprojected to
 // sub-pixel positions piles those blurs up. Catmull-Rom (the cubic convolution kernel with a =
 // -0.5, Keys 1981) interpolates the samples, reproduces linear ramps exactly and keeps more of
-// the detail; its negative lobes can ring at a step, so the result is clamped at 0 (linear
-// radiance is never negative). Positions: pixel centres at +0.5, clamped to the edge pixels (the
-// 4 x 4 neighbourhood is clamped too, so a read at the border repeats the edge).
+// the detail; its negative lobes ring at a step (a halo over- and undershooting the data), so
+// each channel is clamped to the range of the 2 x 2 texels a bilinear read would use: the result
+// stays within its neighbours' colours (a blend of such reads within the inputs' range, never
+// negative for non-negative images), as the clamped bicubic of temporal reprojection does.
+// Positions: pixel centres at +0.5, clamped to the edge pixels (the 4 x 4 neighbourhood is
+// clamped too, so a read at the border repeats the edge).
 #pragma once
 #include <algorithm>
 #include <cstddef>
@@ -26,9 +29,10 @@ inline void CatmullRomWeights(float t, float w[4]) {
   w[3] = 0.5f * (t3 - t2);
 }
 
-// acc[0..3) += weight * max(0, Catmull-Rom of an (h, w, 3) image, rows row_stride floats apart, at
-// (x, y)). SSE2 where available (the same sums in another order: within float rounding of the
-// scalar loop, which stays for the image's last pixel and for other CPUs).
+// acc[0..3) += weight * (Catmull-Rom of an (h, w, 3) image, rows row_stride floats apart, at (x, y),
+// clamped per channel to the 2 x 2 centre texels' range). SSE2 where available (the same sums in
+// another order: within float rounding of the scalar loop, which stays for the image's last pixel
+// and for other CPUs).
 inline void CubicRgbAdd(const float* data, std::ptrdiff_t row_stride, int w, int h, float x, float y, float weight,
                         float* acc) {
   const float fx = std::min(std::max(x - 0.5f, 0.f), static_cast<float>(w - 1));
@@ -39,40 +43,51 @@ inline void CubicRgbAdd(const float* data, std::ptrdiff_t row_stride, int w, int
   CatmullRomWeights(fy - static_cast<float>(y0), wy);
   int col[4];
   for (int i = 0; i < 4; ++i) col[i] = 3 * std::min(std::max(x0 - 1 + i, 0), w - 1);
+  const float* rows[4];
+  for (int j = 0; j < 4; ++j) {
+    rows[j] = data + static_cast<std::ptrdiff_t>(std::min(std::max(y0 - 1 + j, 0), h - 1)) * row_stride;
+  }
 #if defined(__SSE2__)
   // Four floats per tap (RGB and the next pixel's red, unused): the three channels at once. Not
   // where a tap is the image's last pixel, whose fourth float is past the end.
   if (y0 + 2 < h - 1 || x0 + 2 < w - 1) {
     __m128 sum = _mm_setzero_ps();
+    __m128 lo = _mm_set1_ps(3.4e38f), hi = _mm_set1_ps(-3.4e38f);
     for (int j = 0; j < 4; ++j) {
-      const float* row = data + static_cast<std::ptrdiff_t>(std::min(std::max(y0 - 1 + j, 0), h - 1)) * row_stride;
-      __m128 r = _mm_mul_ps(_mm_set1_ps(wx[0]), _mm_loadu_ps(row + col[0]));
-      r = _mm_add_ps(r, _mm_mul_ps(_mm_set1_ps(wx[1]), _mm_loadu_ps(row + col[1])));
-      r = _mm_add_ps(r, _mm_mul_ps(_mm_set1_ps(wx[2]), _mm_loadu_ps(row + col[2])));
-      r = _mm_add_ps(r, _mm_mul_ps(_mm_set1_ps(wx[3]), _mm_loadu_ps(row + col[3])));
+      __m128 r = _mm_setzero_ps();
+      for (int i = 0; i < 4; ++i) {
+        const __m128 q = _mm_loadu_ps(rows[j] + col[i]);
+        r = _mm_add_ps(r, _mm_mul_ps(_mm_set1_ps(wx[i]), q));
+        if ((j == 1 || j == 2) && (i == 1 || i == 2)) {
+          lo = _mm_min_ps(lo, q);
+          hi = _mm_max_ps(hi, q);
+        }
+      }
       sum = _mm_add_ps(sum, _mm_mul_ps(_mm_set1_ps(wy[j]), r));
     }
     alignas(16) float o[4];
-    _mm_store_ps(o, _mm_max_ps(sum, _mm_setzero_ps()));
+    _mm_store_ps(o, _mm_min_ps(_mm_max_ps(sum, lo), hi));
     for (int k = 0; k < 3; ++k) acc[k] += weight * o[k];
     return;
   }
 #endif
   float out[3] = {0.f, 0.f, 0.f};
+  float lo[3] = {3.4e38f, 3.4e38f, 3.4e38f}, hi[3] = {-3.4e38f, -3.4e38f, -3.4e38f};
   for (int j = 0; j < 4; ++j) {
-    const float* row = data + static_cast<std::ptrdiff_t>(std::min(std::max(y0 - 1 + j, 0), h - 1)) * row_stride;
     float r[3] = {0.f, 0.f, 0.f};
     for (int i = 0; i < 4; ++i) {
-      const float* q = row + col[i];
-      r[0] += wx[i] * q[0];
-      r[1] += wx[i] * q[1];
-      r[2] += wx[i] * q[2];
+      const float* q = rows[j] + col[i];
+      for (int k = 0; k < 3; ++k) {
+        r[k] += wx[i] * q[k];
+        if ((j == 1 || j == 2) && (i == 1 || i == 2)) {
+          lo[k] = std::min(lo[k], q[k]);
+          hi[k] = std::max(hi[k], q[k]);
+        }
+      }
     }
-    out[0] += wy[j] * r[0];
-    out[1] += wy[j] * r[1];
-    out[2] += wy[j] * r[2];
+    for (int k = 0; k < 3; ++k) out[k] += wy[j] * r[k];
   }
-  for (int k = 0; k < 3; ++k) acc[k] += weight * std::max(out[k], 0.f);
+  for (int k = 0; k < 3; ++k) acc[k] += weight * std::min(std::max(out[k], lo[k]), hi[k]);
 }
 
 }  // namespace ibr
