@@ -435,7 +435,7 @@ void BindHybridRender(py::module_& m) {
         py::arg("reference") = false, py::arg("simd") = "auto",
         "Per-pixel ULR at the G-buffer's points: views = [(camera, color, depth), ...] -> (color (H, W, 3), "
         "count (H, W) uint8 views used, 0 = none sees the point). resample: the views' colour reads, 'cubic' "
-        "(Catmull-Rom, clamped at 0) or 'bilinear'. reference=True: the scalar reference path "
+        "(Catmull-Rom, clamped to the 2 x 2 texels' range) or 'bilinear'. reference=True: the scalar reference path "
         "(double projections) instead of the fast one (float, SIMD over views; pinhole views only). "
         "simd='avx2' / 'sse2': the fast path's per-view loop at most AVX2 / in SSE2 even where the CPU has more (the same bits; for tests).");
   m.def("hybrid_select", &HybridSelectBinding, py::arg("gbuffer_depth"), py::kw_only(),

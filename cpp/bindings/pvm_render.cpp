@@ -409,7 +409,7 @@ void BindPvmRender(py::module_& m) {
            "Eq. 2 only when its view sees past the foreground point (needs depths; pvm_render.h); with it, tau_empty > 0 "
            "empties a one-cluster pixel seen past by >= tau_empty x n_fg views without a candidate. min_views: where "
            "gbuffer_depth has no surface, candidate lists of fewer views are emptied (1: never). resample: the candidates' "
-           "colour reads, 'cubic' (Catmull-Rom, clamped at 0) or 'bilinear'. mode: full (all stages); depth (stages "
+           "colour reads, 'cubic' (Catmull-Rom, clamped to the 2 x 2 texels' range) or 'bilinear'. mode: full (all stages); depth (stages "
            "1-4 without colours: depth, vote, valid, inside_grid; colour 0; the frame is kept); resolve "
            "(colours of pixel_mask from the kept depth pass: stages 4-5 only).")
       .def("candidates", &PvmRendererCore::Candidates, py::arg("height"), py::arg("width"),
