@@ -38,26 +38,6 @@ void InterpolateVertexAttribute(const std::int32_t* prim_id, const float* bary, 
 
 namespace {
 
-// Bilinear read of an (h, w, 3) image at continuous pixel position (x, y) (pixel centres at
-// +0.5), clamped to the image's edge pixels.
-inline glm::vec3 Bilinear3(const ImageView<const float>& img, double x, double y) {
-  const double fx = std::clamp(x - 0.5, 0.0, double(img.width - 1));
-  const double fy = std::clamp(y - 0.5, 0.0, double(img.height - 1));
-  const int x0 = std::min(int(fx), img.width - 1), y0 = std::min(int(fy), img.height - 1);
-  const int x1 = std::min(x0 + 1, img.width - 1), y1 = std::min(y0 + 1, img.height - 1);
-  const float ax = float(fx - x0), ay = float(fy - y0);
-  const float* r0 = img.Row(y0);
-  const float* r1 = img.Row(y1);
-  glm::vec3 out;
-  for (int c = 0; c < 3; ++c) {
-    const float top = r0[3 * x0 + c] + ax * (r0[3 * x1 + c] - r0[3 * x0 + c]);
-    const float bot = r1[3 * x0 + c] + ax * (r1[3 * x1 + c] - r1[3 * x0 + c]);
-    out[c] = top + ay * (bot - top);
-  }
-  return out;
-}
-
-
 // atan(t) on [0, 1] by a minimax polynomial (Abramowitz and Stegun 4.4.49, 9th order odd
 // polynomial, max error 1e-5 rad): t * (kAtan1 + t^2 (kAtan3 + t^2 (kAtan5 + t^2 (kAtan7 + t^2 kAtan9)))).
 // The scalar, SSE2 and AVX2 atan2 below all evaluate it in this Horner order (the same bits).
@@ -180,14 +160,10 @@ void UlrBlendScalar(const Camera& novel, ImageView<const float> gbuffer_depth, I
         for (int j = 0; j < m; ++j) {
           if (!(weight[j] > 0.f)) continue;
           const int i = index[j];
-          if (options.cubic) {
-            float c[3] = {0.f, 0.f, 0.f};
-            const ImageView<const float>& img = views[i].color;
-            CubicRgbAdd(img.data, img.row_stride, img.width, img.height, float(proj[3 * i]), float(proj[3 * i + 1]), 1.f, c);
-            col += weight[j] * glm::vec3(c[0], c[1], c[2]);
-          } else {
-            col += weight[j] * Bilinear3(views[i].color, proj[3 * i], proj[3 * i + 1]);
-          }
+          const ImageView<const float>& img = views[i].color;
+          float c[3];
+          ReadRgb(img.data, img.row_stride, img.width, img.height, proj[3 * i], proj[3 * i + 1], options.cubic, c);
+          col += weight[j] * glm::vec3(c[0], c[1], c[2]);
           ++used;
         }
         if (used > 0) {
@@ -201,7 +177,7 @@ void UlrBlendScalar(const Camera& novel, ImageView<const float> gbuffer_depth, I
   });
 }
 
-// Bilinear3 in float, accumulated: acc += weight * bilinear(img at (x, y)). The same clamping
+// BilinearRgb (resample.h) in float, accumulated: acc += weight * bilinear(img at (x, y)). The same clamping
 // (positions come from the in-image test, x in [0, w), y in [0, h)). acc holds 4 floats: the
 // three channels are interpolated at once in SSE2 (the same operations per lane as the scalar
 // loop, so the same bits; the fourth lane reads the next pixel's red, acc[3] is unused), except

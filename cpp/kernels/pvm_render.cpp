@@ -32,32 +32,6 @@ inline int CoarseAxis(const PvmGrid& g, int a, double x) {
 
 inline glm::vec3 Centre(const Camera& c) { return glm::vec3(c.CentreInWorld()); }
 
-// Colour of an (h, w, 3) image at continuous image coordinates (pixel centres at +0.5), clamped to
-// the image: Catmull-Rom with cubic (resample.h, as the ULR blend), else bilinear.
-inline void Sample(const float* img, int w, int h, double x, double y, bool cubic, float* out) {
-  if (cubic) {
-    out[0] = out[1] = out[2] = 0.f;
-    CubicRgbAdd(img, static_cast<std::ptrdiff_t>(w) * 3, w, h, static_cast<float>(x), static_cast<float>(y), 1.f, out);
-    return;
-  }
-  double sx = x - 0.5, sy = y - 0.5;
-  sx = std::min(std::max(sx, 0.0), static_cast<double>(w - 1));
-  sy = std::min(std::max(sy, 0.0), static_cast<double>(h - 1));
-  const int x0 = std::min(static_cast<int>(sx), w - 1), y0 = std::min(static_cast<int>(sy), h - 1);
-  const int x1 = std::min(x0 + 1, w - 1), y1 = std::min(y0 + 1, h - 1);
-  const float fx = static_cast<float>(sx - x0), fy = static_cast<float>(sy - y0);
-  const float* a = img + (static_cast<std::int64_t>(y0) * w + x0) * 3;
-  const float* b = img + (static_cast<std::int64_t>(y0) * w + x1) * 3;
-  const float* c = img + (static_cast<std::int64_t>(y1) * w + x0) * 3;
-  const float* d = img + (static_cast<std::int64_t>(y1) * w + x1) * 3;
-  for (int k = 0; k < 3; ++k) {
-    const float top = a[k] + fx * (b[k] - a[k]);
-    const float bot = c[k] + fx * (d[k] - c[k]);
-    out[k] = top + fy * (bot - top);
-  }
-}
-
-
 // exp(-x) for x >= 0 (0 beyond 87): 2^(-x log2 e) as an exponent in the float's bits times a
 // degree-5 polynomial for the fraction (relative error < 2e-7, as std::exp's float rounding);
 // the spatial filter evaluates it 4 times per neighbour. The constants serve the scalar, SSE2 and
@@ -602,21 +576,19 @@ static bool SeesPast(const Camera& cam, const float* depth, const glm::dvec3& p,
   return 2 * n_beyond > n;
 }
 
-// True when the surface point P at depth `depth` on the ray of pixel (x, y), a one-cluster pixel
-// with n_fg foreground candidates (of the views vv[0 .. n)), is seen through: at least
+// True when the surface point P (world) of a one-cluster pixel with n_fg foreground candidates
+// (of the views vv[0 .. n)), seen from the novel camera at c_novel, is seen through: at least
 // tau_empty x n_fg of the enabled views without a candidate on the ray, within max_angle of the
 // novel camera's ray at P (the views PvmSelectTiles may rank there), see past P (SeesPast). Their
 // per-view meshes put nothing on the ray near P, so the candidates at P are sheets that other
 // views' meshes span across a gap (a through-hole seen obliquely). The cheap part first: most
 // surfaces have too few views without a candidate to reach the count, and nothing is projected.
-static bool SeenThrough(const PvmViews& views, const std::vector<glm::vec3>& centres, const Camera& camera, int x,
-                        int y, double depth, int n_fg, const std::int16_t* vv, int n, const PvmRenderOptions& options,
+static bool SeenThrough(const PvmViews& views, const std::vector<glm::vec3>& centres, const glm::vec3& c_novel,
+                        const glm::dvec3& p, int n_fg, const std::int16_t* vv, int n, const PvmRenderOptions& options,
                         bool limited, float cos_max, std::vector<int>& others) {
   const int need = static_cast<int>(std::ceil(static_cast<double>(options.tau_empty) * std::max(1, n_fg)));
   if (need > views.count - n) return false;
-  const glm::dvec3 c_novel = camera.CentreInWorld();
-  const glm::dvec3 p = c_novel + camera.WorldFromCamDir(camera.RayInCam(x + 0.5, y + 0.5)) * depth;
-  const glm::vec3 pf(p), to_novel = glm::vec3(c_novel) - pf;
+  const glm::vec3 pf(p), to_novel = c_novel - pf;
   // angle <= max_angle (limited) as dot >= cos_max |a| |b| without square roots.
   const float cos2 = cos_max * cos_max, len2_novel = glm::dot(to_novel, to_novel);
   others.clear();
@@ -780,10 +752,12 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
         int k1 = 0;
         for (int i = 0; i < n; ++i) k1 += bg[i] ? 1 : 0;
         int counted = k1;
+        // The pixel's ray (world) and the foreground point on it: the free-space tests and the colours.
+        const glm::dvec3 ray = camera.WorldFromCamDir(camera.RayInCam(x + 0.5, y + 0.5));
+        const glm::dvec3 fg_point = c_novel_d + ray * m0;
         if (reuse_clusters) {
           counted = frame.n_bg[static_cast<std::size_t>(p)];
         } else if (two && free_space) {
-          const glm::dvec3 fg_point = c_novel_d + camera.WorldFromCamDir(camera.RayInCam(x + 0.5, y + 0.5)) * m0;
           counted = 0;
           for (int i = 0; i < n; ++i) {
             if (bg[i] && SeesPast(views.cameras[vv[i]], views.depths[vv[i]], fg_point, options.free_space_tol,
@@ -792,7 +766,7 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
         }
         const bool two_counted = two && counted > 0;
         if (!reuse_clusters && !two_counted && free_space && options.tau_empty > 0.f &&
-            SeenThrough(views, centres, camera, x, y, m0, n - k1, vv, n, options, limited, cos_max, others)) {
+            SeenThrough(views, centres, c_novel, fg_point, n - k1, vv, n, options, limited, cos_max, others)) {
           frame.cand_count[static_cast<std::size_t>(p)] = 0;  // empty: n_fg stays 0, so not valid
           continue;
         }
@@ -806,7 +780,6 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
           continue;
         }
         // Candidate colours and penalties.
-        const glm::dvec3 ray = camera.WorldFromCamDir(camera.RayInCam(x + 0.5, y + 0.5));
         for (int i = 0; i < n; ++i) {
           // The penalty as the ULR method's per-pixel loop computes it (UlrPenaltyFast: the novel
           // side once per candidate point, polynomial atan2 within 1e-5 rad of UlrPenalty's
@@ -818,7 +791,8 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
           pen[i] = std::numeric_limits<float>::infinity();
           col[i][0] = col[i][1] = col[i][2] = 0.f;
           if (cam.ProjectCam(cam.CamFromWorld(pw), &ix, &iy, &iz)) {
-            Sample(views.images[v], cam.width, cam.height, ix, iy, options.cubic, col[i]);
+            ReadRgb(views.images[v], static_cast<std::ptrdiff_t>(cam.width) * 3, cam.width, cam.height, ix, iy,
+                    options.cubic, col[i]);
             const glm::vec3 pf(pw);
             const glm::vec3 to_novel = c_novel - pf;
             pen[i] = UlrPenaltyFast(pf, to_novel, glm::length(to_novel), centres[static_cast<std::size_t>(v)],

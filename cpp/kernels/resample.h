@@ -90,4 +90,32 @@ inline void CubicRgbAdd(const float* data, std::ptrdiff_t row_stride, int w, int
   for (int k = 0; k < 3; ++k) acc[k] += weight * std::min(std::max(out[k], lo[k]), hi[k]);
 }
 
+// Bilinear read of an (h, w, 3) image, rows row_stride floats apart, at (x, y) (positions in double,
+// as the scalar reference paths compute them).
+inline void BilinearRgb(const float* data, std::ptrdiff_t row_stride, int w, int h, double x, double y, float out[3]) {
+  const double fx = std::min(std::max(x - 0.5, 0.0), static_cast<double>(w - 1));
+  const double fy = std::min(std::max(y - 0.5, 0.0), static_cast<double>(h - 1));
+  const int x0 = std::min(static_cast<int>(fx), w - 1), y0 = std::min(static_cast<int>(fy), h - 1);
+  const int x1 = std::min(x0 + 1, w - 1), y1 = std::min(y0 + 1, h - 1);
+  const float ax = static_cast<float>(fx - x0), ay = static_cast<float>(fy - y0);
+  const float* r0 = data + static_cast<std::ptrdiff_t>(y0) * row_stride;
+  const float* r1 = data + static_cast<std::ptrdiff_t>(y1) * row_stride;
+  for (int c = 0; c < 3; ++c) {
+    const float top = r0[3 * x0 + c] + ax * (r0[3 * x1 + c] - r0[3 * x0 + c]);
+    const float bot = r1[3 * x0 + c] + ax * (r1[3 * x1 + c] - r1[3 * x0 + c]);
+    out[c] = top + ay * (bot - top);
+  }
+}
+
+// The colour at (x, y): Catmull-Rom (clamped as above) with cubic, else bilinear.
+inline void ReadRgb(const float* data, std::ptrdiff_t row_stride, int w, int h, double x, double y, bool cubic,
+                    float out[3]) {
+  if (cubic) {
+    out[0] = out[1] = out[2] = 0.f;
+    CubicRgbAdd(data, row_stride, w, h, static_cast<float>(x), static_cast<float>(y), 1.f, out);
+  } else {
+    BilinearRgb(data, row_stride, w, h, x, y, out);
+  }
+}
+
 }  // namespace ibr
