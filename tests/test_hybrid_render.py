@@ -317,7 +317,7 @@ def test_method_params_and_missing_stages(tmp_path):
     with pytest.raises(BadValueError, match="depth_tol"):
         methods.create("ulr", {"depth_tol": -1})
     for method in ("ulr", "hybrid"):
-        with pytest.raises(BadValueError, match="resample"):
+        with pytest.raises(BadValueError, match="resample: expected 'cubic' or 'bilinear', got 'lanczos'"):
             methods.create(method, {"resample": "lanczos"})
     assert methods.create("hybrid", {"resample": "bilinear"}).params["resample"] == "bilinear"
     # The hybrid's PVM parameters go through the PVM renderer's checks.

@@ -109,8 +109,7 @@ def check_params(params: dict | None) -> dict:
         raise BadValueError(f"--param free_space_tol: expected < 1, got {p['free_space_tol']}")
     p["free_space_point_tol"] = P.number(p["free_space_point_tol"], "--param free_space_point_tol", 0.0)
     p["tau_empty"] = P.number(p["tau_empty"], "--param tau_empty", 0.0)
-    if p["resample"] not in RESAMPLE:
-        raise BadValueError(f"--param resample: expected 'cubic' or 'bilinear', got {p['resample']!r}")
+    p["resample"] = P.choice(p["resample"], "--param resample", RESAMPLE)
     if p["max_tiles"] > 255:
         raise BadValueError(f"--param max_tiles: expected <= 255, got {p['max_tiles']}")
     for key in ("max_candidates", "min_views"):

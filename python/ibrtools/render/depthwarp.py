@@ -83,8 +83,7 @@ def check_params(params: dict | None) -> dict:
         p[key] = P.boolean(p[key], flag)
     if p["forward"] not in FORWARD:
         raise BadValueError(f"--forward: expected one of {', '.join(FORWARD)}, got {p['forward']!r}")
-    if p["bound"] not in ("tight", "global"):
-        raise BadValueError(f"--param bound: expected 'tight' or 'global', got {p['bound']!r}")
+    p["bound"] = P.choice(p["bound"], "--param bound", ("tight", "global"))
     g = p["ground"]
     if isinstance(g, str) and g.strip().lower() in ("auto", "none"):
         p["ground"] = g.strip().lower()

@@ -110,10 +110,8 @@ def check_params(method: str, params: dict | None) -> dict:
     p["resolution_weight"] = P.number(p["resolution_weight"], "--param resolution_weight", 0.0)
     p["depth_tol"] = P.number(p["depth_tol"], "--param depth_tol", 0.0, strict=True)
     p["harmonised"] = P.boolean(p["harmonised"], "--param harmonised")
-    if p["occlusion"] not in ("mesh", "views"):
-        raise BadValueError(f"--param occlusion: expected 'mesh' or 'views', got {p['occlusion']!r}")
-    if p["resample"] not in RESAMPLE:
-        raise BadValueError(f"--param resample: expected 'cubic' or 'bilinear', got {p['resample']!r}")
+    p["occlusion"] = P.choice(p["occlusion"], "--param occlusion", ("mesh", "views"))
+    p["resample"] = P.choice(p["resample"], "--param resample", RESAMPLE)
     if method == "hybrid":
         pvm = check_pvm_params({k: p[k] for k in PVM_KEYS})  # the PVM renderer's own checks
         p.update({k: pvm[k] for k in PVM_KEYS})

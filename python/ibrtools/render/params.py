@@ -64,3 +64,11 @@ def boolean(value: Any, flag: str) -> bool:
     if isinstance(value, (bool, np.bool_)) or (isinstance(value, (int, np.integer)) and value in (0, 1)):
         return bool(value)
     raise BadValueError(f"{flag}: expected true or false, got {value!r}")
+
+
+def choice(value: Any, flag: str, options: tuple[str, ...]) -> str:
+    """One of ``options`` (strings), else a BadValueError naming them."""
+    if isinstance(value, str) and value in options:
+        return value
+    names = ", ".join(repr(o) for o in options[:-1]) + f" or {options[-1]!r}"
+    raise BadValueError(f"{flag}: expected {names}, got {value!r}")
