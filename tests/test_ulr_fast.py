@@ -4,10 +4,10 @@ selection blur against a NumPy reference
 (cpp/kernels/hybrid.cpp; docs/hybrid.md "Speed")."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
-
-import dataclasses
 
 from ibrtools import _core, look_at
 from ibrtools.camera import Camera
