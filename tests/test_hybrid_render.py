@@ -323,10 +323,16 @@ def test_method_params_and_missing_stages(tmp_path):
     # The hybrid's PVM parameters go through the PVM renderer's checks.
     for bad, name in (({"free_space_tol": 1.5}, "free_space_tol"), ({"free_space": "sometimes"}, "free_space"),
                       ({"free_space_point_tol": -0.01}, "free_space_point_tol"), ({"tau_empty": -1}, "tau_empty"),
-                      ({"sigma": 0}, "sigma"), ({"tau_depth": -1}, "tau_depth"), ({"min_weight": 0.4}, "min_weight")):
+                      ({"sigma": 0}, "sigma"), ({"tau_depth": -1}, "tau_depth"), ({"min_weight": 0.4}, "min_weight"),
+                      ({"max_angle": 0}, "max_angle"), ({"max_angle": 200}, "max_angle"), ({"merge_rel": -0.1}, "merge_rel")):
         with pytest.raises(BadValueError, match=name):
             methods.create("hybrid", bad)
     assert methods.create("hybrid", {"free_space": "false"}).params["free_space"] is False
+    from ibrtools.hybrid.pvm_render import DEFAULTS as PVM_DEFAULTS
+
+    hp = methods.create("hybrid").params  # the hybrid's PVM defaults are the PVM renderer's
+    assert hp["max_angle"] == PVM_DEFAULTS["max_angle"] and hp["merge_rel"] == PVM_DEFAULTS["merge_rel"]
+    assert methods.create("hybrid", {"max_angle": "40", "merge_rel": 0.04}).params["max_angle"] == 40.0
     m = methods.create("tm")
     with pytest.raises(InputError, match="ibr-preprocess"):
         m.prepare(Scene(views=[], targets=[]))

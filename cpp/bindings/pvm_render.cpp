@@ -400,7 +400,7 @@ void BindPvmRender(py::module_& m) {
            py::arg("alpha") = 7.f, py::arg("gamma") = 7.f, py::arg("tau_depth") = 0.83f, py::arg("max_tiles") = 12,
            py::arg("max_candidates") = 12, py::arg("ulr_k") = 3, py::arg("merge_rel") = 0.02f,
            py::arg("radius_sigmas") = 2.f, py::arg("margin") = 1, py::arg("near") = 1e-3f,
-           py::arg("cull_back") = true, py::arg("max_angle") = 60.f, py::arg("ray_stride") = 8, py::arg("filter_step") = 2,
+           py::arg("cull_back") = true, py::arg("max_angle") = 55.f, py::arg("ray_stride") = 8, py::arg("filter_step") = 2,
            py::arg("free_space") = true, py::arg("free_space_tol") = 0.02f,
            py::arg("free_space_point_tol") = 0.005f, py::arg("tau_empty") = 2.f, py::arg("min_views") = 2,
            py::arg("resample") = "cubic", py::arg("mode") = "full",

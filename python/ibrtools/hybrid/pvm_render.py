@@ -46,14 +46,16 @@ from .pvm import PvmTiles
 # 3 % discontinuity cut, above the 0.5 % depth noise of the synthetic scenes); radius_sigmas 2:
 # the Eq. 1 window is (2 * ceil(2 sigma) + 1)^2 = 13 x 13 px for sigma = 3 (Gaussian weight at
 # its edge 0.135); margin 1 coarse cell around the G-buffer's cells; near 1e-3 scene units;
-# max_angle 60 degrees: views seeing a fine voxel from more than 60 degrees away from the novel
-# camera are not ranked for it. Measured (docs/pvm_render.md) on synth:objects with 0.5 % depth
-# noise, 12 and 20 views, 3 held-out targets: 180 (no limit) / 90 / 60 / 40 degrees give filtered
-# PSNR 30.72 / 31.06 / 31.35 / 31.13 dB (20 views); with a sparse capture "the top 12" otherwise
-# includes views from the far side of an object, which see the background behind it and outvote
-# the foreground in Eq. 1 and Eq. 2. ray_stride 8: the coarse cells in front of the G-buffer's
-# surface on every 8th ray of every 8th row are looked up too (an object the global mesh lacks,
-# more than one coarse cell in front of the surface behind it, would otherwise be missed; on
+# max_angle 55 degrees: views seeing a fine voxel from more than 55 degrees away from the novel
+# camera are not ranked for it; with a sparse capture "the top 12" otherwise includes views from
+# the far side of an object, which see the background behind it and outvote the foreground in
+# Eq. 1 and Eq. 2 (docs/pvm_render.md "max_angle": 180 / 90 / 60 / 50 / 40 degrees on synth:objects).
+# 60 until the tenth session; 55 chosen for the hybrid on the 36 lego views outside the held-out
+# set and synth seed 1 (docs/hybrid.md "Eighth round"); 50 scored better on lego but lost a thin
+# object missing from the global mesh in a 10-view ring (tests/test_pvm_render.py).
+# ray_stride 8: the coarse cells in front of the G-buffer's surface on every 8th ray of every 8th
+# row are looked up too (an object the global mesh lacks, more than one coarse cell in front of
+# the surface behind it, would otherwise be missed; on
 # synth:objects at 256x192 the thin object's pixels with a candidate at its depth went from 60 %
 # to the frustum lookup's 93-98 %; at 1280x720 stride 8 costs 57 ms against 153 ms for stride 4,
 # same tiles). filter_step 2: Eq. 1 sums every 2nd neighbour per axis (7 x 7 of 13 x 13), 3.4x
@@ -69,7 +71,7 @@ from .pvm import PvmTiles
 # Catmull-Rom, as the ULR blend's (cpp/kernels/resample.h; "bilinear" until the ninth session).
 DEFAULTS = {"sigma": 3.0, "alpha": 7.0, "gamma": 7.0, "tau_depth": 0.83, "max_tiles": 12,
             "max_candidates": 12, "ulr_k": 3, "merge_rel": 0.02, "radius_sigmas": 2.0, "margin": 1,
-            "near": 1e-3, "cull_back": True, "max_angle": 60.0, "ray_stride": 8, "filter_step": 2,
+            "near": 1e-3, "cull_back": True, "max_angle": 55.0, "ray_stride": 8, "filter_step": 2,
             "filtered": True, "free_space": True, "free_space_tol": 0.02,
             "free_space_point_tol": 0.005, "tau_empty": 2.0, "min_views": 2, "resample": "cubic"}
 

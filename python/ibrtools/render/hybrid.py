@@ -89,7 +89,7 @@ ULR_DEFAULTS = {"k": 4, "resolution_weight": 0.5, "depth_tol": 0.005, "harmonise
 TM_SUBSET_MAX = 0.25
 # The hybrid parameters that are the PVM renderer's: its defaults, checked by it, passed to it.
 PVM_KEYS = ("sigma", "alpha", "gamma", "tau_depth", "free_space", "free_space_tol", "free_space_point_tol", "tau_empty",
-            "ulr_k", "min_views", "resample")
+            "ulr_k", "min_views", "resample", "max_angle", "merge_rel")
 HYBRID_DEFAULTS = {**ULR_DEFAULTS, **{k: PVM_DEFAULTS[k] for k in PVM_KEYS},
                    "tau_var": -1.0, "sigma_blur": 16.0, "min_weight": 0.05, "geo_threshold": None, "filtered": True}
 STAGES_FOR = {"tm": ("mesh", "texture"), "ulr": ("mesh", "depth"),
