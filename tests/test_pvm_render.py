@@ -13,7 +13,7 @@ from ibrtools import _core
 from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError, DtypeError, InputError, NotBuiltError, ShapeError
 from ibrtools.hybrid.pvm import build_tiles
-from ibrtools.hybrid.pvm_render import PvmRenderer, PvmResult
+from ibrtools.hybrid.pvm_render import DEFAULTS, PvmRenderer, PvmResult
 from ibrtools.render.reference import ReferenceRenderer
 from ibrtools.scene import Scene, View
 from ibrtools.synth import make_scene
@@ -95,8 +95,9 @@ def test_thin_object_missing_from_global_mesh_is_recovered(exact):
         live = k[None, :] < cand["count"][ys, xs][:, None]
         near_truth = np.abs(cand["depth"][ys, xs] - t.depth[ys, xs][:, None]) < 0.01 * t.depth[ys, xs][:, None]
         # Valid PVM candidates at the object's depth (within 1 %) at >= 85 % of its pixels
-        # (measured 90 % and 94 % at max_angle 55, 93 % and 94 % at 60, 68 % and 73 % at 50; the misses are its outline, where the PVMs, joining pixel
-        # centres, end half an input pixel inside it). The G-buffer's cells alone would miss it:
+        # (measured 90 % and 94 % at max_angle 55, 93 % and 94 % at 60, 68 % and 73 % at 50; the
+        # misses are its outline, where the PVMs, joining pixel centres, end half an input pixel
+        # inside it). The G-buffer's cells alone would miss it:
         # it stands more than one coarse cell in front of the surface behind it (ray_stride).
         assert res.valid[obj].mean() >= 0.9
         assert np.mean((live & near_truth).any(axis=1)) >= 0.85
@@ -595,8 +596,6 @@ def test_tau_empty_matches_an_independent_implementation(exact):
     the pixels tau_empty empties against numpy: the one-cluster pixels of the lists without it whose
     point at least ceil(tau_empty x n_fg) views without a candidate in the list, within max_angle (the
     default) of the target's ray, see past (_sees_past)."""
-    from ibrtools.hybrid.pvm_render import DEFAULTS
-
     scene, r = exact
     cam = scene.targets[0].camera.scaled(96, 72)
     r0 = PvmRenderer(scene, {"tau_empty": 0}, tiles=r.tiles, images={v.name: v.color for v in scene.views})
