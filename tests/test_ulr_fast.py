@@ -88,9 +88,11 @@ def test_equirect_input_views_take_the_scalar_path():
 @pytest.mark.parametrize("n_views", [1, 4, 7, 8, 12, 13, 16, 17])
 def test_avx512_avx2_and_sse2_view_loops_give_the_same_bits(n_views):
     """The per-view loop runs 16 views per AVX-512F step (when the CPU has it; simd="auto"), or 8
-    per AVX2 step and the rest 4 at a time in SSE2 (simd="avx2"), or SSE2 only (simd="sse2"): the
-    same IEEE operations lane for lane, no FMA, so the same image and counts, bit for bit. View
-    counts around the 4 / 8 / 16 boundaries. On a CPU without AVX-512 / AVX2 the calls take the
+    per AVX2 step and the rest 4 at a time in SSE2 (simd="avx2"), or SSE2 only (simd="sse2"); the
+    depth test gathers 16 (AVX-512F) or 8 (AVX2) views' depths a step, or reads them one at a time
+    (sse2): the same IEEE operations lane for lane, no FMA, so the same image and counts, bit for
+    bit. View counts around the 4 / 8 / 16 boundaries (the gathers' masked lanes past the last view);
+    the views' depth maps differ in size and some fail the depth test. On a CPU without AVX-512 / AVX2 the calls take the
     narrower loop and the test holds trivially for them."""
     cam, gdepth, views, normal = _scene(n_views, seed=n_views)
     for nrm in (None, normal):

@@ -678,6 +678,8 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
   const bool free_space = options.free_space && views.depths != nullptr;
   ParallelFor(h, 4, [&](std::int64_t a, std::int64_t b) {
     float col[kPvmMaxCandidates][3];
+    double pos[kPvmMaxCandidates][2];  // a candidate's position in its view's image
+    bool projected[kPvmMaxCandidates], read[kPvmMaxCandidates];
     float pen[kPvmMaxCandidates];
     int member[kPvmMaxCandidates];
     bool bg[kPvmMaxCandidates];
@@ -779,7 +781,9 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
           }
           continue;
         }
-        // Candidate colours and penalties.
+        // Candidate penalties and image positions; a candidate's colour is read (colour_of) only
+        // when a cluster's blend uses it: at most ulr_k per cluster of up to 12 candidates (the
+        // same colours and sums as reading them all: cluster & blend 91 -> 85 ms per 1280x720 frame).
         for (int i = 0; i < n; ++i) {
           // The penalty as the ULR method's per-pixel loop computes it (UlrPenaltyFast: the novel
           // side once per candidate point, polynomial atan2 within 1e-5 rad of UlrPenalty's
@@ -787,18 +791,30 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
           const glm::dvec3 pw = c_novel_d + ray * static_cast<double>(d[i]);
           const int v = vv[i];
           const Camera& cam = views.cameras[v];
-          double ix = 0, iy = 0, iz = 0;
+          double iz = 0;
           pen[i] = std::numeric_limits<float>::infinity();
-          col[i][0] = col[i][1] = col[i][2] = 0.f;
-          if (cam.ProjectCam(cam.CamFromWorld(pw), &ix, &iy, &iz)) {
-            ReadRgb(views.images[v], static_cast<std::ptrdiff_t>(cam.width) * 3, cam.width, cam.height, ix, iy,
-                    options.cubic, col[i]);
+          projected[i] = cam.ProjectCam(cam.CamFromWorld(pw), &pos[i][0], &pos[i][1], &iz);
+          read[i] = false;
+          if (projected[i]) {
             const glm::vec3 pf(pw);
             const glm::vec3 to_novel = c_novel - pf;
             pen[i] = UlrPenaltyFast(pf, to_novel, glm::length(to_novel), centres[static_cast<std::size_t>(v)],
                                     options.resolution_weight);
           }
         }
+        // Candidate i's colour, read from its view once (0 where it does not project).
+        const auto colour_of = [&](int i) -> const float* {
+          if (!read[i]) {
+            read[i] = true;
+            col[i][0] = col[i][1] = col[i][2] = 0.f;
+            if (projected[i]) {
+              const Camera& cam = views.cameras[vv[i]];
+              ReadRgb(views.images[vv[i]], static_cast<std::ptrdiff_t>(cam.width) * 3, cam.width, cam.height,
+                      pos[i][0], pos[i][1], options.cubic, col[i]);
+            }
+          }
+          return col[i];
+        };
         for (int k = 0; k < (two_counted ? 2 : 1); ++k) {
           int m = 0;
           float sub_pen[kPvmMaxCandidates];
@@ -809,12 +825,16 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
             }
           float c3[3] = {0.f, 0.f, 0.f};
           const int sel = UlrSelect(sub_pen, m, ulr_k, index.data(), weight.data());
-          if (sel == 0) {  // no candidate projects into its view: unweighted mean
-            for (int j = 0; j < m; ++j)
-              for (int q = 0; q < 3; ++q) c3[q] += col[member[j]][q] / static_cast<float>(m);
+          if (sel == 0) {  // no candidate has a finite penalty: unweighted mean (0 where none projects)
+            for (int j = 0; j < m; ++j) {
+              const float* c = colour_of(member[j]);
+              for (int q = 0; q < 3; ++q) c3[q] += c[q] / static_cast<float>(m);
+            }
           } else {
-            for (int j = 0; j < sel; ++j)
-              for (int q = 0; q < 3; ++q) c3[q] += weight[static_cast<std::size_t>(j)] * col[member[index[static_cast<std::size_t>(j)]]][q];
+            for (int j = 0; j < sel; ++j) {
+              const float* c = colour_of(member[index[static_cast<std::size_t>(j)]]);
+              for (int q = 0; q < 3; ++q) c3[q] += weight[static_cast<std::size_t>(j)] * c[q];
+            }
           }
           float* out = (k == 0 ? frame.c_fg.data() : frame.c_bg.data()) + 3 * p;
           out[0] = c3[0];

@@ -30,9 +30,10 @@ inline void CatmullRomWeights(float t, float w[4]) {
 }
 
 // acc[0..3) += weight * (Catmull-Rom of an (h, w, 3) image, rows row_stride floats apart, at (x, y),
-// clamped per channel to the 2 x 2 centre texels' range). SSE2 where available (the same sums in
-// another order: within float rounding of the scalar loop, which stays for the image's last pixel
-// and for other CPUs).
+// clamped per channel to the 2 x 2 centre texels' range); acc holds 4 floats (the fourth is
+// scratch). SSE2 where available (the same sums in another order: within float rounding of the
+// scalar loop, which stays for the image's last pixel and for other CPUs); the SSE2 path adds
+// weight x colour to all four floats of acc at once (per lane the scalar adds' operations).
 inline void CubicRgbAdd(const float* data, std::ptrdiff_t row_stride, int w, int h, float x, float y, float weight,
                         float* acc) {
   const float fx = std::min(std::max(x - 0.5f, 0.f), static_cast<float>(w - 1));
@@ -42,10 +43,15 @@ inline void CubicRgbAdd(const float* data, std::ptrdiff_t row_stride, int w, int
   CatmullRomWeights(fx - static_cast<float>(x0), wx);
   CatmullRomWeights(fy - static_cast<float>(y0), wy);
   int col[4];
-  for (int i = 0; i < 4; ++i) col[i] = 3 * std::min(std::max(x0 - 1 + i, 0), w - 1);
   const float* rows[4];
-  for (int j = 0; j < 4; ++j) {
-    rows[j] = data + static_cast<std::ptrdiff_t>(std::min(std::max(y0 - 1 + j, 0), h - 1)) * row_stride;
+  if (x0 >= 1 && x0 + 2 <= w - 1 && y0 >= 1 && y0 + 2 <= h - 1) {  // inside: no clamping
+    for (int i = 0; i < 4; ++i) col[i] = 3 * (x0 - 1 + i);
+    for (int j = 0; j < 4; ++j) rows[j] = data + static_cast<std::ptrdiff_t>(y0 - 1 + j) * row_stride;
+  } else {
+    for (int i = 0; i < 4; ++i) col[i] = 3 * std::min(std::max(x0 - 1 + i, 0), w - 1);
+    for (int j = 0; j < 4; ++j) {
+      rows[j] = data + static_cast<std::ptrdiff_t>(std::min(std::max(y0 - 1 + j, 0), h - 1)) * row_stride;
+    }
   }
 #if defined(__SSE2__)
   // Four floats per tap (RGB and the next pixel's red, unused): the three channels at once. Not
@@ -65,9 +71,8 @@ inline void CubicRgbAdd(const float* data, std::ptrdiff_t row_stride, int w, int
       }
       sum = _mm_add_ps(sum, _mm_mul_ps(_mm_set1_ps(wy[j]), r));
     }
-    alignas(16) float o[4];
-    _mm_store_ps(o, _mm_min_ps(_mm_max_ps(sum, lo), hi));
-    for (int k = 0; k < 3; ++k) acc[k] += weight * o[k];
+    const __m128 c = _mm_min_ps(_mm_max_ps(sum, lo), hi);
+    _mm_storeu_ps(acc, _mm_add_ps(_mm_loadu_ps(acc), _mm_mul_ps(_mm_set1_ps(weight), c)));
     return;
   }
 #endif
@@ -111,8 +116,9 @@ inline void BilinearRgb(const float* data, std::ptrdiff_t row_stride, int w, int
 inline void ReadRgb(const float* data, std::ptrdiff_t row_stride, int w, int h, double x, double y, bool cubic,
                     float out[3]) {
   if (cubic) {
-    out[0] = out[1] = out[2] = 0.f;
-    CubicRgbAdd(data, row_stride, w, h, static_cast<float>(x), static_cast<float>(y), 1.f, out);
+    float acc[4] = {0.f, 0.f, 0.f, 0.f};
+    CubicRgbAdd(data, row_stride, w, h, static_cast<float>(x), static_cast<float>(y), 1.f, acc);
+    out[0] = acc[0], out[1] = acc[1], out[2] = acc[2];
   } else {
     BilinearRgb(data, row_stride, w, h, x, y, out);
   }
