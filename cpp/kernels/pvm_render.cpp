@@ -583,23 +583,26 @@ static bool SeesPast(const Camera& cam, const float* depth, const glm::dvec3& p,
 // per-view meshes put nothing on the ray near P, so the candidates at P are sheets that other
 // views' meshes span across a gap (a through-hole seen obliquely). The cheap part first: most
 // surfaces have too few views without a candidate to reach the count, and nothing is projected.
+// others and has: scratch (has: views.count zeros, left so).
 static bool SeenThrough(const PvmViews& views, const std::vector<glm::vec3>& centres, const glm::vec3& c_novel,
                         const glm::dvec3& p, int n_fg, const std::int16_t* vv, int n, const PvmRenderOptions& options,
-                        bool limited, float cos_max, std::vector<int>& others) {
+                        bool limited, float cos_max, std::vector<int>& others, std::vector<std::uint8_t>& has) {
   const int need = static_cast<int>(std::ceil(static_cast<double>(options.tau_empty) * std::max(1, n_fg)));
   if (need > views.count - n) return false;
   const glm::vec3 pf(p), to_novel = c_novel - pf;
   // angle <= max_angle (limited) as dot >= cos_max |a| |b| without square roots.
   const float cos2 = cos_max * cos_max, len2_novel = glm::dot(to_novel, to_novel);
   others.clear();
+  for (int i = 0; i < n; ++i) has[static_cast<std::size_t>(vv[i])] = 1;  // the views with a candidate
   for (int v = 0; v < views.count; ++v) {
-    if (!views.enabled[v] || std::find(vv, vv + n, static_cast<std::int16_t>(v)) != vv + n) continue;
+    if (!views.enabled[v] || has[static_cast<std::size_t>(v)]) continue;
     const glm::vec3 to_view = centres[static_cast<std::size_t>(v)] - pf;
     const float dot = glm::dot(to_view, to_novel), len2 = glm::dot(to_view, to_view) * len2_novel;
     bool ok = len2 > 0.f;
     if (ok && limited) ok = cos_max >= 0.f ? dot >= 0.f && dot * dot >= cos2 * len2 : dot >= 0.f || dot * dot <= cos2 * len2;
     if (ok) others.push_back(v);
   }
+  for (int i = 0; i < n; ++i) has[static_cast<std::size_t>(vv[i])] = 0;  // all 0 again for the next pixel
   const int m = static_cast<int>(others.size());
   int past = 0;
   for (int i = 0; i < m; ++i) {
@@ -686,6 +689,7 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
     std::vector<int> index(static_cast<std::size_t>(ulr_k));
     std::vector<float> weight(static_cast<std::size_t>(ulr_k));
     std::vector<int> others;  // SeenThrough's views
+    std::vector<std::uint8_t> has(static_cast<std::size_t>(views.count), 0);  // and its scratch (all 0)
     others.reserve(static_cast<std::size_t>(views.count));
     const bool limited = options.max_angle < 3.1415926f;
     const float cos_max = limited ? std::cos(options.max_angle) : -1.f;
@@ -768,7 +772,7 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
         }
         const bool two_counted = two && counted > 0;
         if (!reuse_clusters && !two_counted && free_space && options.tau_empty > 0.f &&
-            SeenThrough(views, centres, c_novel, fg_point, n - k1, vv, n, options, limited, cos_max, others)) {
+            SeenThrough(views, centres, c_novel, fg_point, n - k1, vv, n, options, limited, cos_max, others, has)) {
           frame.cand_count[static_cast<std::size_t>(p)] = 0;  // empty: n_fg stays 0, so not valid
           continue;
         }

@@ -29,6 +29,18 @@ inline void CatmullRomWeights(float t, float w[4]) {
   w[3] = 0.5f * (t3 - t2);
 }
 
+#if defined(__SSE2__)
+// CatmullRomWeights in the four lanes, the same operations per lane (a term with a zero or unit
+// coefficient adds or multiplies exactly), so the same weights (up to the sign of a zero weight).
+inline __m128 CatmullRomWeights4(float t) {
+  const __m128 T = _mm_set1_ps(t), T2 = _mm_mul_ps(T, T), T3 = _mm_mul_ps(T2, T);
+  __m128 w = _mm_add_ps(_mm_mul_ps(_mm_setr_ps(-1.f, 3.f, -3.f, 1.f), T3), _mm_mul_ps(_mm_setr_ps(2.f, -5.f, 4.f, -1.f), T2));
+  w = _mm_add_ps(w, _mm_mul_ps(_mm_setr_ps(-1.f, 0.f, 1.f, 0.f), T));
+  w = _mm_add_ps(w, _mm_setr_ps(0.f, 2.f, 0.f, 0.f));
+  return _mm_mul_ps(_mm_set1_ps(0.5f), w);
+}
+#endif
+
 // acc[0..3) += weight * (Catmull-Rom of an (h, w, 3) image, rows row_stride floats apart, at (x, y),
 // clamped per channel to the 2 x 2 centre texels' range); acc holds 4 floats (the fourth is
 // scratch). SSE2 where available (the same sums in another order: within float rounding of the
@@ -39,9 +51,6 @@ inline void CubicRgbAdd(const float* data, std::ptrdiff_t row_stride, int w, int
   const float fx = std::min(std::max(x - 0.5f, 0.f), static_cast<float>(w - 1));
   const float fy = std::min(std::max(y - 0.5f, 0.f), static_cast<float>(h - 1));
   const int x0 = static_cast<int>(fx), y0 = static_cast<int>(fy);
-  float wx[4], wy[4];
-  CatmullRomWeights(fx - static_cast<float>(x0), wx);
-  CatmullRomWeights(fy - static_cast<float>(y0), wy);
   int col[4];
   const float* rows[4];
   if (x0 >= 1 && x0 + 2 <= w - 1 && y0 >= 1 && y0 + 2 <= h - 1) {  // inside: no clamping
@@ -57,25 +66,34 @@ inline void CubicRgbAdd(const float* data, std::ptrdiff_t row_stride, int w, int
   // Four floats per tap (RGB and the next pixel's red, unused): the three channels at once. Not
   // where a tap is the image's last pixel, whose fourth float is past the end.
   if (y0 + 2 < h - 1 || x0 + 2 < w - 1) {
+    const __m128 WX = CatmullRomWeights4(fx - static_cast<float>(x0));
+    const __m128 WY = CatmullRomWeights4(fy - static_cast<float>(y0));
+    const __m128 wxs[4] = {_mm_shuffle_ps(WX, WX, 0x00), _mm_shuffle_ps(WX, WX, 0x55), _mm_shuffle_ps(WX, WX, 0xAA),
+                           _mm_shuffle_ps(WX, WX, 0xFF)};
+    const __m128 wys[4] = {_mm_shuffle_ps(WY, WY, 0x00), _mm_shuffle_ps(WY, WY, 0x55), _mm_shuffle_ps(WY, WY, 0xAA),
+                           _mm_shuffle_ps(WY, WY, 0xFF)};
     __m128 sum = _mm_setzero_ps();
     __m128 lo = _mm_set1_ps(3.4e38f), hi = _mm_set1_ps(-3.4e38f);
     for (int j = 0; j < 4; ++j) {
       __m128 r = _mm_setzero_ps();
       for (int i = 0; i < 4; ++i) {
         const __m128 q = _mm_loadu_ps(rows[j] + col[i]);
-        r = _mm_add_ps(r, _mm_mul_ps(_mm_set1_ps(wx[i]), q));
+        r = _mm_add_ps(r, _mm_mul_ps(wxs[i], q));
         if ((j == 1 || j == 2) && (i == 1 || i == 2)) {
           lo = _mm_min_ps(lo, q);
           hi = _mm_max_ps(hi, q);
         }
       }
-      sum = _mm_add_ps(sum, _mm_mul_ps(_mm_set1_ps(wy[j]), r));
+      sum = _mm_add_ps(sum, _mm_mul_ps(wys[j], r));
     }
     const __m128 c = _mm_min_ps(_mm_max_ps(sum, lo), hi);
     _mm_storeu_ps(acc, _mm_add_ps(_mm_loadu_ps(acc), _mm_mul_ps(_mm_set1_ps(weight), c)));
     return;
   }
 #endif
+  float wx[4], wy[4];
+  CatmullRomWeights(fx - static_cast<float>(x0), wx);
+  CatmullRomWeights(fy - static_cast<float>(y0), wy);
   float out[3] = {0.f, 0.f, 0.f};
   float lo[3] = {3.4e38f, 3.4e38f, 3.4e38f}, hi[3] = {-3.4e38f, -3.4e38f, -3.4e38f};
   for (int j = 0; j < 4; ++j) {
