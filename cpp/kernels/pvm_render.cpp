@@ -792,13 +792,15 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
           // The penalty as the ULR method's per-pixel loop computes it (UlrPenaltyFast: the novel
           // side once per candidate point, polynomial atan2 within 1e-5 rad of UlrPenalty's
           // std::atan2, which cost as much as the rest of this loop).
+          pen[i] = std::numeric_limits<float>::infinity();
+          read[i] = false;
+          projected[i] = false;
+          if (bg[i] && !two_counted) continue;  // a background candidate of a one-cluster pixel: unused
           const glm::dvec3 pw = c_novel_d + ray * static_cast<double>(d[i]);
           const int v = vv[i];
           const Camera& cam = views.cameras[v];
           double iz = 0;
-          pen[i] = std::numeric_limits<float>::infinity();
           projected[i] = cam.ProjectCam(cam.CamFromWorld(pw), &pos[i][0], &pos[i][1], &iz);
-          read[i] = false;
           if (projected[i]) {
             const glm::vec3 pf(pw);
             const glm::vec3 to_novel = c_novel - pf;
