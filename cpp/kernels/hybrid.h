@@ -51,7 +51,8 @@ struct UlrOptions {
   // 2-tap box per axis, and the blend of several views piles the blurs up) or bilinear (false).
   bool cubic = true;
   // The fast path's per-view loop: AVX-512F (16 views per step) when the CPU has it, else AVX2 (8),
-  // else SSE2 (4); kAvx2 stops at AVX2, kSse2 forces SSE2 (tests: all give the same bits).
+  // else SSE2 (4); its depth test likewise gathers 16 or 8 views' depths a step, or reads them one
+  // at a time with SSE2. kAvx2 stops at AVX2, kSse2 forces SSE2 (tests: all give the same bits).
   UlrSimd simd = UlrSimd::kAuto;
 };
 
