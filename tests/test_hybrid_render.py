@@ -12,6 +12,7 @@ import pytest
 from ibrtools import _core, look_at
 from ibrtools.camera import Camera
 from ibrtools.errors import BadValueError, DtypeError, InputError, MissingFileError, ShapeError
+from ibrtools.hybrid.pvm_render import DEFAULTS as PVM_DEFAULTS
 from ibrtools.render.hybrid import SELECTION_COLORS
 
 HAVE_PVM = importlib.util.find_spec("ibrtools.hybrid.pvm_render") is not None
@@ -328,8 +329,6 @@ def test_method_params_and_missing_stages(tmp_path):
         with pytest.raises(BadValueError, match=name):
             methods.create("hybrid", bad)
     assert methods.create("hybrid", {"free_space": "false"}).params["free_space"] is False
-    from ibrtools.hybrid.pvm_render import DEFAULTS as PVM_DEFAULTS
-
     hp = methods.create("hybrid").params  # the hybrid's PVM defaults are the PVM renderer's
     assert hp["max_angle"] == PVM_DEFAULTS["max_angle"] and hp["merge_rel"] == PVM_DEFAULTS["merge_rel"]
     assert methods.create("hybrid", {"max_angle": "40", "merge_rel": 0.04}).params["max_angle"] == 40.0

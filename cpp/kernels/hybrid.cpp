@@ -672,14 +672,20 @@ void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, Ima
   const float cnx = c_novel.x, cny = c_novel.y, cnz = c_novel.z;
   using ViewsFn = void (*)(const UlrPoint&, const UlrViewTable&, bool, float, const UlrViewOut&);
   ViewsFn views_fn = nullptr;
+  using DepthFn = void (*)(const UlrViewTable&, int, float, const UlrViewOut&, std::ptrdiff_t*);
+  DepthFn depth_fn = nullptr;
 #if defined(__SSE2__)
   views_fn = UlrViewsSse2;
 #if defined(IBR_ULR_AVX2)
   const bool avx512 = options.simd == UlrSimd::kAuto && UlrCpuHasAvx512();
   if (options.simd != UlrSimd::kSse2 && UlrCpuHasAvx2()) views_fn = UlrViewsAvx2;
   if (avx512) views_fn = UlrViewsAvx512;
-  const bool depth_avx512 = avx512 && vt.offsets32;  // the depth test too, where the offsets fit int32
-  const bool depth_avx2 = !depth_avx512 && views_fn == UlrViewsAvx2 && vt.rel32;  // else AVX2 where they do
+  // The depth test in the same ISA where the table's offsets fit int32 (else the scalar loop below).
+  if (avx512 && vt.offsets32) {
+    depth_fn = UlrDepthTestAvx512;
+  } else if (views_fn == UlrViewsAvx2 && vt.rel32) {
+    depth_fn = UlrDepthTestAvx2;
+  }
 #endif
 #endif
   ParallelFor2D(H, W, 64, [&](int y0, int y1, int x0, int x1) {
@@ -739,33 +745,28 @@ void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, Ima
         // texel and stay at +inf. The same views pass as with the lazy test, so the selection and
         // the blend are the lazy scheme's, bit for bit (measured again with this loop: the lazy
         // scheme 107 ms against 104.5 per frame, single-thread CPU, min of 8, load ~9).
-#if defined(IBR_ULR_AVX2)
-        if (depth_avx512 || depth_avx2) {  // the same test, 16 or 8 views a step; then the prefetches by view
-          if (depth_avx512) {
-            UlrDepthTestAvx512(vt, nv, tol, vo, off16.data());
-          } else {
-            UlrDepthTestAvx2(vt, nv, tol, vo, off16.data());
-          }
+        if (depth_fn) {  // the same test, 16 or 8 views a step; then the prefetches by view
+          depth_fn(vt, nv, tol, vo, off16.data());
           for (int i = 0; i < nv; ++i) {
             const std::ptrdiff_t off = off16[std::size_t(i)];
             PrefetchAt(DP[i], off + kPrefetchAhead * (off - prev_off[i]));
             prev2_off[i] = prev_off[i];
             prev_off[i] = off;
           }
-        } else
-#endif
-        for (int i = 0; i < nv; ++i) {
-          float fx = QX[i] > 0.f ? QX[i] : 0.f;  // NaN -> 0
-          float fy = QY[i] > 0.f ? QY[i] : 0.f;
-          fx = fx < WL[i] ? fx : WL[i];
-          fy = fy < HL[i] ? fy : HL[i];
-          const std::ptrdiff_t off = std::ptrdiff_t(int(fy)) * DS[i] + int(fx);
-          const float dv = DP[i][off];
-          PrefetchAt(DP[i], off + kPrefetchAhead * (off - prev_off[i]));
-          prev2_off[i] = prev_off[i];
-          prev_off[i] = off;
-          const bool ok = (PEN[i] < INFINITY) & (dv > 0.f) & (dv <= 3.4028235e38f) & (std::abs(QZ[i] - dv) <= tol * dv);
-          PEN[i] = ok ? PEN[i] : INFINITY;
+        } else {
+          for (int i = 0; i < nv; ++i) {
+            float fx = QX[i] > 0.f ? QX[i] : 0.f;  // NaN -> 0
+            float fy = QY[i] > 0.f ? QY[i] : 0.f;
+            fx = fx < WL[i] ? fx : WL[i];
+            fy = fy < HL[i] ? fy : HL[i];
+            const std::ptrdiff_t off = std::ptrdiff_t(int(fy)) * DS[i] + int(fx);
+            const float dv = DP[i][off];
+            PrefetchAt(DP[i], off + kPrefetchAhead * (off - prev_off[i]));
+            prev2_off[i] = prev_off[i];
+            prev_off[i] = off;
+            const bool ok = (PEN[i] < INFINITY) & (dv > 0.f) & (dv <= 3.4028235e38f) & (std::abs(QZ[i] - dv) <= tol * dv);
+            PEN[i] = ok ? PEN[i] : INFINITY;
+          }
         }
         const int m = UlrSelect(PEN, nv, k, index, weight);
         int used = 0;
