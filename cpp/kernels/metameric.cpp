@@ -11,6 +11,7 @@
 #include <immintrin.h>  // AVX2: only in target("avx2") functions, called when the CPU has it
 
 #include "ibr/parallel.h"
+#include "ibr/simd.h"
 
 namespace ibr {
 namespace {
@@ -107,14 +108,8 @@ inline float Decode(float e) {
   return AsFloat(AsBits(r) | (bits & 0x80000000u));
 }
 
-// The row loops of the curves, compiled twice (GCC function multi-versioning, picked once at load
-// time by the CPU): for AVX2 (8 floats a vector instead of SSE2's 4) and the portable default.
-// No FMA in the AVX2 version, so no contraction: the same IEEE operations, the same bits.
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
-#define IBR_AVX2_CLONES __attribute__((target_clones("avx2", "default")))
-#else
-#define IBR_AVX2_CLONES
-#endif
+// The row loops of the curves, for AVX2 (8 floats a vector instead of SSE2's 4) and the portable
+// default, picked at load time (IBR_AVX2_CLONES, cpp/ibr/simd.h: the same bits either way).
 
 IBR_AVX2_CLONES void EncodeRun(const float* in, float* o, std::int64_t n) {
   for (std::int64_t i = 0; i < n; ++i) o[i] = Encode(in[i]);

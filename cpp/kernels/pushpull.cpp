@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "ibr/parallel.h"
+#include "ibr/simd.h"
 #include "kernels/metameric.h"
 
 namespace ibr {
@@ -526,12 +527,9 @@ PushPullStatus Run(const Src& src, const PushPullOptions& options, const ImageVi
 }
 
 // Number of NaN / inf among row[0..n): on the bits (exponent all ones), branch-free; built for AVX2
-// and the portable default (GCC function multi-versioning, as cpp/kernels/steerable.cpp; integer
-// work only, so the same count either way).
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
-__attribute__((target_clones("avx2", "default")))
-#endif
-std::int64_t CountNonFiniteRun(const float* row, std::ptrdiff_t n) {
+// and the portable default (IBR_AVX2_CLONES, cpp/ibr/simd.h; integer work only, so the same count
+// either way).
+IBR_AVX2_CLONES std::int64_t CountNonFiniteRun(const float* row, std::ptrdiff_t n) {
   std::int32_t bad = 0;
   for (std::ptrdiff_t i = 0; i < n; ++i) {
     std::uint32_t bits;

@@ -10,18 +10,11 @@
 #include <vector>
 
 #include "ibr/parallel.h"
+#include "ibr/simd.h"
 #include "kernels/steerable_taps.h"
 
-// The row loops below are compiled twice, for AVX2 and for the baseline (SSE2), and picked at
-// load time (GCC function multi-versioning; the build does not use -march=native). Element-wise
-// loops without FMA (AVX2 does not enable it) round identically in both versions, so results
-// do not depend on the CPU. Not "avx512f": it enables FMA, GCC then contracts a * b + c and the
-// results change by ~1 ulp (measured: ~2e-6 on the test images), for ~5% speed.
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
-#define IBR_STEERABLE_CLONES __attribute__((target_clones("avx2", "default")))
-#else
-#define IBR_STEERABLE_CLONES
-#endif
+// The row loops below are compiled for AVX2 and the baseline, picked at load time
+// (IBR_AVX2_CLONES, cpp/ibr/simd.h: the same bits on every CPU).
 
 namespace ibr {
 namespace {
@@ -127,7 +120,7 @@ float* TaskScratch(Slot slot, std::size_t n) {
 }
 
 // out = a + b (sign > 0) or a - b over n samples.
-IBR_STEERABLE_CLONES void CombineRow(const float* __restrict a, const float* __restrict b, float sign,
+IBR_AVX2_CLONES void CombineRow(const float* __restrict a, const float* __restrict b, float sign,
                                      std::ptrdiff_t n, float* __restrict out) {
   if (sign > 0) {
     for (std::ptrdiff_t i = 0; i < n; ++i) out[i] = a[i] + b[i];
@@ -192,7 +185,7 @@ class Combos {
 // acc[i] = ... instead (the first filter of a zero-initialised sum: 0 + t == t, so the result is
 // the same without the zero fill and its extra pass over the row).
 template <bool kStore>
-IBR_STEERABLE_CLONES void AccumulateRow(const RowFilter& f, const float* __restrict v, std::ptrdiff_t n, int c,
+IBR_AVX2_CLONES void AccumulateRow(const RowFilter& f, const float* __restrict v, std::ptrdiff_t n, int c,
                    float* __restrict acc) {
   const std::ptrdiff_t c1 = c, c2 = 2 * std::ptrdiff_t(c);
   const float g0 = f.g[2], g1 = f.g[3], g2 = f.g[4];
@@ -225,7 +218,7 @@ IBR_STEERABLE_CLONES void AccumulateRow(const RowFilter& f, const float* __restr
 
 // Same at even columns only: acc[m * c + ch] (+)= (g along x of v)[(2m) * c + ch], m < wc.
 template <int CC, bool kStore>
-IBR_STEERABLE_CLONES void DecimateRow(const RowFilter& f, const float* __restrict v, int wc, int c_runtime, float* __restrict acc) {
+IBR_AVX2_CLONES void DecimateRow(const RowFilter& f, const float* __restrict v, int wc, int c_runtime, float* __restrict acc) {
   const int c = CC > 0 ? CC : c_runtime;
   const std::ptrdiff_t c1 = c, c2 = 2 * std::ptrdiff_t(c);
   const float g0 = f.g[0], g1 = f.g[1], g2 = f.g[2], g3 = f.g[3], g4 = f.g[4];
@@ -303,7 +296,7 @@ ColourMatrix ToFloat(const double (&m)[3][3]) {
 }
 
 // d = M s per pixel over a row of w RGB/YCbCr pixels; d may be s (each pixel is read first).
-IBR_STEERABLE_CLONES void ColourRow(const float* s, const ColourMatrix& cm, int w, float* d) {
+IBR_AVX2_CLONES void ColourRow(const float* s, const ColourMatrix& cm, int w, float* d) {
   const auto& f = cm.m;
   for (int x = 0; x < w; ++x) {
     const float a = s[3 * x], b = s[3 * x + 1], c = s[3 * x + 2];
@@ -337,7 +330,7 @@ class RowRing {
 // CC = the channel count when known at compile time (0: runtime c).
 // kStore: acc = ... (every one of the w pixels is written) instead of acc += ....
 template <int CC, bool kStore>
-IBR_STEERABLE_CLONES void UpsampleRow(const float* __restrict v, int w, int c_runtime, float g0, float g1, float g2,
+IBR_AVX2_CLONES void UpsampleRow(const float* __restrict v, int w, int c_runtime, float g0, float g1, float g2,
                  float* __restrict acc) {
   const int c = CC > 0 ? CC : c_runtime;
   const int pairs = w / 2;
