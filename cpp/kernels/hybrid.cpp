@@ -929,6 +929,57 @@ inline void StoreSelectionWeights(float w0, float w1, float w2, float min_weight
   out[2] = c;
 }
 
+#if defined(IBR_ULR_AVX2)
+// StoreSelectionWeights over W pixels of planar weights, eight per step in AVX2: its operations
+// lane for lane, the branches as selects (the divisions of the lanes not taken are discarded), so
+// the same bits; the interleaved stores through a small buffer.
+__attribute__((target("avx2"))) void StoreSelectionWeightsAvx2(const float* w0, const float* w1, const float* w2, int W,
+                                                               float min_weight, float* out) {
+  const __m256 zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.f), mw = _mm256_set1_ps(min_weight);
+  const bool clip = min_weight > 0.f;
+  alignas(32) float abc[3][8];
+  int x = 0;
+  for (; x + 8 <= W; x += 8) {
+    const __m256 A = _mm256_loadu_ps(w0 + x), B = _mm256_loadu_ps(w1 + x), C = _mm256_loadu_ps(w2 + x);
+    const __m256 sum = _mm256_add_ps(_mm256_add_ps(A, B), C);
+    const __m256 pos = _mm256_cmp_ps(sum, zero, _CMP_GT_OQ);
+    const __m256 inv = _mm256_and_ps(pos, _mm256_div_ps(one, sum));
+    __m256 a = _mm256_mul_ps(A, inv), b = _mm256_mul_ps(B, inv), c = _mm256_mul_ps(C, inv);
+    if (clip) {
+      const __m256 la = _mm256_cmp_ps(a, mw, _CMP_LT_OQ), lb = _mm256_cmp_ps(b, mw, _CMP_LT_OQ);
+      const __m256 lc = _mm256_cmp_ps(c, mw, _CMP_LT_OQ);
+      const __m256 ka = _mm256_andnot_ps(la, a), kb = _mm256_andnot_ps(lb, b), kc = _mm256_andnot_ps(lc, c);
+      const __m256 kept = _mm256_add_ps(_mm256_add_ps(ka, kb), kc);
+      const __m256 upd = _mm256_and_ps(_mm256_and_ps(pos, _mm256_or_ps(_mm256_or_ps(la, lb), lc)),
+                                       _mm256_cmp_ps(kept, zero, _CMP_GT_OQ));
+      a = _mm256_blendv_ps(a, _mm256_div_ps(ka, kept), upd);
+      b = _mm256_blendv_ps(b, _mm256_div_ps(kb, kept), upd);
+      c = _mm256_blendv_ps(c, _mm256_div_ps(kc, kept), upd);
+    }
+    _mm256_store_ps(abc[0], a);
+    _mm256_store_ps(abc[1], b);
+    _mm256_store_ps(abc[2], c);
+    float* o = out + 3 * x;
+    for (int i = 0; i < 8; ++i) o[3 * i] = abc[0][i], o[3 * i + 1] = abc[1][i], o[3 * i + 2] = abc[2][i];
+  }
+  for (; x < W; ++x) StoreSelectionWeights(w0[x], w1[x], w2[x], min_weight, out + 3 * x);
+}
+#endif
+
+// StoreSelectionWeights over a row of W pixels of planar weights w0, w1, w2 (AVX2 when avx2: the
+// same bits).
+void StoreSelectionWeightsRow(const float* w0, const float* w1, const float* w2, int W, float min_weight, bool avx2,
+                              float* out) {
+#if defined(IBR_ULR_AVX2)
+  if (avx2) {
+    StoreSelectionWeightsAvx2(w0, w1, w2, W, min_weight, out);
+    return;
+  }
+#endif
+  (void)avx2;
+  for (int x = 0; x < W; ++x) StoreSelectionWeights(w0[x], w1[x], w2[x], min_weight, out + 3 * x);
+}
+
 // One row of a separable blur, edge-clamped: out[x] = sum_d taps[d] src[clamp(x + d - r)] for x < W
 // (taps of length 2 r + 1), through pad (W + 2 r floats); AVX2 when avx2 (BlurHorizontalAvx2: the
 // same sums in the same order, so the same bits).
@@ -1023,25 +1074,35 @@ void BlurSelectionDecimated(ImageView<const std::uint8_t> label, float sigma, fl
   std::vector<float> fx, fy;
   axis(W, wl, x0, fx);
   axis(H, hl, y0, fy);
-  ParallelFor(H, 8, [&](std::int64_t b, std::int64_t e) {
-    for (int y = int(b); y < int(e); ++y) {
-      const std::size_t ra = std::size_t(y0[std::size_t(y)]) * wl;
-      const std::size_t rb = std::min(std::size_t(y0[std::size_t(y)] + 1), std::size_t(hl - 1)) * wl;
-      const float ty = fy[std::size_t(y)];
-      float* orow = weights_out.Row(y);
+  // The low-resolution rows the output rows read (y0 and y0 + 1; y0 grows with y), each read back
+  // along x once into hz (plane c, row j - j0) for the ~f output rows that share it: the same
+  // values as interpolating at every output pixel, a fraction of the work.
+  const int j0 = y0.front(), j1 = std::min(y0.back() + 1, hl - 1), nr = j1 - j0 + 1;
+  std::vector<float> hz(3 * std::size_t(nr) * std::size_t(W));
+  ParallelFor(3 * std::int64_t(nr), 4, [&](std::int64_t b, std::int64_t e) {
+    for (std::int64_t cj = b; cj < e; ++cj) {
+      const float* q = lo.data() + std::size_t(cj / nr) * plane + std::size_t(j0 + cj % nr) * wl;
+      float* o = hz.data() + std::size_t(cj) * W;
       for (int x = 0; x < W; ++x) {
         const std::size_t ca = std::size_t(x0[std::size_t(x)]);
         const std::size_t cb = std::min(ca + 1, std::size_t(wl - 1));
-        const float tx = fx[std::size_t(x)];
-        float w[3];
-        for (int c = 0; c < 3; ++c) {
-          const float* q = lo.data() + std::size_t(c) * plane;
-          const float top = q[ra + ca] + tx * (q[ra + cb] - q[ra + ca]);
-          const float bot = q[rb + ca] + tx * (q[rb + cb] - q[rb + ca]);
-          w[c] = std::max(top + ty * (bot - top), 0.f);  // >= 0 (rounding)
-        }
-        StoreSelectionWeights(w[0], w[1], w[2], min_weight, orow + 3 * x);
+        o[x] = q[ca] + fx[std::size_t(x)] * (q[cb] - q[ca]);
       }
+    }
+  });
+  ParallelFor(H, 8, [&](std::int64_t b, std::int64_t e) {
+    std::vector<float> wv(3 * std::size_t(W));
+    for (int y = int(b); y < int(e); ++y) {
+      const int ra = y0[std::size_t(y)] - j0, rb = std::min(y0[std::size_t(y)] + 1, hl - 1) - j0;
+      const float ty = fy[std::size_t(y)];
+      for (int c = 0; c < 3; ++c) {
+        const float* top = hz.data() + (std::size_t(c) * nr + std::size_t(ra)) * W;
+        const float* bot = hz.data() + (std::size_t(c) * nr + std::size_t(rb)) * W;
+        float* w = wv.data() + std::size_t(c) * W;
+        for (int x = 0; x < W; ++x) w[x] = std::max(top[x] + ty * (bot[x] - top[x]), 0.f);  // >= 0 (rounding)
+      }
+      StoreSelectionWeightsRow(wv.data(), wv.data() + W, wv.data() + 2 * std::size_t(W), W, min_weight, avx2,
+                               weights_out.Row(y));
     }
   });
 }
@@ -1123,11 +1184,8 @@ void BlurSelection(ImageView<const std::uint8_t> label, float sigma, float min_w
         BlurRowClamped(scratch + c * plane + std::int64_t(y) * W, W, taps, avx2, pad.data(),
                        acc.data() + std::size_t(c) * W);
       }
-      float* orow = weights_out.Row(y);
-      const float* w0 = acc.data();
-      const float* w1 = w0 + W;
-      const float* w2 = w1 + W;
-      for (int x = 0; x < W; ++x) StoreSelectionWeights(w0[x], w1[x], w2[x], min_weight, orow + 3 * x);
+      StoreSelectionWeightsRow(acc.data(), acc.data() + W, acc.data() + 2 * std::size_t(W), W, min_weight, avx2,
+                               weights_out.Row(y));
     }
   });
 }
