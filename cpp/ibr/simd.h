@@ -26,9 +26,9 @@ namespace ibr {
 // fn(begin, end) built for AVX2 and the baseline (IBR_AVX2_CLONES), for a loop body written as a
 // lambda marked IBR_ALWAYS_INLINE: it is inlined into both versions (a body that is not inlined
 // stays baseline code). E.g. ParallelFor(n, g, [&](auto a, auto b) { RunAvx2Clones(body, a, b); }).
-template <class F>
-IBR_AVX2_CLONES void RunAvx2Clones(const F& fn, std::int64_t begin, std::int64_t end) {
-  fn(begin, end);
+template <class F, class... Args>
+IBR_AVX2_CLONES void RunAvx2Clones(const F& fn, Args... args) {
+  fn(args...);
 }
 
 }  // namespace ibr

@@ -454,11 +454,13 @@ class HybridMethod:
         t5 = time.perf_counter()
         times["ulr_blend"] = (t5 - t4) * 1e3
         # TM where the composite reads it: a TM weight, or ULR's fallback where ULR is needed and no
-        # view sees the point. With tau_var < 0 that is a few pixels: shaded there alone (elsewhere
-        # TM's weight is 0 and the zeros give the same composite, bit for bit).
+        # view sees the point, on the mesh (TM is 0 off it, as the zeros below). With tau_var < 0
+        # that is a few pixels: shaded there alone (elsewhere TM's weight is 0 and the zeros give
+        # the same composite, bit for bit).
         need_tm = weights[..., 0] > 0
         if count is not None:
             need_tm |= need_ulr & (count == 0)
+        need_tm &= gb["hit"]
         n_tm = int(np.count_nonzero(need_tm))
         if n_tm > TM_SUBSET_MAX * need_tm.size:
             tm = self._gm.tm_color(gb)
