@@ -13,22 +13,22 @@
 #define IBR_AVX2_CLONES
 #endif
 
-#include <cstdint>
-
-#if defined(__GNUC__)
-#define IBR_ALWAYS_INLINE __attribute__((always_inline))
-#else
-#define IBR_ALWAYS_INLINE
-#endif
-
 namespace ibr {
 
-// fn(begin, end) built for AVX2 and the baseline (IBR_AVX2_CLONES), for a loop body written as a
-// lambda marked IBR_ALWAYS_INLINE: it is inlined into both versions (a body that is not inlined
-// stays baseline code). E.g. ParallelFor(n, g, [&](auto a, auto b) { RunAvx2Clones(body, a, b); }).
+// fn(args...) built for AVX2 and the baseline (IBR_AVX2_CLONES) with every call inside inlined
+// (flatten), fn's body included: for a ParallelFor body written as a lambda, e.g.
+// ParallelFor(n, g, [&](std::int64_t a, std::int64_t b) { RunAvx2Clones(body, a, b); }).
+// (cpp/kernels/forward_warp.cpp's CallAvx2 is the same idea with an ISA switch for its tests.)
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
 template <class F, class... Args>
-IBR_AVX2_CLONES void RunAvx2Clones(const F& fn, Args... args) {
+__attribute__((target_clones("avx2", "default"), flatten)) void RunAvx2Clones(const F& fn, Args... args) {
   fn(args...);
 }
+#else
+template <class F, class... Args>
+void RunAvx2Clones(const F& fn, Args... args) {
+  fn(args...);
+}
+#endif
 
 }  // namespace ibr

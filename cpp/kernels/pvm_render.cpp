@@ -174,7 +174,7 @@ void PvmVisibleCoarse(const PvmGrid& grid, const Camera& camera, const float* gb
     min_cell = std::min(min_cell, grid.cell[a] * grid.sub);
   }
   std::vector<std::vector<std::int32_t>> lists(static_cast<std::size_t>(nb));
-  const auto bands = [&](std::int64_t b0, std::int64_t b1) IBR_ALWAYS_INLINE {
+  const auto bands = [&](std::int64_t b0, std::int64_t b1) {
     for (std::int64_t b = b0; b < b1; ++b) {
       auto& out = lists[static_cast<std::size_t>(b)];
       std::int32_t last = -1;
@@ -384,7 +384,7 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
   std::uint8_t* cc = frame.cand_count.data();
   std::uint32_t* cs = frame.cand_seen.data();
   std::vector<std::int64_t> tri_count(static_cast<std::size_t>(nb), 0);
-  const auto bands = [&](std::int64_t b0, std::int64_t b1) IBR_ALWAYS_INLINE {
+  const auto bands = [&](std::int64_t b0, std::int64_t b1) {
     std::vector<float> sx, sy, siz, wx, wy, wz;  // this tile's vertices: screen x, y, 1/z; world
     for (std::int64_t b = b0; b < b1; ++b) {
       const int y0 = static_cast<int>(b) * kBandRows, y1 = std::min(h, y0 + kBandRows);
@@ -893,7 +893,7 @@ void PvmFilter(const double* box, const Camera& camera, const std::uint8_t* pixe
 #if defined(IBR_PVM_AVX2)
   const bool avx2 = PvmCpuHasAvx2();  // Eq. 1's exponentials eight at a time (PairSumsAvx2: same bits)
 #endif
-  const auto rows = [&](std::int64_t a, std::int64_t b) IBR_ALWAYS_INLINE {
+  const auto rows = [&](std::int64_t a, std::int64_t b) {
     std::vector<float> pair_w(max_pairs), pair_d(max_pairs);
     (void)pair_w, (void)pair_d;
     for (std::int64_t y = a; y < b; ++y) {
