@@ -1017,7 +1017,7 @@ std::vector<float> GaussTaps(float sigma) {
 // px^2) and the bilinear upsampling's (~(f^2 - 1) / 6) is sigma^2, and read back bilinearly at
 // each pixel (block centres at f j + (f - 1) / 2 - M).
 void BlurSelectionDecimated(ImageView<const std::uint8_t> label, float sigma, float min_weight, int f,
-                            ImageView<float> weights_out) {
+                            bool allow_avx2, ImageView<float> weights_out) {
   const int H = label.height, W = label.width;
   const int margin = (int(std::ceil(3.f * sigma / float(f))) + 1) * f;
   const int hl = (H + 2 * margin + f - 1) / f, wl = (W + 2 * margin + f - 1) / f;
@@ -1052,7 +1052,7 @@ void BlurSelectionDecimated(ImageView<const std::uint8_t> label, float sigma, fl
       }
     }
   });
-  const bool avx2 = UlrCpuHasAvx2();
+  const bool avx2 = allow_avx2 && UlrCpuHasAvx2();
   ParallelFor(3 * std::int64_t(hl), 8, [&](std::int64_t b, std::int64_t e) {  // horizontal, tmp -> lo
     std::vector<float> pad(std::size_t(wl) + 2 * r);
     for (std::int64_t cy = b; cy < e; ++cy)  // plane c, row y: consecutive rows of tmp and lo
@@ -1112,10 +1112,10 @@ void BlurSelectionDecimated(ImageView<const std::uint8_t> label, float sigma, fl
 int BlurSelectionFactor(float sigma) { return sigma >= 8.f ? std::min(4, int(sigma / 4.f)) : 1; }
 
 void BlurSelection(ImageView<const std::uint8_t> label, float sigma, float min_weight, float* scratch,
-                   ImageView<float> weights_out, bool decimate) {
+                   ImageView<float> weights_out, bool decimate, bool allow_avx2) {
   const int f = decimate ? BlurSelectionFactor(sigma) : 1;
   if (f > 1) {
-    BlurSelectionDecimated(label, sigma, min_weight, f, weights_out);
+    BlurSelectionDecimated(label, sigma, min_weight, f, allow_avx2, weights_out);
     return;
   }
   const int H = label.height, W = label.width;
@@ -1139,7 +1139,7 @@ void BlurSelection(ImageView<const std::uint8_t> label, float sigma, float min_w
   }
   // AVX2 when the CPU has it (the same bits, BlurVerticalAvx2 / BlurHorizontalAvx2): the sums
   // over the taps in registers, eight columns at a time.
-  const bool avx2 = UlrCpuHasAvx2();
+  const bool avx2 = allow_avx2 && UlrCpuHasAvx2();
   const int ntaps = 2 * r + 1;
   ParallelFor(H, 8, [&](std::int64_t b, std::int64_t e) {
 #if defined(IBR_ULR_AVX2)
