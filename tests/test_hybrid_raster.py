@@ -83,6 +83,25 @@ def test_raster_independent_of_thread_count(scene_mesh):
         assert np.array_equal(one[k], two[k]), k
 
 
+@pytest.mark.skipif(not _core.cpu_has_avx2(), reason="this CPU has no AVX2: only the baseline path runs")
+def test_raster_avx2_and_baseline_give_the_same_bits(scene_mesh):
+    # The band and attribute loops run compiled for AVX2 (no FMA) or for the SSE2 baseline by the
+    # engine's switch (set_warp_isa): the same IEEE operations, the same G-buffer bit for bit.
+    scene, mesh = scene_mesh
+    v = np.ascontiguousarray(mesh.vertices, np.float32)
+    try:
+        for cam in [x.camera for x in scene.views] + [t.camera.scaled(131, 97) for t in scene.targets]:
+            out = {}
+            for isa in ("baseline", "avx2"):
+                _core.set_warp_isa(isa)
+                out[isa] = _core.raster_gbuffer(cam.to_core(), v, mesh.faces)
+            assert (out["avx2"]["prim_id"] >= 0).any()
+            for k in out["avx2"]:
+                np.testing.assert_array_equal(out["baseline"][k], out["avx2"][k], err_msg=k)
+    finally:
+        _core.set_warp_isa("auto")
+
+
 def test_raster_bad_input():
     cam = Camera.pinhole(8, 8, 8.0, 8.0, 4.0, 4.0, np.eye(4))
     v = np.zeros((3, 3), np.float32)

@@ -385,11 +385,12 @@ void BindDibr(py::module_& m) {
         if (!SetWarpIsa(isa)) throw BadValueError("isa: 'avx2' asked but this CPU has no AVX2");
       },
       py::arg("isa"),
-      "Instruction set of the forward warp's hot loops (process-wide; for tests and benchmarks): 'auto' "
-      "(default: AVX2 clones when the CPU has AVX2), 'baseline' (SSE2) or 'avx2'. Results are identical.");
+      "Instruction set of the engine's plain hot loops (process-wide; for tests and benchmarks): the forward "
+      "warp's, the G-buffer raster's and the PVM renderer's voxel lookup, depth pass and filter (cpp/ibr/simd.h). "
+      "'auto' (default: AVX2 clones when the CPU has AVX2), 'baseline' (SSE2) or 'avx2'. Results are identical.");
   m.def(
       "warp_isa", [] { return std::string(ActiveWarpIsa() == WarpIsa::kAvx2 ? "avx2" : "baseline"); },
-      "Instruction set the forward warp's hot loops use now: 'avx2' or 'baseline'.");
+      "Instruction set the engine's plain hot loops (set_warp_isa) use now: 'avx2' or 'baseline'.");
   m.def("cpu_has_avx2", &CpuHasWarpAvx2, "Whether this CPU has AVX2 (run-time check).");
 
   m.attr("WARP_SURFACE") = int(kMaskSurface);

@@ -12,6 +12,7 @@
 #include <immintrin.h>  // AVX2: only in target("avx2") functions, called when the CPU has it
 
 #include "ibr/parallel.h"
+#include "ibr/simd.h"
 
 namespace ibr {
 namespace {
@@ -23,26 +24,10 @@ constexpr float kGuardPixels = 16384.f;
 constexpr float kInf = std::numeric_limits<float>::infinity();
 constexpr std::int32_t kInvalid = std::numeric_limits<std::int32_t>::min();
 
-// Instruction-set dispatch (forward_warp.h, SetWarpIsa). The engine is built without -march
-// (SSE2 baseline); on a CPU with AVX2 the hot loops run in clones compiled for AVX2 (no FMA: the
-// same IEEE operations in the same order, so the same bits; tests/test_forward_warp.py compares
-// both paths). CallAvx2 compiles f's body, with every call inside it inlined (flatten), for AVX2.
-std::atomic<int> g_isa{-1};  // -1 auto, 0 baseline, 1 AVX2
-
-bool CpuHasAvx2() {
-  static const bool has = __builtin_cpu_supports("avx2");
-  return has;
-}
-
-inline bool UseAvx2() {
-  const int isa = g_isa.load(std::memory_order_relaxed);
-  return isa < 0 ? CpuHasAvx2() : isa == 1;
-}
-
-template <class F>
-__attribute__((target("avx2"), flatten)) void CallAvx2(const F& f) {
-  f();
-}
+// Instruction-set dispatch (forward_warp.h, SetWarpIsa): the hot loops run through
+// CallAvx2 / UseAvx2 (cpp/ibr/simd.h), which compile them for AVX2 (no FMA: the same IEEE
+// operations in the same order, so the same bits; tests/test_forward_warp_isa.py compares both
+// paths) and follow the engine's process-wide switch.
 
 // Floor / ceil of a / 256 (arithmetic shift: floor for negative a too).
 inline std::int64_t FloorSub(std::int64_t a) { return a >> 8; }
@@ -1528,9 +1513,7 @@ void RasterBands(const Context& cx, const WarpScratch& scratch, int num_bands, b
 }  // namespace
 
 bool SetWarpIsa(WarpIsa isa) {
-  if (isa == WarpIsa::kAvx2 && !CpuHasAvx2()) return false;
-  g_isa.store(isa == WarpIsa::kAuto ? -1 : isa == WarpIsa::kAvx2 ? 1 : 0, std::memory_order_relaxed);
-  return true;
+  return SetIsa(isa == WarpIsa::kAuto ? Isa::kAuto : isa == WarpIsa::kAvx2 ? Isa::kAvx2 : Isa::kBaseline);
 }
 
 WarpIsa ActiveWarpIsa() { return UseAvx2() ? WarpIsa::kAvx2 : WarpIsa::kBaseline; }

@@ -92,7 +92,8 @@ struct WarpOptions {
 // the SSE2 baseline; on a CPU with AVX2 (checked at run time) clones compiled for AVX2 run
 // instead (no FMA: bit-identical results). kAuto (default) = AVX2 when the CPU has it.
 // SetWarpIsa is for tests and benchmarks (process-wide); returns false (and changes nothing)
-// when kAvx2 is asked on a CPU without it.
+// when kAvx2 is asked on a CPU without it. It is the engine's switch (cpp/ibr/simd.h SetIsa):
+// it sets every loop dispatched with RunIsa too (G-buffer raster, PVM loops).
 enum class WarpIsa : int { kAuto = -1, kBaseline = 0, kAvx2 = 1 };
 bool SetWarpIsa(WarpIsa isa);
 WarpIsa ActiveWarpIsa();

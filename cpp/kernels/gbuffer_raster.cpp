@@ -130,10 +130,10 @@ void Raster(const ScreenTri& t, int r0, int r1, int width, float* best_iz, std::
 }
 
 // Rows [r0, r1] of the visibility pass: cleared, then every triangle reaching them scan-converted.
-// This and AttributeRow, the per-pixel loops, are built for AVX2 and the baseline (IBR_AVX2_CLONES:
-// the same bits): G-buffer 8.0 -> 6.9 ms at 1280x720 on a Zen 3 EPYC (bench_hybrid's scene, 2 threads).
-IBR_AVX2_CLONES void RasterBand(const std::vector<ScreenTri>& tris, int r0, int r1, int width, float* best_iz,
-                                std::int32_t* prim) {
+// This and AttributeRow, the per-pixel loops, run through RunIsa (cpp/ibr/simd.h: built for AVX2 and
+// the baseline, the same bits): G-buffer 8.0 -> 6.9 ms at 1280x720 on a Zen 3 EPYC (bench_hybrid's
+// scene, 2 threads).
+void RasterBand(const std::vector<ScreenTri>& tris, int r0, int r1, int width, float* best_iz, std::int32_t* prim) {
   std::fill(best_iz + static_cast<std::int64_t>(r0) * width, best_iz + static_cast<std::int64_t>(r1 + 1) * width, 0.f);
   std::fill(prim + static_cast<std::int64_t>(r0) * width, prim + static_cast<std::int64_t>(r1 + 1) * width, -1);
   for (const ScreenTri& t : tris) {
@@ -154,9 +154,9 @@ struct FaceRay {
 
 // Row y of the attribute pass: depth (from 1/z to the ray's t), barycentrics and normal at each
 // covered pixel centre, zeros elsewhere.
-IBR_AVX2_CLONES void AttributeRow(const Camera& camera, const std::vector<FaceRay>& fr,
-                                  const std::vector<glm::dvec3>& pc, const std::int32_t* faces, std::int64_t y,
-                                  float* depth, const std::int32_t* prim_id, float* bary, float* normal) {
+void AttributeRow(const Camera& camera, const std::vector<FaceRay>& fr, const std::vector<glm::dvec3>& pc,
+                  const std::int32_t* faces, std::int64_t y, float* depth, const std::int32_t* prim_id, float* bary,
+                  float* normal) {
   const int w = camera.width;
   const double dy = (static_cast<double>(y) + 0.5 - camera.cy) / camera.fy;
   for (int x = 0; x < w; ++x) {
@@ -244,7 +244,7 @@ void RasterGBuffer(const Camera& camera, const float* vertices, std::int64_t num
   ParallelFor(nbands, 1, [&](std::int64_t b, std::int64_t e) {
     for (std::int64_t band = b; band < e; ++band) {
       const int r0 = static_cast<int>(band) * kBandRows;
-      RasterBand(tris, r0, std::min(h - 1, r0 + kBandRows - 1), w, depth, prim_id);
+      RunIsa([&] { RasterBand(tris, r0, std::min(h - 1, r0 + kBandRows - 1), w, depth, prim_id); });
     }
   });
   // Attributes by ray-face intersection at each covered pixel centre (FaceRay, AttributeRow).
@@ -271,7 +271,9 @@ void RasterGBuffer(const Camera& camera, const float* vertices, std::int64_t num
     }
   });
   ParallelFor(h, 8, [&](std::int64_t b, std::int64_t e) {
-    for (std::int64_t y = b; y < e; ++y) AttributeRow(camera, fr, pc, faces, y, depth, prim_id, bary, normal);
+    RunIsa([&] {
+      for (std::int64_t y = b; y < e; ++y) AttributeRow(camera, fr, pc, faces, y, depth, prim_id, bary, normal);
+    });
   });
 }
 

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "ibr/parallel.h"
+#include "ibr/simd.h"
 #include "kernels/resample.h"
 #include "kernels/ulr.h"
 
@@ -630,15 +631,6 @@ inline void PrefetchAt(const float* base, std::ptrdiff_t offset) {
 // in one process, load ~10); 1 and 4 pixels ahead did less.
 constexpr std::ptrdiff_t kPrefetchAhead = 2;
 
-bool UlrCpuHasAvx2() {
-#if defined(IBR_ULR_AVX2)
-  static const bool has = __builtin_cpu_supports("avx2");
-  return has;
-#else
-  return false;
-#endif
-}
-
 bool UlrCpuHasAvx512() {
 #if defined(IBR_ULR_AVX2)
   static const bool has = __builtin_cpu_supports("avx512f");
@@ -678,7 +670,7 @@ void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, Ima
   views_fn = UlrViewsSse2;
 #if defined(IBR_ULR_AVX2)
   const bool avx512 = options.simd == UlrSimd::kAuto && UlrCpuHasAvx512();
-  if (options.simd != UlrSimd::kSse2 && UlrCpuHasAvx2()) views_fn = UlrViewsAvx2;
+  if (options.simd != UlrSimd::kSse2 && CpuHasAvx2()) views_fn = UlrViewsAvx2;
   if (avx512) views_fn = UlrViewsAvx512;
   // The depth test in the same ISA where the table's offsets fit int32 (else the scalar loop below).
   if (avx512 && vt.offsets32) {
@@ -1052,7 +1044,7 @@ void BlurSelectionDecimated(ImageView<const std::uint8_t> label, float sigma, fl
       }
     }
   });
-  const bool avx2 = allow_avx2 && UlrCpuHasAvx2();
+  const bool avx2 = allow_avx2 && CpuHasAvx2();
   ParallelFor(3 * std::int64_t(hl), 8, [&](std::int64_t b, std::int64_t e) {  // horizontal, tmp -> lo
     std::vector<float> pad(std::size_t(wl) + 2 * r);
     for (std::int64_t cy = b; cy < e; ++cy)  // plane c, row y: consecutive rows of tmp and lo
@@ -1139,7 +1131,7 @@ void BlurSelection(ImageView<const std::uint8_t> label, float sigma, float min_w
   }
   // AVX2 when the CPU has it (the same bits, BlurVerticalAvx2 / BlurHorizontalAvx2): the sums
   // over the taps in registers, eight columns at a time.
-  const bool avx2 = allow_avx2 && UlrCpuHasAvx2();
+  const bool avx2 = allow_avx2 && CpuHasAvx2();
   const int ntaps = 2 * r + 1;
   ParallelFor(H, 8, [&](std::int64_t b, std::int64_t e) {
 #if defined(IBR_ULR_AVX2)

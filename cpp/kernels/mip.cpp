@@ -6,6 +6,7 @@
 #include <cstddef>
 
 #include "ibr/parallel.h"
+#include "ibr/simd.h"
 
 #if defined(__SSE2__)
 #include <emmintrin.h>
@@ -381,8 +382,7 @@ template <int kK, int kC>
 void FoveateRowsBest(const ImageView<float>* bands, const ImageView<const float>* mip, int n,
                      const ImageView<const float>& level_map, const ImageView<const float>* noise, int y0, int y1) {
 #if defined(__x86_64__) && defined(__GNUC__)
-  static const bool avx2 = __builtin_cpu_supports("avx2");
-  if (avx2) return FoveateRowsFixedAvx2<kK, kC>(bands, mip, n, level_map, noise, y0, y1);
+  if (CpuHasAvx2()) return FoveateRowsFixedAvx2<kK, kC>(bands, mip, n, level_map, noise, y0, y1);
 #endif
   FoveateRowsFixed<kK, kC>(bands, mip, n, level_map, noise, y0, y1);
 }

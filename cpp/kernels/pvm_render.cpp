@@ -113,10 +113,6 @@ __attribute__((target("avx2"))) void PairSumsAvx2(const float* pw, const float* 
   _mm_storeu_ps(l1, s1);
 }
 
-bool PvmCpuHasAvx2() {
-  static const bool has = __builtin_cpu_supports("avx2");
-  return has;
-}
 #endif  // __GNUC__
 #endif
 
@@ -220,7 +216,7 @@ void PvmVisibleCoarse(const PvmGrid& grid, const Camera& camera, const float* gb
       }
     }
   };
-  ParallelFor(nb, 1, [&](std::int64_t b0, std::int64_t b1) { RunAvx2Clones(bands, b0, b1); });
+  ParallelFor(nb, 1, [&](std::int64_t b0, std::int64_t b1) { RunIsa(bands, b0, b1); });
   std::vector<std::uint8_t> hit(static_cast<std::size_t>(n), 0);
   for (const auto& l : lists)
     for (std::int32_t id : l) hit[static_cast<std::size_t>(id)] = 1;
@@ -533,7 +529,7 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
       tri_count[static_cast<std::size_t>(b)] = drawn;
     }
   };
-  ParallelFor(nb, 1, [&](std::int64_t b0, std::int64_t b1) { RunAvx2Clones(bands, b0, b1); });
+  ParallelFor(nb, 1, [&](std::int64_t b0, std::int64_t b1) { RunIsa(bands, b0, b1); });
   frame.triangles = 0;
   for (std::int64_t c : tri_count) frame.triangles += c;
 }
@@ -891,7 +887,7 @@ void PvmFilter(const double* box, const Camera& camera, const std::uint8_t* pixe
   const std::size_t per_axis = static_cast<std::size_t>(2 * (r / step) + 1);
   const std::size_t max_pairs = 2 * per_axis * per_axis + 4;
 #if defined(IBR_PVM_AVX2)
-  const bool avx2 = PvmCpuHasAvx2();  // Eq. 1's exponentials eight at a time (PairSumsAvx2: same bits)
+  const bool avx2 = CpuHasAvx2();  // Eq. 1's exponentials eight at a time (PairSumsAvx2: same bits)
 #endif
   const auto rows = [&](std::int64_t a, std::int64_t b) {
     std::vector<float> pair_w(max_pairs), pair_d(max_pairs);
@@ -1033,7 +1029,7 @@ void PvmFilter(const double* box, const Camera& camera, const std::uint8_t* pixe
       }
     }
   };
-  ParallelFor(h, 4, [&](std::int64_t a, std::int64_t b) { RunAvx2Clones(rows, a, b); });
+  ParallelFor(h, 4, [&](std::int64_t a, std::int64_t b) { RunIsa(rows, a, b); });
 }
 
 }  // namespace ibr

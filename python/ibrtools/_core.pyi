@@ -542,7 +542,7 @@ def set_num_threads(num_threads: typing.SupportsInt | typing.SupportsIndex) -> N
 
 def set_warp_isa(isa: str) -> None:
     """
-    Instruction set of the forward warp's hot loops (process-wide; for tests and benchmarks): 'auto' (default: AVX2 clones when the CPU has AVX2), 'baseline' (SSE2) or 'avx2'. Results are identical.
+    Instruction set of the engine's plain hot loops (process-wide; for tests and benchmarks): the forward warp's, the G-buffer raster's and the PVM renderer's voxel lookup, depth pass and filter (cpp/ibr/simd.h). 'auto' (default: AVX2 clones when the CPU has AVX2), 'baseline' (SSE2) or 'avx2'. Results are identical.
     """
 
 def shadow_map_visibility(view_depth: _F32, view: Camera, maps: _F32, cameras: collections.abc.Sequence[Camera], bias: typing.SupportsFloat | typing.SupportsIndex, slope_bias: typing.SupportsFloat | typing.SupportsIndex) -> numpy.typing.NDArray[numpy.float32]:
@@ -602,7 +602,7 @@ def warp_flow(color: _F32, depth: _F32, flow: _F32, stretch_threshold: typing.Su
 
 def warp_isa() -> str:
     """
-    Instruction set the forward warp's hot loops use now: 'avx2' or 'baseline'.
+    Instruction set the engine's plain hot loops (set_warp_isa) use now: 'avx2' or 'baseline'.
     """
 
 def warp_with_holes(color: _F32, depth: _F32, camera: Camera, target_camera: Camera, stretch_threshold: typing.SupportsFloat | typing.SupportsIndex=2.0, depth_jump: typing.SupportsFloat | typing.SupportsIndex=0.10000000149011612) -> tuple[_F32, _F32, _U8]:
