@@ -288,23 +288,28 @@ def test_blur_selection_decimated_is_the_same_gaussian(sigma):
     assert np.isfinite(got).all()
 
 
+@pytest.mark.skipif(not _core.cpu_has_avx2(), reason="this CPU has no AVX2: only the baseline path runs")
 def test_blur_selection_avx2_and_sse2_paths_give_the_same_bits():
-    """simd="auto" runs the AVX2 loops (separable passes, the decimated read-back's normalisation
-    and min_weight step) where the CPU has AVX2; simd="sse2" the SSE2 / scalar ones: the same
+    """With AVX2 (set_warp_isa "avx2") the blur runs its AVX2 loops (separable passes, the decimated
+    read-back's normalisation and min_weight step), with "baseline" the SSE2 / scalar ones: the same
     operations lane for lane, so the same bits, on full-resolution and decimated blurs, widths that
-    leave every remainder of 8, min_weight 0 and clipping. (Trivially equal on a CPU without AVX2.)"""
+    leave every remainder of 8, min_weight 0 and clipping."""
     rng = np.random.default_rng(8)
-    for h, w in ((1, 1), (5, 7), (33, 64), (47, 131)):
-        scattered = rng.choice(np.array([0, 1, 2, 3], np.uint8), size=(h, w), p=[0.5, 0.2, 0.1, 0.2])
-        blocky = np.kron(rng.integers(0, 4, (h // 6 + 1, w // 6 + 1)), np.ones((6, 6)))[:h, :w].astype(np.uint8)
-        for label in (scattered, blocky):
-            for sigma, decimate in ((0.0, False), (2.0, False), (5.0, False), (12.0, True), (24.0, True)):
-                for mw in (0.0, 0.05, 1 / 3):
-                    a = _core.blur_selection(label, sigma, mw, decimate=decimate)
-                    b = _core.blur_selection(label, sigma, mw, decimate=decimate, simd="sse2")
-                    np.testing.assert_array_equal(a, b, err_msg=f"{h}x{w} sigma {sigma} min_weight {mw}")
-    with pytest.raises(BadValueError, match="simd"):
-        _core.blur_selection(np.zeros((2, 2), np.uint8), 1.0, simd="avx512")
+    try:
+        for h, w in ((1, 1), (5, 7), (33, 64), (47, 131)):
+            scattered = rng.choice(np.array([0, 1, 2, 3], np.uint8), size=(h, w), p=[0.5, 0.2, 0.1, 0.2])
+            blocky = np.kron(rng.integers(0, 4, (h // 6 + 1, w // 6 + 1)), np.ones((6, 6)))[:h, :w].astype(np.uint8)
+            for label in (scattered, blocky):
+                for sigma, decimate in ((0.0, False), (2.0, False), (5.0, False), (12.0, True), (24.0, True)):
+                    for mw in (0.0, 0.05, 1 / 3):
+                        out = {}
+                        for isa in ("baseline", "avx2"):
+                            _core.set_warp_isa(isa)
+                            out[isa] = _core.blur_selection(label, sigma, mw, decimate=decimate)
+                        np.testing.assert_array_equal(out["avx2"], out["baseline"],
+                                                      err_msg=f"{h}x{w} sigma {sigma} min_weight {mw}")
+    finally:
+        _core.set_warp_isa("auto")
 
 
 def test_blur_selection_decimate_below_sigma_8_is_the_full_blur():

@@ -288,9 +288,7 @@ py::array_t<std::uint8_t> HybridSelectBinding(const py::object& depth_obj, const
   return label;
 }
 
-FArray BlurSelectionBinding(const py::object& label_obj, double sigma, double min_weight, bool decimate,
-                            const std::string& simd) {
-  if (simd != "auto" && simd != "sse2") throw BadValueError("simd: expected 'auto' or 'sse2', got '" + simd + "'");
+FArray BlurSelectionBinding(const py::object& label_obj, double sigma, double min_weight, bool decimate) {
   auto label = CheckArray<std::uint8_t>(label_obj, "label", {{"H", -1}, {"W", -1}});
   const float s = CheckFinite(sigma, "sigma_blur", 0.0);
   if (s > 1000.f) throw BadValueError("sigma_blur: expected <= 1000 pixels, got " + std::to_string(sigma));
@@ -305,7 +303,7 @@ FArray BlurSelectionBinding(const py::object& label_obj, double sigma, double mi
   if (!decimate || BlurSelectionFactor(s) == 1) scratch.reset(new float[static_cast<std::size_t>(h) * w * 3]);
   {
     py::gil_scoped_release release;
-    BlurSelection(ConstViewOf(label), s, mw, scratch.get(), ViewOf(out), decimate, simd == "auto");
+    BlurSelection(ConstViewOf(label), s, mw, scratch.get(), ViewOf(out), decimate);
   }
   return out;
 }
@@ -446,12 +444,11 @@ void BindHybridRender(py::module_& m) {
         "Per-pixel method (Prakash et al. 2021 Fig. 7): uint8 (H, W) 0 TM, 1 ULR, 2 PVM, 3 nothing to render. "
         "Defaults: the paper's values; --method hybrid passes its own (render/hybrid.py HYBRID_DEFAULTS: tau_var 0).");
   m.def("blur_selection", &BlurSelectionBinding, py::arg("label"), py::arg("sigma_blur"), py::arg("min_weight") = 0.0,
-        py::arg("decimate") = false, py::arg("simd") = "auto",
+        py::arg("decimate") = false,
         "Gaussian-blurred one-hot selection weights (H, W, 3) = (TM, ULR, PVM), normalised to sum 1; "
         "weights below min_weight (<= 1/3) set to 0 and the rest normalised again. decimate: for sigma_blur >= 8, "
         "blur at 1/f resolution (f = min(4, sigma_blur // 4)) on block means and read back bilinearly "
-        "(the same Gaussian to ~1e-3). simd='sse2': no AVX2 loops even where the CPU has AVX2 (the same bits; for "
-        "tests).");
+        "(the same Gaussian to ~1e-3). AVX2 loops as set_warp_isa allows (the same bits).");
   m.def("hybrid_composite", &HybridCompositeBinding, py::arg("weights"), py::arg("tm"), py::kw_only(),
         py::arg("ulr") = py::none(), py::arg("ulr_count") = py::none(), py::arg("pvm") = py::none(),
         py::arg("pvm_valid") = py::none(),

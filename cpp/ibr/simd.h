@@ -6,13 +6,17 @@
 // AVX2 intrinsics take __attribute__((target("avx2"))) and a run-time check instead.
 //
 // Two forms:
-//  - RunIsa(fn, args...): fn (a loop body, usually a lambda) with every call inside it inlined,
+//  - RunIsa(fn, args...) (ParallelForIsa for a ParallelFor body): fn (a loop body, usually a
+//    lambda) with every call inside it inlined,
 //    compiled for AVX2 and the baseline; which one runs follows the process-wide switch SetIsa
 //    (auto: AVX2 when the CPU has it), so tests can run the baseline on an AVX2 CPU and compare
 //    bits (_core.set_warp_isa: the forward warp, the G-buffer raster, the PVM loops).
 //  - IBR_AVX2_CLONES on a function: GCC function multi-versioning, picked once at load time by the
 //    CPU (no switch: the baseline version runs only on CPUs without AVX2).
 #pragma once
+#include <cstdint>
+
+#include "ibr/parallel.h"
 
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
 #define IBR_AVX2_CLONES __attribute__((target_clones("avx2", "default")))
@@ -49,6 +53,12 @@ void RunIsa(const F& fn, Args... args) {
   }
 #endif
   fn(args...);
+}
+
+// ParallelFor(n, grain, body) with every chunk run through RunIsa.
+template <class F>
+void ParallelForIsa(std::int64_t n, std::int64_t grain, const F& body) {
+  ParallelFor(n, grain, [&](std::int64_t b, std::int64_t e) { RunIsa(body, b, e); });
 }
 
 }  // namespace ibr

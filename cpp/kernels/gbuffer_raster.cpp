@@ -130,8 +130,8 @@ void Raster(const ScreenTri& t, int r0, int r1, int width, float* best_iz, std::
 }
 
 // Rows [r0, r1] of the visibility pass: cleared, then every triangle reaching them scan-converted.
-// This and AttributeRow, the per-pixel loops, run through RunIsa (cpp/ibr/simd.h: built for AVX2 and
-// the baseline, the same bits): G-buffer 8.0 -> 6.9 ms at 1280x720 on a Zen 3 EPYC (bench_hybrid's
+// This and AttributeRow, the per-pixel loops, run through ParallelForIsa (cpp/ibr/simd.h: built for AVX2
+// and the baseline, the same bits): G-buffer 8.0 -> 6.9 ms at 1280x720 on a Zen 3 EPYC (bench_hybrid's
 // scene, 2 threads).
 void RasterBand(const std::vector<ScreenTri>& tris, int r0, int r1, int width, float* best_iz, std::int32_t* prim) {
   std::fill(best_iz + static_cast<std::int64_t>(r0) * width, best_iz + static_cast<std::int64_t>(r1 + 1) * width, 0.f);
@@ -241,10 +241,10 @@ void RasterGBuffer(const Camera& camera, const float* vertices, std::int64_t num
   }
   // Visibility, band by band: depth holds 1/z meanwhile (0 = nothing).
   const int nbands = (h + kBandRows - 1) / kBandRows;
-  ParallelFor(nbands, 1, [&](std::int64_t b, std::int64_t e) {
+  ParallelForIsa(nbands, 1, [&](std::int64_t b, std::int64_t e) {
     for (std::int64_t band = b; band < e; ++band) {
       const int r0 = static_cast<int>(band) * kBandRows;
-      RunIsa([&] { RasterBand(tris, r0, std::min(h - 1, r0 + kBandRows - 1), w, depth, prim_id); });
+      RasterBand(tris, r0, std::min(h - 1, r0 + kBandRows - 1), w, depth, prim_id);
     }
   });
   // Attributes by ray-face intersection at each covered pixel centre (FaceRay, AttributeRow).
@@ -270,10 +270,8 @@ void RasterGBuffer(const Camera& camera, const float* vertices, std::int64_t num
       fr[f] = r;
     }
   });
-  ParallelFor(h, 8, [&](std::int64_t b, std::int64_t e) {
-    RunIsa([&] {
-      for (std::int64_t y = b; y < e; ++y) AttributeRow(camera, fr, pc, faces, y, depth, prim_id, bary, normal);
-    });
+  ParallelForIsa(h, 8, [&](std::int64_t b, std::int64_t e) {
+    for (std::int64_t y = b; y < e; ++y) AttributeRow(camera, fr, pc, faces, y, depth, prim_id, bary, normal);
   });
 }
 

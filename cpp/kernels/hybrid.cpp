@@ -1009,7 +1009,7 @@ std::vector<float> GaussTaps(float sigma) {
 // px^2) and the bilinear upsampling's (~(f^2 - 1) / 6) is sigma^2, and read back bilinearly at
 // each pixel (block centres at f j + (f - 1) / 2 - M).
 void BlurSelectionDecimated(ImageView<const std::uint8_t> label, float sigma, float min_weight, int f,
-                            bool allow_avx2, ImageView<float> weights_out) {
+                            ImageView<float> weights_out) {
   const int H = label.height, W = label.width;
   const int margin = (int(std::ceil(3.f * sigma / float(f))) + 1) * f;
   const int hl = (H + 2 * margin + f - 1) / f, wl = (W + 2 * margin + f - 1) / f;
@@ -1044,7 +1044,7 @@ void BlurSelectionDecimated(ImageView<const std::uint8_t> label, float sigma, fl
       }
     }
   });
-  const bool avx2 = allow_avx2 && CpuHasAvx2();
+  const bool avx2 = UseAvx2();
   ParallelFor(3 * std::int64_t(hl), 8, [&](std::int64_t b, std::int64_t e) {  // horizontal, tmp -> lo
     std::vector<float> pad(std::size_t(wl) + 2 * r);
     for (std::int64_t cy = b; cy < e; ++cy)  // plane c, row y: consecutive rows of tmp and lo
@@ -1104,10 +1104,10 @@ void BlurSelectionDecimated(ImageView<const std::uint8_t> label, float sigma, fl
 int BlurSelectionFactor(float sigma) { return sigma >= 8.f ? std::min(4, int(sigma / 4.f)) : 1; }
 
 void BlurSelection(ImageView<const std::uint8_t> label, float sigma, float min_weight, float* scratch,
-                   ImageView<float> weights_out, bool decimate, bool allow_avx2) {
+                   ImageView<float> weights_out, bool decimate) {
   const int f = decimate ? BlurSelectionFactor(sigma) : 1;
   if (f > 1) {
-    BlurSelectionDecimated(label, sigma, min_weight, f, allow_avx2, weights_out);
+    BlurSelectionDecimated(label, sigma, min_weight, f, weights_out);
     return;
   }
   const int H = label.height, W = label.width;
@@ -1129,9 +1129,10 @@ void BlurSelection(ImageView<const std::uint8_t> label, float sigma, float min_w
     for (int x = 0; x < W; ++x)
       if (lrow[x] < 3) has[lrow[x]] = true;
   }
-  // AVX2 when the CPU has it (the same bits, BlurVerticalAvx2 / BlurHorizontalAvx2): the sums
-  // over the taps in registers, eight columns at a time.
-  const bool avx2 = allow_avx2 && CpuHasAvx2();
+  // AVX2 when the engine's switch allows (UseAvx2: the CPU has it, unless set_warp_isa asked for
+  // the baseline; the same bits, BlurVerticalAvx2 / BlurHorizontalAvx2): the sums over the taps in
+  // registers, eight columns at a time.
+  const bool avx2 = UseAvx2();
   const int ntaps = 2 * r + 1;
   ParallelFor(H, 8, [&](std::int64_t b, std::int64_t e) {
 #if defined(IBR_ULR_AVX2)

@@ -113,9 +113,9 @@ void HybridSelect(ImageView<const float> gbuffer_depth, const std::uint8_t* insi
 // of the resolution on f x f block means and is read back bilinearly, with the variances matched
 // (a Gaussian of the same sigma to ~1e-3 in the weights; ~10x less work at sigma 16, where the full
 // blur has 97 taps a pass); the weights' support then is the blur's at the lower resolution.
-// allow_avx2 false: the SSE2 / scalar loops even where the CPU has AVX2 (the same bits; for tests).
+// AVX2 loops where UseAvx2 (cpp/ibr/simd.h) allows; the same bits as the SSE2 / scalar ones.
 void BlurSelection(ImageView<const std::uint8_t> label, float sigma, float min_weight, float* scratch,
-                   ImageView<float> weights_out, bool decimate = false, bool allow_avx2 = true);
+                   ImageView<float> weights_out, bool decimate = false);
 
 // The block size of BlurSelection's decimated form: 1 (full resolution) below sigma 8, else
 // min(4, floor(sigma / 4)).

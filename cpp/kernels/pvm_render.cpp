@@ -216,7 +216,7 @@ void PvmVisibleCoarse(const PvmGrid& grid, const Camera& camera, const float* gb
       }
     }
   };
-  ParallelFor(nb, 1, [&](std::int64_t b0, std::int64_t b1) { RunIsa(bands, b0, b1); });
+  ParallelForIsa(nb, 1, bands);
   std::vector<std::uint8_t> hit(static_cast<std::size_t>(n), 0);
   for (const auto& l : lists)
     for (std::int32_t id : l) hit[static_cast<std::size_t>(id)] = 1;
@@ -529,7 +529,7 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
       tri_count[static_cast<std::size_t>(b)] = drawn;
     }
   };
-  ParallelFor(nb, 1, [&](std::int64_t b0, std::int64_t b1) { RunIsa(bands, b0, b1); });
+  ParallelForIsa(nb, 1, bands);
   frame.triangles = 0;
   for (std::int64_t c : tri_count) frame.triangles += c;
 }
@@ -887,7 +887,7 @@ void PvmFilter(const double* box, const Camera& camera, const std::uint8_t* pixe
   const std::size_t per_axis = static_cast<std::size_t>(2 * (r / step) + 1);
   const std::size_t max_pairs = 2 * per_axis * per_axis + 4;
 #if defined(IBR_PVM_AVX2)
-  const bool avx2 = CpuHasAvx2();  // Eq. 1's exponentials eight at a time (PairSumsAvx2: same bits)
+  const bool avx2 = UseAvx2();  // Eq. 1's exponentials eight at a time (PairSumsAvx2: same bits)
 #endif
   const auto rows = [&](std::int64_t a, std::int64_t b) {
     std::vector<float> pair_w(max_pairs), pair_d(max_pairs);
@@ -1029,7 +1029,7 @@ void PvmFilter(const double* box, const Camera& camera, const std::uint8_t* pixe
       }
     }
   };
-  ParallelFor(h, 4, [&](std::int64_t a, std::int64_t b) { RunIsa(rows, a, b); });
+  ParallelForIsa(h, 4, rows);
 }
 
 }  // namespace ibr
