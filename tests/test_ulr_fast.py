@@ -105,6 +105,34 @@ def test_avx512_avx2_and_sse2_view_loops_give_the_same_bits(n_views):
             np.testing.assert_array_equal(c, cs)
 
 
+@pytest.mark.parametrize("k", [1, 3, 4, 5])
+def test_eight_pixel_selection_equals_the_per_pixel_one(k):
+    """With AVX2 and k = 4 the fast path selects the views of eight pixels at once (one per lane,
+    UlrSelect4x8Avx2); simd="sse2" selects pixel by pixel (UlrSelect). Equal penalties must keep
+    the lower view index first in both: every view appears three times (the same camera and depth,
+    other colours), so each pixel's penalties tie in threes and their order sets the order of the
+    blend's sum (and, for k = 1, which copy is kept). A pixel mask leaves groups of eight partly
+    live, and the width (67) ends rows inside a group. Bit for bit; other k take the per-pixel
+    selection in both calls."""
+    cam, gdepth, views, normal = _scene(4, seed=3)
+    rng = np.random.default_rng(4)
+    copies = [[(c, rng.random(col.shape, dtype=np.float32), dep) for c, col, dep in views] for _ in range(2)]
+    views = [v for triple in zip(views, *copies) for v in triple]
+    mask = rng.random(gdepth.shape) < 0.6
+    for nrm in (None, normal):
+        for pm in (None, mask):
+            cs, ns = _core.ulr_blend(cam, gdepth, views, normal=nrm, pixel_mask=pm, k=k, simd="sse2")
+            assert ns.max() > 0
+            for simd in ("auto", "avx2"):
+                c, n = _core.ulr_blend(cam, gdepth, views, normal=nrm, pixel_mask=pm, k=k, simd=simd)
+                np.testing.assert_array_equal(n, ns)
+                np.testing.assert_array_equal(c, cs)
+    # The order of equal penalties shows in the image: the copies rotated within each triple
+    # (another one first) give other bits.
+    rotated = [views[i + j] for i in range(0, len(views), 3) for j in (2, 0, 1)]
+    assert not np.array_equal(_core.ulr_blend(cam, gdepth, views, k=k)[0], _core.ulr_blend(cam, gdepth, rotated, k=k)[0])
+
+
 @pytest.mark.parametrize("resample", ["bilinear", "cubic"])
 def test_fast_ulr_reads_the_last_pixel_of_a_view(resample):
     """The SSE2 bilinear and cubic reads load four floats per texel (RGB and the next pixel's red);

@@ -607,6 +607,73 @@ __attribute__((target("avx512f"), optimize("fp-contract=off"))) void UlrDepthTes
     _mm512_mask_storeu_ps(o.pen + i0, lanes, _mm512_mask_blend_ps(ok, inf, pen));
   }
 }
+
+// Pixels a group of UlrBlendFast's loop holds: the per-view work runs pixel by pixel, then the
+// selection of the whole group at once (UlrSelect4x8Avx2), then the blends pixel by pixel.
+constexpr int kUlrGroup = 8;
+
+// UlrSelect (cpp/kernels/ulr.h) with k = 4 for the eight pixels of a group at once, one per AVX2
+// lane: pixel g's penalties of views 0 .. nv - 1 at pen[g * stride ..] (lanes not in `live` are not
+// read and select nothing). The insertion into a sorted list of 4 without branches: each view's
+// penalty passes down the four slots, each slot keeping the strictly smaller of itself and it (so
+// equal penalties keep the lower index first, as the insertion does; non-finite penalties are +inf,
+// never kept), then Buehler's weights with UlrSelect's operations in its order (no FMA), so the
+// same indices and weights bit for bit (tests/test_ulr_fast.py compares with simd="sse2", which
+// selects pixel by pixel). Writes index[j * 8 + g], weight[j * 8 + g] for j < m[g], and m[g].
+// Replaces ~60 mispredicting scalar branches per pixel (the insertion over 12 views, 15 % of
+// the loop's samples) by ~30 AVX2 operations per pixel.
+__attribute__((target("avx2"))) void UlrSelect4x8Avx2(const float* pen, int stride, int nv, unsigned live,
+                                                       int* index, float* weight, int* m) {
+  const __m256 inf = _mm256_set1_ps(INFINITY), zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.f);
+  const __m256 sign = _mm256_set1_ps(-0.f);
+  const __m256i lane_bit = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+  const __m256 live_mask = _mm256_castsi256_ps(
+      _mm256_cmpeq_epi32(_mm256_and_si256(_mm256_set1_epi32(int(live)), lane_bit), lane_bit));
+  const __m256i row = _mm256_mullo_epi32(_mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7), _mm256_set1_epi32(stride));
+  __m256 s[4] = {inf, inf, inf, inf};
+  __m256i id[4] = {_mm256_setzero_si256(), _mm256_setzero_si256(), _mm256_setzero_si256(), _mm256_setzero_si256()};
+  for (int v = 0; v < nv; ++v) {
+    __m256 p = _mm256_mask_i32gather_ps(inf, pen + v, row, live_mask, 4);
+    p = _mm256_blendv_ps(inf, p, _mm256_cmp_ps(_mm256_andnot_ps(sign, p), inf, _CMP_LT_OQ));  // NaN, -inf -> +inf
+    __m256i iv = _mm256_set1_epi32(v);
+    for (int j = 0; j < 4; ++j) {
+      const __m256 less = _mm256_cmp_ps(p, s[j], _CMP_LT_OQ);
+      const __m256 sj = s[j];
+      s[j] = _mm256_blendv_ps(sj, p, less);
+      p = _mm256_blendv_ps(p, sj, less);
+      const __m256i idj = id[j];
+      id[j] = _mm256_castps_si256(_mm256_blendv_ps(_mm256_castsi256_ps(idj), _mm256_castsi256_ps(iv), less));
+      iv = _mm256_castps_si256(_mm256_blendv_ps(_mm256_castsi256_ps(iv), _mm256_castsi256_ps(idj), less));
+    }
+  }
+  // UlrSelect's weights: the finite slots are a prefix of m; thresh = the 4th penalty, or 1.01 x
+  // the largest + 1e-6 when fewer than 4 are finite.
+  __m256 fin[4];
+  __m256i count = _mm256_setzero_si256();
+  __m256 last = s[0];
+  for (int j = 0; j < 4; ++j) {
+    fin[j] = _mm256_cmp_ps(s[j], inf, _CMP_LT_OQ);
+    count = _mm256_sub_epi32(count, _mm256_castps_si256(fin[j]));
+    last = _mm256_blendv_ps(last, s[j], fin[j]);
+  }
+  const __m256 thresh =
+      _mm256_blendv_ps(_mm256_add_ps(_mm256_mul_ps(_mm256_set1_ps(1.01f), last), _mm256_set1_ps(1e-6f)), s[3], fin[3]);
+  const __m256 tpos = _mm256_cmp_ps(thresh, zero, _CMP_GT_OQ);
+  __m256 w[4];
+  __m256 sum = zero;
+  for (int j = 0; j < 4; ++j) {
+    w[j] = _mm256_and_ps(tpos, _mm256_sub_ps(one, _mm256_div_ps(s[j], thresh)));
+    w[j] = _mm256_and_ps(_mm256_and_ps(w[j], _mm256_cmp_ps(w[j], zero, _CMP_GT_OQ)), fin[j]);
+    sum = _mm256_add_ps(sum, w[j]);  // + 0 past the finite slots: the same sum
+  }
+  const __m256 sum_ok = _mm256_and_ps(_mm256_cmp_ps(sum, zero, _CMP_GT_OQ), _mm256_cmp_ps(sum, inf, _CMP_LT_OQ));
+  const __m256 uniform = _mm256_div_ps(one, _mm256_cvtepi32_ps(count));
+  for (int j = 0; j < 4; ++j) {
+    _mm256_storeu_ps(weight + 8 * j, _mm256_blendv_ps(uniform, _mm256_div_ps(w[j], sum), sum_ok));
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(index + 8 * j), id[j]);
+  }
+  _mm256_storeu_si256(reinterpret_cast<__m256i*>(m), count);
+}
 #endif  // __GNUC__
 #endif  // __SSE2__
 
@@ -680,110 +747,146 @@ void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, Ima
   }
 #endif
 #endif
+  // The selection of a group's pixels at once in AVX2 for the default k = 4 (else, or with
+  // simd="sse2", UlrSelect pixel by pixel: the same result).
+  bool select_avx2 = false;
+#if defined(IBR_ULR_AVX2)
+  select_avx2 = k == 4 && options.simd != UlrSimd::kSse2 && CpuHasAvx2();
+#endif
   ParallelFor2D(H, W, 64, [&](int y0, int y1, int x0, int x1) {
-    const std::size_t nv_padded = vt.w.size();
-    std::vector<float> pen(nv_padded), qx(nv_padded), qy(nv_padded), qz(nv_padded);
-    const UlrViewOut vo{pen.data(), qx.data(), qy.data(), qz.data()};
-    float* PEN = vo.pen;
-    const float* QX = vo.qx;
-    const float* QY = vo.qy;
-    const float* QZ = vo.qz;
+    const std::size_t nvp = vt.w.size();  // per-pixel row length of the group's arrays
+    // Per pixel g of a group: the views' penalties, projections and z (row g of each), the colour
+    // texel to prefetch per view; then the selection.
+    std::vector<float> pen(kUlrGroup * nvp), qx(kUlrGroup * nvp), qy(kUlrGroup * nvp), qz(kUlrGroup * nvp);
+    std::vector<std::ptrdiff_t> ahead(kUlrGroup * nvp), off16(nvp, 0);
     const float* const* DP = vt.depth.data();
     const std::ptrdiff_t* DS = vt.depth_stride.data();
     const float* WL = vt.wlast.data();
     const float* HL = vt.hlast.data();
-    int index[64];
-    float weight[64];
-    // Each view's depth texel offset at the last two pixels computed (the prefetch's predictor).
-    std::vector<std::ptrdiff_t> prev_off(nv_padded, 0), prev2_off(nv_padded, 0), off16(nv_padded, 0);
+    int index[kUlrGroup * 64];  // [j * kUlrGroup + g]
+    float weight[kUlrGroup * 64];
+    int selected[kUlrGroup];
+    int one_index[64];
+    float one_weight[64];
+    // Each view's depth texel offset at the last pixel computed (the prefetch's predictor).
+    std::vector<std::ptrdiff_t> prev_off(nvp, 0);
     for (int y = y0; y < y1; ++y) {
       const float* drow = gbuffer_depth.Row(y);
       float* crow = color_out.Row(y);
       std::uint8_t* nrow = count_out.Row(y);
       // World direction of pixel (0, y)'s ray (camera z = 1) and its change per column.
       const glm::vec3 row_dir(world_from_cam * novel.RayInCam(0.5, y + 0.5));
-      for (int x = x0; x < x1; ++x) {
-        crow[3 * x] = crow[3 * x + 1] = crow[3 * x + 2] = 0.f;
-        nrow[x] = 0;
-        const float t = drow[x];
-        if (!(t > 0.f) || !std::isfinite(t)) continue;
-        if (pixel_mask && !pixel_mask[std::int64_t(y) * W + x]) continue;
-        // p = centre + t * (world direction of the pixel's ray), the direction affine in x along
-        // the row (pinhole novel camera; equirect: per pixel, as the scalar path).
-        UlrPoint q;
-        if (novel_pinhole) {
-          const float fxp = float(x);
-          q.px = cnx + t * (row_dir.x + fxp * col_step.x);
-          q.py = cny + t * (row_dir.y + fxp * col_step.y);
-          q.pz = cnz + t * (row_dir.z + fxp * col_step.z);
-        } else {
-          const glm::vec3 p(world_from_cam * (novel.RayInCam(x + 0.5, y + 0.5) * double(t)) + c_novel_d);
-          q.px = p.x, q.py = p.y, q.pz = p.z;
-        }
-        q.nx = q.ny = q.nz = 0.f;
-        if (use_normal) q.nx = normal.At(y, x, 0), q.ny = normal.At(y, x, 1), q.nz = normal.At(y, x, 2);
-        q.bx = c_novel.x - q.px, q.by = c_novel.y - q.py, q.bz = c_novel.z - q.pz;
-        q.lb = std::sqrt(q.bx * q.bx + q.by * q.by + q.bz * q.bz);
-        if (!(q.lb > 0.f) || !std::isfinite(q.lb)) continue;  // every penalty is +inf
-        if (views_fn) {
-          views_fn(q, vt, use_normal, rw, vo);
-        } else {
-          UlrViewsScalar(q, vt, use_normal, rw, 0, vo);
-        }
-        // The depth test of every view, before any selection and without branches: the views'
-        // depth reads are independent loads the CPU overlaps, where the lazy scheme (test the
-        // selected views, drop failures, select again; the scalar path) waits for each in turn,
-        // and a branch per view mispredicts. Views that failed the cheap tests read a clamped
-        // texel and stay at +inf. The same views pass as with the lazy test, so the selection and
-        // the blend are the lazy scheme's, bit for bit (measured again with this loop: the lazy
-        // scheme 107 ms against 104.5 per frame, single-thread CPU, min of 8, load ~9).
-        if (depth_fn) {  // the same test, 16 or 8 views a step; then the prefetches by view
-          depth_fn(vt, nv, tol, vo, off16.data());
+      for (int xg = x0; xg < x1; xg += kUlrGroup) {
+        const int gn = std::min(kUlrGroup, x1 - xg);
+        unsigned live = 0;
+        for (int g = 0; g < gn; ++g) {
+          const int x = xg + g;
+          crow[3 * x] = crow[3 * x + 1] = crow[3 * x + 2] = 0.f;
+          nrow[x] = 0;
+          const float t = drow[x];
+          if (!(t > 0.f) || !std::isfinite(t)) continue;
+          if (pixel_mask && !pixel_mask[std::int64_t(y) * W + x]) continue;
+          // p = centre + t * (world direction of the pixel's ray), the direction affine in x along
+          // the row (pinhole novel camera; equirect: per pixel, as the scalar path).
+          UlrPoint q;
+          if (novel_pinhole) {
+            const float fxp = float(x);
+            q.px = cnx + t * (row_dir.x + fxp * col_step.x);
+            q.py = cny + t * (row_dir.y + fxp * col_step.y);
+            q.pz = cnz + t * (row_dir.z + fxp * col_step.z);
+          } else {
+            const glm::vec3 p(world_from_cam * (novel.RayInCam(x + 0.5, y + 0.5) * double(t)) + c_novel_d);
+            q.px = p.x, q.py = p.y, q.pz = p.z;
+          }
+          q.nx = q.ny = q.nz = 0.f;
+          if (use_normal) q.nx = normal.At(y, x, 0), q.ny = normal.At(y, x, 1), q.nz = normal.At(y, x, 2);
+          q.bx = c_novel.x - q.px, q.by = c_novel.y - q.py, q.bz = c_novel.z - q.pz;
+          q.lb = std::sqrt(q.bx * q.bx + q.by * q.by + q.bz * q.bz);
+          if (!(q.lb > 0.f) || !std::isfinite(q.lb)) continue;  // every penalty is +inf
+          live |= 1u << g;
+          const UlrViewOut vo{pen.data() + g * nvp, qx.data() + g * nvp, qy.data() + g * nvp, qz.data() + g * nvp};
+          if (views_fn) {
+            views_fn(q, vt, use_normal, rw, vo);
+          } else {
+            UlrViewsScalar(q, vt, use_normal, rw, 0, vo);
+          }
+          // The depth test of every view, before any selection and without branches: the views'
+          // depth reads are independent loads the CPU overlaps, where the lazy scheme (test the
+          // selected views, drop failures, select again; the scalar path) waits for each in turn,
+          // and a branch per view mispredicts. Views that failed the cheap tests read a clamped
+          // texel and stay at +inf. The same views pass as with the lazy test, so the selection and
+          // the blend are the lazy scheme's, bit for bit (measured again with this loop: the lazy
+          // scheme 107 ms against 104.5 per frame, single-thread CPU, min of 8, load ~9).
+          std::ptrdiff_t* ahead_g = ahead.data() + g * nvp;
+          if (depth_fn) {  // the same test, 16 or 8 views a step; then the prefetches by view
+            depth_fn(vt, nv, tol, vo, off16.data());
+          } else {
+            for (int i = 0; i < nv; ++i) {
+              float fx = vo.qx[i] > 0.f ? vo.qx[i] : 0.f;  // NaN -> 0
+              float fy = vo.qy[i] > 0.f ? vo.qy[i] : 0.f;
+              fx = fx < WL[i] ? fx : WL[i];
+              fy = fy < HL[i] ? fy : HL[i];
+              const std::ptrdiff_t off = std::ptrdiff_t(int(fy)) * DS[i] + int(fx);
+              off16[std::size_t(i)] = off;
+              const float dv = DP[i][off];
+              const bool ok = (vo.pen[i] < INFINITY) & (dv > 0.f) & (dv <= 3.4028235e38f) &
+                              (std::abs(vo.qz[i] - dv) <= tol * dv);
+              vo.pen[i] = ok ? vo.pen[i] : INFINITY;
+            }
+          }
           for (int i = 0; i < nv; ++i) {
             const std::ptrdiff_t off = off16[std::size_t(i)];
-            PrefetchAt(DP[i], off + kPrefetchAhead * (off - prev_off[i]));
-            prev2_off[i] = prev_off[i];
+            const std::ptrdiff_t step = kPrefetchAhead * (off - prev_off[i]);
+            PrefetchAt(DP[i], off + step);
+            ahead_g[i] = off + step;  // the depth texel's offset and step, for the colour read below
             prev_off[i] = off;
           }
-        } else {
-          for (int i = 0; i < nv; ++i) {
-            float fx = QX[i] > 0.f ? QX[i] : 0.f;  // NaN -> 0
-            float fy = QY[i] > 0.f ? QY[i] : 0.f;
-            fx = fx < WL[i] ? fx : WL[i];
-            fy = fy < HL[i] ? fy : HL[i];
-            const std::ptrdiff_t off = std::ptrdiff_t(int(fy)) * DS[i] + int(fx);
-            const float dv = DP[i][off];
-            PrefetchAt(DP[i], off + kPrefetchAhead * (off - prev_off[i]));
-            prev2_off[i] = prev_off[i];
-            prev_off[i] = off;
-            const bool ok = (PEN[i] < INFINITY) & (dv > 0.f) & (dv <= 3.4028235e38f) & (std::abs(QZ[i] - dv) <= tol * dv);
-            PEN[i] = ok ? PEN[i] : INFINITY;
+        }
+        if (!live) continue;
+#if defined(IBR_ULR_AVX2)
+        if (select_avx2) {
+          UlrSelect4x8Avx2(pen.data(), int(nvp), nv, live, index, weight, selected);
+        } else
+#endif
+        {
+          for (int g = 0; g < gn; ++g) {
+            selected[g] = live >> g & 1u ? UlrSelect(pen.data() + g * nvp, nv, k, one_index, one_weight) : 0;
+            for (int j = 0; j < selected[g]; ++j) {
+              index[j * kUlrGroup + g] = one_index[j];
+              weight[j * kUlrGroup + g] = one_weight[j];
+            }
           }
         }
-        const int m = UlrSelect(PEN, nv, k, index, weight);
-        int used = 0;
-        float col[4] = {0.f, 0.f, 0.f, 0.f};
-        for (int j = 0; j < m; ++j) {
-          if (!(weight[j] > 0.f)) continue;
-          const int i = index[j];
-          const ImageView<const float>& img = views[i].color;
-          if (cubic) {
-            CubicRgbAdd(img.data, img.row_stride, img.width, img.height, QX[i], QY[i], weight[j], col);
-          } else {
-            Bilinear3Add(img, QX[i], QY[i], weight[j], col);
+        for (int g = 0; g < gn; ++g) {
+          if (!(live >> g & 1u)) continue;
+          const int x = xg + g;
+          const float* QX = qx.data() + g * nvp;
+          const float* QY = qy.data() + g * nvp;
+          const std::ptrdiff_t* ahead_g = ahead.data() + g * nvp;
+          int used = 0;
+          float col[4] = {0.f, 0.f, 0.f, 0.f};
+          for (int j = 0; j < selected[g]; ++j) {
+            const float wj = weight[j * kUlrGroup + g];
+            if (!(wj > 0.f)) continue;
+            const int i = index[j * kUlrGroup + g];
+            const ImageView<const float>& img = views[i].color;
+            if (cubic) {
+              CubicRgbAdd(img.data, img.row_stride, img.width, img.height, QX[i], QY[i], wj, col);
+            } else {
+              Bilinear3Add(img, QX[i], QY[i], wj, col);
+            }
+            // The texels this view's colour read will want kPrefetchAhead pixels on (its depth
+            // texel's offset and step, in the colour image: 3 floats a pixel), rows y and y + 1.
+            PrefetchAt(img.data, 3 * ahead_g[i]);
+            PrefetchAt(img.data, 3 * ahead_g[i] + img.row_stride);
+            ++used;
           }
-          // The texels this view's colour read will want kPrefetchAhead pixels on (its depth
-          // texel's offset and step, in the colour image: 3 floats a pixel), rows y and y + 1.
-          const std::ptrdiff_t ahead = prev_off[i] + kPrefetchAhead * (prev_off[i] - prev2_off[i]);
-          PrefetchAt(views[i].color.data, 3 * ahead);
-          PrefetchAt(views[i].color.data, 3 * ahead + views[i].color.row_stride);
-          ++used;
-        }
-        if (used > 0) {
-          crow[3 * x] = col[0];
-          crow[3 * x + 1] = col[1];
-          crow[3 * x + 2] = col[2];
-          nrow[x] = std::uint8_t(std::min(used, 255));
+          if (used > 0) {
+            crow[3 * x] = col[0];
+            crow[3 * x + 1] = col[1];
+            crow[3 * x + 2] = col[2];
+            nrow[x] = std::uint8_t(std::min(used, 255));
+          }
         }
       }
     }
