@@ -608,6 +608,46 @@ __attribute__((target("avx512f"), optimize("fp-contract=off"))) void UlrDepthTes
   }
 }
 
+// CubicRgbAdd's position clamp, tap origin and Catmull-Rom weights (CatmullRomWeights4) of n
+// reads at once, eight per AVX2 step, the same operations per read (no FMA), so the same values:
+// read r at (x[r], y[r]) in an image whose last column / row is wlast[r] / hlast[r] gets its tap
+// origin x0[r], y0[r] and its weights wx[4 r .. 4 r + 4), wy[..] (the layout CatmullRomWeights4
+// returns). The arrays hold n rounded up to 8 (lanes past n are computed from whatever they hold).
+__attribute__((target("avx2"))) void CubicWeightsAvx2(int n, const float* x, const float* y, const float* wlast,
+                                                       const float* hlast, int* x0, int* y0, float* wx, float* wy) {
+  const __m256 half = _mm256_set1_ps(0.5f), zero = _mm256_setzero_ps();
+  const float a[4] = {-1.f, 3.f, -3.f, 1.f}, b[4] = {2.f, -5.f, 4.f, -1.f}, c[4] = {-1.f, 0.f, 1.f, 0.f};
+  const float d[4] = {0.f, 2.f, 0.f, 0.f};
+  for (int r0 = 0; r0 < n; r0 += 8) {
+    for (int axis = 0; axis < 2; ++axis) {
+      const float* pos = axis ? y + r0 : x + r0;
+      const __m256 f = _mm256_min_ps(_mm256_max_ps(_mm256_sub_ps(_mm256_loadu_ps(pos), half), zero),
+                                     _mm256_loadu_ps(axis ? hlast + r0 : wlast + r0));
+      const __m256i i0 = _mm256_cvttps_epi32(f);
+      _mm256_storeu_si256(reinterpret_cast<__m256i*>(axis ? y0 + r0 : x0 + r0), i0);
+      const __m256 t = _mm256_sub_ps(f, _mm256_cvtepi32_ps(i0));
+      const __m256 t2 = _mm256_mul_ps(t, t), t3 = _mm256_mul_ps(t2, t);
+      __m256 w[4];
+      for (int k = 0; k < 4; ++k) {
+        __m256 v = _mm256_add_ps(_mm256_mul_ps(_mm256_set1_ps(a[k]), t3), _mm256_mul_ps(_mm256_set1_ps(b[k]), t2));
+        v = _mm256_add_ps(v, _mm256_mul_ps(_mm256_set1_ps(c[k]), t));
+        v = _mm256_add_ps(v, _mm256_set1_ps(d[k]));
+        w[k] = _mm256_mul_ps(half, v);
+      }
+      // Transpose to four weights per read: reads 0-3 from the low halves, 4-7 from the high.
+      const __m256 t0 = _mm256_unpacklo_ps(w[0], w[1]), t1 = _mm256_unpackhi_ps(w[0], w[1]);
+      const __m256 u0 = _mm256_unpacklo_ps(w[2], w[3]), u1 = _mm256_unpackhi_ps(w[2], w[3]);
+      const __m256 e0 = _mm256_shuffle_ps(t0, u0, 0x44), e1 = _mm256_shuffle_ps(t0, u0, 0xEE);
+      const __m256 e2 = _mm256_shuffle_ps(t1, u1, 0x44), e3 = _mm256_shuffle_ps(t1, u1, 0xEE);
+      float* out = (axis ? wy : wx) + 4 * r0;
+      _mm256_storeu_ps(out, _mm256_permute2f128_ps(e0, e1, 0x20));
+      _mm256_storeu_ps(out + 8, _mm256_permute2f128_ps(e2, e3, 0x20));
+      _mm256_storeu_ps(out + 16, _mm256_permute2f128_ps(e0, e1, 0x31));
+      _mm256_storeu_ps(out + 24, _mm256_permute2f128_ps(e2, e3, 0x31));
+    }
+  }
+}
+
 // Pixels a group of UlrBlendFast's loop holds: the per-view work runs pixel by pixel, then the
 // selection of the whole group at once (UlrSelect4x8Avx2), then the blends pixel by pixel.
 constexpr int kUlrGroup = 8;
@@ -753,6 +793,10 @@ void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, Ima
 #if defined(IBR_ULR_AVX2)
   select_avx2 = k == 4 && options.simd != UlrSimd::kSse2 && CpuHasAvx2();
 #endif
+  bool cubic_avx2 = false;  // the cubic reads' weights eight at a time (CubicWeightsAvx2)
+#if defined(IBR_ULR_AVX2)
+  cubic_avx2 = cubic && options.simd != UlrSimd::kSse2 && CpuHasAvx2();
+#endif
   ParallelFor2D(H, W, 64, [&](int y0, int y1, int x0, int x1) {
     const std::size_t nvp = vt.w.size();  // per-pixel row length of the group's arrays
     // Per pixel g of a group: the views' penalties, projections and z (row g of each), the colour
@@ -767,6 +811,12 @@ void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, Ima
     int index[kUlrGroup * 64];  // [j * kUlrGroup + g]
     float weight[kUlrGroup * 64];
     int selected[kUlrGroup];
+    // The group's cubic reads (at most k per pixel; padded to a multiple of 8).
+    constexpr int kMaxReads = kUlrGroup * 64 + 8;
+    alignas(32) float read_x[kMaxReads] = {}, read_y[kMaxReads] = {};
+    alignas(32) float read_wlast[kMaxReads] = {}, read_hlast[kMaxReads] = {};
+    alignas(32) int read_x0[kMaxReads], read_y0[kMaxReads];
+    alignas(32) float read_wx[4 * kMaxReads], read_wy[4 * kMaxReads];
     int one_index[64];
     float one_weight[64];
     // Each view's depth texel offset at the last pixel computed (the prefetch's predictor).
@@ -859,6 +909,26 @@ void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, Ima
             }
           }
         }
+        // The group's cubic reads in the order the blend below makes them: their positions and
+        // Catmull-Rom weights computed eight reads at once.
+        int reads = 0;
+#if defined(IBR_ULR_AVX2)
+        if (cubic_avx2) {
+          for (int g = 0; g < gn; ++g) {
+            for (int j = 0; j < (live >> g & 1u ? selected[g] : 0); ++j) {
+              if (!(weight[j * kUlrGroup + g] > 0.f)) continue;
+              const int i = index[j * kUlrGroup + g];
+              read_x[reads] = qx[g * nvp + i];
+              read_y[reads] = qy[g * nvp + i];
+              read_wlast[reads] = float(views[i].color.width - 1);
+              read_hlast[reads] = float(views[i].color.height - 1);
+              ++reads;
+            }
+          }
+          CubicWeightsAvx2(reads, read_x, read_y, read_wlast, read_hlast, read_x0, read_y0, read_wx, read_wy);
+        }
+#endif
+        reads = 0;
         for (int g = 0; g < gn; ++g) {
           if (!(live >> g & 1u)) continue;
           const int x = xg + g;
@@ -872,6 +942,17 @@ void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, Ima
             if (!(wj > 0.f)) continue;
             const int i = index[j * kUlrGroup + g];
             const ImageView<const float>& img = views[i].color;
+            [[maybe_unused]] const int r = reads++;
+            // CubicRgbAdd with the weights computed above (and, like it, per channel at a view's
+            // last pixel).
+#if defined(IBR_ULR_AVX2)
+            if (cubic_avx2 && (read_y0[r] + 2 < img.height - 1 || read_x0[r] + 2 < img.width - 1)) {
+              const float* rows[4];
+              int taps[4];
+              CubicRgbTaps(img.data, img.row_stride, img.width, img.height, read_x0[r], read_y0[r], taps, rows);
+              CubicRgbTapsAdd(rows, taps, _mm_loadu_ps(read_wx + 4 * r), _mm_loadu_ps(read_wy + 4 * r), wj, col);
+            } else
+#endif
             if (cubic) {
               CubicRgbAdd(img.data, img.row_stride, img.width, img.height, QX[i], QY[i], wj, col);
             } else {

@@ -41,6 +41,50 @@ inline __m128 CatmullRomWeights4(float t) {
 }
 #endif
 
+// The 4 x 4 taps of a Catmull-Rom read at the clamped position (fx, fy) = (x, y) - 0.5 of an (h, w,
+// 3) image: col[i] (float offsets in a row) and rows[j], clamped to the image's edge pixels.
+inline void CubicRgbTaps(const float* data, std::ptrdiff_t row_stride, int w, int h, int x0, int y0, int col[4],
+                         const float* rows[4]) {
+  if (x0 >= 1 && x0 + 2 <= w - 1 && y0 >= 1 && y0 + 2 <= h - 1) {  // inside: no clamping
+    for (int i = 0; i < 4; ++i) col[i] = 3 * (x0 - 1 + i);
+    for (int j = 0; j < 4; ++j) rows[j] = data + static_cast<std::ptrdiff_t>(y0 - 1 + j) * row_stride;
+  } else {
+    for (int i = 0; i < 4; ++i) col[i] = 3 * std::min(std::max(x0 - 1 + i, 0), w - 1);
+    for (int j = 0; j < 4; ++j) {
+      rows[j] = data + static_cast<std::ptrdiff_t>(std::min(std::max(y0 - 1 + j, 0), h - 1)) * row_stride;
+    }
+  }
+}
+
+#if defined(__SSE2__)
+// CubicRgbAdd's SSE2 sum: acc[0..4) += weight * (the taps weighted by WX (per column) and WY (per
+// row), clamped to the centre 2 x 2 taps' range), four floats per tap (RGB and the next pixel's
+// red, unused: not for taps at the image's last pixel, whose fourth float is past the end).
+inline void CubicRgbTapsAdd(const float* const rows[4], const int col[4], __m128 WX, __m128 WY, float weight,
+                            float* acc) {
+  const __m128 wxs[4] = {_mm_shuffle_ps(WX, WX, 0x00), _mm_shuffle_ps(WX, WX, 0x55), _mm_shuffle_ps(WX, WX, 0xAA),
+                         _mm_shuffle_ps(WX, WX, 0xFF)};
+  const __m128 wys[4] = {_mm_shuffle_ps(WY, WY, 0x00), _mm_shuffle_ps(WY, WY, 0x55), _mm_shuffle_ps(WY, WY, 0xAA),
+                         _mm_shuffle_ps(WY, WY, 0xFF)};
+  __m128 sum = _mm_setzero_ps();
+  __m128 lo = _mm_set1_ps(3.4e38f), hi = _mm_set1_ps(-3.4e38f);
+  for (int j = 0; j < 4; ++j) {
+    __m128 r = _mm_setzero_ps();
+    for (int i = 0; i < 4; ++i) {
+      const __m128 q = _mm_loadu_ps(rows[j] + col[i]);
+      r = _mm_add_ps(r, _mm_mul_ps(wxs[i], q));
+      if ((j == 1 || j == 2) && (i == 1 || i == 2)) {
+        lo = _mm_min_ps(lo, q);
+        hi = _mm_max_ps(hi, q);
+      }
+    }
+    sum = _mm_add_ps(sum, _mm_mul_ps(wys[j], r));
+  }
+  const __m128 c = _mm_min_ps(_mm_max_ps(sum, lo), hi);
+  _mm_storeu_ps(acc, _mm_add_ps(_mm_loadu_ps(acc), _mm_mul_ps(_mm_set1_ps(weight), c)));
+}
+#endif
+
 // acc[0..3) += weight * (Catmull-Rom of an (h, w, 3) image, rows row_stride floats apart, at (x, y),
 // clamped per channel to the 2 x 2 centre texels' range); acc holds 4 floats (the fourth is
 // scratch). SSE2 where available (the same sums in another order: within float rounding of the
@@ -53,41 +97,13 @@ inline void CubicRgbAdd(const float* data, std::ptrdiff_t row_stride, int w, int
   const int x0 = static_cast<int>(fx), y0 = static_cast<int>(fy);
   int col[4];
   const float* rows[4];
-  if (x0 >= 1 && x0 + 2 <= w - 1 && y0 >= 1 && y0 + 2 <= h - 1) {  // inside: no clamping
-    for (int i = 0; i < 4; ++i) col[i] = 3 * (x0 - 1 + i);
-    for (int j = 0; j < 4; ++j) rows[j] = data + static_cast<std::ptrdiff_t>(y0 - 1 + j) * row_stride;
-  } else {
-    for (int i = 0; i < 4; ++i) col[i] = 3 * std::min(std::max(x0 - 1 + i, 0), w - 1);
-    for (int j = 0; j < 4; ++j) {
-      rows[j] = data + static_cast<std::ptrdiff_t>(std::min(std::max(y0 - 1 + j, 0), h - 1)) * row_stride;
-    }
-  }
+  CubicRgbTaps(data, row_stride, w, h, x0, y0, col, rows);
 #if defined(__SSE2__)
   // Four floats per tap (RGB and the next pixel's red, unused): the three channels at once. Not
   // where a tap is the image's last pixel, whose fourth float is past the end.
   if (y0 + 2 < h - 1 || x0 + 2 < w - 1) {
-    const __m128 WX = CatmullRomWeights4(fx - static_cast<float>(x0));
-    const __m128 WY = CatmullRomWeights4(fy - static_cast<float>(y0));
-    const __m128 wxs[4] = {_mm_shuffle_ps(WX, WX, 0x00), _mm_shuffle_ps(WX, WX, 0x55), _mm_shuffle_ps(WX, WX, 0xAA),
-                           _mm_shuffle_ps(WX, WX, 0xFF)};
-    const __m128 wys[4] = {_mm_shuffle_ps(WY, WY, 0x00), _mm_shuffle_ps(WY, WY, 0x55), _mm_shuffle_ps(WY, WY, 0xAA),
-                           _mm_shuffle_ps(WY, WY, 0xFF)};
-    __m128 sum = _mm_setzero_ps();
-    __m128 lo = _mm_set1_ps(3.4e38f), hi = _mm_set1_ps(-3.4e38f);
-    for (int j = 0; j < 4; ++j) {
-      __m128 r = _mm_setzero_ps();
-      for (int i = 0; i < 4; ++i) {
-        const __m128 q = _mm_loadu_ps(rows[j] + col[i]);
-        r = _mm_add_ps(r, _mm_mul_ps(wxs[i], q));
-        if ((j == 1 || j == 2) && (i == 1 || i == 2)) {
-          lo = _mm_min_ps(lo, q);
-          hi = _mm_max_ps(hi, q);
-        }
-      }
-      sum = _mm_add_ps(sum, _mm_mul_ps(wys[j], r));
-    }
-    const __m128 c = _mm_min_ps(_mm_max_ps(sum, lo), hi);
-    _mm_storeu_ps(acc, _mm_add_ps(_mm_loadu_ps(acc), _mm_mul_ps(_mm_set1_ps(weight), c)));
+    CubicRgbTapsAdd(rows, col, CatmullRomWeights4(fx - static_cast<float>(x0)),
+                    CatmullRomWeights4(fy - static_cast<float>(y0)), weight, acc);
     return;
   }
 #endif
