@@ -476,9 +476,10 @@ __attribute__((target("avx2"))) void UlrViewsAvx2(const UlrPoint& q, const UlrVi
 // UlrBlendFast's depth test of views 0 .. nv - 1 in AVX2 (its scalar loop's operations lane for
 // lane: the same views pass), eight per step: the texel offsets in int32, the depths gathered
 // from one base address (the table checked every map is within int32 floats of it; lanes past nv
-// masked: no read, no write). Writes the offsets to off[] (the prefetch's predictor) and +inf to
-// o.pen where the test fails. For CPUs with AVX2 and without AVX-512 (ulr_blend 85 -> 80 ms per
-// 1280x720 frame on a Zen 3 EPYC, 2 threads).
+// masked: no read). Writes the offsets to off[] (the prefetch's predictor) and +inf to o.pen where
+// the test fails, and +inf past nv: a plain store (the arrays hold the table's padding to 16 views),
+// not a masked one, which is microcoded on Zen (ulr_blend 1-thread median 124 -> 120 ms). For CPUs
+// with AVX2 and without AVX-512 (ulr_blend 85 -> 80 ms per 1280x720 frame on a Zen 3 EPYC, 2 threads).
 __attribute__((target("avx2"))) void UlrDepthTestAvx2(const UlrViewTable& t, int nv, float tol, const UlrViewOut& o,
                                                        std::ptrdiff_t* off) {
   const __m256 zero = _mm256_setzero_ps(), inf = _mm256_set1_ps(INFINITY), Tol = _mm256_set1_ps(tol);
@@ -501,7 +502,7 @@ __attribute__((target("avx2"))) void UlrDepthTestAvx2(const UlrViewTable& t, int
     ok = _mm256_and_ps(ok, _mm256_cmp_ps(dv, fmax, _CMP_LE_OQ));
     ok = _mm256_and_ps(ok, _mm256_cmp_ps(_mm256_andnot_ps(sign, _mm256_sub_ps(_mm256_loadu_ps(o.qz + i0), dv)),
                                          _mm256_mul_ps(Tol, dv), _CMP_LE_OQ));
-    _mm256_maskstore_ps(o.pen + i0, lanes, _mm256_blendv_ps(inf, pen, ok));
+    _mm256_storeu_ps(o.pen + i0, _mm256_blendv_ps(inf, pen, ok));
   }
 }
 
