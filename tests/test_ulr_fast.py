@@ -93,16 +93,21 @@ def test_avx512_avx2_and_sse2_view_loops_give_the_same_bits(n_views):
     depth test gathers 16 (AVX-512F) or 8 (AVX2) views' depths a step, or reads them one at a time
     (sse2): the same IEEE operations lane for lane, no FMA, so the same image and counts, bit for
     bit. View counts around the 4 / 8 / 16 boundaries (the gathers' masked lanes past the last view);
-    the views' depth maps differ in size and some fail the depth test. On a CPU without AVX-512 /
-    AVX2 the calls take the narrower loop and the test holds trivially for them."""
+    the views' depth maps differ in size and some fail the depth test. "auto" follows the engine's
+    switch: with set_warp_isa("baseline") it is the SSE2 path. On a CPU without AVX-512 / AVX2 the
+    calls take the narrower loop and the test holds trivially for them."""
     cam, gdepth, views, normal = _scene(n_views, seed=n_views)
-    for nrm in (None, normal):
-        cs, ns = _core.ulr_blend(cam, gdepth, views, normal=nrm, simd="sse2")
-        assert ns.max() > 0
-        for simd in ("auto", "avx2"):
-            c, n = _core.ulr_blend(cam, gdepth, views, normal=nrm, simd=simd)
-            np.testing.assert_array_equal(n, ns)
-            np.testing.assert_array_equal(c, cs)
+    try:
+        for nrm in (None, normal):
+            cs, ns = _core.ulr_blend(cam, gdepth, views, normal=nrm, simd="sse2")
+            assert ns.max() > 0
+            for isa, simd in (("auto", "auto"), ("auto", "avx2"), ("baseline", "auto"), ("baseline", "avx2")):
+                _core.set_warp_isa(isa)
+                c, n = _core.ulr_blend(cam, gdepth, views, normal=nrm, simd=simd)
+                np.testing.assert_array_equal(n, ns)
+                np.testing.assert_array_equal(c, cs)
+    finally:
+        _core.set_warp_isa("auto")
 
 
 @pytest.mark.parametrize("k", [1, 3, 4, 5])

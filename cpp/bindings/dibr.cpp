@@ -386,8 +386,8 @@ void BindDibr(py::module_& m) {
       },
       py::arg("isa"),
       "Instruction set of the engine's plain hot loops (process-wide; for tests and benchmarks): the forward "
-      "warp's, the G-buffer raster's, the PVM renderer's voxel lookup, depth pass and filter, and the hybrid's "
-      "selection blur (cpp/ibr/simd.h). "
+      "warp's, the G-buffer raster's, the PVM renderer's voxel lookup, depth pass and filter, the hybrid's "
+      "selection blur and ulr_blend(simd='auto') (cpp/ibr/simd.h). "
       "'auto' (default: AVX2 clones when the CPU has AVX2), 'baseline' (SSE2) or 'avx2'. Results are identical.");
   m.def(
       "warp_isa", [] { return std::string(ActiveWarpIsa() == WarpIsa::kAvx2 ? "avx2" : "baseline"); },

@@ -437,7 +437,8 @@ void BindHybridRender(py::module_& m) {
         "count (H, W) uint8 views used, 0 = none sees the point). resample: the views' colour reads, 'cubic' "
         "(Catmull-Rom, clamped to the 2 x 2 texels' range) or 'bilinear'. reference=True: the scalar reference path "
         "(double projections) instead of the fast one (float, SIMD over views; pinhole views only). "
-        "simd='avx2' / 'sse2': the fast path's per-view loop at most AVX2 / in SSE2 even where the CPU has more (the same bits; for tests).");
+        "simd='auto' follows set_warp_isa (AVX-512 / AVX2 where the CPU has them, SSE2 under 'baseline'); "
+        "'avx2' / 'sse2': the fast path at most AVX2 / in SSE2 even where the CPU has more (the same bits; for tests).");
   m.def("hybrid_select", &HybridSelectBinding, py::arg("gbuffer_depth"), py::kw_only(),
         py::arg("inside_grid") = py::none(), py::arg("pvm_valid") = py::none(), py::arg("pvm_depth") = py::none(),
         py::arg("vd") = py::none(), py::arg("geo_threshold") = 0.03, py::arg("tau_var") = 0.82,

@@ -774,11 +774,17 @@ void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, Ima
   ViewsFn views_fn = nullptr;
   using DepthFn = void (*)(const UlrViewTable&, int, float, const UlrViewOut&, std::ptrdiff_t*);
   DepthFn depth_fn = nullptr;
+  // The instruction sets: kAuto follows the engine's switch (UseAvx2: set_warp_isa; AVX-512 when
+  // the CPU has it and the switch is not at the baseline), kAvx2 and kSse2 force theirs.
+  bool avx2 = false, avx512 = false;
+#if defined(IBR_ULR_AVX2)
+  avx2 = options.simd == UlrSimd::kAuto ? UseAvx2() : options.simd == UlrSimd::kAvx2 && CpuHasAvx2();
+  avx512 = options.simd == UlrSimd::kAuto && avx2 && UlrCpuHasAvx512();
+#endif
 #if defined(__SSE2__)
   views_fn = UlrViewsSse2;
 #if defined(IBR_ULR_AVX2)
-  const bool avx512 = options.simd == UlrSimd::kAuto && UlrCpuHasAvx512();
-  if (options.simd != UlrSimd::kSse2 && CpuHasAvx2()) views_fn = UlrViewsAvx2;
+  if (avx2) views_fn = UlrViewsAvx2;
   if (avx512) views_fn = UlrViewsAvx512;
   // The depth test in the same ISA where the table's offsets fit int32 (else the scalar loop below).
   if (avx512 && vt.offsets32) {
@@ -788,16 +794,10 @@ void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, Ima
   }
 #endif
 #endif
-  // The selection of a group's pixels at once in AVX2 for the default k = 4 (else, or with
-  // simd="sse2", UlrSelect pixel by pixel: the same result).
-  bool select_avx2 = false;
-#if defined(IBR_ULR_AVX2)
-  select_avx2 = k == 4 && options.simd != UlrSimd::kSse2 && CpuHasAvx2();
-#endif
-  bool cubic_avx2 = false;  // the cubic reads' weights eight at a time (CubicWeightsAvx2)
-#if defined(IBR_ULR_AVX2)
-  cubic_avx2 = cubic && options.simd != UlrSimd::kSse2 && CpuHasAvx2();
-#endif
+  // With AVX2: the selection of a group's pixels at once for the default k = 4 (else UlrSelect
+  // pixel by pixel: the same result), and the cubic reads' weights eight at a time.
+  const bool select_avx2 = avx2 && k == 4;
+  const bool cubic_avx2 = avx2 && cubic;
   ParallelFor2D(H, W, 64, [&](int y0, int y1, int x0, int x1) {
     const std::size_t nvp = vt.w.size();  // per-pixel row length of the group's arrays
     // Per pixel g of a group: the views' penalties, projections and z (row g of each), the colour

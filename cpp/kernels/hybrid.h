@@ -52,7 +52,10 @@ struct UlrOptions {
   bool cubic = true;
   // The fast path's per-view loop: AVX-512F (16 views per step) when the CPU has it, else AVX2 (8),
   // else SSE2 (4); its depth test likewise gathers 16 or 8 views' depths a step, or reads them one
-  // at a time with SSE2. kAvx2 stops at AVX2, kSse2 forces SSE2 (tests: all give the same bits).
+  // at a time with SSE2; with AVX2 the view selection (k = 4) and the Catmull-Rom weights run eight
+  // pixels / reads at once. kAuto follows the engine's switch (UseAvx2, cpp/ibr/simd.h:
+  // _core.set_warp_isa("baseline") gives SSE2), kAvx2 stops at AVX2, kSse2 forces SSE2 (tests: all
+  // give the same bits).
   UlrSimd simd = UlrSimd::kAuto;
 };
 

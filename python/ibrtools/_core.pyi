@@ -542,7 +542,7 @@ def set_num_threads(num_threads: typing.SupportsInt | typing.SupportsIndex) -> N
 
 def set_warp_isa(isa: str) -> None:
     """
-    Instruction set of the engine's plain hot loops (process-wide; for tests and benchmarks): the forward warp's, the G-buffer raster's, the PVM renderer's voxel lookup, depth pass and filter, and the hybrid's selection blur (cpp/ibr/simd.h). 'auto' (default: AVX2 clones when the CPU has AVX2), 'baseline' (SSE2) or 'avx2'. Results are identical.
+    Instruction set of the engine's plain hot loops (process-wide; for tests and benchmarks): the forward warp's, the G-buffer raster's, the PVM renderer's voxel lookup, depth pass and filter, the hybrid's selection blur and ulr_blend(simd='auto') (cpp/ibr/simd.h). 'auto' (default: AVX2 clones when the CPU has AVX2), 'baseline' (SSE2) or 'avx2'. Results are identical.
     """
 
 def shadow_map_visibility(view_depth: _F32, view: Camera, maps: _F32, cameras: collections.abc.Sequence[Camera], bias: typing.SupportsFloat | typing.SupportsIndex, slope_bias: typing.SupportsFloat | typing.SupportsIndex) -> numpy.typing.NDArray[numpy.float32]:
@@ -582,7 +582,7 @@ def steerable_synthesise(highpass: _F32, bands: collections.abc.Sequence[collect
 
 def ulr_blend(camera: Camera, gbuffer_depth: _F32, views: list[tuple[Camera, _F32, _F32]], *, normal: _F32 | None=None, pixel_mask: _Bool | None=None, k: typing.SupportsInt | typing.SupportsIndex=4, resolution_weight: typing.SupportsFloat | typing.SupportsIndex=0.5, depth_tol: typing.SupportsFloat | typing.SupportsIndex=0.005, resample: str='cubic', reference: bool=False, simd: str='auto') -> tuple[_F32, _U8]:
     """
-    Per-pixel ULR at the G-buffer's points: views = [(camera, color, depth), ...] -> (color (H, W, 3), count (H, W) uint8 views used, 0 = none sees the point). resample: the views' colour reads, 'cubic' (Catmull-Rom, clamped to the 2 x 2 texels' range) or 'bilinear'. reference=True: the scalar reference path (double projections) instead of the fast one (float, SIMD over views; pinhole views only). simd='avx2' / 'sse2': the fast path's per-view loop at most AVX2 / in SSE2 even where the CPU has more (the same bits; for tests).
+    Per-pixel ULR at the G-buffer's points: views = [(camera, color, depth), ...] -> (color (H, W, 3), count (H, W) uint8 views used, 0 = none sees the point). resample: the views' colour reads, 'cubic' (Catmull-Rom, clamped to the 2 x 2 texels' range) or 'bilinear'. reference=True: the scalar reference path (double projections) instead of the fast one (float, SIMD over views; pinhole views only). simd='auto' follows set_warp_isa (AVX-512 / AVX2 where the CPU has them, SSE2 under 'baseline'); 'avx2' / 'sse2': the fast path at most AVX2 / in SSE2 even where the CPU has more (the same bits; for tests).
     """
 
 def ulr_penalty(p: collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], c_novel: collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], c_view: collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], resolution_weight: typing.SupportsFloat | typing.SupportsIndex=0.5, fast: bool=False) -> float:
