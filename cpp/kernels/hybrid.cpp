@@ -662,8 +662,8 @@ constexpr int kUlrGroup = 8;
 // never kept), then Buehler's weights with UlrSelect's operations in its order (no FMA), so the
 // same indices and weights bit for bit (tests/test_ulr_fast.py compares with simd="sse2", which
 // selects pixel by pixel). Writes index[j * 8 + g], weight[j * 8 + g] for j < m[g], and m[g].
-// Replaces ~60 mispredicting scalar branches per pixel (the insertion over 12 views, 15 % of
-// the loop's samples) by ~30 AVX2 operations per pixel.
+// The per-pixel insertion over 12 views had 15 % of the loop's samples; this took ulr_blend's
+// 1-thread median 150 -> 136 ms (a branch-free insertion per pixel gained nothing).
 __attribute__((target("avx2"))) void UlrSelect4x8Avx2(const float* pen, int nv, unsigned live,
                                                        int* index, float* weight, int* m) {
   const __m256 inf = _mm256_set1_ps(INFINITY), zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.f);
@@ -751,7 +751,8 @@ bool UlrCpuHasAvx512() {
 // The fast path of UlrBlend for pinhole input views: penalties, back-face, behind-the-camera and
 // outside-the-image tests of all views in one branch-free float loop (SIMD over views: AVX2 when
 // the CPU has it, else SSE2), then the depth test of every view that passed them (branch-free),
-// the selection and the blend. Differences from the scalar path: float instead of double
+// pixel by pixel for a group of 8 pixels; then the group's selection (with AVX2: all 8 at once)
+// and the blends. Differences from the scalar path: float instead of double
 // projections (positions agree within ~1e-4 px at the synthetic scenes' scale), so a depth test
 // exactly at its tolerance may flip (tests/test_ulr_fast.py bounds it).
 void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, ImageView<const float> normal,
