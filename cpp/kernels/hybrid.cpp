@@ -813,8 +813,11 @@ void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, Ima
     int index[kUlrGroup * 64];  // [j * kUlrGroup + g]
     float weight[kUlrGroup * 64];
     int selected[kUlrGroup];
-    // The group's cubic reads (at most k per pixel; padded to a multiple of 8).
+    // The group's colour reads (at most k per pixel; padded to a multiple of 8): pixel, view,
+    // weight, position; and the cubic reads' tap origins and weights.
     constexpr int kMaxReads = kUlrGroup * 64 + 8;
+    int read_g[kMaxReads], read_view[kMaxReads];
+    float read_w[kMaxReads];
     alignas(32) float read_x[kMaxReads] = {}, read_y[kMaxReads] = {};
     alignas(32) float read_wlast[kMaxReads] = {}, read_hlast[kMaxReads] = {};
     alignas(32) int read_x0[kMaxReads], read_y0[kMaxReads];
@@ -911,67 +914,61 @@ void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, Ima
             }
           }
         }
-        // The group's cubic reads in the order the blend below makes them: their positions and
-        // Catmull-Rom weights computed eight reads at once.
+        // The group's colour reads (each kept view with a positive weight, pixel by pixel, in
+        // selection order: the blend's order); with cubic_avx2 their Catmull-Rom positions and
+        // weights computed eight reads at once.
         int reads = 0;
-#if defined(IBR_ULR_AVX2)
-        if (cubic_avx2) {
-          for (int g = 0; g < gn; ++g) {
-            for (int j = 0; j < (live >> g & 1u ? selected[g] : 0); ++j) {
-              if (!(weight[j * kUlrGroup + g] > 0.f)) continue;
-              const int i = index[j * kUlrGroup + g];
-              read_x[reads] = qx[g * nvp + i];
-              read_y[reads] = qy[g * nvp + i];
-              read_wlast[reads] = float(views[i].color.width - 1);
-              read_hlast[reads] = float(views[i].color.height - 1);
-              ++reads;
-            }
-          }
-          CubicWeightsAvx2(reads, read_x, read_y, read_wlast, read_hlast, read_x0, read_y0, read_wx, read_wy);
-        }
-#endif
-        reads = 0;
         for (int g = 0; g < gn; ++g) {
-          if (!(live >> g & 1u)) continue;
-          const int x = xg + g;
-          const float* QX = qx.data() + g * nvp;
-          const float* QY = qy.data() + g * nvp;
-          const std::ptrdiff_t* ahead_g = ahead.data() + g * nvp;
-          int used = 0;
-          float col[4] = {0.f, 0.f, 0.f, 0.f};
-          for (int j = 0; j < selected[g]; ++j) {
-            const float wj = weight[j * kUlrGroup + g];
-            if (!(wj > 0.f)) continue;
+          for (int j = 0; j < (live >> g & 1u ? selected[g] : 0); ++j) {
+            if (!(weight[j * kUlrGroup + g] > 0.f)) continue;
             const int i = index[j * kUlrGroup + g];
-            const ImageView<const float>& img = views[i].color;
-            [[maybe_unused]] const int r = reads++;
-            // CubicRgbAdd with the weights computed above (and, like it, per channel at a view's
-            // last pixel).
+            read_g[reads] = g;
+            read_view[reads] = i;
+            read_w[reads] = weight[j * kUlrGroup + g];
+            read_x[reads] = qx[g * nvp + i];
+            read_y[reads] = qy[g * nvp + i];
+            read_wlast[reads] = float(views[i].color.width - 1);
+            read_hlast[reads] = float(views[i].color.height - 1);
+            ++reads;
+          }
+        }
 #if defined(IBR_ULR_AVX2)
-            if (cubic_avx2 && (read_y0[r] + 2 < img.height - 1 || read_x0[r] + 2 < img.width - 1)) {
-              const float* rows[4];
-              int taps[4];
-              CubicRgbTaps(img.data, img.row_stride, img.width, img.height, read_x0[r], read_y0[r], taps, rows);
-              CubicRgbTapsAdd(rows, taps, _mm_loadu_ps(read_wx + 4 * r), _mm_loadu_ps(read_wy + 4 * r), wj, col);
-            } else
+        if (cubic_avx2) CubicWeightsAvx2(reads, read_x, read_y, read_wlast, read_hlast, read_x0, read_y0, read_wx, read_wy);
 #endif
-            if (cubic) {
-              CubicRgbAdd(img.data, img.row_stride, img.width, img.height, QX[i], QY[i], wj, col);
-            } else {
-              Bilinear3Add(img, QX[i], QY[i], wj, col);
-            }
-            // The texels this view's colour read will want kPrefetchAhead pixels on (its depth
-            // texel's offset and step, in the colour image: 3 floats a pixel), rows y and y + 1.
-            PrefetchAt(img.data, 3 * ahead_g[i]);
-            PrefetchAt(img.data, 3 * ahead_g[i] + img.row_stride);
-            ++used;
+        float col[kUlrGroup][4] = {};
+        int used[kUlrGroup] = {};
+        for (int r = 0; r < reads; ++r) {
+          const int g = read_g[r], i = read_view[r];
+          const ImageView<const float>& img = views[i].color;
+          // CubicRgbAdd with the weights computed above (and, like it, per channel at a view's
+          // last pixel).
+#if defined(IBR_ULR_AVX2)
+          if (cubic_avx2 && (read_y0[r] + 2 < img.height - 1 || read_x0[r] + 2 < img.width - 1)) {
+            const float* rows[4];
+            int taps[4];
+            CubicRgbTaps(img.data, img.row_stride, img.width, img.height, read_x0[r], read_y0[r], taps, rows);
+            CubicRgbTapsAdd(rows, taps, _mm_loadu_ps(read_wx + 4 * r), _mm_loadu_ps(read_wy + 4 * r), read_w[r], col[g]);
+          } else
+#endif
+          if (cubic) {
+            CubicRgbAdd(img.data, img.row_stride, img.width, img.height, read_x[r], read_y[r], read_w[r], col[g]);
+          } else {
+            Bilinear3Add(img, read_x[r], read_y[r], read_w[r], col[g]);
           }
-          if (used > 0) {
-            crow[3 * x] = col[0];
-            crow[3 * x + 1] = col[1];
-            crow[3 * x + 2] = col[2];
-            nrow[x] = std::uint8_t(std::min(used, 255));
-          }
+          // The texels this view's colour read will want kPrefetchAhead pixels on (its depth
+          // texel's offset and step, in the colour image: 3 floats a pixel), rows y and y + 1.
+          const std::ptrdiff_t ahead_i = ahead[g * nvp + i];
+          PrefetchAt(img.data, 3 * ahead_i);
+          PrefetchAt(img.data, 3 * ahead_i + img.row_stride);
+          ++used[g];
+        }
+        for (int g = 0; g < gn; ++g) {
+          if (used[g] == 0) continue;
+          const int x = xg + g;
+          crow[3 * x] = col[g][0];
+          crow[3 * x + 1] = col[g][1];
+          crow[3 * x + 2] = col[g][2];
+          nrow[x] = std::uint8_t(std::min(used[g], 255));
         }
       }
     }
