@@ -59,7 +59,7 @@ def build(kernels: Path, exe: Path) -> None:
            "-o", str(exe), str(ROOT / "benchmarks" / "dibr_ab" / "dibr_ab.cpp"),
            str(kernels / "kernels" / "forward_warp.cpp"), str(kernels / "kernels" / "blend.cpp"),
            str(kernels / "kernels" / "metameric.cpp"),
-           str(ROOT / "cpp" / "ibr" / "parallel.cpp"), "-ltbb", "-lpthread"]
+           str(ROOT / "cpp" / "ibr" / "parallel.cpp"), str(ROOT / "cpp" / "ibr" / "simd.cpp"), "-ltbb", "-lpthread"]
     subprocess.run(cmd, check=True)
 
 

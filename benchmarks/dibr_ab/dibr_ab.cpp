@@ -23,6 +23,7 @@ static double Cpu() { timespec t; clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t); r
 #include <vector>
 #include <algorithm>
 #include "ibr/parallel.h"
+#include "ibr/simd.h"  // the tree's switch: also for a base revision older than it
 #include "kernels/forward_warp.h"
 #include "kernels/blend.h"
 #include "kernels/metameric.h"
@@ -105,11 +106,11 @@ int main(int argc, char** argv) {
     }
     auto t1 = std::chrono::steady_clock::now();
 #if defined(IBR_BLEND_RESOLVE_SRGB)  // as the binding: AVX2 when the warp uses it; the decode in the resolve
-    ResolveBlend(acc, oc.data(), od.data(), oq.data(), oh.data(), ActiveWarpIsa() == WarpIsa::kAvx2,
+    ResolveBlend(acc, oc.data(), od.data(), oq.data(), oh.data(), UseAvx2(),
                  srgb ? BlendSpace::kSrgb : BlendSpace::kLinear);
 #else
 #ifdef IBR_BLEND_RESOLVE_AVX2
-    ResolveBlend(acc, oc.data(), od.data(), oq.data(), oh.data(), ActiveWarpIsa() == WarpIsa::kAvx2);
+    ResolveBlend(acc, oc.data(), od.data(), oq.data(), oh.data(), UseAvx2());
 #else
     ResolveBlend(acc, oc.data(), od.data(), oq.data(), oh.data());
 #endif

@@ -17,6 +17,7 @@
 #include "array.h"
 #include "ibr/camera.h"
 #include "ibr/errors.h"
+#include "ibr/simd.h"
 #include "kernels/blend.h"
 #include "kernels/forward_warp.h"
 #include "module.h"
@@ -235,7 +236,7 @@ class DibrAccumulator {
         ClearBlend(buffers_);
         buffers_.fresh = false;
       }
-      ResolveBlend(buffers_, c, d, q, o, ActiveWarpIsa() == WarpIsa::kAvx2,
+      ResolveBlend(buffers_, c, d, q, o, UseAvx2(),
                    srgb_to_linear ? BlendSpace::kSrgb : BlendSpace::kLinear);
     }
     return py::make_tuple(color, depth, conf, hole);
@@ -372,17 +373,17 @@ void BindDibr(py::module_& m) {
   m.def(
       "set_warp_isa",
       [](const std::string& name) {
-        WarpIsa isa;
+        Isa isa;
         if (name == "auto") {
-          isa = WarpIsa::kAuto;
+          isa = Isa::kAuto;
         } else if (name == "baseline") {
-          isa = WarpIsa::kBaseline;
+          isa = Isa::kBaseline;
         } else if (name == "avx2") {
-          isa = WarpIsa::kAvx2;
+          isa = Isa::kAvx2;
         } else {
           throw BadValueError("isa: expected 'auto', 'baseline' or 'avx2', got '" + name + "'");
         }
-        if (!SetWarpIsa(isa)) throw BadValueError("isa: 'avx2' asked but this CPU has no AVX2");
+        if (!SetIsa(isa)) throw BadValueError("isa: 'avx2' asked but this CPU has no AVX2");
       },
       py::arg("isa"),
       "Instruction set of the engine's plain hot loops (process-wide; for tests and benchmarks): the forward "
@@ -390,9 +391,9 @@ void BindDibr(py::module_& m) {
       "selection blur and ulr_blend(simd='auto') (cpp/ibr/simd.h). "
       "'auto' (default: AVX2 clones when the CPU has AVX2), 'baseline' (SSE2) or 'avx2'. Results are identical.");
   m.def(
-      "warp_isa", [] { return std::string(ActiveWarpIsa() == WarpIsa::kAvx2 ? "avx2" : "baseline"); },
+      "warp_isa", [] { return std::string(UseAvx2() ? "avx2" : "baseline"); },
       "Instruction set the engine's plain hot loops (set_warp_isa) use now: 'avx2' or 'baseline'.");
-  m.def("cpu_has_avx2", &CpuHasWarpAvx2, "Whether this CPU has AVX2 (run-time check).");
+  m.def("cpu_has_avx2", &CpuHasAvx2, "Whether this CPU has AVX2 (run-time check).");
 
   m.attr("WARP_SURFACE") = int(kMaskSurface);
   m.attr("WARP_DISOCCLUDED") = int(kMaskDisoccluded);

@@ -10,7 +10,7 @@
 
 #include "array.h"
 #include "ibr/errors.h"
-#include "kernels/forward_warp.h"  // ActiveWarpIsa: the process-wide instruction set
+#include "ibr/simd.h"  // UseAvx2: the process-wide instruction set
 #include "kernels/metameric.h"
 #include "kernels/pushpull.h"
 #include "module.h"
@@ -99,7 +99,7 @@ py::array_t<float> MapValues(const py::handle& values_obj, void (*kernel)(const 
 
 // LinearToSrgbUnclipped on the instruction set the warp uses (set_warp_isa: tests compare both).
 void EncodeUnclippedActiveIsa(const float* in, float* out, std::int64_t n) {
-  LinearToSrgbUnclipped(in, out, n, ActiveWarpIsa() == WarpIsa::kAvx2);
+  LinearToSrgbUnclipped(in, out, n, UseAvx2());
 }
 
 }  // namespace

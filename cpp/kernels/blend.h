@@ -66,7 +66,7 @@ void AccumulateRows(const float* color, const float* depth, const float* weight,
 void AccumulateRow(const float* color, const float* depth, const float* weight, const float* quality,
                    const BlendBuffers& acc, int y);
 // AccumulateRow when neither visibility rule is on (stretched_quality == 0, depth_tolerance ==
-// 0), compiled for AVX2: call it only on a CPU with AVX2 (forward_warp.h, WarpIsa). Same bits.
+// 0), compiled for AVX2: call it only on a CPU with AVX2 (cpp/ibr/simd.h UseAvx2). Same bits.
 void AccumulateRowPlainAvx2(const float* color, const float* depth, const float* weight, const float* quality,
                             const BlendBuffers& acc, int y);
 
@@ -81,7 +81,7 @@ enum class BlendSpace : int { kLinear = 0, kSrgb = 1 };
 
 // Writes colour (H, W, 3), depth (H, W), confidence (H, W), hole (H, W; 1 = hole) (all threads).
 // avx2: eight pixels per step, compiled for AVX2 (call it so only on a CPU with AVX2; the same
-// bits; the warp's ISA switch decides, forward_warp.h ActiveWarpIsa); the sRGB decoding follows
+// bits; the engine's ISA switch decides, cpp/ibr/simd.h UseAvx2); the sRGB decoding follows
 // the same flag, with the same bits. Depth, confidence and hole do not depend on the space; the
 // colour of BlendSpace::kSrgb is that of kLinear decoded by SrgbToLinear, within 1e-6.
 void ResolveBlend(const BlendBuffers& acc, float* color, float* depth, float* confidence, std::uint8_t* hole,

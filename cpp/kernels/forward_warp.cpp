@@ -24,7 +24,7 @@ constexpr float kGuardPixels = 16384.f;
 constexpr float kInf = std::numeric_limits<float>::infinity();
 constexpr std::int32_t kInvalid = std::numeric_limits<std::int32_t>::min();
 
-// Instruction-set dispatch (forward_warp.h, SetWarpIsa): the hot loops run through
+// Instruction-set dispatch (forward_warp.h): the hot loops run through
 // CallAvx2 / UseAvx2 (cpp/ibr/simd.h), which compile them for AVX2 (no FMA: the same IEEE
 // operations in the same order, so the same bits; tests/test_forward_warp_isa.py compares both
 // paths) and follow the engine's process-wide switch.
@@ -1511,14 +1511,6 @@ void RasterBands(const Context& cx, const WarpScratch& scratch, int num_bands, b
 }
 
 }  // namespace
-
-bool SetWarpIsa(WarpIsa isa) {
-  return SetIsa(isa == WarpIsa::kAuto ? Isa::kAuto : isa == WarpIsa::kAvx2 ? Isa::kAvx2 : Isa::kBaseline);
-}
-
-WarpIsa ActiveWarpIsa() { return UseAvx2() ? WarpIsa::kAvx2 : WarpIsa::kBaseline; }
-
-bool CpuHasWarpAvx2() { return CpuHasAvx2(); }
 
 float SideThreshold(const WarpOptions& options, const Camera& target) {
   if (options.side_threshold > 0.f) return options.side_threshold;

@@ -89,15 +89,9 @@ struct WarpOptions {
 };
 
 // Instruction set of the hot loops (vertex projection, rasterisation): the engine is built for
-// the SSE2 baseline; on a CPU with AVX2 (checked at run time) clones compiled for AVX2 run
-// instead (no FMA: bit-identical results). kAuto (default) = AVX2 when the CPU has it.
-// SetWarpIsa is for tests and benchmarks (process-wide); returns false (and changes nothing)
-// when kAvx2 is asked on a CPU without it. It is the engine's switch (cpp/ibr/simd.h SetIsa):
-// it sets every loop dispatched with RunIsa too (G-buffer raster, PVM loops).
-enum class WarpIsa : int { kAuto = -1, kBaseline = 0, kAvx2 = 1 };
-bool SetWarpIsa(WarpIsa isa);
-WarpIsa ActiveWarpIsa();
-bool CpuHasWarpAvx2();
+// the SSE2 baseline; on a CPU with AVX2 (checked at run time) versions compiled for AVX2 run
+// instead (no FMA: bit-identical results), as the engine's process-wide switch says (cpp/ibr/simd.h
+// SetIsa / UseAvx2; _core.set_warp_isa).
 
 // Side threshold used for a target camera (auto rule above when options.side_threshold == 0).
 float SideThreshold(const WarpOptions& options, const Camera& target);
