@@ -17,6 +17,15 @@ bool CpuHasAvx2() {
 #endif
 }
 
+bool CpuHasAvx512f() {
+#if defined(__GNUC__) && defined(__x86_64__)
+  static const bool has = __builtin_cpu_supports("avx512f");
+  return has;
+#else
+  return false;
+#endif
+}
+
 bool SetIsa(Isa isa) {
   if (isa == Isa::kAvx2 && !CpuHasAvx2()) return false;
   g_isa.store(static_cast<int>(isa), std::memory_order_relaxed);

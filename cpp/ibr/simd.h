@@ -31,6 +31,8 @@ enum class Isa : int { kAuto = -1, kBaseline = 0, kAvx2 = 1 };
 
 // Whether the CPU has AVX2 (run-time check; also for the kernels' intrinsic AVX2 paths).
 bool CpuHasAvx2();
+// Whether the CPU has AVX-512F (run-time check; ULR's intrinsic AVX-512 view loop and depth test).
+bool CpuHasAvx512f();
 // Process-wide (tests and benchmarks); false, and nothing changes, when kAvx2 is asked on a CPU
 // without AVX2.
 bool SetIsa(Isa isa);

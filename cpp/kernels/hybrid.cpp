@@ -739,15 +739,6 @@ inline void PrefetchAt(const float* base, std::ptrdiff_t offset) {
 // in one process, load ~10); 1 and 4 pixels ahead did less.
 constexpr std::ptrdiff_t kPrefetchAhead = 2;
 
-bool UlrCpuHasAvx512() {
-#if defined(IBR_ULR_AVX2)
-  static const bool has = __builtin_cpu_supports("avx512f");
-  return has;
-#else
-  return false;
-#endif
-}
-
 // The fast path of UlrBlend for pinhole input views: penalties, back-face, behind-the-camera and
 // outside-the-image tests of all views in one branch-free float loop (SIMD over views: AVX2 when
 // the CPU has it, else SSE2), then the depth test of every view that passed them (branch-free),
@@ -780,7 +771,7 @@ void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, Ima
   bool avx2 = false, avx512 = false;
 #if defined(IBR_ULR_AVX2)
   avx2 = options.simd == UlrSimd::kAuto ? UseAvx2() : options.simd == UlrSimd::kAvx2 && CpuHasAvx2();
-  avx512 = options.simd == UlrSimd::kAuto && avx2 && UlrCpuHasAvx512();
+  avx512 = options.simd == UlrSimd::kAuto && avx2 && CpuHasAvx512f();
 #endif
 #if defined(__SSE2__)
   views_fn = UlrViewsSse2;
