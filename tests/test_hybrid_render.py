@@ -565,3 +565,97 @@ def test_render_job_hybrid_writes_the_selection_mask(exact_scene, tmp_path):
     hard = np.round(mask, 3)
     assert set(map(tuple, hard.reshape(-1, 3).tolist())) <= {(1, 0, 0), (0, 1, 0), (0, 0, 1), (0, 0, 0)}
     assert "masking" in f["time_ms"] and "ulr_blend" in f["time_ms"]
+
+
+# ---- pvm_floor: the composite's PVM weight floor and the mix stage that fits it -------------
+def test_pvm_floor_matches_numpy_and_keeps_the_weights_normalised():
+    rng = np.random.default_rng(5)
+    lab = rng.integers(0, 4, size=(29, 41)).astype(np.uint8)
+    lab[:, :8] = 3  # columns 0-1 lie beyond the blur's reach (radius 6): no weight there
+    base = _core.blur_selection(lab, 2.0, 0.05)
+    np.testing.assert_array_equal(_core.blur_selection(lab, 2.0, 0.05, pvm_floor=0.0), base)
+    some = base.sum(-1) > 0
+    assert not some[:, :2].any() and some[:, 2:].all()
+    for f in (0.25, 1.0):
+        out = _core.blur_selection(lab, 2.0, 0.05, pvm_floor=f)
+        ref = base.astype(np.float64)
+        live = some & (base[..., 2] < f)
+        s = (1.0 - f) / (1.0 - ref[..., 2][live])
+        ref[live, 0] *= s
+        ref[live, 1] *= s
+        ref[live, 2] = f
+        np.testing.assert_allclose(out, ref, atol=1e-6)
+        assert (out[~some] == 0).all()
+        np.testing.assert_allclose(out.sum(-1)[some], 1.0, atol=1e-5)
+        assert (out[..., 2][some] >= np.float32(f) - 1e-7).all() and live.sum() > 100
+    for bad in (-0.1, 1.5, float("nan")):
+        with pytest.raises(BadValueError, match="pvm_floor"):
+            _core.blur_selection(lab, 2.0, pvm_floor=bad)
+
+
+def test_pvm_floor_parameter_checks(tmp_path):
+    from ibrtools.formats import native
+    from ibrtools.render import methods
+    from ibrtools import synth
+
+    assert methods.create("hybrid").params["pvm_floor"] == "auto"
+    assert methods.create("hybrid", {"pvm_floor": "0.3"}).params["pvm_floor"] == 0.3
+    for bad in (1.5, -0.2, "sometimes"):
+        with pytest.raises(BadValueError, match="pvm_floor"):
+            methods.create("hybrid", {"pvm_floor": bad})
+    # "auto" in a scene without the mix stage: the error names the command.
+    sc = synth.make_scene("objects", size=(32, 24), views=2, holdout_targets=1)
+    native.save(sc, tmp_path / "s")
+    with pytest.raises(MissingFileError, match="stage 'mix'.*ibr-preprocess .* --methods hybrid"):
+        methods.create("hybrid")._resolve_floor(native.load(tmp_path / "s"))
+    assert methods.create("hybrid", {"pvm_floor": 0.2})._resolve_floor(native.load(tmp_path / "s")) == (0.2, "parameter")
+
+
+@needs_pvm
+def test_several_floors_in_one_frame_equal_separate_renders(exact_scene):
+    # The mix stage scores every floor from one frame: the colours the largest floor needs serve the
+    # smaller ones, bit for bit the frames a render at each floor gives.
+    from ibrtools.render import methods
+
+    t = exact_scene.targets[0]
+    hy = methods.create("hybrid", {"pvm_floor": 0.0})
+    hy.prepare(exact_scene)
+    floors = (0.2, 0.0, 0.5)
+    out, _, colors = hy._render(t.camera, floors)
+    np.testing.assert_array_equal(out["color"], colors[0])
+    for f, c in zip(floors, colors):
+        m = methods.create("hybrid", {"pvm_floor": f})
+        m.prepare(exact_scene)
+        o, _ = m.render(t.camera)
+        np.testing.assert_array_equal(c, o["color"])
+        assert m.frame_report()["pvm_floor"] == f
+    assert not np.array_equal(colors[1], colors[2])  # the floor mixes PVM in somewhere
+    with pytest.raises(BadValueError, match="floors"):
+        hy._render(t.camera, (0.0, 1.0))
+
+
+@needs_pvm
+def test_mix_stage_fit_is_what_holding_each_view_out_gives(exact_scene):
+    # The stage's table against renders made the way --holdout makes them, one floor at a time;
+    # its floor is the smallest within tol_db of the best mean; "auto" reads it.
+    from ibrtools import stages as S
+    from ibrtools.imageio import linear_to_srgb
+    from ibrtools.metrics import psnr
+    from ibrtools.render import hybrid as H, job as J, methods
+
+    d = S.load_npz(S.stage_output(exact_scene.root, "mix"))
+    names = [v.name for v in exact_scene.views]
+    assert list(d["views"]) == names and d["psnr"].shape == (len(names), len(H.MIX_FLOORS))
+    mean = d["psnr"].mean(0)
+    assert float(d["pvm_floor"]) == min(f for f, v in zip(H.MIX_FLOORS, mean) if v >= mean.max() - 0.01)
+    for i, j in ((0, 0), (3, 4)):
+        job = J.plan(exact_scene, holdout=[names[i]])
+        m = methods.create("hybrid", {"pvm_floor": H.MIX_FLOORS[j]})
+        m.prepare(job.scene)
+        o, _ = m.render(job.frames[0].camera)
+        c = np.where(o["hole"][..., None], 0.0, o["color"]).astype(np.float32)
+        assert psnr(linear_to_srgb(c), linear_to_srgb(job.frames[0].truth.color), 1.0) == pytest.approx(d["psnr"][i, j], abs=1e-9)
+    hy = methods.create("hybrid")
+    hy.prepare(exact_scene)
+    hy.render(exact_scene.targets[0].camera)
+    assert hy.frame_report()["pvm_floor"] == float(d["pvm_floor"]) and hy.frame_report()["pvm_floor_source"] == "mix stage"

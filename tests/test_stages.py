@@ -39,6 +39,8 @@ def test_hybrid_methods_run_every_stage_then_nothing(built, capsys):
         assert rows[name].status == "ran", rows[name]
     assert rows["depth"].status == "skipped" and "every view has depth" in rows["depth"].reason
     assert rows["mesh"].details["source"] == "fusion"
+    # 3 views: the mix stage's leave-one-out fit needs 4; the hybrid then takes pvm_floor 0.
+    assert rows["mix"].status == "skipped" and "needs >= 4" in rows["mix"].reason
     for name in ("mesh", "texture", "pvm"):
         assert (d / "cache" / name).is_dir()
     doc = json.loads((d / "scene.json").read_text())
@@ -168,6 +170,9 @@ def test_views_without_depth_get_depth_from_the_mesh(tmp_path, capsys):
     (["--set", "pvm.max_block=6"], "power of two"),
     (["--set", "pvm.bogus=1"], "bogus"),
     (["--set", "mesh.source=magic"], "mesh source"),
+    (["--set", "mix.view=3"], "unknown parameter(s) ['view']"),
+    (["--set", "mix.views=0"], "mix.views=0"),
+    (["--set", "mix.tol_db=-1"], "mix.tol_db=-1"),
     (["--exposure-jitter", "-1"], "--exposure-jitter"),
     (["--wb-jitter", "-0.5"], "--wb-jitter"),
 ])

@@ -288,13 +288,16 @@ py::array_t<std::uint8_t> HybridSelectBinding(const py::object& depth_obj, const
   return label;
 }
 
-FArray BlurSelectionBinding(const py::object& label_obj, double sigma, double min_weight, bool decimate) {
+FArray BlurSelectionBinding(const py::object& label_obj, double sigma, double min_weight, bool decimate,
+                            double pvm_floor) {
   auto label = CheckArray<std::uint8_t>(label_obj, "label", {{"H", -1}, {"W", -1}});
   const float s = CheckFinite(sigma, "sigma_blur", 0.0);
   if (s > 1000.f) throw BadValueError("sigma_blur: expected <= 1000 pixels, got " + std::to_string(sigma));
   const float mw = CheckFinite(min_weight, "min_weight", 0.0);
   if (!(min_weight <= 1.0 / 3.0))
     throw BadValueError("min_weight: expected a weight in [0, 1/3], got " + std::to_string(min_weight));
+  const float floor = CheckFinite(pvm_floor, "pvm_floor", 0.0);
+  if (!(pvm_floor <= 1.0)) throw BadValueError("pvm_floor: expected a weight in [0, 1], got " + std::to_string(pvm_floor));
   const auto h = label.shape(0), w = label.shape(1);
   CheckLabels(label);
   FArray out = NewArray<float>({h, w, 3});
@@ -304,6 +307,7 @@ FArray BlurSelectionBinding(const py::object& label_obj, double sigma, double mi
   {
     py::gil_scoped_release release;
     BlurSelection(ConstViewOf(label), s, mw, scratch.get(), ViewOf(out), decimate);
+    FloorPvmWeight(ViewOf(out), floor);
   }
   return out;
 }
@@ -445,11 +449,13 @@ void BindHybridRender(py::module_& m) {
         "Per-pixel method (Prakash et al. 2021 Fig. 7): uint8 (H, W) 0 TM, 1 ULR, 2 PVM, 3 nothing to render. "
         "Defaults: the paper's values; --method hybrid passes its own (render/hybrid.py HYBRID_DEFAULTS: tau_var 0).");
   m.def("blur_selection", &BlurSelectionBinding, py::arg("label"), py::arg("sigma_blur"), py::arg("min_weight") = 0.0,
-        py::arg("decimate") = false,
+        py::arg("decimate") = false, py::arg("pvm_floor") = 0.0,
         "Gaussian-blurred one-hot selection weights (H, W, 3) = (TM, ULR, PVM), normalised to sum 1; "
         "weights below min_weight (<= 1/3) set to 0 and the rest normalised again. decimate: for sigma_blur >= 8, "
         "blur at 1/f resolution (f = min(4, sigma_blur // 4)) on block means and read back bilinearly "
-        "(the same Gaussian to ~1e-3). AVX2 loops as set_warp_isa allows (the same bits).");
+        "(the same Gaussian to ~1e-3). AVX2 loops as set_warp_isa allows (the same bits). pvm_floor (in [0, 1]): "
+        "last, where the weights sum to > 0 and PVM's is below it, PVM's becomes pvm_floor and TM's and ULR's are "
+        "scaled by (1 - pvm_floor) / (1 - pvm) (0: no change).");
   m.def("hybrid_composite", &HybridCompositeBinding, py::arg("weights"), py::arg("tm"), py::kw_only(),
         py::arg("ulr") = py::none(), py::arg("ulr_count") = py::none(), py::arg("pvm") = py::none(),
         py::arg("pvm_valid") = py::none(),

@@ -1277,6 +1277,25 @@ void BlurSelectionDecimated(ImageView<const std::uint8_t> label, float sigma, fl
 
 }  // namespace
 
+void FloorPvmWeight(ImageView<float> weights, float floor) {
+  if (!(floor > 0.f)) return;
+  const int W = weights.width;
+  ParallelFor(weights.height, 16, [&](std::int64_t b, std::int64_t e) {
+    for (std::int64_t y = b; y < e; ++y) {
+      float* w = weights.Row(int(y));
+      for (int x = 0; x < W; ++x, w += 3) {
+        const float pvm = w[2];
+        if (!(pvm < floor) || !(w[0] + w[1] + pvm > 0.f)) continue;
+        // pvm < floor <= 1: the divisor is > 0.
+        const float s = (1.f - floor) / (1.f - pvm);
+        w[0] *= s;
+        w[1] *= s;
+        w[2] = floor;
+      }
+    }
+  });
+}
+
 int BlurSelectionFactor(float sigma) { return sigma >= 8.f ? std::min(4, int(sigma / 4.f)) : 1; }
 
 void BlurSelection(ImageView<const std::uint8_t> label, float sigma, float min_weight, float* scratch,

@@ -120,6 +120,14 @@ void HybridSelect(ImageView<const float> gbuffer_depth, const std::uint8_t* insi
 void BlurSelection(ImageView<const std::uint8_t> label, float sigma, float min_weight, float* scratch,
                    ImageView<float> weights_out, bool decimate = false);
 
+// A floor on the PVM weight of blurred selection weights (H, W, 3) = (tm, ulr, pvm), in place:
+// where the weights sum to > 0 and pvm < floor, pvm becomes floor and tm, ulr are scaled by
+// (1 - floor) / (1 - pvm), so the three still sum to 1 (pixels with no weight stay 0). floor in
+// [0, 1]; 0 leaves the weights as they are. The composite then mixes the PVM colour into every
+// pixel that has one (its fallback, ULR, where the PVM has no candidate): the hybrid's pvm_floor,
+// which the mix stage fits per scene (python/ibrtools/render/hybrid.py, docs/hybrid.md).
+void FloorPvmWeight(ImageView<float> weights, float floor);
+
 // The block size of BlurSelection's decimated form: 1 (full resolution) below sigma 8, else
 // min(4, floor(sigma / 4)).
 int BlurSelectionFactor(float sigma);

@@ -345,9 +345,9 @@ class PvmRenderer:
         dict: color (H, W, 3), depth (H, W) (Eq. 2 vote), vote (H, W), valid, inside_grid (H, W) bool, times_ms per stage, visible_coarse, tiles, triangles. free_space: a background candidate counts in Eq. 1 / Eq. 2 only when its view sees past the foreground point (needs depths; pvm_render.h); with it, tau_empty > 0 empties a one-cluster pixel seen past by >= tau_empty x n_fg views without a candidate. min_views: where gbuffer_depth has no surface, candidate lists of fewer views are emptied (1: never). resample: the candidates' colour reads, 'cubic' (Catmull-Rom, clamped to the 2 x 2 texels' range) or 'bilinear'. mode: full (all stages); depth (stages 1-4 without colours: depth, vote, valid, inside_grid; colour 0; the frame is kept); resolve (colours of pixel_mask from the kept depth pass: stages 4-5 only).
         """
 
-def blur_selection(label: _U8, sigma_blur: typing.SupportsFloat | typing.SupportsIndex, min_weight: typing.SupportsFloat | typing.SupportsIndex=0.0, decimate: bool=False) -> numpy.typing.NDArray[numpy.float32]:
+def blur_selection(label: _U8, sigma_blur: typing.SupportsFloat | typing.SupportsIndex, min_weight: typing.SupportsFloat | typing.SupportsIndex=0.0, decimate: bool=False, pvm_floor: typing.SupportsFloat | typing.SupportsIndex=0.0) -> numpy.typing.NDArray[numpy.float32]:
     """
-    Gaussian-blurred one-hot selection weights (H, W, 3) = (TM, ULR, PVM), normalised to sum 1; weights below min_weight (<= 1/3) set to 0 and the rest normalised again. decimate: for sigma_blur >= 8, blur at 1/f resolution (f = min(4, sigma_blur // 4)) on block means and read back bilinearly (the same Gaussian to ~1e-3). AVX2 loops as set_warp_isa allows (the same bits).
+    Gaussian-blurred one-hot selection weights (H, W, 3) = (TM, ULR, PVM), normalised to sum 1; weights below min_weight (<= 1/3) set to 0 and the rest normalised again. decimate: for sigma_blur >= 8, blur at 1/f resolution (f = min(4, sigma_blur // 4)) on block means and read back bilinearly (the same Gaussian to ~1e-3). AVX2 loops as set_warp_isa allows (the same bits). pvm_floor (in [0, 1]): last, where the weights sum to > 0 and PVM's is below it, PVM's becomes pvm_floor and TM's and ULR's are scaled by (1 - pvm_floor) / (1 - pvm) (0: no change).
     """
 
 def cpu_has_avx2() -> bool:

@@ -177,6 +177,8 @@ STAGES: dict[str, Stage] = {s.name: s for s in (
     Stage("pvm", ("scene", "depth"), ("tiles.npz",), frozenset({"pvm", "hybrid"}),
           "per-view meshes (merge tolerance matched to the depth noise) sliced into a two-level voxel grid of "
           "tiles (cubic cells)", version=3),
+    Stage("mix", ("scene", "mesh", "depth", "texture", "harmonise", "pvm"), ("mix.npz",), frozenset({"hybrid"}),
+          "the hybrid composite's PVM weight floor (pvm_floor), fitted on leave-one-out renders of input views"),
 )}
 ORDER = tuple(STAGES)
 ALL_METHODS = ("reference", "dibr", "warp", "depthwarp", "tm", "ulr", "pvm", "hybrid")
@@ -564,8 +566,21 @@ def _run_pvm(ctx: _Context) -> dict:
     return {"pvm_faces": s["pvm_faces"], "tiles": s["tiles"], "tile_faces": s["tile_faces"]}
 
 
+def _run_mix(ctx: _Context) -> dict | str:
+    from .render.hybrid import MIX_DEFAULTS, fit_pvm_floor
+
+    opts = {**MIX_DEFAULTS, **ctx.options.get("mix", {})}
+    res = fit_pvm_floor(ctx.scene, views=opts["views"], tol_db=opts["tol_db"])
+    if isinstance(res, str):
+        return res
+    save_npz(ctx.cache("mix") / "mix.npz", **{k: np.asarray(v) for k, v in res.items()})
+    mean = res["psnr"].mean(axis=0)
+    return {"pvm_floor": res["pvm_floor"], "views": len(res["views"]),
+            "psnr_gain_db": round(float(mean[list(res["floors"]).index(res["pvm_floor"])] - mean[0]), 4)}
+
+
 _RUN = {"mesh": _run_mesh, "depth": _run_depth, "texture": _run_texture, "variance": _run_variance,
-        "harmonise": _run_harmonise, "pvm": _run_pvm}
+        "harmonise": _run_harmonise, "pvm": _run_pvm, "mix": _run_mix}
 _APPLIES = {"depth": _depth_needed}
 
 
@@ -772,6 +787,17 @@ def _check_stage_options(options: dict) -> None:
 
         if hasattr(H, "HarmoniseParams"):
             classes["harmonise"] = H.HarmoniseParams
+    if "mix" in options:
+        from .render.hybrid import MIX_DEFAULTS
+
+        bad = sorted(set(options["mix"]) - set(MIX_DEFAULTS))
+        if bad:
+            raise BadValueError(f"--set mix.*: unknown parameter(s) {bad} (parameters: {', '.join(MIX_DEFAULTS)})")
+        views, tol = options["mix"].get("views", 1), options["mix"].get("tol_db", 0.0)
+        if isinstance(views, bool) or not isinstance(views, int) or views < 1:
+            raise BadValueError(f"--set mix.views={views!r}: expected a whole number of views >= 1")
+        if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not (0.0 <= tol < float("inf")):
+            raise BadValueError(f"--set mix.tol_db={tol!r}: expected a finite number of dB >= 0")
     for stage, kw in options.items():
         cls = classes.get(stage)
         if cls is None:

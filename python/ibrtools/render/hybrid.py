@@ -27,7 +27,9 @@ ones.
   else TM (``tau_var`` = -1 by default: never, TM is ULR's fallback where no view sees the point;
   0: TM where no view found the surface view-dependent). The one-hot selection is blurred
   (Gaussian ``sigma_blur`` = 16 px; at 1/4 resolution, variance matched, docs/hybrid.md), weights below
-  ``min_weight`` (0.05) dropped and the rest normalised again, and the three colours composited;
+  ``min_weight`` (0.05) dropped and the rest normalised again, the PVM weight raised to at least
+  ``pvm_floor`` (ours; "auto": the ``mix`` stage's value, fitted per scene on leave-one-out renders
+  of input views, :func:`fit_pvm_floor`; 0 is the paper's composite), and the three colours composited;
   ULR is computed only where its weight is positive (or where a PVM pixel without candidates
   falls back to it). The PVM colour comes from
   :class:`ibrtools.hybrid.pvm_render.PvmRenderer` (clustered depth filtering, ``sigma``,
@@ -91,9 +93,10 @@ TM_SUBSET_MAX = 0.25
 PVM_KEYS = ("sigma", "alpha", "gamma", "tau_depth", "free_space", "free_space_tol", "free_space_point_tol", "tau_empty",
             "ulr_k", "min_views", "resample", "max_angle", "merge_rel")
 HYBRID_DEFAULTS = {**ULR_DEFAULTS, **{k: PVM_DEFAULTS[k] for k in PVM_KEYS},
-                   "tau_var": -1.0, "sigma_blur": 16.0, "min_weight": 0.05, "geo_threshold": None, "filtered": True}
+                   "tau_var": -1.0, "sigma_blur": 16.0, "min_weight": 0.05, "geo_threshold": None, "filtered": True,
+                   "pvm_floor": "auto"}
 STAGES_FOR = {"tm": ("mesh", "texture"), "ulr": ("mesh", "depth"),
-              "hybrid": ("mesh", "depth", "texture", "variance", "harmonise", "pvm")}
+              "hybrid": ("mesh", "depth", "texture", "variance", "harmonise", "pvm", "mix")}
 _UNIT_METRES = {"m": 1.0, "meter": 1.0, "metre": 1.0, "meters": 1.0, "metres": 1.0, "cm": 0.01, "mm": 0.001,
                 "km": 1000.0}
 SELECTION_COLORS = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]], np.float32)  # TM, ULR, PVM
@@ -121,6 +124,8 @@ def check_params(method: str, params: dict | None) -> dict:
         if p["geo_threshold"] is not None:
             p["geo_threshold"] = P.number(p["geo_threshold"], "--param geo_threshold", 0.0)
         p["filtered"] = P.boolean(p["filtered"], "--param filtered")
+        if p["pvm_floor"] != "auto":
+            p["pvm_floor"] = P.number(p["pvm_floor"], "--param pvm_floor ('auto' or a weight)", 0.0, maximum=1.0)
     return p
 
 
@@ -401,17 +406,38 @@ class HybridMethod:
         voxel = (_stage_record(scene, "mesh").get("details") or {}).get("voxel")
         self._geo = (geo_threshold_for(scene.units, voxel if isinstance(voxel, (int, float)) else None)
                      if p["geo_threshold"] is None else p["geo_threshold"])
+        self._floor, self._floor_source = self._resolve_floor(scene)
         t1 = time.perf_counter()
         pvm_params = {k: p[k] for k in PVM_KEYS}
         self._pvm = PvmRenderer(scene, pvm_params)
         t2 = time.perf_counter()
         return {"load": (t1 - t0) * 1e3 - self._gm.build_ms, "bvh": self._gm.build_ms, "pvm_load": (t2 - t1) * 1e3}
 
+    def _resolve_floor(self, scene: Scene) -> tuple[float, str]:
+        """pvm_floor: the parameter when it is a number; "auto": the mix stage's fit (0 when the
+        stage skipped the scene, e.g. too few views to hold one out)."""
+        f = self.params["pvm_floor"]
+        if f != "auto":
+            return float(f), "parameter"
+        rec = _stage_record(scene, "mix")
+        if rec.get("skipped") and not rec.get("outputs"):
+            return 0.0, f"mix stage skipped: {rec['skipped']}"
+        return float(_stage(scene, "mix", "hybrid")["pvm_floor"]), "mix stage"
+
     def render(self, camera: Camera) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+        out, times, _ = self._render(camera, (self._floor,))
+        return out, times
+
+    def _render(self, camera: Camera, floors: tuple[float, ...]):
+        """The frame at ``floors[0]`` (outputs, stage times) and its colour at every pvm_floor of
+        ``floors`` (each < 1: the TM and ULR weights keep their support, so the colours computed
+        for the largest serve them all; the mix stage's fit)."""
         from .. import _core
 
         if self._gm is None:
             raise BadValueError("hybrid: prepare(scene) must be called before render")
+        if not floors or (len(floors) > 1 and not all(0.0 <= f < 1.0 for f in floors)):
+            raise BadValueError(f"hybrid: floors {floors!r}: expected one weight, or several in [0, 1)")
         p = self.params
         times: dict[str, float] = {}
         t0 = time.perf_counter()
@@ -434,8 +460,12 @@ class HybridMethod:
         pvm_depth = np.ascontiguousarray(res.depth, np.float32)
         label = _core.hybrid_select(gb["depth"], inside_grid=inside, pvm_valid=valid, pvm_depth=pvm_depth, vd=vd,
                                     geo_threshold=self._geo, tau_var=p["tau_var"])
-        weights = _core.blur_selection(label, p["sigma_blur"], p["min_weight"], decimate=True)
+        top = max(floors)
+        weights = _core.blur_selection(label, p["sigma_blur"], p["min_weight"], decimate=True, pvm_floor=top)
         need_ulr, need_pvm, n_ulr, n_pvm = _core.hybrid_needs(weights, valid)
+        if floors[0] != top:
+            weights = _core.blur_selection(label, p["sigma_blur"], p["min_weight"], decimate=True,
+                                           pvm_floor=floors[0])
         t4 = time.perf_counter()
         times["masking"] = (t4 - t3) * 1e3
         pvm_color = None
@@ -469,8 +499,11 @@ class HybridMethod:
             self._gm.tm_color_at(gb, np.flatnonzero(need_tm), tm)
         t6 = time.perf_counter()
         times["tm_shade"] = (t6 - t5) * 1e3
-        color = _core.hybrid_composite(weights, tm, ulr=ulr, ulr_count=count, pvm=pvm_color,
-                                       pvm_valid=valid if pvm_color is not None else None)
+        parts = dict(tm=tm, ulr=ulr, ulr_count=count, pvm=pvm_color, pvm_valid=valid if pvm_color is not None else None)
+        color = _core.hybrid_composite(weights, **parts)
+        colors = [color] + [_core.hybrid_composite(_core.blur_selection(label, p["sigma_blur"], p["min_weight"],
+                                                                         decimate=True, pvm_floor=f), **parts)
+                            for f in floors[1:]]
         # hole (no label, no blurred weight), depth (PVM's where chosen), the selection image
         # (= weights @ SELECTION_COLORS) and the label counts in one pass (numpy: ~15 ms at 1280x720)
         fo = _core.hybrid_frame_outputs(label, weights, gb["depth"], pvm_depth)
@@ -480,9 +513,58 @@ class HybridMethod:
                                     for i, name in enumerate(("tm", "ulr", "pvm", "none"))},
                       "ulr_pixels": int(n_ulr), "pvm_pixels": int(n_pvm), "tm_pixels": n_tm,
                       "geo_threshold": self._geo, "images": self._source,
+                      "pvm_floor": self._floor if len(floors) == 1 else floors[0], "pvm_floor_source": self._floor_source,
                       "free_space": (res.stats or {}).get("free_space")}
-        return {"color": color, "depth": fo["depth"], "hole": fo["hole"], "selection": fo["selection"],
-                "label": label}, times
+        return ({"color": color, "depth": fo["depth"], "hole": fo["hole"], "selection": fo["selection"],
+                 "label": label}, times, colors)
 
     def frame_report(self) -> dict:
         return dict(self._last)
+
+
+# The mix stage (docs/hybrid.md "pvm_floor"): the floors tried, and how much better than the
+# smallest a floor must do to be taken (mean PSNR over the held-out input views).
+MIX_FLOORS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)
+MIX_DEFAULTS = {"views": 6, "tol_db": 0.01}
+
+
+def fit_pvm_floor(scene: Scene, views: int = MIX_DEFAULTS["views"], tol_db: float = MIX_DEFAULTS["tol_db"],
+                  floors: tuple[float, ...] = MIX_FLOORS, progress=None) -> dict | str:
+    """The hybrid's ``pvm_floor`` for ``scene``, fitted by leave-one-out: ``views`` input views
+    spread over the scene's list are each held out in turn (absent from ULR's and PVM's inputs, as
+    with ``--holdout``) and rendered by the hybrid at every floor; the floor taken is the smallest
+    whose mean PSNR (sRGB, the held-out image as truth) is within ``tol_db`` of the best. The
+    global mesh and the harmonised images were made with the held-out view, which favours ULR at
+    it, so the fit errs towards small floors. Returns {"pvm_floor", "floors", "psnr" (views x
+    floors), "views"}, or a reason (str) when the scene has too few views (< 4) to hold one out."""
+    from ..imageio import linear_to_srgb
+    from ..metrics import psnr
+    from .job import plan
+
+    views = int(views)
+    if views < 1:
+        raise BadValueError(f"mix stage: views {views}: expected >= 1")
+    names = [v.name for v in scene.views if v.has_color]
+    if len(names) < 4:
+        return f"{len(names)} views with colour: the fit holds one out and needs >= 4"
+    k = min(views, len(names))
+    picked = [names[int((i + 0.5) * len(names) / k)] for i in range(k)]
+    floors = tuple(sorted(set(float(f) for f in floors)))
+    table = np.zeros((k, len(floors)))
+    for i, name in enumerate(picked):
+        if progress is not None:
+            progress(f"mix: view {name} held out ({i + 1} of {k})")
+        job = plan(scene, holdout=[name])
+        frame = job.frames[0]
+        m = HybridMethod({"pvm_floor": 0.0})
+        m.prepare(job.scene)
+        out, _, colors = m._render(frame.camera, floors)
+        truth = linear_to_srgb(frame.truth.color)
+        for j, c in enumerate(colors):
+            c = np.where(out["hole"][..., None], 0.0, np.nan_to_num(c, nan=0.0, posinf=0.0, neginf=0.0))
+            v = psnr(linear_to_srgb(c.astype(np.float32)), truth, 1.0)
+            table[i, j] = v if v is not None and np.isfinite(v) else 100.0  # an exact match
+    mean = table.mean(axis=0)
+    best = float(mean.max())
+    floor = next(f for f, v in zip(floors, mean) if v >= best - tol_db)
+    return {"pvm_floor": float(floor), "floors": np.array(floors), "psnr": table, "views": np.array(picked)}
