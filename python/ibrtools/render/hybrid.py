@@ -460,12 +460,13 @@ class HybridMethod:
         pvm_depth = np.ascontiguousarray(res.depth, np.float32)
         label = _core.hybrid_select(gb["depth"], inside_grid=inside, pvm_valid=valid, pvm_depth=pvm_depth, vd=vd,
                                     geo_threshold=self._geo, tau_var=p["tau_var"])
-        top = max(floors)
-        weights = _core.blur_selection(label, p["sigma_blur"], p["min_weight"], decimate=True, pvm_floor=top)
+        def blur(floor):
+            return _core.blur_selection(label, p["sigma_blur"], p["min_weight"], decimate=True, pvm_floor=floor)
+
+        weights = blur(max(floors))
         need_ulr, need_pvm, n_ulr, n_pvm = _core.hybrid_needs(weights, valid)
-        if floors[0] != top:
-            weights = _core.blur_selection(label, p["sigma_blur"], p["min_weight"], decimate=True,
-                                           pvm_floor=floors[0])
+        if floors[0] != max(floors):
+            weights = blur(floors[0])
         t4 = time.perf_counter()
         times["masking"] = (t4 - t3) * 1e3
         pvm_color = None
@@ -501,9 +502,7 @@ class HybridMethod:
         times["tm_shade"] = (t6 - t5) * 1e3
         parts = dict(tm=tm, ulr=ulr, ulr_count=count, pvm=pvm_color, pvm_valid=valid if pvm_color is not None else None)
         color = _core.hybrid_composite(weights, **parts)
-        colors = [color] + [_core.hybrid_composite(_core.blur_selection(label, p["sigma_blur"], p["min_weight"],
-                                                                         decimate=True, pvm_floor=f), **parts)
-                            for f in floors[1:]]
+        colors = [color] + [_core.hybrid_composite(blur(f), **parts) for f in floors[1:]]
         # hole (no label, no blurred weight), depth (PVM's where chosen), the selection image
         # (= weights @ SELECTION_COLORS) and the label counts in one pass (numpy: ~15 ms at 1280x720)
         fo = _core.hybrid_frame_outputs(label, weights, gb["depth"], pvm_depth)
@@ -513,7 +512,7 @@ class HybridMethod:
                                     for i, name in enumerate(("tm", "ulr", "pvm", "none"))},
                       "ulr_pixels": int(n_ulr), "pvm_pixels": int(n_pvm), "tm_pixels": n_tm,
                       "geo_threshold": self._geo, "images": self._source,
-                      "pvm_floor": self._floor if len(floors) == 1 else floors[0], "pvm_floor_source": self._floor_source,
+                      "pvm_floor": floors[0], "pvm_floor_source": self._floor_source,
                       "free_space": (res.stats or {}).get("free_space")}
         return ({"color": color, "depth": fo["depth"], "hole": fo["hole"], "selection": fo["selection"],
                  "label": label}, times, colors)
@@ -522,21 +521,22 @@ class HybridMethod:
         return dict(self._last)
 
 
-# The mix stage (docs/hybrid.md "pvm_floor"): the floors tried, and how much better than the
+# The mix stage (docs/hybrid.md "Twelfth round"): the floors tried, and how much better than the
 # smallest a floor must do to be taken (mean PSNR over the held-out input views).
 MIX_FLOORS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)
 MIX_DEFAULTS = {"views": 6, "tol_db": 0.01}
 
 
 def fit_pvm_floor(scene: Scene, views: int = MIX_DEFAULTS["views"], tol_db: float = MIX_DEFAULTS["tol_db"],
-                  floors: tuple[float, ...] = MIX_FLOORS, progress=None) -> dict | str:
+                  floors: tuple[float, ...] = MIX_FLOORS) -> dict | str:
     """The hybrid's ``pvm_floor`` for ``scene``, fitted by leave-one-out: ``views`` input views
     spread over the scene's list are each held out in turn (absent from ULR's and PVM's inputs, as
     with ``--holdout``) and rendered by the hybrid at every floor; the floor taken is the smallest
     whose mean PSNR (sRGB, the held-out image as truth) is within ``tol_db`` of the best. The
     global mesh and the harmonised images were made with the held-out view, which favours ULR at
     it, so the fit errs towards small floors. Returns {"pvm_floor", "floors", "psnr" (views x
-    floors), "views"}, or a reason (str) when the scene has too few views (< 4) to hold one out."""
+    floors), "views"}, or a reason (str) when the scene has too few views (< 4) to hold one out
+    or is a video scene (not built yet for those: the floor is then 0)."""
     from ..imageio import linear_to_srgb
     from ..metrics import psnr
     from .job import plan
@@ -544,6 +544,8 @@ def fit_pvm_floor(scene: Scene, views: int = MIX_DEFAULTS["views"], tol_db: floa
     views = int(views)
     if views < 1:
         raise BadValueError(f"mix stage: views {views}: expected >= 1")
+    if scene.frames:
+        return "video scene: the leave-one-out fit is not built yet for frames"
     names = [v.name for v in scene.views if v.has_color]
     if len(names) < 4:
         return f"{len(names)} views with colour: the fit holds one out and needs >= 4"
@@ -552,8 +554,6 @@ def fit_pvm_floor(scene: Scene, views: int = MIX_DEFAULTS["views"], tol_db: floa
     floors = tuple(sorted(set(float(f) for f in floors)))
     table = np.zeros((k, len(floors)))
     for i, name in enumerate(picked):
-        if progress is not None:
-            progress(f"mix: view {name} held out ({i + 1} of {k})")
         job = plan(scene, holdout=[name])
         frame = job.frames[0]
         m = HybridMethod({"pvm_floor": 0.0})
