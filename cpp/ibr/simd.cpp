@@ -8,22 +8,21 @@ namespace {
 std::atomic<int> g_isa{-1};  // -1 auto, 0 baseline, 1 AVX2
 }  // namespace
 
-bool CpuHasAvx2() {
+// __builtin_cpu_supports takes a string literal only, hence a macro rather than a function.
 #if defined(__GNUC__) && defined(__x86_64__)
-  static const bool has = __builtin_cpu_supports("avx2");
-  return has;
+#define IBR_CPU_SUPPORTS(feature) __builtin_cpu_supports(feature)
 #else
-  return false;
+#define IBR_CPU_SUPPORTS(feature) false
 #endif
+
+bool CpuHasAvx2() {
+  static const bool has = IBR_CPU_SUPPORTS("avx2");
+  return has;
 }
 
 bool CpuHasAvx512f() {
-#if defined(__GNUC__) && defined(__x86_64__)
-  static const bool has = __builtin_cpu_supports("avx512f");
+  static const bool has = IBR_CPU_SUPPORTS("avx512f");
   return has;
-#else
-  return false;
-#endif
 }
 
 bool SetIsa(Isa isa) {

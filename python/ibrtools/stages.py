@@ -788,16 +788,9 @@ def _check_stage_options(options: dict) -> None:
         if hasattr(H, "HarmoniseParams"):
             classes["harmonise"] = H.HarmoniseParams
     if "mix" in options:
-        from .render.hybrid import MIX_DEFAULTS
+        from .render.hybrid import check_mix_options
 
-        bad = sorted(set(options["mix"]) - set(MIX_DEFAULTS))
-        if bad:
-            raise BadValueError(f"--set mix.*: unknown parameter(s) {bad} (parameters: {', '.join(MIX_DEFAULTS)})")
-        views, tol = options["mix"].get("views", 1), options["mix"].get("tol_db", 0.0)
-        if isinstance(views, bool) or not isinstance(views, int) or views < 1:
-            raise BadValueError(f"--set mix.views={views!r}: expected a whole number of views >= 1")
-        if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not (0.0 <= tol < float("inf")):
-            raise BadValueError(f"--set mix.tol_db={tol!r}: expected a finite number of dB >= 0")
+        check_mix_options(options["mix"])
     for stage, kw in options.items():
         cls = classes.get(stage)
         if cls is None:

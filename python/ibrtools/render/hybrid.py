@@ -460,13 +460,16 @@ class HybridMethod:
         pvm_depth = np.ascontiguousarray(res.depth, np.float32)
         label = _core.hybrid_select(gb["depth"], inside_grid=inside, pvm_valid=valid, pvm_depth=pvm_depth, vd=vd,
                                     geo_threshold=self._geo, tau_var=p["tau_var"])
-        def blur(floor):
-            return _core.blur_selection(label, p["sigma_blur"], p["min_weight"], decimate=True, pvm_floor=floor)
+        by_floor: dict[float, np.ndarray] = {}
 
-        weights = blur(max(floors))
-        need_ulr, need_pvm, n_ulr, n_pvm = _core.hybrid_needs(weights, valid)
-        if floors[0] != max(floors):
-            weights = blur(floors[0])
+        def weights_at(floor):  # the blurred selection at a floor, computed once
+            if floor not in by_floor:
+                by_floor[floor] = _core.blur_selection(label, p["sigma_blur"], p["min_weight"], decimate=True,
+                                                       pvm_floor=floor)
+            return by_floor[floor]
+
+        need_ulr, need_pvm, n_ulr, n_pvm = _core.hybrid_needs(weights_at(max(floors)), valid)
+        weights = weights_at(floors[0])
         t4 = time.perf_counter()
         times["masking"] = (t4 - t3) * 1e3
         pvm_color = None
@@ -501,8 +504,8 @@ class HybridMethod:
         t6 = time.perf_counter()
         times["tm_shade"] = (t6 - t5) * 1e3
         parts = dict(tm=tm, ulr=ulr, ulr_count=count, pvm=pvm_color, pvm_valid=valid if pvm_color is not None else None)
-        color = _core.hybrid_composite(weights, **parts)
-        colors = [color] + [_core.hybrid_composite(blur(f), **parts) for f in floors[1:]]
+        colors = [_core.hybrid_composite(weights_at(f), **parts) for f in floors]
+        color = colors[0]
         # hole (no label, no blurred weight), depth (PVM's where chosen), the selection image
         # (= weights @ SELECTION_COLORS) and the label counts in one pass (numpy: ~15 ms at 1280x720)
         fo = _core.hybrid_frame_outputs(label, weights, gb["depth"], pvm_depth)
@@ -529,6 +532,19 @@ MIX_FLOORS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)
 MIX_DEFAULTS = {"views": 6, "tol_db": 0.01}
 
 
+def check_mix_options(options: dict) -> None:
+    """The mix stage's options (``--set mix.KEY=VALUE``): known keys, ``views`` a whole number >= 1,
+    ``tol_db`` a finite number >= 0; a BadValueError naming the option otherwise."""
+    bad = sorted(set(options) - set(MIX_DEFAULTS))
+    if bad:
+        raise BadValueError(f"--set mix.*: unknown parameter(s) {bad} (parameters: {', '.join(MIX_DEFAULTS)})")
+    views, tol = options.get("views", 1), options.get("tol_db", 0.0)
+    if isinstance(views, bool) or not isinstance(views, (int, np.integer)) or views < 1:
+        raise BadValueError(f"--set mix.views={views!r}: expected a whole number of views >= 1")
+    if isinstance(tol, bool) or not isinstance(tol, (int, float, np.number)) or not 0.0 <= float(tol) < math.inf:
+        raise BadValueError(f"--set mix.tol_db={tol!r}: expected a finite number of dB >= 0")
+
+
 def fit_pvm_floor(scene: Scene, views: int = MIX_DEFAULTS["views"], tol_db: float = MIX_DEFAULTS["tol_db"],
                   floors: tuple[float, ...] = MIX_FLOORS) -> dict | str:
     """The hybrid's ``pvm_floor`` for ``scene``, fitted by leave-one-out: ``views`` input views
@@ -541,17 +557,15 @@ def fit_pvm_floor(scene: Scene, views: int = MIX_DEFAULTS["views"], tol_db: floa
     or is a video scene (not built yet for those: the floor is then 0)."""
     from ..imageio import linear_to_srgb
     from ..metrics import psnr
-    from .job import plan
+    from .job import clean_color, plan
 
-    views = int(views)
-    if views < 1:
-        raise BadValueError(f"mix stage: views {views}: expected >= 1")
+    check_mix_options({"views": views, "tol_db": tol_db})
     if scene.frames:
         return "video scene: the leave-one-out fit is not built yet for frames"
     names = [v.name for v in scene.views if v.has_color]
     if len(names) < 4:
         return f"{len(names)} views with colour: the fit holds one out and needs >= 4"
-    k = min(views, len(names))
+    k = min(int(views), len(names))
     picked = [names[int((i + 0.5) * len(names) / k)] for i in range(k)]
     floors = tuple(sorted(set(float(f) for f in floors)))
     table = np.zeros((k, len(floors)))
@@ -563,8 +577,7 @@ def fit_pvm_floor(scene: Scene, views: int = MIX_DEFAULTS["views"], tol_db: floa
         out, _, colors = m._render(frame.camera, floors)
         truth = linear_to_srgb(frame.truth.color)
         for j, c in enumerate(colors):
-            c = np.where(out["hole"][..., None], 0.0, np.nan_to_num(c, nan=0.0, posinf=0.0, neginf=0.0))
-            v = psnr(linear_to_srgb(c.astype(np.float32)), truth, 1.0)
+            v = psnr(linear_to_srgb(clean_color({"color": c, "hole": out["hole"]})), truth, 1.0)
             table[i, j] = v if v is not None and np.isfinite(v) else 100.0  # an exact match
     mean = table.mean(axis=0)
     best = float(mean.max())

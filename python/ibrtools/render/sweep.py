@@ -108,9 +108,7 @@ def sweep(scene: Scene, method: str, grid: dict[str, list], *, holdout: list[str
             t1 = time.perf_counter()
             out, stage_ms = m.render(frame.camera)
             times.append((time.perf_counter() - t1) * 1e3)
-            color = np.nan_to_num(out["color"], nan=0.0, posinf=0.0, neginf=0.0)
-            if out.get("hole") is not None:
-                color = np.where(out["hole"][..., None], 0.0, color).astype(np.float32)
+            color = J.clean_color(out)
             metrics.append(J._frame_metrics({**out, "color": color}, frame.truth))
             if frame_hook:
                 frame_hook(ci, fi, frame, {**out, "color": color}, {"total": times[-1], **stage_ms}, metrics[-1])
