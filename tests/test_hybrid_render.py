@@ -659,3 +659,26 @@ def test_mix_stage_fit_is_what_holding_each_view_out_gives(exact_scene):
     hy.prepare(exact_scene)
     hy.render(exact_scene.targets[0].camera)
     assert hy.frame_report()["pvm_floor"] == float(d["pvm_floor"]) and hy.frame_report()["pvm_floor_source"] == "mix stage"
+
+
+@needs_pvm
+def test_without_views_renders_what_preparing_the_held_out_scene_gives(exact_scene):
+    # The mix stage's shortcut: one prepare on the whole scene, a copy per held-out view sharing
+    # what was loaded. Every output equals a prepare of --holdout's scene, bit for bit.
+    from ibrtools.render import hybrid as H, job as J
+
+    base = H.HybridMethod({"pvm_floor": 0.3})
+    base.prepare(exact_scene)
+    for name in (exact_scene.views[0].name, exact_scene.views[-1].name):
+        job = J.plan(exact_scene, holdout=[name])
+        fresh = H.HybridMethod({"pvm_floor": 0.3})
+        fresh.prepare(job.scene)
+        a, _ = base._without_views(job.scene).render(job.frames[0].camera)
+        b, _ = fresh.render(job.frames[0].camera)
+        assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+        assert not np.array_equal(a["color"], base.render(job.frames[0].camera)[0]["color"])  # the view is out
+    smaller = J.plan(exact_scene, holdout=[exact_scene.views[0].name]).scene
+    part = H.HybridMethod({"pvm_floor": 0.3})
+    part.prepare(smaller)
+    with pytest.raises(BadValueError, match="subset"):
+        part._without_views(exact_scene)

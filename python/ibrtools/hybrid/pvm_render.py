@@ -160,19 +160,27 @@ def load_tiles(scene: Scene) -> PvmTiles:
     return PvmTiles.load(path)
 
 
-def load_images(scene: Scene) -> dict[str, np.ndarray]:
-    """Input images: the harmonise stage's when it ran, else the views' own colour."""
+def harmonised_images(arrays) -> dict[str, np.ndarray]:
+    """{view name: image} of the harmonise stage's arrays (its npz, or the dict loaded from it)."""
+    return {k[len("image/"):]: arrays[k] for k in list(arrays) if k.startswith("image/")}
+
+
+def load_images(scene: Scene, harmonise=None) -> dict[str, np.ndarray]:
+    """Input images: the harmonise stage's when it ran, else the views' own colour.
+    ``harmonise``: that stage's arrays when the caller has loaded them (read again otherwise)."""
     from .. import stages
 
     harmonised: dict[str, np.ndarray] = {}
-    if scene.root is not None:
+    if harmonise is not None:
+        harmonised = harmonised_images(harmonise)
+    elif scene.root is not None:
         try:
             path = stages.stage_output(scene.root, "harmonise")
         except (MissingFileError, BadValueError):
             path = None  # skipped (views agree) or not run: the original images
         if path is not None:
             with np.load(path, allow_pickle=False) as z:
-                harmonised = {k[len("image/"):]: z[k] for k in z.files if k.startswith("image/")}
+                harmonised = harmonised_images(z)
     out = {}
     for v in scene.views:
         img = harmonised.get(v.name)
@@ -230,6 +238,8 @@ class PvmRenderer:
                              f"of the scene; rerun {_preprocess_hint(scene)}")
         if self.params["free_space"] and depths is None:
             depths = load_depths(scene)
+        # what was loaded, for a renderer of a subset of these views (HybridMethod._without_views)
+        self.images, self.depths = images, depths
         self.free_space = bool(self.params["free_space"] and depths is not None)
         # stats["free_space"]: whether Eq. 1 / Eq. 2 counted background candidates by free space
         self._free_space_report: bool | str = (self.free_space if self.free_space or not self.params["free_space"]

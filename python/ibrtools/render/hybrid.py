@@ -43,6 +43,7 @@ stage reads.
 """
 from __future__ import annotations
 
+import copy
 import math
 
 import time
@@ -249,17 +250,20 @@ class _GlobalMesh:
         return _core.interpolate_vertex_attribute(gb["prim_id"], gb["bary"], self.faces, attrib)
 
 
-def _views_for_ulr(scene: Scene, method: str, harmonised: bool, gm: "_GlobalMesh | None" = None) -> tuple[list, str]:
+def _views_for_ulr(scene: Scene, method: str, harmonised: bool, gm: "_GlobalMesh | None" = None,
+                   harmonise: dict | None = None) -> tuple[list, str]:
     """[(core camera, colour, depth)] of the input views: harmonised colour when the harmonise
-    stage has it; depth = the global mesh rendered into the view (``gm`` given: occlusion
-    "mesh"), else the view's depth or the depth stage's rendering."""
+    stage has it (``harmonise``: its arrays, when the caller has loaded them); depth = the
+    global mesh rendered into the view (``gm`` given: occlusion "mesh"), else the view's depth
+    or the depth stage's rendering."""
+    from ..hybrid.pvm_render import harmonised_images
+
     images: dict = {}
     source = "original"
     if harmonised and scene.root is not None:
         rec = _stage_record(scene, "harmonise")
         if rec.get("outputs"):
-            h = _stage(scene, "harmonise", method)
-            images = {k[len("image/"):]: v for k, v in h.items() if k.startswith("image/")}
+            images = harmonised_images(harmonise if harmonise is not None else _stage(scene, "harmonise", method))
             source = "harmonised"
         elif rec.get("skipped"):
             source = f"original (harmonise skipped: {rec['skipped']})"
@@ -380,22 +384,23 @@ class HybridMethod:
 
     def prepare(self, scene: Scene) -> dict[str, float]:
         try:
-            from ..hybrid.pvm_render import PvmRenderer
+            from ..hybrid.pvm_render import PvmRenderer, load_images
         except ImportError:
             from ..errors import NotBuiltError
 
             raise NotBuiltError("--method hybrid: the PVM renderer (ibrtools.hybrid.pvm_render) is not built yet") from None
         t0 = time.perf_counter()
         self._gm = _GlobalMesh(scene, "hybrid", texture=True)
-        self._views, self._source = _views_for_ulr(scene, "hybrid", self.params["harmonised"],
-                                                   self._gm if self.params["occlusion"] == "mesh" else None)
-        self._vd = None
-        h = None
+        h = None  # the harmonise stage, loaded once for ULR's images, PVM's and the vd texture
         rec = _stage_record(scene, "harmonise")
         if rec.get("outputs"):
             h = _stage(scene, "harmonise", "hybrid")
         elif not rec.get("skipped"):
             _stage(scene, "harmonise", "hybrid")  # raises, naming the command
+        self._views, self._source = _views_for_ulr(scene, "hybrid", self.params["harmonised"],
+                                                   self._gm if self.params["occlusion"] == "mesh" else None, h)
+        self._view_names = [v.name for v in scene.views]  # _views_for_ulr's order
+        self._vd = None
         if h is not None and ("vd_render" in h or "vd_texture" in h):
             # per vertex of the render mesh ("vd_render"), or of the dense mesh when it is the same
             self._vd = np.ascontiguousarray(h["vd_render" if "vd_render" in h else "vd_texture"], np.float32)
@@ -409,9 +414,32 @@ class HybridMethod:
         self._floor, self._floor_source = self._resolve_floor(scene)
         t1 = time.perf_counter()
         pvm_params = {k: p[k] for k in PVM_KEYS}
-        self._pvm = PvmRenderer(scene, pvm_params)
+        self._pvm = PvmRenderer(scene, pvm_params, images=load_images(scene, h))
         t2 = time.perf_counter()
         return {"load": (t1 - t0) * 1e3 - self._gm.build_ms, "bvh": self._gm.build_ms, "pvm_load": (t2 - t1) * 1e3}
+
+    def _without_views(self, scene: Scene) -> "HybridMethod":
+        """This method prepared for ``scene``, the scene it was prepared for with some input views
+        taken out (``plan(..., holdout=)``'s scene), without loading the stages again: the global
+        mesh, the ULR inputs and the PVM tiles, images and depths are shared; the views that
+        ``scene`` lacks are dropped from ULR and disabled in PVM, as preparing for ``scene`` does.
+        Renders what ``prepare(scene)`` would, bit for bit (the mix stage's fit;
+        tests/test_hybrid_render.py). Occlusion "views" reads each view's own depth: prepare."""
+        from ..hybrid.pvm_render import PvmRenderer
+
+        if self._gm is None:
+            raise BadValueError("hybrid: prepare(scene) must be called before _without_views")
+        keep = {v.name for v in scene.views}
+        if not keep <= set(self._view_names) or self.params["occlusion"] != "mesh":
+            raise BadValueError("hybrid: _without_views needs a subset of the prepared scene's views and occlusion mesh")
+        m = copy.copy(self)
+        m._views = [v for v, name in zip(self._views, self._view_names) if name in keep]
+        m._view_names = [name for name in self._view_names if name in keep]
+        # depths None: some view had no depth map; the subset may have them all, so PVM loads its own
+        m._pvm = PvmRenderer(scene, self._pvm.params, tiles=self._pvm.tiles, images=self._pvm.images,
+                             depths=self._pvm.depths)
+        m._last = {}
+        return m
 
     def _resolve_floor(self, scene: Scene) -> tuple[float, str]:
         """pvm_floor: the parameter when it is a number; "auto": the mix stage's fit (0 when the
@@ -569,12 +597,12 @@ def fit_pvm_floor(scene: Scene, views: int = MIX_DEFAULTS["views"], tol_db: floa
     picked = [names[int((i + 0.5) * len(names) / k)] for i in range(k)]
     floors = tuple(sorted(set(float(f) for f in floors)))
     table = np.zeros((k, len(floors)))
+    base = HybridMethod({"pvm_floor": 0.0})
+    base.prepare(scene)  # once: each held-out view's method shares its loaded stages
     for i, name in enumerate(picked):
         job = plan(scene, holdout=[name])
         frame = job.frames[0]
-        m = HybridMethod({"pvm_floor": 0.0})
-        m.prepare(job.scene)
-        out, _, colors = m._render(frame.camera, floors)
+        out, _, colors = base._without_views(job.scene)._render(frame.camera, floors)
         truth = linear_to_srgb(frame.truth.color)
         for j, c in enumerate(colors):
             v = psnr(linear_to_srgb(clean_color({"color": c, "hole": out["hole"]})), truth, 1.0)
