@@ -424,7 +424,7 @@ class HybridMethod:
         mesh, the ULR inputs and the PVM tiles, images and depths are shared; the views that
         ``scene`` lacks are dropped from ULR and disabled in PVM, as preparing for ``scene`` does.
         Renders what ``prepare(scene)`` would, bit for bit (the mix stage's fit;
-        tests/test_hybrid_render.py). Occlusion "views" reads each view's own depth: prepare."""
+        tests/test_hybrid_render.py). Occlusion "mesh" (the default) only: with "views", prepare."""
         from ..hybrid.pvm_render import PvmRenderer
 
         if self._gm is None:
