@@ -149,3 +149,29 @@ def Mesh_wall():
 
     v = np.array([[-1, -1, 2], [1, -1, 2], [1, 1, 2], [-1, 1, 2]], np.float32)
     return Mesh(v, np.array([[0, 2, 1], [0, 3, 2]], np.int32))
+
+
+def test_gbuffer_rasterises_small_meshes_and_ray_casts_dense_ones(scene_mesh, monkeypatch):
+    # _GlobalMesh.gbuffer takes the rasteriser for a mesh of few faces per pixel, Embree otherwise
+    # (RASTER_MAX_FACES, RASTER_MAX_FACES_PER_PIXEL): each path's output as such, and the same surface.
+    from ibrtools.render import hybrid as H
+
+    scene, mesh = scene_mesh
+    gm = H._GlobalMesh.__new__(H._GlobalMesh)
+    gm.mesh, gm.faces, gm._vertices32 = mesh, np.ascontiguousarray(mesh.faces, np.int32), None
+    gm.renderer = ReferenceRenderer(mesh)
+    f = len(gm.faces)
+    big = scene.views[0].camera
+    small = big.scaled(24, 18)  # more faces than RASTER_MAX_FACES_PER_PIXEL per pixel
+    names = ("depth", "normal", "prim_id", "bary")
+    for cam, raster in ((small, False), (big.scaled(1600, 1200), True)):
+        assert (f <= H.RASTER_MAX_FACES_PER_PIXEL * cam.width * cam.height) == raster
+        got = gm.gbuffer(cam)
+        want = (_core.raster_gbuffer(cam.to_core(), np.ascontiguousarray(mesh.vertices, np.float32), mesh.faces)
+                if raster else gm.renderer.render(cam, outputs=names, lights=[], ambient=0.0))
+        assert all(np.array_equal(got[k], want[k]) for k in names)
+        assert np.array_equal(got["hit"], want["prim_id"] >= 0)
+    monkeypatch.setattr(H, "RASTER_MAX_FACES", f - 1)  # a mesh over the face limit: ray cast at any size
+    cam = big.scaled(1600, 1200)
+    got = gm.gbuffer(cam)
+    assert np.array_equal(got["prim_id"], gm.renderer.render(cam, outputs=("prim_id",), lights=[], ambient=0.0)["prim_id"])

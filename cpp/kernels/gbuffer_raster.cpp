@@ -129,17 +129,15 @@ void Raster(const ScreenTri& t, int r0, int r1, int width, float* best_iz, std::
   }
 }
 
-// Rows [r0, r1] of the visibility pass: cleared, then every triangle reaching them scan-converted.
-// This and AttributeRow, the per-pixel loops, run through ParallelForIsa (cpp/ibr/simd.h: built for AVX2
-// and the baseline, the same bits): G-buffer 8.0 -> 6.9 ms at 1280x720 on a Zen 3 EPYC (bench_hybrid's
-// scene, 2 threads).
-void RasterBand(const std::vector<ScreenTri>& tris, int r0, int r1, int width, float* best_iz, std::int32_t* prim) {
+// Rows [r0, r1] of the visibility pass: cleared, then the triangles reaching them (`tris`, the
+// band's bin, in face order) scan-converted. This and AttributeRow, the per-pixel loops, run through
+// ParallelForIsa (cpp/ibr/simd.h: built for AVX2 and the baseline, the same bits): G-buffer 8.0 ->
+// 6.9 ms at 1280x720 on a Zen 3 EPYC (bench_hybrid's scene, 2 threads).
+void RasterBand(const ScreenTri* const* tris, std::int64_t count, int r0, int r1, int width, float* best_iz,
+                std::int32_t* prim) {
   std::fill(best_iz + static_cast<std::int64_t>(r0) * width, best_iz + static_cast<std::int64_t>(r1 + 1) * width, 0.f);
   std::fill(prim + static_cast<std::int64_t>(r0) * width, prim + static_cast<std::int64_t>(r1 + 1) * width, -1);
-  for (const ScreenTri& t : tris) {
-    if (t.y1 < r0 || t.y0 > r1) continue;
-    Raster(t, r0, r1, width, best_iz, prim);
-  }
+  for (std::int64_t i = 0; i < count; ++i) Raster(*tris[i], r0, r1, width, best_iz, prim);
 }
 
 // Per-face constants of the attribute pass (RasterGBuffer): with the ray origin at the camera
@@ -152,13 +150,32 @@ struct FaceRay {
   double t;
 };
 
+FaceRay MakeFaceRay(const Camera& camera, const std::vector<glm::dvec3>& pc, const std::int32_t* fv) {
+  const glm::dvec3 &p0 = pc[fv[0]], &p1 = pc[fv[1]], &p2 = pc[fv[2]];
+  const glm::dvec3 e1 = p1 - p0, e2 = p2 - p0, s = -p0;
+  FaceRay r;
+  r.a = glm::cross(e2, s);
+  r.b = glm::cross(s, e1);
+  r.c = glm::cross(e2, e1);
+  r.t = glm::dot(e2, r.b);
+  glm::dvec3 n = glm::cross(e1, e2);
+  const double len = glm::length(n);
+  n = len > 0 ? n / len : glm::dvec3(0.0);
+  if (glm::dot(n, p0) > 0) n = -n;  // facing the camera (the camera is at 0)
+  r.n_world = camera.WorldFromCamDir(n);
+  return r;
+}
+
 // Row y of the attribute pass: depth (from 1/z to the ray's t), barycentrics and normal at each
 // covered pixel centre, zeros elsewhere.
-void AttributeRow(const Camera& camera, const std::vector<FaceRay>& fr, const std::vector<glm::dvec3>& pc,
-                  const std::int32_t* faces, std::int64_t y, float* depth, const std::int32_t* prim_id, float* bary,
-                  float* normal) {
+// The face's constants are made at the pixels that show it (a run of pixels of one face makes them
+// once): a frame shows fewer faces than a large mesh has in view (1.27 M-face lego mesh at 800x800).
+void AttributeRow(const Camera& camera, const std::vector<glm::dvec3>& pc, const std::int32_t* faces, std::int64_t y,
+                  float* depth, const std::int32_t* prim_id, float* bary, float* normal) {
   const int w = camera.width;
   const double dy = (static_cast<double>(y) + 0.5 - camera.cy) / camera.fy;
+  FaceRay r{};
+  std::int32_t r_face = -1;
   for (int x = 0; x < w; ++x) {
     const std::int64_t i = y * w + x;
     float* bo = bary + 2 * i;
@@ -169,7 +186,10 @@ void AttributeRow(const Camera& camera, const std::vector<FaceRay>& fr, const st
       if (normal) normal[3 * i] = normal[3 * i + 1] = normal[3 * i + 2] = 0.f;
       continue;
     }
-    const FaceRay& r = fr[f];
+    if (f != r_face) {
+      r = MakeFaceRay(camera, pc, faces + 3 * static_cast<std::int64_t>(f));
+      r_face = f;
+    }
     const glm::dvec3 d((static_cast<double>(x) + 0.5 - camera.cx) / camera.fx, dy, 1.0);
     const double det = glm::dot(d, r.c);
     double u = 0, v = 0, t = 0;
@@ -224,6 +244,7 @@ void RasterGBuffer(const Camera& camera, const float* vertices, std::int64_t num
   ParallelFor(nchunks, 1, [&](std::int64_t b, std::int64_t e) {
     for (std::int64_t c = b; c < e; ++c) {
       auto& out = parts[c];
+      out.reserve(static_cast<std::size_t>(chunk));  // no regrowth (a face clipped by the near plane may give 2)
       for (std::int64_t f = c * chunk; f < std::min(num_faces, (c + 1) * chunk); ++f) {
         const std::int32_t* fv = faces + 3 * f;
         const glm::dvec3 p[3] = {pc[fv[0]], pc[fv[1]], pc[fv[2]]};
@@ -232,46 +253,36 @@ void RasterGBuffer(const Camera& camera, const float* vertices, std::int64_t num
       }
     }
   });
-  std::vector<ScreenTri> tris;
+  // The triangles binned by band of rows, each bin in face order (a counting sort; a band used to
+  // walk every triangle: 351 -> 40 ms for a 1.27 M-face mesh at 800x800, the same output).
+  const int nbands = (h + kBandRows - 1) / kBandRows;
+  std::vector<std::int64_t> start(static_cast<std::size_t>(nbands) + 1, 0);
+  for (const auto& part : parts) {
+    for (const ScreenTri& t : part) {
+      for (int b = t.y0 / kBandRows; b <= t.y1 / kBandRows; ++b) ++start[static_cast<std::size_t>(b) + 1];
+    }
+  }
+  for (int b = 0; b < nbands; ++b) start[static_cast<std::size_t>(b) + 1] += start[static_cast<std::size_t>(b)];
+  std::vector<const ScreenTri*> binned(static_cast<std::size_t>(start.back()));
   {
-    std::size_t total = 0;
-    for (const auto& p : parts) total += p.size();
-    tris.reserve(total);
-    for (const auto& p : parts) tris.insert(tris.end(), p.begin(), p.end());
+    std::vector<std::int64_t> next(start.begin(), start.end() - 1);
+    for (const auto& part : parts) {
+      for (const ScreenTri& t : part) {
+        for (int b = t.y0 / kBandRows; b <= t.y1 / kBandRows; ++b) binned[next[static_cast<std::size_t>(b)]++] = &t;
+      }
+    }
   }
   // Visibility, band by band: depth holds 1/z meanwhile (0 = nothing).
-  const int nbands = (h + kBandRows - 1) / kBandRows;
   ParallelForIsa(nbands, 1, [&](std::int64_t b, std::int64_t e) {
     for (std::int64_t band = b; band < e; ++band) {
       const int r0 = static_cast<int>(band) * kBandRows;
-      RasterBand(tris, r0, std::min(h - 1, r0 + kBandRows - 1), w, depth, prim_id);
+      RasterBand(binned.data() + start[band], start[band + 1] - start[band], r0, std::min(h - 1, r0 + kBandRows - 1),
+                 w, depth, prim_id);
     }
   });
   // Attributes by ray-face intersection at each covered pixel centre (FaceRay, AttributeRow).
-  std::vector<FaceRay> fr(static_cast<std::size_t>(num_faces));
-  std::vector<std::uint8_t> used(static_cast<std::size_t>(num_faces), 0);
-  for (const ScreenTri& t : tris) used[t.prim] = 1;
-  ParallelFor(num_faces, 4096, [&](std::int64_t b, std::int64_t e) {
-    for (std::int64_t f = b; f < e; ++f) {
-      if (!used[f]) continue;
-      const std::int32_t* fv = faces + 3 * f;
-      const glm::dvec3 &p0 = pc[fv[0]], &p1 = pc[fv[1]], &p2 = pc[fv[2]];
-      const glm::dvec3 e1 = p1 - p0, e2 = p2 - p0, s = -p0;
-      FaceRay r;
-      r.a = glm::cross(e2, s);
-      r.b = glm::cross(s, e1);
-      r.c = glm::cross(e2, e1);
-      r.t = glm::dot(e2, r.b);
-      glm::dvec3 n = glm::cross(e1, e2);
-      const double len = glm::length(n);
-      n = len > 0 ? n / len : glm::dvec3(0.0);
-      if (glm::dot(n, p0) > 0) n = -n;  // facing the camera (the camera is at 0)
-      r.n_world = camera.WorldFromCamDir(n);
-      fr[f] = r;
-    }
-  });
   ParallelForIsa(h, 8, [&](std::int64_t b, std::int64_t e) {
-    for (std::int64_t y = b; y < e; ++y) AttributeRow(camera, fr, pc, faces, y, depth, prim_id, bary, normal);
+    for (std::int64_t y = b; y < e; ++y) AttributeRow(camera, pc, faces, y, depth, prim_id, bary, normal);
   });
 }
 

@@ -90,6 +90,13 @@ ULR_DEFAULTS = {"k": 4, "resolution_weight": 0.5, "depth_tol": 0.005, "harmonise
 # TM is shaded at the pixels the composite reads alone when they are at most this share of the
 # frame (a (1, n) G-buffer: indexing costs more per pixel than the full-frame shade).
 TM_SUBSET_MAX = 0.25
+# The G-buffer of a pinhole camera is rasterised when the mesh has at most RASTER_MAX_FACES faces and
+# at most RASTER_MAX_FACES_PER_PIXEL faces per pixel of the frame, else ray cast by Embree: the
+# rasteriser's cost grows with the faces (~110 ns each), the ray caster's with the pixels. Measured
+# (docs/hybrid.md "G-buffer and TM"): these limits pick the faster of the two, or one within 5 % of
+# it, on every mesh and size tried but the 1.27 M-face lego mesh at 2400x2400 and larger.
+RASTER_MAX_FACES = 500_000
+RASTER_MAX_FACES_PER_PIXEL = 0.3
 # The hybrid parameters that are the PVM renderer's: its defaults, checked by it, passed to it.
 PVM_KEYS = ("sigma", "alpha", "gamma", "tau_depth", "free_space", "free_space_tol", "free_space_point_tol", "tau_empty",
             "ulr_k", "min_views", "resample", "max_angle", "merge_rel")
@@ -214,11 +221,14 @@ class _GlobalMesh:
 
     def gbuffer(self, camera: Camera, normal: bool = True) -> dict:
         """depth, prim_id, bary (and the normal, for ULR's back-face test); hit = prim_id >= 0.
-        Pinhole cameras: rasterised (``_core.raster_gbuffer``: the same nearest face per pixel
-        centre as the ray caster, 2-3x faster, tests/test_hybrid_raster.py); equirect: Embree."""
+        Pinhole cameras and a mesh of at most RASTER_MAX_FACES faces, RASTER_MAX_FACES_PER_PIXEL
+        per pixel: rasterised (``_core.raster_gbuffer``: the same nearest face per pixel centre as the ray
+        caster, faster for such meshes, tests/test_hybrid_raster.py); else (equirect, or a mesh
+        dense for the frame): Embree."""
         from .. import _core
 
-        if camera.model == "pinhole":
+        f = len(self.faces)
+        if camera.model == "pinhole" and f <= min(RASTER_MAX_FACES, RASTER_MAX_FACES_PER_PIXEL * camera.width * camera.height):
             if self._vertices32 is None:
                 self._vertices32 = np.ascontiguousarray(self.mesh.vertices, np.float32)
             out = dict(_core.raster_gbuffer(camera.to_core(), self._vertices32, self.faces, normal=normal))
