@@ -178,7 +178,8 @@ STAGES: dict[str, Stage] = {s.name: s for s in (
           "per-view meshes (merge tolerance matched to the depth noise) sliced into a two-level voxel grid of "
           "tiles (cubic cells)", version=3),
     Stage("mix", ("scene", "mesh", "depth", "texture", "harmonise", "pvm"), ("mix.npz",), frozenset({"hybrid"}),
-          "the hybrid composite's PVM weight floor (pvm_floor), fitted on leave-one-out renders of input views"),
+          "the hybrid composite's PVM weight floor (pvm_floor), fitted on leave-one-out renders of input views",
+          version=2),  # 2: the G-buffer of a mesh dense for the frame ray cast (render/hybrid.py RASTER_MAX_FACES)
 )}
 ORDER = tuple(STAGES)
 ALL_METHODS = ("reference", "dibr", "warp", "depthwarp", "tm", "ulr", "pvm", "hybrid")
