@@ -254,7 +254,8 @@ void RasterGBuffer(const Camera& camera, const float* vertices, std::int64_t num
     }
   });
   // The triangles binned by band of rows, each bin in face order (a counting sort; a band used to
-  // walk every triangle: 351 -> 40 ms for a 1.27 M-face mesh at 800x800, the same output).
+  // walk every triangle: 351 -> 218 ms for a 1.27 M-face mesh at 800x800, 127 ms with AttributeRow's
+  // per-pixel face constants; the same output).
   const int nbands = (h + kBandRows - 1) / kBandRows;
   std::vector<std::int64_t> start(static_cast<std::size_t>(nbands) + 1, 0);
   for (const auto& part : parts) {
