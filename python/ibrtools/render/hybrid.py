@@ -5,7 +5,7 @@ Every method starts from the **G-buffer** of the global mesh's render mesh (the 
 the same surface as the dense mesh the per-vertex statistics live on, with fewer faces): the
 nearest face at each pixel centre with depth, normal, prim_id and bary, rasterised for pinhole
 cameras (``_core.raster_gbuffer``) and ray cast with Embree (``ReferenceRenderer``) for equirect
-ones.
+ones and for meshes dense for the frame (``RASTER_MAX_FACES``, ``RASTER_MAX_FACES_PER_PIXEL``).
 
 * ``tm`` (textured mesh): the ``texture`` stage's atlas read bilinearly at the hit's UV (the
   face's UVs interpolated with the hit's barycentrics, C++ ``_core.sample_atlas``); a texture
