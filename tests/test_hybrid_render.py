@@ -295,9 +295,9 @@ def test_hybrid_needs_and_frame_outputs_match_numpy():
     np.testing.assert_array_equal(need_pvm, ref_pvm)
     assert (n_ulr, n_pvm) == (int(ref_ulr.sum()), int(ref_pvm.sum()))
     fo = _core.hybrid_frame_outputs(label, weights, gdepth, pdepth)
-    np.testing.assert_array_equal(fo["hole"], (label == 3) & (weights.sum(-1) == 0))
+    np.testing.assert_array_equal(fo["hole"], label == 3)
     np.testing.assert_array_equal(fo["depth"], np.where(label == 2, pdepth, gdepth))
-    np.testing.assert_array_equal(fo["selection"], weights @ SELECTION_COLORS)
+    np.testing.assert_array_equal(fo["selection"], np.where((label == 3)[..., None], 0, weights @ SELECTION_COLORS))
     assert fo["label_counts"] == tuple(int((label == i).sum()) for i in range(4))
     with pytest.raises(BadValueError, match="label"):
         _core.hybrid_frame_outputs(np.full((h, w), 4, np.uint8), weights, gdepth, pdepth)

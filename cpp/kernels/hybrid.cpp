@@ -1416,10 +1416,11 @@ void HybridFrameOutputs(ImageView<const std::uint8_t> label, ImageView<const flo
         const std::uint8_t l = lrow[x];
         const float* wt = wrow + 3 * x;
         ++n[l];  // 0..3 (the binding checks)
-        hole[i] = l == kLabelNone && wt[0] == 0.f && wt[1] == 0.f && wt[2] == 0.f;
+        const bool none = l == kLabelNone;
+        hole[i] = none;
         depth[i] = l == kLabelPvm ? pvm_depth[i] : gbuffer_depth[i];
         float* s = selection + 3 * i;
-        s[0] = wt[2], s[1] = wt[0], s[2] = wt[1];
+        s[0] = none ? 0.f : wt[2], s[1] = none ? 0.f : wt[0], s[2] = none ? 0.f : wt[1];
       }
     }
     for (int c = 0; c < 4; ++c) total[c] += n[c];

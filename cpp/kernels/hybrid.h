@@ -139,9 +139,10 @@ int BlurSelectionFactor(float sigma);
 void HybridNeeds(ImageView<const float> weights, const std::uint8_t* pvm_valid, std::uint8_t* need_ulr,
                  std::uint8_t* need_pvm, std::int64_t counts[2]);
 
-// The frame's other outputs: hole = label none and no blurred weight; depth = the PVM depth where
-// the label is PVM, else the G-buffer's; selection (H, W, 3) = the weights as colours (red PVM,
-// green TM, blue ULR); counts[4] = the pixels of each label (tm, ulr, pvm, none).
+// The frame's other outputs: hole = label none (no mesh hit and no PVM candidate: no method has a
+// colour there, whatever weight the blur spread to it; the composite is 0); depth = the PVM depth
+// where the label is PVM, else the G-buffer's; selection (H, W, 3) = the weights as colours (red
+// PVM, green TM, blue ULR), 0 at holes; counts[4] = the pixels of each label (tm, ulr, pvm, none).
 void HybridFrameOutputs(ImageView<const std::uint8_t> label, ImageView<const float> weights, const float* gbuffer_depth,
                         const float* pvm_depth, std::uint8_t* hole, float* depth, float* selection,
                         std::int64_t counts[4]);
