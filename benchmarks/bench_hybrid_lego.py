@@ -4,7 +4,7 @@ input views' depth maps.
 
     python benchmarks/bench_hybrid_lego.py [--scale 1] [-j N] [--keep DIR] [--validation]
         [--depth-dequantize N] [--methods tm,ulr,...] [--options JSON] [--hybrid-params JSON]
-        [--reuse] [--write-docs]
+        [--reuse] [--speed-repeats 5] [--write-docs]
 
 Protocol (the DIBR lego protocol of benchmarks/bench_dibr_accuracy.py): the nerf importer on
 ../shared/data/nerf_lego (or $IBR_SHARED_DATA/nerf_lego), RGBA composited over black; the held-out
@@ -151,7 +151,12 @@ def main(argv=None) -> int:
     p.add_argument("--options", default=None, metavar="JSON", help="stage options for run_stages (JSON object)")
     p.add_argument("--hybrid-params", default=None, metavar="JSON",
                    help="hybrid render parameters (JSON object, e.g. '{\"tau_var\": 0.1}'; default: HYBRID_DEFAULTS)")
+    p.add_argument("--speed-repeats", type=int, default=5, metavar="N",
+                   help="after scoring, render every held-out view N more times per method and report the median "
+                        "ms per frame (default 5; 0: no speed table)")
     args = p.parse_args(argv)
+    if args.speed_repeats < 0:
+        p.error("--speed-repeats must be >= 0")
     if args.scale < 1:
         p.error("--scale must be >= 1")
     order = [m for m in args.methods.split(",") if m]
@@ -265,6 +270,16 @@ def main(argv=None) -> int:
                 if n == "hybrid":
                     selection.append(renderers[n].frame_report()["selection"])
             print(f"{t.name}: " + ", ".join(f"{n} {per_view[n][t.name]['psnr']:.2f}" for n in order), file=sys.stderr)
+        # Speed on real data: the scored renders warmed every method up; each view N times more.
+        speed: dict[str, float] = {}
+        for n in order if args.speed_repeats else ():
+            times = []
+            for _ in range(args.speed_repeats):
+                for t in scene.targets:
+                    t0 = time.perf_counter()
+                    renderers[n].render(t.camera)
+                    times.append(time.perf_counter() - t0)
+            speed[n] = 1e3 * float(np.median(times))
     total_s = time.perf_counter() - t_start
     keys = ["psnr", "ssim", "flip", "psnr_obj", "ssim_obj", "flip_obj"]
     mean = {n: {k: (None if any(r[k] is None for r in per_view[n].values())
@@ -337,6 +352,12 @@ def main(argv=None) -> int:
                               + ("n/a" if mean[n]['flip'] is None or mean['hybrid']['flip'] is None
                                  else f"{mean['hybrid']['flip'] - mean[n]['flip']:+.5f}")
                               for n in ("tm", "ulr", "pvm") if n in mean) + "."]
+    if speed:
+        lines += ["", f"Speed on these frames ({w}x{h}; the whole render call, median of {args.speed_repeats} x "
+                  f"{len(views)} renders after the scored ones; real data with a "
+                  f"{details.get('mesh', {}).get('render_faces', '?')}-face render mesh, unlike the synthetic speed table "
+                  "of \"Hybrid rendering\" above):", "", "| method | ms per frame |", "|---|---:|"]
+        lines += [f"| {NAMES[n]} | {speed[n]:.1f} |" for n in order]
     lines += ["", load_note()]
     text = "\n".join(lines)
     print(text)

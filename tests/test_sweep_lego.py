@@ -77,3 +77,11 @@ def test_bad_fold_is_a_usage_error(bench, tmp_path, monkeypatch, capsys, argv):
         bench.main(argv)
     assert e.value.code == 2
     assert "--fold" in capsys.readouterr().err
+
+
+def test_negative_speed_repeats_is_a_usage_error(bench, tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("IBR_SHARED_DATA", str(tmp_path))
+    with pytest.raises(SystemExit) as e:
+        bench.main(["--speed-repeats", "-1"])
+    assert e.value.code == 2
+    assert "--speed-repeats must be >= 0" in capsys.readouterr().err
