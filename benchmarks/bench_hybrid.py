@@ -94,23 +94,14 @@ def _size(text: str) -> tuple[int, int]:
     return int(w), int(h)
 
 
-class PvmOnly:
-    """PVM alone (filtered or not) for the comparison: PvmRenderer with the global G-buffer depth."""
+def pvm_method(scene, filtered: bool):
+    """PVM alone (filtered or not) for the comparison: ``--method pvm``, prepared (its G-buffer depth
+    is the hybrid's, render/pvm.py)."""
+    from ibrtools.render import methods
 
-    def __init__(self, scene, filtered: bool):
-        from ibrtools.hybrid.pvm_render import PvmRenderer
-        from ibrtools.render.hybrid import _GlobalMesh
-
-        self.gm = _GlobalMesh(scene, "pvm", texture=False)
-        self.pvm = PvmRenderer(scene)
-        self.filtered = filtered
-
-    def render(self, camera):
-        t0 = time.perf_counter()
-        gb = self.gm.gbuffer(camera)
-        r = self.pvm.render(camera, gbuffer_depth=gb["depth"], filtered=self.filtered)
-        ms = (time.perf_counter() - t0) * 1e3
-        return {"color": r.color, "hole": ~r.valid}, {"total": ms}
+    m = methods.create("pvm", {"filtered": filtered})
+    m.prepare(scene)
+    return m
 
 
 def main(argv=None) -> int:
@@ -159,8 +150,8 @@ def main(argv=None) -> int:
             m = methods.create(name)
             m.prepare(scene)
             renderers[name] = m
-        renderers["pvm"] = PvmOnly(scene, filtered=True)
-        renderers["pvm_unfiltered"] = PvmOnly(scene, filtered=False)
+        renderers["pvm"] = pvm_method(scene, filtered=True)
+        renderers["pvm_unfiltered"] = pvm_method(scene, filtered=False)
         order = ["tm", "ulr", "pvm", "pvm_unfiltered", "hybrid"]
 
         # ---- quality at the input resolution -----------------------------------------------

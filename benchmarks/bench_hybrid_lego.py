@@ -68,7 +68,7 @@ from benchlib import DOCS, load_note, machine, shared_data, write_section
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_dibr_accuracy import LEGO_HELDOUT  # noqa: E402  (the same held-out views)
-from bench_hybrid import PvmOnly, add_edge_error, depth_edges, edge_lines, frame_color  # noqa: E402  (as in the synthetic bench)
+from bench_hybrid import add_edge_error, depth_edges, edge_lines, frame_color, pvm_method  # noqa: E402  (as in the synthetic bench)
 
 LEGO_VALIDATION = ("r_10", "r_60", "r_110", "r_160")
 ORDER = ["tm", "ulr", "pvm", "pvm_unfiltered", "hybrid"]
@@ -251,9 +251,9 @@ def main(argv=None) -> int:
                 m.prepare(scene)
                 renderers[name] = m
         if "pvm" in order:
-            renderers["pvm"] = PvmOnly(scene, filtered=True)
+            renderers["pvm"] = pvm_method(scene, filtered=True)
         if "pvm_unfiltered" in order:
-            renderers["pvm_unfiltered"] = PvmOnly(scene, filtered=False)
+            renderers["pvm_unfiltered"] = pvm_method(scene, filtered=False)
         per_view: dict[str, dict[str, dict]] = {n: {} for n in order}
         selection = []
         edge_se = {n: [0.0, 0] for n in order}  # near occlusion edges of the held-out views' true depth

@@ -439,6 +439,21 @@ def test_method_pvm_cli(tmp_path, capsys):
     frames = rep["frames"]
     assert frames and all(f["metrics"]["psnr_masked"] > 15 for f in frames)
     assert {"voxel lookup", "per-view depth pass", "spatial filter", "gbuffer"} <= set(frames[0]["time_ms"])
+    # The method's frame is PvmRenderer's at the hybrid's G-buffer depth (what the benchmarks' PVM
+    # rows and the hybrid's PVM part read), bit for bit; unfiltered likewise.
+    from ibrtools.formats import native
+    from ibrtools.render import methods
+    from ibrtools.render.hybrid import _GlobalMesh
+
+    sc = native.load(d)
+    cam = sc.targets[0].camera
+    depth = _GlobalMesh(sc, "pvm", texture=False).gbuffer(cam)["depth"]
+    for filtered in (True, False):
+        m = methods.create("pvm", {"filtered": filtered})
+        m.prepare(sc)
+        got, _ = m.render(cam)
+        want = PvmRenderer(sc).render(cam, gbuffer_depth=depth, filtered=filtered)
+        assert np.array_equal(got["color"], want.color) and np.array_equal(got["hole"], ~want.valid)
     # Without the pvm stage: the error names the command.
     d2 = tmp_path / "scene2"
     assert preprocess.main(["synth:objects", "-o", str(d2), "--views", "3", "--size", "32x24", "--methods", "dibr",

@@ -2,8 +2,10 @@
 rendered on their own (the ``hybrid`` method uses the same renderer only where it needs it).
 
 Per frame:
-  gbuffer  the global mesh (stage ``mesh``) ray-cast with Embree for its z (``gbuffer=mesh``,
-           default; ``gbuffer=none``: every coarse voxel in the frustum is looked up instead);
+  gbuffer  the z of the global mesh's G-buffer (stage ``mesh``, its render mesh), as the hybrid
+           method makes it (render/hybrid.py ``_GlobalMesh.gbuffer``: rasterised, or ray cast by
+           Embree for a mesh dense for the frame) (``gbuffer=mesh``, default; ``gbuffer=none``:
+           every coarse voxel in the frustum is looked up instead);
   pvm      ibrtools.hybrid.pvm_render.PvmRenderer (voxel lookup, tile sort, per-view depth pass,
            cluster & blend, spatial filter; docs/pvm_render.md).
 
@@ -20,7 +22,7 @@ import time
 import numpy as np
 
 from ..camera import Camera
-from ..errors import BadValueError, InputError, MissingFileError
+from ..errors import BadValueError, MissingFileError
 from ..scene import Scene
 
 GBUFFERS = ("mesh", "none")
@@ -40,11 +42,10 @@ class PvmMethod:
             raise BadValueError(f"--param gbuffer: expected one of {', '.join(GBUFFERS)}, got {self.gbuffer!r}")
         self.params = check_params(params)
         self._renderer = None
-        self._mesh_rt = None
+        self._gm = None
         self.last_stats: dict = {}
 
     def prepare(self, scene: Scene) -> dict[str, float]:
-        from .. import stages
         from ..hybrid.pvm_render import PvmRenderer
 
         t0 = time.perf_counter()
@@ -52,26 +53,21 @@ class PvmMethod:
         t1 = time.perf_counter()
         setup = {"pvm_load": (t1 - t0) * 1e3}
         if self.gbuffer == "mesh":
-            from ..mesh import Mesh
-            from .reference import ReferenceRenderer
+            from .hybrid import _GlobalMesh
 
             try:
-                d = stages.load_npz(stages.stage_output(scene.root, "mesh"))
+                self._gm = _GlobalMesh(scene, "pvm", texture=False)
             except MissingFileError as e:
-                raise InputError(f"--method pvm needs the global mesh for its G-buffer: {e}; run: ibr-preprocess "
-                                 f"{scene.root} -o {scene.root} --methods pvm (or --param gbuffer=none)") from None
-            mesh = Mesh(d["vertices"], d["faces"], kind="reconstructed")
-            t2 = time.perf_counter()
-            self._mesh_rt = ReferenceRenderer(mesh)
-            setup["bvh"] = (time.perf_counter() - t2) * 1e3
+                raise MissingFileError(f"{e} (or --param gbuffer=none)") from None
+            setup["bvh"] = self._gm.build_ms
         return setup
 
     def render(self, camera: Camera) -> tuple[dict[str, np.ndarray], dict[str, float]]:
         times: dict[str, float] = {}
         gbuf = None
-        if self._mesh_rt is not None:
+        if self._gm is not None:
             t0 = time.perf_counter()
-            gbuf = np.ascontiguousarray(self._mesh_rt.render(camera, outputs=("depth",))["depth"], np.float32)
+            gbuf = np.ascontiguousarray(self._gm.gbuffer(camera, normal=False)["depth"], np.float32)
             times["gbuffer"] = (time.perf_counter() - t0) * 1e3
         res = self._renderer.render(camera, gbuffer_depth=gbuf)
         times.update(res.times_ms)
