@@ -1413,14 +1413,15 @@ void HybridFrameOutputs(ImageView<const std::uint8_t> label, ImageView<const flo
       const float* wrow = weights.Row(y);
       for (int x = 0; x < W; ++x) {
         const std::int64_t i = std::int64_t(y) * W + x;
+        static constexpr float kNoWeight[3] = {0.f, 0.f, 0.f};
         const std::uint8_t l = lrow[x];
-        const float* wt = wrow + 3 * x;
-        ++n[l];  // 0..3 (the binding checks)
         const bool none = l == kLabelNone;
+        const float* wt = none ? kNoWeight : wrow + 3 * x;  // a hole shows no weight
+        ++n[l];  // 0..3 (the binding checks)
         hole[i] = none;
         depth[i] = l == kLabelPvm ? pvm_depth[i] : gbuffer_depth[i];
         float* s = selection + 3 * i;
-        s[0] = none ? 0.f : wt[2], s[1] = none ? 0.f : wt[0], s[2] = none ? 0.f : wt[1];
+        s[0] = wt[2], s[1] = wt[0], s[2] = wt[1];
       }
     }
     for (int c = 0; c < 4; ++c) total[c] += n[c];

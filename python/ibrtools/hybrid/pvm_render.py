@@ -27,6 +27,7 @@ that mask).
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -160,12 +161,12 @@ def load_tiles(scene: Scene) -> PvmTiles:
     return PvmTiles.load(path)
 
 
-def harmonised_images(arrays) -> dict[str, np.ndarray]:
+def harmonised_images(arrays: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
     """{view name: image} of the harmonise stage's arrays (its npz, or the dict loaded from it)."""
     return {k[len("image/"):]: arrays[k] for k in list(arrays) if k.startswith("image/")}
 
 
-def load_images(scene: Scene, harmonise=None) -> dict[str, np.ndarray]:
+def load_images(scene: Scene, harmonise: Mapping[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
     """Input images: the harmonise stage's when it ran, else the views' own colour.
     ``harmonise``: that stage's arrays when the caller has loaded them (read again otherwise)."""
     from .. import stages

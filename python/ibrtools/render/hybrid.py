@@ -227,8 +227,9 @@ class _GlobalMesh:
         dense for the frame): Embree."""
         from .. import _core
 
-        f = len(self.faces)
-        if camera.model == "pinhole" and f <= min(RASTER_MAX_FACES, RASTER_MAX_FACES_PER_PIXEL * camera.width * camera.height):
+        faces = len(self.faces)
+        few = faces <= min(RASTER_MAX_FACES, RASTER_MAX_FACES_PER_PIXEL * camera.width * camera.height)
+        if camera.model == "pinhole" and few:
             if self._vertices32 is None:
                 self._vertices32 = np.ascontiguousarray(self.mesh.vertices, np.float32)
             out = dict(_core.raster_gbuffer(camera.to_core(), self._vertices32, self.faces, normal=normal))
@@ -441,7 +442,8 @@ class HybridMethod:
             raise BadValueError("hybrid: prepare(scene) must be called before _without_views")
         keep = {v.name for v in scene.views}
         if not keep <= set(self._view_names) or self.params["occlusion"] != "mesh":
-            raise BadValueError("hybrid: _without_views needs a subset of the prepared scene's views and occlusion mesh")
+            raise BadValueError("hybrid: _without_views needs a subset of the prepared scene's views "
+                                "and occlusion mesh")
         m = copy.copy(self)
         m._views = [v for v, name in zip(self._views, self._view_names) if name in keep]
         m._view_names = [name for name in self._view_names if name in keep]
@@ -544,8 +546,8 @@ class HybridMethod:
         parts = dict(tm=tm, ulr=ulr, ulr_count=count, pvm=pvm_color, pvm_valid=valid if pvm_color is not None else None)
         colors = [_core.hybrid_composite(weights_at(f), **parts) for f in floors]
         color = colors[0]
-        # hole (no label, no blurred weight), depth (PVM's where chosen), the selection image
-        # (= weights @ SELECTION_COLORS) and the label counts in one pass (numpy: ~15 ms at 1280x720)
+        # hole (label none), depth (PVM's where chosen), the selection image (weights @
+        # SELECTION_COLORS, 0 at holes) and the label counts in one pass (numpy: ~15 ms at 1280x720)
         fo = _core.hybrid_frame_outputs(label, weights, gb["depth"], pvm_depth)
         times["composite"] = (time.perf_counter() - t6) * 1e3
         n = label.size
