@@ -264,18 +264,24 @@ def _colour_only(scene_dir: Path, dest: Path) -> Path:
     return dest
 
 
-def test_preprocess_matches_local_bit_for_bit(scene_dir, cluster, tmp_path, capsys):
+@pytest.mark.parametrize("colour_only", [True, False])
+def test_preprocess_matches_local_bit_for_bit(scene_dir, cluster, tmp_path, capsys, colour_only):
     from ibrtools import stages as S
     from ibrtools_cli import preprocess
 
-    src = _colour_only(scene_dir, tmp_path / "src")
+    # Colour only: the depth stage renders every view's depth; with depth: the pvm stage snaps it.
+    src = _colour_only(scene_dir, tmp_path / "src") if colour_only else scene_dir
     common = [str(src), "--methods", "pvm", "--set", "mesh.resolution=24", "--json"]
     assert preprocess.main(common + ["-o", str(tmp_path / "local")]) == 0
     capsys.readouterr()
     assert preprocess.main(common + ["-o", str(tmp_path / "dist"), "--scheduler", cluster[0]]) == 0
     rows = {r["stage"]: r for r in json.loads(capsys.readouterr().out)}
-    assert rows["depth"]["status"] == "ran" and rows["pvm"]["status"] == "ran"  # the per-view stages
+    assert rows["depth"]["status"] == ("ran" if colour_only else "skipped") and rows["pvm"]["status"] == "ran"
+    if not colour_only:
+        assert isinstance(rows["pvm"]["snap"], float)
     for stage, f in (("mesh", "mesh.npz"), ("depth", "depth.npz"), ("pvm", "tiles.npz")):
+        if not colour_only and stage == "depth":
+            continue
         a, b = (tmp_path / d / "cache" / stage / f for d in ("local", "dist"))
         assert filecmp.cmp(a, b, shallow=False), f"{stage}/{f} differs"
     recs = [json.loads((tmp_path / d / "scene.json").read_text())["stages"] for d in ("local", "dist")]

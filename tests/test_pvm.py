@@ -8,7 +8,7 @@ from ibrtools import _core
 from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
 from ibrtools.hybrid.pvm import (MAX_PLANE_TOL, PvmOptions, PvmTiles, build_tiles, depth_noise, grid_bounds,
-                                  plane_tolerance, view_mesh)
+                                  plane_tolerance, snap_depth, view_mesh)
 
 
 def cam(w=33, h=25, eye=(0.0, 0.0, 0.0), target=(0.0, 0.0, 1.0), f=30.0):
@@ -289,6 +289,46 @@ def test_bad_input():
         PvmOptions(max_block=6)
     with pytest.raises(BadValueError, match="max_rel_jump"):
         PvmOptions(max_rel_jump=0)
+
+
+def test_snap_depth_hand_checked():
+    d = np.array([[1.0, 1.0, 1.0, 0.0, np.inf, 1.0]], np.float32)
+    m = np.array([[1.01, 1.03, 0.0, 1.0, 1.0, np.nan]], np.float32)
+    out = snap_depth(d, m, 0.02)
+    # within 0.02 -> the mesh's; 0.03 away -> its own; no surface in either -> its own (0 stays 0).
+    np.testing.assert_array_equal(out, np.array([[1.01, 1.0, 1.0, 0.0, np.inf, 1.0]], np.float32))
+    assert out.dtype == np.float32 and snap_depth(d, m, 0.0)[0, 0] == 1.0  # 0: only equal depths
+
+
+def test_view_mesh_snaps_to_the_mesh_depth_and_keeps_what_departs():
+    """A noisy plane at z = 2 with a box 0.5 in front that the global mesh lacks: snapped, the
+    plane's vertices lie on the mesh's plane exactly, the box keeps its own depth, and the merge
+    tolerance is still the noisy depth's (no more triangles than unsnapped)."""
+    c = cam(64, 48)
+    rng = np.random.default_rng(0)
+    depth = (2.0 * (1 + 0.004 * rng.standard_normal((c.height, c.width)))).astype(np.float32)
+    depth[10:20, 10:20] = 1.5
+    mesh = np.full_like(depth, 2.0)
+    v0, f0 = view_mesh(c, depth)
+    v, f = view_mesh(c, depth, mesh_depth=mesh, snap=0.05)
+    zc = v[:, 2]  # the camera sits at the origin looking along +z: world z is the depth
+    on_box = np.isclose(zc, 1.5)
+    assert on_box.sum() >= 4 and np.all(np.isclose(zc[~on_box], 2.0, rtol=0, atol=1e-6))
+    assert np.abs(v0[:, 2] - 2.0).max() > 0.01  # unsnapped: the noise is there
+    assert len(f) <= len(f0)
+    # snap 0 or no mesh depth: the unsnapped mesh, bit for bit.
+    for kw in ({"mesh_depth": mesh, "snap": 0.0}, {"snap": 0.05}):
+        v1, f1 = view_mesh(c, depth, **kw)
+        assert np.array_equal(v1, v0) and np.array_equal(f1, f0)
+    # build_tiles passes them per view.
+    t = build_tiles({"a": c}, {"a": depth}, mesh_depths={"a": mesh}, snap=0.05)
+    assert np.array_equal(t.pvm_vertices, v) and np.array_equal(t.pvm_faces, f)
+    with pytest.raises(ShapeError, match="mesh_depth"):
+        view_mesh(c, depth, mesh_depth=mesh[:4], snap=0.05)
+    with pytest.raises(BadValueError, match="snap"):
+        view_mesh(c, depth, mesh_depth=mesh, snap=-1.0)
+    with pytest.raises(BadValueError, match="mesh_snap"):
+        PvmOptions(mesh_snap=-1)
 
 
 def test_kernels_release_the_gil():

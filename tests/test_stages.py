@@ -46,6 +46,9 @@ def test_hybrid_methods_run_every_stage_then_nothing(built, capsys):
     doc = json.loads((d / "scene.json").read_text())
     rec = doc["stages"]["pvm"]
     assert len(rec["key"]) == 32 and "tiles.npz" in rec["outputs"] and rec["params"]["coarse"] == 32
+    # The per-view meshes snap to the global mesh within mesh_snap (2) voxels of it.
+    voxel = doc["stages"]["mesh"]["details"]["voxel"]
+    assert rec["params"]["mesh_snap"] == 2.0 and rec["details"]["snap"] == pytest.approx(2 * voxel, rel=1e-3)
     # Second run with nothing changed: every stage up to date or skipped, and it says so.
     out = run(d, "--methods", "tm,ulr,pvm,hybrid", capsys=capsys)
     assert {r["status"] for r in out.values()} <= {"up to date", "skipped"}
@@ -94,6 +97,8 @@ def test_parameter_change_reruns_that_stage_only(built, capsys):
     # --force reruns the selected stages.
     out = run(d, "--stages", "pvm", "--set", "pvm.max_block=8", "--force", capsys=capsys)
     assert out["pvm"]["status"] == "ran" and "forced" in out["pvm"]["reason"]
+    out = run(d, "--stages", "pvm", "--set", "pvm.mesh_snap=0", capsys=capsys)
+    assert out["pvm"]["status"] == "ran" and out["pvm"]["snap"] == "off"
     # Back to the default parameters for the other tests.
     assert run(d, "--stages", "pvm", capsys=capsys)["pvm"]["status"] == "ran"
 

@@ -174,12 +174,14 @@ STAGES: dict[str, Stage] = {s.name: s for s in (
     Stage("harmonise", ("scene", "mesh", "variance"), ("harmonise.npz",), frozenset({"hybrid"}),
           "diffuse harmonisation (exposure gains, or the paper's local ratio field and Poisson re-injection), "
           "graph-cut view-dependent masks", version=5),
-    Stage("pvm", ("scene", "depth"), ("tiles.npz",), frozenset({"pvm", "hybrid"}),
-          "per-view meshes (merge tolerance matched to the depth noise) sliced into a two-level voxel grid of "
-          "tiles (cubic cells)", version=3),
+    Stage("pvm", ("scene", "mesh", "depth"), ("tiles.npz",), frozenset({"pvm", "hybrid"}),
+          "per-view meshes (depth within mesh_snap voxels of the global mesh's snapped to it, merge tolerance "
+          "matched to the depth noise) sliced into a two-level voxel grid of tiles (cubic cells)",
+          version=4),  # 4: mesh_snap
     Stage("mix", ("scene", "mesh", "depth", "texture", "harmonise", "pvm"), ("mix.npz",), frozenset({"hybrid"}),
           "the hybrid composite's PVM weight floor (pvm_floor), fitted on leave-one-out renders of input views",
-          version=2),  # 2: the G-buffer of a mesh dense for the frame ray cast (render/hybrid.py RASTER_MAX_FACES)
+          version=3),  # 2: the G-buffer of a mesh dense for the frame ray cast (render/hybrid.py RASTER_MAX_FACES);
+    # 3: tol_db 0 (the best floor; was the smallest within 0.01 dB of it)
 )}
 ORDER = tuple(STAGES)
 ALL_METHODS = ("reference", "dibr", "warp", "depthwarp", "tm", "ulr", "pvm", "hybrid")
@@ -549,7 +551,27 @@ def _pvm_task(root: str, names: list[str], options: dict, threads: int) -> dict:
     ctx = _Context(Path(root), options)
     opts = PvmOptions(**options.get("pvm", {}))
     deps = ctx.depths(names)
-    return {n: view_mesh(ctx.scene.view(n).camera, deps[n], opts) for n in names}
+    mesh_deps, snap = _pvm_mesh_depths(ctx, opts, names), _pvm_snap(ctx, opts)
+    return {n: view_mesh(ctx.scene.view(n).camera, deps[n], opts, mesh_depth=mesh_deps.get(n), snap=snap)
+            for n in names}
+
+
+def _pvm_mesh_depths(ctx: _Context, opts, names: list[str]) -> dict:
+    """The global mesh's depth in each of the views ``names`` that has its own depth, for snapping
+    the per-view meshes (hybrid/pvm.py view_mesh; {} when the snap is off). Views without their own
+    depth have the mesh's already (the depth stage)."""
+    from .hybrid.globalmesh import depth_from_mesh
+
+    own = [n for n in names if ctx.scene.view(n).has_depth]
+    if _pvm_snap(ctx, opts) <= 0 or not own:
+        return {}
+    return depth_from_mesh(ctx.mesh(), {n: ctx.scene.view(n).camera for n in own})
+
+
+def _pvm_snap(ctx: _Context, opts) -> float:
+    """``mesh_snap`` voxels of the mesh stage's record in world units (0: off, or no voxel recorded)."""
+    voxel = (((_read_doc(ctx.root).get("stages") or {}).get("mesh") or {}).get("details") or {}).get("voxel")
+    return float(opts.mesh_snap * voxel) if isinstance(voxel, (int, float)) and voxel > 0 else 0.0
 
 
 def _run_pvm(ctx: _Context) -> dict:
@@ -561,10 +583,13 @@ def _run_pvm(ctx: _Context) -> dict:
         meshes = ctx.cluster.map_views(_pvm_task, ctx.root, list(cams), ctx.options)
         tiles = build_tiles(cams, {}, opts, view_meshes=meshes)
     else:
-        tiles = build_tiles(cams, ctx.depths(), opts)
+        tiles = build_tiles(cams, ctx.depths(), opts, mesh_depths=_pvm_mesh_depths(ctx, opts, list(cams)),
+                            snap=_pvm_snap(ctx, opts))
     tiles.save(ctx.cache("pvm") / "tiles.npz")
     s = tiles.stats
-    return {"pvm_faces": s["pvm_faces"], "tiles": s["tiles"], "tile_faces": s["tile_faces"]}
+    snap = _pvm_snap(ctx, opts)
+    return {"pvm_faces": s["pvm_faces"], "tiles": s["tiles"], "tile_faces": s["tile_faces"],
+            "snap": float(f"{snap:.4g}") if snap > 0 else "off"}
 
 
 def _run_mix(ctx: _Context) -> dict | str:

@@ -7,6 +7,10 @@ Fig. 2b; per-view meshes after Hedman et al. 2016, sec. 4). docs/preprocess.md.
   triangles where the surface is planar (pinhole: 1/z affine in the pixel coordinates within
   a tolerance: ``plane_tol``, raised to ``noise_tol`` times the view's relative depth noise as
   :func:`depth_noise` estimates it). C++: ``_core.pvm_triangulate`` (cpp/kernels/pvm.h).
+  With the global mesh's depth in the view (``mesh_depth``), depth within ``snap`` of it takes the
+  mesh's depth first (:func:`snap_depth`): the fused surface, averaged over every view, where the
+  view's own depth cannot be told from it; the view's depth where it departs (geometry the global
+  mesh lacks or rounds off).
 * :func:`build_tiles` — every view's PVM sliced into the fine cells of a grid of
   ``coarse``^3 cells over the PVMs' bounds, each split ``sub`` times per axis; a tile is the part
   of one view's PVM inside one fine cell, stored compactly (:class:`PvmTiles`): one vertex array
@@ -42,6 +46,7 @@ class PvmOptions:
     max_block: int = 16          # largest merged block, in pixel quads
     coarse: int = 32             # coarse cells per axis (paper: 32^3)
     sub: int = 4                 # fine cells per coarse cell per axis (paper: 4)
+    mesh_snap: float = 2.0       # depth within mesh_snap voxels of the global mesh's takes the mesh's (0 = off)
 
     def __post_init__(self) -> None:
         jump = check_float(self.max_rel_jump, "max_rel_jump")
@@ -54,10 +59,11 @@ class PvmOptions:
             raise BadValueError(f"max_block: expected a power of two <= 256, got {mb}")
         coarse = check_int(self.coarse, "coarse", 1)
         sub = check_int(self.sub, "sub", 1)
+        snap = check_float(self.mesh_snap, "mesh_snap", 0.0)
         if coarse * sub > 4096:
             raise BadValueError(f"coarse * sub: expected <= 4096, got {coarse} * {sub}")
         for k, v in (("max_rel_jump", jump), ("plane_tol", tol), ("noise_tol", ntol), ("max_block", mb), ("coarse", coarse),
-                     ("sub", sub)):
+                     ("sub", sub), ("mesh_snap", snap)):
             object.__setattr__(self, k, v)
 
     def to_dict(self) -> dict:
@@ -108,29 +114,49 @@ def plane_tolerance(camera: Camera, depth: np.ndarray, options: PvmOptions | Non
     return float(min(MAX_PLANE_TOL, max(options.plane_tol, tol)))
 
 
-def view_mesh(camera: Camera, depth: np.ndarray, options: PvmOptions | None = None
-              ) -> tuple[np.ndarray, np.ndarray]:
+def snap_depth(depth: np.ndarray, mesh_depth: np.ndarray, snap: float) -> np.ndarray:
+    """``depth`` with every pixel within ``snap`` (world units, along the depth's measure: z or ray
+    distance) of ``mesh_depth`` set to ``mesh_depth``; pixels where either has no surface (0, NaN,
+    inf) keep ``depth``. float32 (H, W)."""
+    ok = np.isfinite(depth) & (depth > 0) & np.isfinite(mesh_depth) & (mesh_depth > 0)
+    with np.errstate(invalid="ignore"):
+        near = ok & (np.abs(depth - mesh_depth) <= snap)
+    return np.ascontiguousarray(np.where(near, mesh_depth, depth).astype(np.float32))
+
+
+def _check_depth(camera: Camera, depth: np.ndarray, name: str) -> np.ndarray:
+    if not isinstance(depth, np.ndarray) or depth.dtype != np.float32:
+        raise DtypeError(f"{name}: expected a float32 numpy array, got "
+                         f"{getattr(depth, 'dtype', type(depth).__name__)}")
+    hw = (camera.height, camera.width)
+    if depth.shape != hw:
+        raise ShapeError(f"{name}: expected shape (H, W) = {hw} to match the camera, got {depth.shape}")
+    return np.ascontiguousarray(depth)
+
+
+def view_mesh(camera: Camera, depth: np.ndarray, options: PvmOptions | None = None, *,
+              mesh_depth: np.ndarray | None = None, snap: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """World-space mesh (vertices float32 (N, 3), faces int32 (M, 3)) of the surface one view sees.
 
     ``depth``: float32 (H, W) as in scene.py (z for pinhole, ray distance for equirect; 0 or inf =
-    no surface). Only the pixel centres used by a triangle become vertices."""
+    no surface). Only the pixel centres used by a triangle become vertices. ``mesh_depth`` (the
+    global mesh's depth in this view, same measure) and ``snap`` > 0 (world units): the depth is
+    :func:`snap_depth`-ed first; the merge tolerance is still the one of ``depth`` itself (its noise
+    is what the merging must not split on)."""
     from .. import _core
 
     options = options or PvmOptions()
     if not isinstance(camera, Camera):
         raise DtypeError(f"camera: expected an ibrtools.Camera, got {type(camera).__name__}")
-    if not isinstance(depth, np.ndarray) or depth.dtype != np.float32:
-        raise DtypeError(f"depth: expected a float32 numpy array, got "
-                         f"{getattr(depth, 'dtype', type(depth).__name__)}")
-    hw = (camera.height, camera.width)
-    if depth.shape != hw:
-        raise ShapeError(f"depth: expected shape (H, W) = {hw} to match the camera, got {depth.shape}")
-    depth = np.ascontiguousarray(depth)
+    depth = _check_depth(camera, depth, "depth")
+    snap = check_float(snap, "snap", 0.0)
+    tol = plane_tolerance(camera, depth, options)
+    if mesh_depth is not None and snap > 0:
+        depth = snap_depth(depth, _check_depth(camera, mesh_depth, "mesh_depth"), snap)
     field_ = None
     if camera.model == PINHOLE:
         with np.errstate(divide="ignore"):
             field_ = np.where(depth > 0, np.float32(1.0) / depth, np.float32(0.0)).astype(np.float32)
-    tol = plane_tolerance(camera, depth, options)
     faces = _core.pvm_triangulate(depth, field_, options.max_rel_jump, tol, options.max_block)
     if len(faces) == 0:
         return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32)
@@ -269,10 +295,12 @@ def grid_bounds(vertices: np.ndarray, coarse: int, sub: int) -> tuple[np.ndarray
 
 def build_tiles(cameras: Mapping[str, Camera], depths: Mapping[str, np.ndarray],
                 options: PvmOptions | None = None, *,
-                view_meshes: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None) -> PvmTiles:
+                view_meshes: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
+                mesh_depths: Mapping[str, np.ndarray] | None = None, snap: float = 0.0) -> PvmTiles:
     """Every view's PVM, sliced into tiles. ``cameras`` and ``depths`` keyed by view name (same
     names, in the order of ``cameras``). ``view_meshes``: every view's :func:`view_mesh` already
-    made (by Dask workers, ibrtools.stages); ``depths`` is then not read."""
+    made (by Dask workers, ibrtools.stages); ``depths`` is then not read. ``mesh_depths`` (the
+    global mesh's depth of some views) and ``snap``: :func:`view_mesh`'s, per view that has one."""
     from .. import _core
 
     options = options or PvmOptions()
@@ -286,7 +314,8 @@ def build_tiles(cameras: Mapping[str, Camera], depths: Mapping[str, np.ndarray],
     verts, faces, fview, base = [], [], [], 0
     per_view = {}
     for i, n in enumerate(names):
-        v, f = view_meshes[n] if view_meshes is not None else view_mesh(cameras[n], depths[n], options)
+        v, f = (view_meshes[n] if view_meshes is not None else
+                view_mesh(cameras[n], depths[n], options, mesh_depth=(mesh_depths or {}).get(n), snap=snap))
         verts.append(v)
         faces.append(f + base)
         fview.append(np.full(len(f), i, np.int32))

@@ -195,8 +195,9 @@ def load_images(scene: Scene, harmonise: Mapping[str, np.ndarray] | None = None)
 
 def load_depths(scene: Scene) -> dict[str, np.ndarray] | None:
     """Each input view's depth as the pvm stage read it (``stages.view_depths``: its own, else the
-    depth stage's render of the global mesh), for the free-space count; None when some view has
-    neither."""
+    depth stage's render of the global mesh; before the stage's snap to the global mesh, which moves
+    depth by at most ``mesh_snap`` voxels, far below the free-space tolerances), for the free-space
+    count; None when some view has neither."""
     from .. import stages
 
     def rendered() -> dict[str, np.ndarray]:

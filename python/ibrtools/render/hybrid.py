@@ -569,7 +569,7 @@ class HybridMethod:
 # with the hybrid's defaults: a change to them, or to these, changes what the stage writes (bump
 # its version in stages.STAGES).
 MIX_FLOORS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)
-MIX_DEFAULTS = {"views": 6, "tol_db": 0.01}
+MIX_DEFAULTS = {"views": 6, "tol_db": 0.0}
 
 
 def check_mix_options(options: dict) -> None:
@@ -590,9 +590,9 @@ def fit_pvm_floor(scene: Scene, views: int = MIX_DEFAULTS["views"], tol_db: floa
     """The hybrid's ``pvm_floor`` for ``scene``, fitted by leave-one-out: ``views`` input views
     spread over the scene's list are each held out in turn (absent from ULR's and PVM's inputs, as
     with ``--holdout``) and rendered by the hybrid at every floor; the floor taken is the smallest
-    whose mean PSNR (sRGB, the held-out image as truth) is within ``tol_db`` of the best. The
-    global mesh and the harmonised images were made with the held-out view, which favours ULR at
-    it, so the fit errs towards small floors. Returns {"pvm_floor", "floors", "psnr" (views x
+    whose mean PSNR (sRGB, the held-out image as truth) is within ``tol_db`` (default 0: the best)
+    of the best. The global mesh and the harmonised images were made with the held-out view, which
+    favours ULR at it, so the fit errs towards small floors. Returns {"pvm_floor", "floors", "psnr" (views x
     floors), "views"}, or a reason (str) when the scene has too few views (< 4) to hold one out
     or is a video scene (not built yet for those: the floor is then 0)."""
     from ..imageio import linear_to_srgb
