@@ -551,19 +551,20 @@ def _pvm_task(root: str, names: list[str], options: dict, threads: int) -> dict:
     ctx = _Context(Path(root), options)
     opts = PvmOptions(**options.get("pvm", {}))
     deps = ctx.depths(names)
-    mesh_deps, snap = _pvm_mesh_depths(ctx, opts, names), _pvm_snap(ctx, opts)
+    snap = _pvm_snap(ctx, opts)
+    mesh_deps = _pvm_mesh_depths(ctx, names, snap)
     return {n: view_mesh(ctx.scene.view(n).camera, deps[n], opts, mesh_depth=mesh_deps.get(n), snap=snap)
             for n in names}
 
 
-def _pvm_mesh_depths(ctx: _Context, opts, names: list[str]) -> dict:
+def _pvm_mesh_depths(ctx: _Context, names: list[str], snap: float) -> dict:
     """The global mesh's depth in each of the views ``names`` that has its own depth, for snapping
-    the per-view meshes (hybrid/pvm.py view_mesh; {} when the snap is off). Views without their own
+    the per-view meshes (hybrid/pvm.py view_mesh; {} when ``snap`` is 0). Views without their own
     depth have the mesh's already (the depth stage)."""
     from .hybrid.globalmesh import depth_from_mesh
 
     own = [n for n in names if ctx.scene.view(n).has_depth]
-    if _pvm_snap(ctx, opts) <= 0 or not own:
+    if snap <= 0 or not own:
         return {}
     return depth_from_mesh(ctx.mesh(), {n: ctx.scene.view(n).camera for n in own})
 
@@ -579,17 +580,19 @@ def _run_pvm(ctx: _Context) -> dict:
 
     opts = PvmOptions(**ctx.options.get("pvm", {}))
     cams = ctx.cameras()
+    snap = _pvm_snap(ctx, opts)
     if ctx.cluster is not None:  # the per-view meshes on the workers, the slicing here
         meshes = ctx.cluster.map_views(_pvm_task, ctx.root, list(cams), ctx.options)
         tiles = build_tiles(cams, {}, opts, view_meshes=meshes)
     else:
-        tiles = build_tiles(cams, ctx.depths(), opts, mesh_depths=_pvm_mesh_depths(ctx, opts, list(cams)),
-                            snap=_pvm_snap(ctx, opts))
+        tiles = build_tiles(cams, ctx.depths(), opts, mesh_depths=_pvm_mesh_depths(ctx, list(cams), snap), snap=snap)
     tiles.save(ctx.cache("pvm") / "tiles.npz")
     s = tiles.stats
-    snap = _pvm_snap(ctx, opts)
-    return {"pvm_faces": s["pvm_faces"], "tiles": s["tiles"], "tile_faces": s["tile_faces"],
-            "snap": float(f"{snap:.4g}") if snap > 0 else "off"}
+    if not any(v.has_depth for v in ctx.scene.views):
+        snapped: float | str = "not needed: no view has its own depth"
+    else:
+        snapped = float(f"{snap:.4g}") if snap > 0 else "off"
+    return {"pvm_faces": s["pvm_faces"], "tiles": s["tiles"], "tile_faces": s["tile_faces"], "snap": snapped}
 
 
 def _run_mix(ctx: _Context) -> dict | str:

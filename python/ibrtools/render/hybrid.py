@@ -592,9 +592,9 @@ def fit_pvm_floor(scene: Scene, views: int = MIX_DEFAULTS["views"], tol_db: floa
     with ``--holdout``) and rendered by the hybrid at every floor; the floor taken is the smallest
     whose mean PSNR (sRGB, the held-out image as truth) is within ``tol_db`` (default 0: the best)
     of the best. The global mesh and the harmonised images were made with the held-out view, which
-    favours ULR at it, so the fit errs towards small floors. Returns {"pvm_floor", "floors", "psnr" (views x
-    floors), "views"}, or a reason (str) when the scene has too few views (< 4) to hold one out
-    or is a video scene (not built yet for those: the floor is then 0)."""
+    favours ULR at it, so the fit errs towards small floors. Returns {"pvm_floor", "floors",
+    "psnr" (views x floors), "views"}, or a reason (str) when the scene has too few views (< 4) to
+    hold one out or is a video scene (not built yet for those: the floor is then 0)."""
     from ..imageio import linear_to_srgb
     from ..metrics import psnr
     from .job import clean_color, plan
