@@ -24,7 +24,7 @@ from ibrtools.render import job as J  # noqa: E402
 SIZE = "64x48"
 # Fields that differ between any two runs by nature (times; depthwarp's warp/reference time
 # ratio) or say where and how it ran; every other report field must be equal.
-TIMES = {"seconds", "threads", "distributed", "reference_over_warp"}
+TIMES = {"seconds", "threads", "distributed", "reference_over_warp", "stat"}  # stat: file times
 
 
 @pytest.fixture(scope="module")

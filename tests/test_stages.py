@@ -2,6 +2,7 @@
 them, a second run does nothing, missing or corrupt outputs are rebuilt, parameters and
 --stages / --force override, records in scene.json, bad input."""
 import json
+import os
 
 import numpy as np
 import pytest
@@ -210,6 +211,27 @@ def test_stage_output_for_the_render_methods(built, tmp_path):
         S.stage_output(d, "nope")
     with pytest.raises(MissingFileError):
         S.stage_output(tmp_path, "pvm")
+
+
+def test_outputs_are_hashed_only_when_their_recorded_size_or_time_changed(built, monkeypatch, capsys):
+    d, _ = built
+    rec = json.loads((d / "scene.json").read_text())["stages"]["pvm"]
+    f = d / "cache" / "pvm" / "tiles.npz"
+    st = f.stat()
+    assert rec["stat"]["tiles.npz"] == [st.st_size, st.st_mtime_ns]
+    hashed = []
+    real = S._file_hash
+    monkeypatch.setattr(S, "_file_hash", lambda p: hashed.append(p) or real(p))
+    assert S.stage_output(d, "pvm") == f and hashed == []  # as recorded: not read
+    assert run(d, "--methods", "pvm", capsys=capsys)["pvm"]["status"] == "up to date"
+    assert f not in hashed  # (the inputs are hashed: the scene's content key)
+    hashed.clear()
+    os.utime(f, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000))  # touched (or copied): hashed, still intact
+    assert S.stage_output(d, "pvm") == f and hashed == [f]
+    # ibr-preprocess finds it intact by its hash and records the new time: not hashed again.
+    assert run(d, "--methods", "pvm", capsys=capsys)["pvm"]["status"] == "up to date"
+    hashed.clear()
+    assert S.stage_output(d, "pvm") == f and hashed == []
 
 
 def test_failed_stage_leaves_no_record_and_reruns(tmp_path, capsys, monkeypatch):

@@ -251,6 +251,24 @@ def _file_hash(path: Path) -> str:
     return h.hexdigest()
 
 
+def _file_stat(path: Path) -> list[int]:
+    st = path.stat()
+    return [int(st.st_size), int(st.st_mtime_ns)]
+
+
+def _output_intact(path: Path, hsh: str, stat: list | None) -> bool:
+    """True when a stage's output file is there with the content its record names: its size and
+    modification time as recorded when the stage wrote it (outputs are written whole, then renamed),
+    else (a copied scene, an older record without them, a changed file) its hash. A change that
+    keeps both the size and the modification time to the nanosecond is not detected (as make and
+    rsync); every other one, a torn write included, is."""
+    if not path.is_file():
+        return False
+    if isinstance(stat, list) and _file_stat(path) == stat:
+        return True
+    return _file_hash(path) == hsh
+
+
 def scene_content_key(root: Path) -> str:
     """Content hash of an imported scene: scene.json without its stage records, and the bytes
     of every file it names (views, targets, meshes)."""
@@ -696,8 +714,11 @@ def _run_planned(root: Path, options: dict, wanted: list[str], why: dict, avail:
                 results.append(StageResult(name, "skipped", f"{rec['skipped']} (inputs unchanged)"))
                 continue
             bad = [rel for rel, hsh in (rec.get("outputs") or {}).items()
-                   if not (ctx.cache(name) / rel).is_file() or _file_hash(ctx.cache(name) / rel) != hsh]
+                   if not _output_intact(ctx.cache(name) / rel, hsh, (rec.get("stat") or {}).get(rel))]
             if not bad and rec.get("outputs"):
+                stat = {rel: _file_stat(ctx.cache(name) / rel) for rel in rec["outputs"]}
+                if rec.get("stat") != stat:  # hashed intact (copied, or recorded without them): record them
+                    _write_stage_record(root, name, {**rec, "stat": stat})
                 results.append(StageResult(name, "up to date", "inputs and parameters unchanged",
                                            0.0, dict(rec.get("details") or {})))
                 continue
@@ -718,7 +739,8 @@ def _run_planned(root: Path, options: dict, wanted: list[str], why: dict, avail:
             results.append(StageResult(name, "skipped", details, seconds))
             continue
         outputs = {rel: _file_hash(ctx.cache(name) / rel) for rel in st.outputs}
-        _write_stage_record(root, name, {"key": key, "params": params, "outputs": outputs,
+        stat = {rel: _file_stat(ctx.cache(name) / rel) for rel in st.outputs}
+        _write_stage_record(root, name, {"key": key, "params": params, "outputs": outputs, "stat": stat,
                                          "seconds": round(seconds, 4), "details": details,
                                          "why": why.get(name, "")})
         results.append(StageResult(name, "ran", f"{reason}; {why.get(name, '')}", seconds, details))
@@ -728,7 +750,8 @@ def _run_planned(root: Path, options: dict, wanted: list[str], why: dict, avail:
 def stage_output(root: str | os.PathLike, stage: str, *, verify: bool = True) -> Path:
     """Path of a derived stage's output in the scene at ``root`` (for the render methods), after
     checking that scene.json records it and (``verify``) that the file still has its recorded
-    hash. Raises MissingFileError naming the command that makes it."""
+    content (``_output_intact``: its recorded size and modification time, else its hash). Raises
+    MissingFileError naming the command that makes it."""
     root = Path(root)
     if stage not in STAGES:
         raise BadValueError(f"stage {stage!r}: unknown (expected one of {', '.join(STAGES)})")
@@ -739,7 +762,7 @@ def stage_output(root: str | os.PathLike, stage: str, *, verify: bool = True) ->
         raise MissingFileError(f"{root}: no output of stage {stage!r}{why}; {hint}")
     rel, hsh = next(iter(rec["outputs"].items()))
     f = root / CACHE_DIR / stage / rel
-    if not f.is_file() or (verify and _file_hash(f) != hsh):
+    if not (_output_intact(f, hsh, (rec.get("stat") or {}).get(rel)) if verify else f.is_file()):
         raise MissingFileError(f"{f}: missing or changed since stage {stage!r} wrote it; {hint} --force")
     return f
 
