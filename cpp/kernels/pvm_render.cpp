@@ -10,6 +10,7 @@
 #include <immintrin.h>  // SSE2; AVX2 only inside target("avx2") functions, called when the CPU has it
 #endif
 
+#include "ibr/bands.h"
 #include "ibr/parallel.h"
 #include "ibr/simd.h"
 #include "kernels/hybrid.h"  // UlrPenaltyFast
@@ -358,22 +359,14 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
     }
   });
   const int nb = (h + kBandRows - 1) / kBandRows;
-  std::vector<std::int64_t> start(static_cast<std::size_t>(nb) + 1, 0);
-  for (std::int64_t i = 0; i < nt; ++i) {
-    if (row0[static_cast<std::size_t>(i)] > row1[static_cast<std::size_t>(i)]) continue;
-    for (int b = row0[static_cast<std::size_t>(i)] / kBandRows; b <= row1[static_cast<std::size_t>(i)] / kBandRows; ++b)
-      ++start[static_cast<std::size_t>(b) + 1];
-  }
-  for (int b = 0; b < nb; ++b) start[static_cast<std::size_t>(b) + 1] += start[static_cast<std::size_t>(b)];
-  std::vector<std::int32_t> binned(static_cast<std::size_t>(start[static_cast<std::size_t>(nb)]));
-  {
-    std::vector<std::int64_t> fill(start.begin(), start.end() - 1);
+  std::vector<std::int64_t> start;
+  std::vector<std::int32_t> binned;
+  BinByBand<std::int32_t>(nb, kBandRows, [&](auto&& emit) {
     for (std::int64_t i = 0; i < nt; ++i) {
-      if (row0[static_cast<std::size_t>(i)] > row1[static_cast<std::size_t>(i)]) continue;
-      for (int b = row0[static_cast<std::size_t>(i)] / kBandRows; b <= row1[static_cast<std::size_t>(i)] / kBandRows; ++b)
-        binned[static_cast<std::size_t>(fill[static_cast<std::size_t>(b)]++)] = static_cast<std::int32_t>(i);
+      const std::size_t k = static_cast<std::size_t>(i);
+      if (row0[k] <= row1[k]) emit(static_cast<std::int32_t>(i), row0[k], row1[k]);
     }
-  }
+  }, start, binned);
   float* cd = frame.cand_depth.data();
   std::int16_t* cv = frame.cand_view.data();
   std::uint8_t* cr = frame.cand_rank.data();
