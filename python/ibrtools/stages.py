@@ -256,17 +256,17 @@ def _file_stat(path: Path) -> list[int]:
     return [int(st.st_size), int(st.st_mtime_ns)]
 
 
-def _output_intact(path: Path, hsh: str, stat: list | None) -> bool:
-    """True when a stage's output file is there with the content its record names: its size and
-    modification time as recorded when the stage wrote it (outputs are written whole, then renamed),
-    else (a copied scene, an older record without them, a changed file) its hash. A change that
-    keeps both the size and the modification time to the nanosecond is not detected (as make and
-    rsync); every other one, a torn write included, is."""
+def _output_intact(path: Path, rec: dict, rel: str) -> bool:
+    """True when output ``rel`` of the stage record ``rec`` is at ``path`` with the content the
+    record names: its size and modification time as recorded when the stage wrote it (outputs are
+    written whole, then renamed), else (a copied scene, an older record without them, a changed
+    file) its hash. A change that keeps both the size and the modification time to the nanosecond
+    is not detected (as make and rsync); every other one, a torn write included, is."""
     if not path.is_file():
         return False
-    if isinstance(stat, list) and _file_stat(path) == stat:
+    if _file_stat(path) == (rec.get("stat") or {}).get(rel):
         return True
-    return _file_hash(path) == hsh
+    return _file_hash(path) == rec["outputs"][rel]
 
 
 def scene_content_key(root: Path) -> str:
@@ -713,8 +713,7 @@ def _run_planned(root: Path, options: dict, wanted: list[str], why: dict, avail:
             if rec.get("skipped"):
                 results.append(StageResult(name, "skipped", f"{rec['skipped']} (inputs unchanged)"))
                 continue
-            bad = [rel for rel, hsh in (rec.get("outputs") or {}).items()
-                   if not _output_intact(ctx.cache(name) / rel, hsh, (rec.get("stat") or {}).get(rel))]
+            bad = [rel for rel in rec.get("outputs") or {} if not _output_intact(ctx.cache(name) / rel, rec, rel)]
             if not bad and rec.get("outputs"):
                 stat = {rel: _file_stat(ctx.cache(name) / rel) for rel in rec["outputs"]}
                 if rec.get("stat") != stat:  # hashed intact (copied, or recorded without them): record them
@@ -760,9 +759,9 @@ def stage_output(root: str | os.PathLike, stage: str, *, verify: bool = True) ->
     if not rec or not rec.get("outputs"):
         why = f" ({rec['skipped']})" if rec and rec.get("skipped") else ""
         raise MissingFileError(f"{root}: no output of stage {stage!r}{why}; {hint}")
-    rel, hsh = next(iter(rec["outputs"].items()))
+    rel = next(iter(rec["outputs"]))
     f = root / CACHE_DIR / stage / rel
-    if not (_output_intact(f, hsh, (rec.get("stat") or {}).get(rel)) if verify else f.is_file()):
+    if not (_output_intact(f, rec, rel) if verify else f.is_file()):
         raise MissingFileError(f"{f}: missing or changed since stage {stage!r} wrote it; {hint} --force")
     return f
 
