@@ -37,47 +37,6 @@ void InterpolateVertexAttribute(const std::int32_t* prim_id, const float* bary, 
   });
 }
 
-namespace {
-
-// atan(t) on [0, 1] by a minimax polynomial (Abramowitz and Stegun 4.4.49, 9th order odd
-// polynomial, max error 1e-5 rad): t * (kAtan1 + t^2 (kAtan3 + t^2 (kAtan5 + t^2 (kAtan7 + t^2 kAtan9)))).
-// The scalar, SSE2 and AVX2 atan2 below all evaluate it in this Horner order (the same bits).
-constexpr float kAtan1 = 0.9998660f, kAtan3 = -0.3302995f, kAtan5 = 0.1801410f, kAtan7 = -0.0851330f,
-                kAtan9 = 0.0208351f;
-
-inline float AtanPoly01(float t) {
-  const float t2 = t * t;
-  return t * (kAtan1 + t2 * (kAtan3 + t2 * (kAtan5 + t2 * (kAtan7 + t2 * kAtan9))));
-}
-
-// atan2(y, x) for y >= 0 (an angle in [0, pi]) by AtanPoly01: ~4x faster than std::atan2 in the
-// per-pixel, per-view penalty loop, and 1e-5 rad is far below any penalty difference that
-// matters for ranking (pixels subtend ~1e-3 rad).
-inline float FastAtan2Pos(float y, float x) {
-  const float ax = std::abs(x);
-  const bool swap = y > ax;
-  const float num = swap ? ax : y, den = swap ? y : ax;
-  if (!(den > 0.f)) return 0.f;
-  float r = AtanPoly01(num / den);
-  if (swap) r = 1.57079633f - r;
-  if (x < 0.f) r = 3.14159265f - r;
-  return r;
-}
-
-}  // namespace
-
-// UlrPenalty (ulr.h) with the novel-side vector b = c_novel - p and its length computed once per
-// pixel and the fast atan2: agrees with UlrPenalty within 2e-5 (tests/test_hybrid_render.py).
-float UlrPenaltyFast(const glm::vec3& p, const glm::vec3& b, float lb, const glm::vec3& c_view,
-                     float resolution_weight) {
-  const glm::vec3 a = c_view - p;
-  const float la = glm::length(a);
-  if (!(la > 0.f) || !(lb > 0.f) || !std::isfinite(la) || !std::isfinite(lb)) return INFINITY;
-  const float angle = FastAtan2Pos(glm::length(glm::cross(a, b)), glm::dot(a, b));
-  const float ratio = la / lb - 1.f;
-  const float pen = angle + resolution_weight * (ratio > 0.f ? ratio : 0.f);
-  return std::isfinite(pen) ? pen : INFINITY;
-}
 
 namespace {
 

@@ -59,11 +59,6 @@ struct UlrOptions {
   UlrSimd simd = UlrSimd::kAuto;
 };
 
-// UlrPenalty (ulr.h) with b = c_novel - p and lb = |b| given (computed once per pixel) and a
-// polynomial atan2 (max error 1e-5 rad): the per-pixel loop's version.
-float UlrPenaltyFast(const glm::vec3& p, const glm::vec3& b, float lb, const glm::vec3& c_view,
-                     float resolution_weight);
-
 // For every pixel with gbuffer_depth > 0 (and pixel_mask != 0 when a mask is given): the world
 // point p = centre + depth * ray; penalties UlrPenalty(p, novel centre, view centre) of every
 // input view; the best k by UlrSelect among the views that see p: the back-face (when a normal

@@ -13,7 +13,7 @@
 #include "ibr/bands.h"
 #include "ibr/parallel.h"
 #include "ibr/simd.h"
-#include "kernels/hybrid.h"  // UlrPenaltyFast
+#include "kernels/hybrid.h"
 #include "kernels/resample.h"
 #include "kernels/ulr.h"
 
@@ -681,8 +681,8 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
     std::vector<int> index(static_cast<std::size_t>(ulr_k));
     std::vector<float> weight(static_cast<std::size_t>(ulr_k));
     std::vector<int> others;  // SeenThrough's views
-    std::vector<std::uint8_t> has(static_cast<std::size_t>(views.count), 0);  // and its scratch (all 0)
     others.reserve(static_cast<std::size_t>(views.count));
+    std::vector<std::uint8_t> has(static_cast<std::size_t>(views.count), 0);  // and its scratch (all 0)
     const bool limited = options.max_angle < 3.1415926f;
     const float cos_max = limited ? std::cos(options.max_angle) : -1.f;
     for (std::int64_t y = a; y < b; ++y) {
@@ -829,9 +829,13 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
               for (int q = 0; q < 3; ++q) c3[q] += c[q] / static_cast<float>(m);
             }
           } else {
+            // The k-th kept candidate has weight 0 (UlrSelect): not read (as ULR's blend; adding
+            // 0 x a finite colour changes no bit).
             for (int j = 0; j < sel; ++j) {
+              const float wj = weight[static_cast<std::size_t>(j)];
+              if (!(wj > 0.f)) continue;
               const float* c = colour_of(member[index[static_cast<std::size_t>(j)]]);
-              for (int q = 0; q < 3; ++q) c3[q] += weight[static_cast<std::size_t>(j)] * c[q];
+              for (int q = 0; q < 3; ++q) c3[q] += wj * c[q];
             }
           }
           float* out = (k == 0 ? frame.c_fg.data() : frame.c_bg.data()) + 3 * p;
