@@ -41,9 +41,10 @@
 //     foreground; at most 16 iterations), merged into one cluster when the two means differ by
 //     at most merge_rel * the foreground mean (identical depths -> one cluster). Per cluster the
 //     ULR-weighted colour of its candidates (UlrSelect with k = ulr_k over the candidates'
-//     penalties at their own surface points); a candidate's colour is its view's image sampled
-//     bilinearly at the projection of the candidate's surface point (projective texturing of the
-//     PVM by its own image).
+//     penalties at their own surface points; the k-th, of weight 0, is not read); a candidate's
+//     colour is its view's image sampled (Catmull-Rom with options.cubic, else bilinearly) at the
+//     projection of the candidate's surface point (projective texturing of the PVM by its own
+//     image).
 //     Free space (free_space, with views.depths): a background candidate counts in #N_bg (Eq. 1,
 //     Eq. 2) only when its view sees past the foreground point P (the foreground mean on the
 //     pixel's ray): P projects into the view, no pixel of the 3 x 3 around P's projection has a
