@@ -128,23 +128,28 @@ def vertex_statistics(scene: Scene, mesh: Mesh, *, depth_tol: float = DEPTH_TOL,
         count += np.bincount(s.index, minlength=n)
 
     # Every view's samples in one array, in view order: one bincount per channel accumulates each
-    # vertex's samples in the same order as per-view sums would (the same float64 result).
+    # vertex's samples in the same order as per-view sums would (the same float64 result). Stored
+    # channel by channel (3, S), each view a slice of columns, so that dividing out the gains
+    # writes in place and bincount reads contiguous weights.
     colors64 = {s.name: s.color.astype(np.float64) for s in samples}
     all_index = np.concatenate([s.index for s in samples]) if samples else np.zeros(0, np.int64)
-    all_color = np.concatenate([colors64[s.name] for s in samples]) if samples else np.zeros((0, 3))
-    all_view = np.repeat(np.arange(len(samples)), [len(s.index) for s in samples])
+    all_color = np.ascontiguousarray(np.concatenate([colors64[s.name] for s in samples]).T) if samples \
+        else np.zeros((3, 0))
+    bounds = np.concatenate([[0], np.cumsum([len(s.index) for s in samples])]).astype(np.int64)
+    scaled = np.empty_like(all_color)
+    cnt = np.maximum(count, 1)[:, None]
 
-    def moments():
-        g = np.array([gains[s.name] for s in samples]).reshape(-1, 3)
-        c = all_color / g[all_view]
-        s1 = np.stack([np.bincount(all_index, weights=c[:, k], minlength=n) for k in range(3)], 1)
-        s2 = np.stack([np.bincount(all_index, weights=c[:, k] ** 2, minlength=n) for k in range(3)], 1)
-        cnt = np.maximum(count, 1)[:, None]
-        mean = s1 / cnt
-        var = np.maximum(s2 / cnt - mean ** 2, 0.0)
-        return mean, var
+    def means(with_var=False):
+        for i, s in enumerate(samples):
+            a, b = bounds[i], bounds[i + 1]
+            np.divide(all_color[:, a:b], gains[s.name][:, None], out=scaled[:, a:b])
+        mean = np.stack([np.bincount(all_index, weights=scaled[k], minlength=n) for k in range(3)], 1) / cnt
+        if not with_var:
+            return mean, None
+        s2 = np.stack([np.bincount(all_index, weights=scaled[k] ** 2, minlength=n) for k in range(3)], 1)
+        return mean, np.maximum(s2 / cnt - mean ** 2, 0.0)
 
-    mean, var = moments()
+    mean, _ = means()
     if compensate_gains and len(samples) > 1:
         # Per view, the vertices it shares with another view and their colours (fixed).
         shared = {}
@@ -167,7 +172,7 @@ def vertex_statistics(scene: Scene, mesh: Mesh, *, depth_tol: float = DEPTH_TOL,
             g = np.exp(np.mean([np.log(gains[s.name]) for s in samples], axis=0))
             for s in samples:
                 gains[s.name] = gains[s.name] / g
-            mean, var = moments()
+            mean, _ = means()
             if max(float(np.abs(np.log(gains[k] / before[k])).max()) for k in gains) < 1e-4:
                 break
         # The same median ratio on each half of the view's image (at the converged means): an
@@ -178,6 +183,7 @@ def vertex_statistics(scene: Scene, mesh: Mesh, *, depth_tol: float = DEPTH_TOL,
             m = mean[idx]
             ok = (m > 1e-3).all(1)
             half_gains[s.name] = gain_halves(c[ok] / m[ok], x[ok], y[ok], cam.width, cam.height, gains[s.name])
+    mean, var = means(with_var=True)
     std = np.where(count[:, None] >= 2, np.sqrt(var), 0.0)
     mean = np.where(count[:, None] >= 1, mean, 0.0)
     return {"mean": mean.astype(np.float32), "std": std.astype(np.float32), "count": count.astype(np.int32),
