@@ -37,7 +37,6 @@ void InterpolateVertexAttribute(const std::int32_t* prim_id, const float* bary, 
   });
 }
 
-
 namespace {
 
 // The scalar reference path of UlrBlend (double projections through Camera::ProjectCam, one view

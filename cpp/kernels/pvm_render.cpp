@@ -13,7 +13,6 @@
 #include "ibr/bands.h"
 #include "ibr/parallel.h"
 #include "ibr/simd.h"
-#include "kernels/hybrid.h"
 #include "kernels/resample.h"
 #include "kernels/ulr.h"
 
@@ -681,8 +680,8 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
     std::vector<int> index(static_cast<std::size_t>(ulr_k));
     std::vector<float> weight(static_cast<std::size_t>(ulr_k));
     std::vector<int> others;  // SeenThrough's views
-    others.reserve(static_cast<std::size_t>(views.count));
     std::vector<std::uint8_t> has(static_cast<std::size_t>(views.count), 0);  // and its scratch (all 0)
+    others.reserve(static_cast<std::size_t>(views.count));
     const bool limited = options.max_angle < 3.1415926f;
     const float cos_max = limited ? std::cos(options.max_angle) : -1.f;
     for (std::int64_t y = a; y < b; ++y) {
