@@ -671,9 +671,8 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
   const int ulr_k = std::max(1, options.ulr_k);
   const bool free_space = options.free_space && views.depths != nullptr;
   ParallelFor(h, 4, [&](std::int64_t a, std::int64_t b) {
-    float col[kPvmMaxCandidates][3];
     double pos[kPvmMaxCandidates][2];  // a candidate's position in its view's image
-    bool projected[kPvmMaxCandidates], read[kPvmMaxCandidates];
+    bool projected[kPvmMaxCandidates];
     float pen[kPvmMaxCandidates];
     int member[kPvmMaxCandidates];
     bool bg[kPvmMaxCandidates];
@@ -784,7 +783,6 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
           // side once per candidate point, polynomial atan2 within 1e-5 rad of UlrPenalty's
           // std::atan2, which cost as much as the rest of this loop).
           pen[i] = std::numeric_limits<float>::infinity();
-          read[i] = false;
           projected[i] = false;
           if (bg[i] && !two_counted) continue;  // a background candidate of a one-cluster pixel: unused
           const glm::dvec3 pw = c_novel_d + ray * static_cast<double>(d[i]);
@@ -799,18 +797,15 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
                                     options.resolution_weight);
           }
         }
-        // Candidate i's colour, read from its view once (0 where it does not project).
-        const auto colour_of = [&](int i) -> const float* {
-          if (!read[i]) {
-            read[i] = true;
-            col[i][0] = col[i][1] = col[i][2] = 0.f;
-            if (projected[i]) {
-              const Camera& cam = views.cameras[vv[i]];
-              ReadRgb(views.images[vv[i]], static_cast<std::ptrdiff_t>(cam.width) * 3, cam.width, cam.height,
-                      pos[i][0], pos[i][1], options.cubic, col[i]);
-            }
+        // Candidate i's colour from its view (0 where it does not project). Read at most once per
+        // pixel without a cache: a candidate is in one cluster, and a blend uses it once.
+        const auto colour_of = [&](int i, float c[3]) {
+          c[0] = c[1] = c[2] = 0.f;
+          if (projected[i]) {
+            const Camera& cam = views.cameras[vv[i]];
+            ReadRgb(views.images[vv[i]], static_cast<std::ptrdiff_t>(cam.width) * 3, cam.width, cam.height,
+                    pos[i][0], pos[i][1], options.cubic, c);
           }
-          return col[i];
         };
         for (int k = 0; k < (two_counted ? 2 : 1); ++k) {
           int m = 0;
@@ -824,7 +819,8 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
           const int sel = UlrSelect(sub_pen, m, ulr_k, index.data(), weight.data());
           if (sel == 0) {  // no candidate has a finite penalty: unweighted mean (0 where none projects)
             for (int j = 0; j < m; ++j) {
-              const float* c = colour_of(member[j]);
+              float c[3];
+              colour_of(member[j], c);
               for (int q = 0; q < 3; ++q) c3[q] += c[q] / static_cast<float>(m);
             }
           } else {
@@ -833,7 +829,8 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
             for (int j = 0; j < sel; ++j) {
               const float wj = weight[static_cast<std::size_t>(j)];
               if (!(wj > 0.f)) continue;
-              const float* c = colour_of(member[index[static_cast<std::size_t>(j)]]);
+              float c[3];
+              colour_of(member[index[static_cast<std::size_t>(j)]], c);
               for (int q = 0; q < 3; ++q) c3[q] += wj * c[q];
             }
           }
