@@ -256,6 +256,11 @@ def _file_stat(path: Path) -> list[int]:
     return [int(st.st_size), int(st.st_mtime_ns)]
 
 
+def _output_stats(cache: Path, rels) -> dict[str, list[int]]:
+    """The record's ``stat``: each output's size and modification time (ns)."""
+    return {rel: _file_stat(cache / rel) for rel in rels}
+
+
 def _output_intact(path: Path, rec: dict, rel: str) -> bool:
     """True when output ``rel`` of the stage record ``rec`` is at ``path`` with the content the
     record names: its size and modification time as recorded when the stage wrote it (outputs are
@@ -715,7 +720,7 @@ def _run_planned(root: Path, options: dict, wanted: list[str], why: dict, avail:
                 continue
             bad = [rel for rel in rec.get("outputs") or {} if not _output_intact(ctx.cache(name) / rel, rec, rel)]
             if not bad and rec.get("outputs"):
-                stat = {rel: _file_stat(ctx.cache(name) / rel) for rel in rec["outputs"]}
+                stat = _output_stats(ctx.cache(name), rec["outputs"])
                 if rec.get("stat") != stat:  # hashed intact (copied, or recorded without them): record them
                     _write_stage_record(root, name, {**rec, "stat": stat})
                 results.append(StageResult(name, "up to date", "inputs and parameters unchanged",
@@ -738,8 +743,8 @@ def _run_planned(root: Path, options: dict, wanted: list[str], why: dict, avail:
             results.append(StageResult(name, "skipped", details, seconds))
             continue
         outputs = {rel: _file_hash(ctx.cache(name) / rel) for rel in st.outputs}
-        stat = {rel: _file_stat(ctx.cache(name) / rel) for rel in st.outputs}
-        _write_stage_record(root, name, {"key": key, "params": params, "outputs": outputs, "stat": stat,
+        _write_stage_record(root, name, {"key": key, "params": params, "outputs": outputs,
+                                         "stat": _output_stats(ctx.cache(name), st.outputs),
                                          "seconds": round(seconds, 4), "details": details,
                                          "why": why.get(name, "")})
         results.append(StageResult(name, "ran", f"{reason}; {why.get(name, '')}", seconds, details))
