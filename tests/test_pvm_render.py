@@ -206,6 +206,29 @@ def test_inside_grid_is_the_surface_box_not_the_cubic_grid():
     assert r.render(towards).inside_grid.all()
 
 
+def test_triangles_reaching_behind_the_near_plane_are_skipped():
+    """A camera just in front of the plane z = 5, looking almost along it: half of the per-view
+    meshes lie behind the camera, and the triangles near it project to thousands of pixels. The
+    triangles with a vertex behind the near plane are skipped (the rasteriser computes every
+    vertex's projection without a branch); every candidate drawn is finite, in front of the near
+    plane and on the plane."""
+    scene = _plane_scene(2, size=(64, 48))
+    r = _renderer(scene)
+    cam = Camera.from_fov(32, 24, 90.0, look_at((0.0, 0.0, 4.8), (2.0, 0.0, 4.9)))
+    res = r.render(cam)
+    c = r.candidates(cam)
+    live = np.arange(c["depth"].shape[-1]) < c["count"][..., None]
+    assert live.any(axis=-1).mean() > 0.2
+    d = c["depth"][live]
+    assert np.isfinite(d).all() and (d >= DEFAULTS["near"]).all()
+    for k in range(c["depth"].shape[-1]):
+        has = live[..., k]
+        if has.any():
+            world = cam.unproject(np.where(has, c["depth"][..., k], 0.0).astype(np.float32))
+            np.testing.assert_allclose(world[has][:, 2], 5.0, rtol=1e-4)
+    assert np.isfinite(res.color).all() and np.isfinite(res.depth).all()
+
+
 def _two_plane_scene():
     """A near plane (view v0, z = 3, colour 0.9) and a far plane (v1, v2, z = 5, colour 0.2), all three
     views at the target's pose."""
