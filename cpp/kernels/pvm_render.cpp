@@ -269,12 +269,11 @@ void PvmSelectTiles(const PvmTileArrays& tiles, const PvmViews& views, const std
           for (std::int64_t s = t; s < u; ++s) {
             const int v = tiles.tile_view[s];
             if (!views.enabled[v]) continue;
-            if (options.max_angle < 3.1415926f) {
-              const glm::vec3 a = centres[static_cast<std::size_t>(v)] - centre, b = c_novel - centre;
-              if (std::atan2(glm::length(glm::cross(a, b)), glm::dot(a, b)) > options.max_angle) continue;
-            }
+            float angle = 0.f;  // the penalty's angle term is the angle max_angle bounds
+            const float p = UlrPenalty(centre, c_novel, centres[static_cast<std::size_t>(v)], options.resolution_weight, &angle);
+            if (options.max_angle < 3.1415926f && angle > options.max_angle) continue;
             ids.push_back(s);
-            pen.push_back(UlrPenalty(centre, c_novel, centres[static_cast<std::size_t>(v)], options.resolution_weight));
+            pen.push_back(p);
           }
           const int m = UlrSelect(pen.data(), static_cast<int>(pen.size()), k, index.data(), weight.data());
           for (int r = 0; r < m; ++r) {

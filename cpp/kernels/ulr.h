@@ -26,15 +26,18 @@
 
 namespace ibr {
 
+// angle: where given, the angle term (0 when the penalty is infinite for a degenerate p).
 inline float UlrPenalty(const glm::vec3& p, const glm::vec3& c_novel, const glm::vec3& c_view,
-                        float resolution_weight = 0.5f) {
+                        float resolution_weight = 0.5f, float* angle_out = nullptr) {
   const glm::vec3 a = c_view - p;
   const glm::vec3 b = c_novel - p;
   const float la = glm::length(a), lb = glm::length(b);
+  if (angle_out != nullptr) *angle_out = 0.f;
   if (!(la > 0.f) || !(lb > 0.f) || !std::isfinite(la) || !std::isfinite(lb))
     return std::numeric_limits<float>::infinity();
   // atan2(|a x b|, a . b) is accurate for small angles, where acos of the normalised dot is not.
   const float angle = std::atan2(glm::length(glm::cross(a, b)), glm::dot(a, b));
+  if (angle_out != nullptr) *angle_out = angle;
   const float ratio = la / lb - 1.f;
   const float pen = angle + resolution_weight * (ratio > 0.f ? ratio : 0.f);
   return std::isfinite(pen) ? pen : std::numeric_limits<float>::infinity();
