@@ -39,8 +39,11 @@ def test_choose_source():
     assert choose_source(Scene(views=with_depth, meshes={"ground_truth": gt})) == "fusion"
     assert choose_source(Scene(views=no_depth, meshes={"ground_truth": gt})) == "ground_truth"
     assert choose_source(Scene(views=with_depth, meshes={"ground_truth": gt}), "ground_truth") == "ground_truth"
-    with pytest.raises(BadValueError, match="no depth and the scene has no mesh"):
+    with pytest.raises(BadValueError, match="no view has depth and the scene has no mesh.*stereo/depth_maps"):
         choose_source(Scene(views=no_depth))
+    mixed = [with_depth[0], View.create("b", c, color=col), View.create("c", c, color=col)]
+    with pytest.raises(BadValueError, match=r"2 of 3 views have no depth \(first: b\)"):
+        choose_source(Scene(views=mixed))
     with pytest.raises(BadValueError, match="no 'reconstructed' mesh"):
         choose_source(Scene(views=with_depth), "reconstructed")
     with pytest.raises(BadValueError, match="fusion needs a depth map"):

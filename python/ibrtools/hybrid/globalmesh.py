@@ -149,14 +149,24 @@ def choose_source(scene: Scene, source: str = "auto") -> str:
             return "fusion"
         if "ground_truth" in scene.meshes:
             return "ground_truth"
-        raise BadValueError("global mesh: the views have no depth and the scene has no mesh; "
-                            "nothing to build geometry from")
+        raise BadValueError(f"global mesh: {_without_depth(scene)} and the scene has no mesh; nothing to build "
+                            "geometry from (give every view a depth map, e.g. COLMAP's stereo/depth_maps, docs/importers.md; "
+                            "or the scene a 'reconstructed' mesh, scene.json \"meshes\", docs/FORMAT.md)")
     if source in ("reconstructed", "ground_truth") and source not in scene.meshes:
         raise BadValueError(f"global mesh: the scene has no {source!r} mesh (it has: "
                             f"{', '.join(scene.meshes) or 'none'})")
     if source == "fusion" and not all_depth:
-        raise BadValueError("global mesh: fusion needs a depth map for every view")
+        raise BadValueError(f"global mesh: fusion needs a depth map for every view; {_without_depth(scene)}")
     return source
+
+
+def _without_depth(scene: Scene) -> str:
+    """Which views lack depth, for an error message: 'no view has depth' or 'N of M views have no
+    depth (first: NAME)'."""
+    missing = [v.name for v in scene.views if not v.has_depth]
+    if not scene.views or len(missing) == len(scene.views):
+        return "no view has depth"
+    return f"{len(missing)} of {len(scene.views)} views have no depth (first: {missing[0]})"
 
 
 def depth_extent(cameras: Mapping[str, Camera], depths: Mapping[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
