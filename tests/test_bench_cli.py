@@ -83,7 +83,11 @@ def test_bench_json_html_and_totals(scene_dir, tmp_path, capsys):
     assert doc["method"] == "ulr" and doc["swept"] == ["k"] and [r["k"] for r in doc["configurations"]] == [2, 3]
     assert all(Path(f).is_file() for f in doc["files"].values()) and cap.err == ""
     assert (out / "report.html").read_text().startswith("<!DOCTYPE html>")
+    # v001 was an input of the mesh stage ULR reads: the JSON carries the note, the table run prints it.
+    assert "held-out view v001 was an input of the mesh" in doc["holdout_note"]
     assert bench.main([str(scene_dir), "--method", "ulr", "--sweep", "k=2:3", "--holdout", "v001",
                        "-o", str(out)]) == 0
-    text = capsys.readouterr().out
+    cap = capsys.readouterr()
+    text = cap.out
     assert "best:" in text and "fastest" in text and "report.html" in text
+    assert "ibr-bench: note: held-out view v001" in cap.err and "optimistic" in cap.err

@@ -153,7 +153,7 @@ def test_build_global_mesh_from_given_mesh_and_errors():
     flat = Mesh(np.zeros((3, 3), np.float32), np.array([[0, 1, 2]], np.int32))
     with pytest.raises(BadValueError, match="degenerate"):
         build_global_mesh(Scene(views=[v], meshes={"ground_truth": flat}))
-    with pytest.raises(BadValueError, match="no depth and the scene has no mesh"):
+    with pytest.raises(BadValueError, match="no view has depth and the scene has no mesh"):
         build_global_mesh(Scene(views=[v]))
     # Depth maps with no finite surface (all sky): empty bounds.
     v0 = View.create("a", c, color=np.zeros((30, 40, 3), np.float32), depth=np.full((30, 40), np.inf, np.float32))

@@ -477,6 +477,17 @@ def test_method_pvm_cli(tmp_path, capsys):
         got, _ = m.render(cam)
         want = PvmRenderer(sc).render(cam, gbuffer_depth=depth, filtered=filtered)
         assert np.array_equal(got["color"], want.color) and np.array_equal(got["hole"], ~want.valid)
+    # Held-out views were inputs of the stages: the command says the figures are optimistic, the
+    # report records it; a method that reads no stage (dibr) gets no note.
+    v0 = sc.views[0].name
+    capsys.readouterr()
+    assert render.main([str(d), "--method", "pvm", "--holdout", v0, "-o", str(tmp_path / "h")]) == 0
+    err = capsys.readouterr().err
+    assert f"note: held-out view {v0} was an input of the mesh and pvm stages" in err and "optimistic" in err
+    assert "optimistic" in json.loads((tmp_path / "h" / "report.json").read_text())["holdout_note"]
+    assert render.main([str(d), "--method", "dibr", "--holdout", v0, "-o", str(tmp_path / "hd")]) == 0
+    assert "note:" not in capsys.readouterr().err
+    assert "holdout_note" not in json.loads((tmp_path / "hd" / "report.json").read_text())
     # Without the pvm stage: the error names the command.
     d2 = tmp_path / "scene2"
     assert preprocess.main(["synth:objects", "-o", str(d2), "--views", "3", "--size", "32x24", "--methods", "dibr",

@@ -80,16 +80,20 @@ def _body(args: argparse.Namespace) -> int:
         rows = sweep(scene, args.method, grid, holdout=args.holdout, base=base, out_dir=out, progress=progress,
                      frame_hook=keep)
     keep.finish()
+    from ibrtools.render.job import holdout_note, plan
     from ibrtools.render.methods import resolve
     from ibrtools.report_html import bench_report
 
     name = resolve(args.method, scene)
+    note = holdout_note(plan(scene, holdout=args.holdout), name) if args.holdout else None
+    if note and not (args.quiet or args.json):
+        print(f"{PROG}: note: {note}", file=sys.stderr)
     keys = list(grid)
     html = bench_report(rows, keys, out, out / "report.html", panels=keep.panels, panels_config=keep.config,
                         title=f"{PROG} --method {name}: {len(rows)} configurations on "
                               f"{rows[0]['frames'] if rows else 0} frames")
     if args.json:
-        print_json({"method": name, "swept": keys, "configurations": rows,
+        print_json({"method": name, "swept": keys, "configurations": rows, **({"holdout_note": note} if note else {}),
                     "files": {k: str(out / k) for k in ("sweep.csv", "sweep.md", "sweep.png")} | {"report.html": str(html)}})
         return 0
     best = min(range(len(rows)), key=lambda i: (rows[i]["mean_flip"] is None, rows[i]["mean_flip"] or 0), default=None)

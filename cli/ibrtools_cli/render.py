@@ -173,6 +173,8 @@ def _body(args: argparse.Namespace) -> int:
         with progress_bar(PROG, "HTML report", None, quiet=args.quiet):
             extra["report_html"] = str(render_report(report, args.output, html_path, truths=truths))
     status = _report_failed(report)
+    if report.get("holdout_note") and not (args.quiet or args.json):
+        print(f"{PROG}: note: {report['holdout_note']}", file=sys.stderr)
     if args.json:
         print_json({**report, **extra})
         return status

@@ -142,6 +142,27 @@ def plan(scene: Scene, *, targets: list[str] | None = None, holdout: list[str] |
 
 
 # --- memory: estimate before allocating -----------------------------------------------------------
+def holdout_note(job: Job, method: str) -> str | None:
+    """One line when the job scores held-out views (``plan(holdout=)``) with a method that reads
+    preprocessing stages (tm, ulr, pvm, hybrid): ``ibr-preprocess`` ran those stages on every view
+    of the scene, the held-out ones too (a mesh fused from their depth, a texture baked from their
+    colours), so the figures on them are optimistic. None otherwise. The render report carries it
+    as "holdout_note" and the commands print it."""
+    from ..stages import STAGES
+
+    held = list((job.spec or {}).get("holdout") or [])
+    read = [n for n, st in STAGES.items()
+            if method in st.methods and "outputs" in (job.scene.stages.get(n) or {})]
+    if not held or not read:
+        return None
+    views = (f"held-out views {', '.join(held[:4])}{', ...' if len(held) > 4 else ''} were inputs" if len(held) > 1
+             else f"held-out view {held[0]} was an input")
+    stages = read[0] if len(read) == 1 else ", ".join(read[:-1]) + " and " + read[-1]
+    return (f"{views} of the {stages} stage{'s' if len(read) > 1 else ''} (ibr-preprocess ran on every view): "
+            f"--method {method}'s figures on {'them' if len(held) > 1 else 'it'} are optimistic; to score unseen "
+            "views, import the scene without them (as benchmarks/bench_hybrid_lego.py does)")
+
+
 # Bytes held per pixel while rendering, fitted to the peak RSS measured with /usr/bin/time -v at
 # 1920x1080 and 3840x2160 (tools/measure_memory.py; docs/robustness.md "Peak memory") and rounded
 # up so that the estimate stays 1.3-1.5x above every measurement. INPUT: every pixel of every
@@ -375,7 +396,9 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
         if progress:
             progress(n, n, "")
         frames_report = [e for e in entries if e is not None]
+        note = holdout_note(job, name)
         report = {"method": name, "params": dict(params or {}), "inpaint": inpaint,
+                  **({"holdout_note": note} if note else {}),
                   **({"foveate": {"fixation": list(fov_kw["fixation"]), "pooling": fov_kw["pooling"]}}
                      if fov_kw else {}),
                   "threads": used_threads, **extra,
