@@ -26,7 +26,7 @@
 
 namespace ibr {
 
-// angle: where given, the angle term (0 when the penalty is infinite for a degenerate p).
+// angle_out: where given, receives the angle term (0 when the penalty is infinite for a degenerate p).
 inline float UlrPenalty(const glm::vec3& p, const glm::vec3& c_novel, const glm::vec3& c_view,
                         float resolution_weight = 0.5f, float* angle_out = nullptr) {
   const glm::vec3 a = c_view - p;
