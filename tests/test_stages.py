@@ -58,6 +58,32 @@ def test_hybrid_methods_run_every_stage_then_nothing(built, capsys):
     assert "nothing to do" in capsys.readouterr().out
 
 
+def test_texture_and_variance_share_one_statistics_pass(built, tmp_path, monkeypatch):
+    """A fused mesh is its own render mesh: in one run the texture stage's gains and the variance
+    stage come from one vertex_statistics pass, and the outputs equal those of the stages run
+    apart (and of the first build)."""
+    import shutil
+
+    import ibrtools.hybrid.variance as V
+
+    d, _ = built
+    assert "render_vertices" not in np.load(d / "cache" / "mesh" / "mesh.npz").files
+    ref = {n: dict(np.load(d / "cache" / n / f"{n}.npz")) for n in ("texture", "variance")}
+    calls = []
+    real = V.vertex_statistics
+    monkeypatch.setattr(V, "vertex_statistics", lambda *a, **k: calls.append(1) or real(*a, **k))
+    for stages, n_calls in (("texture,variance", 1), ("variance", 1), ("texture", 1)):
+        d2 = tmp_path / stages.replace(",", "_")
+        shutil.copytree(d, d2)
+        calls.clear()
+        assert preprocess.main([str(d2), "-o", str(d2), "--stages", stages, "--force", "--set", "mesh.resolution=32",
+                                "-q"]) == 0
+        assert len(calls) == n_calls, stages
+        for n in stages.split(","):
+            got = np.load(d2 / "cache" / n / f"{n}.npz")
+            assert set(got.files) == set(ref[n]) and all(np.array_equal(got[k], ref[n][k]) for k in got.files), n
+
+
 def test_methods_that_need_no_stage_skip_them(built, capsys):
     d, _ = built
     out = run(d, "--methods", "dibr,warp", capsys=capsys)

@@ -375,6 +375,7 @@ class _Context:
         self.options = options
         self.memo: dict[str, dict] = {}
         self.cluster = cluster
+        self._stats: dict[str, dict] = {}
 
     def cache(self, stage: str) -> Path:
         return self.root / CACHE_DIR / stage
@@ -400,6 +401,17 @@ class _Context:
 
         d = self.get("mesh")
         return Mesh(d["vertices"], d["faces"], object_ids=d["object_ids"], kind="reconstructed")
+
+    def vertex_statistics(self, render: bool) -> dict:
+        """``variance.vertex_statistics`` of the views on the render mesh (``render``, the texture
+        stage's gains) or the dense mesh (the variance stage), computed once per run: when the mesh
+        stage stored no separate render mesh (a fused mesh, lego's) the two stages share one pass."""
+        from .hybrid.variance import vertex_statistics
+
+        key = "render" if render and "render_vertices" in self.get("mesh") else "dense"
+        if key not in self._stats:
+            self._stats[key] = vertex_statistics(self.scene, self.render_mesh() if key == "render" else self.mesh())
+        return self._stats[key]
 
     def render_mesh(self):
         """The render mesh (G-buffer, atlas): the dense mesh when the mesh stage stored no other."""
@@ -467,7 +479,6 @@ def _run_texture(ctx: _Context) -> dict:
     from .hybrid import atlas as A
     from .hybrid.gainmodel import exposure_gains
     from .hybrid.globalmesh import GlobalMeshOptions, choose_source, vertex_colors
-    from .hybrid.variance import vertex_statistics
 
     opts = GlobalMeshOptions(**ctx.options.get("mesh", {}))
     # A fused mesh blends more views on smoothed normals (GlobalMeshOptions.texture_options).
@@ -480,7 +491,7 @@ def _run_texture(ctx: _Context) -> dict:
     # "Texture").
     # Only the part of the gains that looks like exposure (hybrid/gainmodel.py, gain_model): a
     # gain that follows the viewing direction smoothly is shading, which the texture keeps.
-    st = vertex_statistics(ctx.scene, mesh)
+    st = ctx.vertex_statistics(render=True)
     gains = st["gains"]
     spread = round(float(np.ptp(np.log([np.asarray(g) for g in gains.values()]))), 4) if gains else 0.0
     # What is not global (the halves of a view's image disagree) is shrunk away (gainmodel.py).
@@ -516,11 +527,9 @@ def _run_texture(ctx: _Context) -> dict:
 
 
 def _run_variance(ctx: _Context) -> dict:
-    from .hybrid.variance import vertex_statistics
-
     # One statistics pass gives the variance mesh and the gain-compensated vertex means, which
     # the harmonise stage uses as its T (saves it a second pass over the views).
-    st = vertex_statistics(ctx.scene, ctx.mesh())
+    st = ctx.vertex_statistics(render=False)
     std = np.asarray(st["std"], np.float32)
     mean = np.asarray(st["mean"], np.float32)
     save_npz(ctx.cache("variance") / "variance.npz", std=std, mean=mean)
