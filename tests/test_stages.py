@@ -84,6 +84,40 @@ def test_texture_and_variance_share_one_statistics_pass(built, tmp_path, monkeyp
             assert set(got.files) == set(ref[n]) and all(np.array_equal(got[k], ref[n][k]) for k in got.files), n
 
 
+def test_holdout_imports_views_as_targets(tmp_path, capsys):
+    """--holdout moves input views to the targets at import (ground truth no stage reads); the
+    import key follows the list (a new list re-imports); bad lists fail in one line, exit 2."""
+    full = native.load(_plain_scene(tmp_path, capsys))
+    d = tmp_path / "s"
+    out = run(d, "--holdout", "v001", "v002", capsys=capsys)
+    assert out["import"]["status"] == "ran" and out["import"]["views"] == 1
+    assert out["import"]["targets"] == len(full.targets) + 2
+    sc = native.load(d)
+    assert [v.name for v in sc.views] == ["v000"] and [t.name for t in sc.targets][-2:] == ["v001", "v002"]
+    assert sc.stages["import"]["held_out"] == ["v001", "v002"]
+    held = sc.target("v001")
+    assert held.has_color and held.has_depth
+    np.testing.assert_array_equal(held.color, full.view("v001").color)
+    np.testing.assert_array_equal(held.depth, full.view("v001").depth)
+    assert run(d, "--holdout", "v001", "v002", capsys=capsys)["import"]["status"] == "up to date"
+    assert run(d, "--holdout", "v002", capsys=capsys)["import"]["status"] == "ran"
+    assert [v.name for v in native.load(d).views] == ["v000", "v001"]
+    for argv, msg in ((["--holdout", "nope"], "no input view named nope"),
+                      (["--holdout", "v000", "v001", "v002"], "every input view is held out"),
+                      (["--holdout", "t000"], "no input view named t000")):
+        assert preprocess.main(["synth:objects", "-o", str(tmp_path / "bad"), *SMALL, *argv]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and msg in err[0], err
+    assert preprocess.main([str(d), "-o", str(d), "--holdout", "v000"]) == 2
+    assert "only when importing" in capsys.readouterr().err
+
+
+def _plain_scene(tmp_path, capsys):
+    d = tmp_path / "plain"
+    run(d, capsys=capsys)
+    return d
+
+
 def test_methods_that_need_no_stage_skip_them(built, capsys):
     d, _ = built
     out = run(d, "--methods", "dibr,warp", capsys=capsys)

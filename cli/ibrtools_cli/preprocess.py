@@ -41,6 +41,7 @@ def build_parser() -> argparse.ArgumentParser:
                "  ibr-preprocess synth:objects -o scenes/objects --methods tm,ulr,pvm,hybrid\n"
                "  ibr-preprocess synth:objects -o scenes/objects --json -q > stages.json\n"
                "  ibr-preprocess ../shared/data/nerf_lego -o scenes/lego\n"
+               "  ibr-preprocess ../shared/data/nerf_lego -o scenes/lego-h --methods hybrid --holdout r_0 r_50\n"
                "  ibr-preprocess ../shared/data/icl_nuim_livingroom -o scenes/icl --format rgbd "
                "--opt fx=481.2 --opt fy=-480.0 --opt cx=319.5 --opt cy=239.5 --opt depth_scale=0.0002")
     p.add_argument("input", metavar="INPUT", help="data-set file or directory, or synth:PRESET")
@@ -59,6 +60,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", metavar="STAGE.KEY=VALUE", default=[], dest="stage_set",
                    help="stage parameter (repeatable), e.g. --set mesh.source=fusion --set pvm.max_block=8")
     p.add_argument("--force", action="store_true", help="run every selected stage even when up to date")
+    p.add_argument("--holdout", nargs="+", metavar="NAME", default=None,
+                   help="import these input views as targets (ground truth no stage reads): ibr-render SCENE then "
+                        "scores them as unseen views (ibr-render --holdout only removes views from a render, after "
+                        "the stages saw them)")
     p.add_argument("--json", action="store_true", help="print the stage table as JSON on stdout, and nothing else")
     g = p.add_argument_group("synthetic scenes")
     g.add_argument("--size", type=_size, default=(640, 480), metavar="WxH", help="image size (default 640x480)")
@@ -123,7 +128,7 @@ def _body(args: argparse.Namespace) -> int:
         results = preprocess(args.input, args.output, fmt=args.format, options=parse_options(args.opt),
                              synth=synth, force=args.force, methods=methods, stages=stages,
                              stage_options=stage_options, progress=progress, scheduler=args.scheduler,
-                             workers=args.workers, threads=args.threads)
+                             workers=args.workers, threads=args.threads, holdout=args.holdout)
         bar.advance("done")
     if args.json:
         print(json.dumps([r.to_dict() for r in results], indent=1))

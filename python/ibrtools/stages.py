@@ -15,7 +15,7 @@ import hashlib
 import json
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -68,17 +68,21 @@ def _existing_record(output: Path, stage: str) -> dict | None:
 
 
 def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options: dict | None = None,
-               synth: dict | None = None, force: bool = False) -> StageResult:
+               synth: dict | None = None, force: bool = False, holdout: list[str] | None = None) -> StageResult:
     """The ``import`` stage: read a data set (or make a synthetic one), validate it, write the
     native scene. Up to date when ``output`` holds a scene made from the same input bytes and
-    parameters."""
+    parameters. ``holdout``: input views imported as targets (ground truth no stage reads), so
+    that ``ibr-render SCENE`` scores them as unseen views (:func:`hold_out`)."""
     from .formats import load as load_dataset
     from .formats import native
 
     options = dict(options or {})
     output = Path(output)
+    held = list(dict.fromkeys(holdout or []))
     if synth is not None:
         params = {"synth": synth, "version": IMPORT_STAGE_VERSION}
+        if held:  # only then: the import key of scenes without held-out views is unchanged
+            params["holdout"] = held
         key = hashlib.blake2b(json.dumps(params, sort_keys=True).encode(), digest_size=16).hexdigest()
     else:
         src = Path(input_spec)
@@ -88,10 +92,15 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
             if not (output / "scene.json").is_file():
                 raise BadValueError(f"-o {output}: output is the input and it holds no native scene "
                                     f"(scene.json); choose another directory")
+            if held:
+                raise BadValueError("--holdout: only when importing a data set (the input is the scene itself; "
+                                    "import the data set again into another directory)")
             record = _existing_record(output, "import") or {}
             return StageResult("import", "up to date", "the input is the scene itself (preprocessed in place)", 0.0,
                                {k: record[k] for k in ("views", "targets") if k in record})
         params = {"format": fmt, "options": options, "version": IMPORT_STAGE_VERSION}
+        if held:
+            params["holdout"] = held
         key = hash_inputs(src, params)
     record = _existing_record(output, "import")
     if not force and record and record.get("key") == key:
@@ -100,6 +109,9 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
     t0 = time.perf_counter()
     if synth is not None and synth.get("frames", 1) > 1:  # a synthetic video (docs/FORMAT.md "Frames")
         from .synth import make_video
+
+        if held:
+            raise BadValueError("--holdout: not for a video scene (ibr-render --holdout removes views from a render)")
 
         video, frames = make_video(**synth)
         fmt_used = f"synth:{synth['preset']}"
@@ -120,14 +132,37 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
     else:
         scene = load_dataset(Path(input_spec), fmt, options)
         fmt_used = scene.source.get("format", fmt)
+    if held:
+        scene = hold_out(scene, held)
     n_views, n_targets = len(scene.views), len(scene.targets)
     scene.stages["import"] = {"key": key, "format": fmt_used, "views": n_views, "targets": n_targets,
+                              **({"held_out": held} if held else {}),
                               "seconds": round(time.perf_counter() - t0, 4)}
     native.save(scene, output)
     seconds = time.perf_counter() - t0
     reason = "forced" if force else ("inputs changed" if record else "no scene yet")
     return StageResult("import", "ran", f"{reason}; {fmt_used}", seconds,
                        {"views": n_views, "targets": n_targets})
+
+
+def hold_out(scene: Scene, names: list[str]) -> Scene:
+    """``scene`` with the input views ``names`` moved to its targets (their colour and depth the
+    ground truth): no preprocessing stage reads targets, so a method scored on them sees unseen
+    views (``ibr-render --holdout`` instead removes views from one render, after the stages ran on
+    them). Names must be input views, not all of them, and not names of existing targets."""
+    have = {v.name for v in scene.views}
+    missing = [n for n in names if n not in have]
+    if missing:
+        shown = ", ".join(sorted(have)[:8]) + (", ..." if len(have) > 8 else "")
+        raise BadValueError(f"--holdout: no input view named {', '.join(missing)} (views: {shown})")
+    if len(set(names)) >= len(scene.views):
+        raise BadValueError("--holdout: every input view is held out; at least one must remain")
+    clash = sorted(set(names) & {t.name for t in scene.targets})
+    if clash:
+        raise BadValueError(f"--holdout: the scene already has targets named {', '.join(clash)}")
+    keep = set(names)
+    return replace(scene, views=[v for v in scene.views if v.name not in keep],
+                               targets=[*scene.targets, *[v for v in scene.views if v.name in keep]])
 
 
 # ---------------------------------------------------------------------------------------------
@@ -816,10 +851,11 @@ def preprocess(input_spec: str, output: str | os.PathLike, *, fmt: str | None = 
                options: dict | None = None, synth: dict | None = None, force: bool = False,
                methods: list[str] | None = None, stages: list[str] | None = None,
                stage_options: dict | None = None, progress=None, scheduler: str | None = None,
-               workers: int = 0, threads: int = 0) -> list[StageResult]:
+               workers: int = 0, threads: int = 0, holdout: list[str] | None = None) -> list[StageResult]:
     """Import (or find up to date) the scene, then run the derived stages ``methods`` need (or
     exactly ``stages``); returns the stage table. ``scheduler`` / ``workers`` / ``threads``: the
-    per-view stages on Dask (:func:`run_stages`)."""
+    per-view stages on Dask (:func:`run_stages`). ``holdout``: input views imported as targets
+    (:func:`run_import`)."""
     from .distributed import check_options
 
     check_options(scheduler, workers)
@@ -827,7 +863,8 @@ def preprocess(input_spec: str, output: str | os.PathLike, *, fmt: str | None = 
         stages = [s for s in stages if s != "import"]
     if stage_options:
         _check_stage_options(stage_options)
-    results = [run_import(input_spec, Path(output), fmt=fmt, options=options, synth=synth, force=force)]
+    results = [run_import(input_spec, Path(output), fmt=fmt, options=options, synth=synth, force=force,
+                          holdout=holdout)]
     if stages == []:
         return results
     doc = _read_doc(Path(output))

@@ -160,7 +160,7 @@ def holdout_note(job: Job, method: str) -> str | None:
     stages = read[0] if len(read) == 1 else ", ".join(read[:-1]) + " and " + read[-1]
     return (f"{views} of the {stages} stage{'s' if len(read) > 1 else ''} (ibr-preprocess ran on every view): "
             f"--method {method}'s figures on {'them' if len(held) > 1 else 'it'} are optimistic; to score unseen "
-            "views, import the scene without them (as benchmarks/bench_hybrid_lego.py does)")
+            "views, import them as targets (ibr-preprocess INPUT -o SCENE --holdout NAME ...) and render the targets")
 
 
 # Bytes held per pixel while rendering, fitted to the peak RSS measured with /usr/bin/time -v at
