@@ -104,7 +104,8 @@ def test_holdout_imports_views_as_targets(tmp_path, capsys):
     assert [v.name for v in native.load(d).views] == ["v000", "v001"]
     for argv, msg in ((["--holdout", "nope"], "no input view named nope"),
                       (["--holdout", "v000", "v001", "v002"], "every input view is held out"),
-                      (["--holdout", "t000"], "no input view named t000")):
+                      (["--holdout", "t000"], "no input view named t000"),
+                      (["--frames", "2", "--holdout", "v000"], "not for a video scene")):
         assert preprocess.main(["synth:objects", "-o", str(tmp_path / "bad"), *SMALL, *argv]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and msg in err[0], err

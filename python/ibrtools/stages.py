@@ -112,7 +112,6 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
 
         if held:
             raise BadValueError("--holdout: not for a video scene (ibr-render --holdout removes views from a render)")
-
         video, frames = make_video(**synth)
         fmt_used = f"synth:{synth['preset']}"
         video.stages["import"] = {"key": key, "format": fmt_used, "frames": len(frames),
@@ -150,6 +149,8 @@ def hold_out(scene: Scene, names: list[str]) -> Scene:
     ground truth): no preprocessing stage reads targets, so a method scored on them sees unseen
     views (``ibr-render --holdout`` instead removes views from one render, after the stages ran on
     them). Names must be input views, not all of them, and not names of existing targets."""
+    if scene.frames:
+        raise BadValueError("--holdout: not for a video scene (ibr-render --holdout removes views from a render)")
     have = {v.name for v in scene.views}
     missing = [n for n in names if n not in have]
     if missing:
@@ -162,7 +163,7 @@ def hold_out(scene: Scene, names: list[str]) -> Scene:
         raise BadValueError(f"--holdout: the scene already has targets named {', '.join(clash)}")
     keep = set(names)
     return replace(scene, views=[v for v in scene.views if v.name not in keep],
-                               targets=[*scene.targets, *[v for v in scene.views if v.name in keep]])
+                   targets=[*scene.targets, *[v for v in scene.views if v.name in keep]])
 
 
 # ---------------------------------------------------------------------------------------------
