@@ -80,12 +80,12 @@ def _body(args: argparse.Namespace) -> int:
         rows = sweep(scene, args.method, grid, holdout=args.holdout, base=base, out_dir=out, progress=progress,
                      frame_hook=keep)
     keep.finish()
-    from ibrtools.render.job import holdout_note, plan
+    from ibrtools.render.job import holdout_note
     from ibrtools.render.methods import resolve
     from ibrtools.report_html import bench_report
 
     name = resolve(args.method, scene)
-    note = holdout_note(plan(scene, holdout=args.holdout), name) if args.holdout else None
+    note = holdout_note(scene, args.holdout or [], name)
     if note and not (args.quiet or args.json):
         print(f"{PROG}: note: {note}", file=sys.stderr)
     keys = list(grid)

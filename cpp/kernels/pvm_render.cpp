@@ -300,11 +300,6 @@ constexpr double kSpanSlack = 1e-6;
 // Screen coordinates beyond this (pixels) skip the vertex's triangles (int conversions stay defined).
 constexpr float kMaxScreen = 1e9f;
 
-inline void PrefetchTileOffsets(const PvmTileArrays& tiles, std::int64_t t) {
-  __builtin_prefetch(tiles.vertex_offsets + t);
-  __builtin_prefetch(tiles.face_offsets + t);
-}
-
 // Prefetch of the cache line at p. GCC removes loops of __builtin_prefetch alone (seen here: a
 // tile's prefetch loop compiled to nothing), so on x86 it is an asm statement it keeps.
 inline void PrefetchLine(const void* p) {
@@ -313,6 +308,11 @@ inline void PrefetchLine(const void* p) {
 #else
   __builtin_prefetch(p);
 #endif
+}
+
+inline void PrefetchTileOffsets(const PvmTileArrays& tiles, std::int64_t t) {
+  PrefetchLine(tiles.vertex_offsets + t);
+  PrefetchLine(tiles.face_offsets + t);
 }
 
 // A tile's vertices and faces, a cache line (16 floats or indices) at a time.

@@ -67,6 +67,9 @@ def _existing_record(output: Path, stage: str) -> dict | None:
         return None  # unreadable: treat as absent and rebuild
 
 
+_NO_VIDEO_HOLDOUT = "--holdout: not for a video scene (ibr-render --holdout removes views from a render)"
+
+
 def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options: dict | None = None,
                synth: dict | None = None, force: bool = False, holdout: list[str] | None = None) -> StageResult:
     """The ``import`` stage: read a data set (or make a synthetic one), validate it, write the
@@ -111,7 +114,7 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
         from .synth import make_video
 
         if held:
-            raise BadValueError("--holdout: not for a video scene (ibr-render --holdout removes views from a render)")
+            raise BadValueError(_NO_VIDEO_HOLDOUT)
         video, frames = make_video(**synth)
         fmt_used = f"synth:{synth['preset']}"
         video.stages["import"] = {"key": key, "format": fmt_used, "frames": len(frames),
@@ -150,7 +153,7 @@ def hold_out(scene: Scene, names: list[str]) -> Scene:
     views (``ibr-render --holdout`` instead removes views from one render, after the stages ran on
     them). Names must be input views, not all of them, and not names of existing targets."""
     if scene.frames:
-        raise BadValueError("--holdout: not for a video scene (ibr-render --holdout removes views from a render)")
+        raise BadValueError(_NO_VIDEO_HOLDOUT)
     have = {v.name for v in scene.views}
     missing = [n for n in names if n not in have]
     if missing:

@@ -49,6 +49,8 @@ class Job:
     # Video scenes: every scene frame's inputs by frame name (``scene`` is the first's); None
     # for a still scene.
     scenes: dict[str, Scene] | None = None
+    # The input views plan(holdout=) took out of the scene (rendered as frames with ground truth).
+    held_out: list[str] = field(default_factory=list)
 
 
 def _plan_video(scene: Scene, args: dict, spec: dict | None) -> Job:
@@ -60,7 +62,7 @@ def _plan_video(scene: Scene, args: dict, spec: dict | None) -> Job:
         scenes[fr] = sub.scene
         frames += [Frame(f"{fr}_{f.name}", f.camera, f.truth, {"frame": fr, **f.info}, scene_frame=fr)
                    for f in sub.frames]
-    return Job(scenes[scene.frames[0]], frames, spec, scenes)
+    return Job(scenes[scene.frames[0]], frames, spec, scenes, held_out=sub.held_out)
 
 
 def read_poses(path: str | os.PathLike) -> list[Frame]:
@@ -138,21 +140,21 @@ def plan(scene: Scene, *, targets: list[str] | None = None, holdout: list[str] |
     sub = Scene(views=inputs, targets=scene.targets, paths=scene.paths, meshes=scene.meshes,
                 units=scene.units, source=scene.source, lights=scene.lights, shading=scene.shading,
                 stages=scene.stages, root=scene.root)
-    return Job(sub, frames, spec)
+    return Job(sub, frames, spec, held_out=held)
 
 
 # --- memory: estimate before allocating -----------------------------------------------------------
-def holdout_note(job: Job, method: str) -> str | None:
-    """One line when the job scores held-out views (``plan(holdout=)``) with a method that reads
-    preprocessing stages (tm, ulr, pvm, hybrid): ``ibr-preprocess`` ran those stages on every view
-    of the scene, the held-out ones too (a mesh fused from their depth, a texture baked from their
-    colours), so the figures on them are optimistic. None otherwise. The render report carries it
-    as "holdout_note" and the commands print it."""
+def holdout_note(scene: Scene, held: list[str], method: str) -> str | None:
+    """One line when views ``held`` out of ``scene`` (``plan(holdout=)``) are scored with a method
+    that reads preprocessing stages (tm, ulr, pvm, hybrid): ``ibr-preprocess`` ran those stages on
+    every view of the scene, the held-out ones too (a mesh fused from their depth, a texture baked
+    from their colours), so the figures on them are optimistic. None otherwise. The render report
+    and ibr-bench's JSON carry it as "holdout_note" and the commands print it."""
     from ..stages import STAGES
 
-    held = list((job.spec or {}).get("holdout") or [])
+    held = list(held)
     read = [n for n, st in STAGES.items()
-            if method in st.methods and "outputs" in (job.scene.stages.get(n) or {})]
+            if method in st.methods and "outputs" in (scene.stages.get(n) or {})]
     if not held or not read:
         return None
     views = (f"held-out views {', '.join(held[:4])}{', ...' if len(held) > 4 else ''} were inputs" if len(held) > 1
@@ -396,7 +398,7 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
         if progress:
             progress(n, n, "")
         frames_report = [e for e in entries if e is not None]
-        note = holdout_note(job, name)
+        note = holdout_note(job.scene, job.held_out, name)
         report = {"method": name, "params": dict(params or {}), "inpaint": inpaint,
                   **({"holdout_note": note} if note else {}),
                   **({"foveate": {"fixation": list(fov_kw["fixation"]), "pooling": fov_kw["pooling"]}}
