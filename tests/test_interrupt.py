@@ -121,16 +121,17 @@ def test_preprocess_interrupted_in_a_stage(tmp_path, sig):
     from ibrtools import stages
 
     d = tmp_path / "scene"
-    # the fused global mesh takes seconds: interrupted once the import has written scene.json
-    code = _run_until(_command("ibr-preprocess") + ["synth:objects", "-o", str(d), "--views", "3", "--size", "64x48",
-                                                    "--stages", "mesh", "-q"],
+    # mesh then texture take ~3 s after the import (the atlas bake at 320x240): interrupted 0.5 s
+    # after the import has written scene.json, in the mesh or the texture stage
+    code = _run_until(_command("ibr-preprocess") + ["synth:objects", "-o", str(d), "--views", "3", "--size", "320x240",
+                                                    "--stages", "texture", "-q"],
                       lambda: (d / "scene.json").is_file() and (time.sleep(0.5) or True), sig)
     assert code == EXIT[sig]
     assert not _temporaries(tmp_path), _temporaries(tmp_path)
     doc = json.loads((d / "scene.json").read_text())  # still a whole document
-    assert "mesh" not in (doc.get("stages") or {})
-    with pytest.raises(MissingFileError, match="--stages mesh"):
-        stages.stage_output(d, "mesh")
+    assert "texture" not in (doc.get("stages") or {})
+    with pytest.raises(MissingFileError, match="--stages texture"):
+        stages.stage_output(d, "texture")
 
 
 def test_preprocess_interrupted_during_import(tmp_path):

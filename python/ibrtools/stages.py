@@ -202,7 +202,7 @@ STAGES: dict[str, Stage] = {s.name: s for s in (
     Stage("mesh", ("scene",), ("mesh.npz",), frozenset({"tm", "ulr", "pvm", "hybrid"}),
           "global mesh: reconstructed mesh, else TSDF fusion of the depth maps, else ground truth; "
           "dense (per-vertex statistics) and render (G-buffer, atlas) versions of the same surface",
-          version=2),
+          version=3),  # 3: fusion by open3d's sparse VoxelBlockGrid (was the dense UniformTSDFVolume)
     Stage("depth", ("scene", "mesh"), ("depth.npz",), frozenset({"ulr", "pvm", "hybrid"}),
           "per-view depth rendered from the global mesh, for views without depth"),
     Stage("texture", ("scene", "mesh", "depth"), ("texture.npz",), frozenset({"tm", "hybrid"}),

@@ -6,8 +6,8 @@ docs/preprocess.md says what is chosen and why.
   depth, TSDF fusion of the depth maps (so that a synthetic scene's ground truth never leaks
   into a method under evaluation); else the ``ground_truth`` mesh (the only geometry there is);
   else an error. ``reconstructed`` / ``ground_truth`` / ``fusion`` force one.
-* :func:`fuse_depth` — open3d UniformTSDFVolume over the views' depth maps, marching cubes;
-  voxel = the depth points' largest extent / ``resolution`` (default 384), truncation 4 voxels.
+* :func:`fuse_depth` — open3d's sparse VoxelBlockGrid over the views' depth maps, marching
+  cubes; voxel = the depth points' largest extent / ``resolution`` (default 384), truncation 4 voxels.
   :func:`build_global_mesh` fuses each view's ``fusion_depth``: the depth as the data set stored
   it where the importer filtered it (de-quantised 8-bit codes), so that the views' rounding
   errors, which differ from view to view, average out (docs/hybrid.md "Fusion reads the stored
@@ -192,10 +192,15 @@ def depth_extent(cameras: Mapping[str, Camera], depths: Mapping[str, np.ndarray]
 
 def fuse_depth(cameras: Mapping[str, Camera], depths: Mapping[str, np.ndarray],
                options: GlobalMeshOptions | None = None, extent: tuple | None = None) -> Mesh:
-    """TSDF fusion (open3d UniformTSDFVolume) of the depth maps, then marching cubes. Pinhole
-    z-depth is integrated as it is; an equirect view is first resampled into the 6 faces of a
-    cube map (:func:`equirect_to_cube_faces`). Unknown depth (0) and infinity (sky) are left out."""
+    """TSDF fusion (open3d's sparse ``VoxelBlockGrid``) of the depth maps, then marching cubes.
+    Pinhole z-depth is integrated as it is; an equirect view is first resampled into the 6 faces
+    of a cube map (:func:`equirect_to_cube_faces`). Unknown depth (0) and infinity (sky) are left
+    out. The voxel is the largest extent of the depth points plus the truncation margin, /
+    ``resolution``; only the blocks of 8^3 voxels within the truncation distance of a depth
+    sample are stored. The mesh's vertices
+    and faces are put in a canonical order (open3d extracts them in thread order)."""
     import open3d as o3d
+    import open3d.core as o3c
 
     options = options or GlobalMeshOptions()
     pin: dict[str, Camera] = {}
@@ -208,37 +213,65 @@ def fuse_depth(cameras: Mapping[str, Camera], depths: Mapping[str, np.ndarray],
                 pin[f"{n}#face{k}"], pin_depth[f"{n}#face{k}"] = fc, fd
     depths = pin_depth
     lo, hi = extent if extent is not None else depth_extent(pin, depths)
-    # A uniform grid (cube of side = the largest extent of the depth points plus the truncation
-    # margin): open3d's ScalableTSDFVolume extracts no surface in open3d 0.20 here (checked on a
-    # single plane), the uniform volume does.
     trunc_margin = 2 * options.trunc_voxels / options.resolution
     length = float((hi - lo).max()) * (1 + trunc_margin)
     voxel = length / options.resolution
-    centre = (lo + hi) / 2
-    vol = o3d.pipelines.integration.UniformTSDFVolume(
-        length=length, resolution=options.resolution, sdf_trunc=options.trunc_voxels * voxel,
-        color_type=o3d.pipelines.integration.TSDFVolumeColorType.NoColor,
-        origin=(centre - length / 2).astype(np.float64))
-    blank = None
+    # The voxel samples sit where those of a cube of side `length` around the depth points'
+    # centre would have theirs at cell centres (the dense volume this replaced): the points'
+    # bounding planes then lie ~0.4 voxel from a sample. Where such a plane (lego's base plate)
+    # falls on samples, its TSDF is ~0 there and marching cubes frays its outline: ULR on a lego
+    # fold lost 0.4 dB at the silhouettes (docs/preprocess.md). open3d works in float32, so the
+    # grid lives in a frame whose origin is the first sample (world = local + base): coordinates
+    # stay small whatever the scene's world origin.
+    base = ((lo + hi) / 2 - length / 2 + voxel / 2).astype(np.float64)
+    grid = o3d.t.geometry.VoxelBlockGrid(
+        attr_names=("tsdf", "weight"), attr_dtypes=(o3c.float32, o3c.float32), attr_channels=((1), (1)),
+        voxel_size=voxel, block_resolution=8, block_count=4096, device=o3c.Device("CPU:0"))
     for n, cam in pin.items():
         d = np.asarray(depths[n], np.float32)
-        d = np.where(np.isfinite(d) & (d > 0), d, 0).astype(np.float32)
-        # open3d puts pixel centres at integer coordinates, we at +0.5: shift the principal point.
-        intr = o3d.camera.PinholeCameraIntrinsic(cam.width, cam.height, cam.fx, cam.fy, cam.cx - 0.5, cam.cy - 0.5)
-        if blank is None or blank.shape[:2] != d.shape:
-            blank = np.zeros(d.shape + (3,), np.uint8)
-        rgbd = o3d.geometry.RGBDImage.create_from_color_and_depth(
-            o3d.geometry.Image(blank), o3d.geometry.Image(d),
-            depth_scale=1.0, depth_trunc=float(np.max(d)) + 1.0, convert_rgb_to_intensity=False)
-        vol.integrate(rgbd, intr, np.ascontiguousarray(cam.cam_from_world))
-    m = vol.extract_triangle_mesh()
-    v = np.asarray(m.vertices, np.float32)
-    f = np.asarray(m.triangles, np.int32)
+        d = np.ascontiguousarray(np.where(np.isfinite(d) & (d > 0), d, 0), np.float32)
+        if not d.any():
+            continue
+        # open3d reads the depth pixel int(u) for a projection u: pixel centres at +0.5, as ours.
+        intr = o3c.Tensor(np.array([[cam.fx, 0, cam.cx], [0, cam.fy, cam.cy], [0, 0, 1]], np.float64))
+        cfw = np.array(cam.cam_from_world, np.float64)
+        cfw[:3, 3] += cfw[:3, :3] @ base
+        extr = o3c.Tensor(np.ascontiguousarray(cfw))
+        img = o3d.t.geometry.Image(o3c.Tensor(d))
+        kw = dict(depth_scale=1.0, depth_max=float(d.max()) + 1.0, trunc_voxel_multiplier=float(options.trunc_voxels))
+        # The blocks around every depth sample (open3d's own activation from a depth map reads
+        # every 4th pixel of every 4th row, and a structure thinner than that would be lost).
+        points = (cam.unproject(d)[d > 0] - base).astype(np.float32)
+        blocks = grid.compute_unique_block_coordinates(o3d.t.geometry.PointCloud(o3c.Tensor(points)),
+                                                       trunc_voxel_multiplier=float(options.trunc_voxels))
+        grid.integrate(blocks, img, intr, extr, **kw)
+    no_surface = BadValueError("global mesh: TSDF fusion produced no surface (depth maps disagree or are empty)")
+    if grid.hashmap().size() == 0:
+        raise no_surface
+    try:
+        m = grid.extract_triangle_mesh(weight_threshold=0.0)
+    except RuntimeError as e:  # open3d 0.20 fails to attach the (absent) vertex colours of an empty mesh
+        if "shape {0}" in str(e):
+            raise no_surface from None
+        raise
+    f = m.triangle.indices.numpy().astype(np.int32) if "indices" in m.triangle else np.zeros((0, 3), np.int32)
     if len(f) == 0:
-        raise BadValueError("global mesh: TSDF fusion produced no surface (depth maps disagree or are empty)")
+        raise no_surface
+    local = m.vertex.positions.numpy()
+    v = (local.astype(np.float64) + base).astype(np.float32)
+    # Canonical order: vertices sorted by their float32 position (ties, where float32 world
+    # coordinates are too coarse to tell them apart, by the grid-frame position), each face rotated
+    # to start at its smallest index (the winding kept), faces sorted.
+    order = np.lexsort((local[:, 2], local[:, 1], local[:, 0], v[:, 2], v[:, 1], v[:, 0]))
+    rank = np.empty(len(order), np.int32)
+    rank[order] = np.arange(len(order), dtype=np.int32)
+    f = rank[f]
+    rot = np.argmin(f, axis=1)
+    f = np.take_along_axis(f, (rot[:, None] + np.arange(3)) % 3, axis=1)
+    f = f[np.lexsort((f[:, 2], f[:, 1], f[:, 0]))]
     # Marching cubes gives triangles whose normals point outwards of the TSDF's negative side, i.e.
     # towards the cameras, counter-clockwise seen from the front, as mesh.py wants.
-    return Mesh(v, f, kind="reconstructed")
+    return Mesh(v[order], np.ascontiguousarray(f), kind="reconstructed")
 
 
 _CUBE_DIRS = (((0, 0, 1), (0, -1, 0)), ((0, 0, -1), (0, -1, 0)), ((1, 0, 0), (0, -1, 0)),
