@@ -8,8 +8,8 @@ from conftest import wall
 from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
 from ibrtools.hybrid.globalmesh import (GlobalMeshOptions, build_global_mesh, choose_source, densify,
-                                        depth_from_mesh, fuse_depth, smooth_normals, vertex_colors,
-                                        vertex_normals)
+                                        depth_extent, depth_from_mesh, fuse_depth, smooth_normals,
+                                        vertex_colors, vertex_normals)
 from ibrtools.mesh import Mesh
 from ibrtools.scene import Scene, View
 
@@ -66,9 +66,9 @@ def test_fusion_of_a_plane_lies_on_it():
 
 
 def test_fusion_far_from_the_world_origin_and_in_a_canonical_order():
-    # open3d integrates in float32: the grid sits in a frame centred on the depth points, so a
-    # scene 10 km from the world origin fuses as well as one at it (float32 world coordinates
-    # there are 1 mm apart, 1/30 of this voxel).
+    # open3d integrates in float32: the grid lives in a frame whose origin is its first voxel
+    # sample, so a scene 10 km from the world origin fuses as well as one at it (float32 world
+    # coordinates there are 1 mm apart, 1/30 of this voxel).
     off = np.array([1e4, -2e3, 5e3])
     cams = {f"v{i}": cam_at(np.array((x, 0.0, 0.0)) + off, target=off + (0.0, 0.0, 2.0))
             for i, x in enumerate((-0.3, 0.0, 0.3))}
@@ -93,8 +93,8 @@ def test_fusion_far_from_the_world_origin_and_in_a_canonical_order():
     # A view without a valid depth pixel adds nothing.
     blank = dict(cams, empty=cam_at(off + (0.0, 0.3, 0.0), target=off + (0.0, 0.0, 2.0)))
     with_blank = fuse_depth(blank, dict(depths, empty=np.zeros((30, 40), np.float32)), GlobalMeshOptions(resolution=64),
-                            extent=_extent(cams, depths))
-    alone = fuse_depth(cams, depths, GlobalMeshOptions(resolution=64), extent=_extent(cams, depths))
+                            extent=depth_extent(cams, depths))
+    alone = fuse_depth(cams, depths, GlobalMeshOptions(resolution=64), extent=depth_extent(cams, depths))
     np.testing.assert_array_equal(with_blank.vertices, alone.vertices)
 
 
@@ -108,12 +108,6 @@ def test_fusion_without_a_surface_says_so():
         d[y, x] = 2.0
         with pytest.raises(BadValueError, match="TSDF fusion produced no surface"):
             fuse_depth({"a": cam}, {"a": d}, GlobalMeshOptions(resolution=8), extent=box)
-
-
-def _extent(cams, depths):
-    from ibrtools.hybrid.globalmesh import depth_extent
-
-    return depth_extent(cams, depths)
 
 
 def test_fusion_reads_the_stored_depth_when_the_importer_filtered_it():

@@ -197,8 +197,8 @@ def fuse_depth(cameras: Mapping[str, Camera], depths: Mapping[str, np.ndarray],
     of a cube map (:func:`equirect_to_cube_faces`). Unknown depth (0) and infinity (sky) are left
     out. The voxel is the largest extent of the depth points plus the truncation margin, /
     ``resolution``; only the blocks of 8^3 voxels within the truncation distance of a depth
-    sample are stored. The mesh's vertices
-    and faces are put in a canonical order (open3d extracts them in thread order)."""
+    sample are stored. The mesh's vertices and faces are put in a canonical order (open3d
+    extracts them in thread order)."""
     import open3d as o3d
     import open3d.core as o3c
 
