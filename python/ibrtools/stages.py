@@ -82,13 +82,10 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
     options = dict(options or {})
     output = Path(output)
     held = list(dict.fromkeys(holdout or []))
+    src = Path(input_spec)
     if synth is not None:
-        params = {"synth": synth, "version": IMPORT_STAGE_VERSION}
-        if held:  # only then: the import key of scenes without held-out views is unchanged
-            params["holdout"] = held
-        key = hashlib.blake2b(json.dumps(params, sort_keys=True).encode(), digest_size=16).hexdigest()
+        params: dict = {"synth": synth, "version": IMPORT_STAGE_VERSION}
     else:
-        src = Path(input_spec)
         if src.resolve() == output.resolve():
             # A native scene preprocessed in place (`ibr-preprocess SCENE -o SCENE --stages ...`,
             # what the renderers' error messages suggest): nothing to import.
@@ -102,9 +99,10 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
             return StageResult("import", "up to date", "the input is the scene itself (preprocessed in place)", 0.0,
                                {k: record[k] for k in ("views", "targets") if k in record})
         params = {"format": fmt, "options": options, "version": IMPORT_STAGE_VERSION}
-        if held:
-            params["holdout"] = held
-        key = hash_inputs(src, params)
+    if held:  # only then: the import key of scenes without held-out views is unchanged
+        params["holdout"] = held
+    key = (hashlib.blake2b(json.dumps(params, sort_keys=True).encode(), digest_size=16).hexdigest()
+           if synth is not None else hash_inputs(src, params))
     record = _existing_record(output, "import")
     if not force and record and record.get("key") == key:
         return StageResult("import", "up to date", "inputs and parameters unchanged", 0.0,
