@@ -427,3 +427,78 @@ def test_interpolate_vertex_values_bad_inputs():
         _core.interpolate_vertex_values(prim, bary[:, :1], faces, vals)
     with pytest.raises(DtypeError):
         _core.interpolate_vertex_values(prim.astype(np.int64), bary, faces, vals)
+
+
+def _random_samples(rng, num_vertices, sizes):
+    """Samples of len(sizes) views (view v: sizes[v] samples of random vertices), in view order."""
+    bounds = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    index = rng.integers(0, num_vertices, bounds[-1]).astype(np.int64)
+    return index, bounds
+
+
+def test_vertex_colour_sums_match_bincount():
+    from ibrtools import _core
+
+    rng = np.random.default_rng(11)
+    n, sizes = 70000, [0, 1, 50000, 33333, 70001]  # more vertices than one task's range; an empty view
+    index, bounds = _random_samples(rng, n, sizes)
+    color = rng.random((3, bounds[-1])) * 2
+    gains = rng.uniform(0.5, 2, (len(sizes), 3))
+    sums, sq = _core.vertex_colour_sums(index, color, bounds, gains, n, squares=True)
+    scaled = np.empty_like(color)
+    for v in range(len(sizes)):  # variance.vertex_statistics' numpy version, before the kernel
+        a, b = bounds[v], bounds[v + 1]
+        np.divide(color[:, a:b], gains[v][:, None], out=scaled[:, a:b])
+    ref = np.stack([np.bincount(index, weights=scaled[k], minlength=n) for k in range(3)], 1)
+    ref2 = np.stack([np.bincount(index, weights=scaled[k] ** 2, minlength=n) for k in range(3)], 1)
+    assert np.array_equal(sums, ref) and np.array_equal(sq, ref2)  # the same order: the same bits
+    only, none = _core.vertex_colour_sums(index, color, bounds, gains, n)
+    assert np.array_equal(only, ref) and none is None
+    empty, _ = _core.vertex_colour_sums(np.zeros(0, np.int64), np.zeros((3, 0)), np.zeros(1, np.int64),
+                                        np.zeros((0, 3)), 5)
+    assert empty.shape == (5, 3) and not empty.any()
+
+
+def test_gain_median_ratios_match_numpy_median():
+    from ibrtools import _core
+
+    rng = np.random.default_rng(12)
+    n, sizes = 400, [0, 1, 2, 15, 16, 17, 1000, 1001]  # empty, odd and even counts
+    index, bounds = _random_samples(rng, n, sizes)
+    color = rng.uniform(0.01, 1, (bounds[-1], 3))
+    mean = rng.uniform(0.01, 1, (n, 3))
+    mean[rng.random(n) < 0.2, rng.integers(0, 3)] = 5e-4  # dark in a channel: not counted
+    gains = rng.uniform(0.5, 2, (len(sizes), 3))
+    med, count = _core.gain_median_ratios(index, color, bounds, gains, mean)
+    for v in range(len(sizes)):
+        idx, c = index[bounds[v]:bounds[v + 1]], color[bounds[v]:bounds[v + 1]]
+        m = mean[idx]
+        ok = (m > 1e-3).all(1)
+        assert count[v] == ok.sum()
+        if ok.any():
+            assert np.array_equal(med[v], np.median(c[ok] / gains[v] / m[ok], axis=0))  # numpy's bits
+        else:
+            assert med[v].tolist() == [1, 1, 1]
+    c_nan = color.copy()
+    c_nan[bounds[6]] = np.nan  # a non-finite ratio is not counted (no NaN gain)
+    med2, count2 = _core.gain_median_ratios(index, c_nan, bounds, gains, mean)
+    assert np.isfinite(med2).all() and count2[6] == count[6] - (mean[index[bounds[6]]] > 1e-3).all()
+
+
+def test_vertex_statistics_kernels_bad_inputs():
+    from ibrtools import _core
+
+    index, bounds = np.array([0, 1, 2], np.int64), np.array([0, 1, 3], np.int64)
+    color, gains, mean = np.ones((3, 3)), np.ones((2, 3)), np.ones((3, 3))
+    with pytest.raises(BadValueError, match="index: vertex 2 out of range"):
+        _core.vertex_colour_sums(index, color, bounds, gains, 2)
+    with pytest.raises(ShapeError, match="bounds"):
+        _core.vertex_colour_sums(index, color, np.array([0, 1, 2], np.int64), gains, 3)
+    with pytest.raises(BadValueError, match="non-decreasing"):
+        _core.gain_median_ratios(index, color, np.array([0, 2, 1, 3], np.int64), np.ones((3, 3)), mean)
+    with pytest.raises(ShapeError, match="gains"):
+        _core.gain_median_ratios(index, color, bounds, np.ones((3, 3)), mean)
+    with pytest.raises(DtypeError, match="index"):
+        _core.vertex_colour_sums(index.astype(np.int32), color, bounds, gains, 3)
+    with pytest.raises(BadValueError, match="num_vertices"):
+        _core.vertex_colour_sums(index, color, bounds, gains, -1)

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import _core
 from ..errors import BadValueError, DtypeError
 from ..mesh import Mesh
 from ..scene import Scene
@@ -121,73 +122,66 @@ def vertex_statistics(scene: Scene, mesh: Mesh, *, depth_tol: float = DEPTH_TOL,
     if samples is None:
         samples = list(visible_samples(scene, mesh, renderer, depth_tol))
     n = len(mesh.vertices)
-    gains = {s.name: np.ones(3) for s in samples}
+    names = [s.name for s in samples]
+    gains = np.ones((len(samples), 3))
     half_gains: dict[str, np.ndarray] = {}
     count = np.zeros(n)
     for s in samples:
         count += np.bincount(s.index, minlength=n)
 
-    # Every view's samples in one array, in view order: one bincount per channel accumulates each
-    # vertex's samples in the same order as per-view sums would (the same float64 result). Stored
-    # channel by channel (3, S), each view a slice of columns, so that dividing out the gains
-    # writes in place and bincount reads contiguous weights.
-    colors64 = {s.name: s.color.astype(np.float64) for s in samples}
-    all_index = np.concatenate([s.index for s in samples]) if samples else np.zeros(0, np.int64)
-    all_color = np.ascontiguousarray(np.concatenate([colors64[s.name] for s in samples]).T) if samples \
-        else np.zeros((3, 0))
+    # Every view's samples in one array, in view order, stored channel by channel (3, S); the
+    # kernel accumulates each vertex's samples in that order (numpy bincount's bits).
+    colors64 = [s.color.astype(np.float64) for s in samples]
+    all_index = np.concatenate([s.index for s in samples]).astype(np.int64, copy=False) if samples else np.zeros(0, np.int64)
+    all_color = np.ascontiguousarray(np.concatenate(colors64).T) if samples else np.zeros((3, 0))
     bounds = np.concatenate([[0], np.cumsum([len(s.index) for s in samples])]).astype(np.int64)
-    scaled = np.empty_like(all_color)
     cnt = np.maximum(count, 1)[:, None]
 
     def means(with_var=False):
-        for i, s in enumerate(samples):
-            a, b = bounds[i], bounds[i + 1]
-            np.divide(all_color[:, a:b], gains[s.name][:, None], out=scaled[:, a:b])
-        mean = np.stack([np.bincount(all_index, weights=scaled[k], minlength=n) for k in range(3)], 1) / cnt
-        if not with_var:
-            return mean, None
-        s2 = np.stack([np.bincount(all_index, weights=scaled[k] ** 2, minlength=n) for k in range(3)], 1)
-        return mean, np.maximum(s2 / cnt - mean ** 2, 0.0)
+        s1, s2 = _core.vertex_colour_sums(all_index, all_color, bounds, gains, n, squares=with_var)
+        mean = s1 / cnt
+        return mean, (np.maximum(s2 / cnt - mean ** 2, 0.0) if with_var else None)
 
     mean, _ = means()
     if compensate_gains and len(samples) > 1:
         # Per view, the vertices it shares with another view and their colours (fixed).
-        shared = {}
-        for s in samples:
+        shared = []
+        for s, c64 in zip(samples, colors64):
             sh = count[s.index] >= 2
-            c = colors64[s.name][sh]
+            c = c64[sh]
             keep = (c > 1e-3).all(1)
-            shared[s.name] = (s.index[sh][keep], c[keep], s.x[sh][keep], s.y[sh][keep])
-        # Alternate gains (robust: medians) and means until the gains settle (each vertex is seen
-        # by a subset of the views, so the means mix gains: convergence is geometric, not one step).
+            shared.append((s.index[sh][keep], c[keep], s.x[sh][keep], s.y[sh][keep]))
+        sh_index = np.concatenate([t[0] for t in shared]).astype(np.int64, copy=False)
+        sh_color = np.ascontiguousarray(np.concatenate([t[1] for t in shared]))
+        sh_bounds = np.concatenate([[0], np.cumsum([len(t[0]) for t in shared])]).astype(np.int64)
+        # Alternate gains (robust: medians of colour / gain / mean per view, over the vertices with
+        # a mean > 1e-3 in every channel, where at least 16 are) and means until the gains settle
+        # (each vertex is seen by a subset of the views, so the means mix gains: convergence is
+        # geometric, not one step).
         for _ in range(GAIN_ITERATIONS):
-            before = {k: g.copy() for k, g in gains.items()}
-            for s in samples:
-                idx, c = shared[s.name][:2]
-                m = mean[idx]
-                ok = (m > 1e-3).all(1)
-                if ok.sum() >= 16:
-                    gains[s.name] = gains[s.name] * np.median(c[ok] / gains[s.name] / m[ok], axis=0)
+            before = gains.copy()
+            med, used = _core.gain_median_ratios(sh_index, sh_color, sh_bounds, gains, mean)
+            upd = used >= 16
+            gains[upd] = gains[upd] * med[upd]
             # Gains are relative: fix their geometric mean at 1 per channel.
-            g = np.exp(np.mean([np.log(gains[s.name]) for s in samples], axis=0))
-            for s in samples:
-                gains[s.name] = gains[s.name] / g
+            gains = gains / np.exp(np.mean(np.log(gains), axis=0))
             mean, _ = means()
-            if max(float(np.abs(np.log(gains[k] / before[k])).max()) for k in gains) < 1e-4:
+            if float(np.abs(np.log(gains / before)).max()) < 1e-4:
                 break
         # The same median ratio on each half of the view's image (at the converged means): an
         # exposure scales the whole image, so the halves of an exposure gain agree.
-        for s in samples:
-            idx, c, x, y = shared[s.name]
+        for k, s in enumerate(samples):
+            idx, c, x, y = shared[k]
             cam = scene.view(s.name).camera
             m = mean[idx]
             ok = (m > 1e-3).all(1)
-            half_gains[s.name] = gain_halves(c[ok] / m[ok], x[ok], y[ok], cam.width, cam.height, gains[s.name])
+            half_gains[s.name] = gain_halves(c[ok] / m[ok], x[ok], y[ok], cam.width, cam.height, gains[k])
     mean, var = means(with_var=True)
     std = np.where(count[:, None] >= 2, np.sqrt(var), 0.0)
     mean = np.where(count[:, None] >= 1, mean, 0.0)
     return {"mean": mean.astype(np.float32), "std": std.astype(np.float32), "count": count.astype(np.int32),
-            "gains": gains, "half_gains": half_gains, "samples": samples}
+            "gains": {name: gains[k].copy() for k, name in enumerate(names)}, "half_gains": half_gains,
+            "samples": samples}
 
 
 def variance_mesh(scene: Scene, mesh: Mesh, *, depth_tol: float = DEPTH_TOL) -> np.ndarray:
