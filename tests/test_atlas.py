@@ -266,3 +266,56 @@ def test_layout_places_neighbouring_faces_in_neighbouring_cells():
     rng = np.random.default_rng(0)
     rand = np.linalg.norm(cell_pos - cell_pos[rng.permutation(len(centre))], axis=1)
     assert np.median(near) < 0.2 * np.median(rand)
+
+
+def _numpy_texel_points(mesh, lay, normals):
+    """The numpy expressions _core.texel_points replaced (bake's per-band barycentrics, einsum, norm)."""
+    ys, xs = np.nonzero(lay.face_of_texel >= 0)
+    face = lay.face_of_texel[ys, xs]
+    p = np.stack([xs + 0.5, ys + 0.5], 1).astype(np.float64)
+    t = lay.uv[face].astype(np.float64)
+    d1, d2, dp = t[:, 1] - t[:, 0], t[:, 2] - t[:, 0], p - t[:, 0]
+    det = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
+    b1 = (dp[:, 0] * d2[:, 1] - dp[:, 1] * d2[:, 0]) / det
+    b2 = (d1[:, 0] * dp[:, 1] - d1[:, 1] * dp[:, 0]) / det
+    bary = np.maximum(np.stack([1 - b1 - b2, b1, b2], 1), 0)
+    bary /= bary.sum(1, keepdims=True)
+    f3 = mesh.faces[face]
+    pts = np.einsum("tk,tkc->tc", bary, mesh.vertices[f3].astype(np.float64))
+    nrm = np.einsum("tk,tkc->tc", bary, normals[f3].astype(np.float64))
+    nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
+    return (ys, xs, face), bary, pts, nrm
+
+
+def test_texel_points_match_numpy_in_any_bands():
+    mesh = densify(wall(), 0.25)
+    rng = np.random.default_rng(5)
+    mesh = Mesh((mesh.vertices + rng.normal(0, 0.02, mesh.vertices.shape)).astype(np.float32), mesh.faces)
+    normals = rng.normal(0, 1, mesh.vertices.shape).astype(np.float32)
+    normals[:3] = 0  # zero-length normals: divided by 1e-12, as numpy did
+    lay = A.layout(mesh, texel=0.03)
+    ref = _numpy_texel_points(mesh, lay, normals)
+    got = A.texel_points(mesh, lay, normals)
+    assert len(ref[0][0]) > 1000
+    for a, b in zip(ref[0] + ref[1:], got[0] + got[1:]):
+        assert np.array_equal(a, b)  # the same arithmetic in the same order: the same bits
+    h = lay.face_of_texel.shape[0]
+    bands = [A.texel_points(mesh, lay, normals, slice(lo, min(h, lo + 7))) for lo in range(0, h, 7)]
+    assert np.array_equal(np.concatenate([b[0][0] for b in bands]), ref[0][0])
+    assert np.array_equal(np.concatenate([b[2] for b in bands]), ref[2])
+
+
+def test_texel_points_bad_input():
+    mesh = densify(wall(), 0.5)
+    lay = A.layout(mesh, texel=0.1)
+    nrm = np.zeros(mesh.vertices.shape, np.float32)
+    fot = lay.face_of_texel.copy()
+    fot[0, 0] = len(mesh.faces)
+    with pytest.raises(BadValueError, match="face_of_texel: face"):
+        A.texel_points(mesh, A.AtlasLayout(lay.uv, fot, lay.texel), nrm)
+    with pytest.raises(BadValueError, match="faces: vertex"):
+        A.texel_points(Mesh(mesh.vertices[:3], mesh.faces), lay, nrm[:3])
+    with pytest.raises(ShapeError, match="normals"):
+        A.texel_points(mesh, lay, nrm[:-1])
+    with pytest.raises(BadValueError, match="row0"):
+        _core.texel_points(fot, -1, lay.uv, mesh.vertices, mesh.faces, nrm)

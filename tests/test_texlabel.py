@@ -113,9 +113,7 @@ def test_labelled_bake_takes_one_view():
     # The closer view a wins the faces it sees well; their texels that a sees (not all: a face
     # whose centroid a sees may reach past a's image border; those keep the per-texel blend) are
     # a's colour exactly (a constant image: bilinear sampling returns it); the blend mixes a and b.
-    (ys, xs, face), bary = A.texel_barycentrics(lay)
-    pts = np.einsum("tk,tkc->tc", bary, mesh.vertices[mesh.faces[face]].astype(np.float64))
-    nrm = np.tile(vertex_normals(mesh.vertices, mesh.faces)[0].astype(np.float64), (len(face), 1))
+    (ys, xs, face), _, pts, nrm = A.texel_points(mesh, lay, vertex_normals(mesh.vertices, mesh.faces))
     _, seen_a = point_colors(pts, nrm, {"a": a}, {"a": cols["a"]}, {"a": deps["a"]})
     sa = np.zeros_like(used)
     sa[ys, xs] = seen_a > 0

@@ -182,6 +182,48 @@ py::tuple PointColorsBinding(const py::object& points_obj, const py::object& nor
   return py::make_tuple(color, seen);
 }
 
+// _core.texel_points (kernels/atlas8.h TexelPoints): the used texels of a band of atlas rows,
+// their barycentrics, surface points and unit normals.
+py::tuple TexelPointsBinding(const py::object& fot_obj, int row0, const py::object& uv_obj,
+                             const py::object& vertices_obj, const py::object& faces_obj,
+                             const py::object& normals_obj) {
+  auto fot = CheckArray<std::int32_t>(fot_obj, "face_of_texel", {{"rows", -1}, {"W", -1}});
+  auto faces = CheckArray<std::int32_t>(faces_obj, "faces", {{"M", -1}, {"3", 3}});
+  const py::ssize_t m = faces.shape(0);
+  auto uv = CheckArray<float>(uv_obj, "uv", {{"M", m}, {"3", 3}, {"2", 2}});
+  auto vertices = CheckArray<float>(vertices_obj, "vertices", {{"N", -1}, {"3", 3}});
+  const py::ssize_t nv = vertices.shape(0);
+  auto normals = CheckArray<float>(normals_obj, "normals", {{"N", nv}, {"3", 3}});
+  if (row0 < 0) throw BadValueError("row0: expected >= 0, got " + std::to_string(row0));
+  const py::ssize_t rows = fot.shape(0), width = fot.shape(1);
+  const std::int32_t* fo = fot.data();
+  for (py::ssize_t i = 0; i < rows * width; ++i) {
+    if (fo[i] < -1 || fo[i] >= m) {
+      throw BadValueError("face_of_texel: face " + std::to_string(fo[i]) + " out of range [-1, " + std::to_string(m) + ")");
+    }
+  }
+  const std::int32_t* f = faces.data();
+  for (py::ssize_t i = 0; i < 3 * m; ++i) {
+    if (f[i] < 0 || f[i] >= nv) {
+      throw BadValueError("faces: vertex " + std::to_string(f[i]) + " out of range [0, " + std::to_string(nv) + ")");
+    }
+  }
+  const py::ssize_t t = CountTexels(fo, rows * width);
+  auto ys = NewArray<std::int64_t>({t});
+  auto xs = NewArray<std::int64_t>({t});
+  auto face = NewArray<std::int32_t>({t});
+  auto bary = NewArray<double>({t, py::ssize_t(3)});
+  auto pts = NewArray<double>({t, py::ssize_t(3)});
+  auto nrm = NewArray<double>({t, py::ssize_t(3)});
+  {
+    py::gil_scoped_release release;
+    TexelPoints(fo, static_cast<int>(rows), static_cast<int>(width), row0, uv.data(), vertices.data(), faces.data(),
+                normals.data(), ys.mutable_data(), xs.mutable_data(), face.mutable_data(), bary.mutable_data(),
+                pts.mutable_data(), nrm.mutable_data());
+  }
+  return py::make_tuple(ys, xs, face, bary, pts, nrm);
+}
+
 py::dict RasterGBufferBinding(const Camera& camera, const py::object& vertices_obj, const py::object& faces_obj,
                               bool normal) {
   if (camera.model != CameraModel::kPinhole) {
@@ -399,6 +441,12 @@ void BindHybridRender(py::module_& m) {
         "linear per texel, alpha unused), read bilinearly (edge-clamped) at each pixel's hit "
         "(prim_id (H, W) int32, -1 = none; bary (H, W, 2) Embree (u, v)) at the face's uv (M, 3, 2) float32 in atlas "
         "pixels (x right, y down, centres at +0.5): (H, W, 3), 0 where nothing is hit.");
+  m.def("texel_points", &TexelPointsBinding, py::arg("face_of_texel"), py::arg("row0"), py::arg("uv"),
+        py::arg("vertices"), py::arg("faces"), py::arg("normals"),
+        "The used texels of atlas rows row0.. (face_of_texel (rows, W) int32, -1 = unused; kernels/atlas8.h "
+        "TexelPoints), row-major: (ys (T,) int64 absolute rows, xs (T,) int64, face (T,) int32, bary (T, 3) float64 "
+        "of the texel centre in the face's chart uv (M, 3, 2), clamped to the face; points (T, 3) float64 on the "
+        "mesh (vertices (N, 3) float32, faces (M, 3) int32), unit normals (T, 3) float64 of normals (N, 3) float32).");
   m.def("point_colors", &PointColorsBinding, py::arg("points"), py::arg("normals"), py::arg("views"), py::kw_only(),
         py::arg("k") = 4, py::arg("depth_tol") = 0.02,
         "ULR-weighted colour of the views at surface points (the texture bake; kernels/atlas8.h PointColors): "

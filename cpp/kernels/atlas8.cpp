@@ -159,4 +159,59 @@ void PointColors(const double* points, const double* normals, std::int64_t n, co
   });
 }
 
+std::int64_t CountTexels(const std::int32_t* face_of_texel, std::int64_t num_texels) {
+  std::int64_t n = 0;
+  for (std::int64_t i = 0; i < num_texels; ++i) n += face_of_texel[i] >= 0;
+  return n;
+}
+
+void TexelPoints(const std::int32_t* face_of_texel, int rows, int width, int row0, const float* uv,
+                 const float* vertices, const std::int32_t* faces, const float* normals, std::int64_t* ys,
+                 std::int64_t* xs, std::int32_t* face, double* bary, double* points, double* unit_normals) {
+  // Each row's first output slot, then the rows in parallel (the output order is row-major).
+  std::vector<std::int64_t> start(static_cast<std::size_t>(rows) + 1, 0);
+  for (int r = 0; r < rows; ++r) start[r + 1] = start[r] + CountTexels(face_of_texel + std::int64_t(r) * width, width);
+  // numpy.maximum(x, 0): x when x >= 0 or NaN (so -0.0 stays -0.0), else 0.
+  const auto clamp0 = [](double x) { return (x >= 0 || std::isnan(x)) ? x : 0.0; };
+  ParallelFor(rows, std::max(1, 16384 / std::max(width, 1)), [&](std::int64_t rb, std::int64_t re) {
+    for (std::int64_t r = rb; r < re; ++r) {
+      std::int64_t o = start[r];
+      const std::int32_t* row = face_of_texel + r * width;
+      for (int x = 0; x < width; ++x) {
+        const std::int32_t f = row[x];
+        if (f < 0) continue;
+        ys[o] = row0 + r;
+        xs[o] = x;
+        face[o] = f;
+        const double px = x + 0.5, py = double(row0 + r) + 0.5;
+        const float* t = uv + 6 * std::int64_t(f);
+        const double t0x = t[0], t0y = t[1];
+        const double d1x = double(t[2]) - t0x, d1y = double(t[3]) - t0y, d2x = double(t[4]) - t0x, d2y = double(t[5]) - t0y;
+        const double dpx = px - t0x, dpy = py - t0y;
+        const double det = d1x * d2y - d1y * d2x;
+        const double b1 = (dpx * d2y - dpy * d2x) / det;
+        const double b2 = (d1x * dpy - d1y * dpx) / det;
+        double w[3] = {clamp0(1 - b1 - b2), clamp0(b1), clamp0(b2)};
+        const double s = w[0] + w[1] + w[2];
+        for (double& wk : w) wk /= s;
+        double* b = bary + 3 * o;
+        double* p = points + 3 * o;
+        double* nrm = unit_normals + 3 * o;
+        const std::int32_t* fv = faces + 3 * std::int64_t(f);
+        for (int c = 0; c < 3; ++c) {
+          b[c] = w[c];
+          p[c] = w[0] * double(vertices[3 * std::int64_t(fv[0]) + c]) + w[1] * double(vertices[3 * std::int64_t(fv[1]) + c]) +
+                 w[2] * double(vertices[3 * std::int64_t(fv[2]) + c]);
+          nrm[c] = w[0] * double(normals[3 * std::int64_t(fv[0]) + c]) + w[1] * double(normals[3 * std::int64_t(fv[1]) + c]) +
+                   w[2] * double(normals[3 * std::int64_t(fv[2]) + c]);
+        }
+        const double len = std::sqrt(nrm[0] * nrm[0] + nrm[1] * nrm[1] + nrm[2] * nrm[2]);
+        const double div = (len >= 1e-12 || std::isnan(len)) ? len : 1e-12;
+        for (int c = 0; c < 3; ++c) nrm[c] /= div;
+        ++o;
+      }
+    }
+  });
+}
+
 }  // namespace ibr

@@ -30,6 +30,19 @@ void SampleAtlas(const std::int32_t* prim_id, const float* bary, std::int64_t nu
 void SampleAtlasSrgb8(const std::int32_t* prim_id, const float* bary, std::int64_t num_pixels, const float* uv,
                       ImageView<const std::uint8_t> atlas, float* out);
 
+// TexelPoints: the used texels of atlas rows [row0, row0 + rows) (face_of_texel (rows, width)
+// int32, -1 = unused), in row-major order: their row (ys, absolute) and column (xs), face, the
+// barycentrics of the texel centre (x + 0.5, y + 0.5) in the face's chart uv (M, 3, 2) (negative
+// weights set to 0, renormalised), the surface point (the barycentric blend of the face's
+// vertices (N, 3) float32) and the unit normal (of the per-vertex normals (N, 3) float32; zero
+// length: left at 0 / 1e-12). float64 arithmetic in the order of the numpy expressions it
+// replaced (atlas.texel_barycentrics and bake's einsum / norm): the same bits. Face and vertex
+// indices already checked. Returns the number of texels written (CountTexels gives it first).
+std::int64_t CountTexels(const std::int32_t* face_of_texel, std::int64_t num_texels);
+void TexelPoints(const std::int32_t* face_of_texel, int rows, int width, int row0, const float* uv,
+                 const float* vertices, const std::int32_t* faces, const float* normals, std::int64_t* ys,
+                 std::int64_t* xs, std::int32_t* face, double* bary, double* points, double* unit_normals);
+
 struct PointColorOptions {
   int k = 4;                // views blended per point (the (k+1)-th smallest penalty is the threshold)
   float depth_tol = 0.02f;  // visibility: |depth of the point - view depth| <= depth_tol * view depth

@@ -200,25 +200,20 @@ def _morton(points: np.ndarray) -> np.ndarray:
     return spread(q[:, 0]) | (spread(q[:, 1]) << 1) | (spread(q[:, 2]) << 2)
 
 
-def texel_barycentrics(lay: AtlasLayout, rows: slice | None = None
-                       ) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], np.ndarray]:
-    """((ys, xs, face), bary (T, 3)) of the used texels (of the atlas rows ``rows``, default all):
-    barycentrics of the texel centre in its face's chart, clamped to the face (negative weights set
-    to 0, renormalised)."""
-    fot = lay.face_of_texel if rows is None else lay.face_of_texel[rows]
-    ys, xs = np.nonzero(fot >= 0)
-    face = fot[ys, xs]
-    if rows is not None and rows.start:
-        ys = ys + rows.start
-    p = np.stack([xs + 0.5, ys + 0.5], 1).astype(np.float64)
-    t = lay.uv[face].astype(np.float64)
-    d1, d2, dp = t[:, 1] - t[:, 0], t[:, 2] - t[:, 0], p - t[:, 0]
-    det = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
-    b1 = (dp[:, 0] * d2[:, 1] - dp[:, 1] * d2[:, 0]) / det
-    b2 = (d1[:, 0] * dp[:, 1] - d1[:, 1] * dp[:, 0]) / det
-    bary = np.maximum(np.stack([1 - b1 - b2, b1, b2], 1), 0)
-    bary /= bary.sum(1, keepdims=True)
-    return (ys, xs, face), bary
+def texel_points(mesh: Mesh, lay: AtlasLayout, normals: np.ndarray, rows: slice | None = None
+                 ) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], np.ndarray, np.ndarray, np.ndarray]:
+    """((ys, xs, face), bary (T, 3), points (T, 3), unit normals (T, 3)) of the used texels (of the
+    atlas rows ``rows``, default all; row-major): the barycentrics of the texel centre in its face's
+    chart, clamped to the face (negative weights set to 0, renormalised), and the surface point and
+    normal (of the per-vertex ``normals`` (N, 3)) they give, in float64 (``_core.texel_points``)."""
+    from .. import _core
+
+    lo, hi, _ = (slice(None) if rows is None else rows).indices(lay.face_of_texel.shape[0])
+    ys, xs, face, bary, pts, nrm = _core.texel_points(
+        np.ascontiguousarray(lay.face_of_texel[lo:hi], np.int32), lo, np.ascontiguousarray(lay.uv, np.float32),
+        np.ascontiguousarray(mesh.vertices, np.float32), np.ascontiguousarray(mesh.faces, np.int32),
+        np.ascontiguousarray(normals, np.float32))
+    return (ys, xs, face), bary, pts, nrm
 
 
 def bake(mesh: Mesh, lay: AtlasLayout, cameras: Mapping[str, Camera], colors: Mapping[str, np.ndarray],
@@ -253,13 +248,9 @@ def bake(mesh: Mesh, lay: AtlasLayout, cameras: Mapping[str, Camera], colors: Ma
     # texel with point_colors' (views, texels) arrays) stay bounded whatever the atlas size.
     band = max(1, CHUNK // w)
     for lo in range(0, h, band):
-        (ys, xs, face), b = texel_barycentrics(lay, slice(lo, min(h, lo + band)))
+        (ys, xs, face), b, pts, nrm = texel_points(mesh, lay, vn, slice(lo, min(h, lo + band)))
         if len(face) == 0:
             continue
-        f3 = mesh.faces[face]
-        pts = np.einsum("tk,tkc->tc", b, mesh.vertices[f3].astype(np.float64))
-        nrm = np.einsum("tk,tkc->tc", b, vn[f3].astype(np.float64))
-        nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
         if labels is None:
             col, seen = point_colors(pts, nrm, cameras, colors, depths, options)
         else:
@@ -276,7 +267,7 @@ def bake(mesh: Mesh, lay: AtlasLayout, cameras: Mapping[str, Camera], colors: Ma
                 col[rest], seen[rest] = point_colors(pts[rest], nrm[rest], cameras, colors, depths, options)
         miss = seen == 0
         if miss.any():
-            col[miss] = np.einsum("tk,tkc->tc", b[miss], vc[f3[miss]]).astype(np.float32)
+            col[miss] = np.einsum("tk,tkc->tc", b[miss], vc[mesh.faces[face[miss]]]).astype(np.float32)
         unseen += int(miss.sum())
         used += len(face)
         img[ys, xs] = col
