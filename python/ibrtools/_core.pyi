@@ -17,7 +17,7 @@ _U8: typing.TypeAlias = numpy.typing.NDArray[numpy.uint8]
 _I8: typing.TypeAlias = numpy.typing.NDArray[numpy.int8]
 _Bool: typing.TypeAlias = numpy.typing.NDArray[numpy.bool_]
 _Light: typing.TypeAlias = tuple[str, collections.abc.Sequence[float], collections.abc.Sequence[float], bool]
-__all__: list[str] = ['Camera', 'CameraModel', 'DepthWarpMips', 'DibrAccumulator', 'EMBREE_VERSION', 'OcclusionScene', 'PvmRenderer', 'RayScene', 'WARP_DISOCCLUDED', 'WARP_SURFACE', 'WARP_UNCOVERED', 'WarpOptions', 'YMap', 'blur_selection', 'cpu_has_avx2', 'cross_view_prediction', 'cull_awoc_fill', 'cull_object_boxes', 'cull_project_boxes', 'dw_build_mips', 'dw_forward', 'dw_motion', 'dw_motion_mips', 'dw_warp', 'forward_warp', 'get_num_threads', 'grid_maxflow', 'hybrid_composite', 'hybrid_frame_outputs', 'hybrid_needs', 'hybrid_select', 'interpolate_vertex_attribute', 'interpolate_vertex_values', 'linear_to_srgb', 'metameric_composite', 'metameric_encode', 'metameric_fill_holes', 'metameric_pushpull_change', 'metameric_pushpull_moments', 'metameric_stack_moments', 'mip_build', 'mip_foveate_level', 'mip_lookup', 'mip_max_levels', 'point_colors', 'poisson_blend', 'pushpull', 'pvm_slice', 'pvm_triangulate', 'raster_gbuffer', 'sample_atlas', 'set_num_threads', 'set_warp_isa', 'shadow_map_visibility', 'srgb_encode_unclipped', 'srgb_to_linear', 'ssim', 'steerable_analyse', 'steerable_max_levels', 'steerable_synthesise', 'ulr_blend', 'ulr_penalty', 'ulr_select', 'warp_flow', 'warp_isa', 'warp_with_holes']
+__all__: list[str] = ['Camera', 'CameraModel', 'DepthWarpMips', 'DibrAccumulator', 'EMBREE_VERSION', 'OcclusionScene', 'PvmRenderer', 'RayScene', 'WARP_DISOCCLUDED', 'WARP_SURFACE', 'WARP_UNCOVERED', 'WarpOptions', 'YMap', 'blur_selection', 'cpu_has_avx2', 'cross_view_prediction', 'cull_awoc_fill', 'cull_object_boxes', 'cull_project_boxes', 'dw_build_mips', 'dw_forward', 'dw_motion', 'dw_motion_mips', 'dw_warp', 'forward_warp', 'gain_median_ratios', 'get_num_threads', 'grid_maxflow', 'hybrid_composite', 'hybrid_frame_outputs', 'hybrid_needs', 'hybrid_select', 'interpolate_vertex_attribute', 'interpolate_vertex_values', 'linear_to_srgb', 'metameric_composite', 'metameric_encode', 'metameric_fill_holes', 'metameric_pushpull_change', 'metameric_pushpull_moments', 'metameric_stack_moments', 'mip_build', 'mip_foveate_level', 'mip_lookup', 'mip_max_levels', 'point_colors', 'poisson_blend', 'pushpull', 'pvm_slice', 'pvm_triangulate', 'raster_gbuffer', 'sample_atlas', 'set_num_threads', 'set_warp_isa', 'shadow_map_visibility', 'srgb_encode_unclipped', 'srgb_to_linear', 'ssim', 'steerable_analyse', 'steerable_max_levels', 'steerable_synthesise', 'texel_points', 'ulr_blend', 'ulr_penalty', 'ulr_select', 'vertex_colour_sums', 'warp_flow', 'warp_isa', 'warp_with_holes']
 
 class CameraModel:
     """
@@ -405,6 +405,11 @@ def forward_warp(color: _F32, depth: _F32, camera: Camera, target_camera: Camera
     Warp one view: (color (Ht, Wt, 3), depth (Ht, Wt) (0 = not covered), weight (Ht, Wt) = (q / d)^p (0 = not covered)). GIL released.
     """
 
+def gain_median_ratios(index: _I64, color: _F64, bounds: _I64, gains: _F64, mean: _F64) -> tuple[_F64, _I64]:
+    """
+    Per view, the per-channel median of color / gain / mean over its samples whose vertex mean is > 1e-3 in every channel (cpp/kernels/vertexstats.h): index (S,) int64, color (S, 3) float64, bounds (V + 1,) int64, gains (V, 3) float64, mean (N, 3) float64; returns (median (V, 3) float64, 1 where no sample counts; count (V,) int64), numpy median's bits.
+    """
+
 def get_num_threads() -> int:
     """
     The engine's current thread limit.
@@ -580,6 +585,11 @@ def steerable_synthesise(highpass: _F32, bands: collections.abc.Sequence[collect
     Steerable pyramid synthesis (collapse) of (highpass, bands[level][orientation], lowpass) as returned by steerable_analyse; returns the image float32 (H, W, C).
     """
 
+def texel_points(face_of_texel: _I32, row0: typing.SupportsInt | typing.SupportsIndex, uv: _F32, vertices: _F32, faces: _I32, normals: _F32) -> tuple[_I64, _I64, _I32, _F64, _F64, _F64]:
+    """
+    The used texels of atlas rows row0.. (face_of_texel (rows, W) int32, -1 = unused; kernels/atlas8.h TexelPoints), row-major: (ys (T,) int64 absolute rows, xs (T,) int64, face (T,) int32, bary (T, 3) float64 of the texel centre in the face's chart uv (M, 3, 2), clamped to the face; points (T, 3) float64 on the mesh (vertices (N, 3) float32, faces (M, 3) int32), unit normals (T, 3) float64 of normals (N, 3) float32).
+    """
+
 def ulr_blend(camera: Camera, gbuffer_depth: _F32, views: list[tuple[Camera, _F32, _F32]], *, normal: _F32 | None=None, pixel_mask: _Bool | None=None, k: typing.SupportsInt | typing.SupportsIndex=4, resolution_weight: typing.SupportsFloat | typing.SupportsIndex=0.5, depth_tol: typing.SupportsFloat | typing.SupportsIndex=0.005, resample: str='cubic', reference: bool=False, simd: str='auto') -> tuple[_F32, _U8]:
     """
     Per-pixel ULR at the G-buffer's points: views = [(camera, color, depth), ...] -> (color (H, W, 3), count (H, W) uint8 views used, 0 = none sees the point). resample: the views' colour reads, 'cubic' (Catmull-Rom, clamped to the 2 x 2 texels' range) or 'bilinear'. reference=True: the scalar reference path (double projections) instead of the fast one (float, SIMD over views; pinhole views only). simd='auto' follows set_warp_isa (AVX-512 / AVX2 where the CPU has them, SSE2 under 'baseline'); 'avx2' / 'sse2': the fast path at most AVX2 / in SSE2 even where the CPU has more (the same bits; for tests).
@@ -593,6 +603,11 @@ def ulr_penalty(p: collections.abc.Sequence[typing.SupportsFloat | typing.Suppor
 def ulr_select(penalty: _F64, k: typing.SupportsInt | typing.SupportsIndex) -> tuple[list[int], list[float]]:
     """
     The k smallest finite penalties (cpp/kernels/ulr.h UlrSelect): (indices, weights summing to 1).
+    """
+
+def vertex_colour_sums(index: _I64, color: _F64, bounds: _I64, gains: _F64, num_vertices: typing.SupportsInt | typing.SupportsIndex, *, squares: bool=False) -> tuple[_F64, _F64 | None]:
+    """
+    Per-vertex sums of gain-divided colour samples (cpp/kernels/vertexstats.h): index (S,) int64 vertex per sample, color (3, S) float64, bounds (V + 1,) int64 (view v's samples at [bounds[v], bounds[v + 1])), gains (V, 3) float64; returns (sum (N, 3) float64, sum of squares (N, 3) or None), numpy bincount's bits.
     """
 
 def warp_flow(color: _F32, depth: _F32, flow: _F32, stretch_threshold: typing.SupportsFloat | typing.SupportsIndex=2.0, depth_jump: typing.SupportsFloat | typing.SupportsIndex=0.10000000149011612) -> tuple[_F32, _F32, _U8]:
