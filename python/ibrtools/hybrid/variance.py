@@ -131,9 +131,9 @@ def vertex_statistics(scene: Scene, mesh: Mesh, *, depth_tol: float = DEPTH_TOL,
 
     # Every view's samples in one array, in view order, stored channel by channel (3, S); the
     # kernel accumulates each vertex's samples in that order (numpy bincount's bits).
-    colors64 = [s.color.astype(np.float64) for s in samples]
     all_index = np.concatenate([s.index for s in samples]).astype(np.int64, copy=False) if samples else np.zeros(0, np.int64)
-    all_color = np.ascontiguousarray(np.concatenate(colors64).T) if samples else np.zeros((3, 0))
+    all_color = np.ascontiguousarray(np.concatenate([s.color for s in samples]).astype(np.float64).T) if samples \
+        else np.zeros((3, 0))
     bounds = np.concatenate([[0], np.cumsum([len(s.index) for s in samples])]).astype(np.int64)
     cnt = np.maximum(count, 1)[:, None]
 
@@ -144,16 +144,13 @@ def vertex_statistics(scene: Scene, mesh: Mesh, *, depth_tol: float = DEPTH_TOL,
 
     mean, _ = means()
     if compensate_gains and len(samples) > 1:
-        # Per view, the vertices it shares with another view and their colours (fixed).
-        shared = []
-        for s, c64 in zip(samples, colors64):
-            sh = count[s.index] >= 2
-            c = c64[sh]
-            keep = (c > 1e-3).all(1)
-            shared.append((s.index[sh][keep], c[keep], s.x[sh][keep], s.y[sh][keep]))
-        sh_index = np.concatenate([t[0] for t in shared]).astype(np.int64, copy=False)
-        sh_color = np.ascontiguousarray(np.concatenate([t[1] for t in shared]))
-        sh_bounds = np.concatenate([[0], np.cumsum([len(t[0]) for t in shared])]).astype(np.int64)
+        # The samples of vertices another view sees too, with colours > 1e-3 (fixed), in view
+        # order (rows [sh_bounds[k], sh_bounds[k + 1]) are view k's).
+        sh = (count[all_index] >= 2) & (all_color > 1e-3).all(0)
+        sh_index = all_index[sh]
+        sh_color = np.ascontiguousarray(all_color[:, sh].T)
+        sh_bounds = np.concatenate([[0], np.cumsum([sh[bounds[k]:bounds[k + 1]].sum() for k in range(len(samples))])
+                                    ]).astype(np.int64)
         # Alternate gains (robust: medians of colour / gain / mean per view, over the vertices with
         # a mean > 1e-3 in every channel, where at least 16 are) and means until the gains settle
         # (each vertex is seen by a subset of the views, so the means mix gains: convergence is
@@ -171,7 +168,9 @@ def vertex_statistics(scene: Scene, mesh: Mesh, *, depth_tol: float = DEPTH_TOL,
         # The same median ratio on each half of the view's image (at the converged means): an
         # exposure scales the whole image, so the halves of an exposure gain agree.
         for k, s in enumerate(samples):
-            idx, c, x, y = shared[k]
+            a, b = sh_bounds[k], sh_bounds[k + 1]
+            own = sh[bounds[k]:bounds[k + 1]]
+            idx, c, x, y = sh_index[a:b], sh_color[a:b], s.x[own], s.y[own]
             cam = scene.view(s.name).camera
             m = mean[idx]
             ok = (m > 1e-3).all(1)
