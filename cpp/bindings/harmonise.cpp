@@ -28,8 +28,8 @@ void CheckSamples(const py::array_t<std::int64_t, py::array::c_style>& bounds,
   const std::int64_t* b = bounds.data();
   const py::ssize_t v = bounds.shape(0) - 1, rows = index.shape(0);
   if (v < 0 || b[0] != 0 || b[v] != rows) {
-    throw ShapeError("bounds: expected (views + 1,) offsets from 0 to " + std::to_string(rows) + " (the samples), got " +
-                     DescribeShape(bounds));
+    throw ShapeError("bounds: expected (views + 1,) offsets from 0 to " + std::to_string(rows) +
+                     " (the samples), got " + DescribeShape(bounds));
   }
   for (py::ssize_t k = 0; k < v; ++k) {
     if (b[k + 1] < b[k]) throw BadValueError("bounds: expected non-decreasing offsets, got " + std::to_string(b[k]) +

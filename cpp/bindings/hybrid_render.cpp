@@ -199,7 +199,8 @@ py::tuple TexelPointsBinding(const py::object& fot_obj, int row0, const py::obje
   const std::int32_t* fo = fot.data();
   for (py::ssize_t i = 0; i < rows * width; ++i) {
     if (fo[i] < -1 || fo[i] >= m) {
-      throw BadValueError("face_of_texel: face " + std::to_string(fo[i]) + " out of range [-1, " + std::to_string(m) + ")");
+      throw BadValueError("face_of_texel: face " + std::to_string(fo[i]) + " out of range [-1, " + std::to_string(m) +
+                          ")");
     }
   }
   const std::int32_t* f = faces.data();

@@ -223,7 +223,8 @@ void TexelPoints(const std::int32_t* face_of_texel, int rows, int width, int row
         const double px = x + 0.5, py = double(row0 + r) + 0.5;
         const float* t = uv + 6 * std::int64_t(f);
         const double t0x = t[0], t0y = t[1];
-        const double d1x = double(t[2]) - t0x, d1y = double(t[3]) - t0y, d2x = double(t[4]) - t0x, d2y = double(t[5]) - t0y;
+        const double d1x = double(t[2]) - t0x, d1y = double(t[3]) - t0y;
+        const double d2x = double(t[4]) - t0x, d2y = double(t[5]) - t0y;
         const double dpx = px - t0x, dpy = py - t0y;
         const double det = d1x * d2y - d1y * d2x;
         const double b1 = (dpx * d2y - dpy * d2x) / det;
@@ -235,12 +236,16 @@ void TexelPoints(const std::int32_t* face_of_texel, int rows, int width, int row
         double* p = points + 3 * o;
         double* nrm = unit_normals + 3 * o;
         const std::int32_t* fv = faces + 3 * std::int64_t(f);
+        const float* v0 = vertices + 3 * std::int64_t(fv[0]);
+        const float* v1 = vertices + 3 * std::int64_t(fv[1]);
+        const float* v2 = vertices + 3 * std::int64_t(fv[2]);
+        const float* n0 = normals + 3 * std::int64_t(fv[0]);
+        const float* n1 = normals + 3 * std::int64_t(fv[1]);
+        const float* n2 = normals + 3 * std::int64_t(fv[2]);
         for (int c = 0; c < 3; ++c) {
           b[c] = w[c];
-          p[c] = w[0] * double(vertices[3 * std::int64_t(fv[0]) + c]) + w[1] * double(vertices[3 * std::int64_t(fv[1]) + c]) +
-                 w[2] * double(vertices[3 * std::int64_t(fv[2]) + c]);
-          nrm[c] = w[0] * double(normals[3 * std::int64_t(fv[0]) + c]) + w[1] * double(normals[3 * std::int64_t(fv[1]) + c]) +
-                   w[2] * double(normals[3 * std::int64_t(fv[2]) + c]);
+          p[c] = w[0] * double(v0[c]) + w[1] * double(v1[c]) + w[2] * double(v2[c]);
+          nrm[c] = w[0] * double(n0[c]) + w[1] * double(n1[c]) + w[2] * double(n2[c]);
         }
         const double len = std::sqrt(nrm[0] * nrm[0] + nrm[1] * nrm[1] + nrm[2] * nrm[2]);
         const double div = (len >= 1e-12 || std::isnan(len)) ? len : 1e-12;

@@ -15,7 +15,8 @@ void VertexColourSums(const std::int64_t* index, const double* color, std::int64
   std::fill(sum, sum + 3 * num_vertices, 0.0);
   if (sum2 != nullptr) std::fill(sum2, sum2 + 3 * num_vertices, 0.0);
   // At most 4 vertex ranges (at least 1 << 16 vertices each): each task scans every sample.
-  ParallelFor(num_vertices, std::max<std::int64_t>(1 << 16, (num_vertices + 3) / 4), [&](std::int64_t lo, std::int64_t hi) {
+  const std::int64_t grain = std::max<std::int64_t>(1 << 16, (num_vertices + 3) / 4);
+  ParallelFor(num_vertices, grain, [&](std::int64_t lo, std::int64_t hi) {
     for (int v = 0; v < num_views; ++v) {
       const double* g = gains + 3 * v;
       for (std::int64_t s = bounds[v]; s < bounds[v + 1]; ++s) {

@@ -14,7 +14,8 @@ would make every vertex "view-dependent" and leave nothing for the diffuse harmo
 correct; what remains is what a global gain cannot explain: specular highlights, occlusion
 errors, noise. (The paper does not say; this is our reading of what the variance must measure.)
 
-Per-view work is vectorised numpy over vertices; the loop is over views.
+Per-view work is vectorised numpy over vertices, the loop over views; the gain estimation's
+two inner loops (per-vertex sums, per-view median ratios) are kernels (cpp/kernels/vertexstats.h).
 """
 from __future__ import annotations
 
@@ -22,7 +23,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import _core
 from ..errors import BadValueError, DtypeError
 from ..mesh import Mesh
 from ..scene import Scene
@@ -118,6 +118,8 @@ def vertex_statistics(scene: Scene, mesh: Mesh, *, depth_tol: float = DEPTH_TOL,
     "count" (N,) i32, "gains": {view: (3,) f64}, "half_gains": {view: (4, 3) f64} (the gain on
     the view's left / right / top / bottom image half, for gainmodel.exposure_gains; {} without
     gain compensation), "samples": [VertexSamples]}."""
+    from .. import _core
+
     check_inputs(scene, mesh)
     if samples is None:
         samples = list(visible_samples(scene, mesh, renderer, depth_tol))
@@ -131,9 +133,11 @@ def vertex_statistics(scene: Scene, mesh: Mesh, *, depth_tol: float = DEPTH_TOL,
 
     # Every view's samples in one array, in view order, stored channel by channel (3, S); the
     # kernel accumulates each vertex's samples in that order (numpy bincount's bits).
-    all_index = np.concatenate([s.index for s in samples]).astype(np.int64, copy=False) if samples else np.zeros(0, np.int64)
-    all_color = np.ascontiguousarray(np.concatenate([s.color for s in samples]).astype(np.float64).T) if samples \
-        else np.zeros((3, 0))
+    if samples:
+        all_index = np.concatenate([s.index for s in samples]).astype(np.int64, copy=False)
+        all_color = np.ascontiguousarray(np.concatenate([s.color for s in samples]).astype(np.float64).T)
+    else:
+        all_index, all_color = np.zeros(0, np.int64), np.zeros((3, 0))
     bounds = np.concatenate([[0], np.cumsum([len(s.index) for s in samples])]).astype(np.int64)
     cnt = np.maximum(count, 1)[:, None]
 
