@@ -209,7 +209,9 @@ py::tuple TexelPointsBinding(const py::object& fot_obj, int row0, const py::obje
       throw BadValueError("faces: vertex " + std::to_string(f[i]) + " out of range [0, " + std::to_string(nv) + ")");
     }
   }
-  const py::ssize_t t = CountTexels(fo, rows * width);
+  std::vector<std::int64_t> row_start(static_cast<std::size_t>(rows) + 1);
+  TexelRowStarts(fo, static_cast<int>(rows), static_cast<int>(width), row_start.data());
+  const py::ssize_t t = row_start.back();
   auto ys = NewArray<std::int64_t>({t});
   auto xs = NewArray<std::int64_t>({t});
   auto face = NewArray<std::int32_t>({t});
@@ -218,7 +220,7 @@ py::tuple TexelPointsBinding(const py::object& fot_obj, int row0, const py::obje
   auto nrm = NewArray<double>({t, py::ssize_t(3)});
   {
     py::gil_scoped_release release;
-    TexelPoints(fo, static_cast<int>(rows), static_cast<int>(width), row0, uv.data(), vertices.data(), faces.data(),
+    TexelPoints(fo, row_start.data(), static_cast<int>(rows), static_cast<int>(width), row0, uv.data(), vertices.data(), faces.data(),
                 normals.data(), ys.mutable_data(), xs.mutable_data(), face.mutable_data(), bary.mutable_data(),
                 pts.mutable_data(), nrm.mutable_data());
   }

@@ -112,17 +112,8 @@ void PointColors(const double* points, const double* normals, std::int64_t n, co
         cosv[v] = glm::dot(to_cam, nrm) / std::max(r, 1e-12);
         rv[v] = r;
         const Camera& cam = views[v].camera;
-        const glm::dvec3 pc = cam.CamFromWorld(p);
-        double x, y, z;
-        bool front;
-        if (cam.model == CameraModel::kPinhole) {  // ProjectCam's arithmetic, without its branch
-          front = pc.z > 0.0;
-          x = cam.fx * pc.x / pc.z + cam.cx;
-          y = cam.fy * pc.y / pc.z + cam.cy;
-          z = pc.z;
-        } else {
-          front = cam.ProjectCam(pc, &x, &y, &z);
-        }
+        double x = 0, y = 0, z = 0;
+        const bool front = cam.ProjectCam(cam.CamFromWorld(p), &x, &y, &z);
         const bool ok = front & std::isfinite(z) & (x >= 0) & (x < cam.width) & (y >= 0) & (y < cam.height);
         const int ix = ok ? std::min(static_cast<int>(x), cam.width - 1) : 0;
         const int iy = ok ? std::min(static_cast<int>(y), cam.height - 1) : 0;
@@ -196,23 +187,23 @@ void PointColors(const double* points, const double* normals, std::int64_t n, co
   });
 }
 
-std::int64_t CountTexels(const std::int32_t* face_of_texel, std::int64_t num_texels) {
-  std::int64_t n = 0;
-  for (std::int64_t i = 0; i < num_texels; ++i) n += face_of_texel[i] >= 0;
-  return n;
+void TexelRowStarts(const std::int32_t* face_of_texel, int rows, int width, std::int64_t* row_start) {
+  row_start[0] = 0;
+  for (int r = 0; r < rows; ++r) {
+    const std::int32_t* row = face_of_texel + std::int64_t(r) * width;
+    row_start[r + 1] = row_start[r] + std::count_if(row, row + width, [](std::int32_t f) { return f >= 0; });
+  }
 }
 
-void TexelPoints(const std::int32_t* face_of_texel, int rows, int width, int row0, const float* uv,
-                 const float* vertices, const std::int32_t* faces, const float* normals, std::int64_t* ys,
-                 std::int64_t* xs, std::int32_t* face, double* bary, double* points, double* unit_normals) {
-  // Each row's first output slot, then the rows in parallel (the output order is row-major).
-  std::vector<std::int64_t> start(static_cast<std::size_t>(rows) + 1, 0);
-  for (int r = 0; r < rows; ++r) start[r + 1] = start[r] + CountTexels(face_of_texel + std::int64_t(r) * width, width);
+void TexelPoints(const std::int32_t* face_of_texel, const std::int64_t* row_start, int rows, int width, int row0,
+                 const float* uv, const float* vertices, const std::int32_t* faces, const float* normals,
+                 std::int64_t* ys, std::int64_t* xs, std::int32_t* face, double* bary, double* points,
+                 double* unit_normals) {
   // numpy.maximum(x, 0): x when x >= 0 or NaN (so -0.0 stays -0.0), else 0.
   const auto clamp0 = [](double x) { return (x >= 0 || std::isnan(x)) ? x : 0.0; };
   ParallelFor(rows, std::max(1, 16384 / std::max(width, 1)), [&](std::int64_t rb, std::int64_t re) {
     for (std::int64_t r = rb; r < re; ++r) {
-      std::int64_t o = start[r];
+      std::int64_t o = row_start[r];
       const std::int32_t* row = face_of_texel + r * width;
       for (int x = 0; x < width; ++x) {
         const std::int32_t f = row[x];

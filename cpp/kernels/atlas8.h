@@ -37,9 +37,11 @@ void SampleAtlasSrgb8(const std::int32_t* prim_id, const float* bary, std::int64
 // vertices (N, 3) float32) and the unit normal (of the per-vertex normals (N, 3) float32; zero
 // length: left at 0 / 1e-12). float64 arithmetic in the order of the numpy expressions it
 // replaced (atlas.texel_barycentrics and bake's einsum / norm): the same bits. Face and vertex
-// indices already checked. Returns the number of texels written (CountTexels gives it first).
-std::int64_t CountTexels(const std::int32_t* face_of_texel, std::int64_t num_texels);
-void TexelPoints(const std::int32_t* face_of_texel, int rows, int width, int row0, const float* uv,
+// indices already checked. TexelRowStarts gives row_start (rows + 1): each row's first output
+// slot, the used texels' count last (the caller sizes the outputs with it).
+void TexelRowStarts(const std::int32_t* face_of_texel, int rows, int width, std::int64_t* row_start);
+void TexelPoints(const std::int32_t* face_of_texel, const std::int64_t* row_start, int rows, int width, int row0,
+                 const float* uv,
                  const float* vertices, const std::int32_t* faces, const float* normals, std::int64_t* ys,
                  std::int64_t* xs, std::int32_t* face, double* bary, double* points, double* unit_normals);
 
