@@ -220,9 +220,9 @@ py::tuple TexelPointsBinding(const py::object& fot_obj, int row0, const py::obje
   auto nrm = NewArray<double>({t, py::ssize_t(3)});
   {
     py::gil_scoped_release release;
-    TexelPoints(fo, row_start.data(), static_cast<int>(rows), static_cast<int>(width), row0, uv.data(), vertices.data(), faces.data(),
-                normals.data(), ys.mutable_data(), xs.mutable_data(), face.mutable_data(), bary.mutable_data(),
-                pts.mutable_data(), nrm.mutable_data());
+    TexelPoints(fo, row_start.data(), static_cast<int>(rows), static_cast<int>(width), row0, uv.data(),
+                vertices.data(), faces.data(), normals.data(), ys.mutable_data(), xs.mutable_data(),
+                face.mutable_data(), bary.mutable_data(), pts.mutable_data(), nrm.mutable_data());
   }
   return py::make_tuple(ys, xs, face, bary, pts, nrm);
 }

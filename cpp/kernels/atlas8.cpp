@@ -91,9 +91,9 @@ void PointColors(const double* points, const double* normals, std::int64_t n, co
     for (std::int64_t i = b; i < e; ++i) {
       const glm::dvec3 p(points[3 * i], points[3 * i + 1], points[3 * i + 2]);
       const glm::dvec3 nrm(normals[3 * i], normals[3 * i + 1], normals[3 * i + 2]);
-      // Passes over the views, so that no branch depends on the data (a view faces a point or
-      // not about half the time: a branch per test was mispredicted that often). 1: the facing
-      // test of every view (without a square root or a division), the views that pass compacted;
+      // Passes over the views, so that the facing, image and depth tests are not a branch each (a
+      // view faces a point or not about half the time: such a branch was mispredicted that often).
+      // 1: the facing test of every view (without a square root or a division), the views that pass compacted;
       // a cosine <= 0.25e-3 means an angle >= pi/2 - 0.25e-3 > max_angle: it only rejects views
       // the angle test of pass 4 would.
       int n_facing = 0;
