@@ -120,6 +120,22 @@ __attribute__((target("avx2"))) void PairSumsAvx2(const float* pw, const float* 
 // consistent rule; the reversed edge of a neighbour gets the complement (watertight).
 inline bool OwnsEdge(double dx, double dy) { return dy > 0.0 || (dy == 0.0 && dx < 0.0); }
 
+// Clips [t0, t1] to where the ray o + t dir is inside the box [lo, hi] (slabs); a ray parallel
+// to a slab and outside it empties the interval (t1 = -1).
+inline void ClipRayToBox(const glm::dvec3& o, const glm::dvec3& dir, const double* lo, const double* hi, double& t0,
+                         double& t1) {
+  for (int a = 0; a < 3; ++a) {
+    if (dir[a] == 0.0) {
+      if (o[a] < lo[a] || o[a] > hi[a]) t1 = -1.0;
+      continue;
+    }
+    double ta = (lo[a] - o[a]) / dir[a], tb = (hi[a] - o[a]) / dir[a];
+    if (ta > tb) std::swap(ta, tb);
+    t0 = std::max(t0, ta);
+    t1 = std::min(t1, tb);
+  }
+}
+
 }  // namespace
 
 void PvmVisibleCoarse(const PvmGrid& grid, const Camera& camera, const float* gbuffer_depth, int margin,
@@ -194,16 +210,7 @@ void PvmVisibleCoarse(const PvmGrid& grid, const Camera& camera, const float* gb
           const glm::dvec3 ray = camera.RayInCam(x + 0.5, y + 0.5);  // z = 1: t is depth
           const glm::dvec3 dir = camera.WorldFromCamDir(ray);
           double t0 = 0.0, t1 = (z > 0.f && std::isfinite(z)) ? static_cast<double>(z) : 1e300;
-          for (int a = 0; a < 3; ++a) {
-            if (dir[a] == 0.0) {
-              if (centre[a] < lo[a] || centre[a] > hi[a]) t1 = -1.0;
-              continue;
-            }
-            double ta = (lo[a] - centre[a]) / dir[a], tb = (hi[a] - centre[a]) / dir[a];
-            if (ta > tb) std::swap(ta, tb);
-            t0 = std::max(t0, ta);
-            t1 = std::min(t1, tb);
-          }
+          ClipRayToBox(centre, dir, lo, hi, t0, t1);
           if (!(t0 <= t1)) continue;
           const double step = 0.5 * min_cell / glm::length(dir);
           for (double t = t0; t <= t1 + step; t += step) {
@@ -956,16 +963,7 @@ void PvmFilter(const double* box, const Camera& camera, const std::uint8_t* pixe
           // Ray against the surface's box (slabs).
           const glm::dvec3 dir = camera.WorldFromCamDir(camera.RayInCam(x + 0.5, y + 0.5));
           double t0 = 0.0, t1 = std::numeric_limits<double>::infinity();
-          for (int k = 0; k < 3; ++k) {
-            if (dir[k] == 0.0) {
-              if (c_novel[k] < lo[k] || c_novel[k] > hi[k]) t1 = -1.0;
-              continue;
-            }
-            double ta = (lo[k] - c_novel[k]) / dir[k], tb = (hi[k] - c_novel[k]) / dir[k];
-            if (ta > tb) std::swap(ta, tb);
-            t0 = std::max(t0, ta);
-            t1 = std::min(t1, tb);
-          }
+          ClipRayToBox(c_novel, dir, lo, hi, t0, t1);
           inside_grid[p] = kept_inside[p] = t0 <= t1 ? 1 : 0;
         }
         float* out = color + 3 * p;

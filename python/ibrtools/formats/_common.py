@@ -161,8 +161,9 @@ def invert_rigid(m: np.ndarray) -> np.ndarray:
     return out
 
 
-def image_size(path: Path) -> tuple[int, int]:
-    """(width, height) of an image file from its header only (no pixel decoding)."""
+def image_header(path: Path) -> tuple[int, int, int, str]:
+    """(width, height, channels, sample format such as "uint8") of an image file, from its header
+    alone (no pixel decoding)."""
     from ..imageio import _geterror, _oiio
 
     path = Path(path)
@@ -174,9 +175,15 @@ def image_size(path: Path) -> tuple[int, int]:
         raise FormatError(f"{path}: not a readable image ({_geterror(oiio, 'unknown format')})")
     try:
         spec = inp.spec()
-        return int(spec.width), int(spec.height)
+        return int(spec.width), int(spec.height), int(spec.nchannels), str(spec.format)
     finally:
         inp.close()
+
+
+def image_size(path: Path) -> tuple[int, int]:
+    """(width, height) of an image file from its header only (no pixel decoding)."""
+    w, h, _, _ = image_header(path)
+    return w, h
 
 
 def check_same_size(path: Path, size: tuple[int, int], what: str, expected_from: str) -> None:

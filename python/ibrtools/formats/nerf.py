@@ -63,8 +63,8 @@ from ..camera import Camera
 from ..errors import BadValueError, DtypeError, FormatError, MissingFileError, ShapeError
 from ..imageio import read_pixels, srgb_to_linear
 from ..scene import Scene, View
-from ._common import (document_errors, FileLoader, check_options, check_same_size, image_size, invert_rigid, opt_choice,
-                      opt_float, opt_int, read_json, rigid_from_matrix)
+from ._common import (document_errors, FileLoader, check_options, check_same_size, image_header, image_size, invert_rigid,
+                      opt_choice, opt_float, opt_int, read_json, rigid_from_matrix)
 
 NAME = "nerf"
 DESCRIPTION = "NeRF/instant-ngp transforms*.json (Blender/OpenGL camera-to-world)"
@@ -263,23 +263,8 @@ def _load_depth(path: Path, camera: Camera, depth_scale: float, dequantize: int 
     return np.ascontiguousarray(camera.depth_ray_to_z(ray).astype(np.float32))
 
 
-def _header(path: Path) -> tuple[int, str]:
-    """(channels, sample format such as "uint8") of an image, from its header alone."""
-    from ..imageio import _geterror, _oiio
-
-    oiio = _oiio()
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise FormatError(f"{path}: not a readable image ({_geterror(oiio, 'unknown format')})")
-    try:
-        spec = inp.spec()
-        return int(spec.nchannels), str(spec.format)
-    finally:
-        inp.close()
-
-
 def _has_alpha(path: Path) -> bool:
-    return _header(path)[0] in (2, 4)
+    return image_header(path)[2] in (2, 4)
 
 
 def _filters_depth(path: Path, dequantize: int | None) -> bool:
@@ -287,7 +272,7 @@ def _filters_depth(path: Path, dequantize: int | None) -> bool:
     the depth as stored, ``View.depth_stored``, for multi-view fusion)."""
     if dequantize is not None:
         return dequantize > 0
-    fmt = _header(path)[1]
+    fmt = image_header(path)[3]
     return fmt in AUTO_DEQUANTIZE and AUTO_DEQUANTIZE[fmt] > 0
 
 
