@@ -143,6 +143,45 @@ def test_sample_atlas_bilinear_and_misses():
     assert np.allclose(out[0, 0], 0.5) and np.all(out[0, 1] == 0)
 
 
+def _bilinear_reference(prim, bary, uv, atlas_linear):
+    """numpy: the hit face's uv at the barycentrics, read bilinearly with edge clamping."""
+    ah, aw = atlas_linear.shape[:2]
+    out = np.zeros(prim.shape + (3,))
+    for (y, x), f in np.ndenumerate(prim):
+        if f < 0:
+            continue
+        u, v = float(bary[y, x, 0]), float(bary[y, x, 1])
+        t = uv[f].astype(np.float64)
+        px, py = (1 - u - v) * t[0] + u * t[1] + v * t[2]
+        fx, fy = np.clip(px - 0.5, 0, aw - 1), np.clip(py - 0.5, 0, ah - 1)
+        x0, y0 = min(int(fx), aw - 1), min(int(fy), ah - 1)
+        x1, y1 = min(x0 + 1, aw - 1), min(y0 + 1, ah - 1)
+        ax, ay = fx - x0, fy - y0
+        top = atlas_linear[y0, x0] * (1 - ax) + atlas_linear[y0, x1] * ax
+        bot = atlas_linear[y1, x0] * (1 - ax) + atlas_linear[y1, x1] * ax
+        out[y, x] = top * (1 - ay) + bot * ay
+    return out
+
+
+def test_sample_atlas_matches_a_numpy_reference_over_many_batches():
+    """Random faces, misses and reads across a 300 x 200 atlas (the kernel reads in batches of
+    pixels with prefetches; more pixels than a batch, misses interleaved, edges clamped)."""
+    rng = np.random.default_rng(7)
+    ah, aw, m = 200, 300, 50
+    uv = (rng.random((m, 3, 2)) * [aw + 20, ah + 20] - 10).astype(np.float32)  # some beyond the edges
+    prim = rng.integers(-1, m, (37, 41)).astype(np.int32)
+    bary = rng.random((37, 41, 2)).astype(np.float32) * 0.6
+    atlas = rng.random((ah, aw, 3), dtype=np.float32)
+    got = _core.sample_atlas(prim, bary, uv, atlas)
+    assert np.allclose(got, _bilinear_reference(prim, bary, uv, atlas), atol=2e-6)
+    a8 = (rng.random((ah, aw, 4)) * 255).astype(np.uint8)
+    lin = np.where(a8[..., :3] / 255.0 <= 0.04045, a8[..., :3] / 255.0 / 12.92,
+                   ((a8[..., :3] / 255.0 + 0.055) / 1.055) ** 2.4)
+    got8 = _core.sample_atlas(prim, bary, uv, a8)
+    assert np.allclose(got8, _bilinear_reference(prim, bary, uv, lin), atol=2e-6)
+    assert not got[prim < 0].any() and not got8[prim < 0].any()
+
+
 def test_results_independent_of_thread_count():
     mesh = densify(wall(), 0.2)
     cam = camera(96, 80)
@@ -204,6 +243,23 @@ def test_bad_input():
         _core.sample_atlas(np.full((2, 2), 5, np.int32), bary, uv, np.zeros((4, 4, 3), np.float32))
     with pytest.raises(BadValueError, match="finite"):
         _core.sample_atlas(prim, bary, np.full((1, 3, 2), np.nan, np.float32), np.zeros((4, 4, 3), np.float32))
+    # A non-finite barycentric at a hit made the texel index undefined (a crash, before the check);
+    # huge finite ones are clamped to the atlas's edge.
+    for bad in (np.nan, np.inf):
+        b = bary.copy()
+        b[1, 0, 1] = bad
+        with pytest.raises(BadValueError, match=r"bary: .*pixel \(1, 0\)"):
+            _core.sample_atlas(prim, b, uv, np.zeros((4, 4, 4), np.uint8))
+    miss = np.full((2, 2), -1, np.int32)
+    assert not _core.sample_atlas(miss, np.full((2, 2, 2), np.nan, np.float32), uv, np.ones((4, 4, 3), np.float32)).any()
+    atlas = np.arange(48, dtype=np.float32).reshape(4, 4, 3)
+    huge = _core.sample_atlas(prim, np.full((2, 2, 2), 1e30, np.float32), np.ones((1, 3, 2), np.float32) * 3, atlas)
+    assert np.isfinite(huge).all() and (huge >= atlas.min()).all() and (huge <= atlas.max()).all()
+    # Only the uv of the faces a pixel hits are read, so only those must be finite.
+    uv2 = np.concatenate([uv, np.full((1, 3, 2), np.nan, np.float32)])
+    assert np.isfinite(_core.sample_atlas(prim, bary, uv2, atlas)).all()
+    with pytest.raises(BadValueError, match=r"uv: .*face 1 \(hit at pixel \(0, 1\)\)"):
+        _core.sample_atlas(np.array([[0, 1], [0, 0]], np.int32), bary, uv2, atlas)
     with pytest.raises(ShapeError):
         _core.sample_atlas(prim, np.zeros((2, 3, 2), np.float32), uv, np.zeros((4, 4, 3), np.float32))
 

@@ -108,10 +108,6 @@ FArray SampleAtlasBinding(const py::object& prim_obj, const py::object& bary_obj
   }
   const auto m = uv.shape(0);
   {
-    const float* t = uv.data();
-    for (py::ssize_t i = 0; i < 6 * m; ++i) {
-      if (!std::isfinite(t[i])) throw BadValueError("uv: expected finite coordinates");
-    }
     const std::int32_t* p = prim.data();
     for (py::ssize_t i = 0; i < h * w; ++i) {
       if (p[i] < -1 || p[i] >= m) {
@@ -121,15 +117,27 @@ FArray SampleAtlasBinding(const py::object& prim_obj, const py::object& bary_obj
     }
   }
   FArray out = NewArray<float>({h, w, py::ssize_t(3)});
+  std::int64_t bad = -1;  // a hit with non-finite barycentrics or face uv (the kernel reads no texel there)
   {
     py::gil_scoped_release release;
     if (srgb8) {
-      SampleAtlasSrgb8(prim.data(), bary.data(), static_cast<std::int64_t>(h) * w, uv.data(), ConstViewOf(atlas8),
-                       out.mutable_data());
+      bad = SampleAtlasSrgb8(prim.data(), bary.data(), static_cast<std::int64_t>(h) * w, uv.data(),
+                             ConstViewOf(atlas8), out.mutable_data());
     } else {
-      SampleAtlas(prim.data(), bary.data(), static_cast<std::int64_t>(h) * w, uv.data(), ConstViewOf(atlas),
-                  out.mutable_data());
+      bad = SampleAtlas(prim.data(), bary.data(), static_cast<std::int64_t>(h) * w, uv.data(), ConstViewOf(atlas),
+                        out.mutable_data());
     }
+  }
+  if (bad >= 0) {
+    const float* ba = bary.data() + 2 * bad;
+    const std::int32_t f = prim.data()[bad];
+    const std::string at = " at pixel (" + std::to_string(bad / w) + ", " + std::to_string(bad % w) + ")";
+    if (!std::isfinite(ba[0]) || !std::isfinite(ba[1])) {
+      throw BadValueError("bary: expected finite barycentrics where prim_id >= 0, got (" + std::to_string(ba[0]) +
+                          ", " + std::to_string(ba[1]) + ")" + at);
+    }
+    throw BadValueError("uv: expected finite coordinates, face " + std::to_string(f) + " (hit" + at +
+                        ") has a non-finite one");
   }
   return out;
 }
@@ -443,7 +451,8 @@ void BindHybridRender(py::module_& m) {
         "TM colour from a texture atlas: atlas (h, w, 3) float32 linear RGB, or (h, w, 4) uint8 sRGB RGBA (decoded to "
         "linear per texel, alpha unused), read bilinearly (edge-clamped) at each pixel's hit "
         "(prim_id (H, W) int32, -1 = none; bary (H, W, 2) Embree (u, v)) at the face's uv (M, 3, 2) float32 in atlas "
-        "pixels (x right, y down, centres at +0.5): (H, W, 3), 0 where nothing is hit.");
+        "pixels (x right, y down, centres at +0.5): (H, W, 3), 0 where nothing is hit. The hits' barycentrics and "
+        "their faces' uv must be finite.");
   m.def("texel_points", &TexelPointsBinding, py::arg("face_of_texel"), py::arg("row0"), py::arg("uv"),
         py::arg("vertices"), py::arg("faces"), py::arg("normals"),
         "The used texels of atlas rows row0.. (face_of_texel (rows, W) int32, -1 = unused; kernels/atlas8.h "

@@ -21,14 +21,15 @@ namespace ibr {
 // out(pixel) = bilinear read of atlas (h, w, 3) at uv = (1 - u - v) uv[f, 0] + u uv[f, 1] +
 // v uv[f, 2] for the hit face f = prim_id (uv (M, 3, 2) in atlas pixels, x right, y down, pixel
 // centres at +0.5; reads clamped to the atlas's edge texels); 0 where prim_id < 0. Prim ids
-// already checked to lie in [-1, M); the atlas is at least 1 x 1.
-void SampleAtlas(const std::int32_t* prim_id, const float* bary, std::int64_t num_pixels, const float* uv,
-                 ImageView<const float> atlas, float* out);
+// already checked to lie in [-1, M); the atlas is at least 1 x 1. A hit whose barycentrics or
+// face uv are not finite is left 0 and not read: returns the smallest such pixel index, else -1.
+std::int64_t SampleAtlas(const std::int32_t* prim_id, const float* bary, std::int64_t num_pixels, const float* uv,
+                         ImageView<const float> atlas, float* out);
 
 // As SampleAtlas, reading atlas (h, w, 4) uint8 sRGB (alpha unused, padding for
 // 4-byte texels). Prim ids already checked to lie in [-1, M); the atlas is at least 1 x 1.
-void SampleAtlasSrgb8(const std::int32_t* prim_id, const float* bary, std::int64_t num_pixels, const float* uv,
-                      ImageView<const std::uint8_t> atlas, float* out);
+std::int64_t SampleAtlasSrgb8(const std::int32_t* prim_id, const float* bary, std::int64_t num_pixels,
+                              const float* uv, ImageView<const std::uint8_t> atlas, float* out);
 
 // TexelPoints: the used texels of atlas rows [row0, row0 + rows) (face_of_texel (rows, width)
 // int32, -1 = unused), in row-major order: their row (ys, absolute) and column (xs), face, the

@@ -537,7 +537,7 @@ def raster_gbuffer(camera: Camera, vertices: _F32, faces: _I32, *, normal: bool=
 
 def sample_atlas(prim_id: _I32, bary: _F32, uv: _F32, atlas: _F32 | _U8) -> numpy.typing.NDArray[numpy.float32]:
     """
-    TM colour from a texture atlas: atlas (h, w, 3) float32 linear RGB, or (h, w, 4) uint8 sRGB RGBA (decoded to linear per texel, alpha unused), read bilinearly (edge-clamped) at each pixel's hit (prim_id (H, W) int32, -1 = none; bary (H, W, 2) Embree (u, v)) at the face's uv (M, 3, 2) float32 in atlas pixels (x right, y down, centres at +0.5): (H, W, 3), 0 where nothing is hit.
+    TM colour from a texture atlas: atlas (h, w, 3) float32 linear RGB, or (h, w, 4) uint8 sRGB RGBA (decoded to linear per texel, alpha unused), read bilinearly (edge-clamped) at each pixel's hit (prim_id (H, W) int32, -1 = none; bary (H, W, 2) Embree (u, v)) at the face's uv (M, 3, 2) float32 in atlas pixels (x right, y down, centres at +0.5): (H, W, 3), 0 where nothing is hit. The hits' barycentrics and their faces' uv must be finite.
     """
 
 def set_num_threads(num_threads: typing.SupportsInt | typing.SupportsIndex) -> None:
