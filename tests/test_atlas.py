@@ -251,7 +251,8 @@ def test_bad_input():
         with pytest.raises(BadValueError, match=r"bary: .*pixel \(1, 0\)"):
             _core.sample_atlas(prim, b, uv, np.zeros((4, 4, 4), np.uint8))
     miss = np.full((2, 2), -1, np.int32)
-    assert not _core.sample_atlas(miss, np.full((2, 2, 2), np.nan, np.float32), uv, np.ones((4, 4, 3), np.float32)).any()
+    nan_bary = np.full((2, 2, 2), np.nan, np.float32)
+    assert not _core.sample_atlas(miss, nan_bary, uv, np.ones((4, 4, 3), np.float32)).any()
     atlas = np.arange(48, dtype=np.float32).reshape(4, 4, 3)
     huge = _core.sample_atlas(prim, np.full((2, 2, 2), 1e30, np.float32), np.ones((1, 3, 2), np.float32) * 3, atlas)
     assert np.isfinite(huge).all() and (huge >= atlas.min()).all() and (huge <= atlas.max()).all()

@@ -131,6 +131,15 @@ def test_interpolate_vertex_attribute_hand_checked():
     assert (out[0, 1] == 0).all()
     one = _core.interpolate_vertex_attribute(prim, bary, faces, np.array([0, 1, 2], np.float32))
     assert one.shape == (1, 2) and one[0, 0] == pytest.approx(0.25 * 1 + 0.5 * 2)
+    # Barycentrics must be finite at hits (they are not read at misses).
+    bad = bary.copy()
+    bad[0, 1] = np.nan
+    assert np.isfinite(_core.interpolate_vertex_attribute(prim, bad, faces, attrib)).all()
+    bad[0, 0, 0] = np.inf
+    with pytest.raises(BadValueError, match=r"bary: .*pixel \(0, 0\)"):
+        _core.interpolate_vertex_attribute(prim, bad, faces, attrib)
+    with pytest.raises(BadValueError, match="prim_id"):
+        _core.interpolate_vertex_attribute(np.array([[1, -1]], np.int32), bary, faces, attrib)
 
 
 # ---- selection, blur, composite ----------------------------------------------------------------

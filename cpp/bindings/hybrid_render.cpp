@@ -47,6 +47,26 @@ float CheckFinite(double v, const char* name, double lo) {
   return static_cast<float>(v);
 }
 
+// The G-buffer hits a per-pixel read indexes: prim ids in [-1, m) (-1 = no hit) and, at the hits,
+// finite barycentrics (a non-finite one would make the interpolated position undefined).
+void CheckHits(const py::array_t<std::int32_t, py::array::c_style>& prim,
+               const py::array_t<float, py::array::c_style>& bary, py::ssize_t m) {
+  const auto w = prim.shape(1);
+  const std::int32_t* p = prim.data();
+  const float* ba = bary.data();
+  for (py::ssize_t i = 0; i < prim.size(); ++i) {
+    if (p[i] < -1 || p[i] >= m) {
+      throw BadValueError("prim_id: " + std::to_string(p[i]) + " is not a face index in [-1, " + std::to_string(m) +
+                          ")");
+    }
+    if (p[i] >= 0 && !(std::isfinite(ba[2 * i]) && std::isfinite(ba[2 * i + 1]))) {
+      throw BadValueError("bary: expected finite barycentrics where prim_id >= 0, got (" + std::to_string(ba[2 * i]) +
+                          ", " + std::to_string(ba[2 * i + 1]) + ") at pixel (" + std::to_string(i / w) + ", " +
+                          std::to_string(i % w) + ")");
+    }
+  }
+}
+
 FArray InterpolateVertexAttributeBinding(const py::object& prim_obj, const py::object& bary_obj,
                                          const py::object& faces_obj, const py::object& attrib_obj) {
   auto prim = CheckArray<std::int32_t>(prim_obj, "prim_id", {{"H", -1}, {"W", -1}});
@@ -69,14 +89,8 @@ FArray InterpolateVertexAttributeBinding(const py::object& prim_obj, const py::o
                             " vertices");
       }
     }
-    const std::int32_t* p = prim.data();
-    for (py::ssize_t i = 0; i < h * w; ++i) {
-      if (p[i] < -1 || p[i] >= m) {
-        throw BadValueError("prim_id: " + std::to_string(p[i]) + " is not a face index in [-1, " + std::to_string(m) +
-                            ")");
-      }
-    }
   }
+  CheckHits(prim, bary, m);
   FArray out = one_channel ? NewArray<float>({h, w}) : NewArray<float>({h, w, channels});
   {
     py::gil_scoped_release release;
@@ -106,18 +120,9 @@ FArray SampleAtlasBinding(const py::object& prim_obj, const py::object& bary_obj
   if (ah < 1 || aw < 1) {
     throw ShapeError("atlas: expected at least 1 x 1 texels, got " + std::to_string(ah) + " x " + std::to_string(aw));
   }
-  const auto m = uv.shape(0);
-  {
-    const std::int32_t* p = prim.data();
-    for (py::ssize_t i = 0; i < h * w; ++i) {
-      if (p[i] < -1 || p[i] >= m) {
-        throw BadValueError("prim_id: " + std::to_string(p[i]) + " is not a face index in [-1, " + std::to_string(m) +
-                            ")");
-      }
-    }
-  }
+  CheckHits(prim, bary, uv.shape(0));
   FArray out = NewArray<float>({h, w, py::ssize_t(3)});
-  std::int64_t bad = -1;  // a hit with non-finite barycentrics or face uv (the kernel reads no texel there)
+  std::int64_t bad = -1;  // a hit whose face uv are not finite (the kernel reads no texel there)
   {
     py::gil_scoped_release release;
     if (srgb8) {
@@ -129,15 +134,9 @@ FArray SampleAtlasBinding(const py::object& prim_obj, const py::object& bary_obj
     }
   }
   if (bad >= 0) {
-    const float* ba = bary.data() + 2 * bad;
-    const std::int32_t f = prim.data()[bad];
-    const std::string at = " at pixel (" + std::to_string(bad / w) + ", " + std::to_string(bad % w) + ")";
-    if (!std::isfinite(ba[0]) || !std::isfinite(ba[1])) {
-      throw BadValueError("bary: expected finite barycentrics where prim_id >= 0, got (" + std::to_string(ba[0]) +
-                          ", " + std::to_string(ba[1]) + ")" + at);
-    }
-    throw BadValueError("uv: expected finite coordinates, face " + std::to_string(f) + " (hit" + at +
-                        ") has a non-finite one");
+    throw BadValueError("uv: expected finite coordinates, face " + std::to_string(prim.data()[bad]) +
+                        " (hit at pixel (" + std::to_string(bad / w) + ", " + std::to_string(bad % w) +
+                        ")) has a non-finite one");
   }
   return out;
 }
