@@ -183,21 +183,40 @@ def test_sample_atlas_matches_a_numpy_reference_over_many_batches():
 
 
 def test_results_independent_of_thread_count():
+    """The atlas read and the vertex-attribute interpolation split the pixels into chunks (16384
+    pixels) run on the threads: the same output on 1 and 2 threads, and the same first bad pixel
+    reported when several chunks hold one."""
     mesh = densify(wall(), 0.2)
-    cam = camera(96, 80)
+    cam = camera(256, 200)  # 51200 pixels: 4 chunks
     lay = A.layout(mesh, 0.02)
     rng = np.random.default_rng(1)
     atlas = rng.random(lay.face_of_texel.shape + (3,), dtype=np.float32)
+    attrib = rng.random((len(mesh.vertices), 3), dtype=np.float32)
     gb = gbuffer(mesh, cam)
+    hits = np.flatnonzero(gb["prim_id"].ravel() >= 0)
+    bad_faces = np.asarray(mesh.faces, np.int32).copy()
+    bad_uv = lay.uv.copy()
+    for p in (hits[-1], hits[len(hits) // 2]):  # hits in two chunks; the error names the first
+        f = gb["prim_id"].ravel()[p]
+        bad_faces[f, 2] = len(mesh.vertices)
+        bad_uv[f, 1, 0] = np.nan
+    first = hits[len(hits) // 2]
+    where = rf"pixel \({first // cam.width}, {first % cam.width}\)"
     n = _core.get_num_threads()
+    outs = []
     try:
-        _core.set_num_threads(1)
-        one = _core.sample_atlas(gb["prim_id"], gb["bary"], lay.uv, atlas)
-        _core.set_num_threads(2)
-        two = _core.sample_atlas(gb["prim_id"], gb["bary"], lay.uv, atlas)
+        for threads in (1, 2):
+            _core.set_num_threads(threads)
+            outs.append((_core.sample_atlas(gb["prim_id"], gb["bary"], lay.uv, atlas),
+                         _core.interpolate_vertex_attribute(gb["prim_id"], gb["bary"], mesh.faces, attrib)))
+            with pytest.raises(BadValueError, match=where):
+                _core.sample_atlas(gb["prim_id"], gb["bary"], bad_uv, atlas)
+            with pytest.raises(BadValueError, match=where):
+                _core.interpolate_vertex_attribute(gb["prim_id"], gb["bary"], bad_faces, attrib)
     finally:
         _core.set_num_threads(n)
-    assert np.array_equal(one, two)
+    assert hits[len(hits) // 2] // 16384 != hits[-1] // 16384  # the two bad pixels in different chunks
+    assert np.array_equal(outs[0][0], outs[1][0]) and np.array_equal(outs[0][1], outs[1][1])
 
 
 def test_bad_input():

@@ -140,6 +140,11 @@ def test_interpolate_vertex_attribute_hand_checked():
         _core.interpolate_vertex_attribute(prim, bad, faces, attrib)
     with pytest.raises(BadValueError, match="prim_id"):
         _core.interpolate_vertex_attribute(np.array([[1, -1]], np.int32), bary, faces, attrib)
+    # Vertex indices: those of hit faces must lie in [0, N); faces no pixel hits are not read.
+    faces2 = np.array([[0, 1, 2], [0, 1, 7]], np.int32)
+    np.testing.assert_array_equal(_core.interpolate_vertex_attribute(prim, bary, faces2, attrib), out)
+    with pytest.raises(BadValueError, match=r"faces: face 1 \(hit at pixel \(0, 1\)\) has vertex indices \(0, 1, 7\)"):
+        _core.interpolate_vertex_attribute(np.array([[0, 1]], np.int32), bary, faces2, attrib)
 
 
 # ---- selection, blur, composite ----------------------------------------------------------------

@@ -80,22 +80,20 @@ FArray InterpolateVertexAttributeBinding(const py::object& prim_obj, const py::o
   const auto n = attrib.shape(0);
   const int channels = one_channel ? 1 : static_cast<int>(attrib.shape(1));
   if (channels < 1) throw ShapeError("attrib: expected at least one channel, got 0");
-  const auto m = faces.shape(0);
-  {
-    const std::int32_t* f = faces.data();
-    for (py::ssize_t i = 0; i < 3 * m; ++i) {
-      if (f[i] < 0 || f[i] >= n) {
-        throw BadValueError("faces: index " + std::to_string(f[i]) + " out of range for " + std::to_string(n) +
-                            " vertices");
-      }
-    }
-  }
-  CheckHits(prim, bary, m);
+  CheckHits(prim, bary, faces.shape(0));
   FArray out = one_channel ? NewArray<float>({h, w}) : NewArray<float>({h, w, channels});
+  std::int64_t bad = -1;  // a hit face with a vertex index out of range (not read; faces no pixel hits are not read)
   {
     py::gil_scoped_release release;
-    InterpolateVertexAttribute(prim.data(), bary.data(), static_cast<std::int64_t>(h) * w, faces.data(), attrib.data(),
-                               channels, out.mutable_data());
+    bad = InterpolateVertexAttribute(prim.data(), bary.data(), static_cast<std::int64_t>(h) * w, faces.data(),
+                                     attrib.data(), n, channels, out.mutable_data());
+  }
+  if (bad >= 0) {
+    const std::int32_t* fv = faces.data() + 3 * static_cast<py::ssize_t>(prim.data()[bad]);
+    throw BadValueError("faces: face " + std::to_string(prim.data()[bad]) + " (hit at pixel (" +
+                        std::to_string(bad / w) + ", " + std::to_string(bad % w) + ")) has vertex indices (" +
+                        std::to_string(fv[0]) + ", " + std::to_string(fv[1]) + ", " + std::to_string(fv[2]) +
+                        "), expected each in [0, " + std::to_string(n) + ")");
   }
   return out;
 }

@@ -2,8 +2,10 @@
 // whose partition depends only on the problem size, never on the thread count, so results
 // are identical for any number of threads.
 #pragma once
+#include <atomic>
 #include <cstdint>
 #include <functional>
+#include <limits>
 
 namespace ibr {
 
@@ -21,5 +23,23 @@ void ParallelFor(std::int64_t n, std::int64_t grain,
 constexpr std::int64_t kMinPixelsPerTask = 16384;
 void ParallelFor2D(int height, int width, int tile,
                    const std::function<void(int, int, int, int)>& fn);
+
+// The smallest index the chunks of a parallel loop report (a kernel's first bad input, say), the
+// same whatever the thread count: Report(i) from any thread; Get() is -1 when none was reported.
+class FirstIndex {
+ public:
+  void Report(std::int64_t i) {
+    std::int64_t cur = v_.load();
+    while (i < cur && !v_.compare_exchange_weak(cur, i)) {
+    }
+  }
+  std::int64_t Get() const {
+    const std::int64_t v = v_.load();
+    return v == std::numeric_limits<std::int64_t>::max() ? -1 : v;
+  }
+
+ private:
+  std::atomic<std::int64_t> v_{std::numeric_limits<std::int64_t>::max()};
+};
 
 }  // namespace ibr

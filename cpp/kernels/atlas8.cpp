@@ -3,7 +3,6 @@
 
 #include <algorithm>
 #include <array>
-#include <atomic>
 #include <cmath>
 #include <limits>
 #include <vector>
@@ -39,7 +38,7 @@ template <class Texel, class RowOf, class Addr>
 std::int64_t SampleAtlasBilinear(const std::int32_t* prim_id, const float* bary, std::int64_t num_pixels,
                                  const float* uv, int aw, int ah, RowOf row_of, Texel texel, Addr addr, float* out) {
   constexpr int kBatch = 32;
-  std::atomic<std::int64_t> first_bad{std::numeric_limits<std::int64_t>::max()};
+  FirstIndex first_bad;
   ParallelFor(num_pixels, 16384, [&](std::int64_t b, std::int64_t e) {
     struct Tap {
       float* o;
@@ -47,7 +46,6 @@ std::int64_t SampleAtlasBilinear(const std::int32_t* prim_id, const float* bary,
       float ax, ay;
     };
     Tap taps[kBatch];
-    std::int64_t bad = std::numeric_limits<std::int64_t>::max();
     for (std::int64_t s = b; s < e; s += kBatch) {
       const std::int64_t se = std::min(e, s + kBatch);
       for (std::int64_t i = s; i < se; ++i) {
@@ -67,7 +65,7 @@ std::int64_t SampleAtlasBilinear(const std::int32_t* prim_id, const float* bary,
         const float* t = uv + 6 * std::int64_t(f);
         const double x = w * t[0] + u * t[2] + v * t[4], y = w * t[1] + u * t[3] + v * t[5];
         if (!std::isfinite(x) || !std::isfinite(y)) {  // non-finite bary or uv: the index would be undefined
-          bad = std::min(bad, i);
+          first_bad.Report(i);
           continue;
         }
         const double fx = std::clamp(x - 0.5, 0.0, double(aw - 1)), fy = std::clamp(y - 0.5, 0.0, double(ah - 1));
@@ -96,14 +94,8 @@ std::int64_t SampleAtlasBilinear(const std::int32_t* prim_id, const float* bary,
         }
       }
     }
-    if (bad != std::numeric_limits<std::int64_t>::max()) {
-      std::int64_t cur = first_bad.load();
-      while (bad < cur && !first_bad.compare_exchange_weak(cur, bad)) {
-      }
-    }
   });
-  const std::int64_t bad = first_bad.load();
-  return bad == std::numeric_limits<std::int64_t>::max() ? -1 : bad;
+  return first_bad.Get();
 }
 
 }  // namespace

@@ -20,10 +20,12 @@ namespace ibr {
 
 // ---- TM: G-buffer attributes ---------------------------------------------------------------
 // out(pixel, c) = (1 - u - v) a[f0, c] + u a[f1, c] + v a[f2, c] for the hit face f = prim_id
-// (Embree's barycentrics, cpp/kernels/raycast.h); 0 where prim_id < 0. attrib is (N, channels),
-// faces (M, 3) with indices already checked to lie in [0, N) and prim ids in [-1, M).
-void InterpolateVertexAttribute(const std::int32_t* prim_id, const float* bary, std::int64_t num_pixels,
-                                const std::int32_t* faces, const float* attrib, int channels, float* out);
+// (Embree's barycentrics, cpp/kernels/raycast.h); 0 where prim_id < 0. attrib is (num_vertices,
+// channels), faces (M, 3), prim ids already checked to lie in [-1, M). A hit face with a vertex
+// index outside [0, num_vertices) is left 0 and not read: returns the smallest such pixel, else -1.
+std::int64_t InterpolateVertexAttribute(const std::int32_t* prim_id, const float* bary, std::int64_t num_pixels,
+                                        const std::int32_t* faces, const float* attrib, std::int64_t num_vertices,
+                                        int channels, float* out);
 
 // ---- per-pixel ULR --------------------------------------------------------------------------
 struct UlrInputView {
