@@ -390,14 +390,14 @@ def test_poisson_by_region_matches_one_solve():
     np.testing.assert_allclose(out, ref, rtol=0, atol=1e-5)
 
 
-def test_interpolate_vertex_values_matches_numpy(base):
+def test_interpolate_vertex_attribute_matches_numpy(base):
     from ibrtools import _core
 
     sc, _, mesh = base
     out = ReferenceRenderer(mesh).render(sc.views[0].camera, outputs=("prim_id", "bary", "hit"), lights=[])
     rng = np.random.default_rng(4)
     vals = rng.random((len(mesh.vertices), 6)).astype(np.float32)
-    got = _core.interpolate_vertex_values(out["prim_id"], out["bary"], mesh.faces, vals)
+    got = _core.interpolate_vertex_attribute(out["prim_id"], out["bary"], mesh.faces, vals)
     hit = out["hit"]
     f = mesh.faces[out["prim_id"][hit]]
     uv = out["bary"][hit]
@@ -411,22 +411,22 @@ def test_interpolate_vertex_values_matches_numpy(base):
     assert not got[~hit].any()
 
 
-def test_interpolate_vertex_values_bad_inputs():
+def test_interpolate_vertex_attribute_bad_inputs():
     from ibrtools import _core
 
     prim = np.array([[0, -1]], np.int32)
     bary = np.zeros((1, 2, 2), np.float32)
     faces = np.array([[0, 1, 2]], np.int32)
     vals = np.ones((3, 2), np.float32)
-    assert _core.interpolate_vertex_values(prim, bary, faces, vals).tolist() == [[[1, 1], [0, 0]]]
+    assert _core.interpolate_vertex_attribute(prim, bary, faces, vals).tolist() == [[[1, 1], [0, 0]]]
     with pytest.raises(BadValueError):  # triangle index out of range
-        _core.interpolate_vertex_values(np.array([[1, -1]], np.int32), bary, faces, vals)
+        _core.interpolate_vertex_attribute(np.array([[1, -1]], np.int32), bary, faces, vals)
     with pytest.raises(BadValueError):  # vertex index out of range
-        _core.interpolate_vertex_values(prim, bary, np.array([[0, 1, 3]], np.int32), vals)
+        _core.interpolate_vertex_attribute(prim, bary, np.array([[0, 1, 3]], np.int32), vals)
     with pytest.raises(ShapeError):
-        _core.interpolate_vertex_values(prim, bary[:, :1], faces, vals)
+        _core.interpolate_vertex_attribute(prim, bary[:, :1], faces, vals)
     with pytest.raises(DtypeError):
-        _core.interpolate_vertex_values(prim.astype(np.int64), bary, faces, vals)
+        _core.interpolate_vertex_attribute(prim.astype(np.int64), bary, faces, vals)
 
 
 def _random_samples(rng, num_vertices, sizes):

@@ -653,7 +653,7 @@ def test_cross_view_prediction_in_range(size, f, data):
 
 @STRESS
 @given(size=SIZES, data=st.data())
-def test_interpolate_vertex_values_convex(size, data):
+def test_interpolate_vertex_attribute_convex(size, data):
     """Barycentric interpolation with weights in [0, 1] summing to <= 1 (Embree's u, v): inside the
     range of the triangle's vertex values (float32 slack), 0 where no triangle; values up to 1e30."""
     h, w = size
@@ -665,7 +665,7 @@ def test_interpolate_vertex_values_convex(size, data):
     u = rng.uniform(0, 1, (h, w)).astype(np.float32)
     v = (rng.uniform(0, 1, (h, w)) * (1 - u)).astype(np.float32)
     bary = np.stack([u, v], -1)
-    out = same_for_1_and_2_threads(lambda: _core.interpolate_vertex_values(prim, bary, faces, values))
+    out = same_for_1_and_2_threads(lambda: _core.interpolate_vertex_attribute(prim, bary, faces, values))
     assert out.shape == (h, w, 2) and np.all(np.isfinite(out))
     assert np.all(out[prim < 0] == 0)
     hit = prim >= 0

@@ -98,7 +98,6 @@ OVERRIDES: dict[str, dict[str, str]] = {
     "point_colors": {"points": "_F64", "normals": "_F64", "views": "list[tuple[Camera, _F32, _F32]]",
                      "return": "tuple[_F32, _I32]"},
     "raster_gbuffer": {"vertices": "_F32", "faces": "_I32", "return": _ARRAYS},
-    "interpolate_vertex_values": {"prim_id": "_I32", "bary": "_F32", "faces": "_I32", "values": "_F32"},
     "texel_points": {"face_of_texel": "_I32", "uv": "_F32", "vertices": "_F32", "faces": "_I32", "normals": "_F32",
                      "return": "tuple[_I64, _I64, _I32, _F64, _F64, _F64]"},
     "vertex_colour_sums": {"index": "_I64", "color": "_F64", "bounds": "_I64", "gains": "_F64",

@@ -1,5 +1,5 @@
-// Binding of the harmonisation kernels (cpp/kernels/harmonise.h): _core.cross_view_prediction,
-// _core.interpolate_vertex_values; and of the per-vertex statistics' gain loops
+// Binding of the harmonisation kernel (cpp/kernels/harmonise.h): _core.cross_view_prediction; and
+// of the per-vertex statistics' gain loops
 // (cpp/kernels/vertexstats.h): _core.vertex_colour_sums, _core.gain_median_ratios.
 // Thin: checks arrays (array.h) and values, releases the GIL around the kernel.
 // Python: ibrtools.hybrid.harmonise.
@@ -89,44 +89,6 @@ void BindHarmonise(py::module_& m) {
       "(_core.Camera), depth (H, W) float32 (<= 0: no surface); cameras: list of _core.Camera, depths: "
       "list of their (Hk, Wk) float32 depth, images: list of their (Hk, Wk, 3) float32 colours; returns "
       "(prediction (H, W, 3) float32, n_seen (H, W) int32).");
-  m.def(
-      "interpolate_vertex_values",
-      [](py::handle prim_obj, py::handle bary_obj, py::handle faces_obj, py::handle values_obj) {
-        auto prim = CheckArray<std::int32_t>(prim_obj, "prim_id", {{"H", -1}, {"W", -1}});
-        const py::ssize_t h = prim.shape(0), w = prim.shape(1);
-        auto bary = CheckArray<float>(bary_obj, "bary", {{"H", h}, {"W", w}, {"2", 2}});
-        auto faces = CheckArray<std::int32_t>(faces_obj, "faces", {{"M", -1}, {"3", 3}});
-        auto values = CheckArray<float>(values_obj, "values", {{"N", -1}, {"C", -1}});
-        const py::ssize_t n_faces = faces.shape(0), n_vert = values.shape(0), ch = values.shape(1);
-        if (ch < 1 || ch > 64) throw ShapeError("values: expected 1 to 64 channels, got " + DescribeShape(values));
-        {
-          const std::int32_t* f = faces.data();
-          for (py::ssize_t i = 0; i < 3 * n_faces; ++i) {
-            if (f[i] < 0 || f[i] >= n_vert) {
-              throw BadValueError("faces: vertex index " + std::to_string(f[i]) + " out of range [0, " +
-                                  std::to_string(n_vert) + ")");
-            }
-          }
-          const std::int32_t* p = prim.data();
-          for (py::ssize_t i = 0; i < h * w; ++i) {
-            if (p[i] < -1 || p[i] >= n_faces) {
-              throw BadValueError("prim_id: triangle index " + std::to_string(p[i]) + " out of range [-1, " +
-                                  std::to_string(n_faces) + ")");
-            }
-          }
-        }
-        auto out = NewArray<float>({h, w, ch});
-        {
-          py::gil_scoped_release release;
-          InterpolateVertexValues(prim.data(), bary.data(), h * w, faces.data(), values.data(), static_cast<int>(ch),
-                                  out.mutable_data());
-        }
-        return out;
-      },
-      py::arg("prim_id"), py::arg("bary"), py::arg("faces"), py::arg("values"),
-      "Per-vertex values interpolated over the rendered triangles (cpp/kernels/harmonise.h): prim_id (H, W) "
-      "int32 (-1: no triangle), bary (H, W, 2) float32, faces (M, 3) int32, values (N, C) float32; returns "
-      "(H, W, C) float32, 0 where prim_id is -1.");
   m.def(
       "vertex_colour_sums",
       [](py::handle index_obj, py::handle color_obj, py::handle bounds_obj, py::handle gains_obj,

@@ -59,12 +59,15 @@ std::int64_t SampleAtlasBilinear(const std::int32_t* prim_id, const float* bary,
       for (std::int64_t i = s; i < se; ++i) {
         float* o = out + 3 * i;
         const std::int32_t f = prim_id[i];
-        o[0] = o[1] = o[2] = 0.f;
-        if (f < 0) continue;
+        if (f < 0) {
+          o[0] = o[1] = o[2] = 0.f;
+          continue;
+        }
         const double u = bary[2 * i], v = bary[2 * i + 1], w = 1.0 - u - v;
         const float* t = uv + 6 * std::int64_t(f);
         const double x = w * t[0] + u * t[2] + v * t[4], y = w * t[1] + u * t[3] + v * t[5];
         if (!std::isfinite(x) || !std::isfinite(y)) {  // non-finite bary or uv: the index would be undefined
+          o[0] = o[1] = o[2] = 0.f;
           first_bad.Report(i);
           continue;
         }

@@ -81,29 +81,4 @@ void CrossViewPrediction(const Camera& camera, const float* depth, const std::ve
   });
 }
 
-void InterpolateVertexValues(const std::int32_t* prim, const float* bary, std::int64_t n_pix,
-                             const std::int32_t* faces, const float* values, int channels, float* out) {
-  ParallelFor(n_pix, 16384, [&](std::int64_t i0, std::int64_t i1) {
-    for (std::int64_t i = i0; i < i1; ++i) {
-      float* o = out + i * channels;
-      const std::int32_t t = prim[i];
-      if (t < 0) {
-        for (int c = 0; c < channels; ++c) o[c] = 0.f;
-        continue;
-      }
-      const float b0 = bary[2 * i], b1 = bary[2 * i + 1];
-      const float w0 = 1.f - b0 - b1;
-      const float* v0 = values + std::int64_t(faces[3 * std::int64_t(t)]) * channels;
-      const float* v1 = values + std::int64_t(faces[3 * std::int64_t(t) + 1]) * channels;
-      const float* v2 = values + std::int64_t(faces[3 * std::int64_t(t) + 2]) * channels;
-      for (int c = 0; c < channels; ++c) {
-        float a = v0[c] * w0;
-        a += v1[c] * b0;
-        a += v2[c] * b1;
-        o[c] = a;
-      }
-    }
-  });
-}
-
 }  // namespace ibr

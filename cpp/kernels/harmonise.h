@@ -13,11 +13,6 @@
 // numpy's default); n_seen = the number of kept samples. Pixels without a surface or with no
 // kept sample get prediction 0 and n_seen 0.
 //
-// InterpolateVertexValues: per pixel with a triangle (prim >= 0), the barycentric interpolation
-// of per-vertex values over that triangle, w = (1 - b0 - b1, b0, b1) for its corners (0, 1, 2)
-// as the renderer's "bary" output defines them; 0 where prim < 0. float32 arithmetic in the
-// order v0 w0 + v1 b0 + v2 b1 (the numpy expression it replaced). Parallel over pixels.
-//
 // Same arithmetic as the numpy reference (double projection and bilinear weights, float32
 // samples and quantile), so results agree to float rounding; the loop runs over rows with
 // ParallelFor (deterministic: each pixel is computed independently).
@@ -39,11 +34,5 @@ struct PredictionSource {
 // beyond per-chunk scratch of sources.size() * 3 floats.
 void CrossViewPrediction(const Camera& camera, const float* depth, const std::vector<PredictionSource>& sources,
                          double depth_tol, double quantile, float* pred, std::int32_t* n_seen);
-
-// prim: (n_pix,) triangle index or -1; bary: (n_pix, 2); faces: (n_faces, 3) vertex indices;
-// values: (n_vertices, channels); out: (n_pix, channels). Trusts its inputs (indices in range:
-// checked by cpp/bindings/harmonise.cpp).
-void InterpolateVertexValues(const std::int32_t* prim, const float* bary, std::int64_t n_pix,
-                             const std::int32_t* faces, const float* values, int channels, float* out);
 
 }  // namespace ibr

@@ -27,32 +27,30 @@ std::int64_t InterpolateVertexAttribute(const std::int32_t* prim_id, const float
   constexpr int kBatch = 32;
   FirstIndex first_bad;
   ParallelFor(num_pixels, 16384, [&](std::int64_t b, std::int64_t e) {
+    const std::int32_t* face_of[kBatch];  // each pixel's hit face, nullptr: a miss or a bad face
     for (std::int64_t s = b; s < e; s += kBatch) {
       const std::int64_t se = std::min(e, s + kBatch);
       for (std::int64_t i = s; i < se; ++i) {
         if (prim_id[i] >= 0) __builtin_prefetch(faces + 3 * std::int64_t(prim_id[i]));
       }
       for (std::int64_t i = s; i < se; ++i) {
-        float* o = out + i * channels;
-        for (int c = 0; c < channels; ++c) o[c] = 0.f;
         const std::int32_t f = prim_id[i];
-        if (f < 0) continue;
-        const std::int32_t* fv = faces + 3 * std::int64_t(f);
-        if (!(fv[0] >= 0 && fv[0] < num_vertices && fv[1] >= 0 && fv[1] < num_vertices && fv[2] >= 0 &&
-              fv[2] < num_vertices)) {
+        const std::int32_t* fv = f >= 0 ? faces + 3 * std::int64_t(f) : nullptr;
+        if (fv != nullptr && !(fv[0] >= 0 && fv[0] < num_vertices && fv[1] >= 0 && fv[1] < num_vertices &&
+                               fv[2] >= 0 && fv[2] < num_vertices)) {
           first_bad.Report(i);  // a vertex index out of range: not read
+          fv = nullptr;
+        }
+        face_of[i - s] = fv;
+        if (fv == nullptr) {
+          for (int c = 0; c < channels; ++c) out[i * channels + c] = 0.f;
           continue;
         }
         for (int k = 0; k < 3; ++k) __builtin_prefetch(attrib + std::int64_t(fv[k]) * channels);
       }
       for (std::int64_t i = s; i < se; ++i) {
-        const std::int32_t f = prim_id[i];
-        if (f < 0) continue;
-        const std::int32_t* fv = faces + 3 * std::int64_t(f);
-        if (!(fv[0] >= 0 && fv[0] < num_vertices && fv[1] >= 0 && fv[1] < num_vertices && fv[2] >= 0 &&
-              fv[2] < num_vertices)) {
-          continue;
-        }
+        const std::int32_t* fv = face_of[i - s];
+        if (fv == nullptr) continue;
         float* o = out + i * channels;
         const float u = bary[2 * i], v = bary[2 * i + 1], w = 1.f - u - v;
         const float* a0 = attrib + std::int64_t(fv[0]) * channels;

@@ -17,7 +17,7 @@ _U8: typing.TypeAlias = numpy.typing.NDArray[numpy.uint8]
 _I8: typing.TypeAlias = numpy.typing.NDArray[numpy.int8]
 _Bool: typing.TypeAlias = numpy.typing.NDArray[numpy.bool_]
 _Light: typing.TypeAlias = tuple[str, collections.abc.Sequence[float], collections.abc.Sequence[float], bool]
-__all__: list[str] = ['Camera', 'CameraModel', 'DepthWarpMips', 'DibrAccumulator', 'EMBREE_VERSION', 'OcclusionScene', 'PvmRenderer', 'RayScene', 'WARP_DISOCCLUDED', 'WARP_SURFACE', 'WARP_UNCOVERED', 'WarpOptions', 'YMap', 'blur_selection', 'cpu_has_avx2', 'cross_view_prediction', 'cull_awoc_fill', 'cull_object_boxes', 'cull_project_boxes', 'dw_build_mips', 'dw_forward', 'dw_motion', 'dw_motion_mips', 'dw_warp', 'forward_warp', 'gain_median_ratios', 'get_num_threads', 'grid_maxflow', 'hybrid_composite', 'hybrid_frame_outputs', 'hybrid_needs', 'hybrid_select', 'interpolate_vertex_attribute', 'interpolate_vertex_values', 'linear_to_srgb', 'metameric_composite', 'metameric_encode', 'metameric_fill_holes', 'metameric_pushpull_change', 'metameric_pushpull_moments', 'metameric_stack_moments', 'mip_build', 'mip_foveate_level', 'mip_lookup', 'mip_max_levels', 'point_colors', 'poisson_blend', 'pushpull', 'pvm_slice', 'pvm_triangulate', 'raster_gbuffer', 'sample_atlas', 'set_num_threads', 'set_warp_isa', 'shadow_map_visibility', 'srgb_encode_unclipped', 'srgb_to_linear', 'ssim', 'steerable_analyse', 'steerable_max_levels', 'steerable_synthesise', 'texel_points', 'ulr_blend', 'ulr_penalty', 'ulr_select', 'vertex_colour_sums', 'warp_flow', 'warp_isa', 'warp_with_holes']
+__all__: list[str] = ['Camera', 'CameraModel', 'DepthWarpMips', 'DibrAccumulator', 'EMBREE_VERSION', 'OcclusionScene', 'PvmRenderer', 'RayScene', 'WARP_DISOCCLUDED', 'WARP_SURFACE', 'WARP_UNCOVERED', 'WarpOptions', 'YMap', 'blur_selection', 'cpu_has_avx2', 'cross_view_prediction', 'cull_awoc_fill', 'cull_object_boxes', 'cull_project_boxes', 'dw_build_mips', 'dw_forward', 'dw_motion', 'dw_motion_mips', 'dw_warp', 'forward_warp', 'gain_median_ratios', 'get_num_threads', 'grid_maxflow', 'hybrid_composite', 'hybrid_frame_outputs', 'hybrid_needs', 'hybrid_select', 'interpolate_vertex_attribute', 'linear_to_srgb', 'metameric_composite', 'metameric_encode', 'metameric_fill_holes', 'metameric_pushpull_change', 'metameric_pushpull_moments', 'metameric_stack_moments', 'mip_build', 'mip_foveate_level', 'mip_lookup', 'mip_max_levels', 'point_colors', 'poisson_blend', 'pushpull', 'pvm_slice', 'pvm_triangulate', 'raster_gbuffer', 'sample_atlas', 'set_num_threads', 'set_warp_isa', 'shadow_map_visibility', 'srgb_encode_unclipped', 'srgb_to_linear', 'ssim', 'steerable_analyse', 'steerable_max_levels', 'steerable_synthesise', 'texel_points', 'ulr_blend', 'ulr_penalty', 'ulr_select', 'vertex_colour_sums', 'warp_flow', 'warp_isa', 'warp_with_holes']
 
 class CameraModel:
     """
@@ -443,11 +443,6 @@ def hybrid_select(gbuffer_depth: _F32, *, inside_grid: _Bool | None=None, pvm_va
 def interpolate_vertex_attribute(prim_id: _I32, bary: _F32, faces: _I32, attrib: _F32) -> numpy.typing.NDArray[numpy.float32]:
     """
     Per-vertex attribute (N,) or (N, C) float32 interpolated at each pixel's hit (prim_id (H, W) int32, -1 = none; bary (H, W, 2) Embree (u, v)): (H, W) or (H, W, C), 0 where nothing is hit.
-    """
-
-def interpolate_vertex_values(prim_id: _I32, bary: _F32, faces: _I32, values: _F32) -> numpy.typing.NDArray[numpy.float32]:
-    """
-    Per-vertex values interpolated over the rendered triangles (cpp/kernels/harmonise.h): prim_id (H, W) int32 (-1: no triangle), bary (H, W, 2) float32, faces (M, 3) int32, values (N, C) float32; returns (H, W, C) float32, 0 where prim_id is -1.
     """
 
 def linear_to_srgb(values: _F32) -> _F32:

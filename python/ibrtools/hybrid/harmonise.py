@@ -151,14 +151,14 @@ def _depth_edges(depth: np.ndarray, hit: np.ndarray, px: int) -> np.ndarray:
 def _render_t(renderer, cam, std: np.ndarray, faces: np.ndarray, colors: np.ndarray | None):
     """T (the vertex ``colors`` interpolated, or the mesh's own colour when None), the
     coverage, the variance mesh interpolated into the view, and the mesh's depth. The per-vertex
-    fields are interpolated over the rendered triangles by ``_core.interpolate_vertex_values``."""
+    fields are interpolated over the rendered triangles by ``_core.interpolate_vertex_attribute``."""
     from .. import _core
 
     names = ("depth", "prim_id", "bary", "hit") + (("color",) if colors is None else ())
     out = renderer.render(cam, outputs=names, lights=[], ambient=1.0)
     vals = std if colors is None else np.concatenate([std, colors], axis=1)  # one pass for both
-    field = _core.interpolate_vertex_values(out["prim_id"], np.ascontiguousarray(out["bary"], np.float32),
-                                            faces, np.ascontiguousarray(vals, np.float32))
+    field = _core.interpolate_vertex_attribute(out["prim_id"], np.ascontiguousarray(out["bary"], np.float32),
+                                               faces, np.ascontiguousarray(vals, np.float32))
     std_pix = field[..., :3]
     t = out["color"] if colors is None else field[..., 3:]
     return t, out["hit"], std_pix, out["depth"]
