@@ -165,11 +165,16 @@ def two_plane_scene():
     return cams, depths
 
 
-def test_tiles_reassemble_the_pvm_and_lie_in_their_cells(tmp_path):
+@pytest.mark.parametrize("clip", ["all", "large"])
+def test_tiles_reassemble_the_pvm_and_lie_in_their_cells(tmp_path, clip):
     cams, depths = two_plane_scene()
-    opts = PvmOptions(coarse=4, sub=4)
+    opts = PvmOptions(coarse=4, sub=4, clip=clip)
     t = build_tiles(cams, depths, opts)
     assert t.num_tiles > 1 and len(t.pvm_faces) > 0
+    if clip == "large":
+        # Every PVM face in one tile: the merged blocks (16 quads) here lie within the coarse cells
+        # next to their centroid's.
+        assert np.array_equal(np.sort(t.face_source), np.arange(len(t.pvm_faces)))
     # Every PVM face is covered by its pieces: the areas add up (slivers < 1e-7 of a face dropped;
     # float32 vertices of cut points: 1e-4 relative).
     a_pvm = areas(t.pvm_vertices, t.pvm_faces)
@@ -188,9 +193,22 @@ def test_tiles_reassemble_the_pvm_and_lie_in_their_cells(tmp_path):
         assert len(tf) > 0 and tf.min() >= 0 and tf.max() < len(tv)
         b = t.cell_bounds(k)
         eps = 1e-5 * ext  # float32 rounding of a cut point exactly on a cell face
-        assert np.all(tv >= b[0] - eps) and np.all(tv <= b[1] + eps)
+        f0, f1 = t.face_offsets[k], t.face_offsets[k + 1]
+        if clip == "all":
+            assert np.all(tv >= b[0] - eps) and np.all(tv <= b[1] + eps)
+        else:
+            # A whole face: its centroid in the tile's cell, its vertices within the coarse cells
+            # next to the cell's coarse cell; the vertices are the PVM face's own.
+            cen = tv[tf].astype(np.float64).mean(1)
+            assert np.all(cen >= b[0] - eps) and np.all(cen <= b[1] + eps)
+            side = opts.sub * t.cell  # a coarse cell
+            c0 = t.origin + (t.tile_cell[k] // opts.sub) * side
+            inner = (t.tile_cell[k] // opts.sub > 0) & (t.tile_cell[k] // opts.sub < opts.coarse - 1)
+            lo, hi = np.where(inner, c0 - side, -np.inf), np.where(inner, c0 + 2 * side, np.inf)
+            assert np.all(tv >= lo - eps) and np.all(tv <= hi + eps)
+            np.testing.assert_array_equal(tv[tf], t.pvm_vertices[t.pvm_faces[t.face_source[f0:f1]]])
         np.testing.assert_allclose(t.tile_bounds[k], np.stack([tv.min(0), tv.max(0)]))
-        src = t.face_source[t.face_offsets[k]:t.face_offsets[k + 1]]
+        src = t.face_source[f0:f1]
         assert np.all(t.pvm_face_view[src] == t.tile_view[k])
     # Sorted by coarse cell, fine cell, view; the coarse lookup covers every tile exactly once.
     cc = t.tile_cell // opts.sub
@@ -228,13 +246,14 @@ def test_grid_cells_are_cubic_and_cover_a_flat_scene():
         grid_bounds(np.ones((3, 3), np.float32), 32, 4)
 
 
-def test_same_result_for_any_thread_count():
+@pytest.mark.parametrize("clip", ["all", "large"])
+def test_same_result_for_any_thread_count(clip):
     cams, depths = two_plane_scene()
     out = []
     for n in (1, 2):
         _core.set_num_threads(n)
         try:
-            t = build_tiles(cams, depths, PvmOptions(coarse=8, sub=4, max_block=4))
+            t = build_tiles(cams, depths, PvmOptions(coarse=8, sub=4, max_block=4, clip=clip))
         finally:
             _core.set_num_threads(0)
         out.append(t)
@@ -244,12 +263,44 @@ def test_same_result_for_any_thread_count():
 
 def test_slice_single_triangle_hand_checked():
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
-    r = _core.pvm_slice(v, np.array([[0, 1, 2]], np.int32), np.zeros(1, np.int32), 1,
-                        [0.0, 0.0, 0.0], [0.25, 0.25, 0.25], 1, 4)
+    tri, view0 = np.array([[0, 1, 2]], np.int32), np.zeros(1, np.int32)
+    r = _core.pvm_slice(v, tri, view0, 1, [0.0, 0.0, 0.0], [0.25, 0.25, 0.25], 1, 4, clip_all=True)
     # The triangle x + y <= 1 in z = 0 meets the 10 cells with i + j <= 3 of a 4 x 4 x 4 grid.
     assert len(r["keys"]) == 10
     a = areas(r["vertices"], r["faces"]).sum()
     assert a == pytest.approx(0.5, rel=1e-6)
+    # Not clipping every crossing triangle (the default): it lies in the one coarse cell, so it
+    # stays whole, in the fine cell of its centroid (1/3, 1/3, 0): (1, 1, 0), key (0 * 4 + 1) * 4 + 1.
+    r = _core.pvm_slice(v, tri, view0, 1, [0.0, 0.0, 0.0], [0.25, 0.25, 0.25], 1, 4)
+    assert r["keys"].tolist() == [5] and r["faces"].tolist() == [[0, 1, 2]]
+    np.testing.assert_array_equal(r["vertices"], v)
+    np.testing.assert_array_equal(r["bounds"][0], [[0, 0, 0], [1, 1, 0]])
+
+
+@pytest.mark.parametrize("xs, cells", [
+    ((0.5, 2.5), [1]),           # centroid x 1.17 (cell 1), x cells 0 .. 2: within the next coarse cells
+    ((0.0, 3.0), [0, 1, 2]),     # centroid x 1 (cell 1), x cells 0 .. 3 (x = 3 on its face: no area there)
+    ((0.2, 3.5), [0, 1, 2, 3]),  # centroid x 1.3 (cell 1), x cells 0 .. 3
+])
+def test_slice_keeps_triangles_whole(xs, cells):
+    """sub 1 (fine = coarse cells of size 1): a long thin triangle along x lies in the tile of its
+    centroid's cell when it lies within one coarse cell of it; when not, it is in the tile of every
+    cell it has area in, whole each time (no new vertices, so no T-junction with its neighbours);
+    clip_all cuts it into pieces whose areas add up to the triangle's."""
+    a, b = xs
+    v = np.array([[a, 0.1, 0.1], [b, 0.1, 0.1], [a, 0.2, 0.1]], np.float32)
+    tri, view0 = np.array([[0, 1, 2]], np.int32), np.zeros(1, np.int32)
+    r = _core.pvm_slice(v, tri, view0, 1, [0.0, 0.0, 0.0], [1.0, 1.0, 1.0], 8, 1)
+    assert r["keys"].tolist() == cells and (r["face_source"] == 0).all()
+    assert r["faces"].tolist() == [[3 * i, 3 * i + 1, 3 * i + 2] for i in range(len(cells))]
+    np.testing.assert_array_equal(r["vertices"], np.tile(v, (len(cells), 1)))
+    # A tile's bounds: the triangle's, for a copy cut to its cell (the renderer draws no more).
+    for i, cx in enumerate(cells):
+        x0, x1 = (a, b) if len(cells) == 1 else (max(a, cx), min(b, cx + 1))
+        np.testing.assert_allclose(r["bounds"][i], [[x0, 0.1, 0.1], [x1, 0.2, 0.1]], rtol=0, atol=1e-7)
+    c = _core.pvm_slice(v, tri, view0, 1, [0.0, 0.0, 0.0], [1.0, 1.0, 1.0], 8, 1, clip_all=True)
+    assert c["keys"].tolist() == ([0, 1, 2] if a < 1 and b < 3 else cells)
+    assert areas(c["vertices"], c["faces"]).sum() == pytest.approx(areas(v, tri)[0], rel=1e-6)
 
 
 def test_bad_input():
@@ -289,6 +340,8 @@ def test_bad_input():
         PvmOptions(max_block=6)
     with pytest.raises(BadValueError, match="max_rel_jump"):
         PvmOptions(max_rel_jump=0)
+    with pytest.raises(BadValueError, match="clip: expected one of large, all"):
+        PvmOptions(clip=True)
 
 
 def test_snap_depth_hand_checked():

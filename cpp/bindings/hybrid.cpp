@@ -84,7 +84,7 @@ void BindHybrid(py::module_& m) {
   m.def(
       "pvm_slice",
       [](py::handle vertices_obj, py::handle faces_obj, py::handle view_obj, int n_views,
-         std::vector<double> origin, std::vector<double> cell, int coarse, int sub) {
+         std::vector<double> origin, std::vector<double> cell, int coarse, int sub, bool clip_all) {
         auto vertices = CheckArray<float>(vertices_obj, "vertices", {{"N", -1}, {"3", 3}});
         auto faces = CheckArray<std::int32_t>(faces_obj, "faces", {{"M", -1}, {"3", 3}});
         const py::ssize_t nv = vertices.shape(0), nf = faces.shape(0);
@@ -127,7 +127,7 @@ void BindHybrid(py::module_& m) {
         PvmTiles t;
         {
           py::gil_scoped_release release;
-          PvmSlice(vertices.data(), nv, faces.data(), face_view.data(), nf, n_views, grid, t);
+          PvmSlice(vertices.data(), nv, faces.data(), face_view.data(), nf, n_views, grid, clip_all, t);
         }
         const py::ssize_t n_tiles = static_cast<py::ssize_t>(t.keys.size());
         const py::ssize_t v_out = static_cast<py::ssize_t>(t.vertices.size() / 3);
@@ -143,10 +143,12 @@ void BindHybrid(py::module_& m) {
         return d;
       },
       py::arg("vertices"), py::arg("faces"), py::arg("face_view"), py::arg("n_views"), py::arg("origin"),
-      py::arg("cell"), py::arg("coarse") = 32, py::arg("sub") = 4,
-      "Slice triangles (vertices float32 (N, 3), faces int32 (M, 3), face_view int32 (M,)) into the fine cells of "
-      "a two-level grid (cpp/kernels/pvm.h PvmSlice). Returns a dict: vertices (V, 3), faces (F, 3) (indices into "
-      "vertices), face_source (F,), keys (T,) ascending, face_offsets / vertex_offsets (T + 1,), bounds (T, 2, 3).");
+      py::arg("cell"), py::arg("coarse") = 32, py::arg("sub") = 4, py::arg("clip_all") = false,
+      "Sort triangles (vertices float32 (N, 3), faces int32 (M, 3), face_view int32 (M,)) into the fine cells of a "
+      "two-level grid (cpp/kernels/pvm.h PvmSlice): whole, in the cell of their centroid, or, reaching beyond the "
+      "coarse cells next to it, a copy in every cell they have area in; clip_all: every triangle crossing a cell "
+      "face clipped into pieces. Returns a dict: vertices (V, 3), faces (F, 3) (indices into vertices), "
+      "face_source (F,), keys (T,) ascending, face_offsets / vertex_offsets (T + 1,), bounds (T, 2, 3).");
 }
 
 }  // namespace ibr::bind

@@ -151,11 +151,14 @@ double TriArea2(const double* a, const double* b, const double* c) {
   return std::sqrt(x * x + y * y + z * z);
 }
 
+constexpr std::int32_t kWhole = -1;  // the whole input triangle
+constexpr std::int32_t kCopy = -2;   // the whole input triangle, one copy per cell it has area in
+
 struct Piece {
   std::int64_t key;
   std::int64_t seq;   // position before sorting: ties keep input order (deterministic)
   std::int32_t face;
-  std::int32_t clip;  // -1 = the whole input triangle, else index of its 9 floats in `clip`
+  std::int32_t clip;  // kWhole, kCopy, else index of its 9 floats in `clip`
 };
 
 // Exact bit pattern of a float32 point: cut points shared by neighbouring pieces of a tile.
@@ -200,7 +203,7 @@ void PvmTriangulate(const float* depth, const float* plane_field, int height, in
 
 void PvmSlice(const float* vertices, std::int64_t num_vertices, const std::int32_t* faces,
               const std::int32_t* face_view, std::int64_t num_faces, int n_views, const PvmGrid& grid,
-              PvmTiles& out) {
+              bool clip_all, PvmTiles& out) {
   const int dims = grid.coarse * grid.sub;
   const int sub = grid.sub, sub3 = sub * sub * sub;
   auto cell_of = [&](int axis, double x) {
@@ -235,8 +238,20 @@ void PvmSlice(const float* vertices, std::int64_t num_vertices, const std::int32
           lo[a] = cell_of(a, std::min({v0, v1, v2}));
           hi[a] = cell_of(a, std::max({v0, v1, v2}));
         }
+        if (!clip_all) {
+          // Whole, in its centroid's fine cell, when the triangle lies within the coarse cells next
+          // to the centroid's (the renderer marks those visible with the centroid's: margin 1).
+          int c[3];
+          bool within = true;
+          for (int a = 0; a < 3; ++a) {
+            c[a] = cell_of(a, (static_cast<double>(vertices[3 * fv[0] + a]) + vertices[3 * fv[1] + a] +
+                               vertices[3 * fv[2] + a]) / 3.0);
+            within = within && lo[a] / sub >= c[a] / sub - 1 && hi[a] / sub <= c[a] / sub + 1;
+          }
+          if (within) lo[0] = hi[0] = c[0], lo[1] = hi[1] = c[1], lo[2] = hi[2] = c[2];
+        }
         if (lo[0] == hi[0] && lo[1] == hi[1] && lo[2] == hi[2]) {
-          ch.pieces.push_back({key_of(lo[0], lo[1], lo[2], view), 0, static_cast<std::int32_t>(f), -1});
+          ch.pieces.push_back({key_of(lo[0], lo[1], lo[2], view), 0, static_cast<std::int32_t>(f), kWhole});
           continue;
         }
         tri.n = 3;
@@ -254,6 +269,13 @@ void PvmSlice(const float* vertices, std::int64_t num_vertices, const std::int32
               ClipSlab(py, 2, k == 0 ? -kInf : bound(2, k), k == dims - 1 ? kInf : bound(2, k + 1), tmp, pz);
               if (pz.n < 3) continue;
               const std::int64_t key = key_of(i, j, k, view);
+              if (!clip_all) {  // a copy of the whole triangle in every cell it has area in: no new vertices
+                bool area_here = false;
+                for (int t = 1; t + 1 < pz.n && !area_here; ++t)
+                  area_here = TriArea2(pz.p[0], pz.p[t], pz.p[t + 1]) > min_area;
+                if (area_here) ch.pieces.push_back({key, 0, static_cast<std::int32_t>(f), kCopy});
+                continue;
+              }
               for (int t = 1; t + 1 < pz.n; ++t) {
                 if (!(TriArea2(pz.p[0], pz.p[t], pz.p[t + 1]) > min_area)) continue;
                 ch.pieces.push_back({key, 0, static_cast<std::int32_t>(f),
@@ -323,12 +345,14 @@ void PvmSlice(const float* vertices, std::int64_t num_vertices, const std::int32
   float* box = nullptr;
   std::unordered_map<PointKey, std::int32_t, PointKeyHash> cut_points;
   auto add_vertex = [&](const float* p) {
+    for (int a = 0; a < 3; ++a) out.vertices.push_back(p[a]);
+    return static_cast<std::int32_t>(out.vertices.size() / 3 - 1);
+  };
+  auto grow_box = [&](const float* p) {
     for (int a = 0; a < 3; ++a) {
-      out.vertices.push_back(p[a]);
       box[a] = std::min(box[a], p[a]);
       box[3 + a] = std::max(box[3 + a], p[a]);
     }
-    return static_cast<std::int32_t>(out.vertices.size() / 3 - 1);
   };
   for (std::size_t i = 0; i < n_pieces; ++i) {
     const Piece& p = pieces[i];
@@ -344,7 +368,9 @@ void PvmSlice(const float* vertices, std::int64_t num_vertices, const std::int32
       out.bounds.insert(out.bounds.end(), {inf, inf, inf, -inf, -inf, -inf});
     }
     box = out.bounds.data() + 6 * tile;
-    if (p.clip < 0) {
+    if (p.clip == kWhole || p.clip == kCopy) {
+      float lo[3], hi[3];  // the triangle's bounds
+      for (int a = 0; a < 3; ++a) lo[a] = std::numeric_limits<float>::infinity(), hi[a] = -lo[a];
       for (int k = 0; k < 3; ++k) {
         const std::int32_t v = faces[3 * static_cast<std::int64_t>(p.face) + k];
         if (stamp[v] != tile) {
@@ -352,7 +378,25 @@ void PvmSlice(const float* vertices, std::int64_t num_vertices, const std::int32
           local[v] = add_vertex(vertices + 3 * static_cast<std::int64_t>(v));
         }
         out.faces.push_back(local[v]);
+        for (int a = 0; a < 3; ++a) {
+          lo[a] = std::min(lo[a], vertices[3 * static_cast<std::int64_t>(v) + a]);
+          hi[a] = std::max(hi[a], vertices[3 * static_cast<std::int64_t>(v) + a]);
+        }
       }
+      if (p.clip == kCopy) {  // the tile bounds hold the copy's part in the cell (the renderer draws no more)
+        const std::int64_t vox = p.key / n_views, coarse_id = vox / sub3, local_id = vox % sub3;
+        const int ijk[3] = {static_cast<int>(coarse_id % grid.coarse) * sub + static_cast<int>(local_id % sub),
+                            static_cast<int>((coarse_id / grid.coarse) % grid.coarse) * sub +
+                                static_cast<int>((local_id / sub) % sub),
+                            static_cast<int>(coarse_id / (static_cast<std::int64_t>(grid.coarse) * grid.coarse)) * sub +
+                                static_cast<int>(local_id / (sub * sub))};
+        for (int a = 0; a < 3; ++a) {
+          if (ijk[a] > 0) lo[a] = std::max(lo[a], static_cast<float>(bound(a, ijk[a])));
+          if (ijk[a] < dims - 1) hi[a] = std::min(hi[a], static_cast<float>(bound(a, ijk[a] + 1)));
+        }
+      }
+      grow_box(lo);
+      grow_box(hi);
     } else {
       const float* q = clip.get() + 9 * static_cast<std::int64_t>(p.clip);
       for (int k = 0; k < 3; ++k) {
@@ -361,6 +405,7 @@ void PvmSlice(const float* vertices, std::int64_t num_vertices, const std::int32
         auto it = cut_points.find(key);
         if (it == cut_points.end()) it = cut_points.emplace(key, add_vertex(q + 3 * k)).first;
         out.faces.push_back(it->second);
+        grow_box(q + 3 * k);
       }
     }
     out.face_source.push_back(p.face);

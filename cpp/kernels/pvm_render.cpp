@@ -2,6 +2,7 @@
 #include "kernels/pvm_render.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -335,7 +336,29 @@ inline void PrefetchTileData(const PvmTileArrays& tiles, std::int64_t t) {
 struct KeptFace {
   std::int32_t a, b, c;
   int ra, rb, ca, cb;
+  std::int32_t cull;  // 1: back-face test in the draw loop; 0: passed already (a near-clipped piece)
 };
+
+// True when the triangle (a, b, c) (world) faces the point (cx, cy, cz): its outward normal
+// cross(b - a, c - a) faces the triangle's own view (pvm.h), so false for a back face.
+inline bool FacesPoint(const float* pa, const float* pb, const float* pc, float cx, float cy, float cz) {
+  const float e1x = pb[0] - pa[0], e1y = pb[1] - pa[1], e1z = pb[2] - pa[2];
+  const float e2x = pc[0] - pa[0], e2y = pc[1] - pa[1], e2z = pc[2] - pa[2];
+  const float nx = e1y * e2z - e1z * e2y, ny = e1z * e2x - e1x * e2z, nz = e1x * e2y - e1y * e2x;
+  return nx * (cx - pa[0]) + ny * (cy - pa[1]) + nz * (cz - pa[2]) > 0.f;
+}
+
+// World point where the segment p -> q (camera depths zp >= near > zq) meets the plane z = near,
+// computed from the lexicographically smaller end so that two faces sharing the edge get the same
+// point (no crack between them).
+inline void NearCut(const float* p, float zp, const float* q, float zq, float near, float* out) {
+  if (std::lexicographical_compare(q, q + 3, p, p + 3)) {
+    std::swap(p, q);
+    std::swap(zp, zq);
+  }
+  const float t = (near - zp) / (zq - zp);
+  for (int a = 0; a < 3; ++a) out[a] = p[a] + t * (q[a] - p[a]);
+}
 
 void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camera& camera,
                   const PvmRenderOptions& options, PvmFrame& frame) {
@@ -363,8 +386,12 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
 
   // Rows each kept tile may cover, from its AABB's 8 corners (all rows when a corner is behind
   // the near plane); tiles covering nothing are dropped. Then binned into bands in kept order.
+  // A tile's triangles are drawn only within its AABB's projection widened by a pixel (`box`:
+  // rows and columns; the whole image when a corner is behind the near plane): a no-op for
+  // triangles inside the AABB, the part in the cell for a copy of a large triangle (pvm.h).
   const std::int64_t nt = static_cast<std::int64_t>(frame.tiles.size());
   std::vector<std::int32_t> row0(static_cast<std::size_t>(nt)), row1(static_cast<std::size_t>(nt));
+  std::vector<std::array<int, 4>> box(static_cast<std::size_t>(nt));
   ParallelFor(nt, 256, [&](std::int64_t b0, std::int64_t b1) {
     for (std::int64_t i = b0; i < b1; ++i) {
       const std::int64_t t = frame.tiles[static_cast<std::size_t>(i)];
@@ -382,6 +409,7 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
         xmin = std::min(xmin, x), xmax = std::max(xmax, x), ymin = std::min(ymin, y), ymax = std::max(ymax, y);
       }
       std::int32_t r0 = 0, r1 = h - 1;
+      box[static_cast<std::size_t>(i)] = {0, h - 1, 0, w - 1};
       if (!behind) {
         const double a0 = std::ceil(ymin - 0.5), a1 = std::floor(ymax - 0.5);
         const double c0 = std::ceil(xmin - 0.5), c1 = std::floor(xmax - 0.5);
@@ -390,6 +418,9 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
         } else {
           r0 = static_cast<std::int32_t>(std::max(a0, 0.0));
           r1 = static_cast<std::int32_t>(std::min(a1, static_cast<double>(h - 1)));
+          box[static_cast<std::size_t>(i)] = {std::max(0, r0 - 1), std::min(h - 1, r1 + 1),
+                                              static_cast<int>(std::max(c0 - 1.0, 0.0)),
+                                              static_cast<int>(std::min(c1 + 1.0, static_cast<double>(w - 1)))};
         }
       }
       row0[static_cast<std::size_t>(i)] = r0;
@@ -412,8 +443,8 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
   std::uint32_t* cs = frame.cand_seen.data();
   std::vector<std::int64_t> tri_count(static_cast<std::size_t>(nb), 0);
   const auto bands = [&](std::int64_t b0, std::int64_t b1) {
-    std::vector<float> sx, sy, siz;  // this tile's vertices: screen x, y, 1/z
-    std::vector<KeptFace> kept;
+    std::vector<float> sx, sy, siz, sz;  // this tile's vertices: screen x, y, 1/z; camera z
+    std::vector<KeptFace> kept, near_kept;
     // The camera and near plane as locals of the task (the vertex loop vectorises).
     const float r[16] = {cam[0], cam[1], cam[2], cam[3], cam[4], cam[5], cam[6], cam[7],
                          cam[8], cam[9], cam[10], cam[11], cam[12], cam[13], cam[14], cam[15]};
@@ -431,16 +462,19 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
         const std::int64_t q_end = start[static_cast<std::size_t>(b) + 1];
         if (q + 12 < q_end) PrefetchTileOffsets(tiles, frame.tiles[static_cast<std::size_t>(binned[static_cast<std::size_t>(q + 12)])]);
         if (q + 3 < q_end) PrefetchTileData(tiles, frame.tiles[static_cast<std::size_t>(binned[static_cast<std::size_t>(q + 3)])]);
+        const std::array<int, 4>& tb = box[static_cast<std::size_t>(i)];
+        const int ty0 = std::max(y0, tb[0]), ty1 = std::min(y1 - 1, tb[1]), tx0 = tb[2], tx1 = tb[3];
         const std::int16_t view = static_cast<std::int16_t>(tiles.tile_view[t]);
         const std::uint32_t view_bit = 1u << (static_cast<unsigned>(view) & 31u);
         const std::uint8_t rank = frame.tile_rank[static_cast<std::size_t>(i)];
         const std::int64_t v0 = tiles.vertex_offsets[t], v1 = tiles.vertex_offsets[t + 1];
         const std::size_t nv = static_cast<std::size_t>(v1 - v0);
-        sx.resize(nv), sy.resize(nv), siz.resize(nv);
+        sx.resize(nv), sy.resize(nv), siz.resize(nv), sz.resize(nv);
         const float* wv = tiles.vertices + 3 * v0;  // this tile's world vertices
         float* vx = sx.data();
         float* vy = sy.data();
         float* viz = siz.data();
+        float* vz = sz.data();
         for (std::size_t k = 0; k < nv; ++k) {
           const float* v = wv + 3 * k;
           const float X = r[0] * v[0] + r[1] * v[1] + r[2] * v[2] + r[9];
@@ -455,9 +489,48 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
           const float qy = std::max(-kMaxScreen, std::min(kMaxScreen, py));
           vx[k] = qx;
           vy[k] = qy;
+          vz[k] = Z;
           const bool use = std::isgreaterequal(Z, near) & (qx == px) & (qy == py);  // quiet compares
           viz[k] = use ? iz : -1.f;
         }
+        // A face with a vertex behind the near plane and one in front is clipped against it (the
+        // pieces' new vertices appended to this tile's); rare, so a branch.
+        near_kept.clear();
+        const auto clip_near = [&](std::size_t ia, std::size_t ib, std::size_t ic) {
+          const std::size_t id[3] = {ia, ib, ic};
+          // The face's own back-face test (its pieces are not tested again in the draw loop).
+          if (options.cull_back && !FacesPoint(wv + 3 * ia, wv + 3 * ib, wv + 3 * ic, cnx, cny, cnz)) return;
+          std::size_t poly[4];
+          int n = 0;
+          for (int e = 0; e < 3; ++e) {  // Sutherland-Hodgman against z >= near, in order
+            const std::size_t p = id[e], q = id[(e + 1) % 3];
+            const bool pin = sz[p] >= near, qin = sz[q] >= near;
+            if (pin) poly[n++] = p;
+            if (pin != qin) {
+              float w[3];
+              NearCut(wv + 3 * p, sz[p], wv + 3 * q, sz[q], near, w);
+              const float X = r[0] * w[0] + r[1] * w[1] + r[2] * w[2] + r[9];
+              const float Y = r[3] * w[0] + r[4] * w[1] + r[5] * w[2] + r[10];
+              const float Z = std::max(near, r[6] * w[0] + r[7] * w[1] + r[8] * w[2] + r[11]);
+              const float px = r[12] * X / Z + r[14], py = r[13] * Y / Z + r[15];
+              if (!(std::fabs(px) <= kMaxScreen && std::fabs(py) <= kMaxScreen)) return;
+              poly[n++] = sx.size();
+              sx.push_back(px), sy.push_back(py), siz.push_back(1.f / Z), sz.push_back(Z);
+            }
+          }
+          for (int k = 0; k < n; ++k)
+            if (siz[poly[k]] < 0.f) return;  // a vertex in front but beyond kMaxScreen
+          for (int t = 1; t + 1 < n; ++t) {
+            const std::size_t a = poly[0], b = poly[t], c = poly[t + 1];
+            const int ra = std::max(ty0, static_cast<int>(std::ceil(std::min({sy[a], sy[b], sy[c]}) - 0.5f)));
+            const int rb = std::min(ty1, static_cast<int>(std::floor(std::max({sy[a], sy[b], sy[c]}) - 0.5f)));
+            const int ca = std::max(tx0, static_cast<int>(std::ceil(std::min({sx[a], sx[b], sx[c]}) - 0.5f)));
+            const int cb = std::min(tx1, static_cast<int>(std::floor(std::max({sx[a], sx[b], sx[c]}) - 0.5f)));
+            if (ra <= rb && ca <= cb)
+              near_kept.push_back({static_cast<std::int32_t>(a), static_cast<std::int32_t>(b),
+                                   static_cast<std::int32_t>(c), ra, rb, ca, cb, 0});
+          }
+        };
         // The faces that may cover a pixel centre of this band, without a branch per test (most
         // faces are smaller than a pixel and cover none): indices and pixel bounds, compacted.
         const std::int64_t f0 = tiles.face_offsets[t], nf = tiles.face_offsets[t + 1] - f0;
@@ -468,31 +541,29 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
           const std::size_t ia = static_cast<std::size_t>(fv[0] - v0), ib = static_cast<std::size_t>(fv[1] - v0),
                             ic = static_cast<std::size_t>(fv[2] - v0);
           const bool front = !(siz[ia] < 0.f) & !(siz[ib] < 0.f) & !(siz[ic] < 0.f);
+          const int n_behind = (sz[ia] < near) + (sz[ib] < near) + (sz[ic] < near);
+          if (n_behind == 1 || n_behind == 2) clip_near(ia, ib, ic);
           const float ymn = std::min({sy[ia], sy[ib], sy[ic]}), ymx = std::max({sy[ia], sy[ib], sy[ic]});
-          const int ra = std::max(y0, static_cast<int>(std::ceil(ymn - 0.5f)));
-          const int rb = std::min(y1 - 1, static_cast<int>(std::floor(ymx - 0.5f)));
+          const int ra = std::max(ty0, static_cast<int>(std::ceil(ymn - 0.5f)));
+          const int rb = std::min(ty1, static_cast<int>(std::floor(ymx - 0.5f)));
           const float xmn = std::min({sx[ia], sx[ib], sx[ic]}), xmx = std::max({sx[ia], sx[ib], sx[ic]});
-          const int ca = std::max(0, static_cast<int>(std::ceil(xmn - 0.5f)));
-          const int cb = std::min(w - 1, static_cast<int>(std::floor(xmx - 0.5f)));
+          const int ca = std::max(tx0, static_cast<int>(std::ceil(xmn - 0.5f)));
+          const int cb = std::min(tx1, static_cast<int>(std::floor(xmx - 0.5f)));
           const bool keep = front & (ra <= rb) & (ca <= cb);
-          kept[nk] = {static_cast<std::int32_t>(ia), static_cast<std::int32_t>(ib), static_cast<std::int32_t>(ic), ra, rb, ca, cb};
+          kept[nk] = {static_cast<std::int32_t>(ia), static_cast<std::int32_t>(ib), static_cast<std::int32_t>(ic), ra, rb, ca, cb, 1};
           nk += static_cast<std::size_t>(keep);
+        }
+        if (!near_kept.empty()) {
+          kept.resize(nk + near_kept.size());
+          std::copy(near_kept.begin(), near_kept.end(), kept.begin() + static_cast<std::ptrdiff_t>(nk));
+          nk += near_kept.size();
         }
         for (std::size_t kk = 0; kk < nk; ++kk) {
           const KeptFace& kf = kept[kk];
           const std::size_t ia = static_cast<std::size_t>(kf.a);
           std::size_t ib = static_cast<std::size_t>(kf.b), ic = static_cast<std::size_t>(kf.c);
           const int ra = kf.ra, rb = kf.rb, ca = kf.ca, cb = kf.cb;
-          if (options.cull_back) {
-            // Outward normal cross(b - a, c - a) faces the triangle's own view (pvm.h).
-            const float* pa = wv + 3 * ia;
-            const float* pb = wv + 3 * ib;
-            const float* pc = wv + 3 * ic;
-            const float e1x = pb[0] - pa[0], e1y = pb[1] - pa[1], e1z = pb[2] - pa[2];
-            const float e2x = pc[0] - pa[0], e2y = pc[1] - pa[1], e2z = pc[2] - pa[2];
-            const float nx = e1y * e2z - e1z * e2y, ny = e1z * e2x - e1x * e2z, nz = e1x * e2y - e1y * e2x;
-            if (!(nx * (cnx - pa[0]) + ny * (cny - pa[1]) + nz * (cnz - pa[2]) > 0.f)) continue;
-          }
+          if (options.cull_back && kf.cull && !FacesPoint(wv + 3 * ia, wv + 3 * ib, wv + 3 * ic, cnx, cny, cnz)) continue;
           double area = (static_cast<double>(sx[ib]) - sx[ia]) * (static_cast<double>(sy[ic]) - sy[ia]) -
                         (static_cast<double>(sx[ic]) - sx[ia]) * (static_cast<double>(sy[ib]) - sy[ia]);
           if (area == 0.0 || !std::isfinite(area)) continue;

@@ -24,8 +24,10 @@
 //     +0.5, top-left fill rule, z interpolated perspective-correctly (1/z affine in the screen).
 //     One entry per view and pixel holding that view's nearest fragment (a per-view depth test);
 //     a new view arriving at a full list replaces the entry of the worst (rank, view) when its
-//     own is better. Back faces (seen from the other side than from their own view) and
-//     triangles with a vertex closer than `near` are skipped (no near-plane clipping). The image
+//     own is better. Back faces (seen from the other side than from their own view) are
+//     skipped; triangles with a vertex closer than `near` are clipped against the plane z = near
+//     (Sutherland-Hodgman, cut points computed from an edge's lexicographically smaller end) and
+//     their part in front drawn; until the twenty-second session they were skipped. The image
 //     is cut into bands of kBandRows rows; kept tiles are binned into the bands their projected
 //     AABB covers (in kept order); each band is one task that projects a tile's vertices once
 //     and draws its triangles clipped to the band, in that order: results are identical for
@@ -123,7 +125,7 @@ struct PvmRenderOptions {
   float resolution_weight = 0.5f;  // ULR resolution penalty weight (ulr.h)
   float max_angle = 3.15f;   // radians: a view whose ray to the fine cell's centre makes a larger angle
                              // with the novel camera's is not ranked for that cell (> pi: no limit)
-  float near = 1e-3f;        // triangles with a vertex at z < near are skipped (scene units)
+  float near = 1e-3f;        // triangles are clipped against the plane z = near (scene units)
   bool cull_back = true;     // skip triangles seen from their back
   float merge_rel = 0.02f;   // one cluster when |d_bg - d_fg| <= merge_rel * d_fg
   float sigma = 3.f;         // Eq. 1 spatial Gaussian, pixels

@@ -213,8 +213,9 @@ STAGES: dict[str, Stage] = {s.name: s for s in (
           "graph-cut view-dependent masks", version=5),
     Stage("pvm", ("scene", "mesh", "depth"), ("tiles.npz",), frozenset({"pvm", "hybrid"}),
           "per-view meshes (depth within mesh_snap voxels of the global mesh's snapped to it, merge tolerance "
-          "matched to the depth noise) sliced into a two-level voxel grid of tiles (cubic cells)",
-          version=4),  # 4: mesh_snap
+          "matched to the depth noise) sorted into a two-level voxel grid of tiles (cubic cells; triangles "
+          "whole)",
+          version=5),  # 4: mesh_snap; 5: clip "large" (triangles whole, not clipped to the cells)
     Stage("mix", ("scene", "mesh", "depth", "texture", "harmonise", "pvm"), ("mix.npz",), frozenset({"hybrid"}),
           "the hybrid composite's PVM weight floor (pvm_floor), fitted on leave-one-out renders of input views",
           version=3),  # 2: the G-buffer of a mesh dense for the frame ray cast (render/hybrid.py RASTER_MAX_FACES);

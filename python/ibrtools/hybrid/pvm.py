@@ -13,9 +13,12 @@ Fig. 2b; per-view meshes after Hedman et al. 2016, sec. 4). docs/preprocess.md.
   mesh lacks or rounds off).
 * :func:`build_tiles` — every view's PVM sliced into the fine cells of a grid of
   ``coarse``^3 cells over the PVMs' bounds, each split ``sub`` times per axis; a tile is the part
-  of one view's PVM inside one fine cell, stored compactly (:class:`PvmTiles`): one vertex array
-  and one face array sorted by tile, offsets, per-tile AABB, view and fine cell, and per coarse
-  cell the range of its tiles (the lookup level). C++: ``_core.pvm_slice``.
+  of one view's PVM in one fine cell (``clip`` "large": triangles whole, in the cell of their
+  centroid, or, reaching beyond the coarse cells next to it, in every cell they have area in;
+  "all": every triangle crossing a cell face clipped into pieces, the paper's slicing), stored
+  compactly (:class:`PvmTiles`): one vertex array and one face array sorted by tile, offsets,
+  per-tile AABB, view and fine cell, and per coarse cell the range of its tiles (the lookup
+  level). C++: ``_core.pvm_slice``.
 
 Arrays: vertices float32 world units, faces int32 counter-clockwise seen from the view's camera.
 """
@@ -34,6 +37,11 @@ from ..checks import check_float, check_int
 from ..errors import BadValueError, DtypeError, FormatError, MissingFileError, ShapeError
 
 TILES_FORMAT = 1
+# PvmOptions.clip: "large" keeps triangles whole: in the fine cell of the centroid when the triangle lies
+# within the coarse cells next to the centroid's (the renderer's visibility margin), else in every fine
+# cell it has area in; "all" clips every triangle crossing a fine cell's face into pieces (the paper's
+# slicing).
+CLIP_MODES = ("large", "all")
 
 
 @dataclass(frozen=True)
@@ -47,6 +55,7 @@ class PvmOptions:
     coarse: int = 32             # coarse cells per axis (paper: 32^3)
     sub: int = 4                 # fine cells per coarse cell per axis (paper: 4)
     mesh_snap: float = 2.0       # depth within mesh_snap voxels of the global mesh's takes the mesh's (0 = off)
+    clip: str = "large"          # "large": triangles whole (CLIP_MODES); "all": clipped to the fine cells
 
     def __post_init__(self) -> None:
         jump = check_float(self.max_rel_jump, "max_rel_jump")
@@ -60,6 +69,8 @@ class PvmOptions:
         coarse = check_int(self.coarse, "coarse", 1)
         sub = check_int(self.sub, "sub", 1)
         snap = check_float(self.mesh_snap, "mesh_snap", 0.0)
+        if self.clip not in CLIP_MODES:
+            raise BadValueError(f"clip: expected one of {', '.join(CLIP_MODES)}, got {self.clip!r}")
         if coarse * sub > 4096:
             raise BadValueError(f"coarse * sub: expected <= 4096, got {coarse} * {sub}")
         for k, v in (("max_rel_jump", jump), ("plane_tol", tol), ("noise_tol", ntol), ("max_block", mb), ("coarse", coarse),
@@ -327,7 +338,8 @@ def build_tiles(cameras: Mapping[str, Camera], depths: Mapping[str, np.ndarray],
     if len(pf) == 0:
         raise BadValueError("PVM bounds: empty (no view has a valid depth pixel forming a triangle)")
     origin, cell = grid_bounds(pv, options.coarse, options.sub)
-    r = _core.pvm_slice(pv, pf, pfv, len(names), origin.tolist(), cell.tolist(), options.coarse, options.sub)
+    r = _core.pvm_slice(pv, pf, pfv, len(names), origin.tolist(), cell.tolist(), options.coarse, options.sub,
+                        clip_all=options.clip == "all")
     keys = r["keys"]
     n_views = len(names)
     tile_view = (keys % n_views).astype(np.int32)
