@@ -284,7 +284,9 @@ def test_rasterised_candidates_have_no_cracks():
     pixel centres, so most pixel centres lie exactly on shared triangle edges, where the edge rule
     and the rasteriser's per-row column spans (kSpanSlack) decide. Every pixel away from the
     border gets one candidate from each of the three views, at its plane's depth (a span that cut a
-    pixel off would leave a crack with two)."""
+    pixel off would leave a crack with two; so would a T-junction in the tiles, where a whole
+    triangle met a clipped one: a row of pixels lost every view's candidate before the pvm stage
+    kept large triangles as whole copies)."""
     scene, cam = _two_plane_scene()
     r = _renderer(scene)
     r.render(cam, filtered=False)
