@@ -215,6 +215,13 @@ void PvmSlice(const float* vertices, std::int64_t num_vertices, const std::int32
     const std::int64_t local_id = ((k % sub) * sub + (j % sub)) * sub + (i % sub);
     return (coarse_id * sub3 + local_id) * n_views + view;
   };
+  auto cell_of_key = [&](std::int64_t key, int ijk[3]) {  // key_of's inverse (the view dropped)
+    const std::int64_t vox = key / n_views, coarse_id = vox / sub3, local_id = vox % sub3;
+    const std::int64_t c = grid.coarse;
+    ijk[0] = static_cast<int>(coarse_id % c) * sub + static_cast<int>(local_id % sub);
+    ijk[1] = static_cast<int>((coarse_id / c) % c) * sub + static_cast<int>((local_id / sub) % sub);
+    ijk[2] = static_cast<int>(coarse_id / (c * c)) * sub + static_cast<int>(local_id / (sub * sub));
+  };
   auto bound = [&](int axis, int i) {
     return grid.origin[axis] + static_cast<double>(i) * grid.cell[axis];
   };
@@ -384,12 +391,8 @@ void PvmSlice(const float* vertices, std::int64_t num_vertices, const std::int32
         }
       }
       if (p.clip == kCopy) {  // the tile bounds hold the copy's part in the cell (the renderer draws no more)
-        const std::int64_t vox = p.key / n_views, coarse_id = vox / sub3, local_id = vox % sub3;
-        const int ijk[3] = {static_cast<int>(coarse_id % grid.coarse) * sub + static_cast<int>(local_id % sub),
-                            static_cast<int>((coarse_id / grid.coarse) % grid.coarse) * sub +
-                                static_cast<int>((local_id / sub) % sub),
-                            static_cast<int>(coarse_id / (static_cast<std::int64_t>(grid.coarse) * grid.coarse)) * sub +
-                                static_cast<int>(local_id / (sub * sub))};
+        int ijk[3];
+        cell_of_key(p.key, ijk);
         for (int a = 0; a < 3; ++a) {
           if (ijk[a] > 0) lo[a] = std::max(lo[a], static_cast<float>(bound(a, ijk[a])));
           if (ijk[a] < dims - 1) hi[a] = std::min(hi[a], static_cast<float>(bound(a, ijk[a] + 1)));

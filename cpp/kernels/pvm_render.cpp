@@ -493,6 +493,15 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
           const bool use = std::isgreaterequal(Z, near) & (qx == px) & (qy == py);  // quiet compares
           viz[k] = use ? iz : -1.f;
         }
+        // The pixel centres a face (vertices a, b, c of this tile) may cover in this band and the tile's box.
+        const auto pixel_bounds = [&](std::size_t a, std::size_t b, std::size_t c) {
+          const float ymn = std::min({sy[a], sy[b], sy[c]}), ymx = std::max({sy[a], sy[b], sy[c]});
+          const float xmn = std::min({sx[a], sx[b], sx[c]}), xmx = std::max({sx[a], sx[b], sx[c]});
+          return std::array<int, 4>{std::max(ty0, static_cast<int>(std::ceil(ymn - 0.5f))),
+                                    std::min(ty1, static_cast<int>(std::floor(ymx - 0.5f))),
+                                    std::max(tx0, static_cast<int>(std::ceil(xmn - 0.5f))),
+                                    std::min(tx1, static_cast<int>(std::floor(xmx - 0.5f)))};
+        };
         // A face with a vertex behind the near plane and one in front is clipped against it (the
         // pieces' new vertices appended to this tile's); rare, so a branch.
         near_kept.clear();
@@ -522,10 +531,7 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
             if (siz[poly[k]] < 0.f) return;  // a vertex in front but beyond kMaxScreen
           for (int t = 1; t + 1 < n; ++t) {
             const std::size_t a = poly[0], b = poly[t], c = poly[t + 1];
-            const int ra = std::max(ty0, static_cast<int>(std::ceil(std::min({sy[a], sy[b], sy[c]}) - 0.5f)));
-            const int rb = std::min(ty1, static_cast<int>(std::floor(std::max({sy[a], sy[b], sy[c]}) - 0.5f)));
-            const int ca = std::max(tx0, static_cast<int>(std::ceil(std::min({sx[a], sx[b], sx[c]}) - 0.5f)));
-            const int cb = std::min(tx1, static_cast<int>(std::floor(std::max({sx[a], sx[b], sx[c]}) - 0.5f)));
+            const auto [ra, rb, ca, cb] = pixel_bounds(a, b, c);
             if (ra <= rb && ca <= cb)
               near_kept.push_back({static_cast<std::int32_t>(a), static_cast<std::int32_t>(b),
                                    static_cast<std::int32_t>(c), ra, rb, ca, cb, 0});
@@ -543,12 +549,7 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
           const bool front = !(siz[ia] < 0.f) & !(siz[ib] < 0.f) & !(siz[ic] < 0.f);
           const int n_behind = (sz[ia] < near) + (sz[ib] < near) + (sz[ic] < near);
           if (n_behind == 1 || n_behind == 2) clip_near(ia, ib, ic);
-          const float ymn = std::min({sy[ia], sy[ib], sy[ic]}), ymx = std::max({sy[ia], sy[ib], sy[ic]});
-          const int ra = std::max(ty0, static_cast<int>(std::ceil(ymn - 0.5f)));
-          const int rb = std::min(ty1, static_cast<int>(std::floor(ymx - 0.5f)));
-          const float xmn = std::min({sx[ia], sx[ib], sx[ic]}), xmx = std::max({sx[ia], sx[ib], sx[ic]});
-          const int ca = std::max(tx0, static_cast<int>(std::ceil(xmn - 0.5f)));
-          const int cb = std::min(tx1, static_cast<int>(std::floor(xmx - 0.5f)));
+          const auto [ra, rb, ca, cb] = pixel_bounds(ia, ib, ic);
           const bool keep = front & (ra <= rb) & (ca <= cb);
           kept[nk] = {static_cast<std::int32_t>(ia), static_cast<std::int32_t>(ib), static_cast<std::int32_t>(ic), ra, rb, ca, cb, 1};
           nk += static_cast<std::size_t>(keep);
