@@ -341,6 +341,62 @@ def test_failed_stage_leaves_no_record_and_reruns(tmp_path, capsys, monkeypatch)
     assert out["pvm"]["status"] == "ran" and out["pvm"]["tiles"] == before["details"]["tiles"]
 
 
+def _edit_record(d, stage, **change):
+    doc = json.loads((d / "scene.json").read_text())
+    rec = doc["stages"][stage]
+    for k, v in change.items():
+        if v is None:
+            rec.pop(k, None)
+        else:
+            rec[k] = v
+    (d / "scene.json").write_text(json.dumps(doc))
+
+
+def test_out_of_date_stages_are_named_by_preprocess_render_and_bench(tmp_path, capsys):
+    from ibrtools_cli import bench, render
+
+    d = tmp_path / "s"
+    run(d, "--methods", "pvm", capsys=capsys)
+    recs = json.loads((d / "scene.json").read_text())["stages"]
+    assert recs["pvm"]["version"] == S.STAGES["pvm"].version
+    assert recs["pvm"]["inputs"] == {"scene": recs["mesh"]["inputs"]["scene"], "mesh": recs["mesh"]["key"],
+                                     "depth": "not needed"}  # every view has depth: the depth stage is skipped
+    assert all(S.stale_reasons(recs, n) == [] for n in ("mesh", "pvm"))
+    # The mesh alone re-made (another resolution): the pvm stage's tiles are of the previous mesh.
+    out = run(d, "--stages", "mesh", "--set", "mesh.resolution=24", capsys=capsys)
+    assert out["mesh"]["status"] == "ran"
+    assert "not selected" in out["pvm"]["reason"] and "out of date (stage 'mesh' re-ran after it)" in out["pvm"]["reason"]
+    assert render.main([str(d), "--method", "pvm", "-o", str(tmp_path / "r"), "-q"]) == 0
+    err = capsys.readouterr().err
+    assert "warning: the output of stage pvm (stage 'mesh' re-ran after it) is out of date" in err
+    assert f"run ibr-preprocess {d} -o {d} --methods pvm" in err
+    assert "re-ran" in json.loads((tmp_path / "r" / "report.json").read_text())["stale_note"]
+    assert bench.main([str(d), "--method", "pvm", "--sweep", "sigma=3", "-o", str(tmp_path / "b"), "--json"]) == 0
+    assert "stage pvm" in json.loads(capsys.readouterr().out)["stale_note"]
+    # A record of another version of the stage's code; a render method that reads no stale stage says nothing.
+    _edit_record(d, "pvm", version=S.STAGES["pvm"].version - 1)
+    why = S.stale_reasons(json.loads((d / "scene.json").read_text())["stages"], "pvm")
+    assert why[0] == f"written by version {S.STAGES['pvm'].version - 1} of its code, this build's is " \
+                     f"{S.STAGES['pvm'].version}" and len(why) == 2
+    assert render.main([str(d), "--method", "dibr", "-o", str(tmp_path / "r2"), "-q"]) == 0
+    assert "warning" not in capsys.readouterr().err
+    # The mesh back at its first resolution: the tiles are of that mesh, so the pvm stage is up to date
+    # again (its key matches) and its record is rewritten with this run's version and inputs.
+    out = run(d, "--methods", "pvm", capsys=capsys)
+    assert out["mesh"]["status"] == "ran" and out["pvm"]["status"] == "up to date"
+    assert S.stale_reasons(json.loads((d / "scene.json").read_text())["stages"], "pvm") == []
+    assert render.main([str(d), "--method", "pvm", "-o", str(tmp_path / "r3"), "-q"]) == 0
+    assert "warning" not in capsys.readouterr().err
+    assert "stale_note" not in json.loads((tmp_path / "r3" / "report.json").read_text())
+    # Records written before they carried the version and input keys: nothing to compare, nothing said;
+    # the next ibr-preprocess that finds the stage up to date adds them.
+    _edit_record(d, "pvm", version=None, inputs=None)
+    assert S.stale_reasons(json.loads((d / "scene.json").read_text())["stages"], "pvm") == []
+    assert run(d, "--methods", "pvm", capsys=capsys)["pvm"]["status"] == "up to date"
+    rec = json.loads((d / "scene.json").read_text())["stages"]["pvm"]
+    assert rec["version"] == S.STAGES["pvm"].version and rec["inputs"]["depth"] == "not needed"
+
+
 def test_progress_on_stderr(tmp_path, capsys):
     d = tmp_path / "s"
     assert preprocess.main(["synth:objects", "-o", str(d), *SMALL, "--methods", "pvm"]) == 0

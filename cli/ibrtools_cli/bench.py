@@ -13,7 +13,7 @@ import numpy as np
 
 from ibrtools.errors import BadValueError
 
-from .common import add_common, print_json, print_table, progress_bar, run_command
+from .common import add_common, print_json, print_table, progress_bar, run_command, warn_stale
 
 PROG = "ibr-bench"
 
@@ -72,6 +72,7 @@ def _body(args: argparse.Namespace) -> int:
 
     check_output(out / "report.html", "-o")
     scene = native.load(args.scene)
+    stale = warn_stale(PROG, scene, args.method, json_out=args.json)
     keep = _BestFrames(args.report_frames)
     with progress_bar(PROG, "configurations x frames", None, quiet=args.quiet) as bar:
         def progress(ci: int, nc: int, fi: int, nf: int) -> None:
@@ -94,6 +95,7 @@ def _body(args: argparse.Namespace) -> int:
                               f"{rows[0]['frames'] if rows else 0} frames")
     if args.json:
         print_json({"method": name, "swept": keys, "configurations": rows, **({"holdout_note": note} if note else {}),
+                    **({"stale_note": stale} if stale else {}),
                     "files": {k: str(out / k) for k in ("sweep.csv", "sweep.md", "sweep.png")} | {"report.html": str(html)}})
         return 0
     best = min(range(len(rows)), key=lambda i: (rows[i]["mean_flip"] is None, rows[i]["mean_flip"] or 0), default=None)

@@ -7,7 +7,7 @@ from typing import Sequence
 
 from ibrtools.errors import BadValueError
 
-from .common import add_common, add_distributed, print_json, print_table, progress_bar, run_command
+from .common import add_common, add_distributed, print_json, print_table, progress_bar, run_command, warn_stale
 
 PROG = "ibr-render"
 
@@ -139,6 +139,7 @@ def _body(args: argparse.Namespace) -> int:
                           poses=args.poses, lightfield=lightfield)
     if video is not None:
         batches.check_same_size([f.camera for f in job.frames])
+    warn_stale(PROG, scene, args.method, json_out=args.json)
     params = {k: _number(v) for k, v in parse_options(args.param).items()}
     for key, value in (("inputs", args.inputs), ("quality", args.quality),
                        ("blend_exponent", args.blend_exponent), ("layers", args.layers),

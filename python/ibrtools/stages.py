@@ -758,6 +758,10 @@ def _run_planned(root: Path, options: dict, wanted: list[str], why: dict, avail:
         if name not in wanted:
             reason = ("not selected (--stages)" if stages is not None else
                       f"not needed by methods {', '.join(methods) or 'none'}")
+            if records.get(name):  # the stages that ran before it in this run are on disk now
+                stale = stale_reasons(_read_doc(root).get("stages") or {}, name, upstream["scene"])
+                if stale:
+                    reason += f"; its output is out of date ({'; '.join(stale)})"
             results.append(StageResult(name, "skipped", reason))
             continue
         params = _params(name, options)
@@ -771,15 +775,20 @@ def _run_planned(root: Path, options: dict, wanted: list[str], why: dict, avail:
             if rec is not None:
                 _write_stage_record(root, name, None)
             continue
+        provenance = {"version": st.version, "inputs": {k: upstream.get(k) for k in st.inputs}}
         if not force and rec and rec.get("key") == key:
             if rec.get("skipped"):
+                if any(rec.get(k) != v for k, v in provenance.items()):  # recorded before records carried them
+                    _write_stage_record(root, name, {**rec, **provenance})
                 results.append(StageResult(name, "skipped", f"{rec['skipped']} (inputs unchanged)"))
                 continue
             bad = [rel for rel in rec.get("outputs") or {} if not _output_intact(ctx.cache(name) / rel, rec, rel)]
             if not bad and rec.get("outputs"):
                 stat = _output_stats(ctx.cache(name), rec["outputs"])
-                if rec.get("stat") != stat:  # hashed intact (copied, or recorded without them): record them
-                    _write_stage_record(root, name, {**rec, "stat": stat})
+                # Hashed intact (copied, or recorded without them), or recorded before records carried
+                # the version and input keys (the key matched, so they are this run's): record them.
+                if rec.get("stat") != stat or any(rec.get(k) != v for k, v in provenance.items()):
+                    _write_stage_record(root, name, {**rec, "stat": stat, **provenance})
                 results.append(StageResult(name, "up to date", "inputs and parameters unchanged",
                                            0.0, dict(rec.get("details") or {})))
                 continue
@@ -796,16 +805,41 @@ def _run_planned(root: Path, options: dict, wanted: list[str], why: dict, avail:
         details = _RUN[name](ctx)
         seconds = time.perf_counter() - t0
         if isinstance(details, str):  # the stage decided it has nothing to do (e.g. harmonise)
-            _write_stage_record(root, name, {"key": key, "skipped": details, "params": params})
+            _write_stage_record(root, name, {"key": key, "skipped": details, "params": params, **provenance})
             results.append(StageResult(name, "skipped", details, seconds))
             continue
         outputs = {rel: _file_hash(ctx.cache(name) / rel) for rel in st.outputs}
-        _write_stage_record(root, name, {"key": key, "params": params, "outputs": outputs,
+        _write_stage_record(root, name, {"key": key, **provenance, "params": params, "outputs": outputs,
                                          "stat": _output_stats(ctx.cache(name), st.outputs),
                                          "seconds": round(seconds, 4), "details": details,
                                          "why": why.get(name, "")})
         results.append(StageResult(name, "ran", f"{reason}; {why.get(name, '')}", seconds, details))
     return results
+
+
+def stale_reasons(records: dict, stage: str, scene_key: str | None = None) -> list[str]:
+    """Why the output recorded for ``stage`` in ``records`` (scene.json's ``stages``) is not what this
+    build would make now: its code's version changed, or a stage it reads re-ran (or lost its
+    output) after it ran, or (``scene_key`` given: the imported scene's content key now) the scene
+    changed. Empty when it is current, when there is no output, and for records written before
+    records carried ``version`` and ``inputs`` (the twenty-third session; nothing to compare)."""
+    rec = records.get(stage) or {}
+    st = STAGES[stage]
+    out = []
+    if "version" in rec and rec["version"] != st.version:
+        out.append(f"written by version {rec['version']} of its code, this build's is {st.version}")
+    used = rec.get("inputs")
+    if not isinstance(used, dict):
+        return out
+    for k in st.inputs:
+        if k == "scene":
+            if scene_key is not None and used.get(k) != scene_key:
+                out.append("the scene's files changed after it ran")
+            continue
+        now = (records.get(k) or {}).get("key", "not needed")
+        if used.get(k) != now:
+            out.append(f"stage {k!r} has no output now" if now == "not needed" else f"stage {k!r} re-ran after it")
+    return out
 
 
 def stage_output(root: str | os.PathLike, stage: str, *, verify: bool = True) -> Path:

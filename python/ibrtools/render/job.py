@@ -165,6 +165,26 @@ def holdout_note(scene: Scene, held: list[str], method: str) -> str | None:
             "views, import them as targets (ibr-preprocess INPUT -o SCENE --holdout NAME ...) and render the targets")
 
 
+def stale_note(scene: Scene, method: str) -> str | None:
+    """One line when a preprocessing stage ``method`` reads is out of date in ``scene``
+    (``stages.stale_reasons``: its code's version changed, or a stage it reads re-ran after it,
+    e.g. ``ibr-preprocess --stages mesh`` alone), naming the command that brings it up to date.
+    The output still loads and is used as it is. None otherwise. The render report and
+    ibr-bench's JSON carry it as "stale_note" and the commands print it as a warning."""
+    from ..stages import STAGES, stale_reasons
+
+    stale = {n: r for n, st in STAGES.items() if method in st.methods
+             for r in [stale_reasons(scene.stages, n)] if r}
+    if not stale:
+        return None
+    where = scene.root if scene.root is not None else "SCENE"
+    what = "; ".join(f"{n} ({', '.join(r)})" for n, r in stale.items())
+    many = len(stale) > 1
+    return (f"the output{'s' if many else ''} of stage{'s' if many else ''} {what} {'are' if many else 'is'} out of "
+            f"date and used as {'they are' if many else 'it is'}: run ibr-preprocess {where} -o {where} "
+            f"--methods {method}")
+
+
 # Bytes held per pixel while rendering, fitted to the peak RSS measured with /usr/bin/time -v at
 # 1920x1080 and 3840x2160 (tools/measure_memory.py; docs/robustness.md "Peak memory") and rounded
 # up so that the estimate stays 1.3-1.5x above every measurement. INPUT: every pixel of every
@@ -398,9 +418,9 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
         if progress:
             progress(n, n, "")
         frames_report = [e for e in entries if e is not None]
-        note = holdout_note(job.scene, job.held_out, name)
+        note, stale = holdout_note(job.scene, job.held_out, name), stale_note(job.scene, name)
         report = {"method": name, "params": dict(params or {}), "inpaint": inpaint,
-                  **({"holdout_note": note} if note else {}),
+                  **({"holdout_note": note} if note else {}), **({"stale_note": stale} if stale else {}),
                   **({"foveate": {"fixation": list(fov_kw["fixation"]), "pooling": fov_kw["pooling"]}}
                      if fov_kw else {}),
                   "threads": used_threads, **extra,
