@@ -133,7 +133,7 @@ OVERRIDES: dict[str, dict[str, str]] = {
                              "lowpass": "_F32"},
     "ulr_blend": {"gbuffer_depth": "_F32", "views": "list[tuple[Camera, _F32, _F32]]", "normal": "_F32 | None",
                   "pixel_mask": "_Bool | None", "return": "tuple[_F32, _U8]"},
-    "ulr_select": {"penalty": "_F64"},
+    "ulr_select": {"penalty": "_F32"},
     "warp_flow": {"color": "_F32", "depth": "_F32", "flow": "_F32", "return": "tuple[_F32, _F32, _U8]"},
     "warp_with_holes": {"color": "_F32", "depth": "_F32", "return": "tuple[_F32, _F32, _U8]"},
 }

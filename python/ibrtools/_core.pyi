@@ -595,7 +595,7 @@ def ulr_penalty(p: collections.abc.Sequence[typing.SupportsFloat | typing.Suppor
     ULR penalty (cpp/kernels/ulr.h): angle + resolution_weight * max(0, |c_view-p|/|c_novel-p| - 1); fast=True: the per-pixel kernel's version (polynomial atan2, within 2e-5).
     """
 
-def ulr_select(penalty: _F64, k: typing.SupportsInt | typing.SupportsIndex) -> tuple[list[int], list[float]]:
+def ulr_select(penalty: _F32, k: typing.SupportsInt | typing.SupportsIndex) -> tuple[list[int], list[float]]:
     """
     The k smallest finite penalties (cpp/kernels/ulr.h UlrSelect): (indices, weights summing to 1).
     """
