@@ -455,7 +455,8 @@ def test_bad_input(exact):
         r.render(eq)
     for bad in ({"sigma": 0}, {"gamma": -1}, {"max_candidates": 17}, {"max_tiles": 0}, {"nope": 1},
                 {"max_angle": 0}, {"filtered": "maybe"}, {"alpha": float("nan")}, {"min_views": 0},
-                {"min_views": 17}, {"min_views": 1.5}):
+                {"min_views": 17}, {"min_views": 1.5}, {"stretch_weight": -0.1}, {"stretch_free": -1},
+                {"stretch_weight": float("inf")}):
         with pytest.raises(BadValueError):
             PvmRenderer(scene, bad, tiles=r.tiles, images={v.name: v.color for v in scene.views})
     with pytest.raises(DtypeError):
@@ -476,6 +477,79 @@ def test_bad_input(exact):
     bad_tiles = dataclasses.replace(r.tiles, faces=faces)
     with pytest.raises(BadValueError, match="faces"):
         PvmRenderer(scene, tiles=bad_tiles, images={v.name: v.color for v in scene.views})
+
+
+def test_stretch_is_the_triangles_magnification_in_octaves():
+    # A fronto-parallel plane at z = 5 seen by one view: from the view's own pose its triangles keep
+    # their area (0 octaves); from half the distance, or with twice the focal length, each has 4x
+    # its area in the view (2 octaves); from twice the distance a quarter (-2: no penalty).
+    scene = _plane_scene(1, size=(48, 32))
+    r = _renderer(scene)
+    cam = scene.views[0].camera
+    closer = Camera.from_fov(48, 32, 50.0, look_at((0.0, 0.0, 2.5), (0.0, 0.0, 5.0)))
+    farther = Camera.from_fov(48, 32, 50.0, look_at((0.0, 0.0, -5.0), (0.0, 0.0, 5.0)))
+    zoomed = Camera.from_fov(96, 64, 50.0, look_at((0.0, 0.0, 0.0), (0.0, 0.0, 5.0)))
+    for target, octaves in ((cam, 0.0), (closer, 2.0), (zoomed, 2.0), (farther, -2.0)):
+        res = r.render(target)
+        c = r.candidates(target)
+        have = c["count"] > 0
+        assert have.mean() > 0.2, octaves  # from twice the distance the plane fills a quarter
+        # FastLog2 is within 0.008 octave; the codes are in steps of 1/16.
+        np.testing.assert_allclose(c["stretch"][..., 0][have], octaves, atol=1 / 16 + 1e-6)
+        assert res.valid[have].all()
+    # Off: no codes, and the frame's depth, vote and validity do not depend on the term (colour only).
+    off = _renderer(scene, {"stretch_weight": 0})
+    res_off = off.render(closer)
+    assert "stretch" not in off.candidates(closer)
+    res_on = r.render(closer)
+    for k in ("depth", "vote", "valid"):
+        np.testing.assert_array_equal(getattr(res_on, k), getattr(res_off, k))
+
+
+def _plane_z_depth(cam, z_plane):
+    """z-depth in ``cam`` of the world plane z = z_plane at every pixel centre (0 where the ray misses it)."""
+    x, y = cam.pixel_grid()
+    d = cam.rays_in_cam(x, y) @ cam.world_from_cam[:3, :3].T  # world directions of rays with camera z = 1
+    t = (z_plane - cam.centre[2]) / np.where(d[..., 2] > 1e-9, d[..., 2], np.nan)
+    return np.nan_to_num(np.where(t > 0, t, 0.0)).astype(np.float32)
+
+
+def test_stretch_moves_the_blend_to_the_view_that_sees_the_surface_frontally():
+    # The plane z = 5, colour 0.25 in view a (frontal) and 0.75 in view b (76 degrees off the
+    # plane's normal); the target between them in angle (38 degrees) magnifies b's triangles more
+    # than a's. A large stretch weight leaves a's colour; without the term b's candidate has a share
+    # of the blend.
+    w, h = 64, 48
+    cams = {"a": Camera.from_fov(w, h, 40.0, look_at((0.0, 0.0, 0.0), (0.0, 0.0, 5.0))),
+            "b": Camera.from_fov(w, h, 40.0, look_at((4.0, 0.0, 4.0), (0.0, 0.0, 5.0)))}
+    views = [View.create(n, c, color=np.full((h, w, 3), v, np.float32), depth=_plane_z_depth(c, 5.0))
+             for (n, c), v in zip(cams.items(), (0.25, 0.75))]
+    scene = Scene(views=views, targets=[], paths={}, meshes={}, units="m", source={})
+    target = Camera.from_fov(w, h, 20.0, look_at((3.9, 0.0, 0.0), (0.0, 0.0, 5.0)))
+    frames = {}
+    for weight in (0.0, 100.0):
+        r = _renderer(scene, {"stretch_weight": weight})
+        res = r.render(target)
+        c = r.candidates(target)
+        frames[weight] = (res, c)
+    res0, _ = frames[0.0]
+    res1, c1 = frames[100.0]
+    both = (c1["count"] == 2) & res1.valid
+    assert both.mean() > 0.5
+    # The candidates' stretch (views indexed in the scene's order: a 0, b 1): b's triangles are the
+    # more magnified on most of the frame (the target's narrower field of view magnifies both).
+    stretch, view = c1["stretch"][both][:, :2], c1["view"][both][:, :2]
+    s_a = np.where(view[:, 0] == 0, stretch[:, 0], stretch[:, 1])
+    s_b = np.where(view[:, 0] == 1, stretch[:, 0], stretch[:, 1])
+    more_b, more_a = s_b - s_a > 0.5, s_a - s_b > 0.5
+    assert more_b.mean() > 0.5
+    # With the term the blend goes to the less magnified candidate (the other keeps a few per cent:
+    # both penalties grow, UlrSelect's weights fall to ~1 % at the larger); without it b's candidate
+    # has a larger share where it is the more magnified.
+    c0, c1_ = res0.color[both][:, 0], res1.color[both][:, 0]
+    assert (c1_[more_b] < 0.27).all() and (c1_[more_a] > 0.73).all()
+    assert (c1_[more_b] < c0[more_b] - 0.01).mean() > 0.9
+    np.testing.assert_array_equal(res0.depth, res1.depth)
 
 
 def test_held_out_views_tiles_are_not_used():

@@ -107,6 +107,7 @@ class PvmRendererCore {
     cameras_ = std::move(cameras);
     // Index checks, once.
     const std::int64_t n_vert = vertices_.shape(0), n_face = faces_.shape(0);
+    if (n_face > INT32_MAX) throw BadValueError("faces: expected at most 2^31 - 1 faces, got " + std::to_string(n_face));
     const std::int32_t* f = faces_.data();
     for (std::int64_t i = 0; i < 3 * n_face; ++i) {
       if (f[i] < 0 || f[i] >= n_vert) throw BadValueError("faces: index out of range [0, " + std::to_string(n_vert) + ")");
@@ -158,6 +159,13 @@ class PvmRendererCore {
     }
     tiles_.grid.coarse = coarse;
     tiles_.grid.sub = sub;
+    // Each face's area in its own view (the stretch term): once, here (lego's 6.1 M faces: ~0.1 s).
+    face_src_log2_.resize(static_cast<std::size_t>(n_face));
+    {
+      py::gil_scoped_release release;
+      PvmFaceSourceLog2Area(tiles_, cameras_.data(), face_src_log2_.data());
+    }
+    tiles_.face_src_log2 = face_src_log2_.data();
     // inside_grid's box: the union of the tiles' AABBs (= the bounds of the PVM vertices), each side
     // padded by 1e-4 of its extent (an axis flatter than 1e-6 of the largest: of the largest), as
     // grid_bounds pads the grid; no tiles: the grid's box.
@@ -187,7 +195,7 @@ class PvmRendererCore {
                   float alpha, float gamma, float tau_depth, int max_tiles, int max_candidates, int ulr_k,
                   float merge_rel, float radius_sigmas, int margin, float near, bool cull_back, float max_angle_deg, int ray_stride, int filter_step,
                   bool free_space, float free_space_tol, float free_space_point_tol, float tau_empty, int min_views,
-                  const std::string& resample, const std::string& mode) {
+                  float stretch_weight, float stretch_free, const std::string& resample, const std::string& mode) {
     const bool depth_only = mode == "depth", resolve = mode == "resolve";
     if (!depth_only && !resolve && mode != "full") {
       throw BadValueError("mode: expected full, depth or resolve, got " + mode);
@@ -232,6 +240,8 @@ class PvmRendererCore {
     if (free_space_tol >= 1.f) throw BadValueError("free_space_tol: expected < 1, got " + std::to_string(free_space_tol));
     finite_min(free_space_point_tol, "free_space_point_tol", 0.f, false);
     finite_min(tau_empty, "tau_empty", 0.f, false);
+    finite_min(stretch_weight, "stretch_weight", 0.f, false);
+    finite_min(stretch_free, "stretch_free", 0.f, false);
     if (radius_sigmas * sigma > 64.f) throw BadValueError("radius_sigmas * sigma: expected <= 64 pixels");
     if (max_tiles < 1 || max_tiles > 255) throw BadValueError("max_tiles: expected 1 .. 255, got " + std::to_string(max_tiles));
     if (max_candidates < 1 || max_candidates > kPvmMaxCandidates) {
@@ -268,6 +278,8 @@ class PvmRendererCore {
     o.free_space_tol = free_space_tol;
     o.free_space_point_tol = free_space_point_tol;
     o.tau_empty = tau_empty;
+    o.stretch_weight = stretch_weight;
+    o.stretch_free = stretch_free;
     o.cubic = ParseResample(resample);
     o.min_views = min_views;
     o.max_angle = max_angle_deg >= 180.f ? 3.15f : max_angle_deg * 3.14159265f / 180.f;
@@ -352,6 +364,12 @@ class PvmRendererCore {
     out["count"] = count;
     out["depth"] = depth;
     out["view"] = view;
+    if (frame_.stretch_codes && frame_.cand_stretch.size() == npix * static_cast<std::size_t>(k)) {
+      auto stretch = NewArray<float>({h, w, k});  // log2 s in octaves, as the penalty reads the codes
+      std::transform(frame_.cand_stretch.begin(), frame_.cand_stretch.end(), stretch.mutable_data(),
+                     [](std::uint8_t c) { return (static_cast<float>(c) - 128.f) / 16.f; });
+      out["stretch"] = stretch;
+    }
     if (frame_.clusters_everywhere && frame_.n_fg.size() == npix) {  // cluster sizes #N_fg, #N_bg (Eq. 1, 2)
       auto n_fg = NewArray<std::uint8_t>({h, w});
       auto n_bg = NewArray<std::uint8_t>({h, w});
@@ -374,6 +392,7 @@ class PvmRendererCore {
   std::vector<const float*> depth_ptrs_;
   std::vector<std::uint8_t> enabled_;
   std::vector<Camera> cameras_;
+  std::vector<float> face_src_log2_;  // PvmFaceSourceLog2Area of the tiles
   PvmTileArrays tiles_;
   PvmFrame frame_;
   bool depth_frame_ = false;  // frame_ holds the candidate lists of depth_camera_
@@ -403,19 +422,23 @@ void BindPvmRender(py::module_& m) {
            py::arg("cull_back") = true, py::arg("max_angle") = 55.f, py::arg("ray_stride") = 8, py::arg("filter_step") = 2,
            py::arg("free_space") = true, py::arg("free_space_tol") = 0.02f,
            py::arg("free_space_point_tol") = 0.005f, py::arg("tau_empty") = 2.f, py::arg("min_views") = 2,
+           py::arg("stretch_weight") = 0.1f, py::arg("stretch_free") = 0.f,
            py::arg("resample") = "cubic", py::arg("mode") = "full",
            "dict: color (H, W, 3), depth (H, W) (Eq. 2 vote), vote (H, W), valid, inside_grid (H, W) bool, "
            "times_ms per stage, visible_coarse, tiles, triangles. free_space: a background candidate counts in Eq. 1 / "
            "Eq. 2 only when its view sees past the foreground point (needs depths; pvm_render.h); with it, tau_empty > 0 "
            "empties a one-cluster pixel seen past by >= tau_empty x n_fg views without a candidate. min_views: where "
-           "gbuffer_depth has no surface, candidate lists of fewer views are emptied (1: never). resample: the candidates' "
+           "gbuffer_depth has no surface, candidate lists of fewer views are emptied (1: never). stretch_weight, "
+           "stretch_free: a candidate's ULR penalty gains stretch_weight x max(0, log2 s - stretch_free), s its triangle's "
+           "area in the target over its area in its own view (0: off). resample: the candidates' "
            "colour reads, 'cubic' (Catmull-Rom, clamped to the 2 x 2 texels' range) or 'bilinear'. mode: full (all stages); depth (stages "
            "1-4 without colours: depth, vote, valid, inside_grid; colour 0; the frame is kept); resolve "
            "(colours of pixel_mask from the kept depth pass: stages 4-5 only).")
       .def("candidates", &PvmRendererCore::Candidates, py::arg("height"), py::arg("width"),
            py::arg("max_candidates") = 12,
-           "The last frame's per-pixel candidate lists (count, depth, view) and, when it clustered every pixel, "
-           "the cluster sizes n_fg, n_bg (the counted background: free_space).");
+           "The last frame's per-pixel candidate lists (count, depth, view), with the stretch term on their "
+           "stretch (log2 of the triangle's magnification, octaves, 1/16 steps, within +-8) and, when it clustered "
+           "every pixel, the cluster sizes n_fg, n_bg (the counted background: free_space).");
 }
 
 }  // namespace ibr::bind

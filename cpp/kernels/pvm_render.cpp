@@ -139,6 +139,32 @@ inline void ClipRayToBox(const glm::dvec3& o, const glm::dvec3& dir, const doubl
 
 }  // namespace
 
+void PvmFaceSourceLog2Area(const PvmTileArrays& tiles, const Camera* cameras, float* out) {
+  ParallelFor(tiles.num_tiles, 256, [&](std::int64_t t0, std::int64_t t1) {
+    std::vector<double> px, py;
+    std::vector<std::uint8_t> ok;
+    for (std::int64_t t = t0; t < t1; ++t) {
+      const Camera& cam = cameras[tiles.tile_view[t]];
+      const std::int64_t v0 = tiles.vertex_offsets[t], nv = tiles.vertex_offsets[t + 1] - v0;
+      px.resize(static_cast<std::size_t>(nv)), py.resize(static_cast<std::size_t>(nv)), ok.resize(static_cast<std::size_t>(nv));
+      for (std::int64_t k = 0; k < nv; ++k) {  // each vertex of the tile projected once
+        const float* v = tiles.vertices + 3 * (v0 + k);
+        double z = 0;
+        ok[static_cast<std::size_t>(k)] = cam.ProjectCam(cam.CamFromWorld(glm::dvec3(v[0], v[1], v[2])),
+                                                         &px[static_cast<std::size_t>(k)], &py[static_cast<std::size_t>(k)], &z);
+      }
+      for (std::int64_t f = tiles.face_offsets[t]; f < tiles.face_offsets[t + 1]; ++f) {
+        const std::int32_t* fv = tiles.faces + 3 * f;
+        const std::size_t a = static_cast<std::size_t>(fv[0] - v0), b = static_cast<std::size_t>(fv[1] - v0),
+                          c = static_cast<std::size_t>(fv[2] - v0);
+        const double area = std::fabs((px[b] - px[a]) * (py[c] - py[a]) - (px[c] - px[a]) * (py[b] - py[a]));
+        out[f] = ok[a] && ok[b] && ok[c] && std::isfinite(area) ? static_cast<float>(std::log2(area))
+                                                               : std::numeric_limits<float>::quiet_NaN();
+      }
+    }
+  });
+}
+
 void PvmVisibleCoarse(const PvmGrid& grid, const Camera& camera, const float* gbuffer_depth, int margin,
                       int ray_stride, std::vector<std::uint8_t>& visible) {
   const int c = grid.coarse;
@@ -336,8 +362,34 @@ inline void PrefetchTileData(const PvmTileArrays& tiles, std::int64_t t) {
 struct KeptFace {
   std::int32_t a, b, c;
   int ra, rb, ca, cb;
-  std::int32_t cull;  // 1: back-face test in the draw loop; 0: passed already (a near-clipped piece)
+  // The face's index in the tiles (face_src_log2; its back-face test is in the draw loop), or -1 for a
+  // near-clipped piece (tested already; no stretch).
+  std::int32_t face;
 };
+
+// log2 of x > 0 from its float exponent and a quadratic in its mantissa (within 0.008 octave: the
+// stretch code's step is 1/16). x below the smallest normal float counts as it.
+inline float FastLog2(float x) {
+  std::uint32_t bits;
+  const float y = std::max(x, std::numeric_limits<float>::min());
+  std::memcpy(&bits, &y, sizeof bits);
+  const float e = static_cast<float>(static_cast<int>(bits >> 23) - 127);
+  const std::uint32_t mbits = (bits & 0x007fffffu) | 0x3f800000u;
+  float m;
+  std::memcpy(&m, &mbits, sizeof m);
+  const float t = m - 1.f;  // [0, 1)
+  return e + t * (1.3465557f - 0.3465557f * t);
+}
+
+// A candidate's stretch (PvmRenderOptions.stretch_weight): log2 of its triangle's doubled area in
+// the target (pixels^2) over src = that in its own view (log2), in 1/16 octaves offset by 128 and
+// clamped to 0 .. 255 (+-8 octaves); 128 (no stretch) where src is NaN.
+inline std::uint8_t StretchCode(double target_area, float src) {
+  if (std::isnan(src)) return 128;
+  // Rounded half up by truncation once clamped to [0, 255.5) (std::round is a call to libm here).
+  const float q = 16.f * (FastLog2(static_cast<float>(target_area)) - src) + 128.5f;
+  return static_cast<std::uint8_t>(q >= 255.f ? 255.f : (q > 0.f ? q : 0.f));  // -inf src: 255
+}
 
 // True when the triangle (a, b, c) (world) faces the point (cx, cy, cz): its outward normal
 // cross(b - a, c - a) faces the triangle's own view (pvm.h), so false for a back face.
@@ -369,6 +421,10 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
   frame.cand_depth.resize(static_cast<std::size_t>(npix * K));
   frame.cand_view.resize(static_cast<std::size_t>(npix * K));
   frame.cand_rank.resize(static_cast<std::size_t>(npix * K));
+  frame.cand_stretch.resize(static_cast<std::size_t>(npix * K));
+  // The stretch term's per-candidate codes (StretchCode), or 128 everywhere it is off.
+  const bool stretch = options.stretch_weight > 0.f && tiles.face_src_log2 != nullptr;
+  frame.stretch_codes = stretch;
   frame.cand_count.resize(static_cast<std::size_t>(npix));
   frame.cand_seen.resize(static_cast<std::size_t>(npix));
   frame.clusters_everywhere = false;  // new candidate lists: the kept clusters are stale
@@ -439,6 +495,7 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
   float* cd = frame.cand_depth.data();
   std::int16_t* cv = frame.cand_view.data();
   std::uint8_t* cr = frame.cand_rank.data();
+  std::uint8_t* cst = frame.cand_stretch.data();
   std::uint8_t* cc = frame.cand_count.data();
   std::uint32_t* cs = frame.cand_seen.data();
   std::vector<std::int64_t> tri_count(static_cast<std::size_t>(nb), 0);
@@ -534,7 +591,7 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
             const auto [ra, rb, ca, cb] = pixel_bounds(a, b, c);
             if (ra <= rb && ca <= cb)
               near_kept.push_back({static_cast<std::int32_t>(a), static_cast<std::int32_t>(b),
-                                   static_cast<std::int32_t>(c), ra, rb, ca, cb, 0});
+                                   static_cast<std::int32_t>(c), ra, rb, ca, cb, -1});
           }
         };
         // The faces that may cover a pixel centre of this band, without a branch per test (most
@@ -551,7 +608,8 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
           if (n_behind == 1 || n_behind == 2) clip_near(ia, ib, ic);
           const auto [ra, rb, ca, cb] = pixel_bounds(ia, ib, ic);
           const bool keep = front & (ra <= rb) & (ca <= cb);
-          kept[nk] = {static_cast<std::int32_t>(ia), static_cast<std::int32_t>(ib), static_cast<std::int32_t>(ic), ra, rb, ca, cb, 1};
+          kept[nk] = {static_cast<std::int32_t>(ia), static_cast<std::int32_t>(ib), static_cast<std::int32_t>(ic), ra, rb, ca, cb,
+                      static_cast<std::int32_t>(f0 + f)};
           nk += static_cast<std::size_t>(keep);
         }
         if (!near_kept.empty()) {
@@ -564,7 +622,7 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
           const std::size_t ia = static_cast<std::size_t>(kf.a);
           std::size_t ib = static_cast<std::size_t>(kf.b), ic = static_cast<std::size_t>(kf.c);
           const int ra = kf.ra, rb = kf.rb, ca = kf.ca, cb = kf.cb;
-          if (options.cull_back && kf.cull && !FacesPoint(wv + 3 * ia, wv + 3 * ib, wv + 3 * ic, cnx, cny, cnz)) continue;
+          if (options.cull_back && kf.face >= 0 && !FacesPoint(wv + 3 * ia, wv + 3 * ib, wv + 3 * ic, cnx, cny, cnz)) continue;
           double area = (static_cast<double>(sx[ib]) - sx[ia]) * (static_cast<double>(sy[ic]) - sy[ia]) -
                         (static_cast<double>(sx[ic]) - sx[ia]) * (static_cast<double>(sy[ib]) - sy[ia]);
           if (area == 0.0 || !std::isfinite(area)) continue;
@@ -581,6 +639,7 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
           // a pixel and cover none (the same value when computed; no division otherwise).
           double inv = 0.0;
           bool have_inv = false;
+          std::uint8_t scode = 128;  // with inv: StretchCode of this face
           // Per row, the columns where all three edge functions can be >= 0: each edge function is
           // e(px) = c - dy * (px - x0) along the row; its sign changes at px = x0 + c / dy. The span
           // is widened by kSpanSlack on each side (the exact test below decides; the span only skips
@@ -617,6 +676,7 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
               if (!have_inv) {
                 inv = 1.0 / area;
                 have_inv = true;
+                if (stretch && kf.face >= 0) scode = StretchCode(area, tiles.face_src_log2[kf.face]);
               }
               const float iz = static_cast<float>((e0 * iza + e1 * izb + e2 * izc) * inv);
               if (!(iz > 0.f)) continue;
@@ -633,15 +693,18 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
                 s = 0;
                 while (s < n && pv[s] != view) ++s;
               }
+              std::uint8_t* pst = cst + p * K;
               if (s < n) {
                 if (z < pd[s]) {
                   pd[s] = z;
                   pr[s] = rank;
+                  pst[s] = scode;
                 }
               } else if (n < K) {
                 pd[n] = z;
                 pv[n] = view;
                 pr[n] = rank;
+                pst[n] = scode;
                 cc[p] = static_cast<std::uint8_t>(n + 1);
                 cs[p] |= view_bit;
               } else {
@@ -652,6 +715,7 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
                   pd[worst] = z;
                   pv[worst] = view;
                   pr[worst] = rank;
+                  pst[worst] = scode;
                   cs[p] |= view_bit;  // the evicted view's bit may stay set: a superset, only a hint
                 }
               }
@@ -811,6 +875,7 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
   for (int v = 0; v < views.count; ++v) centres[static_cast<std::size_t>(v)] = Centre(views.cameras[v]);
   const int ulr_k = std::max(1, options.ulr_k);
   const bool free_space = options.free_space && views.depths != nullptr;
+  const bool stretch = frame.stretch_codes && options.stretch_weight > 0.f;
   ParallelFor(h, 4, [&](std::int64_t a, std::int64_t b) {
     double pos[kPvmMaxCandidates][2];  // a candidate's position in its view's image
     bool projected[kPvmMaxCandidates];
@@ -833,6 +898,7 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
         if (n == 0) continue;
         const float* d = frame.cand_depth.data() + p * K;
         const std::int16_t* vv = frame.cand_view.data() + p * K;
+        const std::uint8_t* sc = frame.cand_stretch.data() + p * K;
         double m0 = 0.0, m1 = 0.0;
         bool two = false;
         if (reuse_clusters) {  // the depth pass's clusters: membership bits, two = a background exists
@@ -936,6 +1002,10 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
             const glm::vec3 to_novel = c_novel - pf;
             pen[i] = UlrPenaltyFast(pf, to_novel, glm::length(to_novel), centres[static_cast<std::size_t>(v)],
                                     options.resolution_weight);
+            if (stretch) {  // pvm_render.h stage 4, "Stretch"
+              const float octaves = (static_cast<float>(sc[i]) - 128.f) * (1.f / 16.f);
+              pen[i] += options.stretch_weight * std::max(0.f, octaves - options.stretch_free);
+            }
           }
         }
         // Candidate i's colour from its view (0 where it does not project). Read at most once per

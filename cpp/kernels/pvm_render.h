@@ -47,6 +47,13 @@
 //     colour is its view's image sampled (Catmull-Rom with options.cubic, else bilinearly) at the
 //     projection of the candidate's surface point (projective texturing of the PVM by its own
 //     image).
+//     Stretch (ours; stretch_weight > 0, with tiles.face_src_log2): each candidate's penalty gains
+//     stretch_weight x max(0, log2 s - stretch_free), s = the doubled area of its triangle in the
+//     target (pixels^2, the rasteriser's) over that in its own view (PvmFaceSourceLog2Area), kept
+//     per candidate by PvmRasterise in 1/16 octaves (StretchCode; the fragment that wins the list
+//     slot writes it). A per-view mesh triangle magnified in the target carries little of its
+//     image's detail: a sheet its mesh spans across a depth edge, or a surface its view sees at
+//     a grazing angle. Near-clipped pieces carry none (128: s = 1).
 //     Free space (free_space, with views.depths): a background candidate counts in #N_bg (Eq. 1,
 //     Eq. 2) only when its view sees past the foreground point P (the foreground mean on the
 //     pixel's ray): P projects into the view, no pixel of the 3 x 3 around P's projection has a
@@ -97,6 +104,9 @@ struct PvmTileArrays {
   const std::int32_t* tile_cell = nullptr;    // (T, 3) fine cell
   const std::int64_t* coarse_offsets = nullptr;  // (coarse^3 + 1,)
   std::int64_t num_tiles = 0;
+  // (F,) log2 of each face's doubled area in its own view's image, pixels^2 (PvmFaceSourceLog2Area;
+  // NaN where a vertex does not project); nullptr: no stretch term (PvmRenderOptions.stretch_weight).
+  const float* face_src_log2 = nullptr;
   PvmGrid grid{};
   // Finite box of the surface (lo xyz, hi xyz; world): the bounds of the tiles, padded. A pixel is
   // inside_grid when its ray meets this box. Not the grid's own box: the fine cells are cubes
@@ -139,6 +149,12 @@ struct PvmRenderOptions {
   float free_space_point_tol = 0.005f;  // relative: and mostly > (1 + point_tol) x it (within: the view sees the point)
   float tau_empty = 2.f;     // with free_space: a one-cluster pixel is empty when >= tau_empty x n_fg views see past it (0: off)
   int min_views = 2;         // where the G-buffer is empty: candidate lists of fewer views are emptied (1: none are)
+  // Stretch term (ours): a candidate's ULR penalty gains stretch_weight x max(0, log2 s - stretch_free),
+  // s = the area of its triangle in the target over its area in its own view (a per-view mesh
+  // triangle magnified: a sheet across a depth edge, or a surface its view sees at a grazing angle;
+  // pvm_render.md "Stretch"). 0: off, the paper's ULR weights. Needs tiles.face_src_log2.
+  float stretch_weight = 0.1f;
+  float stretch_free = 0.f;  // octaves of magnification without a penalty
   bool filtered = true;
   bool cubic = true;         // candidate colours read with Catmull-Rom (resample.h, as the ULR blend), else bilinear
 };
@@ -151,6 +167,8 @@ struct PvmFrame {
   std::vector<float> cand_depth;          // (H * W * K)
   std::vector<std::int16_t> cand_view;
   std::vector<std::uint8_t> cand_rank;
+  std::vector<std::uint8_t> cand_stretch;  // (H * W * K) StretchCode of the candidate's triangle (128: none)
+  bool stretch_codes = false;             // cand_stretch holds codes (the stretch term was on in PvmRasterise)
   std::vector<std::uint8_t> cand_count;   // (H * W)
   std::vector<std::uint32_t> cand_seen;   // (H * W) bit (view & 31) set when a view of that class is in the list
   std::vector<float> d_fg, d_bg;          // (H * W) cluster mean depths
@@ -161,6 +179,11 @@ struct PvmFrame {
   std::vector<std::uint8_t> inside;       // (H * W) inside_grid of the last PvmFilter that computed it
   std::int64_t triangles = 0;             // triangles drawn (summed over the bands they touch)
 };
+
+// log2 of the doubled area (pixels^2) of every tile face in its own view's image (tile_view):
+// out (F,) float; NaN where a vertex does not project into the view, -inf for a zero area
+// (infinitely stretched wherever it is drawn). Computed once per set of tiles (the binding).
+void PvmFaceSourceLog2Area(const PvmTileArrays& tiles, const Camera* cameras, float* out);
 
 // Stage 1. gbuffer_depth (H, W) z or nullptr; visible gets coarse^3 bytes (1 = visible).
 void PvmVisibleCoarse(const PvmGrid& grid, const Camera& camera, const float* gbuffer_depth, int margin,

@@ -218,8 +218,9 @@ STAGES: dict[str, Stage] = {s.name: s for s in (
           version=5),  # 4: mesh_snap; 5: clip "large" (triangles whole, not clipped to the cells)
     Stage("mix", ("scene", "mesh", "depth", "texture", "harmonise", "pvm"), ("mix.npz",), frozenset({"hybrid"}),
           "the hybrid composite's PVM weight floor (pvm_floor), fitted on leave-one-out renders of input views",
-          version=3),  # 2: the G-buffer of a mesh dense for the frame ray cast (render/hybrid.py RASTER_MAX_FACES);
-    # 3: tol_db 0 (the best floor; was the smallest within 0.01 dB of it)
+          version=4),  # 2: the G-buffer of a mesh dense for the frame ray cast (render/hybrid.py RASTER_MAX_FACES);
+    # 3: tol_db 0 (the best floor; was the smallest within 0.01 dB of it); 4: PVM colours with the stretch term
+    # (hybrid/pvm_render.py stretch_weight)
 )}
 ORDER = tuple(STAGES)
 ALL_METHODS = ("reference", "dibr", "warp", "depthwarp", "tm", "ulr", "pvm", "hybrid")

@@ -70,11 +70,17 @@ from .pvm import PvmTiles
 # emptied (a sheet across a gap); chosen on the selection scenes over 0 (off) / 1.5 / 2 / 2.5 / 3 / 4
 # (docs/pvm_render.md "Seen through"). resample "cubic": the candidates' colours are read with
 # Catmull-Rom, as the ULR blend's (cpp/kernels/resample.h; "bilinear" until the ninth session).
+# stretch_weight 0.1, stretch_free 0 (ours, twenty-third session): a candidate's ULR penalty gains
+# 0.1 x log2 of its triangle's magnification in the target (its area there over its area in its own
+# view) when above 1; chosen on the selection scenes (the 36 lego views outside the held-out set
+# and synth seed 1) over weights 0.05 / 0.1 / 0.2 / 0.4 / 0.8 and free octaves 0 / 1 / 2
+# (docs/pvm_render.md "Stretch"); 0 = the paper's ULR weights.
 DEFAULTS = {"sigma": 3.0, "alpha": 7.0, "gamma": 7.0, "tau_depth": 0.83, "max_tiles": 12,
             "max_candidates": 12, "ulr_k": 3, "merge_rel": 0.02, "radius_sigmas": 2.0, "margin": 1,
             "near": 1e-3, "cull_back": True, "max_angle": 55.0, "ray_stride": 8, "filter_step": 2,
             "filtered": True, "free_space": True, "free_space_tol": 0.02,
-            "free_space_point_tol": 0.005, "tau_empty": 2.0, "min_views": 2, "resample": "cubic"}
+            "free_space_point_tol": 0.005, "tau_empty": 2.0, "min_views": 2, "stretch_weight": 0.1,
+            "stretch_free": 0.0, "resample": "cubic"}
 
 # How the views' colours are read at sub-pixel positions (the ULR method takes the same values).
 RESAMPLE = ("cubic", "bilinear")
@@ -112,6 +118,8 @@ def check_params(params: dict | None) -> dict:
         raise BadValueError(f"--param free_space_tol: expected < 1, got {p['free_space_tol']}")
     p["free_space_point_tol"] = P.number(p["free_space_point_tol"], "--param free_space_point_tol", 0.0)
     p["tau_empty"] = P.number(p["tau_empty"], "--param tau_empty", 0.0)
+    p["stretch_weight"] = P.number(p["stretch_weight"], "--param stretch_weight", 0.0)
+    p["stretch_free"] = P.number(p["stretch_free"], "--param stretch_free", 0.0)
     p["resample"] = P.choice(p["resample"], "--param resample", RESAMPLE)
     if p["max_tiles"] > 255:
         raise BadValueError(f"--param max_tiles: expected <= 255, got {p['max_tiles']}")
@@ -316,6 +324,7 @@ class PvmRenderer:
                                 p["merge_rel"], p["radius_sigmas"], p["margin"], p["near"], p["cull_back"],
                                 p["max_angle"], p["ray_stride"], p["filter_step"], self.free_space,
                                 p["free_space_tol"], p["free_space_point_tol"], p["tau_empty"], p["min_views"],
+                                p["stretch_weight"], p["stretch_free"],
                                 p["resample"], mode)
         times = {STAGE_NAMES[k]: float(v) for k, v in out["times_ms"].items()}
         if mode == "resolve":
@@ -327,7 +336,9 @@ class PvmRenderer:
 
     def candidates(self, camera: Camera) -> dict[str, np.ndarray]:
         """The last rendered frame's per-pixel candidate lists (count (H, W), depth and view
-        (H, W, K); entries past count unspecified) and, when that frame clustered every pixel (no
+        (H, W, K); entries past count unspecified), ``stretch`` (H, W, K) with the stretch term on (log2 of
+        each candidate's triangle's magnification in the target, octaves in steps of 1/16, clamped to
+        +-8) and, when that frame clustered every pixel (no
         pixel mask), the cluster sizes ``n_fg``, ``n_bg`` (H, W) of Eq. 1 / Eq. 2 (``n_bg`` counts
         only the background candidates whose view sees past the foreground, with ``free_space``;
         0 = one cluster), for tests and inspection."""

@@ -99,7 +99,7 @@ RASTER_MAX_FACES = 500_000
 RASTER_MAX_FACES_PER_PIXEL = 0.3
 # The hybrid parameters that are the PVM renderer's: its defaults, checked by it, passed to it.
 PVM_KEYS = ("sigma", "alpha", "gamma", "tau_depth", "free_space", "free_space_tol", "free_space_point_tol", "tau_empty",
-            "ulr_k", "min_views", "resample", "max_angle", "merge_rel")
+            "ulr_k", "min_views", "resample", "max_angle", "merge_rel", "stretch_weight", "stretch_free")
 HYBRID_DEFAULTS = {**ULR_DEFAULTS, **{k: PVM_DEFAULTS[k] for k in PVM_KEYS},
                    "tau_var": -1.0, "sigma_blur": 16.0, "min_weight": 0.05, "geo_threshold": None, "filtered": True,
                    "pvm_floor": "auto"}

@@ -13,7 +13,7 @@ Outputs: color, depth (the PVM depth picked by the vote of Eq. 2) and hole = pix
 candidate (the hybrid method covers them with ULR/TM; ``ibr-render --inpaint`` can fill them).
 Parameters (``--param key=value``): those of hybrid.pvm_render (sigma, alpha, gamma, tau_depth,
 max_tiles, max_candidates, ulr_k, merge_rel, radius_sigmas, margin, near, cull_back, max_angle,
-filtered) and ``gbuffer`` = mesh | none. Needs ``ibr-preprocess SCENE --methods pvm``.
+stretch_weight, stretch_free, filtered, ...) and ``gbuffer`` = mesh | none. Needs ``ibr-preprocess SCENE --methods pvm``.
 """
 from __future__ import annotations
 
