@@ -15,7 +15,9 @@ gives a :class:`PvmResult`:
   view's image at the candidate's surface point), one per view (nearest fragment);
 * where ``gbuffer_depth`` has no surface, lists of fewer than ``min_views`` = 2 views emptied (a
   surface the global mesh lacks needs two views to vouch for it; 1 = the paper, any candidate);
-* per pixel 2-means on the candidate depths, ULR-weighted colour per cluster, the spatial filter of
+* per pixel 2-means on the candidate depths, ULR-weighted colour per cluster (ours: a candidate whose
+  triangle is magnified in the target, against its area in its own view, gets a larger penalty:
+  ``stretch_weight``), the spatial filter of
   Eq. 1 and the gamma-power blend (``filtered=True``), or the foreground cluster's colour
   (``filtered=False``: the unfiltered PVM-H-like baseline);
 * depth by the vote of Eq. 2 (``tau_depth``) for the hybrid method's geometric test.
