@@ -145,13 +145,13 @@ void PvmFaceSourceLog2Area(const PvmTileArrays& tiles, const Camera* cameras, fl
     std::vector<std::uint8_t> ok;
     for (std::int64_t t = t0; t < t1; ++t) {
       const Camera& cam = cameras[tiles.tile_view[t]];
-      const std::int64_t v0 = tiles.vertex_offsets[t], nv = tiles.vertex_offsets[t + 1] - v0;
-      px.resize(static_cast<std::size_t>(nv)), py.resize(static_cast<std::size_t>(nv)), ok.resize(static_cast<std::size_t>(nv));
-      for (std::int64_t k = 0; k < nv; ++k) {  // each vertex of the tile projected once
-        const float* v = tiles.vertices + 3 * (v0 + k);
+      const std::int64_t v0 = tiles.vertex_offsets[t];
+      const std::size_t nv = static_cast<std::size_t>(tiles.vertex_offsets[t + 1] - v0);
+      px.resize(nv), py.resize(nv), ok.resize(nv);
+      for (std::size_t k = 0; k < nv; ++k) {  // each vertex of the tile projected once
+        const float* v = tiles.vertices + 3 * (v0 + static_cast<std::int64_t>(k));
         double z = 0;
-        ok[static_cast<std::size_t>(k)] = cam.ProjectCam(cam.CamFromWorld(glm::dvec3(v[0], v[1], v[2])),
-                                                         &px[static_cast<std::size_t>(k)], &py[static_cast<std::size_t>(k)], &z);
+        ok[k] = cam.ProjectCam(cam.CamFromWorld(glm::dvec3(v[0], v[1], v[2])), &px[k], &py[k], &z);
       }
       for (std::int64_t f = tiles.face_offsets[t]; f < tiles.face_offsets[t + 1]; ++f) {
         const std::int32_t* fv = tiles.faces + 3 * f;
