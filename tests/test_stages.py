@@ -366,11 +366,15 @@ def test_out_of_date_stages_are_named_by_preprocess_render_and_bench(tmp_path, c
     out = run(d, "--stages", "mesh", "--set", "mesh.resolution=24", capsys=capsys)
     assert out["mesh"]["status"] == "ran"
     assert "not selected" in out["pvm"]["reason"] and "out of date (stage 'mesh' re-ran after it)" in out["pvm"]["reason"]
-    assert render.main([str(d), "--method", "pvm", "-o", str(tmp_path / "r"), "-q"]) == 0
+    assert render.main([str(d), "--method", "pvm", "-o", str(tmp_path / "r")]) == 0
     err = capsys.readouterr().err
     assert "warning: the output of stage pvm (stage 'mesh' re-ran after it) is out of date" in err
     assert f"run ibr-preprocess {d} -o {d} --methods pvm" in err
     assert "re-ran" in json.loads((tmp_path / "r" / "report.json").read_text())["stale_note"]
+    # -q prints nothing but errors; the report still says it.
+    assert render.main([str(d), "--method", "pvm", "-o", str(tmp_path / "rq"), "-q"]) == 0
+    assert "warning" not in capsys.readouterr().err
+    assert "re-ran" in json.loads((tmp_path / "rq" / "report.json").read_text())["stale_note"]
     assert bench.main([str(d), "--method", "pvm", "--sweep", "sigma=3", "-o", str(tmp_path / "b"), "--json"]) == 0
     assert "stage pvm" in json.loads(capsys.readouterr().out)["stale_note"]
     # A record of another version of the stage's code; a render method that reads no stale stage says nothing.

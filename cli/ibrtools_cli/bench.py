@@ -72,7 +72,7 @@ def _body(args: argparse.Namespace) -> int:
 
     check_output(out / "report.html", "-o")
     scene = native.load(args.scene)
-    stale = warn_stale(PROG, scene, args.method, json_out=args.json)
+    stale = warn_stale(PROG, scene, args.method, silent=args.quiet or args.json)
     keep = _BestFrames(args.report_frames)
     with progress_bar(PROG, "configurations x frames", None, quiet=args.quiet) as bar:
         def progress(ci: int, nc: int, fi: int, nf: int) -> None:

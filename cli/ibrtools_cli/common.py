@@ -113,15 +113,16 @@ def print_table(headers: list[str], rows: list[list[str]], title: str | None = N
     Console(width=max(100, Console().width)).print(table)
 
 
-def warn_stale(prog: str, scene, method: str, *, json_out: bool) -> str | None:
+def warn_stale(prog: str, scene, method: str, *, silent: bool) -> str | None:
     """Print (to stderr, before the run: it may take minutes) a warning when a preprocessing stage
     that ``--method`` reads is out of date in ``scene`` (ibrtools.render.job.stale_note), and
-    return the note (None when current). Not with ``--json``, which carries it as "stale_note"."""
+    return the note (None when current). ``silent`` (``-q``, ``--json``): not printed; the
+    report and the JSON carry it as "stale_note"."""
     from ibrtools.render.job import stale_note
     from ibrtools.render.methods import resolve
 
     note = stale_note(scene, resolve(method, scene))
-    if note and not json_out:
+    if note and not silent:
         print(f"{prog}: warning: {note}", file=sys.stderr)
     return note
 

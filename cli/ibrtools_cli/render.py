@@ -139,7 +139,7 @@ def _body(args: argparse.Namespace) -> int:
                           poses=args.poses, lightfield=lightfield)
     if video is not None:
         batches.check_same_size([f.camera for f in job.frames])
-    warn_stale(PROG, scene, args.method, json_out=args.json)
+    warn_stale(PROG, scene, args.method, silent=args.quiet or args.json)
     params = {k: _number(v) for k, v in parse_options(args.param).items()}
     for key, value in (("inputs", args.inputs), ("quality", args.quality),
                        ("blend_exponent", args.blend_exponent), ("layers", args.layers),
