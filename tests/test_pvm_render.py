@@ -494,7 +494,7 @@ def test_stretch_is_the_triangles_magnification_in_octaves():
         c = r.candidates(target)
         have = c["count"] > 0
         assert have.mean() > 0.2, octaves  # from twice the distance the plane fills a quarter
-        # FastLog2 is within 0.008 octave; the codes are in steps of 1/16.
+        # The codes are in steps of 1/16 octave (rounded); log2 (ibr/fastmath.h Log2Pos) within 3.5e-8.
         np.testing.assert_allclose(c["stretch"][..., 0][have], octaves, atol=1 / 16 + 1e-6)
         assert res.valid[have].all()
     # Off: no codes, and the frame's depth, vote and validity do not depend on the term (colour only).
@@ -517,8 +517,8 @@ def _plane_z_depth(cam, z_plane):
 def test_stretch_moves_the_blend_to_the_view_that_sees_the_surface_frontally():
     # The plane z = 5, colour 0.25 in view a (frontal) and 0.75 in view b (76 degrees off the
     # plane's normal); the target between them in angle (38 degrees) magnifies b's triangles more
-    # than a's. A large stretch weight leaves a's colour; without the term b's candidate has a share
-    # of the blend.
+    # than a's on most of the frame. A large stretch weight leaves, per pixel, the colour of the less
+    # magnified candidate; without the term b's candidate has a share where it is the more magnified.
     w, h = 64, 48
     cams = {"a": Camera.from_fov(w, h, 40.0, look_at((0.0, 0.0, 0.0), (0.0, 0.0, 5.0))),
             "b": Camera.from_fov(w, h, 40.0, look_at((4.0, 0.0, 4.0), (0.0, 0.0, 5.0)))}

@@ -366,8 +366,7 @@ class PvmRendererCore {
     out["view"] = view;
     if (frame_.stretch_codes && frame_.cand_stretch.size() == npix * static_cast<std::size_t>(k)) {
       auto stretch = NewArray<float>({h, w, k});  // log2 s in octaves, as the penalty reads the codes
-      std::transform(frame_.cand_stretch.begin(), frame_.cand_stretch.end(), stretch.mutable_data(),
-                     [](std::uint8_t c) { return (static_cast<float>(c) - 128.f) / 16.f; });
+      std::transform(frame_.cand_stretch.begin(), frame_.cand_stretch.end(), stretch.mutable_data(), StretchOctaves);
       out["stretch"] = stretch;
     }
     if (frame_.clusters_everywhere && frame_.n_fg.size() == npix) {  // cluster sizes #N_fg, #N_bg (Eq. 1, 2)

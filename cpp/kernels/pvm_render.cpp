@@ -12,6 +12,7 @@
 #endif
 
 #include "ibr/bands.h"
+#include "ibr/fastmath.h"
 #include "ibr/parallel.h"
 #include "ibr/simd.h"
 #include "kernels/resample.h"
@@ -367,27 +368,14 @@ struct KeptFace {
   std::int32_t face;
 };
 
-// log2 of x > 0 from its float exponent and a quadratic in its mantissa (within 0.008 octave: the
-// stretch code's step is 1/16). x below the smallest normal float counts as it.
-inline float FastLog2(float x) {
-  std::uint32_t bits;
-  const float y = std::max(x, std::numeric_limits<float>::min());
-  std::memcpy(&bits, &y, sizeof bits);
-  const float e = static_cast<float>(static_cast<int>(bits >> 23) - 127);
-  const std::uint32_t mbits = (bits & 0x007fffffu) | 0x3f800000u;
-  float m;
-  std::memcpy(&m, &mbits, sizeof m);
-  const float t = m - 1.f;  // [0, 1)
-  return e + t * (1.3465557f - 0.3465557f * t);
-}
-
-// A candidate's stretch (PvmRenderOptions.stretch_weight): log2 of its triangle's doubled area in
-// the target (pixels^2) over src = that in its own view (log2), in 1/16 octaves offset by 128 and
-// clamped to 0 .. 255 (+-8 octaves); 128 (no stretch) where src is NaN.
+// A candidate's stretch code (pvm_render.h kStretchZero, PvmRenderOptions.stretch_weight): log2 of
+// its triangle's doubled area in the target (pixels^2, finite, > 0) over src = that in its own view
+// (log2); kStretchZero where src is NaN.
 inline std::uint8_t StretchCode(double target_area, float src) {
-  if (std::isnan(src)) return 128;
+  if (std::isnan(src)) return kStretchZero;
+  const float l2 = Log2Pos(std::max(static_cast<float>(target_area), std::numeric_limits<float>::min()));
   // Rounded half up by truncation once clamped to [0, 255.5) (std::round is a call to libm here).
-  const float q = 16.f * (FastLog2(static_cast<float>(target_area)) - src) + 128.5f;
+  const float q = kStretchSteps * (l2 - src) + (kStretchZero + 0.5f);
   return static_cast<std::uint8_t>(q >= 255.f ? 255.f : (q > 0.f ? q : 0.f));  // -inf src: 255
 }
 
@@ -639,7 +627,7 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
           // a pixel and cover none (the same value when computed; no division otherwise).
           double inv = 0.0;
           bool have_inv = false;
-          std::uint8_t scode = 128;  // with inv: StretchCode of this face
+          std::uint8_t scode = kStretchZero;  // with inv: StretchCode of this face
           // Per row, the columns where all three edge functions can be >= 0: each edge function is
           // e(px) = c - dy * (px - x0) along the row; its sign changes at px = x0 + c / dy. The span
           // is widened by kSpanSlack on each side (the exact test below decides; the span only skips
@@ -1003,8 +991,7 @@ void PvmCluster(const PvmViews& views, const Camera& camera, const std::uint8_t*
             pen[i] = UlrPenaltyFast(pf, to_novel, glm::length(to_novel), centres[static_cast<std::size_t>(v)],
                                     options.resolution_weight);
             if (stretch) {  // pvm_render.h stage 4, "Stretch"
-              const float octaves = (static_cast<float>(sc[i]) - 128.f) * (1.f / 16.f);
-              pen[i] += options.stretch_weight * std::max(0.f, octaves - options.stretch_free);
+              pen[i] += options.stretch_weight * std::max(0.f, StretchOctaves(sc[i]) - options.stretch_free);
             }
           }
         }

@@ -93,6 +93,13 @@ namespace ibr {
 constexpr int kPvmMaxCandidates = 16;  // hard limit of the per-pixel candidate list
 constexpr int kBandRows = 32;          // rasteriser band height (16 -> 32: fewer bands per tile)
 
+// A candidate's stretch code (PvmFrame.cand_stretch): log2 of its triangle's magnification in
+// steps of 1 / kStretchSteps octave, offset by kStretchZero (no magnification), clamped to 0 .. 255.
+constexpr int kStretchZero = 128, kStretchSteps = 16;
+inline float StretchOctaves(std::uint8_t code) {
+  return (static_cast<float>(code) - static_cast<float>(kStretchZero)) * (1.f / kStretchSteps);
+}
+
 // Read-only views of the tiles.npz arrays (docs/FORMAT.md "cache/pvm").
 struct PvmTileArrays {
   const float* vertices = nullptr;            // (V, 3) world
@@ -167,7 +174,7 @@ struct PvmFrame {
   std::vector<float> cand_depth;          // (H * W * K)
   std::vector<std::int16_t> cand_view;
   std::vector<std::uint8_t> cand_rank;
-  std::vector<std::uint8_t> cand_stretch;  // (H * W * K) StretchCode of the candidate's triangle (128: none)
+  std::vector<std::uint8_t> cand_stretch;  // (H * W * K) stretch code of the candidate's triangle (kStretchZero: none)
   bool stretch_codes = false;             // cand_stretch holds codes (the stretch term was on in PvmRasterise)
   std::vector<std::uint8_t> cand_count;   // (H * W)
   std::vector<std::uint32_t> cand_seen;   // (H * W) bit (view & 31) set when a view of that class is in the list

@@ -778,17 +778,19 @@ def _run_planned(root: Path, options: dict, wanted: list[str], why: dict, avail:
             continue
         provenance = {"version": st.version, "inputs": {k: upstream.get(k) for k in st.inputs}}
         if not force and rec and rec.get("key") == key:
+            # A record from before records carried the version and input keys: the key matched, so they
+            # are this run's; recorded below.
+            unrecorded = any(rec.get(k) != v for k, v in provenance.items())
             if rec.get("skipped"):
-                if any(rec.get(k) != v for k, v in provenance.items()):  # recorded before records carried them
+                if unrecorded:
                     _write_stage_record(root, name, {**rec, **provenance})
                 results.append(StageResult(name, "skipped", f"{rec['skipped']} (inputs unchanged)"))
                 continue
             bad = [rel for rel in rec.get("outputs") or {} if not _output_intact(ctx.cache(name) / rel, rec, rel)]
             if not bad and rec.get("outputs"):
                 stat = _output_stats(ctx.cache(name), rec["outputs"])
-                # Hashed intact (copied, or recorded without them), or recorded before records carried
-                # the version and input keys (the key matched, so they are this run's): record them.
-                if rec.get("stat") != stat or any(rec.get(k) != v for k, v in provenance.items()):
+                # Hashed intact (copied, or recorded without them), or unrecorded provenance: record them.
+                if rec.get("stat") != stat or unrecorded:
                     _write_stage_record(root, name, {**rec, "stat": stat, **provenance})
                 results.append(StageResult(name, "up to date", "inputs and parameters unchanged",
                                            0.0, dict(rec.get("details") or {})))
