@@ -13,7 +13,7 @@ import numpy as np
 
 from ibrtools.errors import BadValueError
 
-from .common import add_common, print_json, print_table, progress_bar, run_command, warn_stale
+from .common import ArgumentParser, add_common, print_json, print_table, progress_bar, run_command, warn_stale
 
 PROG = "ibr-bench"
 
@@ -21,7 +21,7 @@ PROG = "ibr-bench"
 def build_parser() -> argparse.ArgumentParser:
     from ibrtools.render.methods import METHODS
 
-    p = argparse.ArgumentParser(
+    p = ArgumentParser(
         prog=PROG, formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Sweep a method's parameters on a scene and write run time against error "
                     "(sweep.csv, sweep.png plot, sweep.md Markdown table, report.html: the plot, the "
@@ -55,64 +55,72 @@ def _body(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ibrtools.formats import native
+    from ibrtools.outputs import OutputDir, check_output_dir
     from ibrtools.render.sweep import _value, parse_sweep, sweep
     from ibrtools.stages import parse_options
 
-    out = Path(args.output)
-    if out.exists() and not out.is_dir():
-        raise BadValueError(f"-o {out}: exists and is not a directory")
+    out = check_output_dir(args.output)
     grid = parse_sweep(args.sweep)
     base = {k: _value(v) for k, v in parse_options(args.param).items()}
     both = sorted(set(base) & set(grid))
     if both:
         raise BadValueError(f"--param and --sweep both set {both}")
+    from ibrtools.render import methods
+    from ibrtools.render.sweep import configurations
+
+    if args.method != "auto" and args.method in methods.BUILT:
+        for config in configurations(grid, base):  # bad values: exit 2 before the scene is read
+            methods.create(args.method, config)
     if args.report_frames < 0:
         raise BadValueError(f"--report-frames: expected a number >= 0, got {args.report_frames}")
     from ibrtools.report_html import check_output
 
     check_output(out / "report.html", "-o")
-    scene = native.load(args.scene)
-    stale = warn_stale(PROG, scene, args.method, silent=args.quiet or args.json)
-    keep = _BestFrames(args.report_frames)
-    with progress_bar(PROG, "configurations x frames", None, quiet=args.quiet) as bar:
-        def progress(ci: int, nc: int, fi: int, nf: int) -> None:
-            bar.update(ci * nf + fi, nc * nf, f"configuration {min(ci + 1, nc)}/{nc}")
+    # The output directory is held for the run (a second job there is refused) and a dead run's
+    # temporaries are swept (ibrtools.outputs).
+    with OutputDir(out, stems={"sweep", "report"}):
+        scene = native.load(args.scene)
+        stale = warn_stale(PROG, scene, args.method, silent=args.quiet or args.json)
+        keep = _BestFrames(args.report_frames)
+        with progress_bar(PROG, "configurations x frames", None, quiet=args.quiet) as bar:
+            def progress(ci: int, nc: int, fi: int, nf: int) -> None:
+                bar.update(ci * nf + fi, nc * nf, f"configuration {min(ci + 1, nc)}/{nc}")
 
-        rows = sweep(scene, args.method, grid, holdout=args.holdout, base=base, out_dir=out, progress=progress,
-                     frame_hook=keep)
-    keep.finish()
-    from ibrtools.render.job import holdout_note
-    from ibrtools.render.methods import resolve
-    from ibrtools.report_html import bench_report
+            rows = sweep(scene, args.method, grid, holdout=args.holdout, base=base, out_dir=out, progress=progress,
+                         frame_hook=keep)
+        keep.finish()
+        from ibrtools.render.job import holdout_note
+        from ibrtools.render.methods import resolve
+        from ibrtools.report_html import bench_report
 
-    name = resolve(args.method, scene)
-    note = holdout_note(scene, args.holdout or [], name)
-    if note and not (args.quiet or args.json):
-        print(f"{PROG}: note: {note}", file=sys.stderr)
-    keys = list(grid)
-    html = bench_report(rows, keys, out, out / "report.html", panels=keep.panels, panels_config=keep.config,
-                        title=f"{PROG} --method {name}: {len(rows)} configurations on "
-                              f"{rows[0]['frames'] if rows else 0} frames")
-    if args.json:
-        print_json({"method": name, "swept": keys, "configurations": rows, **({"holdout_note": note} if note else {}),
-                    **({"stale_note": stale} if stale else {}),
-                    "files": {k: str(out / k) for k in ("sweep.csv", "sweep.md", "sweep.png")} | {"report.html": str(html)}})
+        name = resolve(args.method, scene)
+        note = holdout_note(scene, args.holdout or [], name)
+        if note and not (args.quiet or args.json):
+            print(f"{PROG}: note: {note}", file=sys.stderr)
+        keys = list(grid)
+        html = bench_report(rows, keys, out, out / "report.html", panels=keep.panels, panels_config=keep.config,
+                            title=f"{PROG} --method {name}: {len(rows)} configurations on "
+                                  f"{rows[0]['frames'] if rows else 0} frames")
+        if args.json:
+            print_json({"method": name, "swept": keys, "configurations": rows, **({"holdout_note": note} if note else {}),
+                        **({"stale_note": stale} if stale else {}),
+                        "files": {k: str(out / k) for k in ("sweep.csv", "sweep.md", "sweep.png")} | {"report.html": str(html)}})
+            return 0
+        best = min(range(len(rows)), key=lambda i: (rows[i]["mean_flip"] is None, rows[i]["mean_flip"] or 0), default=None)
+        print_table(["config", *keys, "median ms", "PSNR dB", "SSIM", "FLIP"],
+                    [[r["config"], *[r[k] for k in keys], r["median_ms"], r["mean_psnr"], r["mean_ssim"], r["mean_flip"]]
+                     for r in rows], quiet=args.quiet,
+                    title=f"{PROG} --method {name}: {len(rows)} configurations x {rows[0]['frames'] if rows else 0} "
+                          f"frames -> {out}",
+                    totals=None if best is None else
+                    [f"best: {rows[best]['config']}",
+                     *[""] * len(keys), f"fastest {min(r['median_ms'] for r in rows)}",
+                     max((r["mean_psnr"] for r in rows if r["mean_psnr"] is not None), default="-"),
+                     max((r["mean_ssim"] for r in rows if r["mean_ssim"] is not None), default="-"),
+                     rows[best]["mean_flip"] if rows[best]["mean_flip"] is not None else "-"])
+        if not args.quiet:
+            print(f"HTML report: {html}")
         return 0
-    best = min(range(len(rows)), key=lambda i: (rows[i]["mean_flip"] is None, rows[i]["mean_flip"] or 0), default=None)
-    print_table(["config", *keys, "median ms", "PSNR dB", "SSIM", "FLIP"],
-                [[r["config"], *[r[k] for k in keys], r["median_ms"], r["mean_psnr"], r["mean_ssim"], r["mean_flip"]]
-                 for r in rows], quiet=args.quiet,
-                title=f"{PROG} --method {name}: {len(rows)} configurations x {rows[0]['frames'] if rows else 0} "
-                      f"frames -> {out}",
-                totals=None if best is None else
-                [f"best: {rows[best]['config']}",
-                 *[""] * len(keys), f"fastest {min(r['median_ms'] for r in rows)}",
-                 max((r["mean_psnr"] for r in rows if r["mean_psnr"] is not None), default="-"),
-                 max((r["mean_ssim"] for r in rows if r["mean_ssim"] is not None), default="-"),
-                 rows[best]["mean_flip"] if rows[best]["mean_flip"] is not None else "-"])
-    if not args.quiet:
-        print(f"HTML report: {html}")
-    return 0
 
 
 class _BestFrames:

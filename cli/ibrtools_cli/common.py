@@ -17,6 +17,15 @@ from typing import Callable, Iterator, Sequence
 from ibrtools.errors import InputError, NotBuiltError
 
 
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse's parser whose usage errors are one line, like every other bad input: ``prog:
+    error: <message>; see prog --help`` on stderr and exit status 2 (argparse prints the whole
+    usage block first, a dozen lines for our commands, before the one line that matters)."""
+
+    def error(self, message: str):  # noqa: D401 - argparse's hook
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())}; see {self.prog} --help\n")
+
+
 def add_common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-j", "--threads", type=int, default=0, metavar="N",
                         help="threads for the engine (default: all cores)")

@@ -7,7 +7,7 @@ from typing import Sequence
 
 from ibrtools.errors import BadValueError
 
-from .common import add_common, add_distributed, print_json, print_table, progress_bar, run_command, warn_stale
+from .common import ArgumentParser, add_common, add_distributed, print_json, print_table, progress_bar, run_command, warn_stale
 
 PROG = "ibr-render"
 
@@ -17,7 +17,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     methods = "\n".join(f"  {k:<10} {v}{'' if k in BUILT or k == 'auto' else '  [not built yet]'}"
                         for k, v in METHODS.items())
-    p = argparse.ArgumentParser(
+    p = ArgumentParser(
         prog=PROG, formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Render new views of a scene (made by ibr-preprocess): named targets, held-out "
                     "input views (removed from the inputs and used as ground truth), a stored camera "
@@ -107,7 +107,6 @@ def _body(args: argparse.Namespace) -> int:
     from ibrtools.distributed import check_options
     from ibrtools.formats import native
     from ibrtools.render import job as render_job
-    from ibrtools.stages import parse_options
 
     check_options(args.scheduler, args.workers)  # usage errors before the scene is read
     foveate = None
@@ -134,25 +133,13 @@ def _body(args: argparse.Namespace) -> int:
         from ibrtools.report_html import check_output
 
         html_path = check_output(args.report_html or Path(args.output) / "report.html")
+    params = _params(args)
     scene = native.load(args.scene)
     job = render_job.plan(scene, targets=args.target, holdout=args.holdout, path=args.path,
                           poses=args.poses, lightfield=lightfield)
     if video is not None:
         batches.check_same_size([f.camera for f in job.frames])
     warn_stale(PROG, scene, args.method, silent=args.quiet or args.json)
-    params = {k: _number(v) for k, v in parse_options(args.param).items()}
-    for key, value in (("inputs", args.inputs), ("quality", args.quality),
-                       ("blend_exponent", args.blend_exponent), ("layers", args.layers),
-                       ("seeds", args.seeds), ("iters", args.iters), ("forward", args.forward)):
-        if value is not None:
-            params[key] = _number(value)
-    for key, flag in (("oriented_bounds", args.oriented_bounds), ("umbra", args.umbra), ("cull", args.cull)):
-        if flag:
-            params[key] = True
-    depthwarp_only = [k for k in ("layers", "seeds", "iters", "forward", "oriented_bounds", "umbra", "cull")
-                      if k in params]
-    if depthwarp_only and args.method != "depthwarp":
-        raise BadValueError(f"--{depthwarp_only[0].replace('_', '-')}: only with --method depthwarp")
     with progress_bar(PROG, "frames", len(job.frames), quiet=args.quiet) as bar:
         report = render_job.run(job, args.method, args.output, params=params, float_out=args.float,
                                 depth_out=args.depth, threads=args.threads, inpaint=args.inpaint,
@@ -176,6 +163,8 @@ def _body(args: argparse.Namespace) -> int:
     status = _report_failed(report)
     if report.get("holdout_note") and not (args.quiet or args.json):
         print(f"{PROG}: note: {report['holdout_note']}", file=sys.stderr)
+    if report.get("output") and not (args.quiet or args.json):
+        print(f"{PROG}: note: {_output_note(report['output'])}", file=sys.stderr)
     if args.json:
         print_json({**report, **extra})
         return status
@@ -184,6 +173,30 @@ def _body(args: argparse.Namespace) -> int:
         if key in extra and not args.quiet:
             print(f"{what}: {extra[key]}")
     return status
+
+
+def _params(args: argparse.Namespace) -> dict:
+    """The method parameters of the flags and --param, checked (their bounds: each method's
+    check_params) before the scene is read when --method names the method."""
+    from ibrtools.render import methods
+    from ibrtools.stages import parse_options
+
+    params = {k: _number(v) for k, v in parse_options(args.param).items()}
+    for key, value in (("inputs", args.inputs), ("quality", args.quality),
+                       ("blend_exponent", args.blend_exponent), ("layers", args.layers),
+                       ("seeds", args.seeds), ("iters", args.iters), ("forward", args.forward)):
+        if value is not None:
+            params[key] = _number(value)
+    for key, flag in (("oriented_bounds", args.oriented_bounds), ("umbra", args.umbra), ("cull", args.cull)):
+        if flag:
+            params[key] = True
+    depthwarp_only = [k for k in ("layers", "seeds", "iters", "forward", "oriented_bounds", "umbra", "cull")
+                      if k in params]
+    if depthwarp_only and args.method != "depthwarp":
+        raise BadValueError(f"--{depthwarp_only[0].replace('_', '-')}: only with --method depthwarp")
+    if args.method != "auto" and args.method in methods.BUILT:
+        methods.create(args.method, params)  # bad values: exit 2 before any work
+    return params
 
 
 def _report_failed(report: dict) -> int:
@@ -196,6 +209,27 @@ def _report_failed(report: dict) -> int:
     print(f"{PROG}: {len(failed)} of {len(failed) + len(report['frames'])} frames failed (report.json "
           f"\"failed\"): {shown}", file=sys.stderr)
     return 1
+
+
+def _output_note(output: dict) -> str:
+    """One line on what the run did to the output directory beyond its frames (report.json
+    "output"): names mapped to file names, a dead job's temporaries swept, old files replaced
+    or removed."""
+    def some(names) -> str:
+        names = list(names)
+        return ", ".join(names[:3]) + (f", ... ({len(names)} in all)" if len(names) > 3 else "")
+
+    parts = []
+    if output.get("renamed"):
+        parts.append("frame names mapped to file names: " + some(f"{k!r} -> {v}" for k, v in output["renamed"].items()))
+    if output.get("swept"):
+        parts.append(f"swept {len(output['swept'])} temporaries of a job that died here")
+    if output.get("replaced"):
+        parts.append(f"replaced {len(output['replaced'])} files of the previous run")
+    if output.get("removed"):
+        parts.append(f"removed {len(output['removed'])} files of the previous run that this one does not write: "
+                     + some(output["removed"]))
+    return "; ".join(parts) + " (report.json \"output\")"
 
 
 def _lightfield(args: argparse.Namespace):

@@ -96,18 +96,18 @@ def check_params(params: dict | None) -> dict:
     """Validated PVM parameters with defaults (BadValueError naming the parameter)."""
     p = P.with_defaults("pvm", params, DEFAULTS)
     p["sigma"] = P.number(p["sigma"], "--param sigma", 0.0, strict=True, maximum=32.0)
-    p["alpha"] = P.number(p["alpha"], "--param alpha", 0.0)
-    p["gamma"] = P.number(p["gamma"], "--param gamma", 0.0, strict=True)
-    p["tau_depth"] = P.number(p["tau_depth"], "--param tau_depth", 0.0)
-    p["merge_rel"] = P.number(p["merge_rel"], "--param merge_rel", 0.0)
-    p["radius_sigmas"] = P.number(p["radius_sigmas"], "--param radius_sigmas", 0.0)
-    p["near"] = P.number(p["near"], "--param near", 0.0, strict=True)
+    p["alpha"] = P.number(p["alpha"], "--param alpha", 0.0, maximum=P.FINITE_MAX)
+    p["gamma"] = P.number(p["gamma"], "--param gamma", 0.0, strict=True, maximum=P.FINITE_MAX)
+    p["tau_depth"] = P.number(p["tau_depth"], "--param tau_depth", 0.0, maximum=P.FINITE_MAX)
+    p["merge_rel"] = P.number(p["merge_rel"], "--param merge_rel", 0.0, maximum=P.FINITE_MAX)
+    p["radius_sigmas"] = P.number(p["radius_sigmas"], "--param radius_sigmas", 0.0, maximum=64.0)
+    p["near"] = P.number(p["near"], "--param near", 0.0, strict=True, maximum=P.FINITE_MAX)
     p["max_angle"] = P.number(p["max_angle"], "--param max_angle", 0.0, strict=True, maximum=180.0)
     p["max_tiles"] = P.integer(p["max_tiles"], "--param max_tiles", 1)
     p["max_candidates"] = P.integer(p["max_candidates"], "--param max_candidates", 1)
-    p["ulr_k"] = P.integer(p["ulr_k"], "--param ulr_k", 1)
+    p["ulr_k"] = P.integer(p["ulr_k"], "--param ulr_k", 1, 64)  # the kernel's bound
     p["margin"] = P.integer(p["margin"], "--param margin", 0)
-    p["ray_stride"] = P.integer(p["ray_stride"], "--param ray_stride", 0)
+    p["ray_stride"] = P.integer(p["ray_stride"], "--param ray_stride", 0, 1 << 16)  # past any frame side
     p["filter_step"] = P.integer(p["filter_step"], "--param filter_step", 1)
     p["min_views"] = P.integer(p["min_views"], "--param min_views", 1)
     if p["filter_step"] > 16:
@@ -118,10 +118,11 @@ def check_params(params: dict | None) -> dict:
     p["free_space_tol"] = P.number(p["free_space_tol"], "--param free_space_tol", 0.0)
     if p["free_space_tol"] >= 1:
         raise BadValueError(f"--param free_space_tol: expected < 1, got {p['free_space_tol']}")
-    p["free_space_point_tol"] = P.number(p["free_space_point_tol"], "--param free_space_point_tol", 0.0)
-    p["tau_empty"] = P.number(p["tau_empty"], "--param tau_empty", 0.0)
-    p["stretch_weight"] = P.number(p["stretch_weight"], "--param stretch_weight", 0.0)
-    p["stretch_free"] = P.number(p["stretch_free"], "--param stretch_free", 0.0)
+    p["free_space_point_tol"] = P.number(p["free_space_point_tol"], "--param free_space_point_tol", 0.0,
+                                         maximum=P.FINITE_MAX)
+    p["tau_empty"] = P.number(p["tau_empty"], "--param tau_empty", 0.0, maximum=P.FINITE_MAX)
+    p["stretch_weight"] = P.number(p["stretch_weight"], "--param stretch_weight", 0.0, maximum=P.FINITE_MAX)
+    p["stretch_free"] = P.number(p["stretch_free"], "--param stretch_free", 0.0, maximum=P.FINITE_MAX)
     p["resample"] = P.choice(p["resample"], "--param resample", RESAMPLE)
     if p["max_tiles"] > 255:
         raise BadValueError(f"--param max_tiles: expected <= 255, got {p['max_tiles']}")

@@ -39,9 +39,9 @@ Stage times (report "time_ms"): peel, motion, mipmap, warp, dilate, cull, refere
 cost), reference_ms and their ratio, the per-layer fill of the source buffer and the warp stats.
 
 Parameters (flags of ibr-render or ``--param key=value``)
-  layers            L >= 1 (default 3)
-  seeds, iters      N (default 16), T (default 3)
-  threshold         convergence threshold in pixels (default 0.5)
+  layers            L in 1..16 (default 3)
+  seeds, iters      N in 1..256 (default 16), T in 1..64 (default 3)
+  threshold         convergence threshold in pixels, (0, 1e6] (default 0.5)
   oriented_bounds   PCA-oriented search bounds (default false)
   umbra             generalised umbra culling while peeling (default false)
   ground            "none" (default: L peeled layers), "auto" (object 0 as the ground layer
@@ -69,15 +69,23 @@ DEFAULTS = {"layers": 3, "seeds": 16, "iters": 3, "threshold": 0.5, "oriented_bo
             "ground": "none", "cull": False, "forward": "none", "dilate": True, "bound": "tight",
             "far_plane": True}
 FORWARD = ("none", "vfw", "afw")
+# Upper bounds of the numeric parameters (docs/depthwarp.md "Parameters"), checked by check_params
+# for ibr-render, ibr-bench and DepthWarpMethod alike. The kernels take up to 127 layers, 4096
+# seeds and 1000 iterations (cpp/bindings/depthwarp.cpp); the method's bounds are lower:
+# layers  the deep buffer holds 8 bytes a pixel a layer (z + object id) and the warp's min-max
+#         motion mipmaps as much again: ~2 GB at 3840x2160 for 16 layers; the paper peels <= 4;
+# seeds x iters  fixed-point steps per pixel and layer: 256 x 64 is 340x the default 16 x 3,
+#         minutes per 1080p frame already; the kernel's bounds multiply to hours.
+LIMITS = {"layers": 16, "seeds": 256, "iters": 64, "threshold": P.FINITE_MAX}
 
 
 def check_params(params: dict | None) -> dict:
     """Validated parameters with defaults filled in (BadValueError naming the flag)."""
     p = P.with_defaults("depthwarp", params, DEFAULTS)
-    p["layers"] = P.integer(p["layers"], "--layers", 1)
-    p["seeds"] = P.integer(p["seeds"], "--seeds", 1)
-    p["iters"] = P.integer(p["iters"], "--iters", 1)
-    p["threshold"] = P.number(p["threshold"], "--param threshold", 0.0, strict=True)
+    p["layers"] = P.integer(p["layers"], "--layers", 1, LIMITS["layers"])
+    p["seeds"] = P.integer(p["seeds"], "--seeds", 1, LIMITS["seeds"])
+    p["iters"] = P.integer(p["iters"], "--iters", 1, LIMITS["iters"])
+    p["threshold"] = P.number(p["threshold"], "--param threshold", 0.0, strict=True, maximum=LIMITS["threshold"])
     for key, flag in (("oriented_bounds", "--oriented-bounds"), ("umbra", "--umbra"), ("cull", "--cull"),
                       ("dilate", "--param dilate"), ("far_plane", "--param far_plane")):
         p[key] = P.boolean(p[key], flag)
@@ -88,7 +96,7 @@ def check_params(params: dict | None) -> dict:
     if isinstance(g, str) and g.strip().lower() in ("auto", "none"):
         p["ground"] = g.strip().lower()
     else:
-        p["ground"] = P.integer(g, "--param ground (auto, none or an object id)", 0)
+        p["ground"] = P.integer(g, "--param ground (auto, none or an object id)", 0, 2**31 - 1)  # int32 ids
     return p
 
 

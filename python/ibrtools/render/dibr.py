@@ -19,10 +19,10 @@ Parameters (``ibr-render --inputs/--quality/--blend-exponent`` or ``--param key=
   inputs          K (int, default 4) = the K best views by similarity, or a list of view names
                   (list or "v1,v2,...") = those views, minus any that do not overlap the target
   quality         side | shape | depth | normal: the triangle quality measure (Table 1)
-  blend_exponent  p > 0 in the blending weight (q / d)^p (default 5, as RVS)
-  side_threshold  T in target pixels for the "side" quality (default 10, RVS's absolute value);
+  blend_exponent  p in (0, 16] in the blending weight (q / d)^p (default 5, as RVS)
+  side_threshold  T in [0, 1e6] target pixels for the "side" quality (default 10, RVS's absolute value);
                   0 = the kernel's resolution-scaled default
-  samples, seed   Monte Carlo samples per target for view selection (default 4000) and the seed
+  samples, seed   Monte Carlo samples per target for view selection (1..100000, default 4000) and the seed
   blend_space     srgb (default) | linear: the values that are interpolated and blended. "srgb"
                   warps and blends the sRGB-encoded colours (what RVS does: it blends the stored
                   YUV code values; each selected view is encoded once and cached) and the kernel
@@ -74,6 +74,12 @@ DEFAULTS = {"inputs": vs.DEFAULT_K, "quality": "side", "blend_exponent": 5.0, "s
 # it costs ~4.5 ms of one core per 1080p frame (the decode, ~2.7 % of the job's CPU; the encode is
 # once per input view, ~19 ms at 1080p). ICL-NUIM loses 0.03 dB (still above RVS), Middlebury 0.01.
 BLEND_SPACES = ("linear", "srgb")
+# Upper bounds of the numeric parameters (docs/dibr.md "Parameters"), shared by ibr-render, ibr-bench
+# and DibrMethod. blend_exponent: the kernel's (cpp/bindings/dibr.cpp: (q / d)^p overflows float32
+# past 16 for the depths it weights, 1e-6..1e6). samples: view selection multiplies an (M, N, 3)
+# float64 matrix of N samples for M inputs: 100 000 samples are 240 MB for 100 inputs (25x the
+# default 4000). side_threshold: pixels, float32 in the kernel.
+LIMITS = {"blend_exponent": 16.0, "samples": 100_000, "side_threshold": P.FINITE_MAX, "distance_exponent": 16.0}
 
 
 def _parse_inputs(v) -> int | list[str]:
@@ -108,8 +114,10 @@ def check_params(params: dict | None) -> dict:
     p["inputs"] = _parse_inputs(p["inputs"])
     if p["quality"] not in QUALITIES:
         raise BadValueError(f"--quality: expected one of {', '.join(QUALITIES)}, got {p['quality']!r}")
-    p["blend_exponent"] = P.number(p["blend_exponent"], "--blend-exponent", 0.0, strict=True)
-    p["side_threshold"] = P.number(p["side_threshold"], "--param side_threshold", 0.0)
+    p["blend_exponent"] = P.number(p["blend_exponent"], "--blend-exponent", 0.0, strict=True,
+                                   maximum=LIMITS["blend_exponent"])
+    p["side_threshold"] = P.number(p["side_threshold"], "--param side_threshold", 0.0,
+                                   maximum=LIMITS["side_threshold"])
     p["stretched_quality"] = P.number(p["stretched_quality"], "--param stretched_quality", 0.0, maximum=1.0)
     p["depth_tolerance"] = P.number(p["depth_tolerance"], "--param depth_tolerance", 0.0, maximum=1.0,
                                     strict_max=True)
@@ -117,8 +125,9 @@ def check_params(params: dict | None) -> dict:
     if p["blend_space"] not in BLEND_SPACES:
         raise BadValueError(f"--param blend_space: expected one of {', '.join(BLEND_SPACES)}, "
                             f"got {p['blend_space']!r}")
-    p["distance_exponent"] = P.number(p["distance_exponent"], "--param distance_exponent", 0.0, maximum=16.0)
-    p["samples"] = P.integer(p["samples"], "--param samples", 1)
+    p["distance_exponent"] = P.number(p["distance_exponent"], "--param distance_exponent", 0.0,
+                                      maximum=LIMITS["distance_exponent"])
+    p["samples"] = P.integer(p["samples"], "--param samples", 1, LIMITS["samples"])
     p["seed"] = P.integer(p["seed"], "--param seed", 0)
     return p
 

@@ -115,22 +115,22 @@ def check_params(method: str, params: dict | None) -> dict:
     p = P.with_defaults(method, params, defaults)
     if method == "tm":
         return p
-    p["k"] = P.integer(p["k"], "--param k", 1)
-    if p["k"] > 64:
-        raise BadValueError(f"--param k: expected at most 64 views per pixel, got {p['k']}")
-    p["resolution_weight"] = P.number(p["resolution_weight"], "--param resolution_weight", 0.0)
-    p["depth_tol"] = P.number(p["depth_tol"], "--param depth_tol", 0.0, strict=True)
+    # k: the kernel's bound (cpp/bindings/hybrid_render.cpp, a fixed-size per-pixel list); the
+    # others only have to stay finite in the kernels' float32 (render/params.py FINITE_MAX).
+    p["k"] = P.integer(p["k"], "--param k", 1, 64)
+    p["resolution_weight"] = P.number(p["resolution_weight"], "--param resolution_weight", 0.0, maximum=P.FINITE_MAX)
+    p["depth_tol"] = P.number(p["depth_tol"], "--param depth_tol", 0.0, strict=True, maximum=P.FINITE_MAX)
     p["harmonised"] = P.boolean(p["harmonised"], "--param harmonised")
     p["occlusion"] = P.choice(p["occlusion"], "--param occlusion", ("mesh", "views"))
     p["resample"] = P.choice(p["resample"], "--param resample", RESAMPLE)
     if method == "hybrid":
         pvm = check_pvm_params({k: p[k] for k in PVM_KEYS})  # the PVM renderer's own checks
         p.update({k: pvm[k] for k in PVM_KEYS})
-        p["tau_var"] = P.number(p["tau_var"], "--param tau_var")
+        p["tau_var"] = P.number(p["tau_var"], "--param tau_var", -P.FINITE_MAX, maximum=P.FINITE_MAX)
         p["sigma_blur"] = P.number(p["sigma_blur"], "--param sigma_blur", 0.0, maximum=1000.0)
         p["min_weight"] = P.number(p["min_weight"], "--param min_weight", 0.0, maximum=1.0 / 3.0)
         if p["geo_threshold"] is not None:
-            p["geo_threshold"] = P.number(p["geo_threshold"], "--param geo_threshold", 0.0)
+            p["geo_threshold"] = P.number(p["geo_threshold"], "--param geo_threshold", 0.0, maximum=P.FINITE_MAX)
         p["filtered"] = P.boolean(p["filtered"], "--param filtered")
         if p["pvm_floor"] != "auto":
             p["pvm_floor"] = P.number(p["pvm_floor"], "--param pvm_floor ('auto' or a weight)", 0.0, maximum=1.0)

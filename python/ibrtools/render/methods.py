@@ -52,7 +52,7 @@ class ReferenceMethod:
         # ambient: None = the scene's own shading (how its views were rendered).
         self.params = P.with_defaults("reference", params, {"ambient": None})
         if self.params["ambient"] is not None:
-            self.params["ambient"] = P.number(self.params["ambient"], "--param ambient", 0.0)
+            self.params["ambient"] = P.number(self.params["ambient"], "--param ambient", 0.0, maximum=P.FINITE_MAX)
         self._renderer = None
 
     def prepare(self, scene: Scene) -> dict[str, float]:

@@ -13,6 +13,12 @@ import numpy as np
 from ..checks import check_int
 from ..errors import BadValueError, DtypeError
 
+# The largest value of a parameter that only has to stay finite in the kernels' float32 arithmetic
+# (a length in scene units, a weight, a tolerance): 1e6 keeps products of two such values and a
+# pixel coordinate (< 2^16) below float32's 3.4e38 with room to spare, and is past any value that
+# changes a picture (docs/*.md parameter tables). A bound with a reason of its own says it.
+FINITE_MAX = 1e6
+
 _TRUE = {"1": True, "true": True, "yes": True, "on": True, "0": False, "false": False, "no": False, "off": False}
 
 
@@ -48,14 +54,18 @@ def number(value: Any, flag: str, minimum: float | None = None, *, strict: bool 
     return f
 
 
-def integer(value: Any, flag: str, minimum: int) -> int:
-    """An integer at least ``minimum``; ``--param`` strings of digits are converted first."""
+def integer(value: Any, flag: str, minimum: int, maximum: int | None = None) -> int:
+    """An integer in [``minimum``, ``maximum``]; ``--param`` strings of digits are converted first."""
     if isinstance(value, str) and value.strip().lstrip("+-").isdigit():
         value = int(value)
+    bound = f">= {minimum}" + ("" if maximum is None else f" and <= {maximum}")
     try:
-        return check_int(value, flag, minimum)
+        v = check_int(value, flag, minimum, maximum)
     except DtypeError:  # a parameter's value is a bad value, whatever its type
-        raise BadValueError(f"{flag}: expected an integer >= {minimum}, got {value!r}") from None
+        raise BadValueError(f"{flag}: expected an integer {bound}, got {value!r}") from None
+    except BadValueError:
+        raise BadValueError(f"{flag}: expected an integer {bound}, got {value!r}") from None
+    return v
 
 
 def boolean(value: Any, flag: str) -> bool:

@@ -16,9 +16,10 @@ fills the holes depth-aware with that depth (render/job.py), so the fill takes t
 
 Parameters (``--inputs`` or ``--param key=value``)
   inputs             one view name, or 1 (= the most similar view; the default)
-  stretch_threshold  longest target edge (pixels) of a quad that is not stretched (default 2)
-  depth_jump         relative depth spread a stretched quad must also have (default 0.1; 0 = off)
-  samples, seed      Monte Carlo samples per target for view selection (default 4000) and the seed
+  stretch_threshold  longest target edge (pixels) of a quad that is not stretched, (0, 1e6] (default 2)
+  depth_jump         relative depth spread a stretched quad must also have, [0, 1e6] (default 0.1; 0 = off)
+  samples, seed      Monte Carlo samples per target for view selection (1..100000, default 4000; dibr's
+                     bound) and the seed
 """
 from __future__ import annotations
 
@@ -31,6 +32,7 @@ from ..errors import BadValueError, InputError
 from ..scene import Scene
 from . import params as P
 from . import view_selection as vs
+from .dibr import LIMITS as DIBR_LIMITS
 
 DEFAULTS = {"inputs": 1, "stretch_threshold": 2.0, "depth_jump": 0.1, "samples": vs.DEFAULT_SAMPLES, "seed": vs.DEFAULT_SEED}
 
@@ -48,9 +50,10 @@ def check_params(params: dict | None) -> dict:
     else:
         raise BadValueError(f"--inputs: method 'warp' uses one input view: expected 1 (the most similar) "
                             f"or one view name, got {v!r}")
-    p["stretch_threshold"] = P.number(p["stretch_threshold"], "--param stretch_threshold", 0.0, strict=True)
-    p["depth_jump"] = P.number(p["depth_jump"], "--param depth_jump", 0.0)
-    p["samples"] = P.integer(p["samples"], "--param samples", 1)
+    p["stretch_threshold"] = P.number(p["stretch_threshold"], "--param stretch_threshold", 0.0, strict=True,
+                                      maximum=P.FINITE_MAX)
+    p["depth_jump"] = P.number(p["depth_jump"], "--param depth_jump", 0.0, maximum=P.FINITE_MAX)
+    p["samples"] = P.integer(p["samples"], "--param samples", 1, DIBR_LIMITS["samples"])
     p["seed"] = P.integer(p["seed"], "--param seed", 0)
     return p
 
