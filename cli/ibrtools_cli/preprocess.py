@@ -8,7 +8,7 @@ from typing import Sequence
 
 from ibrtools.errors import InputError
 
-from .common import add_common, add_distributed, print_table, progress_bar, run_command
+from .common import ArgumentParser, add_common, add_distributed, print_table, progress_bar, run_command
 
 PROG = "ibr-preprocess"
 
@@ -29,7 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
     except ImportError:
         presets = "  (synthetic scenes unavailable)"
     formats = "\n".join(f"  {n:<12} {importer(n).DESCRIPTION}" for n in IMPORTERS)
-    p = argparse.ArgumentParser(
+    p = ArgumentParser(
         prog=PROG, formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Import a data set into a native ibrtools scene and run the preprocessing "
                     "stages it needs. Prints a stage table: ran / up to date / skipped, with the "
@@ -98,10 +98,10 @@ def _body(args: argparse.Namespace) -> int:
         if preset not in PRESETS:
             raise InputError(f"INPUT {args.input!r}: unknown preset (expected one of "
                              f"{', '.join('synth:' + k for k in PRESETS)})")
-        if args.views < 1:
-            raise InputError(f"--views: expected at least 1, got {args.views}")
-        if args.frames < 1:
-            raise InputError(f"--frames: expected at least 1, got {args.frames}")
+        from ibrtools.synth import check_scale
+
+        # the bounds and the memory estimate (docs/synth.md "Size and memory"), before any work
+        check_scale(args.size, args.views, args.frames, flags=("--size", "--views", "--frames"))
         synth = {"preset": preset, "size": list(args.size), "views": args.views, "seed": args.seed,
                  "reconstructed": bool(args.reconstructed)}
         # Only when set, so that the import key of scenes made without jitter is unchanged.

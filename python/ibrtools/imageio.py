@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import os
 import signal
-import tempfile
 import threading
 from contextlib import contextmanager
 from pathlib import Path
@@ -22,6 +21,7 @@ from typing import Iterator
 import numpy as np
 
 from .errors import BadValueError, DtypeError, FormatError, MissingFileError, ShapeError
+from .outputs import mkstemp_beside
 
 FLOAT_EXTS = {".exr", ".pfm", ".hdr"}
 INT_EXTS = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".ppm", ".pgm"}
@@ -187,9 +187,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         if mask is not None:
             old_mask = mask
             signal.pthread_sigmask(signal.SIG_BLOCK, held)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
-        tmp_path = Path(tmp)
-        os.close(fd)
+        tmp_path = mkstemp_beside(path)  # this process's mark, the umask's mode (ibrtools.outputs)
         if old_mask is not None:
             signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)
             old_mask = None

@@ -30,13 +30,13 @@ from __future__ import annotations
 
 import os
 import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from .errors import DtypeError, FormatError, MissingFileError
 from .imageio import atomic_path, linear_to_srgb, read_image, srgb_to_linear
+from .outputs import mkdtemp_beside
 from .mesh import Mesh
 
 MESH_EXTS = (".ply", ".obj")
@@ -327,7 +327,7 @@ def write_mesh(path: str | os.PathLike, mesh: Mesh) -> Path:
     m.triangles = o3d.utility.Vector3iVector(faces.astype(np.int32))
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp_dir = Path(tempfile.mkdtemp(prefix=f".{path.stem}.", dir=path.parent))
+    tmp_dir = mkdtemp_beside(path)
     try:
         tmp = tmp_dir / path.name
         if not o3d.io.write_triangle_mesh(str(tmp), m, write_ascii=False, compressed=False,

@@ -943,11 +943,22 @@ def _check_stage_options(options: dict) -> None:
         from .render.hybrid import check_mix_options
 
         check_mix_options(options["mix"])
+    import dataclasses
+
     for stage, kw in options.items():
         cls = classes.get(stage)
         if cls is None:
             continue
+        known = [f.name for f in dataclasses.fields(cls)] if dataclasses.is_dataclass(cls) else None
+        unknown = sorted(set(kw) - set(known)) if known is not None else []
+        if unknown:
+            raise BadValueError(f"--set {stage}.{unknown[0]}: unknown parameter of stage {stage!r} "
+                                f"(parameters: {', '.join(known)})")
         try:
             cls(**kw)
-        except TypeError as e:
+        except InputError as e:  # a bad value (or type): name the --set that gave it
+            key = max((k for k in kw if k in str(e).split(":", 1)[0]), key=len, default=None)
+            given = f"{stage}.{key}={kw[key]}" if key is not None else f"{stage}.*"
+            raise BadValueError(f"--set {given}: {e}") from None
+        except TypeError as e:  # a class that is not a dataclass: its own words
             raise BadValueError(f"--set {stage}.*: {e}") from None

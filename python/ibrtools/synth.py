@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
@@ -647,11 +648,57 @@ _BUILDERS = {"objects": _preset_objects, "crowd": _preset_crowd, "city": _preset
 # ============================================================================================
 # make_scene
 # ============================================================================================
-def _check_size(size: Any) -> tuple[int, int]:
+# Bounds of a synthetic scene's size (docs/synth.md "Size and memory"): a side of at most 16384
+# pixels (16K; the engine's frame buffers index pixels with int32), at most 4096 input views and
+# 1000 video frames; within them, check_scale refuses a scene whose memory estimate exceeds what
+# is available (render.job.available_memory: $IBR_MEMORY_LIMIT, else the free memory).
+MAX_SIDE = 16384
+MAX_VIEWS = 4096
+MAX_FRAMES = 1000
+# Bytes a rendered pixel holds until the scene is written (colour float32 x 3, depth, the PNG
+# and EXR encodings' copies), and the scratch of one reference render per pixel (every output
+# buffer of ReferenceRenderer.render, shading rays): fitted to the peak RSS of ibr-preprocess
+# synth:objects at 8 and 32 views of 1280x960 and 8 of 320x240 (/usr/bin/time -v: 15.3 bytes a
+# stored pixel, a 200 MB base) and rounded up so that the estimate is 1.5-1.8x above them.
+_STORED_BPP = 24
+_RENDER_BPP = 160
+_BASE_BYTES = 400 << 20
+
+
+def estimate_memory(size: Sequence[int], views: int, frames: int = 1, holdout_targets: int = 3) -> int:
+    """An upper estimate of the peak bytes of :func:`make_scene` (:func:`make_video` with
+    ``frames``: every frame's scene is held until it is written)."""
+    w, h = int(size[0]), int(size[1])
+    return int(frames * (views + holdout_targets) * w * h * _STORED_BPP + w * h * _RENDER_BPP + _BASE_BYTES)
+
+
+def check_scale(size: Sequence[int], views: int, frames: int = 1, holdout_targets: int = 3, *,
+                flags: tuple[str, str, str] = ("size", "views", "frames")) -> None:
+    """Refuse, before anything is rendered, a scene past the bounds above or larger than the
+    available memory (BadValueError naming ``flags``: the size, views and frames arguments)."""
+    from .render.job import available_memory
+
+    fs, fv, ff = flags
+    w, h = _check_size(size, fs)
+    if max(w, h) > MAX_SIDE:
+        raise BadValueError(f"{fs}: expected at most {MAX_SIDE} pixels a side, got {w}x{h}")
+    check_int(views, fv, 1, MAX_VIEWS)
+    check_int(frames, ff, 1, MAX_FRAMES)
+    need, avail = estimate_memory((w, h), views, frames, holdout_targets), available_memory()
+    if need > avail:
+        gib = 1 << 30
+        what = f"{fs} {w}x{h}, {fv} {views}" + (f", {ff} {frames}" if frames > 1 else "")
+        raise BadValueError(f"{fs}: a synthetic scene of {what} needs about {need / gib:.1f} GiB, only "
+                            f"{avail / gib:.1f} GiB is available"
+                            f"{' (IBR_MEMORY_LIMIT)' if os.environ.get('IBR_MEMORY_LIMIT') else ''}: "
+                            f"use a smaller {fs} or fewer {fv}")
+
+
+def _check_size(size: Any, name: str = "size") -> tuple[int, int]:
     if isinstance(size, str) or not hasattr(size, "__len__") or len(size) != 2:
-        raise DtypeError(f"size: expected (width, height), got {size!r}")
-    w = check_int(size[0], "size width", 1)
-    h = check_int(size[1], "size height", 1)
+        raise DtypeError(f"{name}: expected (width, height), got {size!r}")
+    w = check_int(size[0], f"{name} width", 1)
+    h = check_int(size[1], f"{name} height", 1)
     return w, h
 
 
@@ -765,7 +812,8 @@ def make_scene(preset: str, *, size: Sequence[int] = (480, 360), views: int = 12
     size = _check_size(size)
     views = check_int(views, "views", 1)
     seed = check_int(seed, "seed", 0)
-    holdout_targets = check_int(holdout_targets, "holdout_targets", 0)
+    holdout_targets = check_int(holdout_targets, "holdout_targets", 0, MAX_VIEWS)
+    check_scale(size, views, 1, holdout_targets)
     path_frames = check_int(path_frames, "path_frames", 2)
     exposure_jitter = check_float(exposure_jitter, "exposure_jitter", 0.0)
     white_balance_jitter = check_float(white_balance_jitter, "white_balance_jitter", 0.0)
@@ -850,7 +898,8 @@ def make_video(preset: str, *, frames: int = 3, **kwargs: Any) -> tuple[Scene, d
     made by :func:`make_scene` at times 0, 1, ... (the objects move, the ground and the cameras
     stay), and the shared scene (targets' cameras, paths, units, source) that
     :func:`ibrtools.formats.native.save_video` writes beside them."""
-    frames = check_int(frames, "frames", 1)
+    frames = check_int(frames, "frames", 1, MAX_FRAMES)
+    check_scale(kwargs.get("size", (480, 360)), kwargs.get("views", 12), frames, kwargs.get("holdout_targets", 3))
     out = {f"f{i:03d}": make_scene(preset, time=float(i), **kwargs) for i in range(frames)}
     first = next(iter(out.values()))
     source = {**first.source, "frames": frames, "motion": "objects move by time x a per-object velocity "

@@ -13,12 +13,12 @@ import json
 import math
 import os
 import shutil
-import tempfile
 from pathlib import Path
 
 from ..camera import Camera
 from ..errors import BadValueError, FormatError, MissingFileError
 from ..imageio import read_depth, read_image, read_mask, write_depth, write_image
+from ..outputs import mkdtemp_beside
 from ..scene import Scene, View
 from ._common import document_errors, FileLoader, read_json
 
@@ -89,7 +89,7 @@ def save(scene: Scene, path: str | os.PathLike, *, color_format: str = "png",
         raise BadValueError(f"{path}: exists and is not a scene directory; refusing to replace it")
     scene.validate()
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    tmp = mkdtemp_beside(path)
     try:
         doc: dict = {"format": FORMAT_TAG, "version": VERSION, "units": scene.units,
                      "source": _json_safe(scene.source),
@@ -125,7 +125,7 @@ def _install(tmp: Path, path: Path, doc: dict) -> None:
     with open(tmp / SCENE_FILE, "w", encoding="utf-8") as fh:
         json.dump(doc, fh, indent=1)
     if path.exists():
-        old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old.", dir=path.parent))
+        old = mkdtemp_beside(path, ".old")
         os.replace(path, old / "scene")
         os.replace(tmp, path)
         shutil.rmtree(old, ignore_errors=True)
@@ -147,7 +147,7 @@ def save_video(video: Scene, frames: dict[str, Scene], path: str | os.PathLike, 
     if path.exists() and not (path.is_dir() and ((path / SCENE_FILE).exists() or not any(path.iterdir()))):
         raise BadValueError(f"{path}: exists and is not a scene directory; refusing to replace it")
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    tmp = mkdtemp_beside(path)
     try:
         for name, scene in frames.items():
             save(scene, tmp / FRAMES_DIR / name, color_format=color_format)

@@ -47,6 +47,33 @@ ATLAS_MAX_TEXELS = 1 << 25
 ATLAS_TEXELS_LIMIT = 1 << 30
 
 
+# Upper bounds of the mesh stage's options (docs/preprocess.md "Parameters"). resolution: a voxel of
+# 1/4096 of the scene is finer than the depth maps' pixels for every data set we read (lego's 800
+# pixels, 4K frames), so a finer one adds no detail, only memory; within it the TSDF's memory is
+# estimated (fusion_memory) and checked before the stage runs. trunc_voxels: the band of blocks
+# each depth sample activates grows with its cube. max_faces: 160 bytes a face once the mesh is
+# loaded with its BVH (render/job.py), 10 GB at 2^26. k_views: the ULR kernels' 64 views a point.
+MESH_LIMITS = {"resolution": 4096, "trunc_voxels": 16.0, "max_faces": 1 << 26, "k_views": 64,
+               "max_edge_voxels": 1e6, "render_edge_voxels": 1e6, "depth_tol": 1e6, "atlas_texel": 1e6,
+               "gain_max_ratio": 1e6, "bake_label_weight": 1e6}
+# TSDF fusion's peak bytes per 8^3-voxel block that a depth sample falls in (fusion_memory): the
+# block's tsdf and weight (4 KiB), the neighbouring blocks within the truncation band that the
+# sample activates too, open3d's hash map and the marching-cubes mesh. Measured on synth:objects
+# (6 views of 320x240, peak RSS of fuse_depth with /usr/bin/time -v less the interpreter's):
+# resolution 384 / 1000 / 2000 -> 2412 / 12556 / 32691 blocks, 111 / 553 / 1690 MB = 46 / 44 / 52
+# KB a block; 64 KiB a block keeps the estimate 1.2-1.5x above them.
+FUSION_BLOCK_BYTES = 64 << 10
+FUSION_BASE_BYTES = 400 << 20
+
+
+def _check_max(value, name: str, integer: bool = False):
+    """``value`` (already checked for type and minimum) at most MESH_LIMITS[name]."""
+    top = MESH_LIMITS[name]
+    if value > top:
+        raise BadValueError(f"{name}: expected {'an integer' if integer else 'a number'} <= {top:g}, got {value}")
+    return value
+
+
 @dataclass(frozen=True)
 class GlobalMeshOptions:
     """Parameters of the mesh and texture stages (hashed into their cache keys)."""
@@ -97,18 +124,13 @@ class GlobalMeshOptions:
     def __post_init__(self) -> None:
         if self.source not in SOURCES:
             raise BadValueError(f"mesh source: expected one of {SOURCES}, got {self.source!r}")
-        check_int(self.resolution, "resolution", 8)
-        check_float(self.trunc_voxels, "trunc_voxels", 1.0)
-        if not check_float(self.max_edge_voxels, "max_edge_voxels") > 0:
-            raise BadValueError("max_edge_voxels: expected > 0")
-        if not check_float(self.render_edge_voxels, "render_edge_voxels") > 0:
-            raise BadValueError("render_edge_voxels: expected > 0")
-        check_int(self.max_faces, "max_faces", 1)
-        check_int(self.k_views, "k_views", 1)
-        if not check_float(self.depth_tol, "depth_tol") > 0:
-            raise BadValueError("depth_tol: expected > 0")
-        if not check_float(self.atlas_texel, "atlas_texel") > 0:
-            raise BadValueError("atlas_texel: expected > 0")
+        check_int(self.resolution, "resolution", 8, MESH_LIMITS["resolution"])
+        _check_max(check_float(self.trunc_voxels, "trunc_voxels", 1.0), "trunc_voxels")
+        for name in ("max_edge_voxels", "render_edge_voxels", "depth_tol", "atlas_texel"):
+            if not _check_max(check_float(getattr(self, name), name), name) > 0:
+                raise BadValueError(f"{name}: expected > 0")
+        check_int(self.max_faces, "max_faces", 1, MESH_LIMITS["max_faces"])
+        check_int(self.k_views, "k_views", 1, MESH_LIMITS["k_views"])
         check_int(self.atlas_max_texels, "atlas_max_texels", 16, ATLAS_TEXELS_LIMIT)
         if not isinstance(self.atlas_adaptive, (bool, np.bool_)):
             raise BadValueError(f"atlas_adaptive: expected true or false, got {self.atlas_adaptive!r}")
@@ -116,12 +138,12 @@ class GlobalMeshOptions:
 
         if self.gain_model not in GAIN_MODES:
             raise BadValueError(f"gain_model: expected one of {GAIN_MODES}, got {self.gain_model!r}")
-        if not check_float(self.gain_max_ratio, "gain_max_ratio") >= 0:
+        if not _check_max(check_float(self.gain_max_ratio, "gain_max_ratio"), "gain_max_ratio") >= 0:
             raise BadValueError("gain_max_ratio: expected >= 0")
         check_int(self.bake_normal_rounds, "bake_normal_rounds", 0, 10_000)
-        check_int(self.fused_k_views, "fused_k_views", 1)
+        check_int(self.fused_k_views, "fused_k_views", 1, MESH_LIMITS["k_views"])
         check_int(self.fused_normal_rounds, "fused_normal_rounds", 0, 10_000)
-        if not check_float(self.bake_label_weight, "bake_label_weight") >= 0:
+        if not _check_max(check_float(self.bake_label_weight, "bake_label_weight"), "bake_label_weight") >= 0:
             raise BadValueError("bake_label_weight: expected >= 0")
 
     def to_dict(self) -> dict:
@@ -188,6 +210,37 @@ def depth_extent(cameras: Mapping[str, Camera], depths: Mapping[str, np.ndarray]
     if not np.all(hi >= lo) or not (hi - lo).max() > 0:
         raise BadValueError("global mesh: empty bounds (no view has a valid depth pixel)")
     return lo, hi
+
+
+def fusion_memory(cameras: Mapping[str, Camera], depths: Mapping[str, np.ndarray],
+                  options: GlobalMeshOptions | None = None, extent: tuple | None = None) -> dict:
+    """An upper estimate of the peak bytes of :func:`fuse_depth` with ``options``, before any
+    voxel is allocated: {"total", "blocks", "voxel"}. ``blocks`` counts the 8^3-voxel blocks that
+    the depth samples fall in (as fuse_depth unprojects them, equirect views by their ray
+    distance), each costing FUSION_BLOCK_BYTES (measured, above); a sparse grid's memory follows
+    the surface, not the volume, so it is the blocks, not the bounds' voxels, that are counted."""
+    options = options or GlobalMeshOptions()
+    lo, hi = extent if extent is not None else depth_extent(cameras, depths)
+    lo = np.asarray(lo, np.float64)
+    length = float((np.asarray(hi) - lo).max()) * (1 + 2 * options.trunc_voxels / options.resolution)
+    block = 8 * length / options.resolution
+    keys = []
+    for n, cam in cameras.items():
+        d = np.asarray(depths[n], np.float32)
+        ok = np.isfinite(d) & (d > 0)
+        if not ok.any():
+            continue
+        ys, xs = np.nonzero(ok)
+        rays = cam.rays_in_cam(xs + 0.5, ys + 0.5)
+        if cam.model != PINHOLE:
+            rays = rays / np.linalg.norm(rays, axis=-1, keepdims=True)
+        w = (rays * d[ys, xs][:, None]) @ cam.world_from_cam[:3, :3].T + cam.world_from_cam[:3, 3]
+        # +1 and the clip: points a little outside the (subsampled) extent stay in the key's 21 bits
+        b = np.clip(np.floor((w - lo) / block).astype(np.int64) + 1, 0, (1 << 21) - 1)
+        keys.append(np.unique((b[:, 0] << 42) | (b[:, 1] << 21) | b[:, 2]))
+    blocks = int(np.unique(np.concatenate(keys)).size) if keys else 0
+    return {"total": blocks * FUSION_BLOCK_BYTES + FUSION_BASE_BYTES, "blocks": blocks,
+            "voxel": length / options.resolution}
 
 
 def fuse_depth(cameras: Mapping[str, Camera], depths: Mapping[str, np.ndarray],
@@ -466,6 +519,7 @@ def build_global_mesh(scene: Scene, options: GlobalMeshOptions | None = None,
         stored = 0 if depths else sum(v.has_depth_stored for v in scene.views)
         deps = depths or {v.name: v.fusion_depth for v in scene.views}
         lo, hi = depth_extent(cams, deps)
+        check_fusion_memory(cams, deps, options, extent=(lo, hi))
         mesh = fuse_depth(cams, deps, options, extent=(lo, hi))
         voxel = float((hi - lo).max() / options.resolution)  # (up to the truncation margin)
     else:
@@ -476,6 +530,29 @@ def build_global_mesh(scene: Scene, options: GlobalMeshOptions | None = None,
         mesh = densify(given, options.max_edge_voxels * voxel, options.max_faces)
     return mesh, {"source": src, "vertices": int(len(mesh.vertices)), "faces": int(len(mesh.faces)),
                   "voxel": float(f"{voxel:.4g}"), **({"views_depth_as_stored": stored} if stored else {})}
+
+
+def check_fusion_memory(cameras: Mapping[str, Camera], depths: Mapping[str, np.ndarray],
+                        options: GlobalMeshOptions | None = None, extent: tuple | None = None) -> dict:
+    """Refuse, before the TSDF grid is allocated, a fusion whose estimate (:func:`fusion_memory`)
+    exceeds the available memory (render.job.available_memory: $IBR_MEMORY_LIMIT, else the free
+    memory): open3d does not fail cleanly when it runs out (it crashed at ~10 GB, resolution
+    20000, on a scene of 6 views of 320x240)."""
+    import os
+
+    from ..render.job import available_memory
+
+    options = options or GlobalMeshOptions()
+    est = fusion_memory(cameras, depths, options, extent)
+    avail = available_memory()
+    if est["total"] > avail:
+        gib = 1 << 30
+        raise BadValueError(
+            f"--set mesh.resolution={options.resolution}: TSDF fusion needs about {est['total'] / gib:.1f} GiB "
+            f"({est['blocks']} blocks of 8^3 voxels of {est['voxel']:.3g}), only {avail / gib:.1f} GiB is "
+            f"available{' (IBR_MEMORY_LIMIT)' if os.environ.get('IBR_MEMORY_LIMIT') else ''}: "
+            "use a lower mesh.resolution, or free memory")
+    return est
 
 
 def build_render_mesh(scene: Scene, dense: Mesh, source: str, options: GlobalMeshOptions | None = None) -> Mesh:

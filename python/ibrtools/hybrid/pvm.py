@@ -25,7 +25,6 @@ Arrays: vertices float32 world units, faces int32 counter-clockwise seen from th
 from __future__ import annotations
 
 import os
-import tempfile
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Mapping
@@ -35,6 +34,7 @@ import numpy as np
 from ..camera import PINHOLE, Camera
 from ..checks import check_float, check_int
 from ..errors import BadValueError, DtypeError, FormatError, MissingFileError, ShapeError
+from ..outputs import mkstemp_beside
 
 TILES_FORMAT = 1
 # PvmOptions.clip: "large" keeps triangles whole: in the fine cell of the centroid when the triangle lies
@@ -66,9 +66,13 @@ class PvmOptions:
         mb = check_int(self.max_block, "max_block", 1)
         if mb & (mb - 1) or mb > 256:
             raise BadValueError(f"max_block: expected a power of two <= 256, got {mb}")
-        coarse = check_int(self.coarse, "coarse", 1)
-        sub = check_int(self.sub, "sub", 1)
+        # coarse: the tiling holds an int64 offset per coarse cell, coarse^3 of them (134 MB at 256)
         snap = check_float(self.mesh_snap, "mesh_snap", 0.0)
+        coarse = check_int(self.coarse, "coarse", 1, 256)
+        sub = check_int(self.sub, "sub", 1)
+        for k, v in (("max_rel_jump", jump), ("noise_tol", ntol), ("mesh_snap", snap)):
+            if v > 1e6:  # only finite in float32 matters (render/params.py FINITE_MAX)
+                raise BadValueError(f"{k}: expected a number <= 1e+06, got {v}")
         if self.clip not in CLIP_MODES:
             raise BadValueError(f"clip: expected one of {', '.join(CLIP_MODES)}, got {self.clip!r}")
         if coarse * sub > 4096:
@@ -254,8 +258,7 @@ class PvmTiles:
         path.parent.mkdir(parents=True, exist_ok=True)
         arrays = {f.name: getattr(self, f.name) for f in fields(self) if isinstance(getattr(self, f.name), np.ndarray)}
         meta = np.array([TILES_FORMAT, self.coarse, self.sub], np.int64)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".npz", dir=path.parent)
-        os.close(fd)
+        tmp = mkstemp_beside(path)
         try:
             np.savez(tmp, meta=meta, views=np.array(self.views, dtype=str), **arrays)
             os.replace(tmp, path)

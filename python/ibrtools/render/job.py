@@ -21,11 +21,12 @@ from typing import Callable
 import numpy as np
 
 from ..camera import Camera
-from ..errors import BadValueError, FormatError, MissingFileError
+from ..errors import BadValueError, FormatError, InternalError, MissingFileError
 from ..formats._common import read_json
 from ..imageio import atomic_path
 from ..imageio import write_depth as _write_depth
 from ..imageio import write_image as _write_image
+from ..outputs import OutputDir, check_output_dir, file_stem, sweep_temporaries, temp_prefix
 from ..scene import Scene, View
 from . import methods
 
@@ -37,6 +38,16 @@ class Frame:
     truth: View | None = None  # ground truth (colour, maybe depth) when known
     info: dict = field(default_factory=dict)  # facts copied into the frame's report entry (light field: row, col)
     scene_frame: str | None = None  # video scenes: the frame of the scene it renders (Job.scenes)
+
+    @property
+    def stem(self) -> str:
+        """The stem of the frame's file names: its name made one plain path component
+        (ibrtools.outputs.file_stem: "train/r_0" -> "train_r_0", "../x" -> "_._x")."""
+        return file_stem(self.name)
+
+
+# The files a frame may write: <stem><suffix> (render_frame).
+FRAME_SUFFIXES = (".png", ".exr", ".depth.exr", ".mask.png", ".hole.png")
 
 
 @dataclass
@@ -137,10 +148,29 @@ def plan(scene: Scene, *, targets: list[str] | None = None, holdout: list[str] |
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
         raise BadValueError(f"frames: the same name is asked for twice: {dup[:5]}")
+    check_file_names(frames)
     sub = Scene(views=inputs, targets=scene.targets, paths=scene.paths, meshes=scene.meshes,
                 units=scene.units, source=scene.source, lights=scene.lights, shading=scene.shading,
                 stages=scene.stages, root=scene.root)
     return Job(sub, frames, spec, held_out=held)
+
+
+def check_file_names(frames: list[Frame]) -> None:
+    """Refuse frames whose output files would be the same file (``a`` and ``a.mask`` both
+    write a.mask.png; ``x/y`` and ``x_y`` both map to x_y.png), naming both."""
+    owner: dict[str, str] = {}
+    for f in frames:
+        for suffix in FRAME_SUFFIXES:
+            file = f.stem + suffix
+            other = owner.setdefault(file, f.name)
+            if other != f.name:
+                raise BadValueError(f"frames {other!r} and {f.name!r} would both write {file}: rename one "
+                                    "(names become file names: path separators and a leading dot are replaced by _)")
+
+
+def renamed_frames(frames: list[Frame]) -> dict[str, str]:
+    """{name: file stem} of the frames whose name is not a plain file name (report "renamed")."""
+    return {f.name: f.stem for f in frames if f.stem != f.name}
 
 
 # --- memory: estimate before allocating -----------------------------------------------------------
@@ -330,124 +360,137 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
 
         fov_kw = {"fixation": foveate, "pooling": POOLING if pooling is None else pooling}
         _check_geometry(fov_kw["fixation"], fov_kw["pooling"], 90.0)  # bad values fail before rendering
-    out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise BadValueError(f"-o {out_dir}: exists and is not a directory")
+    out_dir = check_output_dir(out_dir)
     name = methods.resolve(method_name, job.scene)
     check_memory(job, name)
     frame_kw = {"inpaint": inpaint, "fov_kw": fov_kw, "float_out": float_out, "depth_out": depth_out}
-    distributed = D.wanted(scheduler, workers)
-    if distributed:
-        root = job.scene.root
-        if root is not None and job.scenes is not None:
-            root = Path(root).parents[1]  # a video scene's frame lives in <video>/frames/<frame>/
-        if root is None or not (Path(root) / "scene.json").is_file():
-            raise BadValueError("--workers/--scheduler: the workers load the scene from disk; this job's "
-                                "scene has no scene directory (save it with formats.native.save first)")
-        if job.spec is None:
-            raise BadValueError("--workers/--scheduler: the workers rebuild the job with render.job.plan(); "
-                                "this job was not made by plan() with JSON-able arguments")
-        methods.create(name, params)  # bad parameters fail here, before a cluster is started
-        # Engine threads per task: -j, else 1 (a Dask worker thread is a core; distributed.py).
-        spec = {"root": str(Path(root).resolve()), "stamp": D.scene_stamp(root), "plan": job.spec,
-                "method": name, "params": dict(params or {}), "frame": frame_kw, "threads": int(threads)}
-    else:
-        method = methods.create(name, params)
-        if threads:
-            _core.set_num_threads(threads)
-        setup = method.prepare(job.scene)
-        prepared_for = job.frames[0].scene_frame if job.frames else None
-    out_dir.mkdir(parents=True, exist_ok=True)
-    # report.json marks a complete run: a stale one must not describe the images written now.
-    (out_dir / "report.json").unlink(missing_ok=True)
-    written: list[Path] = []
-    n = len(job.frames)
-    entries: list[dict | None] = [None] * n
-    failures: list[dict | None] = [None] * n
-    extra: dict = {}
-    try:
-        if not distributed:
-            # Frame i's files are encoded and written by one background thread while frame i + 1
-            # renders (PNG encoding takes about as long as a 1080p DIBR frame; OpenImageIO
-            # releases the GIL). At most one frame's files are in flight; a write error is raised
-            # here, at the next frame or at the end.
-            with ThreadPoolExecutor(1, thread_name_prefix="ibr-write") as writer:
-                in_flight: list[Future] = []
-                for i, frame in enumerate(job.frames):
-                    if progress:
-                        progress(i, n, frame.name)
-                    if frame.scene_frame != prepared_for:  # a video's next scene frame: prepared anew
-                        method = None  # the previous frame's preparation is freed first
-                        method = methods.create(name, params)
-                        method.prepare(job.scenes[frame.scene_frame])
-                        prepared_for = frame.scene_frame
-                    entries[i], failures[i], outputs = render_frame(method, frame, **frame_kw)
+    method = methods.create(name, params)  # bad parameters fail here, before anything is written
+    # The output directory is this job's until it ends (a second job is refused, before any
+    # work), its dead jobs' temporaries are swept, and the files an earlier job left there are
+    # known (od.previous).
+    stems = {Path(f.stem + s).stem for f in job.frames for s in FRAME_SUFFIXES} | {"report"}
+    with OutputDir(out_dir, stems=stems) as od:
+        distributed = D.wanted(scheduler, workers)
+        if distributed:
+            root = job.scene.root
+            if root is not None and job.scenes is not None:
+                root = Path(root).parents[1]  # a video scene's frame lives in <video>/frames/<frame>/
+            if root is None or not (Path(root) / "scene.json").is_file():
+                raise BadValueError("--workers/--scheduler: the workers load the scene from disk; this job's "
+                                    "scene has no scene directory (save it with formats.native.save first)")
+            if job.spec is None:
+                raise BadValueError("--workers/--scheduler: the workers rebuild the job with render.job.plan(); "
+                                    "this job was not made by plan() with JSON-able arguments")
+            # Engine threads per task: -j, else 1 (a Dask worker thread is a core; distributed.py).
+            spec = {"root": str(Path(root).resolve()), "stamp": D.scene_stamp(root), "plan": job.spec,
+                    "method": name, "params": dict(params or {}), "frame": frame_kw, "threads": int(threads)}
+        else:
+            if threads:
+                _core.set_num_threads(threads)
+            setup = method.prepare(job.scene)
+            prepared_for = job.frames[0].scene_frame if job.frames else None
+        # report.json marks a complete run: a stale one must not describe the images written now.
+        (out_dir / "report.json").unlink(missing_ok=True)
+        written: list[Path] = []
+        n = len(job.frames)
+        entries: list[dict | None] = [None] * n
+        failures: list[dict | None] = [None] * n
+        extra: dict = {}
+        try:
+            if not distributed:
+                # Frame i's files are encoded and written by one background thread while frame i + 1
+                # renders (PNG encoding takes about as long as a 1080p DIBR frame; OpenImageIO
+                # releases the GIL). At most one frame's files are in flight; a write error is raised
+                # here, at the next frame or at the end.
+                with ThreadPoolExecutor(1, thread_name_prefix="ibr-write") as writer:
+                    in_flight: list[Future] = []
+                    for i, frame in enumerate(job.frames):
+                        if progress:
+                            progress(i, n, frame.name)
+                        if frame.scene_frame != prepared_for:  # a video's next scene frame: prepared anew
+                            method = None  # the previous frame's preparation is freed first
+                            method = methods.create(name, params)
+                            method.prepare(job.scenes[frame.scene_frame])
+                            prepared_for = frame.scene_frame
+                        entries[i], failures[i], outputs = render_frame(method, frame, **frame_kw)
+                        for f in in_flight:
+                            f.result()
+                        in_flight = []
+                        for rel, kind, array in outputs:
+                            od.record(rel)
+                            written.append(out_dir / rel)
+                            # a copy: the method may reuse its output buffers for the next frame
+                            in_flight.append(writer.submit(write_output, out_dir, rel, kind, np.array(array)))
                     for f in in_flight:
                         f.result()
-                    in_flight = []
-                    for rel, kind, array in outputs:
+                used_threads = int(_core.get_num_threads())
+            else:
+                done = 0
+
+                def on_frame(i: int, entry, failure, files: dict[str, bytes]) -> None:
+                    nonlocal done
+                    for rel, data in files.items():
+                        od.record(rel)
                         written.append(out_dir / rel)
-                        # a copy: the method may reuse its output buffers for the next frame
-                        in_flight.append(writer.submit(write_output, out_dir, rel, kind, np.array(array)))
-                for f in in_flight:
-                    f.result()
-            used_threads = int(_core.get_num_threads())
-        else:
-            done = 0
+                        with atomic_path(out_dir / rel) as tmp:
+                            tmp.write_bytes(data)
+                    entries[i], failures[i] = entry, failure
+                    done += 1
+                    if progress:
+                        progress(done, n, job.frames[i].name)
 
-            def on_frame(i: int, entry, failure, files: dict[str, bytes]) -> None:
-                nonlocal done
-                for rel, data in files.items():
-                    written.append(out_dir / rel)
-                    with atomic_path(out_dir / rel) as tmp:
-                        tmp.write_bytes(data)
-                entries[i], failures[i] = entry, failure
-                done += 1
+                # One task per job frame (a video: frame-major, so a worker mostly keeps its scene frame).
+                sequential = name in SEQUENTIAL
+                chunks = [list(range(n))] if sequential else [[i] for i in range(n)]
                 if progress:
-                    progress(done, n, job.frames[i].name)
-
-            # One task per job frame (a video: frame-major, so a worker mostly keeps its scene frame).
-            sequential = name in SEQUENTIAL
-            chunks = [list(range(n))] if sequential else [[i] for i in range(n)]
+                    progress(0, n, "")
+                with D.open_client(scheduler, workers, threads_per_worker=1) as client:
+                    info = D.run_frames(client, job, spec, chunks, on_frame)
+                    extra["distributed"] = {**D.describe(client, scheduler), "tasks": len(chunks)}
+                setup, used_threads = info["setup_ms"] or {}, int(info["threads"] or 0)
             if progress:
-                progress(0, n, "")
-            with D.open_client(scheduler, workers, threads_per_worker=1) as client:
-                info = D.run_frames(client, job, spec, chunks, on_frame)
-                extra["distributed"] = {**D.describe(client, scheduler), "tasks": len(chunks)}
-            setup, used_threads = info["setup_ms"] or {}, int(info["threads"] or 0)
-        if progress:
-            progress(n, n, "")
-        frames_report = [e for e in entries if e is not None]
-        note, stale = holdout_note(job.scene, job.held_out, name), stale_note(job.scene, name)
-        report = {"method": name, "params": dict(params or {}), "inpaint": inpaint,
-                  **({"holdout_note": note} if note else {}), **({"stale_note": stale} if stale else {}),
-                  **({"foveate": {"fixation": list(fov_kw["fixation"]), "pooling": fov_kw["pooling"]}}
-                     if fov_kw else {}),
-                  "threads": used_threads, **extra,
-                  "inputs": len(job.scene.views), "frames": frames_report,
-                  "failed": [f for f in failures if f is not None],
-                  "summary": _summary(frames_report, setup)}
-        with atomic_path(out_dir / "report.json") as tmp:
-            tmp.write_text(json.dumps(report, indent=1, allow_nan=False))
-        return report
-    except BaseException:
-        # Interrupted (SIGINT, SIGTERM through the commands' handler) or failed outside a frame's
-        # rendering: the run is all or nothing, so the frames it wrote go too (each was written
-        # atomically).
-        for f in written:
-            if not f.is_dir():  # a directory in a frame file's place was the write's obstacle, not ours
-                f.unlink(missing_ok=True)
-            # and its temporary, when the interrupt came while atomic_path was creating it (a
-            # signal handled in another thread raises in this one at any bytecode).
-            for t in f.parent.glob(f".{glob.escape(f.stem)}.*{f.suffix}"):
-                t.unlink(missing_ok=True)
-        raise
+                progress(n, n, "")
+            frames_report = [e for e in entries if e is not None]
+            # Files of an earlier job here that this one did not write would sit beside a report
+            # that does not describe them: removed, and the report says so.
+            new = {p.name for p in written}
+            removed = sorted(f for f in od.previous - new if (out_dir / f).is_file())
+            for f in removed:
+                (out_dir / f).unlink(missing_ok=True)
+            output = {k: v for k, v in (("renamed", renamed_frames(job.frames)), ("swept", od.swept),
+                                        ("replaced", sorted(od.previous & new)), ("removed", removed)) if v}
+            note, stale = holdout_note(job.scene, job.held_out, name), stale_note(job.scene, name)
+            report = {"method": name, "params": dict(params or {}), "inpaint": inpaint,
+                      **({"holdout_note": note} if note else {}), **({"stale_note": stale} if stale else {}),
+                      **({"foveate": {"fixation": list(fov_kw["fixation"]), "pooling": fov_kw["pooling"]}}
+                         if fov_kw else {}),
+                      "threads": used_threads, **extra, **({"output": output} if output else {}),
+                      "inputs": len(job.scene.views), "frames": frames_report,
+                      "failed": [f for f in failures if f is not None],
+                      "summary": _summary(frames_report, setup)}
+            with atomic_path(out_dir / "report.json") as tmp:
+                tmp.write_text(json.dumps(report, indent=1, allow_nan=False))
+            return report
+        except BaseException:
+            # Interrupted (SIGINT, SIGTERM through the commands' handler) or failed outside a frame's
+            # rendering: the run is all or nothing, so the frames it wrote go too (each was written
+            # atomically).
+            for f in written:
+                if not f.is_dir():  # a directory in a frame file's place was the write's obstacle, not ours
+                    f.unlink(missing_ok=True)
+                # and its temporary, when the interrupt came while atomic_path was creating it (a
+                # signal handled in another thread raises in this one at any bytecode).
+                for t in f.parent.glob(f"{glob.escape(temp_prefix(f.stem))}*{glob.escape(f.suffix)}"):
+                    t.unlink(missing_ok=True)
+            raise
 
 
 def write_output(out_dir: Path, rel: str, kind: str, array: np.ndarray) -> Path:
     """Write one output file of a frame (atomically): ``kind`` "depth" (single-channel float EXR)
     or "image" (by extension: 8-bit sRGB PNG, linear float EXR). The one writer of local runs
     and of Dask workers (which send the bytes back: ibrtools.distributed.encode_outputs)."""
+    if rel != Path(rel).name or rel.startswith(".") or rel in ("", ".", ".."):
+        raise InternalError(f"write_output: {rel!r} is not a plain file name")  # names go through file_stem
     path = out_dir / rel
     if kind == "depth":
         _write_depth(path, array)
@@ -506,7 +549,7 @@ def _render_frame(method, frame: Frame, *, inpaint, fov_kw, float_out, depth_out
                               pooling=fov_kw["pooling"])
         stage_ms = {**stage_ms, "foveate": (time.perf_counter() - t1) * 1e3}
     total_ms = (time.perf_counter() - t0) * 1e3
-    image = f"{frame.name}.png"
+    image = f"{frame.stem}.png"
     outputs.append((image, "image", color))
     entry: dict = {"name": frame.name, "image": image,
                    "time_ms": {"total": round(total_ms, 3), **{k: round(v, 3) for k, v in stage_ms.items()}},
@@ -523,23 +566,23 @@ def _render_frame(method, frame: Frame, *, inpaint, fov_kw, float_out, depth_out
     if hasattr(method, "frame_metrics"):
         entry["metrics"].update(method.frame_metrics())
     if float_out:
-        outputs.append((f"{frame.name}.exr", "image", color))
-        entry["image_float"] = f"{frame.name}.exr"
+        outputs.append((f"{frame.stem}.exr", "image", color))
+        entry["image_float"] = f"{frame.stem}.exr"
     if depth_out and "depth" in out:
-        outputs.append((f"{frame.name}.depth.exr", "depth", out["depth"]))
-        entry["depth"] = f"{frame.name}.depth.exr"
+        outputs.append((f"{frame.stem}.depth.exr", "depth", out["depth"]))
+        entry["depth"] = f"{frame.stem}.depth.exr"
     selection = out.get("selection")
     if selection is not None:
         # Hybrid methods: the per-pixel method selection (RGB) is the frame's mask image
         # (render/hybrid.py); its holes, if any, go to <frame>.hole.png.
-        outputs.append((f"{frame.name}.mask.png", "image", np.asarray(selection, np.float32)))
-        entry["mask"] = f"{frame.name}.mask.png"
+        outputs.append((f"{frame.stem}.mask.png", "image", np.asarray(selection, np.float32)))
+        entry["mask"] = f"{frame.stem}.mask.png"
         if hole is not None and hole.any():
-            outputs.append((f"{frame.name}.hole.png", "image", hole.astype(np.float32)))
-            entry["hole_mask"] = f"{frame.name}.hole.png"
+            outputs.append((f"{frame.stem}.hole.png", "image", hole.astype(np.float32)))
+            entry["hole_mask"] = f"{frame.stem}.hole.png"
     elif hole is not None and hole.any():
-        outputs.append((f"{frame.name}.mask.png", "image", hole.astype(np.float32)))
-        entry["mask"] = f"{frame.name}.mask.png"
+        outputs.append((f"{frame.stem}.mask.png", "image", hole.astype(np.float32)))
+        entry["mask"] = f"{frame.stem}.mask.png"
     return entry, None, outputs
 
 
