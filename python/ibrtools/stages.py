@@ -907,24 +907,32 @@ def preprocess(input_spec: str, output: str | os.PathLike, *, fmt: str | None = 
     per-view stages on Dask (:func:`run_stages`). ``holdout``: input views imported as targets
     (:func:`run_import`)."""
     from .distributed import check_options
+    from .outputs import scene_lock
 
     check_options(scheduler, workers)
     if stages is not None:
         stages = [s for s in stages if s != "import"]
     if stage_options:
         _check_stage_options(stage_options)
-    results = [run_import(input_spec, Path(output), fmt=fmt, options=options, synth=synth, force=force,
-                          holdout=holdout)]
-    if stages == []:
-        return results
-    doc = _read_doc(Path(output))
-    for frame in doc.get("frames") or [None]:  # a video scene: the stages of every frame, in order
-        rows = run_stages(Path(output) if frame is None else Path(output) / "frames" / frame, methods=methods,
-                          stages=stages, force=force, options=stage_options, progress=progress,
-                          scheduler=scheduler, workers=workers, threads=threads)
-        for r in rows:
-            r.name = r.name if frame is None else f"{frame}/{r.name}"
-        results += rows
+    if str(output).strip() == "":
+        raise BadValueError("-o: empty; give the scene directory to write")
+    # The scene is this run's until it ends (a second run on it is refused), and what a killed
+    # run left (temporaries, half-written scene directories) is swept first (ibrtools.outputs).
+    with scene_lock(output) as lock:
+        results = [run_import(input_spec, Path(output), fmt=fmt, options=options, synth=synth, force=force,
+                              holdout=holdout)]
+        if lock.swept:
+            results[0].details["swept"] = len(lock.swept)
+        if stages == []:
+            return results
+        doc = _read_doc(Path(output))
+        for frame in doc.get("frames") or [None]:  # a video scene: the stages of every frame, in order
+            rows = run_stages(Path(output) if frame is None else Path(output) / "frames" / frame, methods=methods,
+                              stages=stages, force=force, options=stage_options, progress=progress,
+                              scheduler=scheduler, workers=workers, threads=threads)
+            for r in rows:
+                r.name = r.name if frame is None else f"{frame}/{r.name}"
+            results += rows
     return results
 
 
