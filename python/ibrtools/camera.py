@@ -33,6 +33,15 @@ MODELS = (PINHOLE, EQUIRECT)
 # ~7 significant digits are still accepted; anything beyond is a scale or shear, not noise).
 RIGID_TOLERANCE = 1e-4
 
+# Bounds of sane cameras, so that arithmetic on them never overflows (a 1e308 translation or focal
+# length would make numpy warn and produce inf far from the file that held it): image sides up to
+# 65536 pixels, focal lengths and principal points within 1e9 pixels, translations within 1e12
+# scene units (1e12 m is seven times the Earth-Sun distance; a world that large needs other units).
+MAX_SIDE = 65536
+MAX_FOCAL = 1e9
+MIN_FOCAL = 1e-3  # a 1920-pixel image of 179.9 degrees field of view still has f = 0.84
+MAX_TRANSLATION = 1e12
+
 
 def check_rigid(cam_from_world: Any, name: str = "cam_from_world") -> np.ndarray:
     """Return ``cam_from_world`` as a float64 (4, 4) array after checking it is rigid."""
@@ -46,6 +55,13 @@ def check_rigid(cam_from_world: Any, name: str = "cam_from_world") -> np.ndarray
         raise ShapeError(f"{name}: expected shape (4, 4) or (3, 4), got {m.shape}")
     if not np.all(np.isfinite(m)):
         raise BadValueError(f"{name}: contains NaN or infinity")
+    big = float(np.abs(m[:3, 3]).max())
+    if big > MAX_TRANSLATION:
+        raise BadValueError(f"{name}: translation {big:.3g} is beyond +-{MAX_TRANSLATION:g} "
+                            "(expected a pose in sane scene units)")
+    if float(np.abs(m[:3, :3]).max()) > 2.0:  # a rotation's entries are within [-1, 1]
+        raise BadValueError(f"{name}: not a rigid pose (rotation entry {float(np.abs(m[:3, :3]).max()):.3g}); "
+                            "expected a rotation and a translation, no scale or shear")
     if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9):
         raise BadValueError(f"{name}: last row must be (0, 0, 0, 1), got {m[3].tolist()}")
     r = m[:3, :3]
@@ -106,16 +122,21 @@ class Camera:
     def __post_init__(self) -> None:
         if self.model not in MODELS:
             raise BadValueError(f"camera model: expected one of {MODELS}, got {self.model!r}")
-        object.__setattr__(self, "width", check_int(self.width, "camera width", 1))
-        object.__setattr__(self, "height", check_int(self.height, "camera height", 1))
+        object.__setattr__(self, "width", check_int(self.width, "camera width", 1, MAX_SIDE))
+        object.__setattr__(self, "height", check_int(self.height, "camera height", 1, MAX_SIDE))
         if self.model == PINHOLE:
             for k in ("fx", "fy"):
                 v = check_float(getattr(self, k), k)
                 if v <= 0:
                     raise BadValueError(f"{k}: focal length must be positive, got {v}")
+                if not MIN_FOCAL <= v <= MAX_FOCAL:
+                    raise BadValueError(f"{k}: focal length {v:.3g} is outside {MIN_FOCAL:g} to {MAX_FOCAL:g} pixels")
                 object.__setattr__(self, k, v)
             for k in ("cx", "cy"):
-                object.__setattr__(self, k, check_float(getattr(self, k), k))
+                v = check_float(getattr(self, k), k)
+                if abs(v) > MAX_FOCAL:
+                    raise BadValueError(f"{k}: principal point {v:.3g} is beyond +-{MAX_FOCAL:g} pixels")
+                object.__setattr__(self, k, v)
         else:
             lon = tuple(check_float(v, "lon_range") for v in self.lon_range)
             lat = tuple(check_float(v, "lat_range") for v in self.lat_range)
