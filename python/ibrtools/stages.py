@@ -691,6 +691,21 @@ _RUN = {"mesh": _run_mesh, "depth": _run_depth, "texture": _run_texture, "varian
 _APPLIES = {"depth": _depth_needed}
 
 
+def _check_mesh(ctx: _Context) -> None:
+    """Before the mesh stage is announced: TSDF fusion's memory estimate (a refusal is then the
+    command's only line; build_global_mesh checks it again for the Python API)."""
+    from .hybrid.globalmesh import GlobalMeshOptions, check_fusion_memory, choose_source
+
+    opts = GlobalMeshOptions(**ctx.options.get("mesh", {}))
+    if choose_source(ctx.scene, opts.source) == "fusion":
+        views = ctx.scene.views
+        check_fusion_memory({v.name: v.camera for v in views}, {v.name: v.fusion_depth for v in views}, opts)
+
+
+# Checks of a stage that is about to run, before its progress line (a refusal is one line).
+_PRECHECK = {"mesh": _check_mesh}
+
+
 def _closure(selected: list[str]) -> list[str]:
     """``selected`` and every stage they read, in pipeline order."""
     need = set(selected)
@@ -798,6 +813,8 @@ def _run_planned(root: Path, options: dict, wanted: list[str], why: dict, avail:
             reason = f"output {bad[0]} missing or corrupt"
         else:
             reason = "forced" if force else ("inputs or parameters changed" if rec else "no output yet")
+        if name in _PRECHECK:
+            _PRECHECK[name](ctx)
         if progress is not None:
             progress(f"{name}: running ({reason}) - {st.description}")
         t0 = time.perf_counter()
