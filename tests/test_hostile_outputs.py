@@ -234,3 +234,64 @@ def test_output_that_cannot_be_written_is_one_line(scene_dir, tmp_path, capsys):
     assert _render(scene_dir, f / "sub", "--holdout", "v001") == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "cannot write into it" in err
+
+
+# --- fuzzing the pose-file and scene.json loaders (names and values) --------------------------------
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+FUZZ = settings(max_examples=int(os.environ.get("IBR_FUZZ_EXAMPLES", "20")), deadline=None, derandomize=True,
+                database=None, suppress_health_check=list(HealthCheck))
+_PARTS = ["..", ".", "/", "\\", "\0", "\n", "~", "victim", "report", ".ibr-lock", "a.mask", "é", " ", "*", ":"]
+NAMES = st.one_of(st.lists(st.sampled_from(_PARTS), min_size=0, max_size=6).map("".join),
+                  st.text(max_size=300), st.integers(), st.none(), st.lists(st.integers(), max_size=2))
+NUMBERS = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10**12, 10**12),
+                    st.sampled_from([0, -1, 1e308, 1e-308, 65536, 1 << 40, "12", "x", None, True]))
+FIELDS = ["width", "height", "fx", "fy", "cx", "cy"]
+
+
+def _outside_and_scene(tmp: Path, out: Path, scene: Path, before: dict, keep: set[Path]) -> None:
+    outside = [p for p in tmp.rglob("*") if p.is_file() and out not in p.parents and scene not in p.parents
+               and p not in keep]
+    assert outside == [], f"written outside -o: {outside}"
+    assert _tree(scene) == before, "a file of the scene changed"
+
+
+@FUZZ
+@given(name=NAMES, changes=st.dictionaries(st.sampled_from(FIELDS + ["cam_from_world", "model"]), NUMBERS,
+                                            max_size=3), count=st.integers(1, 3))
+def test_fuzz_pose_file(scene_dir, tmp_path_factory, name, changes, count):
+    tmp = tmp_path_factory.mktemp("fz")
+    poses = tmp / "p.json"
+    cams = [dict(_pose(scene_dir, name), **changes) for _ in range(count)]
+    if count > 1 and isinstance(name, str):
+        for i, c in enumerate(cams):
+            c["name"] = f"{name}{i}"
+    poses.write_text(json.dumps(cams))
+    out = tmp / "o" / "x"
+    before = _tree(scene_dir)
+    code = _render(scene_dir, out, "--poses", str(poses))
+    assert code in (0, 2)
+    _outside_and_scene(tmp, out, scene_dir, before, {poses})
+
+
+@FUZZ
+@given(name=NAMES, which=st.sampled_from(["views", "targets"]), changes=st.dictionaries(
+    st.sampled_from(FIELDS), NUMBERS, max_size=2))
+def test_fuzz_scene_json(scene_dir, tmp_path_factory, name, which, changes):
+    import shutil
+
+    tmp = tmp_path_factory.mktemp("fz")
+    s = tmp / "s"
+    shutil.copytree(scene_dir, s)
+    doc = json.loads((s / "scene.json").read_text())
+    entry = doc[which][0]
+    entry["name"] = name
+    entry["camera"].update(changes)
+    (s / "scene.json").write_text(json.dumps(doc))
+    before = _tree(s)
+    out = tmp / "o"
+    args = ["--holdout", str(name)] if which == "views" else ["--target", str(name)]
+    code = _render(s, out, *args)
+    assert code in (0, 2)
+    _outside_and_scene(tmp, out, s, before, set())
