@@ -11,8 +11,10 @@ Writes are atomic: a temporary file in the same directory, then a rename.
 """
 from __future__ import annotations
 
+import math
 import os
 import signal
+import tempfile
 import threading
 from contextlib import contextmanager
 from pathlib import Path
@@ -24,6 +26,8 @@ from .errors import BadValueError, DtypeError, FormatError, MissingFileError, Sh
 from .outputs import mkstemp_beside
 
 FLOAT_EXTS = {".exr", ".pfm", ".hdr"}
+F32_MAX = float(np.finfo(np.float32).max)
+F32_MIN = float(np.finfo(np.float32).tiny)  # the smallest normal float32
 INT_EXTS = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".ppm", ".pgm"}
 
 
@@ -53,40 +57,184 @@ def linear_to_srgb(v: np.ndarray) -> np.ndarray:
     return _core.linear_to_srgb(np.asarray(v, dtype=np.float32, order="C"))  # 0-d stays 0-d
 
 
+# Images read without an expected size (textures, reports, importers that learn the size from the
+# image itself) are refused beyond this many pixels: 2^28 = 16384 x 16384, 3 GiB as float32 RGB.
+# A PNG of that many zeros is a file of about 260 KB: only the header says what decoding would cost.
+MAX_PIXELS = 1 << 28
+_MESSAGE_CHARS = 300  # a library's error text is folded into one line of at most this many characters
+_SAMPLE_BYTES = {"uint8": 1, "int8": 1, "uint16": 2, "int16": 2, "half": 2}
+
+
+def one_line(text: str, limit: int = _MESSAGE_CHARS) -> str:
+    """``text`` (a library's error message, possibly several lines) as one line: lines stripped,
+    empty and repeated ones dropped, joined with "; ", cut to ``limit`` characters."""
+    lines: list[str] = []
+    for line in str(text).splitlines():
+        line = line.strip()
+        if line and line not in lines:
+            lines.append(line)
+    out = "; ".join(lines)
+    return out if len(out) <= limit else out[:limit - 3] + "..."
+
+
 def _geterror(source, default: str) -> str:
-    """OpenImageIO's error text, or ``default``. A corrupt file can put raw bytes from its header
-    into the message, which OpenImageIO's Python binding then fails to decode as UTF-8 (found by
-    tests/test_fuzz_importers.py): that must not turn a FormatError into a UnicodeDecodeError."""
+    """OpenImageIO's error text on one line, or ``default``. A corrupt file can put raw bytes from
+    its header into the message, which OpenImageIO's Python binding then fails to decode as UTF-8
+    (found by tests/test_fuzz_importers.py): that must not turn a FormatError into a
+    UnicodeDecodeError."""
     try:
         msg = source.geterror()
     except UnicodeDecodeError:
         return default + " (undecodable error text)"
-    return msg.strip() or default
+    return one_line(msg) or default
 
 
-def read_pixels(path: str | os.PathLike) -> tuple[np.ndarray, str]:
+_STDERR_LOCK = threading.Lock()
+
+
+class _CapturedStderr:
+    text = ""
+
+
+@contextmanager
+def _stderr_to_message() -> Iterator[_CapturedStderr]:
+    """Captures file descriptor 2 for the block: libpng reports a corrupt file with its own
+    "libpng error: ..." lines on the process's stderr (besides OpenImageIO's error text), which
+    would otherwise reach the terminal beside the command's one-line error. The caller folds
+    ``.text`` into its message when the decode fails; when it succeeds the text is written back
+    to stderr (it may be another thread's output written meanwhile). One capture at a time."""
+    cap = _CapturedStderr()
+    with _STDERR_LOCK:
+        try:
+            saved = os.dup(2)
+        except OSError:  # no fd 2 (a daemon): nothing to capture
+            saved = None
+        if saved is None:
+            yield cap
+            return
+        try:
+            with tempfile.TemporaryFile() as tmp:
+                os.dup2(tmp.fileno(), 2)
+                try:
+                    yield cap
+                finally:
+                    os.dup2(saved, 2)
+                    tmp.seek(0)
+                    cap.text = tmp.read(1 << 16).decode("utf-8", "replace")
+        finally:
+            os.close(saved)
+
+
+def _library_error(source, cap: _CapturedStderr, default: str) -> str:
+    """The failure as one line: OpenImageIO's text, then what the library printed that it does not
+    already say."""
+    msg = _geterror(source, "")
+    extra = [ln for ln in one_line(cap.text, 1 << 16).split("; ")
+             if ln and ln.removeprefix("libpng error: ") not in msg]
+    return one_line("; ".join([m for m in (msg, *extra) if m])) or default
+
+
+def _release(cap: _CapturedStderr) -> None:
+    """Writes what a successful decode's capture caught back to stderr (nothing is lost)."""
+    if cap.text:
+        try:
+            os.write(2, cap.text.encode("utf-8", "replace"))
+        except OSError:
+            pass
+
+
+def _check_header(path: Path, spec, size: tuple[int, int] | None) -> None:
+    """Refuses, from the header alone, an image of the wrong size or one whose decoding would not
+    fit: the pixels of a decompression bomb are never decoded."""
+    w, h, c = int(spec.width), int(spec.height), int(spec.nchannels)
+    if w < 1 or h < 1 or c < 1:
+        raise FormatError(f"{path}: image header says {w}x{h} with {c} channels")
+    if size is not None:
+        want = (int(size[0]), int(size[1]))
+        if (w, h) != want:
+            raise ShapeError(f"{path}: image is {w}x{h}, the camera says {want[0]}x{want[1]}")
+    elif w * h > MAX_PIXELS:
+        raise ShapeError(f"{path}: image is {w}x{h} ({w * h / 1e6:.0f} Mpixels), more than the "
+                         f"{MAX_PIXELS / 1e6:.0f} Mpixels read without an expected size")
+    # as stored, then as float32 RGB(A) after conversion (read_image)
+    need = w * h * (c * _SAMPLE_BYTES.get(str(spec.format), 4) + 4 * min(max(c, 3), 4))
+    if need > 64 << 20:
+        from .render.job import available_memory
+
+        avail = available_memory()
+        if need > avail:
+            raise BadValueError(f"{path}: image is {w}x{h} with {c} channels: decoding needs "
+                                f"{need / 2**30:.1f} GiB, {max(avail, 0) / 2**30:.1f} GiB available")
+
+
+def read_header(path: str | os.PathLike, size: tuple[int, int] | None = None) -> tuple[int, int, int, str]:
+    """(width, height, channels, sample format such as "uint8") of an image file from its header
+    alone (no pixel is decoded), checked as :func:`read_pixels` checks it before decoding."""
+    path = Path(path)
+    if not path.is_file():
+        raise MissingFileError(f"{path}: no such file")
+    oiio = _oiio()
+    with _stderr_to_message() as cap:
+        inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise FormatError(f"{path}: not a readable image ({_library_error(oiio, cap, 'unknown format')})")
+    _release(cap)
+    try:
+        spec = inp.spec()
+        _check_header(path, spec, size)
+        if inp.format_name() == "png":
+            _check_png_end(path)
+        return int(spec.width), int(spec.height), int(spec.nchannels), str(spec.format)
+    finally:
+        inp.close()
+
+
+_PNG_END = b"\0\0\0\0IEND\xaeB`\x82"  # the IEND chunk (empty, and its CRC) that closes every PNG
+_PNG_TAIL = 1 << 16  # bytes searched for it: decoders ignore data appended after IEND, so must we
+
+
+def _check_png_end(path: Path) -> None:
+    """A PNG without its IEND chunk near the end is cut short (an interrupted copy or download):
+    found from the file's end, without decoding, where decoding would fail later."""
+    with open(path, "rb") as fh:
+        fh.seek(0, os.SEEK_END)
+        n = fh.tell()
+        fh.seek(max(0, n - _PNG_TAIL))
+        if _PNG_END not in fh.read():
+            raise FormatError(f"{path}: truncated PNG (no IEND chunk at the end of its {n} bytes)")
+
+
+def read_pixels(path: str | os.PathLike, size: tuple[int, int] | None = None) -> tuple[np.ndarray, str]:
     """Pixels as stored (H, W, C), alpha **straight** (unassociated, as PNG holds it: OpenImageIO
     would otherwise premultiply colour, and any channel stored beside alpha, on read), and the
-    base type name ('uint8', 'uint16' or 'float')."""
+    base type name ('uint8', 'uint16' or 'float').
+
+    ``size`` (width, height): the size the caller expects (its camera's); an image of another size
+    is refused from its header (ShapeError), before any pixel is decoded. Without it, images of
+    more than :data:`MAX_PIXELS` pixels are refused; and any image whose decoding would need more
+    memory than is available. A file that cannot be decoded is a FormatError with one line."""
     path = Path(path)
     if not path.is_file():
         raise MissingFileError(f"{path}: no such file")
     oiio = _oiio()
     config = oiio.ImageSpec()
     config.attribute("oiio:UnassociatedAlpha", 1)
-    inp = oiio.ImageInput.open(str(path), config)
+    with _stderr_to_message() as cap:
+        inp = oiio.ImageInput.open(str(path), config)
     if inp is None:
-        raise FormatError(f"{path}: not a readable image ({_geterror(oiio, 'unknown format')})")
+        raise FormatError(f"{path}: not a readable image ({_library_error(oiio, cap, 'unknown format')})")
+    _release(cap)
     try:
         spec = inp.spec()
+        _check_header(path, spec, size)
         fmt = str(spec.format)
-        if fmt in ("uint8", "uint16"):
-            arr = inp.read_image(fmt)
-        else:
+        if fmt not in ("uint8", "uint16"):
             fmt = "float"
-            arr = inp.read_image("float")
+        with _stderr_to_message() as cap:
+            arr = inp.read_image(fmt)
         if arr is None:
-            raise FormatError(f"{path}: could not decode ({_geterror(inp, 'truncated or corrupt')})")
+            raise FormatError(f"{path}: could not decode ({_library_error(inp, cap, 'truncated or corrupt')})")
+        _release(cap)
     finally:
         inp.close()
     arr = np.asarray(arr)
@@ -97,11 +245,12 @@ def read_pixels(path: str | os.PathLike) -> tuple[np.ndarray, str]:
     return arr, fmt
 
 
-def read_image(path: str | os.PathLike, *, alpha: bool = False) -> np.ndarray:
+def read_image(path: str | os.PathLike, *, alpha: bool = False, size: tuple[int, int] | None = None
+               ) -> np.ndarray:
     """Linear float32 colour (H, W, 3), or (H, W, 4) with ``alpha=True`` (alpha is never
     sRGB-decoded). Colour is straight, not multiplied by alpha. Grey images are expanded to
-    RGB; missing alpha reads as 1."""
-    arr, fmt = read_pixels(path)
+    RGB; missing alpha reads as 1. ``size`` (width, height): as :func:`read_pixels`."""
+    arr, fmt = read_pixels(path, size)
     c = arr.shape[2]
     if fmt in ("uint8", "uint16"):
         scaled = arr.astype(np.float32) / (255.0 if fmt == "uint8" else 65535.0)
@@ -109,8 +258,9 @@ def read_image(path: str | os.PathLike, *, alpha: bool = False) -> np.ndarray:
     else:
         scaled = arr.astype(np.float32)
         rgb = scaled[..., :3] if c >= 3 else np.repeat(scaled[..., :1], 3, axis=2)
-    if not np.all(np.isfinite(rgb)):
-        raise BadValueError(f"{path}: colour contains NaN or infinity")
+    bad = int(np.count_nonzero(~np.isfinite(rgb)))
+    if bad:
+        raise BadValueError(f"{path}: colour contains NaN or infinity ({bad} values); expected finite colour")
     if not alpha:
         return np.ascontiguousarray(rgb)
     a = scaled[..., 3:4] if c in (2, 4) else np.ones(rgb.shape[:2] + (1,), np.float32)
@@ -119,18 +269,22 @@ def read_image(path: str | os.PathLike, *, alpha: bool = False) -> np.ndarray:
     return np.ascontiguousarray(np.concatenate([rgb, a], axis=2))
 
 
-def read_mask(path: str | os.PathLike) -> np.ndarray:
-    """A boolean mask (H, W): true where the first channel is above half its range."""
-    arr, fmt = read_pixels(path)
+def read_mask(path: str | os.PathLike, *, size: tuple[int, int] | None = None) -> np.ndarray:
+    """A boolean mask (H, W): true where the first channel is above half its range (NaN: false).
+    ``size`` (width, height): as :func:`read_pixels`."""
+    arr, fmt = read_pixels(path, size)
     full = {"uint8": 255, "uint16": 65535}.get(fmt, 1.0)
     return np.ascontiguousarray(arr[..., 0] > full / 2)
 
 
-def read_depth(path: str | os.PathLike, *, scale: float | None = None, channel: int = 0) -> np.ndarray:
+def read_depth(path: str | os.PathLike, *, scale: float | None = None, channel: int = 0,
+               size: tuple[int, int] | None = None) -> np.ndarray:
     """Depth (H, W) float32. Float formats are read as they are; 16-bit integer images need
     ``scale`` (depth = value * scale, 0 stays unknown). 8-bit depth is refused: it cannot hold
-    depth (importers with a documented 8-bit encoding, e.g. NeRF lego, decode it themselves)."""
-    arr, fmt = read_pixels(path)
+    depth (importers with a documented 8-bit encoding, e.g. NeRF lego, decode it themselves).
+    A scale that takes a finite stored value to infinity (float32 overflow) is refused.
+    ``size`` (width, height): as :func:`read_pixels`."""
+    arr, fmt = read_pixels(path, size)
     if channel >= arr.shape[2]:
         raise ShapeError(f"{path}: depth channel {channel} requested, image has {arr.shape[2]}")
     v = arr[..., channel]
@@ -139,9 +293,18 @@ def read_depth(path: str | os.PathLike, *, scale: float | None = None, channel: 
     if fmt == "uint16":
         if scale is None or not (scale > 0):
             raise BadValueError(f"{path}: 16-bit depth needs a positive scale (depth = value * scale)")
-        d = v.astype(np.float32) * np.float32(scale)
-    else:
-        d = v.astype(np.float32) if scale is None else v.astype(np.float32) * np.float32(scale)
+    d = v.astype(np.float32)
+    if scale is not None:
+        scale = float(scale)
+        if not (math.isfinite(scale) and F32_MIN <= scale <= F32_MAX):
+            raise BadValueError(f"{path}: depth scale {scale:g} is not a positive float32 "
+                                f"(expected {F32_MIN:.3g} to {F32_MAX:.3g})")
+        with np.errstate(over="ignore"):
+            d = d * np.float32(scale)
+        over = np.isinf(d) & np.isfinite(v)
+        if over.any():
+            raise BadValueError(f"{path}: depth scale {scale:g} times the stored value "
+                                f"{float(np.max(v[over])):g} overflows float32 (largest {F32_MAX:.3g})")
     return np.ascontiguousarray(d)
 
 

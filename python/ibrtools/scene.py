@@ -73,12 +73,24 @@ class View:
 
     def _get(self, which: str) -> np.ndarray | None:
         lazy: _Lazy = getattr(self, "_" + which)
-        was_loaded = lazy._value is not None
-        value = lazy.get()
-        if value is not None and not was_loaded:
+        if lazy._value is None and lazy._loader is not None:
+            # Kept only once checked: a value that fails its check is not cached, so every later
+            # use fails the same way (before, the second use got the unchecked array).
+            value = lazy._loader()
             lazy._value = _check_image(value, f"view {self.name!r} {which}"
                                        + (f" ({lazy.source})" if lazy.source else ""), self.camera, which)
+            lazy._loader = None
         return lazy._value
+
+    def check_files(self) -> None:
+        """Check, from their headers alone (no pixel is decoded), the files this view loads lazily:
+        readable images of the camera's size (loaders that know it: ``FileLoader`` with ``size``).
+        Pixels (truncated data, NaN) are checked when first loaded."""
+        for which in ("color", "depth", "mask", "depth_stored"):
+            lazy: _Lazy = getattr(self, "_" + which)
+            probe = getattr(lazy._loader, "probe", None)
+            if lazy._value is None and probe is not None:
+                probe()
 
     @property
     def color(self) -> np.ndarray | None:
@@ -224,13 +236,19 @@ class Scene:
         return native.load(Path(self.root) / "frames" / name)
 
     def validate(self) -> None:
-        """Check what loading lazily would otherwise find late: names unique, views present."""
+        """Check what loading lazily would otherwise find late: names unique, views present, and
+        the header of every image file the views load (readable, of its camera's size:
+        :meth:`View.check_files`), so that a bad file stops a command before any work rather
+        than failing each frame that uses it."""
         if not self.views and not self.targets and not self.frames:
             raise BadValueError("scene: empty (no views and no targets)")
         names = [v.name for v in self.views] + [t.name for t in self.targets]
-        dup = sorted({n for n in names if names.count(n) > 1})
+        seen: set[str] = set()
+        dup = sorted({n for n in names if n in seen or seen.add(n)})
         if dup:
             raise BadValueError(f"scene: duplicate view/target names {dup[:5]}")
+        for v in self.views + self.targets:
+            v.check_files()
 
 
 def _some(names, k: int = 8) -> str:

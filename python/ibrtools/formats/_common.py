@@ -8,18 +8,23 @@ from __future__ import annotations
 
 import json
 import math
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import numpy as np
 
 from ..camera import orthonormalize
-from ..errors import BadValueError, DtypeError, FormatError, MissingFileError
+from ..errors import BadValueError, DtypeError, FormatError, MissingFileError, ShapeError
 
 
 class FileLoader:
     """A zero-argument callable that loads one array from ``source`` (a file path) on first
-    use; ``View.create`` reads ``.source`` to name the file in error messages."""
+    use; ``View.create`` reads ``.source`` to name the file in error messages.
+
+    A ``size`` keyword ((width, height), passed on to ``fn``: the image size its camera expects)
+    makes the loader checkable up front: :meth:`probe` reads the header of ``source`` and refuses
+    a file that is unreadable or of another size (``Scene.validate`` probes every view)."""
 
     def __init__(self, source: str | Path, fn: Callable[..., np.ndarray], *args: Any, **kwargs: Any):
         self.source = str(source)
@@ -28,8 +33,29 @@ class FileLoader:
     def __call__(self) -> np.ndarray:
         return self._fn(*self._args, **self._kwargs)
 
+    @property
+    def probe(self) -> Callable[[], Any] | None:
+        """Checks the header of ``source`` against ``size`` (None when the loader has no size)."""
+        size = self._kwargs.get("size")
+        if size is None:
+            return None
+        from ..imageio import read_header
+
+        return lambda: read_header(self.source, size)
+
     def __repr__(self) -> str:
         return f"FileLoader({self.source!r})"
+
+
+@contextmanager
+def named(where: str) -> Iterator[None]:
+    """Errors of the value checks in the block (``Camera``'s width, focal length, pose...), which
+    name the argument but not where it came from, re-raised with ``where`` (the file and entry)
+    in front: "cameras.txt: camera 1: camera width: expected an integer >= 1, got 0"."""
+    try:
+        yield
+    except (BadValueError, DtypeError, ShapeError) as e:
+        raise type(e)(f"{where}: {e}") from None
 
 
 def check_options(options: dict, known: dict[str, str], fmt: str) -> dict:
@@ -164,20 +190,9 @@ def invert_rigid(m: np.ndarray) -> np.ndarray:
 def image_header(path: Path) -> tuple[int, int, int, str]:
     """(width, height, channels, sample format such as "uint8") of an image file, from its header
     alone (no pixel decoding)."""
-    from ..imageio import _geterror, _oiio
+    from ..imageio import read_header
 
-    path = Path(path)
-    if not path.is_file():
-        raise MissingFileError(f"{path}: no such file")
-    oiio = _oiio()
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise FormatError(f"{path}: not a readable image ({_geterror(oiio, 'unknown format')})")
-    try:
-        spec = inp.spec()
-        return int(spec.width), int(spec.height), int(spec.nchannels), str(spec.format)
-    finally:
-        inp.close()
+    return read_header(path)
 
 
 def image_size(path: Path) -> tuple[int, int]:

@@ -44,11 +44,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import Camera
+from ..camera import Camera, check_rigid
 from ..errors import BadValueError, FormatError, MissingFileError, ShapeError
 from ..imageio import read_image
 from ..scene import Scene, View
-from ._common import document_errors, FileLoader, check_options, image_size, opt_choice, quat_to_rotation
+from ._common import document_errors, FileLoader, check_options, image_size, named, opt_choice, quat_to_rotation
 
 NAME = "colmap"
 DESCRIPTION = "COLMAP sparse model (cameras/images .bin|.txt) + images (+ dense depth maps)"
@@ -263,11 +263,8 @@ class _Undistorter:
             self._map = undistort_map(self.cam, self.model, self.params)
         return self._map
 
-    def color(self, path: Path) -> np.ndarray:
-        img = read_image(path)
-        if img.shape[:2] != (self.cam.height, self.cam.width):
-            raise ShapeError(f"{path}: image is {img.shape[1]}x{img.shape[0]}, expected "
-                             f"{self.cam.width}x{self.cam.height}")
+    def color(self, path: Path, size: tuple[int, int] | None = None) -> np.ndarray:
+        img = read_image(path, size=(self.cam.width, self.cam.height))  # refused from its header
         return remap_bilinear(img, *self.map())[0]
 
     def mask(self) -> np.ndarray:
@@ -353,7 +350,8 @@ def load(path: Path, options: dict) -> Scene:
             found = sorted(d.name for d in root.glob("images*") if d.is_dir())
             raise FormatError(f"{root}: no image folder (expected images/ or a single images_*/, found "
                               f"{found or 'none'}; pass images=DIR)")
-    cams = read_cameras(_model_file(model, "cameras"))
+    cams_file = _model_file(model, "cameras")
+    cams = read_cameras(cams_file)
     imgs = read_images(_model_file(model, "images"))
     if not imgs:
         raise FormatError(f"{model}: the model has no images")
@@ -373,11 +371,14 @@ def load(path: Path, options: dict) -> Scene:
                               f"(supported: {', '.join(SUPPORTED)})")
         fx, fy, cx, cy = _intrinsics(c["model"], c["params"])
         if not (fx > 0 and fy > 0):
-            raise BadValueError(f"{where}: camera {im['camera_id']}: focal length must be positive, got {fx}, {fy}")
+            raise BadValueError(f"{cams_file}: camera {im['camera_id']}: focal length must be positive, got {fx}, {fy}")
         pose = np.eye(4)
         pose[:3, :3] = quat_to_rotation(*im["qvec"], where=where)
         pose[:3, 3] = im["tvec"]
-        cam = Camera.pinhole(c["width"], c["height"], fx, fy, cx, cy, pose)
+        with named(f"{where}: pose"):
+            pose = check_rigid(pose)
+        with named(f"{cams_file}: camera {im['camera_id']}"):
+            cam = Camera.pinhole(c["width"], c["height"], fx, fy, cx, cy, pose)
         img_path = images_dir / im["name"]
         if not img_path.is_file():
             raise MissingFileError(f"{img_path}: image {im['name']!r} of the model not found in {images_dir}")
@@ -399,12 +400,12 @@ def load(path: Path, options: dict) -> Scene:
                 undistorters[key] = _Undistorter(cam, c["model"], c["params"])
             und = undistorters[key]
             view = View.create(str(Path(im["name"]).with_suffix("")), cam,
-                               color=FileLoader(img_path, und.color, img_path),
+                               color=FileLoader(img_path, und.color, img_path, size=(w, h)),
                                depth=FileLoader(depth_file, und.depth, depth_file) if has_depth else None,
                                mask=FileLoader(img_path, und.mask))
         else:
             view = View.create(str(Path(im["name"]).with_suffix("")), cam,
-                               color=FileLoader(img_path, read_image, img_path),
+                               color=FileLoader(img_path, read_image, img_path, size=(w, h)),
                                depth=FileLoader(depth_file, _load_depth, depth_file, cam) if has_depth else None)
         views.append(view)
     notes = []

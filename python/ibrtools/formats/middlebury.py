@@ -37,7 +37,7 @@ from ..camera import Camera
 from ..errors import DtypeError, FormatError, MissingFileError, ShapeError
 from ..imageio import read_pixels, read_image
 from ..scene import Scene, View
-from ._common import document_errors, FileLoader, check_options, check_same_size, image_size, opt_float
+from ._common import document_errors, FileLoader, check_options, check_same_size, image_size, named, opt_float
 
 NAME = "middlebury"
 DESCRIPTION = "Middlebury stereo pair with disparity (im2/im6 + disp2/disp6, or view1/view5 + disp1/disp5)"
@@ -61,7 +61,7 @@ def detect(path: Path) -> bool:
 
 
 def _load_depth(path: Path, disp_scale: float, focal: float, baseline: float, shape: tuple[int, int]) -> np.ndarray:
-    arr, fmt = read_pixels(path)
+    arr, fmt = read_pixels(path, (shape[1], shape[0]))  # another size is refused from the header
     if fmt not in ("uint8", "uint16"):
         raise DtypeError(f"{path}: expected an 8- or 16-bit disparity PNG, got {fmt}")
     if arr.shape[:2] != shape:
@@ -92,12 +92,13 @@ def load(path: Path, options: dict) -> Scene:
     for name, img, disp, tx in (("left", left, dleft, 0.0), ("right", right, dright, -baseline)):
         pose = np.eye(4)
         pose[0, 3] = tx
-        cam = Camera.pinhole(w, h, focal, focal, w / 2, h / 2, pose)
+        with named(f"{img} (options focal, baseline)"):
+            cam = Camera.pinhole(w, h, focal, focal, w / 2, h / 2, pose)
         depth = None
         if disp.is_file():
             check_same_size(disp, (w, h), "disparity image", f"size of {img.name}")
             depth = FileLoader(disp, _load_depth, disp, disp_scale, focal, baseline, (h, w))
-        views.append(View.create(name, cam, color=FileLoader(img, read_image, img), depth=depth))
+        views.append(View.create(name, cam, color=FileLoader(img, read_image, img, size=(w, h)), depth=depth))
     masks = {k: str(path / f) for k, f in (("left_nonoccluded", "occl.png"),
                                             ("left_nonoccluded_nondiscontinuity", "occ_and_discont.png"))
              if (path / f).is_file()}
@@ -115,5 +116,6 @@ def nonoccluded_mask(scene: Scene, which: str = "left_nonoccluded") -> np.ndarra
     f = scene.source.get("masks", {}).get(which)
     if f is None:
         return None
-    arr, _ = read_pixels(f)
+    left = scene.views[0].camera if scene.views else None
+    arr, _ = read_pixels(f, (left.width, left.height) if left is not None else None)
     return np.ascontiguousarray(arr[..., 0] == arr[..., 0].max()) if arr.max() > 0 else arr[..., 0] > 0

@@ -53,7 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import Camera
+from ..camera import MAX_TRANSLATION, Camera
 from ..errors import BadValueError, DtypeError, FormatError, MissingFileError, ShapeError
 from ..imageio import read_pixels, read_image
 from ..scene import Scene, View
@@ -168,6 +168,8 @@ class MpegCamera:
         rot = _vec(c, "Rotation", 3, where)
         w, h = (int(round(v)) for v in _vec(c, "Resolution", 2, where))
         proj = str(c.get("Projection", "Perspective"))
+        if max(abs(v) for v in pos) > MAX_TRANSLATION:  # before the arithmetic of the pose
+            raise BadValueError(f"{where}: 'Position' {pos} is beyond +-{MAX_TRANSLATION:g}")
         pose = cam_from_world(pos, rot)
         try:
             if proj == "Perspective":
@@ -182,7 +184,7 @@ class MpegCamera:
                 self.camera = Camera.equirect(w, h, (-hr[1], -hr[0]), tuple(vr), pose)
             else:
                 raise FormatError(f"{where}: Projection {proj!r} not supported (Perspective, Equirectangular)")
-        except (BadValueError, DtypeError) as e:
+        except (BadValueError, DtypeError, ShapeError) as e:
             raise type(e)(f"{where}: {e}") from None
         self.projection = proj
         near, far = _vec(c, "Depth_range", 2, where, default=(0.0, 0.0)) if c.get("Depthmap", 1) else (0.0, 0.0)
@@ -241,7 +243,7 @@ def _load_color(path: Path, mc: MpegCamera, frame: int, matrix: str, full: bool)
     if path.suffix.lower() == ".yuv":
         planes = yuv.read_frame(path, mc.camera.width, mc.camera.height, mc.bits_color, frame, mc.chroma)
         return yuv.yuv_to_rgb(planes, mc.bits_color, matrix, full)
-    return read_image(path)
+    return read_image(path, size=(mc.camera.width, mc.camera.height))
 
 
 def _load_depth(path: Path, mc: MpegCamera, frame: int) -> np.ndarray:
@@ -250,7 +252,7 @@ def _load_depth(path: Path, mc: MpegCamera, frame: int) -> np.ndarray:
     if path.suffix.lower() == ".yuv":
         y = yuv.read_frame(path, w, h, mc.bits_depth, frame, mc.depth_chroma)[0]
         return decode_depth(y, mc.bits_depth, near, far, mc.invalid_zero, str(path))
-    arr, fmt = read_pixels(path)
+    arr, fmt = read_pixels(path, (w, h))
     if arr.shape[:2] != (h, w):
         raise ShapeError(f"{path}: depth is {arr.shape[1]}x{arr.shape[0]}, expected {w}x{h} ({mc.name})")
     if fmt in ("uint8", "uint16"):

@@ -169,7 +169,13 @@ def save_video(video: Scene, frames: dict[str, Scene], path: str | os.PathLike, 
 def _read_view(root: Path, entry, where: str, need_color: bool) -> View:
     if not isinstance(entry, dict) or "name" not in entry:
         raise FormatError(f"{where}: expected an object with 'name' and 'camera'")
+    name = entry["name"]
+    if not isinstance(name, str) or not name:
+        # str() would turn anything (null, 3, a list) into a name; the render side maps any
+        # string, "/" and ".." included, to a safe output file name, so only the type is refused.
+        raise FormatError(f"{where}.name: expected a non-empty string, got {json.dumps(name)[:60]}")
     camera = Camera.from_dict(entry.get("camera"), f"{where}.camera")
+    size = (camera.width, camera.height)  # every image is checked against it from its header
     loaders = {}
     for key, fn in (("color", read_image), ("depth", read_depth), ("mask", read_mask), ("depth_stored", read_depth)):
         rel = entry.get(key)
@@ -177,11 +183,13 @@ def _read_view(root: Path, entry, where: str, need_color: bool) -> View:
             if key == "color" and need_color:
                 raise FormatError(f"{where}: missing 'color'")
             continue
+        if not isinstance(rel, str) or not rel:
+            raise FormatError(f"{where}.{key}: expected a file path relative to the scene, got {json.dumps(rel)[:60]}")
         f = root / rel
         if not f.is_file():
             raise MissingFileError(f"{f}: no such file (named by {where}.{key})")
-        loaders[key] = FileLoader(f, fn, f)
-    return View.create(str(entry["name"]), camera, **loaders)
+        loaders[key] = FileLoader(f, fn, f, size=size)
+    return View.create(name, camera, **loaders)
 
 
 @document_errors
@@ -210,13 +218,13 @@ def load(path: Path, options: dict | None = None) -> Scene:
         for n in frames:
             if _safe_name(n) != n or n in (".", "..") or not (root / FRAMES_DIR / n / SCENE_FILE).is_file():
                 raise MissingFileError(f"{root / FRAMES_DIR / n / SCENE_FILE}: no such file (frame {n!r} of {f})")
-    views = [_read_view(root, e, f"{f.name}: views[{i}]", True) for i, e in enumerate(doc.get("views", []))]
-    targets = [_read_view(root, e, f"{f.name}: targets[{i}]", False) for i, e in enumerate(doc.get("targets", []))]
+    views = [_read_view(root, e, f"{f}: views[{i}]", True) for i, e in enumerate(doc.get("views", []))]
+    targets = [_read_view(root, e, f"{f}: targets[{i}]", False) for i, e in enumerate(doc.get("targets", []))]
     paths = {}
     for name, cams in (doc.get("paths") or {}).items():
         if not isinstance(cams, list) or not cams:
             raise FormatError(f"{f}: paths.{name}: expected a non-empty list of cameras")
-        paths[name] = [Camera.from_dict(c, f"{f.name}: paths.{name}[{i}]") for i, c in enumerate(cams)]
+        paths[name] = [Camera.from_dict(c, f"{f}: paths.{name}[{i}]") for i, c in enumerate(cams)]
     meshes = {}
     for kind, m in (doc.get("meshes") or {}).items():
         if not isinstance(m, dict) or "path" not in m:

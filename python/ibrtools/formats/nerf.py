@@ -64,7 +64,7 @@ from ..errors import BadValueError, DtypeError, FormatError, MissingFileError, S
 from ..imageio import read_pixels, srgb_to_linear
 from ..scene import Scene, View
 from ._common import (document_errors, FileLoader, check_options, check_same_size, image_header, image_size, invert_rigid,
-                      opt_choice, opt_float, opt_int, read_json, rigid_from_matrix)
+                      named, opt_choice, opt_float, opt_int, read_json, rigid_from_matrix)
 
 NAME = "nerf"
 DESCRIPTION = "NeRF/instant-ngp transforms*.json (Blender/OpenGL camera-to-world)"
@@ -147,8 +147,8 @@ def _number(d: dict, key: str, where: str) -> float:
     return v
 
 
-def _load_color(path: Path, background: float) -> np.ndarray:
-    arr, fmt = read_pixels(path)
+def _load_color(path: Path, background: float, size: tuple[int, int] | None = None) -> np.ndarray:
+    arr, fmt = read_pixels(path, size)
     c = arr.shape[2]
     if fmt in ("uint8", "uint16"):
         v = arr.astype(np.float32) / (255.0 if fmt == "uint8" else 65535.0)
@@ -167,8 +167,8 @@ def _load_color(path: Path, background: float) -> np.ndarray:
     return np.ascontiguousarray(rgb)
 
 
-def _load_mask(path: Path) -> np.ndarray:
-    arr, fmt = read_pixels(path)
+def _load_mask(path: Path, size: tuple[int, int] | None = None) -> np.ndarray:
+    arr, fmt = read_pixels(path, size)
     full = {"uint8": 255.0, "uint16": 65535.0}.get(fmt, 1.0)
     if arr.shape[2] not in (2, 4):
         raise FormatError(f"{path}: no alpha channel for the mask")
@@ -252,7 +252,9 @@ def _dequantize_option(options: dict) -> int | None:
 
 
 def _load_depth(path: Path, camera: Camera, depth_scale: float, dequantize: int | None = None) -> np.ndarray:
-    arr, fmt = read_pixels(path)  # the depth PNGs have an alpha channel: never premultiply v
+    # the depth PNGs have an alpha channel: never premultiply v; refused from the header if not
+    # of the camera's size
+    arr, fmt = read_pixels(path, (camera.width, camera.height))
     if fmt not in ("uint8", "uint16"):
         raise DtypeError(f"{path}: expected an 8- or 16-bit depth PNG (Blender encoding), got {fmt}")
     if arr.shape[:2] != (camera.height, camera.width):
@@ -299,7 +301,8 @@ def _camera(meta: dict, frame: dict, image: Path, where: str) -> Camera:
     if "transform_matrix" not in frame:
         raise FormatError(f"{where}: missing key 'transform_matrix'")
     c2w_gl = rigid_from_matrix(frame["transform_matrix"], f"{where} transform_matrix")
-    return Camera.pinhole(w, h, fx, fy, cx, cy, invert_rigid(c2w_gl @ GL_TO_CV))
+    with named(where):
+        return Camera.pinhole(w, h, fx, fy, cx, cy, invert_rigid(c2w_gl @ GL_TO_CV))
 
 
 @document_errors
@@ -344,10 +347,11 @@ def load(path: Path, options: dict) -> Scene:
     views = []
     for s, stem, camera, image, depth in entries:
         name = f"{s}/{stem}" if stem in collide and s else stem
-        mask = FileLoader(image, _load_mask, image) if _has_alpha(image) else None
+        size = (camera.width, camera.height)
+        mask = FileLoader(image, _load_mask, image, size=size) if _has_alpha(image) else None
         views.append(View.create(
             name, camera,
-            color=FileLoader(image, _load_color, image, background),
+            color=FileLoader(image, _load_color, image, background, size=size),
             depth=FileLoader(depth, _load_depth, depth, camera, depth_scale, dequantize) if depth is not None else None,
             mask=mask,
             depth_stored=(FileLoader(depth, _load_depth, depth, camera, depth_scale, 0)

@@ -50,8 +50,9 @@ from ..camera import Camera
 from ..errors import BadValueError, FormatError, MissingFileError
 from ..imageio import read_depth, read_image
 from ..scene import Scene, View
-from ._common import document_errors, FileLoader, check_options, check_same_size, image_size, invert_rigid, opt_choice, \
-    opt_float, quat_to_rotation
+from ..imageio import F32_MAX
+from ._common import document_errors, FileLoader, check_options, check_same_size, image_size, invert_rigid, named, \
+    opt_choice, opt_float, quat_to_rotation
 
 NAME = "rgbd"
 DESCRIPTION = "RGB-D sequence: ICL-NUIM (color/, depth/, pose.txt) or TUM (rgb/, depth/, groundtruth.txt)"
@@ -191,6 +192,10 @@ def load(path: Path, options: dict) -> Scene:
         if v == 0:
             raise BadValueError(f"option {k}: focal length must not be zero")
     depth_scale = opt_float(options, "depth_scale", 1 / 5000, positive=True)
+    if depth_scale * 65535 > F32_MAX:
+        # the largest 16-bit value would be infinite depth (float32): refused here, by name
+        raise BadValueError(f"option depth_scale: {depth_scale:g} times 65535 (the largest 16-bit depth value) "
+                            f"overflows float32 (largest {F32_MAX:.3g}); expected metres per depth unit")
     max_dt = opt_float(options, "max_dt", 0.02, positive=True)
     if fmt == "icl":
         if not (path / "color").is_dir():
@@ -215,10 +220,11 @@ def load(path: Path, options: dict) -> Scene:
         check_same_size(depth, size, "depth image", f"size of its colour image {color.name}")
         # world'_from_cam_cv = M T S (S = S^-1); rigid by construction (see the docstring).
         world_from_cam = m @ world_from_cam_ds @ s
-        cam = Camera.pinhole(size[0], size[1], abs(fx), abs(fy), cx + 0.5, cy + 0.5,
-                             invert_rigid(world_from_cam))
-        views.append(View.create(name, cam, color=FileLoader(color, read_image, color),
-                                 depth=FileLoader(depth, read_depth, depth, scale=depth_scale)))
+        with named(f"{color} (options fx, fy, cx, cy and its pose)"):
+            cam = Camera.pinhole(size[0], size[1], abs(fx), abs(fy), cx + 0.5, cy + 0.5,
+                                 invert_rigid(world_from_cam))
+        views.append(View.create(name, cam, color=FileLoader(color, read_image, color, size=size),
+                                 depth=FileLoader(depth, read_depth, depth, scale=depth_scale, size=size)))
     notes = f"depth z = value * {depth_scale:g} m; poses camera-to-world ({fmt})"
     if mirror:
         notes += (f"; negative focal ({'fx' if fx < 0 else 'fy'}): world mirrored by "
