@@ -253,6 +253,34 @@ def test_read_depth_refuses_an_overflowing_scale(tmp_path):
         assert read_depth(f, scale=2.0).max() == 2e9
 
 
+
+def test_nerf_depth_scale_that_overflows_float32(tmp_path, capsys):
+    from conftest import need_data
+
+    lego = need_data("nerf_lego")
+    assert preprocess.main([str(lego), "-o", str(tmp_path / "y"), "--opt", "depth_scale=1e308", "-q"]) == 2
+    _one_line(capsys.readouterr().err, "option depth_scale: 1e+308 overflows float32")
+
+
+@pytest.mark.parametrize("key, value, msg", [
+    ("Position", [1e308, 0, 0], r"'Position' \[1e\+308, 0.0, 0.0\] is beyond \+-1e\+12"),
+    ("Focal", [1e308, 10.0], r"fx: focal length 1e\+308 is outside"),
+    ("Resolution", [1e308, 6], r"camera width: expected an integer <= 65536"),
+    ("Depth_range", [1e-320, 10.0], r"Depth_range near 9.99989e-321 is below 1e-09"),
+])
+def test_mpeg_camera_values_out_of_range(key, value, msg):
+    import warnings
+
+    from ibrtools.formats.mpeg import MpegCamera
+
+    c = {"Name": "v0", "Position": [0, 0, 0], "Rotation": [0, 0, 0], "Depthmap": 1, "Depth_range": [0.5, 1000.0],
+         "Resolution": [8, 6], "Projection": "Perspective", "Focal": [10.0, 10.0], "Principle_point": [4.0, 3.0]}
+    c[key] = value
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(BadValueError, match=r"cams.json cameras\[0\] \(v0\): " + msg):
+            MpegCamera(c, "cams.json cameras[0]").check_depth_range()
+
 @pytest.mark.parametrize("edit, msg", [
     (lambda c: c["cam_from_world"][0].__setitem__(3, 1e308), "cam_from_world: translation 1e+308 is beyond +-1e+12"),
     (lambda c: c.update(fx=1e308), "fx: focal length 1e+308 is outside 0.001 to 1e+09 pixels"),

@@ -65,6 +65,7 @@ DESCRIPTION = "MPEG-I/RVS camera JSON or RVS synthesis config (OMAF axes) + YUV/
 OPTIONS = {"frame": "frame index in YUV files", "yuv_matrix": "bt709|bt601", "yuv_range": "limited|full",
            "target_images": "comma-separated ground-truth images of the virtual cameras", "depth": "auto|none"}
 INFINITE_FAR = 1000.0
+MIN_NEAR = 1e-9  # the nearest depth a Depth_range may give (1 / near must stay far from overflow)
 IMAGE_EXTS = (".yuv", ".png", ".exr", ".jpg", ".jpeg", ".tif", ".tiff", ".pfm")
 # OpenCV camera axes -> OMAF camera axes: p_omaf = P @ p_cv.
 CV_TO_OMAF = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
@@ -204,6 +205,8 @@ class MpegCamera:
         near, far = self.depth_range
         if not (near > 0 and far > near):
             raise BadValueError(f"{self.where}: Depth_range must be 0 < near < far, got {list(self.depth_range)}")
+        if near < MIN_NEAR:  # 1 / near is the decoding's scale: a denormal near makes it infinite
+            raise BadValueError(f"{self.where}: Depth_range near {near:g} is below {MIN_NEAR:g}")
 
 
 @document_errors

@@ -61,7 +61,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import BadValueError, DtypeError, FormatError, MissingFileError, ShapeError
-from ..imageio import read_pixels, srgb_to_linear
+from ..imageio import F32_MAX, read_pixels, srgb_to_linear
 from ..scene import Scene, View
 from ._common import (document_errors, FileLoader, check_options, check_same_size, image_header, image_size, invert_rigid,
                       named, opt_choice, opt_float, opt_int, read_json, rigid_from_matrix)
@@ -312,6 +312,9 @@ def load(path: Path, options: dict) -> Scene:
     split = opt_choice(options, "split", "all", ("all",) + SPLITS)
     background = {"black": 0.0, "white": 1.0}[opt_choice(options, "background", "black", ("black", "white"))]
     depth_scale = opt_float(options, "depth_scale", 8.0, positive=True)
+    if depth_scale > F32_MAX:  # the depth of code 0 would overflow float32
+        raise BadValueError(f"option depth_scale: {depth_scale:g} overflows float32 (largest {F32_MAX:.3g}); "
+                            "expected the ray distance of depth code 0")
     use_depth = opt_choice(options, "depth", "auto", ("auto", "none")) == "auto"
     dequantize = _dequantize_option(options)
     if not path.exists():
