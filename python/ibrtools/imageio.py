@@ -125,22 +125,36 @@ def _stderr_to_message() -> Iterator[_CapturedStderr]:
             os.close(saved)
 
 
+# Lines that image libraries write to fd 2 themselves (libpng's default error and warning handlers).
+_LIBRARY_LINES = ("libpng error: ", "libpng warning: ")
+
+
 def _library_error(source, cap: _CapturedStderr, default: str) -> str:
-    """The failure as one line: OpenImageIO's text, then what the library printed that it does not
-    already say."""
+    """The failure as one line: OpenImageIO's text, then what the library printed on fd 2 that it
+    does not already say. Other captured lines (another thread's output written meanwhile) go
+    back to stderr."""
     msg = _geterror(source, "")
-    extra = [ln for ln in one_line(cap.text, 1 << 16).split("; ")
-             if ln and ln.removeprefix("libpng error: ") not in msg]
-    return one_line("; ".join([m for m in (msg, *extra) if m])) or default
+    extra, other = [], []
+    for line in cap.text.splitlines(keepends=True):
+        if line.startswith(_LIBRARY_LINES):
+            said = line.strip().split(": ", 1)[1]
+            if said not in msg:
+                extra.append(line)
+        elif line.strip():
+            other.append(line)
+    cap.text = "".join(other)
+    _release(cap)
+    return one_line("\n".join([msg, *extra])) or default
 
 
 def _release(cap: _CapturedStderr) -> None:
-    """Writes what a successful decode's capture caught back to stderr (nothing is lost)."""
+    """Writes what a capture caught back to stderr (after a successful decode: nothing is lost)."""
     if cap.text:
         try:
             os.write(2, cap.text.encode("utf-8", "replace"))
         except OSError:
             pass
+        cap.text = ""
 
 
 def _check_header(path: Path, spec, size: tuple[int, int] | None) -> None:
