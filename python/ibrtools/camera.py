@@ -298,7 +298,8 @@ class Camera:
         except KeyError as e:
             raise FormatError(f"{where}: missing key {e.args[0]!r}") from None
         except (BadValueError, DtypeError, ShapeError) as e:
-            raise type(e)(f"{where}: {e}") from None
+            msg = str(e)  # check_rigid's already names f"{where}.cam_from_world"
+            raise type(e)(msg if msg.startswith(where) else f"{where}: {msg}") from None
         except (TypeError, ValueError, OverflowError) as e:
             # a value of the wrong JSON type (null focal, string range...): found by
             # tests/test_fuzz_importers.py; bad input, not a bug
