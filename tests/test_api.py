@@ -221,7 +221,7 @@ def test_render_bad_input(scene):
         scene.render(42)  # type: ignore[arg-type]
     with pytest.raises(BadValueError, match=r"method 'dibr' has no parameter\(s\) \['colour'\]"):
         scene.render("t000", method="dibr", colour=1)
-    with pytest.raises(BadValueError, match="--blend-exponent: expected a finite number > 0, got -1"):
+    with pytest.raises(BadValueError, match="--blend-exponent: expected a finite number > 0 and <= 16, got -1"):
         scene.render("t000", method="dibr", blend_exponent=-1)
     with pytest.raises(DtypeError, match="scene: expected an ibrtools.Scene"):
         api.render("not a scene", "t000")  # type: ignore[arg-type]
