@@ -17,4 +17,5 @@ PYBIND11_MODULE(_core, m) {
   ibr::bind::BindHybridRender(m);
   ibr::bind::BindPvmRender(m);
   ibr::bind::BindHarmonise(m);
+  ibr::bind::BindMvs(m);
 }

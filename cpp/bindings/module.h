@@ -19,4 +19,5 @@ void BindHybrid(py::module_& m);
 void BindHybridRender(py::module_& m);
 void BindPvmRender(py::module_& m);
 void BindHarmonise(py::module_& m);
+void BindMvs(py::module_& m);
 }  // namespace ibr::bind
