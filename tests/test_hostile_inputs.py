@@ -187,9 +187,6 @@ def test_nan_colour_is_a_typed_error_at_first_load_every_time(tmp_path):
             _ = s.views[1].color
 
 
-@pytest.mark.xfail(reason="render/job.py render_frame turns errors raised inside method.render (where dibr "
-                          "loads colour) into per-frame failures, exit 1; InputErrors should stop the job",
-                   strict=False)
 def test_nan_colour_stops_render(tmp_path, capsys):
     code, text = _render(_nan_exr_scene(tmp_path), tmp_path / "out", capsys)
     assert code == 2

@@ -21,7 +21,7 @@ from typing import Callable
 import numpy as np
 
 from ..camera import Camera
-from ..errors import BadValueError, FormatError, InternalError, MissingFileError
+from ..errors import BadValueError, FormatError, InputError, InternalError, MissingFileError
 from ..formats._common import read_json
 from ..imageio import atomic_path
 from ..imageio import write_depth as _write_depth
@@ -514,11 +514,14 @@ def render_frame(method, frame: Frame, *, inpaint: str, fov_kw: dict, float_out:
     """Render one frame with a prepared ``method`` and post-process it: NaN guard, holes black,
     inpainting, foveation, metrics. Returns (report entry, None, outputs) with outputs the files
     to write [(file name, "image" | "depth", array)], or (None, {"name", "error"}, []) when the
-    rendering or its post-processing raised (the frame failed; the job goes on). Writes nothing:
+    rendering or its post-processing raised (the frame failed; the job goes on) anything but an
+    InputError (bad input, e.g. an input image that decodes to NaN: raised, the job stops). Writes nothing:
     the caller does (the local loop, or the client of a distributed run)."""
     try:
         return _render_frame(method, frame, inpaint=inpaint, fov_kw=fov_kw, float_out=float_out,
                              depth_out=depth_out)
+    except InputError:
+        raise  # bad input (an input image found corrupt when first read): the job stops, exit 2
     except Exception as e:  # noqa: BLE001 - reported by name in report.json "failed"
         return None, {"name": frame.name, "error": f"{type(e).__name__}: {e}"}, []
 
