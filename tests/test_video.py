@@ -135,4 +135,4 @@ def test_bad_video_scenes(video_dir, tmp_path, capsys):
     with pytest.raises(BadValueError, match="frames"):
         synth.make_video("objects", frames=0)
     assert preprocess.main(["synth:objects", "-o", str(tmp_path / "v2"), "--frames", "0"]) == 2
-    assert "--frames: expected at least 1" in capsys.readouterr().err
+    assert "--frames: expected an integer >= 1" in capsys.readouterr().err
