@@ -329,5 +329,5 @@ def test_prepare_needs_depth():
 
     s = Scene(views=[View.create("a", cam, color=np.zeros((H, W, 3), np.float32))])
     m = WarpMethod()
-    with pytest.raises(InputError, match="colour and depth"):
+    with pytest.raises(InputError, match="needs depth for every input view.*ibr-preprocess"):
         m.prepare(s)

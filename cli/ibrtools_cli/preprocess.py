@@ -134,7 +134,8 @@ def _body(args: argparse.Namespace) -> int:
         print(json.dumps([r.to_dict() for r in results], indent=1))
     else:
         rows = [[r.name, r.status, r.reason, f"{r.seconds:.2f} s",
-                 ", ".join(f"{k}={v}" for k, v in r.details.items())] for r in results]
+                 ", ".join(f"{k}={v}" for k, v in r.details.items() if not isinstance(v, (dict, list)))]
+                for r in results]  # per-view details (the mvs stage's sources): in --json and scene.json
         print_table(["stage", "status", "reason", "time", "output"], rows,
                     title=f"{PROG} {args.input} -> {args.output}", quiet=args.quiet)
         if all(r.status != "ran" for r in results) and not args.quiet:

@@ -17,7 +17,7 @@ _U8: typing.TypeAlias = numpy.typing.NDArray[numpy.uint8]
 _I8: typing.TypeAlias = numpy.typing.NDArray[numpy.int8]
 _Bool: typing.TypeAlias = numpy.typing.NDArray[numpy.bool_]
 _Light: typing.TypeAlias = tuple[str, collections.abc.Sequence[float], collections.abc.Sequence[float], bool]
-__all__: list[str] = ['Camera', 'CameraModel', 'DepthWarpMips', 'DibrAccumulator', 'EMBREE_VERSION', 'OcclusionScene', 'PvmRenderer', 'RayScene', 'WARP_DISOCCLUDED', 'WARP_SURFACE', 'WARP_UNCOVERED', 'WarpOptions', 'YMap', 'blur_selection', 'cpu_has_avx2', 'cross_view_prediction', 'cull_awoc_fill', 'cull_object_boxes', 'cull_project_boxes', 'dw_build_mips', 'dw_forward', 'dw_motion', 'dw_motion_mips', 'dw_warp', 'forward_warp', 'gain_median_ratios', 'get_num_threads', 'grid_maxflow', 'hybrid_composite', 'hybrid_frame_outputs', 'hybrid_needs', 'hybrid_select', 'interpolate_vertex_attribute', 'linear_to_srgb', 'metameric_composite', 'metameric_encode', 'metameric_fill_holes', 'metameric_pushpull_change', 'metameric_pushpull_moments', 'metameric_stack_moments', 'mip_build', 'mip_foveate_level', 'mip_lookup', 'mip_max_levels', 'point_colors', 'poisson_blend', 'pushpull', 'pvm_slice', 'pvm_triangulate', 'raster_gbuffer', 'sample_atlas', 'set_num_threads', 'set_warp_isa', 'shadow_map_visibility', 'srgb_encode_unclipped', 'srgb_to_linear', 'ssim', 'steerable_analyse', 'steerable_max_levels', 'steerable_synthesise', 'texel_points', 'ulr_blend', 'ulr_penalty', 'ulr_select', 'vertex_colour_sums', 'warp_flow', 'warp_isa', 'warp_with_holes']
+__all__: list[str] = ['Camera', 'CameraModel', 'DepthWarpMips', 'DibrAccumulator', 'EMBREE_VERSION', 'MVS_MAX_ITERATIONS', 'MVS_MAX_SOURCE_VIEWS', 'MVS_MAX_WINDOW_RADIUS', 'OcclusionScene', 'PatchMatchOptions', 'PvmRenderer', 'RayScene', 'WARP_DISOCCLUDED', 'WARP_SURFACE', 'WARP_UNCOVERED', 'WarpOptions', 'YMap', 'blur_selection', 'cpu_has_avx2', 'cross_view_prediction', 'cull_awoc_fill', 'cull_object_boxes', 'cull_project_boxes', 'dw_build_mips', 'dw_forward', 'dw_motion', 'dw_motion_mips', 'dw_warp', 'forward_warp', 'gain_median_ratios', 'get_num_threads', 'grid_maxflow', 'hybrid_composite', 'hybrid_frame_outputs', 'hybrid_needs', 'hybrid_select', 'interpolate_vertex_attribute', 'linear_to_srgb', 'metameric_composite', 'metameric_encode', 'metameric_fill_holes', 'metameric_pushpull_change', 'metameric_pushpull_moments', 'metameric_stack_moments', 'mip_build', 'mip_foveate_level', 'mip_lookup', 'mip_max_levels', 'mvs_consistent_views', 'mvs_patchmatch', 'point_colors', 'poisson_blend', 'pushpull', 'pvm_slice', 'pvm_triangulate', 'raster_gbuffer', 'sample_atlas', 'set_num_threads', 'set_warp_isa', 'shadow_map_visibility', 'srgb_encode_unclipped', 'srgb_to_linear', 'ssim', 'steerable_analyse', 'steerable_max_levels', 'steerable_synthesise', 'texel_points', 'ulr_blend', 'ulr_penalty', 'ulr_select', 'vertex_colour_sums', 'warp_flow', 'warp_isa', 'warp_with_holes']
 
 class CameraModel:
     """
@@ -345,6 +345,123 @@ class PvmRenderer:
         dict: color (H, W, 3), depth (H, W) (Eq. 2 vote), vote (H, W), valid, inside_grid (H, W) bool, times_ms per stage, visible_coarse, tiles, triangles. free_space: a background candidate counts in Eq. 1 / Eq. 2 only when its view sees past the foreground point (needs depths; pvm_render.h); with it, tau_empty > 0 empties a one-cluster pixel seen past by >= tau_empty x n_fg views without a candidate. min_views: where gbuffer_depth has no surface, candidate lists of fewer views are emptied (1: never). stretch_weight, stretch_free: a candidate's ULR penalty gains stretch_weight x max(0, log2 s - stretch_free), s its triangle's area in the target over its area in its own view (0: off). resample: the candidates' colour reads, 'cubic' (Catmull-Rom, clamped to the 2 x 2 texels' range) or 'bilinear'. mode: full (all stages); depth (stages 1-4 without colours: depth, vote, valid, inside_grid; colour 0; the frame is kept); resolve (colours of pixel_mask from the kept depth pass: stages 4-5 only).
         """
 
+class PatchMatchOptions:
+    """
+    Options of PatchMatch stereo (cpp/kernels/mvs/patchmatch.h); the defaults are ibrtools.mvs.MvsOptions'.
+    """
+
+    def __init__(self) -> None:
+        ...
+
+    def check(self) -> None:
+        """
+        Raise BadValueError naming the first option out of its bounds.
+        """
+
+    @property
+    def best_k(self) -> int:
+        ...
+
+    @best_k.setter
+    def best_k(self, arg0: typing.SupportsInt | typing.SupportsIndex) -> None:
+        ...
+
+    @property
+    def first_iteration(self) -> int:
+        ...
+
+    @first_iteration.setter
+    def first_iteration(self, arg0: typing.SupportsInt | typing.SupportsIndex) -> None:
+        ...
+
+    @property
+    def geom_max_error(self) -> float:
+        ...
+
+    @geom_max_error.setter
+    def geom_max_error(self, arg0: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+
+    @property
+    def geom_weight(self) -> float:
+        ...
+
+    @geom_weight.setter
+    def geom_weight(self, arg0: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+
+    @property
+    def iterations(self) -> int:
+        ...
+
+    @iterations.setter
+    def iterations(self, arg0: typing.SupportsInt | typing.SupportsIndex) -> None:
+        ...
+
+    @property
+    def max_depth(self) -> float:
+        ...
+
+    @max_depth.setter
+    def max_depth(self, arg0: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+
+    @property
+    def min_depth(self) -> float:
+        ...
+
+    @min_depth.setter
+    def min_depth(self, arg0: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+
+    @property
+    def min_variance(self) -> float:
+        ...
+
+    @min_variance.setter
+    def min_variance(self, arg0: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+
+    @property
+    def seed(self) -> int:
+        ...
+
+    @seed.setter
+    def seed(self, arg0: typing.SupportsInt | typing.SupportsIndex) -> None:
+        ...
+
+    @property
+    def sigma_color(self) -> float:
+        ...
+
+    @sigma_color.setter
+    def sigma_color(self, arg0: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+
+    @property
+    def sigma_spatial(self) -> float:
+        ...
+
+    @sigma_spatial.setter
+    def sigma_spatial(self, arg0: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+
+    @property
+    def window_radius(self) -> int:
+        ...
+
+    @window_radius.setter
+    def window_radius(self, arg0: typing.SupportsInt | typing.SupportsIndex) -> None:
+        ...
+
+    @property
+    def window_step(self) -> int:
+        ...
+
+    @window_step.setter
+    def window_step(self, arg0: typing.SupportsInt | typing.SupportsIndex) -> None:
+        ...
+
 def blur_selection(label: _U8, sigma_blur: typing.SupportsFloat | typing.SupportsIndex, min_weight: typing.SupportsFloat | typing.SupportsIndex=0.0, decimate: bool=False, pvm_floor: typing.SupportsFloat | typing.SupportsIndex=0.0) -> numpy.typing.NDArray[numpy.float32]:
     """
     Gaussian-blurred one-hot selection weights (H, W, 3) = (TM, ULR, PVM), normalised to sum 1; weights below min_weight (<= 1/3) set to 0 and the rest normalised again. decimate: for sigma_blur >= 8, blur at 1/f resolution (f = min(4, sigma_blur // 4)) on block means and read back bilinearly (the same Gaussian to ~1e-3). AVX2 loops as set_warp_isa allows (the same bits). pvm_floor (in [0, 1]): last, where the weights sum to > 0 and PVM's is below it, PVM's becomes pvm_floor and TM's and ULR's are scaled by (1 - pvm_floor) / (1 - pvm) (0: no change).
@@ -500,6 +617,16 @@ def mip_max_levels(height: typing.SupportsInt | typing.SupportsIndex, width: typ
     Number of MIP levels above an (height, width) image (ceil halving down to 1x1).
     """
 
+def mvs_consistent_views(ref_depth: _F32, ref_camera: Camera, source_depths: list[_F32], source_cameras: list[Camera], max_error_px: typing.SupportsFloat | typing.SupportsIndex, max_rel_depth: typing.SupportsFloat | typing.SupportsIndex, min_angle_deg: typing.SupportsFloat | typing.SupportsIndex) -> _F32:
+    """
+    Per pixel, the number of sources whose depth agrees with ref_depth by forward-backward reprojection (cpp/kernels/mvs/patchmatch.h ConsistentViews). float32 (H, W).
+    """
+
+def mvs_patchmatch(ref_grey: _F32, ref_camera: Camera, source_greys: list[_F32], source_cameras: list[Camera], source_depths: list[_F32 | None] | None, options: PatchMatchOptions, init_depth: _F32 | None=None, init_normal: _F32 | None=None) -> tuple[_F32, _F32, _F32, dict[str, int]]:
+    """
+    PatchMatch stereo of one reference view (cpp/kernels/mvs/patchmatch.h): grey float32 (H, W) images in [0, 1], pinhole _core.Camera objects, source depth maps (or None; needed when options.geom_weight > 0), optional starting hypotheses. Returns (depth (H, W), normal (H, W, 3), cost (H, W), stats dict).
+    """
+
 def point_colors(points: _F64, normals: _F64, views: list[tuple[Camera, _F32, _F32]], *, k: typing.SupportsInt | typing.SupportsIndex=4, depth_tol: typing.SupportsFloat | typing.SupportsIndex=0.02) -> tuple[_F32, _I32]:
     """
     ULR-weighted colour of the views at surface points (the texture bake; kernels/atlas8.h PointColors): points, normals (N, 3) float64 (unit normals), views = [(camera, color (h, w, 3), depth (h, w)), ...] -> (color (N, 3) float32, 0 where no view sees the point; seen (N,) int32 views that see it).
@@ -620,6 +747,9 @@ def warp_with_holes(color: _F32, depth: _F32, camera: Camera, target_camera: Cam
     Warp one RGB-D view into target_camera with background-depth holes (dos Anjos et al. sec. 3.1, Eq. 1; cpp/kernels/forward_warp.h). color float32 (H, W, 3), depth float32 (H, W) (pinhole: z, equirect: ray distance; 0 = unknown, +inf = at infinity). Quads whose longest target edge exceeds stretch_threshold pixels and whose corner depths differ by more than a factor 1 + depth_jump (0 = stretch only) are stretched. Returns (color (Ht, Wt, 3) (0 in holes), depth (Ht, Wt) (surface depth; background depth in disocclusions; 0 where nothing lands), mask (Ht, Wt) uint8: WARP_SURFACE 0, WARP_DISOCCLUDED 1, WARP_UNCOVERED 2). GIL released.
     """
 EMBREE_VERSION: str = '3.13.5'
+MVS_MAX_ITERATIONS: int = 64
+MVS_MAX_SOURCE_VIEWS: int = 32
+MVS_MAX_WINDOW_RADIUS: int = 15
 WARP_DISOCCLUDED: int = 1
 WARP_SURFACE: int = 0
 WARP_UNCOVERED: int = 2

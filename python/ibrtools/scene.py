@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any, Callable
 import numpy as np
 
 from .camera import Camera
-from .errors import BadValueError, DtypeError, ShapeError
+from .errors import BadValueError, DtypeError, InputError, ShapeError
 from .mesh import Mesh
 
 if TYPE_CHECKING:
@@ -76,9 +76,15 @@ class View:
         if lazy._value is None and lazy._loader is not None:
             # Kept only once checked: a value that fails its check is not cached, so every later
             # use fails the same way (before, the second use got the unchecked array).
-            value = lazy._loader()
-            lazy._value = _check_image(value, f"view {self.name!r} {which}"
-                                       + (f" ({lazy.source})" if lazy.source else ""), self.camera, which)
+            try:
+                value = lazy._loader()
+                lazy._value = _check_image(value, f"view {self.name!r} {which}"
+                                           + (f" ({lazy.source})" if lazy.source else ""), self.camera, which)
+            except InputError as e:
+                # Marked as the scene's data being bad (a file found corrupt when first read), not
+                # the frame being rendered: render jobs stop on it instead of failing frame by frame.
+                e.scene_data = True  # type: ignore[attr-defined]
+                raise
             lazy._loader = None
         return lazy._value
 
@@ -128,6 +134,13 @@ class View:
     @property
     def has_depth(self) -> bool:
         return self._depth.present
+
+    def with_depth(self, depth: np.ndarray) -> "View":
+        """This view (the same colour and mask, loaded or not) with ``depth`` as its depth: a
+        stage's depth (multi-view stereo, the mesh rendered) for a view the data set gave none."""
+        return View(self.name, self.camera, self._color,
+                    _Lazy(value=_check_image(depth, f"view {self.name!r} depth", self.camera, "depth")),
+                    self._mask)
 
     @property
     def has_mask(self) -> bool:

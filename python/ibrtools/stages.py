@@ -197,7 +197,10 @@ class Stage:
 
 
 STAGES: dict[str, Stage] = {s.name: s for s in (
-    Stage("mesh", ("scene",), ("mesh.npz",), frozenset({"tm", "ulr", "pvm", "hybrid"}),
+    Stage("mvs", ("scene",), ("mvs.npz",), frozenset({"dibr", "warp", "tm", "ulr", "pvm", "hybrid"}),
+          "per-view depth, normal and confidence by PatchMatch multi-view stereo, for the views without depth "
+          "(photographs and cameras; docs/mvs.md)"),
+    Stage("mesh", ("scene", "mvs"), ("mesh.npz",), frozenset({"tm", "ulr", "pvm", "hybrid"}),
           "global mesh: reconstructed mesh, else TSDF fusion of the depth maps, else ground truth; "
           "dense (per-vertex statistics) and render (G-buffer, atlas) versions of the same surface",
           version=3),  # 3: fusion by open3d's sparse VoxelBlockGrid (was the dense UniformTSDFVolume)
@@ -386,6 +389,48 @@ def load_npz(path: Path) -> dict[str, np.ndarray]:
         return {k: z[k] for k in z.files}
 
 
+def mvs_arrays(arrays: dict[str, np.ndarray], kind: str = "depth") -> dict[str, np.ndarray]:
+    """{view: array} of one kind ("depth", "normal", "confidence") of the mvs stage's mvs.npz."""
+    prefix = f"{kind}:"
+    return {k[len(prefix):]: v for k, v in arrays.items() if k.startswith(prefix)}
+
+
+def with_stage_depth(scene: Scene, prefer: tuple[str, ...] = ("mvs", "depth")) -> Scene:
+    """``scene`` with a depth map for every view that has none of its own, from the first stage of
+    ``prefer`` that made one for it: multi-view stereo (``mvs``: measured from the photographs;
+    unknown where nothing matched) or the global mesh rendered (``depth``). Views with their own
+    depth, and views no stage made depth for, are as they were. The scene is the same object when
+    nothing was added."""
+    missing = [v.name for v in scene.views if not v.has_depth]
+    if not missing or scene.root is None:
+        return scene
+    found: dict[str, np.ndarray] = {}
+    for stage in prefer:
+        try:
+            arrays = load_npz(stage_output(scene.root, stage))
+        except InputError:
+            continue
+        got = mvs_arrays(arrays) if stage == "mvs" else arrays
+        # (a view in which nothing matched stays without depth)
+        found.update({n: got[n] for n in missing if n in got and n not in found and np.any(got[n] > 0)})
+    if not found:
+        return scene
+    views = [v.with_depth(found[v.name]) if v.name in found else v for v in scene.views]
+    return replace(scene, views=views)
+
+
+def missing_depth_error(method: str, scene: Scene, names: list[str]) -> InputError:
+    """The error of a depth-image method (dibr, warp) whose input views ``names`` have no depth,
+    naming the command that makes it (the mvs stage: multi-view stereo of the photographs)."""
+    where = scene.root if scene.root is not None else "SCENE"
+    some = f"{', '.join(names[:5])}{' ...' if len(names) > 5 else ''} ({len(names)} of {len(scene.views)})"
+    if scene.meshes:  # the mvs stage is skipped for such a scene: the depth stage renders its mesh
+        how = f"render it from the scene's mesh: ibr-preprocess {where} -o {where} --stages depth"
+    else:
+        how = f"compute it from the photographs: ibr-preprocess {where} -o {where} --methods {method}"
+    return InputError(f"--method {method} needs depth for every input view; without depth: {some}; {how}")
+
+
 def view_depths(views, load_rendered) -> dict[str, np.ndarray]:
     """Each view's depth: its own, else the depth stage's rendering of the global mesh
     (``load_rendered()`` gives the depth stage's arrays; called once, and only when some view has
@@ -485,6 +530,10 @@ def _params(name: str, options: dict) -> dict:
         return {}
     if name == "pvm":
         return PvmOptions(**options.get("pvm", {})).to_dict()
+    if name == "mvs":
+        from .mvs import MvsOptions
+
+        return MvsOptions(**options.get("mvs", {})).to_dict()
     return dict(options.get(name, {}))
 
 
@@ -492,15 +541,48 @@ def _run_mesh(ctx: _Context) -> dict:
     from .hybrid.globalmesh import GlobalMeshOptions, build_global_mesh, build_render_mesh
 
     opts = GlobalMeshOptions(**ctx.options.get("mesh", {}))
-    mesh, rec = build_global_mesh(ctx.scene, opts)
+    scene = with_stage_depth(ctx.scene, ("mvs",))  # photographs: their multi-view stereo depth is fused
+    mesh, rec = build_global_mesh(scene, opts)
     arrays = {"vertices": mesh.vertices, "faces": mesh.faces, "object_ids": mesh.object_ids}
-    render = build_render_mesh(ctx.scene, mesh, rec["source"], opts)
+    render = build_render_mesh(scene, mesh, rec["source"], opts)
     if render is not mesh:
         arrays.update(render_vertices=render.vertices, render_faces=render.faces, render_object_ids=render.object_ids)
     rec["render_faces"] = int(len(render.faces))
     save_npz(ctx.cache("mesh") / "mesh.npz", **arrays)
     ctx.memo["mesh"] = arrays
     return rec
+
+
+def _mvs_needed(ctx: _Context) -> str | None:
+    if all(v.has_depth for v in ctx.scene.views):
+        return "every view has depth"
+    if ctx.scene.meshes:
+        kind = "reconstructed" if "reconstructed" in ctx.scene.meshes else next(iter(ctx.scene.meshes))
+        return f"the scene has a {kind} mesh (the depth stage renders it for the views without depth)"
+    return None
+
+
+def _run_mvs(ctx: _Context) -> dict:
+    from .mvs import MvsOptions, run_mvs
+
+    opts = MvsOptions(**ctx.options.get("mvs", {}))
+    names = [v.name for v in ctx.scene.views if not v.has_depth]
+    res = run_mvs(ctx.scene.views, opts, names=names)
+    if not any(np.any(r.depth > 0) for r in res.values()):
+        raise BadValueError(f"mvs: multi-view stereo matched no pixel in any of the {len(res)} views without depth "
+                            "(textureless images, or cameras that do not see the same surfaces); give the views "
+                            "depth or the scene a reconstructed mesh (ibr-preprocess ... --mesh FILE)")
+    arrays = {}
+    for n, r in res.items():
+        arrays.update({f"depth:{n}": r.depth, f"normal:{n}": r.normal, f"confidence:{n}": r.confidence})
+    save_npz(ctx.cache("mvs") / "mvs.npz", **arrays)
+    ctx.memo["mvs"] = arrays
+    first = next(iter(res.values()))
+    kept = [r.stats["kept"] for r in res.values()]
+    return {"views": len(res), "kept": round(float(np.mean(kept)), 4),
+            "seconds": first.stats["seconds"], "evaluations_per_second": first.stats["evaluations_per_second"],
+            "sources": {n: r.sources for n, r in res.items()},
+            "depth_range": {n: [round(x, 6) for x in r.depth_range] for n, r in res.items()}}
 
 
 def _depth_needed(ctx: _Context) -> str | None:
@@ -686,9 +768,9 @@ def _run_mix(ctx: _Context) -> dict | str:
             "psnr_gain_db": round(float(mean[list(res["floors"]).index(res["pvm_floor"])] - mean[0]), 4)}
 
 
-_RUN = {"mesh": _run_mesh, "depth": _run_depth, "texture": _run_texture, "variance": _run_variance,
+_RUN = {"mvs": _run_mvs, "mesh": _run_mesh, "depth": _run_depth, "texture": _run_texture, "variance": _run_variance,
         "harmonise": _run_harmonise, "pvm": _run_pvm, "mix": _run_mix}
-_APPLIES = {"depth": _depth_needed}
+_APPLIES = {"mvs": _mvs_needed, "depth": _depth_needed}
 
 
 def _check_mesh(ctx: _Context) -> None:
@@ -697,8 +779,9 @@ def _check_mesh(ctx: _Context) -> None:
     from .hybrid.globalmesh import GlobalMeshOptions, check_fusion_memory, choose_source
 
     opts = GlobalMeshOptions(**ctx.options.get("mesh", {}))
-    if choose_source(ctx.scene, opts.source) == "fusion":
-        views = ctx.scene.views
+    scene = with_stage_depth(ctx.scene, ("mvs",))
+    if choose_source(scene, opts.source) == "fusion":
+        views = scene.views
         check_fusion_memory({v.name: v.camera for v in views}, {v.name: v.fusion_depth for v in views}, opts)
 
 
@@ -958,7 +1041,9 @@ def _check_stage_options(options: dict) -> None:
     from .hybrid.globalmesh import GlobalMeshOptions
     from .hybrid.pvm import PvmOptions
 
-    classes = {"mesh": GlobalMeshOptions, "pvm": PvmOptions}
+    from .mvs import MvsOptions
+
+    classes = {"mesh": GlobalMeshOptions, "pvm": PvmOptions, "mvs": MvsOptions}
     if "harmonise" in options and "harmonise" in available_stages():
         from .hybrid import harmonise as H
 

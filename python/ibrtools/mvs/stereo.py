@@ -46,7 +46,9 @@ class MvsOptions:
     window_step: int = _K.window_step
     sigma_color: float = _f(_K.sigma_color)
     sigma_spatial: float = _f(_K.sigma_spatial)
-    iterations: int = _K.iterations   # photometric red/black iterations
+    iterations: int = _K.iterations   # photometric red/black iterations at the coarsest level
+    levels: int = 3                   # image pyramid levels (1: full resolution only)
+    fine_iterations: int = 2          # iterations at each finer level, started from the coarser one
     best_k: int = _K.best_k           # source costs aggregated per hypothesis
     seed: int = 0
     min_variance: float = _f(_K.min_variance)
@@ -68,6 +70,9 @@ class MvsOptions:
         are checked by the kernel's Check() (one definition of their bounds)."""
         self.sources = check_int(self.sources, "mvs.sources", 1, _core.MVS_MAX_SOURCE_VIEWS)
         self.geom_iterations = check_int(self.geom_iterations, "mvs.geom_iterations", 0, _core.MVS_MAX_ITERATIONS)
+        self.levels = check_int(self.levels, "mvs.levels", 1, 6)
+        self.iterations = check_int(self.iterations, "mvs.iterations", 0, _core.MVS_MAX_ITERATIONS)
+        self.fine_iterations = check_int(self.fine_iterations, "mvs.fine_iterations", 0, _core.MVS_MAX_ITERATIONS)
         self.min_consistent = check_int(self.min_consistent, "mvs.min_consistent", 0, _core.MVS_MAX_SOURCE_VIEWS)
         self.seed = check_int(self.seed, "mvs.seed", 0, 2 ** 63 - 1)
         for k in ("max_cost", "consistency_px", "consistency_depth", "min_angle_deg"):
@@ -80,13 +85,24 @@ class MvsOptions:
         o = self.kernel_options(1.0, 2.0)
         o.check()
 
-    def kernel_options(self, min_depth: float, max_depth: float, geometric: bool = False):
+    def kernel_options(self, min_depth: float, max_depth: float, geometric: bool = False, level: int = 0):
+        """The kernel's options for a pass: photometric at pyramid ``level`` (0 = full resolution;
+        the coarsest level runs ``iterations`` from random planes, each finer one
+        ``fine_iterations`` from the coarser result, continuing its refinement schedule), or
+        geometric (at full resolution, after them)."""
         o = _core.PatchMatchOptions()
         for k in ("window_radius", "window_step", "sigma_color", "sigma_spatial", "best_k", "seed", "min_variance",
                   "geom_max_error"):
             setattr(o, k, getattr(self, k))
-        o.iterations = self.geom_iterations if geometric else self.iterations
-        o.first_iteration = self.iterations if geometric else 0  # the geometric pass refines on
+        steps = self.levels - 1 - level  # levels between the coarsest and this one
+        if geometric:
+            o.iterations = self.geom_iterations
+            o.first_iteration = self.iterations + self.fine_iterations * (self.levels - 1)
+        elif steps == 0:
+            o.iterations, o.first_iteration = self.iterations, 0
+        else:
+            o.iterations = self.fine_iterations
+            o.first_iteration = self.iterations + self.fine_iterations * (steps - 1)
         o.geom_weight = self.geom_weight if geometric else 0.0
         o.min_depth, o.max_depth = float(min_depth), float(max_depth)
         return o
@@ -215,6 +231,27 @@ def select_sources(ref: Camera, candidates: dict[str, Camera], k: int, zrange: t
     return scores[:k]
 
 
+def _half(img: np.ndarray) -> np.ndarray:
+    """2 x 2 box average (an odd last row / column dropped): pixel i covers pixels 2i, 2i + 1."""
+    h, w = img.shape[0] // 2 * 2, img.shape[1] // 2 * 2
+    a = img[:h, :w]
+    return np.ascontiguousarray(0.25 * (a[0::2, 0::2] + a[1::2, 0::2] + a[0::2, 1::2] + a[1::2, 1::2]), np.float32)
+
+
+def _half_camera(cam: Camera) -> Camera:
+    """The camera of :func:`_half`'s image: continuous coordinates halved, exactly."""
+    return Camera.pinhole(cam.width // 2, cam.height // 2, cam.fx / 2, cam.fy / 2, cam.cx / 2, cam.cy / 2,
+                          cam.cam_from_world)
+
+
+def _upsample(a: np.ndarray, h: int, w: int) -> np.ndarray:
+    """A coarser level's per-pixel array at the finer size (h, w): each fine pixel takes its
+    coarse parent's value (the last row / column that :func:`_half` dropped, its neighbour's)."""
+    ys = np.minimum(np.arange(h) // 2, a.shape[0] - 1)
+    xs = np.minimum(np.arange(w) // 2, a.shape[1] - 1)
+    return np.ascontiguousarray(a[ys][:, xs], np.float32)
+
+
 def run_mvs(views, options: MvsOptions | None = None, names: list[str] | None = None,
             progress: Callable[[str], None] | None = None) -> dict[str, MvsResult]:
     """Multi-view stereo of the views ``names`` (default: every view) of ``views`` (a list of
@@ -243,16 +280,38 @@ def run_mvs(views, options: MvsOptions | None = None, names: list[str] | None = 
         chosen[n] = [m for m, _ in sel]
     timing = {"setup": time.perf_counter() - t0, "photometric": 0.0, "geometric": 0.0, "filter": 0.0}
     evals = {"photometric": 0, "geometric": 0}
+    # The image pyramid: level l halves level l - 1 (2 x 2 box; an odd last row or column dropped).
+    pyramid = [(greys, cams)]
+    for _ in range(o.levels - 1):
+        g_prev, c_prev = pyramid[-1]
+        if min(min(c.width, c.height) for c in c_prev.values()) < 4 * (2 * o.window_radius + 1):
+            break  # a window would cover much of the image: no coarser level
+        pyramid.append(({n: _half(g) for n, g in g_prev.items()}, {n: _half_camera(c) for n, c in c_prev.items()}))
     results: dict[str, dict] = {}
     for n in names:
         if progress:
             progress(f"mvs photometric {n}")
         t1 = time.perf_counter()
-        d, nrm, c, st = _core.mvs_patchmatch(greys[n], core[n], [greys[m] for m in chosen[n]],
-                                             [core[m] for m in chosen[n]], None, o.kernel_options(*ranges[n]))
+        init = None
+        for level in range(len(pyramid) - 1, -1, -1):
+            g_l, c_l = pyramid[level]
+            lc = {m: c_l[m].to_core() for m in [n, *chosen[n]]}
+            args = (g_l[n], lc[n], [g_l[m] for m in chosen[n]], [lc[m] for m in chosen[n]], None,
+                    o.kernel_options(*ranges[n], level=level + o.levels - len(pyramid)))
+            if init is None:
+                d, nrm, c, st = _core.mvs_patchmatch(*args)
+            else:
+                up = [_upsample(a, c_l[n].height, c_l[n].width) for a in init]
+                d, nrm, c, st = _core.mvs_patchmatch(*args, up[0], up[1])
+                # A window that is textureless here may not be at the coarser level (a larger part
+                # of the scene): such pixels keep the coarser level's plane and cost.
+                flat = (d <= 0) & (up[0] > 0)
+                d, c = np.where(flat, up[0], d), np.where(flat, up[2], c)
+                nrm = np.where(flat[..., None], up[1], nrm)
+            evals["photometric"] += st["evaluations"]
+            init = (d, nrm, c)
         timing["photometric"] += time.perf_counter() - t1
-        evals["photometric"] += st["evaluations"]
-        results[n] = {"depth": d, "normal": nrm, "cost": c, "textureless": st["textureless"]}
+        results[n] = {"depth": d, "normal": nrm, "cost": c, "textureless": int(np.sum(d <= 0))}
 
     def known(n: str) -> np.ndarray | None:
         """A source's depth for the later passes: this run's (unknown where costly), else its own,

@@ -152,13 +152,14 @@ class DibrMethod:
         return o
 
     def prepare(self, scene: Scene) -> dict[str, float]:
+        from ..stages import missing_depth_error, with_stage_depth
+
         if not scene.views:
             raise InputError("--method dibr: the scene has no input views")
+        scene = with_stage_depth(scene)  # photographs: the mvs stage's depth (else the mesh's)
         no_depth = [v.name for v in scene.views if not v.has_depth]
         if no_depth:
-            raise InputError(f"--method dibr needs depth for every input view; without depth: "
-                             f"{', '.join(no_depth[:5])}{' ...' if len(no_depth) > 5 else ''} "
-                             f"({len(no_depth)} of {len(scene.views)})")
+            raise missing_depth_error("dibr", scene, no_depth)
         no_color = [v.name for v in scene.views if not v.has_color]
         if no_color:
             raise InputError(f"--method dibr needs colour for every input view; without colour: "

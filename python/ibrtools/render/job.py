@@ -514,14 +514,16 @@ def render_frame(method, frame: Frame, *, inpaint: str, fov_kw: dict, float_out:
     """Render one frame with a prepared ``method`` and post-process it: NaN guard, holes black,
     inpainting, foveation, metrics. Returns (report entry, None, outputs) with outputs the files
     to write [(file name, "image" | "depth", array)], or (None, {"name", "error"}, []) when the
-    rendering or its post-processing raised (the frame failed; the job goes on) anything but an
-    InputError (bad input, e.g. an input image that decodes to NaN: raised, the job stops). Writes nothing:
+    rendering or its post-processing raised (the frame failed; the job goes on), except for bad
+    scene data found while rendering (an input image that decodes to NaN): raised, the job stops. Writes nothing:
     the caller does (the local loop, or the client of a distributed run)."""
     try:
         return _render_frame(method, frame, inpaint=inpaint, fov_kw=fov_kw, float_out=float_out,
                              depth_out=depth_out)
-    except InputError:
-        raise  # bad input (an input image found corrupt when first read): the job stops, exit 2
+    except InputError as e:
+        if getattr(e, "scene_data", False):
+            raise  # an input file found bad when first read (scene.View): the job stops, exit 2
+        return None, {"name": frame.name, "error": f"{type(e).__name__}: {e}"}, []
     except Exception as e:  # noqa: BLE001 - reported by name in report.json "failed"
         return None, {"name": frame.name, "error": f"{type(e).__name__}: {e}"}, []
 

@@ -69,8 +69,11 @@ class WarpMethod:
         self._scene: Scene | None = None
 
     def prepare(self, scene: Scene) -> dict[str, float]:
+        from ..stages import missing_depth_error, with_stage_depth
+
         if not scene.views:
             raise InputError("--method warp: the scene has no input views")
+        scene = with_stage_depth(scene)  # photographs: the mvs stage's depth (else the mesh's)
         names = [v.name for v in scene.views]
         inputs = self.params["inputs"]
         if isinstance(inputs, str):
@@ -81,7 +84,10 @@ class WarpMethod:
         else:
             self._candidates = None
         cand = self._candidates if self._candidates is not None else range(len(names))
-        bad = [names[i] for i in cand if not (scene.views[i].has_depth and scene.views[i].has_color)]
+        no_depth = [names[i] for i in cand if not scene.views[i].has_depth]
+        if no_depth:
+            raise missing_depth_error("warp", scene, no_depth)
+        bad = [names[i] for i in cand if not scene.views[i].has_color]
         if bad:
             raise InputError(f"--method warp needs colour and depth for its input view(s); missing for: "
                              f"{', '.join(bad[:5])}{' ...' if len(bad) > 5 else ''}")
