@@ -183,18 +183,28 @@ class Matcher {
     if (!(hz0 > 0)) return kMaxCost;
     const float ux = hx0 / hz0, uy = hy0 / hz0;
     if (!(ux >= 0 && uy >= 0 && ux <= s.w && uy <= s.h)) return kMaxCost;
+    // hz is affine in the offset: positive at the window's four corners, positive everywhere in it.
+    const float r = static_cast<float>(o_.window_radius);
+    for (const float cx : {-r, r}) {
+      for (const float cy : {-r, r}) {
+        if (!(hz0 + h[6] * cx + h[7] * cy > 0)) return kMaxCost;
+      }
+    }
     const ImageView<const float>& im = s.view->grey;
     const float xmax = s.w - 1.001f, ymax = s.h - 1.001f;
-    float ss = 0, sss = 0, srs = 0;
-    for (int i = 0; i < win.n; ++i) {
+    const int n = win.n;
+    // The samples' positions first (a loop without branches or loads: vectorised), then the
+    // bilinear reads, then the weighted sums.
+    float xs[kMaxSamples], ys[kMaxSamples];
+    for (int i = 0; i < n; ++i) {
       const float dx = win.dx[i], dy = win.dy[i];
-      const float hz = hz0 + h[6] * dx + h[7] * dy;
-      if (!(hz > 0)) return kMaxCost;
-      const float inv = 1.0f / hz;
-      float x = (hx0 + h[0] * dx + h[1] * dy) * inv - 0.5f;
-      float y = (hy0 + h[3] * dx + h[4] * dy) * inv - 0.5f;
-      x = std::min(std::max(x, 0.0f), xmax);
-      y = std::min(std::max(y, 0.0f), ymax);
+      const float inv = 1.0f / (hz0 + h[6] * dx + h[7] * dy);
+      xs[i] = std::min(std::max((hx0 + h[0] * dx + h[1] * dy) * inv - 0.5f, 0.0f), xmax);
+      ys[i] = std::min(std::max((hy0 + h[3] * dx + h[4] * dy) * inv - 0.5f, 0.0f), ymax);
+    }
+    float ss = 0, sss = 0, srs = 0;
+    for (int i = 0; i < n; ++i) {
+      const float x = xs[i], y = ys[i];
       const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
       const float ax = x - x0, ay = y - y0;
       const float* r0 = im.Row(y0) + x0;
@@ -202,10 +212,10 @@ class Matcher {
       const float top = r0[0] + ax * (r0[1] - r0[0]);
       const float bot = r1[0] + ax * (r1[1] - r1[0]);
       const float v = top + ay * (bot - top);
-      const float w = win.w[i];
-      ss += w * v;
-      sss += w * v * v;
-      srs += w * v * win.g[i];
+      const float wv = win.w[i] * v;
+      ss += wv;
+      sss += wv * v;
+      srs += wv * win.g[i];
     }
     const float inv_sw = 1.0f / win.sw;
     const float ms = ss * inv_sw;
