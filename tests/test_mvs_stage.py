@@ -93,3 +93,36 @@ def test_bad_mvs_options_are_one_line(photos, capsys, tmp_path):
         err = capsys.readouterr().err.strip()
         assert key in err and len(err.splitlines()) == 1, err
     assert not (tmp_path / "x").exists()
+
+
+def test_a_users_mesh_gives_the_views_depth(tmp_path, capsys):
+    """--mesh FILE: the mesh is the scene's reconstructed mesh; views without depth get its
+    rendering (the depth stage) and dibr renders from it; no multi-view stereo."""
+    from ibrtools.camera import Camera, look_at
+    from ibrtools.formats import native
+    from ibrtools.mesh import Mesh
+    from ibrtools.meshio import write_mesh
+    from ibrtools.scene import Scene, View
+
+    v = np.array([[-3, -3, 2], [3, -3, 2], [3, 3, 2], [-3, 3, 2]], np.float32)
+    write_mesh(tmp_path / "wall.ply", Mesh(v, np.array([[0, 1, 2], [0, 2, 3]], np.int32)))
+    rng = np.random.default_rng(0)
+    views = [View.create(f"v{i}", Camera.pinhole(48, 36, 36.0, 36.0, 24.0, 18.0,
+                                                  look_at((x, 0, 0), (x, 0, 2), up=(0, -1, 0))),
+                         color=rng.uniform(0, 1, (36, 48, 3)).astype(np.float32))
+             for i, x in enumerate((-0.2, 0.0, 0.2))]
+    native.save(Scene(views=views), tmp_path / "src")
+    s = tmp_path / "s"
+    assert preprocess.main([str(tmp_path / "src"), "-o", str(s), "--mesh", str(tmp_path / "wall.ply"),
+                            "--methods", "dibr", "--json", "--set", "mesh.resolution=16"]) == 0
+    rows = {r["stage"]: r for r in json.loads(capsys.readouterr().out)}
+    assert rows["mvs"]["status"] == "skipped" and "reconstructed mesh" in rows["mvs"]["reason"]
+    assert rows["mesh"]["status"] == "ran" and rows["depth"]["status"] == "ran"
+    dep = S.load_npz(S.stage_output(s, "depth"))
+    np.testing.assert_allclose(dep["v1"][dep["v1"] > 0], 2.0, rtol=1e-4)
+    assert render.main([str(s), "--method", "dibr", "--holdout", "v1", "-o", str(tmp_path / "o"), "-q"]) == 0
+    # --mesh in place (nothing imported) is refused in one line; a missing file names itself.
+    assert preprocess.main([str(s), "-o", str(s), "--mesh", str(tmp_path / "wall.ply")]) == 2
+    assert "--mesh: only when importing" in capsys.readouterr().err
+    assert preprocess.main([str(tmp_path / "src"), "-o", str(tmp_path / "t"), "--mesh", str(tmp_path / "no.ply")]) == 2
+    assert "no.ply" in capsys.readouterr().err

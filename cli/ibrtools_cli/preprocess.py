@@ -64,6 +64,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="import these input views as targets (ground truth no stage reads): ibr-render SCENE then "
                         "scores them as unseen views (ibr-render --holdout only removes views from a render, after "
                         "the stages saw them)")
+    p.add_argument("--mesh", metavar="FILE", default=None,
+                   help="your own reconstruction of the scene (PLY/OBJ in the capture's frame and units), imported "
+                        "as its 'reconstructed' mesh: the views without depth get its rendering (depth stage) "
+                        "instead of multi-view stereo")
     p.add_argument("--json", action="store_true", help="print the stage table as JSON on stdout, and nothing else")
     g = p.add_argument_group("synthetic scenes")
     g.add_argument("--size", type=_size, default=(640, 480), metavar="WxH", help="image size (default 640x480)")
@@ -128,7 +132,7 @@ def _body(args: argparse.Namespace) -> int:
         results = preprocess(args.input, args.output, fmt=args.format, options=parse_options(args.opt),
                              synth=synth, force=args.force, methods=methods, stages=stages,
                              stage_options=stage_options, progress=progress, scheduler=args.scheduler,
-                             workers=args.workers, threads=args.threads, holdout=args.holdout)
+                             workers=args.workers, threads=args.threads, holdout=args.holdout, mesh=args.mesh)
         bar.advance("done")
     if args.json:
         print(json.dumps([r.to_dict() for r in results], indent=1))

@@ -71,11 +71,14 @@ _NO_VIDEO_HOLDOUT = "--holdout: not for a video scene (ibr-render --holdout remo
 
 
 def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options: dict | None = None,
-               synth: dict | None = None, force: bool = False, holdout: list[str] | None = None) -> StageResult:
+               synth: dict | None = None, force: bool = False, holdout: list[str] | None = None,
+               mesh: str | os.PathLike | None = None) -> StageResult:
     """The ``import`` stage: read a data set (or make a synthetic one), validate it, write the
     native scene. Up to date when ``output`` holds a scene made from the same input bytes and
     parameters. ``holdout``: input views imported as targets (ground truth no stage reads), so
-    that ``ibr-render SCENE`` scores them as unseen views (:func:`hold_out`)."""
+    that ``ibr-render SCENE`` scores them as unseen views (:func:`hold_out`). ``mesh``: a PLY/OBJ
+    in the capture's frame, imported as the scene's ``reconstructed`` mesh (the mesh stage then
+    uses it, and the depth stage renders it for the views without depth; no multi-view stereo)."""
     from .formats import load as load_dataset
     from .formats import native
 
@@ -92,8 +95,9 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
             if not (output / "scene.json").is_file():
                 raise BadValueError(f"-o {output}: output is the input and it holds no native scene "
                                     f"(scene.json); choose another directory")
-            if held:
-                raise BadValueError("--holdout: only when importing a data set (the input is the scene itself; "
+            if held or mesh is not None:
+                flag = "--holdout" if held else "--mesh"
+                raise BadValueError(f"{flag}: only when importing a data set (the input is the scene itself; "
                                     "import the data set again into another directory)")
             record = _existing_record(output, "import") or {}
             return StageResult("import", "up to date", "the input is the scene itself (preprocessed in place)", 0.0,
@@ -101,6 +105,14 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
         params = {"format": fmt, "options": options, "version": IMPORT_STAGE_VERSION}
     if held:  # only then: the import key of scenes without held-out views is unchanged
         params["holdout"] = held
+    user_mesh = None
+    if mesh is not None:  # only then, likewise; the mesh's bytes enter the key
+        from .meshio import read_mesh
+
+        user_mesh = read_mesh(mesh, kind="reconstructed")
+        if len(user_mesh.faces) == 0:
+            raise BadValueError(f"--mesh {mesh}: the mesh has no faces")
+        params["mesh"] = hash_inputs(Path(mesh), {})
     key = (hashlib.blake2b(json.dumps(params, sort_keys=True).encode(), digest_size=16).hexdigest()
            if synth is not None else hash_inputs(src, params))
     record = _existing_record(output, "import")
@@ -134,6 +146,8 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
         fmt_used = scene.source.get("format", fmt)
     if held:
         scene = hold_out(scene, held)
+    if user_mesh is not None:
+        scene.meshes["reconstructed"] = user_mesh
     n_views, n_targets = len(scene.views), len(scene.targets)
     scene.stages["import"] = {"key": key, "format": fmt_used, "views": n_views, "targets": n_targets,
                               **({"held_out": held} if held else {}),
@@ -204,7 +218,7 @@ STAGES: dict[str, Stage] = {s.name: s for s in (
           "global mesh: reconstructed mesh, else TSDF fusion of the depth maps, else ground truth; "
           "dense (per-vertex statistics) and render (G-buffer, atlas) versions of the same surface",
           version=3),  # 3: fusion by open3d's sparse VoxelBlockGrid (was the dense UniformTSDFVolume)
-    Stage("depth", ("scene", "mesh"), ("depth.npz",), frozenset({"ulr", "pvm", "hybrid"}),
+    Stage("depth", ("scene", "mesh"), ("depth.npz",), frozenset({"dibr", "warp", "ulr", "pvm", "hybrid"}),
           "per-view depth rendered from the global mesh, for views without depth"),
     Stage("texture", ("scene", "mesh", "depth"), ("texture.npz",), frozenset({"tm", "hybrid"}),
           "texture atlas and per-vertex colour of the render mesh by ULR-weighted blending of the "
@@ -463,6 +477,7 @@ class _Context:
         self.options = options
         self.memo: dict[str, dict] = {}
         self.cluster = cluster
+        self.view_only = False  # _run_planned: only depth-image methods (dibr, warp, ...) asked for
         self._stats: dict[str, dict] = {}
 
     def cache(self, stage: str) -> Path:
@@ -588,6 +603,15 @@ def _run_mvs(ctx: _Context) -> dict:
 def _depth_needed(ctx: _Context) -> str | None:
     missing = [v.name for v in ctx.scene.views if not v.has_depth]
     return None if missing else "every view has depth"
+
+
+def _served_by_views(ctx: _Context) -> str | None:
+    """The mesh and depth stages when only depth-image methods are asked for: they serve those
+    the depth of views without any, so they are not needed when every view has depth of its own
+    or from the mvs stage (a scene with a mesh and views without depth: they run)."""
+    if ctx.view_only and all(v.has_depth for v in with_stage_depth(ctx.scene, ("mvs",)).views):
+        return "every view has depth"
+    return None
 
 
 def _run_depth(ctx: _Context) -> dict:
@@ -771,6 +795,8 @@ def _run_mix(ctx: _Context) -> dict | str:
 _RUN = {"mvs": _run_mvs, "mesh": _run_mesh, "depth": _run_depth, "texture": _run_texture, "variance": _run_variance,
         "harmonise": _run_harmonise, "pvm": _run_pvm, "mix": _run_mix}
 _APPLIES = {"mvs": _mvs_needed, "depth": _depth_needed}
+# Stages that the methods asked for need only on some scenes (their records are kept when not).
+_SERVES = {"mesh": _served_by_views, "depth": _served_by_views}
 
 
 def _check_mesh(ctx: _Context) -> None:
@@ -846,6 +872,9 @@ def run_stages(root: str | os.PathLike, *, methods: list[str] | None = None, sta
 def _run_planned(root: Path, options: dict, wanted: list[str], why: dict, avail: list[str], stages, methods,
                  force: bool, progress, cluster) -> list[StageResult]:
     ctx = _Context(root, options, cluster)
+    # Only depth-image methods asked for (not --stages): the mesh and depth stages serve them only
+    # the depth of views that have none (_mesh_needed, _depth_needed).
+    ctx.view_only = stages is None and set(methods) <= set(VIEW_ONLY_METHODS)
     upstream = {"scene": scene_content_key(root)}
     records = dict(_read_doc(root).get("stages") or {})
     results: list[StageResult] = []
@@ -854,9 +883,12 @@ def _run_planned(root: Path, options: dict, wanted: list[str], why: dict, avail:
         if not _READS_STATISTICS & set(planned[i:]).intersection(wanted):
             ctx.release_statistics()  # no later stage reads them (lego: 0.3 GB off the run's peak)
         st = STAGES[name]
-        if name not in wanted:
+        unserved = _SERVES[name](ctx) if name in wanted and name in _SERVES else None
+        if name not in wanted or unserved:
             reason = ("not selected (--stages)" if stages is not None else
                       f"not needed by methods {', '.join(methods) or 'none'}")
+            if unserved:
+                reason += f" ({unserved})"
             if records.get(name):  # the stages that ran before it in this run are on disk now
                 stale = stale_reasons(_read_doc(root).get("stages") or {}, name, upstream["scene"])
                 if stale:
@@ -1001,11 +1033,12 @@ def preprocess(input_spec: str, output: str | os.PathLike, *, fmt: str | None = 
                options: dict | None = None, synth: dict | None = None, force: bool = False,
                methods: list[str] | None = None, stages: list[str] | None = None,
                stage_options: dict | None = None, progress=None, scheduler: str | None = None,
-               workers: int = 0, threads: int = 0, holdout: list[str] | None = None) -> list[StageResult]:
+               workers: int = 0, threads: int = 0, holdout: list[str] | None = None,
+               mesh: str | os.PathLike | None = None) -> list[StageResult]:
     """Import (or find up to date) the scene, then run the derived stages ``methods`` need (or
     exactly ``stages``); returns the stage table. ``scheduler`` / ``workers`` / ``threads``: the
-    per-view stages on Dask (:func:`run_stages`). ``holdout``: input views imported as targets
-    (:func:`run_import`)."""
+    per-view stages on Dask (:func:`run_stages`). ``holdout``: input views imported as targets,
+    ``mesh``: a user's reconstructed mesh imported with the views (:func:`run_import`)."""
     from .distributed import check_options
     from .outputs import scene_lock
 
@@ -1020,7 +1053,7 @@ def preprocess(input_spec: str, output: str | os.PathLike, *, fmt: str | None = 
     # run left (temporaries, half-written scene directories) is swept first (ibrtools.outputs).
     with scene_lock(output) as lock:
         results = [run_import(input_spec, Path(output), fmt=fmt, options=options, synth=synth, force=force,
-                              holdout=holdout)]
+                              holdout=holdout, mesh=mesh)]
         if lock.swept:
             results[0].details["swept"] = len(lock.swept)
         if stages == []:
