@@ -860,13 +860,29 @@ def run_stages(root: str | os.PathLike, *, methods: list[str] | None = None, sta
             if why[s] == "needed by ":
                 why[s] = "read by a needed stage"
     wanted = [s for s in wanted if s in avail]
+    reason = ("not selected (--stages)" if stages is not None else
+              f"not needed by methods {', '.join(methods) or 'none'}")
     if not wanted:  # nothing to plan: no scene load, no hashing (the plain import stays fast)
-        reason = ("not selected (--stages)" if stages is not None else
-                  f"not needed by methods {', '.join(methods) or 'none'}")
         return [StageResult(name, "skipped", reason) for name in ORDER if name in avail]
+    if stages is None and set(methods) <= set(VIEW_ONLY_METHODS) and _every_view_has_depth(root):
+        # The depth-image methods' stages (mvs, and the mesh and depth stages that serve them)
+        # have nothing to do: said without loading or hashing the scene (the plain import, the demo).
+        return [StageResult(name, "skipped", "every view has depth" if name == "mvs" else
+                            reason + (" (every view has depth)" if name in wanted else ""))
+                for name in ORDER if name in avail]
     with D.LazyClient(scheduler, workers, threads) as cluster:
         return _run_planned(root, options, wanted, why, avail, stages, methods, force, progress,
                             cluster if D.wanted(scheduler, workers) else None)
+
+
+def _every_view_has_depth(root: Path) -> bool:
+    """From scene.json alone: every view of the scene (of every frame of a video) names a depth map."""
+    try:
+        doc = _read_doc(root)
+        docs = [doc] if not doc.get("frames") else [_read_doc(root / "frames" / f) for f in doc["frames"]]
+    except (OSError, ValueError, TypeError):
+        return False
+    return all(d.get("views") and all(isinstance(v, dict) and v.get("depth") for v in d["views"]) for d in docs)
 
 
 def _run_planned(root: Path, options: dict, wanted: list[str], why: dict, avail: list[str], stages, methods,
