@@ -60,6 +60,7 @@ void BindMvs(py::module_& m) {
       .def_readwrite("sigma_spatial", &PatchMatchOptions::sigma_spatial)
       .def_readwrite("iterations", &PatchMatchOptions::iterations)
       .def_readwrite("first_iteration", &PatchMatchOptions::first_iteration)
+      .def_readwrite("refine_only", &PatchMatchOptions::refine_only)
       .def_readwrite("best_k", &PatchMatchOptions::best_k)
       .def_readwrite("min_depth", &PatchMatchOptions::min_depth)
       .def_readwrite("max_depth", &PatchMatchOptions::max_depth)

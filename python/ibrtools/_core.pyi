@@ -349,6 +349,7 @@ class PatchMatchOptions:
     """
     Options of PatchMatch stereo (cpp/kernels/mvs/patchmatch.h); the defaults are ibrtools.mvs.MvsOptions'.
     """
+    refine_only: bool
 
     def __init__(self) -> None:
         ...

@@ -336,8 +336,8 @@ PatchMatchStats PatchMatch(const ImageView<const float>& ref_grey, const Camera&
               const float c = mt.Cost(x, y, win, z, n, &ev);
               if (c < bc) bz = z, bn = n, bc = c;
             };
-            for (const auto& nb : kNeighbours) {
-              const int xx = x + nb[0], yy = y + nb[1];
+            for (int k = 0; k < (o.refine_only ? 4 : 8); ++k) {
+              const int xx = x + kNeighbours[k][0], yy = y + kNeighbours[k][1];
               if (xx < 0 || yy < 0 || xx >= W || yy >= H) continue;
               auto [z, n] = load(xx, yy);
               if (z > 0 && cost.At(yy, xx) < kMaxCost) consider(z, n);
@@ -353,7 +353,7 @@ PatchMatchStats PatchMatch(const ImageView<const float>& ref_grey, const Camera&
             const V3 cur = bn;
             const float cz = bz;
             const V3 n_pert = FaceCamera(Normalised(V3{cur.x + jit.x, cur.y + jit.y, cur.z + jit.z}), ray);
-            consider(z_rand, cur);
+            if (!o.refine_only) consider(z_rand, cur);
             consider(cz, n_rand);
             consider(z_pert, n_pert);
             consider(z_pert, cur);

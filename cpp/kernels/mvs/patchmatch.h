@@ -44,6 +44,9 @@ struct PatchMatchOptions {
   int iterations = 6;           // each: a red and a black half pass
   int first_iteration = 0;      // the refinement schedule's start (ranges halve per iteration): a
                                 //   pass that continues another starts where it stopped
+  bool refine_only = false;     // a pass that refines a converged result (a finer level, the
+                                //   geometric pass): per pixel the 4 nearest neighbours, a random
+                                //   normal and 3 perturbations (not 8 neighbours, 2 random, 3)
   int best_k = 3;               // source costs aggregated (the best K of them)
   double min_depth = 0.0;       // hypotheses' depth range (z, > 0): random draws are uniform in
   double max_depth = 0.0;       //   inverse depth over it

@@ -49,10 +49,12 @@ class MvsOptions:
     iterations: int = _K.iterations   # photometric red/black iterations at the coarsest level
     levels: int = 3                   # image pyramid levels (1: full resolution only)
     fine_iterations: int = 2          # iterations at each finer level, started from the coarser one
+    refine_only: bool = True          # finer levels and the geometric pass: near neighbours and
+                                      #   perturbations only (no random planes, no far neighbours)
     best_k: int = _K.best_k           # source costs aggregated per hypothesis
     seed: int = 0
     min_variance: float = _f(_K.min_variance)
-    geom_iterations: int = 2          # geometric-consistency iterations (0: none)
+    geom_iterations: int = 1          # geometric-consistency iterations (0: none)
     geom_weight: float = 0.2
     geom_max_error: float = _f(_K.geom_max_error)
     max_cost: float = 0.8             # filter: aggregated cost (photometric + geometric) below this
@@ -95,6 +97,7 @@ class MvsOptions:
                   "geom_max_error"):
             setattr(o, k, getattr(self, k))
         steps = self.levels - 1 - level  # levels between the coarsest and this one
+        o.refine_only = bool(self.refine_only) and (geometric or steps > 0)
         if geometric:
             o.iterations = self.geom_iterations
             o.first_iteration = self.iterations + self.fine_iterations * (self.levels - 1)
