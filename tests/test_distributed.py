@@ -292,6 +292,36 @@ def test_preprocess_matches_local_bit_for_bit(scene_dir, cluster, tmp_path, caps
     S.stage_output(tmp_path / "dist", "pvm")  # recorded with its hash
 
 
+def test_mvs_stage_matches_local_bit_for_bit(scene_dir, cluster, tmp_path, capsys):
+    """The mvs stage per view on the workers (photometric, then geometric from the cache): the
+    same mvs.npz, bit for bit, and the same record but for the times."""
+    import shutil
+
+    src = tmp_path / "src"
+    shutil.copytree(scene_dir, src)
+    doc = json.loads((src / "scene.json").read_text())
+    for v in doc["views"]:
+        v.pop("depth", None)
+        v.pop("depth_stored", None)
+    doc["meshes"], doc["stages"] = {}, {}
+    (src / "scene.json").write_text(json.dumps(doc))
+    from ibrtools_cli import preprocess
+
+    common = [str(src), "--methods", "dibr", "--set", "mvs.iterations=3", "--set", "mvs.levels=2", "--json"]
+    assert preprocess.main(common + ["-o", str(tmp_path / "local")]) == 0
+    capsys.readouterr()
+    assert preprocess.main(common + ["-o", str(tmp_path / "dist"), "--scheduler", cluster[0]]) == 0
+    assert {r["stage"]: r for r in json.loads(capsys.readouterr().out)}["mvs"]["status"] == "ran"
+    a, b = (tmp_path / d / "cache" / "mvs" / "mvs.npz" for d in ("local", "dist"))
+    assert filecmp.cmp(a, b, shallow=False), "mvs.npz differs"
+    assert sorted(p.name for p in b.parent.iterdir()) == ["mvs.npz"]  # the passes' exchange file is gone
+    recs = [json.loads((tmp_path / d / "scene.json").read_text())["stages"]["mvs"] for d in ("local", "dist")]
+    for r in recs:
+        r["details"].pop("seconds")
+        r["details"].pop("evaluations_per_second")
+    assert _strip(recs[0]) == _strip(recs[1])
+
+
 def test_local_workers_drop_only_the_lost_heartbeat(cluster):
     # A local cluster's shutdown can cut off a worker's heartbeat: its traceback is dropped in
     # the worker (the plugin open_client registers), every other worker record passes.

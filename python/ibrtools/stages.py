@@ -579,10 +579,40 @@ def _mvs_needed(ctx: _Context) -> str | None:
 
 def _run_mvs(ctx: _Context) -> dict:
     from .mvs import MvsOptions, run_mvs
+    from .mvs.stereo import MvsRun
 
     opts = MvsOptions(**ctx.options.get("mvs", {}))
     names = [v.name for v in ctx.scene.views if not v.has_depth]
-    res = run_mvs(ctx.scene.views, opts, names=names)
+    if ctx.cluster is None:
+        res = run_mvs(ctx.scene.views, opts, names=names)
+    else:
+        # Per view on the workers, pass by pass (each task rebuilds the same plan from the scene);
+        # the geometric pass reads the photometric depths from the cache; the filter runs here.
+        t0 = time.perf_counter()
+        run = MvsRun(ctx.scene.views, opts, names)
+        pho = ctx.cluster.map_views(_mvs_task, ctx.root, names, ctx.options, "photometric")
+        timing = {"setup": 0.0, "photometric": time.perf_counter() - t0, "geometric": 0.0, "filter": 0.0}
+        evals = {"photometric": sum(r[3] for r in pho.values()), "geometric": 0}
+        results = pho
+        if opts.geom_iterations > 0:
+            first = ctx.cache("mvs") / "photometric.npz"
+            arrays = {}
+            for n, r in pho.items():
+                arrays.update({f"depth:{n}": r[0], f"normal:{n}": r[1], f"known:{n}": run.known_depth(n, r)})
+            save_npz(first, **arrays)
+            t1 = time.perf_counter()
+            try:
+                results = ctx.cluster.map_views(_mvs_task, ctx.root, names, ctx.options, "geometric")
+            finally:
+                first.unlink(missing_ok=True)
+            timing["geometric"] = time.perf_counter() - t1
+            evals["geometric"] = sum(r[3] for r in results.values())
+        involved = set(names) | {m for n in names for m in run.sources[n]}
+        final = {m: run.known_depth(m, results.get(m)) for m in involved}
+        t1 = time.perf_counter()
+        res = {n: run.filter(n, results[n], final) for n in names}
+        timing["filter"] = time.perf_counter() - t1
+        run.finish(res, timing, evals)
     if not any(np.any(r.depth > 0) for r in res.values()):
         raise BadValueError(f"mvs: multi-view stereo matched no pixel in any of the {len(res)} views without depth "
                             "(textureless images, or cameras that do not see the same surfaces); give the views "
@@ -592,12 +622,31 @@ def _run_mvs(ctx: _Context) -> dict:
         arrays.update({f"depth:{n}": r.depth, f"normal:{n}": r.normal, f"confidence:{n}": r.confidence})
     save_npz(ctx.cache("mvs") / "mvs.npz", **arrays)
     ctx.memo["mvs"] = arrays
-    first = next(iter(res.values()))
+    first_res = next(iter(res.values()))
     kept = [r.stats["kept"] for r in res.values()]
     return {"views": len(res), "kept": round(float(np.mean(kept)), 4),
-            "seconds": first.stats["seconds"], "evaluations_per_second": first.stats["evaluations_per_second"],
+            "seconds": first_res.stats["seconds"], "evaluations_per_second": first_res.stats["evaluations_per_second"],
             "sources": {n: r.sources for n, r in res.items()},
             "depth_range": {n: [round(x, 6) for x in r.depth_range] for n, r in res.items()}}
+
+
+def _mvs_task(root: str, names: list[str], options: dict, which: str, threads: int) -> dict:
+    """Dask task of the mvs stage: pass ``which`` ("photometric", or "geometric" from the
+    photometric depths the stage put in its cache) of views ``names``."""
+    from .distributed import set_task_threads
+    from .mvs import MvsOptions
+    from .mvs.stereo import MvsRun
+
+    set_task_threads(threads)
+    ctx = _Context(Path(root), options)
+    views = ctx.scene.views
+    run = MvsRun(views, MvsOptions(**options.get("mvs", {})), [v.name for v in views if not v.has_depth])
+    if which == "photometric":
+        return {n: run.photometric(n) for n in names}
+    first = load_npz(ctx.cache("mvs") / "photometric.npz")
+    known = {m: first[f"known:{m}"] if f"known:{m}" in first else run.known_depth(m, None)
+             for n in names for m in run.sources[n]}
+    return {n: run.geometric(n, (first[f"depth:{n}"], first[f"normal:{n}"]), known) for n in names}
 
 
 def _depth_needed(ctx: _Context) -> str | None:

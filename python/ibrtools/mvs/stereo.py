@@ -255,110 +255,153 @@ def _upsample(a: np.ndarray, h: int, w: int) -> np.ndarray:
     return np.ascontiguousarray(a[ys][:, xs], np.float32)
 
 
-def run_mvs(views, options: MvsOptions | None = None, names: list[str] | None = None,
-            progress: Callable[[str], None] | None = None) -> dict[str, MvsResult]:
-    """Multi-view stereo of the views ``names`` (default: every view) of ``views`` (a list of
-    :class:`ibrtools.scene.View` with colour and pinhole cameras); every view may be a source.
-    Views that have depth of their own serve it to the geometric pass and the filter."""
-    o = options or MvsOptions()
-    views = list(views)
-    by_name = {v.name: v for v in views}
-    names = list(names) if names is not None else [v.name for v in views]
-    if len(views) < 2:
-        raise BadValueError(f"mvs: multi-view stereo needs at least 2 views with cameras, the scene has {len(views)}")
-    for v in views:
-        if v.camera.model != PINHOLE:
-            raise BadValueError(f"mvs: view {v.name!r} has a {v.camera.model} camera; multi-view stereo needs pinhole")
-    cams = {v.name: v.camera for v in views}
-    t0 = time.perf_counter()
-    greys = {n: grey(by_name[n].color) for n in by_name}
-    core = {n: c.to_core() for n, c in cams.items()}
-    ranges = {n: depth_range(cams[n], list(cams.values()), o.depth_range) for n in names}
-    chosen: dict[str, list[str]] = {}
-    for n in names:
-        sel = select_sources(cams[n], {m: c for m, c in cams.items() if m != n}, o.sources, ranges[n])
-        if not sel:
-            raise BadValueError(f"mvs: view {n!r} overlaps no other view (no source view sees its depth range "
-                                f"{ranges[n][0]:.4g}..{ranges[n][1]:.4g} with a baseline); give its depth or more views")
-        chosen[n] = [m for m, _ in sel]
-    timing = {"setup": time.perf_counter() - t0, "photometric": 0.0, "geometric": 0.0, "filter": 0.0}
-    evals = {"photometric": 0, "geometric": 0}
-    # The image pyramid: level l halves level l - 1 (2 x 2 box; an odd last row or column dropped).
-    pyramid = [(greys, cams)]
-    for _ in range(o.levels - 1):
-        g_prev, c_prev = pyramid[-1]
-        if min(min(c.width, c.height) for c in c_prev.values()) < 4 * (2 * o.window_radius + 1):
-            break  # a window would cover much of the image: no coarser level
-        pyramid.append(({n: _half(g) for n, g in g_prev.items()}, {n: _half_camera(c) for n, c in c_prev.items()}))
-    results: dict[str, dict] = {}
-    for n in names:
-        if progress:
-            progress(f"mvs photometric {n}")
-        t1 = time.perf_counter()
+class MvsRun:
+    """One multi-view stereo run: its plan (each reference view's sources and depth range, the
+    pyramid's depth) made once from the cameras, and its passes as functions of one view each,
+    so that they can run anywhere (a Dask task rebuilds the same plan from the scene: the plan
+    and the kernels are deterministic). :func:`run_mvs` runs them in turn here."""
+
+    def __init__(self, views, options: MvsOptions | None = None, names: list[str] | None = None):
+        self.o = o = options or MvsOptions()
+        self.views = {v.name: v for v in views}
+        self.names = list(names) if names is not None else list(self.views)
+        if len(self.views) < 2:
+            raise BadValueError(f"mvs: multi-view stereo needs at least 2 views with cameras, the scene has "
+                                f"{len(self.views)}")
+        for v in self.views.values():
+            if v.camera.model != PINHOLE:
+                raise BadValueError(f"mvs: view {v.name!r} has a {v.camera.model} camera; multi-view stereo needs "
+                                    "pinhole")
+        cams = {n: v.camera for n, v in self.views.items()}
+        self.ranges = {n: depth_range(cams[n], list(cams.values()), o.depth_range) for n in self.names}
+        self.sources: dict[str, list[str]] = {}
+        for n in self.names:
+            sel = select_sources(cams[n], {m: c for m, c in cams.items() if m != n}, o.sources, self.ranges[n])
+            if not sel:
+                lo, hi = self.ranges[n]
+                raise BadValueError(f"mvs: view {n!r} overlaps no other view (no source view sees its depth range "
+                                    f"{lo:.4g}..{hi:.4g} with a baseline); give its depth or more views")
+            self.sources[n] = [m for m, _ in sel]
+        # The image pyramid: level l halves level l - 1 (2 x 2 box; an odd last row or column
+        # dropped), as deep as every image allows (a window must not cover much of one).
+        self.cameras = [cams]
+        for _ in range(o.levels - 1):
+            prev = self.cameras[-1]
+            if min(min(c.width, c.height) for c in prev.values()) < 4 * (2 * o.window_radius + 1):
+                break
+            self.cameras.append({n: _half_camera(c) for n, c in prev.items()})
+        self._greys: dict[tuple[str, int], np.ndarray] = {}
+
+    def grey(self, name: str, level: int = 0) -> np.ndarray:
+        key = (name, level)
+        if key not in self._greys:
+            self._greys[key] = grey(self.views[name].color) if level == 0 else _half(self.grey(name, level - 1))
+        return self._greys[key]
+
+    def _core_cams(self, names: list[str], level: int) -> list:
+        return [self.cameras[level][m].to_core() for m in names]
+
+    def photometric(self, n: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+        """Pass 1 of view ``n``, coarse to fine: (depth, normal, cost, evaluations)."""
+        o, src = self.o, self.sources[n]
         init = None
-        for level in range(len(pyramid) - 1, -1, -1):
-            g_l, c_l = pyramid[level]
-            lc = {m: c_l[m].to_core() for m in [n, *chosen[n]]}
-            args = (g_l[n], lc[n], [g_l[m] for m in chosen[n]], [lc[m] for m in chosen[n]], None,
-                    o.kernel_options(*ranges[n], level=level + o.levels - len(pyramid)))
+        evals = 0
+        top = len(self.cameras) - 1
+        for level in range(top, -1, -1):
+            cams = self._core_cams([n, *src], level)
+            args = (self.grey(n, level), cams[0], [self.grey(m, level) for m in src], cams[1:], None,
+                    o.kernel_options(*self.ranges[n], level=level + o.levels - 1 - top))
             if init is None:
                 d, nrm, c, st = _core.mvs_patchmatch(*args)
             else:
-                up = [_upsample(a, c_l[n].height, c_l[n].width) for a in init]
+                cam = self.cameras[level][n]
+                up = [_upsample(a, cam.height, cam.width) for a in init]
                 d, nrm, c, st = _core.mvs_patchmatch(*args, up[0], up[1])
                 # A window that is textureless here may not be at the coarser level (a larger part
                 # of the scene): such pixels keep the coarser level's plane and cost.
                 flat = (d <= 0) & (up[0] > 0)
                 d, c = np.where(flat, up[0], d), np.where(flat, up[2], c)
                 nrm = np.where(flat[..., None], up[1], nrm)
-            evals["photometric"] += st["evaluations"]
+            evals += st["evaluations"]
             init = (d, nrm, c)
+        return d, nrm, c, evals
+
+    def known_depth(self, m: str, result: tuple | None) -> np.ndarray | None:
+        """A source's depth for the later passes: this run's result (depth, normal, cost, ...) when
+        given (unknown where costly), else its own, else None (a source without depth adds no
+        geometric term and no consistency vote)."""
+        if result is not None:
+            return np.where(result[2] < self.o.max_cost, result[0], np.float32(0)).astype(np.float32)
+        v = self.views[m]
+        return np.ascontiguousarray(v.depth, np.float32) if v.has_depth else None
+
+    def geometric(self, n: str, result: tuple, depths: dict[str, np.ndarray | None]
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+        """Pass 2 of view ``n`` from its pass-1 ``result``; ``depths``: the sources' known depth."""
+        src = self.sources[n]
+        cams = self._core_cams([n, *src], 0)
+        d, nrm, c, st = _core.mvs_patchmatch(self.grey(n), cams[0], [self.grey(m) for m in src], cams[1:],
+                                             [depths[m] for m in src],
+                                             self.o.kernel_options(*self.ranges[n], geometric=True),
+                                             result[0], result[1])
+        return d, nrm, c, st["evaluations"]
+
+    def filter(self, n: str, result: tuple, depths: dict[str, np.ndarray | None]) -> MvsResult:
+        """Pass 3 of view ``n``: its final ``result`` kept where the cost is low and enough sources
+        (``depths``: their final known depth) agree."""
+        o = self.o
+        d, nrm, c = result[0], result[1], result[2]
+        voters = [m for m in self.sources[n] if depths[m] is not None]
+        cams = self._core_cams([n, *voters], 0)
+        mine = np.where(c < o.max_cost, d, np.float32(0)).astype(np.float32)
+        count = _core.mvs_consistent_views(mine, cams[0], [depths[m] for m in voters], cams[1:], o.consistency_px,
+                                           o.consistency_depth, o.min_angle_deg)
+        keep = (c < o.max_cost) & (d > 0) & (count >= min(o.min_consistent, len(voters)))
+        return MvsResult(np.where(keep, d, np.float32(0)).astype(np.float32),
+                         np.where(keep[..., None], nrm, np.float32(0)).astype(np.float32),
+                         np.where(keep, 1.0 - c / 2.0, 0.0).astype(np.float32), self.sources[n], self.ranges[n],
+                         {"kept": float(keep.mean())})
+
+    def finish(self, out: dict[str, MvsResult], timing: dict[str, float], evals: dict[str, int]) -> None:
+        """The run's figures in every view's stats."""
+        total, secs = sum(evals.values()), timing.get("photometric", 0.0) + timing.get("geometric", 0.0)
+        for res in out.values():
+            res.stats.update({"seconds": {k: round(v, 3) for k, v in timing.items()}, "evaluations": dict(evals),
+                              "evaluations_per_second": round(total / secs) if secs > 0 else None})
+
+
+def run_mvs(views, options: MvsOptions | None = None, names: list[str] | None = None,
+            progress: Callable[[str], None] | None = None) -> dict[str, MvsResult]:
+    """Multi-view stereo of the views ``names`` (default: every view) of ``views`` (a list of
+    :class:`ibrtools.scene.View` with colour and pinhole cameras); every view may be a source.
+    Views that have depth of their own serve it to the geometric pass and the filter."""
+    t0 = time.perf_counter()
+    run = MvsRun(views, options, names)
+    timing = {"setup": time.perf_counter() - t0, "photometric": 0.0, "geometric": 0.0, "filter": 0.0}
+    evals = {"photometric": 0, "geometric": 0}
+    results: dict[str, tuple] = {}
+    for n in run.names:
+        if progress:
+            progress(f"mvs photometric {n}")
+        t1 = time.perf_counter()
+        results[n] = run.photometric(n)
         timing["photometric"] += time.perf_counter() - t1
-        results[n] = {"depth": d, "normal": nrm, "cost": c, "textureless": int(np.sum(d <= 0))}
-
-    def known(n: str) -> np.ndarray | None:
-        """A source's depth for the later passes: this run's (unknown where costly), else its own,
-        else None (a source without depth adds no geometric term and no consistency vote)."""
-        if n in results:
-            r = results[n]
-            return np.where(r["cost"] < o.max_cost, r["depth"], np.float32(0)).astype(np.float32)
-        return np.ascontiguousarray(by_name[n].depth, np.float32) if by_name[n].has_depth else None
-
-    if o.geom_iterations > 0:
-        first = {n: known(n) for n in set(results) | {m for n in names for m in chosen[n]}}
-        for n in names:
+        evals["photometric"] += results[n][3]
+    involved = set(run.names) | {m for n in run.names for m in run.sources[n]}
+    if run.o.geom_iterations > 0:
+        first = {m: run.known_depth(m, results.get(m)) for m in involved}
+        geo = {}
+        for n in run.names:
             if progress:
                 progress(f"mvs geometric {n}")
             t1 = time.perf_counter()
-            r = results[n]
-            d, nrm, c, st = _core.mvs_patchmatch(
-                greys[n], core[n], [greys[m] for m in chosen[n]], [core[m] for m in chosen[n]],
-                [first[m] for m in chosen[n]], o.kernel_options(*ranges[n], geometric=True), r["depth"], r["normal"])
+            geo[n] = run.geometric(n, results[n], first)
             timing["geometric"] += time.perf_counter() - t1
-            evals["geometric"] += st["evaluations"]
-            r["geometric"] = (d, nrm, c)
-        for n in names:
-            r = results[n]
-            r["depth"], r["normal"], r["cost"] = r.pop("geometric")
-    out: dict[str, MvsResult] = {}
-    final = {n: known(n) for n in set(results) | {m for n in names for m in chosen[n]}}
-    for n in names:
-        t1 = time.perf_counter()
-        r = results[n]
-        voters = [m for m in chosen[n] if final[m] is not None]
-        count = _core.mvs_consistent_views(final[n], core[n], [final[m] for m in voters], [core[m] for m in voters],
-                                           o.consistency_px, o.consistency_depth, o.min_angle_deg)
-        need = min(o.min_consistent, len(voters))
-        keep = (r["cost"] < o.max_cost) & (r["depth"] > 0) & (count >= need)
-        depth = np.where(keep, r["depth"], np.float32(0)).astype(np.float32)
-        conf = np.where(keep, 1.0 - r["cost"] / 2.0, 0.0).astype(np.float32)
-        normal = np.where(keep[..., None], r["normal"], np.float32(0)).astype(np.float32)
-        timing["filter"] += time.perf_counter() - t1
-        out[n] = MvsResult(depth, normal, conf, chosen[n], ranges[n],
-                           {"kept": float(keep.mean()), "textureless": int(r["textureless"])})
-    total = sum(evals.values())
-    secs = timing["photometric"] + timing["geometric"]
-    for res in out.values():
-        res.stats.update({"seconds": {k: round(v, 3) for k, v in timing.items()}, "evaluations": evals,
-                          "evaluations_per_second": round(total / secs) if secs > 0 else None})
+            evals["geometric"] += geo[n][3]
+        results = geo
+    final = {m: run.known_depth(m, results.get(m)) for m in involved}
+    t1 = time.perf_counter()
+    out = {n: run.filter(n, results[n], final) for n in run.names}
+    timing["filter"] = time.perf_counter() - t1
+    run.finish(out, timing, evals)
     return out
