@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from ibrtools import BadValueError, Camera, Scene, View, look_at
+from ibrtools import memory
 from ibrtools.render import job as render_job
 
 SIZE = "48x36"
@@ -78,12 +79,12 @@ def test_limit_from_environment(scene_dir, tmp_path, monkeypatch):
     for bad in ("lots", "-3G", "0"):
         monkeypatch.setenv("IBR_MEMORY_LIMIT", bad)
         with pytest.raises(BadValueError, match="IBR_MEMORY_LIMIT"):
-            render_job.available_memory()
+            memory.available_memory()
 
 
 def test_available_memory_reads_the_system(monkeypatch):
     monkeypatch.delenv("IBR_MEMORY_LIMIT", raising=False)
-    avail = render_job.available_memory()
+    avail = memory.available_memory()
     assert 0 < avail  # /proc/meminfo on Linux; "unknown" elsewhere is a huge number, never 0
 
 

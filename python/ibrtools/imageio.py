@@ -173,7 +173,7 @@ def _check_header(path: Path, spec, size: tuple[int, int] | None) -> None:
     # as stored, then as float32 RGB(A) after conversion (read_image)
     need = w * h * (c * _SAMPLE_BYTES.get(str(spec.format), 4) + 4 * min(max(c, 3), 4))
     if need > 64 << 20:
-        from .render.job import available_memory
+        from .memory import available_memory
 
         avail = available_memory()
         if need > avail:

@@ -651,7 +651,7 @@ _BUILDERS = {"objects": _preset_objects, "crowd": _preset_crowd, "city": _preset
 # Bounds of a synthetic scene's size (docs/synth.md "Size and memory"): a side of at most 16384
 # pixels (16K; the engine's frame buffers index pixels with int32), at most 4096 input views and
 # 1000 video frames; within them, check_scale refuses a scene whose memory estimate exceeds what
-# is available (render.job.available_memory: $IBR_MEMORY_LIMIT, else the free memory).
+# is available (ibrtools.memory.available_memory: $IBR_MEMORY_LIMIT, else the free memory).
 MAX_SIDE = 16384
 MAX_VIEWS = 4096
 MAX_FRAMES = 1000
@@ -676,7 +676,7 @@ def check_scale(size: Sequence[int], views: int, frames: int = 1, holdout_target
                 flags: tuple[str, str, str] = ("size", "views", "frames")) -> None:
     """Refuse, before anything is rendered, a scene past the bounds above or larger than the
     available memory (BadValueError naming ``flags``: the size, views and frames arguments)."""
-    from .render.job import available_memory
+    from .memory import available_memory
 
     fs, fv, ff = flags
     w, h = _check_size(size, fs)

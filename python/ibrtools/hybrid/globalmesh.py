@@ -535,12 +535,12 @@ def build_global_mesh(scene: Scene, options: GlobalMeshOptions | None = None,
 def check_fusion_memory(cameras: Mapping[str, Camera], depths: Mapping[str, np.ndarray],
                         options: GlobalMeshOptions | None = None, extent: tuple | None = None) -> dict:
     """Refuse, before the TSDF grid is allocated, a fusion whose estimate (:func:`fusion_memory`)
-    exceeds the available memory (render.job.available_memory: $IBR_MEMORY_LIMIT, else the free
+    exceeds the available memory (ibrtools.memory.available_memory: $IBR_MEMORY_LIMIT, else the free
     memory): open3d does not fail cleanly when it runs out (it crashed at ~10 GB, resolution
     20000, on a scene of 6 views of 320x240)."""
     import os
 
-    from ..render.job import available_memory
+    from ..memory import available_memory
 
     options = options or GlobalMeshOptions()
     est = fusion_memory(cameras, depths, options, extent)

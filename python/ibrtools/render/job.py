@@ -26,6 +26,7 @@ from ..formats._common import read_json
 from ..imageio import atomic_path
 from ..imageio import write_depth as _write_depth
 from ..imageio import write_image as _write_image
+from ..memory import available_memory
 from ..outputs import OutputDir, check_output_dir, file_stem, sweep_temporaries, temp_prefix
 from ..scene import Scene, View
 from . import methods
@@ -229,43 +230,6 @@ _FRAME_BPP = {"reference": 120, "dibr": 64, "warp": 64, "depthwarp": 120, "tm": 
               "pvm": 288, "hybrid": 428}
 _TRIANGLE_BYTES = 160   # mesh arrays + Embree BVH per triangle
 _BASE_BYTES = 400 << 20  # the interpreter, numpy, OpenImageIO, open3d, the engine, loaded once
-
-
-def _parse_bytes(text: str) -> int:
-    t = text.strip().upper().removesuffix("B")
-    mult = {"K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}.get(t[-1:], 1)
-    try:
-        v = float(t[:-1] if t[-1:] in "KMGT" else t) * mult
-    except ValueError:
-        raise BadValueError(f"IBR_MEMORY_LIMIT: expected a size such as 8G or 512M, got {text!r}") from None
-    if not v > 0:
-        raise BadValueError(f"IBR_MEMORY_LIMIT: expected a positive size, got {text!r}")
-    return int(v)
-
-
-def available_memory() -> int:
-    """Bytes this process may still allocate: $IBR_MEMORY_LIMIT when set, else the smaller of
-    MemAvailable (/proc/meminfo) and the cgroup v2 limit minus its usage (containers)."""
-    env = os.environ.get("IBR_MEMORY_LIMIT")
-    if env:
-        return _parse_bytes(env)
-    avail = None
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    avail = int(line.split()[1]) * 1024
-                    break
-    except OSError:
-        pass
-    try:
-        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
-        if limit != "max":
-            used = int(Path("/sys/fs/cgroup/memory.current").read_text())
-            avail = min(avail or 1 << 62, int(limit) - used)
-    except (OSError, ValueError):
-        pass
-    return avail if avail is not None else 1 << 62  # unknown platform: do not refuse
 
 
 def estimate_memory(job: Job, method: str) -> dict:
