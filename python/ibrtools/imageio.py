@@ -185,14 +185,7 @@ def read_header(path: str | os.PathLike, size: tuple[int, int] | None = None) ->
     """(width, height, channels, sample format such as "uint8") of an image file from its header
     alone (no pixel is decoded), checked as :func:`read_pixels` checks it before decoding."""
     path = Path(path)
-    if not path.is_file():
-        raise MissingFileError(f"{path}: no such file")
-    oiio = _oiio()
-    with _stderr_to_message() as cap:
-        inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise FormatError(f"{path}: not a readable image ({_library_error(oiio, cap, 'unknown format')})")
-    _release(cap)
+    inp = _open(path)
     try:
         spec = inp.spec()
         _check_header(path, spec, size)
@@ -201,6 +194,20 @@ def read_header(path: str | os.PathLike, size: tuple[int, int] | None = None) ->
         return int(spec.width), int(spec.height), int(spec.nchannels), str(spec.format)
     finally:
         inp.close()
+
+
+def _open(path: Path, config=None):
+    """OpenImageIO's reader of ``path`` (its header read), or the one-line error of a file that
+    is missing or not a readable image (what the library printed folded into it)."""
+    if not path.is_file():
+        raise MissingFileError(f"{path}: no such file")
+    oiio = _oiio()
+    with _stderr_to_message() as cap:
+        inp = oiio.ImageInput.open(str(path)) if config is None else oiio.ImageInput.open(str(path), config)
+    if inp is None:
+        raise FormatError(f"{path}: not a readable image ({_library_error(oiio, cap, 'unknown format')})")
+    _release(cap)
+    return inp
 
 
 _PNG_END = b"\0\0\0\0IEND\xaeB`\x82"  # the IEND chunk (empty, and its CRC) that closes every PNG
@@ -228,16 +235,10 @@ def read_pixels(path: str | os.PathLike, size: tuple[int, int] | None = None) ->
     more than :data:`MAX_PIXELS` pixels are refused; and any image whose decoding would need more
     memory than is available. A file that cannot be decoded is a FormatError with one line."""
     path = Path(path)
-    if not path.is_file():
-        raise MissingFileError(f"{path}: no such file")
     oiio = _oiio()
     config = oiio.ImageSpec()
     config.attribute("oiio:UnassociatedAlpha", 1)
-    with _stderr_to_message() as cap:
-        inp = oiio.ImageInput.open(str(path), config)
-    if inp is None:
-        raise FormatError(f"{path}: not a readable image ({_library_error(oiio, cap, 'unknown format')})")
-    _release(cap)
+    inp = _open(path, config)
     try:
         spec = inp.spec()
         _check_header(path, spec, size)
