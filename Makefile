@@ -45,7 +45,7 @@ TSAN_TESTS ?= tests/test_stress.py tests/test_forward_warp.py tests/test_blend.p
   tests/test_mip_foveate_level.py tests/test_metrics.py tests/test_raycast.py tests/test_peel.py \
   tests/test_depthwarp.py tests/test_nbuffer.py tests/test_culling.py tests/test_shadows.py \
   tests/test_pvm.py tests/test_pvm_render.py tests/test_hybrid_render.py tests/test_harmonise.py \
-  tests/test_maxflow.py tests/test_poisson.py
+  tests/test_maxflow.py tests/test_poisson.py tests/test_mvs.py
 
 check-asan: setup
 	tools/sanitize.sh asan
