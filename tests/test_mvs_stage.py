@@ -76,6 +76,14 @@ def test_photographs_go_to_new_views(photos, capsys, tmp_path):
     assert {r["stage"]: r for r in json.loads(capsys.readouterr().out)}["mvs"]["status"] == "up to date"
     assert preprocess.main([str(s), "-o", str(s), "--methods", "dibr", "--json", "--set", "mvs.iterations=3"]) == 0
     assert {r["stage"]: r for r in json.loads(capsys.readouterr().out)}["mvs"]["status"] == "ran"
+    # A view that changes: ran again.
+    from ibrtools.imageio import read_image, write_image
+
+    img = s / "images" / "v000.png"
+    write_image(img, np.clip(read_image(img) * 0.9, 0, 1))
+    assert preprocess.main([str(s), "-o", str(s), "--methods", "dibr", "--json", "--set", "mvs.iterations=3"]) == 0
+    row = {r["stage"]: r for r in json.loads(capsys.readouterr().out)}["mvs"]
+    assert row["status"] == "ran" and "changed" in row["reason"]
 
 
 def test_skipped_when_every_view_has_depth(photos, capsys):
