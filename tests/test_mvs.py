@@ -192,3 +192,14 @@ def test_kernel_checks_its_inputs():
     o.max_depth = o.min_depth
     with pytest.raises(ValueError, match="max_depth"):
         _core.mvs_patchmatch(g[0], cams[0], g[1:], cams[1:], None, o)
+
+
+def test_pixels_outside_a_views_mask_get_no_depth():
+    """An RGBA capture's alpha-0 pixels are known to be empty (background): never given depth."""
+    views, truth = _views([_cam(0), _cam(-0.4), _cam(0.4)], [0, 0, -1])
+    mask = np.ones((H, W), bool)
+    mask[:, : W // 2] = False
+    views[0] = View.create("v0", views[0].camera, color=views[0].color, mask=mask)
+    r = run_mvs(views, MvsOptions(**OPTS))["v0"]
+    assert not np.any(r.depth[~mask]) and not np.any(r.confidence[~mask])
+    assert np.mean(r.depth[:, W // 2 + 20:] > 0) > 0.7  # the rest as without a mask

@@ -298,6 +298,12 @@ class MvsRun:
             self._greys[key] = grey(self.views[name].color) if level == 0 else _half(self.grey(name, level - 1))
         return self._greys[key]
 
+    def _foreground(self, name: str) -> np.ndarray | bool:
+        """Where view ``name`` may have depth: its mask (alpha > 1/2 in an RGBA capture: the rest
+        is known to be empty, a background, never a surface), else everywhere."""
+        v = self.views[name]
+        return np.asarray(v.mask, bool) if v.has_mask else True
+
     def _core_cams(self, names: list[str], level: int) -> list:
         return [self.cameras[level][m].to_core() for m in names]
 
@@ -331,7 +337,8 @@ class MvsRun:
         given (unknown where costly), else its own, else None (a source without depth adds no
         geometric term and no consistency vote)."""
         if result is not None:
-            return np.where(result[2] < self.o.max_cost, result[0], np.float32(0)).astype(np.float32)
+            return np.where((result[2] < self.o.max_cost) & self._foreground(m), result[0],
+                            np.float32(0)).astype(np.float32)
         v = self.views[m]
         return np.ascontiguousarray(v.depth, np.float32) if v.has_depth else None
 
@@ -356,7 +363,7 @@ class MvsRun:
         mine = np.where(c < o.max_cost, d, np.float32(0)).astype(np.float32)
         count = _core.mvs_consistent_views(mine, cams[0], [depths[m] for m in voters], cams[1:], o.consistency_px,
                                            o.consistency_depth, o.min_angle_deg)
-        keep = (c < o.max_cost) & (d > 0) & (count >= min(o.min_consistent, len(voters)))
+        keep = (c < o.max_cost) & (d > 0) & (count >= min(o.min_consistent, len(voters))) & self._foreground(n)
         return MvsResult(np.where(keep, d, np.float32(0)).astype(np.float32),
                          np.where(keep[..., None], nrm, np.float32(0)).astype(np.float32),
                          np.where(keep, 1.0 - c / 2.0, 0.0).astype(np.float32), self.sources[n], self.ranges[n],
