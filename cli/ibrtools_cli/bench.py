@@ -52,8 +52,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _body(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
     from ibrtools.formats import native
     from ibrtools.outputs import OutputDir, check_output_dir
     from ibrtools.render.sweep import _value, parse_sweep, sweep

@@ -21,6 +21,7 @@ import json
 import os
 import re
 import secrets
+import shutil
 import sys
 import tempfile
 import time
@@ -113,8 +114,6 @@ def sweep_temporaries(directory: Path, stems: set[str] | None = None, prefix: st
     temporaries (".<stem>.XXXXXXXX<suffix>", as written before they carried a mark) of these
     file stems, which only a dead job can have left when the caller holds the directory's lock.
     ``prefix``: only names that start with it."""
-    import shutil
-
     swept = []
     try:
         entries = list(os.scandir(directory))
@@ -271,8 +270,6 @@ def scene_lock(scene: str | os.PathLike, command: str | None = None) -> OutputDi
 
 
 def _sweep_scene(scene: Path) -> list[str]:
-    import shutil
-
     swept = []
     old = re.compile(rf"^\.{re.escape(scene.name)}\.(old\.)?[a-z0-9_]{{8}}$")
     try:

@@ -27,7 +27,7 @@ from ..imageio import atomic_path
 from ..imageio import write_depth as _write_depth
 from ..imageio import write_image as _write_image
 from ..memory import available_memory
-from ..outputs import OutputDir, check_output_dir, file_stem, sweep_temporaries, temp_prefix
+from ..outputs import OutputDir, check_output_dir, file_stem, temp_prefix
 from ..scene import Scene, View
 from . import methods
 
