@@ -203,3 +203,10 @@ def test_pixels_outside_a_views_mask_get_no_depth():
     r = run_mvs(views, MvsOptions(**OPTS))["v0"]
     assert not np.any(r.depth[~mask]) and not np.any(r.confidence[~mask])
     assert np.mean(r.depth[:, W // 2 + 20:] > 0) > 0.7  # the rest as without a mask
+
+
+def test_a_run_that_needs_more_memory_than_available_is_refused(monkeypatch):
+    views, _ = _views([_cam(0), _cam(-0.4)], [0, 0, -1])
+    monkeypatch.setenv("IBR_MEMORY_LIMIT", "100M")  # below the run's 400 MB base
+    with pytest.raises(BadValueError, match=r"mvs: multi-view stereo of 2 views .* GiB.*IBR_MEMORY_LIMIT"):
+        run_mvs(views, MvsOptions(**OPTS))

@@ -134,3 +134,14 @@ def test_a_users_mesh_gives_the_views_depth(tmp_path, capsys):
     assert "--mesh: only when importing" in capsys.readouterr().err
     assert preprocess.main([str(tmp_path / "src"), "-o", str(tmp_path / "t"), "--mesh", str(tmp_path / "no.ply")]) == 2
     assert "no.ply" in capsys.readouterr().err
+
+
+def test_the_stage_refuses_a_run_beyond_the_memory_in_one_line(photos, capsys, tmp_path, monkeypatch):
+    _, scene = photos
+    s = tmp_path / "s"
+    shutil.copytree(scene, s)
+    monkeypatch.setenv("IBR_MEMORY_LIMIT", "100M")
+    assert preprocess.main([str(s), "-o", str(s), "--methods", "dibr"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "mvs: multi-view stereo of 8 views" in err, err
+    assert "mvs" not in json.loads((s / "scene.json").read_text()).get("stages", {})

@@ -861,7 +861,14 @@ def _check_mesh(ctx: _Context) -> None:
 
 
 # Checks of a stage that is about to run, before its progress line (a refusal is one line).
-_PRECHECK = {"mesh": _check_mesh}
+def _check_mvs(ctx: _Context) -> None:
+    """Before the mvs stage is announced: its memory estimate (a refusal is the command's only line)."""
+    from .mvs.stereo import check_memory
+
+    check_memory(ctx.scene.views)
+
+
+_PRECHECK = {"mesh": _check_mesh, "mvs": _check_mvs}
 
 
 def _closure(selected: list[str]) -> list[str]:

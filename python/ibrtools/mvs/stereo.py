@@ -19,6 +19,7 @@ confidence (float32 in [0, 1]: 1 - cost / 2 where kept, else 0).
 from __future__ import annotations
 
 import math
+import os
 import time
 from dataclasses import asdict, dataclass, field
 from typing import Callable
@@ -29,6 +30,7 @@ from .. import _core
 from ..camera import PINHOLE, Camera
 from ..checks import check_float, check_int
 from ..errors import BadValueError
+from ..memory import available_memory
 
 _K = _core.PatchMatchOptions()  # the kernel's defaults, defined once (cpp/kernels/mvs/patchmatch.h)
 
@@ -255,6 +257,28 @@ def _upsample(a: np.ndarray, h: int, w: int) -> np.ndarray:
     return np.ascontiguousarray(a[ys][:, xs], np.float32)
 
 
+# Bytes held per pixel of every view in a run (colour float32 x 3 as loaded, the grey pyramid,
+# the passes' depth, normal and cost of the views matched, the filter's copies): peak RSS of
+# fountain-P11's 10 views (3.9 M pixels) measured 356 MB with /usr/bin/time -v, i.e. ~40 B a pixel
+# above the interpreter; rounded up to stay above it.
+_BYTES_PER_PIXEL = 64
+_BASE_BYTES = 400 << 20  # the interpreter, numpy, OpenImageIO, the engine (as render/job.py)
+
+
+def check_memory(views) -> int:
+    """The run's memory estimate in bytes, after refusing (BadValueError with the estimate and
+    the limit) a run that needs more than is available (ibrtools.memory.available_memory)."""
+    px = sum(v.camera.width * v.camera.height for v in views)
+    need, avail = px * _BYTES_PER_PIXEL + _BASE_BYTES, available_memory()
+    if need > avail:
+        gib = 1 << 30
+        raise BadValueError(f"mvs: multi-view stereo of {len(views)} views ({px / 1e6:.1f} M pixels) needs about "
+                            f"{need / gib:.1f} GiB, only {avail / gib:.1f} GiB is available"
+                            f"{' (IBR_MEMORY_LIMIT)' if os.environ.get('IBR_MEMORY_LIMIT') else ''}: import the "
+                            "views smaller, or free memory")
+    return need
+
+
 class MvsRun:
     """One multi-view stereo run: its plan (each reference view's sources and depth range, the
     pyramid's depth) made once from the cameras, and its passes as functions of one view each,
@@ -272,6 +296,7 @@ class MvsRun:
             if v.camera.model != PINHOLE:
                 raise BadValueError(f"mvs: view {v.name!r} has a {v.camera.model} camera; multi-view stereo needs "
                                     "pinhole")
+        check_memory(list(self.views.values()))
         cams = {n: v.camera for n, v in self.views.items()}
         self.ranges = {n: depth_range(cams[n], list(cams.values()), o.depth_range) for n in self.names}
         self.sources: dict[str, list[str]] = {}
