@@ -403,9 +403,14 @@ def load_npz(path: Path) -> dict[str, np.ndarray]:
         return {k: z[k] for k in z.files}
 
 
+def mvs_key(kind: str, view: str) -> str:
+    """The key of one view's array of one kind ("depth", "normal", "confidence") in mvs.npz."""
+    return f"{kind}:{view}"
+
+
 def mvs_arrays(arrays: dict[str, np.ndarray], kind: str = "depth") -> dict[str, np.ndarray]:
     """{view: array} of one kind ("depth", "normal", "confidence") of the mvs stage's mvs.npz."""
-    prefix = f"{kind}:"
+    prefix = mvs_key(kind, "")
     return {k[len(prefix):]: v for k, v in arrays.items() if k.startswith(prefix)}
 
 
@@ -421,12 +426,16 @@ def with_stage_depth(scene: Scene, prefer: tuple[str, ...] = ("mvs", "depth")) -
     found: dict[str, np.ndarray] = {}
     for stage in prefer:
         try:
-            arrays = load_npz(stage_output(scene.root, stage))
+            path = stage_output(scene.root, stage)
         except InputError:
             continue
-        got = mvs_arrays(arrays) if stage == "mvs" else arrays
-        # (a view in which nothing matched stays without depth)
-        found.update({n: got[n] for n in missing if n in got and n not in found and np.any(got[n] > 0)})
+        with np.load(path, allow_pickle=False) as z:  # only the missing views' depth is read
+            for n in missing:
+                key = mvs_key("depth", n) if stage == "mvs" else n
+                if n not in found and key in z.files:
+                    d = z[key]
+                    if np.any(d > 0):  # (a view in which nothing matched stays without depth)
+                        found[n] = d
     if not found:
         return scene
     views = [v.with_depth(found[v.name]) if v.name in found else v for v in scene.views]
@@ -479,9 +488,17 @@ class _Context:
         self.cluster = cluster
         self.view_only = False  # _run_planned: only depth-image methods (dibr, warp, ...) asked for
         self._stats: dict[str, dict] = {}
+        self._mvs_scene: Scene | None = None
 
     def cache(self, stage: str) -> Path:
         return self.root / CACHE_DIR / stage
+
+    def mvs_scene(self) -> Scene:
+        """The scene with the mvs stage's depth for the views without their own (read once per
+        run, by the first stage after the mvs stage that asks: the mesh stage and its checks)."""
+        if self._mvs_scene is None:
+            self._mvs_scene = with_stage_depth(self.scene, ("mvs",))
+        return self._mvs_scene
 
     def get(self, stage: str) -> dict:
         if stage not in self.memo:
@@ -556,7 +573,7 @@ def _run_mesh(ctx: _Context) -> dict:
     from .hybrid.globalmesh import GlobalMeshOptions, build_global_mesh, build_render_mesh
 
     opts = GlobalMeshOptions(**ctx.options.get("mesh", {}))
-    scene = with_stage_depth(ctx.scene, ("mvs",))  # photographs: their multi-view stereo depth is fused
+    scene = ctx.mvs_scene()  # photographs: their multi-view stereo depth is fused
     mesh, rec = build_global_mesh(scene, opts)
     arrays = {"vertices": mesh.vertices, "faces": mesh.faces, "object_ids": mesh.object_ids}
     render = build_render_mesh(scene, mesh, rec["source"], opts)
@@ -579,60 +596,52 @@ def _mvs_needed(ctx: _Context) -> str | None:
 
 def _run_mvs(ctx: _Context) -> dict:
     from .mvs import MvsOptions, run_mvs
-    from .mvs.stereo import MvsRun
 
     opts = MvsOptions(**ctx.options.get("mvs", {}))
     names = [v.name for v in ctx.scene.views if not v.has_depth]
-    if ctx.cluster is None:
-        res = run_mvs(ctx.scene.views, opts, names=names)
-    else:
-        # Per view on the workers, pass by pass (each task rebuilds the same plan from the scene);
-        # the geometric pass reads the photometric depths from the cache; the filter runs here.
-        t0 = time.perf_counter()
-        run = MvsRun(ctx.scene.views, opts, names)
-        pho = ctx.cluster.map_views(_mvs_task, ctx.root, names, ctx.options, "photometric")
-        timing = {"setup": 0.0, "photometric": time.perf_counter() - t0, "geometric": 0.0, "filter": 0.0}
-        evals = {"photometric": sum(r[3] for r in pho.values()), "geometric": 0}
-        results = pho
-        if opts.geom_iterations > 0:
-            first = ctx.cache("mvs") / "photometric.npz"
-            arrays = {}
-            for n, r in pho.items():
-                arrays.update({f"depth:{n}": r[0], f"normal:{n}": r[1], f"known:{n}": run.known_depth(n, r)})
-            save_npz(first, **arrays)
-            t1 = time.perf_counter()
-            try:
-                results = ctx.cluster.map_views(_mvs_task, ctx.root, names, ctx.options, "geometric")
-            finally:
-                first.unlink(missing_ok=True)
-            timing["geometric"] = time.perf_counter() - t1
-            evals["geometric"] = sum(r[3] for r in results.values())
-        involved = set(names) | {m for n in names for m in run.sources[n]}
-        final = {m: run.known_depth(m, results.get(m)) for m in involved}
-        t1 = time.perf_counter()
-        res = {n: run.filter(n, results[n], final) for n in names}
-        timing["filter"] = time.perf_counter() - t1
-        run.finish(res, timing, evals)
+    res = run_mvs(ctx.scene.views, opts, names=names, run_pass=None if ctx.cluster is None else _mvs_on_workers(ctx))
     if not any(np.any(r.depth > 0) for r in res.values()):
         raise BadValueError(f"mvs: multi-view stereo matched no pixel in any of the {len(res)} views without depth "
                             "(textureless images, or cameras that do not see the same surfaces); give the views "
                             "depth or the scene a reconstructed mesh (ibr-preprocess ... --mesh FILE)")
     arrays = {}
     for n, r in res.items():
-        arrays.update({f"depth:{n}": r.depth, f"normal:{n}": r.normal, f"confidence:{n}": r.confidence})
+        arrays.update({mvs_key("depth", n): r.depth, mvs_key("normal", n): r.normal,
+                       mvs_key("confidence", n): r.confidence})
     save_npz(ctx.cache("mvs") / "mvs.npz", **arrays)
-    ctx.memo["mvs"] = arrays
-    first_res = next(iter(res.values()))
-    kept = [r.stats["kept"] for r in res.values()]
-    return {"views": len(res), "kept": round(float(np.mean(kept)), 4),
-            "seconds": first_res.stats["seconds"], "evaluations_per_second": first_res.stats["evaluations_per_second"],
+    first = next(iter(res.values()))
+    return {"views": len(res), "kept": round(float(np.mean([r.stats["kept"] for r in res.values()])), 4),
+            "seconds": first.stats["seconds"], "evaluations_per_second": first.stats["evaluations_per_second"],
             "sources": {n: r.sources for n, r in res.items()},
             "depth_range": {n: [round(x, 6) for x in r.depth_range] for n, r in res.items()}}
 
 
+_MVS_EXCHANGE = "photometric.npz"  # the photometric pass's results, for the geometric pass's tasks
+
+
+def _mvs_on_workers(ctx: _Context):
+    """run_mvs's ``run_pass`` on the Dask cluster: chunks of views per task (:func:`_mvs_task`);
+    the geometric pass's tasks read the photometric results from a file in the stage's cache,
+    removed afterwards."""
+    def run_pass(which: str, names: list[str], previous: dict | None) -> dict:
+        if previous is None:
+            return ctx.cluster.map_views(_mvs_task, ctx.root, names, ctx.options, which)
+        f = ctx.cache("mvs") / _MVS_EXCHANGE
+        arrays = {mvs_key("known", m): d for m, d in previous["known"].items() if d is not None}
+        for n, r in previous["results"].items():
+            arrays.update({mvs_key("depth", n): r[0], mvs_key("normal", n): r[1]})
+        save_npz(f, **arrays)
+        try:
+            return ctx.cluster.map_views(_mvs_task, ctx.root, names, ctx.options, which)
+        finally:
+            f.unlink(missing_ok=True)
+
+    return run_pass
+
+
 def _mvs_task(root: str, names: list[str], options: dict, which: str, threads: int) -> dict:
     """Dask task of the mvs stage: pass ``which`` ("photometric", or "geometric" from the
-    photometric depths the stage put in its cache) of views ``names``."""
+    photometric results the stage put in its cache) of views ``names``."""
     from .distributed import set_task_threads
     from .mvs import MvsOptions
     from .mvs.stereo import MvsRun
@@ -643,10 +652,9 @@ def _mvs_task(root: str, names: list[str], options: dict, which: str, threads: i
     run = MvsRun(views, MvsOptions(**options.get("mvs", {})), [v.name for v in views if not v.has_depth])
     if which == "photometric":
         return {n: run.photometric(n) for n in names}
-    first = load_npz(ctx.cache("mvs") / "photometric.npz")
-    known = {m: first[f"known:{m}"] if f"known:{m}" in first else run.known_depth(m, None)
-             for n in names for m in run.sources[n]}
-    return {n: run.geometric(n, (first[f"depth:{n}"], first[f"normal:{n}"]), known) for n in names}
+    first = load_npz(ctx.cache("mvs") / _MVS_EXCHANGE)
+    known = {m: first.get(mvs_key("known", m)) for n in names for m in run.sources[n]}
+    return {n: run.geometric(n, (first[mvs_key("depth", n)], first[mvs_key("normal", n)]), known) for n in names}
 
 
 def _depth_needed(ctx: _Context) -> str | None:
@@ -658,7 +666,7 @@ def _served_by_views(ctx: _Context) -> str | None:
     """The mesh and depth stages when only depth-image methods are asked for: they serve those
     the depth of views without any, so they are not needed when every view has depth of its own
     or from the mvs stage (a scene with a mesh and views without depth: they run)."""
-    if ctx.view_only and all(v.has_depth for v in with_stage_depth(ctx.scene, ("mvs",)).views):
+    if ctx.view_only and all(v.has_depth for v in ctx.mvs_scene().views):
         return "every view has depth"
     return None
 
@@ -854,13 +862,12 @@ def _check_mesh(ctx: _Context) -> None:
     from .hybrid.globalmesh import GlobalMeshOptions, check_fusion_memory, choose_source
 
     opts = GlobalMeshOptions(**ctx.options.get("mesh", {}))
-    scene = with_stage_depth(ctx.scene, ("mvs",))
+    scene = ctx.mvs_scene()
     if choose_source(scene, opts.source) == "fusion":
         views = scene.views
         check_fusion_memory({v.name: v.camera for v in views}, {v.name: v.fusion_depth for v in views}, opts)
 
 
-# Checks of a stage that is about to run, before its progress line (a refusal is one line).
 def _check_mvs(ctx: _Context) -> None:
     """Before the mvs stage is announced: its memory estimate (a refusal is the command's only line)."""
     from .mvs.stereo import check_memory
@@ -868,6 +875,7 @@ def _check_mvs(ctx: _Context) -> None:
     check_memory(ctx.scene.views)
 
 
+# Checks of a stage that is about to run, before its progress line (a refusal is one line).
 _PRECHECK = {"mesh": _check_mesh, "mvs": _check_mvs}
 
 
@@ -916,38 +924,30 @@ def run_stages(root: str | os.PathLike, *, methods: list[str] | None = None, sta
             if why[s] == "needed by ":
                 why[s] = "read by a needed stage"
     wanted = [s for s in wanted if s in avail]
-    reason = ("not selected (--stages)" if stages is not None else
-              f"not needed by methods {', '.join(methods) or 'none'}")
     if not wanted:  # nothing to plan: no scene load, no hashing (the plain import stays fast)
+        reason = ("not selected (--stages)" if stages is not None else
+                  f"not needed by methods {', '.join(methods) or 'none'}")
         return [StageResult(name, "skipped", reason) for name in ORDER if name in avail]
-    if stages is None and set(methods) <= set(VIEW_ONLY_METHODS) and _every_view_has_depth(root):
-        # The depth-image methods' stages (mvs, and the mesh and depth stages that serve them)
-        # have nothing to do: said without loading or hashing the scene (the plain import, the demo).
-        return [StageResult(name, "skipped", "every view has depth" if name == "mvs" else
-                            reason + (" (every view has depth)" if name in wanted else ""))
-                for name in ORDER if name in avail]
     with D.LazyClient(scheduler, workers, threads) as cluster:
         return _run_planned(root, options, wanted, why, avail, stages, methods, force, progress,
                             cluster if D.wanted(scheduler, workers) else None)
-
-
-def _every_view_has_depth(root: Path) -> bool:
-    """From scene.json alone: every view of the scene (of every frame of a video) names a depth map."""
-    try:
-        doc = _read_doc(root)
-        docs = [doc] if not doc.get("frames") else [_read_doc(root / "frames" / f) for f in doc["frames"]]
-    except (OSError, ValueError, TypeError):
-        return False
-    return all(d.get("views") and all(isinstance(v, dict) and v.get("depth") for v in d["views"]) for d in docs)
 
 
 def _run_planned(root: Path, options: dict, wanted: list[str], why: dict, avail: list[str], stages, methods,
                  force: bool, progress, cluster) -> list[StageResult]:
     ctx = _Context(root, options, cluster)
     # Only depth-image methods asked for (not --stages): the mesh and depth stages serve them only
-    # the depth of views that have none (_mesh_needed, _depth_needed).
+    # the depth of views that have none (_served_by_views).
     ctx.view_only = stages is None and set(methods) <= set(VIEW_ONLY_METHODS)
-    upstream = {"scene": scene_content_key(root)}
+    upstream: dict[str, str] = {}
+
+    def scene_key() -> str:
+        """The imported scene's content key, hashed on first need only: a run whose stages are all
+        skipped by their checks (a plain import of views with depth) hashes nothing."""
+        if "scene" not in upstream:
+            upstream["scene"] = scene_content_key(root)
+        return upstream["scene"]
+
     records = dict(_read_doc(root).get("stages") or {})
     results: list[StageResult] = []
     planned = [s for s in ORDER if s in avail]
@@ -962,14 +962,11 @@ def _run_planned(root: Path, options: dict, wanted: list[str], why: dict, avail:
             if unserved:
                 reason += f" ({unserved})"
             if records.get(name):  # the stages that ran before it in this run are on disk now
-                stale = stale_reasons(_read_doc(root).get("stages") or {}, name, upstream["scene"])
+                stale = stale_reasons(_read_doc(root).get("stages") or {}, name, scene_key())
                 if stale:
                     reason += f"; its output is out of date ({'; '.join(stale)})"
             results.append(StageResult(name, "skipped", reason))
             continue
-        params = _params(name, options)
-        key = _stage_key(st, params, upstream)
-        upstream[name] = key
         not_needed = _APPLIES[name](ctx) if name in _APPLIES else None
         rec = records.get(name)
         if not_needed:
@@ -978,6 +975,10 @@ def _run_planned(root: Path, options: dict, wanted: list[str], why: dict, avail:
             if rec is not None:
                 _write_stage_record(root, name, None)
             continue
+        scene_key()
+        params = _params(name, options)
+        key = _stage_key(st, params, upstream)
+        upstream[name] = key
         provenance = {"version": st.version, "inputs": {k: upstream.get(k) for k in st.inputs}}
         if not force and rec and rec.get("key") == key:
             # A record from before records carried the version and input keys: the key matched, so they

@@ -402,35 +402,46 @@ class MvsRun:
                               "evaluations_per_second": round(total / secs) if secs > 0 else None})
 
 
+# run_mvs's ``run_pass``: (pass, views, previous) -> {view: (depth, normal, cost, evaluations)}, with
+# previous None for "photometric" and {"results": pass-1 results, "known": sources' known depth}
+# for "geometric" (the default runs MvsRun.photometric / MvsRun.geometric here, view by view).
+PassRunner = Callable[[str, list[str], dict | None], dict]
+
+
 def run_mvs(views, options: MvsOptions | None = None, names: list[str] | None = None,
-            progress: Callable[[str], None] | None = None) -> dict[str, MvsResult]:
+            progress: Callable[[str], None] | None = None, run_pass: PassRunner | None = None
+            ) -> dict[str, MvsResult]:
     """Multi-view stereo of the views ``names`` (default: every view) of ``views`` (a list of
     :class:`ibrtools.scene.View` with colour and pinhole cameras); every view may be a source.
-    Views that have depth of their own serve it to the geometric pass and the filter."""
+    Views that have depth of their own serve it to the geometric pass and the filter.
+    ``run_pass`` runs a pass over views elsewhere (the stage's Dask workers, which rebuild the
+    same :class:`MvsRun` from the scene); the filter always runs here."""
     t0 = time.perf_counter()
     run = MvsRun(views, options, names)
+
+    def here(which: str, todo: list[str], previous: dict | None) -> dict:
+        out = {}
+        for n in todo:
+            if progress:
+                progress(f"mvs {which} {n}")
+            out[n] = (run.photometric(n) if previous is None else
+                      run.geometric(n, previous["results"][n], previous["known"]))
+        return out
+
+    run_pass = run_pass or here
     timing = {"setup": time.perf_counter() - t0, "photometric": 0.0, "geometric": 0.0, "filter": 0.0}
     evals = {"photometric": 0, "geometric": 0}
-    results: dict[str, tuple] = {}
-    for n in run.names:
-        if progress:
-            progress(f"mvs photometric {n}")
-        t1 = time.perf_counter()
-        results[n] = run.photometric(n)
-        timing["photometric"] += time.perf_counter() - t1
-        evals["photometric"] += results[n][3]
+    t1 = time.perf_counter()
+    results = run_pass("photometric", run.names, None)
+    timing["photometric"] = time.perf_counter() - t1
+    evals["photometric"] = sum(r[3] for r in results.values())
     involved = set(run.names) | {m for n in run.names for m in run.sources[n]}
     if run.o.geom_iterations > 0:
         first = {m: run.known_depth(m, results.get(m)) for m in involved}
-        geo = {}
-        for n in run.names:
-            if progress:
-                progress(f"mvs geometric {n}")
-            t1 = time.perf_counter()
-            geo[n] = run.geometric(n, results[n], first)
-            timing["geometric"] += time.perf_counter() - t1
-            evals["geometric"] += geo[n][3]
-        results = geo
+        t1 = time.perf_counter()
+        results = run_pass("geometric", run.names, {"results": results, "known": first})
+        timing["geometric"] = time.perf_counter() - t1
+        evals["geometric"] = sum(r[3] for r in results.values())
     final = {m: run.known_depth(m, results.get(m)) for m in involved}
     t1 = time.perf_counter()
     out = {n: run.filter(n, results[n], final) for n in run.names}
