@@ -44,6 +44,22 @@ def dibr_accuracy_bench():
     return bench_dibr_accuracy
 
 
+def photos_only(src: Path, dst: Path) -> Path:
+    """A copy at ``dst`` of the native scene at ``src`` whose views have colour only: no depth,
+    no mesh, no stage records (a capture of photographs and cameras, for multi-view stereo)."""
+    import json
+    import shutil
+
+    shutil.copytree(src, dst)
+    doc = json.loads((dst / "scene.json").read_text())
+    for v in doc["views"]:
+        v.pop("depth", None)
+        v.pop("depth_stored", None)
+    doc["meshes"], doc["stages"] = {}, {}
+    (dst / "scene.json").write_text(json.dumps(doc))
+    return dst
+
+
 @pytest.fixture
 def rng():
     return np.random.default_rng(1234)

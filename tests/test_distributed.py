@@ -295,17 +295,10 @@ def test_preprocess_matches_local_bit_for_bit(scene_dir, cluster, tmp_path, caps
 def test_mvs_stage_matches_local_bit_for_bit(scene_dir, cluster, tmp_path, capsys):
     """The mvs stage per view on the workers (photometric, then geometric from the cache): the
     same mvs.npz, bit for bit, and the same record but for the times."""
-    import shutil
-
-    src = tmp_path / "src"
-    shutil.copytree(scene_dir, src)
-    doc = json.loads((src / "scene.json").read_text())
-    for v in doc["views"]:
-        v.pop("depth", None)
-        v.pop("depth_stored", None)
-    doc["meshes"], doc["stages"] = {}, {}
-    (src / "scene.json").write_text(json.dumps(doc))
+    from conftest import photos_only
     from ibrtools_cli import preprocess
+
+    src = photos_only(scene_dir, tmp_path / "src")
 
     common = [str(src), "--methods", "dibr", "--set", "mvs.iterations=3", "--set", "mvs.levels=2", "--json"]
     assert preprocess.main(common + ["-o", str(tmp_path / "local")]) == 0

@@ -4,25 +4,13 @@ from __future__ import annotations
 
 import json
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import photos_only
 
 from ibrtools import stages as S
 from ibrtools_cli import preprocess, render
-
-
-def _strip_depth(src: Path, dst: Path) -> Path:
-    """A copy of the scene at ``src`` whose views have colour only (no depth, no mesh, no stages)."""
-    shutil.copytree(src, dst)
-    doc = json.loads((dst / "scene.json").read_text())
-    for v in doc["views"]:
-        v.pop("depth", None)
-        v.pop("depth_stored", None)
-    doc["meshes"], doc["stages"] = {}, {}
-    (dst / "scene.json").write_text(json.dumps(doc))
-    return dst
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +18,7 @@ def photos(tmp_path_factory):
     base = tmp_path_factory.mktemp("mvsstage")
     assert preprocess.main(["synth:objects", "-o", str(base / "full"), "--views", "8", "--size", "240x180",
                             "-q"]) == 0
-    return base, _strip_depth(base / "full", base / "photos")
+    return base, photos_only(base / "full", base / "photos")
 
 
 def test_photographs_go_to_new_views(photos, capsys, tmp_path):
