@@ -72,6 +72,12 @@ def _mark() -> str:
     return f"ibrtmp-{_token[0]}-{_token[1]}"
 
 
+def is_plain_name(name: str) -> bool:
+    """True for one path component that is not hidden: what every file a job writes in its
+    output directory is called (file_stem's stems with their suffixes)."""
+    return bool(name) and name == Path(name).name and not name.startswith(".") and name not in (".", "..")
+
+
 def temp_prefix(stem: str) -> str:
     """The prefix of this process's temporaries beside a file ``stem``: the process id and a
     random tag, so that two jobs (or a job and the sweep of a dead one) never take each
@@ -179,9 +185,9 @@ class OutputDir:
     On entry: the directory is created, locked (``.ibr-lock``, an advisory ``flock``: released
     by the kernel when the process ends however it ends; the file is removed when the job ends
     and outlives only a killed job), the temporaries of dead jobs are swept
-    (:attr:`swept`), and :attr:`previous` is the set of files an earlier job in this directory
-    wrote (its journal in the lock file, and the files its report.json names). ``record(name)``
-    adds a file to this job's journal as it is written."""
+    (:attr:`swept`), and :attr:`previous` is the set of files a killed job in this directory
+    wrote (its journal in the lock file). ``record(name)`` adds a file to this job's journal as
+    it is written."""
 
     def __init__(self, path: str | os.PathLike, command: str | None = None, *, flag: str = "-o",
                  stems: set[str] | None = None, lock: Path | None = None,
@@ -223,7 +229,7 @@ class OutputDir:
         self._fd = fd
         try:
             _, files = _read_journal(fd)
-            self.previous = set(files) | _report_files(self.path / "report.json")
+            self.previous = set(files)
             self.swept = self._sweep()
             head = {"pid": os.getpid(), "command": self.command[:500],
                     "started": time.strftime("%Y-%m-%d %H:%M:%S")}
@@ -274,7 +280,7 @@ def _sweep_scene(scene: Path) -> list[str]:
     old = re.compile(rf"^\.{re.escape(scene.name)}\.(old\.)?[a-z0-9_]{{8}}$")
     try:
         for e in os.scandir(scene.parent):
-            if e.name.startswith(f".{scene.name}.") and old.match(e.name) and e.is_dir(follow_symlinks=False):
+            if old.match(e.name) and e.is_dir(follow_symlinks=False):
                 shutil.rmtree(e.path, ignore_errors=True)
                 swept.append(e.name)
     except OSError:
@@ -305,22 +311,6 @@ def _read_journal(fd: int) -> tuple[dict, list[str]]:
             continue
         if i == 0 and isinstance(v, dict):
             head = v
-        elif isinstance(v, str) and v == Path(v).name and not v.startswith("."):
+        elif isinstance(v, str) and is_plain_name(v):
             files.append(v)
     return head, files
-
-
-def _report_files(report: Path) -> set[str]:
-    """The plain file names an earlier render's report.json names (images, masks, depth)."""
-    try:
-        doc = json.loads(report.read_text())
-    except (OSError, ValueError):
-        return set()
-    out = set()
-    for f in doc.get("frames", []) if isinstance(doc, dict) else []:
-        if isinstance(f, dict):
-            for k in ("image", "image_float", "depth", "mask", "hole_mask"):
-                v = f.get(k)
-                if isinstance(v, str) and v == Path(v).name and not v.startswith("."):
-                    out.add(v)
-    return out

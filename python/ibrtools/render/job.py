@@ -27,7 +27,7 @@ from ..imageio import atomic_path
 from ..imageio import write_depth as _write_depth
 from ..imageio import write_image as _write_image
 from ..memory import available_memory
-from ..outputs import OutputDir, check_output_dir, file_stem, temp_prefix
+from ..outputs import OutputDir, check_output_dir, file_stem, is_plain_name, temp_prefix
 from ..scene import Scene, View
 from . import methods
 
@@ -47,8 +47,21 @@ class Frame:
         return file_stem(self.name)
 
 
-# The files a frame may write: <stem><suffix> (render_frame).
+# The files a frame may write: <stem><suffix> (render_frame), and the keys of its report entry
+# that name them.
 FRAME_SUFFIXES = (".png", ".exr", ".depth.exr", ".mask.png", ".hole.png")
+FRAME_FILE_KEYS = ("image", "image_float", "depth", "mask", "hole_mask")
+
+
+def report_files(report: Path) -> set[str]:
+    """The files an earlier run's report.json names (its frames' images, masks, depth)."""
+    try:
+        doc = json.loads(report.read_text())
+    except (OSError, ValueError):
+        return set()
+    frames = doc.get("frames", []) if isinstance(doc, dict) else []
+    return {v for f in frames if isinstance(f, dict) for k in FRAME_FILE_KEYS
+            for v in [f.get(k)] if isinstance(v, str) and is_plain_name(v)}
 
 
 @dataclass
@@ -331,7 +344,7 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
     method = methods.create(name, params)  # bad parameters fail here, before anything is written
     # The output directory is this job's until it ends (a second job is refused, before any
     # work), its dead jobs' temporaries are swept, and the files an earlier job left there are
-    # known (od.previous).
+    # known: a killed job's journal (od.previous) and what a finished one's report.json names.
     stems = {Path(f.stem + s).stem for f in job.frames for s in FRAME_SUFFIXES} | {"report"}
     with OutputDir(out_dir, stems=stems) as od:
         distributed = D.wanted(scheduler, workers)
@@ -353,6 +366,7 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
                 _core.set_num_threads(threads)
             setup = method.prepare(job.scene)
             prepared_for = job.frames[0].scene_frame if job.frames else None
+        previous = od.previous | report_files(out_dir / "report.json")
         # report.json marks a complete run: a stale one must not describe the images written now.
         (out_dir / "report.json").unlink(missing_ok=True)
         written: list[Path] = []
@@ -418,11 +432,11 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
             # Files of an earlier job here that this one did not write would sit beside a report
             # that does not describe them: removed, and the report says so.
             new = {p.name for p in written}
-            removed = sorted(f for f in od.previous - new if (out_dir / f).is_file())
+            removed = sorted(f for f in previous - new if (out_dir / f).is_file())
             for f in removed:
                 (out_dir / f).unlink(missing_ok=True)
             output = {k: v for k, v in (("renamed", renamed_frames(job.frames)), ("swept", od.swept),
-                                        ("replaced", sorted(od.previous & new)), ("removed", removed)) if v}
+                                        ("replaced", sorted(previous & new)), ("removed", removed)) if v}
             note, stale = holdout_note(job.scene, job.held_out, name), stale_note(job.scene, name)
             report = {"method": name, "params": dict(params or {}), "inpaint": inpaint,
                       **({"holdout_note": note} if note else {}), **({"stale_note": stale} if stale else {}),
@@ -453,7 +467,7 @@ def write_output(out_dir: Path, rel: str, kind: str, array: np.ndarray) -> Path:
     """Write one output file of a frame (atomically): ``kind`` "depth" (single-channel float EXR)
     or "image" (by extension: 8-bit sRGB PNG, linear float EXR). The one writer of local runs
     and of Dask workers (which send the bytes back: ibrtools.distributed.encode_outputs)."""
-    if rel != Path(rel).name or rel.startswith(".") or rel in ("", ".", ".."):
+    if not is_plain_name(rel):
         raise InternalError(f"write_output: {rel!r} is not a plain file name")  # names go through file_stem
     path = out_dir / rel
     if kind == "depth":
@@ -484,11 +498,9 @@ def render_frame(method, frame: Frame, *, inpaint: str, fov_kw: dict, float_out:
     try:
         return _render_frame(method, frame, inpaint=inpaint, fov_kw=fov_kw, float_out=float_out,
                              depth_out=depth_out)
-    except InputError as e:
-        if getattr(e, "scene_data", False):
-            raise  # an input file found bad when first read (scene.View): the job stops, exit 2
-        return None, {"name": frame.name, "error": f"{type(e).__name__}: {e}"}, []
     except Exception as e:  # noqa: BLE001 - reported by name in report.json "failed"
+        if isinstance(e, InputError) and getattr(e, "scene_data", False):
+            raise  # an input file found bad when first read (scene.View): the job stops, exit 2
         return None, {"name": frame.name, "error": f"{type(e).__name__}: {e}"}, []
 
 
