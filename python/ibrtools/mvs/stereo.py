@@ -160,14 +160,10 @@ def _axis(cam: Camera) -> np.ndarray:
     return cam.cam_from_world[2, :3].astype(np.float64)  # the camera's z axis in world axes
 
 
-def depth_range(cam: Camera, cameras: list[Camera], option: str = "auto") -> tuple[float, float]:
-    """The depth (z) range searched in view ``cam``: ``option`` "MIN,MAX", else "auto": the point
-    nearest to every camera's optical axis (least squares; the object a capture circles or faces)
-    at depth z_c in the view, and [z_c / 4, 4 z_c]. Cameras whose axes are (nearly) parallel have
-    no such point: then z_c is 20 x the median distance between neighbouring camera centres."""
-    given = parse_range(option)
-    if given is not None:
-        return given
+def capture_focus(cameras: list[Camera]) -> tuple[np.ndarray | None, float]:
+    """What the automatic depth ranges of a capture are made of, computed once for all its views:
+    the point nearest to every camera's optical axis (least squares; None when the axes are
+    nearly parallel) and the median distance between neighbouring camera centres."""
     centres = np.array([_centre(c) for c in cameras])
     axes = np.array([_axis(c) for c in cameras])
     a = np.zeros((3, 3))
@@ -176,14 +172,28 @@ def depth_range(cam: Camera, cameras: list[Camera], option: str = "auto") -> tup
         p = np.eye(3) - np.outer(d, d)
         a += p
         b += p @ c
-    w = np.linalg.eigvalsh(a)
+    point = None
+    if len(cameras) >= 2 and np.linalg.eigvalsh(a)[0] > 1e-3 * len(cameras):
+        point = np.linalg.solve(a, b)
+    gaps = [np.min(np.linalg.norm(np.delete(centres, i, 0) - c, axis=1)) for i, c in enumerate(centres)]
+    return point, float(np.median(gaps)) if len(centres) > 1 else 0.0
+
+
+def depth_range(cam: Camera, cameras: list[Camera], option: str = "auto",
+                focus: tuple[np.ndarray | None, float] | None = None) -> tuple[float, float]:
+    """The depth (z) range searched in view ``cam``: ``option`` "MIN,MAX", else "auto": the point
+    nearest to every camera's optical axis (the object a capture circles or faces) at depth z_c in
+    the view, and [z_c / 4, 4 z_c]. Cameras whose axes are (nearly) parallel have no such point:
+    then z_c is 20 x the median distance between neighbouring camera centres. ``focus``: the
+    capture's :func:`capture_focus`, when the caller has it."""
+    given = parse_range(option)
+    if given is not None:
+        return given
+    point, gap = focus if focus is not None else capture_focus(cameras)
     zc = None
-    if len(cameras) >= 2 and w[0] > 1e-3 * len(cameras):
-        x = np.linalg.solve(a, b)
-        zc = float((cam.cam_from_world[:3, :3] @ x + cam.cam_from_world[:3, 3])[2])
+    if point is not None:
+        zc = float((cam.cam_from_world[:3, :3] @ point + cam.cam_from_world[:3, 3])[2])
     if zc is None or not zc > 0:
-        gaps = [np.min(np.linalg.norm(np.delete(centres, i, 0) - c, axis=1)) for i, c in enumerate(centres)]
-        gap = float(np.median(gaps)) if len(centres) > 1 else 0.0
         if not gap > 0:
             raise BadValueError("mvs: cannot find a depth range (the cameras share one centre); "
                                 "give it with --set mvs.depth_range=MIN,MAX")
@@ -298,7 +308,8 @@ class MvsRun:
                                     "pinhole")
         check_memory(list(self.views.values()))
         cams = {n: v.camera for n, v in self.views.items()}
-        self.ranges = {n: depth_range(cams[n], list(cams.values()), o.depth_range) for n in self.names}
+        focus = capture_focus(list(cams.values())) if o.depth_range == "auto" else None
+        self.ranges = {n: depth_range(cams[n], list(cams.values()), o.depth_range, focus) for n in self.names}
         self.sources: dict[str, list[str]] = {}
         for n in self.names:
             sel = select_sources(cams[n], {m: c for m, c in cams.items() if m != n}, o.sources, self.ranges[n])
