@@ -381,7 +381,8 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
 
 def write_image(path: str | os.PathLike, image: np.ndarray, *, bits: int = 8) -> Path:
     """Write linear float colour (H, W, C). PNG/JPEG/TIFF: sRGB-encoded at ``bits`` (8 or 16;
-    an alpha channel stays linear); EXR/PFM: linear float32, as it is (NaN written as 0)."""
+    an alpha channel stays linear); EXR/PFM: linear float32, as it is (NaN written as 0, +-inf kept: a depth map's
+    background at infinity)."""
     path = Path(path)
     image = np.asarray(image)
     if image.ndim == 2:
@@ -394,7 +395,7 @@ def write_image(path: str | os.PathLike, image: np.ndarray, *, bits: int = 8) ->
     oiio = _oiio()
     h, w, c = image.shape
     if ext in FLOAT_EXTS:
-        pixels = np.nan_to_num(image.astype(np.float32), nan=0.0)
+        pixels = np.nan_to_num(image.astype(np.float32), nan=0.0, posinf=np.inf, neginf=-np.inf)
         spec = oiio.ImageSpec(w, h, c, "float")
         # A fixed capture date (OpenEXR "capDate", else the time of writing): the same pixels
         # give the same bytes, so reruns and distributed runs (docs/distributed.md) write

@@ -839,7 +839,9 @@ def make_scene(preset: str, *, size: Sequence[int] = (480, 360), views: int = 12
     def render(cam: Camera) -> tuple[np.ndarray, np.ndarray]:
         out = renderer.render(cam, outputs=("color", "depth"), lights=lights, ambient=ambient,
                               background=background)
-        return np.ascontiguousarray(out["color"], np.float32), np.ascontiguousarray(out["depth"], np.float32)
+        # No surface hit = the sky: background at infinity (scene.py, docs/FORMAT.md), not unknown.
+        depth = np.where(out["depth"] > 0, out["depth"], np.float32(np.inf))
+        return np.ascontiguousarray(out["color"], np.float32), np.ascontiguousarray(depth, np.float32)
 
     names = [f"v{i:03d}" for i in range(views)]
     rendered = [render(c) for c in built.views]
@@ -859,8 +861,8 @@ def make_scene(preset: str, *, size: Sequence[int] = (480, 360), views: int = 12
         rng = _rng(seed, "depth_noise")
         for d in depths:
             noisy = d * (1.0 + depth_noise * rng.standard_normal(d.shape)).astype(np.float32)
-            # Keep unknown (0) as unknown and noise from flipping a depth's sign.
-            d[...] = np.where(d > 0, np.maximum(noisy, 1e-3 * d), 0.0)
+            # Keep the sky (inf) at infinity and noise from flipping a depth's sign.
+            d[...] = np.where(np.isfinite(d), np.maximum(noisy, 1e-3 * d), d)
         source["depth_noise"] = {"relative_sigma": depth_noise}
     scene_views = [View.create(n, c, color=col, depth=dep) for n, c, col, dep in zip(names, built.views, colors, depths)]
     targets = []
