@@ -217,8 +217,8 @@ def icl(data: Path, params=None) -> dict:
     color, hole, ms, rep = _render(_sub(scene, ["1", "5"]), ["1", "5"], truth.camera, params)
     m = metrics.compare(color, truth.color, hole_mask=hole)
     vis = visible_in_inputs(scene, "4", ["1", "5"])
-    return {"psnr_all": m["psnr"], "ssim_all": m["ssim"], "psnr_visible": m["psnr_masked"],
-            "ssim_visible": m["ssim_masked"], "hole": float(hole.mean()), "ms": ms, "selected": rep["selected"],
+    return {"psnr_all": m["psnr"], "ssim_all": m["ssim"], "psnr_visible": m["psnr_covered"],
+            "ssim_visible": m["ssim_covered"], "hole": float(hole.mean()), "ms": ms, "selected": rep["selected"],
             "all": three_ways(color, truth.color, hole), "visible": float(vis.mean()),
             "vis": three_ways(color, truth.color, hole, vis),
             "vis_tol": {t: _psnr(color, truth.color, visible_in_inputs(scene, "4", ["1", "5"], t) & ~hole)
@@ -274,7 +274,7 @@ def middlebury(data: Path, name: str, params=None) -> dict:
     color, hole, ms, rep = _render(_sub(scene, ["left"]), ["left"], truth.camera, params)
     vis = visible_in_both_right(scene)
     m = metrics.compare(color, truth.color, mask=vis, hole_mask=hole)
-    return {"psnr_visible": _psnr(color, truth.color, vis), "ssim_visible": m["ssim_masked"],
+    return {"psnr_visible": _psnr(color, truth.color, vis), "ssim_visible": m["ssim_covered"],
             "psnr_all": m["psnr"], "hole_visible": float(hole[vis].mean()), "hole": float(hole.mean()),
             "visible": float(vis.mean()), "ms": ms, "vis": three_ways(color, truth.color, hole, vis)}
 

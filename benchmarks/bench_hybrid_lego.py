@@ -121,8 +121,8 @@ def score(color: np.ndarray, truth: np.ndarray, obj: np.ndarray) -> dict:
 
     m_all = metrics.compare(color, truth)
     m_obj = metrics.compare(color, truth, mask=obj)
-    out = {"psnr": m_all["psnr"], "ssim": m_all["ssim"], "psnr_obj": m_obj["psnr_masked"],
-           "ssim_obj": m_obj["ssim_masked"], "flip": None, "flip_obj": None}
+    out = {"psnr": m_all["psnr"], "ssim": m_all["ssim"], "psnr_obj": m_obj["psnr_covered"],
+           "ssim_obj": m_obj["ssim_covered"], "flip": None, "flip_obj": None}
     if metrics.flip_available():
         f, fmap = metrics.flip(color, truth, return_map=True)
         out["flip"] = f

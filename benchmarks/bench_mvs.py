@@ -38,7 +38,7 @@ where a protocol below says otherwise.
   for NAME in FOUNTAIN_HELDOUT, one at a time (the other 10 photos are the inputs and get MVS
   depth; the held-out photo is ground truth no stage reads), then ``ibr-render DIR --method dibr``
   and again with ``--inpaint pushpull``. Scores from report.json: psnr / ssim / flip over all
-  pixels, psnr_masked over the covered pixels, coverage. MVS time from scene.json (stages.mvs).
+  pixels, psnr_covered over the covered pixels, coverage. MVS time from scene.json (stages.mvs).
   docs/img/mvs/fountain_NAME.png: photo | render | render with push-pull, each 384 px wide.
 
 --lego  ``ibr-preprocess nerf_lego -o A --opt background=black --holdout r_0 r_50 --methods dibr``
@@ -47,7 +47,7 @@ where a protocol below says otherwise.
   scene.json, "meshes" and "stages" dropped), ``ibr-preprocess B -o B --methods dibr`` (runs mvs).
   The stage is first timed on LEGO_PROBE alone and extrapolated to every input view; above
   LEGO_BUDGET_S, A and B alike keep only the LEGO_NEAREST input views nearest to each target.
-  Scores: ``ibr-render X --method dibr`` report psnr (all pixels) and psnr_masked (covered) on
+  Scores: ``ibr-render X --method dibr`` report psnr (all pixels) and psnr_covered (covered) on
   r_0, r_50 for A (the data set's depth) and B (MVS depth); MVS depth vs the data set's depth
   (the importer's de-quantised z) on the input views: % of the pixels with GT depth whose MVS
   depth is within 1 % (unknown counts as a miss), % of kept pixels (MVS and GT known) off by more
@@ -336,7 +336,7 @@ def section_fountain(data: Path, keep: Path, reuse: bool, log: list[str]) -> tup
             pre = tuple(json.loads(side.read_text())) if side.is_file() else None
             log.append(f"(reused {d}: its mvs stage ran in an earlier run of this script)")
         outs = {}
-        for key, extra in (("plain", []), ("pushpull", ["--inpaint", "pushpull"])):
+        for key, extra in (("plain", ["--inpaint", "none"]), ("pushpull", ["--inpaint", "pushpull"])):
             o = keep / f"fountain_{name}_render_{key}"
             _run([BIN / "ibr-render", d, "--method", "dibr", "-o", o, *extra], log)
             outs[key] = o
@@ -353,7 +353,7 @@ def section_fountain(data: Path, keep: Path, reuse: bool, log: list[str]) -> tup
         for key, lab in (("plain", "none (holes black)"), ("pushpull", "pushpull")):
             m = r["metrics"][key]
             fl = f"{m['flip']:.4f}" if m.get("flip") is not None else "n/a"
-            L.append(f"| {r['name']} | {lab} | {m['psnr']:.2f} | {m['psnr_masked']:.2f} | {m['ssim']:.4f} | {fl} | "
+            L.append(f"| {r['name']} | {lab} | {m['psnr']:.2f} | {m['psnr_covered']:.2f} | {m['ssim']:.4f} | {fl} | "
                      f"{100 * m['coverage']:.2f} |")
     L += ["", "| held-out | mvs stage s (scene.json) | setup s | photometric s | geometric s | filter s | "
               "evaluations / s | ibr-preprocess wall / CPU s |", "|---|---|---|---|---|---|---|---|"]
@@ -370,7 +370,7 @@ def section_fountain(data: Path, keep: Path, reuse: bool, log: list[str]) -> tup
               "(the 768×512 `images_25` photos, the COLMAP model's intrinsics scaled to them; the other 10 photos are the "
               "inputs and all get MVS depth with the mvs stage's defaults), then `ibr-render DIR --method dibr -o OUT` and "
               "the same with `--inpaint pushpull`; every figure is report.json's for the held-out frame (sRGB PSNR/SSIM "
-              "over all pixels, psnr_masked over the covered pixels, FLIP over all pixels, coverage = 1 − holes). "
+              "over all pixels, psnr_covered over the covered pixels, FLIP over all pixels, coverage = 1 − holes). "
               "Times: scene.json `stages.mvs.seconds` (the stage) and `details.seconds` per pass; one run each "
               "(2 shared cores).", "",
           "Photo | DIBR (holes black) | DIBR + push-pull, each downscaled to 384 px wide (Lanczos; 256-colour PNG):", ""]
@@ -491,7 +491,7 @@ def section_lego(data: Path, keep: Path, reuse: bool, log: list[str]) -> tuple[s
     m = {}
     for key, d in (("gt", a_used), ("mvs", b)):
         o = keep / f"lego_render_{key}"
-        _run([BIN / "ibr-render", d, "--method", "dibr", "-o", o], log)
+        _run([BIN / "ibr-render", d, "--method", "dibr", "--inpaint", "none", "-o", o], log)
         m[key] = {n: _frame_metrics(o, n) for n in LEGO_HELDOUT}
     acc = lego_depth_accuracy(a, b)
     st = _mvs_stage(b)
@@ -503,7 +503,7 @@ def section_lego(data: Path, keep: Path, reuse: bool, log: list[str]) -> tuple[s
     for n in LEGO_HELDOUT:
         for key, lab in (("gt", "data set's"), ("mvs", "MVS")):
             r = m[key][n]
-            L.append(f"| {n} | {lab} | {r['psnr']:.2f} | {r['psnr_masked']:.2f} | {r['ssim']:.4f} | "
+            L.append(f"| {n} | {lab} | {r['psnr']:.2f} | {r['psnr_covered']:.2f} | {r['ssim']:.4f} | "
                      f"{100 * r['coverage']:.2f} |")
     L += ["", f"MVS depth against the data set's on the {acc['views']} input views: **{acc['within1']:.2f} %** of the "
               f"pixels with GT depth within 1 % (unknown = miss), {acc['off5_kept']:.2f} % of the kept pixels off by more "
@@ -518,7 +518,7 @@ def section_lego(data: Path, keep: Path, reuse: bool, log: list[str]) -> tuple[s
           "(docs/preprocess.md's held-out protocol; r_0 and r_50 are targets no stage reads); B = a copy of A whose views "
           "have no depth (`depth`, `depth_stored` removed from every view of scene.json, `meshes` and `stages` dropped), "
           "`ibr-preprocess B -o B --methods dibr` (the mvs stage, defaults); `ibr-render X --method dibr -o OUT` on A and "
-          "B; report.json's psnr (all pixels, background black in both), psnr_masked (covered pixels), ssim, coverage. "
+          "B; report.json's psnr (all pixels, background black in both), psnr_covered (covered pixels), ssim, coverage. "
           "GT depth = the nerf importer's z (ray distance converted, 8-bit codes de-quantised, steps ≈ 0.75 % at the "
           "object's distance, so 1 % is close to the GT's own resolution)."]
     L.append(f"Time estimate first: the mvs stage on {' and '.join(LEGO_PROBE)} alone (one source each) took "

@@ -119,8 +119,11 @@ def test_render_matches_ibr_render_job(scene, tmp_path):
     job.run(j, "dibr", tmp_path / "out", params={"inputs": 2}, float_out=True)
     written = read_image(tmp_path / "out" / "t000.exr")
     np.testing.assert_array_equal(r.color, written)
-    assert r.hole is not None
-    assert not r.color[r.hole].any()  # holes black, as the job writes them
+    assert r.hole is not None and r.hole.any()
+    assert r.color[r.hole].any()  # holes filled by default, as the job writes them
+    black = scene.render("t000", method="dibr", inputs=2, inpaint="none")
+    assert not black.color[black.hole].any()  # inpaint none: black holes
+    np.testing.assert_array_equal(black.color[~black.hole], r.color[~r.hole])
 
 
 def test_render_prepares_once(scene, monkeypatch):

@@ -108,7 +108,7 @@ def test_cli_holdout_report_lists_selection_and_stage_times(scene_dir, tmp_path)
     # (shading differs between views, 96x72 inputs resample coarsely); 22 dB catches a broken
     # warp (a wrong pose or axis gives < 15 dB) without flaking. The background has no depth,
     # so coverage is about the objects' share of the image.
-    assert f["metrics"]["psnr_masked"] > 22 and f["metrics"]["coverage"] > 0.3
+    assert f["metrics"]["psnr_covered"] > 22 and f["metrics"]["coverage"] > 0.3
 
 
 @needs_kernel

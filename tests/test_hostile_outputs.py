@@ -91,11 +91,11 @@ def test_scene_view_names_are_mapped_too(scene_dir, tmp_path):
 
 def test_frame_names_whose_files_collide_are_refused(scene_dir, tmp_path, capsys):
     poses = tmp_path / "p.json"
-    poses.write_text(json.dumps([_pose(scene_dir, "a"), _pose(scene_dir, "a.mask")]))
+    poses.write_text(json.dumps([_pose(scene_dir, "a"), _pose(scene_dir, "a.hole")]))
     out = tmp_path / "o"
     assert _render(scene_dir, out, "--poses", str(poses)) == 2
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "a.mask.png" in err
+    assert len(err.splitlines()) == 1 and "a.hole.png" in err
     assert not out.exists()
 
 
@@ -181,7 +181,7 @@ def test_rerun_says_what_it_replaced_and_removed(scene_dir, tmp_path):
     rep = json.loads((out / "report.json").read_text())
     assert "v001.png" in rep["output"]["replaced"]
     assert "v002.png" in rep["output"]["removed"] and not (out / "v002.png").exists()
-    named = {f[k] for f in rep["frames"] for k in ("image", "mask") if k in f}
+    named = {f[k] for f in rep["frames"] for k in ("image", "hole_mask") if k in f}
     assert {p.name for p in out.iterdir()} == named | {"report.json"}
 
 
@@ -210,7 +210,7 @@ def test_killed_render_is_swept_by_the_next(scene_dir, tmp_path):
     assert _render(scene_dir, out, "--holdout", "v001") == 0
     rep = json.loads((out / "report.json").read_text())
     assert "f0003.png" in rep["output"]["removed"]
-    assert {p.name for p in out.iterdir()} - {"v001.mask.png"} == {"v001.png", "report.json"}
+    assert {p.name for p in out.iterdir()} - {"v001.hole.png"} == {"v001.png", "report.json"}
 
 
 @pytest.mark.parametrize("umask", [0o022, 0o027])

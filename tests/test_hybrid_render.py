@@ -572,8 +572,8 @@ def test_render_job_hybrid_writes_the_selection_mask(exact_scene, tmp_path):
 
     rep = J.run(J.plan(exact_scene), "hybrid", tmp_path / "out", params={"sigma_blur": 0})
     f = rep["frames"][0]
-    assert f["mask"] == f"{f['name']}.mask.png" and set(f["selection"]) == {"tm", "ulr", "pvm", "none"}
-    mask = read_image(tmp_path / "out" / f["mask"])
+    assert f["method_mask"] == f"{f['name']}.method.png" and set(f["selection"]) == {"tm", "ulr", "pvm", "none"}
+    mask = read_image(tmp_path / "out" / f["method_mask"])
     assert mask.shape[2] == 3
     # sigma_blur 0: every pixel is pure red (PVM), green (TM), blue (ULR) or black (nothing).
     hard = np.round(mask, 3)

@@ -320,13 +320,13 @@ def test_cli_warp_inpaint_metameric(scene_dir, tmp_path):
     from ibrtools_cli import render
 
     base = [str(scene_dir), "--method", "warp", "--holdout", "v003", "-q", "--float"]
-    assert render.main([*base, "-o", str(tmp_path / "none")]) == 0
+    assert render.main([*base, "--inpaint", "none", "-o", str(tmp_path / "none")]) == 0
     assert render.main([*base, "--inpaint", "metameric", "-o", str(tmp_path / "m")]) == 0
     rep = json.loads((tmp_path / "m/report.json").read_text())
     f = rep["frames"][0]
     assert rep["inpaint"] == "metameric" and f["inpaint"] == "metameric"
     assert f["time_ms"]["inpaint"] >= 0 and f["metrics"]["psnr_holes"] is not None
-    mask = read_image(tmp_path / "m" / f["mask"])[..., 0] > 0.5
+    mask = read_image(tmp_path / "m" / f["hole_mask"])[..., 0] > 0.5
     assert mask.any()
     filled = read_image(tmp_path / "m" / f["image_float"])
     black = read_image(tmp_path / "none" / f["image_float"])

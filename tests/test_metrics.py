@@ -111,7 +111,7 @@ def test_ssim_identical_for_any_thread_count():
     assert np.array_equal(map_one, map_two)
 
 
-def test_ssim_masked_is_mean_of_skimage_map():
+def test_ssim_covered_is_mean_of_skimage_map():
     a, b = _pair((30, 40, 3), 5)
     mask = np.zeros((30, 40), bool)
     mask[5:20, 2:30] = True
@@ -206,7 +206,7 @@ def test_psnr_matches_skimage(shape):
     assert metrics.psnr(a, b) == pytest.approx(peak_signal_noise_ratio(a, b, data_range=1.0), abs=1e-5)
 
 
-def test_psnr_masked_and_edge_cases():
+def test_psnr_covered_and_edge_cases():
     a, b = _pair((16, 20, 3), 9)
     mask = np.zeros((16, 20), bool)
     mask[2:9, 4:17] = True
@@ -265,8 +265,8 @@ def test_compare_on_srgb_values():
     assert abs(m["ssim"] - _sk_ssim(sa, sb)) < SSIM_TOL
     assert m["coverage"] == pytest.approx(0.75)
     region = mask & ~holes
-    assert m["psnr_masked"] == pytest.approx(metrics.psnr(sa, sb, mask=region), abs=1e-12)
-    assert m["ssim_masked"] == pytest.approx(metrics.ssim(sa, sb, mask=region), abs=1e-12)
+    assert m["psnr_covered"] == pytest.approx(metrics.psnr(sa, sb, mask=region), abs=1e-12)
+    assert m["ssim_covered"] == pytest.approx(metrics.ssim(sa, sb, mask=region), abs=1e-12)
     assert ("flip" in m) == metrics.flip_available()
     assert all(v is None or not math.isnan(v) for v in m.values())
 
@@ -276,9 +276,9 @@ def test_compare_identical_and_empty_region():
     m = metrics.compare(a, a.copy(), hole_mask=np.ones((16, 16), bool))
     assert m["psnr"] == math.inf and m["ssim"] == pytest.approx(1.0)
     assert m["coverage"] == 0.0
-    assert m["psnr_masked"] is None and m["ssim_masked"] is None
+    assert m["psnr_covered"] is None and m["ssim_covered"] is None
     m = metrics.compare(a, a.copy())
-    assert m["coverage"] == 1.0 and m["psnr_masked"] == math.inf
+    assert m["coverage"] == 1.0 and m["psnr_covered"] == math.inf
 
 
 def test_compare_bad_input():

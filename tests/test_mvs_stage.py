@@ -58,7 +58,7 @@ def test_photographs_go_to_new_views(photos, capsys, tmp_path):
     assert render.main([str(s), "--method", "dibr", "--holdout", "v002", "-o", str(out), "-q"]) == 0
     rep = json.loads((out / "report.json").read_text())
     assert rep["frames"][0]["metrics"]["coverage"] > 0.08
-    assert rep["frames"][0]["metrics"]["psnr_masked"] > 18
+    assert rep["frames"][0]["metrics"]["psnr_covered"] > 18
     # Unchanged inputs: up to date; a changed parameter: ran again.
     assert preprocess.main([str(s), "-o", str(s), "--methods", "dibr", "--json", "--set", "mvs.iterations=4"]) == 0
     assert {r["stage"]: r for r in json.loads(capsys.readouterr().out)}["mvs"]["status"] == "up to date"

@@ -407,16 +407,16 @@ def test_cli_render_dibr_inpaint_pushpull(scene_dir, tmp_path, capsys):
     from ibrtools_cli import render
 
     base = ["--method", "dibr", "--holdout", "v002", "--inputs", "2", "-q"]
-    assert render.main([str(scene_dir), *base, "-o", str(tmp_path / "none")]) == 0
+    assert render.main([str(scene_dir), *base, "--inpaint", "none", "-o", str(tmp_path / "none")]) == 0
     assert render.main([str(scene_dir), *base, "--inpaint", "pushpull", "-o", str(tmp_path / "pp")]) == 0
     rep0 = json.loads((tmp_path / "none" / "report.json").read_text())
     rep = json.loads((tmp_path / "pp" / "report.json").read_text())
     assert rep["inpaint"] == "pushpull" and rep0["inpaint"] == "none"
     f, f0 = rep["frames"][0], rep0["frames"][0]
-    assert f["metrics"]["coverage"] < 1  # the synthetic background has no depth: dibr leaves holes
+    assert f["metrics"]["coverage"] < 1  # disocclusions: dibr leaves holes
     assert f["inpaint"] == "pushpull" and f["time_ms"]["inpaint"] >= 0 and "inpaint" not in f0["time_ms"]
-    assert f["mask"] == f0["mask"]  # the hole mask is still written
-    mask = read_image(tmp_path / "pp" / f["mask"])[..., 0] > 0.5
+    assert f["hole_mask"] == f0["hole_mask"]  # the hole mask is still written
+    mask = read_image(tmp_path / "pp" / f["hole_mask"])[..., 0] > 0.5
     filled = read_image(tmp_path / "pp" / f["image"])
     black = read_image(tmp_path / "none" / f0["image"])
     # Outside the holes the frames are the same; inside, no-fill is black and push-pull is not.
@@ -424,7 +424,7 @@ def test_cli_render_dibr_inpaint_pushpull(scene_dir, tmp_path, capsys):
     assert black[mask].max() == 0 and filled[mask].mean() > 0.02
     assert f["metrics"]["psnr_holes"] is not None
     # Scores over the covered pixels do not change (the fill only writes into holes).
-    assert f["metrics"]["psnr_masked"] == f0["metrics"]["psnr_masked"]
+    assert f["metrics"]["psnr_covered"] == f0["metrics"]["psnr_covered"]
 
 
 def test_job_skips_inpaint_without_holes(scene_dir, tmp_path, monkeypatch):

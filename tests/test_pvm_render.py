@@ -575,7 +575,7 @@ def test_method_pvm_cli(tmp_path, capsys):
     assert render.main([str(d), "--method", "pvm", "-o", str(out), "-q"]) == 0
     rep = json.loads((out / "report.json").read_text())
     frames = rep["frames"]
-    assert frames and all(f["metrics"]["psnr_masked"] > 15 for f in frames)
+    assert frames and all(f["metrics"]["psnr_covered"] > 15 for f in frames)
     assert {"voxel lookup", "per-view depth pass", "spatial filter", "gbuffer"} <= set(frames[0]["time_ms"])
     # The method's frame is PvmRenderer's at the hybrid's G-buffer depth (what the benchmarks' PVM
     # rows and the hybrid's PVM part read), bit for bit; unfiltered likewise.

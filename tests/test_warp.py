@@ -295,7 +295,7 @@ def scene_dir(tmp_path_factory):
 
 def test_cli_holdout_inpaint_pushpull(scene_dir, tmp_path):
     base = [str(scene_dir), "--method", "warp", "--holdout", "v003", "-q", "--depth"]
-    assert render.main([*base, "-o", str(tmp_path / "none")]) == 0
+    assert render.main([*base, "--inpaint", "none", "-o", str(tmp_path / "none")]) == 0
     assert render.main([*base, "--inpaint", "pushpull", "-o", str(tmp_path / "pp")]) == 0
     rep = json.loads((tmp_path / "pp/report.json").read_text())
     assert rep["method"] == "warp"
@@ -304,7 +304,7 @@ def test_cli_holdout_inpaint_pushpull(scene_dir, tmp_path):
     assert {"select", "warp", "inpaint"} <= set(f["time_ms"])
     # Depth-aware push-pull (the kernel falls back to classic where no background data exists).
     assert f["inpaint"] == "pushpull" and f["metrics"]["psnr"] > 10
-    assert (tmp_path / "pp/v003.mask.png").is_file() and (tmp_path / "pp/v003.depth.exr").is_file()
+    assert (tmp_path / "pp/v003.hole.png").is_file() and (tmp_path / "pp/v003.depth.exr").is_file()
     assert render.main([*base, "--inputs", "v002", "-o", str(tmp_path / "named")]) == 0
     assert json.loads((tmp_path / "named/report.json").read_text())["frames"][0]["selected"] == ["v002"]
 

@@ -13,6 +13,7 @@ PROG = "ibr-render"
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from ibrtools.render.complete import DEFAULT_INPAINT, INPAINT
     from ibrtools.render.methods import BUILT, METHODS
 
     methods = "\n".join(f"  {k:<10} {v}{'' if k in BUILT or k == 'auto' else '  [not built yet]'}"
@@ -29,7 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
                "  ibr-render scenes/objects --target t000 t001 --depth --float -o out/targets\n"
                "  ibr-render scenes/objects --path orbit -o out/orbit -j 2\n"
                "  ibr-render scenes/rgbd --method dibr --inputs 4 --holdout 4 -o out/dibr\n"
-               "  ibr-render scenes/rgbd --method dibr --holdout 4 --inpaint pushpull -o out/filled\n"
+               "  ibr-render scenes/rgbd --method dibr --holdout 4 --inpaint none -o out/holes\n"
                "  ibr-render scenes/crowd --method depthwarp --path walk --layers 4 --seeds 16 --umbra -o out/dw\n"
                "  ibr-render scenes/objects --lightfield 9x8 --baseline 0.02 --mp4 out/lf/lf.mp4 -o out/lf\n"
                "  ibr-render scenes/objects --method hybrid --holdout v003 v009 --report-html -o out/hybrid\n"
@@ -76,11 +77,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="warping-based occlusion culling of the objects, scored against the reference")
     w.add_argument("--forward", choices=["vfw", "afw"],
                    help="run a forward-warping baseline (VFW quad splats, AFW point splats) instead")
-    p.add_argument("--inpaint", default="none", choices=["none", "pushpull", "metameric"],
-                   help="fill the holes a method leaves (dibr): none (default, holes black), pushpull "
-                        "(depth-aware push-pull when the method gives depth), metameric (noise with the "
-                        "steerable-band statistics of the surroundings; docs/inpaint.md). "
-                        "<frame>.mask.png still marks the filled holes")
+    p.add_argument("--inpaint", default=DEFAULT_INPAINT, choices=list(INPAINT),
+                   help="fill the pixels no input covers (the background at infinity is rendered, never "
+                        "filled; docs/render.md \"Complete images\"): auto (default: the measured best, "
+                        "depth-aware push-pull from the background side), pushpull, metameric (noise with the "
+                        "steerable-band statistics of the surroundings; docs/inpaint.md), none (holes black). "
+                        "<frame>.hole.png marks the holes either way")
     p.add_argument("--foveate", metavar="X,Y",
                    help="foveated ventral metamers (Walton et al. 2021; docs/foveate.md): keep the image "
                         "around the fixation point X,Y (fractions of width and height, e.g. 0.5,0.5 = "
@@ -270,11 +272,11 @@ def _print_summary(args: argparse.Namespace, report: dict) -> None:
         for f in report["frames"]:
             m = f["metrics"]
             rows.append([f["name"], f"{f['time_ms']['total']:.1f}", _fmt(m.get("psnr")),
-                         _fmt(m.get("psnr_masked")), _fmt(m.get("ssim"), 4), _fmt(m.get("coverage"), 3)])
+                         _fmt(m.get("psnr_covered")), _fmt(m.get("ssim"), 4), _fmt(m.get("coverage"), 3)])
         print_table(["frame", "ms", "PSNR dB", "PSNR dB, covered", "SSIM", "coverage"], rows,
                     title=f"{PROG} --method {report['method']} ({report['threads']} threads) -> {args.output}",
                     quiet=args.quiet and not args.report,
-                    totals=[label, f"median {med}", _fmt(s.get("mean_psnr")), _fmt(s.get("mean_psnr_masked")),
+                    totals=[label, f"median {med}", _fmt(s.get("mean_psnr")), _fmt(s.get("mean_psnr_covered")),
                             _fmt(s.get("mean_ssim"), 4), _fmt(s.get("mean_coverage"), 3)])
 
 

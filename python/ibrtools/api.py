@@ -24,8 +24,8 @@ True
 >>> again = scene.render(scene.paths["orbit"][0], method="dibr", inputs=2)   # a Camera
 >>> again.prepared                                           # ... this one reused it
 False
->>> sorted(again.times_ms)                                   # the method's stages, in ms
-['blend', 'select', 'total', 'warp']
+>>> sorted(again.times_ms)                  # the method's stages and the completion's, in ms
+['background', 'blend', 'inpaint', 'select', 'total', 'warp']
 
 A camera may also be a dict in the scene.json camera format, and ``look_at`` poses one:
 
@@ -106,9 +106,10 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
 class RenderResult:
     """One rendered camera.
 
-    ``color`` (H, W, 3) float32 linear RGB, C-contiguous, black in holes (as the written images
-    of ``ibr-render``); ``depth`` (H, W) float32 (0 = unknown) and ``hole`` (H, W) bool (true =
-    no input covers the pixel) when the method gives them; ``selection`` (H, W, 3) float32 for
+    ``color`` (H, W, 3) float32 linear RGB, C-contiguous, complete as the written images of
+    ``ibr-render`` (the holes filled, or black with ``inpaint="none"``); ``depth`` (H, W) float32
+    (0 = unknown, +inf = the background at infinity) and ``hole`` (H, W) bool (true = no input
+    covers the pixel: the filled or black pixels) when the method gives them; ``selection`` (H, W, 3) float32 for
     the hybrid method (red PVM, green TM, blue ULR per pixel); ``outputs`` every other array the
     method returned (dibr: "confidence"). ``times_ms`` the method's stage times plus "total"
     (wall time of this render); ``setup_ms`` the method's one-off preparation times;
@@ -164,10 +165,14 @@ def resolve_camera(scene: Scene, camera: CameraLike) -> Camera:
                      f"dict, got {type(camera).__name__}")
 
 
-def render(scene: Scene, camera: CameraLike, method: str = "auto", **params: Any) -> RenderResult:
+def render(scene: Scene, camera: CameraLike, method: str = "auto", *, inpaint: str | None = None,
+           **params: Any) -> RenderResult:
     """Render ``camera`` of ``scene`` with ``method`` (:data:`ibrtools.render.methods.METHODS`;
     "auto" picks one from the scene's data) and the method's parameters (as ``ibr-render
-    --param key=value``, e.g. ``inputs=2`` for dibr). Same as ``scene.render(...)``.
+    --param key=value``, e.g. ``inputs=2`` for dibr). Same as ``scene.render(...)``. The image is
+    complete as ``ibr-render`` writes it (render/complete.py): the background at infinity where
+    an input sees it, the holes filled by ``inpaint`` (``ibr-render --inpaint``; None = its
+    default, "none" = black).
 
     The method is prepared on the first call for a (method, parameters) pair and kept with the
     scene (it goes with the scene; a pickled or copied scene starts afresh) while the scene's views and meshes are the same
@@ -180,7 +185,7 @@ def render(scene: Scene, camera: CameraLike, method: str = "auto", **params: Any
     ibrtools.errors.BadValueError: method: unknown method 'nerf' (expected one of auto, reference, dibr, warp, depthwarp, tm, ulr, pvm, hybrid)
     """
     from .render import methods
-    from .render.job import clean_color
+    from .render.complete import DEFAULT_INPAINT, background_of, check_inpaint, complete
 
     if not isinstance(scene, Scene):
         raise DtypeError(f"scene: expected an ibrtools.Scene, got {type(scene).__name__}")
@@ -188,6 +193,7 @@ def render(scene: Scene, camera: CameraLike, method: str = "auto", **params: Any
         raise DtypeError(f"method: expected a method name (str), got {type(method).__name__}")
     if method not in methods.METHODS:
         raise BadValueError(f"method: unknown method {method!r} (expected one of {', '.join(methods.METHODS)})")
+    inpaint = check_inpaint(DEFAULT_INPAINT if inpaint is None else inpaint)
     cam = resolve_camera(scene, camera)
     name = methods.resolve(method, scene)
     cache = _cache_of(scene)
@@ -195,12 +201,10 @@ def render(scene: Scene, camera: CameraLike, method: str = "auto", **params: Any
         prepared, setup_ms, fresh = cache.method(scene, name, params)
         t0 = time.perf_counter()
         out, stage_ms = prepared.render(cam)
+        done = complete(out, cam, background_of(scene), inpaint)  # as ibr-render writes its frames
         total_ms = (time.perf_counter() - t0) * 1e3
-    color = clean_color(out)  # as ibr-render writes its frames: no NaN/inf, holes black
-    hole = out.get("hole")
-    if hole is not None:
-        hole = np.asarray(hole, bool)
-    depth = out.get("depth")
+    color, hole, depth = done.color, done.hole, done.depth
+    stage_ms = {**stage_ms, **done.stage_ms}
     selection = out.get("selection")
     rest = {k: v for k, v in out.items() if k not in ("color", "depth", "hole", "selection")}
     return RenderResult(

@@ -292,7 +292,7 @@ def render_task(spec: dict, indices: list[int], names: list[str], scene_frames: 
 
 def _render_task(spec: dict, indices: list[int], names: list[str], scene_frames: list[str | None]) -> dict:
     from . import _core
-    from .render.job import render_frame
+    from .render.job import frame_scene, render_frame
 
     out = []
     fresh_any = False
@@ -307,7 +307,8 @@ def _render_task(spec: dict, indices: list[int], names: list[str], scene_frames:
         except Exception as e:  # noqa: BLE001 - sent back and raised on the client (one error, no retries)
             return {"error": e}
         fresh_any |= fresh
-        entry, failure, outputs = render_frame(method, job.frames[i], **spec["frame"])
+        frame = job.frames[i]
+        entry, failure, outputs = render_frame(method, frame, frame_scene(job, frame), **spec["frame"])
         out.append((i, entry, failure, encode_outputs(outputs) if outputs else {}))
     return {"frames": out, "setup_ms": setup, "prepared": fresh_any, "threads": int(_core.get_num_threads())}
 

@@ -201,7 +201,7 @@ def compare(rendered: np.ndarray, reference: np.ndarray, mask: np.ndarray | None
         {"psnr", "ssim"}               over the whole image (holes count as black, as written);
         "coverage"                     1 - fraction of holes (1.0 without a hole mask: the
                                        renderer reported no hole);
-        {"psnr_masked", "ssim_masked"} over mask AND NOT hole (the whole image when both are
+        {"psnr_covered", "ssim_covered"} over mask AND NOT hole (the whole image when both are
                                        absent); None when that region is empty;
         "flip"                         mean LDR-FLIP, only when flip-evaluator is installed.
     """
@@ -224,8 +224,8 @@ def compare(rendered: np.ndarray, reference: np.ndarray, mask: np.ndarray | None
         "psnr": psnr(a, b, 1.0),
         "ssim": s_mean,
         "coverage": 1.0 if hole_mask is None else coverage(hole_mask=hole_mask),
-        "psnr_masked": psnr(a, b, 1.0, mask=region),
-        "ssim_masked": float(s_map[c:-c, c:-c][inner].mean(dtype=np.float64)) if inner.any() else None,
+        "psnr_covered": psnr(a, b, 1.0, mask=region),
+        "ssim_covered": float(s_map[c:-c, c:-c][inner].mean(dtype=np.float64)) if inner.any() else None,
     }
     if flip_available():
         out["flip"] = flip(rendered, reference)

@@ -311,7 +311,7 @@ def write_page(path: str | os.PathLike, text: str) -> Path:
 
 
 # --- the two pages ------------------------------------------------------------------------------
-_SHOWN_METRICS = ("psnr", "psnr_masked", "ssim", "flip", "coverage", "psnr_holes", "depth_psnr", "depth_ssim",
+_SHOWN_METRICS = ("psnr", "psnr_covered", "ssim", "flip", "coverage", "psnr_holes", "depth_psnr", "depth_ssim",
                   "hole_fraction")
 
 
@@ -368,15 +368,10 @@ def render_report(report: dict, out_dir: str | os.PathLike, path: str | os.PathL
         truth = truths.get(f.get("name"))
         truth = truth() if callable(truth) else truth
         selection = hole = None
-        if f.get("hole_mask"):  # hybrid: <frame>.mask.png is the selection, holes apart
-            selection = read_image(out_dir / f["mask"])[..., :3] if (out_dir / f["mask"]).is_file() else None
+        if f.get("method_mask") and (out_dir / f["method_mask"]).is_file():  # hybrid: the method choice
+            selection = read_image(out_dir / f["method_mask"])[..., :3]
+        if f.get("hole_mask"):
             hole = _read_mask(out_dir / f["hole_mask"])
-        elif f.get("mask"):
-            m = read_image(out_dir / f["mask"]) if (out_dir / f["mask"]).is_file() else None
-            if m is not None and m.ndim == 3 and m.shape[2] >= 3 and not np.allclose(m[..., 0], m[..., 1]):
-                selection = m[..., :3]
-            elif m is not None:
-                hole = (m if m.ndim == 2 else m[..., 0]) > 0.5
         body.append(panel_html(frame_panel(f.get("name"), rendered, truth, selection=selection, hole=hole,
                                            stage_ms=stage, numbers=numbers, max_width=max_width)))
     t = title or f"ibr-render --method {report.get('method')}: {len(frames)} frame{'' if len(frames) == 1 else 's'}"

@@ -182,6 +182,12 @@ def _stage(scene: Scene, stage: str, method: str):
                                f"ibr-preprocess {scene.root} -o {scene.root} --methods {method}") from None
 
 
+def _miss_at_infinity(gb: dict) -> np.ndarray:
+    """The G-buffer's depth with +inf where the ray missed the global mesh: it sees the background
+    at infinity (render/background.py gives it the background's colour where the scene has one)."""
+    return np.where(gb["hit"], gb["depth"], np.float32(np.inf)).astype(np.float32)
+
+
 class _GlobalMesh:
     """The global mesh's ray caster, per-vertex attributes and G-buffer."""
 
@@ -325,7 +331,7 @@ class TmMethod:
         t1 = time.perf_counter()
         color = self._gm.tm_color(gb)
         t2 = time.perf_counter()
-        return ({"color": color, "depth": gb["depth"], "hole": ~gb["hit"]},
+        return ({"color": color, "depth": _miss_at_infinity(gb), "hole": ~gb["hit"]},
                 {"gbuffer": (t1 - t0) * 1e3, "tm_shade": (t2 - t1) * 1e3})
 
 
@@ -377,7 +383,7 @@ class UlrMethod:
         hit = gb["hit"]
         self._last = {"images": self._source,
                       "ulr_fraction": round(float(seen.sum() / max(1, hit.sum())), 4)}
-        return {"color": color, "depth": gb["depth"], "hole": hole}, times
+        return {"color": color, "depth": _miss_at_infinity(gb), "hole": hole}, times
 
     def frame_report(self) -> dict:
         return dict(self._last)
@@ -549,6 +555,7 @@ class HybridMethod:
         # hole (label none), depth (PVM's where chosen), the selection image (weights @
         # SELECTION_COLORS, 0 at holes) and the label counts in one pass (numpy: ~15 ms at 1280x720)
         fo = _core.hybrid_frame_outputs(label, weights, gb["depth"], pvm_depth)
+        fo["depth"] = np.where(gb["hit"] | ~fo["hole"], fo["depth"], np.float32(np.inf))  # rays that miss the mesh
         times["composite"] = (time.perf_counter() - t6) * 1e3
         n = label.size
         self._last = {"selection": {name: round(fo["label_counts"][i] / n, 4)
@@ -597,7 +604,8 @@ def fit_pvm_floor(scene: Scene, views: int = MIX_DEFAULTS["views"], tol_db: floa
     hold one out or is a video scene (not built yet for those: the floor is then 0)."""
     from ..imageio import linear_to_srgb
     from ..metrics import psnr
-    from .job import clean_color, plan
+    from .complete import clean_color
+    from .job import plan
 
     check_mix_options({"views": views, "tol_db": tol_db})
     if scene.frames:

@@ -1,10 +1,11 @@
 """A render job: which cameras to render (targets, held-out views, a path, a pose file),
 rendering them with a method, writing the images and ``report.json`` (DESIGN.md "Contracts").
 
-Outputs in the output directory: ``<frame>.png`` (8-bit sRGB; holes black), ``<frame>.exr``
-with ``float_out``, ``<frame>.depth.exr`` with ``depth_out``, ``<frame>.mask.png`` (white =
-hole) when the frame has holes (for the hybrid method: its per-pixel selection, red PVM, blue
-ULR, green TM, with the holes in ``<frame>.hole.png``), and ``report.json``. Every file is written atomically and
+Outputs in the output directory: ``<frame>.png`` (8-bit sRGB, complete: render/complete.py),
+``<frame>.exr`` with ``float_out``, ``<frame>.depth.exr`` with ``depth_out`` (+inf on the
+background at infinity), ``<frame>.hole.png`` (white = a pixel no input covers: filled, or black
+with inpaint "none") when the frame has holes, ``<frame>.method.png`` for the hybrid methods (the
+per-pixel method choice: red PVM, green TM, blue ULR), and ``report.json``. Every file is written atomically and
 ``report.json`` last, so a reader that finds it finds every image it names.
 """
 from __future__ import annotations
@@ -30,6 +31,7 @@ from ..memory import available_memory
 from ..outputs import OutputDir, check_output_dir, file_stem, is_plain_name, temp_prefix
 from ..scene import Scene, View
 from . import methods
+from .complete import DEFAULT_INPAINT, background_of, check_inpaint, complete
 
 
 @dataclass
@@ -49,8 +51,8 @@ class Frame:
 
 # The files a frame may write: <stem><suffix> (render_frame), and the keys of its report entry
 # that name them.
-FRAME_SUFFIXES = (".png", ".exr", ".depth.exr", ".mask.png", ".hole.png")
-FRAME_FILE_KEYS = ("image", "image_float", "depth", "mask", "hole_mask")
+FRAME_SUFFIXES = (".png", ".exr", ".depth.exr", ".method.png", ".hole.png")
+FRAME_FILE_KEYS = ("image", "image_float", "depth", "method_mask", "hole_mask")
 
 
 def report_files(report: Path) -> set[str]:
@@ -275,14 +277,19 @@ def check_memory(job: Job, method: str) -> dict:
     return est
 
 
-def _frame_metrics(out: dict, truth: View | None) -> dict:
+def _frame_metrics(color: np.ndarray, hole: np.ndarray | None, filled: bool, truth: View | None) -> dict:
+    """The frame's scores: "psnr", "ssim", "flip" of the image as written, "psnr_covered" /
+    "ssim_covered" over the pixels the method or the background covered, "coverage" (that
+    fraction) and "filled" (the fraction the inpainting filled)."""
     from ..metrics import compare
 
-    if truth is None or not truth.has_color:
-        hole = out.get("hole")
-        return {"coverage": float(1.0 - hole.mean())} if hole is not None else {}
-    m = compare(out["color"], truth.color, hole_mask=out.get("hole"),
-                mask=truth.mask if truth.has_mask else None)
+    m: dict = {}
+    if truth is not None and truth.has_color:
+        m = compare(color, truth.color, hole_mask=hole, mask=truth.mask if truth.has_mask else None)
+    elif hole is not None:
+        m = {"coverage": float(1.0 - hole.mean())}
+    if hole is not None:
+        m["filled"] = float(hole.mean()) if filled else 0.0
     # JSON has no inf: an exact match (PSNR = inf) is written as null, like an empty mask.
     return {k: (float(v) if v is not None and np.isfinite(v) else None) for k, v in m.items()}
 
@@ -293,17 +300,17 @@ SEQUENTIAL = frozenset({"depthwarp"})
 
 
 def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict | None = None,
-        float_out: bool = False, depth_out: bool = False, threads: int = 0, inpaint: str = "none",
+        float_out: bool = False, depth_out: bool = False, threads: int = 0, inpaint: str = DEFAULT_INPAINT,
         foveate: tuple[float, float] | None = None, pooling: float | None = None,
         progress: Callable[[int, int, str], None] | None = None,
         scheduler: str | None = None, workers: int = 0) -> dict:
     """Render every frame of ``job``; write images and report.json; return the report.
 
-    ``inpaint`` ("none", "pushpull" or "metameric", :mod:`ibrtools.inpaint`) post-processes frames
-    whose method returns a "hole" mask: the holes are filled (depth-aware when the method returns
-    depth; metameric with seed 0, the same noise for every frame as Walton et al. 2021), the
-    time is reported as stage "inpaint", the mask is still written and "psnr_holes" scores the
-    filled pixels when ground truth exists. Frames without a hole are not touched (the report
+    Every frame is completed (render/complete.py): the background at infinity where an input
+    sees it, then the holes filled by ``inpaint`` ("auto", the default, "pushpull", "metameric"
+    with seed 0, the same noise for every frame as Walton et al. 2021, or "none": black), timed
+    as stages "background" and "inpaint"; the hole mask is still written and "psnr_holes" scores
+    the filled pixels when ground truth exists. Frames without a hole are not touched (the report
     says "inpaint": "skipped: no hole").
 
     ``foveate`` ((x, y) fixation in [0, 1]^2, or None) post-processes every frame, after the
@@ -320,16 +327,9 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
     the commands) removes every file the run wrote: all or nothing."""
     from .. import _core
     from .. import distributed as D
-    from ..inpaint import METHODS as INPAINT_METHODS
-    from ..inpaint import NOT_BUILT as INPAINT_NOT_BUILT
 
     D.check_options(scheduler, workers)
-    if inpaint in INPAINT_NOT_BUILT:
-        from ..errors import NotBuiltError
-
-        raise NotBuiltError(f"--inpaint {inpaint}: {INPAINT_NOT_BUILT[inpaint]} is not built yet")
-    if inpaint not in INPAINT_METHODS:
-        raise BadValueError(f"--inpaint: expected one of {', '.join(INPAINT_METHODS)}, got {inpaint!r}")
+    check_inpaint(inpaint)
 
     fov_kw: dict = {}
     if foveate is not None:
@@ -390,7 +390,8 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
                             method = methods.create(name, params)
                             method.prepare(job.scenes[frame.scene_frame])
                             prepared_for = frame.scene_frame
-                        entries[i], failures[i], outputs = render_frame(method, frame, **frame_kw)
+                        entries[i], failures[i], outputs = render_frame(method, frame, frame_scene(job, frame),
+                                                                        **frame_kw)
                         for f in in_flight:
                             f.result()
                         in_flight = []
@@ -477,26 +478,21 @@ def write_output(out_dir: Path, rel: str, kind: str, array: np.ndarray) -> Path:
     return path
 
 
-def clean_color(out: dict) -> np.ndarray:
-    """A method's colour as written (here and by ``Scene.render``): float32, C-contiguous, NaN/inf
-    as 0, holes (``out["hole"]``) black."""
-    color = np.nan_to_num(np.asarray(out["color"], np.float32), nan=0.0, posinf=0.0, neginf=0.0)
-    hole = out.get("hole")
-    if hole is not None:
-        color = np.where(np.asarray(hole, bool)[..., None], np.float32(0.0), color)
-    return np.ascontiguousarray(color, np.float32)
+def frame_scene(job: "Job", frame: Frame) -> Scene:
+    """The scene a frame is rendered from (a video's frame: its scene frame's)."""
+    return job.scene if frame.scene_frame is None or job.scenes is None else job.scenes[frame.scene_frame]
 
 
-def render_frame(method, frame: Frame, *, inpaint: str, fov_kw: dict, float_out: bool, depth_out: bool
-                 ) -> tuple[dict | None, dict | None, list[tuple[str, str, np.ndarray]]]:
-    """Render one frame with a prepared ``method`` and post-process it: NaN guard, holes black,
-    inpainting, foveation, metrics. Returns (report entry, None, outputs) with outputs the files
+def render_frame(method, frame: Frame, scene: Scene, *, inpaint: str, fov_kw: dict, float_out: bool,
+                 depth_out: bool) -> tuple[dict | None, dict | None, list[tuple[str, str, np.ndarray]]]:
+    """Render one frame with a ``method`` prepared on ``scene`` and post-process it: NaN guard,
+    the background at infinity and the holes (render/complete.py), foveation, metrics. Returns (report entry, None, outputs) with outputs the files
     to write [(file name, "image" | "depth", array)], or (None, {"name", "error"}, []) when the
     rendering or its post-processing raised (the frame failed; the job goes on), except for bad
     scene data found while rendering (an input image that decodes to NaN): raised, the job stops. Writes nothing:
     the caller does (the local loop, or the client of a distributed run)."""
     try:
-        return _render_frame(method, frame, inpaint=inpaint, fov_kw=fov_kw, float_out=float_out,
+        return _render_frame(method, frame, scene, inpaint=inpaint, fov_kw=fov_kw, float_out=float_out,
                              depth_out=depth_out)
     except Exception as e:  # noqa: BLE001 - reported by name in report.json "failed"
         if isinstance(e, InputError) and getattr(e, "scene_data", False):
@@ -504,24 +500,13 @@ def render_frame(method, frame: Frame, *, inpaint: str, fov_kw: dict, float_out:
         return None, {"name": frame.name, "error": f"{type(e).__name__}: {e}"}, []
 
 
-def _render_frame(method, frame: Frame, *, inpaint, fov_kw, float_out, depth_out):
-    from ..inpaint import inpaint as fill_holes
-
+def _render_frame(method, frame: Frame, scene: Scene, *, inpaint, fov_kw, float_out, depth_out):
     outputs: list[tuple[str, str, np.ndarray]] = []
     t0 = time.perf_counter()
     out, stage_ms = method.render(frame.camera)
-    color = clean_color(out)
-    hole = out.get("hole")
-    inpaint_note = None
-    if inpaint != "none":
-        if hole is None or not hole.any():
-            inpaint_note = "skipped: no hole"  # DESIGN.md: inpainting does nothing where there is no hole
-        else:
-            t1 = time.perf_counter()
-            color = fill_holes(np.ascontiguousarray(color, np.float32), hole, inpaint,
-                               depth=_inpaint_depth(out.get("depth"), hole))
-            stage_ms = {**stage_ms, "inpaint": (time.perf_counter() - t1) * 1e3}
-            inpaint_note = inpaint
+    done = complete(out, frame.camera, background_of(scene), inpaint)
+    color, hole = done.color, done.hole
+    stage_ms = {**stage_ms, **done.stage_ms}
     if fov_kw:
         from ..foveate import foveate as foveate_image
 
@@ -534,10 +519,10 @@ def _render_frame(method, frame: Frame, *, inpaint, fov_kw, float_out, depth_out
     outputs.append((image, "image", color))
     entry: dict = {"name": frame.name, "image": image,
                    "time_ms": {"total": round(total_ms, 3), **{k: round(v, 3) for k, v in stage_ms.items()}},
-                   "metrics": _frame_metrics({**out, "color": color}, frame.truth), **frame.info}
-    if inpaint_note is not None:
-        entry["inpaint"] = inpaint_note
-        if inpaint_note == inpaint and frame.truth is not None and frame.truth.has_color:
+                   "metrics": _frame_metrics(color, hole, done.filled, frame.truth), **frame.info}
+    if done.note is not None:
+        entry["inpaint"] = done.note
+        if done.filled and frame.truth is not None and frame.truth.has_color:
             entry["metrics"]["psnr_holes"] = _psnr_in(color, frame.truth.color, hole)
     # Method-specific facts about the frame (dibr: the selected input views, best first,
     # their similarity, and how many candidates were skipped for not overlapping).
@@ -549,32 +534,19 @@ def _render_frame(method, frame: Frame, *, inpaint, fov_kw, float_out, depth_out
     if float_out:
         outputs.append((f"{frame.stem}.exr", "image", color))
         entry["image_float"] = f"{frame.stem}.exr"
-    if depth_out and "depth" in out:
-        outputs.append((f"{frame.stem}.depth.exr", "depth", out["depth"]))
+    if depth_out and done.depth is not None:
+        outputs.append((f"{frame.stem}.depth.exr", "depth", done.depth))
         entry["depth"] = f"{frame.stem}.depth.exr"
     selection = out.get("selection")
     if selection is not None:
-        # Hybrid methods: the per-pixel method selection (RGB) is the frame's mask image
-        # (render/hybrid.py); its holes, if any, go to <frame>.hole.png.
-        outputs.append((f"{frame.stem}.mask.png", "image", np.asarray(selection, np.float32)))
-        entry["mask"] = f"{frame.stem}.mask.png"
-        if hole is not None and hole.any():
-            outputs.append((f"{frame.stem}.hole.png", "image", hole.astype(np.float32)))
-            entry["hole_mask"] = f"{frame.stem}.hole.png"
-    elif hole is not None and hole.any():
-        outputs.append((f"{frame.stem}.mask.png", "image", hole.astype(np.float32)))
-        entry["mask"] = f"{frame.stem}.mask.png"
+        # Hybrid methods: the per-pixel method choice (RGB: red PVM, green TM, blue ULR; render/hybrid.py).
+        outputs.append((f"{frame.stem}.method.png", "image", np.asarray(selection, np.float32)))
+        entry["method_mask"] = f"{frame.stem}.method.png"
+    if hole is not None and hole.any():
+        # The holes (white): black in the image with --inpaint none, the filled pixels otherwise.
+        outputs.append((f"{frame.stem}.hole.png", "image", hole.astype(np.float32)))
+        entry["hole_mask"] = f"{frame.stem}.hole.png"
     return entry, None, outputs
-
-
-def _inpaint_depth(depth: np.ndarray | None, hole: np.ndarray) -> np.ndarray | None:
-    """The frame's depth for depth-aware push-pull (float32, C-contiguous), or None (classic) when
-    the method gives none or no pixel outside the holes has a known depth."""
-    if depth is None or depth.shape != hole.shape:
-        return None
-    depth = np.ascontiguousarray(depth, np.float32)
-    known = np.isfinite(depth) & (depth > 0) & ~hole
-    return depth if known.any() else None
 
 
 def _psnr_in(color: np.ndarray, truth: np.ndarray, region: np.ndarray) -> float | None:

@@ -80,7 +80,10 @@ class ReferenceMethod:
         out = self._renderer.render(camera, outputs=("color", "depth", "hit"), lights=self._lights,
                                     ambient=self._ambient, background=self._background)
         ms = (time.perf_counter() - t0) * 1e3
-        return {"color": out["color"], "depth": out["depth"], "hole": ~out["hit"]}, {"raycast_shade": ms}
+        # A ray that hits nothing sees the scene's background at infinity (as synth.py renders
+        # it), in the background colour: not a hole.
+        depth = np.where(out["hit"], out["depth"], np.float32(np.inf)).astype(np.float32)
+        return {"color": out["color"], "depth": depth, "hole": np.zeros(depth.shape, bool)}, {"raycast_shade": ms}
 
 
 def resolve(name: str, scene: Scene) -> str:

@@ -29,6 +29,7 @@ from ..errors import BadValueError
 from ..scene import Scene
 from . import job as J
 from . import methods
+from .complete import DEFAULT_INPAINT, background_of, check_inpaint, complete
 
 
 def _value(text: str):
@@ -78,9 +79,12 @@ def configurations(grid: dict[str, list], base: dict | None = None) -> list[dict
 
 def sweep(scene: Scene, method: str, grid: dict[str, list], *, holdout: list[str] | None = None,
           base: dict | None = None, out_dir: str | os.PathLike | None = None, progress=None,
-          frame_hook=None) -> list[dict]:
+          frame_hook=None, inpaint: str = DEFAULT_INPAINT) -> list[dict]:
     """Run every configuration; return one row per configuration (params, times, mean metrics)
-    and, with ``out_dir``, write sweep.csv / sweep.md / sweep.png there.
+    and, with ``out_dir``, write sweep.csv / sweep.md / sweep.png there. Frames are scored as
+    ``ibr-render`` writes them (complete: render/complete.py, with ``inpaint``); a frame's time
+    includes its completion. Before the first timed frame the first configuration renders the
+    first frame once, untimed (the engine's first-use costs: thread pool, tables, buffers).
 
     ``progress(ci, n_configs, fi, n_frames)`` is called before each frame and once more with
     ``(n_configs, n_configs, 0, n_frames)`` at the end; ``frame_hook(ci, fi, frame, outputs,
@@ -95,23 +99,28 @@ def sweep(scene: Scene, method: str, grid: dict[str, list], *, holdout: list[str
     # Check every configuration's parameters before rendering anything.
     for c in configs:
         methods.create(name, c)
+    check_inpaint(inpaint)
+    background = background_of(job.scene)
     rows = []
     for ci, cfg in enumerate(configs):
         m = methods.create(name, cfg)
         t0 = time.perf_counter()
         m.prepare(job.scene)
         prep_ms = (time.perf_counter() - t0) * 1e3
+        if ci == 0:
+            complete(m.render(frames[0].camera)[0], frames[0].camera, background, inpaint)  # warm-up
         times, metrics = [], []
         for fi, frame in enumerate(frames):
             if progress:
                 progress(ci, len(configs), fi, len(frames))
             t1 = time.perf_counter()
             out, stage_ms = m.render(frame.camera)
+            done = complete(out, frame.camera, background, inpaint)
             times.append((time.perf_counter() - t1) * 1e3)
-            color = J.clean_color(out)
-            metrics.append(J._frame_metrics({**out, "color": color}, frame.truth))
+            metrics.append(J._frame_metrics(done.color, done.hole, done.filled, frame.truth))
             if frame_hook:
-                frame_hook(ci, fi, frame, {**out, "color": color}, {"total": times[-1], **stage_ms}, metrics[-1])
+                frame_hook(ci, fi, frame, {**out, "color": done.color, "hole": done.hole},
+                           {"total": times[-1], **stage_ms, **done.stage_ms}, metrics[-1])
         row = {"config": ci, **{k: cfg.get(k) for k in grid}, "frames": len(frames),
                "prepare_ms": round(prep_ms, 2), "median_ms": round(float(np.median(times)), 3),
                "mean_ms": round(float(np.mean(times)), 3)}

@@ -1,0 +1,180 @@
+"""A method's frame made complete, as ``ibr-render`` writes it and :func:`ibrtools.render` returns
+it (docs/render.md "Complete images"):
+
+1. **background**: hole pixels whose direction an input sees as background at infinity take its
+   colour (render/background.py); they are not holes;
+2. **holes filled** (``inpaint``): the pixels no input covers, true disocclusions, are filled
+   from the background side and never from the background at infinity: ``auto`` (the default)
+   and ``pushpull`` = depth-aware push-pull (inpaint.py) with each hole's depth the background
+   depth around it (the larger depth of the nearest covered pixels left, right, above and
+   below) and the background-at-infinity pixels left out as sources, so a wedge of ground behind
+   an object is filled with ground, not with the object nor the sky; ``metameric`` = the same
+   set-up through metameric inpainting; ``none`` leaves holes black.
+   A frame whose only covered pixels are background at infinity is filled from them (classic
+   push-pull); a frame with no covered pixel at all is left black and says so.
+
+``auto`` is depth-aware push-pull because it measured best of the built fills on the held-out
+views we score (docs/benchmarks.md "Complete images").
+"""
+from __future__ import annotations
+
+import time
+import weakref
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import BadValueError
+from .background import Background
+
+INPAINT = {
+    "auto": "the measured best fill: depth-aware push-pull from the background side (default)",
+    "none": "leave holes black",
+    "pushpull": "depth-aware push-pull from the background side",
+    "metameric": "metameric inpainting from the background side (ibrtools.metameric)",
+}
+DEFAULT_INPAINT = "auto"
+NOTHING_TO_FILL = "nothing to fill from: no input covers any pixel of the frame"
+
+
+def check_inpaint(mode) -> str:
+    if not isinstance(mode, str) or mode not in INPAINT:
+        raise BadValueError(f"--inpaint: expected one of {', '.join(INPAINT)}, got {mode!r}")
+    return mode
+
+
+@dataclass
+class Completed:
+    """A frame as written: ``color`` (no NaN, holes black or filled), ``hole`` (the pixels that
+    neither the method nor the background covered: filled unless inpaint is "none"), ``depth``
+    (+inf on the background at infinity; None when the method gives none and the scene has no
+    background), ``background`` (bool, the background-at-infinity pixels), ``note`` (what the
+    inpainting did: the mode, "skipped: no hole", or why nothing could be filled), stage times."""
+
+    color: np.ndarray
+    hole: np.ndarray | None
+    depth: np.ndarray | None
+    background: np.ndarray | None
+    note: str | None
+    stage_ms: dict = field(default_factory=dict)
+
+    @property
+    def filled(self) -> bool:
+        return self.note in ("auto", "pushpull", "metameric", "from the background")
+
+
+_BACKGROUNDS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def background_of(scene) -> Background | None:
+    """The scene's :class:`Background` (None when no input has a background pixel), made once per
+    scene object."""
+    try:
+        return _BACKGROUNDS[scene]
+    except KeyError:
+        bg = Background.of(scene.views, (scene.shading or {}).get("background"))
+        _BACKGROUNDS[scene] = bg
+        return bg
+
+
+def clean_color(out: dict) -> np.ndarray:
+    """A method's colour as written: float32, C-contiguous, NaN/inf as 0, holes
+    (``out["hole"]``) black."""
+    color = np.nan_to_num(np.asarray(out["color"], np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+    hole = out.get("hole")
+    if hole is not None:
+        color = np.where(np.asarray(hole, bool)[..., None], np.float32(0.0), color)
+    return np.ascontiguousarray(color, np.float32)
+
+
+def complete(out: dict, camera, background: Background | None, inpaint: str) -> Completed:
+    """The complete frame of a method's outputs ``out`` ("color", optional "hole", "depth")."""
+    check_inpaint(inpaint)
+    stage_ms: dict = {}
+    hole = out.get("hole")
+    depth = out.get("depth")
+    color = clean_color(out)
+    bg = None
+    if hole is not None:
+        hole = np.asarray(hole, bool)
+        if background is not None and hole.any():
+            t0 = time.perf_counter()
+            color, hole, depth, bg = background.fill(camera, color, hole, depth)
+            stage_ms["background"] = (time.perf_counter() - t0) * 1e3
+        elif depth is not None:
+            depth = np.where(hole & np.isposinf(depth), np.float32(0), depth)  # a miss no input explains: unknown
+            bg = np.isposinf(depth) & ~hole
+    note = None
+    if inpaint != "none":
+        if hole is None or not hole.any():
+            note = "skipped: no hole"  # DESIGN.md: inpainting does nothing where there is no hole
+        else:
+            t0 = time.perf_counter()
+            color, note = _fill(color, hole, depth, bg, inpaint)
+            stage_ms["inpaint"] = (time.perf_counter() - t0) * 1e3
+    return Completed(np.ascontiguousarray(color, np.float32), hole,
+                     None if depth is None else np.ascontiguousarray(depth, np.float32), bg, note, stage_ms)
+
+
+def _fill(color: np.ndarray, hole: np.ndarray, depth: np.ndarray | None, bg: np.ndarray | None,
+          mode: str) -> tuple[np.ndarray, str]:
+    """Fill the holes: each hole pixel is a surface hole or a background hole by the nearest
+    covered pixels left, right, above and below it (a background hole when more than half of
+    those found are background at infinity: the sky behind a thin pole no input saw past); surface
+    holes are filled with ``mode`` from the surface pixels only, with the background depth around
+    each hole (the largest depth of those nearest surface pixels) as its depth, background holes
+    by push-pull from the background pixels only."""
+    from ..inpaint import inpaint as fill_holes
+
+    bg = np.zeros(hole.shape, bool) if bg is None else bg
+    d = None if depth is None else np.asarray(depth, np.float32)
+    surface = ~hole & ~bg
+    known_depth = np.zeros(hole.shape, np.float32)
+    if d is not None:
+        ok = surface & np.isfinite(d) & (d > 0)
+        known_depth[ok] = d[ok]
+    covered = ~hole
+    votes = np.zeros(hole.shape, np.int8)
+    bg_votes = np.zeros(hole.shape, np.int8)
+    around = np.zeros(hole.shape, np.float32)  # largest depth of the nearest surface pixels
+    for value, is_bg, found in _nearest_covered(known_depth, bg, covered):
+        votes += found
+        bg_votes += found & is_bg
+        around = np.maximum(around, np.where(found & ~is_bg, value, np.float32(0)))
+    sky = hole & (2 * bg_votes >= votes) & (votes > 0) if bg.any() else np.zeros(hole.shape, bool)
+    ground = hole & ~sky
+    if ground.any() and not surface.any():
+        sky, ground = hole, np.zeros(hole.shape, bool)  # nothing but background to fill from
+    if sky.any() and not bg.any():
+        return color, NOTHING_TO_FILL
+    out = color
+    if ground.any():
+        method = "pushpull" if mode == "auto" else mode
+        aware = None
+        if d is not None and known_depth.any():
+            far = float(known_depth.max())
+            aware = np.where(ground, np.where(around > 0, around, np.float32(far)), known_depth)
+            aware = np.ascontiguousarray(aware, np.float32)
+        filled = fill_holes(color, hole | bg, method, depth=aware)  # never from the background at infinity
+        out = np.where(ground[..., None], filled, out)
+    if sky.any():
+        filled = fill_holes(color, ~bg, "pushpull")  # from the background at infinity only
+        out = np.where(sky[..., None], filled, out)
+    return out, mode if ground.any() else "from the background"
+
+
+def _nearest_covered(value: np.ndarray, flag: np.ndarray, covered: np.ndarray):
+    """For each of the four directions (left, right, up, down): (value, flag, found) (H, W) of
+    the nearest covered pixel in that direction of every pixel (found False where there is none).
+    Vectorised: a running maximum of covered indices along rows / columns."""
+    for transpose in (False, True):
+        v, f, c = (value.T, flag.T, covered.T) if transpose else (value, flag, covered)
+        for reverse in (False, True):
+            vv, ff, cc = (v[:, ::-1], f[:, ::-1], c[:, ::-1]) if reverse else (v, f, c)
+            idx = np.where(cc, np.arange(cc.shape[1])[None, :], -1)
+            last = np.maximum.accumulate(idx, axis=1)
+            at = np.maximum(last, 0)
+            res = [np.take_along_axis(vv, at, axis=1), np.take_along_axis(ff, at, axis=1), last >= 0]
+            if reverse:
+                res = [r[:, ::-1] for r in res]
+            yield tuple(r.T if transpose else r for r in res)
