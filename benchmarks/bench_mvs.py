@@ -421,7 +421,7 @@ def lego_depth_accuracy(with_depth: Path, mvs_scene: Path) -> dict:
     per = {}
     for n, z in mvs.items():
         g = gt_scene.view(n).depth
-        known = g > 0
+        known = np.isfinite(g) & (g > 0)  # the background is +inf
         k = known & (z > 0)
         rel = np.abs(z - g) / np.where(known, g, 1)
         per[n] = float(100.0 * (k & (rel <= 0.01)).sum() / known.sum())

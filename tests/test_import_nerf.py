@@ -74,7 +74,7 @@ def test_composite_mask_and_depth(tmp_path):
     assert v.mask[:, : W // 2].all() and not v.mask[:, W // 2:].any()
     ray = 8 * (1 - 100 / 255)
     z = v.camera.depth_ray_to_z(np.full((H, W), ray))
-    assert v.depth[0, 0] == 0  # v = 0: background, unknown
+    assert v.depth[0, 0] == np.inf  # v = 0: the background at infinity
     np.testing.assert_allclose(v.depth[1:], z[1:], rtol=1e-6)
     v4 = nerf.load(tmp_path, {"depth_scale": "4"}).views[0]
     np.testing.assert_allclose(v4.depth[1, 1], 4 * (1 - 100 / 255) / np.linalg.norm(

@@ -167,6 +167,10 @@ def _body(args: argparse.Namespace) -> int:
         print(f"{PROG}: note: {report['holdout_note']}", file=sys.stderr)
     if report.get("output") and not (args.quiet or args.json):
         print(f"{PROG}: note: {_output_note(report['output'])}", file=sys.stderr)
+    if not (args.quiet or args.json):  # the report keeps them ("warnings" of each frame)
+        for f in report["frames"]:
+            for w in f.get("warnings", ()):
+                print(f"{PROG}: warning: frame {f['name']}: {w}", file=sys.stderr)
     if args.json:
         print_json({**report, **extra})
         return status

@@ -16,7 +16,8 @@ Convention converted from
     NeRF papers' evaluation images are — and ``alpha > 0.5`` becomes the view's mask.
   * Depth (Blender synthetic sets, e.g. lego ``r_N_depth_0001.png``): an 8- or 16-bit image,
     channel 0 = v, read with *straight* alpha (the PNGs carry an alpha channel; OpenImageIO
-    would otherwise premultiply v by it); v = 0 is background (unknown depth, 0); otherwise the
+    would otherwise premultiply v by it); v = 0 is the transparent background: depth +inf, the background at infinity
+    (docs/FORMAT.md "Background"), in the compositing colour; v = vmax is unknown (0); otherwise the
     **distance along the ray** is ``depth_scale * (1 - v / vmax)``, converted to z-depth for the
     pinhole camera (``Camera.depth_ray_to_z``). Looked up as ``<stem>_depth_0001.png``,
     ``<stem>_depth.png``. A free two-parameter fit ``a - b v/255`` of the lego depth maps to each
@@ -176,11 +177,12 @@ def _load_mask(path: Path, size: tuple[int, int] | None = None) -> np.ndarray:
 
 
 def decode_depth(v: np.ndarray, vmax: float, depth_scale: float) -> np.ndarray:
-    """Ray distance of the Blender depth encoding ``scale * (1 - v / vmax)``; v = 0 -> 0
-    (unknown); v = vmax (distance 0) is unknown too."""
+    """Ray distance of the Blender depth encoding ``scale * (1 - v / vmax)``; v = 0 (no surface:
+    the transparent background) -> +inf, the background at infinity; v = vmax (distance 0) is
+    unknown (0)."""
     v = v.astype(np.float64)
     ray = depth_scale * (1.0 - v / vmax)
-    return np.where((v > 0) & (ray > 0), ray, 0.0)
+    return np.where(v <= 0, np.inf, np.where(ray > 0, ray, 0.0))
 
 
 # The 8 neighbours of a pixel, as (dy, dx).
@@ -365,11 +367,12 @@ def load(path: Path, options: dict) -> Scene:
     notes = [f"RGBA composited over {'white' if background else 'black'} on the sRGB values; "
              "mask = alpha > 0.5"]
     if any(e[4] is not None for e in entries):
-        notes.append(f"depth: ray distance = {depth_scale:g} * (1 - v/vmax), v = 0 unknown, converted to z"
+        notes.append(f"depth: ray distance = {depth_scale:g} * (1 - v/vmax), v = 0 background at infinity, "
+                     "converted to z"
                      + (f"; codes de-quantised: auto (8-bit: {AUTO_DEQUANTIZE['uint8']} rounds, "
                         f"16-bit: {AUTO_DEQUANTIZE['uint16']})" if dequantize is None
                         else f"; codes de-quantised ({dequantize} rounds)" if dequantize else ""))
-    return Scene(views=views, units="unknown",
+    return Scene(views=views, units="unknown", shading={"background": [background] * 3},
                  source={"format": NAME, "path": str(path), "files": [str(f) for _, f in files],
                          "background": "white" if background else "black", "notes": "; ".join(notes)},
                  root=path if path.is_dir() else path.parent)

@@ -34,6 +34,8 @@ INPAINT = {
     "metameric": "metameric inpainting from the background side (ibrtools.metameric)",
 }
 DEFAULT_INPAINT = "auto"
+# The notes of a frame whose holes were filled.
+INPAINT_FILLS = ("auto", "pushpull", "metameric", "from the background")
 NOTHING_TO_FILL = "nothing to fill from: no input covers any pixel of the frame"
 
 
@@ -60,7 +62,7 @@ class Completed:
 
     @property
     def filled(self) -> bool:
-        return self.note in ("auto", "pushpull", "metameric", "from the background")
+        return self.note in INPAINT_FILLS
 
 
 _BACKGROUNDS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
@@ -110,20 +112,23 @@ def complete(out: dict, camera, background: Background | None, inpaint: str) -> 
             note = "skipped: no hole"  # DESIGN.md: inpainting does nothing where there is no hole
         else:
             t0 = time.perf_counter()
-            color, note = _fill(color, hole, depth, bg, inpaint)
+            color, note = _fill(color, hole, depth, bg, inpaint,
+                                None if background is None else background.colour)
             stage_ms["inpaint"] = (time.perf_counter() - t0) * 1e3
     return Completed(np.ascontiguousarray(color, np.float32), hole,
                      None if depth is None else np.ascontiguousarray(depth, np.float32), bg, note, stage_ms)
 
 
 def _fill(color: np.ndarray, hole: np.ndarray, depth: np.ndarray | None, bg: np.ndarray | None,
-          mode: str) -> tuple[np.ndarray, str]:
+          mode: str, bg_colour: np.ndarray | None = None) -> tuple[np.ndarray, str]:
     """Fill the holes: each hole pixel is a surface hole or a background hole by the nearest
     covered pixels left, right, above and below it (a background hole when more than half of
     those found are background at infinity: the sky behind a thin pole no input saw past); surface
     holes are filled with ``mode`` from the surface pixels only, with the background depth around
     each hole (the largest depth of those nearest surface pixels) as its depth, background holes
-    by push-pull from the background pixels only."""
+    by the scene's background colour ``bg_colour`` when it has one (a uniform background: the
+    background pixels beside an object carry its antialiased edge, which a push-pull would smear
+    over the hole), else by push-pull from the background pixels only."""
     from ..inpaint import inpaint as fill_holes
 
     bg = np.zeros(hole.shape, bool) if bg is None else bg
@@ -145,7 +150,7 @@ def _fill(color: np.ndarray, hole: np.ndarray, depth: np.ndarray | None, bg: np.
     ground = hole & ~sky
     if ground.any() and not surface.any():
         sky, ground = hole, np.zeros(hole.shape, bool)  # nothing but background to fill from
-    if sky.any() and not bg.any():
+    if sky.any() and not bg.any() and bg_colour is None:
         return color, NOTHING_TO_FILL
     out = color
     if ground.any():
@@ -158,8 +163,11 @@ def _fill(color: np.ndarray, hole: np.ndarray, depth: np.ndarray | None, bg: np.
         filled = fill_holes(color, hole | bg, method, depth=aware)  # never from the background at infinity
         out = np.where(ground[..., None], filled, out)
     if sky.any():
-        filled = fill_holes(color, ~bg, "pushpull")  # from the background at infinity only
-        out = np.where(sky[..., None], filled, out)
+        if bg_colour is not None:
+            out = np.where(sky[..., None], bg_colour.astype(np.float32), out)
+        else:
+            filled = fill_holes(color, ~bg, "pushpull")  # from the background at infinity only
+            out = np.where(sky[..., None], filled, out)
     return out, mode if ground.any() else "from the background"
 
 

@@ -31,7 +31,7 @@ from ..memory import available_memory
 from ..outputs import OutputDir, check_output_dir, file_stem, is_plain_name, temp_prefix
 from ..scene import Scene, View
 from . import methods
-from .complete import DEFAULT_INPAINT, background_of, check_inpaint, complete
+from .complete import DEFAULT_INPAINT, INPAINT_FILLS, NOTHING_TO_FILL, background_of, check_inpaint, complete
 
 
 @dataclass
@@ -531,6 +531,9 @@ def _render_frame(method, frame: Frame, scene: Scene, *, inpaint, fov_kw, float_
     # Method-specific scores of the frame (depthwarp: depth PSNR/SSIM against the reference).
     if hasattr(method, "frame_metrics"):
         entry["metrics"].update(method.frame_metrics())
+    warnings = frame_warnings(entry, hole, done.note)
+    if warnings:
+        entry["warnings"] = warnings
     if float_out:
         outputs.append((f"{frame.stem}.exr", "image", color))
         entry["image_float"] = f"{frame.stem}.exr"
@@ -547,6 +550,32 @@ def _render_frame(method, frame: Frame, scene: Scene, *, inpaint, fov_kw, float_
         outputs.append((f"{frame.stem}.hole.png", "image", hole.astype(np.float32)))
         entry["hole_mask"] = f"{frame.stem}.hole.png"
     return entry, None, outputs
+
+
+# Below this fraction of pixels covered by the inputs (the method and the background at infinity)
+# a frame is mostly guessed: its report entry says so (frame_warnings).
+LOW_COVERAGE = 0.5
+
+
+def frame_warnings(entry: dict, hole: np.ndarray | None, note: str | None) -> list[str]:
+    """What is wrong with a rendered frame, for its report entry "warnings" and the ``warning:``
+    lines of ibr-render: no input overlaps the target, or the inputs cover less than
+    LOW_COVERAGE of it (what was done with the rest), or there was nothing to fill from."""
+    out = []
+    if entry.get("selected") == []:
+        out.append("no input view overlaps the target (every candidate was skipped)")
+    if hole is not None and hole.any():
+        cov = float(1.0 - hole.mean())
+        if cov == 0.0:
+            if not out:
+                out.append("no input covers any pixel of the target")
+        elif cov < LOW_COVERAGE:
+            rest = "filled" if entry.get("inpaint") in INPAINT_FILLS else "black"
+            out.append(f"the inputs cover {100 * cov:.1f} % of the target (below {100 * LOW_COVERAGE:.0f} %); "
+                       f"the rest is {rest}")
+    if note == NOTHING_TO_FILL and not out:
+        out.append(note)
+    return out
 
 
 def _psnr_in(color: np.ndarray, truth: np.ndarray, region: np.ndarray) -> float | None:

@@ -58,6 +58,10 @@ DEFAULT_SAMPLES = 4000
 DEFAULT_SEED = 0
 DEFAULT_K = 4
 RANGE_MARGIN = 0.01
+# Depth outliers left out of a view's range (depth_range): values beyond OUTLIER_FACTOR times the
+# OUTLIER_QUANTILE / 1 - OUTLIER_QUANTILE quantiles.
+OUTLIER_QUANTILE = 0.01
+OUTLIER_FACTOR = 2.0
 
 
 @dataclass(frozen=True)
@@ -72,15 +76,25 @@ class DepthRange:
 
 
 def depth_range(depth: np.ndarray, name: str = "depth") -> DepthRange:
-    """[min, max] of the valid (finite, > 0) values of a depth map; InputError when none."""
+    """[near, far] of the valid (finite, > 0) values of a depth map, outliers left out: the
+    values below half the 1st percentile or above twice the 99th (a few 65.5 m pixels of a
+    sensor's invalid code in a 3 m room would make the frustum 20 times deeper and its overlap
+    with every target 20 times smaller); on depth without such outliers, [min, max].
+    InputError when no pixel is valid."""
     d = np.asarray(depth)
     ok = np.isfinite(d) & (d > 0)
     if not ok.any():
         raise InputError(f"{name}: no valid depth (every pixel is 0, NaN or infinite)")
     v = d[ok]
+    lo, hi = np.quantile(v, [OUTLIER_QUANTILE, 1.0 - OUTLIER_QUANTILE])
+    near, far = float(v.min()), float(v.max())
+    if near < lo / OUTLIER_FACTOR:
+        near = float(v[v >= lo / OUTLIER_FACTOR].min())
+    if far > hi * OUTLIER_FACTOR:
+        far = float(v[v <= hi * OUTLIER_FACTOR].max())
     # Widened by RANGE_MARGIN on each side: a view of one plane (near = far) still bounds a
     # frustum with a volume, and samples exactly on the surface are not lost to rounding.
-    return DepthRange(float(v.min()) * (1 - RANGE_MARGIN), float(v.max()) * (1 + RANGE_MARGIN))
+    return DepthRange(near * (1 - RANGE_MARGIN), far * (1 + RANGE_MARGIN))
 
 
 def union(ranges: list[DepthRange]) -> DepthRange:
