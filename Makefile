@@ -55,8 +55,8 @@ check-tsan: setup
 
 demo: setup
 	$(VENV)/bin/ibr-preprocess synth:objects -o $(DEMO_DIR)/scene --views 12 --size 480x360
-	$(VENV)/bin/ibr-render $(DEMO_DIR)/scene --method dibr --holdout v003 v009 -o $(DEMO_DIR)/render
-	@echo "demo: images and report.json in $(DEMO_DIR)/render"
+	$(VENV)/bin/ibr-render $(DEMO_DIR)/scene --method dibr --holdout v003 v009 --report-html -o $(DEMO_DIR)/render
+	@echo "demo: images and report.json in $(DEMO_DIR)/render; open $(DEMO_DIR)/render/report.html in a browser"
 
 bench: setup
 	$(PY) benchmarks/bench_raycast.py --write-docs

@@ -435,6 +435,8 @@ def test_job_skips_inpaint_without_holes(scene_dir, tmp_path, monkeypatch):
     from ibrtools.render import methods
 
     class NoHoleMethod:  # a method whose frame has a hole mask with no hole in it
+        name = "nohole"
+
         def prepare(self, scene):
             return {}
 
@@ -447,7 +449,7 @@ def test_job_skips_inpaint_without_holes(scene_dir, tmp_path, monkeypatch):
     job = render_job.plan(native.load(scene_dir), holdout=["v002"])
     rep = render_job.run(job, "nohole", tmp_path / "o", inpaint="pushpull")
     f = json.loads((tmp_path / "o" / "report.json").read_text())["frames"][0]
-    assert f["inpaint"] == "skipped: no hole" and "inpaint" not in f["time_ms"] and "mask" not in f
+    assert f["inpaint"] == "skipped: no hole" and "inpaint" not in f["time_ms"] and "hole_mask" not in f
     assert rep["frames"][0]["inpaint"] == "skipped: no hole"
     from ibrtools.errors import BadValueError as Bad
 

@@ -276,12 +276,14 @@ def _print_summary(args: argparse.Namespace, report: dict) -> None:
         for f in report["frames"]:
             m = f["metrics"]
             rows.append([f["name"], f"{f['time_ms']['total']:.1f}", _fmt(m.get("psnr")),
-                         _fmt(m.get("psnr_covered")), _fmt(m.get("ssim"), 4), _fmt(m.get("coverage"), 3)])
-        print_table(["frame", "ms", "PSNR dB", "PSNR dB, covered", "SSIM", "coverage"], rows,
+                         _fmt(m.get("psnr_covered")), _fmt(m.get("ssim"), 4), _fmt(m.get("coverage"), 3),
+                         _fmt(m.get("filled"), 3)])
+        # "PSNR dB": the image as written; "covered": the pixels the inputs covered (not filled).
+        print_table(["frame", "ms", "PSNR dB", "PSNR dB, covered", "SSIM", "coverage", "filled"], rows,
                     title=f"{PROG} --method {report['method']} ({report['threads']} threads) -> {args.output}",
                     quiet=args.quiet and not args.report,
                     totals=[label, f"median {med}", _fmt(s.get("mean_psnr")), _fmt(s.get("mean_psnr_covered")),
-                            _fmt(s.get("mean_ssim"), 4), _fmt(s.get("mean_coverage"), 3)])
+                            _fmt(s.get("mean_ssim"), 4), _fmt(s.get("mean_coverage"), 3), _fmt(s.get("mean_filled"), 3)])
 
 
 def _fixation(text: str) -> tuple[float, float]:

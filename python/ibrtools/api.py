@@ -185,7 +185,7 @@ def render(scene: Scene, camera: CameraLike, method: str = "auto", *, inpaint: s
     ibrtools.errors.BadValueError: method: unknown method 'nerf' (expected one of auto, reference, dibr, warp, depthwarp, tm, ulr, pvm, hybrid)
     """
     from .render import methods
-    from .render.complete import DEFAULT_INPAINT, background_of, check_inpaint, complete
+    from .render.complete import DEFAULT_INPAINT, check_inpaint, complete, completion
 
     if not isinstance(scene, Scene):
         raise DtypeError(f"scene: expected an ibrtools.Scene, got {type(scene).__name__}")
@@ -201,7 +201,7 @@ def render(scene: Scene, camera: CameraLike, method: str = "auto", *, inpaint: s
         prepared, setup_ms, fresh = cache.method(scene, name, params)
         t0 = time.perf_counter()
         out, stage_ms = prepared.render(cam)
-        done = complete(out, cam, background_of(scene), inpaint)  # as ibr-render writes its frames
+        done = complete(out, cam, *completion(name, scene, inpaint))  # as ibr-render writes its frames
         total_ms = (time.perf_counter() - t0) * 1e3
     color, hole, depth = done.color, done.hole, done.depth
     stage_ms = {**stage_ms, **done.stage_ms}

@@ -24,7 +24,7 @@ from .errors import BadValueError, InputError, MissingFileError, NotBuiltError
 from .scene import Scene
 
 # Bump when the import code changes what it writes, so that old scenes are rebuilt.
-IMPORT_STAGE_VERSION = 1
+IMPORT_STAGE_VERSION = 2  # 2: the background at infinity (depth +inf) of synthetic and nerf scenes
 _HASH_CHUNK = 1 << 20
 
 

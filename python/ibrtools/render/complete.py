@@ -66,6 +66,16 @@ class Completed:
 
 
 _BACKGROUNDS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+# Methods whose image is not a view of the scene's colours but their depth visualised
+# (depthwarp: docs/depthwarp.md): written as rendered, holes black.
+DEPTH_IMAGES = frozenset({"depthwarp"})
+
+
+def completion(method: str, scene, inpaint: str) -> tuple[Background | None, str]:
+    """(background, inpaint) to :func:`complete` a frame of ``method`` on ``scene`` with."""
+    if method in DEPTH_IMAGES:
+        return None, "none"
+    return background_of(scene), check_inpaint(inpaint)
 
 
 def background_of(scene) -> Background | None:

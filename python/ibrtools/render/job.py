@@ -31,7 +31,7 @@ from ..memory import available_memory
 from ..outputs import OutputDir, check_output_dir, file_stem, is_plain_name, temp_prefix
 from ..scene import Scene, View
 from . import methods
-from .complete import DEFAULT_INPAINT, INPAINT_FILLS, NOTHING_TO_FILL, background_of, check_inpaint, complete
+from .complete import DEFAULT_INPAINT, INPAINT_FILLS, NOTHING_TO_FILL, check_inpaint, complete, completion
 
 
 @dataclass
@@ -294,6 +294,16 @@ def _frame_metrics(color: np.ndarray, hole: np.ndarray | None, filled: bool, tru
     return {k: (float(v) if v is not None and np.isfinite(v) else None) for k, v in m.items()}
 
 
+def warm_up(method, camera: Camera) -> float:
+    """Render ``camera`` at a quarter of its size once, untimed by the frames, so that the
+    engine's first-use costs (thread pool start, tables, buffers) are not in the first frame's
+    time; returns its ms (report.json "setup_ms" "warm_up"). Methods whose frames depend on the
+    frames before them are not warmed up (their state would change)."""
+    t0 = time.perf_counter()
+    method.render(camera.scaled(max(8, camera.width // 4), max(8, camera.height // 4)))
+    return (time.perf_counter() - t0) * 1e3
+
+
 # Methods whose frames depend on the frames before them (depthwarp warps from the previous
 # frame): a distributed run gives all their frames to one task, in order.
 SEQUENTIAL = frozenset({"depthwarp"})
@@ -366,6 +376,8 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
                 _core.set_num_threads(threads)
             setup = method.prepare(job.scene)
             prepared_for = job.frames[0].scene_frame if job.frames else None
+            if job.frames and name not in SEQUENTIAL:
+                setup["warm_up"] = warm_up(method, job.frames[0].camera)
         previous = od.previous | report_files(out_dir / "report.json")
         # report.json marks a complete run: a stale one must not describe the images written now.
         (out_dir / "report.json").unlink(missing_ok=True)
@@ -504,7 +516,7 @@ def _render_frame(method, frame: Frame, scene: Scene, *, inpaint, fov_kw, float_
     outputs: list[tuple[str, str, np.ndarray]] = []
     t0 = time.perf_counter()
     out, stage_ms = method.render(frame.camera)
-    done = complete(out, frame.camera, background_of(scene), inpaint)
+    done = complete(out, frame.camera, *completion(method.name, scene, inpaint))
     color, hole = done.color, done.hole
     stage_ms = {**stage_ms, **done.stage_ms}
     if fov_kw:

@@ -29,7 +29,7 @@ from ..errors import BadValueError
 from ..scene import Scene
 from . import job as J
 from . import methods
-from .complete import DEFAULT_INPAINT, background_of, check_inpaint, complete
+from .complete import DEFAULT_INPAINT, complete, completion
 
 
 def _value(text: str):
@@ -99,8 +99,7 @@ def sweep(scene: Scene, method: str, grid: dict[str, list], *, holdout: list[str
     # Check every configuration's parameters before rendering anything.
     for c in configs:
         methods.create(name, c)
-    check_inpaint(inpaint)
-    background = background_of(job.scene)
+    background, inpaint = completion(name, job.scene, inpaint)
     rows = []
     for ci, cfg in enumerate(configs):
         m = methods.create(name, cfg)
