@@ -179,3 +179,27 @@ def test_lego_background_gets_no_foreground_and_no_nan():
     assert np.isfinite(r.color).all()
     sky = _far_from_surface(truth.depth, 3)
     assert (r.color[sky].max(-1) > 0.02).mean() < 0.001
+
+
+def test_background_option_recolours_or_makes_it_transparent(sky_scene, tmp_path):
+    from ibrtools.imageio import read_pixels
+    from ibrtools_cli import render
+
+    job = J.plan(sky_scene, holdout=["v002"])
+    cam = job.frames[0].camera
+    sky = _far_from_surface(job.frames[0].truth.depth)
+    white = api.render(job.scene, cam, method="dibr", background="white")
+    assert (white.color[sky] == 1.0).all() and white.alpha is None
+    clear = api.render(job.scene, cam, method="dibr", background="transparent")
+    assert (clear.alpha[sky] == 0).all() and (clear.color[sky] == 0).all()
+    plain = api.render(job.scene, cam, method="dibr")
+    surface = np.isfinite(plain.depth) & (plain.depth > 0)
+    assert (clear.alpha[surface] == 1).all()
+    np.testing.assert_array_equal(white.color[surface], plain.color[surface])
+    assert render.main([str(sky_scene.root), "--method", "dibr", "--holdout", "v002", "--background", "transparent",
+                        "-o", str(tmp_path / "t"), "-q"]) == 0
+    rgba, _ = read_pixels(tmp_path / "t" / "v002.png")
+    assert rgba.shape[2] == 4 and (rgba[..., 3][sky] == 0).all()
+    assert render.main([str(sky_scene.root), "--holdout", "v002", "--background", "pink", "-o",
+                        str(tmp_path / "b"), "-q"]) == 2
+    assert not (tmp_path / "b").exists() or not any((tmp_path / "b").iterdir())

@@ -83,6 +83,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "depth-aware push-pull from the background side), pushpull, metameric (noise with the "
                         "steerable-band statistics of the surroundings; docs/inpaint.md), none (holes black). "
                         "<frame>.hole.png marks the holes either way")
+    p.add_argument("--background", metavar="COLOR", default=None,
+                   help="the background at infinity (sky, a NeRF capture's transparent background; docs/render.md) "
+                        "as black, white, R,G,B (sRGB in [0, 1]) or transparent (RGBA images, alpha 0 there); "
+                        "default: as the inputs show it")
     p.add_argument("--foveate", metavar="X,Y",
                    help="foveated ventral metamers (Walton et al. 2021; docs/foveate.md): keep the image "
                         "around the fixation point X,Y (fractions of width and height, e.g. 0.5,0.5 = "
@@ -145,6 +149,7 @@ def _body(args: argparse.Namespace) -> int:
     with progress_bar(PROG, "frames", len(job.frames), quiet=args.quiet) as bar:
         report = render_job.run(job, args.method, args.output, params=params, float_out=args.float,
                                 depth_out=args.depth, threads=args.threads, inpaint=args.inpaint,
+                                background=args.background,
                                 foveate=foveate, pooling=args.pooling,
                                 progress=lambda i, n, name: bar.update(i, n, name),
                                 scheduler=args.scheduler, workers=args.workers)

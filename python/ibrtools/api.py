@@ -110,7 +110,8 @@ class RenderResult:
     ``ibr-render`` (the holes filled, or black with ``inpaint="none"``); ``depth`` (H, W) float32
     (0 = unknown, +inf = the background at infinity) and ``hole`` (H, W) bool (true = no input
     covers the pixel: the filled or black pixels) when the method gives them; ``selection`` (H, W, 3) float32 for
-    the hybrid method (red PVM, green TM, blue ULR per pixel); ``outputs`` every other array the
+    the hybrid method (red PVM, green TM, blue ULR per pixel); ``alpha`` (H, W) float32 with
+    ``background="transparent"`` (0 on the background at infinity); ``outputs`` every other array the
     method returned (dibr: "confidence"). ``times_ms`` the method's stage times plus "total"
     (wall time of this render); ``setup_ms`` the method's one-off preparation times;
     ``prepared`` whether this call paid them (False when the prepared method was reused).
@@ -122,6 +123,7 @@ class RenderResult:
     depth: npt.NDArray[np.float32] | None = None
     hole: npt.NDArray[np.bool_] | None = None
     selection: npt.NDArray[np.float32] | None = None
+    alpha: npt.NDArray[np.float32] | None = None
     outputs: dict[str, npt.NDArray[Any]] = field(default_factory=dict)
     times_ms: dict[str, float] = field(default_factory=dict)
     setup_ms: dict[str, float] = field(default_factory=dict)
@@ -133,11 +135,12 @@ class RenderResult:
         return 1.0 if self.hole is None else float(1.0 - self.hole.mean())
 
     def save(self, path: str | os.PathLike[str]) -> Path:
-        """Write ``color`` to ``path`` (PNG: 8-bit sRGB; EXR: linear float32), atomically."""
+        """Write ``color`` (with ``alpha`` when there is one) to ``path`` (PNG: 8-bit sRGB; EXR:
+        linear float32), atomically."""
         from .imageio import write_image
 
         p = Path(path)
-        write_image(p, self.color)
+        write_image(p, self.color if self.alpha is None else np.concatenate([self.color, self.alpha[..., None]], -1))
         return p
 
 
@@ -166,13 +169,15 @@ def resolve_camera(scene: Scene, camera: CameraLike) -> Camera:
 
 
 def render(scene: Scene, camera: CameraLike, method: str = "auto", *, inpaint: str | None = None,
-           **params: Any) -> RenderResult:
+           background: Any = None, **params: Any) -> RenderResult:
     """Render ``camera`` of ``scene`` with ``method`` (:data:`ibrtools.render.methods.METHODS`;
     "auto" picks one from the scene's data) and the method's parameters (as ``ibr-render
     --param key=value``, e.g. ``inputs=2`` for dibr). Same as ``scene.render(...)``. The image is
     complete as ``ibr-render`` writes it (render/complete.py): the background at infinity where
     an input sees it, the holes filled by ``inpaint`` (``ibr-render --inpaint``; None = its
-    default, "none" = black).
+    default, "none" = black); ``background`` recolours the background at infinity as
+    ``ibr-render --background`` does ("black", "white", (r, g, b) sRGB in [0, 1], or
+    "transparent": ``alpha`` is then 0 there and ``color`` black).
 
     The method is prepared on the first call for a (method, parameters) pair and kept with the
     scene (it goes with the scene; a pickled or copied scene starts afresh) while the scene's views and meshes are the same
@@ -185,7 +190,7 @@ def render(scene: Scene, camera: CameraLike, method: str = "auto", *, inpaint: s
     ibrtools.errors.BadValueError: method: unknown method 'nerf' (expected one of auto, reference, dibr, warp, depthwarp, tm, ulr, pvm, hybrid)
     """
     from .render import methods
-    from .render.complete import DEFAULT_INPAINT, check_inpaint, complete, completion
+    from .render.complete import DEFAULT_INPAINT, check_inpaint, complete, completion, parse_background
 
     if not isinstance(scene, Scene):
         raise DtypeError(f"scene: expected an ibrtools.Scene, got {type(scene).__name__}")
@@ -194,6 +199,7 @@ def render(scene: Scene, camera: CameraLike, method: str = "auto", *, inpaint: s
     if method not in methods.METHODS:
         raise BadValueError(f"method: unknown method {method!r} (expected one of {', '.join(methods.METHODS)})")
     inpaint = check_inpaint(DEFAULT_INPAINT if inpaint is None else inpaint)
+    override = parse_background(background)
     cam = resolve_camera(scene, camera)
     name = methods.resolve(method, scene)
     cache = _cache_of(scene)
@@ -201,7 +207,7 @@ def render(scene: Scene, camera: CameraLike, method: str = "auto", *, inpaint: s
         prepared, setup_ms, fresh = cache.method(scene, name, params)
         t0 = time.perf_counter()
         out, stage_ms = prepared.render(cam)
-        done = complete(out, cam, *completion(name, scene, inpaint))  # as ibr-render writes its frames
+        done = complete(out, cam, *completion(name, scene, inpaint), override)  # as ibr-render writes its frames
         total_ms = (time.perf_counter() - t0) * 1e3
     color, hole, depth = done.color, done.hole, done.depth
     stage_ms = {**stage_ms, **done.stage_ms}
@@ -211,7 +217,7 @@ def render(scene: Scene, camera: CameraLike, method: str = "auto", *, inpaint: s
         color=color, method=name, camera=cam,
         depth=None if depth is None else np.ascontiguousarray(depth, np.float32), hole=hole,
         selection=None if selection is None else np.ascontiguousarray(selection, np.float32),
-        outputs=rest, times_ms={**{k: float(v) for k, v in stage_ms.items()}, "total": total_ms},
+        alpha=done.alpha, outputs=rest, times_ms={**{k: float(v) for k, v in stage_ms.items()}, "total": total_ms},
         setup_ms=dict(setup_ms), prepared=fresh)
 
 

@@ -39,6 +39,36 @@ INPAINT_FILLS = ("auto", "pushpull", "metameric", "from the background")
 NOTHING_TO_FILL = "nothing to fill from: no input covers any pixel of the frame"
 
 
+def parse_background(value) -> "np.ndarray | str | None":
+    """``--background``: None (the background as the inputs show it), "transparent" (alpha 0 on
+    the background: an RGBA image), or a colour: black, white or R,G,B (sRGB in [0, 1]) ->
+    linear RGB float32 (3,)."""
+    if value is None:
+        return None
+    if isinstance(value, str):
+        v = value.strip().lower()
+        if v == "transparent":
+            return "transparent"
+        named = {"black": (0.0, 0.0, 0.0), "white": (1.0, 1.0, 1.0)}
+        if v in named:
+            rgb = named[v]
+        else:
+            try:
+                rgb = tuple(float(x) for x in v.split(","))
+            except ValueError:
+                rgb = ()
+    else:
+        try:
+            rgb = tuple(float(x) for x in value)
+        except (TypeError, ValueError):
+            rgb = ()
+    if len(rgb) != 3 or not all(0.0 <= x <= 1.0 for x in rgb):
+        raise BadValueError(f"--background: expected black, white, transparent or R,G,B in [0, 1], got {value!r}")
+    from ..imageio import srgb_to_linear
+
+    return np.asarray(srgb_to_linear(np.asarray(rgb, np.float32)), np.float32).reshape(3)
+
+
 def check_inpaint(mode) -> str:
     if not isinstance(mode, str) or mode not in INPAINT:
         raise BadValueError(f"--inpaint: expected one of {', '.join(INPAINT)}, got {mode!r}")
@@ -50,7 +80,8 @@ class Completed:
     """A frame as written: ``color`` (no NaN, holes black or filled), ``hole`` (the pixels that
     neither the method nor the background covered: filled unless inpaint is "none"), ``depth``
     (+inf on the background at infinity; None when the method gives none and the scene has no
-    background), ``background`` (bool, the background-at-infinity pixels), ``note`` (what the
+    background), ``background`` (bool, the background-at-infinity pixels, the filled background
+    holes included), ``note`` (what the
     inpainting did: the mode, "skipped: no hole", or why nothing could be filled), stage times."""
 
     color: np.ndarray
@@ -59,6 +90,7 @@ class Completed:
     background: np.ndarray | None
     note: str | None
     stage_ms: dict = field(default_factory=dict)
+    alpha: np.ndarray | None = None  # (H, W) float32, 0 on the background: --background transparent
 
     @property
     def filled(self) -> bool:
@@ -99,8 +131,10 @@ def clean_color(out: dict) -> np.ndarray:
     return np.ascontiguousarray(color, np.float32)
 
 
-def complete(out: dict, camera, background: Background | None, inpaint: str) -> Completed:
-    """The complete frame of a method's outputs ``out`` ("color", optional "hole", "depth")."""
+def complete(out: dict, camera, background: Background | None, inpaint: str,
+             override: "np.ndarray | str | None" = None) -> Completed:
+    """The complete frame of a method's outputs ``out`` ("color", optional "hole", "depth");
+    ``override`` (:func:`parse_background`) recolours the background or makes it transparent."""
     check_inpaint(inpaint)
     stage_ms: dict = {}
     hole = out.get("hole")
@@ -122,15 +156,27 @@ def complete(out: dict, camera, background: Background | None, inpaint: str) -> 
             note = "skipped: no hole"  # DESIGN.md: inpainting does nothing where there is no hole
         else:
             t0 = time.perf_counter()
-            color, note = _fill(color, hole, depth, bg, inpaint,
-                                None if background is None else background.colour)
+            color, note, sky = _fill(color, hole, depth, bg, inpaint,
+                                     None if background is None else background.colour)
             stage_ms["inpaint"] = (time.perf_counter() - t0) * 1e3
+            if sky is not None and sky.any():
+                bg = sky if bg is None else bg | sky
+    alpha = None
+    if override is not None and bg is not None:
+        if isinstance(override, str):  # transparent
+            alpha = (~bg).astype(np.float32)
+            color = np.where(bg[..., None], np.float32(0), color)
+        else:
+            color = np.where(bg[..., None], override.astype(np.float32), color)
+    elif isinstance(override, str):
+        alpha = np.ones(color.shape[:2], np.float32)
     return Completed(np.ascontiguousarray(color, np.float32), hole,
-                     None if depth is None else np.ascontiguousarray(depth, np.float32), bg, note, stage_ms)
+                     None if depth is None else np.ascontiguousarray(depth, np.float32), bg, note, stage_ms,
+                     alpha)
 
 
 def _fill(color: np.ndarray, hole: np.ndarray, depth: np.ndarray | None, bg: np.ndarray | None,
-          mode: str, bg_colour: np.ndarray | None = None) -> tuple[np.ndarray, str]:
+          mode: str, bg_colour: np.ndarray | None = None) -> tuple[np.ndarray, str, np.ndarray | None]:
     """Fill the holes: each hole pixel is a surface hole or a background hole by the nearest
     covered pixels left, right, above and below it (a background hole when more than half of
     those found are background at infinity: the sky behind a thin pole no input saw past); surface
@@ -161,7 +207,7 @@ def _fill(color: np.ndarray, hole: np.ndarray, depth: np.ndarray | None, bg: np.
     if ground.any() and not surface.any():
         sky, ground = hole, np.zeros(hole.shape, bool)  # nothing but background to fill from
     if sky.any() and not bg.any() and bg_colour is None:
-        return color, NOTHING_TO_FILL
+        return color, NOTHING_TO_FILL, None
     out = color
     if ground.any():
         method = "pushpull" if mode == "auto" else mode
@@ -178,7 +224,7 @@ def _fill(color: np.ndarray, hole: np.ndarray, depth: np.ndarray | None, bg: np.
         else:
             filled = fill_holes(color, ~bg, "pushpull")  # from the background at infinity only
             out = np.where(sky[..., None], filled, out)
-    return out, mode if ground.any() else "from the background"
+    return out, (mode if ground.any() else "from the background"), sky
 
 
 def _nearest_covered(value: np.ndarray, flag: np.ndarray, covered: np.ndarray):

@@ -31,7 +31,8 @@ from ..memory import available_memory
 from ..outputs import OutputDir, check_output_dir, file_stem, is_plain_name, temp_prefix
 from ..scene import Scene, View
 from . import methods
-from .complete import DEFAULT_INPAINT, INPAINT_FILLS, NOTHING_TO_FILL, check_inpaint, complete, completion
+from .complete import (DEFAULT_INPAINT, INPAINT_FILLS, NOTHING_TO_FILL, check_inpaint, complete, completion,
+                       parse_background)
 
 
 @dataclass
@@ -311,7 +312,7 @@ SEQUENTIAL = frozenset({"depthwarp"})
 
 def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict | None = None,
         float_out: bool = False, depth_out: bool = False, threads: int = 0, inpaint: str = DEFAULT_INPAINT,
-        foveate: tuple[float, float] | None = None, pooling: float | None = None,
+        background: str | None = None, foveate: tuple[float, float] | None = None, pooling: float | None = None,
         progress: Callable[[int, int, str], None] | None = None,
         scheduler: str | None = None, workers: int = 0) -> dict:
     """Render every frame of ``job``; write images and report.json; return the report.
@@ -321,7 +322,9 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
     with seed 0, the same noise for every frame as Walton et al. 2021, or "none": black), timed
     as stages "background" and "inpaint"; the hole mask is still written and "psnr_holes" scores
     the filled pixels when ground truth exists. Frames without a hole are not touched (the report
-    says "inpaint": "skipped: no hole").
+    says "inpaint": "skipped: no hole"). ``background`` (None, "black", "white", "R,G,B" sRGB in
+    [0, 1], or "transparent": RGBA images with alpha 0 on the background) recolours the
+    background at infinity (complete.parse_background).
 
     ``foveate`` ((x, y) fixation in [0, 1]^2, or None) post-processes every frame, after the
     inpainting, into a foveated ventral metamer (:func:`ibrtools.foveate.foveate`, seed 0 and
@@ -350,7 +353,9 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
     out_dir = check_output_dir(out_dir)
     name = methods.resolve(method_name, job.scene)
     check_memory(job, name)
-    frame_kw = {"inpaint": inpaint, "fov_kw": fov_kw, "float_out": float_out, "depth_out": depth_out}
+    parse_background(background)  # a bad value fails before anything is written
+    frame_kw = {"inpaint": inpaint, "fov_kw": fov_kw, "float_out": float_out, "depth_out": depth_out,
+                "background": background}
     method = methods.create(name, params)  # bad parameters fail here, before anything is written
     # The output directory is this job's until it ends (a second job is refused, before any
     # work), its dead jobs' temporaries are swept, and the files an earlier job left there are
@@ -452,6 +457,7 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
                                         ("replaced", sorted(previous & new)), ("removed", removed)) if v}
             note, stale = holdout_note(job.scene, job.held_out, name), stale_note(job.scene, name)
             report = {"method": name, "params": dict(params or {}), "inpaint": inpaint,
+                      **({"background": background} if background is not None else {}),
                       **({"holdout_note": note} if note else {}), **({"stale_note": stale} if stale else {}),
                       **({"foveate": {"fixation": list(fov_kw["fixation"]), "pooling": fov_kw["pooling"]}}
                          if fov_kw else {}),
@@ -496,7 +502,8 @@ def frame_scene(job: "Job", frame: Frame) -> Scene:
 
 
 def render_frame(method, frame: Frame, scene: Scene, *, inpaint: str, fov_kw: dict, float_out: bool,
-                 depth_out: bool) -> tuple[dict | None, dict | None, list[tuple[str, str, np.ndarray]]]:
+                 depth_out: bool, background: str | None = None
+                 ) -> tuple[dict | None, dict | None, list[tuple[str, str, np.ndarray]]]:
     """Render one frame with a ``method`` prepared on ``scene`` and post-process it: NaN guard,
     the background at infinity and the holes (render/complete.py), foveation, metrics. Returns (report entry, None, outputs) with outputs the files
     to write [(file name, "image" | "depth", array)], or (None, {"name", "error"}, []) when the
@@ -505,18 +512,18 @@ def render_frame(method, frame: Frame, scene: Scene, *, inpaint: str, fov_kw: di
     the caller does (the local loop, or the client of a distributed run)."""
     try:
         return _render_frame(method, frame, scene, inpaint=inpaint, fov_kw=fov_kw, float_out=float_out,
-                             depth_out=depth_out)
+                             depth_out=depth_out, background=background)
     except Exception as e:  # noqa: BLE001 - reported by name in report.json "failed"
         if isinstance(e, InputError) and getattr(e, "scene_data", False):
             raise  # an input file found bad when first read (scene.View): the job stops, exit 2
         return None, {"name": frame.name, "error": f"{type(e).__name__}: {e}"}, []
 
 
-def _render_frame(method, frame: Frame, scene: Scene, *, inpaint, fov_kw, float_out, depth_out):
+def _render_frame(method, frame: Frame, scene: Scene, *, inpaint, fov_kw, float_out, depth_out, background=None):
     outputs: list[tuple[str, str, np.ndarray]] = []
     t0 = time.perf_counter()
     out, stage_ms = method.render(frame.camera)
-    done = complete(out, frame.camera, *completion(method.name, scene, inpaint))
+    done = complete(out, frame.camera, *completion(method.name, scene, inpaint), parse_background(background))
     color, hole = done.color, done.hole
     stage_ms = {**stage_ms, **done.stage_ms}
     if fov_kw:
@@ -528,7 +535,8 @@ def _render_frame(method, frame: Frame, scene: Scene, *, inpaint, fov_kw, float_
         stage_ms = {**stage_ms, "foveate": (time.perf_counter() - t1) * 1e3}
     total_ms = (time.perf_counter() - t0) * 1e3
     image = f"{frame.stem}.png"
-    outputs.append((image, "image", color))
+    written = color if done.alpha is None else np.concatenate([color, done.alpha[..., None]], -1)
+    outputs.append((image, "image", written))
     entry: dict = {"name": frame.name, "image": image,
                    "time_ms": {"total": round(total_ms, 3), **{k: round(v, 3) for k, v in stage_ms.items()}},
                    "metrics": _frame_metrics(color, hole, done.filled, frame.truth), **frame.info}
@@ -547,7 +555,7 @@ def _render_frame(method, frame: Frame, scene: Scene, *, inpaint, fov_kw, float_
     if warnings:
         entry["warnings"] = warnings
     if float_out:
-        outputs.append((f"{frame.stem}.exr", "image", color))
+        outputs.append((f"{frame.stem}.exr", "image", written))
         entry["image_float"] = f"{frame.stem}.exr"
     if depth_out and done.depth is not None:
         outputs.append((f"{frame.stem}.depth.exr", "depth", done.depth))
