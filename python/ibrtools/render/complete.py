@@ -194,15 +194,19 @@ def _fill(color: np.ndarray, hole: np.ndarray, depth: np.ndarray | None, bg: np.
     if d is not None:
         ok = surface & np.isfinite(d) & (d > 0)
         known_depth[ok] = d[ok]
-    covered = ~hole
-    votes = np.zeros(hole.shape, np.int8)
-    bg_votes = np.zeros(hole.shape, np.int8)
-    around = np.zeros(hole.shape, np.float32)  # largest depth of the nearest surface pixels
-    for value, is_bg, found in _nearest_covered(known_depth, bg, covered):
+    ys, xs = np.nonzero(hole)
+    votes = np.zeros(len(ys), np.int8)
+    bg_votes = np.zeros(len(ys), np.int8)
+    around = np.zeros(len(ys), np.float32)  # largest depth of the nearest surface pixels
+    for ny, nx, found in _nearest_covered(hole):
+        ny, nx = np.where(found, ny, 0), np.where(found, nx, 0)
+        is_bg = found & bg[ny, nx]
         votes += found
-        bg_votes += found & is_bg
-        around = np.maximum(around, np.where(found & ~is_bg, value, np.float32(0)))
-    sky = hole & (2 * bg_votes >= votes) & (votes > 0) if bg.any() else np.zeros(hole.shape, bool)
+        bg_votes += is_bg
+        around = np.maximum(around, np.where(found & ~is_bg, known_depth[ny, nx], np.float32(0)))
+    sky = np.zeros(hole.shape, bool)
+    if bg.any():
+        sky[ys, xs] = (2 * bg_votes >= votes) & (votes > 0)
     ground = hole & ~sky
     if ground.any() and not surface.any():
         sky, ground = hole, np.zeros(hole.shape, bool)  # nothing but background to fill from
@@ -213,9 +217,9 @@ def _fill(color: np.ndarray, hole: np.ndarray, depth: np.ndarray | None, bg: np.
         method = "pushpull" if mode == "auto" else mode
         aware = None
         if d is not None and known_depth.any():
-            far = float(known_depth.max())
-            aware = np.where(ground, np.where(around > 0, around, np.float32(far)), known_depth)
-            aware = np.ascontiguousarray(aware, np.float32)
+            aware = known_depth.copy()
+            aware[ys, xs] = np.where(around > 0, around, np.float32(known_depth.max()))
+            aware[sky] = 0  # not read: the background holes are blocked as the background is
         filled = fill_holes(color, hole | bg, method, depth=aware)  # never from the background at infinity
         out = np.where(ground[..., None], filled, out)
     if sky.any():
@@ -227,18 +231,34 @@ def _fill(color: np.ndarray, hole: np.ndarray, depth: np.ndarray | None, bg: np.
     return out, (mode if ground.any() else "from the background"), sky
 
 
-def _nearest_covered(value: np.ndarray, flag: np.ndarray, covered: np.ndarray):
-    """For each of the four directions (left, right, up, down): (value, flag, found) (H, W) of
-    the nearest covered pixel in that direction of every pixel (found False where there is none).
-    Vectorised: a running maximum of covered indices along rows / columns."""
-    for transpose in (False, True):
-        v, f, c = (value.T, flag.T, covered.T) if transpose else (value, flag, covered)
-        for reverse in (False, True):
-            vv, ff, cc = (v[:, ::-1], f[:, ::-1], c[:, ::-1]) if reverse else (v, f, c)
-            idx = np.where(cc, np.arange(cc.shape[1])[None, :], -1)
-            last = np.maximum.accumulate(idx, axis=1)
-            at = np.maximum(last, 0)
-            res = [np.take_along_axis(vv, at, axis=1), np.take_along_axis(ff, at, axis=1), last >= 0]
-            if reverse:
-                res = [r[:, ::-1] for r in res]
-            yield tuple(r.T if transpose else r for r in res)
+def _nearest_covered(hole: np.ndarray):
+    """For the hole pixels (row-major order, as ``np.nonzero(hole)``) and each of the four
+    directions (left, right, up, down): (row, col, found) of the nearest pixel that is not a hole
+    in that direction. A hole pixel's nearest covered pixels along its row are the two ends of
+    the run of holes it lies in, so only the runs are found (np.diff), not a scan of the image."""
+    h, w = hole.shape
+    ys, xs = np.nonzero(hole)
+    r, before, after = _runs(hole)  # rows; columns before / after each pixel's run
+    yield r, before, before >= 0
+    yield r, after, after < w
+    index = np.full(hole.shape, -1, np.int64)
+    index[ys, xs] = np.arange(len(ys))
+    order = index.T[hole.T]  # the row-major index of each hole pixel in column-major order
+    c, above, below = _runs(hole.T)
+    up, down = np.empty(len(ys), np.int64), np.empty(len(ys), np.int64)
+    up[order], down[order] = above, below
+    yield up, xs, up >= 0
+    yield down, xs, down < h
+
+
+def _runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For the True pixels of ``mask`` (row-major order): (row, the column before the run of True
+    pixels it lies in (-1 at the left edge), the column after it (W at the right edge))."""
+    h, w = mask.shape
+    m = np.zeros((h, w + 2), np.int8)
+    m[:, 1:-1] = mask
+    d = np.diff(m, axis=1)
+    rows, start = np.nonzero(d == 1)
+    _, end = np.nonzero(d == -1)
+    run = np.repeat(np.arange(len(start)), end - start)
+    return rows[run], start[run] - 1, end[run]
