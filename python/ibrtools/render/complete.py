@@ -221,13 +221,13 @@ def _fill(color: np.ndarray, hole: np.ndarray, depth: np.ndarray | None, bg: np.
             aware[ys, xs] = np.where(around > 0, around, np.float32(known_depth.max()))
             aware[sky] = 0  # not read: the background holes are blocked as the background is
         filled = fill_holes(color, hole | bg, method, depth=aware)  # never from the background at infinity
-        out = np.where(ground[..., None], filled, out)
+        out = out.copy() if out is color else out
+        out[ground] = filled[ground]
     if sky.any():
-        if bg_colour is not None:
-            out = np.where(sky[..., None], bg_colour.astype(np.float32), out)
-        else:
-            filled = fill_holes(color, ~bg, "pushpull")  # from the background at infinity only
-            out = np.where(sky[..., None], filled, out)
+        filled = bg_colour.astype(np.float32) if bg_colour is not None else \
+            fill_holes(color, ~bg, "pushpull")[sky]  # from the background at infinity only
+        out = out.copy() if out is color else out
+        out[sky] = filled
     return out, (mode if ground.any() else "from the background"), sky
 
 
