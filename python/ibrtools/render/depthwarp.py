@@ -170,7 +170,7 @@ def visualise(depth: np.ndarray, far: float) -> np.ndarray:
 
 
 def warp_with_far_plane(layers: np.ndarray, src: Camera, dst: Camera, bounds: np.ndarray, forward: str = "none",
-                        params=None, far_plane: bool = True):
+                        params=None, far_plane: bool = True, surface_ids: np.ndarray | None = None):
     """Warp a deep depth buffer (L, H, W) from ``src`` into ``dst`` (``forward`` "none" = the
     iterative backward warp with ``params``, else "vfw" / "afw"), returning the WarpResult with
     ``depth`` 0 in holes and where nothing is.
@@ -179,7 +179,9 @@ def warp_with_far_plane(layers: np.ndarray, src: Camera, dst: Camera, bounds: np
     at z = 2 far_src (far_src: the farthest corner of the scene ``bounds`` in src, so the plane is
     behind every surface), so that the background's motion converges instead of leaving holes;
     a converged depth beyond far_dst (no surface can be farther in dst) is that plane: reported
-    as empty (depth 0), not as a hole."""
+    as empty (depth 0), not as a hole. ``surface_ids`` (L, H, W) int32 (the layers' object ids; backward
+    warp only): the result's ``occluder`` is the proven occluder depth (``warp_depth``); the far plane
+    has no surface id, so it never proves a depth."""
     from ..depthwarp import forward_warp_depth, warp_depth
 
     layers = np.ascontiguousarray(layers[None] if layers.ndim == 2 else layers, np.float32)
@@ -187,7 +189,7 @@ def warp_with_far_plane(layers: np.ndarray, src: Camera, dst: Camera, bounds: np
         layers = layers.copy()
         layers[0][layers[0] <= 0] = np.float32(2.0 * far_depth(bounds, src))
     if forward == "none":
-        res = warp_depth(layers, src, dst, params)
+        res = warp_depth(layers, src, dst, params, surface_ids=surface_ids)
     else:
         res = forward_warp_depth(layers, src, dst, forward)
     hole = np.asarray(res.hole, bool)
@@ -297,8 +299,10 @@ class DepthWarpMethod:
         deep = self._renderer.peel(src, p["layers"], umbra=[camera] if p["umbra"] else None,
                                    ground_object=self._ground)
         stages["peel"] = sum(deep.times_ms.values())
+        backward = p["forward"] == "none"
         res = warp_with_far_plane(deep.depth, src, camera, self._bounds, p["forward"],
-                                  self._warp_params() if p["forward"] == "none" else None, p["far_plane"])
+                                  self._warp_params() if backward else None, p["far_plane"],
+                                  surface_ids=deep.object_id if p["cull"] and backward else None)
         for k in ("motion", "mipmap", "warp", "dilate"):
             if k in res.times_ms:
                 stages[k] = float(res.times_ms[k])
@@ -322,7 +326,12 @@ class DepthWarpMethod:
             from ..culling import cull_objects
 
             t0 = time.perf_counter()
-            cr = cull_objects(np.ascontiguousarray(depth), hole, camera, self._boxes)
+            # The backward warp's proven occluder depth (conservative); the forward baselines prove
+            # nothing, so they cull with their depth and holes (docs/culling.md).
+            if res.occluder is not None:
+                cr = cull_objects(res.occluder, None, camera, self._boxes)
+            else:
+                cr = cull_objects(np.ascontiguousarray(depth), hole, camera, self._boxes)
             stages["cull"] = (time.perf_counter() - t0) * 1e3
             ids = ref_out["object_id"]
             k = len(self._boxes)
