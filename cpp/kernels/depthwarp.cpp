@@ -744,13 +744,14 @@ void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const Depth
     std::int64_t c_conv = 0, c_early = 0, c_search = 0, c_samples = 0, c_lookups = 0;
     float best[kMaxT * kMaxT];
     float proven[kMaxT * kMaxT];  // least proven bound (proven_out only)
+    std::int64_t tried[kMaxT * kMaxT];  // the last sample (source pixel, layer) a proof was tried for
     std::int8_t best_layer[kMaxT * kMaxT];
     for (int ty = int(r0); ty < int(r1); ++ty) {
       const int y0 = ty * kT, y1 = std::min(h, y0 + kT);
       for (int tx = 0; tx < tiles_x; ++tx) {
         const int x0 = tx * kT, x1 = std::min(w, x0 + kT);
         std::fill(best, best + kT * kT, kInf);
-        if (prove) std::fill(proven, proven + kT * kT, kInf);
+        if (prove) std::fill(proven, proven + kT * kT, kInf), std::fill(tried, tried + kT * kT, std::int64_t(-1));
         std::fill(best_layer, best_layer + kT * kT, std::int8_t(-1));
         for (int j = 0; j < num_layers; ++j) {
           const DepthWarpLayer& l = layers[j];
@@ -819,7 +820,11 @@ void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const Depth
             }
             // A proof bounds the depth by a triangle corner's z >= z: none can beat proven[at] otherwise.
             // No unseen-space test: a proven point is on p's ray whatever lies in front of it.
-            if (prove && conv && z < proven[at]) proven[at] = std::min(proven[at], ProvenBound(layers, num_layers, from, pixel, px, py));
+            // Seeds that converge to a sample already tried at p (the common case) would repeat its proof.
+            if (prove && conv && z < proven[at] && tried[at] != std::int64_t(pixel) * 128 + from) {
+              tried[at] = std::int64_t(pixel) * 128 + from;
+              proven[at] = std::min(proven[at], ProvenBound(layers, num_layers, from, pixel, px, py));
+            }
           };
           if (tile_one) {
             // Homogeneous motion over the whole tile: every pixel runs one search from the tile

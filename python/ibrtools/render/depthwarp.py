@@ -133,17 +133,28 @@ def fill_background(depth: np.ndarray, hole: np.ndarray, far: float) -> np.ndarr
     return out
 
 
-def depth_scores(warped: np.ndarray, hole: np.ndarray | None, reference: np.ndarray, far: float) -> dict:
-    """Depth PSNR / SSIM of ``warped`` against ``reference`` (module doc: z / far, empty at far,
-    holes filled with the background depth by :func:`fill_background`) and the hole fraction."""
+HOLE_SCORING = ("background", "far")
+
+
+def depth_scores(warped: np.ndarray, hole: np.ndarray | None, reference: np.ndarray, far: float,
+                 holes: str = "background") -> dict:
+    """Depth PSNR / SSIM of ``warped`` against ``reference`` (module doc: z / far, empty at far) and
+    the hole fraction. ``holes``: "background" (the report's scores: holes filled with the background
+    depth by :func:`fill_background`, what a user of the depth image gets) or "far" (holes at far:
+    what occlusion culling sees)."""
     from ..metrics import psnr, ssim
 
     far = float(far)
     if not far > 0:
         raise BadValueError(f"far: expected a positive depth, got {far}")
+    if holes not in HOLE_SCORING:
+        raise BadValueError(f"holes: expected one of {HOLE_SCORING}, got {holes!r}")
     if hole is None:
         hole = np.zeros(warped.shape, bool)
-    w = fill_background(warped, hole, far)
+    if holes == "far":
+        w = np.where(np.asarray(hole, bool) | ~(warped > 0), np.float32(far), warped).astype(np.float32)
+    else:
+        w = fill_background(warped, hole, far)
     r = np.where(reference > 0, reference, far)
     a = (np.clip(w, 0.0, far) / far).astype(np.float32)
     b = (np.clip(r, 0.0, far) / far).astype(np.float32)
