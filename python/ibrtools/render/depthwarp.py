@@ -13,9 +13,9 @@ For frame t of a pose sequence (``--poses``, ``--path``), the depth buffer of ca
              oriented bounds, N seeds x T fixed-point iterations, cross-layer seeding, dilation) or,
              with ``forward`` vfw / afw, the forward baselines ``forward_warp_depth`` through the
              same path;
-  cull       (``cull``) warping-based occlusion culling of the scene's objects with the warped
-             depth (``ibrtools.culling``), scored against the objects the reference render of
-             frame t sees;
+  cull       (``cull``) warping-based occlusion culling of the scene's objects with the warp's
+             proven occluder depth (the peel's object ids as surface ids; ``ibrtools.culling``,
+             docs/culling.md), scored against the objects the reference render of frame t sees;
   reference  the Embree depth render of frame t: the ground truth of the scores and the cost the
              warp replaces.
 
