@@ -65,8 +65,14 @@ def test_depth_scores_definition():
     assert (fill_background(np.zeros((4, 4), np.float32), np.ones((4, 4), bool), 10.0) == 10.0).all()
     s = depth_scores(np.where(hole, 0, step).astype(np.float32), hole, np.where(hole, 6.0, step), 10.0)
     assert s["depth_psnr"] is None and s["hole_fraction"] == 0.25
+    # Scored as culling sees them, the holes are at far (10): columns 6-7 (near half, 2 m) are off by
+    # 0.8 of far and columns 8-9 (6 m) by 0.4: MSE = (2 * 0.8^2 + 2 * 0.4^2) / 16 of z / far.
+    s = depth_scores(np.where(hole, 0, step).astype(np.float32), hole, step, 10.0, holes="far")
+    assert s["depth_psnr"] == pytest.approx(10 * np.log10(16 / (2 * 0.8**2 + 2 * 0.4**2)), abs=1e-3)
     with pytest.raises(BadValueError, match="far"):
         depth_scores(ref, None, ref, 0.0)
+    with pytest.raises(BadValueError, match="holes"):
+        depth_scores(ref, None, ref, 10.0, holes="zero")
 
 
 def test_far_depth_and_visualise():

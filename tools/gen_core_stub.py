@@ -82,7 +82,7 @@ OVERRIDES: dict[str, dict[str, str]] = {
                        "out": "_F32 | None", "reuse": "DepthWarpMips | None",
                        "return": "tuple[_F32, DepthWarpMips, float, float]"},
     "dw_warp": {"packed": "_F32", "seen_src": "Camera | None", "seen_dst": "Camera | None",
-                "return": "tuple[_F32, _I8, dict[str, typing.Any]]"},
+                "surface_ids": "_I32 | None", "return": "tuple[_F32, _I8, dict[str, typing.Any], _F32 | None]"},
     "forward_warp": {"color": "_F32", "depth": "_F32"},
     "grid_maxflow": {"source_cap": "_I64 | _F64", "sink_cap": "_I64 | _F64", "right": "_I64 | _F64",
                      "down": "_I64 | _F64", "return": "tuple[int | float, _Bool]"},

@@ -383,7 +383,7 @@ void BindDepthwarp(py::module_& m) {
       [](py::handle packed_obj, const MotionMips& mm, int dst_height, int dst_width, int seeds, int iters,
          float threshold, bool tight, int steps, float early_exit, std::uint32_t seed, bool dilate,
          int dilate_min_neighbors, bool skip_farther, int tile, bool pixel_step, py::handle seen_src,
-         py::handle seen_dst, float edge_motion) {
+         py::handle seen_dst, float edge_motion, py::handle surface_ids) {
         FloatArray packed = CheckPacked(packed_obj);
         if (packed.shape(0) != mm.num_layers || packed.shape(1) != mm.height || packed.shape(2) != mm.width) {
           throw ShapeError("mips: built for (" + std::to_string(mm.num_layers) + ", " + std::to_string(mm.height) +
@@ -411,6 +411,16 @@ void BindDepthwarp(py::module_& m) {
           layers[j].zmips = zmip_views[j].data();
           layers[j].n_mips = static_cast<int>(mip_views[j].size());
           for (int i = 0; i < 4; ++i) layers[j].rot[i] = mm.rot[j][i];
+        }
+        IntArray surface;
+        const bool prove = !surface_ids.is_none();
+        if (prove) {
+          surface = CheckArray<std::int32_t>(surface_ids, "surface_ids",
+                                             {{"L", mm.num_layers}, {"H", mm.height}, {"W", mm.width}});
+          const std::int64_t ids_plane = std::int64_t(mm.height) * mm.width;
+          for (int j = 0; j < mm.num_layers; ++j) {
+            layers[j].surface = ImageView<const std::int32_t>(surface.data() + j * ids_plane, mm.height, mm.width);
+          }
         }
         DepthWarpOptions opt;
         opt.seeds = seeds, opt.iters = iters, opt.threshold = threshold, opt.tight = tight, opt.steps = steps;
@@ -458,6 +468,12 @@ void BindDepthwarp(py::module_& m) {
         }
         FloatArray depth = NewArray<float>({dst_height, dst_width});
         py::array_t<std::int8_t, py::array::c_style> layer = NewArray<std::int8_t>({dst_height, dst_width});
+        py::object occluder = py::none();
+        FloatArray proven;
+        if (prove) {
+          proven = NewArray<float>({dst_height, dst_width});
+          occluder = proven;
+        }
         DepthWarpCounters counters;
         double warp_ms = 0, dilate_ms = 0;
         std::int64_t dilated = 0;
@@ -466,7 +482,8 @@ void BindDepthwarp(py::module_& m) {
           auto t0 = std::chrono::steady_clock::now();
           ImageView<float> dv(depth.mutable_data(), dst_height, dst_width);
           ImageView<std::int8_t> lv(layer.mutable_data(), dst_height, dst_width);
-          DepthWarpBackward(layers.data(), mm.num_layers, opt, dv, lv, &counters);
+          ImageView<float> pv(prove ? proven.mutable_data() : nullptr, dst_height, dst_width);
+          DepthWarpBackward(layers.data(), mm.num_layers, opt, dv, lv, &counters, prove ? &pv : nullptr);
           warp_ms = MsSince(t0);
           if (dilate) {
             t0 = std::chrono::steady_clock::now();
@@ -487,16 +504,18 @@ void BindDepthwarp(py::module_& m) {
         c["dilated"] = dilated;
         c["warp_ms"] = warp_ms;
         c["dilate_ms"] = dilate_ms;
-        return py::make_tuple(depth, layer, c);
+        return py::make_tuple(depth, layer, c, occluder);
       },
       py::arg("packed"), py::arg("mips"), py::arg("dst_height"), py::arg("dst_width"), py::arg("seeds") = 16,
       py::arg("iters") = 3, py::arg("threshold") = 0.5f, py::arg("tight") = true, py::arg("steps") = 3,
       py::arg("early_exit") = 0.5f, py::arg("seed") = 0u, py::arg("dilate") = true,
       py::arg("dilate_min_neighbors") = 5, py::arg("skip_farther") = true, py::arg("tile") = 8,
       py::arg("pixel_step") = true, py::arg("seen_src") = py::none(), py::arg("seen_dst") = py::none(),
-      py::arg("edge_motion") = 0.0f,
+      py::arg("edge_motion") = 0.0f, py::arg("surface_ids") = py::none(),
       "Backward depth warp (DepthWarpBackward, then DepthWarpDilate when dilate): returns depth float32 "
-      "(H', W') (0 in holes), layer int8 (H', W') (-1 in holes) and a dict of counters and wall times. "
+      "(H', W') (0 in holes), layer int8 (H', W') (-1 in holes), a dict of counters and wall times, and the "
+      "proven occluder depth float32 (H', W') (0 where nothing is proven; before dilation) when surface_ids "
+      "int32 (L, H, W) (the source pixels' object ids, < 0 = none) is given, else None. "
       "seen_src, seen_dst (pinhole Cameras, both or neither): unseen-space rejection of deep-layer samples "
       "(DepthWarpSeen: a sample of layer >= 1 is accepted only where the target ray in front of it lies "
       "inside the source camera's view).");

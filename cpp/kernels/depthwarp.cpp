@@ -200,7 +200,8 @@ inline bool EdgeConsistent(const DepthWarpLayer* layers, int jj, std::ptrdiff_t 
 // Fig. 3 fixed_point_search with Fig. 6 multi_layer_seed, for target centre (px, py), search
 // layer j, seed q. On convergence sets z and the layer the sample came from.
 inline bool FixedPointSearch(const DepthWarpLayer* layers, int j, float px, float py, float qx, float qy,
-                             int iters, float thr2, float edge2, float* z, int* layer, std::int64_t* lookups) {
+                             int iters, float thr2, float edge2, float* z, int* layer, std::ptrdiff_t* pixel,
+                             std::int64_t* lookups) {
   const int w = layers[0].packed.width, h = layers[0].packed.height;
   int empties = 0;
   for (int k = 0;; ++k) {
@@ -222,12 +223,131 @@ inline bool FixedPointSearch(const DepthWarpLayer* layers, int j, float px, floa
     if (dx * dx + dy * dy < thr2 && EdgeConsistent(layers, jj, at, s, wx, wy, edge2, w, h)) {
       *z = s[2];
       *layer = jj;
+      *pixel = at / 4;
       return true;
     }
     if (k >= iters) return false;
     qx = wx;
     qy = wy;
   }
+}
+
+// Proven occluder depth of a converged sample (depthwarp.h, DepthWarpBackward "proof"). A point of
+// surface k at source pixel i is i's sample in the nearest layer whose surface id is k (any layer: a
+// surface seen in layer 0 on one side of a silhouette and in a deeper layer behind the occluder on
+// the other is one surface). A triangle of three such points of pixels of one 2x2 quad proves the
+// target centre p when p lies inside (or on) its moved corners: the bound is its farthest corner z.
+// The moved positions carry the motion's float rounding (~1e-4 px at 2000 px; StaticMotion), which
+// the test does not widen or shrink for: a gap narrower than that is not resolved (a margin would
+// also reject the pixel centres that lie on the shared edge of two proving triangles, measured:
+// 1e-3 px cost 15 % of the proven culls on the crowd walk).
+// p inside (or on) the triangle of corners (x[i], y[i]) given relative to p: the three edge
+// functions (x_a y_b - y_a x_b with p at the origin) have the sign of the area, or are 0. The
+// coordinates are a few pixels: float products are exact to ~1e-7 px, far below the motion's rounding.
+inline bool InsideTriangle(const float* x, const float* y) {
+  const float e0 = x[0] * y[1] - y[0] * x[1], e1 = x[1] * y[2] - y[1] * x[2], e2 = x[2] * y[0] - y[2] * x[0];
+  const float area = e0 + e1 + e2;
+  if (area > 0.0f) return e0 >= 0.0f && e1 >= 0.0f && e2 >= 0.0f;
+  if (area < 0.0f) return e0 <= 0.0f && e1 <= 0.0f && e2 <= 0.0f;
+  return false;  // degenerate (or NaN): proves nothing
+}
+
+// The quad of pixels (x0, y0) .. (x0 + 1, y0 + 1) for surface `id` (layer `pref` tried first at each
+// corner): the two triangles of the diagonal 0-2, then those of 1-3 (a non-convex moved quad, or a
+// missing corner). The first proof's bound, or +inf.
+inline float QuadBound(const DepthWarpLayer* layers, int num_layers, int pref, std::int32_t id, int x0, int y0,
+                       float px, float py) {
+  const int w = layers[0].packed.width;
+  float cx[4], cy[4], cz[4];
+  bool ok[4];
+  int n_ok = 0;
+  for (int k = 0; k < 4; ++k) {
+    const int xx = x0 + (k == 1 || k == 2), yy = y0 + (k >= 2);
+    const std::ptrdiff_t i = std::ptrdiff_t(yy) * w + xx;
+    const float* t = nullptr;
+    if (layers[pref].surface.data[i] == id && layers[pref].packed.data[i * 4 + 2] > 0.0f) {
+      t = layers[pref].packed.data + i * 4;
+    } else {
+      for (int l = 0; l < num_layers && t == nullptr; ++l) {
+        if (layers[l].surface.data[i] == id && layers[l].packed.data[i * 4 + 2] > 0.0f) t = layers[l].packed.data + i * 4;
+      }
+    }
+    ok[k] = t != nullptr;
+    if (!ok[k]) continue;
+    ++n_ok;
+    // Moved centre relative to p: (xx + 0.5 - px) is exact (a few pixels), then the motion.
+    cx[k] = (float(xx) + 0.5f - px) + t[0], cy[k] = (float(yy) + 0.5f - py) + t[1], cz[k] = t[2];
+  }
+  if (n_ok < 3) return kInf;
+  static constexpr int kTri[4][3] = {{0, 1, 2}, {0, 2, 3}, {0, 1, 3}, {1, 2, 3}};
+  for (const auto& tri : kTri) {
+    if (!(ok[tri[0]] && ok[tri[1]] && ok[tri[2]])) continue;
+    const float tx[3] = {cx[tri[0]], cx[tri[1]], cx[tri[2]]}, ty[3] = {cy[tri[0]], cy[tri[1]], cy[tri[2]]};
+    if (InsideTriangle(tx, ty)) return std::max(cz[tri[0]], std::max(cz[tri[1]], cz[tri[2]]));
+  }
+  return kInf;
+}
+
+// The next float up (z > 0, finite): one ulp.
+inline float NextUp(float z) {
+  std::uint32_t u;
+  std::memcpy(&u, &z, 4);
+  ++u;
+  std::memcpy(&z, &u, 4);
+  return z;
+}
+
+// Sample of source pixel S (index `pixel`) in layer ls converged at p. First the quad around p's
+// preimage p - V(S) for S's surface (the common case: one surface around S); then the four quads
+// around S for S's surface; then every surface of those quads' corners in any layer (p beyond S's
+// surface's edge: the hidden surface continues behind the occluder, or a neighbour covers p). The
+// least bound found at the first stage that finds one, one float ulp up (z_dst is rounded to
+// nearest); +inf if none.
+inline float ProvenBound(const DepthWarpLayer* layers, int num_layers, int ls, std::ptrdiff_t pixel, float px,
+                         float py) {
+  const int w = layers[0].packed.width, h = layers[0].packed.height;
+  if (w < 2 || h < 2) return kInf;
+  const int sx = int(pixel % w), sy = int(pixel / w);
+  const std::int32_t own = layers[ls].surface.data[pixel];
+  const float* ts = layers[ls].packed.data + pixel * 4;
+  const int qx = std::clamp(int(std::floor(px - ts[0] - 0.5f)), 0, w - 2);
+  const int qy = std::clamp(int(std::floor(py - ts[1] - 0.5f)), 0, h - 2);
+  float best = own >= 0 ? QuadBound(layers, num_layers, ls, own, qx, qy, px, py) : kInf;
+  if (best == kInf && own >= 0) {
+    for (int oy = -1; oy <= 0; ++oy) {
+      for (int ox = -1; ox <= 0; ++ox) {
+        const int x0 = sx + ox, y0 = sy + oy;
+        if (x0 < 0 || y0 < 0 || x0 + 1 >= w || y0 + 1 >= h || (x0 == qx && y0 == qy)) continue;
+        best = std::min(best, QuadBound(layers, num_layers, ls, own, x0, y0, px, py));
+      }
+    }
+  }
+  if (best == kInf && own < 0) {
+    // Empty or far-plane sample (the sky): another surface can prove p only at its edge, where a
+    // corner of the preimage quad carries it in some layer (else nothing is proven: the common case).
+    bool any = false;
+    for (int k = 0; k < 4 && !any; ++k) {
+      const std::ptrdiff_t i = std::ptrdiff_t(qy + (k >> 1)) * w + qx + (k & 1);
+      for (int l = 0; l < num_layers && !any; ++l) any = layers[l].surface.data[i] >= 0;
+    }
+    if (!any) return kInf;
+  }
+  if (best == kInf) {
+    for (int qq = 0; qq < 5; ++qq) {
+      const int x0 = qq == 4 ? qx : sx - (qq & 1), y0 = qq == 4 ? qy : sy - (qq >> 1);
+      if (x0 < 0 || y0 < 0 || x0 + 1 >= w || y0 + 1 >= h) continue;
+      // A triangle holds corner 0 or 2 (of the diagonal pair): their ids are the candidates.
+      for (int c = 0; c < 4; c += 2) {
+        const std::ptrdiff_t i = std::ptrdiff_t(y0 + (c >> 1)) * w + x0 + (c >> 1);
+        for (int l = 0; l < num_layers; ++l) {
+          const std::int32_t id = layers[l].surface.data[i];
+          if (id < 0 || id == own || !(layers[l].packed.data[i * 4 + 2] > 0.0f)) continue;
+          best = std::min(best, QuadBound(layers, num_layers, l, id, x0, y0, px, py));
+        }
+      }
+    }
+  }
+  return best < kInf ? NextUp(best) : kInf;
 }
 
 // DepthWarpSeen: may a sample at depth z be accepted at target pixel centre (px, py)? layer0 is
@@ -608,7 +728,7 @@ void DepthWarpMipDown(const ImageView<const float>& in, const ImageView<const fl
 
 void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const DepthWarpOptions& opt,
                        const ImageView<float>& depth_out, const ImageView<std::int8_t>& layer_out,
-                       DepthWarpCounters* counters) {
+                       DepthWarpCounters* counters, const ImageView<float>* proven_out) {
   const int w = depth_out.width, h = depth_out.height;
   constexpr int kMaxT = kDepthWarpMaxTile;
   const int kT = std::max(1, std::min(kMaxT, opt.tile));
@@ -617,17 +737,21 @@ void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const Depth
   const float edge2 = opt.edge_motion > 0.0f ? opt.edge_motion * opt.edge_motion : 0.0f;
   const int n_seeds = std::max(1, opt.seeds);
   const float inv_n = 1.0f / float(n_seeds);
+  const bool prove = proven_out != nullptr;
   std::atomic<std::int64_t> converged{0}, early{0}, searched{0}, samples{0}, lookups{0};
   const std::int64_t grain = std::max<std::int64_t>(1, kMinPixelsPerTask / (std::int64_t(kT) * kT * tiles_x));
   ParallelFor(tiles_y, grain, [&](std::int64_t r0, std::int64_t r1) {
     std::int64_t c_conv = 0, c_early = 0, c_search = 0, c_samples = 0, c_lookups = 0;
     float best[kMaxT * kMaxT];
+    float proven[kMaxT * kMaxT];  // least proven bound (proven_out only)
+    std::int64_t tried[kMaxT * kMaxT];  // the last sample (source pixel, layer) a proof was tried for
     std::int8_t best_layer[kMaxT * kMaxT];
     for (int ty = int(r0); ty < int(r1); ++ty) {
       const int y0 = ty * kT, y1 = std::min(h, y0 + kT);
       for (int tx = 0; tx < tiles_x; ++tx) {
         const int x0 = tx * kT, x1 = std::min(w, x0 + kT);
         std::fill(best, best + kT * kT, kInf);
+        if (prove) std::fill(proven, proven + kT * kT, kInf), std::fill(tried, tried + kT * kT, std::int64_t(-1));
         std::fill(best_layer, best_layer + kT * kT, std::int8_t(-1));
         for (int j = 0; j < num_layers; ++j) {
           const DepthWarpLayer& l = layers[j];
@@ -651,6 +775,9 @@ void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const Depth
             // pixel loop): skip it here, before the prefetch of rows that would not be read.
             float farthest = 0.0f;
             for (int k = 0; k < kT * kT; ++k) farthest = std::max(farthest, best[k]);
+            if (prove) {  // nor prove a nearer bound (proven depths: see search_from)
+              for (int k = 0; k < kT * kT; ++k) farthest = std::max(farthest, proven[k]);
+            }
             if (bt.zmin >= farthest) continue;
           }
           const bool tile_one = std::max(bt.u1 - bt.u0, bt.w1 - bt.w0) < opt.early_exit;
@@ -676,15 +803,27 @@ void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const Depth
           }
           // One fixed-point search of pixel (px, py) in layer j from the seed motion (vx, vy): a
           // converged sample nearer than the pixel's best becomes its best (a sample from a deeper
-          // layer only if the unseen-space test SeenInFront accepts it).
-          auto search_from = [&](float px, float py, int at, float vx, float vy) {
+          // layer only if the unseen-space test SeenInFront accepts it). With proven_out, a layer
+          // that skip_farther rules out for the depth is still searched where it may prove a nearer
+          // bound (its own samples converge there; live = false: the search does not touch the
+          // depth, which stays the same as without proven_out).
+          auto search_from = [&](float px, float py, int at, float vx, float vy, bool live) {
             float z;
             int from;
+            std::ptrdiff_t pixel;
             ++c_samples;
-            if (FixedPointSearch(layers, j, px, py, px - vx, py - vy, opt.iters, thr2, edge2, &z, &from, &c_lookups) &&
-                z < best[at] && (from == 0 || opt.seen == nullptr || SeenInFront(*opt.seen, layers[0], px, py, z))) {
+            const bool conv =
+                FixedPointSearch(layers, j, px, py, px - vx, py - vy, opt.iters, thr2, edge2, &z, &from, &pixel, &c_lookups);
+            if (live && conv && z < best[at] && (from == 0 || opt.seen == nullptr || SeenInFront(*opt.seen, layers[0], px, py, z))) {
               best[at] = z;
               best_layer[at] = std::int8_t(from);
+            }
+            // A proof bounds the depth by a triangle corner's z >= z: none can beat proven[at] otherwise.
+            // No unseen-space test: a proven point is on p's ray whatever lies in front of it.
+            // Seeds that converge to a sample already tried at p (the common case) would repeat its proof.
+            if (prove && conv && z < proven[at] && tried[at] != std::int64_t(pixel) * 128 + from) {
+              tried[at] = std::int64_t(pixel) * 128 + from;
+              proven[at] = std::min(proven[at], ProvenBound(layers, num_layers, from, pixel, px, py));
             }
           };
           if (tile_one) {
@@ -698,9 +837,10 @@ void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const Depth
               for (int x = x0; x < x1; ++x) {
                 const float px = x + 0.5f;
                 const int at = (y - y0) * kT + (x - x0);
-                if (opt.skip_farther && bt.zmin >= best[at]) continue;
+                const bool live = !(opt.skip_farther && bt.zmin >= best[at]);
+                if (!live && !(prove && bt.zmin < proven[at])) continue;
                 ++c_search, ++c_early;
-                search_from(px, py, at, vx, vy);
+                search_from(px, py, at, vx, vy, live);
               }
             }
             continue;
@@ -711,7 +851,8 @@ void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const Depth
               const float px = x + 0.5f;
               const int at = (y - y0) * kT + (x - x0);
               // No sample of this layer can be nearer than zmin: the result cannot change.
-              if (opt.skip_farther && bt.zmin >= best[at]) continue;
+              bool live = !(opt.skip_farther && bt.zmin >= best[at]);
+              if (!live && !(prove && bt.zmin < proven[at])) continue;
               Bound b = bt;
               if (step) {
                 // One narrowing step of the pixel's own region (Fig. 5) from the tile bound:
@@ -720,7 +861,9 @@ void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const Depth
                 // motion texels (the same result as intersecting first, for less memory traffic).
                 Corners c;
                 if (!PixelCorners(l, Region{px - mb.x1, py - mb.y1, px - mb.x0, py - mb.y0}, &c)) continue;
-                if (opt.skip_farther && std::max(bt.zmin, CornersZmin(l, c)) >= best[at]) continue;
+                const float zc = std::max(bt.zmin, CornersZmin(l, c));
+                live = live && !(opt.skip_farther && zc >= best[at]);
+                if (!live && !(prove && zc < proven[at])) continue;
                 b = Intersect(b, CornersBound(l, c));
                 if (!b.Valid()) continue;
               }
@@ -742,7 +885,7 @@ void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const Depth
                   sw = Frac(RadicalInverse2(std::uint32_t(k)) + j2);
                 }
                 const float u = b.u0 + su * eu, v = b.w0 + sw * ew;
-                search_from(px, py, at, l.rot[0] * u + l.rot[2] * v, l.rot[1] * u + l.rot[3] * v);
+                search_from(px, py, at, l.rot[0] * u + l.rot[2] * v, l.rot[1] * u + l.rot[3] * v, live);
               }
             }
           }
@@ -756,6 +899,13 @@ void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const Depth
             dout[x] = ok ? best[at] : 0.0f;
             lout[x] = best_layer[at];
             c_conv += ok;
+          }
+          if (prove) {
+            float* pout = proven_out->Row(y);
+            for (int x = x0; x < x1; ++x) {
+              const float b = proven[(y - y0) * kT + (x - x0)];
+              pout[x] = b < kInf ? b : 0.0f;
+            }
           }
         }
       }

@@ -45,6 +45,19 @@
 //          camera); the second empty landing of a sample fails it.
 //   result the nearest converged z_dst over all layers and seeds; layer_out = the layer the sample
 //          came from; 0 / -1 where nothing converged (a hole, never a guessed depth).
+//   proof  (proven_out, not in the paper; for occlusion culling, docs/culling.md) a converged sample
+//          says that the surface of source pixel S moves to within the threshold of p, not that it
+//          covers p: at a silhouette it lands up to ~threshold + half a pixel beyond the surface's
+//          edge, and two neighbouring occluders close a sub-pixel gap between them. A sample of S
+//          (layer l, surface id k = layers[l].surface at S, k >= 0) proves p when p lies inside the
+//          moved triangle of three source pixel centres of layer l with surface id k, one of them S,
+//          from the 2x2 pixel quads around S. If surface k is convex (the culling's objects: boxes,
+//          planes, cylinders), the three points lie on it, so their triangle lies inside it: p's ray
+//          meets surface k no farther than the triangle's farthest corner z_dst. proven_out = the
+//          least such bound over every converged sample of every searched layer (an upper bound of
+//          the depth seen at p), 0 where nothing is proven. A silhouette's outer band (up to one
+//          source pixel) and every seam between two surfaces are unproven. The depth / layer
+//          outputs are the same with or without proven_out.
 //   skip   (options.skip_farther, not in the paper) a layer's search at p is skipped when the min
 //          z_dst of the texels its bound was read from is >= the nearest depth already found at p: no
 //          sample of that layer can replace it (ties keep the earlier layer). Not exact in one case: a
@@ -173,6 +186,9 @@ struct DepthWarpLayer {
   const ImageView<const float>* zmips; // the same levels' min z_dst, each (ceil(H/2^l), ceil(W/2^l))
   int n_mips = 0;
   float rot[4] = {1, 0, 0, 1};
+  // (H, W) int32 surface id of each source pixel (the object id; < 0 = none), read by the proof of
+  // DepthWarpBackward only (proven_out); may be empty otherwise.
+  ImageView<const std::int32_t> surface;
 };
 
 struct DepthWarpCounters {
@@ -183,10 +199,11 @@ struct DepthWarpCounters {
   std::int64_t lookups = 0;         // motion lookups of the fixed-point search
 };
 
-// depth_out (H', W') float32, layer_out (H', W') int8 (the target camera's size).
+// depth_out (H', W') float32, layer_out (H', W') int8 (the target camera's size). proven_out
+// (H', W') float32 or null: the proven occluder depth (see "proof" above; needs every layer's surface).
 void DepthWarpBackward(const DepthWarpLayer* layers, int num_layers, const DepthWarpOptions& options,
                        const ImageView<float>& depth_out, const ImageView<std::int8_t>& layer_out,
-                       DepthWarpCounters* counters);
+                       DepthWarpCounters* counters, const ImageView<float>* proven_out = nullptr);
 
 // In place on the warp's depth / layer: layer_in is an unmodified copy of `layer` (holes and
 // converged neighbours are read from it; converged pixels' depths are never written, so reading

@@ -1,8 +1,12 @@
 """Warping-based occlusion culling (WOC; Lee, Kim, Eisemann 2018, sec. 5; docs/culling.md).
 
 The depth buffer predicted for a new frame (``ibrtools.depthwarp.warp_depth`` of the previous
-frame's depth, single layer) is the occlusion map: every surface seen in the previous frame is an
-occluder, no occluder selection. Per frame:
+frame's depth) is the occlusion map: every surface seen in the previous frame is an occluder, no
+occluder selection. For conservative culling the map is the warp's proven occluder depth
+(``warp_depth(..., surface_ids=...).occluder``: a depth only where the warp proves that an object
+covers the pixel no farther; 0 = far), passed with ``hole=None``; the warp's converged depth and
+holes are accepted too (AWOC fills them) but cull visible objects seen through sub-pixel gaps
+between occluders (docs/culling.md). Per frame:
 
 1. **View-frustum culling** of each object's world AABB (:func:`object_boxes`): a box whose 8
    corners are all outside one frustum plane, or whose projection misses the image, is
@@ -28,8 +32,7 @@ occluder, no occluder selection. Per frame:
    direction (a point at infinity) was empty in the source frame stays a hole (far) here.
 
 For culling, warp with ``DepthWarpParams(dilate=False)``: the dilation fills small holes with a
-neighbour's depth, which can close a one-pixel gap through which an object appears (measured on
-the crowd path: a 5-pixel object falsely culled with dilation, none without).
+neighbour's depth, which can close a one-pixel gap through which an object appears.
 
 Ground truth: :meth:`ibrtools.render.reference.ReferenceRenderer.visible_objects` (the object
 ids hit by a primary ray of the new camera); :meth:`CullResult.evaluate` compares.
@@ -186,8 +189,9 @@ def cull_objects(warped_depth: np.ndarray, hole: np.ndarray | None, camera: Came
     warped depth buffer (module docstring).
 
     ``warped_depth`` (H, W) float32 pinhole z in ``camera`` (0 = empty), ``hole`` (H, W) bool
-    (None = no hole): both from :func:`ibrtools.depthwarp.warp_depth` (single layer). Holes and
-    empty pixels never occlude (far). ``near`` (world units): boxes with a corner nearer are kept.
+    (None = no hole): the conservative map is ``warp_depth(..., surface_ids=...).occluder`` with
+    ``hole=None``; AWOC takes the warp's ``depth`` and ``hole``. Holes and empty pixels never
+    occlude (far). ``near`` (world units): boxes with a corner nearer are kept.
     ``pad`` (pixels): slack around each screen rectangle. ``mip_levels``: max-mipmap levels of the
     Y-map before the N-buffers (2 as in the paper). ``approximate``: AWOC, needs
     ``source_depth`` (H0, W0) float32 and ``source_camera`` (the frame the warp started from) and

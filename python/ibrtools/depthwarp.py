@@ -89,6 +89,9 @@ class WarpResult:
     layer: np.ndarray        # (H',W') int8: index of the source layer that supplied the depth, -1 in holes
     times_ms: dict = field(default_factory=dict)  # {"motion", "mipmap", "warp", "dilate"} wall ms of this call
     stats: dict = field(default_factory=dict)     # converged_fraction, early_exit_fraction, dilated_pixels, ...
+    # (H',W') f32 proven occluder depth (warp_depth with surface_ids): an upper bound of the depth seen at
+    # each pixel where the warp proves one, 0 elsewhere (never dilated); None without surface_ids.
+    occluder: np.ndarray | None = None
 
 
 def _check_camera(cam: Any, name: str) -> Camera:
@@ -156,10 +159,26 @@ def motion_buffer(depth, src, dst, *, object_ids=None, object_motion=None) -> tu
     return np.ascontiguousarray(packed[..., :2]), np.ascontiguousarray(packed[..., 2])
 
 
-def _result(depth: np.ndarray, layer: np.ndarray, times: dict, stats: dict) -> WarpResult:
+def _result(depth: np.ndarray, layer: np.ndarray, times: dict, stats: dict,
+            occluder: np.ndarray | None = None) -> WarpResult:
     hole = layer < 0
     stats["hole_fraction"] = float(np.count_nonzero(hole)) / hole.size if hole.size else 0.0
-    return WarpResult(depth=depth, hole=hole, layer=layer, times_ms=times, stats=stats)
+    if occluder is not None:
+        stats["proven_fraction"] = float(np.count_nonzero(occluder)) / occluder.size if occluder.size else 0.0
+    return WarpResult(depth=depth, hole=hole, layer=layer, times_ms=times, stats=stats, occluder=occluder)
+
+
+def _as_surface_ids(surface_ids: Any, shape: tuple[int, ...]) -> np.ndarray | None:
+    """(L, H, W) int32 view of ``surface_ids`` ((H, W) for L = 1), or None; no dtype conversion."""
+    if surface_ids is None:
+        return None
+    if not isinstance(surface_ids, np.ndarray) or surface_ids.dtype != np.int32:
+        raise DtypeError(f"surface_ids: expected an int32 numpy array of shape (L, H, W) = {shape}, got "
+                         f"{getattr(surface_ids, 'dtype', type(surface_ids).__name__)}")
+    ids = surface_ids[None] if surface_ids.ndim == 2 else surface_ids
+    if ids.shape != shape:
+        raise ShapeError(f"surface_ids: expected shape (L, H, W) = {shape} (the layers' shape), got {surface_ids.shape}")
+    return np.ascontiguousarray(ids)
 
 
 _local = threading.local()
@@ -176,9 +195,14 @@ def _scratch(shape: tuple[int, ...]) -> dict:
     return cache
 
 
-def warp_depth(layers, src, dst, params=DepthWarpParams(), *, object_ids=None, object_motion=None) -> WarpResult:
+def warp_depth(layers, src, dst, params=DepthWarpParams(), *, object_ids=None, object_motion=None,
+               surface_ids=None) -> WarpResult:
     """Iterative backward depth warping (Lee et al. 2018, Fig. 2/3/5/6) of an L-layer deep depth buffer.
-    layers (L,H,W) f32 (layer 0 = nearest surfaces, 0 = empty), or (H,W) for L = 1; object_ids (L,H,W) int32."""
+    layers (L,H,W) f32 (layer 0 = nearest surfaces, 0 = empty), or (H,W) for L = 1; object_ids (L,H,W) int32
+    (with object_motion). surface_ids (L,H,W) int32: the object id of each source pixel (< 0 = none); when
+    given, the result's ``occluder`` is the proven occluder depth (cpp/kernels/depthwarp.h, "proof": a target
+    pixel inside the moved triangle of three neighbouring source samples of one convex object), the
+    conservative occlusion map of warping-based culling (docs/culling.md)."""
     src = _check_camera(src, "src")
     dst = _check_camera(dst, "dst")
     if not isinstance(params, DepthWarpParams):
@@ -186,6 +210,7 @@ def warp_depth(layers, src, dst, params=DepthWarpParams(), *, object_ids=None, o
     p = params.checked()
     lay = _as_layers(layers, src)
     ids, mot = _as_ids(object_ids, object_motion, lay.shape)
+    surface = _as_surface_ids(surface_ids, lay.shape)
     core = _core()
     scratch = _scratch(lay.shape)
     src_core, dst_core = src.to_core(), dst.to_core()
@@ -196,11 +221,11 @@ def warp_depth(layers, src, dst, params=DepthWarpParams(), *, object_ids=None, o
                                                      scratch.get("packed"), scratch.get("mips"))
     call_ms = (time.perf_counter() - t0) * 1e3
     scratch["packed"], scratch["mips"] = packed, mips
-    depth, layer, c = core.dw_warp(packed, mips, dst.height, dst.width, p.seeds, p.iters, p.threshold,
-                                   p.bound == "tight", p.steps, p.early_exit, p.seed, p.dilate,
-                                   p.dilate_min_neighbors, p.skip_farther, p.tile, p.pixel_step,
-                                   *((src_core, dst_core) if p.unseen_reject else (None, None)),
-                                   p.edge_motion)
+    depth, layer, c, occluder = core.dw_warp(packed, mips, dst.height, dst.width, p.seeds, p.iters, p.threshold,
+                                             p.bound == "tight", p.steps, p.early_exit, p.seed, p.dilate,
+                                             p.dilate_min_neighbors, p.skip_farther, p.tile, p.pixel_step,
+                                             *((src_core, dst_core) if p.unseen_reject else (None, None)),
+                                             p.edge_motion, surface)
     times = {"motion": call_ms - mipmap_ms, "mipmap": mipmap_ms, "warp": c["warp_ms"], "dilate": c["dilate_ms"]}
     n = dst.height * dst.width
     stats = {
@@ -213,7 +238,7 @@ def warp_depth(layers, src, dst, params=DepthWarpParams(), *, object_ids=None, o
         "bound_axes": list(mips.axes),
         "layers": int(lay.shape[0]),
     }
-    return _result(depth, layer, times, stats)
+    return _result(depth, layer, times, stats, occluder)
 
 
 def forward_warp_depth(layers, src, dst, kind="vfw", *, object_ids=None, object_motion=None) -> WarpResult:

@@ -13,9 +13,9 @@ For frame t of a pose sequence (``--poses``, ``--path``), the depth buffer of ca
              oriented bounds, N seeds x T fixed-point iterations, cross-layer seeding, dilation) or,
              with ``forward`` vfw / afw, the forward baselines ``forward_warp_depth`` through the
              same path;
-  cull       (``cull``) warping-based occlusion culling of the scene's objects with the warped
-             depth (``ibrtools.culling``), scored against the objects the reference render of
-             frame t sees;
+  cull       (``cull``) warping-based occlusion culling of the scene's objects with the warp's
+             proven occluder depth (the peel's object ids as surface ids; ``ibrtools.culling``,
+             docs/culling.md), scored against the objects the reference render of frame t sees;
   reference  the Embree depth render of frame t: the ground truth of the scores and the cost the
              warp replaces.
 
@@ -133,17 +133,28 @@ def fill_background(depth: np.ndarray, hole: np.ndarray, far: float) -> np.ndarr
     return out
 
 
-def depth_scores(warped: np.ndarray, hole: np.ndarray | None, reference: np.ndarray, far: float) -> dict:
-    """Depth PSNR / SSIM of ``warped`` against ``reference`` (module doc: z / far, empty at far,
-    holes filled with the background depth by :func:`fill_background`) and the hole fraction."""
+HOLE_SCORING = ("background", "far")
+
+
+def depth_scores(warped: np.ndarray, hole: np.ndarray | None, reference: np.ndarray, far: float,
+                 holes: str = "background") -> dict:
+    """Depth PSNR / SSIM of ``warped`` against ``reference`` (module doc: z / far, empty at far) and
+    the hole fraction. ``holes``: "background" (the report's scores: holes filled with the background
+    depth by :func:`fill_background`, what a user of the depth image gets) or "far" (holes at far:
+    what occlusion culling sees)."""
     from ..metrics import psnr, ssim
 
     far = float(far)
     if not far > 0:
         raise BadValueError(f"far: expected a positive depth, got {far}")
+    if holes not in HOLE_SCORING:
+        raise BadValueError(f"holes: expected one of {HOLE_SCORING}, got {holes!r}")
     if hole is None:
         hole = np.zeros(warped.shape, bool)
-    w = fill_background(warped, hole, far)
+    if holes == "far":
+        w = np.where(np.asarray(hole, bool) | ~(warped > 0), np.float32(far), warped).astype(np.float32)
+    else:
+        w = fill_background(warped, hole, far)
     r = np.where(reference > 0, reference, far)
     a = (np.clip(w, 0.0, far) / far).astype(np.float32)
     b = (np.clip(r, 0.0, far) / far).astype(np.float32)
@@ -170,7 +181,7 @@ def visualise(depth: np.ndarray, far: float) -> np.ndarray:
 
 
 def warp_with_far_plane(layers: np.ndarray, src: Camera, dst: Camera, bounds: np.ndarray, forward: str = "none",
-                        params=None, far_plane: bool = True):
+                        params=None, far_plane: bool = True, surface_ids: np.ndarray | None = None):
     """Warp a deep depth buffer (L, H, W) from ``src`` into ``dst`` (``forward`` "none" = the
     iterative backward warp with ``params``, else "vfw" / "afw"), returning the WarpResult with
     ``depth`` 0 in holes and where nothing is.
@@ -179,7 +190,9 @@ def warp_with_far_plane(layers: np.ndarray, src: Camera, dst: Camera, bounds: np
     at z = 2 far_src (far_src: the farthest corner of the scene ``bounds`` in src, so the plane is
     behind every surface), so that the background's motion converges instead of leaving holes;
     a converged depth beyond far_dst (no surface can be farther in dst) is that plane: reported
-    as empty (depth 0), not as a hole."""
+    as empty (depth 0), not as a hole. ``surface_ids`` (L, H, W) int32 (the layers' object ids; backward
+    warp only): the result's ``occluder`` is the proven occluder depth (``warp_depth``); the far plane
+    has no surface id, so it never proves a depth."""
     from ..depthwarp import forward_warp_depth, warp_depth
 
     layers = np.ascontiguousarray(layers[None] if layers.ndim == 2 else layers, np.float32)
@@ -187,7 +200,7 @@ def warp_with_far_plane(layers: np.ndarray, src: Camera, dst: Camera, bounds: np
         layers = layers.copy()
         layers[0][layers[0] <= 0] = np.float32(2.0 * far_depth(bounds, src))
     if forward == "none":
-        res = warp_depth(layers, src, dst, params)
+        res = warp_depth(layers, src, dst, params, surface_ids=surface_ids)
     else:
         res = forward_warp_depth(layers, src, dst, forward)
     hole = np.asarray(res.hole, bool)
@@ -297,8 +310,10 @@ class DepthWarpMethod:
         deep = self._renderer.peel(src, p["layers"], umbra=[camera] if p["umbra"] else None,
                                    ground_object=self._ground)
         stages["peel"] = sum(deep.times_ms.values())
+        backward = p["forward"] == "none"
         res = warp_with_far_plane(deep.depth, src, camera, self._bounds, p["forward"],
-                                  self._warp_params() if p["forward"] == "none" else None, p["far_plane"])
+                                  self._warp_params() if backward else None, p["far_plane"],
+                                  surface_ids=deep.object_id if p["cull"] and backward else None)
         for k in ("motion", "mipmap", "warp", "dilate"):
             if k in res.times_ms:
                 stages[k] = float(res.times_ms[k])
@@ -322,7 +337,12 @@ class DepthWarpMethod:
             from ..culling import cull_objects
 
             t0 = time.perf_counter()
-            cr = cull_objects(np.ascontiguousarray(depth), hole, camera, self._boxes)
+            # The backward warp's proven occluder depth (conservative); the forward baselines prove
+            # nothing, so they cull with their depth and holes (docs/culling.md).
+            if res.occluder is not None:
+                cr = cull_objects(res.occluder, None, camera, self._boxes)
+            else:
+                cr = cull_objects(np.ascontiguousarray(depth), hole, camera, self._boxes)
             stages["cull"] = (time.perf_counter() - t0) * 1e3
             ids = ref_out["object_id"]
             k = len(self._boxes)
