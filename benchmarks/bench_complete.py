@@ -23,7 +23,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_dibr_accuracy import LEGO_HELDOUT, RVS, visible_in_both_right  # noqa: E402
-from benchlib import shared_data  # noqa: E402
+from benchlib import machine, shared_data  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -115,8 +115,8 @@ def markdown(res: dict) -> str:
     lines = ["## Complete images", "",
              "The frame as `ibr-render --method dibr` writes it with the defaults (background at infinity rendered, holes "
              "filled by `--inpaint auto`), beside `--inpaint none` (holes black) and the covered pixels; PSNR (dB) of sRGB "
-             "in [0, 1]. Measured by `benchmarks/bench_complete.py` (protocols in its doc string; RVS 4.0 from "
-             "../shared/ANCHORS.md, its own hole filling).", "",
+             f"in [0, 1]. Measured by `benchmarks/bench_complete.py` on {machine()} (protocols in its doc string; "
+             "RVS 4.0 from ../shared/ANCHORS.md, with its own hole filling).", "",
              "| case | defaults | holes black | covered only | RVS 4.0 |", "|---|---|---|---|---|",
              f"| lego object pixels (mean of {len(lg['rows'])} held-out views) | {_f(lg['object'])} | {_f(lg['object_black'])} | "
              f"{_f(lg['object_covered'])} | {RVS['lego object']} |",

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import sys
 import threading
 import time
@@ -22,6 +21,9 @@ import urllib.request
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from benchlib import load_note, machine  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 CACHE = REPO / "benchmarks" / ".cache" / "view_objects_1280"
@@ -52,13 +54,16 @@ def orbit(sc, n: int):
     return cams
 
 
+_SEQ = iter(range(1 << 62))  # the page's request numbers: always increasing (an older one is dropped)
+
+
 def run(viewer, cams, method: str, size, fmt: str) -> tuple[float, float]:
     """(median request ms, median render ms) over the poses."""
     base = viewer.url.split("?")[0]
     wall, render = [], []
-    for i, cam in enumerate(cams):
+    for cam in cams:
         q = urllib.parse.urlencode({"t": viewer.token, "pose": json.dumps(cam.to_dict()), "w": size[0], "h": size[1],
-                                    "method": method, "fmt": fmt, "client": "bench", "seq": i})
+                                    "method": method, "fmt": fmt, "client": "bench", "seq": next(_SEQ)})
         t0 = time.perf_counter()
         with urllib.request.urlopen(base + "frame?" + q, timeout=300) as r:
             r.read()
@@ -93,15 +98,16 @@ def main() -> None:
                     print(f"{method} {size} {fmt}: {w:.1f} ms ({1000 / w:.1f} fps), render {rr:.1f} ms", flush=True)
     finally:
         v.shutdown()
-    cpu = platform.processor() or platform.machine()
     lines = ["## Interactive frame rate", "",
-             f"`ibr-view` frames over HTTP (request to last byte: render + encode + transfer) on {cpu}, "
-             f"Python {platform.python_version()}, the machine's cores; synth:objects 12 views 1280x720, an orbit of "
+             f"`ibr-view` frames over HTTP (request to last byte: render + encode + transfer) on {machine()}; "
+             f"synth:objects 12 views 1280x720, an orbit of "
              f"{a.frames} poses between the inputs, median over the poses, median of {a.repeats} runs; measured by "
              "`benchmarks/bench_view.py`. The page asks JPEG frames at half size while the camera moves and a PNG "
              "frame at full size when it stops.", "",
              "| method | size | format | ms per frame | frames/s | render ms |", "|---|---|---|---|---|---|"]
     lines += [f"| {m} | {s} | {f} | {w:.1f} | {1000 / w:.1f} | {r:.1f} |" for m, s, f, w, r in rows]
+    lines += ["", "Render ms includes the completion (background pass and hole filling; docs/render.md). "
+              + load_note()]
     md = "\n".join(lines) + "\n"
     print(md)
     if a.write_docs:
