@@ -35,7 +35,7 @@ from urllib.parse import parse_qs, urlparse
 import numpy as np
 
 from .camera import Camera
-from .errors import BadValueError, InputError
+from .errors import BadValueError, InputError, NotBuiltError
 from .scene import Scene
 
 FORMATS = {"jpeg": ("image/jpeg", ".jpg"), "png": ("image/png", ".png")}
@@ -280,8 +280,10 @@ def _handler(viewer: Viewer):
                     self._send(HTTPStatus.OK, data, ctype, {**headers, "X-Seq": str(seq)})
                 else:
                     self._send(HTTPStatus.NOT_FOUND, b"not found\n")
-            except InputError as e:
+            except (InputError, NotBuiltError) as e:
                 self._send(HTTPStatus.BAD_REQUEST, f"{e}\n".encode())
+            except Exception as e:  # noqa: BLE001 - one line to the page, the server goes on
+                self._send(HTTPStatus.INTERNAL_SERVER_ERROR, f"internal error: {type(e).__name__}: {e}\n".encode())
 
         def do_POST(self):  # noqa: N802
             path, _ = self._route()
