@@ -186,6 +186,7 @@ def _fill(color: np.ndarray, hole: np.ndarray, depth: np.ndarray | None, bg: np.
     background pixels beside an object carry its antialiased edge, which a push-pull would smear
     over the hole), else by push-pull from the background pixels only."""
     from ..inpaint import inpaint as fill_holes
+    from ..inpaint import nearest_covered
 
     bg = np.zeros(hole.shape, bool) if bg is None else bg
     d = None if depth is None else np.asarray(depth, np.float32)
@@ -198,7 +199,7 @@ def _fill(color: np.ndarray, hole: np.ndarray, depth: np.ndarray | None, bg: np.
     votes = np.zeros(len(ys), np.int8)
     bg_votes = np.zeros(len(ys), np.int8)
     around = np.zeros(len(ys), np.float32)  # largest depth of the nearest surface pixels
-    for ny, nx, found in _nearest_covered(hole):
+    for ny, nx, found in nearest_covered(hole):
         ny, nx = np.where(found, ny, 0), np.where(found, nx, 0)
         is_bg = found & bg[ny, nx]
         votes += found
@@ -229,36 +230,3 @@ def _fill(color: np.ndarray, hole: np.ndarray, depth: np.ndarray | None, bg: np.
         out = out.copy() if out is color else out
         out[sky] = filled
     return out, (mode if ground.any() else "from the background"), sky
-
-
-def _nearest_covered(hole: np.ndarray):
-    """For the hole pixels (row-major order, as ``np.nonzero(hole)``) and each of the four
-    directions (left, right, up, down): (row, col, found) of the nearest pixel that is not a hole
-    in that direction. A hole pixel's nearest covered pixels along its row are the two ends of
-    the run of holes it lies in, so only the runs are found (np.diff), not a scan of the image."""
-    h, w = hole.shape
-    ys, xs = np.nonzero(hole)
-    r, before, after = _runs(hole)  # rows; columns before / after each pixel's run
-    yield r, before, before >= 0
-    yield r, after, after < w
-    index = np.full(hole.shape, -1, np.int64)
-    index[ys, xs] = np.arange(len(ys))
-    order = index.T[hole.T]  # the row-major index of each hole pixel in column-major order
-    c, above, below = _runs(hole.T)
-    up, down = np.empty(len(ys), np.int64), np.empty(len(ys), np.int64)
-    up[order], down[order] = above, below
-    yield up, xs, up >= 0
-    yield down, xs, down < h
-
-
-def _runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """For the True pixels of ``mask`` (row-major order): (row, the column before the run of True
-    pixels it lies in (-1 at the left edge), the column after it (W at the right edge))."""
-    h, w = mask.shape
-    m = np.zeros((h, w + 2), np.int8)
-    m[:, 1:-1] = mask
-    d = np.diff(m, axis=1)
-    rows, start = np.nonzero(d == 1)
-    _, end = np.nonzero(d == -1)
-    run = np.repeat(np.arange(len(start)), end - start)
-    return rows[run], start[run] - 1, end[run]
