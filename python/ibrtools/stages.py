@@ -615,7 +615,8 @@ def _run_mvs(ctx: _Context) -> dict:
 
     opts = MvsOptions(**ctx.options.get("mvs", {}))
     names = [v.name for v in ctx.scene.views if not v.has_depth]
-    res = run_mvs(ctx.scene.views, opts, names=names, run_pass=None if ctx.cluster is None else _mvs_on_workers(ctx))
+    res = run_mvs(ctx.scene.views, opts, names=names, run_pass=None if ctx.cluster is None else _mvs_on_workers(ctx),
+                  bounds=ctx.scene.source.get("depth_bounds"))
     if not any(np.any(r.depth > 0) for r in res.values()):
         raise BadValueError(f"mvs: multi-view stereo matched no pixel in any of the {len(res)} views without depth "
                             "(textureless images, or cameras that do not see the same surfaces); give the views "
@@ -665,7 +666,8 @@ def _mvs_task(root: str, names: list[str], options: dict, which: str, threads: i
     set_task_threads(threads)
     ctx = _Context(Path(root), options)
     views = ctx.scene.views
-    run = MvsRun(views, MvsOptions(**options.get("mvs", {})), [v.name for v in views if not v.has_depth])
+    run = MvsRun(views, MvsOptions(**options.get("mvs", {})), [v.name for v in views if not v.has_depth],
+                 ctx.scene.source.get("depth_bounds"))
     if which == "photometric":
         return {n: run.photometric(n) for n in names}
     first = load_npz(ctx.cache("mvs") / _MVS_EXCHANGE)

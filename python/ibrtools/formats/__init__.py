@@ -16,7 +16,9 @@ from ..errors import FormatError, MissingFileError
 from ..scene import Scene
 
 # Order matters for detection: the most specific formats first.
-IMPORTERS = ("native", "mpeg", "nerf", "colmap", "middlebury", "rgbd")
+# llff after colmap: an LLFF folder that also holds its COLMAP model (sparse/0) imports as COLMAP
+# (distortion, the principal point as estimated) unless --format llff is given.
+IMPORTERS = ("native", "mpeg", "nerf", "colmap", "llff", "middlebury", "rgbd")
 
 
 def importer(name: str):
