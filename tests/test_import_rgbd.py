@@ -121,7 +121,7 @@ def make_7scenes(seq, depth_mm=None):
         if k:
             c2w[:3, :3], c2w[:3, 3] = rot, (1.0, 2.0, 3.0)
         d = np.full((H, W), 2000, np.uint16) if depth_mm is None else depth_mm
-        write_image(seq / f"frame-{k:06d}.color.png", np.full((H, W, 3), 0.25 + 0.1 * k, np.float32))
+        write_image(seq / f"frame-{k:06d}.color.png", np.full(d.shape + (3,), 0.25 + 0.1 * k, np.float32))
         write_png(seq / f"frame-{k:06d}.depth.png", d)
         (seq / f"frame-{k:06d}.pose.txt").write_text(_pose_text(c2w))
         poses.append(c2w)
@@ -200,3 +200,28 @@ def test_cli_bad_rgbd_option_exits_2_writing_nothing(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert "option max_depth: expected a number" in err and len(err.splitlines()) == 1
     assert not (tmp_path / "s").exists()
+
+
+def test_far_depth_outliers_warned_at_import(tmp_path):
+    # 7-Scenes' 65535 read as depth (invalid_depth switched off): 0.4 % of a frame at 65.5 m in
+    # a 2 m scene -> one warning at import naming the options; with the default, none.
+    from ibrtools.stages import FAR_OUTLIER_SHARE, depth_outlier_warning, preprocess
+
+    depth = np.full((H * 10, W * 10), 2000, np.uint16)
+    depth[0, :19] = 65535  # 19 of 4800 pixels: 0.4 %
+    seq, _ = make_7scenes(tmp_path / "seq", depth)
+    raw = rgbd.load(seq, {"invalid_depth": 65534, "fx": 40, "fy": 40, "cx": 39.5, "cy": 29.5})
+    w = depth_outlier_warning(raw.views)
+    assert w.startswith("depth outliers in 2 of 2 views (worst: frame-00000") and "0.4 % of its depth beyond twice" in w
+    assert "invalid_depth" in w
+    r = preprocess(str(seq), tmp_path / "s", options={"invalid_depth": "65534", "fx": 40, "fy": 40, "cx": 39.5,
+                                                      "cy": 29.5}, stages=[])
+    assert r[0].details["warnings"] == [w]
+    r = preprocess(str(seq), tmp_path / "s2", options={"fx": 40, "fy": 40}, stages=[])
+    assert "warnings" not in r[0].details
+    # below FAR_OUTLIER_SHARE of the pixels (a few stray values): no warning
+    depth[0, :19] = 2000
+    depth[0, 0] = 65535
+    assert 1 / depth.size < FAR_OUTLIER_SHARE
+    seq2, _ = make_7scenes(tmp_path / "seq2", depth)
+    assert depth_outlier_warning(rgbd.load(seq2, {"invalid_depth": 65534}).views) is None

@@ -157,6 +157,12 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
     else:
         scene = load_dataset(Path(input_spec), fmt, options, downscale=downscale, max_size=max_size)
         fmt_used = scene.source.get("format", fmt)
+    if synth is None:  # robust depth statistics of the data set's views (synthetic depth is exact)
+        from .formats._common import record_summary
+
+        warning = depth_outlier_warning(scene.views + scene.targets)
+        if warning:
+            record_summary(scene.source, warnings=[warning])
     if held:
         scene = hold_out(scene, held)
     if user_mesh is not None:
@@ -173,6 +179,42 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
         if scene.source.get(k):
             details[k] = list(scene.source[k])
     return StageResult("import", "ran", f"{reason}; {fmt_used}", seconds, details)
+
+
+# A view's depth "has far outliers" when at least this share of its valid pixels lies beyond the
+# view-selection outlier limit. 0.05 %: 7-Scenes' invalid codes are percents of a frame (0.1 % at
+# 65.5 m made a frustum 20x deeper); Middlebury's ground truth has 3-12 stray pixels of quarter-pixel
+# disparity per view (at most 0.0074 %, Cones), real and harmless once view selection drops them.
+FAR_OUTLIER_SHARE = 5e-4
+
+
+def depth_outlier_warning(views) -> str | None:
+    """One line naming the views whose depth has far outliers (at least ``FAR_OUTLIER_SHARE`` of
+    the valid values above twice the 99th percentile: ``render.view_selection.outlier_limits``, the
+    rule view selection leaves them out by), or None. A sensor's invalid code read as depth (7-Scenes' 65535 mm = 65.5 m in a 3 m room)
+    is the usual cause: the user learns it at import, with the options that mark it unknown."""
+    from .render.view_selection import outlier_limits
+
+    hits = []  # (share of the view's valid pixels, name, largest value, the limit)
+    n = 0
+    for v in views:
+        if not v.has_depth or v.camera.model != "pinhole":
+            continue
+        n += 1
+        d = v.depth
+        valid = d[np.isfinite(d) & (d > 0)]
+        if valid.size == 0:
+            continue
+        high = outlier_limits(valid)[1]
+        far = int(np.count_nonzero(valid > high))
+        if far and far >= FAR_OUTLIER_SHARE * valid.size:
+            hits.append((far / valid.size, v.name, float(valid.max()), high / 2))
+    if not hits:
+        return None
+    share, name, top, p99 = max(hits)
+    return (f"depth outliers in {len(hits)} of {n} views (worst: {name}, {100 * share:.2g} % of its depth beyond "
+            f"twice its 99th percentile {p99:.4g}, up to {top:.4g}); view selection leaves them out; if they are "
+            "a sensor's invalid code, mark it unknown (rgbd: --opt invalid_depth=V or max_depth=M)")
 
 
 def hold_out(scene: Scene, names: list[str]) -> Scene:
