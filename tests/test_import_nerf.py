@@ -375,3 +375,34 @@ def test_distortion_bad_input(tmp_path):
         f.write_text(json.dumps(dict(doc, **bad)))
         with pytest.raises(err, match=match):
             nerf.load(tmp_path, {})
+
+
+def test_nerfstudio_depth_file_path(tmp_path):
+    # nerfstudio's depth_file_path: 16-bit z-depth in millimetres (depth_unit 0.001), 0 unknown.
+    (tmp_path / "images").mkdir()
+    (tmp_path / "depths").mkdir()
+    write_image(tmp_path / "images" / "frame_00001.png", np.full((H, W, 3), 0.3, np.float32))
+    mm = np.full((H, W), 1500, np.uint16)
+    mm[0, 0] = 0
+    write_png(tmp_path / "depths" / "frame_00001.png", mm)
+    doc = {"camera_model": "OPENCV", "fl_x": 10.0, "fl_y": 10.0, "cx": 4.0, "cy": 3.0, "w": W, "h": H,
+           "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0,
+           "frames": [{"file_path": "images/frame_00001.png", "depth_file_path": "depths/frame_00001.png",
+                       "transform_matrix": np.eye(4).tolist()}]}
+    (tmp_path / "transforms.json").write_text(json.dumps(doc))
+    scene = nerf.load(tmp_path, {})
+    d = scene.views[0].depth
+    assert d[0, 0] == 0 and d[1, 1] == pytest.approx(1.5)
+    assert "depth_file_path: z-depth = 16-bit value * 0.001" in scene.source["notes"]
+    assert nerf.load(tmp_path, {"depth_unit": "1/5000"}).views[0].depth[1, 1] == pytest.approx(0.3)
+    assert not nerf.load(tmp_path, {"depth": "none"}).views[0].has_depth
+    with pytest.raises(BadValueError, match="option depth_unit: expected a positive number"):
+        nerf.load(tmp_path, {"depth_unit": "0"})
+    write_png(tmp_path / "depths" / "frame_00001.png", np.full((H, W), 7, np.uint8))
+    from ibrtools.errors import DtypeError
+
+    with pytest.raises(DtypeError, match="frame_00001.png: 8-bit image cannot hold metric depth"):
+        nerf.load(tmp_path, {})
+    (tmp_path / "depths" / "frame_00001.png").unlink()
+    with pytest.raises(MissingFileError, match=r"frame_00001.png: depth image of .*depth_file_path"):
+        nerf.load(tmp_path, {})

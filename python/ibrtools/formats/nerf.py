@@ -31,6 +31,10 @@ Convention converted from
     pinhole camera (``Camera.depth_ray_to_z``). Looked up as ``<stem>_depth_0001.png``,
     ``<stem>_depth.png``. A free two-parameter fit ``a - b v/255`` of the lego depth maps to each
     other gives a = 7.97, b = 7.94, i.e. this encoding with scale 8.
+  * Metric depth (nerfstudio): a frame's ``depth_file_path`` (relative to the JSON's folder) is a
+    z-depth image: 16-bit values times ``depth_unit`` (default 0.001, nerfstudio's millimetres;
+    give the factor that brings them to the poses' units), float images (EXR) as stored; 0 =
+    unknown. It replaces the Blender depth lookup for that frame; missing file: MissingFileError.
   * Depth de-quantisation (option ``depth_dequantize=auto|N``, default auto): a smooth surface
     stored in integer codes is a staircase of flat terraces one code apart. N rounds of
     bin-constrained smoothing (``dequantize_codes``) turn the terraces into ramps while every
@@ -59,6 +63,7 @@ Options
   background=black|white     compositing colour for RGBA images (default black)
   depth_scale=8              ray distance encoded by v = 0 (default 8)
   depth=auto|none            read depth PNGs when present (default auto)
+  depth_unit=0.001           scene units per stored unit of ``depth_file_path`` 16-bit images
   depth_dequantize=auto|N    rounds of bin-constrained smoothing of the depth codes (default auto:
                              5 for 8-bit depth PNGs, 0 for 16-bit)
 """
@@ -72,7 +77,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import BadValueError, DtypeError, FormatError, MissingFileError, ShapeError
-from ..imageio import F32_MAX, read_pixels, srgb_to_linear
+from ..imageio import F32_MAX, read_depth, read_pixels, srgb_to_linear
 from ..scene import Scene, View
 from ._common import (document_errors, FileLoader, check_options, check_same_size, image_header, image_size, invert_rigid,
                       named, opt_choice, opt_float, opt_int, read_json, record_summary, rigid_from_matrix)
@@ -87,6 +92,8 @@ OPTIONS = {
     "background": "black|white: compositing colour of RGBA images",
     "depth_scale": "ray distance encoded by v = 0 (default 8)",
     "depth": "auto|none",
+    "depth_unit": "scene units per stored unit of depth_file_path 16-bit images (default 0.001: millimetres, "
+                  "nerfstudio's convention)",
     "depth_dequantize": "auto|N: rounds of bin-constrained smoothing of the depth codes "
                         "(default auto = 5 for 8-bit depth PNGs, 0 for 16-bit; 0 = off)",
 }
@@ -389,6 +396,7 @@ def load(path: Path, options: dict) -> Scene:
         raise BadValueError(f"option depth_scale: {depth_scale:g} overflows float32 (largest {F32_MAX:.3g}); "
                             "expected the ray distance of depth code 0")
     use_depth = opt_choice(options, "depth", "auto", ("auto", "none")) == "auto"
+    depth_unit = opt_float(options, "depth_unit", 0.001, positive=True)
     dequantize = _dequantize_option(options)
     if not path.exists():
         raise MissingFileError(f"{path}: no such file or directory")
@@ -419,10 +427,19 @@ def load(path: Path, options: dict) -> Scene:
                 missing.append(str(jf.parent / str(frame["file_path"])))
                 continue
             camera, distortion = _camera(meta, frame, image, where)
-            depth = _depth_file(image) if use_depth else None
+            metric = use_depth and "depth_file_path" in frame
+            if metric:
+                depth = jf.parent / str(frame["depth_file_path"])
+                if not depth.is_file():
+                    raise MissingFileError(f"{depth}: depth image of {where} (depth_file_path) not found")
+                if image_header(depth)[3] == "uint8":
+                    raise DtypeError(f"{depth}: 8-bit image cannot hold metric depth (depth_file_path: expected "
+                                     "16-bit PNG or EXR)")
+            else:
+                depth = _depth_file(image) if use_depth else None
             if depth is not None:
                 check_same_size(depth, (camera.width, camera.height), "depth image", f"size of {image.name}")
-            entries.append((s, image.stem, camera, distortion, image, depth))
+            entries.append((s, image.stem, camera, distortion, image, depth, metric))
     if not entries:
         raise MissingFileError(f"{missing[0]}: image not found (tried extensions "
                                f"{', '.join(e or 'none' for e in IMAGE_EXTS)}); none of the {listed} frames "
@@ -436,7 +453,7 @@ def load(path: Path, options: dict) -> Scene:
     collide = {st for st in stems if stems.count(st) > 1}
     views = []
     undistorters: dict[tuple, Undistorter] = {}
-    for s, stem, camera, distortion, image, depth in entries:
+    for s, stem, camera, distortion, image, depth, metric in entries:
         name = f"{s}/{stem}" if stem in collide and s else stem
         size = (camera.width, camera.height)
         und = None
@@ -448,9 +465,15 @@ def load(path: Path, options: dict) -> Scene:
             mask = FileLoader(image, _load_mask, image, size=size) if alpha else None
         else:
             mask = FileLoader(image, _mask_undistorted, und, image if alpha else None, size=size)
+        color = FileLoader(image, _undistorted(und, _load_color), image, background, size=size)
+        if metric:  # nerfstudio's depth_file_path: z-depth, 16-bit values * depth_unit (float as stored)
+            scale = depth_unit if image_header(depth)[3] == "uint16" else None
+            views.append(View.create(name, camera, color=color, mask=mask,
+                                     depth=FileLoader(depth, _undistorted(und, read_depth, True), depth, scale=scale,
+                                                      size=size)))
+            continue
         views.append(View.create(
-            name, camera,
-            color=FileLoader(image, _undistorted(und, _load_color), image, background, size=size),
+            name, camera, color=color,
             depth=(FileLoader(depth, _undistorted(und, _load_depth, True), depth, camera, depth_scale, dequantize)
                    if depth is not None else None),
             mask=mask,
@@ -461,7 +484,9 @@ def load(path: Path, options: dict) -> Scene:
         raise FormatError(f"{path}: duplicate view names {dup[:5]} (two frames name the same image)")
     notes = [f"RGBA composited over {'white' if background else 'black'} on the sRGB values; "
              "mask = alpha > 0.5"]
-    if any(e[5] is not None for e in entries):
+    if any(e[6] for e in entries):
+        notes.append(f"depth_file_path: z-depth = 16-bit value * {depth_unit:g} (float images as stored)")
+    if any(e[5] is not None and not e[6] for e in entries):
         notes.append(f"depth: ray distance = {depth_scale:g} * (1 - v/vmax), v = 0 background at infinity, "
                      "converted to z"
                      + (f"; codes de-quantised: auto (8-bit: {AUTO_DEQUANTIZE['uint8']} rounds, "
