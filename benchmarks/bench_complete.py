@@ -23,9 +23,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_dibr_accuracy import LEGO_HELDOUT, RVS, visible_in_both_right  # noqa: E402
-from benchlib import machine, shared_data  # noqa: E402
+from benchlib import machine, shared_data, write_section  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
 
 
 def _psnr(a, b, mask=None):
@@ -144,15 +143,7 @@ def main() -> None:
     md = markdown(res)
     print(md)
     if a.write_docs:
-        p = REPO / "docs" / "benchmarks.md"
-        text = p.read_text()
-        start = text.find("## Complete images")
-        if start >= 0:
-            end = text.find("\n## ", start + 1)
-            text = text[:start] + md + ("" if end < 0 else text[end:])
-        else:
-            text = text.rstrip() + "\n\n" + md
-        p.write_text(text)
+        write_section("complete", md)
 
 
 if __name__ == "__main__":

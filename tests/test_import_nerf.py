@@ -231,3 +231,178 @@ def test_dequantize_option_bad_values(tmp_path):
             nerf.load(tmp_path, {"depth_dequantize": bad})
     with pytest.raises(DtypeError, match="depth_dequantize=auto: no rule for float32"):
         nerf.dequantize_rounds(None, "float32")
+
+
+# --- instant-ngp / nerfstudio captures: missing images, per-frame intrinsics, lens distortion ---
+def _texture(u, v):
+    """A smooth linear-light pattern of continuous pixel coordinates (the scene every camera sees)."""
+    return np.stack([0.5 + 0.3 * np.sin(u / 3.1) * np.cos(v / 4.3), 0.4 + 0.2 * np.cos(u / 5.0),
+                     0.3 + 0.2 * np.sin(v / 2.7)], -1).astype(np.float32)
+
+
+def _distorted_capture(tmp_path, meta, frames_meta, w=48, h=36, f=40.0):
+    """A capture in instant-ngp's layout (``images/NNNN.png``, one transforms.json): each frame's
+    16-bit PNG is what a lens of the frame's distortion sees of ``_texture`` as the undistorted
+    pinhole (fx = fy = f, principal point at the centre) would see it. Returns the pinhole image."""
+    from ibrtools.formats._undistort import _distort
+
+    (tmp_path / "images").mkdir(parents=True, exist_ok=True)
+    cx, cy = w / 2, h / 2
+    u, v = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    pinhole = _texture(u, v)
+    frames = []
+    for i, fm in enumerate(frames_meta):
+        m = {**meta, **fm}
+        model, params = fm.pop("_model")
+        xd, yd = (u - cx) / f, (v - cy) / f
+        x, y = xd.copy(), yd.copy()
+        for _ in range(100):  # the undistorted point of each distorted pixel centre (fixed point)
+            dx, dy = _distort(model, params, x, y)
+            x, y = x + (xd - dx), y + (yd - dy)
+        img = _texture(x * f + cx, y * f + cy)
+        write_image(tmp_path / "images" / f"{i + 1:04d}.png", img, bits=16)
+        c2w = np.eye(4)
+        c2w[0, 3] = 0.1 * i
+        frames.append({"file_path": f"./images/{i + 1:04d}.png", "transform_matrix": c2w.tolist(),
+                       **{k: v for k, v in fm.items()}})
+    doc = {"fl_x": f, "fl_y": f, "cx": cx, "cy": cy, "w": w, "h": h, "aabb_scale": 4, **meta, "frames": frames}
+    (tmp_path / "transforms.json").write_text(json.dumps(doc))
+    return pinhole
+
+
+def _psnr(a, b, mask):
+    return 10 * np.log10(1.0 / np.mean((a[mask] - b[mask]) ** 2))
+
+
+from ibrtools.imageio import write_image  # noqa: E402
+
+
+@pytest.mark.parametrize("meta, fm, model, params", [
+    # instant-ngp's colmap2nerf: k1 k2 p1 p2 at top level, no camera_model
+    ({"k1": -0.12, "k2": 0.02, "p1": 0.002, "p2": -0.001}, {}, "OPENCV", [-0.12, 0.02, 0.002, -0.001]),
+    # nerfstudio OPENCV with k3 (OpenCV's 5-coefficient model)
+    ({"camera_model": "OPENCV", "k1": -0.1, "k2": 0.01, "k3": 0.005, "p1": 0.0, "p2": 0.001}, {},
+     "FULL_OPENCV", [-0.1, 0.01, 0.0, 0.001, 0.005, 0, 0, 0]),
+    # nerfstudio OPENCV_FISHEYE (k1..k4)
+    ({"camera_model": "OPENCV_FISHEYE", "k1": 0.05, "k2": -0.01, "k3": 0.002, "k4": -0.0005}, {},
+     "OPENCV_FISHEYE", [0.05, -0.01, 0.002, -0.0005]),
+])
+def test_distortion_removed_on_import(tmp_path, meta, fm, model, params):
+    # The undistorted view is the pinhole image to within the bilinear resampling (> 40 dB on the
+    # pixels whose source is inside the distorted image); the same file read as a pinhole (the
+    # coefficients ignored, as before) is far off. The summary says what was removed.
+    f = 40.0
+    p = np.array([f, f, 24.0, 18.0, *params], float)
+    pinhole = _distorted_capture(tmp_path, meta, [{"_model": (model, p)}], f=f)
+    scene = nerf.load(tmp_path, {})
+    (v,) = scene.views
+    assert (v.camera.fx, v.camera.cx) == (f, 24.0)
+    mask = v.mask
+    assert mask.mean() > 0.8
+    assert _psnr(v.color, pinhole, mask) > 40
+    assert scene.source["adapted"] == [f"distortion removed: 1 views ({model}), undistorted to a pinhole "
+                                       "with the same fx, fy, cx, cy"]
+    plain = json.loads((tmp_path / "transforms.json").read_text())
+    for k in ("k1", "k2", "k3", "k4", "p1", "p2", "camera_model"):
+        plain.pop(k, None)
+    (tmp_path / "transforms.json").write_text(json.dumps(plain))
+    ignored = nerf.load(tmp_path, {})
+    assert "adapted" not in ignored.source
+    assert _psnr(ignored.views[0].color, pinhole, mask) < _psnr(v.color, pinhole, mask) - 10
+
+
+def test_missing_images_skipped_with_one_counted_warning(tmp_path):
+    # instant-ngp's fox lists 67 frames and ships 50: the frames without an image are skipped and
+    # counted in one warning; with no image at all it is an error naming the first.
+    (tmp_path / "images").mkdir()
+    frames = []
+    for i in range(6):
+        if i % 3 != 2:
+            write_image(tmp_path / "images" / f"{i:04d}.jpg", np.full((H, W, 3), 0.2, np.float32))
+        c2w = np.eye(4)
+        c2w[2, 3] = float(i)
+        frames.append({"file_path": f"images/{i:04d}.jpg", "transform_matrix": c2w.tolist()})
+    doc = {"camera_angle_x": 1.0, "frames": frames}
+    (tmp_path / "transforms.json").write_text(json.dumps(doc))
+    scene = nerf.load(tmp_path, {})
+    assert [v.name for v in scene.views] == ["0000", "0001", "0003", "0004"]
+    (warning,) = scene.source["warnings"]
+    assert warning.startswith("2 of 6 frames skipped: image not found") and "0002.jpg" in warning
+    assert "2 frames skipped (image not found)" in scene.source["adapted"]
+    for p in (tmp_path / "images").iterdir():
+        p.unlink()
+    with pytest.raises(MissingFileError, match=r"0000.jpg: image not found.*none of the 6 frames"):
+        nerf.load(tmp_path, {})
+
+
+def test_per_frame_intrinsics_and_distortion(tmp_path):
+    # Per-frame fl_x/cx/w/h and coefficients override the file's; a frame without its own uses the file's.
+    f = 40.0
+    base = np.array([f, f, 24.0, 18.0], float)
+    pinhole = _distorted_capture(
+        tmp_path, {"k1": -0.1},
+        [{"_model": ("OPENCV", np.r_[base, -0.1, 0, 0, 0])},
+         {"k1": 0.08, "p1": 0.001, "_model": ("OPENCV", np.r_[base, 0.08, 0, 0.001, 0])}], f=f)
+    doc = json.loads((tmp_path / "transforms.json").read_text())
+    doc["frames"].append(dict(doc["frames"][0], file_path="./images/0001.png", fl_x=44.0, cx=23.0))
+    doc["frames"][2]["transform_matrix"][1][3] = 1.0
+    (tmp_path / "transforms.json").write_text(json.dumps(doc))
+    # the third frame re-uses image 0001 under another name: per-frame intrinsics
+    (tmp_path / "images" / "0003.png").write_bytes((tmp_path / "images" / "0001.png").read_bytes())
+    doc["frames"][2]["file_path"] = "./images/0003.png"
+    (tmp_path / "transforms.json").write_text(json.dumps(doc))
+    scene = nerf.load(tmp_path, {})
+    a, b, c = scene.views
+    assert (c.camera.fx, c.camera.fy, c.camera.cx, c.camera.cy) == (44.0, f, 23.0, 18.0)
+    for v in (a, b):
+        assert _psnr(v.color, pinhole, v.mask) > 40
+    assert scene.source["adapted"] == ["distortion removed: 3 views (OPENCV), undistorted to a pinhole "
+                                       "with the same fx, fy, cx, cy"]
+
+
+def test_distortion_bad_input(tmp_path):
+    make_set(tmp_path)
+    f = tmp_path / "transforms_test.json"
+    doc = json.loads(f.read_text())
+    for bad, err, match in [
+        ({"camera_model": "EQUIRECTANGULAR"}, FormatError, "camera_model 'EQUIRECTANGULAR' is not supported"),
+        ({"camera_model": "OPENCV_FISHEYE", "p1": 0.1}, FormatError, "no tangential"),
+        ({"camera_model": "PINHOLE", "k1": 0.1}, FormatError, "PINHOLE with distortion"),
+        ({"k4": 0.1}, FormatError, "k4.*fisheye"),
+        ({"k1": "x"}, FormatError, "'k1' is not a number"),
+        ({"k1": float("inf")}, BadValueError, "'k1' is not finite"),
+    ]:
+        f.write_text(json.dumps(dict(doc, **bad)))
+        with pytest.raises(err, match=match):
+            nerf.load(tmp_path, {})
+
+
+def test_nerfstudio_depth_file_path(tmp_path):
+    # nerfstudio's depth_file_path: 16-bit z-depth in millimetres (depth_unit 0.001), 0 unknown.
+    (tmp_path / "images").mkdir()
+    (tmp_path / "depths").mkdir()
+    write_image(tmp_path / "images" / "frame_00001.png", np.full((H, W, 3), 0.3, np.float32))
+    mm = np.full((H, W), 1500, np.uint16)
+    mm[0, 0] = 0
+    write_png(tmp_path / "depths" / "frame_00001.png", mm)
+    doc = {"camera_model": "OPENCV", "fl_x": 10.0, "fl_y": 10.0, "cx": 4.0, "cy": 3.0, "w": W, "h": H,
+           "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0,
+           "frames": [{"file_path": "images/frame_00001.png", "depth_file_path": "depths/frame_00001.png",
+                       "transform_matrix": np.eye(4).tolist()}]}
+    (tmp_path / "transforms.json").write_text(json.dumps(doc))
+    scene = nerf.load(tmp_path, {})
+    d = scene.views[0].depth
+    assert d[0, 0] == 0 and d[1, 1] == pytest.approx(1.5)
+    assert "depth_file_path: z-depth = 16-bit value * 0.001" in scene.source["notes"]
+    assert nerf.load(tmp_path, {"depth_unit": "1/5000"}).views[0].depth[1, 1] == pytest.approx(0.3)
+    assert not nerf.load(tmp_path, {"depth": "none"}).views[0].has_depth
+    with pytest.raises(BadValueError, match="option depth_unit: expected a positive number"):
+        nerf.load(tmp_path, {"depth_unit": "0"})
+    write_png(tmp_path / "depths" / "frame_00001.png", np.full((H, W), 7, np.uint8))
+    from ibrtools.errors import DtypeError
+
+    with pytest.raises(DtypeError, match="frame_00001.png: 8-bit image cannot hold metric depth"):
+        nerf.load(tmp_path, {})
+    (tmp_path / "depths" / "frame_00001.png").unlink()
+    with pytest.raises(MissingFileError, match=r"frame_00001.png: depth image of .*depth_file_path"):
+        nerf.load(tmp_path, {})

@@ -104,3 +104,124 @@ def test_round_trip_native(tmp_path):
     back = native.load(tmp_path / "out", {})
     for a, b in zip(scene.views, back.views):
         assert a.camera.allclose(b.camera, 1e-9)
+
+
+# --- 7-Scenes layout: frame-NNNNNN.color.png / .depth.png (uint16 mm, 65535 invalid) / .pose.txt ---
+def _pose_text(c2w):
+    # as 7-Scenes writes them: 4 rows of tab-separated numbers in e-notation
+    return "".join("\t".join(f"{v:.7e}" for v in row) + "\t\n" for row in c2w)
+
+
+def make_7scenes(seq, depth_mm=None):
+    seq.mkdir(parents=True, exist_ok=True)
+    rot = np.array([[0, -1, 0], [1, 0, 0], [0, 0, 1.0]])
+    poses = []
+    for k in range(2):
+        c2w = np.eye(4)
+        if k:
+            c2w[:3, :3], c2w[:3, 3] = rot, (1.0, 2.0, 3.0)
+        d = np.full((H, W), 2000, np.uint16) if depth_mm is None else depth_mm
+        write_image(seq / f"frame-{k:06d}.color.png", np.full(d.shape + (3,), 0.25 + 0.1 * k, np.float32))
+        write_png(seq / f"frame-{k:06d}.depth.png", d)
+        (seq / f"frame-{k:06d}.pose.txt").write_text(_pose_text(c2w))
+        poses.append(c2w)
+    return seq, poses
+
+
+def test_7scenes_layout(tmp_path):
+    from ibrtools.formats import detect
+
+    depth = np.full((H, W), 2000, np.uint16)
+    depth[0, :3] = 65535  # invalid
+    depth[1, 0] = 3500
+    seq, poses = make_7scenes(tmp_path / "seq-01", depth)
+    assert detect(seq) == "rgbd" and rgbd.detect(seq)
+    scene = rgbd.load(seq, {})
+    assert scene.source["layout"] == "7scenes" and scene.source["world_mirror"] == [1.0, 1.0, 1.0]
+    assert [v.name for v in scene.views] == ["frame-000000", "frame-000001"]
+    c = scene.views[1].camera
+    assert (c.fx, c.fy, c.cx, c.cy) == (585.0, 585.0, 320.0, 240.0)  # 7-Scenes' documented intrinsics
+    np.testing.assert_allclose(c.world_from_cam, poses[1], atol=1e-12)  # camera-to-world, OpenCV axes
+    d = scene.views[0].depth
+    assert (d[0, :3] == 0).all() and d[1, 0] == pytest.approx(3.5) and d[2, 2] == pytest.approx(2.0)
+    assert scene.source["adapted"] == ["depth value 65535 marked unknown (invalid_depth, the 7scenes default)"]
+    clipped = rgbd.load(seq, {"max_depth": 3, "invalid_depth": 3500})
+    d = clipped.views[0].depth
+    assert d[1, 0] == 0 and d[2, 2] == pytest.approx(2.0) and (d[0, :3] == 0).all()  # 65535 mm = 65.5 m > 3 m
+    assert clipped.source["adapted"] == ["depth value 3500 marked unknown (invalid_depth)",
+                                         "depth beyond 3 m marked unknown (max_depth)"]
+
+
+def test_7scenes_equals_the_same_frames_in_the_icl_layout(tmp_path):
+    # The same two frames written in the ICL layout (depth in 1/5000 m, poses as quaternions):
+    # identical cameras and depth, so every method renders them identically.
+    seq, poses = make_7scenes(tmp_path / "seq")
+    opts = {"fx": 4, "fy": 5, "cx": 3.5, "cy": 2.5}
+    a = rgbd.load(seq, opts)
+    (tmp_path / "icl_dir").mkdir()
+    icl = make(tmp_path / "icl_dir")
+    b = rgbd.load(icl, {**opts, "depth_scale": "1/5000"})
+    for va, vb in zip(a.views, b.views):
+        assert va.camera.allclose(vb.camera, 1e-9)
+        np.testing.assert_allclose(va.depth, vb.depth, rtol=1e-6)
+
+
+def test_7scenes_bad_input(tmp_path):
+    from ibrtools.errors import DtypeError
+
+    seq, _ = make_7scenes(tmp_path / "seq")
+    with pytest.raises(DtypeError, match="option invalid_depth: expected a number"):
+        rgbd.load(seq, {"invalid_depth": "none"})
+    with pytest.raises(BadValueError, match="option invalid_depth: expected a positive number"):
+        rgbd.load(seq, {"invalid_depth": "-1"})
+    with pytest.raises(BadValueError, match="option max_depth: expected a positive number"):
+        rgbd.load(seq, {"max_depth": "0"})
+    with pytest.raises(BadValueError, match="pose_format"):
+        rgbd.load(seq, {"pose_format": "scannet"})
+    (seq / "frame-000001.pose.txt").write_text("1 0 0 0\n0 1 0 0\n0 0 1 0\n")
+    with pytest.raises(FormatError, match=r"frame-000001.pose.txt: expected a 4x4 matrix"):
+        rgbd.load(seq, {})
+    (seq / "frame-000001.pose.txt").write_text(_pose_text(np.diag([2.0, 1, 1, 1])))
+    with pytest.raises(BadValueError, match="frame-000001.pose.txt.*rigid"):
+        rgbd.load(seq, {})
+    (seq / "frame-000001.pose.txt").unlink()
+    with pytest.raises(MissingFileError, match="frame-000001.pose.txt: pose of frame-000001.color.png"):
+        rgbd.load(seq, {"pose_format": "7scenes"})
+    (seq / "frame-000000.depth.png").unlink()
+    with pytest.raises(MissingFileError, match="frame-000000.depth.png"):
+        rgbd.load(seq, {"pose_format": "7scenes"})
+
+
+def test_cli_bad_rgbd_option_exits_2_writing_nothing(tmp_path, capsys):
+    from ibrtools_cli import preprocess
+
+    seq, _ = make_7scenes(tmp_path / "seq")
+    assert preprocess.main([str(seq), "-o", str(tmp_path / "s"), "--opt", "max_depth=far"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "option max_depth: expected a number" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "s").exists()
+
+
+def test_far_depth_outliers_warned_at_import(tmp_path):
+    # 7-Scenes' 65535 read as depth (invalid_depth switched off): 0.4 % of a frame at 65.5 m in
+    # a 2 m scene -> one warning at import naming the options; with the default, none.
+    from ibrtools.stages import FAR_OUTLIER_SHARE, depth_outlier_warning, preprocess
+
+    depth = np.full((H * 10, W * 10), 2000, np.uint16)
+    depth[0, :19] = 65535  # 19 of 4800 pixels: 0.4 %
+    seq, _ = make_7scenes(tmp_path / "seq", depth)
+    raw = rgbd.load(seq, {"invalid_depth": 65534, "fx": 40, "fy": 40, "cx": 39.5, "cy": 29.5})
+    w = depth_outlier_warning(raw.views)
+    assert w.startswith("depth outliers in 2 of 2 views (worst: frame-00000") and "0.4 % of its depth beyond twice" in w
+    assert "invalid_depth" in w
+    r = preprocess(str(seq), tmp_path / "s", options={"invalid_depth": "65534", "fx": 40, "fy": 40, "cx": 39.5,
+                                                      "cy": 29.5}, stages=[])
+    assert r[0].details["warnings"] == [w]
+    r = preprocess(str(seq), tmp_path / "s2", options={"fx": 40, "fy": 40}, stages=[])
+    assert "warnings" not in r[0].details
+    # below FAR_OUTLIER_SHARE of the pixels (a few stray values): no warning
+    depth[0, :19] = 2000
+    depth[0, 0] = 65535
+    assert 1 / depth.size < FAR_OUTLIER_SHARE
+    seq2, _ = make_7scenes(tmp_path / "seq2", depth)
+    assert depth_outlier_warning(rgbd.load(seq2, {"invalid_depth": 65534}).views) is None

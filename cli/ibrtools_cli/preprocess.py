@@ -68,6 +68,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="your own reconstruction of the scene (PLY/OBJ in the capture's frame and units), imported "
                         "as its 'reconstructed' mesh: the views without depth get its rendering (depth stage) "
                         "instead of multi-view stereo")
+    p.add_argument("--downscale", type=float, default=None, metavar="N",
+                   help="import every image N times smaller (N >= 1; intrinsics scaled, colour area-averaged, depth "
+                        "the nearest known depth of each block; docs/importers.md \"Downscaling\")")
+    p.add_argument("--max-size", type=int, default=None, metavar="PX",
+                   help="import images with their longer side at most PX pixels (smaller images are kept)")
     p.add_argument("--json", action="store_true", help="print the stage table as JSON on stdout, and nothing else")
     g = p.add_argument_group("synthetic scenes")
     g.add_argument("--size", type=_size, default=(640, 480), metavar="WxH", help="image size (default 640x480)")
@@ -132,8 +137,15 @@ def _body(args: argparse.Namespace) -> int:
         results = preprocess(args.input, args.output, fmt=args.format, options=parse_options(args.opt),
                              synth=synth, force=args.force, methods=methods, stages=stages,
                              stage_options=stage_options, progress=progress, scheduler=args.scheduler,
-                             workers=args.workers, threads=args.threads, holdout=args.holdout, mesh=args.mesh)
+                             workers=args.workers, threads=args.threads, holdout=args.holdout, mesh=args.mesh,
+                             downscale=args.downscale, max_size=args.max_size)
         bar.advance("done")
+    if not (args.quiet or args.json):  # the import's summary: what it adapted, what to check
+        for r in results[:1]:
+            for line in r.details.get("adapted", ()):
+                print(f"{PROG}: import: {line}", file=sys.stderr)
+            for line in r.details.get("warnings", ()):
+                print(f"{PROG}: warning: {line}", file=sys.stderr)
     if args.json:
         print(json.dumps([r.to_dict() for r in results], indent=1))
     else:

@@ -72,20 +72,29 @@ _NO_VIDEO_HOLDOUT = "--holdout: not for a video scene (ibr-render --holdout remo
 
 def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options: dict | None = None,
                synth: dict | None = None, force: bool = False, holdout: list[str] | None = None,
-               mesh: str | os.PathLike | None = None) -> StageResult:
+               mesh: str | os.PathLike | None = None, downscale: float | None = None,
+               max_size: int | None = None) -> StageResult:
     """The ``import`` stage: read a data set (or make a synthetic one), validate it, write the
     native scene. Up to date when ``output`` holds a scene made from the same input bytes and
     parameters. ``holdout``: input views imported as targets (ground truth no stage reads), so
     that ``ibr-render SCENE`` scores them as unseen views (:func:`hold_out`). ``mesh``: a PLY/OBJ
     in the capture's frame, imported as the scene's ``reconstructed`` mesh (the mesh stage then
-    uses it, and the depth stage renders it for the views without depth; no multi-view stereo)."""
+    uses it, and the depth stage renders it for the views without depth; no multi-view stereo).
+    ``downscale`` / ``max_size``: every view resized on import (``formats.resize``; data sets only:
+    a synthetic scene is made at its ``--size``). The import's summary (``source["adapted"]`` and
+    ``source["warnings"]``, what the importer adapted) is in the result's details."""
     from .formats import load as load_dataset
     from .formats import native
+    from .formats.resize import check_factors
 
     options = dict(options or {})
     output = Path(output)
     held = list(dict.fromkeys(holdout or []))
     src = Path(input_spec)
+    downscale, max_size = check_factors(downscale, max_size)
+    if synth is not None and (downscale is not None or max_size is not None):
+        raise BadValueError(f"{'--downscale' if downscale is not None else '--max-size'}: for data sets only "
+                            "(a synthetic scene is made at its --size)")
     if synth is not None:
         params: dict = {"synth": synth, "version": IMPORT_STAGE_VERSION}
     else:
@@ -105,6 +114,10 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
         params = {"format": fmt, "options": options, "version": IMPORT_STAGE_VERSION}
     if held:  # only then: the import key of scenes without held-out views is unchanged
         params["holdout"] = held
+    if downscale is not None:  # likewise
+        params["downscale"] = downscale
+    if max_size is not None:
+        params["max_size"] = max_size
     user_mesh = None
     if mesh is not None:  # only then, likewise; the mesh's bytes enter the key
         from .meshio import read_mesh
@@ -142,8 +155,14 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
         scene: Scene = make_scene(**synth)
         fmt_used = f"synth:{synth['preset']}"
     else:
-        scene = load_dataset(Path(input_spec), fmt, options)
+        scene = load_dataset(Path(input_spec), fmt, options, downscale=downscale, max_size=max_size)
         fmt_used = scene.source.get("format", fmt)
+    if synth is None:  # robust depth statistics of the data set's views (synthetic depth is exact)
+        from .formats._common import record_summary
+
+        warning = depth_outlier_warning(scene.views + scene.targets)
+        if warning:
+            record_summary(scene.source, warnings=[warning])
     if held:
         scene = hold_out(scene, held)
     if user_mesh is not None:
@@ -155,8 +174,47 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
     native.save(scene, output)
     seconds = time.perf_counter() - t0
     reason = "forced" if force else ("inputs changed" if record else "no scene yet")
-    return StageResult("import", "ran", f"{reason}; {fmt_used}", seconds,
-                       {"views": n_views, "targets": n_targets})
+    details: dict = {"views": n_views, "targets": n_targets}
+    for k in ("adapted", "warnings"):
+        if scene.source.get(k):
+            details[k] = list(scene.source[k])
+    return StageResult("import", "ran", f"{reason}; {fmt_used}", seconds, details)
+
+
+# A view's depth "has far outliers" when at least this share of its valid pixels lies beyond the
+# view-selection outlier limit. 0.05 %: 7-Scenes' invalid codes are percents of a frame (0.1 % at
+# 65.5 m made a frustum 20x deeper); Middlebury's ground truth has 3-12 stray pixels of quarter-pixel
+# disparity per view (at most 0.0074 %, Cones), real and harmless once view selection drops them.
+FAR_OUTLIER_SHARE = 5e-4
+
+
+def depth_outlier_warning(views) -> str | None:
+    """One line naming the views whose depth has far outliers (at least ``FAR_OUTLIER_SHARE`` of
+    the valid values above twice the 99th percentile: ``render.view_selection.outlier_limits``, the
+    rule view selection leaves them out by), or None. A sensor's invalid code read as depth (7-Scenes' 65535 mm = 65.5 m in a 3 m room)
+    is the usual cause: the user learns it at import, with the options that mark it unknown."""
+    from .render.view_selection import outlier_limits
+
+    hits = []  # (share of the view's valid pixels, name, largest value, the limit)
+    n = 0
+    for v in views:
+        if not v.has_depth or v.camera.model != "pinhole":
+            continue
+        n += 1
+        d = v.depth
+        valid = d[np.isfinite(d) & (d > 0)]
+        if valid.size == 0:
+            continue
+        high = outlier_limits(valid)[1]
+        far = int(np.count_nonzero(valid > high))
+        if far and far >= FAR_OUTLIER_SHARE * valid.size:
+            hits.append((far / valid.size, v.name, float(valid.max()), high / 2))
+    if not hits:
+        return None
+    share, name, top, p99 = max(hits)
+    return (f"depth outliers in {len(hits)} of {n} views (worst: {name}, {100 * share:.2g} % of its depth beyond "
+            f"twice its 99th percentile {p99:.4g}, up to {top:.4g}); view selection leaves them out; if they are "
+            "a sensor's invalid code, mark it unknown (rgbd: --opt invalid_depth=V or max_depth=M)")
 
 
 def hold_out(scene: Scene, names: list[str]) -> Scene:
@@ -599,7 +657,8 @@ def _run_mvs(ctx: _Context) -> dict:
 
     opts = MvsOptions(**ctx.options.get("mvs", {}))
     names = [v.name for v in ctx.scene.views if not v.has_depth]
-    res = run_mvs(ctx.scene.views, opts, names=names, run_pass=None if ctx.cluster is None else _mvs_on_workers(ctx))
+    res = run_mvs(ctx.scene.views, opts, names=names, run_pass=None if ctx.cluster is None else _mvs_on_workers(ctx),
+                  bounds=ctx.scene.source.get("depth_bounds"))
     if not any(np.any(r.depth > 0) for r in res.values()):
         raise BadValueError(f"mvs: multi-view stereo matched no pixel in any of the {len(res)} views without depth "
                             "(textureless images, or cameras that do not see the same surfaces); give the views "
@@ -649,7 +708,8 @@ def _mvs_task(root: str, names: list[str], options: dict, which: str, threads: i
     set_task_threads(threads)
     ctx = _Context(Path(root), options)
     views = ctx.scene.views
-    run = MvsRun(views, MvsOptions(**options.get("mvs", {})), [v.name for v in views if not v.has_depth])
+    run = MvsRun(views, MvsOptions(**options.get("mvs", {})), [v.name for v in views if not v.has_depth],
+                 ctx.scene.source.get("depth_bounds"))
     if which == "photometric":
         return {n: run.photometric(n) for n in names}
     first = load_npz(ctx.cache("mvs") / _MVS_EXCHANGE)
@@ -1107,15 +1167,20 @@ def preprocess(input_spec: str, output: str | os.PathLike, *, fmt: str | None = 
                methods: list[str] | None = None, stages: list[str] | None = None,
                stage_options: dict | None = None, progress=None, scheduler: str | None = None,
                workers: int = 0, threads: int = 0, holdout: list[str] | None = None,
-               mesh: str | os.PathLike | None = None) -> list[StageResult]:
+               mesh: str | os.PathLike | None = None, downscale: float | None = None,
+               max_size: int | None = None) -> list[StageResult]:
     """Import (or find up to date) the scene, then run the derived stages ``methods`` need (or
     exactly ``stages``); returns the stage table. ``scheduler`` / ``workers`` / ``threads``: the
     per-view stages on Dask (:func:`run_stages`). ``holdout``: input views imported as targets,
-    ``mesh``: a user's reconstructed mesh imported with the views (:func:`run_import`)."""
+    ``mesh``: a user's reconstructed mesh imported with the views, ``downscale`` / ``max_size``: the
+    views resized on import (:func:`run_import`)."""
     from .distributed import check_options
     from .outputs import scene_lock
 
+    from .formats.resize import check_factors
+
     check_options(scheduler, workers)
+    check_factors(downscale, max_size)  # usage errors before the scene directory is touched
     if stages is not None:
         stages = [s for s in stages if s != "import"]
     if stage_options:
@@ -1126,7 +1191,7 @@ def preprocess(input_spec: str, output: str | os.PathLike, *, fmt: str | None = 
     # run left (temporaries, half-written scene directories) is swept first (ibrtools.outputs).
     with scene_lock(output) as lock:
         results = [run_import(input_spec, Path(output), fmt=fmt, options=options, synth=synth, force=force,
-                              holdout=holdout, mesh=mesh)]
+                              holdout=holdout, mesh=mesh, downscale=downscale, max_size=max_size)]
         if lock.swept:
             results[0].details["swept"] = len(lock.swept)
         if stages == []:

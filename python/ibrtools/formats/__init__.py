@@ -16,7 +16,9 @@ from ..errors import FormatError, MissingFileError
 from ..scene import Scene
 
 # Order matters for detection: the most specific formats first.
-IMPORTERS = ("native", "mpeg", "nerf", "colmap", "middlebury", "rgbd")
+# llff after colmap: an LLFF folder that also holds its COLMAP model (sparse/0) imports as COLMAP
+# (distortion, the principal point as estimated) unless --format llff is given.
+IMPORTERS = ("native", "mpeg", "nerf", "colmap", "llff", "middlebury", "rgbd")
 
 
 def importer(name: str):
@@ -37,14 +39,22 @@ def detect(path: Path) -> str:
                       "or pass --format)")
 
 
-def load(path: str | Path, fmt: str | None = None, options: dict | None = None) -> Scene:
-    """Import a data set (format detected unless given) as a Scene."""
+def load(path: str | Path, fmt: str | None = None, options: dict | None = None, *,
+         downscale: float | None = None, max_size: int | None = None) -> Scene:
+    """Import a data set (format detected unless given) as a Scene; ``downscale`` (a factor >= 1)
+    / ``max_size`` (the longer side, pixels) resize every view on the way in (formats/resize.py,
+    whatever the importer)."""
+    from .resize import check_factors, downscale_scene
+
     path = Path(path)
+    downscale, max_size = check_factors(downscale, max_size)  # before any file is read
     if not path.exists():
         raise MissingFileError(f"{path}: no such file or directory")
     name = fmt or detect(path)
     scene = importer(name).load(path, dict(options or {}))
     scene.source.setdefault("format", name)
     scene.source.setdefault("path", str(path))
+    if downscale is not None or max_size is not None:
+        scene = downscale_scene(scene, downscale, max_size)
     scene.validate()
     return scene

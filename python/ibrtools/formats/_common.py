@@ -207,3 +207,13 @@ def check_same_size(path: Path, size: tuple[int, int], what: str, expected_from:
         from ..errors import ShapeError
 
         raise ShapeError(f"{path}: {what} is {w}x{h}, expected {size[0]}x{size[1]} ({expected_from})")
+
+
+def record_summary(source: dict, *, adapted: list[str] | None = None, warnings: list[str] | None = None) -> None:
+    """Add to a scene's ``source`` what the import adapted (``source["adapted"]``: frames skipped,
+    distortion removed, images downscaled, depth clipped or marked unknown) and what the user
+    should check (``source["warnings"]``: e.g. far depth outliers), one line each. Nothing is added
+    when there is nothing to say, so a scene imported as it was stored keeps its scene.json."""
+    for key, lines in (("adapted", adapted), ("warnings", warnings)):
+        if lines:
+            source.setdefault(key, []).extend(lines)

@@ -49,6 +49,7 @@ from ..errors import BadValueError, FormatError, MissingFileError, ShapeError
 from ..imageio import read_image
 from ..scene import Scene, View
 from ._common import document_errors, FileLoader, check_options, image_size, named, opt_choice, quat_to_rotation
+from ._undistort import Undistorter, _distort, is_distorted  # noqa: F401 (tests use colmap._distort)
 
 NAME = "colmap"
 DESCRIPTION = "COLMAP sparse model (cameras/images .bin|.txt) + images (+ dense depth maps)"
@@ -181,100 +182,25 @@ def read_array(path: Path) -> np.ndarray:
     return np.ascontiguousarray(arr[..., 0] if c == 1 else arr)
 
 
-# --- distortion ---------------------------------------------------------------------------------
-def _distort(model: str, params: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """COLMAP's distortion of normalised image coordinates (x, y) -> distorted (x, y)."""
-    if model in ("SIMPLE_PINHOLE", "PINHOLE"):
-        return x, y
-    r2 = x * x + y * y
-    if model == "SIMPLE_RADIAL":
-        f = 1 + params[3] * r2
-        return x * f, y * f
-    if model == "RADIAL":
-        f = 1 + params[3] * r2 + params[4] * r2 * r2
-        return x * f, y * f
-    if model == "OPENCV":
-        k1, k2, p1, p2 = params[4:8]
-        f = 1 + k1 * r2 + k2 * r2 * r2
-        xy = x * y
-        return x * f + 2 * p1 * xy + p2 * (r2 + 2 * x * x), y * f + p1 * (r2 + 2 * y * y) + 2 * p2 * xy
-    raise FormatError(f"camera model {model}: not supported")
-
-
+# --- distortion (the models and the maps: _undistort.py) ---------------------------------------
 def _intrinsics(model: str, p: np.ndarray) -> tuple[float, float, float, float]:
     if model in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"):
         return p[0], p[0], p[1], p[2]
     return p[0], p[1], p[2], p[3]
 
 
-def is_distorted(model: str, params: np.ndarray) -> bool:
-    if model in ("SIMPLE_PINHOLE", "PINHOLE"):
-        return False
-    extra = params[3:] if model in ("SIMPLE_RADIAL", "RADIAL") else params[4:]
-    return bool(np.any(extra != 0))
-
-
-def undistort_map(cam: Camera, model: str, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Continuous source coordinates (H, W) each, of every pixel centre of the undistorted
-    pinhole ``cam`` (same fx, fy, cx, cy as the distorted camera)."""
-    u, v = cam.pixel_grid()
-    x, y = (u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy
-    xd, yd = _distort(model, params, x, y)
-    return xd * cam.fx + cam.cx, yd * cam.fy + cam.cy
-
-
-def remap_bilinear(img: np.ndarray, sx: np.ndarray, sy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Sample ``img`` (H, W[, C]) at continuous coordinates (pixel centres at +0.5); returns the
-    samples and a bool map of those inside the image (outside: 0)."""
-    h, w = img.shape[:2]
-    fx, fy = sx - 0.5, sy - 0.5
-    inside = (fx >= -0.5) & (fx <= w - 0.5) & (fy >= -0.5) & (fy <= h - 0.5)
-    fx, fy = np.clip(fx, 0, w - 1), np.clip(fy, 0, h - 1)
-    x0 = np.minimum(np.floor(fx).astype(np.int64), w - 2 if w > 1 else 0)
-    y0 = np.minimum(np.floor(fy).astype(np.int64), h - 2 if h > 1 else 0)
-    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
-    ax, ay = (fx - x0), (fy - y0)
-    if img.ndim == 3:
-        ax, ay = ax[..., None], ay[..., None]
-    top = img[y0, x0] * (1 - ax) + img[y0, x1] * ax
-    bot = img[y1, x0] * (1 - ax) + img[y1, x1] * ax
-    out = (top * (1 - ay) + bot * ay).astype(img.dtype)
-    out[~inside] = 0
-    return np.ascontiguousarray(out), inside
-
-
-def remap_nearest(img: np.ndarray, sx: np.ndarray, sy: np.ndarray) -> np.ndarray:
-    h, w = img.shape[:2]
-    xi, yi = np.floor(sx).astype(np.int64), np.floor(sy).astype(np.int64)
-    inside = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
-    out = img[np.clip(yi, 0, h - 1), np.clip(xi, 0, w - 1)]
-    out[~inside] = 0
-    return np.ascontiguousarray(out)
-
-
-class _Undistorter:
-    """Computes the undistortion map once per camera and shares it between that camera's views."""
-
-    def __init__(self, cam: Camera, model: str, params: np.ndarray):
-        self.cam, self.model, self.params, self._map = cam, model, params, None
-
-    def map(self):
-        if self._map is None:
-            self._map = undistort_map(self.cam, self.model, self.params)
-        return self._map
+class _Undistorter(Undistorter):
+    """COLMAP's files through the shared undistortion map."""
 
     def color(self, path: Path, size: tuple[int, int] | None = None) -> np.ndarray:
         img = read_image(path, size=(self.cam.width, self.cam.height))  # refused from its header
-        return remap_bilinear(img, *self.map())[0]
+        return self.bilinear(img)
 
     def mask(self) -> np.ndarray:
-        sx, sy = self.map()
-        w, h = self.cam.width, self.cam.height
-        return np.ascontiguousarray((sx >= 0) & (sx <= w) & (sy >= 0) & (sy <= h))
+        return self.inside()
 
     def depth(self, path: Path) -> np.ndarray:
-        d = _load_depth(path, self.cam)
-        return remap_nearest(d, *self.map())
+        return self.nearest(_load_depth(path, self.cam))
 
 
 def _load_depth(path: Path, cam: Camera) -> np.ndarray:

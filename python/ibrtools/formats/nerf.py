@@ -10,8 +10,17 @@ Convention converted from
     ``cx``/``cy`` when present, else ``w/2``, ``h/2`` (the image centre in our pixel-centre-at-
     +0.5 convention, which is where Blender puts it). ``w``/``h`` when present, else read
     from the image header. Any of these keys may also appear per frame (overrides).
+  * Lens distortion (instant-ngp, nerfstudio): ``camera_model`` OPENCV (``k1 k2 k3 p1 p2``,
+    OpenCV's radial-tangential model) or OPENCV_FISHEYE (``k1 k2 k3 k4``, equidistant), or
+    instant-ngp's ``k1 k2 p1 p2`` without ``camera_model`` (``is_fisheye: true``: fisheye), at top
+    level or per frame. Images are undistorted on load to a pinhole with the same fx, fy, cx, cy
+    (``_undistort.py``, the COLMAP importer's code: bilinear colour, nearest depth, pixels whose
+    source is outside the image out of the mask). PINHOLE with non-zero coefficients, k4 without
+    OPENCV_FISHEYE, p1/p2 with OPENCV_FISHEYE and other models are refused (FormatError).
   * Images: ``file_path`` relative to the JSON's folder, with or without extension (".png"
-    is tried first). RGBA images are composited over the ``background`` colour **on the
+    is tried first). Frames whose image is not there are skipped, counted in one warning
+    (``source["warnings"]``; instant-ngp's ``fox`` lists 67 frames and ships 50); an error only
+    when no frame has its image. RGBA images are composited over the ``background`` colour **on the
     stored sRGB values** (``rgb * a + bg * (1 - a)``, then decoded to linear) — exactly what the
     NeRF papers' evaluation images are — and ``alpha > 0.5`` becomes the view's mask.
   * Depth (Blender synthetic sets, e.g. lego ``r_N_depth_0001.png``): an 8- or 16-bit image,
@@ -22,6 +31,10 @@ Convention converted from
     pinhole camera (``Camera.depth_ray_to_z``). Looked up as ``<stem>_depth_0001.png``,
     ``<stem>_depth.png``. A free two-parameter fit ``a - b v/255`` of the lego depth maps to each
     other gives a = 7.97, b = 7.94, i.e. this encoding with scale 8.
+  * Metric depth (nerfstudio): a frame's ``depth_file_path`` (relative to the JSON's folder) is a
+    z-depth image: 16-bit values times ``depth_unit`` (default 0.001, nerfstudio's millimetres;
+    give the factor that brings them to the poses' units), float images (EXR) as stored; 0 =
+    unknown. It replaces the Blender depth lookup for that frame; missing file: MissingFileError.
   * Depth de-quantisation (option ``depth_dequantize=auto|N``, default auto): a smooth surface
     stored in integer codes is a staircase of flat terraces one code apart. N rounds of
     bin-constrained smoothing (``dequantize_codes``) turn the terraces into ramps while every
@@ -50,6 +63,7 @@ Options
   background=black|white     compositing colour for RGBA images (default black)
   depth_scale=8              ray distance encoded by v = 0 (default 8)
   depth=auto|none            read depth PNGs when present (default auto)
+  depth_unit=0.001           scene units per stored unit of ``depth_file_path`` 16-bit images
   depth_dequantize=auto|N    rounds of bin-constrained smoothing of the depth codes (default auto:
                              5 for 8-bit depth PNGs, 0 for 16-bit)
 """
@@ -57,15 +71,17 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
 from ..camera import Camera
 from ..errors import BadValueError, DtypeError, FormatError, MissingFileError, ShapeError
-from ..imageio import F32_MAX, read_pixels, srgb_to_linear
+from ..imageio import F32_MAX, read_depth, read_pixels, srgb_to_linear
 from ..scene import Scene, View
 from ._common import (document_errors, FileLoader, check_options, check_same_size, image_header, image_size, invert_rigid,
-                      named, opt_choice, opt_float, opt_int, read_json, rigid_from_matrix)
+                      named, opt_choice, opt_float, opt_int, read_json, record_summary, rigid_from_matrix)
+from ._undistort import Undistorter, is_distorted
 
 NAME = "nerf"
 DESCRIPTION = "NeRF/instant-ngp transforms*.json (Blender/OpenGL camera-to-world)"
@@ -76,6 +92,8 @@ OPTIONS = {
     "background": "black|white: compositing colour of RGBA images",
     "depth_scale": "ray distance encoded by v = 0 (default 8)",
     "depth": "auto|none",
+    "depth_unit": "scene units per stored unit of depth_file_path 16-bit images (default 0.001: millimetres, "
+                  "nerfstudio's convention)",
     "depth_dequantize": "auto|N: rounds of bin-constrained smoothing of the depth codes "
                         "(default auto = 5 for 8-bit depth PNGs, 0 for 16-bit; 0 = off)",
 }
@@ -84,6 +102,8 @@ IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".exr", ".tif", ".tiff", "")
 # de-quantised, fine 16-bit codes are not). 5 = the best of 0/2/5/10 on the lego validation views
 # (benchmarks/bench_dibr_accuracy.py, LEGO_VALIDATION; never the test views).
 AUTO_DEQUANTIZE = {"uint8": 5, "uint16": 0}
+# nerfstudio's camera_model values read (others, e.g. EQUIRECTANGULAR, are refused).
+CAMERA_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "OPENCV", "OPENCV_FISHEYE")
 # Blender/OpenGL camera axes (x right, y up, looking along -z) -> OpenCV (x right, y down, z fwd).
 GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])
 
@@ -107,14 +127,14 @@ def detect(path: Path) -> bool:
     return path.is_dir() and bool(_json_files(path))
 
 
-def _resolve_image(base: Path, file_path: str, where: str) -> Path:
+def _resolve_image(base: Path, file_path: str) -> Path | None:
+    """The image of ``file_path`` (with or without extension), or None when it is not there."""
     rel = Path(file_path)
     for ext in IMAGE_EXTS:
         cand = base / (str(rel) + ext) if ext else base / rel
         if cand.is_file():
             return cand
-    raise MissingFileError(f"{base / rel}: image of {where} not found (tried extensions "
-                           f"{', '.join(e or 'none' for e in IMAGE_EXTS)})")
+    return None
 
 
 def _depth_file(image: Path) -> Path | None:
@@ -280,7 +300,44 @@ def _filters_depth(path: Path, dequantize: int | None) -> bool:
     return fmt in AUTO_DEQUANTIZE and AUTO_DEQUANTIZE[fmt] > 0
 
 
-def _camera(meta: dict, frame: dict, image: Path, where: str) -> Camera:
+def _distortion(m: dict, fx: float, fy: float, cx: float, cy: float, where: str
+                ) -> tuple[str, np.ndarray] | None:
+    """The lens distortion of a frame as (COLMAP model name, COLMAP parameters), or None when
+    there is none: nerfstudio's ``camera_model`` OPENCV (``k1 k2 k3 p1 p2``: OpenCV's radial and
+    tangential model; COLMAP's OPENCV, FULL_OPENCV when k3 is given) or OPENCV_FISHEYE (``k1 k2 k3
+    k4``), instant-ngp's ``k1 k2 p1 p2`` without ``camera_model`` (OPENCV; ``is_fisheye``: fisheye)."""
+    model = m.get("camera_model")
+    if model is not None:
+        model = str(model).upper()
+    k = {key: (_number(m, key, where) if key in m else 0.0) for key in ("k1", "k2", "k3", "k4", "p1", "p2")}
+    if model is None:
+        model = "OPENCV_FISHEYE" if m.get("is_fisheye") is True else "OPENCV"
+    if model not in CAMERA_MODELS:
+        raise FormatError(f"{where}: camera_model {m.get('camera_model')!r} is not supported "
+                          f"(expected one of {', '.join(CAMERA_MODELS)})")
+    if model == "OPENCV_FISHEYE":
+        if k["p1"] or k["p2"]:
+            raise FormatError(f"{where}: camera_model OPENCV_FISHEYE has no tangential terms, got "
+                              f"p1={k['p1']:g}, p2={k['p2']:g}")
+        params = np.array([fx, fy, cx, cy, k["k1"], k["k2"], k["k3"], k["k4"]])
+    else:
+        if model in ("PINHOLE", "SIMPLE_PINHOLE") and any(k.values()):
+            raise FormatError(f"{where}: camera_model {model} with distortion coefficients "
+                              f"({', '.join(f'{n}={v:g}' for n, v in k.items() if v)}); expected OPENCV")
+        if k["k4"]:
+            raise FormatError(f"{where}: k4 = {k['k4']:g} is a fisheye coefficient; expected camera_model "
+                              "OPENCV_FISHEYE")
+        if k["k3"]:
+            model = "FULL_OPENCV"
+            params = np.array([fx, fy, cx, cy, k["k1"], k["k2"], k["p1"], k["p2"], k["k3"], 0.0, 0.0, 0.0])
+        else:
+            model = "OPENCV"
+            params = np.array([fx, fy, cx, cy, k["k1"], k["k2"], k["p1"], k["p2"]])
+    return (model, params) if is_distorted(model, params) else None
+
+
+def _camera(meta: dict, frame: dict, image: Path, where: str) -> tuple[Camera, tuple[str, np.ndarray] | None]:
+    """The frame's undistorted pinhole camera and its lens distortion (None: none)."""
     m = {**meta, **frame}  # per-frame intrinsics override the file's
     if "w" in m and "h" in m:
         try:
@@ -304,7 +361,28 @@ def _camera(meta: dict, frame: dict, image: Path, where: str) -> Camera:
         raise FormatError(f"{where}: missing key 'transform_matrix'")
     c2w_gl = rigid_from_matrix(frame["transform_matrix"], f"{where} transform_matrix")
     with named(where):
-        return Camera.pinhole(w, h, fx, fy, cx, cy, invert_rigid(c2w_gl @ GL_TO_CV))
+        cam = Camera.pinhole(w, h, fx, fy, cx, cy, invert_rigid(c2w_gl @ GL_TO_CV))
+    return cam, _distortion(m, fx, fy, cx, cy, where)
+
+
+def _undistorted(und: Undistorter | None, fn: Callable[..., np.ndarray], nearest: bool = False
+                 ) -> Callable[..., np.ndarray]:
+    """``fn`` (a loader of the distorted image) followed by the undistortion (bilinear; nearest
+    for depth and masks); ``fn`` itself when the camera has no distortion."""
+    if und is None:
+        return fn
+
+    def load(*args, **kwargs):
+        img = fn(*args, **kwargs)
+        return und.nearest(img) if nearest else und.bilinear(img)
+    return load
+
+
+def _mask_undistorted(und: Undistorter, image: Path | None, size: tuple[int, int]) -> np.ndarray:
+    """The mask of an undistorted view: its source inside the distorted image (and, for RGBA
+    images, alpha > 0.5 there)."""
+    inside = und.inside()
+    return inside if image is None else np.ascontiguousarray(inside & und.nearest(_load_mask(image, size)))
 
 
 @document_errors
@@ -318,6 +396,7 @@ def load(path: Path, options: dict) -> Scene:
         raise BadValueError(f"option depth_scale: {depth_scale:g} overflows float32 (largest {F32_MAX:.3g}); "
                             "expected the ray distance of depth code 0")
     use_depth = opt_choice(options, "depth", "auto", ("auto", "none")) == "auto"
+    depth_unit = opt_float(options, "depth_unit", 0.001, positive=True)
     dequantize = _dequantize_option(options)
     if not path.exists():
         raise MissingFileError(f"{path}: no such file or directory")
@@ -329,7 +408,9 @@ def load(path: Path, options: dict) -> Scene:
     if not files:
         raise FormatError(f"{path}: no transforms*.json found")
 
-    entries = []  # (split, stem, camera, image, depth file)
+    entries = []  # (split, stem, camera, distortion, image, depth file)
+    missing: list[str] = []  # frames whose image is not there (skipped, counted in one warning)
+    listed = 0
     for s, jf in files:
         meta = read_json(jf)
         if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list):
@@ -340,39 +421,84 @@ def load(path: Path, options: dict) -> Scene:
             where = f"{jf} frames[{i}]"
             if not isinstance(frame, dict) or "file_path" not in frame:
                 raise FormatError(f"{where}: missing key 'file_path'")
-            image = _resolve_image(jf.parent, str(frame["file_path"]), where)
-            camera = _camera(meta, frame, image, where)
-            depth = _depth_file(image) if use_depth else None
+            listed += 1
+            image = _resolve_image(jf.parent, str(frame["file_path"]))
+            if image is None:
+                missing.append(str(jf.parent / str(frame["file_path"])))
+                continue
+            camera, distortion = _camera(meta, frame, image, where)
+            metric = use_depth and "depth_file_path" in frame
+            if metric:
+                depth = jf.parent / str(frame["depth_file_path"])
+                if not depth.is_file():
+                    raise MissingFileError(f"{depth}: depth image of {where} (depth_file_path) not found")
+                if image_header(depth)[3] == "uint8":
+                    raise DtypeError(f"{depth}: 8-bit image cannot hold metric depth (depth_file_path: expected "
+                                     "16-bit PNG or EXR)")
+            else:
+                depth = _depth_file(image) if use_depth else None
             if depth is not None:
                 check_same_size(depth, (camera.width, camera.height), "depth image", f"size of {image.name}")
-            entries.append((s, image.stem, camera, image, depth))
+            entries.append((s, image.stem, camera, distortion, image, depth, metric))
+    if not entries:
+        raise MissingFileError(f"{missing[0]}: image not found (tried extensions "
+                               f"{', '.join(e or 'none' for e in IMAGE_EXTS)}); none of the {listed} frames "
+                               f"listed in {', '.join(str(f) for _, f in files)} has its image")
+    warnings = []
+    if missing:
+        warnings.append(f"{len(missing)} of {listed} frames skipped: image not found ({missing[0]}"
+                        + (f", ... {missing[-1]})" if len(missing) > 1 else ")"))
 
     stems = [e[1] for e in entries]
     collide = {st for st in stems if stems.count(st) > 1}
     views = []
-    for s, stem, camera, image, depth in entries:
+    undistorters: dict[tuple, Undistorter] = {}
+    for s, stem, camera, distortion, image, depth, metric in entries:
         name = f"{s}/{stem}" if stem in collide and s else stem
         size = (camera.width, camera.height)
-        mask = FileLoader(image, _load_mask, image, size=size) if _has_alpha(image) else None
+        und = None
+        if distortion is not None:
+            key = (size, distortion[0], tuple(distortion[1]))
+            und = undistorters.setdefault(key, Undistorter(camera, *distortion))
+        alpha = _has_alpha(image)
+        if und is None:
+            mask = FileLoader(image, _load_mask, image, size=size) if alpha else None
+        else:
+            mask = FileLoader(image, _mask_undistorted, und, image if alpha else None, size=size)
+        color = FileLoader(image, _undistorted(und, _load_color), image, background, size=size)
+        if metric:  # nerfstudio's depth_file_path: z-depth, 16-bit values * depth_unit (float as stored)
+            scale = depth_unit if image_header(depth)[3] == "uint16" else None
+            views.append(View.create(name, camera, color=color, mask=mask,
+                                     depth=FileLoader(depth, _undistorted(und, read_depth, True), depth, scale=scale,
+                                                      size=size)))
+            continue
         views.append(View.create(
-            name, camera,
-            color=FileLoader(image, _load_color, image, background, size=size),
-            depth=FileLoader(depth, _load_depth, depth, camera, depth_scale, dequantize) if depth is not None else None,
+            name, camera, color=color,
+            depth=(FileLoader(depth, _undistorted(und, _load_depth, True), depth, camera, depth_scale, dequantize)
+                   if depth is not None else None),
             mask=mask,
-            depth_stored=(FileLoader(depth, _load_depth, depth, camera, depth_scale, 0)
+            depth_stored=(FileLoader(depth, _undistorted(und, _load_depth, True), depth, camera, depth_scale, 0)
                           if depth is not None and _filters_depth(depth, dequantize) else None)))
     dup = sorted({v.name for v in views if [w.name for w in views].count(v.name) > 1})
     if dup:
         raise FormatError(f"{path}: duplicate view names {dup[:5]} (two frames name the same image)")
     notes = [f"RGBA composited over {'white' if background else 'black'} on the sRGB values; "
              "mask = alpha > 0.5"]
-    if any(e[4] is not None for e in entries):
+    if any(e[6] for e in entries):
+        notes.append(f"depth_file_path: z-depth = 16-bit value * {depth_unit:g} (float images as stored)")
+    if any(e[5] is not None and not e[6] for e in entries):
         notes.append(f"depth: ray distance = {depth_scale:g} * (1 - v/vmax), v = 0 background at infinity, "
                      "converted to z"
                      + (f"; codes de-quantised: auto (8-bit: {AUTO_DEQUANTIZE['uint8']} rounds, "
                         f"16-bit: {AUTO_DEQUANTIZE['uint16']})" if dequantize is None
                         else f"; codes de-quantised ({dequantize} rounds)" if dequantize else ""))
-    return Scene(views=views, units="unknown", shading={"background": [background] * 3},
-                 source={"format": NAME, "path": str(path), "files": [str(f) for _, f in files],
-                         "background": "white" if background else "black", "notes": "; ".join(notes)},
+    source = {"format": NAME, "path": str(path), "files": [str(f) for _, f in files],
+              "background": "white" if background else "black", "notes": "; ".join(notes)}
+    adapted = [f"{len(missing)} frames skipped (image not found)"] if missing else []
+    models = [e[3][0] for e in entries if e[3] is not None]
+    for model in sorted(set(models)):
+        adapted.append(f"distortion removed: {models.count(model)} views ({model}), undistorted to a pinhole "
+                       "with the same fx, fy, cx, cy")
+    record_summary(source, adapted=adapted, warnings=warnings)
+    return Scene(views=views, units="unknown", shading={"background": [background] * 3}, source=source,
                  root=path if path.is_dir() else path.parent)

@@ -1,4 +1,4 @@
-"""RGB-D sequences: ICL-NUIM and TUM RGB-D layouts (colour + 16-bit depth PNG + poses).
+"""RGB-D sequences: ICL-NUIM, TUM RGB-D and 7-Scenes layouts (colour + 16-bit depth PNG + poses).
 
 Layouts
   icl  ``color/<k>.png``, ``depth/<k>.png`` (same names), ``pose.txt`` (or ``poses.txt``,
@@ -9,6 +9,11 @@ Layouts
        depth/y.png``), ``groundtruth.txt``: ``timestamp tx ty tz qx qy qz qw`` (camera-to-world);
        each colour frame takes the depth and the pose with the nearest timestamp (within
        ``max_dt`` seconds, else the frame is skipped).
+  7scenes  one folder of per-frame files as Microsoft 7-Scenes (and ScanNet-style exports) ship
+       them: ``frame-000000.color.png`` (or ``.jpg``), ``frame-000000.depth.png`` (uint16
+       millimetres, 65535 = invalid), ``frame-000000.pose.txt`` (4x4 **camera-to-world**, camera
+       axes x right, y down, z forward: OpenCV's). Frames are matched by the prefix before
+       ``.color``; a frame without its depth or pose is an error naming the file.
 
 Convention converted from
   Depth is z (metres = value * depth_scale, 0 = unknown). A pixel (u, v) with depth z is the
@@ -35,8 +40,14 @@ Options
   fx, fy, cx, cy        intrinsics in the data set's convention (integer pixel centres).
                         Defaults: ICL-NUIM 481.2, -480.0, 319.5, 239.5 (pose_format=icl);
                         TUM/ROS default 525.0, 525.0, 319.5, 239.5 (pose_format=tum)
-  depth_scale=1/5000    metres per depth unit (ICL-NUIM and TUM: 1/5000)
-  pose_format=icl|tum   (default: icl when color/ exists, tum when rgb/ exists)
+                        7-Scenes 585, 585, 319.5, 239.5 (its documented principal point (320, 240)
+                        is the image centre, i.e. 319.5, 239.5 in integer pixel indices)
+  depth_scale=          metres per depth unit (ICL-NUIM and TUM: 1/5000; 7-Scenes: 1/1000)
+  invalid_depth=V       a stored depth value meaning unknown, beside 0 which always does
+                        (7-Scenes default 65535; others: none)
+  max_depth=M           depth beyond M metres is marked unknown (0); default: none
+  pose_format=icl|tum|7scenes   (default: icl when color/ exists, tum when rgb/ exists, 7scenes
+                        when the folder holds ``*.pose.txt`` files)
   max_dt=0.02           TUM: largest timestamp difference accepted, seconds
 """
 from __future__ import annotations
@@ -52,15 +63,23 @@ from ..imageio import read_depth, read_image
 from ..scene import Scene, View
 from ..imageio import F32_MAX
 from ._common import document_errors, FileLoader, check_options, check_same_size, image_size, invert_rigid, named, \
-    opt_choice, opt_float, quat_to_rotation
+    opt_choice, opt_float, quat_to_rotation, record_summary, rigid_from_matrix
 
 NAME = "rgbd"
-DESCRIPTION = "RGB-D sequence: ICL-NUIM (color/, depth/, pose.txt) or TUM (rgb/, depth/, groundtruth.txt)"
+DESCRIPTION = ("RGB-D sequence: ICL-NUIM (color/, depth/, pose.txt), TUM (rgb/, depth/, groundtruth.txt) or "
+               "7-Scenes (frame-N.color.png, .depth.png, .pose.txt)")
 OPTIONS = {"fx": "focal x (px)", "fy": "focal y (px; negative = flipped y)", "cx": "principal x",
-           "cy": "principal y", "depth_scale": "metres per depth unit (default 1/5000)",
-           "pose_format": "icl|tum", "max_dt": "TUM timestamp tolerance (s)"}
+           "cy": "principal y", "depth_scale": "metres per depth unit (default 1/5000; 7scenes 1/1000)",
+           "invalid_depth": "stored depth value meaning unknown (0 always is; 7scenes default 65535)",
+           "max_depth": "depth beyond this (metres) is marked unknown",
+           "pose_format": "icl|tum|7scenes", "max_dt": "TUM timestamp tolerance (s)"}
 ICL_INTRINSICS = (481.2, -480.0, 319.5, 239.5)
 TUM_INTRINSICS = (525.0, 525.0, 319.5, 239.5)
+SEVEN_SCENES_INTRINSICS = (585.0, 585.0, 319.5, 239.5)
+# Per layout: (intrinsics, metres per depth unit, the stored value meaning unknown besides 0).
+LAYOUT_DEFAULTS = {"icl": (ICL_INTRINSICS, 1 / 5000, None), "tum": (TUM_INTRINSICS, 1 / 5000, None),
+                   "7scenes": (SEVEN_SCENES_INTRINSICS, 1 / 1000, 65535)}
+SEVEN_SCENES_COLOR = (".color.png", ".color.jpg")
 POSE_FILES = ("pose.txt", "poses.txt", "groundtruth.txt")
 IMAGE_EXTS = {".png", ".jpg", ".jpeg", ".exr", ".tif", ".tiff"}
 
@@ -70,6 +89,8 @@ def _layout(path: Path) -> str | None:
         return "icl"
     if (path / "rgb").is_dir() and (path / "depth").is_dir():
         return "tum"
+    if next(path.glob("*.pose.txt"), None) is not None:
+        return "7scenes"
     return None
 
 
@@ -82,6 +103,8 @@ def detect(path: Path) -> bool:
         return any((path / f).is_file() for f in POSE_FILES)
     if lay == "tum":
         return (path / "groundtruth.txt").is_file()
+    if lay == "7scenes":
+        return any(next(path.glob("*" + s), None) is not None for s in SEVEN_SCENES_COLOR)
     return False
 
 
@@ -139,6 +162,41 @@ def _icl_frames(path: Path) -> list[tuple[str, Path, Path, np.ndarray]]:
     return frames
 
 
+def _seven_scenes_frames(path: Path) -> list[tuple[str, Path, Path, np.ndarray]]:
+    colors = sorted(p for s in SEVEN_SCENES_COLOR for p in path.glob("*" + s))
+    if not colors:
+        raise FormatError(f"{path}: no colour frames (*{' or *'.join(SEVEN_SCENES_COLOR)})")
+    frames = []
+    for c in colors:
+        stem = c.name[: -len(".color") - len(c.suffix)]
+        d, pf = path / f"{stem}.depth.png", path / f"{stem}.pose.txt"
+        if not d.is_file():
+            raise MissingFileError(f"{d}: depth image of {c.name} not found")
+        if not pf.is_file():
+            raise MissingFileError(f"{pf}: pose of {c.name} not found")
+        try:
+            m = np.array([[float(x) for x in ln.split()] for ln in pf.read_text().splitlines() if ln.strip()])
+        except ValueError:
+            raise FormatError(f"{pf}: expected a 4x4 matrix of numbers (camera-to-world)") from None
+        if m.shape != (4, 4):
+            raise FormatError(f"{pf}: expected a 4x4 matrix (camera-to-world), got shape {m.shape}")
+        frames.append((stem, c, d, rigid_from_matrix(m, f"{pf}: pose")))
+    return frames
+
+
+def _load_depth(path: Path, scale: float, invalid: float | None, max_depth: float | None,
+                size: tuple[int, int]) -> np.ndarray:
+    """Depth in metres of a 16-bit PNG (or float image): ``invalid`` (a stored value) and depth
+    beyond ``max_depth`` marked unknown (0)."""
+    d = read_depth(path, scale=scale, size=size)
+    if invalid is not None:
+        # read_depth computes float32(value) * float32(scale): the same product marks the code
+        d[d == np.float32(invalid) * np.float32(scale)] = 0.0
+    if max_depth is not None:
+        d[d > max_depth] = 0.0
+    return d
+
+
 def _nearest(times: np.ndarray, t: float) -> int:
     i = int(np.searchsorted(times, t))
     cands = [j for j in (i - 1, i) if 0 <= j < len(times)]
@@ -185,13 +243,15 @@ def load(path: Path, options: dict) -> Scene:
     if not path.is_dir():
         raise MissingFileError(f"{path}: not a directory (expected color/ or rgb/, depth/ and poses)")
     lay = _layout(path)
-    fmt = opt_choice(options, "pose_format", lay or "icl", ("icl", "tum"))
-    defaults = ICL_INTRINSICS if fmt == "icl" else TUM_INTRINSICS
+    fmt = opt_choice(options, "pose_format", lay or "icl", tuple(LAYOUT_DEFAULTS))
+    defaults, default_scale, default_invalid = LAYOUT_DEFAULTS[fmt]
     fx, fy, cx, cy = (opt_float(options, k, d) for k, d in zip(("fx", "fy", "cx", "cy"), defaults))
     for k, v in (("fx", fx), ("fy", fy)):
         if v == 0:
             raise BadValueError(f"option {k}: focal length must not be zero")
-    depth_scale = opt_float(options, "depth_scale", 1 / 5000, positive=True)
+    depth_scale = opt_float(options, "depth_scale", default_scale, positive=True)
+    invalid = opt_float(options, "invalid_depth", default_invalid, positive=True)
+    max_depth = opt_float(options, "max_depth", None, positive=True)
     if depth_scale * 65535 > F32_MAX:
         # the largest 16-bit value would be infinite depth (float32): refused here, by name
         raise BadValueError(f"option depth_scale: {depth_scale:g} times 65535 (the largest 16-bit depth value) "
@@ -201,6 +261,8 @@ def load(path: Path, options: dict) -> Scene:
         if not (path / "color").is_dir():
             raise MissingFileError(f"{path / 'color'}: no such directory (pose_format=icl)")
         frames = _icl_frames(path)
+    elif fmt == "7scenes":
+        frames = _seven_scenes_frames(path)
     else:
         frames = _tum_frames(path, max_dt)
 
@@ -223,13 +285,23 @@ def load(path: Path, options: dict) -> Scene:
         with named(f"{color} (options fx, fy, cx, cy and its pose)"):
             cam = Camera.pinhole(size[0], size[1], abs(fx), abs(fy), cx + 0.5, cy + 0.5,
                                  invert_rigid(world_from_cam))
+        if invalid is None and max_depth is None:  # as stored
+            depth_loader = FileLoader(depth, read_depth, depth, scale=depth_scale, size=size)
+        else:
+            depth_loader = FileLoader(depth, _load_depth, depth, depth_scale, invalid, max_depth, size=size)
         views.append(View.create(name, cam, color=FileLoader(color, read_image, color, size=size),
-                                 depth=FileLoader(depth, read_depth, depth, scale=depth_scale, size=size)))
+                                 depth=depth_loader))
+    adapted = []
+    if invalid is not None:
+        how = "invalid_depth" if "invalid_depth" in options else f"invalid_depth, the {fmt} default"
+        adapted.append(f"depth value {invalid:g} marked unknown ({how})")
+    if max_depth is not None:
+        adapted.append(f"depth beyond {max_depth:g} m marked unknown (max_depth)")
     notes = f"depth z = value * {depth_scale:g} m; poses camera-to-world ({fmt})"
     if mirror:
         notes += (f"; negative focal ({'fx' if fx < 0 else 'fy'}): world mirrored by "
                   f"diag{tuple(int(v) for v in np.diag(s)[:3])} to keep poses rigid")
-    return Scene(views=views, units="m",
-                 source={"format": NAME, "path": str(path), "layout": fmt, "notes": notes,
-                         "world_mirror": np.diag(m)[:3].tolist()},
-                 root=path)
+    source = {"format": NAME, "path": str(path), "layout": fmt, "notes": notes,
+              "world_mirror": np.diag(m)[:3].tolist()}
+    record_summary(source, adapted=adapted)
+    return Scene(views=views, units="m", source=source, root=path)

@@ -22,7 +22,7 @@ import math
 import os
 import time
 from dataclasses import asdict, dataclass, field
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -295,7 +295,8 @@ class MvsRun:
     so that they can run anywhere (a Dask task rebuilds the same plan from the scene: the plan
     and the kernels are deterministic). :func:`run_mvs` runs them in turn here."""
 
-    def __init__(self, views, options: MvsOptions | None = None, names: list[str] | None = None):
+    def __init__(self, views, options: MvsOptions | None = None, names: list[str] | None = None,
+                 bounds: dict[str, Any] | None = None):
         self.o = o = options or MvsOptions()
         self.views = {v.name: v for v in views}
         self.names = list(names) if names is not None else list(self.views)
@@ -309,7 +310,11 @@ class MvsRun:
         check_memory(list(self.views.values()))
         cams = {n: v.camera for n, v in self.views.items()}
         focus = capture_focus(list(cams.values())) if o.depth_range == "auto" else None
-        self.ranges = {n: depth_range(cams[n], list(cams.values()), o.depth_range, focus) for n in self.names}
+        # A capture's own per-view bounds (LLFF's near/far: scene.source["depth_bounds"]) are the
+        # "auto" range of their views; an explicit mvs.depth_range overrides them.
+        given = bounds if o.depth_range == "auto" and bounds else {}
+        self.ranges = {n: (float(given[n][0]), float(given[n][1])) if n in given
+                       else depth_range(cams[n], list(cams.values()), o.depth_range, focus) for n in self.names}
         self.sources: dict[str, list[str]] = {}
         for n in self.names:
             sel = select_sources(cams[n], {m: c for m, c in cams.items() if m != n}, o.sources, self.ranges[n])
@@ -420,15 +425,16 @@ PassRunner = Callable[[str, list[str], dict | None], dict]
 
 
 def run_mvs(views, options: MvsOptions | None = None, names: list[str] | None = None,
-            progress: Callable[[str], None] | None = None, run_pass: PassRunner | None = None
-            ) -> dict[str, MvsResult]:
+            progress: Callable[[str], None] | None = None, run_pass: PassRunner | None = None,
+            bounds: dict[str, Any] | None = None) -> dict[str, MvsResult]:
     """Multi-view stereo of the views ``names`` (default: every view) of ``views`` (a list of
     :class:`ibrtools.scene.View` with colour and pinhole cameras); every view may be a source.
     Views that have depth of their own serve it to the geometric pass and the filter.
     ``run_pass`` runs a pass over views elsewhere (the stage's Dask workers, which rebuild the
-    same :class:`MvsRun` from the scene); the filter always runs here."""
+    same :class:`MvsRun` from the scene); the filter always runs here. ``bounds``: {view: (near,
+    far)}, the capture's own depth range of those views (used when ``depth_range`` is "auto")."""
     t0 = time.perf_counter()
-    run = MvsRun(views, options, names)
+    run = MvsRun(views, options, names, bounds)
 
     def here(which: str, todo: list[str], previous: dict | None) -> dict:
         out = {}

@@ -75,6 +75,14 @@ class DepthRange:
                                 f"[{self.near}, {self.far}]")
 
 
+def outlier_limits(valid: np.ndarray) -> tuple[float, float]:
+    """(low, high) of the valid depth values ``valid`` (finite, > 0; 1-D): values below low (half
+    the 1st percentile) or above high (twice the 99th) are outliers. :func:`depth_range` leaves
+    them out; the import stage warns about far ones (stages.py ``depth_outlier_warning``)."""
+    lo, hi = np.quantile(valid, [OUTLIER_QUANTILE, 1.0 - OUTLIER_QUANTILE])
+    return float(lo) / OUTLIER_FACTOR, float(hi) * OUTLIER_FACTOR
+
+
 def depth_range(depth: np.ndarray, name: str = "depth") -> DepthRange:
     """[near, far] of the valid (finite, > 0) values of a depth map, outliers left out: the
     values below half the 1st percentile or above twice the 99th (a few 65.5 m pixels of a
@@ -86,12 +94,12 @@ def depth_range(depth: np.ndarray, name: str = "depth") -> DepthRange:
     if not ok.any():
         raise InputError(f"{name}: no valid depth (every pixel is 0, NaN or infinite)")
     v = d[ok]
-    lo, hi = np.quantile(v, [OUTLIER_QUANTILE, 1.0 - OUTLIER_QUANTILE])
+    low, high = outlier_limits(v)
     near, far = float(v.min()), float(v.max())
-    if near < lo / OUTLIER_FACTOR:
-        near = float(v[v >= lo / OUTLIER_FACTOR].min())
-    if far > hi * OUTLIER_FACTOR:
-        far = float(v[v <= hi * OUTLIER_FACTOR].max())
+    if near < low:
+        near = float(v[v >= low].min())
+    if far > high:
+        far = float(v[v <= high].max())
     # Widened by RANGE_MARGIN on each side: a view of one plane (near = far) still bounds a
     # frustum with a volume, and samples exactly on the surface are not lost to rounding.
     return DepthRange(near * (1 - RANGE_MARGIN), far * (1 + RANGE_MARGIN))
