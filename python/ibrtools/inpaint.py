@@ -12,6 +12,8 @@
   ``pushpull.h``), so the depth-aware fill always completes.
 * :func:`inpaint` — the method switch the renderer uses (``--inpaint``); "metameric" is
   :func:`ibrtools.metameric.metameric` (docs/inpaint.md, "Metameric").
+* :func:`nearest_covered` — for every hole pixel, the nearest pixel outside the holes in each of
+  the four directions (the background-depth fills of render/complete.py and render/depthwarp.py).
 
 The C++ kernel is ``cpp/kernels/pushpull.{h,cpp}`` (equations, the paper's depth convention and
 where we read Alg. 1 differently are written there). Outside the holes the result *is* the input

@@ -3,15 +3,16 @@ it (docs/render.md "Complete images"):
 
 1. **background**: hole pixels whose direction an input sees as background at infinity take its
    colour (render/background.py); they are not holes;
-2. **holes filled** (``inpaint``): the pixels no input covers, true disocclusions, are filled
-   from the background side and never from the background at infinity: ``auto`` (the default)
-   and ``pushpull`` = depth-aware push-pull (inpaint.py) with each hole's depth the background
-   depth around it (the larger depth of the nearest covered pixels left, right, above and
-   below) and the background-at-infinity pixels left out as sources, so a wedge of ground behind
-   an object is filled with ground, not with the object nor the sky; ``metameric`` = the same
-   set-up through metameric inpainting; ``none`` leaves holes black.
-   A frame whose only covered pixels are background at infinity is filled from them (classic
-   push-pull); a frame with no covered pixel at all is left black and says so.
+2. **holes filled** (``inpaint``): each hole pixel is a background hole when at least half of
+   its nearest covered pixels left, right, above and below are background at infinity (it takes
+   the scene's background colour, or a push-pull of the background pixels), else a surface hole,
+   a disocclusion, filled from the surface pixels only: ``auto`` (the default) and ``pushpull``
+   = depth-aware push-pull (inpaint.py) with each hole's depth the background depth around it
+   (the largest depth of those nearest surface pixels), so a wedge of ground behind an object is
+   filled with ground, not with the object nor the sky; ``metameric`` = the same set-up through
+   metameric inpainting; ``none`` leaves holes black. A frame whose only covered pixels are
+   background is filled as background; a frame with no covered pixel at all is left black and
+   says so (``NOTHING_TO_FILL``).
 
 ``auto`` is depth-aware push-pull because it measured best of the built fills on the held-out
 views we score (docs/benchmarks.md "Complete images").
