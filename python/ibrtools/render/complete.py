@@ -99,14 +99,11 @@ class Completed:
 
 
 _BACKGROUNDS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
-# Methods whose image is not a view of the scene's colours but their depth visualised
-# (depthwarp: docs/depthwarp.md): written as rendered, holes black.
-DEPTH_IMAGES = frozenset({"depthwarp"})
-
-
-def completion(method: str, scene, inpaint: str) -> tuple[Background | None, str]:
-    """(background, inpaint) to :func:`complete` a frame of ``method`` on ``scene`` with."""
-    if method in DEPTH_IMAGES:
+def completion(method, scene, inpaint: str) -> tuple[Background | None, str]:
+    """(background, inpaint) to :func:`complete` a frame of the prepared ``method`` on ``scene``
+    with. A method whose image is its depth visualised, not a view of the scene's colours
+    (``method.image_is_depth``, depthwarp), is written as rendered, holes black."""
+    if getattr(method, "image_is_depth", False):
         return None, "none"
     return background_of(scene), check_inpaint(inpaint)
 

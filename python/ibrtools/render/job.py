@@ -523,7 +523,7 @@ def _render_frame(method, frame: Frame, scene: Scene, *, inpaint, fov_kw, float_
     outputs: list[tuple[str, str, np.ndarray]] = []
     t0 = time.perf_counter()
     out, stage_ms = method.render(frame.camera)
-    done = complete(out, frame.camera, *completion(method.name, scene, inpaint), parse_background(background))
+    done = complete(out, frame.camera, *completion(method, scene, inpaint), parse_background(background))
     color, hole = done.color, done.hole
     stage_ms = {**stage_ms, **done.stage_ms}
     if fov_kw:

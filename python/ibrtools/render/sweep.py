@@ -29,7 +29,7 @@ from ..errors import BadValueError
 from ..scene import Scene
 from . import job as J
 from . import methods
-from .complete import DEFAULT_INPAINT, complete, completion
+from .complete import DEFAULT_INPAINT, check_inpaint, complete, completion
 
 
 def _value(text: str):
@@ -99,22 +99,23 @@ def sweep(scene: Scene, method: str, grid: dict[str, list], *, holdout: list[str
     # Check every configuration's parameters before rendering anything.
     for c in configs:
         methods.create(name, c)
-    background, inpaint = completion(name, job.scene, inpaint)
+    check_inpaint(inpaint)
     rows = []
     for ci, cfg in enumerate(configs):
         m = methods.create(name, cfg)
         t0 = time.perf_counter()
         m.prepare(job.scene)
         prep_ms = (time.perf_counter() - t0) * 1e3
+        background, mode = completion(m, job.scene, inpaint)
         if ci == 0:
-            complete(m.render(frames[0].camera)[0], frames[0].camera, background, inpaint)  # warm-up
+            complete(m.render(frames[0].camera)[0], frames[0].camera, background, mode)  # warm-up
         times, metrics = [], []
         for fi, frame in enumerate(frames):
             if progress:
                 progress(ci, len(configs), fi, len(frames))
             t1 = time.perf_counter()
             out, stage_ms = m.render(frame.camera)
-            done = complete(out, frame.camera, background, inpaint)
+            done = complete(out, frame.camera, background, mode)
             times.append((time.perf_counter() - t1) * 1e3)
             metrics.append(J._frame_metrics(done.color, done.hole, done.filled, frame.truth))
             if frame_hook:
