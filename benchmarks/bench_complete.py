@@ -91,7 +91,7 @@ def middlebury(data: Path) -> dict:
 
 def demo() -> dict:
     from ibrtools import synth
-    from ibrtools.render import job as J
+    from ibrtools.pipeline import job as J
 
     scene = synth.make_scene("objects", views=12, size=(480, 360))
     job = J.plan(scene, holdout=["v003", "v009"])

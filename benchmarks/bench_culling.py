@@ -9,7 +9,7 @@ paths (``ibrtools.synth``: "walk" 15-35 px/frame and "stress" 100+ px/frame of a
 motion at 1920x1080; the stress path is the paper's AWOC case), frame t-1's deep depth buffer (L =
 --layers peeled layers with their object ids) is warped into frame t exactly as ``ibr-render --method
 depthwarp --cull`` does (``warp_with_far_plane``: N = --seeds, T = 3, no dilation, the kernel's
-defaults otherwise) and ``ibrtools.culling.cull_objects`` tests every object's world box against one
+defaults otherwise) and ``ibrtools.depthwarp.culling.cull_objects`` tests every object's world box against one
 of these occlusion maps:
 
 * **WOC**: the warp's proven occluder depth (``WarpResult.occluder``; pixels without a proven depth
@@ -44,10 +44,10 @@ import numpy as np
 from benchlib import DOCS, load_note, machine, write_section
 
 from ibrtools import synth
-from ibrtools.culling import cull_objects, object_boxes
-from ibrtools.depthwarp import DepthWarpParams, motion_buffer
-from ibrtools.render.depthwarp import warp_with_far_plane
-from ibrtools.render.reference import ReferenceRenderer
+from ibrtools.depthwarp.culling import cull_objects, object_boxes
+from ibrtools.depthwarp.core import DepthWarpParams, motion_buffer
+from ibrtools.depthwarp.method import warp_with_far_plane
+from ibrtools.raycast.reference import ReferenceRenderer
 
 SCENES = ("crowd", "city")
 PATH_FRAMES = 48  # synth's default: the stored paths' length

@@ -11,7 +11,7 @@ For frame t = 1..--frames the deep depth buffer of frame t - 1 is peeled with th
 renderer (L layers of plain peeling; with --ground-layer, for L >= 2 the last one is the ground alone,
 as in the paper's sec. 4.1 - it scored worse at L = 2, 3 and no better at L = 4 here) and
 warped into camera t; the result is scored against the reference depth of frame t with the
-method's depth PSNR / SSIM (``ibrtools.render.depthwarp.depth_scores``: z / far, holes at far).
+method's depth PSNR / SSIM (``ibrtools.depthwarp.method.depth_scores``: z / far, holes at far).
 
 1. Quality (Table 1): ours (N = 16, T = 3, oriented tight bounds, no dilation, as the paper's
    comparison) vs VFW and AFW at L = 1 and L = 4; means over the frames.
@@ -46,7 +46,7 @@ SCENES = ("spheres", "crowd", "city")
 
 def _setup(preset: str, size: tuple[int, int], frames: int):
     from ibrtools import synth
-    from ibrtools.render.reference import ReferenceRenderer
+    from ibrtools.raycast.reference import ReferenceRenderer
 
     mesh, built = synth.build_mesh(preset, size=size, views=1, holdout_targets=0, path_frames=max(frames + 1, 8))
     return mesh, ReferenceRenderer(mesh), built.paths
@@ -65,7 +65,7 @@ def _deep(r, cam, layers: int, ground: bool | None = None):
 
 
 def _score(res_depth, hole, ref, far):
-    from ibrtools.render.depthwarp import depth_scores
+    from ibrtools.depthwarp.method import depth_scores
 
     d = np.where(hole, np.float32(0), res_depth).astype(np.float32)
     return depth_scores(d, hole, ref, far)
@@ -74,8 +74,8 @@ def _score(res_depth, hole, ref, far):
 def _warp(kind: str, layers, src, dst, bounds, **kw):
     """The method's warp (render/depthwarp.py: empty layer-0 pixels as a far plane); ``surface_ids``
     (ours only): also the proven occluder depth."""
-    from ibrtools.depthwarp import DepthWarpParams
-    from ibrtools.render.depthwarp import warp_with_far_plane
+    from ibrtools.depthwarp.core import DepthWarpParams
+    from ibrtools.depthwarp.method import warp_with_far_plane
 
     if kind == "ours":
         p = DepthWarpParams(seeds=kw.get("seeds", 16), iters=kw.get("iters", 3), oriented=True, dilate=False)
@@ -84,7 +84,7 @@ def _warp(kind: str, layers, src, dst, bounds, **kw):
 
 
 def quality_table(size, frames: int) -> tuple[str, dict]:
-    from ibrtools.render.depthwarp import far_depth
+    from ibrtools.depthwarp.method import far_depth
 
     rows, results = [], {}
     for preset in SCENES:
@@ -123,7 +123,7 @@ def path_quality(size, frames: int | None) -> str:
     both ways (depth_scores: filled with the background depth, what a user of the depth image gets,
     and at far, what culling sees), and ours' proven occluder depth (unproven pixels at far: the map
     culling uses; WarpResult.occluder) with its soundness check against the reference."""
-    from ibrtools.render.depthwarp import depth_scores, far_depth
+    from ibrtools.depthwarp.method import depth_scores, far_depth
 
     kinds = [("ours", 1), ("vfw", 1), ("afw", 1), ("ours", 4), ("vfw", 4), ("afw", 4)]
     lines = ["| scene (walk, frames) | warp | SSIM / PSNR, holes filled with the background | SSIM / PSNR, holes "
@@ -133,7 +133,7 @@ def path_quality(size, frames: int | None) -> str:
     for preset in SCENES:
         n_path = 48 if frames is None else frames + 1
         from ibrtools import synth
-        from ibrtools.render.reference import ReferenceRenderer
+        from ibrtools.raycast.reference import ReferenceRenderer
 
         mesh, built = synth.build_mesh(preset, size=size, views=1, holdout_targets=0, path_frames=n_path)
         r = ReferenceRenderer(mesh)
@@ -190,8 +190,8 @@ def targets_text(results: dict) -> str:
 
 
 def speed(size, repeats: int) -> tuple[str, str]:
-    from ibrtools.depthwarp import DepthWarpParams, warp_depth
-    from ibrtools.render.depthwarp import far_depth
+    from ibrtools.depthwarp.core import DepthWarpParams, warp_depth
+    from ibrtools.depthwarp.method import far_depth
 
     mesh, r, paths = _setup("crowd", size, 2)
     src, dst = paths["walk"][0], paths["walk"][1]
@@ -289,7 +289,7 @@ def plots(size, write: bool) -> str:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from ibrtools.render.depthwarp import far_depth
+    from ibrtools.depthwarp.method import far_depth
     from ibrtools.synth import path_motion
 
     mesh, r, paths = _setup("crowd", size, 4)
@@ -402,9 +402,9 @@ def main(argv=None) -> int:
     if args.frames < 1 or args.repeats < 3 or args.width < 16 or args.height < 16:
         p.error("--frames >= 1, --repeats >= 3, --width and --height >= 16")
     try:
-        import ibrtools.depthwarp  # noqa: F401
+        import ibrtools.depthwarp.core  # noqa: F401
     except ImportError:
-        print("bench_depthwarp: ibrtools.depthwarp (the warp kernels) is not built yet", file=sys.stderr)
+        print("bench_depthwarp: ibrtools.depthwarp.core (the warp kernels) is not built yet", file=sys.stderr)
         return 2
     from ibrtools import _core
 

@@ -1,4 +1,4 @@
-"""Depth-warp kernels (ibrtools.depthwarp) at 1920x1080: the N / L / T scaling table of Lee, Kim,
+"""Depth-warp kernels (ibrtools.depthwarp.core) at 1920x1080: the N / L / T scaling table of Lee, Kim,
 Eisemann 2018 (Table 3: tight vs global bound, mipmap construction, reference render time in the
 same run) and the forward baselines (Table 1: VFW / AFW quality and time at L = 1 and 4).
 
@@ -44,8 +44,8 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
 
     from ibrtools import _core, metrics, synth
-    from ibrtools.depthwarp import DepthWarpParams, forward_warp_depth, warp_depth
-    from ibrtools.render.reference import ReferenceRenderer
+    from ibrtools.depthwarp.core import DepthWarpParams, forward_warp_depth, warp_depth
+    from ibrtools.raycast.reference import ReferenceRenderer
 
     _core.set_num_threads(a.threads)
     threads = _core.get_num_threads()

@@ -69,7 +69,7 @@ def run_case(scene, k, repeats, threads, space="linear"):
     """One case; ``space`` "srgb": the renderer's default blend space, so each input's sRGB encode
     (``dibr.srgb_encode``) is inside the timed job (every repeat, as for fresh inputs) and result()
     decodes in its resolve."""
-    from ibrtools.render.dibr import srgb_encode
+    from ibrtools.dibr.method import srgb_encode
 
     srgb = space == "srgb"
     tgt = scene.targets[0]
@@ -126,7 +126,7 @@ def run_renderer(scene, repeats, threads, fresh=False):
     fresh: inputs new every frame (video, e.g. MPEG immersive video: a new DibrMethod per scene
     frame), so each frame also pays prepare() (the views' depth ranges) and the sRGB encode of the
     selected views (blend_space srgb; cached across frames otherwise), both inside the total."""
-    from ibrtools.render.dibr import DibrMethod
+    from ibrtools.dibr.method import DibrMethod
 
     _core.set_num_threads(threads)
     m = DibrMethod({"inputs": 4})
@@ -154,7 +154,7 @@ def run_encode(repeats):
     frame with fresh inputs): ``dibr.srgb_encode`` (the table, _core.srgb_encode_unclipped) and the
     curve per value (``_core.metameric_encode`` after numpy's clamp at 0: the encode before
     2026-11-22 fourth session), random values in [0, 1), 1 and 2 threads, interleaved; median ms."""
-    from ibrtools.render.dibr import srgb_encode
+    from ibrtools.dibr.method import srgb_encode
 
     def curve(v):
         a = np.maximum(v, np.float32(0.0))
@@ -183,7 +183,7 @@ def main():
     ap.add_argument("--blend-space", default=None, choices=("srgb", "linear"),
                     help="blend space of the timed job (default: the renderer's, render/dibr.py DEFAULTS)")
     a = ap.parse_args()
-    from ibrtools.render.dibr import DEFAULTS
+    from ibrtools.dibr.method import DEFAULTS
 
     space = a.blend_space or DEFAULTS["blend_space"]
     _core.set_warp_isa(a.isa)

@@ -97,7 +97,7 @@ def _sub(scene, keep: list[str]):
 def _render(scene, inputs, camera, params=None, outputs=None):
     """(colour with holes black, hole mask, stage times, frame report); ``outputs``: a dict that
     receives the method's raw outputs (colour, depth, confidence, hole)."""
-    from ibrtools.render.dibr import DibrMethod
+    from ibrtools.dibr.method import DibrMethod
 
     m = DibrMethod({"inputs": inputs, **(params or {})})
     m.prepare(scene)
@@ -393,7 +393,7 @@ def distance_weighting(data: Path, params=None) -> dict:
 
 
 def _space(params: dict) -> str:
-    from ibrtools.render.dibr import DEFAULTS
+    from ibrtools.dibr.method import DEFAULTS
 
     return params.get("blend_space", DEFAULTS["blend_space"])
 

@@ -35,7 +35,7 @@ from benchlib import load_note, machine, write_section
 
 
 def make_scene(root: Path, size: tuple[int, int], views: int, frames: int) -> Path:
-    from ibrtools.stages import run_import
+    from ibrtools.pipeline.stages import run_import
 
     synth = {"preset": "objects", "size": list(size), "views": views, "seed": 0, "reconstructed": False,
              "path_frames": max(frames, 64)}
@@ -69,10 +69,10 @@ def main() -> None:
     args = ap.parse_args()
     size = tuple(int(v) for v in args.size.lower().split("x"))
 
-    from ibrtools import distributed as D
+    from ibrtools.pipeline import distributed as D
     from ibrtools.formats import native
-    from ibrtools.render import job as J
-    from ibrtools.render.job import write_output
+    from ibrtools.pipeline import job as J
+    from ibrtools.pipeline.job import write_output
 
     root = make_scene(Path(args.scene) / f"objects_{size[0]}x{size[1]}_{args.views}v_{max(args.frames, 64)}f",
                       size, args.views, args.frames)

@@ -1,4 +1,4 @@
-"""Foveated ventral metamer speed at 1024^2 RGB (ibrtools.foveate, Walton et al. 2021), with the
+"""Foveated ventral metamer speed at 1024^2 RGB (ibrtools.metamers.foveate, Walton et al. 2021), with the
 pieces it is made of and a Gaussian-blur foveation baseline (OpenCV) measured in the same run.
 
     python benchmarks/bench_foveate.py [--size 1024] [--repeats 7] [--write docs/benchmarks.md]
@@ -27,9 +27,9 @@ def frame(size: int) -> np.ndarray:
 
 def run(size: int, repeats: int) -> str:
     from ibrtools import _core
-    from ibrtools import foveate as fv
-    from ibrtools import metameric as mm
-    from ibrtools.steerable import SteerablePyramid, analyse, synthesise
+    from ibrtools.metamers import foveate as fv
+    from ibrtools.inpaint import metameric as mm
+    from ibrtools.metamers.steerable import SteerablePyramid, analyse, synthesise
 
     img = frame(size)
     fix = (0.5, 0.5)

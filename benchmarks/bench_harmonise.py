@@ -45,7 +45,7 @@ from ibrtools.hybrid import globalmesh as gm  # noqa: E402
 from ibrtools.hybrid.harmonise import LUMA, HarmoniseParams, _depth_edges, colour_range, harmonise  # noqa: E402
 from ibrtools.hybrid.variance import vertex_statistics, visible_samples  # noqa: E402
 from ibrtools.mesh import Mesh  # noqa: E402
-from ibrtools.render.reference import ReferenceRenderer, default_lights  # noqa: E402
+from ibrtools.raycast.reference import ReferenceRenderer, default_lights  # noqa: E402
 from ibrtools.synth import make_scene  # noqa: E402
 
 HIGHLIGHT_FRAC = 0.10  # specular term > 10 % of the colour range (luminance) = highlight

@@ -97,7 +97,7 @@ def _size(text: str) -> tuple[int, int]:
 def pvm_method(scene, filtered: bool):
     """PVM alone (filtered or not) for the comparison: ``--method pvm``, prepared (its G-buffer depth
     is the hybrid's, render/pvm.py)."""
-    from ibrtools.render import methods
+    from ibrtools import methods
 
     m = methods.create("pvm", {"filtered": filtered})
     m.prepare(scene)
@@ -123,8 +123,8 @@ def main(argv=None) -> int:
     from ibrtools import _core
     from ibrtools.formats import native
     from ibrtools.metrics import compare
-    from ibrtools.render import methods
-    from ibrtools.stages import preprocess
+    from ibrtools import methods
+    from ibrtools.pipeline.stages import preprocess
 
     if args.threads:
         _core.set_num_threads(args.threads)

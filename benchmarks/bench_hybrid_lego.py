@@ -179,7 +179,7 @@ def main(argv=None) -> int:
 
     stage_options = json_object(args.options, "--options")
     hybrid_params = json_object(args.hybrid_params, "--hybrid-params")
-    from ibrtools.render.hybrid import check_params
+    from ibrtools.hybrid.method import check_params
 
     check_params("hybrid", hybrid_params)  # a bad key or value fails here, before the data is read
     data = shared_data()
@@ -189,9 +189,9 @@ def main(argv=None) -> int:
 
     from ibrtools import _core
     from ibrtools.formats import load, native
-    from ibrtools.render import methods
+    from ibrtools import methods
     from ibrtools.scene import Scene
-    from ibrtools.stages import run_stages
+    from ibrtools.pipeline.stages import run_stages
 
     if args.threads:
         _core.set_num_threads(args.threads)

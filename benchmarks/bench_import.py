@@ -46,7 +46,7 @@ def make_capture(root: Path, n: int, w: int, h: int) -> None:
 
 
 def import_seconds(src: Path, out: Path, repeats: int, **kw) -> tuple[float, float]:
-    from ibrtools.stages import preprocess
+    from ibrtools.pipeline.stages import preprocess
 
     times = []
     for _ in range(repeats):

@@ -47,7 +47,7 @@ def run(size: int, repeats: int) -> str:
     import OpenImageIO as oiio
 
     from ibrtools import _core
-    from ibrtools.inpaint import pushpull
+    from ibrtools.inpaint.pushpull import pushpull
 
     img, hole, depth = frame(size)
     truth = img.copy()

@@ -39,7 +39,7 @@ truth outside the scored holes, the method's fill inside them, so nothing but th
   FLIP    mean of the LDR-FLIP map (``metrics.flip(..., return_map=True)``, 67 ppd) over the scored
           pixels (the whole-image mean would be diluted by the identical pixels outside the holes).
   stats   statistics distance D = Dmean + Dvar between the filled region and the ground truth in the
-          same region, on the steerable pyramid (``ibrtools.steerable.analyse``, 4 levels, 2
+          same region, on the steerable pyramid (``ibrtools.metamers.steerable.analyse``, 4 levels, 2
           orientations, YCbCr of the sRGB values): bands = high-pass, 4 x 2 band-pass, low-pass
           (10 bands) x 3 channels (Y, Cb, Cr) = 30 band-channels. Region at level l: the samples of
           which at least half the 2^l x 2^l block is a scored hole pixel (the high-pass: level 0, the
@@ -109,7 +109,7 @@ def lego_case(data: Path, held: str, scene=None) -> dict | None:
     """Held-out lego view rendered by ``--method warp`` from the most similar of the other views."""
     from ibrtools.formats import load
     from ibrtools.imageio import read_pixels
-    from ibrtools.render.warp import WarpMethod
+    from ibrtools.dibr.warp import WarpMethod
     from ibrtools.scene import Scene
 
     path = data / "nerf_lego"
@@ -133,8 +133,8 @@ def lego_case(data: Path, held: str, scene=None) -> dict | None:
 def fill(case: dict, method: str, seed: int = 0) -> np.ndarray:
     """The frame with its holes filled by ``method`` (linear RGB float32)."""
     from ibrtools.imageio import linear_to_srgb, srgb_to_linear
-    from ibrtools.inpaint import pushpull
-    from ibrtools.metameric import metameric
+    from ibrtools.inpaint.pushpull import pushpull
+    from ibrtools.inpaint.metameric import metameric
 
     color, hole, depth = case["color"], case["hole"], case["depth"]
     if method == "none":
@@ -160,14 +160,14 @@ def fill(case: dict, method: str, seed: int = 0) -> np.ndarray:
 
 
 def _metameric_parts(case: dict, seed: int | None) -> np.ndarray:
-    """Metameric's pipeline (ibrtools.metameric.metameric, steps 0-5) from its public pieces, with the
+    """Metameric's pipeline (ibrtools.inpaint.metameric.metameric, steps 0-5) from its public pieces, with the
     noise's sigma from the ground truth (seed given) or without noise (seed None: the pre-fill
     alone). Both reuse metameric's own pre-fill, noise pyramid, level masks and collapse; only
     sigma differs from :func:`fill`'s "metameric"."""
     from ibrtools import _core
-    from ibrtools.inpaint import pushpull
-    from ibrtools.metameric import _level_mask, level_masks, noise_pyramid
-    from ibrtools.steerable import SteerablePyramid, analyse, synthesise
+    from ibrtools.inpaint.pushpull import pushpull
+    from ibrtools.inpaint.metameric import _level_mask, level_masks, noise_pyramid
+    from ibrtools.metamers.steerable import SteerablePyramid, analyse, synthesise
     from scipy import ndimage
 
     color, hole, depth = case["color"], case["hole"], case["depth"]
@@ -207,7 +207,7 @@ def _region_at(mask: np.ndarray, shape: tuple[int, int], scale: int) -> np.ndarr
 def band_stats(srgb: np.ndarray, mask: np.ndarray) -> list[tuple[float, float] | None]:
     """(mean, variance) inside the region of every band-channel (high-pass, bands, low-pass; Y, Cb,
     Cr), None where the region has fewer than MIN_SAMPLES samples."""
-    from ibrtools.steerable import analyse
+    from ibrtools.metamers.steerable import analyse
 
     pyr = analyse(np.ascontiguousarray(srgb, np.float32), LEVELS, ORIENTATIONS, ycbcr=True)
     bands = [(pyr.highpass, 1)] + [(b, 1 << l) for l, lvl in enumerate(pyr.bands) for b in lvl] \

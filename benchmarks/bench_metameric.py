@@ -1,4 +1,4 @@
-"""Metameric inpainting speed at 1024^2 RGB with ~10 % holes: ibrtools.metameric (depth-aware and
+"""Metameric inpainting speed at 1024^2 RGB with ~10 % holes: ibrtools.inpaint.metameric (depth-aware and
 classic moments) vs ibrtools push-pull and OpenCV's cv2.inpaint (TELEA), same run.
 
     python benchmarks/bench_metameric.py [--size 1024] [--repeats 7] [--write docs/benchmarks.md | --write-docs]
@@ -27,8 +27,8 @@ from benchlib import load_note, machine, median_ms, size_repeats_main
 def _stages(img, hole, depth, repeats: int) -> dict[str, float]:
     """Median time of each stage of metameric() (the same calls, timed one by one)."""
     from ibrtools import _core
-    from ibrtools import metameric as mm
-    from ibrtools.steerable import SteerablePyramid, analyse, synthesise
+    from ibrtools.inpaint import metameric as mm
+    from ibrtools.metamers.steerable import SteerablePyramid, analyse, synthesise
 
     acc: dict[str, list[float]] = {}
 
@@ -69,8 +69,8 @@ def run(size: int, repeats: int) -> str:
     import cv2
 
     from ibrtools import _core
-    from ibrtools.inpaint import pushpull
-    from ibrtools.metameric import _noise_pyramid_cached, metameric
+    from ibrtools.inpaint.pushpull import pushpull
+    from ibrtools.inpaint.metameric import _noise_pyramid_cached, metameric
 
     img, hole, depth = frame(size)
     truth = img.copy()
@@ -118,7 +118,7 @@ def run(size: int, repeats: int) -> str:
     head = [
         "## Metameric inpainting",
         "",
-        f"Metameric inpainting (`ibrtools.metameric`, 4 levels, 2 orientations) of a {size}x{size} RGB warped "
+        f"Metameric inpainting (`ibrtools.inpaint.metameric`, 4 levels, 2 orientations) of a {size}x{size} RGB warped "
         f"frame with {100 * hole.mean():.1f} % holes (bench_inpaint's frame: hole discs of radius 2-12 px, "
         "background depth in the holes), median of "
         f"{repeats} runs after a warm-up, measured by `benchmarks/bench_metameric.py` on {machine()}. "

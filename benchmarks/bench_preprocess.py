@@ -4,7 +4,7 @@ in <= 60 s on 2 cores), stage by stage, and the skips.
     python benchmarks/bench_preprocess.py [--size 1152x864] [--views 20] [--runs 3] [--write-docs]
 
 Each run makes the scene from scratch in a temporary directory with
-``ibrtools.stages.preprocess("synth:objects", ..., methods=tm,ulr,pvm,hybrid)`` -- the import
+``ibrtools.pipeline.stages.preprocess("synth:objects", ..., methods=tm,ulr,pvm,hybrid)`` -- the import
 (rendering the synthetic views with Embree and writing the scene) and every derived stage the
 hybrid methods need -- and times the whole call (wall clock, hashing and file writes included)
 and each stage. The median over --runs is reported per stage, and the process CPU time of the
@@ -41,7 +41,7 @@ def synth_params(size, views: int, exposure: float, wb: float) -> dict:
 
 
 def one_run(root: Path, synth: dict):
-    from ibrtools.stages import preprocess
+    from ibrtools.pipeline.stages import preprocess
 
     t0, c0 = time.perf_counter(), time.process_time()
     rows = preprocess("synth:objects", root, synth=synth, methods=HYBRID)
@@ -63,7 +63,7 @@ def main(argv=None) -> int:
     if args.runs < 1 or args.views < 2:
         p.error("--runs >= 1 and --views >= 2")
     from ibrtools import _core
-    from ibrtools.stages import preprocess
+    from ibrtools.pipeline.stages import preprocess
 
     _core.set_num_threads(args.threads)
     tmp = Path(tempfile.mkdtemp(prefix="bench_preprocess."))

@@ -42,7 +42,7 @@ def parse_size(s: str) -> tuple[int, int]:
 
 def build(size, views, depth_noise=0.005):
     from ibrtools.hybrid.pvm import build_tiles
-    from ibrtools.render.reference import ReferenceRenderer
+    from ibrtools.raycast.reference import ReferenceRenderer
     from ibrtools.synth import make_scene
 
     t0 = time.perf_counter()

@@ -72,7 +72,7 @@ def run(width: int, height: int, repeats: int, builds: int) -> str:
 
     import ibrtools
     from ibrtools import Camera, Mesh, _core, look_at
-    from ibrtools.render.reference import ReferenceRenderer
+    from ibrtools.raycast.reference import ReferenceRenderer
 
     v, f = bumpy_sphere()
     mesh = Mesh(v, f)

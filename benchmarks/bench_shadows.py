@@ -6,11 +6,11 @@
 
 For each synthetic scene, a rectangular area light above the scene and one view (the first
 camera of the scene's path, its reference depth gives the surface points), the visibility image
-(fraction of the S light samples each pixel sees; ``ibrtools.shadows.soft_shadows``) by
+(fraction of the S light samples each pixel sees; ``ibrtools.depthwarp.shadows.soft_shadows``) by
 
 * **warp** (the paper's): one L-layer deep depth buffer at the light's centre (depth peeling, the
   last layer the ground alone; L = --layers = 3 and N = --seeds = 4 as in the paper's sec. 6),
-  warped to each of the S samples (``ibrtools.depthwarp.warp_depth``), then the shadow-map test;
+  warped to each of the S samples (``ibrtools.depthwarp.core.warp_depth``), then the shadow-map test;
 * **render**: the S shadow maps rendered by the Embree reference renderer (the paper's "reference
   geometry rendering"), then the same shadow-map test;
 * **trace**: one Embree occlusion ray per pixel and sample (exact visibility of the same samples).
@@ -34,8 +34,8 @@ from benchlib import DOCS, load_note, machine, write_section
 from ibrtools import synth
 from ibrtools.camera import Camera
 from ibrtools.metrics import psnr, ssim
-from ibrtools.render.reference import ReferenceRenderer
-from ibrtools.shadows import AreaLight, soft_shadows
+from ibrtools.raycast.reference import ReferenceRenderer
+from ibrtools.depthwarp.shadows import AreaLight, soft_shadows
 
 PATHS = {"crowd": "orbit", "city": "street", "objects": "orbit"}
 
@@ -56,7 +56,7 @@ def scene_setup(preset: str, view_size: tuple[int, int]):
 
 
 def run(scenes, samples, resolutions, view_size, layers, seeds, repeats) -> str:
-    from ibrtools.depthwarp import DepthWarpParams
+    from ibrtools.depthwarp.core import DepthWarpParams
 
     lines = [
         "## Soft shadows: warped vs rendered shadow maps vs traced (bench_shadows)",

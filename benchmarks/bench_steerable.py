@@ -44,7 +44,7 @@ def run(size: int, repeats: int, levels: int = 4) -> str:
     import pyrtools as pt
 
     from ibrtools import _core
-    from ibrtools.steerable import analyse, synthesise
+    from ibrtools.metamers.steerable import analyse, synthesise
 
     rgb = test_image(size)
     ycc = (rgb.astype(np.float64) @ RGB_TO_YCC.T).astype(np.float32)

@@ -31,7 +31,7 @@ SIZES = ((640, 360), (1280, 720))
 
 
 def scene():
-    from ibrtools import stages as S
+    from ibrtools.pipeline import stages as S
     from ibrtools.formats import native
 
     S.preprocess("synth:objects", CACHE, synth={"preset": "objects", "size": [1280, 720], "views": 12, "seed": 0,

@@ -112,7 +112,7 @@ def test_render_auto_and_params(scene):
 def test_render_matches_ibr_render_job(scene, tmp_path):
     """Scene.render is the job's renderer: the float image ibr-render writes is the same, bit for bit."""
     from ibrtools.imageio import read_image
-    from ibrtools.render import job
+    from ibrtools.pipeline import job
 
     r = scene.render("t000", method="dibr", inputs=2)
     j = job.plan(scene, targets=["t000"])
@@ -127,7 +127,7 @@ def test_render_matches_ibr_render_job(scene, tmp_path):
 
 
 def test_render_prepares_once(scene, monkeypatch):
-    from ibrtools.render import methods
+    from ibrtools import methods
 
     created: list[str] = []
     real_create = methods.create

@@ -25,7 +25,7 @@ def pattern(cam):
 
 
 def gbuffer(mesh, cam):
-    from ibrtools.render.reference import ReferenceRenderer
+    from ibrtools.raycast.reference import ReferenceRenderer
 
     return ReferenceRenderer(mesh).render(cam, outputs=("depth", "prim_id", "bary"), lights=[], ambient=0.0)
 

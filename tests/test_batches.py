@@ -1,4 +1,4 @@
-"""Light-field camera grids and the MP4 of a frame sequence (ibrtools.render.batches,
+"""Light-field camera grids and the MP4 of a frame sequence (ibrtools.pipeline.batches,
 ibr-render --lightfield / --baseline / --center / --mp4 / --fps)."""
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 
 from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError, InputError
-from ibrtools.render import batches as B
+from ibrtools.pipeline import batches as B
 from ibrtools.scene import Scene, View
 from ibrtools_cli import preprocess, render
 

@@ -1,4 +1,4 @@
-"""ibr-bench: parameter sweeps, run time against error (ibrtools.render.sweep, cli/ibrtools_cli/bench.py)."""
+"""ibr-bench: parameter sweeps, run time against error (ibrtools.pipeline.sweep, cli/ibrtools_cli/bench.py)."""
 from __future__ import annotations
 
 import csv
@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from ibrtools.errors import BadValueError
-from ibrtools.render.sweep import configurations, pareto, parse_sweep
+from ibrtools.pipeline.sweep import configurations, pareto, parse_sweep
 from ibrtools_cli import bench
 
 
@@ -30,7 +30,7 @@ def test_pareto_front():
 
 @pytest.fixture(scope="module")
 def scene_dir(tmp_path_factory):
-    from ibrtools import stages as S
+    from ibrtools.pipeline import stages as S
 
     d = tmp_path_factory.mktemp("bench") / "scene"
     S.preprocess("synth:objects", d, synth={"preset": "objects", "size": [48, 36], "views": 4, "seed": 0,

@@ -11,9 +11,9 @@ import pytest
 
 from ibrtools import api, synth
 from ibrtools.camera import Camera, look_at
-from ibrtools.render import complete as C
-from ibrtools.render import job as J
-from ibrtools.render import view_selection as vs
+from ibrtools.inpaint import complete as C
+from ibrtools.pipeline import job as J
+from ibrtools.dibr import view_selection as vs
 
 from conftest import need_data
 
@@ -23,9 +23,9 @@ SIZE = (64, 48)
 @pytest.fixture(scope="module")
 def sky_scene(tmp_path_factory):
     """synth:objects with every stage the mesh methods need: a scene with sky (depth +inf)."""
-    from ibrtools import stages as S
+    from ibrtools.pipeline import stages as S
     from ibrtools.formats import native
-    from ibrtools.render.methods import BUILT
+    from ibrtools.methods import BUILT
 
     d = tmp_path_factory.mktemp("complete") / "scene"
     wanted = [m for m in ("tm", "ulr", "pvm", "hybrid") if m in BUILT]
@@ -51,7 +51,7 @@ def _far_from_surface(depth: np.ndarray, px: int = 2) -> np.ndarray:
 
 @pytest.mark.parametrize("method", ["dibr", "warp", "tm", "ulr", "pvm", "hybrid"])
 def test_background_stays_background_through_every_method(sky_scene, method):
-    from ibrtools.render.methods import BUILT
+    from ibrtools.methods import BUILT
 
     if method not in BUILT:
         pytest.skip(f"{method} not built")
@@ -101,7 +101,7 @@ def test_disocclusion_filled_from_the_background_side():
     classic = C.complete(out, Camera.from_fov(w, h, 60.0), None, "pushpull")
     assert filled[:, 2].mean() > 0.85 and done.color[8:, 23:30, 2].min() > 0.85
     assert (done.color[:8] == 0).all()  # the sky is not a hole: untouched
-    from ibrtools.inpaint import pushpull
+    from ibrtools.inpaint.pushpull import pushpull
 
     plain = pushpull(color, hole | np.isposinf(depth))  # no depth: the foreground side too
     assert plain[hole][:, 2].mean() < filled[:, 2].mean() - 0.1
@@ -154,7 +154,7 @@ def test_inpaint_none_is_the_methods_output_with_black_holes(tmp_path):
     """On a scene without background (no depth +inf), --inpaint none writes exactly what the
     method rendered, holes black."""
     from ibrtools.imageio import read_image
-    from ibrtools.render.dibr import DibrMethod
+    from ibrtools.dibr.method import DibrMethod
 
     s = synth.make_scene("objects", size=SIZE, views=4, holdout_targets=1)
     s = dataclasses.replace(s, views=[v.with_depth(np.where(np.isinf(v.depth), 0, v.depth).astype(np.float32))

@@ -1,4 +1,4 @@
-"""Warping-based occlusion culling (ibrtools.culling; docs/culling.md)."""
+"""Warping-based occlusion culling (ibrtools.depthwarp.culling; docs/culling.md)."""
 from __future__ import annotations
 
 import numpy as np
@@ -8,9 +8,9 @@ from hypothesis import strategies as st
 
 from ibrtools import _core, synth
 from ibrtools.camera import Camera, look_at
-from ibrtools.culling import CullResult, cull_objects, object_boxes
+from ibrtools.depthwarp.culling import CullResult, cull_objects, object_boxes
 from ibrtools.errors import BadValueError, DtypeError, NotBuiltError, ShapeError
-from ibrtools.render.reference import ReferenceRenderer
+from ibrtools.raycast.reference import ReferenceRenderer
 
 W, H = 64, 48
 
@@ -142,9 +142,9 @@ def test_crowd_against_reference():
     assert ev["occlusion_culled"] > 30
     assert 0 < ev["culled_fraction"] <= ev["ideal_culled_fraction"] + 1e-9
     try:
-        from ibrtools.depthwarp import DepthWarpParams, warp_depth
+        from ibrtools.depthwarp.core import DepthWarpParams, warp_depth
     except ImportError:
-        pytest.skip("ibrtools.depthwarp.warp_depth not built yet")
+        pytest.skip("ibrtools.depthwarp.core.warp_depth not built yet")
     src = ref.render(prev, outputs=("depth",), lights=[])["depth"]
     w = warp_depth(src, prev, cam, DepthWarpParams(dilate=False))
     ev = cull_objects(w.depth, w.hole, cam, boxes).evaluate(ids, counts)
@@ -262,7 +262,7 @@ def test_awoc_culls_behind_holes_woc_keeps():
     """Camera moves right by 1.5 units in front of the wall: the right edge of the new view was not
     seen before (holes), so WOC keeps the box behind the wall there; AWOC fills those holes with the
     wall's depth (the nearest bound-corner source pixels) and culls it."""
-    pytest.importorskip("ibrtools.depthwarp", reason="ibrtools.depthwarp not built yet")
+    pytest.importorskip("ibrtools.depthwarp.core", reason="ibrtools.depthwarp.core not built yet")
     src = _camera()
     dst = Camera.pinhole(W, H, 40.0, 40.0, W / 2, H / 2, np.array(
         [[1, 0, 0, -1.5], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], float))  # centre at x = +1.5
@@ -329,7 +329,7 @@ def test_walk_path_frames_cull_no_visible_object():
     gaps between two neighbouring occluders that the converged samples close (each lands within the
     0.5 px threshold beyond its surface's edge). The method culls with the proven occluder depth
     instead (WarpResult.occluder): no visible object is culled, and some objects still are."""
-    from ibrtools.render.depthwarp import DepthWarpMethod
+    from ibrtools.depthwarp.method import DepthWarpMethod
     from ibrtools.scene import Scene
 
     mesh, built = synth.build_mesh("crowd", size=(480, 270), views=1, holdout_targets=0)

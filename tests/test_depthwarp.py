@@ -1,4 +1,4 @@
-"""Iterative backward depth warping (ibrtools.depthwarp; Lee, Kim, Eisemann 2018 sec. 3, 4.1).
+"""Iterative backward depth warping (ibrtools.depthwarp.core; Lee, Kim, Eisemann 2018 sec. 3, 4.1).
 
 Scenes are analytic (fronto-parallel planes seen by pinhole cameras) so that every expected depth
 and motion is known exactly; tolerances are stated next to each comparison."""
@@ -10,7 +10,7 @@ import pytest
 from gil import runs_python_during
 from ibrtools import _core
 from ibrtools.camera import Camera
-from ibrtools.depthwarp import (DepthWarpParams, WarpResult, forward_warp_depth, motion_buffer,
+from ibrtools.depthwarp.core import (DepthWarpParams, WarpResult, forward_warp_depth, motion_buffer,
                                 warp_depth)
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
 
@@ -418,7 +418,7 @@ def test_synthetic_frame_pair_against_the_reference_depth():
     # and AFW ~22.7 dB / 0.930): they catch a broken warp, not a small drift. At equal L ours beats
     # both forward baselines (paper Table 1: their expanded splats bleed over every edge).
     from ibrtools import metrics, synth
-    from ibrtools.render.reference import ReferenceRenderer
+    from ibrtools.raycast.reference import ReferenceRenderer
 
     mesh, built = synth.build_mesh("crowd", size=(192, 108), path_frames=11)
     c0, c1 = built.paths["walk"][9], built.paths["walk"][10]
@@ -500,8 +500,8 @@ def test_proof_is_never_nearer_than_the_reference_depth():
     exact one), nothing is proven where the reference sees no surface, and the depth and layer
     outputs are the same as without surface_ids."""
     from ibrtools import synth
-    from ibrtools.render.depthwarp import warp_with_far_plane
-    from ibrtools.render.reference import ReferenceRenderer
+    from ibrtools.depthwarp.method import warp_with_far_plane
+    from ibrtools.raycast.reference import ReferenceRenderer
 
     mesh, built = synth.build_mesh("crowd", size=(160, 90), views=1, holdout_targets=0, path_frames=4)
     ref = ReferenceRenderer(mesh)

@@ -1,6 +1,6 @@
-"""--method depthwarp (ibrtools.render.depthwarp) and the issue-4 synthetic paths: parameters,
+"""--method depthwarp (ibrtools.depthwarp.method) and the issue-4 synthetic paths: parameters,
 depth scores, the report, the command's flags and bad input. The warp itself is
-ibrtools.depthwarp's (tested in its own files); the end-to-end tests need it built."""
+ibrtools.depthwarp.core's (tested in its own files); the end-to-end tests need it built."""
 from __future__ import annotations
 
 import json
@@ -11,18 +11,18 @@ import pytest
 from ibrtools import synth
 from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError, InputError
-from ibrtools.render import job as render_job
-from ibrtools.render.depthwarp import (DepthWarpMethod, check_params, depth_scores, far_depth, fill_background,
+from ibrtools.pipeline import job as render_job
+from ibrtools.depthwarp.method import (DepthWarpMethod, check_params, depth_scores, far_depth, fill_background,
                                        visualise)
 from ibrtools.scene import Scene, View
 
 try:
-    import ibrtools.depthwarp  # noqa: F401
+    import ibrtools.depthwarp.core  # noqa: F401
 
     HAVE_WARP = True
 except ImportError:
     HAVE_WARP = False
-needs_warp = pytest.mark.skipif(not HAVE_WARP, reason="ibrtools.depthwarp (the warp kernels) not built yet")
+needs_warp = pytest.mark.skipif(not HAVE_WARP, reason="ibrtools.depthwarp.core (the warp kernels) not built yet")
 
 SIZE = (96, 54)
 

@@ -9,7 +9,7 @@ import pytest
 
 from ibrtools import _core
 from ibrtools.camera import Camera
-from ibrtools.depthwarp import DepthWarpParams, warp_depth
+from ibrtools.depthwarp.core import DepthWarpParams, warp_depth
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
 
 

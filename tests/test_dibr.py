@@ -11,8 +11,8 @@ from conftest import need_data, shared_data
 from ibrtools import _core
 from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError, InputError
-from ibrtools.render import methods
-from ibrtools.render.dibr import DibrMethod, check_params
+from ibrtools import methods
+from ibrtools.dibr.method import DibrMethod, check_params
 from ibrtools.scene import Scene, View
 from ibrtools_cli import preprocess, render
 
@@ -156,7 +156,7 @@ def test_bench_scoring_three_ways(bench):
 
 def test_default_side_threshold_is_rvs():
     # RVS 4.0: q = clamp(10000 - 1000 L, 1, 10000), i.e. T = 10 target pixels (docs/dibr.md).
-    from ibrtools.render.dibr import check_params
+    from ibrtools.dibr.method import check_params
     assert check_params({})["side_threshold"] == 10.0
 
 

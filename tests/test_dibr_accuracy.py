@@ -12,7 +12,7 @@ from ibrtools import _core
 from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError
 from ibrtools.imageio import srgb_to_linear
-from ibrtools.render.dibr import DibrMethod, check_params, srgb_encode
+from ibrtools.dibr.method import DibrMethod, check_params, srgb_encode
 from ibrtools.scene import Scene, View
 
 DATA = shared_data()

@@ -16,10 +16,10 @@ import pytest
 
 pytest.importorskip("distributed", reason="dask.distributed is not installed (pip install 'ibrtools[distributed]')")
 
-from ibrtools import distributed as D  # noqa: E402
+from ibrtools.pipeline import distributed as D  # noqa: E402
 from ibrtools.errors import BadValueError  # noqa: E402
 from ibrtools.formats import native  # noqa: E402
-from ibrtools.render import job as J  # noqa: E402
+from ibrtools.pipeline import job as J  # noqa: E402
 
 SIZE = "64x48"
 # Fields that differ between any two runs by nature (times; depthwarp's warp/reference time
@@ -266,7 +266,7 @@ def _colour_only(scene_dir: Path, dest: Path) -> Path:
 
 @pytest.mark.parametrize("colour_only", [True, False])
 def test_preprocess_matches_local_bit_for_bit(scene_dir, cluster, tmp_path, capsys, colour_only):
-    from ibrtools import stages as S
+    from ibrtools.pipeline import stages as S
     from ibrtools_cli import preprocess
 
     # Colour only: the depth stage renders every view's depth; with depth: the pvm stage snaps it.

@@ -1,4 +1,4 @@
-"""Foveated ventral metamers (ibrtools.foveate, Walton et al. 2021 sec. 3 and 5) and the MIP-map
+"""Foveated ventral metamers (ibrtools.metamers.foveate, Walton et al. 2021 sec. 3 and 5) and the MIP-map
 kernel they read the moment maps from (_core.mip_build / mip_lookup, cpp/kernels/mip.h)."""
 import json
 import threading
@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from ibrtools import _core
-from ibrtools import foveate as fv
+from ibrtools.metamers import foveate as fv
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
-from ibrtools.steerable import analyse, synthesise
+from ibrtools.metamers.steerable import analyse, synthesise
 
 
 # ---------------------------------------------------------------- MIP kernel vs numpy reference

@@ -15,7 +15,7 @@ from ibrtools.hybrid import globalmesh as gm
 from ibrtools.hybrid.harmonise import HarmoniseParams, HarmoniseResult, harmonise
 from ibrtools.hybrid.variance import variance_mesh, vertex_statistics
 from ibrtools.mesh import Mesh
-from ibrtools.render.reference import ReferenceRenderer, default_lights
+from ibrtools.raycast.reference import ReferenceRenderer, default_lights
 from ibrtools.scene import Scene, View
 from ibrtools.synth import make_scene
 

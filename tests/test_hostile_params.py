@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from ibrtools.errors import BadValueError
-from ibrtools.render import methods
+from ibrtools import methods
 from ibrtools_cli import bench, preprocess, render
 
 

@@ -1,4 +1,4 @@
-"""The self-contained HTML reports (ibrtools.report_html; ibr-render --report-html, ibr-bench's
+"""The self-contained HTML reports (ibrtools.pipeline.report_html; ibr-render --report-html, ibr-bench's
 report.html), checked as files and in a headless browser (Debian's chromium-headless-shell)."""
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ibrtools import report_html as R
+from ibrtools.pipeline import report_html as R
 from ibrtools.errors import BadValueError, ShapeError
 from ibrtools_cli import bench, preprocess, render
 
@@ -186,7 +186,7 @@ def test_render_report_html_bad_path(scene_dir, tmp_path, capsys):
 
 @pytest.fixture(scope="module")
 def bench_page(tmp_path_factory):
-    from ibrtools import stages as S
+    from ibrtools.pipeline import stages as S
 
     d = tmp_path_factory.mktemp("htmlbench")
     S.preprocess("synth:objects", d / "scene", synth={"preset": "objects", "size": [48, 36], "views": 4, "seed": 0,

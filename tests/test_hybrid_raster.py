@@ -9,7 +9,7 @@ from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError, ShapeError
 from ibrtools.hybrid import atlas as A
 from ibrtools.hybrid.globalmesh import densify
-from ibrtools.render.reference import ReferenceRenderer
+from ibrtools.raycast.reference import ReferenceRenderer
 from ibrtools.synth import make_scene
 
 
@@ -154,7 +154,7 @@ def Mesh_wall():
 def test_gbuffer_rasterises_small_meshes_and_ray_casts_dense_ones(scene_mesh, monkeypatch):
     # _GlobalMesh.gbuffer takes the rasteriser for a mesh of few faces per pixel, Embree otherwise
     # (RASTER_MAX_FACES, RASTER_MAX_FACES_PER_PIXEL): each path's output as such, and the same surface.
-    from ibrtools.render import hybrid as H
+    from ibrtools.hybrid import method as H
 
     scene, mesh = scene_mesh
     gm = H._GlobalMesh.__new__(H._GlobalMesh)

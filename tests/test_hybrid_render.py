@@ -13,7 +13,7 @@ from ibrtools import _core, look_at
 from ibrtools.camera import Camera
 from ibrtools.errors import BadValueError, DtypeError, InputError, MissingFileError, ShapeError
 from ibrtools.hybrid.pvm_render import DEFAULTS as PVM_DEFAULTS
-from ibrtools.render.hybrid import SELECTION_COLORS
+from ibrtools.hybrid.method import SELECTION_COLORS
 
 HAVE_PVM = importlib.util.find_spec("ibrtools.hybrid.pvm_render") is not None
 needs_pvm = pytest.mark.skipif(not HAVE_PVM, reason="ibrtools.hybrid.pvm_render (PVM rendering) not built yet")
@@ -322,7 +322,7 @@ def test_hybrid_needs_and_frame_outputs_match_numpy():
 
 
 def test_method_params_and_missing_stages(tmp_path):
-    from ibrtools.render import methods
+    from ibrtools import methods
     from ibrtools.scene import Scene
 
     with pytest.raises(BadValueError, match="no parameter"):
@@ -362,7 +362,7 @@ def test_method_params_and_missing_stages(tmp_path):
 # ---- end to end on a preprocessed scene whose global mesh is exact -------------------------
 @pytest.fixture(scope="module")
 def exact_scene(tmp_path_factory):
-    from ibrtools import stages as S
+    from ibrtools.pipeline import stages as S
 
     d = tmp_path_factory.mktemp("hybrid") / "scene"
     methods_ = ["tm", "ulr"] + (["hybrid"] if HAVE_PVM else [])
@@ -376,7 +376,7 @@ def exact_scene(tmp_path_factory):
 
 def _diffuse_seen(scene, camera, views_cams):
     """Pixels on diffuse objects (ks = 0) of the ground truth that some input view sees."""
-    from ibrtools.render.reference import ReferenceRenderer, Light
+    from ibrtools.raycast.reference import ReferenceRenderer, Light
 
     gt = scene.meshes["ground_truth"]
     lights = [Light(kind=d["kind"], vector=tuple(d["vector"]), color=tuple(d["color"]),
@@ -389,7 +389,7 @@ def _diffuse_seen(scene, camera, views_cams):
 
 
 def test_exact_mesh_tm_ulr_match_reference_on_diffuse(exact_scene):
-    from ibrtools.render import methods
+    from ibrtools import methods
 
     tm, ulr = methods.create("tm"), methods.create("ulr")
     tm.prepare(exact_scene)
@@ -419,7 +419,7 @@ def test_ulr_method_tm_fallback_equals_the_frame_wide_choice(exact_scene):
     """UlrMethod reads TM only at the hits no view sees and writes it into the ULR image in place:
     the image is np.where(seen, ULR, TM of the whole frame), bit for bit. One input view only, so
     that many hits are unseen."""
-    from ibrtools.render import methods
+    from ibrtools import methods
 
     ulr = methods.create("ulr")
     ulr.prepare(exact_scene)
@@ -436,7 +436,7 @@ def test_ulr_method_tm_fallback_equals_the_frame_wide_choice(exact_scene):
 
 @needs_pvm
 def test_exact_mesh_hybrid_matches_reference_on_diffuse(exact_scene):
-    from ibrtools.render import methods
+    from ibrtools import methods
 
     hy = methods.create("hybrid")
     hy.prepare(exact_scene)
@@ -453,7 +453,8 @@ def test_exact_mesh_hybrid_matches_reference_on_diffuse(exact_scene):
 def test_hybrid_tm_shaded_where_read_equals_the_full_frame_shade(exact_scene, monkeypatch, tau_var):
     # TM is shaded only at the pixels the composite reads (a TM weight, or ULR's fallback where no
     # view sees the point) when they are few; the frame is the one a full-frame shade gives, bit for bit.
-    from ibrtools.render import hybrid as H, methods
+    from ibrtools.hybrid import method as H
+    from ibrtools import methods
 
     t = exact_scene.targets[0]
     frames = {}
@@ -470,8 +471,8 @@ def test_hybrid_tm_shaded_where_read_equals_the_full_frame_shade(exact_scene, mo
 def test_geo_threshold_default_by_units_and_voxel(exact_scene):
     # 3 cm in a length unit; one voxel of the global mesh where the units are not a length; 3 cm
     # read as metres when there is no usable voxel either. The method takes the mesh stage's voxel.
-    from ibrtools.render import methods
-    from ibrtools.render.hybrid import GEO_THRESHOLD_VOXELS, geo_threshold_for
+    from ibrtools import methods
+    from ibrtools.hybrid.method import GEO_THRESHOLD_VOXELS, geo_threshold_for
 
     assert geo_threshold_for("m") == pytest.approx(0.03) and geo_threshold_for("m", 0.5) == pytest.approx(0.03)
     assert geo_threshold_for("cm") == pytest.approx(3.0) and geo_threshold_for(" MM ") == pytest.approx(30.0)
@@ -499,7 +500,7 @@ def test_target_outside_grid_renders_with_ulr_only(exact_scene):
     not the far ground; a target looking at the far ground from outside the grid is all ULR."""
     from ibrtools.hybrid.pvm import build_tiles
     from ibrtools.hybrid.pvm_render import PvmRenderer
-    from ibrtools.render import methods
+    from ibrtools import methods
 
     cams = {v.name: v.camera for v in exact_scene.views}
     near = {}
@@ -528,11 +529,11 @@ def test_thin_object_missing_from_the_global_mesh_picks_pvm(tmp_path):
     depth maps (so the PVMs) have it. Its pixels must pick PVM in the selection: measured 64 %
     and 78 % of them at the two targets (the rest are its 1-2 px wide silhouette, where the
     mask blur and the PVM spatial filter mix with the background); bound 50 %."""
-    from ibrtools import stages as S
+    from ibrtools.pipeline import stages as S
     from ibrtools import synth
     from ibrtools.formats import native
-    from ibrtools.render import methods
-    from ibrtools.render.reference import ReferenceRenderer
+    from ibrtools import methods
+    from ibrtools.raycast.reference import ReferenceRenderer
 
     spec = {"preset": "objects", "size": [128, 96], "views": 8, "seed": 0, "reconstructed": True,
             "holdout_targets": 2}
@@ -555,7 +556,7 @@ def test_thin_object_missing_from_the_global_mesh_picks_pvm(tmp_path):
 
 
 def test_render_job_writes_frames(exact_scene, tmp_path):
-    from ibrtools.render import job as J
+    from ibrtools.pipeline import job as J
 
     job = J.plan(exact_scene, holdout=["v001"])
     rep = J.run(job, "ulr", tmp_path / "out")
@@ -568,7 +569,7 @@ def test_render_job_writes_frames(exact_scene, tmp_path):
 @needs_pvm
 def test_render_job_hybrid_writes_the_selection_mask(exact_scene, tmp_path):
     from ibrtools.imageio import read_image
-    from ibrtools.render import job as J
+    from ibrtools.pipeline import job as J
 
     rep = J.run(J.plan(exact_scene), "hybrid", tmp_path / "out", params={"sigma_blur": 0})
     f = rep["frames"][0]
@@ -609,7 +610,7 @@ def test_pvm_floor_matches_numpy_and_keeps_the_weights_normalised():
 
 def test_pvm_floor_parameter_checks(tmp_path):
     from ibrtools.formats import native
-    from ibrtools.render import methods
+    from ibrtools import methods
     from ibrtools import synth
 
     assert methods.create("hybrid").params["pvm_floor"] == "auto"
@@ -629,7 +630,7 @@ def test_pvm_floor_parameter_checks(tmp_path):
 def test_several_floors_in_one_frame_equal_separate_renders(exact_scene):
     # The mix stage scores every floor from one frame: the colours the largest floor needs serve the
     # smaller ones, bit for bit the frames a render at each floor gives.
-    from ibrtools.render import methods
+    from ibrtools import methods
 
     t = exact_scene.targets[0]
     hy = methods.create("hybrid", {"pvm_floor": 0.0})
@@ -652,10 +653,12 @@ def test_several_floors_in_one_frame_equal_separate_renders(exact_scene):
 def test_mix_stage_fit_is_what_holding_each_view_out_gives(exact_scene):
     # The stage's table against renders made the way --holdout makes them, one floor at a time;
     # its floor is the one of the best mean (tol_db 0; the smallest when tied); "auto" reads it.
-    from ibrtools import stages as S
+    from ibrtools.pipeline import stages as S
     from ibrtools.imageio import linear_to_srgb
     from ibrtools.metrics import psnr
-    from ibrtools.render import hybrid as H, job as J, methods
+    from ibrtools.hybrid import method as H
+    from ibrtools.pipeline import job as J
+    from ibrtools import methods
 
     d = S.load_npz(S.stage_output(exact_scene.root, "mix"))
     names = [v.name for v in exact_scene.views]
@@ -679,7 +682,8 @@ def test_mix_stage_fit_is_what_holding_each_view_out_gives(exact_scene):
 def test_without_views_renders_what_preparing_the_held_out_scene_gives(exact_scene):
     # The mix stage's shortcut: one prepare on the whole scene, a copy per held-out view sharing
     # what was loaded. Every output equals a prepare of --holdout's scene, bit for bit.
-    from ibrtools.render import hybrid as H, job as J
+    from ibrtools.hybrid import method as H
+    from ibrtools.pipeline import job as J
 
     base = H.HybridMethod({"pvm_floor": 0.3})
     base.prepare(exact_scene)

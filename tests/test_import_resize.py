@@ -143,6 +143,6 @@ def test_cli_prints_the_import_summary(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "ibr-preprocess: import: images downscaled (--downscale 2): 1 views 8x6 -> 4x3" in err
     with pytest.raises(BadValueError, match="--downscale: for data sets only"):
-        from ibrtools.stages import preprocess as run
+        from ibrtools.pipeline.stages import preprocess as run
 
         run("synth:objects", tmp_path / "syn", synth={"preset": "objects"}, downscale=2, stages=[])

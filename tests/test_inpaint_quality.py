@@ -64,7 +64,7 @@ def test_metameric_beats_pushpull_on_statistics(name):
 
 @pytest.mark.parametrize("name", ["Teddy", "Cones"])
 def test_metameric_keeps_the_pushpull_mean(name):
-    # The fill's mean is the depth-aware push-pull (ibrtools.metameric, step 4): the hole's mean
+    # The fill's mean is the depth-aware push-pull (ibrtools.inpaint.metameric, step 4): the hole's mean
     # colour ("bleed") is no worse than depth-aware push-pull's (measured Teddy 0.048 vs 0.073,
     # Cones 0.052 vs 0.053; before the fix 0.217 / 0.112), and PSNR, which the noise lowers, stays
     # within 2.5 dB of it (measured 0.3 / 1.8 dB below; before the fix 5.5 / 4.7 dB). Margins: 0.01

@@ -118,7 +118,7 @@ def test_render_interrupted_leaves_nothing(scene_dir, many_poses, tmp_path, sig)
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM], ids=["SIGTERM"])  # SIGINT: the same path (KeyboardInterrupt)
 def test_preprocess_interrupted_in_a_stage(tmp_path, sig):
-    from ibrtools import stages
+    from ibrtools.pipeline import stages
 
     d = tmp_path / "scene"
     # mesh then texture take ~3 s after the import (the atlas bake at 320x240): interrupted 0.5 s
@@ -158,7 +158,7 @@ def test_preprocess_interrupted_during_import(tmp_path):
 
 
 def test_corrupt_cache_entry_is_detected_and_recomputed(tmp_path):
-    from ibrtools import stages
+    from ibrtools.pipeline import stages
     from ibrtools_cli import preprocess
 
     d = tmp_path / "scene"
@@ -211,7 +211,7 @@ def test_render_write_error_leaves_nothing(scene_dir, many_poses, tmp_path):
     the third frame's PNG path is a directory) fails the run, and the frames written before it go
     too (all or nothing, like an interrupt)."""
     from ibrtools.formats import native
-    from ibrtools.render import job as J
+    from ibrtools.pipeline import job as J
 
     poses = tmp_path / "four.json"
     poses.write_text(json.dumps(json.loads(many_poses.read_text())[:4]))

@@ -10,7 +10,7 @@ import pytest
 
 from ibrtools import BadValueError, Camera, Scene, View, look_at
 from ibrtools import memory
-from ibrtools.render import job as render_job
+from ibrtools.pipeline import job as render_job
 
 SIZE = "48x36"
 

@@ -11,7 +11,7 @@ import pytest
 
 from ibrtools import Camera, DtypeError, FormatError, Mesh, MissingFileError, look_at
 from ibrtools.meshio import read_mesh, sidecar_path, write_mesh
-from ibrtools.render.reference import ReferenceRenderer
+from ibrtools.raycast.reference import ReferenceRenderer
 
 COLOR_TOL = 0.005
 OBJ_TOL = 1e-5

@@ -1,4 +1,4 @@
-"""Metameric inpainting (ibrtools.metameric; dos Anjos et al. sec. 3.2-3.4, docs/inpaint.md)."""
+"""Metameric inpainting (ibrtools.inpaint.metameric; dos Anjos et al. sec. 3.2-3.4, docs/inpaint.md)."""
 from __future__ import annotations
 
 import json
@@ -9,8 +9,8 @@ import pytest
 from ibrtools import _core
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
 from ibrtools.inpaint import inpaint, pushpull
-from ibrtools.metameric import level_masks, local_moments, metameric, noise_pyramid
-from ibrtools.steerable import analyse, synthesise
+from ibrtools.inpaint.metameric import level_masks, local_moments, metameric, noise_pyramid
+from ibrtools.metamers.steerable import analyse, synthesise
 
 
 def _texture(n: int = 96, seed: int = 1) -> np.ndarray:
@@ -89,7 +89,7 @@ def test_constant_stays_constant():
 
 
 def test_fill_is_pushpull_plus_zero_mean_noise():
-    # Steps 4-5 of ibrtools.metameric: the fill's mean is the push-pull pre-fill (in display
+    # Steps 4-5 of ibrtools.inpaint.metameric: the fill's mean is the push-pull pre-fill (in display
     # values for RGB), the noise only adds texture around it. Averaged over 16 seeds the fill
     # tends to the push-pull: the hole's mean colour moves by the noise's sample mean only.
     from ibrtools.imageio import linear_to_srgb
@@ -211,7 +211,7 @@ def test_depth_aware_does_not_bleed_the_foreground():
 
 
 def _dilate_any(a, b):
-    from ibrtools.metameric import _dilate
+    from ibrtools.inpaint.metameric import _dilate
     return bool((_dilate(a, 1) & b).any())
 
 

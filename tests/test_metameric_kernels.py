@@ -9,7 +9,7 @@ import pytest
 
 from ibrtools import _core
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
-from ibrtools.metameric import _sample_positions
+from ibrtools.inpaint.metameric import _sample_positions
 
 
 def _bands(k=3, h=13, w=11, c=3, seed=0):

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from conftest import photos_only
 
-from ibrtools import stages as S
+from ibrtools.pipeline import stages as S
 from ibrtools_cli import preprocess, render
 
 

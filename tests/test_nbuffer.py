@@ -1,4 +1,4 @@
-"""Conservative max-depth queries (ibrtools.depthwarp.MaxDepthQuery: Y-map = max-mipmap levels
+"""Conservative max-depth queries (ibrtools.depthwarp.core.MaxDepthQuery: Y-map = max-mipmap levels
 then N-buffers; cpp/kernels/nbuffer.h) against a brute-force numpy max over random boxes."""
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from ibrtools import _core
-from ibrtools.depthwarp import MaxDepthQuery
+from ibrtools.depthwarp.core import MaxDepthQuery
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
 
 

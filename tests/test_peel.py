@@ -9,7 +9,7 @@ from ibrtools import _core
 from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
 from ibrtools.mesh import Mesh
-from ibrtools.render.reference import DeepDepth, ReferenceRenderer
+from ibrtools.raycast.reference import DeepDepth, ReferenceRenderer
 from ibrtools.synth import boxes, ground_grid, merge
 
 

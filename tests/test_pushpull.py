@@ -1,4 +1,4 @@
-"""Push-pull hole filling (cpp/kernels/pushpull.*, ibrtools.inpaint): exact answers, an
+"""Push-pull hole filling (cpp/kernels/pushpull.*, ibrtools.inpaint.pushpull): exact answers, an
 independent numpy reference, the depth-aware variant's edge stopping, determinism, bad input."""
 from __future__ import annotations
 
@@ -431,8 +431,8 @@ def test_job_skips_inpaint_without_holes(scene_dir, tmp_path, monkeypatch):
     import json
 
     from ibrtools.formats import native
-    from ibrtools.render import job as render_job
-    from ibrtools.render import methods
+    from ibrtools.pipeline import job as render_job
+    from ibrtools import methods
 
     class NoHoleMethod:  # a method whose frame has a hole mask with no hole in it
         name = "nohole"

@@ -412,7 +412,7 @@ def test_pvm_reproduces_its_view_depth():
     """Ray-casting a view's PVM from its own camera gives back its depth: exactly at the vertices
     of unmerged quads, within plane_tol inside merged blocks."""
     from ibrtools.mesh import Mesh
-    from ibrtools.render.reference import ReferenceRenderer
+    from ibrtools.raycast.reference import ReferenceRenderer
     from ibrtools.synth import make_scene
 
     scene = make_scene("objects", size=(96, 72), views=2, holdout_targets=0)

@@ -14,7 +14,7 @@ from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError, DtypeError, InputError, NotBuiltError, ShapeError
 from ibrtools.hybrid.pvm import build_tiles
 from ibrtools.hybrid.pvm_render import DEFAULTS, PvmRenderer, PvmResult
-from ibrtools.render.reference import ReferenceRenderer
+from ibrtools.raycast.reference import ReferenceRenderer
 from ibrtools.scene import Scene, View
 from ibrtools.synth import make_scene
 
@@ -580,8 +580,8 @@ def test_method_pvm_cli(tmp_path, capsys):
     # The method's frame is PvmRenderer's at the hybrid's G-buffer depth (what the benchmarks' PVM
     # rows and the hybrid's PVM part read), bit for bit; unfiltered likewise.
     from ibrtools.formats import native
-    from ibrtools.render import methods
-    from ibrtools.render.hybrid import _GlobalMesh
+    from ibrtools import methods
+    from ibrtools.hybrid.method import _GlobalMesh
 
     sc = native.load(d)
     cam = sc.targets[0].camera

@@ -1,4 +1,4 @@
-"""Reference ray casting (cpp/kernels/raycast.h, ibrtools.render.reference).
+"""Reference ray casting (cpp/kernels/raycast.h, ibrtools.raycast.reference).
 
 Tolerances:
 * REL_DEPTH = 1e-5: rays and vertices are float32 (7 significant digits) and Embree
@@ -21,7 +21,7 @@ import pytest
 from gil import runs_python_during
 
 from ibrtools import BadValueError, Camera, DtypeError, Mesh, ShapeError, _core, look_at
-from ibrtools.render.reference import Light, ReferenceRenderer, default_lights
+from ibrtools.raycast.reference import Light, ReferenceRenderer, default_lights
 
 REL_DEPTH = 1e-5
 REL_SHADE = 1e-5

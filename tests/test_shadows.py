@@ -1,4 +1,4 @@
-"""Soft shadows from synthesised shadow maps (ibrtools.shadows; docs/shadows.md)."""
+"""Soft shadows from synthesised shadow maps (ibrtools.depthwarp.shadows; docs/shadows.md)."""
 from __future__ import annotations
 
 import numpy as np
@@ -7,11 +7,11 @@ import pytest
 from ibrtools import synth
 from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
-from ibrtools.render.reference import ReferenceRenderer
-from ibrtools.shadows import AreaLight, shadow_map_visibility, soft_shadows
+from ibrtools.raycast.reference import ReferenceRenderer
+from ibrtools.depthwarp.shadows import AreaLight, shadow_map_visibility, soft_shadows
 
 try:
-    from ibrtools.depthwarp import warp_depth  # noqa: F401
+    from ibrtools.depthwarp.core import warp_depth  # noqa: F401
     HAVE_WARP = True
 except ImportError:
     HAVE_WARP = False
@@ -102,7 +102,7 @@ def test_penumbra_grows_with_light_size(scene):
     assert (large == 0).sum() < (small == 0).sum()
 
 
-@pytest.mark.skipif(not HAVE_WARP, reason="ibrtools.depthwarp not built yet")
+@pytest.mark.skipif(not HAVE_WARP, reason="ibrtools.depthwarp.core not built yet")
 def test_warp_close_to_render(scene):
     r, depth = scene
     light = _light(1.0)

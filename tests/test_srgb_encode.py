@@ -1,5 +1,5 @@
 """The sRGB encode of DIBR's inputs (cpp/kernels/metameric.h LinearToSrgbUnclipped, Python
-_core.srgb_encode_unclipped / ibrtools.render.dibr.srgb_encode): a table of the curve's own values
+_core.srgb_encode_unclipped / ibrtools.dibr.method.srgb_encode): a table of the curve's own values
 in [0, 1] read by the float's bits, 12.92 x at the toe, the curve SrgbEncode above 1."""
 
 import numpy as np
@@ -153,7 +153,7 @@ def test_gil_released():
 
 
 def test_dibr_srgb_encode_is_the_kernel():
-    from ibrtools.render.dibr import srgb_encode
+    from ibrtools.dibr.method import srgb_encode
 
     x = np.random.default_rng(7).uniform(-0.1, 1.5, (6, 5, 3)).astype(np.float32)
     assert np.array_equal(srgb_encode(x), _core.srgb_encode_unclipped(x))

@@ -1,4 +1,4 @@
-"""The stage planner (ibrtools.stages, ibr-preprocess): stages run for the methods that need
+"""The stage planner (ibrtools.pipeline.stages, ibr-preprocess): stages run for the methods that need
 them, a second run does nothing, missing or corrupt outputs are rebuilt, parameters and
 --stages / --force override, records in scene.json, bad input."""
 import json
@@ -7,7 +7,7 @@ import os
 import numpy as np
 import pytest
 
-from ibrtools import stages as S
+from ibrtools.pipeline import stages as S
 from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError, InputError
 from ibrtools.formats import native

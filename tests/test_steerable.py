@@ -1,4 +1,4 @@
-"""Small-filter steerable pyramid (cpp/kernels/steerable.*, ibrtools.steerable): the C++ kernel
+"""Small-filter steerable pyramid (cpp/kernels/steerable.*, ibrtools.metamers.steerable): the C++ kernel
 against the numpy reference of tools/fit_steerable_filters.py, reconstruction within the
 documented error, meaning (constant image, oriented grating, linearity), sizes, thread-count
 determinism, bad input."""
@@ -14,7 +14,7 @@ import pytest
 
 from ibrtools import _core
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
-from ibrtools.steerable import SteerablePyramid, analyse, max_levels, reconstruction_error, synthesise
+from ibrtools.metamers.steerable import SteerablePyramid, analyse, max_levels, reconstruction_error, synthesise
 
 ROOT = Path(__file__).resolve().parents[1]
 RGB_TO_YCC = np.array([[0.299, 0.587, 0.114], [-0.168736, -0.331264, 0.5], [0.5, -0.418688, -0.081312]])

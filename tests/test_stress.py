@@ -191,7 +191,7 @@ def test_warp_with_holes(size, f, motion, data):
 @STRESS
 @given(size=SIZES, data=st.data())
 def test_pushpull(size, data):
-    from ibrtools.inpaint import pushpull
+    from ibrtools.inpaint.pushpull import pushpull
 
     h, w = size
     img = data.draw(colours(h, w))
@@ -213,7 +213,7 @@ def test_pushpull(size, data):
 @STRESS
 @given(size=BIG_SIZES, data=st.data())
 def test_steerable_analyse_synthesise(size, data):
-    from ibrtools import steerable
+    from ibrtools.metamers import steerable
 
     h, w = size
     img = data.draw(colours(h, w))
@@ -231,7 +231,7 @@ def test_steerable_analyse_synthesise(size, data):
 @STRESS
 @given(size=BIG_SIZES, data=st.data())
 def test_metameric(size, data):
-    from ibrtools.metameric import metameric
+    from ibrtools.inpaint.metameric import metameric
 
     h, w = size
     img = data.draw(colours(h, w))
@@ -249,7 +249,7 @@ def test_metameric(size, data):
 @STRESS
 @given(size=BIG_SIZES, data=st.data())
 def test_foveate(size, data):
-    from ibrtools.foveate import foveate
+    from ibrtools.metamers.foveate import foveate
 
     h, w = size
     img = data.draw(colours(h, w))
@@ -277,7 +277,7 @@ def test_ssim(size, data):
 @STRESS
 @given(size=SIZES, f=FOCALS, motion=MOTIONS, data=st.data())
 def test_depthwarp(size, f, motion, data):
-    from ibrtools.depthwarp import DepthWarpParams, warp_depth
+    from ibrtools.depthwarp.core import DepthWarpParams, warp_depth
 
     h, w = size
     depth = data.draw(depth_maps(h, w))
@@ -294,7 +294,7 @@ def test_depthwarp(size, f, motion, data):
 @STRESS
 @given(size=SIZES, f=FOCALS, data=st.data())
 def test_culling(size, f, data):
-    from ibrtools.culling import cull_objects
+    from ibrtools.depthwarp.culling import cull_objects
 
     h, w = size
     depth = data.draw(depth_maps(h, w))
@@ -315,7 +315,7 @@ def test_culling(size, f, data):
 @given(size=SIZES, f=FOCALS, data=st.data())
 def test_raycast_degenerate_and_on_surface(size, f, data):
     from ibrtools.mesh import Mesh
-    from ibrtools.render.reference import ReferenceRenderer
+    from ibrtools.raycast.reference import ReferenceRenderer
 
     h, w = size
     s = data.draw(st.sampled_from([1e-3, 1.0, 1e3]))
@@ -364,10 +364,10 @@ def _boundary_cases():
     return {
         "forward_warp": (lambda c, d: _core.forward_warp(c, d, cam, cam, _core.WarpOptions()), [col, dep]),
         "warp_with_holes": (lambda c, d: _core.warp_with_holes(c, d, cam, cam), [col, dep]),
-        "inpaint.pushpull": (lambda c, m: __import__("ibrtools.inpaint", fromlist=["x"]).pushpull(c, m), [col, hole]),
+        "inpaint.pushpull": (lambda c, m: __import__("ibrtools.inpaint.pushpull", fromlist=["x"]).pushpull(c, m), [col, hole]),
         "metrics.ssim": (lambda a, b: __import__("ibrtools.metrics", fromlist=["x"]).ssim(a, b), [col, col]),
-        "steerable.analyse": (lambda c: __import__("ibrtools.steerable", fromlist=["x"]).analyse(c, 2), [col]),
-        "depthwarp.warp_depth": (lambda d: __import__("ibrtools.depthwarp", fromlist=["x"]).warp_depth(
+        "steerable.analyse": (lambda c: __import__("ibrtools.metamers.steerable", fromlist=["x"]).analyse(c, 2), [col]),
+        "depthwarp.warp_depth": (lambda d: __import__("ibrtools.depthwarp.core", fromlist=["x"]).warp_depth(
             d, pinhole(h, w, 12.0), pinhole(h, w, 12.0)), [dep]),
     }
 
@@ -434,7 +434,7 @@ def test_array_boundary_is_typed(entry, how):
 @given(size=SIZES, data=st.data())
 def test_ymap_max_depth_is_conservative_and_tight_to_the_image(size, data):
     """true max over the clipped box <= answer <= max of the whole image; empty boxes +inf."""
-    from ibrtools.depthwarp import MaxDepthQuery
+    from ibrtools.depthwarp.core import MaxDepthQuery
 
     h, w = size
     depth = data.draw(depth_maps(h, w))
@@ -464,7 +464,7 @@ def test_ymap_max_depth_is_conservative_and_tight_to_the_image(size, data):
 def test_motion_buffer_matches_projection(size, f, data):
     """Finite motion; zero motion for the same camera; elsewhere the motion equals the float64
     projection of the un-projected point (relative 1e-4 of the motion + 1e-3 px: float32)."""
-    from ibrtools.depthwarp import motion_buffer
+    from ibrtools.depthwarp.core import motion_buffer
 
     h, w = size
     depth = data.draw(depth_maps(h, w))

@@ -128,7 +128,7 @@ def test_crowd_has_thousands_of_distinct_objects():
     m = s.meshes["ground_truth"]
     ids = np.unique(m.object_ids)
     assert len(ids) >= 2001 and len(m.faces) == 12 * (len(ids) - 1) + 2 * 16 * 16
-    from ibrtools.render.reference import ReferenceRenderer
+    from ibrtools.raycast.reference import ReferenceRenderer
 
     visible = ReferenceRenderer(m).visible_objects(s.views[0].camera)
     assert len(visible) > 100  # many boxes seen, most culled

@@ -5,11 +5,11 @@ vd_at_points)."""
 import numpy as np
 import pytest
 
-from ibrtools import stages as S
+from ibrtools.pipeline import stages as S
 from ibrtools.errors import BadValueError, ShapeError
 from ibrtools.hybrid.globalmesh import GlobalMeshOptions, build_global_mesh, build_render_mesh
 from ibrtools.hybrid.harmonise import vd_at_points
-from ibrtools.render.reference import ReferenceRenderer
+from ibrtools.raycast.reference import ReferenceRenderer
 from ibrtools.synth import make_scene
 
 SMALL = {"preset": "objects", "size": [64, 48], "views": 4, "seed": 3, "reconstructed": True,

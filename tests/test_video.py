@@ -14,7 +14,7 @@ import pytest
 from ibrtools import synth
 from ibrtools.errors import BadValueError, FormatError, MissingFileError
 from ibrtools.formats import native
-from ibrtools.render import job as J
+from ibrtools.pipeline import job as J
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,7 @@ import pytest
 
 from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError, InputError
-from ibrtools.render import view_selection as vs
+from ibrtools.dibr import view_selection as vs
 
 R = vs.DepthRange(1.0, 5.0)
 

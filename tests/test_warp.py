@@ -20,7 +20,7 @@ import pytest
 
 from ibrtools import BadValueError, Camera, DtypeError, ShapeError, _core
 from ibrtools.errors import InputError
-from ibrtools.render.warp import WarpMethod, check_params
+from ibrtools.dibr.warp import WarpMethod, check_params
 from ibrtools_cli import preprocess, render
 
 H, W = 40, 60
@@ -87,7 +87,7 @@ def test_disoccluded_strip_has_background_depth_and_no_foreground():
 def test_depth_aware_pushpull_fills_the_strip_with_background():
     # The point of the background depth: the depth-aware fill ignores the foreground square.
     # Background texture lies in [0.2, 0.3], the square is 0.9; classic push-pull bleeds it in.
-    from ibrtools.inpaint import pushpull
+    from ibrtools.inpaint.pushpull import pushpull
 
     col, depth = _square_scene()
     out, d, m = _core.warp_with_holes(col, depth, _cam().to_core(), _cam(-0.42).to_core())

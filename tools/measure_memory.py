@@ -5,7 +5,7 @@ For each size: a synthetic scene (``ibr-preprocess synth:objects --views N``, ma
 --work), then ``/usr/bin/time -v ibr-render SCENE --method M --poses P`` with the first 3
 cameras of the scene's ``orbit`` path, resized to the scene size. Reported: the peak resident
 set size (VmHWM of the whole process: interpreter, libraries, inputs, frames), the wall time,
-and the render job's own estimate (ibrtools.render.job.estimate_memory) that the early
+and the render job's own estimate (ibrtools.pipeline.job.estimate_memory) that the early
 refusal uses, which must stay above the measurement.
 
     .venv/bin/python tools/measure_memory.py                      # print the table
@@ -75,7 +75,7 @@ def _poses(scene: Path, n: int) -> Path:
 
 def _estimate(scene: Path, poses: Path, method: str) -> int:
     from ibrtools.formats import native
-    from ibrtools.render import job as render_job
+    from ibrtools.pipeline import job as render_job
 
     job = render_job.plan(native.load(scene), poses=str(poses))
     return render_job.estimate_memory(job, method)["total"]
@@ -104,7 +104,7 @@ def main(argv=None) -> int:
     cache = json.loads(cache_file.read_text()) if cache_file.is_file() else {}
     base = 0
     for size in a.sizes.split(","):
-        base, _, _, _ = _time_v([sys.executable, "-c", "import ibrtools._core, ibrtools.render.methods, open3d"])
+        base, _, _, _ = _time_v([sys.executable, "-c", "import ibrtools._core, ibrtools.methods, open3d"])
         for m in a.methods.split(","):
             views = a.staged_views if m in STAGED else a.views
             scene = _scene(work, size, views, m in STAGED, a.threads)
@@ -167,7 +167,7 @@ def _table(rows, a, base: int) -> str:
              f"-j {a.threads}; peak "
              f"RSS of the whole `ibr-render` process from `/usr/bin/time -v`; the interpreter with the engine, "
              f"open3d and numpy loaded alone peaks at {base / 2 ** 20:.0f} MiB). *Estimate* is the render job's "
-             "own figure used to refuse a job early (ibrtools.render.job.estimate_memory); it must stay above "
+             "own figure used to refuse a job early (ibrtools.pipeline.job.estimate_memory); it must stay above "
              "the measurement, by 1.3-1.5x.", "", *HEADER]
     lines += [merged[k] for k in keys]
     return "\n".join(lines)

@@ -1,5 +1,5 @@
 """ibr-bench: run time against error of a method over a sweep of its parameters on held-out
-views (ibrtools.render.sweep; Prakash et al. 2021 sec. 7).
+views (ibrtools.pipeline.sweep; Prakash et al. 2021 sec. 7).
 
     ibr-bench SCENE --method hybrid --sweep sigma=1:3:5,alpha=7 --sweep tau_var=0:0.1:0.82 -o out/sweep
 """
@@ -19,7 +19,7 @@ PROG = "ibr-bench"
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from ibrtools.render.methods import METHODS
+    from ibrtools.methods import METHODS
 
     p = ArgumentParser(
         prog=PROG, formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -54,8 +54,8 @@ def build_parser() -> argparse.ArgumentParser:
 def _body(args: argparse.Namespace) -> int:
     from ibrtools.formats import native
     from ibrtools.outputs import OutputDir, check_output_dir
-    from ibrtools.render.sweep import _value, parse_sweep, sweep
-    from ibrtools.stages import parse_options
+    from ibrtools.pipeline.sweep import _value, parse_sweep, sweep
+    from ibrtools.pipeline.stages import parse_options
 
     out = check_output_dir(args.output)
     grid = parse_sweep(args.sweep)
@@ -63,15 +63,15 @@ def _body(args: argparse.Namespace) -> int:
     both = sorted(set(base) & set(grid))
     if both:
         raise BadValueError(f"--param and --sweep both set {both}")
-    from ibrtools.render import methods
-    from ibrtools.render.sweep import configurations
+    from ibrtools import methods
+    from ibrtools.pipeline.sweep import configurations
 
     if args.method != "auto" and args.method in methods.BUILT:
         for config in configurations(grid, base):  # bad values: exit 2 before the scene is read
             methods.create(args.method, config)
     if args.report_frames < 0:
         raise BadValueError(f"--report-frames: expected a number >= 0, got {args.report_frames}")
-    from ibrtools.report_html import check_output
+    from ibrtools.pipeline.report_html import check_output
 
     check_output(out / "report.html", "-o")
     # The output directory is held for the run (a second job there is refused) and a dead run's
@@ -87,9 +87,9 @@ def _body(args: argparse.Namespace) -> int:
             rows = sweep(scene, args.method, grid, holdout=args.holdout, base=base, out_dir=out, progress=progress,
                          frame_hook=keep)
         keep.finish()
-        from ibrtools.render.job import holdout_note
-        from ibrtools.render.methods import resolve
-        from ibrtools.report_html import bench_report
+        from ibrtools.pipeline.job import holdout_note
+        from ibrtools.methods import resolve
+        from ibrtools.pipeline.report_html import bench_report
 
         name = resolve(args.method, scene)
         note = holdout_note(scene, args.holdout or [], name)
@@ -138,7 +138,7 @@ class _BestFrames:
         self._scores: list = []
 
     def __call__(self, ci, fi, frame, out, stage_ms, metrics) -> None:
-        from ibrtools.report_html import shrink
+        from ibrtools.pipeline.report_html import shrink
 
         if ci != self._ci:
             self.finish()
@@ -164,7 +164,7 @@ class _BestFrames:
 
     @property
     def panels(self) -> list:
-        from ibrtools.report_html import frame_panel
+        from ibrtools.pipeline.report_html import frame_panel
 
         return [frame_panel(name, small["color"], truth, selection=small["selection"],
                             hole=small["hole"],

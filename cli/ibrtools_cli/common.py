@@ -124,11 +124,11 @@ def print_table(headers: list[str], rows: list[list[str]], title: str | None = N
 
 def warn_stale(prog: str, scene, method: str, *, silent: bool) -> str | None:
     """Print (to stderr, before the run: it may take minutes) a warning when a preprocessing stage
-    that ``--method`` reads is out of date in ``scene`` (ibrtools.render.job.stale_note), and
+    that ``--method`` reads is out of date in ``scene`` (ibrtools.pipeline.job.stale_note), and
     return the note (None when current). ``silent`` (``-q``, ``--json``): not printed; the
     report and the JSON carry it as "stale_note"."""
-    from ibrtools.render.job import stale_note
-    from ibrtools.render.methods import resolve
+    from ibrtools.pipeline.job import stale_note
+    from ibrtools.methods import resolve
 
     note = stale_note(scene, resolve(method, scene))
     if note and not silent:
@@ -207,7 +207,7 @@ def progress_bar(prog: str, what: str, total: int | None = None, *, quiet: bool 
 
 def add_distributed(parser: argparse.ArgumentParser) -> None:
     """``--workers N`` / ``--scheduler ADDRESS``: run on Dask (docs/distributed.md); checked by
-    ibrtools.distributed.check_options (negative N, both at once: exit 2)."""
+    ibrtools.pipeline.distributed.check_options (negative N, both at once: exit 2)."""
     g = parser.add_argument_group("distributed execution (Dask; docs/distributed.md)")
     g.add_argument("--workers", type=int, default=0, metavar="N",
                    help="start a local Dask cluster of N worker processes (one engine thread each unless -j)")

@@ -95,8 +95,8 @@ def build_parser() -> argparse.ArgumentParser:
 def _body(args: argparse.Namespace) -> int:
     import json
 
-    from ibrtools.distributed import check_options
-    from ibrtools.stages import parse_methods, parse_options, parse_stage_options, parse_stages, preprocess
+    from ibrtools.pipeline.distributed import check_options
+    from ibrtools.pipeline.stages import parse_methods, parse_options, parse_stage_options, parse_stages, preprocess
 
     check_options(args.scheduler, args.workers)  # usage errors before any work
     synth = None

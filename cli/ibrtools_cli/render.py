@@ -13,8 +13,8 @@ PROG = "ibr-render"
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from ibrtools.render.complete import DEFAULT_INPAINT, INPAINT
-    from ibrtools.render.methods import BUILT, METHODS
+    from ibrtools.inpaint.complete import DEFAULT_INPAINT, INPAINT
+    from ibrtools.methods import BUILT, METHODS
 
     methods = "\n".join(f"  {k:<10} {v}{'' if k in BUILT or k == 'auto' else '  [not built yet]'}"
                         for k, v in METHODS.items())
@@ -110,9 +110,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _body(args: argparse.Namespace) -> int:
-    from ibrtools.distributed import check_options
+    from ibrtools.pipeline.distributed import check_options
     from ibrtools.formats import native
-    from ibrtools.render import job as render_job
+    from ibrtools.pipeline import job as render_job
 
     check_options(args.scheduler, args.workers)  # usage errors before the scene is read
     foveate = None
@@ -123,7 +123,7 @@ def _body(args: argparse.Namespace) -> int:
     lightfield = _lightfield(args)
     video = html_path = None
     if args.mp4 is not None:
-        from ibrtools.render import batches
+        from ibrtools.pipeline import batches
 
         batches.require_video()
         video = batches.check_video_path(args.mp4)
@@ -136,7 +136,7 @@ def _body(args: argparse.Namespace) -> int:
     if args.report_html is not None:
         from pathlib import Path
 
-        from ibrtools.report_html import check_output
+        from ibrtools.pipeline.report_html import check_output
 
         html_path = check_output(args.report_html or Path(args.output) / "report.html")
     params = _params(args)
@@ -161,7 +161,7 @@ def _body(args: argparse.Namespace) -> int:
         with progress_bar(PROG, "video", None, quiet=args.quiet):
             extra["video"] = str(batches.write_mp4(images, video, fps=args.fps))
     if html_path is not None:
-        from ibrtools.report_html import render_report
+        from ibrtools.pipeline.report_html import render_report
 
         truths = {f.name: (lambda v=f.truth: v.color) for f in job.frames
                   if f.truth is not None and f.truth.has_color}
@@ -189,8 +189,8 @@ def _body(args: argparse.Namespace) -> int:
 def _params(args: argparse.Namespace) -> dict:
     """The method parameters of the flags and --param, checked (their bounds: each method's
     check_params) before the scene is read when --method names the method."""
-    from ibrtools.render import methods
-    from ibrtools.stages import parse_options
+    from ibrtools import methods
+    from ibrtools.pipeline.stages import parse_options
 
     params = {k: _number(v) for k, v in parse_options(args.param).items()}
     for key, value in (("inputs", args.inputs), ("quality", args.quality),
@@ -250,7 +250,7 @@ def _lightfield(args: argparse.Namespace):
             if v is not None:
                 raise BadValueError(f"{flag}: only with --lightfield NxM")
         return None
-    from ibrtools.render.batches import check_baseline, parse_grid
+    from ibrtools.pipeline.batches import check_baseline, parse_grid
 
     n, m = parse_grid(args.lightfield)
     if args.baseline is None:

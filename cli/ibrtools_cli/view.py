@@ -11,7 +11,7 @@ PROG = "ibr-view"
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from ibrtools.render.methods import METHODS
+    from ibrtools.methods import METHODS
 
     p = ArgumentParser(
         prog=PROG, formatter_class=argparse.RawDescriptionHelpFormatter,

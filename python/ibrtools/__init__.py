@@ -1,6 +1,6 @@
 """ibrtools: image-based rendering and view synthesis on the CPU.
 
-Layers (DESIGN.md): cli -> ibrtools (Python) -> ibrtools._core (pybind11) -> cpp/ibr -> cpp/kernels.
+Layers: cli -> ibrtools (Python) -> ibrtools._core (pybind11) -> cpp/kernels -> cpp/ibr (README "Architecture").
 
 The names most programs need are here (docs/api.md):
 
@@ -20,28 +20,28 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from .camera import Camera, look_at
-from .errors import (BadValueError, DtypeError, FormatError, IbrError, InputError, InternalError,
+from ibrtools.camera import Camera, look_at
+from ibrtools.errors import (BadValueError, DtypeError, FormatError, IbrError, InputError, InternalError,
                      MissingFileError, NotBuiltError, ShapeError)
-from .mesh import Mesh
-from .scene import Scene, View
+from ibrtools.mesh import Mesh
+from ibrtools.scene import Scene, View
 
 if TYPE_CHECKING:  # the lazy names below, for type checkers
-    from . import formats, imageio, metrics, synth
-    from .api import CameraLike, RenderResult, clear_render_cache, load_scene
+    from ibrtools import formats, imageio, metrics, synth
+    from ibrtools.api import CameraLike, RenderResult, clear_render_cache, load_scene, render
 
 __version__ = "0.1.0"
 
 __all__ = [
     "Camera", "look_at", "Mesh", "Scene", "View",
-    "load_scene", "RenderResult", "CameraLike", "clear_render_cache",
+    "load_scene", "render", "RenderResult", "CameraLike", "clear_render_cache",
     "IbrError", "InputError", "ShapeError", "DtypeError", "BadValueError", "MissingFileError",
     "FormatError", "NotBuiltError", "InternalError",
 ]
 
 # name -> module that defines it (imported on first access, PEP 562).
-# (Not "render": ibrtools.render is the package of the methods; use Scene.render or api.render.)
-_LAZY = {"load_scene": "api", "RenderResult": "api", "CameraLike": "api", "clear_render_cache": "api"}
+_LAZY = {"load_scene": "api", "render": "api", "RenderResult": "api", "CameraLike": "api",
+         "clear_render_cache": "api"}
 _LAZY_MODULES = ("formats", "imageio", "metrics", "synth")
 
 

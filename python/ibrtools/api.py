@@ -2,7 +2,7 @@
 
 ``load_scene(path)`` reads a native scene directory (what ``ibr-preprocess`` writes, docs/FORMAT.md);
 ``Scene.render(camera, method="auto", **params)`` renders one camera with one of the novel-view
-methods of :mod:`ibrtools.render.methods` and returns a :class:`RenderResult`. The method is
+methods of :mod:`ibrtools.methods` and returns a :class:`RenderResult`. The method is
 prepared (BVH builds, view-selection structures, ...) once per scene, method and parameters and
 kept, so rendering many cameras of one scene pays the setup once:
 
@@ -58,9 +58,9 @@ from typing import Any, Union
 import numpy as np
 import numpy.typing as npt
 
-from .camera import Camera
-from .errors import BadValueError, DtypeError, FormatError, MissingFileError
-from .scene import Scene
+from ibrtools.camera import Camera
+from ibrtools.errors import BadValueError, DtypeError, FormatError, MissingFileError
+from ibrtools.scene import Scene
 
 __all__ = ["CameraLike", "RenderResult", "clear_render_cache", "load_scene", "render", "resolve_camera"]
 
@@ -96,7 +96,7 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
     if p.is_dir() and not (p / SCENE_FILE).is_file():
         raise FormatError(f"load_scene: {p}: no {SCENE_FILE} in this directory (not an ibrtools scene; "
                           "import other data sets with ibr-preprocess or ibrtools.formats.load)")
-    from .formats import native
+    from ibrtools.formats import native
 
     scene: Scene = native.load(p)
     return scene
@@ -137,7 +137,7 @@ class RenderResult:
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write ``color`` (with ``alpha`` when there is one) to ``path`` (PNG: 8-bit sRGB; EXR:
         linear float32), atomically."""
-        from .imageio import write_image
+        from ibrtools.imageio import write_image
 
         p = Path(path)
         write_image(p, self.color if self.alpha is None else np.concatenate([self.color, self.alpha[..., None]], -1))
@@ -170,7 +170,7 @@ def resolve_camera(scene: Scene, camera: CameraLike) -> Camera:
 
 def render(scene: Scene, camera: CameraLike, method: str = "auto", *, inpaint: str | None = None,
            background: Any = None, **params: Any) -> RenderResult:
-    """Render ``camera`` of ``scene`` with ``method`` (:data:`ibrtools.render.methods.METHODS`;
+    """Render ``camera`` of ``scene`` with ``method`` (:data:`ibrtools.methods.METHODS`;
     "auto" picks one from the scene's data) and the method's parameters (as ``ibr-render
     --param key=value``, e.g. ``inputs=2`` for dibr). Same as ``scene.render(...)``. The image is
     complete as ``ibr-render`` writes it (render/complete.py): the background at infinity where
@@ -189,8 +189,8 @@ def render(scene: Scene, camera: CameraLike, method: str = "auto", *, inpaint: s
     ...
     ibrtools.errors.BadValueError: method: unknown method 'nerf' (expected one of auto, reference, dibr, warp, depthwarp, tm, ulr, pvm, hybrid)
     """
-    from .render import methods
-    from .render.complete import DEFAULT_INPAINT, check_inpaint, complete, completion, parse_background
+    from ibrtools import methods
+    from ibrtools.inpaint.complete import DEFAULT_INPAINT, check_inpaint, complete, completion, parse_background
 
     if not isinstance(scene, Scene):
         raise DtypeError(f"scene: expected an ibrtools.Scene, got {type(scene).__name__}")
@@ -235,7 +235,7 @@ class _Cache:
         self.entries: dict[tuple[str, Any], tuple[tuple[Any, ...], Any, dict[str, float]]] = {}
 
     def method(self, scene: Scene, name: str, params: dict[str, Any]) -> tuple[Any, dict[str, float], bool]:
-        from .render import methods
+        from ibrtools import methods
 
         key = (name, _freeze(params))
         # The objects themselves (held by the entry, so their ids cannot be reused meanwhile).

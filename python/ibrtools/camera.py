@@ -22,8 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from .checks import check_float, check_int
-from .errors import BadValueError, DtypeError, FormatError, ShapeError
+from ibrtools.checks import check_float, check_int
+from ibrtools.errors import BadValueError, DtypeError, FormatError, ShapeError
 
 PINHOLE = "pinhole"
 EQUIRECT = "equirect"
@@ -260,7 +260,7 @@ class Camera:
     # --- interchange --------------------------------------------------------------------------
     def to_core(self):
         """The C++ camera (ibrtools._core.Camera)."""
-        from . import _core
+        from ibrtools import _core
 
         if self.model == PINHOLE:
             return _core.Camera(_core.CameraModel.PINHOLE, self.width, self.height,

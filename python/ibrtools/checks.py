@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import BadValueError, DtypeError
+from ibrtools.errors import BadValueError, DtypeError
 
 
 def check_int(value: Any, name: str, minimum: int | None = None, maximum: int | None = None) -> int:

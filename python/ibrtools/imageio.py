@@ -22,8 +22,8 @@ from typing import Iterator
 
 import numpy as np
 
-from .errors import BadValueError, DtypeError, FormatError, MissingFileError, ShapeError
-from .outputs import mkstemp_beside
+from ibrtools.errors import BadValueError, DtypeError, FormatError, MissingFileError, ShapeError
+from ibrtools.outputs import mkstemp_beside
 
 FLOAT_EXTS = {".exr", ".pfm", ".hdr"}
 F32_MAX = float(np.finfo(np.float32).max)
@@ -41,7 +41,7 @@ def srgb_to_linear(v: np.ndarray) -> np.ndarray:
     """IEC 61966-2-1 sRGB decoding, values in [0, 1] (v / 12.92 continues below 0 and the power
     above 1; NaN stays NaN). float32 of v's shape; the C++ kernel ``_core.srgb_to_linear``
     (within 1e-5 relative of the exact curve, tests/test_imageio_srgb.py)."""
-    from . import _core
+    from ibrtools import _core
 
     return _core.srgb_to_linear(np.asarray(v, dtype=np.float32, order="C"))
 
@@ -52,7 +52,7 @@ def linear_to_srgb(v: np.ndarray) -> np.ndarray:
     The C++ kernel (``_core.linear_to_srgb``: vectorised, multithreaded, within 1e-6 relative of
     the exact curve, tests/test_imageio_srgb.py; ~6x faster than numpy's float32 formula on 2
     cores, docs/benchmarks.md "sRGB encoding and decoding")."""
-    from . import _core
+    from ibrtools import _core
 
     return _core.linear_to_srgb(np.asarray(v, dtype=np.float32, order="C"))  # 0-d stays 0-d
 
@@ -173,7 +173,7 @@ def _check_header(path: Path, spec, size: tuple[int, int] | None) -> None:
     # as stored, then as float32 RGB(A) after conversion (read_image)
     need = w * h * (c * _SAMPLE_BYTES.get(str(spec.format), 4) + 4 * min(max(c, 3), 4))
     if need > 64 << 20:
-        from .memory import available_memory
+        from ibrtools.memory import available_memory
 
         avail = available_memory()
         if need > avail:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from .errors import BadValueError
+from ibrtools.errors import BadValueError
 
 
 def _parse_bytes(text: str) -> int:

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import BadValueError, DtypeError, ShapeError
+from ibrtools.errors import BadValueError, DtypeError, ShapeError
 
 MESH_KINDS = ("ground_truth", "reconstructed")
 

@@ -34,10 +34,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import DtypeError, FormatError, MissingFileError
-from .imageio import atomic_path, linear_to_srgb, read_image, srgb_to_linear
-from .outputs import mkdtemp_beside
-from .mesh import Mesh
+from ibrtools.errors import DtypeError, FormatError, MissingFileError
+from ibrtools.imageio import atomic_path, linear_to_srgb, read_image, srgb_to_linear
+from ibrtools.outputs import mkdtemp_beside
+from ibrtools.mesh import Mesh
 
 MESH_EXTS = (".ply", ".obj")
 SIDECAR_SUFFIX = ".attrs.npz"

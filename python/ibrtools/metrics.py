@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import BadValueError, DtypeError, NotBuiltError, ShapeError
+from ibrtools.errors import BadValueError, DtypeError, NotBuiltError, ShapeError
 
 SSIM_WINDOW = 7
 SSIM_CROP = (SSIM_WINDOW - 1) // 2
@@ -129,7 +129,7 @@ def ssim(a: np.ndarray, b: np.ndarray, data_range: float = 1.0, mask: np.ndarray
     if a.shape[0] < SSIM_WINDOW or a.shape[1] < SSIM_WINDOW:
         raise ShapeError(f"a and b: SSIM needs images of at least {SSIM_WINDOW}x{SSIM_WINDOW} pixels "
                          f"(the window), got shape {a.shape}")
-    from . import _core
+    from ibrtools import _core
 
     a32 = np.ascontiguousarray(a, dtype=np.float32)
     b32 = np.ascontiguousarray(b, dtype=np.float32)
@@ -180,7 +180,7 @@ def flip(rendered: np.ndarray, reference: np.ndarray, return_map: bool = False):
     except ImportError:
         raise NotBuiltError("flip: the optional package flip-evaluator is not installed "
                             "(pip install 'ibrtools[flip]' or pip install flip-evaluator)") from None
-    from .imageio import linear_to_srgb
+    from ibrtools.imageio import linear_to_srgb
 
     ref = np.ascontiguousarray(linear_to_srgb(reference))
     test = np.ascontiguousarray(linear_to_srgb(rendered))
@@ -210,7 +210,7 @@ def compare(rendered: np.ndarray, reference: np.ndarray, mask: np.ndarray | None
         raise ShapeError(f"rendered and reference: expected RGB images (H, W, 3), got {rendered.shape}")
     mask = _mask(mask, rendered.shape, "mask")
     hole_mask = _mask(hole_mask, rendered.shape, "hole_mask")
-    from .imageio import linear_to_srgb
+    from ibrtools.imageio import linear_to_srgb
 
     a = linear_to_srgb(rendered)
     b = linear_to_srgb(reference)

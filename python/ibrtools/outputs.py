@@ -28,7 +28,7 @@ import time
 from pathlib import Path
 from typing import Callable
 
-from .errors import BadValueError
+from ibrtools.errors import BadValueError
 
 LOCK_NAME = ".ibr-lock"
 _UNSAFE = set('/\\:*?"<>|')

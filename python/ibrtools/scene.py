@@ -19,12 +19,12 @@ from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
-from .camera import Camera
-from .errors import BadValueError, DtypeError, InputError, ShapeError
-from .mesh import Mesh
+from ibrtools.camera import Camera
+from ibrtools.errors import BadValueError, DtypeError, InputError, ShapeError
+from ibrtools.mesh import Mesh
 
 if TYPE_CHECKING:
-    from .api import CameraLike, RenderResult
+    from ibrtools.api import CameraLike, RenderResult
 
 
 class _Lazy:
@@ -148,7 +148,7 @@ class View:
 
 
 def _check_image(v: np.ndarray, name: str, camera: Camera, what: str) -> np.ndarray:
-    from .imageio import check_depth
+    from ibrtools.imageio import check_depth
 
     hw = (camera.height, camera.width)
     if not isinstance(v, np.ndarray):
@@ -233,7 +233,7 @@ class Scene:
         """Render ``camera`` (a Camera, a target or view name, or a scene.json camera dict) with
         ``method`` and its parameters; the method is prepared once and kept for later calls.
         See :func:`ibrtools.api.render` (docs/api.md)."""
-        from .api import render
+        from ibrtools.api import render
 
         return render(self, camera, method, **params)
 
@@ -244,7 +244,7 @@ class Scene:
             raise BadValueError(f"frame {name!r}: not in the scene (frames: {have})")
         if self.root is None:
             raise BadValueError(f"frame {name!r}: the video scene has no directory to load its frames from")
-        from .formats import native
+        from ibrtools.formats import native
 
         return native.load(Path(self.root) / "frames" / name)
 

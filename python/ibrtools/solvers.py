@@ -17,11 +17,11 @@ from typing import Any
 
 import numpy as np
 
-from .errors import BadValueError, DtypeError, ShapeError
+from ibrtools.errors import BadValueError, DtypeError, ShapeError
 
 
 def _core():
-    from . import _core  # noqa: PLC0415 (import where used: the package imports without the build)
+    from ibrtools import _core  # noqa: PLC0415 (import where used: the package imports without the build)
 
     return _core
 

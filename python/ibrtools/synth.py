@@ -3,7 +3,7 @@
 A preset builds a textured, partly glossy triangle mesh (metres, world **y up**, ground plane
 y = 0), cameras (OpenCV axes, ``look_at``), held-out target cameras and named camera paths;
 :func:`make_scene` renders every input view and every target with the reference ray caster
-(``ibrtools.render.reference``): colour (linear RGB) and z-depth. Same arguments and seed ->
+(``ibrtools.raycast.reference``): colour (linear RGB) and z-depth. Same arguments and seed ->
 identical arrays.
 
 Building blocks, all vectorised numpy (no per-triangle Python loops):
@@ -28,11 +28,11 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .camera import Camera, look_at
-from .checks import check_float, check_int
-from .errors import BadValueError, DtypeError, MissingFileError
-from .mesh import Mesh
-from .scene import Scene, View
+from ibrtools.camera import Camera, look_at
+from ibrtools.checks import check_float, check_int
+from ibrtools.errors import BadValueError, DtypeError, MissingFileError
+from ibrtools.mesh import Mesh
+from ibrtools.scene import Scene, View
 
 PRESETS: dict[str, str] = {
     "objects": "textured and glossy boxes, spheres and a cylinder on a ground plane; ring of cameras",
@@ -210,7 +210,7 @@ def load_placed(path: str | Path, *, center: Any, extent: float, object_id: int,
     """Read an OBJ/PLY with ``ibrtools.meshio.read_mesh``, scale it uniformly so its largest
     bounding-box side is ``extent`` metres, and stand it on the ground (min y = 0) centred at
     ``center`` (x, z). Returns the part and its textures."""
-    from .meshio import read_mesh
+    from ibrtools.meshio import read_mesh
 
     p = Path(path)
     if not p.is_file():
@@ -420,7 +420,7 @@ def path_motion(mesh: Mesh, cameras: Sequence[Camera], *, renderer=None) -> np.n
     distance any surface point seen by frame t - 1 moves in the image between frames t - 1 and
     t (its reference depth unprojected from t - 1 and projected into t; points that land behind
     camera t are left out). Lee, Kim, Eisemann 2018 sec. 4.1 report the mean of these maxima."""
-    from .render.reference import ReferenceRenderer
+    from ibrtools.raycast.reference import ReferenceRenderer
 
     if len(cameras) < 2:
         raise BadValueError("cameras: a path needs at least 2 cameras to have motion")
@@ -676,7 +676,7 @@ def check_scale(size: Sequence[int], views: int, frames: int = 1, holdout_target
                 flags: tuple[str, str, str] = ("size", "views", "frames")) -> None:
     """Refuse, before anything is rendered, a scene past the bounds above or larger than the
     available memory (BadValueError naming ``flags``: the size, views and frames arguments)."""
-    from .memory import available_memory
+    from ibrtools.memory import available_memory
 
     fs, fv, ff = flags
     w, h = _check_size(size, fs)
@@ -830,7 +830,7 @@ def make_scene(preset: str, *, size: Sequence[int] = (480, 360), views: int = 12
     time = check_float(time, "time")
     if time != 0.0:
         mesh = move_objects(mesh, time, seed)
-    from .render.reference import ReferenceRenderer, default_lights
+    from ibrtools.raycast.reference import ReferenceRenderer, default_lights
 
     renderer = ReferenceRenderer(mesh)
     lights = default_lights(mesh.bounds())
@@ -850,7 +850,7 @@ def make_scene(preset: str, *, size: Sequence[int] = (480, 360), views: int = 12
     source: dict[str, Any] = {
         "format": f"synth:{preset}", "preset": preset, "description": PRESETS[preset],
         "size": list(size), "views": views, "seed": seed, "holdout_targets": holdout_targets,
-        "renderer": "ibrtools.render.reference", "world_up": [0, 1, 0],
+        "renderer": "ibrtools.raycast.reference", "world_up": [0, 1, 0],
         "extra_meshes": [str(p) for p in extra_meshes],
     }
     if exposure_jitter > 0 or white_balance_jitter > 0:

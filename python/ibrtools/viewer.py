@@ -34,9 +34,9 @@ from urllib.parse import parse_qs, urlparse
 
 import numpy as np
 
-from .camera import Camera
-from .errors import BadValueError, InputError, NotBuiltError
-from .scene import Scene
+from ibrtools.camera import Camera
+from ibrtools.errors import BadValueError, InputError, NotBuiltError
+from ibrtools.scene import Scene
 
 FORMATS = {"jpeg": ("image/jpeg", ".jpg"), "png": ("image/png", ".png")}
 OVERLAYS = ("none", "holes", "method")
@@ -90,7 +90,7 @@ def _centre(cams: list[Camera]) -> np.ndarray:
 
 def encode(image: np.ndarray, fmt: str) -> bytes:
     """An image (H, W, 3) linear float as JPEG or PNG bytes (8-bit sRGB), by the engine's writer."""
-    from .imageio import write_image
+    from ibrtools.imageio import write_image
 
     with tempfile.TemporaryDirectory(prefix="ibr-view-") as d:
         p = Path(d) / f"frame{FORMATS[fmt][1]}"
@@ -116,7 +116,7 @@ class Viewer:
 
     def __init__(self, scene: Scene, method: str = "auto", host: str = "127.0.0.1", port: int = 0,
                  save_dir: str | Path = ".", token: str | None = None):
-        from .render import methods
+        from ibrtools import methods
 
         self.scene = scene
         self.method = methods.resolve(method, scene)
@@ -154,7 +154,7 @@ class Viewer:
 
     def frame(self, query: dict) -> tuple[bytes, str, dict]:
         """(bytes, content type, headers) of GET /frame, or raises BadValueError."""
-        from .api import render
+        from ibrtools.api import render
 
         pose = _one(query, "pose")
         try:
@@ -182,8 +182,8 @@ class Viewer:
 
     def save_path(self, body: bytes) -> dict:
         """POST /path: the poses written as a file ``ibr-render --poses`` reads."""
-        from .imageio import atomic_path
-        from .outputs import file_stem
+        from ibrtools.imageio import atomic_path
+        from ibrtools.outputs import file_stem
 
         try:
             doc = json.loads(body)
@@ -205,7 +205,7 @@ class Viewer:
 
 def _usable(method: str, scene: Scene) -> bool:
     """Whether ``method`` can render ``scene`` as it is (what the page offers)."""
-    from .stages import with_stage_depth
+    from ibrtools.pipeline.stages import with_stage_depth
 
     if method == "reference":
         return "ground_truth" in scene.meshes
@@ -232,7 +232,7 @@ def _int(query: dict, key: str, default: int) -> int:
 
 
 def _handler(viewer: Viewer):
-    from .viewer_page import PAGE
+    from ibrtools.viewer_page import PAGE
 
     class Handler(BaseHTTPRequestHandler):
         server_version = "ibr-view"

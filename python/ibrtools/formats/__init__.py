@@ -12,8 +12,8 @@ from __future__ import annotations
 import importlib
 from pathlib import Path
 
-from ..errors import FormatError, MissingFileError
-from ..scene import Scene
+from ibrtools.errors import FormatError, MissingFileError
+from ibrtools.scene import Scene
 
 # Order matters for detection: the most specific formats first.
 # llff after colmap: an LLFF folder that also holds its COLMAP model (sparse/0) imports as COLMAP
@@ -44,7 +44,7 @@ def load(path: str | Path, fmt: str | None = None, options: dict | None = None, 
     """Import a data set (format detected unless given) as a Scene; ``downscale`` (a factor >= 1)
     / ``max_size`` (the longer side, pixels) resize every view on the way in (formats/resize.py,
     whatever the importer)."""
-    from .resize import check_factors, downscale_scene
+    from ibrtools.formats.resize import check_factors, downscale_scene
 
     path = Path(path)
     downscale, max_size = check_factors(downscale, max_size)  # before any file is read

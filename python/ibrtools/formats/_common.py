@@ -14,8 +14,8 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
-from ..camera import orthonormalize
-from ..errors import BadValueError, DtypeError, FormatError, MissingFileError, ShapeError
+from ibrtools.camera import orthonormalize
+from ibrtools.errors import BadValueError, DtypeError, FormatError, MissingFileError, ShapeError
 
 
 class FileLoader:
@@ -39,7 +39,7 @@ class FileLoader:
         size = self._kwargs.get("size")
         if size is None:
             return None
-        from ..imageio import read_header
+        from ibrtools.imageio import read_header
 
         return lambda: read_header(self.source, size)
 
@@ -125,7 +125,7 @@ def document_errors(load: Callable) -> Callable:
     line. Typed errors raised on purpose pass through unchanged."""
     import functools
 
-    from ..errors import IbrError
+    from ibrtools.errors import IbrError
 
     @functools.wraps(load)
     def wrapper(path, *args, **kwargs):
@@ -155,7 +155,7 @@ def read_json(path: Path) -> Any:
 def rigid_from_matrix(m: Any, where: str) -> np.ndarray:
     """A 4x4 float64 rigid matrix from ``m`` (4x4 or 3x4), checked, then re-orthonormalised
     (files store ~7 significant digits; the check rejects anything that is not noise)."""
-    from ..camera import check_rigid
+    from ibrtools.camera import check_rigid
 
     rigid = check_rigid(m, where)
     rigid[:3, :3] = orthonormalize(rigid[:3, :3])
@@ -190,7 +190,7 @@ def invert_rigid(m: np.ndarray) -> np.ndarray:
 def image_header(path: Path) -> tuple[int, int, int, str]:
     """(width, height, channels, sample format such as "uint8") of an image file, from its header
     alone (no pixel decoding)."""
-    from ..imageio import read_header
+    from ibrtools.imageio import read_header
 
     return read_header(path)
 
@@ -204,7 +204,7 @@ def image_size(path: Path) -> tuple[int, int]:
 def check_same_size(path: Path, size: tuple[int, int], what: str, expected_from: str) -> None:
     w, h = image_size(path)
     if (w, h) != tuple(size):
-        from ..errors import ShapeError
+        from ibrtools.errors import ShapeError
 
         raise ShapeError(f"{path}: {what} is {w}x{h}, expected {size[0]}x{size[1]} ({expected_from})")
 

@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..camera import Camera
-from ..errors import FormatError
+from ibrtools.camera import Camera
+from ibrtools.errors import FormatError
 
 # The models undistort_map knows (COLMAP names).
 DISTORTION_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV",

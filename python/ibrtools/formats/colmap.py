@@ -44,12 +44,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import Camera, check_rigid
-from ..errors import BadValueError, FormatError, MissingFileError, ShapeError
-from ..imageio import read_image
-from ..scene import Scene, View
-from ._common import document_errors, FileLoader, check_options, image_size, named, opt_choice, quat_to_rotation
-from ._undistort import Undistorter, _distort, is_distorted  # noqa: F401 (tests use colmap._distort)
+from ibrtools.camera import Camera, check_rigid
+from ibrtools.errors import BadValueError, FormatError, MissingFileError, ShapeError
+from ibrtools.imageio import read_image
+from ibrtools.scene import Scene, View
+from ibrtools.formats._common import document_errors, FileLoader, check_options, image_size, named, opt_choice, quat_to_rotation
+from ibrtools.formats._undistort import Undistorter, _distort, is_distorted  # noqa: F401 (tests use colmap._distort)
 
 NAME = "colmap"
 DESCRIPTION = "COLMAP sparse model (cameras/images .bin|.txt) + images (+ dense depth maps)"

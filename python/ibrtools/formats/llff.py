@@ -31,11 +31,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import Camera
-from ..errors import BadValueError, FormatError, MissingFileError
-from ..imageio import read_image
-from ..scene import Scene, View
-from ._common import FileLoader, check_options, document_errors, image_size, invert_rigid, named, rigid_from_matrix
+from ibrtools.camera import Camera
+from ibrtools.errors import BadValueError, FormatError, MissingFileError
+from ibrtools.imageio import read_image
+from ibrtools.scene import Scene, View
+from ibrtools.formats._common import FileLoader, check_options, document_errors, image_size, invert_rigid, named, rigid_from_matrix
 
 NAME = "llff"
 DESCRIPTION = "LLFF capture: poses_bounds.npy (N x 17, camera-to-world in down/right/back axes) + images/"

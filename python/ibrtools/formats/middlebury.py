@@ -33,11 +33,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import Camera
-from ..errors import DtypeError, FormatError, MissingFileError, ShapeError
-from ..imageio import read_pixels, read_image
-from ..scene import Scene, View
-from ._common import document_errors, FileLoader, check_options, check_same_size, image_size, named, opt_float
+from ibrtools.camera import Camera
+from ibrtools.errors import DtypeError, FormatError, MissingFileError, ShapeError
+from ibrtools.imageio import read_pixels, read_image
+from ibrtools.scene import Scene, View
+from ibrtools.formats._common import document_errors, FileLoader, check_options, check_same_size, image_size, named, opt_float
 
 NAME = "middlebury"
 DESCRIPTION = "Middlebury stereo pair with disparity (im2/im6 + disp2/disp6, or view1/view5 + disp1/disp5)"

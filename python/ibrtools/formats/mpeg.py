@@ -53,12 +53,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import MAX_TRANSLATION, Camera
-from ..errors import BadValueError, DtypeError, FormatError, MissingFileError, ShapeError
-from ..imageio import read_pixels, read_image
-from ..scene import Scene, View
-from . import yuv
-from ._common import document_errors, FileLoader, check_options, check_same_size, opt_choice, opt_int, read_json
+from ibrtools.camera import MAX_TRANSLATION, Camera
+from ibrtools.errors import BadValueError, DtypeError, FormatError, MissingFileError, ShapeError
+from ibrtools.imageio import read_pixels, read_image
+from ibrtools.scene import Scene, View
+from ibrtools.formats import yuv
+from ibrtools.formats._common import document_errors, FileLoader, check_options, check_same_size, opt_choice, opt_int, read_json
 
 NAME = "mpeg"
 DESCRIPTION = "MPEG-I/RVS camera JSON or RVS synthesis config (OMAF axes) + YUV/PNG/EXR"

@@ -15,12 +15,12 @@ import os
 import shutil
 from pathlib import Path
 
-from ..camera import Camera
-from ..errors import BadValueError, FormatError, MissingFileError
-from ..imageio import read_depth, read_image, read_mask, write_depth, write_image
-from ..outputs import mkdtemp_beside
-from ..scene import Scene, View
-from ._common import document_errors, FileLoader, read_json
+from ibrtools.camera import Camera
+from ibrtools.errors import BadValueError, FormatError, MissingFileError
+from ibrtools.imageio import read_depth, read_image, read_mask, write_depth, write_image
+from ibrtools.outputs import mkdtemp_beside
+from ibrtools.scene import Scene, View
+from ibrtools.formats._common import document_errors, FileLoader, read_json
 
 NAME = "native"
 DESCRIPTION = "ibrtools scene directory (scene.json, docs/FORMAT.md)"
@@ -104,7 +104,7 @@ def save(scene: Scene, path: str | os.PathLike, *, color_format: str = "png",
         if scene.stages:
             doc["stages"] = _json_safe(scene.stages)
         for kind, mesh in scene.meshes.items():
-            from ..meshio import write_mesh
+            from ibrtools.meshio import write_mesh
 
             textured = bool(mesh.textures) and mesh.uvs is not None
             rel = f"mesh/{kind}.{'obj' if textured else 'ply'}"
@@ -229,7 +229,7 @@ def load(path: Path, options: dict | None = None) -> Scene:
     for kind, m in (doc.get("meshes") or {}).items():
         if not isinstance(m, dict) or "path" not in m:
             raise FormatError(f"{f}: meshes.{kind}: expected an object with 'path'")
-        from ..meshio import read_mesh
+        from ibrtools.meshio import read_mesh
 
         meshes[kind] = read_mesh(root / m["path"], kind=kind)
     scene = Scene(views=views, targets=targets, paths=paths, meshes=meshes,

@@ -75,13 +75,13 @@ from typing import Callable
 
 import numpy as np
 
-from ..camera import Camera
-from ..errors import BadValueError, DtypeError, FormatError, MissingFileError, ShapeError
-from ..imageio import F32_MAX, read_depth, read_pixels, srgb_to_linear
-from ..scene import Scene, View
-from ._common import (document_errors, FileLoader, check_options, check_same_size, image_header, image_size, invert_rigid,
+from ibrtools.camera import Camera
+from ibrtools.errors import BadValueError, DtypeError, FormatError, MissingFileError, ShapeError
+from ibrtools.imageio import F32_MAX, read_depth, read_pixels, srgb_to_linear
+from ibrtools.scene import Scene, View
+from ibrtools.formats._common import (document_errors, FileLoader, check_options, check_same_size, image_header, image_size, invert_rigid,
                       named, opt_choice, opt_float, opt_int, read_json, record_summary, rigid_from_matrix)
-from ._undistort import Undistorter, is_distorted
+from ibrtools.formats._undistort import Undistorter, is_distorted
 
 NAME = "nerf"
 DESCRIPTION = "NeRF/instant-ngp transforms*.json (Blender/OpenGL camera-to-world)"

@@ -29,9 +29,9 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..camera import Camera
-from ..errors import BadValueError
-from ..scene import Scene, View, _Lazy, _check_image
+from ibrtools.camera import Camera
+from ibrtools.errors import BadValueError
+from ibrtools.scene import Scene, View, _Lazy, _check_image
 
 
 def scaled_size(width: int, height: int, downscale: float | None = None, max_size: int | None = None
@@ -173,7 +173,7 @@ def _scaled_view(view: View, camera: Camera) -> View:
 def downscale_scene(scene: Scene, downscale: float | None = None, max_size: int | None = None) -> Scene:
     """``scene`` with every pinhole view and target resized (module doc) and a line in
     ``source["adapted"]``; the scene itself when no image changes size."""
-    from ._common import record_summary
+    from ibrtools.formats._common import record_summary
 
     downscale, max_size = check_factors(downscale, max_size)
     sizes: dict[tuple[tuple[int, int], tuple[int, int]], int] = {}

@@ -57,12 +57,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import Camera
-from ..errors import BadValueError, FormatError, MissingFileError
-from ..imageio import read_depth, read_image
-from ..scene import Scene, View
-from ..imageio import F32_MAX
-from ._common import document_errors, FileLoader, check_options, check_same_size, image_size, invert_rigid, named, \
+from ibrtools.camera import Camera
+from ibrtools.errors import BadValueError, FormatError, MissingFileError
+from ibrtools.imageio import read_depth, read_image
+from ibrtools.scene import Scene, View
+from ibrtools.imageio import F32_MAX
+from ibrtools.formats._common import document_errors, FileLoader, check_options, check_same_size, image_size, invert_rigid, named, \
     opt_choice, opt_float, quat_to_rotation, record_summary, rigid_from_matrix
 
 NAME = "rgbd"

@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import BadValueError, FormatError, MissingFileError
-from ..imageio import srgb_to_linear
+from ibrtools.errors import BadValueError, FormatError, MissingFileError
+from ibrtools.imageio import srgb_to_linear
 
 MATRICES = {"bt709": (0.2126, 0.0722), "bt601": (0.299, 0.114)}
 

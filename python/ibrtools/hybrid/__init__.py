@@ -4,5 +4,5 @@ Modules: ``globalmesh`` (the global mesh: the scene's reconstructed mesh or TSDF
 views' depth maps, per-vertex colour by ULR-weighted blending, per-view depth from the mesh),
 ``pvm`` (per-view meshes sliced into a two-level voxel grid of tiles), ``variance`` and
 ``harmonise`` (photometric variance and multi-view harmonisation). The stage planner
-(``ibrtools.stages``) runs them and caches their outputs under ``SCENE/cache/<stage>/``.
+(``ibrtools.pipeline.stages``) runs them and caches their outputs under ``SCENE/cache/<stage>/``.
 """

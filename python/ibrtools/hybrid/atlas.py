@@ -35,10 +35,10 @@ from typing import Mapping
 
 import numpy as np
 
-from ..camera import PINHOLE, Camera
-from ..errors import BadValueError, DtypeError, ShapeError
-from ..mesh import Mesh
-from .globalmesh import (ATLAS_MAX_TEXELS, ATLAS_TEXELS_LIMIT, GlobalMeshOptions, point_colors, smooth_normals,
+from ibrtools.camera import PINHOLE, Camera
+from ibrtools.errors import BadValueError, DtypeError, ShapeError
+from ibrtools.mesh import Mesh
+from ibrtools.hybrid.globalmesh import (ATLAS_MAX_TEXELS, ATLAS_TEXELS_LIMIT, GlobalMeshOptions, point_colors, smooth_normals,
                          vertex_normals)
 
 MIN_CELL = 5  # B's legs of N - 4 texels: >= 1 texel
@@ -206,7 +206,7 @@ def texel_points(mesh: Mesh, lay: AtlasLayout, normals: np.ndarray, rows: slice 
     atlas rows ``rows``, default all; row-major): the barycentrics of the texel centre in its face's
     chart, clamped to the face (negative weights set to 0, renormalised), and the surface point and
     normal (of the per-vertex ``normals`` (N, 3)) they give, in float64 (``_core.texel_points``)."""
-    from .. import _core
+    from ibrtools import _core
 
     lo, hi, _ = (slice(None) if rows is None else rows).indices(lay.face_of_texel.shape[0])
     ys, xs, face, bary, pts, nrm = _core.texel_points(
@@ -234,7 +234,7 @@ def bake(mesh: Mesh, lay: AtlasLayout, cameras: Mapping[str, Camera], colors: Ma
         vn = smooth_normals(vn, mesh.faces, opts.bake_normal_rounds)
     labels = None
     if opts.bake_label_weight > 0:
-        from .texlabel import UNSEEN_COST, face_data_cost, face_edges, potts_labels
+        from ibrtools.hybrid.texlabel import UNSEEN_COST, face_data_cost, face_edges, potts_labels
 
         names = list(cameras)
         cost = face_data_cost(mesh, cameras, depths, opts.depth_tol)
@@ -277,7 +277,7 @@ def bake(mesh: Mesh, lay: AtlasLayout, cameras: Mapping[str, Camera], colors: Ma
 def to_srgb8(img: np.ndarray) -> np.ndarray:
     """Linear RGB (H, W, 3) float -> (H, W, 4) uint8 sRGB RGBA (alpha 255; values clipped to [0, 1]),
     the storage ``_core.sample_atlas`` reads fastest (cpp/kernels/atlas8.h)."""
-    from ..imageio import linear_to_srgb
+    from ibrtools.imageio import linear_to_srgb
 
     a = np.asarray(img)
     if a.ndim != 3 or a.shape[2] != 3:

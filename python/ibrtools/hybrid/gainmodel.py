@@ -36,9 +36,9 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from ..camera import Camera
-from ..checks import check_float
-from ..errors import BadValueError, ShapeError
+from ibrtools.camera import Camera
+from ibrtools.checks import check_float
+from ibrtools.errors import BadValueError, ShapeError
 
 SIGMA_DEG = 20.0   # kernel width on the angle between optical axes
 MAX_RATIO = 0.5    # leave-one-out residual / spread below this: the spread is shading

@@ -28,11 +28,11 @@ from typing import Mapping
 
 import numpy as np
 
-from ..camera import PINHOLE, Camera
-from ..checks import check_float, check_int
-from ..errors import BadValueError, DtypeError, ShapeError
-from ..mesh import Mesh
-from ..scene import Scene
+from ibrtools.camera import PINHOLE, Camera
+from ibrtools.checks import check_float, check_int
+from ibrtools.errors import BadValueError, DtypeError, ShapeError
+from ibrtools.mesh import Mesh
+from ibrtools.scene import Scene
 
 SOURCES = ("auto", "reconstructed", "ground_truth", "fusion")
 # The texture atlas's default texel cap: 2^25 texels = 128 MiB of 8-bit sRGB RGBA (an 8192 x 4096
@@ -134,7 +134,7 @@ class GlobalMeshOptions:
         check_int(self.atlas_max_texels, "atlas_max_texels", 16, ATLAS_TEXELS_LIMIT)
         if not isinstance(self.atlas_adaptive, (bool, np.bool_)):
             raise BadValueError(f"atlas_adaptive: expected true or false, got {self.atlas_adaptive!r}")
-        from .gainmodel import GAIN_MODES
+        from ibrtools.hybrid.gainmodel import GAIN_MODES
 
         if self.gain_model not in GAIN_MODES:
             raise BadValueError(f"gain_model: expected one of {GAIN_MODES}, got {self.gain_model!r}")
@@ -335,7 +335,7 @@ def equirect_to_cube_faces(camera: Camera, depth: np.ndarray) -> list[tuple[Came
     """Six 90-degree pinhole cameras at an equirect camera's centre (cube-map faces, side =
     width / 4 clamped to [16, 2048]) and their z-depth, read from the equirect ray distance at
     the nearest pixel (no interpolation across depth edges); 0 outside the equirect's ranges."""
-    from ..camera import look_at
+    from ibrtools.camera import look_at
 
     side = int(min(2048, max(16, camera.width // 4)))
     f = side / 2.0
@@ -464,7 +464,7 @@ def point_colors(points: np.ndarray, normals: np.ndarray, cameras: Mapping[str, 
     (a point seen by one view keeps its colour) of their bilinear colour. The kernel is
     ``_core.point_colors`` (cpp/kernels/atlas8.h; the numpy version it replaced, kept as the
     reference in tests/test_globalmesh.py, gives the same bits)."""
-    from .. import _core
+    from ibrtools import _core
 
     options = options or GlobalMeshOptions()
     names = list(cameras)
@@ -490,7 +490,7 @@ def point_colors(points: np.ndarray, normals: np.ndarray, cameras: Mapping[str, 
 def depth_from_mesh(mesh: Mesh, cameras: Mapping[str, Camera]) -> dict[str, np.ndarray]:
     """Each camera's depth rendered from ``mesh`` (z for pinhole, ray distance for equirect;
     0 where no surface), one BVH for all."""
-    from ..render.reference import ReferenceRenderer
+    from ibrtools.raycast.reference import ReferenceRenderer
 
     if not isinstance(mesh, Mesh):
         raise DtypeError(f"mesh: expected an ibrtools.Mesh, got {type(mesh).__name__}")
@@ -540,7 +540,7 @@ def check_fusion_memory(cameras: Mapping[str, Camera], depths: Mapping[str, np.n
     20000, on a scene of 6 views of 320x240)."""
     import os
 
-    from ..memory import available_memory
+    from ibrtools.memory import available_memory
 
     options = options or GlobalMeshOptions()
     est = fusion_memory(cameras, depths, options, extent)

@@ -8,7 +8,7 @@ stage's model; the mask and the view-dependent texture as below. ``diffuse="loca
 steps 1-3. docs/harmonise.md "Diffuse step" gives the measurements that chose the default):
 
 1. **Diffuse harmonisation** (sec. 4.1). T = the mesh colour rendered into the view (Embree,
-   :class:`~ibrtools.render.reference.ReferenceRenderer`): by default (``t_source="views"``) the
+   :class:`~ibrtools.raycast.reference.ReferenceRenderer`): by default (``t_source="views"``) the
    per-vertex mean of the views' colours after each view's global gain is divided out
    (:func:`~ibrtools.hybrid.variance.vertex_statistics`), interpolated over the visible
    triangle; ``t_source="mesh"`` uses the mesh's own vertex colours / texture (ambient 1, no
@@ -64,13 +64,13 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 from scipy.ndimage import binary_dilation, gaussian_filter
 
-from ..checks import check_float
-from ..errors import BadValueError, DtypeError, ShapeError
-from ..mesh import Mesh
-from ..scene import Scene
-from ..solvers import grid_maxflow, poisson_blend
-from .gainmodel import exposure_gains, gain_halves
-from .variance import DEPTH_TOL, check_inputs, vertex_statistics, visible_samples
+from ibrtools.checks import check_float
+from ibrtools.errors import BadValueError, DtypeError, ShapeError
+from ibrtools.mesh import Mesh
+from ibrtools.scene import Scene
+from ibrtools.solvers import grid_maxflow, poisson_blend
+from ibrtools.hybrid.gainmodel import exposure_gains, gain_halves
+from ibrtools.hybrid.variance import DEPTH_TOL, check_inputs, vertex_statistics, visible_samples
 
 LUMA = np.array([0.2126, 0.7152, 0.0722])  # Rec. 709 weights of linear RGB
 NO_EVIDENCE_BIAS = 0.02  # departure (fraction of range) below tau given to pixels with no evidence
@@ -152,7 +152,7 @@ def _render_t(renderer, cam, std: np.ndarray, faces: np.ndarray, colors: np.ndar
     """T (the vertex ``colors`` interpolated, or the mesh's own colour when None), the
     coverage, the variance mesh interpolated into the view, and the mesh's depth. The per-vertex
     fields are interpolated over the rendered triangles by ``_core.interpolate_vertex_attribute``."""
-    from .. import _core
+    from ibrtools import _core
 
     names = ("depth", "prim_id", "bary", "hit") + (("color",) if colors is None else ())
     out = renderer.render(cam, outputs=names, lights=[], ambient=1.0)
@@ -274,7 +274,7 @@ def _cross_view_prediction(j: int, cams, depths, hms, hits, p: HarmoniseParams, 
     tests/test_harmonise.py). A highlight is seen at a surface point by few views, so the median
     of the others is its diffuse colour; texture detail, unlike in the mesh colour T, is in every
     view alike. Returns (prediction (H, W, 3) float32, n_seen (H, W) int32)."""
-    from .. import _core
+    from ibrtools import _core
 
     others = _nearest_others(j, cams, p.neighbours)
     depth = np.where(hits[j], depths[j], 0.0).astype(np.float32)
@@ -368,7 +368,7 @@ def harmonise(scene: Scene, mesh: Mesh, std: np.ndarray, params: HarmoniseParams
     (str) when the views already agree photometrically (then the images are the inputs and the
     masks empty).
     """
-    from ..render.reference import ReferenceRenderer
+    from ibrtools.raycast.reference import ReferenceRenderer
 
     params = HarmoniseParams() if params is None else params
     if not isinstance(params, HarmoniseParams):

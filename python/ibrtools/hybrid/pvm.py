@@ -31,10 +31,10 @@ from typing import Mapping
 
 import numpy as np
 
-from ..camera import PINHOLE, Camera
-from ..checks import check_float, check_int
-from ..errors import BadValueError, DtypeError, FormatError, MissingFileError, ShapeError
-from ..outputs import mkstemp_beside
+from ibrtools.camera import PINHOLE, Camera
+from ibrtools.checks import check_float, check_int
+from ibrtools.errors import BadValueError, DtypeError, FormatError, MissingFileError, ShapeError
+from ibrtools.outputs import mkstemp_beside
 
 TILES_FORMAT = 1
 # PvmOptions.clip: "large" keeps triangles whole: in the fine cell of the centroid when the triangle lies
@@ -158,7 +158,7 @@ def view_mesh(camera: Camera, depth: np.ndarray, options: PvmOptions | None = No
     global mesh's depth in this view, same measure) and ``snap`` > 0 (world units): the depth is
     :func:`snap_depth`-ed first; the merge tolerance is still the one of ``depth`` itself (its noise
     is what the merging must not split on)."""
-    from .. import _core
+    from ibrtools import _core
 
     options = options or PvmOptions()
     if not isinstance(camera, Camera):
@@ -313,9 +313,9 @@ def build_tiles(cameras: Mapping[str, Camera], depths: Mapping[str, np.ndarray],
                 mesh_depths: Mapping[str, np.ndarray] | None = None, snap: float = 0.0) -> PvmTiles:
     """Every view's PVM, sliced into tiles. ``cameras`` and ``depths`` keyed by view name (same
     names, in the order of ``cameras``). ``view_meshes``: every view's :func:`view_mesh` already
-    made (by Dask workers, ibrtools.stages); ``depths`` is then not read. ``mesh_depths`` (the
+    made (by Dask workers, ibrtools.pipeline.stages); ``depths`` is then not read. ``mesh_depths`` (the
     global mesh's depth of some views) and ``snap``: :func:`view_mesh`'s, per view that has one."""
-    from .. import _core
+    from ibrtools import _core
 
     options = options or PvmOptions()
     names = list(cameras)

@@ -35,11 +35,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import PINHOLE, Camera
-from ..errors import BadValueError, DtypeError, InputError, MissingFileError, NotBuiltError, ShapeError
-from ..render import params as P
-from ..scene import Scene
-from .pvm import PvmTiles
+from ibrtools.camera import PINHOLE, Camera
+from ibrtools.errors import BadValueError, DtypeError, InputError, MissingFileError, NotBuiltError, ShapeError
+from ibrtools import params as P
+from ibrtools.scene import Scene
+from ibrtools.hybrid.pvm import PvmTiles
 
 # Defaults: sigma, alpha, gamma, tau_depth from the paper's sweep (sec. 7); max_tiles 12 (sec. 5.1);
 # max_candidates 12 (per-pixel list); ulr_k 3 (weight 0 at the 3rd: two candidates blended per
@@ -160,7 +160,7 @@ def _preprocess_hint(scene: Scene) -> str:
 
 def load_tiles(scene: Scene) -> PvmTiles:
     """The scene's PVM tiles (stage ``pvm``); InputError naming the command when it has none."""
-    from .. import stages
+    from ibrtools.pipeline import stages
 
     if scene.root is None:
         raise InputError(f"PVM rendering needs the scene's pvm stage (tiles.npz); the scene has no directory: "
@@ -180,7 +180,7 @@ def harmonised_images(arrays: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]
 def load_images(scene: Scene, harmonise: Mapping[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
     """Input images: the harmonise stage's when it ran, else the views' own colour.
     ``harmonise``: that stage's arrays when the caller has loaded them (read again otherwise)."""
-    from .. import stages
+    from ibrtools.pipeline import stages
 
     harmonised: dict[str, np.ndarray] = {}
     if harmonise is not None:
@@ -209,7 +209,7 @@ def load_depths(scene: Scene) -> dict[str, np.ndarray] | None:
     depth stage's render of the global mesh; before the stage's snap to the global mesh, which moves
     depth by at most ``mesh_snap`` voxels, far below the free-space tolerances), for the free-space
     count; None when some view has neither."""
-    from .. import stages
+    from ibrtools.pipeline import stages
 
     def rendered() -> dict[str, np.ndarray]:
         if scene.root is None:
@@ -230,7 +230,7 @@ class PvmRenderer:
 
     def __init__(self, scene: Scene, params: dict | None = None, *, tiles: PvmTiles | None = None,
                  images: dict[str, np.ndarray] | None = None, depths: dict[str, np.ndarray] | None = None):
-        from .. import _core
+        from ibrtools import _core
 
         if not isinstance(scene, Scene):
             raise DtypeError(f"scene: expected an ibrtools Scene, got {type(scene).__name__}")

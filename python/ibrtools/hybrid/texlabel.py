@@ -19,10 +19,10 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from ..camera import Camera
-from ..checks import check_float, check_int
-from ..errors import BadValueError, NotBuiltError, ShapeError
-from ..mesh import Mesh
+from ibrtools.camera import Camera
+from ibrtools.checks import check_float, check_int
+from ibrtools.errors import BadValueError, NotBuiltError, ShapeError
+from ibrtools.mesh import Mesh
 
 UNSEEN_COST = 1e3
 

@@ -3,7 +3,7 @@ the per-channel standard deviation of the colours of the views that see it. docs
 
 Visibility: a vertex is seen by a view when it projects inside the image, in front of the
 camera, and its depth agrees with the mesh's depth rendered by Embree for that view
-(:class:`ibrtools.render.reference.ReferenceRenderer`) within ``depth_tol`` (relative) -- the
+(:class:`ibrtools.raycast.reference.ReferenceRenderer`) within ``depth_tol`` (relative) -- the
 depth test is the ray cast: the first hit along the pixel's ray is the vertex's own surface.
 Colours are sampled bilinearly at the projection (pixel centres at +0.5).
 
@@ -23,10 +23,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import BadValueError, DtypeError
-from ..mesh import Mesh
-from ..scene import Scene
-from .gainmodel import gain_halves
+from ibrtools.errors import BadValueError, DtypeError
+from ibrtools.mesh import Mesh
+from ibrtools.scene import Scene
+from ibrtools.hybrid.gainmodel import gain_halves
 
 DEPTH_TOL = 0.01  # |z_vertex - z_rendered| <= 1 % of z: a vertex on the rendered surface
 GAIN_ITERATIONS = 30  # at most; stops when no gain moves by more than 1e-4 (log)
@@ -84,7 +84,7 @@ def visible_samples(scene: Scene, mesh: Mesh, renderer=None, depth_tol: float = 
                     images: dict[str, np.ndarray] | None = None, depths: dict[str, np.ndarray] | None = None):
     """Yields one :class:`VertexSamples` per view (``images`` overrides the views' colours;
     ``depths``: the mesh's depth per view when the caller has rendered it already)."""
-    from ..render.reference import ReferenceRenderer
+    from ibrtools.raycast.reference import ReferenceRenderer
 
     if renderer is None and depths is None:
         renderer = ReferenceRenderer(mesh)
@@ -118,7 +118,7 @@ def vertex_statistics(scene: Scene, mesh: Mesh, *, depth_tol: float = DEPTH_TOL,
     "count" (N,) i32, "gains": {view: (3,) f64}, "half_gains": {view: (4, 3) f64} (the gain on
     the view's left / right / top / bottom image half, for gainmodel.exposure_gains; {} without
     gain compensation), "samples": [VertexSamples]}."""
-    from .. import _core
+    from ibrtools import _core
 
     check_inputs(scene, mesh)
     if samples is None:

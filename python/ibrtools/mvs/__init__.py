@@ -3,8 +3,8 @@
 
 ``stereo`` holds the options (:class:`MvsOptions`), the source-view selection, the depth range,
 the passes (photometric, geometric) and the filter; :func:`run_mvs` runs them over a scene's
-views. The ``mvs`` stage of :mod:`ibrtools.stages` calls it for the views without depth.
+views. The ``mvs`` stage of :mod:`ibrtools.pipeline.stages` calls it for the views without depth.
 """
-from .stereo import MvsOptions, MvsResult, depth_range, grey, run_mvs, select_sources
+from ibrtools.mvs.stereo import MvsOptions, MvsResult, depth_range, grey, run_mvs, select_sources
 
 __all__ = ["MvsOptions", "MvsResult", "depth_range", "grey", "run_mvs", "select_sources"]

@@ -26,11 +26,11 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .. import _core
-from ..camera import PINHOLE, Camera
-from ..checks import check_float, check_int
-from ..errors import BadValueError
-from ..memory import available_memory
+from ibrtools import _core
+from ibrtools.camera import PINHOLE, Camera
+from ibrtools.checks import check_float, check_int
+from ibrtools.errors import BadValueError
+from ibrtools.memory import available_memory
 
 _K = _core.PatchMatchOptions()  # the kernel's defaults, defined once (cpp/kernels/mvs/patchmatch.h)
 
@@ -144,7 +144,7 @@ class MvsResult:
 def grey(color: np.ndarray) -> np.ndarray:
     """The matching image of a view: Rec. 709 luminance of linear RGB, sRGB-encoded (the NCC is
     invariant to gain and offset, not to the curve: texture is matched where it is visible)."""
-    from ..imageio import linear_to_srgb
+    from ibrtools.imageio import linear_to_srgb
 
     c = np.asarray(color, np.float32)
     y = c[..., 0] * np.float32(0.2126) + c[..., 1] * np.float32(0.7152) + c[..., 2] * np.float32(0.0722)

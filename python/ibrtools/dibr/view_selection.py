@@ -50,9 +50,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..camera import EQUIRECT, PINHOLE, Camera
-from ..checks import check_int
-from ..errors import BadValueError, InputError
+from ibrtools.camera import EQUIRECT, PINHOLE, Camera
+from ibrtools.checks import check_int
+from ibrtools.errors import BadValueError, InputError
 
 DEFAULT_SAMPLES = 4000
 DEFAULT_SEED = 0

@@ -10,8 +10,6 @@
   Alg. 1 finds no data at any scale (a hole's background depth lies beyond every valid pixel),
   the hole pixel takes the classic fill for the share Alg. 1 leaves empty (our deviation,
   ``pushpull.h``), so the depth-aware fill always completes.
-* :func:`inpaint` — the method switch the renderer uses (``--inpaint``); "metameric" is
-  :func:`ibrtools.metameric.metameric` (docs/inpaint.md, "Metameric").
 * :func:`nearest_covered` — for every hole pixel, the nearest pixel outside the holes in each of
   the four directions (the background-depth fills of render/complete.py and render/depthwarp.py).
 
@@ -26,20 +24,13 @@ from typing import Any
 
 import numpy as np
 
-from .errors import BadValueError, DtypeError, ShapeError
-
-METHODS = {
-    "none": "leave holes as they are",
-    "pushpull": "push-pull pyramid fill (depth-aware when the frame has depth)",
-    "metameric": "metameric inpainting: steerable-band statistics matched by noise (ibrtools.metameric)",
-}
-NOT_BUILT: dict[str, str] = {}
+from ibrtools.errors import BadValueError, DtypeError, ShapeError
 
 DEPTH_THRESHOLD = 0.04  # authors' Unity code: 0.04 of the normalised depth
 GAMMA = 0.5             # paper sec. 3.3.1: "a compromise at gamma = .5"
 
 
-def _arrays(image: Any, hole: Any, depth: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+def check_arrays(image: Any, hole: Any, depth: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     # dtype/shape/contiguity are checked in C++ (cpp/bindings/array.h); only the hole's dtype
     # family is normalised here so that any bool-like mask works.
     if not isinstance(image, np.ndarray):
@@ -74,37 +65,14 @@ def pushpull(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = Non
     holes, bad options or an all-hole image. When the depth test leaves a hole with no data at
     any scale, that hole falls back to the classic fill (docs/inpaint.md), it does not raise.
     """
-    from . import _core
+    from ibrtools import _core
 
-    image, hole, depth = _arrays(image, hole, depth)
+    image, hole, depth = check_arrays(image, hole, depth)
     if depth is None:
         out, _ = _core.pushpull(image, hole, None, 0.0, 0.0)
     else:
         out, _ = _core.pushpull(image, hole, depth, float(depth_threshold), float(gamma))
     return out
-
-
-def inpaint(image: np.ndarray, hole: np.ndarray, method: str = "pushpull",
-            depth: np.ndarray | None = None, **options: Any) -> np.ndarray:
-    """Fill holes with ``method`` ("none" returns ``image`` unchanged, "pushpull" is
-    :func:`pushpull`, depth-aware when ``depth`` is given, "metameric" is
-    :func:`ibrtools.metameric.metameric`, which takes ``options`` levels, orientations, seed, flow)."""
-    if options and method != "metameric":
-        raise BadValueError(f"inpaint method {method!r}: takes no options, got {', '.join(options)}")
-    if method == "none":
-        _arrays(image, hole, depth)
-        return image
-    if method == "pushpull":
-        return pushpull(image, hole, depth)
-    if method == "metameric":
-        from .metameric import metameric
-
-        return metameric(image, hole, depth, **options)
-    if method in NOT_BUILT:
-        from .errors import NotBuiltError
-
-        raise NotBuiltError(f"inpaint method {method!r}: {NOT_BUILT[method]} is not built yet")
-    raise BadValueError(f"inpaint method: expected one of {', '.join(METHODS)}, got {method!r}")
 
 
 def nearest_covered(hole: np.ndarray):

@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import BadValueError, InputError, MissingFileError, NotBuiltError
-from .scene import Scene
+from ibrtools.errors import BadValueError, InputError, MissingFileError, NotBuiltError
+from ibrtools.scene import Scene
 
 # Bump when the import code changes what it writes, so that old scenes are rebuilt.
 IMPORT_STAGE_VERSION = 2  # 2: the background at infinity (depth +inf) of synthetic and nerf scenes
@@ -83,9 +83,9 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
     ``downscale`` / ``max_size``: every view resized on import (``formats.resize``; data sets only:
     a synthetic scene is made at its ``--size``). The import's summary (``source["adapted"]`` and
     ``source["warnings"]``, what the importer adapted) is in the result's details."""
-    from .formats import load as load_dataset
-    from .formats import native
-    from .formats.resize import check_factors
+    from ibrtools.formats import load as load_dataset
+    from ibrtools.formats import native
+    from ibrtools.formats.resize import check_factors
 
     options = dict(options or {})
     output = Path(output)
@@ -120,7 +120,7 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
         params["max_size"] = max_size
     user_mesh = None
     if mesh is not None:  # only then, likewise; the mesh's bytes enter the key
-        from .meshio import read_mesh
+        from ibrtools.meshio import read_mesh
 
         user_mesh = read_mesh(mesh, kind="reconstructed")
         if len(user_mesh.faces) == 0:
@@ -134,7 +134,7 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
                            {"views": record.get("views"), "targets": record.get("targets")})
     t0 = time.perf_counter()
     if synth is not None and synth.get("frames", 1) > 1:  # a synthetic video (docs/FORMAT.md "Frames")
-        from .synth import make_video
+        from ibrtools.synth import make_video
 
         if held:
             raise BadValueError(_NO_VIDEO_HOLDOUT)
@@ -150,7 +150,7 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
                            {"frames": len(frames), "views": video.stages["import"]["views"],
                             "targets": len(video.targets)})
     if synth is not None:
-        from .synth import make_scene
+        from ibrtools.synth import make_scene
 
         scene: Scene = make_scene(**synth)
         fmt_used = f"synth:{synth['preset']}"
@@ -158,7 +158,7 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
         scene = load_dataset(Path(input_spec), fmt, options, downscale=downscale, max_size=max_size)
         fmt_used = scene.source.get("format", fmt)
     if synth is None:  # robust depth statistics of the data set's views (synthetic depth is exact)
-        from .formats._common import record_summary
+        from ibrtools.formats._common import record_summary
 
         warning = depth_outlier_warning(scene.views + scene.targets)
         if warning:
@@ -193,7 +193,7 @@ def depth_outlier_warning(views) -> str | None:
     the valid values above twice the 99th percentile: ``render.view_selection.outlier_limits``, the
     rule view selection leaves them out by), or None. A sensor's invalid code read as depth (7-Scenes' 65535 mm = 65.5 m in a 3 m room)
     is the usual cause: the user learns it at import, with the options that mark it unknown."""
-    from .render.view_selection import outlier_limits
+    from ibrtools.dibr.view_selection import outlier_limits
 
     hits = []  # (share of the view's valid pixels, name, largest value, the limit)
     n = 0
@@ -432,7 +432,7 @@ def _read_doc(root: Path) -> dict:
 
 def _write_stage_record(root: Path, name: str, record: dict | None) -> None:
     """Update scene.json's ``stages`` entry atomically (temporary file, then rename)."""
-    from .imageio import atomic_path
+    from ibrtools.imageio import atomic_path
 
     doc = _read_doc(root)
     stages = dict(doc.get("stages") or {})
@@ -448,7 +448,7 @@ def _write_stage_record(root: Path, name: str, record: dict | None) -> None:
 
 def save_npz(path: Path, **arrays) -> Path:
     """np.savez (uncompressed: fast to write and read) to a temporary name, then rename."""
-    from .imageio import atomic_path
+    from ibrtools.imageio import atomic_path
 
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as fh:
@@ -537,7 +537,7 @@ class _Context:
     the Dask cluster of a distributed run (``cluster``: a distributed.LazyClient, or None)."""
 
     def __init__(self, root: Path, options: dict, cluster=None):
-        from .formats import native
+        from ibrtools.formats import native
 
         self.root = root
         self.scene: Scene = native.load(root)
@@ -575,7 +575,7 @@ class _Context:
 
     def mesh(self):
         """The dense global mesh (per-vertex statistics)."""
-        from .mesh import Mesh
+        from ibrtools.mesh import Mesh
 
         d = self.get("mesh")
         return Mesh(d["vertices"], d["faces"], object_ids=d["object_ids"], kind="reconstructed")
@@ -584,7 +584,7 @@ class _Context:
         """``variance.vertex_statistics`` of the views on the render mesh (``render``, the texture
         stage's gains) or the dense mesh (the variance stage), computed once per run: when the mesh
         stage stored no separate render mesh (a fused mesh, lego's) the two stages share one pass."""
-        from .hybrid.variance import vertex_statistics
+        from ibrtools.hybrid.variance import vertex_statistics
 
         key = "render" if render and "render_vertices" in self.get("mesh") else "dense"
         if key not in self._stats:
@@ -596,7 +596,7 @@ class _Context:
 
     def render_mesh(self):
         """The render mesh (G-buffer, atlas): the dense mesh when the mesh stage stored no other."""
-        from .mesh import Mesh
+        from ibrtools.mesh import Mesh
 
         d = self.get("mesh")
         if "render_vertices" not in d:
@@ -605,8 +605,8 @@ class _Context:
 
 
 def _params(name: str, options: dict) -> dict:
-    from .hybrid.globalmesh import GlobalMeshOptions
-    from .hybrid.pvm import PvmOptions
+    from ibrtools.hybrid.globalmesh import GlobalMeshOptions
+    from ibrtools.hybrid.pvm import PvmOptions
 
     if name in ("mesh", "texture", "depth"):
         o = GlobalMeshOptions(**options.get("mesh", {})).to_dict()
@@ -621,14 +621,14 @@ def _params(name: str, options: dict) -> dict:
     if name == "pvm":
         return PvmOptions(**options.get("pvm", {})).to_dict()
     if name == "mvs":
-        from .mvs import MvsOptions
+        from ibrtools.mvs import MvsOptions
 
         return MvsOptions(**options.get("mvs", {})).to_dict()
     return dict(options.get(name, {}))
 
 
 def _run_mesh(ctx: _Context) -> dict:
-    from .hybrid.globalmesh import GlobalMeshOptions, build_global_mesh, build_render_mesh
+    from ibrtools.hybrid.globalmesh import GlobalMeshOptions, build_global_mesh, build_render_mesh
 
     opts = GlobalMeshOptions(**ctx.options.get("mesh", {}))
     scene = ctx.mvs_scene()  # photographs: their multi-view stereo depth is fused
@@ -653,7 +653,7 @@ def _mvs_needed(ctx: _Context) -> str | None:
 
 
 def _run_mvs(ctx: _Context) -> dict:
-    from .mvs import MvsOptions, run_mvs
+    from ibrtools.mvs import MvsOptions, run_mvs
 
     opts = MvsOptions(**ctx.options.get("mvs", {}))
     names = [v.name for v in ctx.scene.views if not v.has_depth]
@@ -701,9 +701,9 @@ def _mvs_on_workers(ctx: _Context):
 def _mvs_task(root: str, names: list[str], options: dict, which: str, threads: int) -> dict:
     """Dask task of the mvs stage: pass ``which`` ("photometric", or "geometric" from the
     photometric results the stage put in its cache) of views ``names``."""
-    from .distributed import set_task_threads
-    from .mvs import MvsOptions
-    from .mvs.stereo import MvsRun
+    from ibrtools.pipeline.distributed import set_task_threads
+    from ibrtools.mvs import MvsOptions
+    from ibrtools.mvs.stereo import MvsRun
 
     set_task_threads(threads)
     ctx = _Context(Path(root), options)
@@ -732,7 +732,7 @@ def _served_by_views(ctx: _Context) -> str | None:
 
 
 def _run_depth(ctx: _Context) -> dict:
-    from .hybrid.globalmesh import depth_from_mesh
+    from ibrtools.hybrid.globalmesh import depth_from_mesh
 
     cams = {v.name: v.camera for v in ctx.scene.views if not v.has_depth}
     if ctx.cluster is not None:  # per view: chunks of views on the workers, each loads the mesh
@@ -745,9 +745,9 @@ def _run_depth(ctx: _Context) -> dict:
 
 
 def _run_texture(ctx: _Context) -> dict:
-    from .hybrid import atlas as A
-    from .hybrid.gainmodel import exposure_gains
-    from .hybrid.globalmesh import GlobalMeshOptions, choose_source, vertex_colors
+    from ibrtools.hybrid import atlas as A
+    from ibrtools.hybrid.gainmodel import exposure_gains
+    from ibrtools.hybrid.globalmesh import GlobalMeshOptions, choose_source, vertex_colors
 
     opts = GlobalMeshOptions(**ctx.options.get("mesh", {}))
     # A fused mesh blends more views on smoothed normals (GlobalMeshOptions.texture_options).
@@ -807,7 +807,7 @@ def _run_variance(ctx: _Context) -> dict:
 
 
 def _run_harmonise(ctx: _Context) -> dict | str:
-    from .hybrid import harmonise as H
+    from ibrtools.hybrid import harmonise as H
 
     opts = ctx.options.get("harmonise") or {}
     params = H.HarmoniseParams(**opts) if opts and hasattr(H, "HarmoniseParams") else None
@@ -835,8 +835,8 @@ def _run_harmonise(ctx: _Context) -> dict | str:
 
 def _depth_task(root: str, names: list[str], options: dict, threads: int) -> dict:
     """Dask task of the depth stage: depth of views ``names`` rendered from the stage's mesh."""
-    from .distributed import set_task_threads
-    from .hybrid.globalmesh import depth_from_mesh
+    from ibrtools.pipeline.distributed import set_task_threads
+    from ibrtools.hybrid.globalmesh import depth_from_mesh
 
     set_task_threads(threads)
     ctx = _Context(Path(root), options)
@@ -845,8 +845,8 @@ def _depth_task(root: str, names: list[str], options: dict, threads: int) -> dic
 
 def _pvm_task(root: str, names: list[str], options: dict, threads: int) -> dict:
     """Dask task of the pvm stage: the per-view meshes of views ``names``."""
-    from .distributed import set_task_threads
-    from .hybrid.pvm import PvmOptions, view_mesh
+    from ibrtools.pipeline.distributed import set_task_threads
+    from ibrtools.hybrid.pvm import PvmOptions, view_mesh
 
     set_task_threads(threads)
     ctx = _Context(Path(root), options)
@@ -862,7 +862,7 @@ def _pvm_mesh_depths(ctx: _Context, names: list[str], snap: float) -> dict:
     """The global mesh's depth in each of the views ``names`` that has its own depth, for snapping
     the per-view meshes (hybrid/pvm.py view_mesh; {} when ``snap`` is 0). Views without their own
     depth have the mesh's already (the depth stage)."""
-    from .hybrid.globalmesh import depth_from_mesh
+    from ibrtools.hybrid.globalmesh import depth_from_mesh
 
     own = [n for n in names if ctx.scene.view(n).has_depth]
     if snap <= 0 or not own:
@@ -877,7 +877,7 @@ def _pvm_snap(ctx: _Context, opts) -> float:
 
 
 def _run_pvm(ctx: _Context) -> dict:
-    from .hybrid.pvm import PvmOptions, build_tiles
+    from ibrtools.hybrid.pvm import PvmOptions, build_tiles
 
     opts = PvmOptions(**ctx.options.get("pvm", {}))
     cams = ctx.cameras()
@@ -897,7 +897,7 @@ def _run_pvm(ctx: _Context) -> dict:
 
 
 def _run_mix(ctx: _Context) -> dict | str:
-    from .render.hybrid import MIX_DEFAULTS, fit_pvm_floor
+    from ibrtools.hybrid.method import MIX_DEFAULTS, fit_pvm_floor
 
     opts = {**MIX_DEFAULTS, **ctx.options.get("mix", {})}
     res = fit_pvm_floor(ctx.scene, views=opts["views"], tol_db=opts["tol_db"])
@@ -919,7 +919,7 @@ _SERVES = {"mesh": _served_by_views, "depth": _served_by_views}
 def _check_mesh(ctx: _Context) -> None:
     """Before the mesh stage is announced: TSDF fusion's memory estimate (a refusal is then the
     command's only line; build_global_mesh checks it again for the Python API)."""
-    from .hybrid.globalmesh import GlobalMeshOptions, check_fusion_memory, choose_source
+    from ibrtools.hybrid.globalmesh import GlobalMeshOptions, check_fusion_memory, choose_source
 
     opts = GlobalMeshOptions(**ctx.options.get("mesh", {}))
     scene = ctx.mvs_scene()
@@ -930,7 +930,7 @@ def _check_mesh(ctx: _Context) -> None:
 
 def _check_mvs(ctx: _Context) -> None:
     """Before the mvs stage is announced: its memory estimate (a refusal is the command's only line)."""
-    from .mvs.stereo import check_memory
+    from ibrtools.mvs.stereo import check_memory
 
     check_memory(ctx.scene.views)
 
@@ -966,7 +966,7 @@ def run_stages(root: str | os.PathLike, *, methods: list[str] | None = None, sta
     texture, variance, harmonise, the PVM tiling) run here. The cluster is started only when such
     a stage runs; outputs are the same, bit for bit (docs/distributed.md). ``threads``: engine
     threads per task (default 1: a Dask worker thread is a core)."""
-    from . import distributed as D
+    from ibrtools.pipeline import distributed as D
 
     D.check_options(scheduler, workers)
     root = Path(root)
@@ -1174,10 +1174,10 @@ def preprocess(input_spec: str, output: str | os.PathLike, *, fmt: str | None = 
     per-view stages on Dask (:func:`run_stages`). ``holdout``: input views imported as targets,
     ``mesh``: a user's reconstructed mesh imported with the views, ``downscale`` / ``max_size``: the
     views resized on import (:func:`run_import`)."""
-    from .distributed import check_options
-    from .outputs import scene_lock
+    from ibrtools.pipeline.distributed import check_options
+    from ibrtools.outputs import scene_lock
 
-    from .formats.resize import check_factors
+    from ibrtools.formats.resize import check_factors
 
     check_options(scheduler, workers)
     check_factors(downscale, max_size)  # usage errors before the scene directory is touched
@@ -1209,19 +1209,19 @@ def preprocess(input_spec: str, output: str | os.PathLike, *, fmt: str | None = 
 
 def _check_stage_options(options: dict) -> None:
     """Fail on unknown parameters before any work is done."""
-    from .hybrid.globalmesh import GlobalMeshOptions
-    from .hybrid.pvm import PvmOptions
+    from ibrtools.hybrid.globalmesh import GlobalMeshOptions
+    from ibrtools.hybrid.pvm import PvmOptions
 
-    from .mvs import MvsOptions
+    from ibrtools.mvs import MvsOptions
 
     classes = {"mesh": GlobalMeshOptions, "pvm": PvmOptions, "mvs": MvsOptions}
     if "harmonise" in options and "harmonise" in available_stages():
-        from .hybrid import harmonise as H
+        from ibrtools.hybrid import harmonise as H
 
         if hasattr(H, "HarmoniseParams"):
             classes["harmonise"] = H.HarmoniseParams
     if "mix" in options:
-        from .render.hybrid import check_mix_options
+        from ibrtools.hybrid.method import check_mix_options
 
         check_mix_options(options["mix"])
     import dataclasses

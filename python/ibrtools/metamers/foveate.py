@@ -5,7 +5,7 @@ Around a fixation point the image is kept; away from it, every steerable band is
 with the band's local statistics (mean and variance) pooled over a region that grows linearly with
 eccentricity (Bouma 1970; the paper's sec. 3.1 "Size"):
 
-1. analyse the image into the small-filter steerable pyramid (:mod:`ibrtools.steerable`, YCbCr
+1. analyse the image into the small-filter steerable pyramid (:mod:`ibrtools.metamers.steerable`, YCbCr
    for RGB);
 2. eccentricity per pixel: the angle (degrees) between the pixel's viewing ray and the fixation's,
    for a pinhole display of horizontal field of view ``fov`` (degrees); pooling region edge
@@ -16,9 +16,9 @@ eccentricity (Bouma 1970; the paper's sec. 3.1 "Size"):
    mean = E[X], variance = max(0, E[X^2] - E[X]^2) (:func:`foveate` fuses this step with step 4
    in one C++ pass per level, _core.mip_foveate_level, without storing the moment maps);
 4. synthesis (sec. 3.4): band = mean + sigma * noise, the noise being white noise analysed by
-   the same pyramid and normalised to unit variance per band (:mod:`ibrtools.metameric`'s cached
+   the same pyramid and normalised to unit variance per band (:mod:`ibrtools.inpaint.metameric`'s cached
    noise pyramid, "held constant over time"), written where the pooling region is larger than a
-   band sample (:func:`ibrtools.metameric`'s C++ composite, cpp/kernels/metameric.h);
+   band sample (:func:`ibrtools.inpaint.metameric`'s C++ composite, cpp/kernels/metameric.h);
 5. collapse. :func:`foveate` adds the collapsed *change* of the pyramid to the input
    (out = image + synthesise(new - old), exact because analysis/synthesis are linear) instead of
    collapsing the new pyramid, so the 5x5 filters' reconstruction error (docs/steerable.md) never
@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import BadValueError, DtypeError, ShapeError
+from ibrtools.errors import BadValueError, DtypeError, ShapeError
 
 # Pooling region size per degree of eccentricity. Walton et al. follow "the slope in the middle of
 # the corridor" of Fig. 3 without printing a number; that corridor is centred on Bouma's law
@@ -154,7 +154,7 @@ def _levels_at(lam0: np.ndarray, levels: int) -> list[np.ndarray]:
 
 def _moments(bands: list[np.ndarray], lam: np.ndarray) -> np.ndarray:
     """Pooled [E[X]..., E[X^2]...] of the level's bands, float32 (h, w, 2kC) (sec. 3.2)."""
-    from . import _core
+    from ibrtools import _core
 
     h, w, c = bands[0].shape
     stack = np.empty((h, w, 2 * len(bands) * c), np.float32)
@@ -165,8 +165,8 @@ def _moments(bands: list[np.ndarray], lam: np.ndarray) -> np.ndarray:
 
 
 def _prepare(image, fixation, pooling, levels, orientations, seed, fov):
-    from .metameric import _check_options
-    from .steerable import analyse
+    from ibrtools.inpaint.metameric import _check_options
+    from ibrtools.metamers.steerable import analyse
 
     image = _check_image(image)
     fixation, pooling, fov = _check_geometry(fixation, pooling, fov)
@@ -195,9 +195,9 @@ def foveate(image: np.ndarray, fixation: tuple[float, float] = (0.5, 0.5), *, po
     independent. Raises DtypeError/ShapeError for bad arrays, BadValueError for non-finite pixels
     or bad options.
     """
-    from . import _core
-    from .metameric import _noise_pyramid_cached
-    from .steerable import SteerablePyramid, synthesise
+    from ibrtools import _core
+    from ibrtools.inpaint.metameric import _noise_pyramid_cached
+    from ibrtools.metamers.steerable import SteerablePyramid, synthesise
 
     image, x, geom, (levels, orientations, seed), lam0, pyr, groups = _prepare(
         image, fixation, pooling, levels, orientations, seed, fov)
@@ -238,7 +238,7 @@ def statistics(image: np.ndarray, fixation: tuple[float, float] = (0.5, 0.5), *,
     """The pooled statistics of ``image`` for a fixation (steps 1-3 of the module docstring):
     per steerable band, the mean and variance over each sample's pooling region (arguments as
     :func:`foveate`). Raises as :func:`foveate`."""
-    from .steerable import SteerablePyramid
+    from ibrtools.metamers.steerable import SteerablePyramid
 
     image, x, geom, (levels, orientations, _), lam0, pyr, groups = _prepare(
         image, fixation, pooling, levels, orientations, 0, fov)
@@ -268,8 +268,8 @@ def synthesise_from_statistics(stats: FoveatedStatistics, *, seed: int = 0) -> n
     pyramid is collapsed. Without the input, the fovea carries the 5x5 filters' reconstruction
     error (docs/steerable.md); otherwise the result differs from :func:`foveate`'s by exactly
     that error (image - synthesise(analyse(image))). Returns float32 (H, W, C) or (H, W)."""
-    from .metameric import _noise_pyramid_cached
-    from .steerable import SteerablePyramid, synthesise
+    from ibrtools.inpaint.metameric import _noise_pyramid_cached
+    from ibrtools.metamers.steerable import SteerablePyramid, synthesise
 
     if not isinstance(stats, FoveatedStatistics):
         raise DtypeError(f"stats: expected FoveatedStatistics (from foveate.statistics), got {type(stats).__name__}")

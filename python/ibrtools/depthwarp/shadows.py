@@ -6,7 +6,7 @@ point (what a view sees, from the view's depth) is the fraction of the S samples
 ``method="warp"`` (the paper's) the S shadow maps are *synthesised*: an L-layer deep depth buffer
 is rendered once at the light's centre (depth peeling, :meth:`ReferenceRenderer.peel`, with an
 optional ground-only last layer as in the paper's set-up) and warped to each light sample with
-:func:`ibrtools.depthwarp.warp_depth` (iterative backward warping, N seeds). The shadow-map test
+:func:`ibrtools.depthwarp.core.warp_depth` (iterative backward warping, N seeds). The shadow-map test
 (``cpp/kernels/shadows.h``, S x H x W work in C++) then counts the maps in which the point is lit.
 Peers in the same engine:
 
@@ -30,10 +30,10 @@ from typing import Any
 
 import numpy as np
 
-from . import _core
-from .camera import PINHOLE, Camera, look_at
-from .checks import check_float, check_int
-from .errors import BadValueError, DtypeError, NotBuiltError, ShapeError
+from ibrtools import _core
+from ibrtools.camera import PINHOLE, Camera, look_at
+from ibrtools.checks import check_float, check_int
+from ibrtools.errors import BadValueError, DtypeError, NotBuiltError, ShapeError
 
 METHODS = ("warp", "render", "trace")
 
@@ -167,7 +167,7 @@ def soft_shadows(renderer, light: AreaLight, view: Camera, view_depth: np.ndarra
                  seed: int | None = 0) -> ShadowResult:
     """Visibility of ``light`` (an :class:`AreaLight`) for each pixel of ``view``.
 
-    ``renderer``: the :class:`ibrtools.render.reference.ReferenceRenderer` of the scene's mesh
+    ``renderer``: the :class:`ibrtools.raycast.reference.ReferenceRenderer` of the scene's mesh
     (its BVH renders the light's depth layers or maps; ``method="trace"`` builds an occlusion BVH of
     the same mesh once per renderer). ``view_depth`` (H, W) float32: the view's depth (pinhole z /
     equirect ray distance; 0 = no surface), e.g. its reference depth; surface points are
@@ -177,17 +177,17 @@ def soft_shadows(renderer, light: AreaLight, view: Camera, view_depth: np.ndarra
     plain depth), ``ground_object`` (the ground's object id: the last layer is the ground alone, the
     paper's set-up; needs L >= 2), ``umbra`` (generalised umbra culling while peeling, Eq. 1, towards
     the S sample positions: fragments no sample can see behind a nearer pixel quad are skipped),
-    ``params`` a :class:`ibrtools.depthwarp.DepthWarpParams`
+    ``params`` a :class:`ibrtools.depthwarp.core.DepthWarpParams`
     (default: N = 4 seeds as in the paper's sec. 6). ``bias`` (texels) and ``slope_bias`` (times the
     map's own depth slope): the shadow-map bias ("warp", "render"; shadows.h); ``eps_rel``: occlusion-ray start offset relative to the view depth ("trace").
     """
-    from .render.reference import ReferenceRenderer
+    from ibrtools.raycast.reference import ReferenceRenderer
 
     if not isinstance(renderer, ReferenceRenderer):
-        raise DtypeError(f"renderer: expected an ibrtools.render.reference.ReferenceRenderer, got "
+        raise DtypeError(f"renderer: expected an ibrtools.raycast.reference.ReferenceRenderer, got "
                          f"{type(renderer).__name__}")
     if not isinstance(light, AreaLight):
-        raise DtypeError(f"light: expected an ibrtools.shadows.AreaLight, got {type(light).__name__}")
+        raise DtypeError(f"light: expected an ibrtools.depthwarp.shadows.AreaLight, got {type(light).__name__}")
     if not isinstance(view, Camera):
         raise DtypeError(f"view: expected an ibrtools.Camera, got {type(view).__name__}")
     if not isinstance(view_depth, np.ndarray):
@@ -222,9 +222,9 @@ def soft_shadows(renderer, light: AreaLight, view: Camera, view_depth: np.ndarra
             times["maps"] = (time.perf_counter() - t0) * 1e3
         else:
             try:
-                from .depthwarp import DepthWarpParams, warp_depth
+                from ibrtools.depthwarp.core import DepthWarpParams, warp_depth
             except ImportError:
-                raise NotBuiltError("soft_shadows: method 'warp' needs ibrtools.depthwarp, not built yet") from None
+                raise NotBuiltError("soft_shadows: method 'warp' needs ibrtools.depthwarp.core, not built yet") from None
             if params is None:
                 params = DepthWarpParams(seeds=4)
             centre = light.camera(res)

@@ -9,12 +9,12 @@ For frame t of a pose sequence (``--poses``, ``--path``), the depth buffer of ca
              the last layer = the ground alone (the paper's sec. 4.1 set-up; off by default: on
              the three synthetic scenes it scored worse than plain peeling at L = 2, 3 and no
              better at L = 4, docs/depthwarp.md);
-  warp       ``ibrtools.depthwarp.warp_depth`` (motion buffers, min-max motion mipmaps, tight or
+  warp       ``ibrtools.depthwarp.core.warp_depth`` (motion buffers, min-max motion mipmaps, tight or
              oriented bounds, N seeds x T fixed-point iterations, cross-layer seeding, dilation) or,
              with ``forward`` vfw / afw, the forward baselines ``forward_warp_depth`` through the
              same path;
   cull       (``cull``) warping-based occlusion culling of the scene's objects with the warp's
-             proven occluder depth (the peel's object ids as surface ids; ``ibrtools.culling``,
+             proven occluder depth (the peel's object ids as surface ids; ``ibrtools.depthwarp.culling``,
              docs/culling.md), scored against the objects the reference render of frame t sees;
   reference  the Embree depth render of frame t: the ground truth of the scores and the cost the
              warp replaces.
@@ -60,10 +60,10 @@ import time
 
 import numpy as np
 
-from ..camera import PINHOLE, Camera
-from ..errors import BadValueError, InputError, NotBuiltError
-from ..scene import Scene
-from . import params as P
+from ibrtools.camera import PINHOLE, Camera
+from ibrtools.errors import BadValueError, InputError, NotBuiltError
+from ibrtools.scene import Scene
+from ibrtools import params as P
 
 DEFAULTS = {"layers": 3, "seeds": 16, "iters": 3, "threshold": 0.5, "oriented_bounds": False, "umbra": False,
             "ground": "none", "cull": False, "forward": "none", "dilate": True, "bound": "tight",
@@ -106,7 +106,7 @@ def fill_background(depth: np.ndarray, hole: np.ndarray, far: float) -> np.ndarr
     side of a disocclusion; Lee et al. sec. 4.1: the single-layer warp "keeps holes (filled with
     the background depth)"; the classic DIBR background fill). Empty pixels (0) count as ``far``;
     a hole with no known pixel in its row and column is ``far``. Vectorised (no pixel loop)."""
-    from ..inpaint import nearest_covered
+    from ibrtools.inpaint.pushpull import nearest_covered
 
     d = np.where(depth > 0, depth, np.float32(far)).astype(np.float32)
     hole = np.asarray(hole, bool)
@@ -130,7 +130,7 @@ def depth_scores(warped: np.ndarray, hole: np.ndarray | None, reference: np.ndar
     the hole fraction. ``holes``: "background" (the report's scores: holes filled with the background
     depth by :func:`fill_background`, what a user of the depth image gets) or "far" (holes at far:
     what occlusion culling sees)."""
-    from ..metrics import psnr, ssim
+    from ibrtools.metrics import psnr, ssim
 
     far = float(far)
     if not far > 0:
@@ -162,7 +162,7 @@ def far_depth(bounds: np.ndarray, camera: Camera) -> float:
 
 def visualise(depth: np.ndarray, far: float) -> np.ndarray:
     """(H, W, 3) linear RGB whose sRGB grey level is 1 - z / far (0 where z = 0)."""
-    from ..imageio import srgb_to_linear
+    from ibrtools.imageio import srgb_to_linear
 
     v = np.where(depth > 0, 1.0 - np.clip(depth / far, 0.0, 1.0), 0.0).astype(np.float32)
     return np.ascontiguousarray(np.repeat(srgb_to_linear(v)[..., None], 3, axis=2), np.float32)
@@ -181,7 +181,7 @@ def warp_with_far_plane(layers: np.ndarray, src: Camera, dst: Camera, bounds: np
     as empty (depth 0), not as a hole. ``surface_ids`` (L, H, W) int32 (the layers' object ids; backward
     warp only): the result's ``occluder`` is the proven occluder depth (``warp_depth``); the far plane
     has no surface id, so it never proves a depth."""
-    from ..depthwarp import forward_warp_depth, warp_depth
+    from ibrtools.depthwarp.core import forward_warp_depth, warp_depth
 
     layers = np.ascontiguousarray(layers[None] if layers.ndim == 2 else layers, np.float32)
     if far_plane:
@@ -230,16 +230,16 @@ class DepthWarpMethod:
         self.last_metrics: dict = {}
 
     def prepare(self, scene: Scene) -> dict[str, float]:
-        from .reference import ReferenceRenderer
+        from ibrtools.raycast.reference import ReferenceRenderer
 
         mesh = scene.meshes.get("ground_truth") or scene.mesh
         if mesh is None:
             raise InputError("--method depthwarp needs the scene's geometry (a synthetic scene, or a mesh "
                              "given to ibr-preprocess): the scene has no mesh")
         try:
-            from .. import depthwarp as _dw  # noqa: F401
+            from ibrtools.depthwarp import core as _dw  # noqa: F401
         except ImportError:
-            raise NotBuiltError("--method depthwarp: the depth-warping kernels (ibrtools.depthwarp) are "
+            raise NotBuiltError("--method depthwarp: the depth-warping kernels (ibrtools.depthwarp.core) are "
                                 "not built yet") from None
         self._mesh = mesh
         p = self.params
@@ -259,7 +259,7 @@ class DepthWarpMethod:
         setup = {"bvh": (time.perf_counter() - t0) * 1e3}
         self._bounds = mesh.bounds()
         if p["cull"]:
-            from ..culling import object_boxes
+            from ibrtools.depthwarp.culling import object_boxes
 
             t1 = time.perf_counter()
             self._boxes = object_boxes(mesh)
@@ -268,7 +268,7 @@ class DepthWarpMethod:
         return setup
 
     def _warp_params(self):
-        from ..depthwarp import DepthWarpParams
+        from ibrtools.depthwarp.core import DepthWarpParams
 
         p = self.params
         # Culling needs conservative holes: a dilated hole takes a neighbour's (occluder's) depth
@@ -323,7 +323,7 @@ class DepthWarpMethod:
                   "stats": {k: _jsonable(v) for k, v in dict(res.stats).items()}}
         self.last_frame = {"depthwarp": report}
         if p["cull"]:
-            from ..culling import cull_objects
+            from ibrtools.depthwarp.culling import cull_objects
 
             t0 = time.perf_counter()
             # The backward warp's proven occluder depth (conservative); the forward baselines prove

@@ -13,10 +13,10 @@ from typing import Protocol
 
 import numpy as np
 
-from ..camera import Camera
-from ..errors import BadValueError, InputError, NotBuiltError
-from ..scene import Scene
-from . import params as P
+from ibrtools.camera import Camera
+from ibrtools.errors import BadValueError, InputError, NotBuiltError
+from ibrtools.scene import Scene
+from ibrtools import params as P
 
 METHODS: dict[str, str] = {
     "auto": "pick the best built method for the scene's data",
@@ -56,7 +56,7 @@ class ReferenceMethod:
         self._renderer = None
 
     def prepare(self, scene: Scene) -> dict[str, float]:
-        from .reference import Light, ReferenceRenderer, default_lights
+        from ibrtools.raycast.reference import Light, ReferenceRenderer, default_lights
 
         mesh = scene.meshes.get("ground_truth")
         if mesh is None:
@@ -93,7 +93,7 @@ def resolve(name: str, scene: Scene) -> str:
     if name == "auto":
         # Captured colour + depth views are what DIBR is for; a ground-truth mesh alone (views
         # without depth) still renders exactly with the reference ray caster.
-        from ..stages import with_stage_depth
+        from ibrtools.pipeline.stages import with_stage_depth
 
         if scene.views and all(v.has_depth for v in with_stage_depth(scene).views):
             return "dibr"
@@ -112,23 +112,23 @@ def create(name: str, params: dict | None = None) -> Method:
     if name == "reference":
         return ReferenceMethod(params)
     if name == "dibr":
-        from .dibr import DibrMethod
+        from ibrtools.dibr.method import DibrMethod
 
         return DibrMethod(params)
     if name == "warp":
-        from .warp import WarpMethod
+        from ibrtools.dibr.warp import WarpMethod
 
         return WarpMethod(params)
     if name == "depthwarp":
-        from .depthwarp import DepthWarpMethod
+        from ibrtools.depthwarp.method import DepthWarpMethod
 
         return DepthWarpMethod(params)
     if name in ("tm", "ulr", "hybrid") and name in BUILT:
-        from .hybrid import HybridMethod, TmMethod, UlrMethod
+        from ibrtools.hybrid.method import HybridMethod, TmMethod, UlrMethod
 
         return {"tm": TmMethod, "ulr": UlrMethod, "hybrid": HybridMethod}[name](params)
     if name == "pvm":
-        from .pvm import PvmMethod
+        from ibrtools.hybrid.pvm_method import PvmMethod
 
         return PvmMethod(params)
     raise NotBuiltError(f"--method {name}: not built yet")

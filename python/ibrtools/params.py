@@ -10,8 +10,8 @@ from typing import Any
 
 import numpy as np
 
-from ..checks import check_int
-from ..errors import BadValueError, DtypeError
+from ibrtools.checks import check_int
+from ibrtools.errors import BadValueError, DtypeError
 
 # The largest value of a parameter that only has to stay finite in the kernels' float32 arithmetic
 # (a length in scene units, a weight, a tolerance): 1e6 keeps products of two such values and a

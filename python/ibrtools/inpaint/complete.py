@@ -25,14 +25,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import BadValueError
-from .background import Background
+from ibrtools.errors import BadValueError
+from ibrtools.inpaint.background import Background
 
 INPAINT = {
     "auto": "the measured best fill: depth-aware push-pull from the background side (default)",
     "none": "leave holes black",
     "pushpull": "depth-aware push-pull from the background side",
-    "metameric": "metameric inpainting from the background side (ibrtools.metameric)",
+    "metameric": "metameric inpainting from the background side (ibrtools.inpaint.metameric)",
 }
 DEFAULT_INPAINT = "auto"
 # The notes of a frame whose holes were filled.
@@ -65,7 +65,7 @@ def parse_background(value) -> "np.ndarray | str | None":
             rgb = ()
     if len(rgb) != 3 or not all(0.0 <= x <= 1.0 for x in rgb):
         raise BadValueError(f"--background: expected black, white, transparent or R,G,B in [0, 1], got {value!r}")
-    from ..imageio import srgb_to_linear
+    from ibrtools.imageio import srgb_to_linear
 
     return np.asarray(srgb_to_linear(np.asarray(rgb, np.float32)), np.float32).reshape(3)
 
@@ -183,8 +183,8 @@ def _fill(color: np.ndarray, hole: np.ndarray, depth: np.ndarray | None, bg: np.
     by the scene's background colour ``bg_colour`` when it has one (a uniform background: the
     background pixels beside an object carry its antialiased edge, which a push-pull would smear
     over the hole), else by push-pull from the background pixels only."""
-    from ..inpaint import inpaint as fill_holes
-    from ..inpaint import nearest_covered
+    from ibrtools.inpaint import inpaint as fill_holes
+    from ibrtools.inpaint.pushpull import nearest_covered
 
     bg = np.zeros(hole.shape, bool) if bg is None else bg
     d = None if depth is None else np.asarray(depth, np.float32)

@@ -21,9 +21,9 @@ import time
 
 import numpy as np
 
-from ..camera import Camera
-from ..errors import BadValueError, MissingFileError
-from ..scene import Scene
+from ibrtools.camera import Camera
+from ibrtools.errors import BadValueError, MissingFileError
+from ibrtools.scene import Scene
 
 GBUFFERS = ("mesh", "none")
 
@@ -34,7 +34,7 @@ class PvmMethod:
     name = "pvm"
 
     def __init__(self, params: dict | None = None):
-        from ..hybrid.pvm_render import check_params
+        from ibrtools.hybrid.pvm_render import check_params
 
         params = dict(params or {})
         self.gbuffer = params.pop("gbuffer", "mesh")
@@ -46,14 +46,14 @@ class PvmMethod:
         self.last_stats: dict = {}
 
     def prepare(self, scene: Scene) -> dict[str, float]:
-        from ..hybrid.pvm_render import PvmRenderer
+        from ibrtools.hybrid.pvm_render import PvmRenderer
 
         t0 = time.perf_counter()
         self._renderer = PvmRenderer(scene, self.params)
         t1 = time.perf_counter()
         setup = {"pvm_load": (t1 - t0) * 1e3}
         if self.gbuffer == "mesh":
-            from .hybrid import _GlobalMesh
+            from ibrtools.hybrid.method import _GlobalMesh
 
             try:
                 self._gm = _GlobalMesh(scene, "pvm", texture=False)

@@ -1,6 +1,6 @@
 """Warping-based occlusion culling (WOC; Lee, Kim, Eisemann 2018, sec. 5; docs/culling.md).
 
-The depth buffer predicted for a new frame (``ibrtools.depthwarp.warp_depth`` of the previous
+The depth buffer predicted for a new frame (``ibrtools.depthwarp.core.warp_depth`` of the previous
 frame's depth) is the occlusion map: every surface seen in the previous frame is an occluder, no
 occluder selection. For conservative culling the map is the warp's proven occluder depth
 (``warp_depth(..., surface_ids=...).occluder``: a depth only where the warp proves that an object
@@ -14,7 +14,7 @@ between occluders (docs/culling.md). Per frame:
    is unbounded).
 2. **Occlusion test** of the remaining boxes: the screen rectangle of the projected corners (one
    pixel of slack on each side, ``pad``) is queried for the maximum warped depth with
-   :class:`ibrtools.depthwarp.MaxDepthQuery` (Y-map: two max-mipmap levels, then N-buffers;
+   :class:`ibrtools.depthwarp.core.MaxDepthQuery` (Y-map: two max-mipmap levels, then N-buffers;
    Décoret 2005, Schwarz & Stamminger 2008), holes and empty pixels set to +inf (far:
    conservative, paper sec. 5.3). The box is ``occlusion_culled`` when its least camera z
    exceeds that maximum: every point of it is behind every occluder over its whole rectangle.
@@ -34,7 +34,7 @@ between occluders (docs/culling.md). Per frame:
 For culling, warp with ``DepthWarpParams(dilate=False)``: the dilation fills small holes with a
 neighbour's depth, which can close a one-pixel gap through which an object appears.
 
-Ground truth: :meth:`ibrtools.render.reference.ReferenceRenderer.visible_objects` (the object
+Ground truth: :meth:`ibrtools.raycast.reference.ReferenceRenderer.visible_objects` (the object
 ids hit by a primary ray of the new camera); :meth:`CullResult.evaluate` compares.
 """
 from __future__ import annotations
@@ -45,11 +45,11 @@ from typing import Any
 
 import numpy as np
 
-from . import _core
-from .camera import PINHOLE, Camera
-from .checks import check_float, check_int
-from .errors import BadValueError, DtypeError, NotBuiltError, ShapeError
-from .mesh import Mesh
+from ibrtools import _core
+from ibrtools.camera import PINHOLE, Camera
+from ibrtools.checks import check_float, check_int
+from ibrtools.errors import BadValueError, DtypeError, NotBuiltError, ShapeError
+from ibrtools.mesh import Mesh
 
 # Objects of at most this many pixels in the reference object-id buffer are reported apart:
 # the paper (sec. 5.3) expects "only tiny objects (of 1-2 pixels)" to be falsely culled, through
@@ -209,9 +209,9 @@ def cull_objects(warped_depth: np.ndarray, hole: np.ndarray | None, camera: Came
     if not isinstance(approximate, (bool, np.bool_)):
         raise DtypeError(f"approximate: expected a bool, got {approximate!r}")
     try:
-        from .depthwarp import MaxDepthQuery
+        from ibrtools.depthwarp.core import MaxDepthQuery
     except ImportError:
-        raise NotBuiltError("culling: occlusion test not built yet (ibrtools.depthwarp.MaxDepthQuery "
+        raise NotBuiltError("culling: occlusion test not built yet (ibrtools.depthwarp.core.MaxDepthQuery "
                             "is missing)") from None
 
     t0 = time.perf_counter()
@@ -221,7 +221,7 @@ def cull_objects(warped_depth: np.ndarray, hole: np.ndarray | None, camera: Came
                                 "the warp started from)")
         source_camera = _check_camera(source_camera, "source_camera")
         steps = check_int(awoc_steps, "awoc_steps", 0)
-        from .depthwarp import motion_buffer
+        from ibrtools.depthwarp.core import motion_buffer
         motion, dst_depth = motion_buffer(source_depth, source_camera, camera, object_ids=object_ids,
                                           object_motion=object_motion)
         depth, hole = depth.copy(), hole.copy()

@@ -21,10 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import Camera
-from ..checks import check_float
-from ..errors import BadValueError, InputError
-from ..scene import Scene
+from ibrtools.camera import Camera
+from ibrtools.checks import check_float
+from ibrtools.errors import BadValueError, InputError
+from ibrtools.scene import Scene
 
 PREFIX = "lf_"
 VIDEO_HINT = "install the video extra: pip install 'ibrtools[video]' (imageio-ffmpeg)"
@@ -118,7 +118,7 @@ def require_video() -> None:
 
 def check_video_path(path: str | os.PathLike) -> Path:
     """The MP4 path: not a directory, ends in .mp4, and its folder can be written."""
-    from ..report_html import check_output
+    from ibrtools.pipeline.report_html import check_output
 
     p = Path(path)
     if p.is_dir():
@@ -135,7 +135,7 @@ def write_mp4(images: list[str | os.PathLike], path: str | os.PathLike, *, fps: 
     require_video()
     import imageio_ffmpeg
 
-    from ..imageio import atomic_path, linear_to_srgb, read_image
+    from ibrtools.imageio import atomic_path, linear_to_srgb, read_image
 
     fps = check_float(fps, "--fps")
     if not fps > 0:

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..camera import PINHOLE, Camera
+from ibrtools.camera import PINHOLE, Camera
 
 # Inputs tried per frame, best viewing-direction agreement first: a background direction is seen
 # by the views that face it; more views only cost time on the pixels none of them sees.

@@ -21,17 +21,17 @@ from typing import Callable
 
 import numpy as np
 
-from ..camera import Camera
-from ..errors import BadValueError, FormatError, InputError, InternalError, MissingFileError
-from ..formats._common import read_json
-from ..imageio import atomic_path
-from ..imageio import write_depth as _write_depth
-from ..imageio import write_image as _write_image
-from ..memory import available_memory
-from ..outputs import OutputDir, check_output_dir, file_stem, is_plain_name, temp_prefix
-from ..scene import Scene, View
-from . import methods
-from .complete import (DEFAULT_INPAINT, INPAINT_FILLS, NOTHING_TO_FILL, check_inpaint, complete, completion,
+from ibrtools.camera import Camera
+from ibrtools.errors import BadValueError, FormatError, InputError, InternalError, MissingFileError
+from ibrtools.formats._common import read_json
+from ibrtools.imageio import atomic_path
+from ibrtools.imageio import write_depth as _write_depth
+from ibrtools.imageio import write_image as _write_image
+from ibrtools.memory import available_memory
+from ibrtools.outputs import OutputDir, check_output_dir, file_stem, is_plain_name, temp_prefix
+from ibrtools.scene import Scene, View
+from ibrtools import methods
+from ibrtools.inpaint.complete import (DEFAULT_INPAINT, INPAINT_FILLS, NOTHING_TO_FILL, check_inpaint, complete, completion,
                        parse_background)
 
 
@@ -72,7 +72,7 @@ class Job:
     scene: Scene          # the inputs the method may use (held-out views removed)
     frames: list[Frame] = field(default_factory=list)
     # plan()'s keyword arguments (JSON-able): plan(native.load(scene.root), **spec) makes the same
-    # job again, which is how Dask workers rebuild it (ibrtools.distributed). None: not planned.
+    # job again, which is how Dask workers rebuild it (ibrtools.pipeline.distributed). None: not planned.
     spec: dict | None = None
     # Video scenes: every scene frame's inputs by frame name (``scene`` is the first's); None
     # for a still scene.
@@ -116,7 +116,7 @@ def plan(scene: Scene, *, targets: list[str] | None = None, holdout: list[str] |
          lightfield: tuple[int, int, float, str | None] | None = None) -> Job:
     """Resolve the cameras to render. With nothing asked, render every target of the scene.
     ``lightfield`` = (columns, rows, baseline, centre name or None): a camera grid
-    (:mod:`ibrtools.render.batches`), frames lf_0000, ... row-major.
+    (:mod:`ibrtools.pipeline.batches`), frames lf_0000, ... row-major.
 
     The job records these keyword arguments as ``job.spec`` (every one of them, whatever is
     added later; a relative ``poses`` path made absolute) for the workers of a distributed run.
@@ -152,7 +152,7 @@ def plan(scene: Scene, *, targets: list[str] | None = None, holdout: list[str] |
     if poses is not None:
         frames += read_poses(poses)
     if lightfield is not None:
-        from .batches import lightfield_cameras
+        from ibrtools.pipeline.batches import lightfield_cameras
 
         _, grid = lightfield_cameras(scene, *lightfield)
         frames += [Frame(n, c, info={"row": r, "col": k}) for n, r, k, c in grid]
@@ -197,7 +197,7 @@ def holdout_note(scene: Scene, held: list[str], method: str) -> str | None:
     every view of the scene, the held-out ones too (a mesh fused from their depth, a texture baked
     from their colours), so the figures on them are optimistic. None otherwise. The render report
     and ibr-bench's JSON carry it as "holdout_note" and the commands print it."""
-    from ..stages import STAGES
+    from ibrtools.pipeline.stages import STAGES
 
     held = list(held)
     read = [n for n, st in STAGES.items()
@@ -218,7 +218,7 @@ def stale_note(scene: Scene, method: str) -> str | None:
     e.g. ``ibr-preprocess --stages mesh`` alone), naming the command that brings it up to date.
     The output still loads and is used as it is. None otherwise. The render report and
     ibr-bench's JSON carry it as "stale_note" and the commands print it as a warning."""
-    from ..stages import STAGES, stale_reasons
+    from ibrtools.pipeline.stages import STAGES, stale_reasons
 
     stale = {n: r for n, st in STAGES.items() if method in st.methods
              for r in [stale_reasons(scene.stages, n)] if r}
@@ -282,7 +282,7 @@ def _frame_metrics(color: np.ndarray, hole: np.ndarray | None, filled: bool, tru
     """The frame's scores: "psnr", "ssim", "flip" of the image as written, "psnr_covered" /
     "ssim_covered" over the pixels the method or the background covered, "coverage" (that
     fraction) and "filled" (the fraction the inpainting filled)."""
-    from ..metrics import compare
+    from ibrtools.metrics import compare
 
     m: dict = {}
     if truth is not None and truth.has_color:
@@ -327,7 +327,7 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
     background at infinity (complete.parse_background).
 
     ``foveate`` ((x, y) fixation in [0, 1]^2, or None) post-processes every frame, after the
-    inpainting, into a foveated ventral metamer (:func:`ibrtools.foveate.foveate`, seed 0 and
+    inpainting, into a foveated ventral metamer (:func:`ibrtools.metamers.foveate.foveate`, seed 0 and
     ``pooling`` or its default), timed as stage "foveate"; metrics then score the metamer.
 
     ``workers`` N > 0 renders on a local Dask cluster of N processes, ``scheduler`` ADDRESS on an
@@ -338,15 +338,15 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
     A frame whose rendering raises is left out and listed in the report's "failed" ({"name",
     "error"}); the other frames are written. An interrupt (KeyboardInterrupt, SIGTERM through
     the commands) removes every file the run wrote: all or nothing."""
-    from .. import _core
-    from .. import distributed as D
+    from ibrtools import _core
+    from ibrtools.pipeline import distributed as D
 
     D.check_options(scheduler, workers)
     check_inpaint(inpaint)
 
     fov_kw: dict = {}
     if foveate is not None:
-        from ..foveate import POOLING, _check_geometry
+        from ibrtools.metamers.foveate import POOLING, _check_geometry
 
         fov_kw = {"fixation": foveate, "pooling": POOLING if pooling is None else pooling}
         _check_geometry(fov_kw["fixation"], fov_kw["pooling"], 90.0)  # bad values fail before rendering
@@ -485,7 +485,7 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
 def write_output(out_dir: Path, rel: str, kind: str, array: np.ndarray) -> Path:
     """Write one output file of a frame (atomically): ``kind`` "depth" (single-channel float EXR)
     or "image" (by extension: 8-bit sRGB PNG, linear float EXR). The one writer of local runs
-    and of Dask workers (which send the bytes back: ibrtools.distributed.encode_outputs)."""
+    and of Dask workers (which send the bytes back: ibrtools.pipeline.distributed.encode_outputs)."""
     if not is_plain_name(rel):
         raise InternalError(f"write_output: {rel!r} is not a plain file name")  # names go through file_stem
     path = out_dir / rel
@@ -527,7 +527,7 @@ def _render_frame(method, frame: Frame, scene: Scene, *, inpaint, fov_kw, float_
     color, hole = done.color, done.hole
     stage_ms = {**stage_ms, **done.stage_ms}
     if fov_kw:
-        from ..foveate import foveate as foveate_image
+        from ibrtools.metamers.foveate import foveate as foveate_image
 
         t1 = time.perf_counter()
         color = foveate_image(np.ascontiguousarray(color, np.float32), fov_kw["fixation"],
@@ -600,8 +600,8 @@ def frame_warnings(entry: dict, hole: np.ndarray | None, note: str | None) -> li
 
 def _psnr_in(color: np.ndarray, truth: np.ndarray, region: np.ndarray) -> float | None:
     """PSNR (sRGB, peak 1) inside the filled holes; None when not finite (JSON has no inf)."""
-    from ..imageio import linear_to_srgb
-    from ..metrics import psnr
+    from ibrtools.imageio import linear_to_srgb
+    from ibrtools.metrics import psnr
 
     if truth.shape != color.shape:
         return None

@@ -39,11 +39,11 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from .._core import RayScene
-from ..camera import Camera
-from ..checks import check_float
-from ..errors import BadValueError, DtypeError, ShapeError
-from ..mesh import Mesh
+from ibrtools._core import RayScene
+from ibrtools.camera import Camera
+from ibrtools.checks import check_float
+from ibrtools.errors import BadValueError, DtypeError, ShapeError
+from ibrtools.mesh import Mesh
 
 OUTPUTS = ("color", "depth", "distance", "normal", "object_id", "prim_id", "bary", "hit")
 LIGHT_KINDS = ("point", "directional")
@@ -182,7 +182,7 @@ class ReferenceRenderer:
             lights = [lights]
         for i, light in enumerate(lights):
             if not isinstance(light, Light):
-                raise DtypeError(f"lights[{i}]: expected an ibrtools.render.reference.Light, "
+                raise DtypeError(f"lights[{i}]: expected an ibrtools.raycast.reference.Light, "
                                  f"got {type(light).__name__}")
         ambient = check_float(ambient, "ambient", 0.0)
         bg = _vec3(background, "background")
@@ -206,7 +206,7 @@ class ReferenceRenderer:
         object id of the ground; the *last* of the L layers is then the depth of that object alone
         (rays against its faces only), the first L - 1 are peeled (the paper's sec. 4.1 set-up).
         """
-        from ..checks import check_int
+        from ibrtools.checks import check_int
 
         core_cam = self._core_camera(camera)
         layers = check_int(layers, "layers", 1)

@@ -50,12 +50,12 @@ import time
 
 import numpy as np
 
-from ..camera import Camera
-from ..errors import BadValueError, InputError, MissingFileError
-from ..hybrid.pvm_render import DEFAULTS as PVM_DEFAULTS, RESAMPLE, check_params as check_pvm_params
-from ..mesh import Mesh
-from ..scene import Scene
-from . import params as P
+from ibrtools.camera import Camera
+from ibrtools.errors import BadValueError, InputError, MissingFileError
+from ibrtools.hybrid.pvm_render import DEFAULTS as PVM_DEFAULTS, RESAMPLE, check_params as check_pvm_params
+from ibrtools.mesh import Mesh
+from ibrtools.scene import Scene
+from ibrtools import params as P
 
 # occlusion "mesh": each input view's depth for the occlusion test is the global mesh rendered
 # into that view (the proxy ULR blends on, as in Buehler et al. and the paper's deferred ULR), so
@@ -162,7 +162,7 @@ def geo_threshold_for(units: str, voxel: float | None = None) -> float:
 def _stage_record(scene: Scene, stage: str) -> dict:
     """The stage's record in the scene directory's scene.json ({} when none): read from the file,
     not ``scene.stages``, since stages may have run after the scene was loaded."""
-    from ..stages import _read_doc
+    from ibrtools.pipeline.stages import _read_doc
 
     if scene.root is None:
         return {}
@@ -170,7 +170,7 @@ def _stage_record(scene: Scene, stage: str) -> dict:
 
 
 def _stage(scene: Scene, stage: str, method: str):
-    from ..stages import load_npz, stage_output
+    from ibrtools.pipeline.stages import load_npz, stage_output
 
     if scene.root is None:
         raise InputError(f"--method {method}: the scene has no directory with preprocessed stages; "
@@ -192,7 +192,7 @@ class _GlobalMesh:
     """The global mesh's ray caster, per-vertex attributes and G-buffer."""
 
     def __init__(self, scene: Scene, method: str, texture: bool):
-        from .reference import ReferenceRenderer
+        from ibrtools.raycast.reference import ReferenceRenderer
 
         d = _stage(scene, "mesh", method)
         # The render mesh (mesh stage, GlobalMeshOptions.render_edge_voxels): the same surface as
@@ -231,7 +231,7 @@ class _GlobalMesh:
         per pixel: rasterised (``_core.raster_gbuffer``: the same nearest face per pixel centre as the ray
         caster, faster for such meshes, tests/test_hybrid_raster.py); else (equirect, or a mesh
         dense for the frame): Embree."""
-        from .. import _core
+        from ibrtools import _core
 
         faces = len(self.faces)
         few = faces <= min(RASTER_MAX_FACES, RASTER_MAX_FACES_PER_PIXEL * camera.width * camera.height)
@@ -248,7 +248,7 @@ class _GlobalMesh:
     def tm_color(self, gb: dict) -> np.ndarray:
         """TM colour at the G-buffer's hits: the atlas when the texture stage has one, else the
         per-vertex colour."""
-        from .. import _core
+        from ibrtools import _core
 
         if self.atlas is not None:
             return _core.sample_atlas(gb["prim_id"], gb["bary"], self.uv, self.atlas)
@@ -262,7 +262,7 @@ class _GlobalMesh:
             out.reshape(-1, 3)[pixels] = self.tm_color(sub).reshape(-1, 3)
 
     def interpolate(self, gb: dict, attrib: np.ndarray) -> np.ndarray:
-        from .. import _core
+        from ibrtools import _core
 
         return _core.interpolate_vertex_attribute(gb["prim_id"], gb["bary"], self.faces, attrib)
 
@@ -273,7 +273,7 @@ def _views_for_ulr(scene: Scene, method: str, harmonised: bool, gm: "_GlobalMesh
     stage has it (``harmonise``: its arrays, when the caller has loaded them); depth = the
     global mesh rendered into the view (``gm`` given: occlusion "mesh"), else the view's depth
     or the depth stage's rendering."""
-    from ..hybrid.pvm_render import harmonised_images
+    from ibrtools.hybrid.pvm_render import harmonised_images
 
     images: dict = {}
     source = "original"
@@ -286,7 +286,7 @@ def _views_for_ulr(scene: Scene, method: str, harmonised: bool, gm: "_GlobalMesh
             source = f"original (harmonise skipped: {rec['skipped']})"
     depths: dict = {}
     if gm is None:
-        from ..stages import view_depths
+        from ibrtools.pipeline.stages import view_depths
 
         try:
             depths = view_depths(scene.views, lambda: _stage(scene, "depth", method))
@@ -354,7 +354,7 @@ class UlrMethod:
         return {"load": (time.perf_counter() - t0) * 1e3 - self._gm.build_ms, "bvh": self._gm.build_ms}
 
     def render(self, camera: Camera) -> tuple[dict[str, np.ndarray], dict[str, float]]:
-        from .. import _core
+        from ibrtools import _core
 
         if self._gm is None:
             raise BadValueError("ulr: prepare(scene) must be called before render")
@@ -401,9 +401,9 @@ class HybridMethod:
 
     def prepare(self, scene: Scene) -> dict[str, float]:
         try:
-            from ..hybrid.pvm_render import PvmRenderer, load_images
+            from ibrtools.hybrid.pvm_render import PvmRenderer, load_images
         except ImportError:
-            from ..errors import NotBuiltError
+            from ibrtools.errors import NotBuiltError
 
             raise NotBuiltError("--method hybrid: the PVM renderer (ibrtools.hybrid.pvm_render) is not built yet") from None
         t0 = time.perf_counter()
@@ -442,7 +442,7 @@ class HybridMethod:
         ``scene`` lacks are dropped from ULR and disabled in PVM, as preparing for ``scene`` does.
         Renders what ``prepare(scene)`` would, bit for bit (the mix stage's fit;
         tests/test_hybrid_render.py). Occlusion "mesh" (the default) only: with "views", prepare."""
-        from ..hybrid.pvm_render import PvmRenderer
+        from ibrtools.hybrid.pvm_render import PvmRenderer
 
         if self._gm is None:
             raise BadValueError("hybrid: prepare(scene) must be called before _without_views")
@@ -478,7 +478,7 @@ class HybridMethod:
         """The frame at ``floors[0]`` (outputs, stage times) and its colour at every pvm_floor of
         ``floors`` (each < 1: the TM and ULR weights keep their support, so the colours computed
         for the largest serve them all; the mix stage's fit)."""
-        from .. import _core
+        from ibrtools import _core
 
         if self._gm is None:
             raise BadValueError("hybrid: prepare(scene) must be called before render")
@@ -602,10 +602,10 @@ def fit_pvm_floor(scene: Scene, views: int = MIX_DEFAULTS["views"], tol_db: floa
     favours ULR at it, so the fit errs towards small floors. Returns {"pvm_floor", "floors",
     "psnr" (views x floors), "views"}, or a reason (str) when the scene has too few views (< 4) to
     hold one out or is a video scene (not built yet for those: the floor is then 0)."""
-    from ..imageio import linear_to_srgb
-    from ..metrics import psnr
-    from .complete import clean_color
-    from .job import plan
+    from ibrtools.imageio import linear_to_srgb
+    from ibrtools.metrics import psnr
+    from ibrtools.inpaint.complete import clean_color
+    from ibrtools.pipeline.job import plan
 
     check_mix_options({"views": views, "tol_db": tol_db})
     if scene.frames:

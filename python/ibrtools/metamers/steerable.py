@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import BadValueError, DtypeError, ShapeError
+from ibrtools.errors import BadValueError, DtypeError, ShapeError
 
 ORIENTATIONS = (2, 4)
 BORDER = 16  # pixels from an edge counted as "border" in reconstruction_error (as the fit script)
@@ -51,7 +51,7 @@ class SteerablePyramid:
 
 def max_levels(height: int, width: int) -> int:
     """The largest ``levels`` for an image of this size (every level's input at least 3x3)."""
-    from . import _core
+    from ibrtools import _core
 
     return int(_core.steerable_max_levels(int(height), int(width)))
 
@@ -72,7 +72,7 @@ def analyse(image: np.ndarray, levels: int = 4, orientations: int = 2, ycbcr: bo
     given (any C). Raises ShapeError/DtypeError for bad arrays, BadValueError for non-finite
     pixels, unsupported orientations or too many levels for the image size.
     """
-    from . import _core
+    from ibrtools import _core
 
     if not isinstance(image, np.ndarray):
         raise DtypeError(f"image: expected a float32 numpy array of shape (H, W, C) or (H, W), got {type(image).__name__}")
@@ -90,7 +90,7 @@ def synthesise(pyr: SteerablePyramid) -> np.ndarray:
     """Collapse ``pyr`` into an image float32 (H, W, C) (or (H, W) when analysed from (H, W));
     RGB when ``pyr.ycbcr``. Raises ShapeError/DtypeError when a level has the wrong shape or
     dtype, BadValueError for non-finite values."""
-    from . import _core
+    from ibrtools import _core
 
     if not isinstance(pyr, SteerablePyramid):
         raise DtypeError(f"pyr: expected a SteerablePyramid, got {type(pyr).__name__}")

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import BadValueError, ShapeError
+from ibrtools.errors import BadValueError, ShapeError
 
 MAX_FRAMES = 24
 MAX_WIDTH = 640
@@ -53,7 +53,7 @@ def encode_png(image: np.ndarray) -> bytes:
         out = oiio.ImageOutput.create(path)
         if out is None or not out.open(path, oiio.ImageSpec(w, h, c, oiio.UINT8)) \
                 or not out.write_image(np.ascontiguousarray(a)) or not out.close():
-            from .errors import InternalError
+            from ibrtools.errors import InternalError
 
             raise InternalError(f"encode_png: OpenImageIO could not write a PNG: {oiio.geterror()}")
         return Path(path).read_bytes()
@@ -79,7 +79,7 @@ def shrink(image: np.ndarray, max_width: int = MAX_WIDTH) -> np.ndarray:
 
 def to_srgb8(linear: np.ndarray) -> np.ndarray:
     """Linear float RGB -> 8-bit sRGB (NaN as 0)."""
-    from .imageio import linear_to_srgb
+    from ibrtools.imageio import linear_to_srgb
 
     a = np.nan_to_num(np.asarray(linear, np.float32)[..., :3], nan=0.0, posinf=1.0, neginf=0.0)
     return np.clip(np.rint(linear_to_srgb(np.clip(a, 0.0, 1.0)) * 255.0), 0, 255).astype(np.uint8)
@@ -97,8 +97,8 @@ def error_map(rendered: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, str,
     """(map (H, W), kind, colour-scale maximum): FLIP's per-pixel error (scale 0..1) when
     flip-evaluator is installed, else the mean absolute sRGB error over the channels (scale 0
     to its 99th percentile, at least 1/255)."""
-    from .imageio import linear_to_srgb
-    from .metrics import flip, flip_available
+    from ibrtools.imageio import linear_to_srgb
+    from ibrtools.metrics import flip, flip_available
 
     r = np.nan_to_num(np.asarray(rendered, np.float32)[..., :3])
     t = np.nan_to_num(np.asarray(truth, np.float32)[..., :3])
@@ -299,7 +299,7 @@ def check_output(path: str | os.PathLike, flag: str = "--report-html") -> Path:
 
 
 def write_page(path: str | os.PathLike, text: str) -> Path:
-    from .imageio import atomic_path
+    from ibrtools.imageio import atomic_path
 
     path = Path(path)
     try:
@@ -321,7 +321,7 @@ def render_report(report: dict, out_dir: str | os.PathLike, path: str | os.PathL
     """The page of an ``ibr-render`` run: ``report`` as in report.json, images read from
     ``out_dir``; ``truths`` maps frame names to ground-truth linear images (or callables giving
     them) for the error maps. Returns the page's path."""
-    from .imageio import read_image
+    from ibrtools.imageio import read_image
 
     out_dir = Path(out_dir)
     truths = truths or {}
@@ -379,7 +379,7 @@ def render_report(report: dict, out_dir: str | os.PathLike, path: str | os.PathL
 
 
 def _read_mask(path: Path) -> np.ndarray | None:
-    from .imageio import read_image
+    from ibrtools.imageio import read_image
 
     if not path.is_file():
         return None
@@ -393,7 +393,7 @@ def bench_report(rows: list[dict], keys: list[str], out_dir: str | os.PathLike, 
     """The page of an ``ibr-bench`` sweep: the run-time-against-error plot (``plot``, PNG file,
     embedded), the table of configurations (best FLIP first, Pareto front marked) and the frames
     of one configuration (``panels``, of configuration ``panels_config``)."""
-    from .render.sweep import pareto
+    from ibrtools.pipeline.sweep import pareto
 
     out_dir = Path(out_dir)
     body = []

@@ -29,7 +29,7 @@ import uuid
 from pathlib import Path
 from typing import Callable, Iterator
 
-from .errors import BadValueError, InputError
+from ibrtools.errors import BadValueError, InputError
 
 # Seconds to wait for an existing scheduler before saying it cannot be reached.
 CONNECT_TIMEOUT = 5.0
@@ -246,10 +246,10 @@ def scene_stamp(root: str | os.PathLike) -> list:
 def _prepared(spec: dict, scene_frame: str | None = None):
     """(job, method, setup_ms, prepared_now) for ``spec`` (and, in a video scene, its frame
     ``scene_frame``) on this worker, prepared once."""
-    from . import _core
-    from .formats import native
-    from .render import job as render_job
-    from .render import methods
+    from ibrtools import _core
+    from ibrtools.formats import native
+    from ibrtools.pipeline import job as render_job
+    from ibrtools import methods
 
     frame_stamp = scene_stamp(Path(spec["root"]) / "frames" / scene_frame) if scene_frame else None
     key = json.dumps([spec["root"], spec["stamp"], spec["plan"], spec["method"], spec["params"],
@@ -269,8 +269,8 @@ def _prepared(spec: dict, scene_frame: str | None = None):
 
 def encode_outputs(outputs: list[tuple[str, str, object]]) -> dict[str, bytes]:
     """A frame's outputs [(file name, kind, array)] as file bytes, written by the very writer
-    of a local run (:func:`ibrtools.render.job.write_output`) into a scratch directory."""
-    from .render.job import write_output
+    of a local run (:func:`ibrtools.pipeline.job.write_output`) into a scratch directory."""
+    from ibrtools.pipeline.job import write_output
 
     files: dict[str, bytes] = {}
     with tempfile.TemporaryDirectory(prefix="ibr-task-") as d:
@@ -291,8 +291,8 @@ def render_task(spec: dict, indices: list[int], names: list[str], scene_frames: 
 
 
 def _render_task(spec: dict, indices: list[int], names: list[str], scene_frames: list[str | None]) -> dict:
-    from . import _core
-    from .render.job import frame_scene, render_frame
+    from ibrtools import _core
+    from ibrtools.pipeline.job import frame_scene, render_frame
 
     out = []
     fresh_any = False
@@ -367,7 +367,7 @@ def map_views(client, fn: Callable, root: str | os.PathLike, names: list[str], *
 
 def set_task_threads(threads: int) -> None:
     """At the start of a task: the engine's threads (see :func:`_engine_threads`)."""
-    from . import _core
+    from ibrtools import _core
 
     _core.set_num_threads(_engine_threads(threads))
 

@@ -39,11 +39,11 @@ import time
 
 import numpy as np
 
-from ..camera import Camera
-from ..errors import BadValueError, InputError
-from ..scene import Scene
-from . import params as P
-from . import view_selection as vs
+from ibrtools.camera import Camera
+from ibrtools.errors import BadValueError, InputError
+from ibrtools.scene import Scene
+from ibrtools import params as P
+from ibrtools.dibr import view_selection as vs
 
 QUALITIES = ("side", "shape", "depth", "normal")
 # side_threshold 10 px: RVS 4.0's q = clamp(10000 - 1000 L, 1, 10000) is q = 1 - L / 10 with L in
@@ -143,7 +143,7 @@ class DibrMethod:
         self._scene: Scene | None = None
 
     def warp_options(self):
-        from .. import _core
+        from ibrtools import _core
 
         o = _core.WarpOptions()
         o.quality = self.params["quality"]
@@ -152,7 +152,7 @@ class DibrMethod:
         return o
 
     def prepare(self, scene: Scene) -> dict[str, float]:
-        from ..stages import missing_depth_error, with_stage_depth
+        from ibrtools.pipeline.stages import missing_depth_error, with_stage_depth
 
         if not scene.views:
             raise InputError("--method dibr: the scene has no input views")
@@ -190,7 +190,7 @@ class DibrMethod:
                                   samples=self.params["samples"], seed=self.params["seed"])
 
     def render(self, camera: Camera) -> tuple[dict[str, np.ndarray], dict[str, float]]:
-        from .. import _core
+        from ibrtools import _core
 
         if self._scene is None:
             raise InputError("dibr: prepare(scene) must be called before render(camera)")
@@ -260,7 +260,7 @@ def srgb_encode(v: np.ndarray) -> np.ndarray:
     table of the curve's own values in [0, 1], the curve ``SrgbEncode`` above; within 1e-6 of the
     exact curve; ~6 ms of one core per 1080p RGB view, the curve per value ~18 ms); not
     ``_core.linear_to_srgb``, which clips above 1."""
-    from .. import _core
+    from ibrtools import _core
 
     a = np.asarray(v, np.float32)
     return _core.srgb_encode_unclipped(a if a.flags.c_contiguous else a.copy())  # 0-d arrays stay 0-d

@@ -25,11 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import BadValueError
-from ..scene import Scene
-from . import job as J
-from . import methods
-from .complete import DEFAULT_INPAINT, check_inpaint, complete, completion
+from ibrtools.errors import BadValueError
+from ibrtools.scene import Scene
+from ibrtools.pipeline import job as J
+from ibrtools import methods
+from ibrtools.inpaint.complete import DEFAULT_INPAINT, check_inpaint, complete, completion
 
 
 def _value(text: str):
@@ -146,7 +146,7 @@ def pareto(rows: list[dict], x: str = "median_ms", y: str = "mean_flip") -> list
 
 
 def write_outputs(rows: list[dict], keys: list[str], out_dir: Path, title: str = "") -> None:
-    from ..imageio import atomic_path
+    from ibrtools.imageio import atomic_path
 
     out_dir.mkdir(parents=True, exist_ok=True)
     cols = list(rows[0]) if rows else []

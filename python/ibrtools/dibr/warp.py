@@ -27,12 +27,12 @@ import time
 
 import numpy as np
 
-from ..camera import Camera
-from ..errors import BadValueError, InputError
-from ..scene import Scene
-from . import params as P
-from . import view_selection as vs
-from .dibr import LIMITS as DIBR_LIMITS
+from ibrtools.camera import Camera
+from ibrtools.errors import BadValueError, InputError
+from ibrtools.scene import Scene
+from ibrtools import params as P
+from ibrtools.dibr import view_selection as vs
+from ibrtools.dibr.method import LIMITS as DIBR_LIMITS
 
 DEFAULTS = {"inputs": 1, "stretch_threshold": 2.0, "depth_jump": 0.1, "samples": vs.DEFAULT_SAMPLES, "seed": vs.DEFAULT_SEED}
 
@@ -69,7 +69,7 @@ class WarpMethod:
         self._scene: Scene | None = None
 
     def prepare(self, scene: Scene) -> dict[str, float]:
-        from ..stages import missing_depth_error, with_stage_depth
+        from ibrtools.pipeline.stages import missing_depth_error, with_stage_depth
 
         if not scene.views:
             raise InputError("--method warp: the scene has no input views")
@@ -98,7 +98,7 @@ class WarpMethod:
         return {"depth_ranges": ms}
 
     def render(self, camera: Camera) -> tuple[dict[str, np.ndarray], dict[str, float]]:
-        from .. import _core
+        from ibrtools import _core
 
         if self._scene is None:
             raise InputError("warp: prepare(scene) must be called before render(camera)")

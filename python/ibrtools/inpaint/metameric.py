@@ -10,7 +10,7 @@ match the surrounding background, instead of the smooth colour of push-pull:
    contrast, and a noise of the surroundings' linear variance is far too strong, in display terms,
    next to dark content). The fill is decoded back to linear at the end (clamped at 0).
 1. pre-fill the holes by push-pull (our deviation from "holes zero", see :func:`metameric`) and
-   analyse the image into the small-filter steerable pyramid (:mod:`ibrtools.steerable`, YCbCr
+   analyse the image into the small-filter steerable pyramid (:mod:`ibrtools.metamers.steerable`, YCbCr
    for RGB);
 2. per level, the hole mask down-sampled to the level and dilated by the filter radius (2 px for
    the 5x5 band filters; sec. 3.2) marks the band samples to replace;
@@ -49,7 +49,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import BadValueError, DtypeError, ShapeError
+from ibrtools.errors import BadValueError, DtypeError, ShapeError
 
 FILTER_RADIUS = 2  # the 5x5 taps of cpp/kernels/steerable_taps.h
 
@@ -107,7 +107,7 @@ def _block_all(hole: np.ndarray, scale: int, shape: tuple[int, int]) -> np.ndarr
 @functools.lru_cache(maxsize=2)
 def _noise_pyramid_cached(height: int, width: int, channels: int, levels: int, orientations: int,
                           seed: int) -> tuple[np.ndarray, tuple, np.ndarray]:
-    from .steerable import analyse
+    from ibrtools.metamers.steerable import analyse
 
     rng = np.random.default_rng(seed)
     white = rng.standard_normal((height, width, channels), dtype=np.float32)
@@ -142,7 +142,7 @@ def noise_pyramid(height: int, width: int, channels: int = 3, levels: int = 4, o
     bands; lowpass is the analysed white noise, unused by :func:`metameric`), sampled at the
     motion-compensated positions x + flow(x) when ``flow`` (float32 (H, W, 2), (dx, dy) in
     pixels) is given. For inspection and tests; :func:`metameric` samples only inside holes."""
-    from .steerable import SteerablePyramid
+    from ibrtools.metamers.steerable import SteerablePyramid
 
     levels, orientations, seed = _check_options(levels, orientations, seed, height, width)
     flow = _check_flow(flow, height, width)
@@ -160,7 +160,7 @@ def noise_pyramid(height: int, width: int, channels: int = 3, levels: int = 4, o
 
 
 def _check_options(levels: Any, orientations: Any, seed: Any, h: int, w: int) -> tuple[int, int, int]:
-    from .steerable import ORIENTATIONS, max_levels
+    from ibrtools.metamers.steerable import ORIENTATIONS, max_levels
 
     for name, v in (("levels", levels), ("orientations", orientations), ("seed", seed)):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
@@ -197,7 +197,7 @@ def local_moments(x: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = No
     X and X^2 (dos Anjos et al. sec. 3.3.1; depth-aware with ``depth``): (pp(X),
     max(0, pp(X^2) - pp(X)^2)); outside the holes (X, 0) up to rounding. What :func:`metameric`
     computes per band (there only on the masked samples)."""
-    from .inpaint import pushpull
+    from ibrtools.inpaint.pushpull import pushpull
 
     if not isinstance(x, np.ndarray) or x.dtype != np.float32:
         raise DtypeError(f"x: expected a float32 numpy array, got {getattr(x, 'dtype', type(x).__name__)}")
@@ -229,7 +229,7 @@ def metameric(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = No
     levels (0 .. steerable.max_levels), orientations (2 or 4): the pyramid; seed (>= 0): the noise;
     flow: None or float32 (H, W, 2), per-pixel (dx, dy) offset at which the noise is sampled
     (motion since the frame the noise was anchored to); depth_threshold, gamma: the depth-aware
-    push-pull's (:func:`ibrtools.inpaint.pushpull` defaults when None). display: synthesise on the
+    push-pull's (:func:`ibrtools.inpaint.pushpull.pushpull` defaults when None). display: synthesise on the
     sRGB encoding of the (linear) values and decode the fill (clamped at 0); None (default) = True
     for RGB (C = 3), False for other channel counts (module docstring, step 0).
 
@@ -238,11 +238,11 @@ def metameric(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = No
     ShapeError/DtypeError for bad arrays, BadValueError for non-finite pixels outside the holes,
     bad options or an all-hole image.
     """
-    from . import _core
-    from .inpaint import DEPTH_THRESHOLD, GAMMA, _arrays
-    from .steerable import SteerablePyramid, analyse, synthesise
+    from ibrtools import _core
+    from ibrtools.inpaint.pushpull import DEPTH_THRESHOLD, GAMMA, check_arrays
+    from ibrtools.metamers.steerable import SteerablePyramid, analyse, synthesise
 
-    image, hole, depth = _arrays(image, hole, depth)
+    image, hole, depth = check_arrays(image, hole, depth)
     if image.dtype != np.float32:
         raise DtypeError(f"image: expected float32, got {image.dtype}")
     h, w = image.shape[:2]

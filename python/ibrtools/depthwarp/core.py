@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from .camera import PINHOLE, Camera
-from .checks import check_float, check_int
-from .errors import BadValueError, DtypeError, ShapeError
+from ibrtools.camera import PINHOLE, Camera
+from ibrtools.checks import check_float, check_int
+from ibrtools.errors import BadValueError, DtypeError, ShapeError
 
 __all__ = ["DepthWarpParams", "WarpResult", "motion_buffer", "warp_depth", "forward_warp_depth",
            "MaxDepthQuery", "BOUNDS", "FORWARD_KINDS"]
@@ -32,7 +32,7 @@ FORWARD_KINDS = ("vfw", "afw")
 
 
 def _core():
-    from . import _core as core
+    from ibrtools import _core as core
 
     return core
 
