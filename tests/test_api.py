@@ -76,10 +76,10 @@ def test_load_scene_bad_input(tmp_path, scene_dir):
 
 # --- Scene.render -----------------------------------------------------------------------------------------
 def test_render_camera_forms(scene):
-    by_name = scene.render("t000", method="reference")
-    by_cam = scene.render(scene.target("t000").camera, method="reference")
-    by_dict = scene.render(scene.target("t000").camera.to_dict(), method="reference")
-    by_view = scene.render("v001", method="reference")
+    by_name = ibrtools.render(scene, "t000", method="reference")
+    by_cam = ibrtools.render(scene, scene.target("t000").camera, method="reference")
+    by_dict = ibrtools.render(scene, scene.target("t000").camera.to_dict(), method="reference")
+    by_view = ibrtools.render(scene, "v001", method="reference")
     for r in (by_name, by_cam, by_dict, by_view):
         assert isinstance(r, api.RenderResult)
         assert r.method == "reference"
@@ -100,12 +100,12 @@ def test_render_camera_forms(scene):
 
 
 def test_render_auto_and_params(scene):
-    r = scene.render("t000")
+    r = ibrtools.render(scene, "t000")
     assert r.method == "dibr"  # colour + depth views: auto picks DIBR
     assert r.hole is not None and 0.5 < r.coverage <= 1.0
     assert "confidence" in r.outputs
     assert {"select", "warp", "blend", "total"} <= set(r.times_ms)
-    r2 = scene.render("t000", method="dibr", inputs=["v000", "v001"], blend_exponent=3)
+    r2 = ibrtools.render(scene, "t000", method="dibr", inputs=["v000", "v001"], blend_exponent=3)
     assert r2.prepared and r2.method == "dibr"
 
 
@@ -114,14 +114,14 @@ def test_render_matches_ibr_render_job(scene, tmp_path):
     from ibrtools.imageio import read_image
     from ibrtools.pipeline import job
 
-    r = scene.render("t000", method="dibr", inputs=2)
+    r = ibrtools.render(scene, "t000", method="dibr", inputs=2)
     j = job.plan(scene, targets=["t000"])
     job.run(j, "dibr", tmp_path / "out", params={"inputs": 2}, float_out=True)
     written = read_image(tmp_path / "out" / "t000.exr")
     np.testing.assert_array_equal(r.color, written)
     assert r.hole is not None and r.hole.any()
     assert r.color[r.hole].any()  # holes filled by default, as the job writes them
-    black = scene.render("t000", method="dibr", inputs=2, inpaint="none")
+    black = ibrtools.render(scene, "t000", method="dibr", inputs=2, inpaint="none")
     assert not black.color[black.hole].any()  # inpaint none: black holes
     np.testing.assert_array_equal(black.color[~black.hole], r.color[~r.hole])
 
@@ -137,33 +137,33 @@ def test_render_prepares_once(scene, monkeypatch):
         return real_create(name, params)
 
     monkeypatch.setattr(methods, "create", counting_create)
-    first = scene.render("t000", method="dibr", inputs=2)
+    first = ibrtools.render(scene, "t000", method="dibr", inputs=2)
     cams = scene.paths["orbit"]
-    rest = [scene.render(c, method="dibr", inputs=2) for c in cams]
+    rest = [ibrtools.render(scene, c, method="dibr", inputs=2) for c in cams]
     assert first.prepared and not any(r.prepared for r in rest)
     assert created == ["dibr"]
     assert rest[0].setup_ms == first.setup_ms  # the setup paid by the first call, reported again
     # "auto" resolves to dibr on this scene and shares the prepared method
-    assert not scene.render("t000", inputs=2).prepared
+    assert not ibrtools.render(scene, "t000", inputs=2).prepared
     # other parameters (order-independent key) = another preparation; a list value is fine
-    assert scene.render("t000", method="dibr", inputs=["v000", "v002"], seed=1).prepared
-    assert not scene.render("t000", method="dibr", seed=1, inputs=["v000", "v002"]).prepared
+    assert ibrtools.render(scene, "t000", method="dibr", inputs=["v000", "v002"], seed=1).prepared
+    assert not ibrtools.render(scene, "t000", method="dibr", seed=1, inputs=["v000", "v002"]).prepared
     assert created == ["dibr", "dibr"]
     # replacing the views (another list of other View objects) invalidates the prepared methods
     scene.views = scene.views[:3]
-    assert scene.render("t000", method="dibr", inputs=2).prepared
+    assert ibrtools.render(scene, "t000", method="dibr", inputs=2).prepared
     ibrtools.clear_render_cache(scene)
-    assert scene.render("t000", method="dibr", inputs=2).prepared
+    assert ibrtools.render(scene, "t000", method="dibr", inputs=2).prepared
     assert len(created) == 4
 
 
 def test_render_cache_goes_with_the_scene(scene_dir):
     s = ibrtools.load_scene(scene_dir)
-    s.render("t000", method="reference")
+    ibrtools.render(s, "t000", method="reference")
     # pickling / copying (Dask scatters scenes) ships no prepared method
     s2 = pickle.loads(pickle.dumps(s))
-    assert s2.render("t000", method="reference").prepared
-    assert copy.deepcopy(s).render("t000", method="reference").prepared
+    assert ibrtools.render(s2, "t000", method="reference").prepared
+    assert ibrtools.render(copy.deepcopy(s), "t000", method="reference").prepared
     ref = weakref.ref(s)
     del s
     gc.collect()
@@ -185,9 +185,9 @@ def test_core_accepts_unpickled_arrays():
 
 def test_render_threads(scene):
     """Calls from several threads on one scene are serialised and give the same image."""
-    ref = scene.render("t000", method="dibr", inputs=2).color
+    ref = ibrtools.render(scene, "t000", method="dibr", inputs=2).color
     out: list[np.ndarray] = []
-    ts = [threading.Thread(target=lambda: out.append(scene.render("t000", method="dibr", inputs=2).color))
+    ts = [threading.Thread(target=lambda: out.append(ibrtools.render(scene, "t000", method="dibr", inputs=2).color))
           for _ in range(3)]
     for t in ts:
         t.start()
@@ -201,31 +201,31 @@ def test_render_threads(scene):
 def test_result_save(scene, tmp_path):
     from ibrtools.imageio import read_image
 
-    r = scene.render("t000", method="reference")
+    r = ibrtools.render(scene, "t000", method="reference")
     p = r.save(tmp_path / "t000.exr")
     np.testing.assert_array_equal(read_image(p), r.color)
 
 
 def test_render_bad_input(scene):
     with pytest.raises(BadValueError, match=r"method: unknown method 'nerf' \(expected one of auto, "):
-        scene.render("t000", method="nerf")
+        ibrtools.render(scene, "t000", method="nerf")
     with pytest.raises(DtypeError, match="method: expected a method name"):
-        scene.render("t000", method=3)  # type: ignore[arg-type]
+        ibrtools.render(scene, "t000", method=3)  # type: ignore[arg-type]
     with pytest.raises(BadValueError, match=r"camera 'nowhere': not a target or view of the scene "
                                             r"\(targets: t000; views: v000, v001, v002, v003\)"):
-        scene.render("nowhere")
+        ibrtools.render(scene, "nowhere")
     with pytest.raises(FormatError, match=r"camera: missing key 'fx'"):
-        scene.render({"model": "pinhole", "width": 8, "height": 6, "cam_from_world": np.eye(4).tolist()})
+        ibrtools.render(scene, {"model": "pinhole", "width": 8, "height": 6, "cam_from_world": np.eye(4).tolist()})
     scaled = np.diag([2.0, 2.0, 2.0, 1.0]).tolist()
     with pytest.raises(BadValueError, match=r"camera.cam_from_world: not a rigid pose"):
-        scene.render({"model": "pinhole", "width": 8, "height": 6, "fx": 5, "fy": 5, "cx": 4, "cy": 3,
+        ibrtools.render(scene, {"model": "pinhole", "width": 8, "height": 6, "fx": 5, "fy": 5, "cx": 4, "cy": 3,
                       "cam_from_world": scaled})
     with pytest.raises(DtypeError, match="camera: expected a Camera, a target or view name"):
-        scene.render(42)  # type: ignore[arg-type]
+        ibrtools.render(scene, 42)  # type: ignore[arg-type]
     with pytest.raises(BadValueError, match=r"method 'dibr' has no parameter\(s\) \['colour'\]"):
-        scene.render("t000", method="dibr", colour=1)
+        ibrtools.render(scene, "t000", method="dibr", colour=1)
     with pytest.raises(BadValueError, match="--blend-exponent: expected a finite number > 0 and <= 16, got -1"):
-        scene.render("t000", method="dibr", blend_exponent=-1)
+        ibrtools.render(scene, "t000", method="dibr", blend_exponent=-1)
     with pytest.raises(DtypeError, match="scene: expected an ibrtools.Scene"):
         api.render("not a scene", "t000")  # type: ignore[arg-type]
 
@@ -235,7 +235,7 @@ def test_render_not_built_for_the_data():
     cam = ibrtools.Camera.from_fov(8, 6, 60.0)
     s = ibrtools.Scene(views=[ibrtools.View.create("a", cam, color=np.zeros((6, 8, 3), np.float32))])
     with pytest.raises(ibrtools.NotBuiltError, match="--method auto"):
-        s.render("a")
+        ibrtools.render(s, "a")
 
 
 # --- the package's top level ------------------------------------------------------------------------

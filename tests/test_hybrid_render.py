@@ -656,18 +656,18 @@ def test_mix_stage_fit_is_what_holding_each_view_out_gives(exact_scene):
     from ibrtools.pipeline import stages as S
     from ibrtools.imageio import linear_to_srgb
     from ibrtools.metrics import psnr
-    from ibrtools.hybrid import method as H
+    from ibrtools.pipeline import mix
     from ibrtools.pipeline import job as J
     from ibrtools import methods
 
     d = S.load_npz(S.stage_output(exact_scene.root, "mix"))
     names = [v.name for v in exact_scene.views]
-    assert list(d["views"]) == names and d["psnr"].shape == (len(names), len(H.MIX_FLOORS))
+    assert list(d["views"]) == names and d["psnr"].shape == (len(names), len(mix.MIX_FLOORS))
     mean = d["psnr"].mean(0)
-    assert float(d["pvm_floor"]) == H.MIX_FLOORS[int(np.argmax(mean))]
+    assert float(d["pvm_floor"]) == mix.MIX_FLOORS[int(np.argmax(mean))]
     for i, j in ((0, 0), (3, 4)):
         job = J.plan(exact_scene, holdout=[names[i]])
-        m = methods.create("hybrid", {"pvm_floor": H.MIX_FLOORS[j]})
+        m = methods.create("hybrid", {"pvm_floor": mix.MIX_FLOORS[j]})
         m.prepare(job.scene)
         o, _ = m.render(job.frames[0].camera)
         c = np.where(o["hole"][..., None], 0.0, o["color"]).astype(np.float32)

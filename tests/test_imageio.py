@@ -3,7 +3,8 @@ import numpy as np
 import pytest
 
 from ibrtools import BadValueError, DtypeError, FormatError, MissingFileError, ShapeError
-from ibrtools.imageio import (check_depth, linear_to_srgb, read_depth, read_image, read_mask,
+from ibrtools.checks import check_depth
+from ibrtools.imageio import (linear_to_srgb, read_depth, read_image, read_mask,
                               srgb_to_linear, write_depth, write_image)
 
 

@@ -309,8 +309,10 @@ def test_outputs_are_hashed_only_when_their_recorded_size_or_time_changed(built,
     st = f.stat()
     assert rec["stat"]["tiles.npz"] == [st.st_size, st.st_mtime_ns]
     hashed = []
-    real = S._file_hash
-    monkeypatch.setattr(S, "_file_hash", lambda p: hashed.append(p) or real(p))
+    from ibrtools import cache
+
+    real = cache.file_hash
+    monkeypatch.setattr(cache, "file_hash", lambda p: hashed.append(p) or real(p))
     assert S.stage_output(d, "pvm") == f and hashed == []  # as recorded: not read
     assert run(d, "--methods", "pvm", capsys=capsys)["pvm"]["status"] == "up to date"
     assert f not in hashed  # (the inputs are hashed: the scene's content key)

@@ -108,14 +108,14 @@ def test_mypy_rejects_wrong_types(tmp_path):
         "from ibrtools import _core\n"
         "_core.pushpull(np.zeros((8, 8, 3)), np.zeros((8, 8), np.bool_))\n"
         "scene = ibrtools.load_scene('scene')\n"
-        "scene.render(3)\n"
-        "scene.render('t000').colour\n")
+        "ibrtools.render(scene, 3)\n"
+        "ibrtools.render(scene, 't000').colour\n")
     r = subprocess.run([sys.executable, "-m", "mypy", "--config-file", str(REPO / "pyproject.toml"), str(bad)],
                        capture_output=True, text=True, cwd=REPO)
     out = r.stdout
     assert r.returncode == 1, out + r.stderr
     assert 'Argument 1 to "pushpull" has incompatible type' in out and "float64" in out
-    assert 'Argument 1 to "render" of "Scene" has incompatible type "int"' in out
+    assert 'Argument 2 to "render" has incompatible type "int"' in out
     assert '"RenderResult" has no attribute "colour"' in out
 
 

@@ -112,13 +112,13 @@ def test_texture_stage_bakes_gain_compensated_views_on_the_render_mesh(tmp_path)
     assert spread < 0.05, (ratio, spread)
     # The estimated gains: spread (max - min of the log gains) well above that of the
     # unjittered scene, where glossy objects and small images leave a few per cent.
-    spread_jit = S._read_doc(dj)["stages"]["texture"]["details"]["gain_spread"]
-    spread_ref = S._read_doc(d)["stages"]["texture"]["details"]["gain_spread"]
+    spread_jit = S.read_doc(dj)["stages"]["texture"]["details"]["gain_spread"]
+    spread_ref = S.read_doc(d)["stages"]["texture"]["details"]["gain_spread"]
     assert spread_ref < 0.1 and spread_jit > 3 * spread_ref + 0.2, (spread_ref, spread_jit)
     # The gain model (hybrid/gainmodel.py, default "auto"): independent jitter is exposure, and
     # the stage divides the gains out as they are (the 4 views' leave-one-out residual ratio is
     # far above gain_max_ratio 0.5).
-    rec_jit = S._read_doc(dj)["stages"]["texture"]["details"]
+    rec_jit = S.read_doc(dj)["stages"]["texture"]["details"]
     assert rec_jit["gain_model"] == "exposure" and rec_jit["gain_ratio"] > 0.5, rec_jit
     # A reconstructed mesh keeps k_views / bake_normal_rounds (4, 0); a fused one would take
     # fused_k_views / fused_normal_rounds (GlobalMeshOptions.texture_options).

@@ -24,14 +24,14 @@ def render_all(scene_dir: Path) -> dict[str, float]:
     scene: ibrtools.Scene = ibrtools.load_scene(scene_dir)
     coverage: dict[str, float] = {}
     for target in scene.targets:
-        result = scene.render(target.name, method="dibr", inputs=2)
+        result = ibrtools.render(scene, target.name, method="dibr", inputs=2)
         assert_type(result, ibrtools.RenderResult)
         assert_type(result.color, npt.NDArray[np.float32])
         assert_type(result.hole, "npt.NDArray[np.bool_] | None")
         coverage[target.name] = result.coverage
     for name, cameras in scene.paths.items():
         cam: ibrtools.Camera = cameras[0]
-        coverage[name] = scene.render(cam, method="dibr", inputs=2).coverage
+        coverage[name] = ibrtools.render(scene, cam, method="dibr", inputs=2).coverage
     return coverage
 
 

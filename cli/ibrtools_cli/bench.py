@@ -89,7 +89,7 @@ def _body(args: argparse.Namespace) -> int:
         keep.finish()
         from ibrtools.pipeline.job import holdout_note
         from ibrtools.methods import resolve
-        from ibrtools.pipeline.report_html import bench_report
+        from ibrtools.pipeline.sweep import bench_report
 
         name = resolve(args.method, scene)
         note = holdout_note(scene, args.holdout or [], name)

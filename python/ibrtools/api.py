@@ -16,12 +16,12 @@ kept, so rendering many cameras of one scene pays the setup once:
 >>> scene = ibrtools.load_scene(folder + "/scene")
 >>> [v.name for v in scene.views], [t.name for t in scene.targets]
 (['v000', 'v001', 'v002', 'v003'], ['t000'])
->>> result = scene.render("t000", method="dibr", inputs=2)   # a target's name
+>>> result = ibrtools.render(scene, "t000", method="dibr", inputs=2)   # a target's name
 >>> result.method, result.color.shape, result.color.dtype, result.hole.shape
 ('dibr', (48, 64, 3), dtype('float32'), (48, 64))
 >>> result.prepared                                          # this call prepared dibr
 True
->>> again = scene.render(scene.paths["orbit"][0], method="dibr", inputs=2)   # a Camera
+>>> again = ibrtools.render(scene, scene.paths["orbit"][0], method="dibr", inputs=2)   # a Camera
 >>> again.prepared                                           # ... this one reused it
 False
 >>> sorted(again.times_ms)                  # the method's stages and the completion's, in ms
@@ -30,12 +30,12 @@ False
 A camera may also be a dict in the scene.json camera format, and ``look_at`` poses one:
 
 >>> cam = ibrtools.Camera.from_fov(64, 48, 60.0, ibrtools.look_at((0.0, 1.5, 6.0), (0.0, 0.5, 0.0)))
->>> scene.render(cam.to_dict(), method="reference").color.shape
+>>> ibrtools.render(scene, cam.to_dict(), method="reference").color.shape
 (48, 64, 3)
 
 Bad input raises a typed error (:mod:`ibrtools.errors`) that names the argument:
 
->>> scene.render("nowhere")
+>>> ibrtools.render(scene, "nowhere")
 Traceback (most recent call last):
 ...
 ibrtools.errors.BadValueError: camera 'nowhere': not a target or view of the scene (targets: t000; views: v000, v001, v002, v003)
@@ -172,7 +172,7 @@ def render(scene: Scene, camera: CameraLike, method: str = "auto", *, inpaint: s
            background: Any = None, **params: Any) -> RenderResult:
     """Render ``camera`` of ``scene`` with ``method`` (:data:`ibrtools.methods.METHODS`;
     "auto" picks one from the scene's data) and the method's parameters (as ``ibr-render
-    --param key=value``, e.g. ``inputs=2`` for dibr). Same as ``scene.render(...)``. The image is
+    --param key=value``, e.g. ``inputs=2`` for dibr). Same as ``ibrtools.render(scene, ...)``. The image is
     complete as ``ibr-render`` writes it (render/complete.py): the background at infinity where
     an input sees it, the holes filled by ``inpaint`` (``ibr-render --inpaint``; None = its
     default, "none" = black); ``background`` recolours the background at infinity as

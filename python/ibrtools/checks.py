@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from ibrtools.errors import BadValueError, DtypeError
+from ibrtools.errors import BadValueError, DtypeError, ShapeError
 
 
 def check_int(value: Any, name: str, minimum: int | None = None, maximum: int | None = None) -> int:
@@ -35,3 +35,23 @@ def check_float(value: Any, name: str, minimum: float | None = None) -> float:
     if minimum is not None and v < minimum:
         raise BadValueError(f"{name}: expected a finite number >= {minimum:g}, got {v}")
     return v
+
+
+def check_depth(depth: np.ndarray, name: str, shape: tuple[int, int] | None = None) -> np.ndarray:
+    """Validate a depth map: float32 (H, W), no NaN, no negatives, some known pixels.
+    +inf is allowed (a point at infinity, e.g. sky in MPEG content); 0 means unknown."""
+    if not isinstance(depth, np.ndarray) or depth.dtype != np.float32:
+        raise DtypeError(f"{name}: expected float32 depth array, got "
+                         f"{getattr(depth, 'dtype', type(depth).__name__)}")
+    if depth.ndim != 2 or (shape is not None and depth.shape != tuple(shape)):
+        want = f"(H, W) = {tuple(shape)}" if shape is not None else "(H, W)"
+        raise ShapeError(f"{name}: expected depth of shape {want}, got {depth.shape}")
+    nan = int(np.isnan(depth).sum())
+    if nan:
+        raise BadValueError(f"{name}: {nan} NaN depth pixels; unknown depth must be 0")
+    neg = int((depth < 0).sum())
+    if neg:
+        raise BadValueError(f"{name}: {neg} negative depth pixels (min {float(depth.min()):g})")
+    if not np.any(depth > 0):
+        raise BadValueError(f"{name}: no valid depth (every pixel is 0 = unknown)")
+    return depth

@@ -323,26 +323,6 @@ def read_depth(path: str | os.PathLike, *, scale: float | None = None, channel: 
     return np.ascontiguousarray(d)
 
 
-def check_depth(depth: np.ndarray, name: str, shape: tuple[int, int] | None = None) -> np.ndarray:
-    """Validate a depth map: float32 (H, W), no NaN, no negatives, some known pixels.
-    +inf is allowed (a point at infinity, e.g. sky in MPEG content); 0 means unknown."""
-    if not isinstance(depth, np.ndarray) or depth.dtype != np.float32:
-        raise DtypeError(f"{name}: expected float32 depth array, got "
-                         f"{getattr(depth, 'dtype', type(depth).__name__)}")
-    if depth.ndim != 2 or (shape is not None and depth.shape != tuple(shape)):
-        want = f"(H, W) = {tuple(shape)}" if shape is not None else "(H, W)"
-        raise ShapeError(f"{name}: expected depth of shape {want}, got {depth.shape}")
-    nan = int(np.isnan(depth).sum())
-    if nan:
-        raise BadValueError(f"{name}: {nan} NaN depth pixels; unknown depth must be 0")
-    neg = int((depth < 0).sum())
-    if neg:
-        raise BadValueError(f"{name}: {neg} negative depth pixels (min {float(depth.min()):g})")
-    if not np.any(depth > 0):
-        raise BadValueError(f"{name}: no valid depth (every pixel is 0 = unknown)")
-    return depth
-
-
 @contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yields a temporary path beside ``path`` (same extension); renames it over ``path``

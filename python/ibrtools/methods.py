@@ -93,7 +93,7 @@ def resolve(name: str, scene: Scene) -> str:
     if name == "auto":
         # Captured colour + depth views are what DIBR is for; a ground-truth mesh alone (views
         # without depth) still renders exactly with the reference ray caster.
-        from ibrtools.pipeline.stages import with_stage_depth
+        from ibrtools.cache import with_stage_depth
 
         if scene.views and all(v.has_depth for v in with_stage_depth(scene).views):
             return "dibr"

@@ -15,16 +15,13 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import Callable
 
 import numpy as np
 
 from ibrtools.camera import Camera
 from ibrtools.errors import BadValueError, DtypeError, InputError, ShapeError
 from ibrtools.mesh import Mesh
-
-if TYPE_CHECKING:
-    from ibrtools.api import CameraLike, RenderResult
 
 
 class _Lazy:
@@ -148,7 +145,7 @@ class View:
 
 
 def _check_image(v: np.ndarray, name: str, camera: Camera, what: str) -> np.ndarray:
-    from ibrtools.imageio import check_depth
+    from ibrtools.checks import check_depth
 
     hw = (camera.height, camera.width)
     if not isinstance(v, np.ndarray):
@@ -193,6 +190,9 @@ class Scene:
     # a still scene of its own (views, meshes, targets with ground truth at that instant) in
     # root/frames/F/, loaded by :meth:`frame`. Empty for a still scene (a one-frame scene).
     frames: list[str] = field(default_factory=list)
+    # How a frame's directory becomes a Scene: set by the loader that read this scene
+    # (ibrtools.formats.native.load), so that the model does not depend on the formats.
+    load_frame: Callable[[Path], "Scene"] | None = field(default=None, repr=False, compare=False)
 
     def view(self, name: str) -> View:
         for v in self.views:
@@ -229,14 +229,6 @@ class Scene:
         allp = np.concatenate(pts, 0)
         return np.stack([allp.min(0), allp.max(0)])
 
-    def render(self, camera: "CameraLike", method: str = "auto", **params: Any) -> "RenderResult":
-        """Render ``camera`` (a Camera, a target or view name, or a scene.json camera dict) with
-        ``method`` and its parameters; the method is prepared once and kept for later calls.
-        See :func:`ibrtools.api.render` (docs/api.md)."""
-        from ibrtools.api import render
-
-        return render(self, camera, method, **params)
-
     def frame(self, name: str) -> "Scene":
         """Frame ``name`` of a video scene, as a still scene (loaded from root/frames/<name>/)."""
         if name not in self.frames:
@@ -244,9 +236,9 @@ class Scene:
             raise BadValueError(f"frame {name!r}: not in the scene (frames: {have})")
         if self.root is None:
             raise BadValueError(f"frame {name!r}: the video scene has no directory to load its frames from")
-        from ibrtools.formats import native
-
-        return native.load(Path(self.root) / "frames" / name)
+        if self.load_frame is None:
+            raise BadValueError(f"frame {name!r}: the video scene was not loaded from disk (ibrtools.load_scene)")
+        return self.load_frame(Path(self.root) / "frames" / name)
 
     def validate(self) -> None:
         """Check what loading lazily would otherwise find late: names unique, views present, and

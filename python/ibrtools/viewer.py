@@ -205,7 +205,7 @@ class Viewer:
 
 def _usable(method: str, scene: Scene) -> bool:
     """Whether ``method`` can render ``scene`` as it is (what the page offers)."""
-    from ibrtools.pipeline.stages import with_stage_depth
+    from ibrtools.cache import with_stage_depth
 
     if method == "reference":
         return "ground_truth" in scene.meshes

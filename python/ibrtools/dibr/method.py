@@ -152,7 +152,7 @@ class DibrMethod:
         return o
 
     def prepare(self, scene: Scene) -> dict[str, float]:
-        from ibrtools.pipeline.stages import missing_depth_error, with_stage_depth
+        from ibrtools.cache import missing_depth_error, with_stage_depth
 
         if not scene.views:
             raise InputError("--method dibr: the scene has no input views")

@@ -69,7 +69,7 @@ class WarpMethod:
         self._scene: Scene | None = None
 
     def prepare(self, scene: Scene) -> dict[str, float]:
-        from ibrtools.pipeline.stages import missing_depth_error, with_stage_depth
+        from ibrtools.cache import missing_depth_error, with_stage_depth
 
         if not scene.views:
             raise InputError("--method warp: the scene has no input views")

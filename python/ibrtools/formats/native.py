@@ -235,6 +235,6 @@ def load(path: Path, options: dict | None = None) -> Scene:
     scene = Scene(views=views, targets=targets, paths=paths, meshes=meshes,
                   units=str(doc.get("units", "unknown")), source=dict(doc.get("source") or {}),
                   lights=list(doc.get("lights") or []), shading=dict(doc.get("shading") or {}),
-                  stages=dict(doc.get("stages") or {}), root=root, frames=list(frames or []))
+                  stages=dict(doc.get("stages") or {}), root=root, frames=list(frames or []), load_frame=load)
     scene.validate()
     return scene

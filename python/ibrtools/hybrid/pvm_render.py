@@ -31,7 +31,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -160,13 +159,13 @@ def _preprocess_hint(scene: Scene) -> str:
 
 def load_tiles(scene: Scene) -> PvmTiles:
     """The scene's PVM tiles (stage ``pvm``); InputError naming the command when it has none."""
-    from ibrtools.pipeline import stages
+    from ibrtools import cache
 
     if scene.root is None:
         raise InputError(f"PVM rendering needs the scene's pvm stage (tiles.npz); the scene has no directory: "
                          f"save it and run {_preprocess_hint(scene)}")
     try:
-        path = stages.stage_output(scene.root, "pvm")
+        path = cache.stage_output(scene.root, "pvm")
     except MissingFileError as e:
         raise InputError(f"PVM rendering needs the pvm stage: {e}; run {_preprocess_hint(scene)}") from None
     return PvmTiles.load(path)
@@ -180,14 +179,14 @@ def harmonised_images(arrays: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]
 def load_images(scene: Scene, harmonise: Mapping[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
     """Input images: the harmonise stage's when it ran, else the views' own colour.
     ``harmonise``: that stage's arrays when the caller has loaded them (read again otherwise)."""
-    from ibrtools.pipeline import stages
+    from ibrtools import cache
 
     harmonised: dict[str, np.ndarray] = {}
     if harmonise is not None:
         harmonised = harmonised_images(harmonise)
     elif scene.root is not None:
         try:
-            path = stages.stage_output(scene.root, "harmonise")
+            path = cache.stage_output(scene.root, "harmonise")
         except (MissingFileError, BadValueError):
             path = None  # skipped (views agree) or not run: the original images
         if path is not None:
@@ -209,15 +208,15 @@ def load_depths(scene: Scene) -> dict[str, np.ndarray] | None:
     depth stage's render of the global mesh; before the stage's snap to the global mesh, which moves
     depth by at most ``mesh_snap`` voxels, far below the free-space tolerances), for the free-space
     count; None when some view has neither."""
-    from ibrtools.pipeline import stages
+    from ibrtools import cache
 
     def rendered() -> dict[str, np.ndarray]:
         if scene.root is None:
             raise MissingFileError("the scene has no directory with a depth stage")
-        return stages.load_npz(stages.stage_output(scene.root, "depth"))
+        return cache.load_npz(cache.stage_output(scene.root, "depth"))
 
     try:
-        return stages.view_depths(scene.views, rendered)
+        return cache.view_depths(scene.views, rendered)
     except (KeyError, MissingFileError, BadValueError):
         return None
 

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from ibrtools.errors import BadValueError, DtypeError, ShapeError
+from ibrtools.errors import DtypeError, ShapeError
 
 DEPTH_THRESHOLD = 0.04  # authors' Unity code: 0.04 of the normalised depth
 GAMMA = 0.5             # paper sec. 3.3.1: "a compromise at gamma = .5"

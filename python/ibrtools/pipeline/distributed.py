@@ -1,4 +1,4 @@
-"""Distributed execution on Dask (issue 8; docs/distributed.md).
+"""Distributed execution on Dask (docs/distributed.md).
 
 ``ibr-render`` / ``ibr-preprocess`` with ``--workers N`` start a :class:`distributed.LocalCluster`
 (N worker processes on loopback, one Dask thread each, no dashboard, quiet logs); with
@@ -11,7 +11,7 @@ method, parameters, post-processing options: a few hundred bytes) and a chunk of
 it sends back each frame's report entry and its output files already encoded (PNG/EXR bytes,
 made by the same writer a local run uses, so the files are bit-identical). A worker prepares
 the method once per (scene, plan, method, parameters) and reuses it for every frame it is given
-(``_PREPARED``, a per-process cache of one entry).
+(``ibrtools.pipeline.job``: the worker side, a per-process cache of one prepared method).
 
 Failures: a frame whose render raises comes back as a failure record (the job goes on); a task
 that dies with its worker is rescheduled by the scheduler (and ``retries`` covers errors around
@@ -20,12 +20,8 @@ the frame function), so no frame is lost.
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
 import os
-import tempfile
-import threading
-import uuid
 from pathlib import Path
 from typing import Callable, Iterator
 
@@ -222,13 +218,8 @@ def _workers(client) -> dict:
 # ---------------------------------------------------------------------------------------------
 # Worker side: what a task does. Module-level functions, so that workers import them by name.
 
-_PREPARED: dict[str, tuple] = {}
-# A prepared method holds per-frame state (frame_report), so the tasks of one worker process run
-# one at a time even when the worker has several Dask threads (give those cores to -j instead).
-_LOCK = threading.Lock()
 
-
-def _engine_threads(threads: int) -> int:
+def engine_threads(threads: int) -> int:
     """Engine threads of a task: ``threads`` when given (-j), else 1. Dask's own model: a
     worker's threads are the cores it may use, one task per thread, so a task gets one core
     (``dask worker --nthreads`` = cores uses a machine; a worker that does not know its siblings
@@ -241,103 +232,6 @@ def scene_stamp(root: str | os.PathLike) -> list:
     stage or re-import rewrites it), so a long-lived worker never reuses a stale preparation."""
     st = (Path(root) / "scene.json").stat()
     return [st.st_size, st.st_mtime_ns]
-
-
-def _prepared(spec: dict, scene_frame: str | None = None):
-    """(job, method, setup_ms, prepared_now) for ``spec`` (and, in a video scene, its frame
-    ``scene_frame``) on this worker, prepared once."""
-    from ibrtools import _core
-    from ibrtools.formats import native
-    from ibrtools.pipeline import job as render_job
-    from ibrtools import methods
-
-    frame_stamp = scene_stamp(Path(spec["root"]) / "frames" / scene_frame) if scene_frame else None
-    key = json.dumps([spec["root"], spec["stamp"], spec["plan"], spec["method"], spec["params"],
-                      spec["threads"], scene_frame, frame_stamp], sort_keys=True, default=str)
-    hit = _PREPARED.get(key)
-    if hit is not None:
-        return (*hit, False)
-    _PREPARED.clear()  # one preparation per worker: the inputs of another job are freed
-    _core.set_num_threads(_engine_threads(spec["threads"]))
-    scene = native.load(spec["root"])
-    job = render_job.plan(scene, **spec["plan"])
-    method = methods.create(spec["method"], spec["params"])
-    setup = method.prepare(job.scene if scene_frame is None else job.scenes[scene_frame])
-    _PREPARED[key] = (job, method, setup)
-    return job, method, setup, True
-
-
-def encode_outputs(outputs: list[tuple[str, str, object]]) -> dict[str, bytes]:
-    """A frame's outputs [(file name, kind, array)] as file bytes, written by the very writer
-    of a local run (:func:`ibrtools.pipeline.job.write_output`) into a scratch directory."""
-    from ibrtools.pipeline.job import write_output
-
-    files: dict[str, bytes] = {}
-    with tempfile.TemporaryDirectory(prefix="ibr-task-") as d:
-        for rel, kind, array in outputs:
-            path = write_output(Path(d), rel, kind, array)
-            files[rel] = path.read_bytes()
-            path.unlink()
-    return files
-
-
-def render_task(spec: dict, indices: list[int], names: list[str], scene_frames: list[str | None]) -> dict:
-    """A Dask task: render frames ``indices`` of the job ``spec`` describes. Returns {"frames":
-    [(index, entry or None, failure or None, files)], "setup_ms" (of the worker's preparation),
-    "prepared" (whether this task made it), "threads"}, or {"error": exception} when the scene
-    or the method cannot be prepared."""
-    with _LOCK:
-        return _render_task(spec, indices, names, scene_frames)
-
-
-def _render_task(spec: dict, indices: list[int], names: list[str], scene_frames: list[str | None]) -> dict:
-    from ibrtools import _core
-    from ibrtools.pipeline.job import frame_scene, render_frame
-
-    out = []
-    fresh_any = False
-    for i, name, scene_frame in zip(indices, names, scene_frames):
-        try:  # cached after the first frame (of each scene frame, in a video)
-            job, method, setup, fresh = _prepared(spec, scene_frame)
-            got = job.frames[i].name if i < len(job.frames) else None
-            if got != name:
-                raise BadValueError(f"the worker planned other frames than the client ({got} != {name}): "
-                                    "the scene changed on disk, or the workers see another scene at "
-                                    f"{spec['root']}")
-        except Exception as e:  # noqa: BLE001 - sent back and raised on the client (one error, no retries)
-            return {"error": e}
-        fresh_any |= fresh
-        frame = job.frames[i]
-        entry, failure, outputs = render_frame(method, frame, frame_scene(job, frame), **spec["frame"])
-        out.append((i, entry, failure, encode_outputs(outputs) if outputs else {}))
-    return {"frames": out, "setup_ms": setup, "prepared": fresh_any, "threads": int(_core.get_num_threads())}
-
-
-def run_frames(client, job, spec: dict, chunks: list[list[int]], on_frame: Callable) -> dict:
-    """Submit one task per chunk of frame indices; call ``on_frame(index, entry, failure, files)``
-    on the client as frames complete (completion order). Returns {"setup_ms", "threads"} of
-    the workers. Futures are cancelled on any way out (an interrupt included)."""
-    from distributed import as_completed
-
-    token = uuid.uuid4().hex[:10]
-    futures = [client.submit(render_task, spec, c, [job.frames[i].name for i in c],
-                             [job.frames[i].scene_frame for i in c], key=f"ibr-render-{token}-{k}",
-                             retries=RETRIES, pure=False) for k, c in enumerate(chunks)]
-    info: dict = {"setup_ms": None, "threads": None}
-    try:
-        for fut in as_completed(futures, loop=client.loop):
-            res = fut.result()
-            fut.release()
-            if "error" in res:
-                raise res["error"]
-            if info["setup_ms"] is None or res["prepared"]:
-                info["setup_ms"] = res["setup_ms"]  # a preparation of this job, else the reused one
-            info["threads"] = res["threads"]
-            for i, entry, failure, files in res["frames"]:
-                on_frame(i, entry, failure, files)
-    finally:
-        client.cancel([f for f in futures if not f.done()])
-    return info
 
 
 # --- preprocessing: per-view work of the stages that are per view ------------------------------
@@ -366,10 +260,10 @@ def map_views(client, fn: Callable, root: str | os.PathLike, names: list[str], *
 
 
 def set_task_threads(threads: int) -> None:
-    """At the start of a task: the engine's threads (see :func:`_engine_threads`)."""
+    """At the start of a task: the engine's threads (see :func:`engine_threads`)."""
     from ibrtools import _core
 
-    _core.set_num_threads(_engine_threads(threads))
+    _core.set_num_threads(engine_threads(threads))
 
 
 class LazyClient:
@@ -379,7 +273,7 @@ class LazyClient:
     def __init__(self, scheduler: str | None = None, workers: int = 0, threads: int = 0):
         check_options(scheduler, workers)
         self.scheduler, self.workers = scheduler, workers
-        self.task_threads = int(threads)  # engine threads per task: -j, else 1 (_engine_threads)
+        self.task_threads = int(threads)  # engine threads per task: -j, else 1 (engine_threads)
         self._stack = contextlib.ExitStack()
         self._client = None
 

@@ -13,7 +13,10 @@ from __future__ import annotations
 import glob
 import json
 import os
+import tempfile
+import threading
 import time
+import uuid
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,6 +33,7 @@ from ibrtools.imageio import write_image as _write_image
 from ibrtools.memory import available_memory
 from ibrtools.outputs import OutputDir, check_output_dir, file_stem, is_plain_name, temp_prefix
 from ibrtools.scene import Scene, View
+from ibrtools.pipeline import distributed as D
 from ibrtools import methods
 from ibrtools.inpaint.complete import (DEFAULT_INPAINT, INPAINT_FILLS, NOTHING_TO_FILL, check_inpaint, complete, completion,
                        parse_background)
@@ -197,7 +201,7 @@ def holdout_note(scene: Scene, held: list[str], method: str) -> str | None:
     every view of the scene, the held-out ones too (a mesh fused from their depth, a texture baked
     from their colours), so the figures on them are optimistic. None otherwise. The render report
     and ibr-bench's JSON carry it as "holdout_note" and the commands print it."""
-    from ibrtools.pipeline.stages import STAGES
+    from ibrtools.cache import STAGES
 
     held = list(held)
     read = [n for n, st in STAGES.items()
@@ -218,7 +222,7 @@ def stale_note(scene: Scene, method: str) -> str | None:
     e.g. ``ibr-preprocess --stages mesh`` alone), naming the command that brings it up to date.
     The output still loads and is used as it is. None otherwise. The render report and
     ibr-bench's JSON carry it as "stale_note" and the commands print it as a warning."""
-    from ibrtools.pipeline.stages import STAGES, stale_reasons
+    from ibrtools.cache import STAGES, stale_reasons
 
     stale = {n: r for n, st in STAGES.items() if method in st.methods
              for r in [stale_reasons(scene.stages, n)] if r}
@@ -339,8 +343,6 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
     "error"}); the other frames are written. An interrupt (KeyboardInterrupt, SIGTERM through
     the commands) removes every file the run wrote: all or nothing."""
     from ibrtools import _core
-    from ibrtools.pipeline import distributed as D
-
     D.check_options(scheduler, workers)
     check_inpaint(inpaint)
 
@@ -441,7 +443,7 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
                 if progress:
                     progress(0, n, "")
                 with D.open_client(scheduler, workers, threads_per_worker=1) as client:
-                    info = D.run_frames(client, job, spec, chunks, on_frame)
+                    info = run_frames(client, job, spec, chunks, on_frame)
                     extra["distributed"] = {**D.describe(client, scheduler), "tasks": len(chunks)}
                 setup, used_threads = info["setup_ms"] or {}, int(info["threads"] or 0)
             if progress:
@@ -485,7 +487,7 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
 def write_output(out_dir: Path, rel: str, kind: str, array: np.ndarray) -> Path:
     """Write one output file of a frame (atomically): ``kind`` "depth" (single-channel float EXR)
     or "image" (by extension: 8-bit sRGB PNG, linear float EXR). The one writer of local runs
-    and of Dask workers (which send the bytes back: ibrtools.pipeline.distributed.encode_outputs)."""
+    and of Dask workers (which send the bytes back: encode_outputs)."""
     if not is_plain_name(rel):
         raise InternalError(f"write_output: {rel!r} is not a plain file name")  # names go through file_stem
     path = out_dir / rel
@@ -621,3 +623,109 @@ def _summary(frames: list[dict], setup_ms: dict) -> dict:
         if vals:
             s[f"mean_{k}"] = round(float(np.mean(vals)), 6)
     return s
+
+
+# ---------------------------------------------------------------------------------------------
+# The worker side of a distributed run (docs/distributed.md): module-level functions, so that Dask
+# workers import them by name.
+
+_PREPARED: dict[str, tuple] = {}
+
+
+# A prepared method holds per-frame state (frame_report), so the tasks of one worker process run
+# one at a time even when the worker has several Dask threads (give those cores to -j instead).
+_LOCK = threading.Lock()
+
+
+def _prepared(spec: dict, scene_frame: str | None = None):
+    """(job, method, setup_ms, prepared_now) for ``spec`` (and, in a video scene, its frame
+    ``scene_frame``) on this worker, prepared once."""
+    from ibrtools import _core
+    from ibrtools.formats import native
+    from ibrtools import methods
+
+    frame_stamp = D.scene_stamp(Path(spec["root"]) / "frames" / scene_frame) if scene_frame else None
+    key = json.dumps([spec["root"], spec["stamp"], spec["plan"], spec["method"], spec["params"],
+                      spec["threads"], scene_frame, frame_stamp], sort_keys=True, default=str)
+    hit = _PREPARED.get(key)
+    if hit is not None:
+        return (*hit, False)
+    _PREPARED.clear()  # one preparation per worker: the inputs of another job are freed
+    _core.set_num_threads(D.engine_threads(spec["threads"]))
+    scene = native.load(spec["root"])
+    job = plan(scene, **spec["plan"])
+    method = methods.create(spec["method"], spec["params"])
+    setup = method.prepare(job.scene if scene_frame is None else job.scenes[scene_frame])
+    _PREPARED[key] = (job, method, setup)
+    return job, method, setup, True
+
+
+def encode_outputs(outputs: list[tuple[str, str, object]]) -> dict[str, bytes]:
+    """A frame's outputs [(file name, kind, array)] as file bytes, written by the very writer
+    of a local run (:func:`ibrtools.pipeline.job.write_output`) into a scratch directory."""
+
+    files: dict[str, bytes] = {}
+    with tempfile.TemporaryDirectory(prefix="ibr-task-") as d:
+        for rel, kind, array in outputs:
+            path = write_output(Path(d), rel, kind, array)
+            files[rel] = path.read_bytes()
+            path.unlink()
+    return files
+
+
+def render_task(spec: dict, indices: list[int], names: list[str], scene_frames: list[str | None]) -> dict:
+    """A Dask task: render frames ``indices`` of the job ``spec`` describes. Returns {"frames":
+    [(index, entry or None, failure or None, files)], "setup_ms" (of the worker's preparation),
+    "prepared" (whether this task made it), "threads"}, or {"error": exception} when the scene
+    or the method cannot be prepared."""
+    with _LOCK:
+        return _render_task(spec, indices, names, scene_frames)
+
+
+def _render_task(spec: dict, indices: list[int], names: list[str], scene_frames: list[str | None]) -> dict:
+    from ibrtools import _core
+
+    out = []
+    fresh_any = False
+    for i, name, scene_frame in zip(indices, names, scene_frames):
+        try:  # cached after the first frame (of each scene frame, in a video)
+            job, method, setup, fresh = _prepared(spec, scene_frame)
+            got = job.frames[i].name if i < len(job.frames) else None
+            if got != name:
+                raise BadValueError(f"the worker planned other frames than the client ({got} != {name}): "
+                                    "the scene changed on disk, or the workers see another scene at "
+                                    f"{spec['root']}")
+        except Exception as e:  # noqa: BLE001 - sent back and raised on the client (one error, no retries)
+            return {"error": e}
+        fresh_any |= fresh
+        frame = job.frames[i]
+        entry, failure, outputs = render_frame(method, frame, frame_scene(job, frame), **spec["frame"])
+        out.append((i, entry, failure, encode_outputs(outputs) if outputs else {}))
+    return {"frames": out, "setup_ms": setup, "prepared": fresh_any, "threads": int(_core.get_num_threads())}
+
+
+def run_frames(client, job, spec: dict, chunks: list[list[int]], on_frame: Callable) -> dict:
+    """Submit one task per chunk of frame indices; call ``on_frame(index, entry, failure, files)``
+    on the client as frames complete (completion order). Returns {"setup_ms", "threads"} of
+    the workers. Futures are cancelled on any way out (an interrupt included)."""
+    from distributed import as_completed
+
+    token = uuid.uuid4().hex[:10]
+    futures = [client.submit(render_task, spec, c, [job.frames[i].name for i in c],
+                             [job.frames[i].scene_frame for i in c], key=f"ibr-render-{token}-{k}",
+                             retries=D.RETRIES, pure=False) for k, c in enumerate(chunks)]
+    info: dict = {"setup_ms": None, "threads": None}
+    try:
+        for fut in as_completed(futures, loop=client.loop):
+            res = fut.result()
+            fut.release()
+            if "error" in res:
+                raise res["error"]
+            if info["setup_ms"] is None or res["prepared"]:
+                info["setup_ms"] = res["setup_ms"]  # a preparation of this job, else the reused one
+            info["threads"] = res["threads"]
+            for i, entry, failure, files in res["frames"]:
+                on_frame(i, entry, failure, files)
+    finally:
+        client.cancel([f for f in futures if not f.done()])
+    return info

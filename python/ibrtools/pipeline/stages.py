@@ -22,10 +22,11 @@ import numpy as np
 
 from ibrtools.errors import BadValueError, InputError, MissingFileError, NotBuiltError
 from ibrtools.scene import Scene
+from ibrtools.cache import (ALL_METHODS, CACHE_DIR, ORDER, SCENE_FILE, STAGES, Stage,  # noqa: F401 (re-exported)
+                            missing_depth_error, mvs_arrays, stage_output, available_stages, existing_record, file_hash, hash_inputs, load_npz, mvs_key, output_intact, output_stats, read_doc, save_npz, scene_content_key, stage_key, stale_reasons, view_depths, with_stage_depth, write_stage_record)
 
 # Bump when the import code changes what it writes, so that old scenes are rebuilt.
 IMPORT_STAGE_VERSION = 2  # 2: the background at infinity (depth +inf) of synthetic and nerf scenes
-_HASH_CHUNK = 1 << 20
 
 
 @dataclass
@@ -39,32 +40,6 @@ class StageResult:
     def to_dict(self) -> dict:
         return {"stage": self.name, "status": self.status, "reason": self.reason,
                 "seconds": round(self.seconds, 4), **self.details}
-
-
-def hash_inputs(path: Path, params: dict) -> str:
-    """Content hash of a file or a directory tree (relative names and bytes) and ``params``."""
-    h = hashlib.blake2b(digest_size=16)
-    h.update(json.dumps(params, sort_keys=True, default=str).encode())
-    path = Path(path)
-    files = [path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file())
-    for f in files:
-        rel = f.name if f == path else f.relative_to(path).as_posix()
-        h.update(rel.encode() + b"\0")
-        with open(f, "rb") as fh:
-            while chunk := fh.read(_HASH_CHUNK):
-                h.update(chunk)
-    return h.hexdigest()
-
-
-def _existing_record(output: Path, stage: str) -> dict | None:
-    f = output / "scene.json"
-    if not f.is_file():
-        return None
-    try:
-        with open(f, encoding="utf-8") as fh:
-            return (json.load(fh).get("stages") or {}).get(stage)
-    except (OSError, ValueError, AttributeError):
-        return None  # unreadable: treat as absent and rebuild
 
 
 _NO_VIDEO_HOLDOUT = "--holdout: not for a video scene (ibr-render --holdout removes views from a render)"
@@ -108,7 +83,7 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
                 flag = "--holdout" if held else "--mesh"
                 raise BadValueError(f"{flag}: only when importing a data set (the input is the scene itself; "
                                     "import the data set again into another directory)")
-            record = _existing_record(output, "import") or {}
+            record = existing_record(output, "import") or {}
             return StageResult("import", "up to date", "the input is the scene itself (preprocessed in place)", 0.0,
                                {k: record[k] for k in ("views", "targets") if k in record})
         params = {"format": fmt, "options": options, "version": IMPORT_STAGE_VERSION}
@@ -128,7 +103,7 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
         params["mesh"] = hash_inputs(Path(mesh), {})
     key = (hashlib.blake2b(json.dumps(params, sort_keys=True).encode(), digest_size=16).hexdigest()
            if synth is not None else hash_inputs(src, params))
-    record = _existing_record(output, "import")
+    record = existing_record(output, "import")
     if not force and record and record.get("key") == key:
         return StageResult("import", "up to date", "inputs and parameters unchanged", 0.0,
                            {"views": record.get("views"), "targets": record.get("targets")})
@@ -242,81 +217,10 @@ def hold_out(scene: Scene, names: list[str]) -> Scene:
 # ---------------------------------------------------------------------------------------------
 # The preprocessing stages after import (issue 6): declared once, planned per run.
 
-CACHE_DIR = "cache"
-SCENE_FILE = "scene.json"
 # Methods and the stages they read (DESIGN.md "Commands"): reference/dibr/warp/depthwarp work
 # from the views alone; tm needs the textured global mesh; ulr the global mesh as geometry proxy
 # and per-view depth; pvm the per-view meshes (and the global mesh to pick voxels at render
 # time); hybrid all of it plus the harmonised images.
-
-
-@dataclass(frozen=True)
-class Stage:
-    """One derived stage: what it reads, writes and is for.
-
-    ``inputs``: upstream stages whose outputs it reads (their keys enter its key; "scene" is the
-    imported scene's content: scene.json less its stage records, plus every file it names).
-    ``outputs``: files it writes under ``SCENE/cache/<name>/``. ``methods``: the render methods
-    that need it. ``params``: its parameters (hashed). ``version``: bump when the code changes
-    what it writes."""
-
-    name: str
-    inputs: tuple[str, ...]
-    outputs: tuple[str, ...]
-    methods: frozenset[str]
-    description: str
-    version: int = 1
-
-
-STAGES: dict[str, Stage] = {s.name: s for s in (
-    Stage("mvs", ("scene",), ("mvs.npz",), frozenset({"dibr", "warp", "tm", "ulr", "pvm", "hybrid"}),
-          "per-view depth, normal and confidence by PatchMatch multi-view stereo, for the views without depth "
-          "(photographs and cameras; docs/mvs.md)"),
-    Stage("mesh", ("scene", "mvs"), ("mesh.npz",), frozenset({"tm", "ulr", "pvm", "hybrid"}),
-          "global mesh: reconstructed mesh, else TSDF fusion of the depth maps, else ground truth; "
-          "dense (per-vertex statistics) and render (G-buffer, atlas) versions of the same surface",
-          version=3),  # 3: fusion by open3d's sparse VoxelBlockGrid (was the dense UniformTSDFVolume)
-    Stage("depth", ("scene", "mesh"), ("depth.npz",), frozenset({"dibr", "warp", "ulr", "pvm", "hybrid"}),
-          "per-view depth rendered from the global mesh, for views without depth"),
-    Stage("texture", ("scene", "mesh", "depth"), ("texture.npz",), frozenset({"tm", "hybrid"}),
-          "texture atlas and per-vertex colour of the render mesh by ULR-weighted blending of the "
-          "gain-compensated views", version=8),
-    Stage("variance", ("scene", "mesh", "depth"), ("variance.npz",), frozenset({"hybrid"}),
-          "per-vertex photometric standard deviation across the views that see it"),
-    Stage("harmonise", ("scene", "mesh", "variance"), ("harmonise.npz",), frozenset({"hybrid"}),
-          "diffuse harmonisation (exposure gains, or the paper's local ratio field and Poisson re-injection), "
-          "graph-cut view-dependent masks", version=5),
-    Stage("pvm", ("scene", "mesh", "depth"), ("tiles.npz",), frozenset({"pvm", "hybrid"}),
-          "per-view meshes (depth within mesh_snap voxels of the global mesh's snapped to it, merge tolerance "
-          "matched to the depth noise) sorted into a two-level voxel grid of tiles (cubic cells; triangles "
-          "whole)",
-          version=5),  # 4: mesh_snap; 5: clip "large" (triangles whole, not clipped to the cells)
-    Stage("mix", ("scene", "mesh", "depth", "texture", "harmonise", "pvm"), ("mix.npz",), frozenset({"hybrid"}),
-          "the hybrid composite's PVM weight floor (pvm_floor), fitted on leave-one-out renders of input views",
-          version=4),  # 2: the G-buffer of a mesh dense for the frame ray cast (render/hybrid.py RASTER_MAX_FACES);
-    # 3: tol_db 0 (the best floor; was the smallest within 0.01 dB of it); 4: PVM colours with the stretch term
-    # (hybrid/pvm_render.py stretch_weight)
-)}
-ORDER = tuple(STAGES)
-ALL_METHODS = ("reference", "dibr", "warp", "depthwarp", "tm", "ulr", "pvm", "hybrid")
-
-
-def available_stages() -> list[str]:
-    """Stages whose code exists in this build: variance and harmonise come from
-    ibrtools.hybrid.variance / .harmonise and are absent from the table until those land."""
-    import importlib.util
-
-    out = []
-    for name in ORDER:
-        if name in ("variance", "harmonise"):
-            mod = "ibrtools.hybrid." + name
-            try:
-                if importlib.util.find_spec(mod) is None:
-                    continue
-            except ImportError:
-                continue
-        out.append(name)
-    return out
 
 
 VIEW_ONLY_METHODS = ("reference", "dibr", "warp", "depthwarp")
@@ -354,177 +258,6 @@ def parse_stages(text: str | None) -> list[str] | None:
     absent = [s for s in out if s not in available_stages()]
     if absent:
         raise NotBuiltError(f"--stages: {', '.join(absent)} not built yet")
-    return out
-
-
-def _file_hash(path: Path) -> str:
-    h = hashlib.blake2b(digest_size=16)
-    with open(path, "rb") as fh:
-        while chunk := fh.read(_HASH_CHUNK):
-            h.update(chunk)
-    return h.hexdigest()
-
-
-def _file_stat(path: Path) -> list[int]:
-    st = path.stat()
-    return [int(st.st_size), int(st.st_mtime_ns)]
-
-
-def _output_stats(cache: Path, rels) -> dict[str, list[int]]:
-    """The record's ``stat``: each output's size and modification time (ns)."""
-    return {rel: _file_stat(cache / rel) for rel in rels}
-
-
-def _output_intact(path: Path, rec: dict, rel: str) -> bool:
-    """True when output ``rel`` of the stage record ``rec`` is at ``path`` with the content the
-    record names: its size and modification time as recorded when the stage wrote it (outputs are
-    written whole, then renamed), else (a copied scene, an older record without them, a changed
-    file) its hash. A change that keeps both the size and the modification time to the nanosecond
-    is not detected (as make and rsync); every other one, a torn write included, is."""
-    if not path.is_file():
-        return False
-    if _file_stat(path) == (rec.get("stat") or {}).get(rel):
-        return True
-    return _file_hash(path) == rec["outputs"][rel]
-
-
-def scene_content_key(root: Path) -> str:
-    """Content hash of an imported scene: scene.json without its stage records, and the bytes
-    of every file it names (views, targets, meshes)."""
-    if not (root / SCENE_FILE).is_file():
-        raise MissingFileError(f"{root / SCENE_FILE}: no such file (not an imported scene)")
-    with open(root / SCENE_FILE, encoding="utf-8") as fh:
-        doc = json.load(fh)
-    doc.pop("stages", None)
-    h = hashlib.blake2b(digest_size=16)
-    h.update(json.dumps(doc, sort_keys=True).encode())
-    rels = []
-    for group in ("views", "targets"):
-        for e in doc.get(group, []):
-            rels += [e[k] for k in ("color", "depth", "mask", "depth_stored") if isinstance(e, dict) and e.get(k)]
-    mesh_files = [root / m["path"] for m in (doc.get("meshes") or {}).values() if isinstance(m, dict) and "path" in m]
-    cache = (root / CACHE_DIR).resolve()
-    for d in sorted({f.parent for f in mesh_files}):
-        # Meshes with their sidecars, materials and textures: their whole directory, unless it is
-        # the scene root (then the mesh file and its "<name>.*" sidecars), never the cache.
-        files = (sorted(d.rglob("*")) if d.resolve() != root.resolve() else
-                 sorted(p for f in mesh_files if f.parent == d for p in [f, *d.glob(f.name + ".*")]))
-        rels += [p.relative_to(root).as_posix() for p in files
-                 if p.is_file() and cache not in p.resolve().parents]
-    for rel in rels:
-        f = root / rel
-        h.update(rel.encode() + b"\0")
-        h.update(_file_hash(f).encode() if f.is_file() else b"missing")
-    return h.hexdigest()
-
-
-def _stage_key(stage: Stage, params: dict, upstream: dict[str, str]) -> str:
-    h = hashlib.blake2b(digest_size=16)
-    h.update(json.dumps({"stage": stage.name, "version": stage.version, "params": params,
-                         "inputs": {k: upstream.get(k) for k in stage.inputs}}, sort_keys=True).encode())
-    return h.hexdigest()
-
-
-def _read_doc(root: Path) -> dict:
-    with open(root / SCENE_FILE, encoding="utf-8") as fh:
-        return json.load(fh)
-
-
-def _write_stage_record(root: Path, name: str, record: dict | None) -> None:
-    """Update scene.json's ``stages`` entry atomically (temporary file, then rename)."""
-    from ibrtools.imageio import atomic_path
-
-    doc = _read_doc(root)
-    stages = dict(doc.get("stages") or {})
-    if record is None:
-        stages.pop(name, None)
-    else:
-        stages[name] = record
-    doc["stages"] = stages
-    with atomic_path(root / SCENE_FILE) as tmp:
-        with open(tmp, "w", encoding="utf-8") as fh:
-            json.dump(doc, fh, indent=1)
-
-
-def save_npz(path: Path, **arrays) -> Path:
-    """np.savez (uncompressed: fast to write and read) to a temporary name, then rename."""
-    from ibrtools.imageio import atomic_path
-
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as fh:
-            np.savez(fh, **arrays)
-    return path
-
-
-def load_npz(path: Path) -> dict[str, np.ndarray]:
-    with np.load(path, allow_pickle=False) as z:
-        return {k: z[k] for k in z.files}
-
-
-def mvs_key(kind: str, view: str) -> str:
-    """The key of one view's array of one kind ("depth", "normal", "confidence") in mvs.npz."""
-    return f"{kind}:{view}"
-
-
-def mvs_arrays(arrays: dict[str, np.ndarray], kind: str = "depth") -> dict[str, np.ndarray]:
-    """{view: array} of one kind ("depth", "normal", "confidence") of the mvs stage's mvs.npz."""
-    prefix = mvs_key(kind, "")
-    return {k[len(prefix):]: v for k, v in arrays.items() if k.startswith(prefix)}
-
-
-def with_stage_depth(scene: Scene, prefer: tuple[str, ...] = ("mvs", "depth")) -> Scene:
-    """``scene`` with a depth map for every view that has none of its own, from the first stage of
-    ``prefer`` that made one for it: multi-view stereo (``mvs``: measured from the photographs;
-    unknown where nothing matched) or the global mesh rendered (``depth``). Views with their own
-    depth, and views no stage made depth for, are as they were. The scene is the same object when
-    nothing was added."""
-    missing = [v.name for v in scene.views if not v.has_depth]
-    if not missing or scene.root is None:
-        return scene
-    found: dict[str, np.ndarray] = {}
-    for stage in prefer:
-        try:
-            path = stage_output(scene.root, stage)
-        except InputError:
-            continue
-        with np.load(path, allow_pickle=False) as z:  # only the missing views' depth is read
-            for n in missing:
-                key = mvs_key("depth", n) if stage == "mvs" else n
-                if n not in found and key in z.files:
-                    d = z[key]
-                    if np.any(d > 0):  # (a view in which nothing matched stays without depth)
-                        found[n] = d
-    if not found:
-        return scene
-    views = [v.with_depth(found[v.name]) if v.name in found else v for v in scene.views]
-    return replace(scene, views=views)
-
-
-def missing_depth_error(method: str, scene: Scene, names: list[str]) -> InputError:
-    """The error of a depth-image method (dibr, warp) whose input views ``names`` have no depth,
-    naming the command that makes it (the mvs stage: multi-view stereo of the photographs)."""
-    where = scene.root if scene.root is not None else "SCENE"
-    some = f"{', '.join(names[:5])}{' ...' if len(names) > 5 else ''} ({len(names)} of {len(scene.views)})"
-    if scene.meshes:  # the mvs stage is skipped for such a scene: the depth stage renders its mesh
-        how = f"render it from the scene's mesh: ibr-preprocess {where} -o {where} --stages depth"
-    else:
-        how = f"compute it from the photographs: ibr-preprocess {where} -o {where} --methods {method}"
-    return InputError(f"--method {method} needs depth for every input view; without depth: {some}; {how}")
-
-
-def view_depths(views, load_rendered) -> dict[str, np.ndarray]:
-    """Each view's depth: its own, else the depth stage's rendering of the global mesh
-    (``load_rendered()`` gives the depth stage's arrays; called once, and only when some view has
-    no depth). KeyError naming the view when the depth stage has none for it."""
-    rendered = None
-    out = {}
-    for v in views:
-        if v.has_depth:
-            out[v.name] = v.depth
-            continue
-        if rendered is None:
-            rendered = load_rendered()
-        out[v.name] = rendered[v.name]
     return out
 
 
@@ -872,7 +605,7 @@ def _pvm_mesh_depths(ctx: _Context, names: list[str], snap: float) -> dict:
 
 def _pvm_snap(ctx: _Context, opts) -> float:
     """``mesh_snap`` voxels of the mesh stage's record in world units (0: off, or no voxel recorded)."""
-    voxel = (((_read_doc(ctx.root).get("stages") or {}).get("mesh") or {}).get("details") or {}).get("voxel")
+    voxel = (((read_doc(ctx.root).get("stages") or {}).get("mesh") or {}).get("details") or {}).get("voxel")
     return float(opts.mesh_snap * voxel) if isinstance(voxel, (int, float)) and voxel > 0 else 0.0
 
 
@@ -897,7 +630,7 @@ def _run_pvm(ctx: _Context) -> dict:
 
 
 def _run_mix(ctx: _Context) -> dict | str:
-    from ibrtools.hybrid.method import MIX_DEFAULTS, fit_pvm_floor
+    from ibrtools.pipeline.mix import MIX_DEFAULTS, fit_pvm_floor
 
     opts = {**MIX_DEFAULTS, **ctx.options.get("mix", {})}
     res = fit_pvm_floor(ctx.scene, views=opts["views"], tol_db=opts["tol_db"])
@@ -1008,7 +741,7 @@ def _run_planned(root: Path, options: dict, wanted: list[str], why: dict, avail:
             upstream["scene"] = scene_content_key(root)
         return upstream["scene"]
 
-    records = dict(_read_doc(root).get("stages") or {})
+    records = dict(read_doc(root).get("stages") or {})
     results: list[StageResult] = []
     planned = [s for s in ORDER if s in avail]
     for i, name in enumerate(planned):
@@ -1022,7 +755,7 @@ def _run_planned(root: Path, options: dict, wanted: list[str], why: dict, avail:
             if unserved:
                 reason += f" ({unserved})"
             if records.get(name):  # the stages that ran before it in this run are on disk now
-                stale = stale_reasons(_read_doc(root).get("stages") or {}, name, scene_key())
+                stale = stale_reasons(read_doc(root).get("stages") or {}, name, scene_key())
                 if stale:
                     reason += f"; its output is out of date ({'; '.join(stale)})"
             results.append(StageResult(name, "skipped", reason))
@@ -1033,11 +766,11 @@ def _run_planned(root: Path, options: dict, wanted: list[str], why: dict, avail:
             upstream[name] = "not needed"  # readers' keys do not depend on what it would read
             results.append(StageResult(name, "skipped", not_needed))
             if rec is not None:
-                _write_stage_record(root, name, None)
+                write_stage_record(root, name, None)
             continue
         scene_key()
         params = _params(name, options)
-        key = _stage_key(st, params, upstream)
+        key = stage_key(st, params, upstream)
         upstream[name] = key
         provenance = {"version": st.version, "inputs": {k: upstream.get(k) for k in st.inputs}}
         if not force and rec and rec.get("key") == key:
@@ -1046,15 +779,15 @@ def _run_planned(root: Path, options: dict, wanted: list[str], why: dict, avail:
             unrecorded = any(rec.get(k) != v for k, v in provenance.items())
             if rec.get("skipped"):
                 if unrecorded:
-                    _write_stage_record(root, name, {**rec, **provenance})
+                    write_stage_record(root, name, {**rec, **provenance})
                 results.append(StageResult(name, "skipped", f"{rec['skipped']} (inputs unchanged)"))
                 continue
-            bad = [rel for rel in rec.get("outputs") or {} if not _output_intact(ctx.cache(name) / rel, rec, rel)]
+            bad = [rel for rel in rec.get("outputs") or {} if not output_intact(ctx.cache(name) / rel, rec, rel)]
             if not bad and rec.get("outputs"):
-                stat = _output_stats(ctx.cache(name), rec["outputs"])
+                stat = output_stats(ctx.cache(name), rec["outputs"])
                 # Hashed intact (copied, or recorded without them), or unrecorded provenance: record them.
                 if rec.get("stat") != stat or unrecorded:
-                    _write_stage_record(root, name, {**rec, "stat": stat, **provenance})
+                    write_stage_record(root, name, {**rec, "stat": stat, **provenance})
                 results.append(StageResult(name, "up to date", "inputs and parameters unchanged",
                                            0.0, dict(rec.get("details") or {})))
                 continue
@@ -1069,65 +802,20 @@ def _run_planned(root: Path, options: dict, wanted: list[str], why: dict, avail:
         # Outputs are replaced atomically; a stale record is removed first so that a failure
         # part-way never leaves a record naming an old output as current.
         if rec is not None:
-            _write_stage_record(root, name, None)
+            write_stage_record(root, name, None)
         details = _RUN[name](ctx)
         seconds = time.perf_counter() - t0
         if isinstance(details, str):  # the stage decided it has nothing to do (e.g. harmonise)
-            _write_stage_record(root, name, {"key": key, "skipped": details, "params": params, **provenance})
+            write_stage_record(root, name, {"key": key, "skipped": details, "params": params, **provenance})
             results.append(StageResult(name, "skipped", details, seconds))
             continue
-        outputs = {rel: _file_hash(ctx.cache(name) / rel) for rel in st.outputs}
-        _write_stage_record(root, name, {"key": key, **provenance, "params": params, "outputs": outputs,
-                                         "stat": _output_stats(ctx.cache(name), st.outputs),
+        outputs = {rel: file_hash(ctx.cache(name) / rel) for rel in st.outputs}
+        write_stage_record(root, name, {"key": key, **provenance, "params": params, "outputs": outputs,
+                                         "stat": output_stats(ctx.cache(name), st.outputs),
                                          "seconds": round(seconds, 4), "details": details,
                                          "why": why.get(name, "")})
         results.append(StageResult(name, "ran", f"{reason}; {why.get(name, '')}", seconds, details))
     return results
-
-
-def stale_reasons(records: dict, stage: str, scene_key: str | None = None) -> list[str]:
-    """Why the output recorded for ``stage`` in ``records`` (scene.json's ``stages``) is not what this
-    build would make now: its code's version changed, or a stage it reads re-ran (or lost its
-    output) after it ran, or (``scene_key`` given: the imported scene's content key now) the scene
-    changed. Empty when it is current, when there is no output, and for records written before
-    records carried ``version`` and ``inputs`` (the twenty-third session; nothing to compare)."""
-    rec = records.get(stage) or {}
-    st = STAGES[stage]
-    out = []
-    if "version" in rec and rec["version"] != st.version:
-        out.append(f"written by version {rec['version']} of its code, this build's is {st.version}")
-    used = rec.get("inputs")
-    if not isinstance(used, dict):
-        return out
-    for k in st.inputs:
-        if k == "scene":
-            if scene_key is not None and used.get(k) != scene_key:
-                out.append("the scene's files changed after it ran")
-            continue
-        now = (records.get(k) or {}).get("key", "not needed")
-        if used.get(k) != now:
-            out.append(f"stage {k!r} has no output now" if now == "not needed" else f"stage {k!r} re-ran after it")
-    return out
-
-
-def stage_output(root: str | os.PathLike, stage: str, *, verify: bool = True) -> Path:
-    """Path of a derived stage's output in the scene at ``root`` (for the render methods), after
-    checking that scene.json records it and (``verify``) that the file still has its recorded
-    content (``_output_intact``: its recorded size and modification time, else its hash). Raises
-    MissingFileError naming the command that makes it."""
-    root = Path(root)
-    if stage not in STAGES:
-        raise BadValueError(f"stage {stage!r}: unknown (expected one of {', '.join(STAGES)})")
-    rec = (_read_doc(root).get("stages") or {}).get(stage) if (root / SCENE_FILE).is_file() else None
-    hint = f"run: ibr-preprocess {root} -o {root} --stages {stage}"
-    if not rec or not rec.get("outputs"):
-        why = f" ({rec['skipped']})" if rec and rec.get("skipped") else ""
-        raise MissingFileError(f"{root}: no output of stage {stage!r}{why}; {hint}")
-    rel = next(iter(rec["outputs"]))
-    f = root / CACHE_DIR / stage / rel
-    if not (_output_intact(f, rec, rel) if verify else f.is_file()):
-        raise MissingFileError(f"{f}: missing or changed since stage {stage!r} wrote it; {hint} --force")
-    return f
 
 
 def parse_options(pairs: list[str] | None) -> dict:
@@ -1196,7 +884,7 @@ def preprocess(input_spec: str, output: str | os.PathLike, *, fmt: str | None = 
             results[0].details["swept"] = len(lock.swept)
         if stages == []:
             return results
-        doc = _read_doc(Path(output))
+        doc = read_doc(Path(output))
         for frame in doc.get("frames") or [None]:  # a video scene: the stages of every frame, in order
             rows = run_stages(Path(output) if frame is None else Path(output) / "frames" / frame, methods=methods,
                               stages=stages, force=force, options=stage_options, progress=progress,
@@ -1221,7 +909,7 @@ def _check_stage_options(options: dict) -> None:
         if hasattr(H, "HarmoniseParams"):
             classes["harmonise"] = H.HarmoniseParams
     if "mix" in options:
-        from ibrtools.hybrid.method import check_mix_options
+        from ibrtools.pipeline.mix import check_mix_options
 
         check_mix_options(options["mix"])
     import dataclasses

@@ -28,6 +28,7 @@ import numpy as np
 from ibrtools.errors import BadValueError
 from ibrtools.scene import Scene
 from ibrtools.pipeline import job as J
+from ibrtools.pipeline.report_html import FramePanel, data_uri, esc, page, panel_html, table, write_page
 from ibrtools import methods
 from ibrtools.inpaint.complete import DEFAULT_INPAINT, check_inpaint, complete, completion
 
@@ -194,3 +195,32 @@ def write_outputs(rows: list[dict], keys: list[str], out_dir: Path, title: str =
     with atomic_path(out_dir / "sweep.png") as tmp:
         fig.savefig(tmp, format="png")
     plt.close(fig)
+
+
+def bench_report(rows: list[dict], keys: list[str], out_dir: str | os.PathLike, path: str | os.PathLike, *,
+                 title: str, panels: list[FramePanel] | None = None, panels_config=None,
+                 plot: str | os.PathLike | None = None) -> Path:
+    """The page of an ``ibr-bench`` sweep: the run-time-against-error plot (``plot``, PNG file,
+    embedded), the table of configurations (best FLIP first, Pareto front marked) and the frames
+    of one configuration (``panels``, of configuration ``panels_config``)."""
+    from ibrtools.pipeline.sweep import pareto
+
+    out_dir = Path(out_dir)
+    body = []
+    plot = Path(plot) if plot is not None else out_dir / "sweep.png"
+    if plot.is_file():
+        body.append("<h2>Run time against error</h2>"
+                    f'<figure><img src="{data_uri(plot.read_bytes())}" alt="run time against error"></figure>')
+    front = set(pareto(rows))
+    order = sorted(range(len(rows)), key=lambda i: (rows[i].get("mean_flip") is None, rows[i].get("mean_flip") or 0))
+    head = ["config", *keys, "frames", "prepare ms", "median ms", "PSNR dB", "SSIM", "FLIP", "Pareto"]
+    trs = [[rows[i]["config"], *[rows[i].get(k) for k in keys], rows[i].get("frames"), rows[i].get("prepare_ms"),
+            rows[i].get("median_ms"), rows[i].get("mean_psnr"), rows[i].get("mean_ssim"), rows[i].get("mean_flip"),
+            "yes" if i in front else ""] for i in order]
+    body.append("<h2>Configurations</h2><p>Error = mean FLIP over the frames (lower is better; PSNR and SSIM "
+                "higher is better); time = median wall-clock render time per frame. Best first.</p>")
+    body.append(table(head, trs))
+    if panels:
+        body.append(f"<h2>Frames of configuration {esc(panels_config)}</h2>")
+        body.extend(panel_html(p) for p in panels)
+    return write_page(path, page(title, "".join(body)))
