@@ -756,7 +756,7 @@ def _run_texture(ctx: _Context) -> dict:
     # The views with their global per-channel gain divided out (variance.vertex_statistics on the
     # render mesh: the gains, geometric mean 1 over the views, as the variance stage estimates them
     # on the dense mesh): the atlas then has one exposure, the one the harmonised images ULR blends
-    # are brought to, instead of a blend-weighted mix of the views' exposures (docs/preprocess.md
+    # are brought to, instead of a blend-weighted mix of the views' exposures (docs/texture.md
     # "Texture").
     # Only the part of the gains that looks like exposure (hybrid/gainmodel.py, gain_model): a
     # gain that follows the viewing direction smoothly is shading, which the texture keeps.

@@ -1,5 +1,5 @@
 """A UV texture atlas for the global mesh (issue 7: TM as a textured mesh, as the paper's TM is;
-docs/preprocess.md "Texture").
+docs/texture.md "Atlas").
 
 * :func:`layout` — parameterisation and packing of our own: the faces are binned by their
   longest edge in texels (bins a factor 1.25 wide, largest first), ordered along a Morton curve

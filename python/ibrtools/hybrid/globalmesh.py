@@ -38,7 +38,7 @@ SOURCES = ("auto", "reconstructed", "ground_truth", "fusion")
 # The texture atlas's default texel cap: 2^25 texels = 128 MiB of 8-bit sRGB RGBA (an 8192 x 4096
 # atlas), held in memory by the TM render; the bake holds ~20 bytes a texel more while it runs
 # (float32 RGB image, int32 face map: ~0.7 GB at the cap). Chosen by memory: a scene's atlas gets
-# the texels its layout asks at the views' pixel footprint up to it (docs/preprocess.md "Texture").
+# the texels its layout asks at the views' pixel footprint up to it (docs/texture.md "Atlas").
 # The old cap, 2^22 (2048^2), held no atlas for a fused mesh of 10^6 faces (>= 36 texels a face
 # pair), which then fell back to per-vertex colour.
 ATLAS_MAX_TEXELS = 1 << 25
@@ -47,7 +47,7 @@ ATLAS_MAX_TEXELS = 1 << 25
 ATLAS_TEXELS_LIMIT = 1 << 30
 
 
-# Upper bounds of the mesh stage's options (docs/preprocess.md "Parameters"). resolution: a voxel of
+# Upper bounds of the mesh stage's options (docs/preprocess.md "Bounds and memory"). resolution: a voxel of
 # 1/4096 of the scene is finer than the depth maps' pixels for every data set we read (lego's 800
 # pixels, 4K frames), so a finer one adds no detail, only memory; within it the TSDF's memory is
 # estimated (fusion_memory) and checked before the stage runs. trunc_voxels: the band of blocks
