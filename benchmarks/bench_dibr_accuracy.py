@@ -1,9 +1,9 @@
-"""DIBR accuracy on real data (issue 3 "Targets"), beside the RVS 4.0 figures of ANCHORS.md.
+"""DIBR accuracy on real data , beside the published RVS 4.0 figures (RVS below).
 
     python benchmarks/bench_dibr_accuracy.py [--data ../shared/data] [--write-docs | --write FILE]
                                              [--blend-space linear|srgb] [--no-diagnostics]
 
-Protocols (the same as the RVS figures in ../shared/ANCHORS.md):
+Protocols (the ones the published RVS 4.0 figures were measured on):
   lego       hold out r_0, r_50, r_100, r_150 in turn; synthesise each from the 4 best of the 39
              other views (our view selection); PSNR/SSIM over all pixels with the ground truth
              composited over black, and PSNR over object pixels (alpha > 0.99 in r_N.png).
@@ -77,7 +77,7 @@ LEGO_VALIDATION = ("r_10", "r_25", "r_60", "r_75", "r_110", "r_125", "r_160", "r
 DEQUANTIZE_ROUNDS = (0, 2, 5, 10)
 # Exponents of the per-view distance weights (dibr's distance_exponent) tried on LEGO_VALIDATION.
 DISTANCE_EXPONENTS = (0, 1, 2, 3, 4)
-# RVS 4.0 on the same protocols, from ../shared/ANCHORS.md.
+# RVS 4.0 on the same protocols (its published figures).
 # ICL-NUIM "visible": a target pixel is visible when an input's depth agrees with its ground-truth
 # surface point within this fraction of the depth (visible_in_inputs); the sweep shows how much the
 # figure depends on it (the ground-truth poses are off by 0.4-1.2 degrees, docs/dibr_accuracy.md).

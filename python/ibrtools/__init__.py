@@ -1,6 +1,6 @@
 """ibrtools: image-based rendering and view synthesis on the CPU.
 
-Layers (DESIGN.md): cli -> ibrtools (Python) -> ibrtools._core (pybind11) -> cpp/ibr -> cpp/kernels.
+Layers (none calls upwards): cli -> ibrtools (Python) -> ibrtools._core (pybind11) -> cpp/ibr -> cpp/kernels.
 
 The names most programs need are here (docs/api.md):
 

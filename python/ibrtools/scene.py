@@ -1,4 +1,4 @@
-"""Scene model: views, named render targets, camera paths and meshes (DESIGN.md "Data model").
+"""Scene model: views, named render targets, camera paths and meshes (on disk: docs/FORMAT.md).
 
 In memory:
   View.color  (H, W, 3) float32 linear RGB, C-contiguous

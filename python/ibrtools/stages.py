@@ -1,4 +1,4 @@
-"""Preprocessing stages and their planner (DESIGN.md "Skip what a scene does not need").
+"""Preprocessing stages and their planner (work that cannot change the result is skipped, with the reason).
 
 A stage declares what it reads and what it is for; the planner runs it only when its
 output is missing or its inputs or parameters changed (a content hash, stored in the
@@ -244,7 +244,7 @@ def hold_out(scene: Scene, names: list[str]) -> Scene:
 
 CACHE_DIR = "cache"
 SCENE_FILE = "scene.json"
-# Methods and the stages they read (DESIGN.md "Commands"): reference/dibr/warp/depthwarp work
+# Methods and the stages they read: reference/dibr/warp/depthwarp work
 # from the views alone; tm needs the textured global mesh; ulr the global mesh as geometry proxy
 # and per-view depth; pvm the per-view meshes (and the global mesh to pick voxels at render
 # time); hybrid all of it plus the harmonised images.
@@ -757,7 +757,7 @@ def _run_texture(ctx: _Context) -> dict:
     # render mesh: the gains, geometric mean 1 over the views, as the variance stage estimates them
     # on the dense mesh): the atlas then has one exposure, the one the harmonised images ULR blends
     # are brought to, instead of a blend-weighted mix of the views' exposures (docs/texture.md
-    # "Texture").
+    # "Atlas").
     # Only the part of the gains that looks like exposure (hybrid/gainmodel.py, gain_model): a
     # gain that follows the viewing direction smoothly is shading, which the texture keeps.
     st = ctx.vertex_statistics(render=True)

@@ -151,7 +151,7 @@ def complete(out: dict, camera, background: Background | None, inpaint: str,
     note = None
     if inpaint != "none":
         if hole is None or not hole.any():
-            note = "skipped: no hole"  # DESIGN.md: inpainting does nothing where there is no hole
+            note = "skipped: no hole"  # inpainting does nothing where there is no hole
         else:
             t0 = time.perf_counter()
             color, note, sky = _fill(color, hole, depth, bg, inpaint,

@@ -1,5 +1,5 @@
 """A render job: which cameras to render (targets, held-out views, a path, a pose file),
-rendering them with a method, writing the images and ``report.json`` (DESIGN.md "Contracts").
+rendering them with a method, writing the images and ``report.json`` (fields in docs/render.md).
 
 Outputs in the output directory: ``<frame>.png`` (8-bit sRGB, complete: render/complete.py),
 ``<frame>.exr`` with ``float_out``, ``<frame>.depth.exr`` with ``depth_out`` (+inf on the

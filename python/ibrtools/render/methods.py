@@ -1,4 +1,4 @@
-"""The registry of novel-view methods (DESIGN.md "Commands": --method).
+"""The registry of novel-view methods (``--method`` of ibr-render and ibr-bench).
 
 A method is a class with ``prepare(scene) -> dict of setup times`` (work done once per scene:
 BVH builds, view selection structures) and ``render(camera) -> (outputs, stage times in ms)``,
