@@ -1,4 +1,4 @@
-"""DIBR accuracy on real data , beside the published RVS 4.0 figures (RVS below).
+"""DIBR accuracy on real data, beside the published RVS 4.0 figures (RVS below).
 
     python benchmarks/bench_dibr_accuracy.py [--data ../shared/data] [--write-docs | --write FILE]
                                              [--blend-space linear|srgb] [--no-diagnostics]

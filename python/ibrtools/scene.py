@@ -123,8 +123,8 @@ class View:
         """The depth multi-view fusion reads: as the data set stored it when the importer filtered
         ``depth``, else ``depth``. A per-view filter (de-quantisation) makes each view's error
         follow the surface's shape, alike in every view, where the stored codes' rounding error
-        differs from view to view and averages out in the fusion (docs/hybrid.md "Fusion reads
-        the stored depth")."""
+        differs from view to view and averages out in the fusion (docs/preprocess.md
+        "Fusion")."""
         return self.depth_stored if self.has_depth_stored else self.depth
 
     @property

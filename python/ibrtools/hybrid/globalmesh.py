@@ -10,8 +10,7 @@ docs/preprocess.md says what is chosen and why.
   cubes; voxel = the depth points' largest extent / ``resolution`` (default 384), truncation 4 voxels.
   :func:`build_global_mesh` fuses each view's ``fusion_depth``: the depth as the data set stored
   it where the importer filtered it (de-quantised 8-bit codes), so that the views' rounding
-  errors, which differ from view to view, average out (docs/hybrid.md "Fusion reads the stored
-  depth").
+  errors, which differ from view to view, average out (docs/preprocess.md "Fusion").
 * :func:`densify` — midpoint subdivision of edges longer than ``max_edge`` (per-vertex colour
   needs vertices about as dense as the texture detail it should hold).
 * :func:`vertex_colors` — per-vertex colour by ULR-weighted blending (Buehler et al. 2001) of
@@ -111,7 +110,7 @@ class GlobalMeshOptions:
     bake_normal_rounds: int = 0
     # The same two for a mesh made by TSDF fusion (texture_options): its normals are voxel-noisy
     # and its surface ~1 voxel off, so each view's sample is misregistered differently; blending
-    # more views, ranked on smoothed normals, averages that out (lego validation, docs/hybrid.md).
+    # more views, ranked on smoothed normals, averages that out (lego validation, docs/texture.md).
     # A given (reconstructed / ground-truth) mesh keeps k_views and bake_normal_rounds (the
     # synth bench scenes lose 0.6 dB of TM with 8 rounds of smoothing across their sharp edges).
     fused_k_views: int = 8

@@ -54,7 +54,7 @@ from .pvm import PvmTiles
 # the far side of an object, which see the background behind it and outvote the foreground in
 # Eq. 1 and Eq. 2 (docs/pvm_render.md "max_angle": 180 / 90 / 60 / 50 / 40 degrees on synth:objects).
 # 60 until the tenth session; 55 chosen for the hybrid on the 36 lego views outside the held-out
-# set and synth seed 1 (docs/hybrid.md "Eighth round"); 50 scored better on lego but lost a thin
+# set and synth seed 1 (docs/pvm_render.md "max_angle"); 50 scored better on lego but lost a thin
 # object missing from the global mesh in a 10-view ring (tests/test_pvm_render.py).
 # ray_stride 8: the coarse cells in front of the G-buffer's surface on every 8th ray of every 8th
 # row are looked up too (an object the global mesh lacks, more than one coarse cell in front of

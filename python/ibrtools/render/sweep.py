@@ -2,7 +2,7 @@
 held-out views or the scene's targets (``ibr-bench``, Prakash et al. 2021 sec. 7 "Parameter
 evaluation": 22 novel views of a synthetic scene).
 
-Grammar of a sweep (``--sweep``, repeatable; docs/hybrid.md "ibr-bench"):
+Grammar of a sweep (``--sweep``, repeatable; docs/sweep.md):
 ``key=v1:v2:v3`` gives one parameter its values; several ``key=values`` groups are separated by
 commas in one ``--sweep`` (``sigma=1:3:5,alpha=7``) or given as separate ``--sweep`` flags. The
 configurations are the Cartesian product of every key's values, in the order given. Values are
