@@ -1,4 +1,4 @@
-"""Iterative depth warping (Lee, Kim, Eisemann 2018; issue 4): quality against the Embree reference
+"""Iterative depth warping (Lee, Kim, Eisemann 2018): quality against the Embree reference
 depth and speed against rendering it, on the three synthetic scenes of the issue.
 
     python benchmarks/bench_depthwarp.py [--width 1920 --height 1080] [--frames 2] [--repeats 5]

@@ -152,8 +152,8 @@ def run_renderer(scene, repeats, threads, fresh=False):
 def run_encode(repeats):
     """The sRGB encode of one 1920x1080 RGB input view (blend_space srgb; paid once per view and
     frame with fresh inputs): ``dibr.srgb_encode`` (the table, _core.srgb_encode_unclipped) and the
-    curve per value (``_core.metameric_encode`` after numpy's clamp at 0: the encode before
-    2026-11-22 fourth session), random values in [0, 1), 1 and 2 threads, interleaved; median ms."""
+    curve per value (``_core.metameric_encode`` after numpy's clamp at 0: the per-value
+    encode), random values in [0, 1), 1 and 2 threads, interleaved; median ms."""
     from ibrtools.render.dibr import srgb_encode
 
     def curve(v):

@@ -1,4 +1,4 @@
-"""Hybrid IBR rendering (issue 7): quality of TM, ULR, PVM (filtered), unfiltered PVM and hybrid on
+"""Hybrid IBR rendering: quality of TM, ULR, PVM (filtered), unfiltered PVM and hybrid on
 held-out targets of a degraded synthetic scene, and speed at 1280x720 with a per-stage table
 (the paper's Table 2).
 

@@ -1,4 +1,4 @@
-"""Hybrid IBR quality on held-out NeRF-synthetic lego views (issue 7, the real-data case): TM, ULR,
+"""Hybrid IBR quality on held-out NeRF-synthetic lego views: TM, ULR,
 PVM (filtered), an unfiltered PVM blend and hybrid, the global mesh made by TSDF fusion of the
 input views' depth maps.
 

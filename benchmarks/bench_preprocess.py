@@ -1,4 +1,4 @@
-"""Whole hybrid-IBR preprocessing of a synthetic scene (issue 6 target: 20 views of ~1 megapixel
+"""Whole hybrid-IBR preprocessing of a synthetic scene (target: 20 views of ~1 megapixel
 in <= 60 s on 2 cores), stage by stage, and the skips.
 
     python benchmarks/bench_preprocess.py [--size 1152x864] [--views 20] [--runs 3] [--write-docs]

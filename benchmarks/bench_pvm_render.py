@@ -1,4 +1,4 @@
-"""PVM rendering with clustered depth filtering (issue 7): per-stage times at 1280x720 and the
+"""PVM rendering with clustered depth filtering: per-stage times at 1280x720 and the
 quality of filtered vs unfiltered PVM near occlusion edges.
 
     python benchmarks/bench_pvm_render.py [--size 1280x720] [--views 20] [--runs 3] [--threads 2]

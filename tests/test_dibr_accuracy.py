@@ -1,4 +1,4 @@
-"""DIBR accuracy work (issue 3, "Accuracy on real data"): the ``blend_space`` option of
+"""DIBR accuracy work: the ``blend_space`` option of
 ``--method dibr`` and the conventions of the real data that the accuracy figures rest on
 (docs/dibr_accuracy.md; benchmarks/bench_dibr_accuracy.py)."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Hybrid rendering (issue 7): TM, per-pixel ULR, the hybrid selection and composite
+"""Hybrid rendering: TM, per-pixel ULR, the hybrid selection and composite
 (cpp/kernels/ulr.h, cpp/kernels/hybrid.h, python/ibrtools/render/hybrid.py)."""
 from __future__ import annotations
 

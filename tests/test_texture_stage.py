@@ -1,4 +1,4 @@
-"""The texture stage's inputs (issue 7): the render mesh (mesh stage, render_edge_voxels) that the
+"""The texture stage's inputs: the render mesh (mesh stage, render_edge_voxels) that the
 atlas and the G-buffer use, the gain-compensated views the atlas is baked from, and the
 view-dependent texture carried from the dense mesh to the render mesh (hybrid/harmonise.py
 vd_at_points)."""

@@ -1,4 +1,4 @@
-"""The fast paths of the hybrid renderer's per-pixel kernels (issue 7, speed): ULR's SIMD loop over
+"""The fast paths of the hybrid renderer's per-pixel kernels: ULR's SIMD loop over
 views against its scalar reference path (and its AVX2 loop against its SSE2 one), and the
 selection blur against a NumPy reference
 (cpp/kernels/hybrid.cpp; docs/ulr.md "Conventions and limits")."""

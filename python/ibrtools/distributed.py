@@ -1,4 +1,4 @@
-"""Distributed execution on Dask (issue 8; docs/distributed.md).
+"""Distributed execution on Dask (docs/distributed.md).
 
 ``ibr-render`` / ``ibr-preprocess`` with ``--workers N`` start a :class:`distributed.LocalCluster`
 (N worker processes on loopback, one Dask thread each, no dashboard, quiet logs); with

@@ -4,7 +4,7 @@ A stage declares what it reads and what it is for; the planner runs it only when
 output is missing or its inputs or parameters changed (a content hash, stored in the
 scene's ``scene.json`` under ``stages``), and reports every stage as ran / up to date /
 skipped, with the reason and the time. ``import`` makes the scene; the derived stages of
-hybrid IBR (issue 6: global mesh, per-view depth from it, texture, variance, harmonisation,
+hybrid IBR (global mesh, per-view depth from it, texture, variance, harmonisation,
 per-view meshes and tiles) are declared in ``STAGES`` with their inputs, outputs and the
 methods that need them, write under ``SCENE/cache/<stage>/`` and record their key and output
 hashes in scene.json ``stages`` (docs/FORMAT.md "Cache", docs/preprocess.md).
@@ -240,7 +240,7 @@ def hold_out(scene: Scene, names: list[str]) -> Scene:
 
 
 # ---------------------------------------------------------------------------------------------
-# The preprocessing stages after import (issue 6): declared once, planned per run.
+# The preprocessing stages after import: declared once, planned per run.
 
 CACHE_DIR = "cache"
 SCENE_FILE = "scene.json"
@@ -774,7 +774,7 @@ def _run_texture(ctx: _Context) -> dict:
            "k_views": opts.k_views,
            "normal_rounds": opts.bake_normal_rounds}
     arrays = {"vertex_colors": col, "seen": seen}
-    # The atlas (issue 7): per-texel colour at about the input views' resolution; a mesh with too
+    # The atlas: per-texel colour at about the input views' resolution; a mesh with too
     # many faces for atlas_max_texels keeps the per-vertex colour only (TM renders that).
     try:
         texel = opts.atlas_texel * A.texel_size(cams, deps)
@@ -1090,7 +1090,7 @@ def stale_reasons(records: dict, stage: str, scene_key: str | None = None) -> li
     build would make now: its code's version changed, or a stage it reads re-ran (or lost its
     output) after it ran, or (``scene_key`` given: the imported scene's content key now) the scene
     changed. Empty when it is current, when there is no output, and for records written before
-    records carried ``version`` and ``inputs`` (the twenty-third session; nothing to compare)."""
+    records carried ``version`` and ``inputs`` (older records; nothing to compare)."""
     rec = records.get(stage) or {}
     st = STAGES[stage]
     out = []

@@ -1,4 +1,4 @@
-"""A UV texture atlas for the global mesh (issue 7: TM as a textured mesh, as the paper's TM is;
+"""A UV texture atlas for the global mesh (TM as a textured mesh, as the paper's TM is;
 docs/texture.md "Atlas").
 
 * :func:`layout` — parameterisation and packing of our own: the faces are binned by their

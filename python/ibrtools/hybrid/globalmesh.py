@@ -1,4 +1,4 @@
-"""The global mesh of hybrid IBR (Prakash et al. 2021, sec. 3.1 and Fig. 2; issue 6 item 2).
+"""The global mesh of hybrid IBR (Prakash et al. 2021, sec. 3.1 and Fig. 2).
 docs/preprocess.md says what is chosen and why.
 
 * :func:`choose_source` — where the geometry comes from. ``auto``: the scene's
@@ -81,7 +81,7 @@ class GlobalMeshOptions:
     resolution: int = 384        # TSDF voxel = largest extent of the depth points / resolution
     trunc_voxels: float = 4.0    # TSDF truncation distance in voxels
     max_edge_voxels: float = 1.0  # densify a given mesh to edges <= this many voxels
-    # The render mesh (issue 7): the same surface densified only to edges <= render_edge_voxels
+    # The render mesh: the same surface densified only to edges <= render_edge_voxels
     # (a given mesh; a fused mesh is used as it is). TM's atlas, the G-buffer of tm / ulr / hybrid
     # and ULR's occlusion depth use it; the dense mesh above carries the per-vertex statistics
     # (variance, harmonisation, view-dependent texture). Midpoint subdivision does not move the

@@ -52,7 +52,7 @@ QUALITIES = ("side", "shape", "depth", "normal")
 # by +0.5 dB on lego object pixels and +0.2 dB on ICL-NUIM, and changes Middlebury by < 0.05 dB.
 # stretched_quality 0.1 with stretched_holes (cpp/kernels/blend.h, "Visibility across views"):
 # a fragment on a triangle stretched past 0.9 T never mixes into real surface, and pixels only
-# such fragments cover are holes (issue 3: background that no input sees is a hole, not
+# such fragments cover are holes (background that no input sees is a hole, not
 # stretched foreground). Measured (docs/dibr.md): lego all pixels +1.4 dB, RVS-protocol
 # (nearest-filled) figures within +-0.1 dB. depth_tolerance stays 0 (RVS: every view's front
 # fragment is blended): 0.02-0.05 gains +1.7 dB on exact synthetic depth but loses 0.16 dB on
