@@ -2,7 +2,7 @@
 ``ibr-render --method dibr`` writes it (background at infinity rendered, holes filled by
 ``--inpaint auto``) beside the same frame with ``--inpaint none`` (holes black) and the covered
 pixels only, on the real-data protocols of bench_dibr_accuracy.py and RVS 4.0's figures
-(../shared/ANCHORS.md), and on the demo's held-out views.
+(as published), and on the demo's held-out views.
 
     python benchmarks/bench_complete.py [--data ../shared/data] [--write-docs]
 

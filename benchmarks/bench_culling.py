@@ -30,7 +30,7 @@ queries; AWOC: + its motion buffer and fill), and the reference depth render of 
 scale. --proof-cost R: the warp with and without the proof (surface ids), interleaved R times on
 frame 1 of each scene's walk path, wall and process CPU medians and their ratio. --csv writes every
 frame's figures (and the falsely culled ids). --write-docs replaces the "bench_culling" section of
-docs/benchmarks.md.
+docs/benchmarks_depthwarp.md.
 """
 from __future__ import annotations
 
@@ -57,7 +57,7 @@ PER_FRAME: list[dict] = []  # every frame's record (--csv)
 
 
 def _warp(mesh, deep, src, dst, seeds: int, proof: bool = True):
-    """The warp of DepthWarpMethod with --cull (render/depthwarp.py)."""
+    """The warp of DepthWarpMethod with --cull (depthwarp/method.py)."""
     return warp_with_far_plane(deep.depth, src, dst, mesh.bounds(), "none", DepthWarpParams(seeds=seeds, dilate=False),
                                True, surface_ids=deep.object_id if proof else None)
 
@@ -227,7 +227,7 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=4, help="warp seeds N (default 4)")
     ap.add_argument("--proof-cost", type=int, default=0, help="interleaved rounds of the proof's cost (>= 5; 0: off)")
     ap.add_argument("--csv", type=Path, help="also write every frame's figures to this CSV file")
-    ap.add_argument("--write-docs", action="store_true", help="update docs/benchmarks.md")
+    ap.add_argument("--write-docs", action="store_true", help="update docs/benchmarks_depthwarp.md")
     a = ap.parse_args()
     paths = [p for p in a.paths.split(",") if p]
     frames = PATH_FRAMES - 1 if a.frames == "all" else int(a.frames)
@@ -249,8 +249,8 @@ def main() -> None:
             w.writerows(PER_FRAME)
         print(f"\nwrote {a.csv} ({len(PER_FRAME)} frame records)")
     if a.write_docs:
-        write_section("bench_culling", section)
-        print(f"\nwrote {DOCS}")
+        write_section("bench_culling", section, DOCS.with_name("benchmarks_depthwarp.md"))
+        print(f"\nwrote {DOCS.with_name('benchmarks_depthwarp.md')}")
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""Iterative depth warping (Lee, Kim, Eisemann 2018; issue 4): quality against the Embree reference
+"""Iterative depth warping (Lee, Kim, Eisemann 2018): quality against the Embree reference
 depth and speed against rendering it, on the three synthetic scenes of the issue.
 
     python benchmarks/bench_depthwarp.py [--width 1920 --height 1080] [--frames 2] [--repeats 5]
@@ -26,7 +26,7 @@ method's depth PSNR / SSIM (``ibrtools.depthwarp.method.depth_scores``: z / far,
    N = 16; quality vs T at motions x1, x2, x4 (frames 0 -> 1, 2, 4 of ``walk``) and the
    ``stress`` path (100+ px/frame). PNGs in docs/img/depthwarp_*.png.
 
-With --write-docs the "Depth warping" section of docs/benchmarks.md is replaced (or appended)
+With --write-docs the "Depth warping" section of docs/benchmarks_depthwarp.md is replaced (or appended)
 and the plots are (re)written; nothing else is touched.
 """
 from __future__ import annotations
@@ -72,7 +72,7 @@ def _score(res_depth, hole, ref, far):
 
 
 def _warp(kind: str, layers, src, dst, bounds, **kw):
-    """The method's warp (render/depthwarp.py: empty layer-0 pixels as a far plane); ``surface_ids``
+    """The method's warp (depthwarp/method.py: empty layer-0 pixels as a far plane); ``surface_ids``
     (ours only): also the proven occluder depth."""
     from ibrtools.depthwarp.core import DepthWarpParams
     from ibrtools.depthwarp.method import warp_with_far_plane
@@ -198,7 +198,7 @@ def speed(size, repeats: int) -> tuple[str, str]:
     deep = {L: _deep(r, src, L) for L in (1, 2, 3, 4)}
     far_src = 2.0 * far_depth(mesh.bounds(), src)
     for d in deep.values():
-        d[0][d[0] <= 0] = far_src  # the method's far plane (render/depthwarp.py), set before timing
+        d[0][d[0] <= 0] = far_src  # the method's far plane (depthwarp/method.py), set before timing
 
     def warp_call(N=4, L=3, T=3):
         return lambda: warp_depth(deep[L], src, dst, DepthWarpParams(seeds=N, iters=T))
@@ -397,7 +397,7 @@ def main(argv=None) -> int:
                    help="L >= 2: the last layer is the ground alone (the paper's sec. 4.1; default: plain peeling, "
                         "which scored as well or better on every scene, docs/depthwarp.md)")
     p.add_argument("--write-docs", action="store_true",
-                   help="replace the 'Depth warping' section of docs/benchmarks.md and write docs/img/depthwarp_*.png")
+                   help="replace the 'Depth warping' section of docs/benchmarks_depthwarp.md and write docs/img/depthwarp_*.png")
     args = p.parse_args(argv)
     if args.frames < 1 or args.repeats < 3 or args.width < 16 or args.height < 16:
         p.error("--frames >= 1, --repeats >= 3, --width and --height >= 16")
@@ -436,7 +436,7 @@ def main(argv=None) -> int:
         ])
         print(text)
         if args.write_docs:
-            write_section("depthwarp_quality", text)
+            write_section("depthwarp_quality", text, DOCS.with_name("benchmarks_depthwarp.md"))
         return 0
     qtab, results = quality_table(size, args.frames)
     shead, stab = speed(size, args.repeats)
@@ -480,7 +480,7 @@ def main(argv=None) -> int:
     ])
     print(text)
     if args.write_docs:
-        write_section("depthwarp", text)
+        write_section("depthwarp", text, DOCS.with_name("benchmarks_depthwarp.md"))
     return 0
 
 

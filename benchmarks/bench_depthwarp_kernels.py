@@ -15,7 +15,7 @@ largest reference depth; holes count as depth 0). Times are medians of --repeats
 times come from WarpResult.times_ms (wall time of this call, C++ side). The reference time is
 ``ReferenceRenderer.render(camera, outputs=("depth",))`` (Embree primary rays, depth only) of
 frame t in the same run. Motion buffers are timed apart (the paper assumes them given, Table 3).
-With --write-docs, replaces the "bench_depthwarp_kernels" section of docs/benchmarks.md.
+With --write-docs, replaces the "bench_depthwarp_kernels" section of docs/benchmarks_depthwarp.md.
 """
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ import sys
 import time
 
 import numpy as np
-from benchlib import load_note, machine, median_ms, write_section
+from benchlib import DOCS, load_note, machine, median_ms, write_section
 
 
 def main(argv=None) -> int:
@@ -155,7 +155,7 @@ def main(argv=None) -> int:
     text = "\n".join(out)
     print(text)
     if a.write_docs:
-        write_section("bench_depthwarp_kernels", text)
+        write_section("bench_depthwarp_kernels", text, DOCS.with_name("benchmarks_depthwarp.md"))
     return 0
 
 

@@ -121,7 +121,7 @@ def run_case(scene, k, repeats, threads, space="linear"):
 
 
 def run_renderer(scene, repeats, threads, fresh=False):
-    """The renderer's frame (``ibr-render --method dibr``, render/dibr.py): view selection, a new
+    """The renderer's frame (``ibr-render --method dibr``, dibr/method.py): view selection, a new
     accumulator, k = 4 add_view, result(); median stage times over --repeats frames after a warm-up.
     fresh: inputs new every frame (video, e.g. MPEG immersive video: a new DibrMethod per scene
     frame), so each frame also pays prepare() (the views' depth ranges) and the sRGB encode of the
@@ -152,8 +152,8 @@ def run_renderer(scene, repeats, threads, fresh=False):
 def run_encode(repeats):
     """The sRGB encode of one 1920x1080 RGB input view (blend_space srgb; paid once per view and
     frame with fresh inputs): ``dibr.srgb_encode`` (the table, _core.srgb_encode_unclipped) and the
-    curve per value (``_core.metameric_encode`` after numpy's clamp at 0: the encode before
-    2026-11-22 fourth session), random values in [0, 1), 1 and 2 threads, interleaved; median ms."""
+    curve per value (``_core.metameric_encode`` after numpy's clamp at 0: the per-value
+    encode), random values in [0, 1), 1 and 2 threads, interleaved; median ms."""
     from ibrtools.dibr.method import srgb_encode
 
     def curve(v):
@@ -181,7 +181,7 @@ def main():
     ap.add_argument("--isa", default="auto", choices=("auto", "baseline", "avx2"),
                     help="instruction set of the warp's hot loops (_core.set_warp_isa; results are identical)")
     ap.add_argument("--blend-space", default=None, choices=("srgb", "linear"),
-                    help="blend space of the timed job (default: the renderer's, render/dibr.py DEFAULTS)")
+                    help="blend space of the timed job (default: the renderer's, dibr/method.py DEFAULTS)")
     a = ap.parse_args()
     from ibrtools.dibr.method import DEFAULTS
 

@@ -1,9 +1,9 @@
-"""DIBR accuracy on real data (issue 3 "Targets"), beside the RVS 4.0 figures of ANCHORS.md.
+"""DIBR accuracy on real data, beside the published RVS 4.0 figures (RVS below).
 
     python benchmarks/bench_dibr_accuracy.py [--data ../shared/data] [--write-docs | --write FILE]
                                              [--blend-space linear|srgb] [--no-diagnostics]
 
-Protocols (the same as the RVS figures in ../shared/ANCHORS.md):
+Protocols (the ones the published RVS 4.0 figures were measured on):
   lego       hold out r_0, r_50, r_100, r_150 in turn; synthesise each from the 4 best of the 39
              other views (our view selection); PSNR/SSIM over all pixels with the ground truth
              composited over black, and PSNR over object pixels (alpha > 0.99 in r_N.png).
@@ -54,8 +54,8 @@ Besides the table (the method's defaults) the run measures, unless --no-diagnost
                   (a diagnostic: it uses the held-out frame's depth, so it is not a result).
 (Earlier revisions also emulated "inclusive" shared mesh edges on Middlebury by rendering twice
 with the target moved +-0.01 px in y; the kernel now has inclusive edges, so that diagnostic is
-gone: docs/dibr.md "Middlebury: samples on shared mesh edges".)
---write-docs replaces the "Accuracy" section of docs/dibr.md (--write FILE: of FILE).
+gone: docs/dibr_accuracy.md "Middlebury: samples on shared mesh edges".)
+--write-docs replaces the "Accuracy" section of docs/dibr_accuracy.md (--write FILE: of FILE).
 """
 from __future__ import annotations
 
@@ -77,10 +77,10 @@ LEGO_VALIDATION = ("r_10", "r_25", "r_60", "r_75", "r_110", "r_125", "r_160", "r
 DEQUANTIZE_ROUNDS = (0, 2, 5, 10)
 # Exponents of the per-view distance weights (dibr's distance_exponent) tried on LEGO_VALIDATION.
 DISTANCE_EXPONENTS = (0, 1, 2, 3, 4)
-# RVS 4.0 on the same protocols, from ../shared/ANCHORS.md.
+# RVS 4.0 on the same protocols (its published figures).
 # ICL-NUIM "visible": a target pixel is visible when an input's depth agrees with its ground-truth
 # surface point within this fraction of the depth (visible_in_inputs); the sweep shows how much the
-# figure depends on it (the ground-truth poses are off by 0.4-1.2 degrees, docs/dibr.md).
+# figure depends on it (the ground-truth poses are off by 0.4-1.2 degrees, docs/dibr_accuracy.md).
 VISIBLE_REL_TOL = 0.05
 VISIBLE_TOL_SWEEP = (0.02, 0.03, 0.05, 0.1)
 RVS = {"lego object": 25.9, "lego all": 23.9, "Teddy visible": 29.6, "Cones visible": 28.2,
@@ -530,7 +530,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=shared_data())
     ap.add_argument("--write", type=Path, help="replace the 'Accuracy' section of this Markdown file")
-    ap.add_argument("--write-docs", action="store_true", help="replace the 'Accuracy' section of docs/dibr.md")
+    ap.add_argument("--write-docs", action="store_true", help="replace the 'Accuracy' section of docs/dibr_accuracy.md")
     ap.add_argument("--blend-space", default=None, choices=("linear", "srgb"), help="default: the method's (srgb)")
     ap.add_argument("--no-diagnostics", action="store_true", help="only the table (no blend-space / ICL pose runs)")
     ap.add_argument("--quality", default="side")
@@ -551,7 +551,7 @@ def main(argv=None) -> int:
     if not a.no_diagnostics:
         table += "\n" + "\n".join(diagnostics(a.data, params, res))
     print(table)
-    target = REPO / "docs" / "dibr.md" if a.write_docs else a.write
+    target = REPO / "docs" / "dibr_accuracy.md" if a.write_docs else a.write
     if target:
         sys.path.insert(0, str(Path(__file__).parent))
         from benchlib import write_section

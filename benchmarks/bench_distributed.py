@@ -1,5 +1,5 @@
-"""A 1080p DIBR job of 64 views: local multithreaded run vs a 2-worker Dask LocalCluster (issue 8,
-target 1: the cluster within 15 % of the local run on this 2-core machine).
+"""A 1080p DIBR job of 64 views: local multithreaded run vs a 2-worker Dask LocalCluster
+(target: the cluster within 15 % of the local run on this 2-core machine).
 
     python benchmarks/bench_distributed.py [--frames 64] [--repeats 5] [--size 1920x1080]
                                            [--views 8] [--scene DIR] [--write-docs]

@@ -1,4 +1,4 @@
-"""Hybrid IBR rendering (issue 7): quality of TM, ULR, PVM (filtered), unfiltered PVM and hybrid on
+"""Hybrid IBR rendering: quality of TM, ULR, PVM (filtered), unfiltered PVM and hybrid on
 held-out targets of a degraded synthetic scene, and speed at 1280x720 with a per-stage table
 (the paper's Table 2).
 
@@ -17,7 +17,7 @@ averaged over the targets. PVM alone is ``PvmRenderer.render`` with the global m
 depth (its holes: pixels without candidates). Speed: the targets' cameras scaled to
 ``--speed-size``, median over ``--repeats`` x targets of each method's render call, and the hybrid
 method's own per-stage times (G-buffer, TM shade, the PVM stages, masking, ULR blend, composite).
-With --write-docs, replaces the "Hybrid rendering" section of docs/benchmarks.md.
+With --write-docs, replaces the "Hybrid rendering" section of docs/benchmarks_hybrid.md.
 """
 from __future__ import annotations
 
@@ -96,7 +96,7 @@ def _size(text: str) -> tuple[int, int]:
 
 def pvm_method(scene, filtered: bool):
     """PVM alone (filtered or not) for the comparison: ``--method pvm``, prepared (its G-buffer depth
-    is the hybrid's, render/pvm.py)."""
+    is the hybrid's, hybrid/pvm_method.py)."""
     from ibrtools import methods
 
     m = methods.create("pvm", {"filtered": filtered})
@@ -117,7 +117,7 @@ def main(argv=None) -> int:
                    help="mesh.max_edge_voxels of the mesh stage (the dense mesh of the per-vertex statistics; "
                         "default: the pipeline's, 1)")
     p.add_argument("-j", "--threads", type=int, default=0, help="engine threads (default: all cores)")
-    p.add_argument("--write-docs", action="store_true", help=f"replace the section in {DOCS.name}")
+    p.add_argument("--write-docs", action="store_true", help="replace the section in benchmarks_hybrid.md")
     args = p.parse_args(argv)
 
     from ibrtools import _core
@@ -236,8 +236,8 @@ def main(argv=None) -> int:
     text = "\n".join(lines)
     print(text)
     if args.write_docs:
-        write_section("Hybrid rendering", text)
-        print(f"wrote the 'Hybrid rendering' section of {DOCS}", file=sys.stderr)
+        write_section("Hybrid rendering", text, DOCS.with_name("benchmarks_hybrid.md"))
+        print(f"wrote the 'Hybrid rendering' section of {DOCS.with_name('benchmarks_hybrid.md')}", file=sys.stderr)
     return 0
 
 

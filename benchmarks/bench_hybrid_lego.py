@@ -1,4 +1,4 @@
-"""Hybrid IBR quality on held-out NeRF-synthetic lego views (issue 7, the real-data case): TM, ULR,
+"""Hybrid IBR quality on held-out NeRF-synthetic lego views: TM, ULR,
 PVM (filtered), an unfiltered PVM blend and hybrid, the global mesh made by TSDF fusion of the
 input views' depth maps.
 
@@ -49,7 +49,7 @@ better (PSNR, SSIM higher; FLIP lower). Near occlusion edges (the filtered-vs-un
 as in benchmarks/bench_hybrid.py: the pixels within 3 px of a relative step > 5 % of the held-out view's
 depth map (or of its object / background boundary), PSNR of the squared error pooled over the views.
 With --write-docs, replaces the "Hybrid rendering: lego"
-section of docs/benchmarks.md.
+section of docs/benchmarks_hybrid.md.
 """
 from __future__ import annotations
 
@@ -136,7 +136,7 @@ def main(argv=None) -> int:
     p.add_argument("-j", "--threads", type=int, default=0, help="engine threads (default: all cores)")
     p.add_argument("--keep", default=None, metavar="DIR",
                    help="preprocess into DIR and keep it (default: a temporary directory)")
-    p.add_argument("--write-docs", action="store_true", help=f"replace the section in {DOCS.name}")
+    p.add_argument("--write-docs", action="store_true", help="replace the section in benchmarks_hybrid.md")
     p.add_argument("--validation", action="store_true",
                    help="targets r_10 r_60 r_110 r_160, inputs without them and the held-out views (for choosing)")
     p.add_argument("--fold", type=int, default=None, metavar="K",
@@ -365,8 +365,8 @@ def main(argv=None) -> int:
         Path(args.json).write_text(json.dumps({"targets": list(targets), "inputs": len(inputs), "mean": mean,
                                                "per_view": per_view}, indent=1))
     if args.write_docs:
-        write_section("Hybrid rendering: lego", text)
-        print(f"wrote the 'Hybrid rendering: lego' section of {DOCS}", file=sys.stderr)
+        write_section("Hybrid rendering: lego", text, DOCS.with_name("benchmarks_hybrid.md"))
+        print(f"wrote the 'Hybrid rendering: lego' section of {DOCS.with_name('benchmarks_hybrid.md')}", file=sys.stderr)
     return 0
 
 

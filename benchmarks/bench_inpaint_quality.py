@@ -1,4 +1,4 @@
-"""Hole-filling quality on real disocclusions (issue 5 "Targets", quality part; docs/inpaint_quality.md).
+"""Hole-filling quality on real disocclusions (docs/inpaint_quality.md).
 
     python benchmarks/bench_inpaint_quality.py [--data ../shared/data] [--write docs/inpaint_quality.md |
                                                --write-docs] [--cases teddy,cones,art,books,dolls,lego_r_0,...]

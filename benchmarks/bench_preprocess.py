@@ -1,4 +1,4 @@
-"""Whole hybrid-IBR preprocessing of a synthetic scene (issue 6 target: 20 views of ~1 megapixel
+"""Whole hybrid-IBR preprocessing of a synthetic scene (target: 20 views of ~1 megapixel
 in <= 60 s on 2 cores), stage by stage, and the skips.
 
     python benchmarks/bench_preprocess.py [--size 1152x864] [--views 20] [--runs 3] [--write-docs]
@@ -13,7 +13,7 @@ a second identical call (everything up to date: the cost is hashing the inputs a
 and the skips (``--methods tm``: no PVM stage; a scene without exposure differences, at a quarter of the
 size: the harmonise stage's own reason, when that stage exists). The timed scene has exposure
 and white-balance jitter (--exposure-jitter, --wb-jitter) so that harmonisation has work to do. With --write-docs, replaces the
-"Preprocessing" section of docs/benchmarks.md between its markers; nothing else is touched.
+"Preprocessing" section of docs/benchmarks_hybrid.md between its markers; nothing else is touched.
 """
 from __future__ import annotations
 
@@ -57,7 +57,7 @@ def main(argv=None) -> int:
                    help="per-view exposure jitter of the timed scene (default 0.15: harmonisation has work)")
     p.add_argument("--wb-jitter", type=float, default=0.05, help="white-balance jitter (default 0.05)")
     p.add_argument("-j", "--threads", type=int, default=0, help="engine threads (default: all cores)")
-    p.add_argument("--write-docs", action="store_true", help=f"replace the section in {DOCS.name}")
+    p.add_argument("--write-docs", action="store_true", help="replace the section in benchmarks_hybrid.md")
     args = p.parse_args(argv)
     w, h = (int(x) for x in args.size.lower().split("x"))
     if args.runs < 1 or args.views < 2:
@@ -132,7 +132,7 @@ def main(argv=None) -> int:
     text = "\n".join(lines)
     print(text)
     if args.write_docs:
-        write_section("preprocess", text)
+        write_section("preprocess", text, DOCS.with_name("benchmarks_hybrid.md"))
     return 0
 
 

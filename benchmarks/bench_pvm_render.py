@@ -1,4 +1,4 @@
-"""PVM rendering with clustered depth filtering (issue 7): per-stage times at 1280x720 and the
+"""PVM rendering with clustered depth filtering: per-stage times at 1280x720 and the
 quality of filtered vs unfiltered PVM near occlusion edges.
 
     python benchmarks/bench_pvm_render.py [--size 1280x720] [--views 20] [--runs 3] [--threads 2]
@@ -19,7 +19,7 @@ Quality (at --quality-size, same scene preset and seed): PSNR of filtered and un
 ground truth, over the pixels both cover that lie within 3 px of a reference depth discontinuity
 (log-depth range > 0.05 in a 3x3 window, or an empty neighbour), and over all pixels both cover;
 and the same for max_angle 180 / 90 / 60 / 50 / 40 degrees and the default. Target: filtered beats unfiltered near
-occlusion edges. With --write-docs, replaces the "PVM rendering" section of docs/benchmarks.md.
+occlusion edges. With --write-docs, replaces the "PVM rendering" section of docs/benchmarks_hybrid.md.
 """
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ import time
 
 import numpy as np
 
-from benchlib import load_note, machine, write_section
+from benchlib import DOCS, load_note, machine, write_section
 
 STAGES = ("voxel lookup", "tile sort", "per-view depth pass", "cluster & blend", "spatial filter")
 
@@ -172,7 +172,7 @@ def main(argv=None) -> int:
     text = "\n".join(lines)
     print(text)
     if a.write_docs:
-        write_section("pvm_render", text)
+        write_section("pvm_render", text, DOCS.with_name("benchmarks_hybrid.md"))
     return 0
 
 

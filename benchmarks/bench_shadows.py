@@ -20,7 +20,7 @@ maps, the paper's comparison) and of warp and render against trace, over the sur
 face the light's centre (on back faces a traced ray is blocked by the surface itself while a shadow
 map seen edge-on is not; shading by max(0, N.L) makes visibility there irrelevant). Times: wall ms of the whole
 call (median of --repeats), with the warp's split (layers / maps / shade). With --write-docs,
-replaces the "bench_shadows" section of docs/benchmarks.md.
+replaces the "bench_shadows" section of docs/benchmarks_depthwarp.md.
 """
 from __future__ import annotations
 
@@ -131,7 +131,7 @@ def main() -> None:
     ap.add_argument("--layers", type=int, default=3, help="deep depth layers L at the light (paper: 3)")
     ap.add_argument("--seeds", type=int, default=4, help="warp seeds N (paper: 4)")
     ap.add_argument("--repeats", type=int, default=1, help="timed runs per case (median)")
-    ap.add_argument("--write-docs", action="store_true", help="update docs/benchmarks.md")
+    ap.add_argument("--write-docs", action="store_true", help="update docs/benchmarks_depthwarp.md")
     a = ap.parse_args()
     scenes = [s for s in a.scenes.split(",") if s]
     for s in scenes:
@@ -148,8 +148,8 @@ def main() -> None:
     section = run(scenes, samples, resolutions, (vw, vh), a.layers, a.seeds, a.repeats)
     print(section)
     if a.write_docs:
-        write_section("bench_shadows", section)
-        print(f"\nwrote {DOCS}")
+        write_section("bench_shadows", section, DOCS.with_name("benchmarks_depthwarp.md"))
+        print(f"\nwrote {DOCS.with_name('benchmarks_depthwarp.md')}")
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""Structural check that a kernel releases the GIL (STYLE.md 6): run it in a second Python
+"""Structural check that a kernel releases the GIL (all kernels do): run it in a second Python
 thread while the main thread records time stamps. A kernel that holds the GIL leaves no stamps
 inside its run (negative control, run by hand: `sum(range(3 * 10**7))` as the work gives 0)."""
 from __future__ import annotations

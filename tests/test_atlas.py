@@ -78,7 +78,7 @@ def test_bake_plane_with_known_texture_reproduces_it():
 
 
 def test_atlas_above_the_old_cap_lays_out_bakes_and_renders():
-    """An atlas of more than 2048^2 texels (the cap before 2^25; docs/preprocess.md "Texture"):
+    """An atlas of more than 2048^2 texels (docs/texture.md "Atlas"):
     512 faces at a texel of ~1/20 of the view's pixel footprint, cells of ~140 texels. It lays
     out (every bilinear lookup inside a face reads its own texels), bakes and renders back the
     view's known texture from the view itself, as the small atlas does, and its 8-bit sRGB storage

@@ -138,7 +138,7 @@ def test_installed_entry_points_exit_codes(tmp_path):
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "nothing" in r.stderr
 
 
-# --- progress, --json, summary totals (issue 8 §3) --------------------------------------------------
+# --- progress, --json, summary totals --------------------------------------------------
 def test_render_json_is_the_report_and_nothing_else(scene_dir, tmp_path, capsys):
     out = tmp_path / "j"
     assert render.main([str(scene_dir), "--method", "reference", "--holdout", "v001", "v002", "-o", str(out),

@@ -1,4 +1,4 @@
-"""Complete images (render/complete.py, render/background.py): the background at infinity is
+"""Complete images (inpaint/complete.py, inpaint/background.py): the background at infinity is
 rendered, never a hole and never foreground; disocclusions are filled from the background side;
 overlap problems are said, not silent."""
 from __future__ import annotations

@@ -303,7 +303,7 @@ def test_exact_depth_never_culls_a_visible_object(seed, n):
 
 
 def test_gil_released_during_awoc_fill():
-    """Structural (STYLE.md 6): AwocFill runs without the GIL (negative control: tests/gil.py)."""
+    """Structural (kernels release the GIL): AwocFill runs without the GIL (negative control: tests/gil.py)."""
     from gil import runs_python_during
 
     h, w = 540, 960

@@ -1,4 +1,4 @@
-"""The speed paths of the depth warp (docs/depthwarp.md, "Speed"): the motion pass that builds
+"""The speed paths of the depth warp (docs/depthwarp.md, "Measured (kernels)"): the motion pass that builds
 level 1 of the min-max motion mipmaps while its rows are in cache (``_core.dw_motion_mips``), and the
 in-place dilation. Both must give exactly what the separate, plain forms give: every comparison
 here is bit for bit (``assert_array_equal``), no tolerance."""

@@ -1,4 +1,4 @@
-"""--method dibr (render/dibr.py): parameters, wiring into ibr-render and report.json, and
+"""--method dibr (dibr/method.py): parameters, wiring into ibr-render and report.json, and
 accuracy on real data (benchmarks/bench_dibr_accuracy.py protocols)."""
 from __future__ import annotations
 
@@ -188,7 +188,7 @@ def test_real_middlebury_right_from_left(bench, name, excluded, filled):
     _need(f"middlebury/{name}")
     r = bench.middlebury(DATA, name)
     # "filled" is RVS's protocol (holes take the nearest covered colour). Holes black is not
-    # floored: stretched-only pixels are holes by design (issue 3), so it measures hole count.
+    # floored: stretched-only pixels are holes by design, so it measures hole count.
     assert r["vis"]["excluded"] > excluded and r["hole_visible"] < 0.03
     if r["vis"]["filled"] is not None:
         assert r["vis"]["filled"] > filled

@@ -1,6 +1,6 @@
-"""DIBR accuracy work (issue 3, "Accuracy on real data"): the ``blend_space`` option of
+"""DIBR accuracy work: the ``blend_space`` option of
 ``--method dibr`` and the conventions of the real data that the accuracy figures rest on
-(docs/dibr.md, "Accuracy on real data"; benchmarks/bench_dibr_accuracy.py)."""
+(docs/dibr_accuracy.md; benchmarks/bench_dibr_accuracy.py)."""
 from __future__ import annotations
 
 
@@ -29,7 +29,7 @@ def _render(views, camera, **params):
 
 # --- blend_space ---------------------------------------------------------------------------
 def test_blend_space_default_and_bad_values():
-    assert check_params(None)["blend_space"] == "srgb"  # chosen on validation views (docs/dibr.md "Blend space")
+    assert check_params(None)["blend_space"] == "srgb"  # chosen on validation views (docs/dibr_accuracy.md "Blend space")
     assert check_params({"blend_space": "linear"})["blend_space"] == "linear"
     assert check_params({"blend_space": "srgb"})["blend_space"] == "srgb"
     for bad in ("sRGB", "gamma", "", 1, None):
@@ -302,7 +302,7 @@ def test_lego_dequantized_depth_stays_in_the_stored_bins():
 
 @needs_kernel
 def test_lego_dequantized_depth_improves_the_weak_view(bench):
-    # docs/dibr.md, "lego object pixels": held-out r_100 (nearest inputs 1.25 units away, where the
+    # docs/dibr_accuracy.md, "lego": held-out r_100 (nearest inputs 1.25 units away, where the
     # 8-bit depth steps misregister most) measured 20.83 dB on object pixels (RVS protocol) with
     # the stored codes and 22.75 dB with depth_dequantize=5. The floor asks for +1 dB.
     _need("nerf_lego")
@@ -419,7 +419,7 @@ def test_distance_exponent_favours_the_nearer_view():
 
 @needs_kernel
 def test_lego_distance_weights_favour_the_near_duplicate_input(bench):
-    # docs/dibr.md, "lego object pixels": held-out r_50 has r_150 0.09 units away among its four
+    # docs/dibr_accuracy.md, "lego": held-out r_50 has r_150 0.09 units away among its four
     # inputs (the others 1.1-1.2 units). Measured on object pixels (RVS protocol): 28.82 dB with
     # RVS's equal view weights, 31.84 dB with distance_exponent = 4 (the value the validation views
     # chose). The floor asks for +2 dB.

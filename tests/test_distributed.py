@@ -1,4 +1,4 @@
-"""Distributed execution on Dask (issue 8 §1; docs/distributed.md): ibr-render and ibr-preprocess
+"""Distributed execution on Dask (docs/distributed.md): ibr-render and ibr-preprocess
 on a LocalCluster (2 worker processes on loopback) write the same files, bit for bit, as a local
 run; a failing frame is reported by name and the others are written; a worker killed mid-job
 loses no frame; bad options are one-line errors with exit status 2."""

@@ -1,4 +1,4 @@
-"""Fuzzing the importers (issue 9, item 2): hypothesis-generated malformed inputs.
+"""Fuzzing the importers: hypothesis-generated malformed inputs.
 
 Each entry point starts from a small valid fixture (the ones the importer tests write) and
 gets mutated bytes (truncation, overwritten / inserted / deleted bytes) or a mutated JSON

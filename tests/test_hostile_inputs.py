@@ -1,4 +1,4 @@
-"""Hostile and careless input files (issue 44): a decompression bomb, truncated, garbage,
+"""Hostile and careless input files: a decompression bomb, truncated, garbage,
 wrong-size and NaN images, overflowing scales and poses, a COLMAP camera of width 0 and scene.json
 names that are not strings. Each is refused with a typed error whose one line names the file and
 what was expected; the commands exit 2 and write nothing. Memory is bounded: an image's size is

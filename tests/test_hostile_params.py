@@ -1,4 +1,4 @@
-"""Hostile and careless parameters (issue 44): every bound is checked before any work, through the
+"""Hostile and careless parameters: every bound is checked before any work, through the
 commands' main([...]): exit status 2, one line on stderr naming the argument, nothing written."""
 from __future__ import annotations
 

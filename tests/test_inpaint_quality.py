@@ -1,4 +1,4 @@
-"""Hole-filling quality on real disocclusions (issue 5 "Targets"; docs/inpaint_quality.md).
+"""Hole-filling quality on real disocclusions (docs/inpaint_quality.md).
 
 Middlebury Teddy and Cones: the left view warped into the right camera by ``_core.warp_with_holes``;
 the disoccluded pixels of the right view are scored against the real right view

@@ -1,4 +1,4 @@
-"""Data safety (issue 9, item 5): SIGINT / SIGTERM during ibr-render and ibr-preprocess leave no
+"""Data safety: SIGINT / SIGTERM during ibr-render and ibr-preprocess leave no
 partial output and no corrupt cache entry; a corrupt cache entry is detected and recomputed.
 
 The commands run as subprocesses (the installed entry points) and are signalled mid-run, once

@@ -1,4 +1,4 @@
-"""Memory limits (issue 9, item 4): a render job whose estimate exceeds the available memory
+"""Memory limits: a render job whose estimate exceeds the available memory
 fails before anything is allocated, with a message that says how much it needs and why.
 The peak figures the estimate is calibrated on are in docs/robustness.md (tools/measure_memory.py)."""
 from __future__ import annotations

@@ -213,7 +213,7 @@ def test_triangles_reaching_behind_the_near_plane_are_clipped(clip):
     16-quad blocks, or their pieces clipped to the cells). They are clipped against it: with
     no view dropped by max_angle, every pixel whose ray meets the plane inside the views' pixel
     centres gets both views' candidates, on the plane, and no other pixel gets any (skipping those
-    triangles, as until the twenty-second session, left 93 % of those pixels without a candidate
+    triangles would leave 93 % of those pixels without a candidate
     with clip "large"; none with "all" here, whose pieces end at the cell faces)."""
     from ibrtools.hybrid.pvm import PvmOptions
 

@@ -177,7 +177,7 @@ def test_bad_inputs(scene):
 
 
 def test_gil_released_during_shadow_kernels(scene):
-    """Structural (STYLE.md 6): while the shadow-map test and the traced reference run in another
+    """Structural (kernels release the GIL): while the shadow-map test and the traced reference run in another
     thread, this thread executes Python code (negative control: tests/gil.py)."""
     from gil import runs_python_during
 

@@ -1,4 +1,4 @@
-"""Numerical stress suite (issue 9, item 1): every bound kernel family at the edges of its input
+"""Numerical stress suite: every bound kernel family at the edges of its input
 domain, with hypothesis (bounded: few examples, small images, no deadline; derandomised so a CI
 failure reproduces).
 
@@ -426,7 +426,7 @@ def test_array_boundary_is_typed(entry, how):
                 assert not np.any(np.isnan(o)), f"{entry}: {how} argument {i} gave NaN output"
 
 
-# === the newer kernels (issue 9, second round): Y-map/N-buffer queries, motion buffers, max-flow,
+# === the newer kernels: Y-map/N-buffer queries, motion buffers, max-flow,
 # Poisson, per-pixel ULR, the harmonise kernels, PVM rasterisation and clustered filtering ===========
 
 # --- Y-map / N-buffer max-depth queries (depthwarp.MaxDepthQuery) ------------------------------------

@@ -1,4 +1,4 @@
-"""The texture stage's inputs (issue 7): the render mesh (mesh stage, render_edge_voxels) that the
+"""The texture stage's inputs: the render mesh (mesh stage, render_edge_voxels) that the
 atlas and the G-buffer use, the gain-compensated views the atlas is baked from, and the
 view-dependent texture carried from the dense mesh to the render mesh (hybrid/harmonise.py
 vd_at_points)."""
@@ -45,7 +45,7 @@ def test_render_mesh_is_the_same_surface_with_fewer_faces():
         GlobalMeshOptions(render_edge_voxels=0.0)
     with pytest.raises(BadValueError, match="atlas_adaptive"):
         GlobalMeshOptions(atlas_adaptive="yes")
-    # The atlas cap: a memory bound of 2^25 texels by default (docs/preprocess.md "Texture"), at
+    # The atlas cap: a memory bound of 2^25 texels by default (docs/texture.md "Atlas"), at
     # most 2^30, at least 16.
     assert GlobalMeshOptions().atlas_max_texels == 2 ** 25
     GlobalMeshOptions(atlas_max_texels=2 ** 30)

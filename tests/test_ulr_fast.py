@@ -1,7 +1,7 @@
-"""The fast paths of the hybrid renderer's per-pixel kernels (issue 7, speed): ULR's SIMD loop over
+"""The fast paths of the hybrid renderer's per-pixel kernels: ULR's SIMD loop over
 views against its scalar reference path (and its AVX2 loop against its SSE2 one), and the
 selection blur against a NumPy reference
-(cpp/kernels/hybrid.cpp; docs/hybrid.md "Speed")."""
+(cpp/kernels/hybrid.cpp; docs/ulr.md "Conventions and limits")."""
 from __future__ import annotations
 
 import dataclasses
@@ -50,7 +50,7 @@ def test_fast_ulr_matches_the_scalar_reference(n_views):
     depth test exactly at its 2 % tolerance may flip; we allow 1 % of the pixels to differ in
     the view count and require colours within 1e-3 elsewhere (measured on the 1280x720 bench
     frames: at most 2 pixels of 716 k differ by more than 1e-3, PSNR against the reference
-    >= 97.8 dB, docs/hybrid.md)."""
+    >= 97.8 dB, docs/ulr.md)."""
     cam, gdepth, views, normal = _scene(n_views)
     for nrm in (None, normal):
         cf, nf = _core.ulr_blend(cam, gdepth, views, normal=nrm)

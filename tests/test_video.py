@@ -1,4 +1,4 @@
-"""Video scenes (issue 8 §2; docs/FORMAT.md "Frames"): a scene of frames x views, made by
+"""Video scenes (docs/FORMAT.md "Frames"): a scene of frames x views, made by
 ``ibr-preprocess synth:objects --frames N``, rendered frame by frame by ``ibr-render`` (names
 <frame>_<camera>, metrics against each frame's own ground truth), on Dask too (split by
 frame x camera, the same files); still scenes load unchanged."""

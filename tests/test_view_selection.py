@@ -1,4 +1,4 @@
-"""View selection (render/view_selection.py): frustum-intersection volume by Monte Carlo
+"""View selection (dibr/view_selection.py): frustum-intersection volume by Monte Carlo
 (Bonatto et al. 2021 Eq. 5) x viewing-direction agreement (Eq. 4/6)."""
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """Single-view warp with background-depth holes (cpp/kernels/forward_warp.h "Warp with
-background-depth holes", _core.warp_with_holes / warp_flow, render/warp.py, --method warp).
+background-depth holes", _core.warp_with_holes / warp_flow, dibr/warp.py, --method warp).
 
 Tolerances:
 * Identity / integer shifts: vertices land exactly on pixel centres (1/256 px snap of an exact

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Peak memory of each render method at 1080p and 4K (issue 9, item 4).
+"""Peak memory of each render method at 1080p and 4K.
 
 For each size: a synthetic scene (``ibr-preprocess synth:objects --views N``, made once under
 --work), then ``/usr/bin/time -v ibr-render SCENE --method M --poses P`` with the first 3

@@ -1,6 +1,6 @@
 """What every command shares: thread/debug/quiet flags, the error policy and tables.
 
-Exit codes (DESIGN.md "Contracts"): 0 success, 2 bad input or usage (one line on stderr,
+Exit codes: 0 success, 2 bad input or usage (one line on stderr,
 no traceback unless --debug), 1 internal error.
 """
 from __future__ import annotations

@@ -1,6 +1,7 @@
 """ibrtools: image-based rendering and view synthesis on the CPU.
 
-Layers: cli -> ibrtools (Python) -> ibrtools._core (pybind11) -> cpp/kernels -> cpp/ibr (README "Architecture").
+Layers (none calls upwards): cli -> ibrtools (Python) -> ibrtools._core (pybind11) -> cpp/kernels -> cpp/ibr
+(README "Architecture").
 
 The names most programs need are here (docs/api.md):
 

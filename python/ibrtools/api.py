@@ -173,7 +173,7 @@ def render(scene: Scene, camera: CameraLike, method: str = "auto", *, inpaint: s
     """Render ``camera`` of ``scene`` with ``method`` (:data:`ibrtools.methods.METHODS`;
     "auto" picks one from the scene's data) and the method's parameters (as ``ibr-render
     --param key=value``, e.g. ``inputs=2`` for dibr). Same as ``ibrtools.render(scene, ...)``. The image is
-    complete as ``ibr-render`` writes it (render/complete.py): the background at infinity where
+    complete as ``ibr-render`` writes it (inpaint/complete.py): the background at infinity where
     an input sees it, the holes filled by ``inpaint`` (``ibr-render --inpaint``; None = its
     default, "none" = black); ``background`` recolours the background at infinity as
     ``ibr-render --background`` does ("black", "white", (r, g, b) sRGB in [0, 1], or

@@ -97,7 +97,7 @@ STAGES: dict[str, Stage] = {s.name: s for s in (
           version=5),  # 4: mesh_snap; 5: clip "large" (triangles whole, not clipped to the cells)
     Stage("mix", ("scene", "mesh", "depth", "texture", "harmonise", "pvm"), ("mix.npz",), frozenset({"hybrid"}),
           "the hybrid composite's PVM weight floor (pvm_floor), fitted on leave-one-out renders of input views",
-          version=4),  # 2: the G-buffer of a mesh dense for the frame ray cast (render/hybrid.py RASTER_MAX_FACES);
+          version=4),  # 2: the G-buffer of a mesh dense for the frame ray cast (hybrid/method.py RASTER_MAX_FACES);
     # 3: tol_db 0 (the best floor; was the smallest within 0.01 dB of it); 4: PVM colours with the stretch term
     # (hybrid/pvm_render.py stretch_weight)
 )}
@@ -303,7 +303,7 @@ def stale_reasons(records: dict, stage: str, scene_key: str | None = None) -> li
     build would make now: its code's version changed, or a stage it reads re-ran (or lost its
     output) after it ran, or (``scene_key`` given: the imported scene's content key now) the scene
     changed. Empty when it is current, when there is no output, and for records written before
-    records carried ``version`` and ``inputs`` (the twenty-third session; nothing to compare)."""
+    records carried ``version`` and ``inputs`` (older records; nothing to compare)."""
     rec = records.get(stage) or {}
     st = STAGES[stage]
     out = []

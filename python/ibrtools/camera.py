@@ -1,6 +1,6 @@
 """Cameras: pinhole and equirectangular, posed by ``cam_from_world``.
 
-One convention everywhere (DESIGN.md, "Data model"), the same as ``cpp/ibr/camera.h``:
+One convention everywhere (OpenCV), the same as ``cpp/ibr/camera.h``:
 
 * camera axes are OpenCV's: x right, y down, z forward;
 * pixel (col u, row v) has its centre at continuous image coordinates (u + 0.5, v + 0.5);

@@ -1,4 +1,4 @@
-"""The registry of novel-view methods (DESIGN.md "Commands": --method).
+"""The registry of novel-view methods (``--method`` of ibr-render and ibr-bench).
 
 A method is a class with ``prepare(scene) -> dict of setup times`` (work done once per scene:
 BVH builds, view selection structures) and ``render(camera) -> (outputs, stage times in ms)``,
@@ -31,7 +31,7 @@ METHODS: dict[str, str] = {
 }
 BUILT = ("reference", "dibr", "warp", "depthwarp", "tm", "ulr") + (
     ("hybrid",) if importlib.util.find_spec("ibrtools.hybrid.pvm_render") is not None else ())
-BUILT += ("pvm",)  # per-view meshes (render/pvm.py)
+BUILT += ("pvm",)  # per-view meshes (hybrid/pvm_method.py)
 
 
 class Method(Protocol):

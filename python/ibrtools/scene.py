@@ -1,4 +1,4 @@
-"""Scene model: views, named render targets, camera paths and meshes (DESIGN.md "Data model").
+"""Scene model: views, named render targets, camera paths and meshes (on disk: docs/FORMAT.md).
 
 In memory:
   View.color  (H, W, 3) float32 linear RGB, C-contiguous
@@ -120,8 +120,8 @@ class View:
         """The depth multi-view fusion reads: as the data set stored it when the importer filtered
         ``depth``, else ``depth``. A per-view filter (de-quantisation) makes each view's error
         follow the surface's shape, alike in every view, where the stored codes' rounding error
-        differs from view to view and averages out in the fusion (docs/hybrid.md "Fusion reads
-        the stored depth")."""
+        differs from view to view and averages out in the fusion (docs/preprocess.md
+        "Fusion")."""
         return self.depth_stored if self.has_depth_stored else self.depth
 
     @property
@@ -183,7 +183,7 @@ class Scene:
     # plus "ambient" and "background" in ``shading``. The reference method renders with them.
     lights: list[dict] = field(default_factory=list)
     shading: dict = field(default_factory=dict)
-    # Records of the preprocessing stages that produced this scene (stages.py): name -> record.
+    # Records of the preprocessing stages that produced this scene (pipeline/stages.py): name -> record.
     stages: dict = field(default_factory=dict)
     root: Path | None = None
     # A video scene (docs/FORMAT.md "Frames"): the names of its frames, in time order; frame F is

@@ -220,7 +220,7 @@ class DepthWarpMethod:
     """``--method depthwarp`` (see the module doc)."""
 
     name = "depthwarp"
-    image_is_depth = True  # its image is the warped depth visualised: not completed (render/complete.py)
+    image_is_depth = True  # its image is the warped depth visualised: not completed (inpaint/complete.py)
 
     def __init__(self, params: dict | None = None):
         self.params = check_params(params)

@@ -27,7 +27,7 @@ Parameters (``ibr-render --inputs/--quality/--blend-exponent`` or ``--param key=
                   warps and blends the sRGB-encoded colours (what RVS does: it blends the stored
                   YUV code values; each selected view is encoded once and cached) and the kernel
                   decodes the result in its resolve; "linear" blends linear light; see
-                  docs/dibr.md, "Blend space"
+                  docs/dibr_accuracy.md, "Blend space"
   distance_exponent  beta >= 0: each selected view's fragment weights are multiplied by
                   (b_min / b_i)^beta, b_i = the distance from its camera centre to the target's,
                   b_min the smallest (the nearest view keeps factor 1; MPEG VSRS weights its two
@@ -52,14 +52,14 @@ QUALITIES = ("side", "shape", "depth", "normal")
 # by +0.5 dB on lego object pixels and +0.2 dB on ICL-NUIM, and changes Middlebury by < 0.05 dB.
 # stretched_quality 0.1 with stretched_holes (cpp/kernels/blend.h, "Visibility across views"):
 # a fragment on a triangle stretched past 0.9 T never mixes into real surface, and pixels only
-# such fragments cover are holes (issue 3: background that no input sees is a hole, not
+# such fragments cover are holes (background that no input sees is a hole, not
 # stretched foreground). Measured (docs/dibr.md): lego all pixels +1.4 dB, RVS-protocol
 # (nearest-filled) figures within +-0.1 dB. depth_tolerance stays 0 (RVS: every view's front
 # fragment is blended): 0.02-0.05 gains +1.7 dB on exact synthetic depth but loses 0.16 dB on
 # ICL-NUIM's noisy depth. distance_exponent stays 0 (RVS: every selected view alike): beta chosen
 # on lego validation views (3 with the srgb blend space, 4 with linear) gains +1.4-1.7 dB on lego
 # object pixels but loses 0.3-0.6 dB on ICL-NUIM, whose nearest input has the worse ground-truth
-# pose (docs/dibr.md, "lego object pixels").
+# pose (docs/dibr_accuracy.md, "lego").
 DEFAULTS = {"inputs": vs.DEFAULT_K, "quality": "side", "blend_exponent": 5.0, "side_threshold": 10.0,
             "samples": vs.DEFAULT_SAMPLES, "seed": vs.DEFAULT_SEED,
             "stretched_quality": 0.1, "stretched_holes": True, "depth_tolerance": 0.0,
@@ -68,7 +68,7 @@ DEFAULTS = {"inputs": vs.DEFAULT_K, "quality": "side", "blend_exponent": 5.0, "s
 # encodings of the colours (RVS blends the stored code values) and decodes the result in its
 # resolve (DibrAccumulator.result(srgb_to_linear=True)). The weighted mean of misregistered samples
 # is the estimate of least squared error in the space it is taken in, so blending in the display
-# encoding is what an sRGB PSNR rewards. Chosen on data that picks no other parameter (docs/dibr.md,
+# encoding is what an sRGB PSNR rewards. Chosen on data that picks no other parameter (docs/dibr_accuracy.md,
 # "Blend space"): lego object pixels on the 8 validation views 22.84 -> 23.35 dB (all 8 gain), over
 # the 40-view spread 23.40 -> 23.91 (39 of 40 gain), the synthetic bench_dibr job 29.32 -> 29.39 dB;
 # it costs ~4.5 ms of one core per 1080p frame (the decode, ~2.7 % of the job's CPU; the encode is

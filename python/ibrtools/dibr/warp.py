@@ -12,7 +12,7 @@ Per frame:
 Outputs: "color" (0 in holes), "depth" (surface depth; the background depth inside disocclusions;
 0 where nothing lands, e.g. outside the input's field of view), "hole" (bool: disoccluded or not
 covered) and "disoccluded" (bool: holes with a background depth). ``ibr-render --inpaint pushpull``
-fills the holes depth-aware with that depth (render/job.py), so the fill takes the background.
+fills the holes depth-aware with that depth (pipeline/job.py), so the fill takes the background.
 
 Parameters (``--inputs`` or ``--param key=value``)
   inputs             one view name, or 1 (= the most similar view; the default)

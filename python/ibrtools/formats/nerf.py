@@ -45,7 +45,7 @@ Convention converted from
     8-bit codes (lego: steps of depth_scale/255 = 0.031 units, ~0.8 % of the depth — the data
     README's "coarse" warning) misregister by up to ~1 px at the lego views' baselines
     (1111 px · 0.9 · 0.016 / 4² ≈ 1 px for half a step), on one-pixel textures: ``auto`` = 5
-    rounds (chosen on validation views, docs/dibr.md "Accuracy"). 16-bit codes are 257× finer
+    rounds (chosen on validation views, docs/dibr_accuracy.md "Accuracy"). 16-bit codes are 257× finer
     (steps of 0.00012 units, 0.003 % of the depth, < 0.01 px at any such baseline): their
     terraces are invisible to a warp and smoothing could only round off depth edges (the same
     smoothing of Middlebury's fine quarter-pixel codes loses 0.1 dB), so ``auto`` = 0 there.

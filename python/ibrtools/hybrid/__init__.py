@@ -1,4 +1,4 @@
-"""Hybrid image-based rendering preprocessing (Prakash et al. 2021, sec. 4 and 5.1; issue 6).
+"""Hybrid image-based rendering preprocessing (Prakash et al. 2021, sec. 4 and 5.1).
 
 Modules: ``globalmesh`` (the global mesh: the scene's reconstructed mesh or TSDF fusion of the
 views' depth maps, per-vertex colour by ULR-weighted blending, per-view depth from the mesh),

@@ -1,5 +1,5 @@
-"""A UV texture atlas for the global mesh (issue 7: TM as a textured mesh, as the paper's TM is;
-docs/preprocess.md "Texture").
+"""A UV texture atlas for the global mesh (TM as a textured mesh, as the paper's TM is;
+docs/texture.md "Atlas").
 
 * :func:`layout` — parameterisation and packing of our own: the faces are binned by their
   longest edge in texels (bins a factor 1.25 wide, largest first), ordered along a Morton curve
@@ -102,7 +102,7 @@ def layout(mesh: Mesh, texel: float, max_texels: int = ATLAS_MAX_TEXELS, max_cel
     # Order: faces binned by length in texels (bins a factor 1.25 wide), largest bin first; within
     # a bin by the Morton code of the centroid, so that neighbours on the surface (and on the
     # screen) get neighbouring cells and the TM read walks the atlas instead of jumping at every
-    # face (cache misses: docs/hybrid.md "Figures").
+    # face (cache misses: docs/texture.md "Atlas").
     length_bin = np.floor(np.log(np.maximum(longest, 1e-30)) / math.log(1.25))
     order = np.lexsort((_morton(v[f].mean(1)), -length_bin))
     n_pairs = (m + 1) // 2

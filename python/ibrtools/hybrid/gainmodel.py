@@ -1,4 +1,4 @@
-"""Which part of the views' estimated global gains is exposure (issue 7: the texture and harmonise stages).
+"""Which part of the views' estimated global gains is exposure (the texture and harmonise stages).
 
 :func:`ibrtools.hybrid.variance.vertex_statistics` estimates one per-channel gain per view (the
 median ratio of its colours to the vertex means). It cannot tell an exposure change from

@@ -1,4 +1,4 @@
-"""The global mesh of hybrid IBR (Prakash et al. 2021, sec. 3.1 and Fig. 2; issue 6 item 2).
+"""The global mesh of hybrid IBR (Prakash et al. 2021, sec. 3.1 and Fig. 2).
 docs/preprocess.md says what is chosen and why.
 
 * :func:`choose_source` — where the geometry comes from. ``auto``: the scene's
@@ -10,8 +10,7 @@ docs/preprocess.md says what is chosen and why.
   cubes; voxel = the depth points' largest extent / ``resolution`` (default 384), truncation 4 voxels.
   :func:`build_global_mesh` fuses each view's ``fusion_depth``: the depth as the data set stored
   it where the importer filtered it (de-quantised 8-bit codes), so that the views' rounding
-  errors, which differ from view to view, average out (docs/hybrid.md "Fusion reads the stored
-  depth").
+  errors, which differ from view to view, average out (docs/preprocess.md "Fusion").
 * :func:`densify` — midpoint subdivision of edges longer than ``max_edge`` (per-vertex colour
   needs vertices about as dense as the texture detail it should hold).
 * :func:`vertex_colors` — per-vertex colour by ULR-weighted blending (Buehler et al. 2001) of
@@ -38,7 +37,7 @@ SOURCES = ("auto", "reconstructed", "ground_truth", "fusion")
 # The texture atlas's default texel cap: 2^25 texels = 128 MiB of 8-bit sRGB RGBA (an 8192 x 4096
 # atlas), held in memory by the TM render; the bake holds ~20 bytes a texel more while it runs
 # (float32 RGB image, int32 face map: ~0.7 GB at the cap). Chosen by memory: a scene's atlas gets
-# the texels its layout asks at the views' pixel footprint up to it (docs/preprocess.md "Texture").
+# the texels its layout asks at the views' pixel footprint up to it (docs/texture.md "Atlas").
 # The old cap, 2^22 (2048^2), held no atlas for a fused mesh of 10^6 faces (>= 36 texels a face
 # pair), which then fell back to per-vertex colour.
 ATLAS_MAX_TEXELS = 1 << 25
@@ -47,12 +46,12 @@ ATLAS_MAX_TEXELS = 1 << 25
 ATLAS_TEXELS_LIMIT = 1 << 30
 
 
-# Upper bounds of the mesh stage's options (docs/preprocess.md "Parameters"). resolution: a voxel of
+# Upper bounds of the mesh stage's options (docs/preprocess.md "Bounds and memory"). resolution: a voxel of
 # 1/4096 of the scene is finer than the depth maps' pixels for every data set we read (lego's 800
 # pixels, 4K frames), so a finer one adds no detail, only memory; within it the TSDF's memory is
 # estimated (fusion_memory) and checked before the stage runs. trunc_voxels: the band of blocks
 # each depth sample activates grows with its cube. max_faces: 160 bytes a face once the mesh is
-# loaded with its BVH (render/job.py), 10 GB at 2^26. k_views: the ULR kernels' 64 views a point.
+# loaded with its BVH (pipeline/job.py), 10 GB at 2^26. k_views: the ULR kernels' 64 views a point.
 MESH_LIMITS = {"resolution": 4096, "trunc_voxels": 16.0, "max_faces": 1 << 26, "k_views": 64,
                "max_edge_voxels": 1e6, "render_edge_voxels": 1e6, "depth_tol": 1e6, "atlas_texel": 1e6,
                "gain_max_ratio": 1e6, "bake_label_weight": 1e6}
@@ -82,7 +81,7 @@ class GlobalMeshOptions:
     resolution: int = 384        # TSDF voxel = largest extent of the depth points / resolution
     trunc_voxels: float = 4.0    # TSDF truncation distance in voxels
     max_edge_voxels: float = 1.0  # densify a given mesh to edges <= this many voxels
-    # The render mesh (issue 7): the same surface densified only to edges <= render_edge_voxels
+    # The render mesh: the same surface densified only to edges <= render_edge_voxels
     # (a given mesh; a fused mesh is used as it is). TM's atlas, the G-buffer of tm / ulr / hybrid
     # and ULR's occlusion depth use it; the dense mesh above carries the per-vertex statistics
     # (variance, harmonisation, view-dependent texture). Midpoint subdivision does not move the
@@ -111,7 +110,7 @@ class GlobalMeshOptions:
     bake_normal_rounds: int = 0
     # The same two for a mesh made by TSDF fusion (texture_options): its normals are voxel-noisy
     # and its surface ~1 voxel off, so each view's sample is misregistered differently; blending
-    # more views, ranked on smoothed normals, averages that out (lego validation, docs/hybrid.md).
+    # more views, ranked on smoothed normals, averages that out (lego validation, docs/texture.md).
     # A given (reconstructed / ground-truth) mesh keeps k_views and bake_normal_rounds (the
     # synth bench scenes lose 0.6 dB of TM with 8 rounds of smoothing across their sharp edges).
     fused_k_views: int = 8

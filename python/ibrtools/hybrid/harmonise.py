@@ -1,4 +1,4 @@
-"""Multi-view harmonisation (Prakash et al. 2021, sec. 4.1 and 4.2; issue 6 items 5-8).
+"""Multi-view harmonisation (Prakash et al. 2021, sec. 4.1 and 4.2).
 docs/harmonise.md states the energy, the thresholds and where we deviate from the paper.
 
 Per input view, in linear RGB (``diffuse="exposure"``, the default, replaces step 1's ratio field

@@ -61,31 +61,31 @@ from ibrtools import params as P
 # into that view (the proxy ULR blends on, as in Buehler et al. and the paper's deferred ULR), so
 # a surface point of the G-buffer is tested against the same geometry; "views": the views' own
 # (captured) depth, which disagrees with a reconstructed mesh by more than depth_tol over much of
-# the surface (measured: 11 % of pixels kept ULR on a 48-voxel fusion, docs/hybrid.md).
+# the surface (measured: 11 % of pixels kept ULR on a 48-voxel fusion, docs/ulr.md).
 # depth_tol 0.005 (was 0.02, the texture stage's): a view whose depth at the point's pixel differs
 # by more than 0.5 % does not see the point; chosen on the selection scenes (lego validation views,
 # synth:objects seed 1) over 0.0025 / 0.01 / 0.02 / 0.04: best PSNR on both (hybrid lego 27.80 ->
 # 27.99 dB, FLIP 0.0502 -> 0.0487; synth 31.75 -> 31.87, 0.0596 -> 0.0588; ULR alone better too).
 # The rejected views are those where the point sits at a depth edge of the view (its bilinear colour
-# mixes both sides) or is seen at a grazing angle (docs/hybrid.md "Sixth round"). resample "cubic": the
+# mixes both sides) or is seen at a grazing angle (docs/ulr.md "Parameters"). resample "cubic": the
 # views' colours are read with Catmull-Rom (cpp/kernels/resample.h), sharper than bilinear; chosen on
-# the selection scenes (docs/hybrid.md "Seventh round"; the PVM renderer reads its candidates the same way).
+# the selection scenes (docs/ulr.md "Parameters"; the PVM renderer reads its candidates the same way).
 ULR_DEFAULTS = {"k": 4, "resolution_weight": 0.5, "depth_tol": 0.005, "harmonised": True, "occlusion": "mesh",
                 "resample": "cubic"}
 # sigma, alpha, gamma, tau_depth: the paper's sweep values (sec. 7). sigma_blur 16 px (the
 # paper: 4): chosen on synth:objects seed 1, a scene no reported figure uses (12 views of
 # 480x360, 4 targets: sigma_blur 4 / 8 / 12 / 16 -> hybrid 30.50 / 30.63 / 30.72 / 30.78 dB,
-# SSIM 0.9316 / 0.9326 / 0.9332 / 0.9336; docs/hybrid.md "Figures"). tau_var -1 (the paper: 0.82,
+# SSIM 0.9316 / 0.9326 / 0.9332 / 0.9336; docs/hybrid.md "Parameters"). tau_var -1 (the paper: 0.82,
 # which our view-dependent texture, an average of per-view binary masks, almost never reaches):
 # below every vd value, so reliable geometry always goes to ULR and TM is left as ULR's fallback
 # where no view sees the point. Chosen on synth:objects seed 1 and the lego validation views:
-# every metric improves monotonically from 0.82 down to 0 (docs/hybrid.md "tau_var"), and again
+# every metric improves monotonically from 0.82 down to 0 (docs/hybrid.md "Parameters"), and again
 # from 0 to -1 once the harmonised images keep the views' shading (harmonise diffuse="exposure":
 # lego 27.45 / 0.9358 / 0.0559 -> 27.67 / 0.9406 / 0.0520, synth 31.31 / 0.9397 / 0.0641 -> 31.55 /
-# 0.9431 / 0.0599; docs/hybrid.md "Fifth round"). tau_var 0 keeps the paper's TM branch (vd = 0 -> TM).
+# 0.9431 / 0.0599; docs/hybrid.md "Parameters"). tau_var 0 keeps the paper's TM branch (vd = 0 -> TM).
 # min_weight 0.05 (the paper: 0, no threshold): the largest value costing <= 0.01 dB on synth:objects
 # seed 1 and the lego validation views; ULR / PVM colours then run on 37 / 53 % of a 1280x720 frame
-# instead of 60 / 75 % (docs/hybrid.md "Fourth round").
+# instead of 60 / 75 % (docs/hybrid.md "Parameters").
 # geo_threshold None = geo_threshold_for(the scene's units, the mesh stage's voxel).
 # TM is shaded at the pixels the composite reads alone when they are at most this share of the
 # frame (a (1, n) G-buffer: indexing costs more per pixel than the full-frame shade).
@@ -93,7 +93,7 @@ TM_SUBSET_MAX = 0.25
 # The G-buffer of a pinhole camera is rasterised when the mesh has at most RASTER_MAX_FACES faces and
 # at most RASTER_MAX_FACES_PER_PIXEL faces per pixel of the frame, else ray cast by Embree: the
 # rasteriser's cost grows with the faces (~110 ns each), the ray caster's with the pixels. Measured
-# (docs/hybrid.md "G-buffer and TM"): these limits pick the faster of the two, or one within 5 % of
+# (docs/tm.md "The G-buffer"): these limits pick the faster of the two, or one within 5 % of
 # it, on every mesh (10.9 k to 2.2 M faces) and frame (320x180 to 3200x3200) tried.
 RASTER_MAX_FACES = 500_000
 RASTER_MAX_FACES_PER_PIXEL = 0.3
@@ -116,7 +116,7 @@ def check_params(method: str, params: dict | None) -> dict:
     if method == "tm":
         return p
     # k: the kernel's bound (cpp/bindings/hybrid_render.cpp, a fixed-size per-pixel list); the
-    # others only have to stay finite in the kernels' float32 (render/params.py FINITE_MAX).
+    # others only have to stay finite in the kernels' float32 (params.py FINITE_MAX).
     p["k"] = P.integer(p["k"], "--param k", 1, 64)
     p["resolution_weight"] = P.number(p["resolution_weight"], "--param resolution_weight", 0.0, maximum=P.FINITE_MAX)
     p["depth_tol"] = P.number(p["depth_tol"], "--param depth_tol", 0.0, strict=True, maximum=P.FINITE_MAX)
@@ -138,7 +138,7 @@ def check_params(method: str, params: dict | None) -> dict:
 
 
 # geo_threshold in a scene without a length unit: this many voxels of the global mesh. Chosen on
-# the lego validation views (docs/hybrid.md "geo_threshold without a length unit"): 0.5 / 1 / 1.7 /
+# the lego validation views (docs/hybrid.md "geo_threshold"): 0.5 / 1 / 1.7 /
 # 2.5 voxels -> hybrid 26.90 / 27.10 / 27.03 / 26.95 dB, the best mean rank of PSNR, SSIM and FLIP at 1.
 GEO_THRESHOLD_VOXELS = 1.0
 
@@ -184,7 +184,7 @@ def _stage(scene: Scene, stage: str, method: str):
 
 def _miss_at_infinity(gb: dict) -> np.ndarray:
     """The G-buffer's depth with +inf where the ray missed the global mesh: it sees the background
-    at infinity (render/background.py gives it the background's colour where the scene has one)."""
+    at infinity (inpaint/background.py gives it the background's colour where the scene has one)."""
     return np.where(gb["hit"], gb["depth"], np.float32(np.inf)).astype(np.float32)
 
 

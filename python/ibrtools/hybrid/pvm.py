@@ -71,7 +71,7 @@ class PvmOptions:
         coarse = check_int(self.coarse, "coarse", 1, 256)
         sub = check_int(self.sub, "sub", 1)
         for k, v in (("max_rel_jump", jump), ("noise_tol", ntol), ("mesh_snap", snap)):
-            if v > 1e6:  # only finite in float32 matters (render/params.py FINITE_MAX)
+            if v > 1e6:  # only finite in float32 matters (params.py FINITE_MAX)
                 raise BadValueError(f"{k}: expected a number <= 1e+06, got {v}")
         if self.clip not in CLIP_MODES:
             raise BadValueError(f"clip: expected one of {', '.join(CLIP_MODES)}, got {self.clip!r}")

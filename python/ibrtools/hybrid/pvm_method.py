@@ -3,7 +3,7 @@ rendered on their own (the ``hybrid`` method uses the same renderer only where i
 
 Per frame:
   gbuffer  the z of the global mesh's G-buffer (stage ``mesh``, its render mesh), as the hybrid
-           method makes it (render/hybrid.py ``_GlobalMesh.gbuffer``: rasterised, or ray cast by
+           method makes it (hybrid/method.py ``_GlobalMesh.gbuffer``: rasterised, or ray cast by
            Embree for a mesh dense for the frame) (``gbuffer=mesh``, default; ``gbuffer=none``:
            every coarse voxel in the frustum is looked up instead);
   pvm      ibrtools.hybrid.pvm_render.PvmRenderer (voxel lookup, tile sort, per-view depth pass,

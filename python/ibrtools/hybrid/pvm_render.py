@@ -52,8 +52,8 @@ from ibrtools.hybrid.pvm import PvmTiles
 # camera are not ranked for it; with a sparse capture "the top 12" otherwise includes views from
 # the far side of an object, which see the background behind it and outvote the foreground in
 # Eq. 1 and Eq. 2 (docs/pvm_render.md "max_angle": 180 / 90 / 60 / 50 / 40 degrees on synth:objects).
-# 60 until the tenth session; 55 chosen for the hybrid on the 36 lego views outside the held-out
-# set and synth seed 1 (docs/hybrid.md "Eighth round"); 50 scored better on lego but lost a thin
+# 55 chosen for the hybrid on the 36 lego views outside the held-out
+# set and synth seed 1 (docs/pvm_render.md "max_angle"); 50 scored better on lego but lost a thin
 # object missing from the global mesh in a 10-view ring (tests/test_pvm_render.py).
 # ray_stride 8: the coarse cells in front of the G-buffer's surface on every 8th ray of every 8th
 # row are looked up too (an object the global mesh lacks, more than one coarse cell in front of
@@ -70,8 +70,8 @@ from ibrtools.hybrid.pvm import PvmTiles
 # tau_empty 2: a one-cluster pixel seen past by >= 2 x n_fg views without a candidate there is
 # emptied (a sheet across a gap); chosen on the selection scenes over 0 (off) / 1.5 / 2 / 2.5 / 3 / 4
 # (docs/pvm_render.md "Seen through"). resample "cubic": the candidates' colours are read with
-# Catmull-Rom, as the ULR blend's (cpp/kernels/resample.h; "bilinear" until the ninth session).
-# stretch_weight 0.1, stretch_free 0 (ours, twenty-third session): a candidate's ULR penalty gains
+# Catmull-Rom, as the ULR blend's (cpp/kernels/resample.h; "bilinear" the plain read).
+# stretch_weight 0.1, stretch_free 0 (ours): a candidate's ULR penalty gains
 # 0.1 x log2 of its triangle's magnification in the target (its area there over its area in its own
 # view) when above 1; chosen on the selection scenes (the 36 lego views outside the held-out set
 # and synth seed 1) over weights 0.05 / 0.1 / 0.2 / 0.4 / 0.8 and free octaves 0 / 1 / 2

@@ -1,4 +1,4 @@
-"""One view per face of the global mesh for the texture bake (issue 7; Waechter et al. 2014, "Let
+"""One view per face of the global mesh for the texture bake (Waechter et al. 2014, "Let
 There Be Color!", without their seam levelling): a labelling with a data term and a Potts
 smoothness term on the face adjacency, minimised by alpha-expansion (Boykov et al. 2001) with
 PyMaxflow's max-flow on the general face graph (the project's own max-flow,

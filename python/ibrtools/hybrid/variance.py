@@ -1,4 +1,4 @@
-"""Variance mesh (Prakash et al. 2021, sec. 4.1; issue 6 item 4): per vertex of the global mesh,
+"""Variance mesh (Prakash et al. 2021, sec. 4.1): per vertex of the global mesh,
 the per-channel standard deviation of the colours of the views that see it. docs/harmonise.md.
 
 Visibility: a vertex is seen by a view when it projects inside the image, in front of the

@@ -2,7 +2,7 @@
 it (docs/render.md "Complete images"):
 
 1. **background**: hole pixels whose direction an input sees as background at infinity take its
-   colour (render/background.py); they are not holes;
+   colour (inpaint/background.py); they are not holes;
 2. **holes filled** (``inpaint``): each hole pixel is a background hole when at least half of
    its nearest covered pixels left, right, above and below are background at infinity (it takes
    the scene's background colour, or a push-pull of the background pixels), else a surface hole,
@@ -151,7 +151,7 @@ def complete(out: dict, camera, background: Background | None, inpaint: str,
     note = None
     if inpaint != "none":
         if hole is None or not hole.any():
-            note = "skipped: no hole"  # DESIGN.md: inpainting does nothing where there is no hole
+            note = "skipped: no hole"  # inpainting does nothing where there is no hole
         else:
             t0 = time.perf_counter()
             color, note, sky = _fill(color, hole, depth, bg, inpaint,

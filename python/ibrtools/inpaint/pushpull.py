@@ -11,7 +11,7 @@
   the hole pixel takes the classic fill for the share Alg. 1 leaves empty (our deviation,
   ``pushpull.h``), so the depth-aware fill always completes.
 * :func:`nearest_covered` — for every hole pixel, the nearest pixel outside the holes in each of
-  the four directions (the background-depth fills of render/complete.py and render/depthwarp.py).
+  the four directions (the background-depth fills of inpaint/complete.py and depthwarp/method.py).
 
 The C++ kernel is ``cpp/kernels/pushpull.{h,cpp}`` (equations, the paper's depth convention and
 where we read Alg. 1 differently are written there). Outside the holes the result *is* the input

@@ -272,7 +272,7 @@ def _upsample(a: np.ndarray, h: int, w: int) -> np.ndarray:
 # fountain-P11's 10 views (3.9 M pixels) measured 356 MB with /usr/bin/time -v, i.e. ~40 B a pixel
 # above the interpreter; rounded up to stay above it.
 _BYTES_PER_PIXEL = 64
-_BASE_BYTES = 400 << 20  # the interpreter, numpy, OpenImageIO, the engine (as render/job.py)
+_BASE_BYTES = 400 << 20  # the interpreter, numpy, OpenImageIO, the engine (as pipeline/job.py)
 
 
 def check_memory(views) -> int:

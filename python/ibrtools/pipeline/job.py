@@ -1,7 +1,7 @@
 """A render job: which cameras to render (targets, held-out views, a path, a pose file),
-rendering them with a method, writing the images and ``report.json`` (DESIGN.md "Contracts").
+rendering them with a method, writing the images and ``report.json`` (fields in docs/render.md).
 
-Outputs in the output directory: ``<frame>.png`` (8-bit sRGB, complete: render/complete.py),
+Outputs in the output directory: ``<frame>.png`` (8-bit sRGB, complete: inpaint/complete.py),
 ``<frame>.exr`` with ``float_out``, ``<frame>.depth.exr`` with ``depth_out`` (+inf on the
 background at infinity), ``<frame>.hole.png`` (white = a pixel no input covers: filled, or black
 with inpaint "none") when the frame has holes, ``<frame>.method.png`` for the hybrid methods (the
@@ -321,7 +321,7 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
         scheduler: str | None = None, workers: int = 0) -> dict:
     """Render every frame of ``job``; write images and report.json; return the report.
 
-    Every frame is completed (render/complete.py): the background at infinity where an input
+    Every frame is completed (inpaint/complete.py): the background at infinity where an input
     sees it, then the holes filled by ``inpaint`` ("auto", the default, "pushpull", "metameric"
     with seed 0, the same noise for every frame as Walton et al. 2021, or "none": black), timed
     as stages "background" and "inpaint"; the hole mask is still written and "psnr_holes" scores
@@ -375,7 +375,7 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
             if job.spec is None:
                 raise BadValueError("--workers/--scheduler: the workers rebuild the job with render.job.plan(); "
                                     "this job was not made by plan() with JSON-able arguments")
-            # Engine threads per task: -j, else 1 (a Dask worker thread is a core; distributed.py).
+            # Engine threads per task: -j, else 1 (a Dask worker thread is a core; pipeline/distributed.py).
             spec = {"root": str(Path(root).resolve()), "stamp": D.scene_stamp(root), "plan": job.spec,
                     "method": name, "params": dict(params or {}), "frame": frame_kw, "threads": int(threads)}
         else:
@@ -507,7 +507,7 @@ def render_frame(method, frame: Frame, scene: Scene, *, inpaint: str, fov_kw: di
                  depth_out: bool, background: str | None = None
                  ) -> tuple[dict | None, dict | None, list[tuple[str, str, np.ndarray]]]:
     """Render one frame with a ``method`` prepared on ``scene`` and post-process it: NaN guard,
-    the background at infinity and the holes (render/complete.py), foveation, metrics. Returns (report entry, None, outputs) with outputs the files
+    the background at infinity and the holes (inpaint/complete.py), foveation, metrics. Returns (report entry, None, outputs) with outputs the files
     to write [(file name, "image" | "depth", array)], or (None, {"name", "error"}, []) when the
     rendering or its post-processing raised (the frame failed; the job goes on), except for bad
     scene data found while rendering (an input image that decodes to NaN): raised, the job stops. Writes nothing:
@@ -564,7 +564,7 @@ def _render_frame(method, frame: Frame, scene: Scene, *, inpaint, fov_kw, float_
         entry["depth"] = f"{frame.stem}.depth.exr"
     selection = out.get("selection")
     if selection is not None:
-        # Hybrid methods: the per-pixel method choice (RGB: red PVM, green TM, blue ULR; render/hybrid.py).
+        # Hybrid methods: the per-pixel method choice (RGB: red PVM, green TM, blue ULR; hybrid/method.py).
         outputs.append((f"{frame.stem}.method.png", "image", np.asarray(selection, np.float32)))
         entry["method_mask"] = f"{frame.stem}.method.png"
     if hole is not None and hole.any():

@@ -1,10 +1,10 @@
-"""Preprocessing stages and their planner (DESIGN.md "Skip what a scene does not need").
+"""Preprocessing stages and their planner (work that cannot change the result is skipped, with the reason).
 
 A stage declares what it reads and what it is for; the planner runs it only when its
 output is missing or its inputs or parameters changed (a content hash, stored in the
 scene's ``scene.json`` under ``stages``), and reports every stage as ran / up to date /
 skipped, with the reason and the time. ``import`` makes the scene; the derived stages of
-hybrid IBR (issue 6: global mesh, per-view depth from it, texture, variance, harmonisation,
+hybrid IBR (global mesh, per-view depth from it, texture, variance, harmonisation,
 per-view meshes and tiles) are declared in ``STAGES`` with their inputs, outputs and the
 methods that need them, write under ``SCENE/cache/<stage>/`` and record their key and output
 hashes in scene.json ``stages`` (docs/FORMAT.md "Cache", docs/preprocess.md).
@@ -215,7 +215,7 @@ def hold_out(scene: Scene, names: list[str]) -> Scene:
 
 
 # ---------------------------------------------------------------------------------------------
-# The preprocessing stages after import (issue 6): declared once, planned per run.
+# The preprocessing stages after import: declared once, planned per run.
 
 # Methods and the stages they read (DESIGN.md "Commands"): reference/dibr/warp/depthwarp work
 # from the views alone; tm needs the textured global mesh; ulr the global mesh as geometry proxy
@@ -489,8 +489,8 @@ def _run_texture(ctx: _Context) -> dict:
     # The views with their global per-channel gain divided out (variance.vertex_statistics on the
     # render mesh: the gains, geometric mean 1 over the views, as the variance stage estimates them
     # on the dense mesh): the atlas then has one exposure, the one the harmonised images ULR blends
-    # are brought to, instead of a blend-weighted mix of the views' exposures (docs/preprocess.md
-    # "Texture").
+    # are brought to, instead of a blend-weighted mix of the views' exposures (docs/texture.md
+    # "Atlas").
     # Only the part of the gains that looks like exposure (hybrid/gainmodel.py, gain_model): a
     # gain that follows the viewing direction smoothly is shading, which the texture keeps.
     st = ctx.vertex_statistics(render=True)
@@ -507,7 +507,7 @@ def _run_texture(ctx: _Context) -> dict:
            "k_views": opts.k_views,
            "normal_rounds": opts.bake_normal_rounds}
     arrays = {"vertex_colors": col, "seen": seen}
-    # The atlas (issue 7): per-texel colour at about the input views' resolution; a mesh with too
+    # The atlas: per-texel colour at about the input views' resolution; a mesh with too
     # many faces for atlas_max_texels keeps the per-vertex colour only (TM renders that).
     try:
         texel = opts.atlas_texel * A.texel_size(cams, deps)

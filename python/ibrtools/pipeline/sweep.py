@@ -2,7 +2,7 @@
 held-out views or the scene's targets (``ibr-bench``, Prakash et al. 2021 sec. 7 "Parameter
 evaluation": 22 novel views of a synthetic scene).
 
-Grammar of a sweep (``--sweep``, repeatable; docs/hybrid.md "ibr-bench"):
+Grammar of a sweep (``--sweep``, repeatable; docs/sweep.md):
 ``key=v1:v2:v3`` gives one parameter its values; several ``key=values`` groups are separated by
 commas in one ``--sweep`` (``sigma=1:3:5,alpha=7``) or given as separate ``--sweep`` flags. The
 configurations are the Cartesian product of every key's values, in the order given. Values are
@@ -83,7 +83,7 @@ def sweep(scene: Scene, method: str, grid: dict[str, list], *, holdout: list[str
           frame_hook=None, inpaint: str = DEFAULT_INPAINT) -> list[dict]:
     """Run every configuration; return one row per configuration (params, times, mean metrics)
     and, with ``out_dir``, write sweep.csv / sweep.md / sweep.png there. Frames are scored as
-    ``ibr-render`` writes them (complete: render/complete.py, with ``inpaint``); a frame's time
+    ``ibr-render`` writes them (complete: inpaint/complete.py, with ``inpaint``); a frame's time
     includes its completion. Before the first timed frame the first configuration renders the
     first frame once, untimed (the engine's first-use costs: thread pool, tables, buffers).
 
