@@ -37,21 +37,13 @@ typecheck: setup
 
 # Sanitizers (docs/robustness.md): the extension built with ASan+UBSan (or TSan) in build/asan
 # (build/tsan), run against python/ibrtools from a staging dir; the normal .venv install is not
-# touched. SANITIZE_TESTS selects the test files (default: the whole suite for ASan, the
-# multithreaded kernels' tests for TSan).
-# TSAN_TESTS: every multithreaded kernel family's own tests and the stress suite (1 and 2 threads).
-TSAN_TESTS ?= tests/test_stress.py tests/test_forward_warp.py tests/test_blend.py tests/test_warp.py \
-  tests/test_pushpull.py tests/test_steerable.py tests/test_metameric_kernels.py tests/test_foveate.py \
-  tests/test_mip_foveate_level.py tests/test_metrics.py tests/test_raycast.py tests/test_peel.py \
-  tests/test_depthwarp.py tests/test_nbuffer.py tests/test_culling.py tests/test_shadows.py \
-  tests/test_pvm.py tests/test_pvm_render.py tests/test_hybrid_render.py tests/test_harmonise.py \
-  tests/test_maxflow.py tests/test_poisson.py tests/test_mvs.py
-
+# touched: the whole suite under ASan, the multithreaded kernels' tests (pytest marker `kernel`)
+# under TSan.
 check-asan: setup
 	tools/sanitize.sh asan
 
 check-tsan: setup
-	SANITIZE_TESTS="$(TSAN_TESTS)" tools/sanitize.sh tsan -n 2
+	tools/sanitize.sh tsan -n 2 -m kernel
 
 demo: setup
 	$(VENV)/bin/ibr-preprocess synth:objects -o $(DEMO_DIR)/scene --views 12 --size 480x360

@@ -11,6 +11,7 @@ import subprocess
 import sys
 import threading
 import weakref
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -44,6 +45,35 @@ def test_doctests(module, tmp_path, monkeypatch):
     res = doctest.testmod(module, optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE, verbose=False)
     assert res.attempted > 0
     assert res.failed == 0
+
+
+def test_api_page_examples(tmp_path, monkeypatch):
+    """docs/api.md's examples of every API function run as written."""
+    monkeypatch.chdir(tmp_path)
+    page = Path(__file__).resolve().parents[1] / "docs" / "api.md"
+    res = doctest.testfile(str(page), module_relative=False,
+                           optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE, verbose=False)
+    assert res.attempted >= 10 and res.failed == 0
+
+
+def test_pipeline_functions_reject_bad_arguments(scene, tmp_path):
+    with pytest.raises(DtypeError, match="save_scene: scene: expected an ibrtools.Scene"):
+        ibrtools.save_scene("scene", tmp_path / "s")  # type: ignore[arg-type]
+    with pytest.raises(DtypeError, match="import_dataset: source: expected a str"):
+        ibrtools.import_dataset(3, tmp_path / "s")  # type: ignore[arg-type]
+    with pytest.raises(BadValueError, match="unknown preset"):
+        ibrtools.import_dataset("synth:nope", tmp_path / "s")
+    with pytest.raises(BadValueError, match="synth: unknown option"):
+        ibrtools.import_dataset("synth:objects", tmp_path / "s", synth={"colour": 1})
+    with pytest.raises(BadValueError, match="synth: only for a synth:NAME source"):
+        ibrtools.import_dataset(tmp_path, tmp_path / "s", synth={"views": 2})
+    with pytest.raises(MissingFileError, match="preprocess: .*no scene.json"):
+        ibrtools.preprocess(tmp_path)
+    with pytest.raises(DtypeError, match="render_job: scene: expected an ibrtools.Scene"):
+        ibrtools.render_job(None, tmp_path / "o")  # type: ignore[arg-type]
+    with pytest.raises(DtypeError, match="bench: grid: expected a dict"):
+        ibrtools.bench(scene, "dibr", [1, 2])  # type: ignore[arg-type]
+    assert not (tmp_path / "s").exists() and not (tmp_path / "o").exists()  # nothing half-written
 
 
 # --- load_scene -----------------------------------------------------------------------------------------
@@ -253,6 +283,6 @@ def test_top_level_names():
 def test_import_is_light():
     """``import ibrtools`` loads neither the C++ engine nor open3d nor the render methods."""
     code = ("import sys, ibrtools; heavy = [m for m in ('ibrtools._core', 'open3d', 'ibrtools.api', "
-            "'ibrtools.render', 'OpenImageIO') if m in sys.modules]; print(heavy)")
+            "'ibrtools.methods', 'ibrtools.pipeline', 'OpenImageIO') if m in sys.modules]; print(heavy)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert json.loads(out.replace("'", '"')) == []

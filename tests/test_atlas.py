@@ -12,6 +12,8 @@ from ibrtools.hybrid import atlas as A
 from ibrtools.hybrid.globalmesh import densify, vertex_colors
 from ibrtools.mesh import Mesh
 
+pytestmark = [pytest.mark.asan]
+
 
 def camera(w=64, h=64, f=64.0):
     return Camera.pinhole(w, h, f, f, w / 2, h / 2, look_at((0.0, 0.0, 0.0), (0.0, 0.0, 2.0), up=(0.0, -1.0, 0.0)))
@@ -163,6 +165,7 @@ def _bilinear_reference(prim, bary, uv, atlas_linear):
     return out
 
 
+@pytest.mark.tsan
 def test_sample_atlas_matches_a_numpy_reference_over_many_batches():
     """Random faces, misses and reads across a 300 x 200 atlas (the kernel reads in batches of
     pixels with prefetches; more pixels than a batch, misses interleaved, edges clamped)."""
@@ -182,6 +185,7 @@ def test_sample_atlas_matches_a_numpy_reference_over_many_batches():
     assert not got[prim < 0].any() and not got8[prim < 0].any()
 
 
+@pytest.mark.tsan
 def test_results_independent_of_thread_count():
     """The atlas read and the vertex-attribute interpolation split the pixels into chunks (16384
     pixels) run on the threads: the same output on 1 and 2 threads, and the same first bad pixel
@@ -363,6 +367,7 @@ def _numpy_texel_points(mesh, lay, normals):
     return (ys, xs, face), bary, pts, nrm
 
 
+@pytest.mark.tsan
 def test_texel_points_match_numpy_in_any_bands():
     mesh = densify(wall(), 0.25)
     rng = np.random.default_rng(5)

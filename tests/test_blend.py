@@ -7,6 +7,8 @@ import pytest
 
 from ibrtools import BadValueError, Camera, _core
 
+pytestmark = [pytest.mark.asan, pytest.mark.kernel, pytest.mark.tsan]
+
 H, W = 32, 48
 
 

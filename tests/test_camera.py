@@ -6,6 +6,8 @@ import pytest
 from ibrtools import BadValueError, Camera, DtypeError, ShapeError, look_at
 from ibrtools.errors import FormatError
 
+pytestmark = [pytest.mark.asan]
+
 
 def test_pinhole_pixel_centres_and_projection():
     cam = Camera.pinhole(4, 2, 2.0, 2.0, 2.0, 1.0)

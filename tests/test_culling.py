@@ -12,6 +12,8 @@ from ibrtools.depthwarp.culling import CullResult, cull_objects, object_boxes
 from ibrtools.errors import BadValueError, DtypeError, NotBuiltError, ShapeError
 from ibrtools.raycast.reference import ReferenceRenderer
 
+pytestmark = [pytest.mark.asan, pytest.mark.kernel]
+
 W, H = 64, 48
 
 

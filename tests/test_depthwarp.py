@@ -14,6 +14,8 @@ from ibrtools.depthwarp.core import (DepthWarpParams, WarpResult, forward_warp_d
                                 warp_depth)
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
 
+pytestmark = [pytest.mark.asan, pytest.mark.kernel]
+
 W, H, F = 96, 72, 80.0
 
 

@@ -12,6 +12,8 @@ from ibrtools.camera import Camera
 from ibrtools.depthwarp.core import DepthWarpParams, warp_depth
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
 
+pytestmark = [pytest.mark.asan, pytest.mark.tsan]
+
 
 @pytest.fixture
 def restore_threads():

@@ -57,6 +57,7 @@ def test_srgb_encode_decode_round_trip():
     assert srgb_encode(np.float32(0.5)).shape == () and srgb_encode(np.zeros((0, 3), np.float32)).shape == (0, 3)
 
 
+@pytest.mark.asan
 @needs_kernel
 def test_blend_space_srgb_render_is_the_decoded_srgb_blend():
     # The renderer's srgb frame (inputs encoded by srgb_encode, decoded inside the kernel's
@@ -328,6 +329,7 @@ def test_view_weight_default_and_bad_values():
     assert o.view_weight == 0.25
 
 
+@pytest.mark.asan
 @needs_kernel
 def test_view_weight_scales_the_fragment_weights(isa):
     # forward_warp's weight output is (q / d)^p times the factor (a power of two: exact), colour
@@ -346,6 +348,7 @@ def test_view_weight_scales_the_fragment_weights(isa):
     np.testing.assert_array_equal(w4, 0.25 * w1)
 
 
+@pytest.mark.asan
 @needs_kernel
 def test_view_weight_weights_the_blend(isa):
     # Two views with the same camera and depth and constant colours a, b (equal (q / d)^p): with

@@ -20,6 +20,8 @@ from gil import runs_python_during
 
 from ibrtools import BadValueError, Camera, DtypeError, ShapeError, _core, look_at
 
+pytestmark = [pytest.mark.asan, pytest.mark.kernel]
+
 
 def psnr(a, b):
     mse = float(np.mean((a.astype(np.float64) - b) ** 2))

@@ -13,6 +13,8 @@ import pytest
 
 from ibrtools import BadValueError, Camera, _core, look_at
 
+pytestmark = [pytest.mark.asan, pytest.mark.tsan]
+
 needs_avx2 = pytest.mark.skipif(not _core.cpu_has_avx2(), reason="this CPU has no AVX2: only the baseline path runs")
 
 

@@ -11,6 +11,8 @@ from ibrtools.metamers import foveate as fv
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
 from ibrtools.metamers.steerable import analyse, synthesise
 
+pytestmark = [pytest.mark.asan, pytest.mark.kernel]
+
 
 # ---------------------------------------------------------------- MIP kernel vs numpy reference
 def np_down(a):

@@ -32,6 +32,8 @@ from ibrtools.errors import InputError
 from ibrtools.formats import colmap, load, mpeg, native, nerf, rgbd, yuv
 from ibrtools.imageio import read_depth, read_image, read_mask, write_depth, write_image
 
+pytestmark = [pytest.mark.asan]
+
 EXAMPLES = int(os.environ.get("IBR_FUZZ_EXAMPLES", "40"))
 HANG_S = 20  # a 16x12 fixture loads in milliseconds; 20 s leaves room for a loaded CI machine
 FUZZ = settings(max_examples=EXAMPLES, deadline=None, derandomize=True, database=None,

@@ -13,6 +13,8 @@ from ibrtools.hybrid.globalmesh import (GlobalMeshOptions, build_global_mesh, ch
 from ibrtools.mesh import Mesh
 from ibrtools.scene import Scene, View
 
+pytestmark = [pytest.mark.asan]
+
 
 def quad(z=0.0, size=1.0, kind="ground_truth"):
     """A square of side 2 * size in the plane y = z, normal +y."""

@@ -19,6 +19,8 @@ from ibrtools.raycast.reference import ReferenceRenderer, default_lights
 from ibrtools.scene import Scene, View
 from ibrtools.synth import make_scene
 
+pytestmark = [pytest.mark.kernel]
+
 SIZE, VIEWS = (160, 120), 6
 
 
@@ -436,6 +438,8 @@ def _random_samples(rng, num_vertices, sizes):
     return index, bounds
 
 
+@pytest.mark.tsan
+@pytest.mark.asan
 def test_vertex_colour_sums_match_bincount():
     from ibrtools import _core
 
@@ -459,6 +463,8 @@ def test_vertex_colour_sums_match_bincount():
     assert empty.shape == (5, 3) and not empty.any()
 
 
+@pytest.mark.tsan
+@pytest.mark.asan
 def test_gain_median_ratios_match_numpy_median():
     from ibrtools import _core
 
@@ -485,6 +491,8 @@ def test_gain_median_ratios_match_numpy_median():
     assert np.isfinite(med2).all() and count2[6] == count[6] - (mean[index[bounds[6]]] > 1e-3).all()
 
 
+@pytest.mark.tsan
+@pytest.mark.asan
 def test_vertex_statistics_kernels_bad_inputs():
     from ibrtools import _core
 

@@ -240,6 +240,8 @@ def test_output_that_cannot_be_written_is_one_line(scene_dir, tmp_path, capsys):
 from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
+pytestmark = [pytest.mark.asan]
+
 FUZZ = settings(max_examples=int(os.environ.get("IBR_FUZZ_EXAMPLES", "20")), deadline=None, derandomize=True,
                 database=None, suppress_health_check=list(HealthCheck))
 _PARTS = ["..", ".", "/", "\\", "\0", "\n", "~", "victim", "report", ".ibr-lock", "a.mask", "é", " ", "*", ":"]

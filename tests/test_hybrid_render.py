@@ -15,6 +15,8 @@ from ibrtools.errors import BadValueError, DtypeError, InputError, MissingFileEr
 from ibrtools.hybrid.pvm_render import DEFAULTS as PVM_DEFAULTS
 from ibrtools.hybrid.method import SELECTION_COLORS
 
+pytestmark = [pytest.mark.asan, pytest.mark.kernel]
+
 HAVE_PVM = importlib.util.find_spec("ibrtools.hybrid.pvm_render") is not None
 needs_pvm = pytest.mark.skipif(not HAVE_PVM, reason="ibrtools.hybrid.pvm_render (PVM rendering) not built yet")
 

@@ -10,6 +10,8 @@ import pytest
 from ibrtools import _core
 from ibrtools.imageio import linear_to_srgb, srgb_to_linear
 
+pytestmark = [pytest.mark.asan, pytest.mark.tsan]
+
 
 def srgb64(v) -> np.ndarray:
     """The curve in float64 (numpy), clipped to [0, 1], NaN -> 0."""

@@ -11,6 +11,8 @@ from ibrtools import _core
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
 from ibrtools.solvers import grid_maxflow
 
+pytestmark = [pytest.mark.asan, pytest.mark.kernel, pytest.mark.tsan]
+
 maxflow = pytest.importorskip("maxflow", reason="PyMaxflow (test extra) is the reference")
 
 RIGHT = np.array([[0, 0, 0], [0, 0, 1], [0, 0, 0]])

@@ -11,6 +11,8 @@ from ibrtools import _core
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
 from ibrtools.inpaint.metameric import _sample_positions
 
+pytestmark = [pytest.mark.asan, pytest.mark.kernel]
+
 
 def _bands(k=3, h=13, w=11, c=3, seed=0):
     rng = np.random.default_rng(seed)

@@ -15,6 +15,8 @@ from ibrtools import _core, metrics
 from ibrtools.errors import BadValueError, DtypeError, NotBuiltError, ShapeError
 from ibrtools.imageio import linear_to_srgb
 
+pytestmark = [pytest.mark.asan, pytest.mark.kernel]
+
 # Tolerances against scikit-image's SSIM. Our kernel works in float64. Given float64 input,
 # skimage does too: the means then agree to ~1e-14 (measured) -> SSIM_TOL = 1e-10, and the maps
 # to the float32 rounding of our map (6e-8) -> MAP_TOL = 1e-7. Given float32 input, skimage

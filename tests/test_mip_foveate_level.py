@@ -7,6 +7,8 @@ import pytest
 
 from ibrtools import BadValueError, DtypeError, ShapeError, _core
 
+pytestmark = [pytest.mark.asan, pytest.mark.kernel]
+
 
 def args(h=16, w=12, c=3, k=2):
     rng = np.random.default_rng(0)

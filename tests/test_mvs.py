@@ -13,6 +13,8 @@ from ibrtools.errors import BadValueError
 from ibrtools.mvs import MvsOptions, depth_range, grey, run_mvs, select_sources
 from ibrtools.scene import View
 
+pytestmark = [pytest.mark.asan, pytest.mark.kernel]
+
 W, H, F = 160, 120, 150.0
 _TEX = ndi.gaussian_filter(np.random.default_rng(0).uniform(0, 1, (512, 512)), 1.2)
 _TEX = (_TEX - _TEX.min()) / (_TEX.max() - _TEX.min())
@@ -55,6 +57,7 @@ def _views(cams, normal, texture=_TEX):
 OPTS = dict(depth_range="2,20", iterations=5)
 
 
+@pytest.mark.tsan
 def test_fronto_parallel_plane_depth_and_normal():
     views, truth = _views([_cam(0), _cam(-0.4), _cam(0.4)], [0, 0, -1])
     r = run_mvs(views, MvsOptions(**OPTS))["v0"]
@@ -112,6 +115,7 @@ def test_an_occluder_in_one_source_does_not_break_the_plane():
     assert np.mean(rel < 1e-2) > 0.97
 
 
+@pytest.mark.tsan
 def test_deterministic_per_seed_and_for_any_thread_count():
     views, _ = _views([_cam(0), _cam(-0.4), _cam(0.4)], [0.2, 0.1, -1])
     outs = []

@@ -9,6 +9,8 @@ from ibrtools import _core
 from ibrtools.depthwarp.core import MaxDepthQuery
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
 
+pytestmark = [pytest.mark.asan, pytest.mark.kernel, pytest.mark.tsan]
+
 
 def random_boxes(rng, k, h, w, outside=True):
     pad = 8 if outside else 0

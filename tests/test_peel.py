@@ -12,6 +12,8 @@ from ibrtools.mesh import Mesh
 from ibrtools.raycast.reference import DeepDepth, ReferenceRenderer
 from ibrtools.synth import boxes, ground_grid, merge
 
+pytestmark = [pytest.mark.asan, pytest.mark.kernel]
+
 
 def _quad(z: float, half: float, oid: int):
     v = np.array([[-half, -half, z], [half, -half, z], [half, half, z], [-half, half, z]], np.float32)

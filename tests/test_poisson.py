@@ -12,6 +12,8 @@ from ibrtools import _core
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
 from ibrtools.solvers import poisson_blend, poisson_system
 
+pytestmark = [pytest.mark.asan, pytest.mark.kernel, pytest.mark.tsan]
+
 
 @pytest.fixture
 def restore_threads():

@@ -11,6 +11,8 @@ from ibrtools import _core
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
 from ibrtools.inpaint import inpaint, pushpull
 
+pytestmark = [pytest.mark.asan, pytest.mark.kernel]
+
 
 # --- independent reference: classic push-pull in numpy, vectorised per level ----------------
 def _ref_pull(c: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -10,6 +10,8 @@ from ibrtools.errors import BadValueError, DtypeError, ShapeError
 from ibrtools.hybrid.pvm import (MAX_PLANE_TOL, PvmOptions, PvmTiles, build_tiles, depth_noise, grid_bounds,
                                   plane_tolerance, snap_depth, view_mesh)
 
+pytestmark = [pytest.mark.kernel, pytest.mark.tsan]
+
 
 def cam(w=33, h=25, eye=(0.0, 0.0, 0.0), target=(0.0, 0.0, 1.0), f=30.0):
     return Camera.pinhole(w, h, f, f, w / 2, h / 2, look_at(eye, target, up=(0.0, -1.0, 0.0)))

@@ -21,6 +21,8 @@ from ibrtools.synth import make_scene
 from gil import runs_python_during
 from resample_ref import bilinear, catmull_rom
 
+pytestmark = [pytest.mark.asan, pytest.mark.kernel, pytest.mark.tsan]
+
 
 def _renderer(scene, params=None):
     tiles = build_tiles({v.name: v.camera for v in scene.views}, {v.name: v.depth for v in scene.views})

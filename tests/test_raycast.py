@@ -23,6 +23,8 @@ from gil import runs_python_during
 from ibrtools import BadValueError, Camera, DtypeError, Mesh, ShapeError, _core, look_at
 from ibrtools.raycast.reference import Light, ReferenceRenderer, default_lights
 
+pytestmark = [pytest.mark.asan, pytest.mark.kernel]
+
 REL_DEPTH = 1e-5
 REL_SHADE = 1e-5
 

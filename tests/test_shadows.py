@@ -10,6 +10,8 @@ from ibrtools.errors import BadValueError, DtypeError, ShapeError
 from ibrtools.raycast.reference import ReferenceRenderer
 from ibrtools.depthwarp.shadows import AreaLight, shadow_map_visibility, soft_shadows
 
+pytestmark = [pytest.mark.asan, pytest.mark.kernel]
+
 try:
     from ibrtools.depthwarp.core import warp_depth  # noqa: F401
     HAVE_WARP = True

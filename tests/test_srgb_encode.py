@@ -10,6 +10,8 @@ from ibrtools.errors import DtypeError, ShapeError
 
 from gil import runs_python_during
 
+pytestmark = [pytest.mark.asan, pytest.mark.tsan]
+
 needs_avx2 = pytest.mark.skipif(not _core.cpu_has_avx2(), reason="CPU without AVX2")
 
 

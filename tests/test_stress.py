@@ -20,6 +20,8 @@ from hypothesis import strategies as st
 from ibrtools import Camera, _core, look_at
 from ibrtools.errors import InputError
 
+pytestmark = [pytest.mark.asan, pytest.mark.kernel, pytest.mark.tsan]
+
 N = 20  # examples per property: the whole file runs in well under a minute on 2 cores
 STRESS = settings(max_examples=N, deadline=None, derandomize=True, database=None,
                   suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,

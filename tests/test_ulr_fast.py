@@ -15,6 +15,8 @@ from ibrtools.errors import BadValueError
 
 from resample_ref import bilinear, catmull_rom
 
+pytestmark = [pytest.mark.asan]
+
 
 def _scene(n_views=7, size=(67, 45), seed=0):
     """A novel camera looking at a tilted, bumpy surface (depth per pixel) and n_views pinhole

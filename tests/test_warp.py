@@ -23,6 +23,8 @@ from ibrtools.errors import InputError
 from ibrtools.dibr.warp import WarpMethod, check_params
 from ibrtools_cli import preprocess, render
 
+pytestmark = [pytest.mark.asan, pytest.mark.kernel]
+
 H, W = 40, 60
 SURF, DISOCC, UNCOV = _core.WARP_SURFACE, _core.WARP_DISOCCLUDED, _core.WARP_UNCOVERED
 

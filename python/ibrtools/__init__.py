@@ -29,20 +29,21 @@ from ibrtools.scene import Scene, View
 
 if TYPE_CHECKING:  # the lazy names below, for type checkers
     from ibrtools import formats, imageio, metrics, synth
-    from ibrtools.api import CameraLike, RenderResult, clear_render_cache, load_scene, render
+    from ibrtools.api import (CameraLike, RenderResult, bench, clear_render_cache, import_dataset, load_scene,
+                              preprocess, render, render_job, save_scene)
 
 __version__ = "0.1.0"
 
 __all__ = [
     "Camera", "look_at", "Mesh", "Scene", "View",
-    "load_scene", "render", "RenderResult", "CameraLike", "clear_render_cache",
+    "load_scene", "save_scene", "import_dataset", "preprocess", "render", "render_job", "bench", "RenderResult", "CameraLike", "clear_render_cache",
     "IbrError", "InputError", "ShapeError", "DtypeError", "BadValueError", "MissingFileError",
     "FormatError", "NotBuiltError", "InternalError",
 ]
 
 # name -> module that defines it (imported on first access, PEP 562).
-_LAZY = {"load_scene": "api", "render": "api", "RenderResult": "api", "CameraLike": "api",
-         "clear_render_cache": "api"}
+_LAZY = {name: "api" for name in ("load_scene", "save_scene", "import_dataset", "preprocess", "render", "render_job",
+                                   "bench", "RenderResult", "CameraLike", "clear_render_cache")}
 _LAZY_MODULES = ("formats", "imageio", "metrics", "synth")
 
 

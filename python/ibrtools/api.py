@@ -1,7 +1,7 @@
-"""The Python API in three calls: load a scene, pick a camera, render it.
+"""The Python API: load, import, preprocess and save scenes; render one camera or a whole job; bench.
 
 ``load_scene(path)`` reads a native scene directory (what ``ibr-preprocess`` writes, docs/FORMAT.md);
-``Scene.render(camera, method="auto", **params)`` renders one camera with one of the novel-view
+``render(scene, camera, method="auto", **params)`` renders one camera with one of the novel-view
 methods of :mod:`ibrtools.methods` and returns a :class:`RenderResult`. The method is
 prepared (BVH builds, view-selection structures, ...) once per scene, method and parameters and
 kept, so rendering many cameras of one scene pays the setup once:
@@ -53,23 +53,25 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Union
+from typing import TYPE_CHECKING, Any, Callable, Union
 
 import numpy as np
 import numpy.typing as npt
 
 from ibrtools.camera import Camera
 from ibrtools.errors import BadValueError, DtypeError, FormatError, MissingFileError
+from ibrtools.formats.native import SCENE_FILE
 from ibrtools.scene import Scene
 
-__all__ = ["CameraLike", "RenderResult", "clear_render_cache", "load_scene", "render", "resolve_camera"]
+if TYPE_CHECKING:
+    from ibrtools.pipeline.stages import StageResult
 
-#: What :meth:`Scene.render` accepts as a camera: a Camera, the name of one of the scene's
+__all__ = ["CameraLike", "RenderResult", "bench", "clear_render_cache", "import_dataset", "load_scene", "preprocess",
+           "render", "render_job", "resolve_camera", "save_scene"]
+
+#: What :func:`render` accepts as a camera: a Camera, the name of one of the scene's
 #: targets or views, or a dict in the scene.json camera format (docs/FORMAT.md).
 CameraLike = Union[Camera, str, "dict[str, Any]"]
-
-SCENE_FILE = "scene.json"
-
 
 def load_scene(path: str | os.PathLike[str]) -> Scene:
     """Read a native ibrtools scene directory (or its ``scene.json``); images load lazily.
@@ -221,8 +223,146 @@ def render(scene: Scene, camera: CameraLike, method: str = "auto", *, inpaint: s
         setup_ms=dict(setup_ms), prepared=fresh)
 
 
+def save_scene(scene: Scene, path: str | os.PathLike[str]) -> Path:
+    """Write ``scene`` as a native scene directory at ``path`` (scene.json, images, depth, meshes;
+    docs/FORMAT.md), atomically; returns the directory. ``load_scene`` reads it back."""
+    from ibrtools.formats import native
+
+    if not isinstance(scene, Scene):
+        raise DtypeError(f"save_scene: scene: expected an ibrtools.Scene, got {type(scene).__name__}")
+    if not isinstance(path, (str, os.PathLike)):
+        raise DtypeError(f"save_scene: path: expected a str or os.PathLike, got {type(path).__name__}")
+    return Path(native.save(scene, path))
+
+
+def import_dataset(source: str | os.PathLike[str], output: str | os.PathLike[str], *, format: str | None = None,
+                   options: dict[str, Any] | None = None, holdout: list[str] | None = None,
+                   mesh: str | os.PathLike[str] | None = None, downscale: float | None = None,
+                   max_size: int | None = None, synth: dict[str, Any] | None = None, force: bool = False) -> Scene:
+    """Import a data set (a directory or file of any supported layout: native, MPEG/RVS, COLMAP,
+    NeRF, LLFF, Middlebury, RGB-D; ``synth:NAME`` for a synthetic scene; docs/importers.md) into a
+    native scene at ``output`` and return it loaded. ``format`` names the layout (None: detected),
+    ``options`` the importer's options (``ibr-preprocess --opt``), ``holdout`` input views to
+    import as targets, ``mesh`` a reconstructed mesh of the capture, ``downscale`` / ``max_size``
+    shrink the images; ``synth`` the keyword arguments of :func:`ibrtools.synth.make_scene` for a
+    ``synth:NAME`` source (e.g. ``{"size": (64, 48), "views": 4}``; ``frames`` > 1 makes a video).
+    Re-importing unchanged inputs does nothing (``force`` re-imports). The derived stages are
+    :func:`preprocess`'s."""
+    from ibrtools.pipeline.stages import run_import
+
+    _check_path(source, "import_dataset: source")
+    _check_path(output, "import_dataset: output")
+    spec = os.fspath(source)
+    made = None
+    if isinstance(spec, str) and spec.startswith("synth:"):
+        made = _synth_spec(spec, synth or {})
+    elif synth is not None:
+        raise BadValueError(f"import_dataset: synth: only for a synth:NAME source, got source {spec!r}")
+    run_import(str(spec), Path(output), fmt=format, options=options, synth=made, force=force, holdout=holdout,
+               mesh=mesh, downscale=downscale, max_size=max_size)
+    return load_scene(output)
+
+
+def preprocess(scene: str | os.PathLike[str], *, methods: list[str] | None = None, stages: list[str] | None = None,
+               stage_options: dict[str, dict[str, Any]] | None = None, threads: int = 0,
+               workers: int = 0, scheduler: str | None = None,
+               progress: Callable[[str], None] | None = None) -> list[StageResult]:
+    """Run the derived stages (multi-view stereo, global mesh, depth, texture, per-view meshes,
+    harmonisation, ...) that ``methods`` need (None: the methods that work from the views alone)
+    on the scene directory ``scene`` (made by :func:`import_dataset` or :func:`save_scene`), or
+    exactly ``stages``; up-to-date stages are not run again. ``stage_options`` are
+    ``{stage: {key: value}}`` (``ibr-preprocess --set stage.key=value``). Returns one record per
+    stage: its status (ran / up to date / skipped), the reason and the time (docs/preprocess.md)."""
+    from ibrtools.pipeline.stages import preprocess as run_stages
+
+    _check_path(scene, "preprocess: scene")
+    if not (Path(scene) / SCENE_FILE).is_file():
+        raise MissingFileError(f"preprocess: {scene}: no {SCENE_FILE} (import the data set first: import_dataset)")
+    results: list[StageResult] = run_stages(os.fspath(scene), scene, methods=methods, stages=stages,
+                                            stage_options=stage_options, threads=threads, workers=workers,
+                                            scheduler=scheduler, progress=progress)
+    return results
+
+
+def render_job(scene: Scene, out_dir: str | os.PathLike[str], method: str = "auto", *,
+               targets: list[str] | None = None, holdout: list[str] | None = None, path: str | None = None,
+               poses: str | os.PathLike[str] | None = None, params: dict[str, Any] | None = None,
+               inpaint: str | None = None, background: str | None = None, float_out: bool = False,
+               depth_out: bool = False, threads: int = 0, workers: int = 0,
+               scheduler: str | None = None) -> dict[str, Any]:
+    """Render many cameras as ``ibr-render`` does and write them to ``out_dir`` with report.json:
+    the scene's targets (or ``targets`` by name), held-out input views scored against their own
+    images (``holdout``), a camera path of the scene (``path``) or a pose file (``poses``).
+    Returns the report (per-frame times per stage, metrics against ground truth when known;
+    docs/render.md, docs/reports.md). All or nothing: an interrupt removes what the job wrote."""
+    from ibrtools.inpaint.complete import DEFAULT_INPAINT
+    from ibrtools.pipeline import job
+
+    if not isinstance(scene, Scene):
+        raise DtypeError(f"render_job: scene: expected an ibrtools.Scene, got {type(scene).__name__}")
+    _check_path(out_dir, "render_job: out_dir")
+    planned = job.plan(scene, targets=targets, holdout=holdout, path=path,
+                       poses=None if poses is None else os.fspath(poses))
+    report: dict[str, Any] = job.run(planned, method, out_dir, params=params, float_out=float_out,
+                                     depth_out=depth_out, threads=threads,
+                                     inpaint=DEFAULT_INPAINT if inpaint is None else inpaint,
+                                     background=background, scheduler=scheduler, workers=workers)
+    return report
+
+
+def bench(scene: Scene, method: str, grid: dict[str, list[Any]], *, holdout: list[str] | None = None,
+          base: dict[str, Any] | None = None, out_dir: str | os.PathLike[str] | None = None,
+          inpaint: str | None = None) -> list[dict[str, Any]]:
+    """Sweep ``method``'s parameters over ``grid`` ({parameter: [values]}, every combination, on
+    top of ``base``) as ``ibr-bench`` does: each configuration renders the held-out views
+    ``holdout`` (default: the scene's targets) after one warm-up; returns one row per
+    configuration (parameters, median and per-stage times, mean metrics), also written as CSV /
+    a table and a plot under ``out_dir`` when given (docs/sweep.md)."""
+    from ibrtools.inpaint.complete import DEFAULT_INPAINT
+    from ibrtools.pipeline.sweep import sweep
+
+    if not isinstance(scene, Scene):
+        raise DtypeError(f"bench: scene: expected an ibrtools.Scene, got {type(scene).__name__}")
+    if not isinstance(grid, dict):
+        raise DtypeError(f"bench: grid: expected a dict of parameter -> list of values, got {type(grid).__name__}")
+    if out_dir is not None:
+        _check_path(out_dir, "bench: out_dir")
+    rows: list[dict[str, Any]] = sweep(scene, method, grid, holdout=holdout, base=base, out_dir=out_dir,
+                                       inpaint=DEFAULT_INPAINT if inpaint is None else inpaint)
+    return rows
+
+
+def _synth_spec(source: str, options: dict[str, Any]) -> dict[str, Any]:
+    """The import's description of a synthetic scene: the preset and make_scene's arguments."""
+    import inspect
+
+    from ibrtools import synth
+
+    preset = source.split(":", 1)[1]
+    if preset not in synth.PRESETS:
+        raise BadValueError(f"import_dataset: source {source!r}: unknown preset (expected one of "
+                            f"{', '.join('synth:' + k for k in synth.PRESETS)})")
+    known = (set(inspect.signature(synth.make_scene).parameters) | {"frames"}) - {"preset"}
+    bad = sorted(set(options) - known)
+    if bad:
+        raise BadValueError(f"import_dataset: synth: unknown option(s) {', '.join(bad)} (options: {', '.join(sorted(known))})")
+    spec = {"preset": preset, **options}
+    defaults = inspect.signature(synth.make_scene).parameters
+    synth.check_scale(spec.get("size", defaults["size"].default), spec.get("views", defaults["views"].default),
+                      spec.get("frames", 1), flags=("synth size", "synth views", "synth frames"))
+    if "size" in spec:
+        spec["size"] = list(spec["size"])
+    return spec
+
+
+def _check_path(value: Any, what: str) -> None:
+    if not isinstance(value, (str, os.PathLike)):
+        raise DtypeError(f"{what}: expected a str or os.PathLike, got {type(value).__name__}")
+
+
+
 def clear_render_cache(scene: Scene) -> None:
-    """Forget the methods :meth:`Scene.render` prepared for ``scene`` (their memory is freed).
+    """Forget the methods :func:`render` prepared for ``scene`` (their memory is freed).
     Needed after changing a scene in place other than by replacing views or meshes."""
     scene.__dict__.pop(_ATTR, None)
 

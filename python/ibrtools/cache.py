@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ibrtools.errors import BadValueError, InputError, MissingFileError
+from ibrtools.formats.native import SCENE_FILE
 from ibrtools.scene import Scene
 
 
@@ -51,7 +52,6 @@ def existing_record(output: Path, stage: str) -> dict | None:
 CACHE_DIR = "cache"
 
 
-SCENE_FILE = "scene.json"
 
 
 @dataclass(frozen=True)

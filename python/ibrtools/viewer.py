@@ -13,12 +13,12 @@ is 403, any other path is 404. Endpoints:
                        ``fmt`` (jpeg | png), ``client`` and ``seq``: a client's request that a
                        newer one of the same client has overtaken before it started rendering
                        is answered 204 (not rendered: the pose is no longer needed). Headers
-                       ``X-Render-Ms`` (the render, as ``Scene.render`` times it) and ``X-Seq``.
+                       ``X-Render-Ms`` (the render, as ``ibrtools.render`` times it) and ``X-Seq``.
   ``POST /path``       body {"name", "poses": [camera dicts]}: written atomically as
                        ``<save_dir>/<name>.json``, a poses file ``ibr-render --poses`` reads.
 
 Frames are rendered one at a time (the scene's prepared methods are shared and serialised by
-:func:`ibrtools.render`); they are the same images ``Scene.render`` gives for the pose.
+:func:`ibrtools.render`); they are the same images ``ibrtools.render`` gives for the pose.
 """
 from __future__ import annotations
 
