@@ -225,7 +225,7 @@ def test_steerable_analyse_synthesise(size, data):
     assert out.shape == img.shape and np.all(np.isfinite(out))
     if float(img.max()) == float(img.min()):
         # a constant image stays constant up to the fitted 5x5 filters' DC gain error (1.5 %, the
-        # bound tests/test_steerable.py pins for a constant image)
+        # bound tests/metamers/test_steerable.py pins for a constant image)
         np.testing.assert_allclose(out, img, rtol=0.015, atol=1e-30)
 
 

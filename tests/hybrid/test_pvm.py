@@ -390,7 +390,7 @@ def test_kernels_release_the_gil():
     import sys
     from pathlib import Path
 
-    sys.path.insert(0, str(Path(__file__).parent))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     from gil import runs_python_during
 
     rng = np.random.default_rng(3)

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
-DATA = Path(os.environ.get("IBR_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
+REPO = Path(__file__).resolve().parents[2]
+DATA = Path(os.environ.get("IBR_SHARED_DATA", Path(__file__).resolve().parents[3] / "shared" / "data"))
 
 pytest.importorskip("cv2", reason="OpenCV (TELEA) is needed by the quality bench")
 pytest.importorskip("flip_evaluator", reason="flip-evaluator is needed for the FLIP score")

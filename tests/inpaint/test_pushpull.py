@@ -385,7 +385,7 @@ def test_inpaint_switch():
     assert inpaint(img, hole, "none") is img
     np.testing.assert_array_equal(inpaint(img, hole, "pushpull"), pushpull(img, hole))
     np.testing.assert_array_equal(inpaint(img, hole, "pushpull", depth), pushpull(img, hole, depth))
-    # metameric is built now (tests/test_metameric.py covers it).
+    # metameric is built now (tests/inpaint/test_metameric.py covers it).
     with pytest.raises(BadValueError, match="inpaint method"):
         inpaint(img, hole, "telea")
     with pytest.raises(ShapeError):

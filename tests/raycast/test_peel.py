@@ -202,7 +202,7 @@ def test_gil_released_during_peel():
     import time
     from pathlib import Path
 
-    sys.path.insert(0, str(Path(__file__).parent))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     from gil import runs_python_during
 
     r = ReferenceRenderer(_box_scene())

@@ -18,7 +18,7 @@ from ibrtools.metamers.steerable import SteerablePyramid, analyse, max_levels, r
 
 pytestmark = [pytest.mark.asan, pytest.mark.kernel]
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 RGB_TO_YCC = np.array([[0.299, 0.587, 0.114], [-0.168736, -0.331264, 0.5], [0.5, -0.418688, -0.081312]])
 
 

@@ -1,5 +1,5 @@
 """Bad input of the fused foveation kernel binding _core.mip_foveate_level (cpp/bindings/mip.cpp).
-Its results are pinned by tests/test_foveate.py (bit-identical to the unfused path)."""
+Its results are pinned by tests/metamers/test_foveate.py (bit-identical to the unfused path)."""
 from __future__ import annotations
 
 import numpy as np

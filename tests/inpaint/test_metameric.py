@@ -76,7 +76,7 @@ def test_values_in_holes_are_never_read():
 def test_constant_stays_constant():
     # A constant image has zero variance in every band: the fill is the pre-fill (push-pull of a
     # constant: the constant) plus a zero change, so only the display encoding's round trip
-    # (polynomial log2/exp2, ~1e-6 relative, tests/test_metameric_kernels.py) separates it from
+    # (polynomial log2/exp2, ~1e-6 relative, tests/inpaint/test_metameric_kernels.py) separates it from
     # the constant. (It no longer goes through the 5x5 pyramid's reconstruction error, ~1e-2
     # relative: only the change is collapsed.)
     c = np.array([0.2, 0.5, 0.8], np.float32)

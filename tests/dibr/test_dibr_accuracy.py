@@ -63,7 +63,7 @@ def test_blend_space_srgb_render_is_the_decoded_srgb_blend():
     # The renderer's srgb frame (inputs encoded by srgb_encode, decoded inside the kernel's
     # resolve) against the same blend done without the fused decode: encoded views into a
     # DibrAccumulator, result() in the encoded space, then srgb_to_linear. 1e-6: the resolve reads the
-    # curve from a table (tests/test_forward_warp_isa.py::test_srgb_resolve_decodes_the_blend).
+    # curve from a table (tests/dibr/test_forward_warp_isa.py::test_srgb_resolve_decodes_the_blend).
     rng = np.random.default_rng(5)
     views = []
     for i in range(3):
