@@ -413,7 +413,7 @@ def subset_scene(src: Path, dst: Path, keep_views: tuple[str, ...]) -> None:
 
 def lego_depth_accuracy(with_depth: Path, mvs_scene: Path) -> dict:
     from ibrtools.formats.native import load as load_scene
-    from ibrtools.pipeline.stages import load_npz, mvs_arrays, stage_output
+    from ibrtools.cache import load_npz, mvs_arrays, stage_output
 
     gt_scene = load_scene(with_depth)
     mvs = mvs_arrays(load_npz(stage_output(mvs_scene, "mvs")), "depth")

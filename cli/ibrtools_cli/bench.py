@@ -55,7 +55,7 @@ def _body(args: argparse.Namespace) -> int:
     from ibrtools.formats import native
     from ibrtools.outputs import OutputDir, check_output_dir
     from ibrtools.pipeline.sweep import _value, parse_sweep, sweep
-    from ibrtools.pipeline.stages import parse_options
+    from ibrtools_cli.common import parse_options
 
     out = check_output_dir(args.output)
     grid = parse_sweep(args.sweep)

@@ -8,13 +8,15 @@ from __future__ import annotations
 import argparse
 import atexit
 import contextlib
+import json
 import math
 import os
 import signal
 import sys
 from typing import Callable, Iterator, Sequence
 
-from ibrtools.errors import InputError, NotBuiltError
+from ibrtools.cache import ALL_METHODS, ORDER, STAGES, available_stages, default_methods
+from ibrtools.errors import BadValueError, InputError, NotBuiltError
 
 
 class ArgumentParser(argparse.ArgumentParser):
@@ -214,3 +216,62 @@ def add_distributed(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="run on an existing Dask cluster, e.g. tcp://HOST:8786 (the workers must see the "
                         "scene at the same path)")
+
+
+def parse_methods(text: str | None) -> list[str]:
+    if text is None or text == "auto":
+        return default_methods()
+    if text == "all":
+        return list(ALL_METHODS)
+    out = [t.strip() for t in text.split(",") if t.strip()]
+    bad = [m for m in out if m not in ALL_METHODS]
+    if bad or not out:
+        raise BadValueError(f"--methods {text!r}: expected a comma-separated list of {', '.join(ALL_METHODS)} "
+                            "(or 'auto', 'all')")
+    return out
+
+
+def parse_stages(text: str | None) -> list[str] | None:
+    if text is None:
+        return None
+    out = [t.strip() for t in text.split(",") if t.strip()]
+    known = list(ORDER)
+    bad = [s for s in out if s not in known]
+    if bad or not out:
+        raise BadValueError(f"--stages {text!r}: expected a comma-separated list of {', '.join(known)}")
+    absent = [s for s in out if s not in available_stages()]
+    if absent:
+        raise NotBuiltError(f"--stages: {', '.join(absent)} not built yet")
+    return out
+
+
+def parse_options(pairs: list[str] | None) -> dict:
+    """``key=value`` strings (``--opt``) into a dict; numbers stay strings (importers convert)."""
+    out: dict = {}
+    for p in pairs or []:
+        if "=" not in p or not p.split("=", 1)[0]:
+            raise InputError(f"--opt {p!r}: expected key=value")
+        k, v = p.split("=", 1)
+        out[k.strip()] = v.strip()
+    return out
+
+
+def parse_stage_options(pairs: list[str] | None) -> dict:
+    """``STAGE.KEY=VALUE`` strings (``--set``) into {stage: {key: value}}; values are read as JSON
+    when they parse (numbers, true/false), else kept as strings."""
+    out: dict = {}
+    for p in pairs or []:
+        if "=" not in p or "." not in p.split("=", 1)[0]:
+            raise InputError(f"--set {p!r}: expected STAGE.KEY=VALUE, e.g. pvm.max_block=8")
+        k, v = p.split("=", 1)
+        stage, key = k.strip().split(".", 1)
+        if stage not in STAGES:
+            raise InputError(f"--set {p!r}: unknown stage {stage!r} (expected one of {', '.join(STAGES)})")
+        try:
+            value = json.loads(v)
+        except ValueError:
+            value = v.strip()
+        out.setdefault(stage, {})[key.strip()] = value
+    if "texture" in out or "depth" in out:
+        raise InputError("--set: texture and depth read their parameters from mesh.* (e.g. mesh.k_views=4)")
+    return out

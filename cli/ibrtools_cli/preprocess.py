@@ -96,7 +96,8 @@ def _body(args: argparse.Namespace) -> int:
     import json
 
     from ibrtools.pipeline.distributed import check_options
-    from ibrtools.pipeline.stages import parse_methods, parse_options, parse_stage_options, parse_stages, preprocess
+    from ibrtools.pipeline.stages import preprocess
+    from ibrtools_cli.common import parse_methods, parse_options, parse_stage_options, parse_stages
 
     check_options(args.scheduler, args.workers)  # usage errors before any work
     synth = None

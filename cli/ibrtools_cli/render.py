@@ -190,7 +190,7 @@ def _params(args: argparse.Namespace) -> dict:
     """The method parameters of the flags and --param, checked (their bounds: each method's
     check_params) before the scene is read when --method names the method."""
     from ibrtools import methods
-    from ibrtools.pipeline.stages import parse_options
+    from ibrtools_cli.common import parse_options
 
     params = {k: _number(v) for k, v in parse_options(args.param).items()}
     for key, value in (("inputs", args.inputs), ("quality", args.quality),

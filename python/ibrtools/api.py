@@ -62,6 +62,13 @@ from ibrtools.camera import Camera
 from ibrtools.errors import BadValueError, DtypeError, FormatError, MissingFileError
 from ibrtools.formats.native import SCENE_FILE
 from ibrtools.scene import Scene
+from ibrtools import methods, synth
+from ibrtools.formats import native
+from ibrtools.imageio import write_image
+from ibrtools.inpaint.complete import DEFAULT_INPAINT, check_inpaint, complete, completion, parse_background
+from ibrtools.pipeline import job
+from ibrtools.pipeline.stages import preprocess as run_stages, run_import
+from ibrtools.pipeline.sweep import sweep
 
 if TYPE_CHECKING:
     from ibrtools.pipeline.stages import StageResult
@@ -98,7 +105,6 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
     if p.is_dir() and not (p / SCENE_FILE).is_file():
         raise FormatError(f"load_scene: {p}: no {SCENE_FILE} in this directory (not an ibrtools scene; "
                           "import other data sets with ibr-preprocess or ibrtools.formats.load)")
-    from ibrtools.formats import native
 
     scene: Scene = native.load(p)
     return scene
@@ -139,8 +145,6 @@ class RenderResult:
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write ``color`` (with ``alpha`` when there is one) to ``path`` (PNG: 8-bit sRGB; EXR:
         linear float32), atomically."""
-        from ibrtools.imageio import write_image
-
         p = Path(path)
         write_image(p, self.color if self.alpha is None else np.concatenate([self.color, self.alpha[..., None]], -1))
         return p
@@ -191,9 +195,6 @@ def render(scene: Scene, camera: CameraLike, method: str = "auto", *, inpaint: s
     ...
     ibrtools.errors.BadValueError: method: unknown method 'nerf' (expected one of auto, reference, dibr, warp, depthwarp, tm, ulr, pvm, hybrid)
     """
-    from ibrtools import methods
-    from ibrtools.inpaint.complete import DEFAULT_INPAINT, check_inpaint, complete, completion, parse_background
-
     if not isinstance(scene, Scene):
         raise DtypeError(f"scene: expected an ibrtools.Scene, got {type(scene).__name__}")
     if not isinstance(method, str):
@@ -226,8 +227,6 @@ def render(scene: Scene, camera: CameraLike, method: str = "auto", *, inpaint: s
 def save_scene(scene: Scene, path: str | os.PathLike[str]) -> Path:
     """Write ``scene`` as a native scene directory at ``path`` (scene.json, images, depth, meshes;
     docs/FORMAT.md), atomically; returns the directory. ``load_scene`` reads it back."""
-    from ibrtools.formats import native
-
     if not isinstance(scene, Scene):
         raise DtypeError(f"save_scene: scene: expected an ibrtools.Scene, got {type(scene).__name__}")
     if not isinstance(path, (str, os.PathLike)):
@@ -248,8 +247,6 @@ def import_dataset(source: str | os.PathLike[str], output: str | os.PathLike[str
     ``synth:NAME`` source (e.g. ``{"size": (64, 48), "views": 4}``; ``frames`` > 1 makes a video).
     Re-importing unchanged inputs does nothing (``force`` re-imports). The derived stages are
     :func:`preprocess`'s."""
-    from ibrtools.pipeline.stages import run_import
-
     _check_path(source, "import_dataset: source")
     _check_path(output, "import_dataset: output")
     spec = os.fspath(source)
@@ -273,8 +270,6 @@ def preprocess(scene: str | os.PathLike[str], *, methods: list[str] | None = Non
     exactly ``stages``; up-to-date stages are not run again. ``stage_options`` are
     ``{stage: {key: value}}`` (``ibr-preprocess --set stage.key=value``). Returns one record per
     stage: its status (ran / up to date / skipped), the reason and the time (docs/preprocess.md)."""
-    from ibrtools.pipeline.stages import preprocess as run_stages
-
     _check_path(scene, "preprocess: scene")
     if not (Path(scene) / SCENE_FILE).is_file():
         raise MissingFileError(f"preprocess: {scene}: no {SCENE_FILE} (import the data set first: import_dataset)")
@@ -295,9 +290,6 @@ def render_job(scene: Scene, out_dir: str | os.PathLike[str], method: str = "aut
     images (``holdout``), a camera path of the scene (``path``) or a pose file (``poses``).
     Returns the report (per-frame times per stage, metrics against ground truth when known;
     docs/render.md, docs/reports.md). All or nothing: an interrupt removes what the job wrote."""
-    from ibrtools.inpaint.complete import DEFAULT_INPAINT
-    from ibrtools.pipeline import job
-
     if not isinstance(scene, Scene):
         raise DtypeError(f"render_job: scene: expected an ibrtools.Scene, got {type(scene).__name__}")
     _check_path(out_dir, "render_job: out_dir")
@@ -318,9 +310,6 @@ def bench(scene: Scene, method: str, grid: dict[str, list[Any]], *, holdout: lis
     ``holdout`` (default: the scene's targets) after one warm-up; returns one row per
     configuration (parameters, median and per-stage times, mean metrics), also written as CSV /
     a table and a plot under ``out_dir`` when given (docs/sweep.md)."""
-    from ibrtools.inpaint.complete import DEFAULT_INPAINT
-    from ibrtools.pipeline.sweep import sweep
-
     if not isinstance(scene, Scene):
         raise DtypeError(f"bench: scene: expected an ibrtools.Scene, got {type(scene).__name__}")
     if not isinstance(grid, dict):
@@ -335,8 +324,6 @@ def bench(scene: Scene, method: str, grid: dict[str, list[Any]], *, holdout: lis
 def _synth_spec(source: str, options: dict[str, Any]) -> dict[str, Any]:
     """The import's description of a synthetic scene: the preset and make_scene's arguments."""
     import inspect
-
-    from ibrtools import synth
 
     preset = source.split(":", 1)[1]
     if preset not in synth.PRESETS:
@@ -375,8 +362,6 @@ class _Cache:
         self.entries: dict[tuple[str, Any], tuple[tuple[Any, ...], Any, dict[str, float]]] = {}
 
     def method(self, scene: Scene, name: str, params: dict[str, Any]) -> tuple[Any, dict[str, float], bool]:
-        from ibrtools import methods
-
         key = (name, _freeze(params))
         # The objects themselves (held by the entry, so their ids cannot be reused meanwhile).
         signature = (tuple(scene.views), tuple(scene.meshes.items()), scene.root)

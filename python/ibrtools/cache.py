@@ -18,6 +18,7 @@ import numpy as np
 from ibrtools.errors import BadValueError, InputError, MissingFileError
 from ibrtools.formats.native import SCENE_FILE
 from ibrtools.scene import Scene
+from ibrtools.imageio import atomic_path
 
 
 _HASH_CHUNK = 1 << 20
@@ -202,8 +203,6 @@ def read_doc(root: Path) -> dict:
 
 def write_stage_record(root: Path, name: str, record: dict | None) -> None:
     """Update scene.json's ``stages`` entry atomically (temporary file, then rename)."""
-    from ibrtools.imageio import atomic_path
-
     doc = read_doc(root)
     stages = dict(doc.get("stages") or {})
     if record is None:
@@ -218,8 +217,6 @@ def write_stage_record(root: Path, name: str, record: dict | None) -> None:
 
 def save_npz(path: Path, **arrays) -> Path:
     """np.savez (uncompressed: fast to write and read) to a temporary name, then rename."""
-    from ibrtools.imageio import atomic_path
-
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as fh:
             np.savez(fh, **arrays)
@@ -341,3 +338,14 @@ def stage_output(root: str | os.PathLike, stage: str, *, verify: bool = True) ->
     if not (output_intact(f, rec, rel) if verify else f.is_file()):
         raise MissingFileError(f"{f}: missing or changed since stage {stage!r} wrote it; {hint} --force")
     return f
+
+
+VIEW_ONLY_METHODS = ("reference", "dibr", "warp", "depthwarp")
+
+
+def default_methods() -> list[str]:
+    """``--methods`` default (``auto``): the methods that work from the views alone (reference,
+    dibr, warp, depthwarp), so that a plain ``ibr-preprocess`` is the import alone and stays fast
+    (``make demo``). tm / ulr / pvm / hybrid are prepared when named (or with ``all``); their
+    render methods say which stage to run when its output is missing."""
+    return list(VIEW_ONLY_METHODS)

@@ -302,7 +302,7 @@ class Camera:
             raise type(e)(msg if msg.startswith(where) else f"{where}: {msg}") from None
         except (TypeError, ValueError, OverflowError) as e:
             # a value of the wrong JSON type (null focal, string range...): found by
-            # tests/test_fuzz_importers.py; bad input, not a bug
+            # tests/formats/test_fuzz_importers.py; bad input, not a bug
             raise FormatError(f"{where}: malformed camera ({type(e).__name__}: {e})") from None
 
     def __eq__(self, other: object) -> bool:

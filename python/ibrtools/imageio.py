@@ -57,6 +57,18 @@ def linear_to_srgb(v: np.ndarray) -> np.ndarray:
     return _core.linear_to_srgb(np.asarray(v, dtype=np.float32, order="C"))  # 0-d stays 0-d
 
 
+def quantize(encoded: np.ndarray, bits: int = 8) -> np.ndarray:
+    """Encoded values in [0, 1] (sRGB colour, alpha) -> unsigned integers of ``bits`` (8 or 16),
+    rounded to nearest (ties to even): the one quantisation of every 8/16-bit output."""
+    full = 255.0 if bits == 8 else 65535.0
+    return np.round(encoded * full).astype(np.uint8 if bits == 8 else np.uint16)
+
+
+def srgb8(linear: np.ndarray) -> np.ndarray:
+    """Linear colour -> 8-bit sRGB (clipped to [0, 1], NaN -> 0), as PNGs are written."""
+    return quantize(linear_to_srgb(linear))
+
+
 # Images read without an expected size (textures, reports, importers that learn the size from the
 # image itself) are refused beyond this many pixels: 2^28 = 16384 x 16384, 3 GiB as float32 RGB.
 # A PNG of that many zeros is a file of about 260 KB: only the header says what decoding would cost.
@@ -80,7 +92,7 @@ def one_line(text: str, limit: int = _MESSAGE_CHARS) -> str:
 def _geterror(source, default: str) -> str:
     """OpenImageIO's error text on one line, or ``default``. A corrupt file can put raw bytes from
     its header into the message, which OpenImageIO's Python binding then fails to decode as UTF-8
-    (found by tests/test_fuzz_importers.py): that must not turn a FormatError into a
+    (found by tests/formats/test_fuzz_importers.py): that must not turn a FormatError into a
     UnicodeDecodeError."""
     try:
         msg = source.geterror()
@@ -390,8 +402,7 @@ def write_image(path: str | os.PathLike, image: np.ndarray, *, bits: int = 8) ->
         colour = min(c, 3) if c != 2 else 1
         enc[..., :colour] = linear_to_srgb(enc[..., :colour])
         enc[..., colour:] = np.clip(np.nan_to_num(enc[..., colour:]), 0, 1)
-        full = 255.0 if bits == 8 else 65535.0
-        pixels = np.round(enc * full).astype(np.uint8 if bits == 8 else np.uint16)
+        pixels = quantize(enc, bits)
         spec = oiio.ImageSpec(w, h, c, "uint8" if bits == 8 else "uint16")
     else:
         raise FormatError(f"{path}: unknown image extension {ext!r} (expected one of "

@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from ibrtools.errors import DtypeError, FormatError, MissingFileError
-from ibrtools.imageio import atomic_path, linear_to_srgb, read_image, srgb_to_linear
+from ibrtools.imageio import atomic_path, linear_to_srgb, read_image, srgb8, srgb_to_linear
 from ibrtools.outputs import mkdtemp_beside
 from ibrtools.mesh import Mesh
 
@@ -133,7 +133,7 @@ def _check_ply(path: Path) -> None:
 
     open3d's PLY reader (RPly underneath) crashes the process (segmentation fault) on some
     malformed files: a missing x/y/z vertex property, a face list whose count runs past the end
-    of the data (found by tests/test_fuzz_importers.py). It also accepts a file that holds fewer
+    of the data (found by tests/formats/test_fuzz_importers.py). It also accepts a file that holds fewer
     faces than its header announces. This check needs the header and one pass over the face
     counts (vectorised for all-triangle and all-quad files, the layouts writers produce)."""
     with open(path, "rb") as fh:
@@ -289,10 +289,6 @@ def read_mesh(path: str | os.PathLike, kind: str = "ground_truth", *,
                 texture_ids=texture_ids, object_ids=object_ids, materials=materials, kind=kind)
 
 
-def _to_srgb8(image: np.ndarray) -> np.ndarray:
-    return np.round(linear_to_srgb(image) * 255.0).astype(np.uint8)
-
-
 def write_mesh(path: str | os.PathLike, mesh: Mesh) -> Path:
     """Write ``mesh`` as PLY (geometry, vertex colours) or OBJ (+ MTL and PNG textures), plus
     the sidecar when it has object ids or materials. PLY cannot hold textures: a textured mesh
@@ -323,7 +319,7 @@ def write_mesh(path: str | os.PathLike, mesh: Mesh) -> Path:
         faces, object_ids, tids = faces[order], object_ids[order], tids[order]
         m.triangle_uvs = o3d.utility.Vector2dVector(mesh.uvs[order].reshape(-1, 2).astype(np.float64))
         m.triangle_material_ids = o3d.utility.IntVector(tids.astype(np.int32))
-        m.textures = [o3d.geometry.Image(np.ascontiguousarray(_to_srgb8(t))) for t in textures]
+        m.textures = [o3d.geometry.Image(np.ascontiguousarray(srgb8(t))) for t in textures]
     m.triangles = o3d.utility.Vector3iVector(faces.astype(np.int32))
 
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from ibrtools.errors import BadValueError, DtypeError, NotBuiltError, ShapeError
+from ibrtools.imageio import linear_to_srgb
 
 SSIM_WINDOW = 7
 SSIM_CROP = (SSIM_WINDOW - 1) // 2
@@ -180,7 +181,6 @@ def flip(rendered: np.ndarray, reference: np.ndarray, return_map: bool = False):
     except ImportError:
         raise NotBuiltError("flip: the optional package flip-evaluator is not installed "
                             "(pip install 'ibrtools[flip]' or pip install flip-evaluator)") from None
-    from ibrtools.imageio import linear_to_srgb
 
     ref = np.ascontiguousarray(linear_to_srgb(reference))
     test = np.ascontiguousarray(linear_to_srgb(rendered))
@@ -210,7 +210,6 @@ def compare(rendered: np.ndarray, reference: np.ndarray, mask: np.ndarray | None
         raise ShapeError(f"rendered and reference: expected RGB images (H, W, 3), got {rendered.shape}")
     mask = _mask(mask, rendered.shape, "mask")
     hole_mask = _mask(hole_mask, rendered.shape, "hole_mask")
-    from ibrtools.imageio import linear_to_srgb
 
     a = linear_to_srgb(rendered)
     b = linear_to_srgb(reference)

@@ -22,6 +22,7 @@ import numpy as np
 from ibrtools.camera import Camera
 from ibrtools.errors import BadValueError, DtypeError, InputError, ShapeError
 from ibrtools.mesh import Mesh
+from ibrtools.checks import check_depth
 
 
 class _Lazy:
@@ -145,8 +146,6 @@ class View:
 
 
 def _check_image(v: np.ndarray, name: str, camera: Camera, what: str) -> np.ndarray:
-    from ibrtools.checks import check_depth
-
     hw = (camera.height, camera.width)
     if not isinstance(v, np.ndarray):
         raise DtypeError(f"{name}: expected a numpy array, got {type(v).__name__}")

@@ -33,6 +33,8 @@ from ibrtools.checks import check_float, check_int
 from ibrtools.errors import BadValueError, DtypeError, MissingFileError
 from ibrtools.mesh import Mesh
 from ibrtools.scene import Scene, View
+from ibrtools.memory import available_memory
+from ibrtools.meshio import read_mesh
 
 PRESETS: dict[str, str] = {
     "objects": "textured and glossy boxes, spheres and a cylinder on a ground plane; ring of cameras",
@@ -210,8 +212,6 @@ def load_placed(path: str | Path, *, center: Any, extent: float, object_id: int,
     """Read an OBJ/PLY with ``ibrtools.meshio.read_mesh``, scale it uniformly so its largest
     bounding-box side is ``extent`` metres, and stand it on the ground (min y = 0) centred at
     ``center`` (x, z). Returns the part and its textures."""
-    from ibrtools.meshio import read_mesh
-
     p = Path(path)
     if not p.is_file():
         raise MissingFileError(f"extra mesh {p}: no such file")
@@ -676,8 +676,6 @@ def check_scale(size: Sequence[int], views: int, frames: int = 1, holdout_target
                 flags: tuple[str, str, str] = ("size", "views", "frames")) -> None:
     """Refuse, before anything is rendered, a scene past the bounds above or larger than the
     available memory (BadValueError naming ``flags``: the size, views and frames arguments)."""
-    from ibrtools.memory import available_memory
-
     fs, fv, ff = flags
     w, h = _check_size(size, fs)
     if max(w, h) > MAX_SIDE:

@@ -37,6 +37,12 @@ import numpy as np
 from ibrtools.camera import Camera
 from ibrtools.errors import BadValueError, InputError, NotBuiltError
 from ibrtools.scene import Scene
+from ibrtools import methods
+from ibrtools.api import render
+from ibrtools.cache import with_stage_depth
+from ibrtools.imageio import atomic_path, write_image
+from ibrtools.outputs import file_stem
+from ibrtools.viewer_page import PAGE
 
 FORMATS = {"jpeg": ("image/jpeg", ".jpg"), "png": ("image/png", ".png")}
 OVERLAYS = ("none", "holes", "method")
@@ -90,8 +96,6 @@ def _centre(cams: list[Camera]) -> np.ndarray:
 
 def encode(image: np.ndarray, fmt: str) -> bytes:
     """An image (H, W, 3) linear float as JPEG or PNG bytes (8-bit sRGB), by the engine's writer."""
-    from ibrtools.imageio import write_image
-
     with tempfile.TemporaryDirectory(prefix="ibr-view-") as d:
         p = Path(d) / f"frame{FORMATS[fmt][1]}"
         write_image(p, image)
@@ -116,8 +120,6 @@ class Viewer:
 
     def __init__(self, scene: Scene, method: str = "auto", host: str = "127.0.0.1", port: int = 0,
                  save_dir: str | Path = ".", token: str | None = None):
-        from ibrtools import methods
-
         self.scene = scene
         self.method = methods.resolve(method, scene)
         self.methods = [m for m in methods.BUILT if m != "depthwarp" and _usable(m, scene)]
@@ -154,8 +156,6 @@ class Viewer:
 
     def frame(self, query: dict) -> tuple[bytes, str, dict]:
         """(bytes, content type, headers) of GET /frame, or raises BadValueError."""
-        from ibrtools.api import render
-
         pose = _one(query, "pose")
         try:
             cam = Camera.from_dict(json.loads(pose), "pose")
@@ -182,9 +182,6 @@ class Viewer:
 
     def save_path(self, body: bytes) -> dict:
         """POST /path: the poses written as a file ``ibr-render --poses`` reads."""
-        from ibrtools.imageio import atomic_path
-        from ibrtools.outputs import file_stem
-
         try:
             doc = json.loads(body)
         except (json.JSONDecodeError, UnicodeDecodeError):
@@ -205,8 +202,6 @@ class Viewer:
 
 def _usable(method: str, scene: Scene) -> bool:
     """Whether ``method`` can render ``scene`` as it is (what the page offers)."""
-    from ibrtools.cache import with_stage_depth
-
     if method == "reference":
         return "ground_truth" in scene.meshes
     if method in ("dibr", "warp"):
@@ -232,8 +227,6 @@ def _int(query: dict, key: str, default: int) -> int:
 
 
 def _handler(viewer: Viewer):
-    from ibrtools.viewer_page import PAGE
-
     class Handler(BaseHTTPRequestHandler):
         server_version = "ibr-view"
 

@@ -365,7 +365,7 @@ def test_method_params_and_missing_stages(tmp_path):
 @pytest.fixture(scope="module")
 def exact_scene(tmp_path_factory):
     from ibrtools.pipeline import stages as S
-
+    from ibrtools import cache
     d = tmp_path_factory.mktemp("hybrid") / "scene"
     methods_ = ["tm", "ulr"] + (["hybrid"] if HAVE_PVM else [])
     S.preprocess("synth:objects", d, synth={"preset": "objects", "size": [96, 72], "views": 6, "seed": 0,
@@ -532,6 +532,7 @@ def test_thin_object_missing_from_the_global_mesh_picks_pvm(tmp_path):
     and 78 % of them at the two targets (the rest are its 1-2 px wide silhouette, where the
     mask blur and the PVM spatial filter mix with the background); bound 50 %."""
     from ibrtools.pipeline import stages as S
+    from ibrtools import cache
     from ibrtools import synth
     from ibrtools.formats import native
     from ibrtools import methods
@@ -656,13 +657,14 @@ def test_mix_stage_fit_is_what_holding_each_view_out_gives(exact_scene):
     # The stage's table against renders made the way --holdout makes them, one floor at a time;
     # its floor is the one of the best mean (tol_db 0; the smallest when tied); "auto" reads it.
     from ibrtools.pipeline import stages as S
+    from ibrtools import cache
     from ibrtools.imageio import linear_to_srgb
     from ibrtools.metrics import psnr
     from ibrtools.pipeline import mix
     from ibrtools.pipeline import job as J
     from ibrtools import methods
 
-    d = S.load_npz(S.stage_output(exact_scene.root, "mix"))
+    d = cache.load_npz(cache.stage_output(exact_scene.root, "mix"))
     names = [v.name for v in exact_scene.views]
     assert list(d["views"]) == names and d["psnr"].shape == (len(names), len(mix.MIX_FLOORS))
     mean = d["psnr"].mean(0)

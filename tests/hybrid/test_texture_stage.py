@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from ibrtools.pipeline import stages as S
+from ibrtools import cache
 from ibrtools.errors import BadValueError, ShapeError
 from ibrtools.hybrid.globalmesh import GlobalMeshOptions, build_global_mesh, build_render_mesh
 from ibrtools.hybrid.harmonise import vd_at_points
@@ -85,8 +86,8 @@ def _atlas(tmp_path, name, jitter):
                  stage_options={"mesh": {"max_edge_voxels": 8.0}})
     from ibrtools.imageio import srgb_to_linear
 
-    tex = S.load_npz(S.stage_output(d, "texture"))
-    mesh = S.load_npz(S.stage_output(d, "mesh"))
+    tex = cache.load_npz(cache.stage_output(d, "texture"))
+    mesh = cache.load_npz(cache.stage_output(d, "mesh"))
     # The stage stores 8-bit sRGB RGBA (atlas.to_srgb8): decoded to linear RGB for the comparison.
     assert tex["atlas"].dtype == np.uint8 and tex["atlas"].shape[2] == 4
     tex["atlas"] = srgb_to_linear(tex["atlas"][..., :3].astype(np.float32) / 255.0)
@@ -112,13 +113,13 @@ def test_texture_stage_bakes_gain_compensated_views_on_the_render_mesh(tmp_path)
     assert spread < 0.05, (ratio, spread)
     # The estimated gains: spread (max - min of the log gains) well above that of the
     # unjittered scene, where glossy objects and small images leave a few per cent.
-    spread_jit = S.read_doc(dj)["stages"]["texture"]["details"]["gain_spread"]
-    spread_ref = S.read_doc(d)["stages"]["texture"]["details"]["gain_spread"]
+    spread_jit = cache.read_doc(dj)["stages"]["texture"]["details"]["gain_spread"]
+    spread_ref = cache.read_doc(d)["stages"]["texture"]["details"]["gain_spread"]
     assert spread_ref < 0.1 and spread_jit > 3 * spread_ref + 0.2, (spread_ref, spread_jit)
     # The gain model (hybrid/gainmodel.py, default "auto"): independent jitter is exposure, and
     # the stage divides the gains out as they are (the 4 views' leave-one-out residual ratio is
     # far above gain_max_ratio 0.5).
-    rec_jit = S.read_doc(dj)["stages"]["texture"]["details"]
+    rec_jit = cache.read_doc(dj)["stages"]["texture"]["details"]
     assert rec_jit["gain_model"] == "exposure" and rec_jit["gain_ratio"] > 0.5, rec_jit
     # A reconstructed mesh keeps k_views / bake_normal_rounds (4, 0); a fused one would take
     # fused_k_views / fused_normal_rounds (GlobalMeshOptions.texture_options).

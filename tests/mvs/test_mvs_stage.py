@@ -10,6 +10,7 @@ import pytest
 from conftest import photos_only
 
 from ibrtools.pipeline import stages as S
+from ibrtools import cache
 from ibrtools_cli import preprocess, render
 
 
@@ -37,7 +38,7 @@ def test_photographs_go_to_new_views(photos, capsys, tmp_path):
     assert all(rows["mvs"]["sources"].values())
     rec = json.loads((s / "scene.json").read_text())["stages"]["mvs"]
     assert rec["details"]["sources"] == rows["mvs"]["sources"] and rec["params"]["iterations"] == 4
-    arrays = S.load_npz(S.stage_output(s, "mvs"))
+    arrays = cache.load_npz(cache.stage_output(s, "mvs"))
     full = json.loads((base / "full" / "scene.json").read_text())
     from ibrtools.formats import native
 
@@ -114,7 +115,7 @@ def test_a_users_mesh_gives_the_views_depth(tmp_path, capsys):
     rows = {r["stage"]: r for r in json.loads(capsys.readouterr().out)}
     assert rows["mvs"]["status"] == "skipped" and "reconstructed mesh" in rows["mvs"]["reason"]
     assert rows["mesh"]["status"] == "ran" and rows["depth"]["status"] == "ran"
-    dep = S.load_npz(S.stage_output(s, "depth"))
+    dep = cache.load_npz(cache.stage_output(s, "depth"))
     np.testing.assert_allclose(dep["v1"][dep["v1"] > 0], 2.0, rtol=1e-4)
     assert render.main([str(s), "--method", "dibr", "--holdout", "v1", "-o", str(tmp_path / "o"), "-q"]) == 0
     # --mesh in place (nothing imported) is refused in one line; a missing file names itself.

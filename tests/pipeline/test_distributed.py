@@ -267,6 +267,7 @@ def _colour_only(scene_dir: Path, dest: Path) -> Path:
 @pytest.mark.parametrize("colour_only", [True, False])
 def test_preprocess_matches_local_bit_for_bit(scene_dir, cluster, tmp_path, capsys, colour_only):
     from ibrtools.pipeline import stages as S
+    from ibrtools import cache
     from ibrtools_cli import preprocess
 
     # Colour only: the depth stage renders every view's depth; with depth: the pvm stage snaps it.
@@ -289,7 +290,7 @@ def test_preprocess_matches_local_bit_for_bit(scene_dir, cluster, tmp_path, caps
     assert preprocess.main(common + ["-o", str(tmp_path / "dist"), "--workers", "2"]) == 0
     rows = {r["stage"]: r for r in json.loads(capsys.readouterr().out)}
     assert all(r["status"] in ("up to date", "skipped") for r in rows.values())
-    S.stage_output(tmp_path / "dist", "pvm")  # recorded with its hash
+    cache.stage_output(tmp_path / "dist", "pvm")  # recorded with its hash
 
 
 def test_mvs_stage_matches_local_bit_for_bit(scene_dir, cluster, tmp_path, capsys):

@@ -118,7 +118,7 @@ def test_render_interrupted_leaves_nothing(scene_dir, many_poses, tmp_path, sig)
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM], ids=["SIGTERM"])  # SIGINT: the same path (KeyboardInterrupt)
 def test_preprocess_interrupted_in_a_stage(tmp_path, sig):
-    from ibrtools.pipeline import stages
+    from ibrtools import cache
 
     d = tmp_path / "scene"
     # mesh then texture take ~3 s after the import (the atlas bake at 320x240): interrupted 0.5 s
@@ -131,7 +131,7 @@ def test_preprocess_interrupted_in_a_stage(tmp_path, sig):
     doc = json.loads((d / "scene.json").read_text())  # still a whole document
     assert "texture" not in (doc.get("stages") or {})
     with pytest.raises(MissingFileError, match="--stages texture"):
-        stages.stage_output(d, "texture")
+        cache.stage_output(d, "texture")
 
 
 def test_preprocess_interrupted_during_import(tmp_path):
@@ -158,20 +158,20 @@ def test_preprocess_interrupted_during_import(tmp_path):
 
 
 def test_corrupt_cache_entry_is_detected_and_recomputed(tmp_path):
-    from ibrtools.pipeline import stages
+    from ibrtools import cache
     from ibrtools_cli import preprocess
 
     d = tmp_path / "scene"
     argv = ["synth:objects", "-o", str(d), "--views", "3", "--size", SIZE, "--stages", "mesh",
             "--set", "mesh.source=ground_truth", "-q"]
     assert preprocess.main(argv) == 0
-    f = stages.stage_output(d, "mesh")
+    f = cache.stage_output(d, "mesh")
     good = f.read_bytes()
     f.write_bytes(good[: len(good) // 2])  # a torn write or a disk error
     with pytest.raises(MissingFileError, match="missing or changed"):
-        stages.stage_output(d, "mesh")
+        cache.stage_output(d, "mesh")
     assert preprocess.main(argv[:-1] + ["--json"]) == 0
-    assert stages.stage_output(d, "mesh").read_bytes() == good  # recomputed, the same bytes
+    assert cache.stage_output(d, "mesh").read_bytes() == good  # recomputed, the same bytes
 
 
 @pytest.mark.parametrize("when", ["blocking", "unblocking"])

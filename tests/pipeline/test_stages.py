@@ -7,6 +7,7 @@ import os
 import numpy as np
 import pytest
 
+from ibrtools import cache
 from ibrtools.pipeline import stages as S
 from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError, InputError
@@ -106,7 +107,7 @@ def test_vertex_statistics_are_released_once_no_stage_reads_them(built, tmp_path
                             "--set", "mesh.resolution=32", "-q"]) == 0
     assert held == {"texture": 0, "variance": 1, "harmonise": 0, "pvm": 0}
     for n in ("texture", "variance", "pvm"):
-        out = S.STAGES[n].outputs[0]
+        out = cache.STAGES[n].outputs[0]
         got, ref = np.load(d2 / "cache" / n / out), np.load(d / "cache" / n / out)
         assert all(np.array_equal(got[k], ref[k]) for k in ref.files), n
 
@@ -240,7 +241,7 @@ def test_views_without_depth_get_depth_from_the_mesh(tmp_path, capsys):
     assert out["mesh"]["status"] == "ran" and out["mesh"]["source"] == "reconstructed"
     assert out["depth"]["status"] == "ran" and out["depth"]["views"] == 2
     assert out["pvm"]["status"] == "ran" and out["pvm"]["pvm_faces"] > 0
-    dep = S.load_npz(d / "cache" / "depth" / "depth.npz")
+    dep = cache.load_npz(d / "cache" / "depth" / "depth.npz")
     np.testing.assert_allclose(dep["v0"][dep["v0"] > 0], 2.0, rtol=1e-4)  # plane z = 2 seen head on
     # The PVM renderer's free-space count reads the same depth the PVMs were built from.
     from ibrtools.hybrid.pvm_render import PvmRenderer, load_depths
@@ -292,14 +293,14 @@ def test_stage_output_for_the_render_methods(built, tmp_path):
     from ibrtools.errors import MissingFileError
     from ibrtools.hybrid.pvm import PvmTiles
 
-    f = S.stage_output(d, "pvm")
+    f = cache.stage_output(d, "pvm")
     assert f.name == "tiles.npz" and PvmTiles.load(f).num_tiles > 0
     with pytest.raises(MissingFileError, match="no output of stage 'depth'"):
-        S.stage_output(d, "depth")  # skipped: every view has depth
+        cache.stage_output(d, "depth")  # skipped: every view has depth
     with pytest.raises(BadValueError, match="unknown"):
-        S.stage_output(d, "nope")
+        cache.stage_output(d, "nope")
     with pytest.raises(MissingFileError):
-        S.stage_output(tmp_path, "pvm")
+        cache.stage_output(tmp_path, "pvm")
 
 
 def test_outputs_are_hashed_only_when_their_recorded_size_or_time_changed(built, monkeypatch, capsys):
@@ -309,20 +310,18 @@ def test_outputs_are_hashed_only_when_their_recorded_size_or_time_changed(built,
     st = f.stat()
     assert rec["stat"]["tiles.npz"] == [st.st_size, st.st_mtime_ns]
     hashed = []
-    from ibrtools import cache
-
     real = cache.file_hash
     monkeypatch.setattr(cache, "file_hash", lambda p: hashed.append(p) or real(p))
-    assert S.stage_output(d, "pvm") == f and hashed == []  # as recorded: not read
+    assert cache.stage_output(d, "pvm") == f and hashed == []  # as recorded: not read
     assert run(d, "--methods", "pvm", capsys=capsys)["pvm"]["status"] == "up to date"
     assert f not in hashed  # (the inputs are hashed: the scene's content key)
     hashed.clear()
     os.utime(f, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000))  # touched (or copied): hashed, still intact
-    assert S.stage_output(d, "pvm") == f and hashed == [f]
+    assert cache.stage_output(d, "pvm") == f and hashed == [f]
     # ibr-preprocess finds it intact by its hash and records the new time: not hashed again.
     assert run(d, "--methods", "pvm", capsys=capsys)["pvm"]["status"] == "up to date"
     hashed.clear()
-    assert S.stage_output(d, "pvm") == f and hashed == []
+    assert cache.stage_output(d, "pvm") == f and hashed == []
 
 
 def test_failed_stage_leaves_no_record_and_reruns(tmp_path, capsys, monkeypatch):
@@ -361,10 +360,10 @@ def test_out_of_date_stages_are_named_by_preprocess_render_and_bench(tmp_path, c
     d = tmp_path / "s"
     run(d, "--methods", "pvm", capsys=capsys)
     recs = json.loads((d / "scene.json").read_text())["stages"]
-    assert recs["pvm"]["version"] == S.STAGES["pvm"].version
+    assert recs["pvm"]["version"] == cache.STAGES["pvm"].version
     assert recs["pvm"]["inputs"] == {"scene": recs["mesh"]["inputs"]["scene"], "mesh": recs["mesh"]["key"],
                                      "depth": "not needed"}  # every view has depth: the depth stage is skipped
-    assert all(S.stale_reasons(recs, n) == [] for n in ("mesh", "pvm"))
+    assert all(cache.stale_reasons(recs, n) == [] for n in ("mesh", "pvm"))
     # The mesh alone re-made (another resolution): the pvm stage's tiles are of the previous mesh.
     out = run(d, "--stages", "mesh", "--set", "mesh.resolution=24", capsys=capsys)
     assert out["mesh"]["status"] == "ran"
@@ -381,27 +380,27 @@ def test_out_of_date_stages_are_named_by_preprocess_render_and_bench(tmp_path, c
     assert bench.main([str(d), "--method", "pvm", "--sweep", "sigma=3", "-o", str(tmp_path / "b"), "--json"]) == 0
     assert "stage pvm" in json.loads(capsys.readouterr().out)["stale_note"]
     # A record of another version of the stage's code; a render method that reads no stale stage says nothing.
-    _edit_record(d, "pvm", version=S.STAGES["pvm"].version - 1)
-    why = S.stale_reasons(json.loads((d / "scene.json").read_text())["stages"], "pvm")
-    assert why[0] == f"written by version {S.STAGES['pvm'].version - 1} of its code, this build's is " \
-                     f"{S.STAGES['pvm'].version}" and len(why) == 2
+    _edit_record(d, "pvm", version=cache.STAGES["pvm"].version - 1)
+    why = cache.stale_reasons(json.loads((d / "scene.json").read_text())["stages"], "pvm")
+    assert why[0] == f"written by version {cache.STAGES['pvm'].version - 1} of its code, this build's is " \
+                     f"{cache.STAGES['pvm'].version}" and len(why) == 2
     assert render.main([str(d), "--method", "dibr", "-o", str(tmp_path / "r2"), "-q"]) == 0
     assert "warning" not in capsys.readouterr().err
     # The mesh back at its first resolution: the tiles are of that mesh, so the pvm stage is up to date
     # again (its key matches) and its record is rewritten with this run's version and inputs.
     out = run(d, "--methods", "pvm", capsys=capsys)
     assert out["mesh"]["status"] == "ran" and out["pvm"]["status"] == "up to date"
-    assert S.stale_reasons(json.loads((d / "scene.json").read_text())["stages"], "pvm") == []
+    assert cache.stale_reasons(json.loads((d / "scene.json").read_text())["stages"], "pvm") == []
     assert render.main([str(d), "--method", "pvm", "-o", str(tmp_path / "r3"), "-q"]) == 0
     assert "warning" not in capsys.readouterr().err
     assert "stale_note" not in json.loads((tmp_path / "r3" / "report.json").read_text())
     # Records written before they carried the version and input keys: nothing to compare, nothing said;
     # the next ibr-preprocess that finds the stage up to date adds them.
     _edit_record(d, "pvm", version=None, inputs=None)
-    assert S.stale_reasons(json.loads((d / "scene.json").read_text())["stages"], "pvm") == []
+    assert cache.stale_reasons(json.loads((d / "scene.json").read_text())["stages"], "pvm") == []
     assert run(d, "--methods", "pvm", capsys=capsys)["pvm"]["status"] == "up to date"
     rec = json.loads((d / "scene.json").read_text())["stages"]["pvm"]
-    assert rec["version"] == S.STAGES["pvm"].version and rec["inputs"]["depth"] == "not needed"
+    assert rec["version"] == cache.STAGES["pvm"].version and rec["inputs"]["depth"] == "not needed"
 
 
 def test_progress_on_stderr(tmp_path, capsys):
@@ -412,14 +411,16 @@ def test_progress_on_stderr(tmp_path, capsys):
 
 
 def test_parse_helpers():
-    assert S.parse_methods("tm, pvm") == ["tm", "pvm"]
-    assert S.parse_methods("all") == list(S.ALL_METHODS)
-    assert S.parse_stages("pvm,mesh") == ["pvm", "mesh"]
-    assert S.parse_stage_options(["pvm.max_block=8", "mesh.source=fusion"]) == {
+    from ibrtools_cli.common import parse_methods, parse_stage_options, parse_stages
+
+    assert parse_methods("tm, pvm") == ["tm", "pvm"]
+    assert parse_methods("all") == list(cache.ALL_METHODS)
+    assert parse_stages("pvm,mesh") == ["pvm", "mesh"]
+    assert parse_stage_options(["pvm.max_block=8", "mesh.source=fusion"]) == {
         "pvm": {"max_block": 8}, "mesh": {"source": "fusion"}}
     with pytest.raises(BadValueError):
-        S.parse_methods("")
+        parse_methods("")
     with pytest.raises(InputError):
-        S.parse_stage_options(["texture.k_views=3"])
+        parse_stage_options(["texture.k_views=3"])
     with pytest.raises(FileNotFoundError):
-        S.scene_content_key(S.Path("/nonexistent-scene"))
+        cache.scene_content_key(S.Path("/nonexistent-scene"))

@@ -64,6 +64,10 @@ from ibrtools.camera import PINHOLE, Camera
 from ibrtools.errors import BadValueError, InputError, NotBuiltError
 from ibrtools.scene import Scene
 from ibrtools import params as P
+from ibrtools.depthwarp.core import DepthWarpParams, forward_warp_depth, warp_depth
+from ibrtools.imageio import srgb_to_linear
+from ibrtools.inpaint.pushpull import nearest_covered
+from ibrtools.metrics import psnr, ssim
 
 DEFAULTS = {"layers": 3, "seeds": 16, "iters": 3, "threshold": 0.5, "oriented_bounds": False, "umbra": False,
             "ground": "none", "cull": False, "forward": "none", "dilate": True, "bound": "tight",
@@ -106,8 +110,6 @@ def fill_background(depth: np.ndarray, hole: np.ndarray, far: float) -> np.ndarr
     side of a disocclusion; Lee et al. sec. 4.1: the single-layer warp "keeps holes (filled with
     the background depth)"; the classic DIBR background fill). Empty pixels (0) count as ``far``;
     a hole with no known pixel in its row and column is ``far``. Vectorised (no pixel loop)."""
-    from ibrtools.inpaint.pushpull import nearest_covered
-
     d = np.where(depth > 0, depth, np.float32(far)).astype(np.float32)
     hole = np.asarray(hole, bool)
     if not hole.any():
@@ -130,8 +132,6 @@ def depth_scores(warped: np.ndarray, hole: np.ndarray | None, reference: np.ndar
     the hole fraction. ``holes``: "background" (the report's scores: holes filled with the background
     depth by :func:`fill_background`, what a user of the depth image gets) or "far" (holes at far:
     what occlusion culling sees)."""
-    from ibrtools.metrics import psnr, ssim
-
     far = float(far)
     if not far > 0:
         raise BadValueError(f"far: expected a positive depth, got {far}")
@@ -162,8 +162,6 @@ def far_depth(bounds: np.ndarray, camera: Camera) -> float:
 
 def visualise(depth: np.ndarray, far: float) -> np.ndarray:
     """(H, W, 3) linear RGB whose sRGB grey level is 1 - z / far (0 where z = 0)."""
-    from ibrtools.imageio import srgb_to_linear
-
     v = np.where(depth > 0, 1.0 - np.clip(depth / far, 0.0, 1.0), 0.0).astype(np.float32)
     return np.ascontiguousarray(np.repeat(srgb_to_linear(v)[..., None], 3, axis=2), np.float32)
 
@@ -181,8 +179,6 @@ def warp_with_far_plane(layers: np.ndarray, src: Camera, dst: Camera, bounds: np
     as empty (depth 0), not as a hole. ``surface_ids`` (L, H, W) int32 (the layers' object ids; backward
     warp only): the result's ``occluder`` is the proven occluder depth (``warp_depth``); the far plane
     has no surface id, so it never proves a depth."""
-    from ibrtools.depthwarp.core import forward_warp_depth, warp_depth
-
     layers = np.ascontiguousarray(layers[None] if layers.ndim == 2 else layers, np.float32)
     if far_plane:
         layers = layers.copy()
@@ -268,8 +264,6 @@ class DepthWarpMethod:
         return setup
 
     def _warp_params(self):
-        from ibrtools.depthwarp.core import DepthWarpParams
-
         p = self.params
         # Culling needs conservative holes: a dilated hole takes a neighbour's (occluder's) depth
         # and culled a 5-px object seen through a 1-px gap (docs/culling.md), so --cull warps

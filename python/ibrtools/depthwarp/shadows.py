@@ -34,6 +34,7 @@ from ibrtools import _core
 from ibrtools.camera import PINHOLE, Camera, look_at
 from ibrtools.checks import check_float, check_int
 from ibrtools.errors import BadValueError, DtypeError, NotBuiltError, ShapeError
+from ibrtools.raycast.reference import ReferenceRenderer
 
 METHODS = ("warp", "render", "trace")
 
@@ -181,8 +182,6 @@ def soft_shadows(renderer, light: AreaLight, view: Camera, view_depth: np.ndarra
     (default: N = 4 seeds as in the paper's sec. 6). ``bias`` (texels) and ``slope_bias`` (times the
     map's own depth slope): the shadow-map bias ("warp", "render"; shadows.h); ``eps_rel``: occlusion-ray start offset relative to the view depth ("trace").
     """
-    from ibrtools.raycast.reference import ReferenceRenderer
-
     if not isinstance(renderer, ReferenceRenderer):
         raise DtypeError(f"renderer: expected an ibrtools.raycast.reference.ReferenceRenderer, got "
                          f"{type(renderer).__name__}")

@@ -44,6 +44,7 @@ from ibrtools.errors import BadValueError, InputError
 from ibrtools.scene import Scene
 from ibrtools import params as P
 from ibrtools.dibr import view_selection as vs
+from ibrtools.cache import missing_depth_error, with_stage_depth
 
 QUALITIES = ("side", "shape", "depth", "normal")
 # side_threshold 10 px: RVS 4.0's q = clamp(10000 - 1000 L, 1, 10000) is q = 1 - L / 10 with L in
@@ -152,8 +153,6 @@ class DibrMethod:
         return o
 
     def prepare(self, scene: Scene) -> dict[str, float]:
-        from ibrtools.cache import missing_depth_error, with_stage_depth
-
         if not scene.views:
             raise InputError("--method dibr: the scene has no input views")
         scene = with_stage_depth(scene)  # photographs: the mvs stage's depth (else the mesh's)

@@ -33,6 +33,7 @@ from ibrtools.scene import Scene
 from ibrtools import params as P
 from ibrtools.dibr import view_selection as vs
 from ibrtools.dibr.method import LIMITS as DIBR_LIMITS
+from ibrtools.cache import missing_depth_error, with_stage_depth
 
 DEFAULTS = {"inputs": 1, "stretch_threshold": 2.0, "depth_jump": 0.1, "samples": vs.DEFAULT_SAMPLES, "seed": vs.DEFAULT_SEED}
 
@@ -69,8 +70,6 @@ class WarpMethod:
         self._scene: Scene | None = None
 
     def prepare(self, scene: Scene) -> dict[str, float]:
-        from ibrtools.cache import missing_depth_error, with_stage_depth
-
         if not scene.views:
             raise InputError("--method warp: the scene has no input views")
         scene = with_stage_depth(scene)  # photographs: the mvs stage's depth (else the mesh's)

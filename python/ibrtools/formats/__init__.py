@@ -14,6 +14,7 @@ from pathlib import Path
 
 from ibrtools.errors import FormatError, MissingFileError
 from ibrtools.scene import Scene
+from ibrtools.formats.resize import check_factors, downscale_scene
 
 # Order matters for detection: the most specific formats first.
 # llff after colmap: an LLFF folder that also holds its COLMAP model (sparse/0) imports as COLMAP
@@ -44,8 +45,6 @@ def load(path: str | Path, fmt: str | None = None, options: dict | None = None, 
     """Import a data set (format detected unless given) as a Scene; ``downscale`` (a factor >= 1)
     / ``max_size`` (the longer side, pixels) resize every view on the way in (formats/resize.py,
     whatever the importer)."""
-    from ibrtools.formats.resize import check_factors, downscale_scene
-
     path = Path(path)
     downscale, max_size = check_factors(downscale, max_size)  # before any file is read
     if not path.exists():

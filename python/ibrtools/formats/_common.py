@@ -16,6 +16,9 @@ import numpy as np
 
 from ibrtools.camera import orthonormalize
 from ibrtools.errors import BadValueError, DtypeError, FormatError, MissingFileError, ShapeError
+from ibrtools.camera import check_rigid
+from ibrtools.errors import IbrError
+from ibrtools.imageio import read_header
 
 
 class FileLoader:
@@ -39,7 +42,6 @@ class FileLoader:
         size = self._kwargs.get("size")
         if size is None:
             return None
-        from ibrtools.imageio import read_header
 
         return lambda: read_header(self.source, size)
 
@@ -120,12 +122,10 @@ def document_errors(load: Callable) -> Callable:
     A data-set document of the wrong shape (a JSON list where an object is expected, null for a
     number, a string for a matrix...) makes the interpretation code fail with TypeError,
     AttributeError, KeyError, IndexError or a bare ValueError deep inside. Hypothesis fuzzing
-    (tests/test_fuzz_importers.py) found dozens of such paths. They are bad input, not bugs:
+    (tests/formats/test_fuzz_importers.py) found dozens of such paths. They are bad input, not bugs:
     re-raised as FormatError naming the file and the failure, so the commands exit 2 with one
     line. Typed errors raised on purpose pass through unchanged."""
     import functools
-
-    from ibrtools.errors import IbrError
 
     @functools.wraps(load)
     def wrapper(path, *args, **kwargs):
@@ -155,8 +155,6 @@ def read_json(path: Path) -> Any:
 def rigid_from_matrix(m: Any, where: str) -> np.ndarray:
     """A 4x4 float64 rigid matrix from ``m`` (4x4 or 3x4), checked, then re-orthonormalised
     (files store ~7 significant digits; the check rejects anything that is not noise)."""
-    from ibrtools.camera import check_rigid
-
     rigid = check_rigid(m, where)
     rigid[:3, :3] = orthonormalize(rigid[:3, :3])
     return rigid
@@ -190,8 +188,6 @@ def invert_rigid(m: np.ndarray) -> np.ndarray:
 def image_header(path: Path) -> tuple[int, int, int, str]:
     """(width, height, channels, sample format such as "uint8") of an image file, from its header
     alone (no pixel decoding)."""
-    from ibrtools.imageio import read_header
-
     return read_header(path)
 
 

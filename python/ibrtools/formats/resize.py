@@ -32,6 +32,7 @@ import numpy as np
 from ibrtools.camera import Camera
 from ibrtools.errors import BadValueError
 from ibrtools.scene import Scene, View, _Lazy, _check_image
+from ibrtools.formats._common import record_summary
 
 
 def scaled_size(width: int, height: int, downscale: float | None = None, max_size: int | None = None
@@ -173,8 +174,6 @@ def _scaled_view(view: View, camera: Camera) -> View:
 def downscale_scene(scene: Scene, downscale: float | None = None, max_size: int | None = None) -> Scene:
     """``scene`` with every pinhole view and target resized (module doc) and a line in
     ``source["adapted"]``; the scene itself when no image changes size."""
-    from ibrtools.formats._common import record_summary
-
     downscale, max_size = check_factors(downscale, max_size)
     sizes: dict[tuple[tuple[int, int], tuple[int, int]], int] = {}
 

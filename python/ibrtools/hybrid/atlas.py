@@ -10,7 +10,7 @@ docs/texture.md "Atlas").
   cell belongs to A when (i + 0.5) + (j + 0.5) <= N, else to B. A bilinear read at (x, y) touches
   texel centres within 1 of x and of y, so sums of centres within 2 of x + y; A's diagonal lies
   at x + y = N - 1 and B's at N + 2, so a bilinear lookup anywhere inside a face reads only
-  texels assigned to that face (tests/test_atlas.py checks it). Cells are shelf-packed in that
+  texels assigned to that face (tests/hybrid/test_atlas.py checks it). Cells are shelf-packed in that
   order (rows as tall as their tallest cell; a loop over the rows). ``face_scale`` gives faces
   their own texel size (:func:`face_footprint_scale`). One chart per
   face: no seams to cut, no distortion beyond mapping each triangle to a right isosceles one.
@@ -40,6 +40,7 @@ from ibrtools.errors import BadValueError, DtypeError, ShapeError
 from ibrtools.mesh import Mesh
 from ibrtools.hybrid.globalmesh import (ATLAS_MAX_TEXELS, ATLAS_TEXELS_LIMIT, GlobalMeshOptions, point_colors, smooth_normals,
                          vertex_normals)
+from ibrtools.imageio import srgb8
 
 MIN_CELL = 5  # B's legs of N - 4 texels: >= 1 texel
 CHUNK = 1 << 19  # texels per point_colors call (bounds the (views, texels) penalty arrays)
@@ -277,8 +278,6 @@ def bake(mesh: Mesh, lay: AtlasLayout, cameras: Mapping[str, Camera], colors: Ma
 def to_srgb8(img: np.ndarray) -> np.ndarray:
     """Linear RGB (H, W, 3) float -> (H, W, 4) uint8 sRGB RGBA (alpha 255; values clipped to [0, 1]),
     the storage ``_core.sample_atlas`` reads fastest (cpp/kernels/atlas8.h)."""
-    from ibrtools.imageio import linear_to_srgb
-
     a = np.asarray(img)
     if a.ndim != 3 or a.shape[2] != 3:
         raise ShapeError(f"atlas: expected shape (H, W, 3), got {a.shape}")
@@ -287,7 +286,7 @@ def to_srgb8(img: np.ndarray) -> np.ndarray:
     out = np.full(a.shape[:2] + (4,), 255, np.uint8)
     for lo in range(0, a.shape[0], 512):  # bounded float64 temporaries
         sl = np.clip(np.nan_to_num(a[lo:lo + 512].astype(np.float32)), 0.0, 1.0)
-        out[lo:lo + 512, :, :3] = np.round(linear_to_srgb(sl) * 255.0).astype(np.uint8)
+        out[lo:lo + 512, :, :3] = srgb8(sl)
     return out
 
 

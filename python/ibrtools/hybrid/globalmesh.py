@@ -32,6 +32,9 @@ from ibrtools.checks import check_float, check_int
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
 from ibrtools.mesh import Mesh
 from ibrtools.scene import Scene
+from ibrtools.camera import look_at
+from ibrtools.hybrid.gainmodel import GAIN_MODES
+from ibrtools.memory import available_memory
 
 SOURCES = ("auto", "reconstructed", "ground_truth", "fusion")
 # The texture atlas's default texel cap: 2^25 texels = 128 MiB of 8-bit sRGB RGBA (an 8192 x 4096
@@ -133,7 +136,6 @@ class GlobalMeshOptions:
         check_int(self.atlas_max_texels, "atlas_max_texels", 16, ATLAS_TEXELS_LIMIT)
         if not isinstance(self.atlas_adaptive, (bool, np.bool_)):
             raise BadValueError(f"atlas_adaptive: expected true or false, got {self.atlas_adaptive!r}")
-        from ibrtools.hybrid.gainmodel import GAIN_MODES
 
         if self.gain_model not in GAIN_MODES:
             raise BadValueError(f"gain_model: expected one of {GAIN_MODES}, got {self.gain_model!r}")
@@ -334,8 +336,6 @@ def equirect_to_cube_faces(camera: Camera, depth: np.ndarray) -> list[tuple[Came
     """Six 90-degree pinhole cameras at an equirect camera's centre (cube-map faces, side =
     width / 4 clamped to [16, 2048]) and their z-depth, read from the equirect ray distance at
     the nearest pixel (no interpolation across depth edges); 0 outside the equirect's ranges."""
-    from ibrtools.camera import look_at
-
     side = int(min(2048, max(16, camera.width // 4)))
     f = side / 2.0
     x, y = np.meshgrid(np.arange(side) + 0.5, np.arange(side) + 0.5)
@@ -462,7 +462,7 @@ def point_colors(points: np.ndarray, normals: np.ndarray, cameras: Mapping[str, 
     views below the (k+1)-th smallest penalty are blended with weights max(1e-3, 1 - p / p_(k+1))
     (a point seen by one view keeps its colour) of their bilinear colour. The kernel is
     ``_core.point_colors`` (cpp/kernels/atlas8.h; the numpy version it replaced, kept as the
-    reference in tests/test_globalmesh.py, gives the same bits)."""
+    reference in tests/hybrid/test_globalmesh.py, gives the same bits)."""
     from ibrtools import _core
 
     options = options or GlobalMeshOptions()
@@ -538,8 +538,6 @@ def check_fusion_memory(cameras: Mapping[str, Camera], depths: Mapping[str, np.n
     memory): open3d does not fail cleanly when it runs out (it crashed at ~10 GB, resolution
     20000, on a scene of 6 views of 320x240)."""
     import os
-
-    from ibrtools.memory import available_memory
 
     options = options or GlobalMeshOptions()
     est = fusion_memory(cameras, depths, options, extent)

@@ -236,7 +236,7 @@ def _scale_field(img, t, valid, sigma, fallback, factor: int | None = None) -> n
     The box and the bilinear kernel add variance (f^2 / 12 + f^2 / 6 per axis) to sigma^2: < 3 %
     of sigma for f <= sigma / 4. Against the full-resolution scipy result (``factor=1``) the
     scale differs by < 1 % except in the few pixels where G * W crosses the fallback threshold
-    (tests/test_harmonise.py states the bound)."""
+    (tests/hybrid/test_harmonise.py states the bound)."""
     import cv2
 
     f = _scale_factor(sigma) if factor is None else int(factor)
@@ -271,7 +271,7 @@ def _cross_view_prediction(j: int, cams, depths, hms, hits, p: HarmoniseParams, 
     against their mesh depth), their colours ``hms`` sampled bilinearly, the per-channel
     quantile (median) taken -- the C++ kernel ``_core.cross_view_prediction``
     (cpp/kernels/harmonise.h; multithreaded, the same arithmetic as the numpy reference in
-    tests/test_harmonise.py). A highlight is seen at a surface point by few views, so the median
+    tests/hybrid/test_harmonise.py). A highlight is seen at a surface point by few views, so the median
     of the others is its diffuse colour; texture detail, unlike in the mesh colour T, is in every
     view alike. Returns (prediction (H, W, 3) float32, n_seen (H, W) int32)."""
     from ibrtools import _core

@@ -56,6 +56,8 @@ from ibrtools.hybrid.pvm_render import DEFAULTS as PVM_DEFAULTS, RESAMPLE, check
 from ibrtools.mesh import Mesh
 from ibrtools.scene import Scene
 from ibrtools import params as P
+from ibrtools.cache import load_npz, read_doc, stage_output
+from ibrtools.hybrid.pvm_render import PvmRenderer, harmonised_images
 
 # occlusion "mesh": each input view's depth for the occlusion test is the global mesh rendered
 # into that view (the proxy ULR blends on, as in Buehler et al. and the paper's deferred ULR), so
@@ -162,16 +164,12 @@ def geo_threshold_for(units: str, voxel: float | None = None) -> float:
 def _stage_record(scene: Scene, stage: str) -> dict:
     """The stage's record in the scene directory's scene.json ({} when none): read from the file,
     not ``scene.stages``, since stages may have run after the scene was loaded."""
-    from ibrtools.cache import read_doc
-
     if scene.root is None:
         return {}
     return (read_doc(scene.root).get("stages") or {}).get(stage) or {}
 
 
 def _stage(scene: Scene, stage: str, method: str):
-    from ibrtools.cache import load_npz, stage_output
-
     if scene.root is None:
         raise InputError(f"--method {method}: the scene has no directory with preprocessed stages; "
                          f"run: ibr-preprocess INPUT -o SCENE --methods {method}")
@@ -229,7 +227,7 @@ class _GlobalMesh:
         """depth, prim_id, bary (and the normal, for ULR's back-face test); hit = prim_id >= 0.
         Pinhole cameras and a mesh of at most RASTER_MAX_FACES faces, RASTER_MAX_FACES_PER_PIXEL
         per pixel: rasterised (``_core.raster_gbuffer``: the same nearest face per pixel centre as the ray
-        caster, faster for such meshes, tests/test_hybrid_raster.py); else (equirect, or a mesh
+        caster, faster for such meshes, tests/hybrid/test_hybrid_raster.py); else (equirect, or a mesh
         dense for the frame): Embree."""
         from ibrtools import _core
 
@@ -273,8 +271,6 @@ def _views_for_ulr(scene: Scene, method: str, harmonised: bool, gm: "_GlobalMesh
     stage has it (``harmonise``: its arrays, when the caller has loaded them); depth = the
     global mesh rendered into the view (``gm`` given: occlusion "mesh"), else the view's depth
     or the depth stage's rendering."""
-    from ibrtools.hybrid.pvm_render import harmonised_images
-
     images: dict = {}
     source = "original"
     if harmonised and scene.root is not None:
@@ -441,9 +437,7 @@ class HybridMethod:
         mesh, the ULR inputs and the PVM tiles, images and depths are shared; the views that
         ``scene`` lacks are dropped from ULR and disabled in PVM, as preparing for ``scene`` does.
         Renders what ``prepare(scene)`` would, bit for bit (the mix stage's fit;
-        tests/test_hybrid_render.py). Occlusion "mesh" (the default) only: with "views", prepare."""
-        from ibrtools.hybrid.pvm_render import PvmRenderer
-
+        tests/hybrid/test_hybrid_render.py). Occlusion "mesh" (the default) only: with "views", prepare."""
         if self._gm is None:
             raise BadValueError("hybrid: prepare(scene) must be called before _without_views")
         keep = {v.name for v in scene.views}

@@ -24,6 +24,7 @@ import numpy as np
 from ibrtools.camera import Camera
 from ibrtools.errors import BadValueError, MissingFileError
 from ibrtools.scene import Scene
+from ibrtools.hybrid.pvm_render import PvmRenderer, check_params
 
 GBUFFERS = ("mesh", "none")
 
@@ -34,8 +35,6 @@ class PvmMethod:
     name = "pvm"
 
     def __init__(self, params: dict | None = None):
-        from ibrtools.hybrid.pvm_render import check_params
-
         params = dict(params or {})
         self.gbuffer = params.pop("gbuffer", "mesh")
         if self.gbuffer not in GBUFFERS:
@@ -46,8 +45,6 @@ class PvmMethod:
         self.last_stats: dict = {}
 
     def prepare(self, scene: Scene) -> dict[str, float]:
-        from ibrtools.hybrid.pvm_render import PvmRenderer
-
         t0 = time.perf_counter()
         self._renderer = PvmRenderer(scene, self.params)
         t1 = time.perf_counter()

@@ -39,6 +39,7 @@ from ibrtools.errors import BadValueError, DtypeError, InputError, MissingFileEr
 from ibrtools import params as P
 from ibrtools.scene import Scene
 from ibrtools.hybrid.pvm import PvmTiles
+from ibrtools import cache
 
 # Defaults: sigma, alpha, gamma, tau_depth from the paper's sweep (sec. 7); max_tiles 12 (sec. 5.1);
 # max_candidates 12 (per-pixel list); ulr_k 3 (weight 0 at the 3rd: two candidates blended per
@@ -54,7 +55,7 @@ from ibrtools.hybrid.pvm import PvmTiles
 # Eq. 1 and Eq. 2 (docs/pvm_render.md "max_angle": 180 / 90 / 60 / 50 / 40 degrees on synth:objects).
 # 55 chosen for the hybrid on the 36 lego views outside the held-out
 # set and synth seed 1 (docs/pvm_render.md "max_angle"); 50 scored better on lego but lost a thin
-# object missing from the global mesh in a 10-view ring (tests/test_pvm_render.py).
+# object missing from the global mesh in a 10-view ring (tests/hybrid/test_pvm_render.py).
 # ray_stride 8: the coarse cells in front of the G-buffer's surface on every 8th ray of every 8th
 # row are looked up too (an object the global mesh lacks, more than one coarse cell in front of
 # the surface behind it, would otherwise be missed; on
@@ -159,8 +160,6 @@ def _preprocess_hint(scene: Scene) -> str:
 
 def load_tiles(scene: Scene) -> PvmTiles:
     """The scene's PVM tiles (stage ``pvm``); InputError naming the command when it has none."""
-    from ibrtools import cache
-
     if scene.root is None:
         raise InputError(f"PVM rendering needs the scene's pvm stage (tiles.npz); the scene has no directory: "
                          f"save it and run {_preprocess_hint(scene)}")
@@ -179,8 +178,6 @@ def harmonised_images(arrays: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]
 def load_images(scene: Scene, harmonise: Mapping[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
     """Input images: the harmonise stage's when it ran, else the views' own colour.
     ``harmonise``: that stage's arrays when the caller has loaded them (read again otherwise)."""
-    from ibrtools import cache
-
     harmonised: dict[str, np.ndarray] = {}
     if harmonise is not None:
         harmonised = harmonised_images(harmonise)
@@ -204,12 +201,10 @@ def load_images(scene: Scene, harmonise: Mapping[str, np.ndarray] | None = None)
 
 
 def load_depths(scene: Scene) -> dict[str, np.ndarray] | None:
-    """Each input view's depth as the pvm stage read it (``stages.view_depths``: its own, else the
+    """Each input view's depth as the pvm stage read it (``cache.view_depths``: its own, else the
     depth stage's render of the global mesh; before the stage's snap to the global mesh, which moves
     depth by at most ``mesh_snap`` voxels, far below the free-space tolerances), for the free-space
     count; None when some view has neither."""
-    from ibrtools import cache
-
     def rendered() -> dict[str, np.ndarray]:
         if scene.root is None:
             raise MissingFileError("the scene has no directory with a depth stage")

@@ -27,6 +27,9 @@ import numpy as np
 
 from ibrtools.errors import BadValueError
 from ibrtools.inpaint.background import Background
+from ibrtools.imageio import srgb_to_linear
+from ibrtools.inpaint import inpaint as fill_holes
+from ibrtools.inpaint.pushpull import nearest_covered
 
 INPAINT = {
     "auto": "the measured best fill: depth-aware push-pull from the background side (default)",
@@ -65,7 +68,6 @@ def parse_background(value) -> "np.ndarray | str | None":
             rgb = ()
     if len(rgb) != 3 or not all(0.0 <= x <= 1.0 for x in rgb):
         raise BadValueError(f"--background: expected black, white, transparent or R,G,B in [0, 1], got {value!r}")
-    from ibrtools.imageio import srgb_to_linear
 
     return np.asarray(srgb_to_linear(np.asarray(rgb, np.float32)), np.float32).reshape(3)
 
@@ -183,9 +185,6 @@ def _fill(color: np.ndarray, hole: np.ndarray, depth: np.ndarray | None, bg: np.
     by the scene's background colour ``bg_colour`` when it has one (a uniform background: the
     background pixels beside an object carry its antialiased edge, which a push-pull would smear
     over the hole), else by push-pull from the background pixels only."""
-    from ibrtools.inpaint import inpaint as fill_holes
-    from ibrtools.inpaint.pushpull import nearest_covered
-
     bg = np.zeros(hole.shape, bool) if bg is None else bg
     d = None if depth is None else np.asarray(depth, np.float32)
     surface = ~hole & ~bg

@@ -50,6 +50,8 @@ from typing import Any
 import numpy as np
 
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
+from ibrtools.inpaint.pushpull import DEPTH_THRESHOLD, GAMMA, check_arrays, pushpull
+from ibrtools.metamers.steerable import ORIENTATIONS, SteerablePyramid, analyse, max_levels, synthesise
 
 FILTER_RADIUS = 2  # the 5x5 taps of cpp/kernels/steerable_taps.h
 
@@ -107,8 +109,6 @@ def _block_all(hole: np.ndarray, scale: int, shape: tuple[int, int]) -> np.ndarr
 @functools.lru_cache(maxsize=2)
 def _noise_pyramid_cached(height: int, width: int, channels: int, levels: int, orientations: int,
                           seed: int) -> tuple[np.ndarray, tuple, np.ndarray]:
-    from ibrtools.metamers.steerable import analyse
-
     rng = np.random.default_rng(seed)
     white = rng.standard_normal((height, width, channels), dtype=np.float32)
     pyr = analyse(white, levels, orientations, ycbcr=False)
@@ -142,8 +142,6 @@ def noise_pyramid(height: int, width: int, channels: int = 3, levels: int = 4, o
     bands; lowpass is the analysed white noise, unused by :func:`metameric`), sampled at the
     motion-compensated positions x + flow(x) when ``flow`` (float32 (H, W, 2), (dx, dy) in
     pixels) is given. For inspection and tests; :func:`metameric` samples only inside holes."""
-    from ibrtools.metamers.steerable import SteerablePyramid
-
     levels, orientations, seed = _check_options(levels, orientations, seed, height, width)
     flow = _check_flow(flow, height, width)
     hp, bands, lo = _noise_pyramid_cached(int(height), int(width), int(channels), levels, orientations, seed)
@@ -160,8 +158,6 @@ def noise_pyramid(height: int, width: int, channels: int = 3, levels: int = 4, o
 
 
 def _check_options(levels: Any, orientations: Any, seed: Any, h: int, w: int) -> tuple[int, int, int]:
-    from ibrtools.metamers.steerable import ORIENTATIONS, max_levels
-
     for name, v in (("levels", levels), ("orientations", orientations), ("seed", seed)):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
             raise BadValueError(f"{name}: expected an integer, got {v!r}")
@@ -197,8 +193,6 @@ def local_moments(x: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = No
     X and X^2 (dos Anjos et al. sec. 3.3.1; depth-aware with ``depth``): (pp(X),
     max(0, pp(X^2) - pp(X)^2)); outside the holes (X, 0) up to rounding. What :func:`metameric`
     computes per band (there only on the masked samples)."""
-    from ibrtools.inpaint.pushpull import pushpull
-
     if not isinstance(x, np.ndarray) or x.dtype != np.float32:
         raise DtypeError(f"x: expected a float32 numpy array, got {getattr(x, 'dtype', type(x).__name__)}")
     x3 = x[..., None] if x.ndim == 2 else x
@@ -239,8 +233,6 @@ def metameric(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = No
     bad options or an all-hole image.
     """
     from ibrtools import _core
-    from ibrtools.inpaint.pushpull import DEPTH_THRESHOLD, GAMMA, check_arrays
-    from ibrtools.metamers.steerable import SteerablePyramid, analyse, synthesise
 
     image, hole, depth = check_arrays(image, hole, depth)
     if image.dtype != np.float32:

@@ -39,6 +39,8 @@ from typing import Any
 import numpy as np
 
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
+from ibrtools.inpaint.metameric import _check_options, _noise_pyramid_cached
+from ibrtools.metamers.steerable import SteerablePyramid, analyse, synthesise
 
 # Pooling region size per degree of eccentricity. Walton et al. follow "the slope in the middle of
 # the corridor" of Fig. 3 without printing a number; that corridor is centred on Bouma's law
@@ -165,9 +167,6 @@ def _moments(bands: list[np.ndarray], lam: np.ndarray) -> np.ndarray:
 
 
 def _prepare(image, fixation, pooling, levels, orientations, seed, fov):
-    from ibrtools.inpaint.metameric import _check_options
-    from ibrtools.metamers.steerable import analyse
-
     image = _check_image(image)
     fixation, pooling, fov = _check_geometry(fixation, pooling, fov)
     h, w = image.shape[:2]
@@ -196,8 +195,6 @@ def foveate(image: np.ndarray, fixation: tuple[float, float] = (0.5, 0.5), *, po
     or bad options.
     """
     from ibrtools import _core
-    from ibrtools.inpaint.metameric import _noise_pyramid_cached
-    from ibrtools.metamers.steerable import SteerablePyramid, synthesise
 
     image, x, geom, (levels, orientations, seed), lam0, pyr, groups = _prepare(
         image, fixation, pooling, levels, orientations, seed, fov)
@@ -238,8 +235,6 @@ def statistics(image: np.ndarray, fixation: tuple[float, float] = (0.5, 0.5), *,
     """The pooled statistics of ``image`` for a fixation (steps 1-3 of the module docstring):
     per steerable band, the mean and variance over each sample's pooling region (arguments as
     :func:`foveate`). Raises as :func:`foveate`."""
-    from ibrtools.metamers.steerable import SteerablePyramid
-
     image, x, geom, (levels, orientations, _), lam0, pyr, groups = _prepare(
         image, fixation, pooling, levels, orientations, 0, fov)
     means, variances, pooled = [], [], []
@@ -268,9 +263,6 @@ def synthesise_from_statistics(stats: FoveatedStatistics, *, seed: int = 0) -> n
     pyramid is collapsed. Without the input, the fovea carries the 5x5 filters' reconstruction
     error (docs/steerable.md); otherwise the result differs from :func:`foveate`'s by exactly
     that error (image - synthesise(analyse(image))). Returns float32 (H, W, C) or (H, W)."""
-    from ibrtools.inpaint.metameric import _noise_pyramid_cached
-    from ibrtools.metamers.steerable import SteerablePyramid, synthesise
-
     if not isinstance(stats, FoveatedStatistics):
         raise DtypeError(f"stats: expected FoveatedStatistics (from foveate.statistics), got {type(stats).__name__}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:

@@ -31,6 +31,7 @@ from ibrtools.camera import PINHOLE, Camera
 from ibrtools.checks import check_float, check_int
 from ibrtools.errors import BadValueError
 from ibrtools.memory import available_memory
+from ibrtools.imageio import linear_to_srgb
 
 _K = _core.PatchMatchOptions()  # the kernel's defaults, defined once (cpp/kernels/mvs/patchmatch.h)
 
@@ -144,8 +145,6 @@ class MvsResult:
 def grey(color: np.ndarray) -> np.ndarray:
     """The matching image of a view: Rec. 709 luminance of linear RGB, sRGB-encoded (the NCC is
     invariant to gain and offset, not to the curve: texture is matched where it is visible)."""
-    from ibrtools.imageio import linear_to_srgb
-
     c = np.asarray(color, np.float32)
     y = c[..., 0] * np.float32(0.2126) + c[..., 1] * np.float32(0.7152) + c[..., 2] * np.float32(0.0722)
     return np.ascontiguousarray(linear_to_srgb(y), np.float32)

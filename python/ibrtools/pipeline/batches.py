@@ -25,6 +25,8 @@ from ibrtools.camera import Camera
 from ibrtools.checks import check_float
 from ibrtools.errors import BadValueError, InputError
 from ibrtools.scene import Scene
+from ibrtools.imageio import atomic_path, read_image, srgb8
+from ibrtools.pipeline.report_html import check_output
 
 PREFIX = "lf_"
 VIDEO_HINT = "install the video extra: pip install 'ibrtools[video]' (imageio-ffmpeg)"
@@ -118,8 +120,6 @@ def require_video() -> None:
 
 def check_video_path(path: str | os.PathLike) -> Path:
     """The MP4 path: not a directory, ends in .mp4, and its folder can be written."""
-    from ibrtools.pipeline.report_html import check_output
-
     p = Path(path)
     if p.is_dir():
         raise BadValueError(f"--mp4 {p}: is a directory")
@@ -135,8 +135,6 @@ def write_mp4(images: list[str | os.PathLike], path: str | os.PathLike, *, fps: 
     require_video()
     import imageio_ffmpeg
 
-    from ibrtools.imageio import atomic_path, linear_to_srgb, read_image
-
     fps = check_float(fps, "--fps")
     if not fps > 0:
         raise BadValueError(f"--fps: expected a positive frame rate, got {fps}")
@@ -148,7 +146,7 @@ def write_mp4(images: list[str | os.PathLike], path: str | os.PathLike, *, fps: 
         writer = None
         try:
             for f in images:
-                rgb = np.clip(np.rint(linear_to_srgb(read_image(f)[..., :3]) * 255.0), 0, 255).astype(np.uint8)
+                rgb = srgb8(read_image(f)[..., :3])
                 if first is None:
                     first = rgb.shape
                     h, w = rgb.shape[0] + rgb.shape[0] % 2, rgb.shape[1] + rgb.shape[1] % 2

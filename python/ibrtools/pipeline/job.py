@@ -37,6 +37,10 @@ from ibrtools.pipeline import distributed as D
 from ibrtools import methods
 from ibrtools.inpaint.complete import (DEFAULT_INPAINT, INPAINT_FILLS, NOTHING_TO_FILL, check_inpaint, complete, completion,
                        parse_background)
+from ibrtools.cache import STAGES, stale_reasons
+from ibrtools.formats import native
+from ibrtools.imageio import linear_to_srgb
+from ibrtools.metrics import compare, psnr
 
 
 @dataclass
@@ -201,8 +205,6 @@ def holdout_note(scene: Scene, held: list[str], method: str) -> str | None:
     every view of the scene, the held-out ones too (a mesh fused from their depth, a texture baked
     from their colours), so the figures on them are optimistic. None otherwise. The render report
     and ibr-bench's JSON carry it as "holdout_note" and the commands print it."""
-    from ibrtools.cache import STAGES
-
     held = list(held)
     read = [n for n, st in STAGES.items()
             if method in st.methods and "outputs" in (scene.stages.get(n) or {})]
@@ -218,12 +220,10 @@ def holdout_note(scene: Scene, held: list[str], method: str) -> str | None:
 
 def stale_note(scene: Scene, method: str) -> str | None:
     """One line when a preprocessing stage ``method`` reads is out of date in ``scene``
-    (``stages.stale_reasons``: its code's version changed, or a stage it reads re-ran after it,
+    (``cache.stale_reasons``: its code's version changed, or a stage it reads re-ran after it,
     e.g. ``ibr-preprocess --stages mesh`` alone), naming the command that brings it up to date.
     The output still loads and is used as it is. None otherwise. The render report and
     ibr-bench's JSON carry it as "stale_note" and the commands print it as a warning."""
-    from ibrtools.cache import STAGES, stale_reasons
-
     stale = {n: r for n, st in STAGES.items() if method in st.methods
              for r in [stale_reasons(scene.stages, n)] if r}
     if not stale:
@@ -286,8 +286,6 @@ def _frame_metrics(color: np.ndarray, hole: np.ndarray | None, filled: bool, tru
     """The frame's scores: "psnr", "ssim", "flip" of the image as written, "psnr_covered" /
     "ssim_covered" over the pixels the method or the background covered, "coverage" (that
     fraction) and "filled" (the fraction the inpainting filled)."""
-    from ibrtools.metrics import compare
-
     m: dict = {}
     if truth is not None and truth.has_color:
         m = compare(color, truth.color, hole_mask=hole, mask=truth.mask if truth.has_mask else None)
@@ -602,9 +600,6 @@ def frame_warnings(entry: dict, hole: np.ndarray | None, note: str | None) -> li
 
 def _psnr_in(color: np.ndarray, truth: np.ndarray, region: np.ndarray) -> float | None:
     """PSNR (sRGB, peak 1) inside the filled holes; None when not finite (JSON has no inf)."""
-    from ibrtools.imageio import linear_to_srgb
-    from ibrtools.metrics import psnr
-
     if truth.shape != color.shape:
         return None
     v = psnr(linear_to_srgb(color), linear_to_srgb(np.asarray(truth, np.float32)), 1.0, mask=region)
@@ -641,8 +636,6 @@ def _prepared(spec: dict, scene_frame: str | None = None):
     """(job, method, setup_ms, prepared_now) for ``spec`` (and, in a video scene, its frame
     ``scene_frame``) on this worker, prepared once."""
     from ibrtools import _core
-    from ibrtools.formats import native
-    from ibrtools import methods
 
     frame_stamp = D.scene_stamp(Path(spec["root"]) / "frames" / scene_frame) if scene_frame else None
     key = json.dumps([spec["root"], spec["stamp"], spec["plan"], spec["method"], spec["params"],

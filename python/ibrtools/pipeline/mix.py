@@ -18,7 +18,7 @@ from ibrtools.scene import Scene
 # The mix stage (docs/hybrid.md "Twelfth round"): the floors tried, and how much better than the
 # smallest a floor must do to be taken (mean PSNR over the held-out input views). The fit renders
 # with the hybrid's defaults: a change to them, or to these, changes what the stage writes (bump
-# its version in stages.STAGES).
+# its version in cache.STAGES).
 MIX_FLOORS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)
 
 

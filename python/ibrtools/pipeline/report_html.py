@@ -22,6 +22,9 @@ from pathlib import Path
 import numpy as np
 
 from ibrtools.errors import BadValueError, ShapeError
+from ibrtools.imageio import srgb8
+from ibrtools.imageio import atomic_path, linear_to_srgb, read_image
+from ibrtools.metrics import flip, flip_available
 
 MAX_FRAMES = 24
 MAX_WIDTH = 640
@@ -77,14 +80,6 @@ def shrink(image: np.ndarray, max_width: int = MAX_WIDTH) -> np.ndarray:
     return a.reshape(h // f, f, w // f, f, *a.shape[2:]).mean(axis=(1, 3))
 
 
-def to_srgb8(linear: np.ndarray) -> np.ndarray:
-    """Linear float RGB -> 8-bit sRGB (NaN as 0)."""
-    from ibrtools.imageio import linear_to_srgb
-
-    a = np.nan_to_num(np.asarray(linear, np.float32)[..., :3], nan=0.0, posinf=1.0, neginf=0.0)
-    return np.clip(np.rint(linear_to_srgb(np.clip(a, 0.0, 1.0)) * 255.0), 0, 255).astype(np.uint8)
-
-
 def colormap(values: np.ndarray, vmax: float) -> np.ndarray:
     """Values in [0, vmax] -> magma RGB uint8 (clipped)."""
     t = np.clip(np.nan_to_num(np.asarray(values, np.float64) / max(vmax, 1e-12)), 0.0, 1.0) * (len(_MAGMA) - 1)
@@ -97,9 +92,6 @@ def error_map(rendered: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, str,
     """(map (H, W), kind, colour-scale maximum): FLIP's per-pixel error (scale 0..1) when
     flip-evaluator is installed, else the mean absolute sRGB error over the channels (scale 0
     to its 99th percentile, at least 1/255)."""
-    from ibrtools.imageio import linear_to_srgb
-    from ibrtools.metrics import flip, flip_available
-
     r = np.nan_to_num(np.asarray(rendered, np.float32)[..., :3])
     t = np.nan_to_num(np.asarray(truth, np.float32)[..., :3])
     if r.shape != t.shape:
@@ -138,12 +130,12 @@ def frame_panel(name: str, rendered: np.ndarray | None, truth: np.ndarray | None
     [0, 1], hybrid methods; ``hole``: bool (H, W))."""
     p = FramePanel(str(name), stage_ms=dict(stage_ms or {}), numbers=dict(numbers or {}), note=note)
     if rendered is not None:
-        p.rendered = to_srgb8(shrink(rendered, max_width))
+        p.rendered = srgb8(np.asarray(shrink(rendered, max_width), np.float32)[..., :3])
         if truth is not None and np.asarray(truth).shape[:2] == np.asarray(rendered).shape[:2]:
             # The map compares the images as shown (shrunk): FLIP costs ~0.6 s per 640x480 frame
             # on this machine, ~4 s at 1080p; report.json keeps the full-resolution scores.
             small_r, small_t = shrink(rendered, max_width), shrink(truth, max_width)
-            p.truth = to_srgb8(small_t)
+            p.truth = srgb8(np.asarray(small_t, np.float32)[..., :3])
             emap, p.error_kind, p.error_max = error_map(small_r, small_t)
             p.error = colormap(emap, p.error_max)
     if selection is not None:
@@ -299,8 +291,6 @@ def check_output(path: str | os.PathLike, flag: str = "--report-html") -> Path:
 
 
 def write_page(path: str | os.PathLike, text: str) -> Path:
-    from ibrtools.imageio import atomic_path
-
     path = Path(path)
     try:
         with atomic_path(path) as tmp:
@@ -321,8 +311,6 @@ def render_report(report: dict, out_dir: str | os.PathLike, path: str | os.PathL
     """The page of an ``ibr-render`` run: ``report`` as in report.json, images read from
     ``out_dir``; ``truths`` maps frame names to ground-truth linear images (or callables giving
     them) for the error maps. Returns the page's path."""
-    from ibrtools.imageio import read_image
-
     out_dir = Path(out_dir)
     truths = truths or {}
     frames = list(report.get("frames") or [])
@@ -379,8 +367,6 @@ def render_report(report: dict, out_dir: str | os.PathLike, path: str | os.PathL
 
 
 def _read_mask(path: Path) -> np.ndarray | None:
-    from ibrtools.imageio import read_image
-
     if not path.is_file():
         return None
     m = read_image(path)

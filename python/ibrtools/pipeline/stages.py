@@ -20,10 +20,26 @@ from pathlib import Path
 
 import numpy as np
 
-from ibrtools.errors import BadValueError, InputError, MissingFileError, NotBuiltError
+from ibrtools.cache import (available_stages, CACHE_DIR, default_methods, existing_record, file_hash, hash_inputs,
+                            load_npz, mvs_key, ORDER, output_intact, output_stats, read_doc, save_npz,
+                            scene_content_key, stage_key, STAGES, stale_reasons, view_depths, with_stage_depth,
+                            VIEW_ONLY_METHODS, write_stage_record)
+from ibrtools.errors import BadValueError, InputError
 from ibrtools.scene import Scene
-from ibrtools.cache import (ALL_METHODS, CACHE_DIR, ORDER, SCENE_FILE, STAGES, Stage,  # noqa: F401 (re-exported)
-                            missing_depth_error, mvs_arrays, stage_output, available_stages, existing_record, file_hash, hash_inputs, load_npz, mvs_key, output_intact, output_stats, read_doc, save_npz, scene_content_key, stage_key, stale_reasons, view_depths, with_stage_depth, write_stage_record)
+from ibrtools.dibr.view_selection import outlier_limits
+from ibrtools.formats import load as load_dataset, native
+from ibrtools.formats.resize import check_factors
+from ibrtools.hybrid import atlas as A, harmonise as H
+from ibrtools.hybrid.gainmodel import exposure_gains
+from ibrtools.hybrid.globalmesh import (GlobalMeshOptions, build_global_mesh, build_render_mesh, check_fusion_memory,
+                                       choose_source, depth_from_mesh, vertex_colors)
+from ibrtools.hybrid.pvm import PvmOptions, build_tiles, view_mesh
+from ibrtools.hybrid import variance as V
+from ibrtools.mesh import Mesh
+from ibrtools.outputs import scene_lock
+from ibrtools.pipeline import distributed as D
+from ibrtools.pipeline.distributed import check_options, set_task_threads
+from ibrtools.pipeline.mix import MIX_DEFAULTS, fit_pvm_floor
 
 # Bump when the import code changes what it writes, so that old scenes are rebuilt.
 IMPORT_STAGE_VERSION = 2  # 2: the background at infinity (depth +inf) of synthetic and nerf scenes
@@ -58,10 +74,6 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
     ``downscale`` / ``max_size``: every view resized on import (``formats.resize``; data sets only:
     a synthetic scene is made at its ``--size``). The import's summary (``source["adapted"]`` and
     ``source["warnings"]``, what the importer adapted) is in the result's details."""
-    from ibrtools.formats import load as load_dataset
-    from ibrtools.formats import native
-    from ibrtools.formats.resize import check_factors
-
     options = dict(options or {})
     output = Path(output)
     held = list(dict.fromkeys(holdout or []))
@@ -168,8 +180,6 @@ def depth_outlier_warning(views) -> str | None:
     the valid values above twice the 99th percentile: ``render.view_selection.outlier_limits``, the
     rule view selection leaves them out by), or None. A sensor's invalid code read as depth (7-Scenes' 65535 mm = 65.5 m in a 3 m room)
     is the usual cause: the user learns it at import, with the options that mark it unknown."""
-    from ibrtools.dibr.view_selection import outlier_limits
-
     hits = []  # (share of the view's valid pixels, name, largest value, the limit)
     n = 0
     for v in views:
@@ -223,44 +233,6 @@ def hold_out(scene: Scene, names: list[str]) -> Scene:
 # time); hybrid all of it plus the harmonised images.
 
 
-VIEW_ONLY_METHODS = ("reference", "dibr", "warp", "depthwarp")
-
-
-def default_methods() -> list[str]:
-    """``--methods`` default (``auto``): the methods that work from the views alone (reference,
-    dibr, warp, depthwarp), so that a plain ``ibr-preprocess`` is the import alone and stays fast
-    (``make demo``). tm / ulr / pvm / hybrid are prepared when named (or with ``all``); their
-    render methods say which stage to run when its output is missing."""
-    return list(VIEW_ONLY_METHODS)
-
-
-def parse_methods(text: str | None) -> list[str]:
-    if text is None or text == "auto":
-        return default_methods()
-    if text == "all":
-        return list(ALL_METHODS)
-    out = [t.strip() for t in text.split(",") if t.strip()]
-    bad = [m for m in out if m not in ALL_METHODS]
-    if bad or not out:
-        raise BadValueError(f"--methods {text!r}: expected a comma-separated list of {', '.join(ALL_METHODS)} "
-                            "(or 'auto', 'all')")
-    return out
-
-
-def parse_stages(text: str | None) -> list[str] | None:
-    if text is None:
-        return None
-    out = [t.strip() for t in text.split(",") if t.strip()]
-    known = list(ORDER)
-    bad = [s for s in out if s not in known]
-    if bad or not out:
-        raise BadValueError(f"--stages {text!r}: expected a comma-separated list of {', '.join(known)}")
-    absent = [s for s in out if s not in available_stages()]
-    if absent:
-        raise NotBuiltError(f"--stages: {', '.join(absent)} not built yet")
-    return out
-
-
 # The stages that read _Context.vertex_statistics (released once none is left to run).
 _READS_STATISTICS = frozenset({"texture", "variance"})
 
@@ -270,8 +242,6 @@ class _Context:
     the Dask cluster of a distributed run (``cluster``: a distributed.LazyClient, or None)."""
 
     def __init__(self, root: Path, options: dict, cluster=None):
-        from ibrtools.formats import native
-
         self.root = root
         self.scene: Scene = native.load(root)
         self.options = options
@@ -308,8 +278,6 @@ class _Context:
 
     def mesh(self):
         """The dense global mesh (per-vertex statistics)."""
-        from ibrtools.mesh import Mesh
-
         d = self.get("mesh")
         return Mesh(d["vertices"], d["faces"], object_ids=d["object_ids"], kind="reconstructed")
 
@@ -317,11 +285,9 @@ class _Context:
         """``variance.vertex_statistics`` of the views on the render mesh (``render``, the texture
         stage's gains) or the dense mesh (the variance stage), computed once per run: when the mesh
         stage stored no separate render mesh (a fused mesh, lego's) the two stages share one pass."""
-        from ibrtools.hybrid.variance import vertex_statistics
-
         key = "render" if render and "render_vertices" in self.get("mesh") else "dense"
         if key not in self._stats:
-            self._stats[key] = vertex_statistics(self.scene, self.render_mesh() if key == "render" else self.mesh())
+            self._stats[key] = V.vertex_statistics(self.scene, self.render_mesh() if key == "render" else self.mesh())
         return self._stats[key]
 
     def release_statistics(self) -> None:
@@ -329,8 +295,6 @@ class _Context:
 
     def render_mesh(self):
         """The render mesh (G-buffer, atlas): the dense mesh when the mesh stage stored no other."""
-        from ibrtools.mesh import Mesh
-
         d = self.get("mesh")
         if "render_vertices" not in d:
             return self.mesh()
@@ -338,9 +302,6 @@ class _Context:
 
 
 def _params(name: str, options: dict) -> dict:
-    from ibrtools.hybrid.globalmesh import GlobalMeshOptions
-    from ibrtools.hybrid.pvm import PvmOptions
-
     if name in ("mesh", "texture", "depth"):
         o = GlobalMeshOptions(**options.get("mesh", {})).to_dict()
         if name == "mesh":
@@ -361,8 +322,6 @@ def _params(name: str, options: dict) -> dict:
 
 
 def _run_mesh(ctx: _Context) -> dict:
-    from ibrtools.hybrid.globalmesh import GlobalMeshOptions, build_global_mesh, build_render_mesh
-
     opts = GlobalMeshOptions(**ctx.options.get("mesh", {}))
     scene = ctx.mvs_scene()  # photographs: their multi-view stereo depth is fused
     mesh, rec = build_global_mesh(scene, opts)
@@ -434,7 +393,6 @@ def _mvs_on_workers(ctx: _Context):
 def _mvs_task(root: str, names: list[str], options: dict, which: str, threads: int) -> dict:
     """Dask task of the mvs stage: pass ``which`` ("photometric", or "geometric" from the
     photometric results the stage put in its cache) of views ``names``."""
-    from ibrtools.pipeline.distributed import set_task_threads
     from ibrtools.mvs import MvsOptions
     from ibrtools.mvs.stereo import MvsRun
 
@@ -465,8 +423,6 @@ def _served_by_views(ctx: _Context) -> str | None:
 
 
 def _run_depth(ctx: _Context) -> dict:
-    from ibrtools.hybrid.globalmesh import depth_from_mesh
-
     cams = {v.name: v.camera for v in ctx.scene.views if not v.has_depth}
     if ctx.cluster is not None:  # per view: chunks of views on the workers, each loads the mesh
         deps = ctx.cluster.map_views(_depth_task, ctx.root, list(cams), ctx.options)
@@ -478,10 +434,6 @@ def _run_depth(ctx: _Context) -> dict:
 
 
 def _run_texture(ctx: _Context) -> dict:
-    from ibrtools.hybrid import atlas as A
-    from ibrtools.hybrid.gainmodel import exposure_gains
-    from ibrtools.hybrid.globalmesh import GlobalMeshOptions, choose_source, vertex_colors
-
     opts = GlobalMeshOptions(**ctx.options.get("mesh", {}))
     # A fused mesh blends more views on smoothed normals (GlobalMeshOptions.texture_options).
     opts = opts.texture_options(choose_source(ctx.scene, opts.source))
@@ -540,8 +492,6 @@ def _run_variance(ctx: _Context) -> dict:
 
 
 def _run_harmonise(ctx: _Context) -> dict | str:
-    from ibrtools.hybrid import harmonise as H
-
     opts = ctx.options.get("harmonise") or {}
     params = H.HarmoniseParams(**opts) if opts and hasattr(H, "HarmoniseParams") else None
     var = ctx.get("variance")
@@ -568,9 +518,6 @@ def _run_harmonise(ctx: _Context) -> dict | str:
 
 def _depth_task(root: str, names: list[str], options: dict, threads: int) -> dict:
     """Dask task of the depth stage: depth of views ``names`` rendered from the stage's mesh."""
-    from ibrtools.pipeline.distributed import set_task_threads
-    from ibrtools.hybrid.globalmesh import depth_from_mesh
-
     set_task_threads(threads)
     ctx = _Context(Path(root), options)
     return depth_from_mesh(ctx.mesh(), {n: ctx.scene.view(n).camera for n in names})
@@ -578,9 +525,6 @@ def _depth_task(root: str, names: list[str], options: dict, threads: int) -> dic
 
 def _pvm_task(root: str, names: list[str], options: dict, threads: int) -> dict:
     """Dask task of the pvm stage: the per-view meshes of views ``names``."""
-    from ibrtools.pipeline.distributed import set_task_threads
-    from ibrtools.hybrid.pvm import PvmOptions, view_mesh
-
     set_task_threads(threads)
     ctx = _Context(Path(root), options)
     opts = PvmOptions(**options.get("pvm", {}))
@@ -595,8 +539,6 @@ def _pvm_mesh_depths(ctx: _Context, names: list[str], snap: float) -> dict:
     """The global mesh's depth in each of the views ``names`` that has its own depth, for snapping
     the per-view meshes (hybrid/pvm.py view_mesh; {} when ``snap`` is 0). Views without their own
     depth have the mesh's already (the depth stage)."""
-    from ibrtools.hybrid.globalmesh import depth_from_mesh
-
     own = [n for n in names if ctx.scene.view(n).has_depth]
     if snap <= 0 or not own:
         return {}
@@ -610,8 +552,6 @@ def _pvm_snap(ctx: _Context, opts) -> float:
 
 
 def _run_pvm(ctx: _Context) -> dict:
-    from ibrtools.hybrid.pvm import PvmOptions, build_tiles
-
     opts = PvmOptions(**ctx.options.get("pvm", {}))
     cams = ctx.cameras()
     snap = _pvm_snap(ctx, opts)
@@ -630,8 +570,6 @@ def _run_pvm(ctx: _Context) -> dict:
 
 
 def _run_mix(ctx: _Context) -> dict | str:
-    from ibrtools.pipeline.mix import MIX_DEFAULTS, fit_pvm_floor
-
     opts = {**MIX_DEFAULTS, **ctx.options.get("mix", {})}
     res = fit_pvm_floor(ctx.scene, views=opts["views"], tol_db=opts["tol_db"])
     if isinstance(res, str):
@@ -652,8 +590,6 @@ _SERVES = {"mesh": _served_by_views, "depth": _served_by_views}
 def _check_mesh(ctx: _Context) -> None:
     """Before the mesh stage is announced: TSDF fusion's memory estimate (a refusal is then the
     command's only line; build_global_mesh checks it again for the Python API)."""
-    from ibrtools.hybrid.globalmesh import GlobalMeshOptions, check_fusion_memory, choose_source
-
     opts = GlobalMeshOptions(**ctx.options.get("mesh", {}))
     scene = ctx.mvs_scene()
     if choose_source(scene, opts.source) == "fusion":
@@ -699,8 +635,6 @@ def run_stages(root: str | os.PathLike, *, methods: list[str] | None = None, sta
     texture, variance, harmonise, the PVM tiling) run here. The cluster is started only when such
     a stage runs; outputs are the same, bit for bit (docs/distributed.md). ``threads``: engine
     threads per task (default 1: a Dask worker thread is a core)."""
-    from ibrtools.pipeline import distributed as D
-
     D.check_options(scheduler, workers)
     root = Path(root)
     options = dict(options or {})
@@ -818,38 +752,6 @@ def _run_planned(root: Path, options: dict, wanted: list[str], why: dict, avail:
     return results
 
 
-def parse_options(pairs: list[str] | None) -> dict:
-    """``key=value`` strings (``--opt``) into a dict; numbers stay strings (importers convert)."""
-    out: dict = {}
-    for p in pairs or []:
-        if "=" not in p or not p.split("=", 1)[0]:
-            raise InputError(f"--opt {p!r}: expected key=value")
-        k, v = p.split("=", 1)
-        out[k.strip()] = v.strip()
-    return out
-
-
-def parse_stage_options(pairs: list[str] | None) -> dict:
-    """``STAGE.KEY=VALUE`` strings (``--set``) into {stage: {key: value}}; values are read as JSON
-    when they parse (numbers, true/false), else kept as strings."""
-    out: dict = {}
-    for p in pairs or []:
-        if "=" not in p or "." not in p.split("=", 1)[0]:
-            raise InputError(f"--set {p!r}: expected STAGE.KEY=VALUE, e.g. pvm.max_block=8")
-        k, v = p.split("=", 1)
-        stage, key = k.strip().split(".", 1)
-        if stage not in STAGES:
-            raise InputError(f"--set {p!r}: unknown stage {stage!r} (expected one of {', '.join(STAGES)})")
-        try:
-            value = json.loads(v)
-        except ValueError:
-            value = v.strip()
-        out.setdefault(stage, {})[key.strip()] = value
-    if "texture" in out or "depth" in out:
-        raise InputError("--set: texture and depth read their parameters from mesh.* (e.g. mesh.k_views=4)")
-    return out
-
-
 def preprocess(input_spec: str, output: str | os.PathLike, *, fmt: str | None = None,
                options: dict | None = None, synth: dict | None = None, force: bool = False,
                methods: list[str] | None = None, stages: list[str] | None = None,
@@ -862,11 +764,6 @@ def preprocess(input_spec: str, output: str | os.PathLike, *, fmt: str | None = 
     per-view stages on Dask (:func:`run_stages`). ``holdout``: input views imported as targets,
     ``mesh``: a user's reconstructed mesh imported with the views, ``downscale`` / ``max_size``: the
     views resized on import (:func:`run_import`)."""
-    from ibrtools.pipeline.distributed import check_options
-    from ibrtools.outputs import scene_lock
-
-    from ibrtools.formats.resize import check_factors
-
     check_options(scheduler, workers)
     check_factors(downscale, max_size)  # usage errors before the scene directory is touched
     if stages is not None:
@@ -897,9 +794,6 @@ def preprocess(input_spec: str, output: str | os.PathLike, *, fmt: str | None = 
 
 def _check_stage_options(options: dict) -> None:
     """Fail on unknown parameters before any work is done."""
-    from ibrtools.hybrid.globalmesh import GlobalMeshOptions
-    from ibrtools.hybrid.pvm import PvmOptions
-
     from ibrtools.mvs import MvsOptions
 
     classes = {"mesh": GlobalMeshOptions, "pvm": PvmOptions, "mvs": MvsOptions}

@@ -31,6 +31,7 @@ from ibrtools.pipeline import job as J
 from ibrtools.pipeline.report_html import FramePanel, data_uri, esc, page, panel_html, table, write_page
 from ibrtools import methods
 from ibrtools.inpaint.complete import DEFAULT_INPAINT, check_inpaint, complete, completion
+from ibrtools.imageio import atomic_path
 
 
 def _value(text: str):
@@ -147,8 +148,6 @@ def pareto(rows: list[dict], x: str = "median_ms", y: str = "mean_flip") -> list
 
 
 def write_outputs(rows: list[dict], keys: list[str], out_dir: Path, title: str = "") -> None:
-    from ibrtools.imageio import atomic_path
-
     out_dir.mkdir(parents=True, exist_ok=True)
     cols = list(rows[0]) if rows else []
     with atomic_path(out_dir / "sweep.csv") as tmp:
@@ -203,8 +202,6 @@ def bench_report(rows: list[dict], keys: list[str], out_dir: str | os.PathLike, 
     """The page of an ``ibr-bench`` sweep: the run-time-against-error plot (``plot``, PNG file,
     embedded), the table of configurations (best FLIP first, Pareto front marked) and the frames
     of one configuration (``panels``, of configuration ``panels_config``)."""
-    from ibrtools.pipeline.sweep import pareto
-
     out_dir = Path(out_dir)
     body = []
     plot = Path(plot) if plot is not None else out_dir / "sweep.png"

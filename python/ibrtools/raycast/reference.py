@@ -44,6 +44,7 @@ from ibrtools.camera import Camera
 from ibrtools.checks import check_float
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
 from ibrtools.mesh import Mesh
+from ibrtools.checks import check_int
 
 OUTPUTS = ("color", "depth", "distance", "normal", "object_id", "prim_id", "bary", "hit")
 LIGHT_KINDS = ("point", "directional")
@@ -206,8 +207,6 @@ class ReferenceRenderer:
         object id of the ground; the *last* of the L layers is then the depth of that object alone
         (rays against its faces only), the first L - 1 are peeled (the paper's sec. 4.1 set-up).
         """
-        from ibrtools.checks import check_int
-
         core_cam = self._core_camera(camera)
         layers = check_int(layers, "layers", 1)
         umbra_radius = check_float(umbra_radius, "umbra_radius", 0.0)
