@@ -117,6 +117,20 @@ def test_spiral_looks_at_its_focus_at_the_llff_distance():
     assert spread.min() > 0 and spread.max() < 2 * np.linalg.norm(np.array([c.centre for c in cams]) - mean, axis=1).max()
 
 
+def test_spiral_without_depth_focuses_where_the_axes_meet():
+    """Photographs only (no depth, no mesh): the focus is the point of the mean optical axis
+    nearest LOOK, where every input looks."""
+    cams = _rig(6)
+    scene = _scene(cams)
+    assert depth_range(scene, cams) is None
+    path, focus = spiral(scene, 12)
+    _looks_at(path, focus)
+    mean = np.mean([c.centre for c in cams], 0)
+    fwd = (focus - mean) / np.linalg.norm(focus - mean)
+    assert np.linalg.norm(focus - mean) == pytest.approx(float((LOOK - mean) @ fwd), rel=1e-9)
+    assert np.linalg.norm(np.cross(LOOK - mean, fwd)) < 0.2 * np.linalg.norm(LOOK - mean)
+
+
 def test_spiral_of_one_view_without_depth_is_finite():
     """No spread to take a radius from: a circle of a tenth of the focus distance (two turns: 8
     frames are 4 places)."""

@@ -12,7 +12,9 @@
   mean centre, the depth oscillating at half the turn rate, every camera looking at the focus
   point on the mean optical axis at LLFF's focus distance ``1 / ((1 - 0.75) / near + 0.75 /
   far)`` with ``near = 0.9 x`` the 1st percentile and ``far = 5 x`` the 99th percentile of the
-  scene's depth as the input cameras see it (depth maps, else the mesh, else the scene bounds).
+  scene's depth as the input cameras see it (depth maps, else the mesh); a scene with neither
+  focuses where the optical axes meet. Meant for forward-facing captures (LLFF): around an
+  object captured from all sides the mean pose is inside the scene; use ``orbit`` there.
 * ``orbit``: one turn of a circle around the scene's centre (the least-squares closest point of
   the input cameras' optical axes, or the centre of the scene bounds when the axes are near
   parallel or that point lies behind the cameras) at the inputs' mean distance from the
@@ -291,26 +293,35 @@ def _point_depths(points: np.ndarray, cameras: Sequence[Camera], inside: bool) -
     return np.concatenate(zs) if zs else np.zeros(0)
 
 
-def depth_range(scene: Scene, cameras: Sequence[Camera]) -> tuple[float, float]:
+def depth_range(scene: Scene, cameras: Sequence[Camera]) -> tuple[float, float] | None:
     """(near, far): the DEPTH_PERCENTILES of the depth the input cameras see: their depth maps,
-    else the z of the mesh's vertices inside each camera's image, else the z of the scene bounds'
-    corners (and of the point the optical axes meet) in front of the cameras; (0.1, 10) times the
-    scene's scale when none of these gives a depth."""
+    else the z of the mesh's vertices inside each camera's image; None when the scene has
+    neither (a capture of photographs only, before the mvs stage)."""
     z = _view_depths(scene)
     if z is None and scene.mesh is not None and len(scene.mesh.vertices):
         vert = np.asarray(scene.mesh.vertices, dtype=np.float64)
         z = _point_depths(vert[::max(1, len(vert) // DEPTH_SAMPLES)], cameras, inside=True)
     if z is None or not len(z):
-        b = scene.bounds()
-        pts = np.array([[b[i, 0], b[j, 1], b[k, 2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
-        x = axes_point(cameras)
-        z = _point_depths(pts if x is None else np.vstack([pts, x[None]]), cameras, inside=False)
-    if len(z):
-        near, far = (float(v) for v in np.percentile(z, DEPTH_PERCENTILES))
-        if near > 0 and far >= near and math.isfinite(far):
-            return near, far
-    s = _scale(cameras, scene)
-    return 0.1 * s, 10.0 * s
+        return None
+    near, far = (float(v) for v in np.percentile(z, DEPTH_PERCENTILES))
+    return (near, far) if near > 0 and far >= near and math.isfinite(far) else None
+
+
+def focus_distance(scene: Scene, cameras: Sequence[Camera], centre: np.ndarray, forward: np.ndarray) -> float:
+    """The spiral's focus distance from ``centre`` along ``forward``: LLFF's
+    ``1 / ((1 - dt) / near + dt / far)`` of the margined :func:`depth_range`; without any depth,
+    the distance along ``forward`` to the point the optical axes meet (:func:`axes_point`); else
+    the scene's scale (the spread of the input centres)."""
+    rng = depth_range(scene, cameras)
+    if rng is not None:
+        near, far = SPIRAL_NEAR_MARGIN * rng[0], SPIRAL_FAR_MARGIN * rng[1]
+        return 1.0 / ((1.0 - SPIRAL_DT) / near + SPIRAL_DT / far)
+    x = axes_point(cameras)
+    if x is not None:
+        d = float((x - centre) @ forward)
+        if d > 1e-9:
+            return d
+    return _scale(cameras, None)
 
 
 def spiral(scene: Scene, frames: int = DEFAULT_FRAMES, cameras: Sequence[Camera] | None = None
@@ -325,9 +336,7 @@ def spiral(scene: Scene, frames: int = DEFAULT_FRAMES, cameras: Sequence[Camera]
     mean_c = centres.mean(0)
     r_cw = mean_rotation([c.cam_from_world[:3, :3] for c in cams])  # world -> mean camera
     fwd = r_cw[2]
-    near, far = depth_range(scene, cams)
-    near, far = SPIRAL_NEAR_MARGIN * near, SPIRAL_FAR_MARGIN * far
-    focal = 1.0 / ((1.0 - SPIRAL_DT) / near + SPIRAL_DT / far)
+    focal = focus_distance(scene, cams, mean_c, fwd)
     focus = mean_c + focal * fwd
     rads = np.percentile(np.abs((centres - mean_c) @ r_cw.T), SPIRAL_PERCENTILE, axis=0)
     if not float(rads[:2].max()) > 1e-9 * max(focal, 1e-300):
