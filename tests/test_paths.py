@@ -270,7 +270,7 @@ def _bad(tmp_path, name: str, text: str):
     (["--path", "nope"], "--path 'nope': not a path of the scene (stored: none; generated: interpolate, spiral, orbit)"),
     (["--path", "spiral", "--path-frames", "1"], "--path-frames: expected an integer >= 2, got 1"),
     (["--path-frames", "5", "--holdout", "v001"], "--path-frames: only with --path"),
-    (["--poses", "{tmp}/ns.json"], "ns.json: 'render_height': expected a positive integer"),
+    (["--poses", "{tmp}/ns.json"], "ns.json: 'render_height': expected an integer in [1, 65536]"),
     (["--poses", "{tmp}/ns2.json"], "ns2.json: camera_path[0].camera_to_world: expected a 4x4 matrix"),
     (["--poses", "{tmp}/ns3.json"], "ns3.json: camera_path[0]: 'fov'"),
     (["--poses", "{tmp}/other.json"], "other.json: expected a non-empty JSON list of cameras"),
@@ -306,3 +306,36 @@ def test_interpolate_of_a_one_view_scene_is_a_one_line_error(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert "--path interpolate: needs at least 2 input views, the scene has 1" in err and len(err.splitlines()) == 1
     assert not out.exists() or not any(out.iterdir())
+
+
+# --- fuzzing the pose-file readers ----------------------------------------------------------------
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from ibrtools.errors import InputError  # noqa: E402
+
+_VALUES = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10**400, 10**400), st.none(),
+                    st.booleans(), st.text(max_size=5), st.lists(st.floats(), max_size=17),
+                    st.just([[1, 0, 0, 0]] * 4), st.just({"x": 1}))
+
+
+@settings(max_examples=60, deadline=None, derandomize=True, database=None, suppress_health_check=list(HealthCheck))
+@given(data=st.data())
+def test_pose_files_with_any_values_are_input_errors(tmp_path_factory, data):
+    """A nerfstudio camera path or a transforms file with any value in any field: cameras or an
+    InputError (one line, exit 2), never another exception."""
+    eye = _gl_c2w(_rig(1)[0]).tolist()
+    ns = {"render_height": H, "render_width": W, "camera_path": [{"camera_to_world": eye, "fov": 50.0, "aspect": 1.3}]}
+    tf = {"fl_x": 50.0, "w": W, "h": H, "frames": [{"transform_matrix": eye}]}
+    doc = data.draw(st.sampled_from([ns, tf]))
+    inner = doc["camera_path" if "camera_path" in doc else "frames"][0]
+    target = data.draw(st.sampled_from([doc, inner]))
+    key = data.draw(st.sampled_from(sorted(target) + ["cx", "camera_angle_x", "camera_type", "file_path"]))
+    target[key] = data.draw(_VALUES)
+    f = tmp_path_factory.mktemp("fuzz") / "poses.json"
+    f.write_text(json.dumps(doc))
+    try:
+        for fr in read_poses(f):
+            assert np.all(np.isfinite(fr.camera.cam_from_world))
+    except InputError as e:
+        assert "\n" not in str(e) and "--poses" in str(e)

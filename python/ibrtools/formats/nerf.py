@@ -75,7 +75,7 @@ from typing import Callable
 
 import numpy as np
 
-from ibrtools.camera import Camera
+from ibrtools.camera import MAX_SIDE, Camera
 from ibrtools.errors import BadValueError, DtypeError, FormatError, MissingFileError, ShapeError
 from ibrtools.imageio import F32_MAX, read_depth, read_pixels, srgb_to_linear
 from ibrtools.scene import Scene, View
@@ -132,8 +132,11 @@ def resolve_image(base: Path, file_path: str) -> Path | None:
     rel = Path(file_path)
     for ext in IMAGE_EXTS:
         cand = base / (str(rel) + ext) if ext else base / rel
-        if cand.is_file():
-            return cand
+        try:
+            if cand.is_file():
+                return cand
+        except OSError:  # a name the file system cannot hold (too long): not there
+            continue
     return None
 
 
@@ -161,7 +164,7 @@ def _focal(m: dict, axis: str, size: int, where: str) -> float | None:
 def _number(d: dict, key: str, where: str) -> float:
     try:
         v = float(d[key])
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise FormatError(f"{where}: '{key}' is not a number ({d[key]!r})") from None
     if not math.isfinite(v):
         raise BadValueError(f"{where}: '{key}' is not finite ({d[key]!r})")
@@ -342,8 +345,10 @@ def frame_size(m: dict, where: str) -> tuple[int, int] | None:
         return None
     try:
         w, h = int(m["w"]), int(m["h"])
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise FormatError(f"{where}: 'w'/'h' are not integers ({m['w']!r}, {m['h']!r})") from None
+    if not (1 <= w <= MAX_SIDE and 1 <= h <= MAX_SIDE):
+        raise BadValueError(f"{where}: 'w'/'h' = {w}, {h}: expected image sides of 1 to {MAX_SIDE} pixels")
     return w, h
 
 

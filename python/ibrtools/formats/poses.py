@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from ibrtools.camera import Camera
+from ibrtools.camera import MAX_SIDE, Camera
 from ibrtools.errors import FormatError, MissingFileError
 from ibrtools.formats._common import image_size, named, read_json
 from ibrtools.formats.nerf import cam_from_gl, frame_camera, frame_size, resolve_image
@@ -62,8 +62,8 @@ def load(path: str | Path, flag: str = "--poses") -> list[tuple[str, Camera]]:
 
 def _positive_int(d: dict, key: str, where: str) -> int:
     v = d.get(key)
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not float(v).is_integer() or v < 1:
-        raise FormatError(f"{where}: '{key}': expected a positive integer, got {v!r}")
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not 1 <= v <= MAX_SIDE or not float(v).is_integer():
+        raise FormatError(f"{where}: '{key}': expected an integer in [1, {MAX_SIDE}], got {v!r}")
     return int(v)
 
 
@@ -71,7 +71,7 @@ def _matrix(m: Any, where: str) -> np.ndarray:
     """A 4x4 / 3x4 matrix given nested or flat row-major (16 or 12 numbers)."""
     try:
         a = np.array(m, dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise FormatError(f"{where}: expected a 4x4 matrix of numbers") from None
     if a.shape in ((16,), (12,)):
         a = a.reshape(-1, 4)
