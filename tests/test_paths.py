@@ -8,14 +8,18 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from ibrtools.camera import Camera, look_at
-from ibrtools.errors import BadValueError, FormatError
+from ibrtools.errors import BadValueError, FormatError, InputError
+from ibrtools.formats import native
 from ibrtools.formats.nerf import GL_TO_CV
 from ibrtools.paths import (DEFAULT_FRAMES, GENERATED, camera_path, depth_range, interpolate, orbit, path_names,
                             quat_from_matrix, spiral, spline)
 from ibrtools.pipeline.job import plan, read_poses
 from ibrtools.scene import Scene, View
+from ibrtools_cli import preprocess, render
 
 W, H = 96, 72
 LOOK = np.array([0.5, -0.2, 1.0])  # the point the test rig looks at
@@ -232,8 +236,6 @@ def test_transforms_pose_file_reads_as_the_nerf_importer(tmp_path):
 @pytest.fixture(scope="module")
 def capture(tmp_path_factory):
     """A synthetic scene with its stored paths removed: what an imported capture looks like."""
-    from ibrtools_cli import preprocess
-
     d = tmp_path_factory.mktemp("paths") / "scene"
     assert preprocess.main(["synth:objects", "-o", str(d), "--views", "6", "--size", f"{W}x{H}", "-q"]) == 0
     doc = json.loads((d / "scene.json").read_text())
@@ -243,9 +245,6 @@ def capture(tmp_path_factory):
 
 
 def test_render_interpolate_on_a_scene_without_paths(capture, tmp_path):
-    from ibrtools.formats import native
-    from ibrtools_cli import render
-
     out = tmp_path / "r"
     assert render.main([str(capture), "--method", "dibr", "--path", "interpolate", "--path-frames", "6",
                         "-o", str(out), "-q"]) == 0
@@ -276,8 +275,6 @@ def _bad(tmp_path, name: str, text: str):
     (["--poses", "{tmp}/other.json"], "other.json: expected a non-empty JSON list of cameras"),
 ])
 def test_render_bad_path_input(capture, tmp_path, capsys, argv, msg):
-    from ibrtools_cli import render
-
     eye = np.eye(4).tolist()
     _bad(tmp_path, "ns.json", json.dumps({"camera_path": [{"camera_to_world": eye, "fov": 50}]}))
     _bad(tmp_path, "ns2.json", json.dumps({"render_height": 10, "render_width": 10,
@@ -294,9 +291,6 @@ def test_render_bad_path_input(capture, tmp_path, capsys, argv, msg):
 
 
 def test_interpolate_of_a_one_view_scene_is_a_one_line_error(tmp_path, capsys):
-    from ibrtools.formats import native
-    from ibrtools_cli import render
-
     c = _rig(1)[0]
     scene = Scene(views=[View.create("only", c, color=np.full((H, W, 3), 0.5, np.float32),
                                      depth=np.full((H, W), 2.0, np.float32))])
@@ -309,11 +303,6 @@ def test_interpolate_of_a_one_view_scene_is_a_one_line_error(tmp_path, capsys):
 
 
 # --- fuzzing the pose-file readers ----------------------------------------------------------------
-from hypothesis import HealthCheck, given, settings  # noqa: E402
-from hypothesis import strategies as st  # noqa: E402
-
-from ibrtools.errors import InputError  # noqa: E402
-
 _VALUES = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10**400, 10**400), st.none(),
                     st.booleans(), st.text(max_size=5), st.lists(st.floats(), max_size=17),
                     st.just([[1, 0, 0, 0]] * 4), st.just({"x": 1}))

@@ -175,7 +175,7 @@ def spline(cameras: Sequence[Camera]) -> Callable[[float], np.ndarray]:
     rot = [cam.world_from_cam[:3, :3] for cam in cameras]
     q = _hemisphere([quat_from_matrix(r) for r in rot])
     s = _squad_controls(q)
-    # Catmull-Rom with phantom end points reflected through the ends (zero second derivative there).
+    # Catmull-Rom with phantom end points reflected through the ends: the end tangents along the end chords.
     p = np.vstack([2 * c[0] - c[1], c, 2 * c[-1] - c[-2]])
     k = len(cameras)
 
