@@ -228,6 +228,31 @@ def test_outputs_get_the_umask_mode(scene_dir, tmp_path, umask):
         assert d.stat().st_mode & 0o777 == 0o777 & ~umask, d
 
 
+_MODES = """
+import os, stat, sys
+from pathlib import Path
+import numpy as np
+from ibrtools.imageio import atomic_path, write_image
+from ibrtools.outputs import UMASK, mkdtemp_beside
+d = Path(sys.argv[1])
+with atomic_path(d / "new" / "a.json") as tmp:
+    tmp.write_text("{}")
+write_image(d / "new" / "b.png", np.zeros((2, 2, 3), np.float32))
+t = mkdtemp_beside(d / "c")
+print(oct(UMASK), *(oct(stat.S_IMODE(p.stat().st_mode)) for p in (d / "new" / "a.json", d / "new" / "b.png", t)))
+"""
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o077])
+def test_atomic_writes_get_the_umask_mode(tmp_path, umask):
+    """The one temporary-file writer (ibrtools.outputs.mkstemp_beside, under imageio.atomic_path)
+    gives 0666 & ~umask, its directories 0777 & ~umask, the umask read once at import."""
+    r = subprocess.run([sys.executable, "-c", _MODES, str(tmp_path)], capture_output=True, text=True,
+                       preexec_fn=lambda: os.umask(umask))
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split() == [oct(umask), oct(0o666 & ~umask), oct(0o666 & ~umask), oct(0o777 & ~umask)]
+
+
 def test_output_that_cannot_be_written_is_one_line(scene_dir, tmp_path, capsys):
     f = tmp_path / "file"
     f.write_text("x")

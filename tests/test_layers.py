@@ -14,7 +14,7 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
               "ibrtools.params")),
     ("model", ("ibrtools.camera", "ibrtools.mesh", "ibrtools.scene")),
     ("io", ("ibrtools.imageio", "ibrtools.meshio")),
-    ("formats / cache", ("ibrtools.formats", "ibrtools.cache")),
+    ("formats / cache", ("ibrtools.formats", "ibrtools.cache", "ibrtools.paths")),
     ("families", ("ibrtools.raycast", "ibrtools.metrics", "ibrtools.solvers", "ibrtools.synth", "ibrtools.dibr",
                   "ibrtools.depthwarp", "ibrtools.inpaint", "ibrtools.metamers", "ibrtools.hybrid",
                   "ibrtools.mvs")),

@@ -15,20 +15,23 @@ PROG = "ibr-render"
 def build_parser() -> argparse.ArgumentParser:
     from ibrtools.inpaint.complete import DEFAULT_INPAINT, INPAINT
     from ibrtools.methods import BUILT, METHODS
+    from ibrtools.paths import DEFAULT_FRAMES
 
     methods = "\n".join(f"  {k:<10} {v}{'' if k in BUILT or k == 'auto' else '  [not built yet]'}"
                         for k, v in METHODS.items())
     p = ArgumentParser(
         prog=PROG, formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Render new views of a scene (made by ibr-preprocess): named targets, held-out "
-                    "input views (removed from the inputs and used as ground truth), a stored camera "
-                    "path or a pose file. Writes <frame>.png per frame and report.json with per-frame "
+                    "input views (removed from the inputs and used as ground truth), a camera path "
+                    "(stored in the scene or generated from its input cameras) or a pose file. Writes <frame>.png per frame and report.json with per-frame "
                     "timings and, where ground truth exists, PSNR/SSIM/coverage.",
         epilog=f"methods:\n{methods}\n\n"
                "examples:\n"
                "  ibr-render scenes/objects --method reference --holdout v003 v009 -o out/holdout\n"
                "  ibr-render scenes/objects --target t000 t001 --depth --float -o out/targets\n"
                "  ibr-render scenes/objects --path orbit -o out/orbit -j 2\n"
+               "  ibr-render scenes/garden --method dibr --path interpolate --path-frames 120 -o out/fly\n"
+               "  ibr-render scenes/garden --method dibr --poses camera_path.json -o out/ns\n"
                "  ibr-render scenes/rgbd --method dibr --inputs 4 --holdout 4 -o out/dibr\n"
                "  ibr-render scenes/rgbd --method dibr --holdout 4 --inpaint none -o out/holes\n"
                "  ibr-render scenes/crowd --method depthwarp --path walk --layers 4 --seeds 16 --umbra -o out/dw\n"
@@ -49,8 +52,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--target", nargs="+", metavar="NAME", help="render these stored target cameras")
     p.add_argument("--holdout", nargs="+", metavar="NAME",
                    help="remove these input views from the inputs and render them as ground truth")
-    p.add_argument("--path", metavar="NAME", help="render every camera of this stored path")
-    p.add_argument("--poses", metavar="FILE", help="JSON list of cameras (scene.json camera format)")
+    p.add_argument("--path", metavar="NAME",
+                   help="render every camera of this path: one stored in the scene, else a generated one: "
+                        "interpolate (a smooth path through the input views in order), spiral (the LLFF "
+                        "spiral around the mean input pose) or orbit (a circle around the scene's centre); "
+                        "docs/render.md \"Camera paths\"")
+    p.add_argument("--path-frames", type=int, default=None, metavar="N",
+                   help=f"with a generated --path: its number of frames (default {DEFAULT_FRAMES}, at least 2)")
+    p.add_argument("--poses", metavar="FILE",
+                   help="render these cameras: a JSON list of cameras (scene.json camera format), a nerfstudio "
+                        "camera_path.json or a transforms.json (docs/render.md \"Pose files\")")
     lf = p.add_argument_group("light fields and video")
     lf.add_argument("--lightfield", metavar="NxM",
                     help="render an N (columns) x M (rows) grid of cameras around the centre camera")
@@ -142,7 +153,7 @@ def _body(args: argparse.Namespace) -> int:
     params = _params(args)
     scene = native.load(args.scene)
     job = render_job.plan(scene, targets=args.target, holdout=args.holdout, path=args.path,
-                          poses=args.poses, lightfield=lightfield)
+                          path_frames=args.path_frames, poses=args.poses, lightfield=lightfield)
     if video is not None:
         batches.check_same_size([f.camera for f in job.frames])
     warn_stale(PROG, scene, args.method, silent=args.quiet or args.json)

@@ -281,19 +281,21 @@ def preprocess(scene: str | os.PathLike[str], *, methods: list[str] | None = Non
 
 def render_job(scene: Scene, out_dir: str | os.PathLike[str], method: str = "auto", *,
                targets: list[str] | None = None, holdout: list[str] | None = None, path: str | None = None,
-               poses: str | os.PathLike[str] | None = None, params: dict[str, Any] | None = None,
+               path_frames: int | None = None, poses: str | os.PathLike[str] | None = None, params: dict[str, Any] | None = None,
                inpaint: str | None = None, background: str | None = None, float_out: bool = False,
                depth_out: bool = False, threads: int = 0, workers: int = 0,
                scheduler: str | None = None) -> dict[str, Any]:
     """Render many cameras as ``ibr-render`` does and write them to ``out_dir`` with report.json:
     the scene's targets (or ``targets`` by name), held-out input views scored against their own
-    images (``holdout``), a camera path of the scene (``path``) or a pose file (``poses``).
-    Returns the report (per-frame times per stage, metrics against ground truth when known;
+    images (``holdout``), a camera path (``path``: stored in the scene, else generated:
+    "interpolate", "spiral" or "orbit" of ``path_frames`` cameras, default 48; docs/render.md
+    "Camera paths") or a pose file (``poses``: our camera list, a nerfstudio camera_path.json or
+    a transforms.json). Returns the report (per-frame times per stage, metrics against ground truth when known;
     docs/render.md, docs/reports.md). All or nothing: an interrupt removes what the job wrote."""
     if not isinstance(scene, Scene):
         raise DtypeError(f"render_job: scene: expected an ibrtools.Scene, got {type(scene).__name__}")
     _check_path(out_dir, "render_job: out_dir")
-    planned = job.plan(scene, targets=targets, holdout=holdout, path=path,
+    planned = job.plan(scene, targets=targets, holdout=holdout, path=path, path_frames=path_frames,
                        poses=None if poses is None else os.fspath(poses))
     report: dict[str, Any] = job.run(planned, method, out_dir, params=params, float_out=float_out,
                                      depth_out=depth_out, threads=threads,

@@ -144,6 +144,13 @@ class View:
     def has_mask(self) -> bool:
         return self._mask.present
 
+    def __repr__(self) -> str:
+        """One line: the name, the camera's model and size, which images the view has (no
+        array is loaded or printed)."""
+        c = self.camera
+        has = [k for k, p in (("color", self.has_color), ("depth", self.has_depth), ("mask", self.has_mask)) if p]
+        return f"View({self.name!r}, {c.model} {c.width}x{c.height}, {'+'.join(has) or 'no images'})"
+
 
 def _check_image(v: np.ndarray, name: str, camera: Camera, what: str) -> np.ndarray:
     hw = (camera.height, camera.width)
@@ -192,6 +199,33 @@ class Scene:
     # How a frame's directory becomes a Scene: set by the loader that read this scene
     # (ibrtools.formats.native.load), so that the model does not depend on the formats.
     load_frame: Callable[[Path], "Scene"] | None = field(default=None, repr=False, compare=False)
+
+    def __repr__(self) -> str:
+        """A few lines summing the scene up: views (count, image sizes, how many with depth),
+        targets, meshes (kind and faces), paths (name and cameras), frames, stages recorded.
+        Never an array, never a file read (lazy images stay unloaded)."""
+        def sizes(vs: list[View]) -> str:
+            got: dict[str, int] = {}
+            for v in vs:
+                k = f"{v.camera.width}x{v.camera.height}"
+                got[k] = got.get(k, 0) + 1
+            return ", ".join(k if len(got) == 1 else f"{n} at {k}" for k, n in list(got.items())[:3]) + (
+                ", ..." if len(got) > 3 else "")
+
+        views = f"{len(self.views)} views" + (f" ({sizes(self.views)}; {sum(v.has_depth for v in self.views)} "
+                                              "with depth)" if self.views else "")
+        lines = [f"Scene({views}, {len(self.targets)} targets"
+                 + (f" ({sum(t.has_color for t in self.targets)} with ground truth)" if self.targets else "")
+                 + f", units {self.units!r}" + (f", root {str(self.root)!r}" if self.root is not None else "")]
+        if self.meshes:
+            lines.append("meshes: " + ", ".join(f"{k} ({len(m.faces)} faces)" for k, m in self.meshes.items()))
+        if self.paths:
+            lines.append("paths: " + _some(f"{k} ({len(p)})" for k, p in self.paths.items()))
+        if self.frames:
+            lines.append(f"frames: {len(self.frames)} ({_some(self.frames, 3)})")
+        if self.stages:
+            lines.append("stages: " + _some(self.stages, 10))
+        return "\n  ".join(lines) + ")"
 
     def view(self, name: str) -> View:
         for v in self.views:

@@ -6,8 +6,8 @@ from disk. Every request must carry the server's random token (``?t=``): without
 is 403, any other path is 404. Endpoints:
 
   ``GET /``            the page
-  ``GET /scene.json``  the input cameras, targets, stored paths, methods, the world's up vector
-                       and the start camera (scene.json camera dicts, docs/FORMAT.md)
+  ``GET /scene.json``  the input cameras, targets, paths (stored and generated: ibrtools.paths),
+                       methods, the world's up vector and the start camera (scene.json camera dicts, docs/FORMAT.md)
   ``GET /frame``       one frame: ``pose`` (a camera dict as JSON), ``method``, ``w``, ``h`` (the
                        pose's camera scaled to w x h), ``overlay`` (none | holes | method),
                        ``fmt`` (jpeg | png), ``client`` and ``seq``: a client's request that a
@@ -36,6 +36,7 @@ import numpy as np
 
 from ibrtools.camera import Camera
 from ibrtools.errors import BadValueError, InputError, NotBuiltError
+from ibrtools.paths import all_paths
 from ibrtools.scene import Scene
 from ibrtools import methods
 from ibrtools.api import render
@@ -61,7 +62,7 @@ def scene_info(scene: Scene, methods: list[str]) -> dict:
     up = _world_up(scene, cams)
     return {"views": [{"name": v.name, "camera": v.camera.to_dict()} for v in scene.views],
             "targets": [{"name": t.name, "camera": t.camera.to_dict()} for t in scene.targets],
-            "paths": {k: [c.to_dict() for c in p] for k, p in scene.paths.items()},
+            "paths": {k: [c.to_dict() for c in p] for k, p in all_paths(scene).items()},
             "methods": methods, "up": [float(x) for x in up], "start": cams[0].to_dict(),
             "centre": [float(x) for x in _centre(cams)]}
 

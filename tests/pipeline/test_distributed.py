@@ -244,13 +244,16 @@ def test_plan_records_its_arguments(scene_dir, tmp_path):
     os.chdir(tmp_path)
     job = J.plan(native.load(scene_dir), targets=["t000"], poses="poses.json",
                  lightfield=(2, 2, 0.05, None))
-    assert job.spec == {"targets": ["t000"], "holdout": None, "path": None, "poses": str(poses.resolve()),
-                        "lightfield": [2, 2, 0.05, None]}
-    again = J.plan(native.load(scene_dir), **job.spec)
-    assert [f.name for f in again.frames] == [f.name for f in job.frames]
-    for a, b in zip(again.frames, job.frames):
-        np.testing.assert_array_equal(a.camera.cam_from_world, b.camera.cam_from_world)
-        assert a.info == b.info
+    assert job.spec == {"targets": ["t000"], "holdout": None, "path": None, "path_frames": None,
+                        "poses": str(poses.resolve()), "lightfield": [2, 2, 0.05, None]}
+    # a generated path: the workers make the same cameras from the spec
+    gen = J.plan(native.load(scene_dir), path="spiral", path_frames=5)
+    for job in (job, gen):
+        again = J.plan(native.load(scene_dir), **job.spec)
+        assert [f.name for f in again.frames] == [f.name for f in job.frames]
+        for a, b in zip(again.frames, job.frames):
+            np.testing.assert_array_equal(a.camera.cam_from_world, b.camera.cam_from_world)
+            assert a.info == b.info
 
 
 def _colour_only(scene_dir: Path, dest: Path) -> Path:

@@ -75,7 +75,7 @@ from typing import Callable
 
 import numpy as np
 
-from ibrtools.camera import Camera
+from ibrtools.camera import MAX_SIDE, Camera
 from ibrtools.errors import BadValueError, DtypeError, FormatError, MissingFileError, ShapeError
 from ibrtools.imageio import F32_MAX, read_depth, read_pixels, srgb_to_linear
 from ibrtools.scene import Scene, View
@@ -127,13 +127,16 @@ def detect(path: Path) -> bool:
     return path.is_dir() and bool(_json_files(path))
 
 
-def _resolve_image(base: Path, file_path: str) -> Path | None:
+def resolve_image(base: Path, file_path: str) -> Path | None:
     """The image of ``file_path`` (with or without extension), or None when it is not there."""
     rel = Path(file_path)
     for ext in IMAGE_EXTS:
         cand = base / (str(rel) + ext) if ext else base / rel
-        if cand.is_file():
-            return cand
+        try:
+            if cand.is_file():
+                return cand
+        except OSError:  # a name the file system cannot hold (too long): not there
+            continue
     return None
 
 
@@ -161,7 +164,7 @@ def _focal(m: dict, axis: str, size: int, where: str) -> float | None:
 def _number(d: dict, key: str, where: str) -> float:
     try:
         v = float(d[key])
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise FormatError(f"{where}: '{key}' is not a number ({d[key]!r})") from None
     if not math.isfinite(v):
         raise BadValueError(f"{where}: '{key}' is not finite ({d[key]!r})")
@@ -336,17 +339,31 @@ def _distortion(m: dict, fx: float, fy: float, cx: float, cy: float, where: str
     return (model, params) if is_distorted(model, params) else None
 
 
-def _camera(meta: dict, frame: dict, image: Path, where: str) -> tuple[Camera, tuple[str, np.ndarray] | None]:
-    """The frame's undistorted pinhole camera and its lens distortion (None: none)."""
+def frame_size(m: dict, where: str) -> tuple[int, int] | None:
+    """(w, h) of a frame's merged keys (top level overridden per frame), None when absent."""
+    if "w" not in m or "h" not in m:
+        return None
+    try:
+        w, h = int(m["w"]), int(m["h"])
+    except (TypeError, ValueError, OverflowError):
+        raise FormatError(f"{where}: 'w'/'h' are not integers ({m['w']!r}, {m['h']!r})") from None
+    if not (1 <= w <= MAX_SIDE and 1 <= h <= MAX_SIDE):
+        raise BadValueError(f"{where}: 'w'/'h' = {w}, {h}: expected image sides of 1 to {MAX_SIDE} pixels")
+    return w, h
+
+
+def cam_from_gl(camera_to_world: object, where: str) -> np.ndarray:
+    """``cam_from_world`` (OpenCV axes) of a camera-to-world matrix in Blender/OpenGL camera axes
+    (4x4 or 3x4, checked rigid): ``inverse(c2w @ GL_TO_CV)``. The one axis conversion of the
+    transforms files and of the pose files in their conventions (formats/poses.py)."""
+    return invert_rigid(rigid_from_matrix(camera_to_world, where) @ GL_TO_CV)
+
+
+def frame_camera(meta: dict, frame: dict, size: tuple[int, int], where: str) -> Camera:
+    """The pinhole camera of one ``frames[]`` entry of size ``size`` = (w, h): intrinsics from the
+    entry's keys over the file's (module doc), pose from its ``transform_matrix``."""
     m = {**meta, **frame}  # per-frame intrinsics override the file's
-    if "w" in m and "h" in m:
-        try:
-            w, h = int(m["w"]), int(m["h"])
-        except (TypeError, ValueError):
-            raise FormatError(f"{where}: 'w'/'h' are not integers ({m['w']!r}, {m['h']!r})") from None
-        check_same_size(image, (w, h), "image", f"'w', 'h' of {where}")
-    else:
-        w, h = image_size(image)
+    w, h = size
     fx = _focal(m, "x", w, where)
     if fx is None:
         raise FormatError(f"{where}: missing key 'camera_angle_x' (or 'fl_x')")
@@ -359,10 +376,21 @@ def _camera(meta: dict, frame: dict, image: Path, where: str) -> tuple[Camera, t
     cy = _number(m, "cy", where) if "cy" in m else h / 2
     if "transform_matrix" not in frame:
         raise FormatError(f"{where}: missing key 'transform_matrix'")
-    c2w_gl = rigid_from_matrix(frame["transform_matrix"], f"{where} transform_matrix")
+    pose = cam_from_gl(frame["transform_matrix"], f"{where} transform_matrix")
     with named(where):
-        cam = Camera.pinhole(w, h, fx, fy, cx, cy, invert_rigid(c2w_gl @ GL_TO_CV))
-    return cam, _distortion(m, fx, fy, cx, cy, where)
+        return Camera.pinhole(w, h, fx, fy, cx, cy, pose)
+
+
+def _camera(meta: dict, frame: dict, image: Path, where: str) -> tuple[Camera, tuple[str, np.ndarray] | None]:
+    """The frame's undistorted pinhole camera and its lens distortion (None: none)."""
+    m = {**meta, **frame}
+    size = frame_size(m, where)
+    if size is not None:
+        check_same_size(image, size, "image", f"'w', 'h' of {where}")
+    else:
+        size = image_size(image)
+    cam = frame_camera(meta, frame, size, where)
+    return cam, _distortion(m, cam.fx, cam.fy, cam.cx, cam.cy, where)
 
 
 def _undistorted(und: Undistorter | None, fn: Callable[..., np.ndarray], nearest: bool = False
@@ -422,7 +450,7 @@ def load(path: Path, options: dict) -> Scene:
             if not isinstance(frame, dict) or "file_path" not in frame:
                 raise FormatError(f"{where}: missing key 'file_path'")
             listed += 1
-            image = _resolve_image(jf.parent, str(frame["file_path"]))
+            image = resolve_image(jf.parent, str(frame["file_path"]))
             if image is None:
                 missing.append(str(jf.parent / str(frame["file_path"])))
                 continue

@@ -25,13 +25,14 @@ from typing import Callable
 import numpy as np
 
 from ibrtools.camera import Camera
-from ibrtools.errors import BadValueError, FormatError, InputError, InternalError, MissingFileError
-from ibrtools.formats._common import read_json
+from ibrtools.errors import BadValueError, InputError, InternalError
 from ibrtools.imageio import atomic_path
 from ibrtools.imageio import write_depth as _write_depth
 from ibrtools.imageio import write_image as _write_image
 from ibrtools.memory import available_memory
+from ibrtools.formats import poses
 from ibrtools.outputs import OutputDir, check_output_dir, file_stem, is_plain_name, temp_prefix
+from ibrtools.paths import GENERATED, camera_path
 from ibrtools.scene import Scene, View
 from ibrtools.pipeline import distributed as D
 from ibrtools import methods
@@ -102,28 +103,19 @@ def _plan_video(scene: Scene, args: dict, spec: dict | None) -> Job:
 
 
 def read_poses(path: str | os.PathLike) -> list[Frame]:
-    """A pose file: a JSON list of cameras in the scene.json camera format, each optionally
-    with a "name" (default pose_000, pose_001, ...)."""
-    path = Path(path)
-    if not path.is_file():
-        raise MissingFileError(f"--poses {path}: no such file")
-    doc = read_json(path)
-    if isinstance(doc, dict) and "cameras" in doc:
-        doc = doc["cameras"]
-    if not isinstance(doc, list) or not doc:
-        raise FormatError(f"--poses {path}: expected a non-empty JSON list of cameras")
-    frames = []
-    for i, d in enumerate(doc):
-        cam = Camera.from_dict(d, f"--poses {path.name}[{i}]")
-        frames.append(Frame(str(d.get("name", f"pose_{i:03d}")), cam))
-    return frames
+    """A pose file (ibrtools.formats.poses: a JSON list of cameras in the scene.json camera
+    format, each optionally with a "name", default pose_000, pose_001, ...; a nerfstudio
+    camera_path.json; a transforms.json)."""
+    return [Frame(name, cam) for name, cam in poses.load(path)]
 
 
 def plan(scene: Scene, *, targets: list[str] | None = None, holdout: list[str] | None = None,
-         path: str | None = None, poses: str | None = None,
+         path: str | None = None, path_frames: int | None = None, poses: str | None = None,
          lightfield: tuple[int, int, float, str | None] | None = None) -> Job:
     """Resolve the cameras to render. With nothing asked, render every target of the scene.
-    ``lightfield`` = (columns, rows, baseline, centre name or None): a camera grid
+    ``path``: a path stored in the scene, else a generated one (ibrtools.paths: interpolate,
+    spiral, orbit) of ``path_frames`` cameras (default ibrtools.paths.DEFAULT_FRAMES); frames
+    <path>_0000, ... ``lightfield`` = (columns, rows, baseline, centre name or None): a camera grid
     (:mod:`ibrtools.pipeline.batches`), frames lf_0000, ... row-major.
 
     The job records these keyword arguments as ``job.spec`` (every one of them, whatever is
@@ -154,9 +146,11 @@ def plan(scene: Scene, *, targets: list[str] | None = None, holdout: list[str] |
         t = scene.target(name)
         frames.append(Frame(t.name, t.camera, t if t.has_color else None))
     if path is not None:
-        if path not in scene.paths:
-            raise BadValueError(f"--path {path!r}: not in the scene (paths: {', '.join(scene.paths) or 'none'})")
-        frames += [Frame(f"{path}_{i:04d}", c) for i, c in enumerate(scene.paths[path])]
+        # generated from every view of the scene, held out or not: the same path whatever --holdout
+        frames += [Frame(f"{path}_{i:04d}", c) for i, c in enumerate(camera_path(scene, path, path_frames))]
+    elif path_frames is not None:
+        raise BadValueError("--path-frames: only with --path NAME (a generated path: "
+                            f"{', '.join(GENERATED)})")
     if poses is not None:
         frames += read_poses(poses)
     if lightfield is not None:
