@@ -92,9 +92,9 @@ def middlebury(data: Path) -> dict:
 def demo() -> dict:
     from ibrtools import synth
     from ibrtools.pipeline import job as J
-
+    from ibrtools.pipeline import plan as planning
     scene = synth.make_scene("objects", views=12, size=(480, 360))
-    job = J.plan(scene, holdout=["v003", "v009"])
+    job = planning.plan(scene, holdout=["v003", "v009"])
     rows = []
     for f in job.frames:
         done, black = _both(job.scene, f.camera)

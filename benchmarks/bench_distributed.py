@@ -35,7 +35,7 @@ from benchlib import load_note, machine, write_section
 
 
 def make_scene(root: Path, size: tuple[int, int], views: int, frames: int) -> Path:
-    from ibrtools.pipeline.stages import run_import
+    from ibrtools.pipeline.importing import run_import
 
     synth = {"preset": "objects", "size": list(size), "views": views, "seed": 0, "reconstructed": False,
              "path_frames": max(frames, 64)}
@@ -72,6 +72,7 @@ def main() -> None:
     from ibrtools.pipeline import distributed as D
     from ibrtools.formats import native
     from ibrtools.pipeline import job as J
+    from ibrtools.pipeline import plan as planning
     from ibrtools.pipeline.job import write_output
 
     root = make_scene(Path(args.scene) / f"objects_{size[0]}x{size[1]}_{args.views}v_{max(args.frames, 64)}f",
@@ -80,7 +81,7 @@ def main() -> None:
     poses = poses_file(root, args.frames, work / "poses.json")
 
     def run(out: str, **kw) -> dict:
-        return J.run(J.plan(native.load(root), poses=str(poses)), "dibr", work / out, **kw)
+        return J.run(planning.plan(native.load(root), poses=str(poses)), "dibr", work / out, **kw)
 
     results: dict[str, list[float]] = {"local": [], "cluster": [], "warm": []}
     with D.open_client(None, 2) as client:  # the warm cluster; also warms the workers' imports

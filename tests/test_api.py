@@ -143,9 +143,9 @@ def test_render_matches_ibr_render_job(scene, tmp_path):
     """Scene.render is the job's renderer: the float image ibr-render writes is the same, bit for bit."""
     from ibrtools.imageio import read_image
     from ibrtools.pipeline import job
-
+    from ibrtools.pipeline import plan as planning
     r = ibrtools.render(scene, "t000", method="dibr", inputs=2)
-    j = job.plan(scene, targets=["t000"])
+    j = planning.plan(scene, targets=["t000"])
     job.run(j, "dibr", tmp_path / "out", params={"inputs": 2}, float_out=True)
     written = read_image(tmp_path / "out" / "t000.exr")
     np.testing.assert_array_equal(r.color, written)

@@ -17,7 +17,7 @@ from ibrtools.formats import native
 from ibrtools.formats.nerf import GL_TO_CV
 from ibrtools.paths import (DEFAULT_FRAMES, GENERATED, camera_path, depth_range, interpolate, orbit, path_names,
                             quat_from_matrix, spiral, spline)
-from ibrtools.pipeline.job import plan, read_poses
+from ibrtools.pipeline.plan import plan, read_poses
 from ibrtools.scene import Scene, View
 from ibrtools_cli import preprocess, render
 

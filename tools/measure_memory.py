@@ -5,7 +5,7 @@ For each size: a synthetic scene (``ibr-preprocess synth:objects --views N``, ma
 --work), then ``/usr/bin/time -v ibr-render SCENE --method M --poses P`` with the first 3
 cameras of the scene's ``orbit`` path, resized to the scene size. Reported: the peak resident
 set size (VmHWM of the whole process: interpreter, libraries, inputs, frames), the wall time,
-and the render job's own estimate (ibrtools.pipeline.job.estimate_memory) that the early
+and the render job's own estimate (ibrtools.pipeline.plan.estimate_memory) that the early
 refusal uses, which must stay above the measurement.
 
     .venv/bin/python tools/measure_memory.py                      # print the table
@@ -76,9 +76,9 @@ def _poses(scene: Path, n: int) -> Path:
 def _estimate(scene: Path, poses: Path, method: str) -> int:
     from ibrtools.formats import native
     from ibrtools.pipeline import job as render_job
-
-    job = render_job.plan(native.load(scene), poses=str(poses))
-    return render_job.estimate_memory(job, method)["total"]
+    from ibrtools.pipeline import plan as planning
+    job = planning.plan(native.load(scene), poses=str(poses))
+    return planning.estimate_memory(job, method)["total"]
 
 
 def main(argv=None) -> int:
@@ -167,7 +167,7 @@ def _table(rows, a, base: int) -> str:
              f"-j {a.threads}; peak "
              f"RSS of the whole `ibr-render` process from `/usr/bin/time -v`; the interpreter with the engine, "
              f"open3d and numpy loaded alone peaks at {base / 2 ** 20:.0f} MiB). *Estimate* is the render job's "
-             "own figure used to refuse a job early (ibrtools.pipeline.job.estimate_memory); it must stay above "
+             "own figure used to refuse a job early (ibrtools.pipeline.plan.estimate_memory); it must stay above "
              "the measurement, by 1.3-1.5x.", "", *HEADER]
     lines += [merged[k] for k in keys]
     return "\n".join(lines)

@@ -87,7 +87,7 @@ def _body(args: argparse.Namespace) -> int:
             rows = sweep(scene, args.method, grid, holdout=args.holdout, base=base, out_dir=out, progress=progress,
                          frame_hook=keep)
         keep.finish()
-        from ibrtools.pipeline.job import holdout_note
+        from ibrtools.pipeline.plan import holdout_note
         from ibrtools.methods import resolve
         from ibrtools.pipeline.sweep import bench_report
 

@@ -126,10 +126,10 @@ def print_table(headers: list[str], rows: list[list[str]], title: str | None = N
 
 def warn_stale(prog: str, scene, method: str, *, silent: bool) -> str | None:
     """Print (to stderr, before the run: it may take minutes) a warning when a preprocessing stage
-    that ``--method`` reads is out of date in ``scene`` (ibrtools.pipeline.job.stale_note), and
+    that ``--method`` reads is out of date in ``scene`` (ibrtools.pipeline.plan.stale_note), and
     return the note (None when current). ``silent`` (``-q``, ``--json``): not printed; the
     report and the JSON carry it as "stale_note"."""
-    from ibrtools.pipeline.job import stale_note
+    from ibrtools.pipeline.plan import stale_note
     from ibrtools.methods import resolve
 
     note = stale_note(scene, resolve(method, scene))

@@ -124,7 +124,7 @@ def _body(args: argparse.Namespace) -> int:
     from ibrtools.pipeline.distributed import check_options
     from ibrtools.formats import native
     from ibrtools.pipeline import job as render_job
-
+    from ibrtools.pipeline import plan as planning
     check_options(args.scheduler, args.workers)  # usage errors before the scene is read
     foveate = None
     if args.foveate is not None:
@@ -152,7 +152,7 @@ def _body(args: argparse.Namespace) -> int:
         html_path = check_output(args.report_html or Path(args.output) / "report.html")
     params = _params(args)
     scene = native.load(args.scene)
-    job = render_job.plan(scene, targets=args.target, holdout=args.holdout, path=args.path,
+    job = planning.plan(scene, targets=args.target, holdout=args.holdout, path=args.path,
                           path_frames=args.path_frames, poses=args.poses, lightfield=lightfield)
     if video is not None:
         batches.check_same_size([f.camera for f in job.frames])

@@ -67,11 +67,13 @@ from ibrtools.formats import native
 from ibrtools.imageio import write_image
 from ibrtools.inpaint.complete import DEFAULT_INPAINT, check_inpaint, complete, completion, parse_background
 from ibrtools.pipeline import job
-from ibrtools.pipeline.stages import preprocess as run_stages, run_import
+from ibrtools.pipeline import plan as planning
+from ibrtools.pipeline.importing import run_import
+from ibrtools.pipeline.stages import preprocess as run_stages
 from ibrtools.pipeline.sweep import sweep
 
 if TYPE_CHECKING:
-    from ibrtools.pipeline.stages import StageResult
+    from ibrtools.cache import StageResult
 
 __all__ = ["CameraLike", "RenderResult", "bench", "clear_render_cache", "import_dataset", "load_scene", "preprocess",
            "render", "render_job", "resolve_camera", "save_scene"]
@@ -295,7 +297,7 @@ def render_job(scene: Scene, out_dir: str | os.PathLike[str], method: str = "aut
     if not isinstance(scene, Scene):
         raise DtypeError(f"render_job: scene: expected an ibrtools.Scene, got {type(scene).__name__}")
     _check_path(out_dir, "render_job: out_dir")
-    planned = job.plan(scene, targets=targets, holdout=holdout, path=path, path_frames=path_frames,
+    planned = planning.plan(scene, targets=targets, holdout=holdout, path=path, path_frames=path_frames,
                        poses=None if poses is None else os.fspath(poses))
     report: dict[str, Any] = job.run(planned, method, out_dir, params=params, float_out=float_out,
                                      depth_out=depth_out, threads=threads,

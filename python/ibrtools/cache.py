@@ -10,7 +10,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -349,3 +349,16 @@ def default_methods() -> list[str]:
     (``make demo``). tm / ulr / pvm / hybrid are prepared when named (or with ``all``); their
     render methods say which stage to run when its output is missing."""
     return list(VIEW_ONLY_METHODS)
+
+
+@dataclass
+class StageResult:
+    name: str
+    status: str  # "ran" | "up to date" | "skipped" | "failed"
+    reason: str
+    seconds: float = 0.0
+    details: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {"stage": self.name, "status": self.status, "reason": self.reason,
+                "seconds": round(self.seconds, 4), **self.details}

@@ -12,6 +12,7 @@ from ibrtools import synth
 from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError, InputError
 from ibrtools.pipeline import job as render_job
+from ibrtools.pipeline import plan as planning
 from ibrtools.depthwarp.method import (DepthWarpMethod, check_params, depth_scores, far_depth, fill_background,
                                        visualise)
 from ibrtools.scene import Scene, View
@@ -108,7 +109,7 @@ def test_bad_ground_and_camera(crowd):
 def test_static_camera_warps_exactly(crowd):
     """Zero motion: the warp returns the previous frame's depth, which is the reference."""
     cam = crowd.paths["walk"][1]
-    job = render_job.Job(crowd, [render_job.Frame("a", cam), render_job.Frame("b", cam)])
+    job = planning.Job(crowd, [planning.Frame("a", cam), planning.Frame("b", cam)])
     # No dilation: it would (rightly) fill sky pixels next to the horizon, which the reference
     # leaves empty.
     m = DepthWarpMethod({"layers": 1, "seeds": 4, "dilate": False, "far_plane": False})
@@ -136,7 +137,7 @@ def test_static_camera_warps_exactly(crowd):
 @pytest.mark.parametrize("params", [{"layers": 2, "seeds": 4, "umbra": True, "cull": True, "ground": "auto"},
                                     {"layers": 2, "forward": "vfw"}])
 def test_path_report(crowd, tmp_path, params):
-    job = render_job.plan(crowd, path="walk")
+    job = planning.plan(crowd, path="walk")
     rep = render_job.run(job, "depthwarp", tmp_path / "o", params=params, depth_out=True)
     assert rep["method"] == "depthwarp" and len(rep["frames"]) == 4
     f0, f1 = rep["frames"][0], rep["frames"][1]

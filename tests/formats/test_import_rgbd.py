@@ -205,7 +205,8 @@ def test_cli_bad_rgbd_option_exits_2_writing_nothing(tmp_path, capsys):
 def test_far_depth_outliers_warned_at_import(tmp_path):
     # 7-Scenes' 65535 read as depth (invalid_depth switched off): 0.4 % of a frame at 65.5 m in
     # a 2 m scene -> one warning at import naming the options; with the default, none.
-    from ibrtools.pipeline.stages import FAR_OUTLIER_SHARE, depth_outlier_warning, preprocess
+    from ibrtools.pipeline.importing import FAR_OUTLIER_SHARE, depth_outlier_warning
+    from ibrtools.pipeline.stages import preprocess
 
     depth = np.full((H * 10, W * 10), 2000, np.uint16)
     depth[0, :19] = 65535  # 19 of 4800 pixels: 0.4 %

@@ -560,8 +560,8 @@ def test_thin_object_missing_from_the_global_mesh_picks_pvm(tmp_path):
 
 def test_render_job_writes_frames(exact_scene, tmp_path):
     from ibrtools.pipeline import job as J
-
-    job = J.plan(exact_scene, holdout=["v001"])
+    from ibrtools.pipeline import plan as planning
+    job = planning.plan(exact_scene, holdout=["v001"])
     rep = J.run(job, "ulr", tmp_path / "out")
     f = rep["frames"][0]
     assert f["name"] == "v001" and (tmp_path / "out" / "v001.png").is_file()
@@ -573,8 +573,8 @@ def test_render_job_writes_frames(exact_scene, tmp_path):
 def test_render_job_hybrid_writes_the_selection_mask(exact_scene, tmp_path):
     from ibrtools.imageio import read_image
     from ibrtools.pipeline import job as J
-
-    rep = J.run(J.plan(exact_scene), "hybrid", tmp_path / "out", params={"sigma_blur": 0})
+    from ibrtools.pipeline import plan as planning
+    rep = J.run(planning.plan(exact_scene), "hybrid", tmp_path / "out", params={"sigma_blur": 0})
     f = rep["frames"][0]
     assert f["method_mask"] == f"{f['name']}.method.png" and set(f["selection"]) == {"tm", "ulr", "pvm", "none"}
     mask = read_image(tmp_path / "out" / f["method_mask"])
@@ -662,6 +662,7 @@ def test_mix_stage_fit_is_what_holding_each_view_out_gives(exact_scene):
     from ibrtools.metrics import psnr
     from ibrtools.pipeline import mix
     from ibrtools.pipeline import job as J
+    from ibrtools.pipeline import plan as planning
     from ibrtools import methods
 
     d = cache.load_npz(cache.stage_output(exact_scene.root, "mix"))
@@ -670,7 +671,7 @@ def test_mix_stage_fit_is_what_holding_each_view_out_gives(exact_scene):
     mean = d["psnr"].mean(0)
     assert float(d["pvm_floor"]) == mix.MIX_FLOORS[int(np.argmax(mean))]
     for i, j in ((0, 0), (3, 4)):
-        job = J.plan(exact_scene, holdout=[names[i]])
+        job = planning.plan(exact_scene, holdout=[names[i]])
         m = methods.create("hybrid", {"pvm_floor": mix.MIX_FLOORS[j]})
         m.prepare(job.scene)
         o, _ = m.render(job.frames[0].camera)
@@ -688,18 +689,18 @@ def test_without_views_renders_what_preparing_the_held_out_scene_gives(exact_sce
     # what was loaded. Every output equals a prepare of --holdout's scene, bit for bit.
     from ibrtools.hybrid import method as H
     from ibrtools.pipeline import job as J
-
+    from ibrtools.pipeline import plan as planning
     base = H.HybridMethod({"pvm_floor": 0.3})
     base.prepare(exact_scene)
     for name in (exact_scene.views[0].name, exact_scene.views[-1].name):
-        job = J.plan(exact_scene, holdout=[name])
+        job = planning.plan(exact_scene, holdout=[name])
         fresh = H.HybridMethod({"pvm_floor": 0.3})
         fresh.prepare(job.scene)
         a, _ = base._without_views(job.scene).render(job.frames[0].camera)
         b, _ = fresh.render(job.frames[0].camera)
         assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
         assert not np.array_equal(a["color"], base.render(job.frames[0].camera)[0]["color"])  # the view is out
-    smaller = J.plan(exact_scene, holdout=[exact_scene.views[0].name]).scene
+    smaller = planning.plan(exact_scene, holdout=[exact_scene.views[0].name]).scene
     part = H.HybridMethod({"pvm_floor": 0.3})
     part.prepare(smaller)
     with pytest.raises(BadValueError, match="subset"):

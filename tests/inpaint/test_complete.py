@@ -13,6 +13,7 @@ from ibrtools import api, synth
 from ibrtools.camera import Camera, look_at
 from ibrtools.inpaint import complete as C
 from ibrtools.pipeline import job as J
+from ibrtools.pipeline import plan as planning
 from ibrtools.dibr import view_selection as vs
 
 from conftest import need_data
@@ -55,7 +56,7 @@ def test_background_stays_background_through_every_method(sky_scene, method):
 
     if method not in BUILT:
         pytest.skip(f"{method} not built")
-    job = J.plan(sky_scene, holdout=["v002"])
+    job = planning.plan(sky_scene, holdout=["v002"])
     truth = job.frames[0].truth
     sky = _far_from_surface(truth.depth)
     assert sky.mean() > 0.1  # the target sees sky
@@ -160,7 +161,7 @@ def test_inpaint_none_is_the_methods_output_with_black_holes(tmp_path):
     s = dataclasses.replace(s, views=[v.with_depth(np.where(np.isinf(v.depth), 0, v.depth).astype(np.float32))
                                       for v in s.views])
     assert C.Background.of(s.views) is None
-    J.run(J.plan(s, targets=["t000"]), "dibr", tmp_path / "o", inpaint="none", float_out=True)
+    J.run(planning.plan(s, targets=["t000"]), "dibr", tmp_path / "o", inpaint="none", float_out=True)
     m = DibrMethod()
     m.prepare(s)
     out, _ = m.render(s.target("t000").camera)
@@ -185,7 +186,7 @@ def test_background_option_recolours_or_makes_it_transparent(sky_scene, tmp_path
     from ibrtools.imageio import read_pixels
     from ibrtools_cli import render
 
-    job = J.plan(sky_scene, holdout=["v002"])
+    job = planning.plan(sky_scene, holdout=["v002"])
     cam = job.frames[0].camera
     sky = _far_from_surface(job.frames[0].truth.depth)
     white = api.render(job.scene, cam, method="dibr", background="white")

@@ -434,6 +434,7 @@ def test_job_skips_inpaint_without_holes(scene_dir, tmp_path, monkeypatch):
 
     from ibrtools.formats import native
     from ibrtools.pipeline import job as render_job
+    from ibrtools.pipeline import plan as planning
     from ibrtools import methods
 
     class NoHoleMethod:  # a method whose frame has a hole mask with no hole in it
@@ -448,7 +449,7 @@ def test_job_skips_inpaint_without_holes(scene_dir, tmp_path, monkeypatch):
 
     monkeypatch.setattr(methods, "resolve", lambda name, scene: name)
     monkeypatch.setattr(methods, "create", lambda name, params: NoHoleMethod())
-    job = render_job.plan(native.load(scene_dir), holdout=["v002"])
+    job = planning.plan(native.load(scene_dir), holdout=["v002"])
     rep = render_job.run(job, "nohole", tmp_path / "o", inpaint="pushpull")
     f = json.loads((tmp_path / "o" / "report.json").read_text())["frames"][0]
     assert f["inpaint"] == "skipped: no hole" and "inpaint" not in f["time_ms"] and "hole_mask" not in f

@@ -20,6 +20,7 @@ from ibrtools.pipeline import distributed as D  # noqa: E402
 from ibrtools.errors import BadValueError  # noqa: E402
 from ibrtools.formats import native  # noqa: E402
 from ibrtools.pipeline import job as J  # noqa: E402
+from ibrtools.pipeline import plan as planning  # noqa: E402
 
 SIZE = "64x48"
 # Fields that differ between any two runs by nature (times; depthwarp's warp/reference time
@@ -86,9 +87,9 @@ def test_render_matches_local_bit_for_bit(scene_dir, cluster, tmp_path):
     poses = _poses(scene_dir, tmp_path)
     kw = {"holdout": ["v001"], "targets": ["t000", "t001"], "poses": str(poses)}
     opts = {"float_out": True, "depth_out": True, "inpaint": "pushpull"}
-    local = J.run(J.plan(native.load(scene_dir), **kw), "dibr", tmp_path / "local", **opts)
+    local = J.run(planning.plan(native.load(scene_dir), **kw), "dibr", tmp_path / "local", **opts)
     calls = []
-    dist = J.run(J.plan(native.load(scene_dir), **kw), "dibr", tmp_path / "dist", scheduler=cluster[0],
+    dist = J.run(planning.plan(native.load(scene_dir), **kw), "dibr", tmp_path / "dist", scheduler=cluster[0],
                  progress=lambda i, n, name: calls.append((i, n, name)), **opts)
     files = _same_outputs(tmp_path / "local", tmp_path / "dist")
     assert {"v001.png", "v001.exr", "v001.depth.exr", "p_a.png", "report.json"} <= set(files)
@@ -103,7 +104,7 @@ def test_render_matches_local_bit_for_bit(scene_dir, cluster, tmp_path):
 
 def test_depthwarp_frames_stay_in_order(scene_dir, cluster, tmp_path):
     # depthwarp warps from the previous frame: one task renders every frame, in order.
-    job = J.plan(native.load(scene_dir), poses=str(_poses(scene_dir, tmp_path, [
+    job = planning.plan(native.load(scene_dir), poses=str(_poses(scene_dir, tmp_path, [
         dict(native.load(scene_dir).views[1].camera.to_dict(), name="p_b")])))
     J.run(job, "depthwarp", tmp_path / "l2", depth_out=True)
     rep = J.run(job, "depthwarp", tmp_path / "d2", depth_out=True, scheduler=cluster[0])
@@ -119,7 +120,7 @@ def test_failing_frame_is_reported_and_others_written(scene_dir, cluster, tmp_pa
     poses = _poses(scene_dir, tmp_path, [tiny])
     reps = {}
     for mode, kw in (("local", {}), ("dist", {"scheduler": cluster[0]})):
-        job = J.plan(native.load(scene_dir), holdout=["v002"], poses=str(poses))
+        job = planning.plan(native.load(scene_dir), holdout=["v002"], poses=str(poses))
         reps[mode] = J.run(job, "reference", tmp_path / mode, foveate=(0.5, 0.5), **kw)
     for rep in reps.values():
         assert [f["name"] for f in rep["failed"]] == ["p_tiny"]
@@ -154,7 +155,7 @@ def test_killed_worker_loses_no_frame(scene_dir, cluster, tmp_path):
     pids = client.run(os.getpid)
     victim = sorted(pids.values())[0]
     kw = {"path": "orbit"}  # 48 frames
-    J.run(J.plan(native.load(scene_dir), **kw), "reference", tmp_path / "local")
+    J.run(planning.plan(native.load(scene_dir), **kw), "reference", tmp_path / "local")
     killed = []
 
     def progress(i, n, name):
@@ -162,7 +163,7 @@ def test_killed_worker_loses_no_frame(scene_dir, cluster, tmp_path):
             os.kill(victim, signal.SIGKILL)
             killed.append(i)
 
-    rep = J.run(J.plan(native.load(scene_dir), **kw), "reference", tmp_path / "dist", scheduler=address,
+    rep = J.run(planning.plan(native.load(scene_dir), **kw), "reference", tmp_path / "dist", scheduler=address,
                 progress=progress)
     assert killed == [1]
     with pytest.raises(ProcessLookupError):
@@ -219,17 +220,17 @@ def test_unreachable_scheduler_is_a_quick_error(scene_dir, tmp_path, capsys):
 
 
 def test_library_bad_input(scene_dir, tmp_path):
-    job = J.plan(native.load(scene_dir), holdout=["v001"])
+    job = planning.plan(native.load(scene_dir), holdout=["v001"])
     with pytest.raises(BadValueError, match="--workers"):
         J.run(job, "dibr", tmp_path / "a", workers=-1)
     with pytest.raises(BadValueError, match="give one"):
         J.run(job, "dibr", tmp_path / "a", workers=1, scheduler="tcp://127.0.0.1:8786")
     with pytest.raises(BadValueError, match="whole number"):
         J.run(job, "dibr", tmp_path / "a", workers=1.5)
-    bare = J.Job(job.scene, job.frames)  # not made by plan(): the workers could not rebuild it
+    bare = planning.Job(job.scene, job.frames)  # not made by plan(): the workers could not rebuild it
     with pytest.raises(BadValueError, match="not made by plan"):
         J.run(bare, "dibr", tmp_path / "a", workers=1)
-    mem = J.plan(native.load(scene_dir), holdout=["v001"])
+    mem = planning.plan(native.load(scene_dir), holdout=["v001"])
     mem.scene.root = None  # a scene in memory only: the workers cannot load it
     with pytest.raises(BadValueError, match="scene directory"):
         J.run(mem, "dibr", tmp_path / "a", workers=1)
@@ -242,14 +243,14 @@ def test_library_bad_input(scene_dir, tmp_path):
 def test_plan_records_its_arguments(scene_dir, tmp_path):
     poses = _poses(scene_dir, tmp_path)
     os.chdir(tmp_path)
-    job = J.plan(native.load(scene_dir), targets=["t000"], poses="poses.json",
+    job = planning.plan(native.load(scene_dir), targets=["t000"], poses="poses.json",
                  lightfield=(2, 2, 0.05, None))
     assert job.spec == {"targets": ["t000"], "holdout": None, "path": None, "path_frames": None,
                         "poses": str(poses.resolve()), "lightfield": [2, 2, 0.05, None]}
     # a generated path: the workers make the same cameras from the spec
-    gen = J.plan(native.load(scene_dir), path="spiral", path_frames=5)
+    gen = planning.plan(native.load(scene_dir), path="spiral", path_frames=5)
     for job in (job, gen):
-        again = J.plan(native.load(scene_dir), **job.spec)
+        again = planning.plan(native.load(scene_dir), **job.spec)
         assert [f.name for f in again.frames] == [f.name for f in job.frames]
         for a, b in zip(again.frames, job.frames):
             np.testing.assert_array_equal(a.camera.cam_from_world, b.camera.cam_from_world)

@@ -212,12 +212,12 @@ def test_render_write_error_leaves_nothing(scene_dir, many_poses, tmp_path):
     too (all or nothing, like an interrupt)."""
     from ibrtools.formats import native
     from ibrtools.pipeline import job as J
-
+    from ibrtools.pipeline import plan as planning
     poses = tmp_path / "four.json"
     poses.write_text(json.dumps(json.loads(many_poses.read_text())[:4]))
     out = tmp_path / "out"
     (out / "f0002.png").mkdir(parents=True)
     with pytest.raises(OSError):
-        J.run(J.plan(native.load(scene_dir), poses=str(poses)), "dibr", out)
+        J.run(planning.plan(native.load(scene_dir), poses=str(poses)), "dibr", out)
     assert sorted(p.name for p in out.iterdir()) == ["f0002.png"]  # only the obstacle is left
     assert not _temporaries(out)

@@ -11,7 +11,7 @@ import pytest
 from ibrtools import BadValueError, Camera, Scene, View, look_at
 from ibrtools import memory
 from ibrtools.pipeline import job as render_job
-
+from ibrtools.pipeline import plan as planning
 SIZE = "48x36"
 
 
@@ -31,14 +31,14 @@ def huge_job(n_views=64, side=16384):
         views.append(View.create(f"v{i:03d}", cam, color=_never(f"v{i:03d} colour"), depth=_never(f"v{i:03d} depth")))
     target = View.create("t", Camera.pinhole(side, side, side, side, side / 2, side / 2, look_at([0, 0.5, 3], [0, 0, 0])))
     scene = Scene(views=views, targets=[target], paths={}, units="m", source={"format": "test"})
-    return render_job.plan(scene)
+    return planning.plan(scene)
 
 
 @pytest.mark.parametrize("method", ["dibr", "warp"])
 def test_16k_by_64_views_fails_early_with_a_clear_message(tmp_path, method, monkeypatch):
     monkeypatch.delenv("IBR_MEMORY_LIMIT", raising=False)
     job = huge_job()
-    est = render_job.estimate_memory(job, method)
+    est = planning.estimate_memory(job, method)
     # 64 x 16384^2 pixels of colour + depth alone are 64 x 1 GiB x 4 = 256 GiB: the estimate is above it
     assert est["inputs"] >= 64 * 16384 ** 2 * 16
     t0 = time.perf_counter()
@@ -52,9 +52,9 @@ def test_16k_by_64_views_fails_early_with_a_clear_message(tmp_path, method, monk
 
 def test_estimate_scales_and_reference_ignores_views():
     small, big = huge_job(n_views=2, side=64), huge_job(n_views=8, side=64)
-    a, b = render_job.estimate_memory(small, "dibr"), render_job.estimate_memory(big, "dibr")
+    a, b = planning.estimate_memory(small, "dibr"), planning.estimate_memory(big, "dibr")
     assert b["inputs"] == 4 * a["inputs"] and b["frame"] == a["frame"]
-    assert render_job.estimate_memory(big, "reference")["inputs"] == 0  # reference reads the mesh only
+    assert planning.estimate_memory(big, "reference")["inputs"] == 0  # reference reads the mesh only
 
 
 @pytest.fixture(scope="module")
@@ -69,7 +69,7 @@ def scene_dir(tmp_path_factory):
 def test_limit_from_environment(scene_dir, tmp_path, monkeypatch):
     from ibrtools.formats import native
 
-    job = render_job.plan(native.load(scene_dir), holdout=["v001"])
+    job = planning.plan(native.load(scene_dir), holdout=["v001"])
     monkeypatch.setenv("IBR_MEMORY_LIMIT", "1M")
     with pytest.raises(BadValueError, match=r"IBR_MEMORY_LIMIT"):
         render_job.run(job, "dibr", tmp_path / "a")

@@ -15,8 +15,7 @@ from ibrtools import synth
 from ibrtools.errors import BadValueError, FormatError, MissingFileError
 from ibrtools.formats import native
 from ibrtools.pipeline import job as J
-
-
+from ibrtools.pipeline import plan as planning
 @pytest.fixture(scope="module")
 def video_dir(tmp_path_factory):
     from ibrtools_cli import preprocess
@@ -73,11 +72,11 @@ def test_render_iterates_frames(video_dir, tmp_path):
 
 
 def test_plan_of_a_video_and_its_spec(video_dir):
-    job = J.plan(native.load(video_dir), path="orbit")
+    job = planning.plan(native.load(video_dir), path="orbit")
     assert len(job.frames) == 3 * 48 and job.frames[48].name == "f001_orbit_0000"
     assert job.frames[48].scene_frame == "f001" and set(job.scenes) == {"f000", "f001", "f002"}
     assert job.scene is job.scenes["f000"] and job.spec["path"] == "orbit"
-    held = J.plan(native.load(video_dir), holdout=["v001"])
+    held = planning.plan(native.load(video_dir), holdout=["v001"])
     assert [f.name for f in held.frames] == ["f000_v001", "f001_v001", "f002_v001"]
     assert all(len(sc.views) == 2 for sc in held.scenes.values())  # held out of every frame
 
@@ -85,8 +84,8 @@ def test_plan_of_a_video_and_its_spec(video_dir):
 def test_distributed_video_matches_local(video_dir, tmp_path):
     pytest.importorskip("distributed", reason="dask.distributed is not installed")
     kw = {"holdout": ["v002"], "targets": ["t001"]}
-    J.run(J.plan(native.load(video_dir), **kw), "dibr", tmp_path / "local", depth_out=True)
-    rep = J.run(J.plan(native.load(video_dir), **kw), "dibr", tmp_path / "dist", depth_out=True, workers=2)
+    J.run(planning.plan(native.load(video_dir), **kw), "dibr", tmp_path / "local", depth_out=True)
+    rep = J.run(planning.plan(native.load(video_dir), **kw), "dibr", tmp_path / "dist", depth_out=True, workers=2)
     assert rep["distributed"]["tasks"] == 6  # frame x camera
     files = sorted(p.name for p in (tmp_path / "local").iterdir())
     assert files == sorted(p.name for p in (tmp_path / "dist").iterdir())

@@ -78,7 +78,7 @@ class DepthRange:
 def outlier_limits(valid: np.ndarray) -> tuple[float, float]:
     """(low, high) of the valid depth values ``valid`` (finite, > 0; 1-D): values below low (half
     the 1st percentile) or above high (twice the 99th) are outliers. :func:`depth_range` leaves
-    them out; the import stage warns about far ones (pipeline/stages.py ``depth_outlier_warning``)."""
+    them out; the import stage warns about far ones (pipeline/importing.py ``depth_outlier_warning``)."""
     lo, hi = np.quantile(valid, [OUTLIER_QUANTILE, 1.0 - OUTLIER_QUANTILE])
     return float(lo) / OUTLIER_FACTOR, float(hi) * OUTLIER_FACTOR
 

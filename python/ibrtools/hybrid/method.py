@@ -34,7 +34,7 @@ ones and for meshes dense for the frame (``RASTER_MAX_FACES``, ``RASTER_MAX_FACE
   falls back to it). The PVM colour comes from
   :class:`ibrtools.hybrid.pvm_render.PvmRenderer` (clustered depth filtering, ``sigma``,
   ``alpha``, ``gamma``). The selection (red PVM, blue ULR, green TM; the blurred weights) is
-  returned as output "selection" and written as ``<frame>.mask.png`` by the render job.
+  returned as output "selection" and written as ``<frame>.method.png`` by the render job.
 
 Held-out views (``--holdout``) are absent from the job's scene, so ULR and PVM never read them;
 the mesh, texture, variance and harmonise stages were computed with every view of the scene (as

@@ -11,7 +11,7 @@ from ibrtools.hybrid.method import HybridMethod
 from ibrtools.imageio import linear_to_srgb
 from ibrtools.inpaint.complete import clean_color
 from ibrtools.metrics import psnr
-from ibrtools.pipeline.job import plan
+from ibrtools.pipeline.plan import plan
 from ibrtools.scene import Scene
 
 

@@ -11,23 +11,19 @@ hashes in scene.json ``stages`` (docs/FORMAT.md "Cache", docs/preprocess.md).
 """
 from __future__ import annotations
 
-import hashlib
-import json
 import os
 import time
-from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-from ibrtools.cache import (available_stages, CACHE_DIR, default_methods, existing_record, file_hash, hash_inputs,
+from ibrtools.cache import (available_stages, CACHE_DIR, default_methods, file_hash, StageResult,
                             load_npz, mvs_key, ORDER, output_intact, output_stats, read_doc, save_npz,
                             scene_content_key, stage_key, STAGES, stale_reasons, view_depths, with_stage_depth,
                             VIEW_ONLY_METHODS, write_stage_record)
 from ibrtools.errors import BadValueError, InputError
 from ibrtools.scene import Scene
-from ibrtools.dibr.view_selection import outlier_limits
-from ibrtools.formats import load as load_dataset, native
+from ibrtools.formats import native
 from ibrtools.formats.resize import check_factors
 from ibrtools.hybrid import atlas as A, harmonise as H
 from ibrtools.hybrid.gainmodel import exposure_gains
@@ -39,189 +35,8 @@ from ibrtools.mesh import Mesh
 from ibrtools.outputs import scene_lock
 from ibrtools.pipeline import distributed as D
 from ibrtools.pipeline.distributed import check_options, set_task_threads
+from ibrtools.pipeline.importing import run_import
 from ibrtools.pipeline.mix import MIX_DEFAULTS, fit_pvm_floor
-
-# Bump when the import code changes what it writes, so that old scenes are rebuilt.
-IMPORT_STAGE_VERSION = 2  # 2: the background at infinity (depth +inf) of synthetic and nerf scenes
-
-
-@dataclass
-class StageResult:
-    name: str
-    status: str  # "ran" | "up to date" | "skipped" | "failed"
-    reason: str
-    seconds: float = 0.0
-    details: dict = field(default_factory=dict)
-
-    def to_dict(self) -> dict:
-        return {"stage": self.name, "status": self.status, "reason": self.reason,
-                "seconds": round(self.seconds, 4), **self.details}
-
-
-_NO_VIDEO_HOLDOUT = "--holdout: not for a video scene (ibr-render --holdout removes views from a render)"
-
-
-def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options: dict | None = None,
-               synth: dict | None = None, force: bool = False, holdout: list[str] | None = None,
-               mesh: str | os.PathLike | None = None, downscale: float | None = None,
-               max_size: int | None = None) -> StageResult:
-    """The ``import`` stage: read a data set (or make a synthetic one), validate it, write the
-    native scene. Up to date when ``output`` holds a scene made from the same input bytes and
-    parameters. ``holdout``: input views imported as targets (ground truth no stage reads), so
-    that ``ibr-render SCENE`` scores them as unseen views (:func:`hold_out`). ``mesh``: a PLY/OBJ
-    in the capture's frame, imported as the scene's ``reconstructed`` mesh (the mesh stage then
-    uses it, and the depth stage renders it for the views without depth; no multi-view stereo).
-    ``downscale`` / ``max_size``: every view resized on import (``formats.resize``; data sets only:
-    a synthetic scene is made at its ``--size``). The import's summary (``source["adapted"]`` and
-    ``source["warnings"]``, what the importer adapted) is in the result's details."""
-    options = dict(options or {})
-    output = Path(output)
-    held = list(dict.fromkeys(holdout or []))
-    src = Path(input_spec)
-    downscale, max_size = check_factors(downscale, max_size)
-    if synth is not None and (downscale is not None or max_size is not None):
-        raise BadValueError(f"{'--downscale' if downscale is not None else '--max-size'}: for data sets only "
-                            "(a synthetic scene is made at its --size)")
-    if synth is not None:
-        params: dict = {"synth": synth, "version": IMPORT_STAGE_VERSION}
-    else:
-        if src.resolve() == output.resolve():
-            # A native scene preprocessed in place (`ibr-preprocess SCENE -o SCENE --stages ...`,
-            # what the renderers' error messages suggest): nothing to import.
-            if not (output / "scene.json").is_file():
-                raise BadValueError(f"-o {output}: output is the input and it holds no native scene "
-                                    f"(scene.json); choose another directory")
-            if held or mesh is not None:
-                flag = "--holdout" if held else "--mesh"
-                raise BadValueError(f"{flag}: only when importing a data set (the input is the scene itself; "
-                                    "import the data set again into another directory)")
-            record = existing_record(output, "import") or {}
-            return StageResult("import", "up to date", "the input is the scene itself (preprocessed in place)", 0.0,
-                               {k: record[k] for k in ("views", "targets") if k in record})
-        params = {"format": fmt, "options": options, "version": IMPORT_STAGE_VERSION}
-    if held:  # only then: the import key of scenes without held-out views is unchanged
-        params["holdout"] = held
-    if downscale is not None:  # likewise
-        params["downscale"] = downscale
-    if max_size is not None:
-        params["max_size"] = max_size
-    user_mesh = None
-    if mesh is not None:  # only then, likewise; the mesh's bytes enter the key
-        from ibrtools.meshio import read_mesh
-
-        user_mesh = read_mesh(mesh, kind="reconstructed")
-        if len(user_mesh.faces) == 0:
-            raise BadValueError(f"--mesh {mesh}: the mesh has no faces")
-        params["mesh"] = hash_inputs(Path(mesh), {})
-    key = (hashlib.blake2b(json.dumps(params, sort_keys=True).encode(), digest_size=16).hexdigest()
-           if synth is not None else hash_inputs(src, params))
-    record = existing_record(output, "import")
-    if not force and record and record.get("key") == key:
-        return StageResult("import", "up to date", "inputs and parameters unchanged", 0.0,
-                           {"views": record.get("views"), "targets": record.get("targets")})
-    t0 = time.perf_counter()
-    if synth is not None and synth.get("frames", 1) > 1:  # a synthetic video (docs/FORMAT.md "Frames")
-        from ibrtools.synth import make_video
-
-        if held:
-            raise BadValueError(_NO_VIDEO_HOLDOUT)
-        video, frames = make_video(**synth)
-        fmt_used = f"synth:{synth['preset']}"
-        video.stages["import"] = {"key": key, "format": fmt_used, "frames": len(frames),
-                                  "views": len(next(iter(frames.values())).views), "targets": len(video.targets),
-                                  "seconds": round(time.perf_counter() - t0, 4)}
-        native.save_video(video, frames, output)
-        seconds = time.perf_counter() - t0
-        reason = "forced" if force else ("inputs changed" if record else "no scene yet")
-        return StageResult("import", "ran", f"{reason}; {fmt_used}, {len(frames)} frames", seconds,
-                           {"frames": len(frames), "views": video.stages["import"]["views"],
-                            "targets": len(video.targets)})
-    if synth is not None:
-        from ibrtools.synth import make_scene
-
-        scene: Scene = make_scene(**synth)
-        fmt_used = f"synth:{synth['preset']}"
-    else:
-        scene = load_dataset(Path(input_spec), fmt, options, downscale=downscale, max_size=max_size)
-        fmt_used = scene.source.get("format", fmt)
-    if synth is None:  # robust depth statistics of the data set's views (synthetic depth is exact)
-        from ibrtools.formats._common import record_summary
-
-        warning = depth_outlier_warning(scene.views + scene.targets)
-        if warning:
-            record_summary(scene.source, warnings=[warning])
-    if held:
-        scene = hold_out(scene, held)
-    if user_mesh is not None:
-        scene.meshes["reconstructed"] = user_mesh
-    n_views, n_targets = len(scene.views), len(scene.targets)
-    scene.stages["import"] = {"key": key, "format": fmt_used, "views": n_views, "targets": n_targets,
-                              **({"held_out": held} if held else {}),
-                              "seconds": round(time.perf_counter() - t0, 4)}
-    native.save(scene, output)
-    seconds = time.perf_counter() - t0
-    reason = "forced" if force else ("inputs changed" if record else "no scene yet")
-    details: dict = {"views": n_views, "targets": n_targets}
-    for k in ("adapted", "warnings"):
-        if scene.source.get(k):
-            details[k] = list(scene.source[k])
-    return StageResult("import", "ran", f"{reason}; {fmt_used}", seconds, details)
-
-
-# A view's depth "has far outliers" when at least this share of its valid pixels lies beyond the
-# view-selection outlier limit. 0.05 %: 7-Scenes' invalid codes are percents of a frame (0.1 % at
-# 65.5 m made a frustum 20x deeper); Middlebury's ground truth has 3-12 stray pixels of quarter-pixel
-# disparity per view (at most 0.0074 %, Cones), real and harmless once view selection drops them.
-FAR_OUTLIER_SHARE = 5e-4
-
-
-def depth_outlier_warning(views) -> str | None:
-    """One line naming the views whose depth has far outliers (at least ``FAR_OUTLIER_SHARE`` of
-    the valid values above twice the 99th percentile: ``render.view_selection.outlier_limits``, the
-    rule view selection leaves them out by), or None. A sensor's invalid code read as depth (7-Scenes' 65535 mm = 65.5 m in a 3 m room)
-    is the usual cause: the user learns it at import, with the options that mark it unknown."""
-    hits = []  # (share of the view's valid pixels, name, largest value, the limit)
-    n = 0
-    for v in views:
-        if not v.has_depth or v.camera.model != "pinhole":
-            continue
-        n += 1
-        d = v.depth
-        valid = d[np.isfinite(d) & (d > 0)]
-        if valid.size == 0:
-            continue
-        high = outlier_limits(valid)[1]
-        far = int(np.count_nonzero(valid > high))
-        if far and far >= FAR_OUTLIER_SHARE * valid.size:
-            hits.append((far / valid.size, v.name, float(valid.max()), high / 2))
-    if not hits:
-        return None
-    share, name, top, p99 = max(hits)
-    return (f"depth outliers in {len(hits)} of {n} views (worst: {name}, {100 * share:.2g} % of its depth beyond "
-            f"twice its 99th percentile {p99:.4g}, up to {top:.4g}); view selection leaves them out; if they are "
-            "a sensor's invalid code, mark it unknown (rgbd: --opt invalid_depth=V or max_depth=M)")
-
-
-def hold_out(scene: Scene, names: list[str]) -> Scene:
-    """``scene`` with the input views ``names`` moved to its targets (their colour and depth the
-    ground truth): no preprocessing stage reads targets, so a method scored on them sees unseen
-    views (``ibr-render --holdout`` instead removes views from one render, after the stages ran on
-    them). Names must be input views, not all of them, and not names of existing targets."""
-    if scene.frames:
-        raise BadValueError(_NO_VIDEO_HOLDOUT)
-    have = {v.name for v in scene.views}
-    missing = [n for n in names if n not in have]
-    if missing:
-        shown = ", ".join(sorted(have)[:8]) + (", ..." if len(have) > 8 else "")
-        raise BadValueError(f"--holdout: no input view named {', '.join(missing)} (views: {shown})")
-    if len(set(names)) >= len(scene.views):
-        raise BadValueError("--holdout: every input view is held out; at least one must remain")
-    clash = sorted(set(names) & {t.name for t in scene.targets})
-    if clash:
-        raise BadValueError(f"--holdout: the scene already has targets named {', '.join(clash)}")
-    keep = set(names)
-    return replace(scene, views=[v for v in scene.views if v.name not in keep],
-                   targets=[*scene.targets, *[v for v in scene.views if v.name in keep]])
 
 
 # ---------------------------------------------------------------------------------------------

@@ -28,6 +28,7 @@ import numpy as np
 from ibrtools.errors import BadValueError
 from ibrtools.scene import Scene
 from ibrtools.pipeline import job as J
+from ibrtools.pipeline import plan as planning
 from ibrtools.pipeline.report_html import FramePanel, data_uri, esc, page, panel_html, table, write_page
 from ibrtools import methods
 from ibrtools.inpaint.complete import DEFAULT_INPAINT, check_inpaint, complete, completion
@@ -92,7 +93,7 @@ def sweep(scene: Scene, method: str, grid: dict[str, list], *, holdout: list[str
     ``(n_configs, n_configs, 0, n_frames)`` at the end; ``frame_hook(ci, fi, frame, outputs,
     stage_ms, metrics)`` after each frame (the HTML report keeps thumbnails through it)."""
     name = methods.resolve(method, scene)
-    job = J.plan(scene, holdout=holdout) if holdout else J.plan(scene)
+    job = planning.plan(scene, holdout=holdout) if holdout else planning.plan(scene)
     frames = [f for f in job.frames if f.truth is not None and f.truth.has_color]
     if not frames:
         raise BadValueError("ibr-bench: no frame with ground truth to score (give --holdout NAME ... or a scene "
