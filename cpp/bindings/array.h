@@ -104,7 +104,7 @@ std::vector<py::array_t<float, py::array::c_style>> CheckPairedArrayList(
 bool Overlaps(const py::array& a, const py::array& b);
 
 // The `resample` argument of the ULR and PVM colour reads: "cubic" (Catmull-Rom,
-// kernels/resample.h) -> true, "bilinear" -> false; anything else is a BadValueError.
+// ibr/resample.h) -> true, "bilinear" -> false; anything else is a BadValueError.
 bool ParseResample(const std::string& resample);
 
 }  // namespace ibr::bind

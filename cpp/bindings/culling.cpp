@@ -1,5 +1,5 @@
-// Bindings of warping-based occlusion culling (cpp/kernels/culling.h) and soft shadows from
-// light-sample shadow maps / traced occlusion rays (cpp/kernels/shadows.h); used by
+// Bindings of warping-based occlusion culling (cpp/kernels/depthwarp/culling.h) and soft shadows from
+// light-sample shadow maps / traced occlusion rays (cpp/kernels/depthwarp/shadows.h); used by
 // python/ibrtools/culling.py and python/ibrtools/shadows.py. Thin: array checks (array.h),
 // value checks the kernels rely on, outputs allocated once as numpy arrays, GIL released.
 #include <cmath>
@@ -14,8 +14,8 @@
 #include "array.h"
 #include "ibr/embree_scene.h"
 #include "ibr/errors.h"
-#include "kernels/culling.h"
-#include "kernels/shadows.h"
+#include "kernels/depthwarp/culling.h"
+#include "kernels/depthwarp/shadows.h"
 #include "module.h"
 
 namespace ibr::bind {
@@ -187,18 +187,18 @@ void BindCulling(py::module_& m) {
         py::arg("pad"),
         "Frustum test and screen rectangles of world boxes (K, 2, 3) for a pinhole _core.Camera: returns "
         "(state uint8 (K,) 0 outside / 1 crosses near / 2 on screen, rect int32 (K, 4) x0 y0 x1 y1, "
-        "min_z float32 (K,)); cpp/kernels/culling.h.");
+        "min_z float32 (K,)); cpp/kernels/depthwarp/culling.h.");
   m.def("cull_awoc_fill", &CullAwocFill, py::arg("depth"), py::arg("hole"), py::arg("motion"),
         py::arg("dst_depth"), py::arg("steps"), py::arg("sky_from_target") = py::none(),
         py::arg("source_depth") = py::none(),
         "AWOC: fill the holes of a warped depth (H', W') float32 / hole bool, in place, with the nearest "
         "moved depth of the source pixels at the corners of each hole's narrowed search bound "
         "(motion (H, W, 2), dst_depth (H, W) from depthwarp.motion_buffer); holes whose direction was empty in "
-        "source_depth (via the 3x3 sky_from_target map) stay holes; cpp/kernels/culling.h.");
+        "source_depth (via the 3x3 sky_from_target map) stay holes; cpp/kernels/depthwarp/culling.h.");
   m.def("shadow_map_visibility", &ShadowMapVisibilityPy, py::arg("view_depth"), py::arg("view"), py::arg("maps"),
         py::arg("cameras"), py::arg("bias"), py::arg("slope_bias"),
         "Fraction of the S shadow maps (S, Hs, Ws) in which each view pixel's surface point is lit "
-        "(cpp/kernels/shadows.h); bias in shadow-map texels, slope_bias times the map's own depth slope.");
+        "(cpp/kernels/depthwarp/shadows.h); bias in shadow-map texels, slope_bias times the map's own depth slope.");
   py::class_<OcclusionScene>(m, "OcclusionScene", "A triangle mesh in an Embree BVH for occlusion rays.")
       .def(py::init<const py::object&, const py::object&>(), py::arg("vertices"), py::arg("faces"))
       .def("visibility", &OcclusionScene::Visibility, py::arg("view_depth"), py::arg("view"),

@@ -1,4 +1,4 @@
-// Bindings of cpp/kernels/depthwarp.h and cpp/kernels/nbuffer.h: the checking front (dtypes,
+// Bindings of cpp/kernels/depthwarp/depthwarp.h and cpp/kernels/depthwarp/nbuffer.h: the checking front (dtypes,
 // shapes, pinhole cameras, finiteness, object ids in range), the scratch buffers and the calls with
 // the GIL released. Python: ibrtools.depthwarp (the only user; other modules use that API).
 #include <array>
@@ -16,8 +16,8 @@
 #include "array.h"
 #include "ibr/camera.h"
 #include "ibr/errors.h"
-#include "kernels/depthwarp.h"
-#include "kernels/nbuffer.h"
+#include "kernels/depthwarp/depthwarp.h"
+#include "kernels/depthwarp/nbuffer.h"
 #include "module.h"
 
 namespace ibr::bind {
@@ -268,7 +268,7 @@ void BindDepthwarp(py::module_& m) {
       },
       py::arg("layers"), py::arg("src"), py::arg("dst"), py::arg("object_ids") = py::none(),
       py::arg("object_motion") = py::none(), py::arg("out") = py::none(), py::arg("simd") = true,
-      "Exact motion buffers (cpp/kernels/depthwarp.h DepthWarpMotion) of layers float32 (L, H, W) z in "
+      "Exact motion buffers (cpp/kernels/depthwarp/depthwarp.h DepthWarpMotion) of layers float32 (L, H, W) z in "
       "src (0 = empty) into dst: float32 (L, H, W, 4) = (mx, my, z_dst, 0); z_dst = 0 marks invalid pixels. "
       "object_ids int32 (L, H, W) in -1..K-1 with object_motion float64 (K, 4, 4) new_world_from_old_world. "
       "out: an existing writeable float32 (L, H, W, 4) array to fill (and return) instead of a new one. "
@@ -565,7 +565,7 @@ void BindDepthwarp(py::module_& m) {
       "Forward depth warp baselines (DepthWarpForward, 'vfw' quad splats / 'afw' atomic-min points, both "
       "with the half-pixel support expansion): (depth (H', W') float32, layer int8, motion_ms, warp_ms).");
 
-  py::class_<YMap>(m, "YMap", "Y-map of a depth buffer for conservative max-depth queries (cpp/kernels/nbuffer.h).")
+  py::class_<YMap>(m, "YMap", "Y-map of a depth buffer for conservative max-depth queries (cpp/kernels/depthwarp/nbuffer.h).")
       .def(py::init([](py::handle depth_obj, int mip_levels) {
              FloatArray depth = CheckArray<float>(depth_obj, "depth", {{"H", -1}, {"W", -1}});
              const int h = static_cast<int>(depth.shape(0)), w = static_cast<int>(depth.shape(1));

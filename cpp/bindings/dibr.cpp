@@ -1,4 +1,4 @@
-// Binding of depth-image-based rendering (cpp/kernels/forward_warp.h, cpp/kernels/blend.h):
+// Binding of depth-image-based rendering (cpp/kernels/dibr/forward_warp.h, cpp/kernels/dibr/blend.h):
 // _core.WarpOptions, _core.DibrAccumulator (streaming warp + blend into one target camera)
 // and _core.forward_warp (one view, per-view buffers); _core.warp_with_holes and _core.warp_flow
 // (single-view warp with background-depth holes, dos Anjos et al. sec. 3.1). Thin: checks arrays (array.h),
@@ -18,8 +18,8 @@
 #include "ibr/camera.h"
 #include "ibr/errors.h"
 #include "ibr/simd.h"
-#include "kernels/blend.h"
-#include "kernels/forward_warp.h"
+#include "kernels/dibr/blend.h"
+#include "kernels/dibr/forward_warp.h"
 #include "module.h"
 
 namespace ibr::bind {
@@ -275,7 +275,7 @@ class DibrAccumulator {
 
 void BindDibr(py::module_& m) {
   py::class_<WarpOptions>(m, "WarpOptions",
-                          "Options of the forward mesh warp (cpp/kernels/forward_warp.h); defaults: RVS 4.0.")
+                          "Options of the forward mesh warp (cpp/kernels/dibr/forward_warp.h); defaults: RVS 4.0.")
       .def(py::init<>())
       .def_property(
           "quality", [](const WarpOptions& o) { return std::string(QualityName(o.quality)); },
@@ -324,7 +324,7 @@ void BindDibr(py::module_& m) {
                               "adds it to running sums (constant memory); result() blends (paper Eq. 3).")
       .def(py::init<const Camera&, float, bool, float>(), py::arg("target_camera"),
            py::arg("stretched_quality") = 0.f, py::arg("stretched_holes") = false, py::arg("depth_tolerance") = 0.f,
-           "Visibility across views (cpp/kernels/blend.h; all off = RVS): stretched_quality in [0, 1] "
+           "Visibility across views (cpp/kernels/dibr/blend.h; all off = RVS): stretched_quality in [0, 1] "
            "(fragments with q below it are stretched: never mixed into unstretched content), "
            "stretched_holes (pixels only stretched fragments cover become holes), depth_tolerance "
            "(relative: a nearer fragment replaces the sums, a farther one is dropped).")
@@ -424,7 +424,7 @@ void BindDibr(py::module_& m) {
       py::arg("color"), py::arg("depth"), py::arg("camera"), py::arg("target_camera"),
       py::arg("stretch_threshold") = kDefaultStretchThreshold, py::arg("depth_jump") = kDefaultDepthJump,
       "Warp one RGB-D view into target_camera with background-depth holes (dos Anjos et al. sec. 3.1, "
-      "Eq. 1; cpp/kernels/forward_warp.h). color float32 (H, W, 3), depth float32 (H, W) (pinhole: z, "
+      "Eq. 1; cpp/kernels/dibr/forward_warp.h). color float32 (H, W, 3), depth float32 (H, W) (pinhole: z, "
       "equirect: ray distance; 0 = unknown, +inf = at infinity). Quads whose longest target edge exceeds "
       "stretch_threshold pixels and whose corner depths differ by more than a factor 1 + depth_jump (0 = "
       "stretch only) are stretched. Returns (color (Ht, Wt, 3) (0 in holes), depth (Ht, Wt) "

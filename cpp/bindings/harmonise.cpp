@@ -1,6 +1,6 @@
-// Binding of the harmonisation kernel (cpp/kernels/harmonise.h): _core.cross_view_prediction; and
+// Binding of the harmonisation kernel (cpp/kernels/hybrid/harmonise.h): _core.cross_view_prediction; and
 // of the per-vertex statistics' gain loops
-// (cpp/kernels/vertexstats.h): _core.vertex_colour_sums, _core.gain_median_ratios.
+// (cpp/kernels/hybrid/vertexstats.h): _core.vertex_colour_sums, _core.gain_median_ratios.
 // Thin: checks arrays (array.h) and values, releases the GIL around the kernel.
 // Python: ibrtools.hybrid.harmonise.
 #include <cmath>
@@ -14,8 +14,8 @@
 
 #include "array.h"
 #include "ibr/errors.h"
-#include "kernels/harmonise.h"
-#include "kernels/vertexstats.h"
+#include "kernels/hybrid/harmonise.h"
+#include "kernels/hybrid/vertexstats.h"
 #include "module.h"
 
 namespace ibr::bind {
@@ -85,7 +85,7 @@ void BindHarmonise(py::module_& m) {
       },
       py::arg("camera"), py::arg("depth"), py::arg("cameras"), py::arg("depths"), py::arg("images"),
       py::arg("depth_tol"), py::arg("quantile") = 0.5,
-      "Diffuse prediction of a view's pixels from other views (cpp/kernels/harmonise.h): camera "
+      "Diffuse prediction of a view's pixels from other views (cpp/kernels/hybrid/harmonise.h): camera "
       "(_core.Camera), depth (H, W) float32 (<= 0: no surface); cameras: list of _core.Camera, depths: "
       "list of their (Hk, Wk) float32 depth, images: list of their (Hk, Wk, 3) float32 colours; returns "
       "(prediction (H, W, 3) float32, n_seen (H, W) int32).");
@@ -115,7 +115,7 @@ void BindHarmonise(py::module_& m) {
       },
       py::arg("index"), py::arg("color"), py::arg("bounds"), py::arg("gains"), py::arg("num_vertices"),
       py::kw_only(), py::arg("squares") = false,
-      "Per-vertex sums of gain-divided colour samples (cpp/kernels/vertexstats.h): index (S,) int64 vertex per "
+      "Per-vertex sums of gain-divided colour samples (cpp/kernels/hybrid/vertexstats.h): index (S,) int64 vertex per "
       "sample, color (3, S) float64, bounds (V + 1,) int64 (view v's samples at [bounds[v], bounds[v + 1])), "
       "gains (V, 3) float64; returns (sum (N, 3) float64, sum of squares (N, 3) or None), numpy bincount's bits.");
   m.def(
@@ -140,7 +140,7 @@ void BindHarmonise(py::module_& m) {
       },
       py::arg("index"), py::arg("color"), py::arg("bounds"), py::arg("gains"), py::arg("mean"),
       "Per view, the per-channel median of color / gain / mean over its samples whose vertex mean is > 1e-3 in "
-      "every channel (cpp/kernels/vertexstats.h): index (S,) int64, color (S, 3) float64, bounds (V + 1,) int64, "
+      "every channel (cpp/kernels/hybrid/vertexstats.h): index (S,) int64, color (S, 3) float64, bounds (V + 1,) int64, "
       "gains (V, 3) float64, mean (N, 3) float64; returns (median (V, 3) float64, 1 where no sample counts; "
       "count (V,) int64), numpy median's bits.");
 }

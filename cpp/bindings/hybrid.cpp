@@ -1,4 +1,4 @@
-// Binding of the hybrid-IBR preprocessing kernels (cpp/kernels/pvm.h): _core.pvm_triangulate
+// Binding of the hybrid-IBR preprocessing kernels (cpp/kernels/hybrid/pvm.h): _core.pvm_triangulate
 // (one view's depth map -> triangles over its pixel grid) and _core.pvm_slice (per-view meshes
 // -> tiles of a two-level voxel grid). Thin: checks arrays (array.h) and values, releases the
 // GIL around the kernels, hands the kernels' buffers to numpy without copying.
@@ -15,7 +15,7 @@
 
 #include "array.h"
 #include "ibr/errors.h"
-#include "kernels/pvm.h"
+#include "kernels/hybrid/pvm.h"
 #include "module.h"
 
 namespace ibr::bind {
@@ -76,7 +76,7 @@ void BindHybrid(py::module_& m) {
       },
       py::arg("depth"), py::arg("plane_field"), py::arg("max_rel_jump") = 0.03f, py::arg("plane_tol") = 1e-3f,
       py::arg("max_block") = 16,
-      "Triangles over the pixel grid of depth float32 (H, W) (cpp/kernels/pvm.h PvmTriangulate): int32 (F, 3) "
+      "Triangles over the pixel grid of depth float32 (H, W) (cpp/kernels/hybrid/pvm.h PvmTriangulate): int32 (F, 3) "
       "vertex ids y * W + x (pixel centres), counter-clockwise seen from the camera; edges cut where the relative "
       "depth jump exceeds max_rel_jump; blocks of up to max_block quads merged where plane_field (float32 (H, W), "
       "1/z for pinhole; None = no merging) is planar within plane_tol.");
@@ -145,7 +145,7 @@ void BindHybrid(py::module_& m) {
       py::arg("vertices"), py::arg("faces"), py::arg("face_view"), py::arg("n_views"), py::arg("origin"),
       py::arg("cell"), py::arg("coarse") = 32, py::arg("sub") = 4, py::arg("clip_all") = false,
       "Sort triangles (vertices float32 (N, 3), faces int32 (M, 3), face_view int32 (M,)) into the fine cells of a "
-      "two-level grid (cpp/kernels/pvm.h PvmSlice): whole, in the cell of their centroid, or, reaching beyond the "
+      "two-level grid (cpp/kernels/hybrid/pvm.h PvmSlice): whole, in the cell of their centroid, or, reaching beyond the "
       "coarse cells next to it, a copy in every cell they have area in; clip_all: every triangle crossing a cell "
       "face clipped into pieces. Returns a dict: vertices (V, 3), faces (F, 3) (indices into vertices), "
       "face_source (F,), keys (T,) ascending, face_offsets / vertex_offsets (T + 1,), bounds (T, 2, 3).");

@@ -1,4 +1,4 @@
-// Binding of the hybrid rendering kernels (cpp/kernels/hybrid.h, cpp/kernels/ulr.h):
+// Binding of the hybrid rendering kernels (cpp/kernels/hybrid/hybrid.h, cpp/kernels/hybrid/ulr.h):
 // _core.interpolate_vertex_attribute (TM colour / view-dependent texture from the G-buffer),
 // _core.sample_atlas (TM colour from the texture atlas at the G-buffer's hits),
 // _core.ulr_penalty / _core.ulr_select (the shared ULR ranking, for tests and Python callers),
@@ -17,10 +17,10 @@
 #include "array.h"
 #include "ibr/camera.h"
 #include "ibr/errors.h"
-#include "kernels/atlas8.h"
-#include "kernels/gbuffer_raster.h"
-#include "kernels/hybrid.h"
-#include "kernels/ulr.h"
+#include "kernels/hybrid/atlas8.h"
+#include "kernels/hybrid/gbuffer_raster.h"
+#include "kernels/hybrid/hybrid.h"
+#include "kernels/hybrid/ulr.h"
 #include "module.h"
 
 namespace ibr::bind {
@@ -104,7 +104,7 @@ FArray SampleAtlasBinding(const py::object& prim_obj, const py::object& bary_obj
   const auto h = prim.shape(0), w = prim.shape(1);
   auto bary = CheckArray<float>(bary_obj, "bary", {{"H", h}, {"W", w}, {"2", 2}});
   auto uv = CheckArray<float>(uv_obj, "uv", {{"M", -1}, {"3", 3}, {"2", 2}});
-  // float32 (h, w, 3) linear RGB, or uint8 (h, w, 4) sRGB RGBA (kernels/atlas8.h).
+  // float32 (h, w, 3) linear RGB, or uint8 (h, w, 4) sRGB RGBA (kernels/hybrid/atlas8.h).
   const bool srgb8 = py::isinstance<py::array>(atlas_obj) &&
                      py::reinterpret_borrow<py::array>(atlas_obj).dtype().is(py::dtype::of<std::uint8_t>());
   py::array_t<float, py::array::c_style> atlas;
@@ -164,7 +164,7 @@ std::vector<UlrInputView> InputViews(const py::list& views_obj, std::vector<FArr
   return views;
 }
 
-// _core.point_colors (kernels/atlas8.h PointColors): the texture bake's ULR-weighted colour at points.
+// _core.point_colors (kernels/hybrid/atlas8.h PointColors): the texture bake's ULR-weighted colour at points.
 py::tuple PointColorsBinding(const py::object& points_obj, const py::object& normals_obj, const py::list& views_obj,
                              int k, double depth_tol) {
   if (k < 1) throw BadValueError("k: expected >= 1 views per point, got " + std::to_string(k));
@@ -187,7 +187,7 @@ py::tuple PointColorsBinding(const py::object& points_obj, const py::object& nor
   return py::make_tuple(color, seen);
 }
 
-// _core.texel_points (kernels/atlas8.h TexelPoints): the used texels of a band of atlas rows,
+// _core.texel_points (kernels/hybrid/atlas8.h TexelPoints): the used texels of a band of atlas rows,
 // their barycentrics, surface points and unit normals.
 py::tuple TexelPointsBinding(const py::object& fot_obj, int row0, const py::object& uv_obj,
                              const py::object& vertices_obj, const py::object& faces_obj,
@@ -452,13 +452,13 @@ void BindHybridRender(py::module_& m) {
         "their faces' uv must be finite.");
   m.def("texel_points", &TexelPointsBinding, py::arg("face_of_texel"), py::arg("row0"), py::arg("uv"),
         py::arg("vertices"), py::arg("faces"), py::arg("normals"),
-        "The used texels of atlas rows row0.. (face_of_texel (rows, W) int32, -1 = unused; kernels/atlas8.h "
+        "The used texels of atlas rows row0.. (face_of_texel (rows, W) int32, -1 = unused; kernels/hybrid/atlas8.h "
         "TexelPoints), row-major: (ys (T,) int64 absolute rows, xs (T,) int64, face (T,) int32, bary (T, 3) float64 "
         "of the texel centre in the face's chart uv (M, 3, 2), clamped to the face; points (T, 3) float64 on the "
         "mesh (vertices (N, 3) float32, faces (M, 3) int32), unit normals (T, 3) float64 of normals (N, 3) float32).");
   m.def("point_colors", &PointColorsBinding, py::arg("points"), py::arg("normals"), py::arg("views"), py::kw_only(),
         py::arg("k") = 4, py::arg("depth_tol") = 0.02,
-        "ULR-weighted colour of the views at surface points (the texture bake; kernels/atlas8.h PointColors): "
+        "ULR-weighted colour of the views at surface points (the texture bake; kernels/hybrid/atlas8.h PointColors): "
         "points, normals (N, 3) float64 (unit normals), views = [(camera, color (h, w, 3), depth (h, w)), ...] -> "
         "(color (N, 3) float32, 0 where no view sees the point; seen (N,) int32 views that see it).");
   m.def(
@@ -474,7 +474,7 @@ void BindHybridRender(py::module_& m) {
         return UlrPenalty(pp, cn, cv, static_cast<float>(resolution_weight));
       },
       py::arg("p"), py::arg("c_novel"), py::arg("c_view"), py::arg("resolution_weight") = 0.5, py::arg("fast") = false,
-      "ULR penalty (cpp/kernels/ulr.h): angle + resolution_weight * max(0, |c_view-p|/|c_novel-p| - 1); "
+      "ULR penalty (cpp/kernels/hybrid/ulr.h): angle + resolution_weight * max(0, |c_view-p|/|c_novel-p| - 1); "
       "fast=True: the per-pixel kernel's version (polynomial atan2, within 2e-5).");
   m.def(
       "ulr_select",
@@ -489,7 +489,7 @@ void BindHybridRender(py::module_& m) {
         return py::make_tuple(idx, wt);
       },
       py::arg("penalty"), py::arg("k"),
-      "The k smallest finite penalties (cpp/kernels/ulr.h UlrSelect): (indices, weights summing to 1).");
+      "The k smallest finite penalties (cpp/kernels/hybrid/ulr.h UlrSelect): (indices, weights summing to 1).");
   m.def("ulr_blend", &UlrBlendBinding, py::arg("camera"), py::arg("gbuffer_depth"), py::arg("views"), py::kw_only(),
         py::arg("normal") = py::none(), py::arg("pixel_mask") = py::none(), py::arg("k") = 4,
         py::arg("resolution_weight") = 0.5, py::arg("depth_tol") = 0.005, py::arg("resample") = "cubic",

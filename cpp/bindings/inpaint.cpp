@@ -1,4 +1,4 @@
-// Bindings of cpp/kernels/pushpull.h: the checking front (shapes, dtypes, finiteness outside the
+// Bindings of cpp/kernels/inpaint/pushpull.h: the checking front (shapes, dtypes, finiteness outside the
 // holes, options) and the call with the GIL released. Python: ibrtools.inpaint.
 #include <cmath>
 #include <string>
@@ -8,7 +8,7 @@
 
 #include "array.h"
 #include "ibr/errors.h"
-#include "kernels/pushpull.h"
+#include "kernels/inpaint/pushpull.h"
 #include "module.h"
 #include "pushpull_args.h"
 
@@ -88,7 +88,7 @@ void BindInpaint(py::module_& m) {
       },
       py::arg("image"), py::arg("hole"), py::arg("depth") = py::none(), py::arg("depth_threshold") = 0.04,
       py::arg("gamma") = 0.0, py::arg("out") = py::none(), py::arg("holes_only") = false,
-      "Push-pull hole filling (cpp/kernels/pushpull.h). image float32 (H, W) or (H, W, C); hole bool or "
+      "Push-pull hole filling (cpp/kernels/inpaint/pushpull.h). image float32 (H, W) or (H, W, C); hole bool or "
       "uint8 (H, W), non-zero = hole; depth float32 (H, W) or None (classic); out: None (a new array) or "
       "a writeable float32 array of image's shape to fill (image itself with holes_only: in place); holes_only: "
       "write the hole pixels of out only. "

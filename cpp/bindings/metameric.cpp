@@ -1,4 +1,4 @@
-// Bindings of cpp/kernels/metameric.h: the checking front (dtypes, shapes of every band, mask,
+// Bindings of cpp/kernels/inpaint/metameric.h: the checking front (dtypes, shapes of every band, mask,
 // flow, scale, no aliasing of written bands) and the calls with the GIL released.
 // Python: ibrtools.metameric (private helpers of metameric()).
 #include <cmath>
@@ -11,8 +11,8 @@
 #include "array.h"
 #include "ibr/errors.h"
 #include "ibr/simd.h"  // UseAvx2: the process-wide instruction set
-#include "kernels/metameric.h"
-#include "kernels/pushpull.h"
+#include "kernels/inpaint/metameric.h"
+#include "kernels/inpaint/pushpull.h"
 #include "module.h"
 #include "pushpull_args.h"
 
@@ -121,7 +121,7 @@ void BindMetameric(py::module_& m) {
         MetamericStackMoments(views.data(), static_cast<int>(k), out_view);
       },
       py::arg("bands"), py::arg("out"),
-      "Push-pull input of one level's moments (cpp/kernels/metameric.h): bands = k float32 (h, w, C) "
+      "Push-pull input of one level's moments (cpp/kernels/inpaint/metameric.h): bands = k float32 (h, w, C) "
       "arrays; writes out float32 (h, w, 2kC) = [X_0..X_{k-1}, X_0^2..X_{k-1}^2] along the channels.");
 
   m.def(
@@ -161,7 +161,7 @@ void BindMetameric(py::module_& m) {
       },
       py::arg("bands"), py::arg("mask"), py::arg("depth"), py::arg("depth_threshold"), py::arg("gamma"),
       py::arg("out"),
-      "Push-pull of one level's moments (cpp/kernels/pushpull.h PushPullMomentsKernel): bands = k float32 "
+      "Push-pull of one level's moments (cpp/kernels/inpaint/pushpull.h PushPullMomentsKernel): bands = k float32 "
       "(h, w, C) arrays; mask uint8 (h, w), non-zero = fill; depth float32 (h, w) or None (classic); writes "
       "the masked samples of out float32 (h, w, 2kC): push-pull of [X_0..X_{k-1}, X_0^2..X_{k-1}^2].");
 
@@ -209,7 +209,7 @@ void BindMetameric(py::module_& m) {
       },
       py::arg("moments"), py::arg("mask"), py::arg("noise"), py::arg("bands"), py::arg("flow") = py::none(),
       py::arg("scale") = 1, py::arg("delta") = false,
-      "Metameric synthesis of one level in place (cpp/kernels/metameric.h): where mask (bool or uint8 (h, w)) "
+      "Metameric synthesis of one level in place (cpp/kernels/inpaint/metameric.h): where mask (bool or uint8 (h, w)) "
       "is set, bands[i] = mean + sqrt(max(0, E[X^2] - mean^2)) * noise[i] at the (flow-moved, wrapped) "
       "noise position, with mean, E[X^2] from moments float32 (h, w, 2kC); flow None or float32/float64 "
       "full-resolution (H, W, 2), read at (y * scale, x * scale). delta=True: bands[i] = sigma * noise[i] "
@@ -274,7 +274,7 @@ void BindMetameric(py::module_& m) {
       },
       py::arg("bands"), py::arg("mask"), py::arg("depth"), py::arg("depth_threshold"), py::arg("gamma"),
       py::arg("noise"), py::arg("flow") = py::none(), py::arg("scale") = 1, py::arg("check_finite") = true,
-      "One level of metameric synthesis in place (cpp/kernels/pushpull.h PushPullMomentsChangeKernel): "
+      "One level of metameric synthesis in place (cpp/kernels/inpaint/pushpull.h PushPullMomentsChangeKernel): "
       "metameric_pushpull_moments then metameric_composite(..., delta=True) without the moments image, the "
       "same values bit for bit. bands k float32 (h, w, C) arrays, read, then overwritten with their change "
       "(sigma * noise where mask (uint8 (h, w)) is set, 0 elsewhere); depth float32 (h, w) or None; noise k "
@@ -297,20 +297,20 @@ void BindMetameric(py::module_& m) {
         return out;
       },
       py::arg("image"),
-      "Display encoding of metameric synthesis (cpp/kernels/metameric.h SrgbEncode): the sRGB curve of every "
+      "Display encoding of metameric synthesis (cpp/kernels/inpaint/metameric.h SrgbEncode): the sRGB curve of every "
       "value of image float32 (H, W, C), odd-extended to negatives and unbounded above; NaN stays NaN. Returns "
       "a new float32 (H, W, C) array.");
 
   m.def(
       "linear_to_srgb", [](py::handle values) { return MapValues(values, LinearToSrgb); }, py::arg("values"),
-      "The display encoding of linear colour (cpp/kernels/metameric.h LinearToSrgb; Python: "
+      "The display encoding of linear colour (cpp/kernels/inpaint/metameric.h LinearToSrgb; Python: "
       "ibrtools.imageio.linear_to_srgb): the IEC 61966-2-1 sRGB curve of every value of a C-contiguous "
       "float32 array of any shape, clamped to [0, 1] first, NaN -> 0; within 1e-6 (relative) of the exact "
       "curve. Returns a new float32 array of the same shape.");
   m.def(
       "srgb_encode_unclipped", [](py::handle values) { return MapValues(values, EncodeUnclippedActiveIsa); },
       py::arg("values"),
-      "The sRGB encoding of linear colour for blending in sRGB space (cpp/kernels/metameric.h "
+      "The sRGB encoding of linear colour for blending in sRGB space (cpp/kernels/inpaint/metameric.h "
       "LinearToSrgbUnclipped; Python: ibrtools.render.dibr.srgb_encode): the IEC 61966-2-1 curve of every value "
       "of a C-contiguous float32 array of any shape, negative values and -inf -> 0, not clipped above 1, +inf "
       "stays +inf, NaN stays NaN; within 1e-6 of the exact curve (absolute in [0, 1], relative above), exact at 0 "
@@ -319,7 +319,7 @@ void BindMetameric(py::module_& m) {
       "same shape.");
   m.def(
       "srgb_to_linear", [](py::handle values) { return MapValues(values, SrgbToLinear); }, py::arg("values"),
-      "The decoding of stored sRGB colour (cpp/kernels/metameric.h SrgbToLinear; Python: "
+      "The decoding of stored sRGB colour (cpp/kernels/inpaint/metameric.h SrgbToLinear; Python: "
       "ibrtools.imageio.srgb_to_linear): v / 12.92 for v <= 0.04045 (negative values included), "
       "((v + 0.055) / 1.055)^2.4 above (beyond 1 too), NaN stays NaN, for every value of a C-contiguous float32 "
       "array of any shape; within 1e-5 (relative) of the exact curve. Returns a new float32 array of the same "
@@ -365,7 +365,7 @@ void BindMetameric(py::module_& m) {
       },
       py::arg("image"), py::arg("hole"), py::arg("base"), py::arg("change"), py::arg("decode"),
       py::arg("out") = py::none(),
-      "The result of metameric inpainting (cpp/kernels/metameric.h MetamericFillHoles): image where hole (bool or "
+      "The result of metameric inpainting (cpp/kernels/inpaint/metameric.h MetamericFillHoles): image where hole (bool or "
       "uint8 (H, W)) is 0, base + change inside the holes (decoded from the display encoding and clamped at 0 with "
       "decode=True); image, base, change float32 (H, W, C). Returns out: a new float32 (H, W, C) array, or the given "
       "writeable one, which may be image or change itself (not base).");

@@ -1,4 +1,4 @@
-// Bindings of cpp/kernels/mip.h: the checking front (dtypes, shapes of the chain, finiteness of
+// Bindings of cpp/kernels/metamers/mip.h: the checking front (dtypes, shapes of the chain, finiteness of
 // the level map) and the calls with the GIL released. Python: ibrtools.foveate.
 #include <cmath>
 #include <string>
@@ -9,7 +9,7 @@
 
 #include "array.h"
 #include "ibr/errors.h"
-#include "kernels/mip.h"
+#include "kernels/metamers/mip.h"
 #include "module.h"
 
 namespace ibr::bind {
@@ -77,7 +77,7 @@ void BindMip(py::module_& m) {
         return result;
       },
       py::arg("image"), py::arg("levels") = -1,
-      "Box-filter MIP chain of image float32 (H, W, C) (cpp/kernels/mip.h): a list of `levels` arrays "
+      "Box-filter MIP chain of image float32 (H, W, C) (cpp/kernels/metamers/mip.h): a list of `levels` arrays "
       "(-1 = down to 1x1), level l+1 of shape (ceil(H / 2^(l+1)), ceil(W / 2^(l+1)), C), each the 2x2 "
       "average of the previous one (odd sizes: the pixels that exist). The input itself is level 0 and "
       "is not in the list.");
@@ -126,7 +126,7 @@ void BindMip(py::module_& m) {
         return out;
       },
       py::arg("levels"), py::arg("level"),
-      "Trilinear read of a MIP chain (cpp/kernels/mip.h): levels = [level 0 (H, W, C), level 1 "
+      "Trilinear read of a MIP chain (cpp/kernels/metamers/mip.h): levels = [level 0 (H, W, C), level 1 "
       "(ceil(H/2), ceil(W/2), C), ...] float32; level float32 (H, W), finite, the fractional MIP level "
       "per pixel (clamped to [0, len(levels) - 1]; <= 0 copies level 0 exactly). Returns float32 (H, W, C).");
 
@@ -205,7 +205,7 @@ void BindMip(py::module_& m) {
         }
       },
       py::arg("bands"), py::arg("level"), py::arg("noise"), py::arg("levels"),
-      "One pyramid level of a foveated metamer, in place (cpp/kernels/mip.h MipFoveateChange): bands "
+      "One pyramid level of a foveated metamer, in place (cpp/kernels/metamers/mip.h MipFoveateChange): bands "
       "k float32 (h, w, C) arrays, written with their change; level float32 (h, w) finite, the MIP level "
       "per sample; noise k float32 (h, w, C); levels 0..mip_max_levels(h, w), the chain height of the "
       "moments [X, X^2] (built here, never returned). Where level <= 0 the change is 0; elsewhere it is "

@@ -7,7 +7,7 @@
 #include <string>
 
 #include "array.h"
-#include "kernels/pushpull.h"
+#include "kernels/inpaint/pushpull.h"
 
 namespace ibr::bind {
 

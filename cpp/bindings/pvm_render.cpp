@@ -1,4 +1,4 @@
-// Binding of the PVM renderer (cpp/kernels/pvm_render.h): _core.PvmRenderer holds the tiles
+// Binding of the PVM renderer (cpp/kernels/hybrid/pvm_render.h): _core.PvmRenderer holds the tiles
 // (references to the numpy arrays of tiles.npz, checked once), the input views' cameras and
 // images, and the per-frame buffers; render() runs the five stages with the GIL released and
 // returns the outputs and per-stage times. Thin: checks arrays (array.h) and values, the
@@ -16,7 +16,7 @@
 #include "array.h"
 #include "ibr/camera.h"
 #include "ibr/errors.h"
-#include "kernels/pvm_render.h"
+#include "kernels/hybrid/pvm_render.h"
 #include "module.h"
 
 namespace ibr::bind {
@@ -402,7 +402,7 @@ class PvmRendererCore {
 
 void BindPvmRender(py::module_& m) {
   py::class_<PvmRendererCore>(m, "PvmRenderer",
-                              "PVM tiles + input views; render() runs cpp/kernels/pvm_render.h's five stages. "
+                              "PVM tiles + input views; render() runs cpp/kernels/hybrid/pvm_render.h's five stages. "
                               "Not thread-safe: one render at a time per object (it reuses its frame buffers).")
       .def(py::init<py::handle, py::handle, py::handle, py::handle, py::handle, py::handle, py::handle, py::handle,
                     std::vector<double>,

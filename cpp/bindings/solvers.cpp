@@ -1,4 +1,4 @@
-// Bindings of cpp/kernels/maxflow.h and cpp/kernels/poisson.h: the checking fronts (shapes,
+// Bindings of cpp/kernels/solvers/maxflow.h and cpp/kernels/solvers/poisson.h: the checking fronts (shapes,
 // dtypes, non-negative finite capacities, finite images, options) and the calls with the GIL
 // released. Python: ibrtools.solvers.
 #include <cmath>
@@ -11,8 +11,8 @@
 
 #include "array.h"
 #include "ibr/errors.h"
-#include "kernels/maxflow.h"
-#include "kernels/poisson.h"
+#include "kernels/solvers/maxflow.h"
+#include "kernels/solvers/poisson.h"
 #include "module.h"
 
 namespace ibr::bind {
@@ -98,7 +98,7 @@ void BindSolvers(py::module_& m) {
         return GridMaxflowTyped<double>(source_cap, sink_cap, right, down);
       },
       py::arg("source_cap"), py::arg("sink_cap"), py::arg("right"), py::arg("down"),
-      "Boykov-Kolmogorov max-flow on a 4-connected grid (cpp/kernels/maxflow.h). All four arrays (H, W), "
+      "Boykov-Kolmogorov max-flow on a 4-connected grid (cpp/kernels/solvers/maxflow.h). All four arrays (H, W), "
       "int64 (exact) or float64, >= 0. Returns (flow, sink_side bool (H, W)).");
 
   m.def(
@@ -166,7 +166,7 @@ void BindSolvers(py::module_& m) {
       },
       py::arg("boundary"), py::arg("source"), py::arg("mask"), py::arg("tol") = 1e-6, py::arg("max_iter") = 200,
       py::arg("smooth_sweeps") = 1, py::arg("coarse_scale") = 1.8,
-      "Perez et al. 2003 seamless cloning by multigrid-preconditioned CG (cpp/kernels/poisson.h). boundary, "
+      "Perez et al. 2003 seamless cloning by multigrid-preconditioned CG (cpp/kernels/solvers/poisson.h). boundary, "
       "source float32 (H, W) or (H, W, C); mask bool (H, W). Returns (out, info).");
 }
 

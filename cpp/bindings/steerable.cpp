@@ -1,4 +1,4 @@
-// Bindings of cpp/kernels/steerable.h: the checking front (dtypes, shapes of every level,
+// Bindings of cpp/kernels/metamers/steerable.h: the checking front (dtypes, shapes of every level,
 // orientations, levels against the image size, finiteness) and the calls with the GIL released.
 // Python: ibrtools.steerable.
 #include <string>
@@ -10,7 +10,7 @@
 
 #include "array.h"
 #include "ibr/errors.h"
-#include "kernels/steerable.h"
+#include "kernels/metamers/steerable.h"
 #include "module.h"
 
 namespace ibr::bind {
@@ -20,7 +20,7 @@ using FloatArray = py::array_t<float, py::array::c_style>;
 
 void CheckOrientations(int orientations) {
   if (!SteerableOrientationsSupported(orientations)) {
-    throw BadValueError("orientations: expected 2 or 4 (the fitted taps in cpp/kernels/steerable_taps.h), got " +
+    throw BadValueError("orientations: expected 2 or 4 (the fitted taps in cpp/kernels/metamers/steerable_taps.h), got " +
                         std::to_string(orientations));
   }
 }
@@ -101,7 +101,7 @@ void BindSteerable(py::module_& m) {
         return py::make_tuple(hi, bands, lo);
       },
       py::arg("image"), py::arg("levels") = 4, py::arg("orientations") = 2, py::arg("ycbcr") = true,
-      "Steerable pyramid analysis (cpp/kernels/steerable.h). image float32 (H, W, C), H, W >= 3. Returns "
+      "Steerable pyramid analysis (cpp/kernels/metamers/steerable.h). image float32 (H, W, C), H, W >= 3. Returns "
       "(highpass (H, W, C), bands [level][orientation] each (h_l, w_l, C), lowpass (h_L, w_L, C)).");
 
   m.def(

@@ -105,7 +105,7 @@ class Camera:
 
 class RayScene:
     """
-    A triangle mesh in an Embree BVH (built once) with its shading attributes; renders reference buffers and shaded colour for cameras (cpp/kernels/raycast.h).
+    A triangle mesh in an Embree BVH (built once) with its shading attributes; renders reference buffers and shaded colour for cameras (cpp/kernels/raycast/raycast.h).
     """
 
     def __init__(self, vertices: _F32, faces: _I32, object_ids: _I32 | None=None, *, vertex_colors: _F32 | None=None, uvs: _F32 | None=None, texture_ids: _I32 | None=None, textures: list[_F32]=[], materials: _F32 | None=None, quality: str='high', robust: bool=True) -> None:
@@ -144,7 +144,7 @@ class RayScene:
 
 class WarpOptions:
     """
-    Options of the forward mesh warp (cpp/kernels/forward_warp.h); defaults: RVS 4.0.
+    Options of the forward mesh warp (cpp/kernels/dibr/forward_warp.h); defaults: RVS 4.0.
     """
 
     def __init__(self) -> None:
@@ -225,7 +225,7 @@ class DibrAccumulator:
 
     def __init__(self, target_camera: Camera, stretched_quality: typing.SupportsFloat | typing.SupportsIndex=0.0, stretched_holes: bool=False, depth_tolerance: typing.SupportsFloat | typing.SupportsIndex=0.0) -> None:
         """
-        Visibility across views (cpp/kernels/blend.h; all off = RVS): stretched_quality in [0, 1] (fragments with q below it are stretched: never mixed into unstretched content), stretched_holes (pixels only stretched fragments cover become holes), depth_tolerance (relative: a nearer fragment replaces the sums, a farther one is dropped).
+        Visibility across views (cpp/kernels/dibr/blend.h; all off = RVS): stretched_quality in [0, 1] (fragments with q below it are stretched: never mixed into unstretched content), stretched_holes (pixels only stretched fragments cover become holes), depth_tolerance (relative: a nearer fragment replaces the sums, a farther one is dropped).
         """
 
     def add_view(self, color: _F32, depth: _F32, camera: Camera, options: WarpOptions=...) -> None:
@@ -281,7 +281,7 @@ class DepthWarpMips:
 
 class YMap:
     """
-    Y-map of a depth buffer for conservative max-depth queries (cpp/kernels/nbuffer.h).
+    Y-map of a depth buffer for conservative max-depth queries (cpp/kernels/depthwarp/nbuffer.h).
     """
 
     def __init__(self, depth: _F32, mip_levels: typing.SupportsInt | typing.SupportsIndex=2) -> None:
@@ -327,7 +327,7 @@ class OcclusionScene:
 
 class PvmRenderer:
     """
-    PVM tiles + input views; render() runs cpp/kernels/pvm_render.h's five stages. Not thread-safe: one render at a time per object (it reuses its frame buffers).
+    PVM tiles + input views; render() runs cpp/kernels/hybrid/pvm_render.h's five stages. Not thread-safe: one render at a time per object (it reuses its frame buffers).
     """
 
     def __init__(self, vertices: _F32, faces: _I32, face_offsets: _I64, vertex_offsets: _I64, tile_view: _I32, tile_cell: _I32, tile_bounds: _F32, coarse_offsets: _I64, origin: collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], cell: collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], coarse: typing.SupportsInt | typing.SupportsIndex, sub: typing.SupportsInt | typing.SupportsIndex, cameras: collections.abc.Sequence[Camera], images: list[_F32], enabled: _Bool, depths: list[_F32] | None=None) -> None:
@@ -475,12 +475,12 @@ def cpu_has_avx2() -> bool:
 
 def cross_view_prediction(camera: Camera, depth: _F32, cameras: collections.abc.Sequence[Camera], depths: list[_F32], images: list[_F32], depth_tol: typing.SupportsFloat | typing.SupportsIndex, quantile: typing.SupportsFloat | typing.SupportsIndex=0.5) -> tuple[numpy.typing.NDArray[numpy.float32], numpy.typing.NDArray[numpy.int32]]:
     """
-    Diffuse prediction of a view's pixels from other views (cpp/kernels/harmonise.h): camera (_core.Camera), depth (H, W) float32 (<= 0: no surface); cameras: list of _core.Camera, depths: list of their (Hk, Wk) float32 depth, images: list of their (Hk, Wk, 3) float32 colours; returns (prediction (H, W, 3) float32, n_seen (H, W) int32).
+    Diffuse prediction of a view's pixels from other views (cpp/kernels/hybrid/harmonise.h): camera (_core.Camera), depth (H, W) float32 (<= 0: no surface); cameras: list of _core.Camera, depths: list of their (Hk, Wk) float32 depth, images: list of their (Hk, Wk, 3) float32 colours; returns (prediction (H, W, 3) float32, n_seen (H, W) int32).
     """
 
 def cull_awoc_fill(depth: _F32, hole: _Bool, motion: _F32, dst_depth: _F32, steps: typing.SupportsInt | typing.SupportsIndex, sky_from_target: _F64 | None=None, source_depth: _F32 | None=None) -> None:
     """
-    AWOC: fill the holes of a warped depth (H', W') float32 / hole bool, in place, with the nearest moved depth of the source pixels at the corners of each hole's narrowed search bound (motion (H, W, 2), dst_depth (H, W) from depthwarp.motion_buffer); holes whose direction was empty in source_depth (via the 3x3 sky_from_target map) stay holes; cpp/kernels/culling.h.
+    AWOC: fill the holes of a warped depth (H', W') float32 / hole bool, in place, with the nearest moved depth of the source pixels at the corners of each hole's narrowed search bound (motion (H, W, 2), dst_depth (H, W) from depthwarp.motion_buffer); holes whose direction was empty in source_depth (via the 3x3 sky_from_target map) stay holes; cpp/kernels/depthwarp/culling.h.
     """
 
 def cull_object_boxes(vertices: _F32, faces: _I32, object_ids: _I32, num_objects: typing.SupportsInt | typing.SupportsIndex) -> numpy.typing.NDArray[numpy.float32]:
@@ -490,7 +490,7 @@ def cull_object_boxes(vertices: _F32, faces: _I32, object_ids: _I32, num_objects
 
 def cull_project_boxes(boxes: _F32, camera: Camera, near: typing.SupportsFloat | typing.SupportsIndex, pad: typing.SupportsInt | typing.SupportsIndex) -> tuple[_U8, _I32, _F32]:
     """
-    Frustum test and screen rectangles of world boxes (K, 2, 3) for a pinhole _core.Camera: returns (state uint8 (K,) 0 outside / 1 crosses near / 2 on screen, rect int32 (K, 4) x0 y0 x1 y1, min_z float32 (K,)); cpp/kernels/culling.h.
+    Frustum test and screen rectangles of world boxes (K, 2, 3) for a pinhole _core.Camera: returns (state uint8 (K,) 0 outside / 1 crosses near / 2 on screen, rect int32 (K, 4) x0 y0 x1 y1, min_z float32 (K,)); cpp/kernels/depthwarp/culling.h.
     """
 
 def dw_build_mips(packed: _F32, oriented: bool=False, pca_grid: typing.SupportsInt | typing.SupportsIndex=16, reuse: DepthWarpMips | None=None) -> DepthWarpMips:
@@ -505,7 +505,7 @@ def dw_forward(layers: _F32, src: Camera, dst: Camera, object_ids: _I32 | None=N
 
 def dw_motion(layers: _F32, src: Camera, dst: Camera, object_ids: _I32 | None=None, object_motion: _F64 | None=None, out: _F32 | None=None, simd: bool=True) -> numpy.typing.NDArray[numpy.float32]:
     """
-    Exact motion buffers (cpp/kernels/depthwarp.h DepthWarpMotion) of layers float32 (L, H, W) z in src (0 = empty) into dst: float32 (L, H, W, 4) = (mx, my, z_dst, 0); z_dst = 0 marks invalid pixels. object_ids int32 (L, H, W) in -1..K-1 with object_motion float64 (K, 4, 4) new_world_from_old_world. out: an existing writeable float32 (L, H, W, 4) array to fill (and return) instead of a new one. simd=False: the scalar loop for every pixel (the same bits as the default SSE2 path; for tests).
+    Exact motion buffers (cpp/kernels/depthwarp/depthwarp.h DepthWarpMotion) of layers float32 (L, H, W) z in src (0 = empty) into dst: float32 (L, H, W, 4) = (mx, my, z_dst, 0); z_dst = 0 marks invalid pixels. object_ids int32 (L, H, W) in -1..K-1 with object_motion float64 (K, 4, 4) new_world_from_old_world. out: an existing writeable float32 (L, H, W, 4) array to fill (and return) instead of a new one. simd=False: the scalar loop for every pixel (the same bits as the default SSE2 path; for tests).
     """
 
 def dw_motion_mips(layers: _F32, src: Camera, dst: Camera, object_ids: _I32 | None=None, object_motion: _F64 | None=None, oriented: bool=False, pca_grid: typing.SupportsInt | typing.SupportsIndex=16, out: _F32 | None=None, reuse: DepthWarpMips | None=None) -> tuple[_F32, DepthWarpMips, float, float]:
@@ -525,7 +525,7 @@ def forward_warp(color: _F32, depth: _F32, camera: Camera, target_camera: Camera
 
 def gain_median_ratios(index: _I64, color: _F64, bounds: _I64, gains: _F64, mean: _F64) -> tuple[_F64, _I64]:
     """
-    Per view, the per-channel median of color / gain / mean over its samples whose vertex mean is > 1e-3 in every channel (cpp/kernels/vertexstats.h): index (S,) int64, color (S, 3) float64, bounds (V + 1,) int64, gains (V, 3) float64, mean (N, 3) float64; returns (median (V, 3) float64, 1 where no sample counts; count (V,) int64), numpy median's bits.
+    Per view, the per-channel median of color / gain / mean over its samples whose vertex mean is > 1e-3 in every channel (cpp/kernels/hybrid/vertexstats.h): index (S,) int64, color (S, 3) float64, bounds (V + 1,) int64, gains (V, 3) float64, mean (N, 3) float64; returns (median (V, 3) float64, 1 where no sample counts; count (V,) int64), numpy median's bits.
     """
 
 def get_num_threads() -> int:
@@ -535,7 +535,7 @@ def get_num_threads() -> int:
 
 def grid_maxflow(source_cap: _I64 | _F64, sink_cap: _I64 | _F64, right: _I64 | _F64, down: _I64 | _F64) -> tuple[int | float, _Bool]:
     """
-    Boykov-Kolmogorov max-flow on a 4-connected grid (cpp/kernels/maxflow.h). All four arrays (H, W), int64 (exact) or float64, >= 0. Returns (flow, sink_side bool (H, W)).
+    Boykov-Kolmogorov max-flow on a 4-connected grid (cpp/kernels/solvers/maxflow.h). All four arrays (H, W), int64 (exact) or float64, >= 0. Returns (flow, sink_side bool (H, W)).
     """
 
 def hybrid_composite(weights: _F32, tm: _F32, *, ulr: _F32 | None=None, ulr_count: _U8 | None=None, pvm: _F32 | None=None, pvm_valid: _Bool | None=None) -> numpy.typing.NDArray[numpy.float32]:
@@ -565,52 +565,52 @@ def interpolate_vertex_attribute(prim_id: _I32, bary: _F32, faces: _I32, attrib:
 
 def linear_to_srgb(values: _F32) -> _F32:
     """
-    The display encoding of linear colour (cpp/kernels/metameric.h LinearToSrgb; Python: ibrtools.imageio.linear_to_srgb): the IEC 61966-2-1 sRGB curve of every value of a C-contiguous float32 array of any shape, clamped to [0, 1] first, NaN -> 0; within 1e-6 (relative) of the exact curve. Returns a new float32 array of the same shape.
+    The display encoding of linear colour (cpp/kernels/inpaint/metameric.h LinearToSrgb; Python: ibrtools.imageio.linear_to_srgb): the IEC 61966-2-1 sRGB curve of every value of a C-contiguous float32 array of any shape, clamped to [0, 1] first, NaN -> 0; within 1e-6 (relative) of the exact curve. Returns a new float32 array of the same shape.
     """
 
 def metameric_composite(moments: _F32, mask: _Bool | _U8, noise: collections.abc.Sequence[_F32], bands: collections.abc.Sequence[_F32], flow: _F32 | _F64 | None=None, scale: typing.SupportsInt | typing.SupportsIndex=1, delta: bool=False) -> None:
     """
-    Metameric synthesis of one level in place (cpp/kernels/metameric.h): where mask (bool or uint8 (h, w)) is set, bands[i] = mean + sqrt(max(0, E[X^2] - mean^2)) * noise[i] at the (flow-moved, wrapped) noise position, with mean, E[X^2] from moments float32 (h, w, 2kC); flow None or float32/float64 full-resolution (H, W, 2), read at (y * scale, x * scale). delta=True: bands[i] = sigma * noise[i] where mask is set and 0 elsewhere (the band's change when the fill's mean is the band itself).
+    Metameric synthesis of one level in place (cpp/kernels/inpaint/metameric.h): where mask (bool or uint8 (h, w)) is set, bands[i] = mean + sqrt(max(0, E[X^2] - mean^2)) * noise[i] at the (flow-moved, wrapped) noise position, with mean, E[X^2] from moments float32 (h, w, 2kC); flow None or float32/float64 full-resolution (H, W, 2), read at (y * scale, x * scale). delta=True: bands[i] = sigma * noise[i] where mask is set and 0 elsewhere (the band's change when the fill's mean is the band itself).
     """
 
 def metameric_encode(image: _F32) -> _F32:
     """
-    Display encoding of metameric synthesis (cpp/kernels/metameric.h SrgbEncode): the sRGB curve of every value of image float32 (H, W, C), odd-extended to negatives and unbounded above; NaN stays NaN. Returns a new float32 (H, W, C) array.
+    Display encoding of metameric synthesis (cpp/kernels/inpaint/metameric.h SrgbEncode): the sRGB curve of every value of image float32 (H, W, C), odd-extended to negatives and unbounded above; NaN stays NaN. Returns a new float32 (H, W, C) array.
     """
 
 def metameric_fill_holes(image: _F32, hole: _Bool | _U8, base: _F32, change: _F32, decode: bool, out: _F32 | None=None) -> _F32:
     """
-    The result of metameric inpainting (cpp/kernels/metameric.h MetamericFillHoles): image where hole (bool or uint8 (H, W)) is 0, base + change inside the holes (decoded from the display encoding and clamped at 0 with decode=True); image, base, change float32 (H, W, C). Returns out: a new float32 (H, W, C) array, or the given writeable one, which may be image or change itself (not base).
+    The result of metameric inpainting (cpp/kernels/inpaint/metameric.h MetamericFillHoles): image where hole (bool or uint8 (H, W)) is 0, base + change inside the holes (decoded from the display encoding and clamped at 0 with decode=True); image, base, change float32 (H, W, C). Returns out: a new float32 (H, W, C) array, or the given writeable one, which may be image or change itself (not base).
     """
 
 def metameric_pushpull_change(bands: collections.abc.Sequence[_F32], mask: _U8, depth: _F32 | None, depth_threshold: typing.SupportsFloat | typing.SupportsIndex, gamma: typing.SupportsFloat | typing.SupportsIndex, noise: collections.abc.Sequence[_F32], flow: _F32 | _F64 | None=None, scale: typing.SupportsInt | typing.SupportsIndex=1, check_finite: bool=True) -> None:
     """
-    One level of metameric synthesis in place (cpp/kernels/pushpull.h PushPullMomentsChangeKernel): metameric_pushpull_moments then metameric_composite(..., delta=True) without the moments image, the same values bit for bit. bands k float32 (h, w, C) arrays, read, then overwritten with their change (sigma * noise where mask (uint8 (h, w)) is set, 0 elsewhere); depth float32 (h, w) or None; noise k float32 (h, w, C); flow None or float32/float64 full-resolution (H, W, 2), read at (y * scale, x * scale). Raises BadValueError when every sample is masked (the bands are then left as they were) and, with check_finite (default), for NaN or infinite band values outside the mask; check_finite=False skips that scan for callers whose bands come from analysing a finite image (ibrtools.metameric: the pre-fill is checked finite by push-pull's front).
+    One level of metameric synthesis in place (cpp/kernels/inpaint/pushpull.h PushPullMomentsChangeKernel): metameric_pushpull_moments then metameric_composite(..., delta=True) without the moments image, the same values bit for bit. bands k float32 (h, w, C) arrays, read, then overwritten with their change (sigma * noise where mask (uint8 (h, w)) is set, 0 elsewhere); depth float32 (h, w) or None; noise k float32 (h, w, C); flow None or float32/float64 full-resolution (H, W, 2), read at (y * scale, x * scale). Raises BadValueError when every sample is masked (the bands are then left as they were) and, with check_finite (default), for NaN or infinite band values outside the mask; check_finite=False skips that scan for callers whose bands come from analysing a finite image (ibrtools.metameric: the pre-fill is checked finite by push-pull's front).
     """
 
 def metameric_pushpull_moments(bands: collections.abc.Sequence[_F32], mask: _U8, depth: _F32 | None, depth_threshold: typing.SupportsFloat | typing.SupportsIndex, gamma: typing.SupportsFloat | typing.SupportsIndex, out: _F32) -> None:
     """
-    Push-pull of one level's moments (cpp/kernels/pushpull.h PushPullMomentsKernel): bands = k float32 (h, w, C) arrays; mask uint8 (h, w), non-zero = fill; depth float32 (h, w) or None (classic); writes the masked samples of out float32 (h, w, 2kC): push-pull of [X_0..X_{k-1}, X_0^2..X_{k-1}^2].
+    Push-pull of one level's moments (cpp/kernels/inpaint/pushpull.h PushPullMomentsKernel): bands = k float32 (h, w, C) arrays; mask uint8 (h, w), non-zero = fill; depth float32 (h, w) or None (classic); writes the masked samples of out float32 (h, w, 2kC): push-pull of [X_0..X_{k-1}, X_0^2..X_{k-1}^2].
     """
 
 def metameric_stack_moments(bands: collections.abc.Sequence[_F32], out: _F32) -> None:
     """
-    Push-pull input of one level's moments (cpp/kernels/metameric.h): bands = k float32 (h, w, C) arrays; writes out float32 (h, w, 2kC) = [X_0..X_{k-1}, X_0^2..X_{k-1}^2] along the channels.
+    Push-pull input of one level's moments (cpp/kernels/inpaint/metameric.h): bands = k float32 (h, w, C) arrays; writes out float32 (h, w, 2kC) = [X_0..X_{k-1}, X_0^2..X_{k-1}^2] along the channels.
     """
 
 def mip_build(image: _F32, levels: typing.SupportsInt | typing.SupportsIndex=-1) -> list[_F32]:
     """
-    Box-filter MIP chain of image float32 (H, W, C) (cpp/kernels/mip.h): a list of `levels` arrays (-1 = down to 1x1), level l+1 of shape (ceil(H / 2^(l+1)), ceil(W / 2^(l+1)), C), each the 2x2 average of the previous one (odd sizes: the pixels that exist). The input itself is level 0 and is not in the list.
+    Box-filter MIP chain of image float32 (H, W, C) (cpp/kernels/metamers/mip.h): a list of `levels` arrays (-1 = down to 1x1), level l+1 of shape (ceil(H / 2^(l+1)), ceil(W / 2^(l+1)), C), each the 2x2 average of the previous one (odd sizes: the pixels that exist). The input itself is level 0 and is not in the list.
     """
 
 def mip_foveate_level(bands: collections.abc.Sequence[_F32], level: _F32, noise: collections.abc.Sequence[_F32], levels: typing.SupportsInt | typing.SupportsIndex) -> None:
     """
-    One pyramid level of a foveated metamer, in place (cpp/kernels/mip.h MipFoveateChange): bands k float32 (h, w, C) arrays, written with their change; level float32 (h, w) finite, the MIP level per sample; noise k float32 (h, w, C); levels 0..mip_max_levels(h, w), the chain height of the moments [X, X^2] (built here, never returned). Where level <= 0 the change is 0; elsewhere it is mean + sigma * noise - band with the moments read trilinearly at min(level, levels). Equals mip_build + mip_lookup + metameric_composite + subtraction to float rounding.
+    One pyramid level of a foveated metamer, in place (cpp/kernels/metamers/mip.h MipFoveateChange): bands k float32 (h, w, C) arrays, written with their change; level float32 (h, w) finite, the MIP level per sample; noise k float32 (h, w, C); levels 0..mip_max_levels(h, w), the chain height of the moments [X, X^2] (built here, never returned). Where level <= 0 the change is 0; elsewhere it is mean + sigma * noise - band with the moments read trilinearly at min(level, levels). Equals mip_build + mip_lookup + metameric_composite + subtraction to float rounding.
     """
 
 def mip_lookup(levels: collections.abc.Sequence[_F32], level: _F32) -> numpy.typing.NDArray[numpy.float32]:
     """
-    Trilinear read of a MIP chain (cpp/kernels/mip.h): levels = [level 0 (H, W, C), level 1 (ceil(H/2), ceil(W/2), C), ...] float32; level float32 (H, W), finite, the fractional MIP level per pixel (clamped to [0, len(levels) - 1]; <= 0 copies level 0 exactly). Returns float32 (H, W, C).
+    Trilinear read of a MIP chain (cpp/kernels/metamers/mip.h): levels = [level 0 (H, W, C), level 1 (ceil(H/2), ceil(W/2), C), ...] float32; level float32 (H, W), finite, the fractional MIP level per pixel (clamped to [0, len(levels) - 1]; <= 0 copies level 0 exactly). Returns float32 (H, W, C).
     """
 
 def mip_max_levels(height: typing.SupportsInt | typing.SupportsIndex, width: typing.SupportsInt | typing.SupportsIndex) -> int:
@@ -630,27 +630,27 @@ def mvs_patchmatch(ref_grey: _F32, ref_camera: Camera, source_greys: list[_F32],
 
 def point_colors(points: _F64, normals: _F64, views: list[tuple[Camera, _F32, _F32]], *, k: typing.SupportsInt | typing.SupportsIndex=4, depth_tol: typing.SupportsFloat | typing.SupportsIndex=0.02) -> tuple[_F32, _I32]:
     """
-    ULR-weighted colour of the views at surface points (the texture bake; kernels/atlas8.h PointColors): points, normals (N, 3) float64 (unit normals), views = [(camera, color (h, w, 3), depth (h, w)), ...] -> (color (N, 3) float32, 0 where no view sees the point; seen (N,) int32 views that see it).
+    ULR-weighted colour of the views at surface points (the texture bake; kernels/hybrid/atlas8.h PointColors): points, normals (N, 3) float64 (unit normals), views = [(camera, color (h, w, 3), depth (h, w)), ...] -> (color (N, 3) float32, 0 where no view sees the point; seen (N,) int32 views that see it).
     """
 
 def poisson_blend(boundary: _F32, source: _F32, mask: _Bool, tol: typing.SupportsFloat | typing.SupportsIndex=1e-06, max_iter: typing.SupportsInt | typing.SupportsIndex=200, smooth_sweeps: typing.SupportsInt | typing.SupportsIndex=1, coarse_scale: typing.SupportsFloat | typing.SupportsIndex=1.8) -> tuple[_F32, dict[str, typing.Any]]:
     """
-    Perez et al. 2003 seamless cloning by multigrid-preconditioned CG (cpp/kernels/poisson.h). boundary, source float32 (H, W) or (H, W, C); mask bool (H, W). Returns (out, info).
+    Perez et al. 2003 seamless cloning by multigrid-preconditioned CG (cpp/kernels/solvers/poisson.h). boundary, source float32 (H, W) or (H, W, C); mask bool (H, W). Returns (out, info).
     """
 
 def pushpull(image: _F32, hole: _Bool | _U8, depth: _F32 | None=None, depth_threshold: typing.SupportsFloat | typing.SupportsIndex=0.04, gamma: typing.SupportsFloat | typing.SupportsIndex=0.0, out: _F32 | None=None, holes_only: bool=False) -> tuple[numpy.typing.NDArray[numpy.float32], bool]:
     """
-    Push-pull hole filling (cpp/kernels/pushpull.h). image float32 (H, W) or (H, W, C); hole bool or uint8 (H, W), non-zero = hole; depth float32 (H, W) or None (classic); out: None (a new array) or a writeable float32 array of image's shape to fill (image itself with holes_only: in place); holes_only: write the hole pixels of out only. Returns (out, no_hole) where no_hole says the image had no hole.
+    Push-pull hole filling (cpp/kernels/inpaint/pushpull.h). image float32 (H, W) or (H, W, C); hole bool or uint8 (H, W), non-zero = hole; depth float32 (H, W) or None (classic); out: None (a new array) or a writeable float32 array of image's shape to fill (image itself with holes_only: in place); holes_only: write the hole pixels of out only. Returns (out, no_hole) where no_hole says the image had no hole.
     """
 
 def pvm_slice(vertices: _F32, faces: _I32, face_view: _I32, n_views: typing.SupportsInt | typing.SupportsIndex, origin: collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], cell: collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], coarse: typing.SupportsInt | typing.SupportsIndex=32, sub: typing.SupportsInt | typing.SupportsIndex=4, clip_all: bool=False) -> dict[str, numpy.typing.NDArray[typing.Any]]:
     """
-    Sort triangles (vertices float32 (N, 3), faces int32 (M, 3), face_view int32 (M,)) into the fine cells of a two-level grid (cpp/kernels/pvm.h PvmSlice): whole, in the cell of their centroid, or, reaching beyond the coarse cells next to it, a copy in every cell they have area in; clip_all: every triangle crossing a cell face clipped into pieces. Returns a dict: vertices (V, 3), faces (F, 3) (indices into vertices), face_source (F,), keys (T,) ascending, face_offsets / vertex_offsets (T + 1,), bounds (T, 2, 3).
+    Sort triangles (vertices float32 (N, 3), faces int32 (M, 3), face_view int32 (M,)) into the fine cells of a two-level grid (cpp/kernels/hybrid/pvm.h PvmSlice): whole, in the cell of their centroid, or, reaching beyond the coarse cells next to it, a copy in every cell they have area in; clip_all: every triangle crossing a cell face clipped into pieces. Returns a dict: vertices (V, 3), faces (F, 3) (indices into vertices), face_source (F,), keys (T,) ascending, face_offsets / vertex_offsets (T + 1,), bounds (T, 2, 3).
     """
 
 def pvm_triangulate(depth: _F32, plane_field: _F32 | None, max_rel_jump: typing.SupportsFloat | typing.SupportsIndex=0.029999999329447746, plane_tol: typing.SupportsFloat | typing.SupportsIndex=0.0010000000474974513, max_block: typing.SupportsInt | typing.SupportsIndex=16) -> numpy.typing.NDArray[numpy.int32]:
     """
-    Triangles over the pixel grid of depth float32 (H, W) (cpp/kernels/pvm.h PvmTriangulate): int32 (F, 3) vertex ids y * W + x (pixel centres), counter-clockwise seen from the camera; edges cut where the relative depth jump exceeds max_rel_jump; blocks of up to max_block quads merged where plane_field (float32 (H, W), 1/z for pinhole; None = no merging) is planar within plane_tol.
+    Triangles over the pixel grid of depth float32 (H, W) (cpp/kernels/hybrid/pvm.h PvmTriangulate): int32 (F, 3) vertex ids y * W + x (pixel centres), counter-clockwise seen from the camera; edges cut where the relative depth jump exceeds max_rel_jump; blocks of up to max_block quads merged where plane_field (float32 (H, W), 1/z for pinhole; None = no merging) is planar within plane_tol.
     """
 
 def raster_gbuffer(camera: Camera, vertices: _F32, faces: _I32, *, normal: bool=True) -> dict[str, numpy.typing.NDArray[typing.Any]]:
@@ -675,17 +675,17 @@ def set_warp_isa(isa: str) -> None:
 
 def shadow_map_visibility(view_depth: _F32, view: Camera, maps: _F32, cameras: collections.abc.Sequence[Camera], bias: typing.SupportsFloat | typing.SupportsIndex, slope_bias: typing.SupportsFloat | typing.SupportsIndex) -> numpy.typing.NDArray[numpy.float32]:
     """
-    Fraction of the S shadow maps (S, Hs, Ws) in which each view pixel's surface point is lit (cpp/kernels/shadows.h); bias in shadow-map texels, slope_bias times the map's own depth slope.
+    Fraction of the S shadow maps (S, Hs, Ws) in which each view pixel's surface point is lit (cpp/kernels/depthwarp/shadows.h); bias in shadow-map texels, slope_bias times the map's own depth slope.
     """
 
 def srgb_encode_unclipped(values: _F32) -> _F32:
     """
-    The sRGB encoding of linear colour for blending in sRGB space (cpp/kernels/metameric.h LinearToSrgbUnclipped; Python: ibrtools.render.dibr.srgb_encode): the IEC 61966-2-1 curve of every value of a C-contiguous float32 array of any shape, negative values and -inf -> 0, not clipped above 1, +inf stays +inf, NaN stays NaN; within 1e-6 of the exact curve (absolute in [0, 1], relative above), exact at 0 and 1. A table in [0, 1] (AVX2 gathers when set_warp_isa allows: the same bits either way). Returns a new float32 array of the same shape.
+    The sRGB encoding of linear colour for blending in sRGB space (cpp/kernels/inpaint/metameric.h LinearToSrgbUnclipped; Python: ibrtools.render.dibr.srgb_encode): the IEC 61966-2-1 curve of every value of a C-contiguous float32 array of any shape, negative values and -inf -> 0, not clipped above 1, +inf stays +inf, NaN stays NaN; within 1e-6 of the exact curve (absolute in [0, 1], relative above), exact at 0 and 1. A table in [0, 1] (AVX2 gathers when set_warp_isa allows: the same bits either way). Returns a new float32 array of the same shape.
     """
 
 def srgb_to_linear(values: _F32) -> _F32:
     """
-    The decoding of stored sRGB colour (cpp/kernels/metameric.h SrgbToLinear; Python: ibrtools.imageio.srgb_to_linear): v / 12.92 for v <= 0.04045 (negative values included), ((v + 0.055) / 1.055)^2.4 above (beyond 1 too), NaN stays NaN, for every value of a C-contiguous float32 array of any shape; within 1e-5 (relative) of the exact curve. Returns a new float32 array of the same shape.
+    The decoding of stored sRGB colour (cpp/kernels/inpaint/metameric.h SrgbToLinear; Python: ibrtools.imageio.srgb_to_linear): v / 12.92 for v <= 0.04045 (negative values included), ((v + 0.055) / 1.055)^2.4 above (beyond 1 too), NaN stays NaN, for every value of a C-contiguous float32 array of any shape; within 1e-5 (relative) of the exact curve. Returns a new float32 array of the same shape.
     """
 
 def ssim(a: _F32, b: _F32, data_range: typing.SupportsFloat | typing.SupportsIndex=1.0, return_map: bool=False, win_size: typing.SupportsInt | typing.SupportsIndex=7, k1: typing.SupportsFloat | typing.SupportsIndex=0.01, k2: typing.SupportsFloat | typing.SupportsIndex=0.03, sample_covariance: bool=True) -> tuple[float, _F32 | None]:
@@ -695,7 +695,7 @@ def ssim(a: _F32, b: _F32, data_range: typing.SupportsFloat | typing.SupportsInd
 
 def steerable_analyse(image: _F32, levels: typing.SupportsInt | typing.SupportsIndex=4, orientations: typing.SupportsInt | typing.SupportsIndex=2, ycbcr: bool=True) -> tuple[_F32, list[list[_F32]], _F32]:
     """
-    Steerable pyramid analysis (cpp/kernels/steerable.h). image float32 (H, W, C), H, W >= 3. Returns (highpass (H, W, C), bands [level][orientation] each (h_l, w_l, C), lowpass (h_L, w_L, C)).
+    Steerable pyramid analysis (cpp/kernels/metamers/steerable.h). image float32 (H, W, C), H, W >= 3. Returns (highpass (H, W, C), bands [level][orientation] each (h_l, w_l, C), lowpass (h_L, w_L, C)).
     """
 
 def steerable_max_levels(height: typing.SupportsInt | typing.SupportsIndex, width: typing.SupportsInt | typing.SupportsIndex) -> int:
@@ -710,7 +710,7 @@ def steerable_synthesise(highpass: _F32, bands: collections.abc.Sequence[collect
 
 def texel_points(face_of_texel: _I32, row0: typing.SupportsInt | typing.SupportsIndex, uv: _F32, vertices: _F32, faces: _I32, normals: _F32) -> tuple[_I64, _I64, _I32, _F64, _F64, _F64]:
     """
-    The used texels of atlas rows row0.. (face_of_texel (rows, W) int32, -1 = unused; kernels/atlas8.h TexelPoints), row-major: (ys (T,) int64 absolute rows, xs (T,) int64, face (T,) int32, bary (T, 3) float64 of the texel centre in the face's chart uv (M, 3, 2), clamped to the face; points (T, 3) float64 on the mesh (vertices (N, 3) float32, faces (M, 3) int32), unit normals (T, 3) float64 of normals (N, 3) float32).
+    The used texels of atlas rows row0.. (face_of_texel (rows, W) int32, -1 = unused; kernels/hybrid/atlas8.h TexelPoints), row-major: (ys (T,) int64 absolute rows, xs (T,) int64, face (T,) int32, bary (T, 3) float64 of the texel centre in the face's chart uv (M, 3, 2), clamped to the face; points (T, 3) float64 on the mesh (vertices (N, 3) float32, faces (M, 3) int32), unit normals (T, 3) float64 of normals (N, 3) float32).
     """
 
 def ulr_blend(camera: Camera, gbuffer_depth: _F32, views: list[tuple[Camera, _F32, _F32]], *, normal: _F32 | None=None, pixel_mask: _Bool | None=None, k: typing.SupportsInt | typing.SupportsIndex=4, resolution_weight: typing.SupportsFloat | typing.SupportsIndex=0.5, depth_tol: typing.SupportsFloat | typing.SupportsIndex=0.005, resample: str='cubic', reference: bool=False, simd: str='auto') -> tuple[_F32, _U8]:
@@ -720,17 +720,17 @@ def ulr_blend(camera: Camera, gbuffer_depth: _F32, views: list[tuple[Camera, _F3
 
 def ulr_penalty(p: collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], c_novel: collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], c_view: collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], resolution_weight: typing.SupportsFloat | typing.SupportsIndex=0.5, fast: bool=False) -> float:
     """
-    ULR penalty (cpp/kernels/ulr.h): angle + resolution_weight * max(0, |c_view-p|/|c_novel-p| - 1); fast=True: the per-pixel kernel's version (polynomial atan2, within 2e-5).
+    ULR penalty (cpp/kernels/hybrid/ulr.h): angle + resolution_weight * max(0, |c_view-p|/|c_novel-p| - 1); fast=True: the per-pixel kernel's version (polynomial atan2, within 2e-5).
     """
 
 def ulr_select(penalty: _F32, k: typing.SupportsInt | typing.SupportsIndex) -> tuple[list[int], list[float]]:
     """
-    The k smallest finite penalties (cpp/kernels/ulr.h UlrSelect): (indices, weights summing to 1).
+    The k smallest finite penalties (cpp/kernels/hybrid/ulr.h UlrSelect): (indices, weights summing to 1).
     """
 
 def vertex_colour_sums(index: _I64, color: _F64, bounds: _I64, gains: _F64, num_vertices: typing.SupportsInt | typing.SupportsIndex, *, squares: bool=False) -> tuple[_F64, _F64 | None]:
     """
-    Per-vertex sums of gain-divided colour samples (cpp/kernels/vertexstats.h): index (S,) int64 vertex per sample, color (3, S) float64, bounds (V + 1,) int64 (view v's samples at [bounds[v], bounds[v + 1])), gains (V, 3) float64; returns (sum (N, 3) float64, sum of squares (N, 3) or None), numpy bincount's bits.
+    Per-vertex sums of gain-divided colour samples (cpp/kernels/hybrid/vertexstats.h): index (S,) int64 vertex per sample, color (3, S) float64, bounds (V + 1,) int64 (view v's samples at [bounds[v], bounds[v + 1])), gains (V, 3) float64; returns (sum (N, 3) float64, sum of squares (N, 3) or None), numpy bincount's bits.
     """
 
 def warp_flow(color: _F32, depth: _F32, flow: _F32, stretch_threshold: typing.SupportsFloat | typing.SupportsIndex=2.0, depth_jump: typing.SupportsFloat | typing.SupportsIndex=0.10000000149011612) -> tuple[_F32, _F32, _U8]:
@@ -745,7 +745,7 @@ def warp_isa() -> str:
 
 def warp_with_holes(color: _F32, depth: _F32, camera: Camera, target_camera: Camera, stretch_threshold: typing.SupportsFloat | typing.SupportsIndex=2.0, depth_jump: typing.SupportsFloat | typing.SupportsIndex=0.10000000149011612) -> tuple[_F32, _F32, _U8]:
     """
-    Warp one RGB-D view into target_camera with background-depth holes (dos Anjos et al. sec. 3.1, Eq. 1; cpp/kernels/forward_warp.h). color float32 (H, W, 3), depth float32 (H, W) (pinhole: z, equirect: ray distance; 0 = unknown, +inf = at infinity). Quads whose longest target edge exceeds stretch_threshold pixels and whose corner depths differ by more than a factor 1 + depth_jump (0 = stretch only) are stretched. Returns (color (Ht, Wt, 3) (0 in holes), depth (Ht, Wt) (surface depth; background depth in disocclusions; 0 where nothing lands), mask (Ht, Wt) uint8: WARP_SURFACE 0, WARP_DISOCCLUDED 1, WARP_UNCOVERED 2). GIL released.
+    Warp one RGB-D view into target_camera with background-depth holes (dos Anjos et al. sec. 3.1, Eq. 1; cpp/kernels/dibr/forward_warp.h). color float32 (H, W, 3), depth float32 (H, W) (pinhole: z, equirect: ray distance; 0 = unknown, +inf = at infinity). Quads whose longest target edge exceeds stretch_threshold pixels and whose corner depths differ by more than a factor 1 + depth_jump (0 = stretch only) are stretched. Returns (color (Ht, Wt, 3) (0 in holes), depth (Ht, Wt) (surface depth; background depth in disocclusions; 0 where nothing lands), mask (Ht, Wt) uint8: WARP_SURFACE 0, WARP_DISOCCLUDED 1, WARP_UNCOVERED 2). GIL released.
     """
 EMBREE_VERSION: str = '3.13.5'
 MVS_MAX_ITERATIONS: int = 64
