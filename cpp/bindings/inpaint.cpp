@@ -9,7 +9,6 @@
 
 #include "array.h"
 #include "ibr/errors.h"
-#include "ibr/simd.h"  // UseAvx2: the process-wide instruction set
 #include "kernels/inpaint/metameric.h"
 #include "kernels/inpaint/pushpull.h"
 #include "module.h"
@@ -185,36 +184,6 @@ MetamericFlow CheckFlow(py::handle flow_obj, py::ssize_t h, py::ssize_t w, int s
   }
   if (bad) throw BadValueError("flow: contains " + std::to_string(bad) + " NaN or infinite values");
   return flow;
-}
-
-// out = kernel(values) for a C-contiguous float32 array of any shape (a new array of its shape),
-// with the GIL released.
-py::array_t<float> MapValues(const py::handle& values_obj, void (*kernel)(const float*, float*, std::int64_t)) {
-  if (!py::isinstance<py::array>(values_obj)) {
-    throw DtypeError("values: expected a numpy float32 array, got " +
-                     std::string(py::str(py::type::of(values_obj).attr("__name__"))));
-  }
-  const py::array a = py::reinterpret_borrow<py::array>(values_obj);
-  if (!a.dtype().equal(py::dtype::of<float>())) {
-    throw DtypeError("values: expected a float32 array, got " + std::string(py::str(a.dtype())) + " " +
-                     DescribeShape(a));
-  }
-  if (!(a.flags() & py::array::c_style)) {
-    throw ShapeError("values: expected a C-contiguous array (use numpy.ascontiguousarray)");
-  }
-  const auto values = py::reinterpret_borrow<py::array_t<float, py::array::c_style>>(a);
-  py::array_t<float> out(std::vector<py::ssize_t>(values.shape(), values.shape() + values.ndim()));
-  const float* in = values.data();
-  float* o = out.mutable_data();
-  const std::int64_t n = values.size();
-  py::gil_scoped_release release;
-  kernel(in, o, n);
-  return out;
-}
-
-// LinearToSrgbUnclipped on the instruction set the warp uses (set_warp_isa: tests compare both).
-void EncodeUnclippedActiveIsa(const float* in, float* out, std::int64_t n) {
-  LinearToSrgbUnclipped(in, out, n, UseAvx2());
 }
 
 }  // namespace
@@ -412,33 +381,9 @@ static void BindMetameric(py::module_& m) {
         return out;
       },
       py::arg("image"),
-      "Display encoding of metameric synthesis (cpp/kernels/inpaint/metameric.h SrgbEncode): the sRGB curve of every "
+      "Display encoding of metameric synthesis (cpp/ibr/colour.h SrgbEncode): the sRGB curve of every "
       "value of image float32 (H, W, C), odd-extended to negatives and unbounded above; NaN stays NaN. Returns "
       "a new float32 (H, W, C) array.");
-
-  m.def(
-      "linear_to_srgb", [](py::handle values) { return MapValues(values, LinearToSrgb); }, py::arg("values"),
-      "The display encoding of linear colour (cpp/kernels/inpaint/metameric.h LinearToSrgb; Python: "
-      "ibrtools.imageio.linear_to_srgb): the IEC 61966-2-1 sRGB curve of every value of a C-contiguous "
-      "float32 array of any shape, clamped to [0, 1] first, NaN -> 0; within 1e-6 (relative) of the exact "
-      "curve. Returns a new float32 array of the same shape.");
-  m.def(
-      "srgb_encode_unclipped", [](py::handle values) { return MapValues(values, EncodeUnclippedActiveIsa); },
-      py::arg("values"),
-      "The sRGB encoding of linear colour for blending in sRGB space (cpp/kernels/inpaint/metameric.h "
-      "LinearToSrgbUnclipped; Python: ibrtools.render.dibr.srgb_encode): the IEC 61966-2-1 curve of every value "
-      "of a C-contiguous float32 array of any shape, negative values and -inf -> 0, not clipped above 1, +inf "
-      "stays +inf, NaN stays NaN; within 1e-6 of the exact curve (absolute in [0, 1], relative above), exact at 0 "
-      "and 1. A table in [0, 1] "
-      "(AVX2 gathers when set_warp_isa allows: the same bits either way). Returns a new float32 array of the "
-      "same shape.");
-  m.def(
-      "srgb_to_linear", [](py::handle values) { return MapValues(values, SrgbToLinear); }, py::arg("values"),
-      "The decoding of stored sRGB colour (cpp/kernels/inpaint/metameric.h SrgbToLinear; Python: "
-      "ibrtools.imageio.srgb_to_linear): v / 12.92 for v <= 0.04045 (negative values included), "
-      "((v + 0.055) / 1.055)^2.4 above (beyond 1 too), NaN stays NaN, for every value of a C-contiguous float32 "
-      "array of any shape; within 1e-5 (relative) of the exact curve. Returns a new float32 array of the same "
-      "shape.");
 
   m.def(
       "metameric_fill_holes",

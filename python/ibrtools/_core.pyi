@@ -565,7 +565,7 @@ def interpolate_vertex_attribute(prim_id: _I32, bary: _F32, faces: _I32, attrib:
 
 def linear_to_srgb(values: _F32) -> _F32:
     """
-    The display encoding of linear colour (cpp/kernels/inpaint/metameric.h LinearToSrgb; Python: ibrtools.imageio.linear_to_srgb): the IEC 61966-2-1 sRGB curve of every value of a C-contiguous float32 array of any shape, clamped to [0, 1] first, NaN -> 0; within 1e-6 (relative) of the exact curve. Returns a new float32 array of the same shape.
+    The display encoding of linear colour (cpp/ibr/colour.h LinearToSrgb; Python: ibrtools.imageio.linear_to_srgb): the IEC 61966-2-1 sRGB curve of every value of a C-contiguous float32 array of any shape, clamped to [0, 1] first, NaN -> 0; within 1e-6 (relative) of the exact curve. Returns a new float32 array of the same shape.
     """
 
 def metameric_composite(moments: _F32, mask: _Bool | _U8, noise: collections.abc.Sequence[_F32], bands: collections.abc.Sequence[_F32], flow: _F32 | _F64 | None=None, scale: typing.SupportsInt | typing.SupportsIndex=1, delta: bool=False) -> None:
@@ -575,7 +575,7 @@ def metameric_composite(moments: _F32, mask: _Bool | _U8, noise: collections.abc
 
 def metameric_encode(image: _F32) -> _F32:
     """
-    Display encoding of metameric synthesis (cpp/kernels/inpaint/metameric.h SrgbEncode): the sRGB curve of every value of image float32 (H, W, C), odd-extended to negatives and unbounded above; NaN stays NaN. Returns a new float32 (H, W, C) array.
+    Display encoding of metameric synthesis (cpp/ibr/colour.h SrgbEncode): the sRGB curve of every value of image float32 (H, W, C), odd-extended to negatives and unbounded above; NaN stays NaN. Returns a new float32 (H, W, C) array.
     """
 
 def metameric_fill_holes(image: _F32, hole: _Bool | _U8, base: _F32, change: _F32, decode: bool, out: _F32 | None=None) -> _F32:
@@ -680,12 +680,12 @@ def shadow_map_visibility(view_depth: _F32, view: Camera, maps: _F32, cameras: c
 
 def srgb_encode_unclipped(values: _F32) -> _F32:
     """
-    The sRGB encoding of linear colour for blending in sRGB space (cpp/kernels/inpaint/metameric.h LinearToSrgbUnclipped; Python: ibrtools.render.dibr.srgb_encode): the IEC 61966-2-1 curve of every value of a C-contiguous float32 array of any shape, negative values and -inf -> 0, not clipped above 1, +inf stays +inf, NaN stays NaN; within 1e-6 of the exact curve (absolute in [0, 1], relative above), exact at 0 and 1. A table in [0, 1] (AVX2 gathers when set_warp_isa allows: the same bits either way). Returns a new float32 array of the same shape.
+    The sRGB encoding of linear colour for blending in sRGB space (cpp/ibr/colour.h LinearToSrgbUnclipped; Python: ibrtools.render.dibr.srgb_encode): the IEC 61966-2-1 curve of every value of a C-contiguous float32 array of any shape, negative values and -inf -> 0, not clipped above 1, +inf stays +inf, NaN stays NaN; within 1e-6 of the exact curve (absolute in [0, 1], relative above), exact at 0 and 1. A table in [0, 1] (AVX2 gathers when set_warp_isa allows: the same bits either way). Returns a new float32 array of the same shape.
     """
 
 def srgb_to_linear(values: _F32) -> _F32:
     """
-    The decoding of stored sRGB colour (cpp/kernels/inpaint/metameric.h SrgbToLinear; Python: ibrtools.imageio.srgb_to_linear): v / 12.92 for v <= 0.04045 (negative values included), ((v + 0.055) / 1.055)^2.4 above (beyond 1 too), NaN stays NaN, for every value of a C-contiguous float32 array of any shape; within 1e-5 (relative) of the exact curve. Returns a new float32 array of the same shape.
+    The decoding of stored sRGB colour (cpp/ibr/colour.h SrgbToLinear; Python: ibrtools.imageio.srgb_to_linear): v / 12.92 for v <= 0.04045 (negative values included), ((v + 0.055) / 1.055)^2.4 above (beyond 1 too), NaN stays NaN, for every value of a C-contiguous float32 array of any shape; within 1e-5 (relative) of the exact curve. Returns a new float32 array of the same shape.
     """
 
 def ssim(a: _F32, b: _F32, data_range: typing.SupportsFloat | typing.SupportsIndex=1.0, return_map: bool=False, win_size: typing.SupportsInt | typing.SupportsIndex=7, k1: typing.SupportsFloat | typing.SupportsIndex=0.01, k2: typing.SupportsFloat | typing.SupportsIndex=0.03, sample_covariance: bool=True) -> tuple[float, _F32 | None]:

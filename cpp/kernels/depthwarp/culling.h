@@ -47,7 +47,7 @@
 //   warp would have found the far plane there. Null pointers turn this off.
 //   scratch: AwocScratchSize(H, W) floats, owned by the front.
 //
-// Kernels trust their inputs (python/ibrtools/culling.py and cpp/bindings/culling.cpp check
+// Kernels trust their inputs (python/ibrtools/culling.py and cpp/bindings/depthwarp.cpp check
 // them), never throw and never allocate. ProjectBoxes is multithreaded over boxes with
 // ibr::ParallelFor; every output depends on its box only (identical for any thread count).
 #pragma once

@@ -29,7 +29,7 @@
 //
 // Both are multithreaded over image tiles (ibr::ParallelFor2D; S x H x W work); each output
 // pixel depends on its inputs only, so results are identical for any thread count. Kernels
-// trust their inputs (checked by cpp/bindings/culling.cpp), never throw and never allocate.
+// trust their inputs (checked by cpp/bindings/depthwarp.cpp), never throw and never allocate.
 #pragma once
 #include <cstdint>
 

@@ -7,8 +7,8 @@
 
 #include <immintrin.h>  // AVX2: only in target("avx2") functions, called when the CPU has it
 
+#include "ibr/colour.h"
 #include "ibr/parallel.h"
-#include "kernels/inpaint/metameric.h"
 
 namespace ibr {
 namespace {

@@ -73,10 +73,10 @@ void AccumulateRowPlainAvx2(const float* color, const float* depth, const float*
 // The space of the colours in the sums, i.e. of the views given to the warp. kSrgb: they are sRGB
 // encodings (the DIBR blend space "srgb": RVS blends stored code values, docs/dibr.md "Blend
 // space") and ResolveBlend decodes the blended colour to linear with the curve of SrgbToLinear
-// (cpp/kernels/inpaint/metameric.h: x / 12.92 up to 0.04045, the power above, beyond 1 too), row by row
+// (cpp/ibr/colour.h: x / 12.92 up to 0.04045, the power above, beyond 1 too), row by row
 // while the row is in cache instead of a second pass over the image. In [0, 1] the curve is read
 // from a table of its values (4097 nodes, linear interpolation: within 1e-6 of SrgbToLinear, exact
-// at the nodes; metameric.h SrgbToLinearTableRun), outside it evaluated. Holes stay exactly 0.
+// at the nodes; colour.h SrgbToLinearTableRun), outside it evaluated. Holes stay exactly 0.
 enum class BlendSpace : int { kLinear = 0, kSrgb = 1 };
 
 // Writes colour (H, W, 3), depth (H, W), confidence (H, W), hole (H, W; 1 = hole) (all threads).

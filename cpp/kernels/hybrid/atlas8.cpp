@@ -7,22 +7,12 @@
 #include <limits>
 #include <vector>
 
+#include "ibr/colour.h"
 #include "ibr/parallel.h"
 
 namespace ibr {
 namespace {
 
-const std::array<float, 256>& SrgbToLinearLut() {
-  static const std::array<float, 256> lut = [] {
-    std::array<float, 256> t{};
-    for (int i = 0; i < 256; ++i) {
-      const double s = i / 255.0;
-      t[i] = static_cast<float>(s <= 0.04045 ? s / 12.92 : std::pow((s + 0.055) / 1.055, 2.4));
-    }
-    return t;
-  }();
-  return lut;
-}
 
 
 // The one atlas read loop: per pixel, the hit face's UVs interpolated with the barycentrics,
@@ -113,7 +103,7 @@ std::int64_t SampleAtlas(const std::int32_t* prim_id, const float* bary, std::in
 
 std::int64_t SampleAtlasSrgb8(const std::int32_t* prim_id, const float* bary, std::int64_t num_pixels,
                               const float* uv, ImageView<const std::uint8_t> atlas, float* out) {
-  const float* lut = SrgbToLinearLut().data();
+  const float* lut = Srgb8ToLinearTable();
   return SampleAtlasBilinear(
       prim_id, bary, num_pixels, uv, atlas.width, atlas.height, [&](int y) { return atlas.Row(y); },
       [lut](const std::uint8_t* row, int x, int c) { return lut[row[4 * x + c]]; },

@@ -6,7 +6,7 @@
 // Conventions (cpp/ibr/camera.h): OpenCV camera axes, pixel (u, v) has its centre at
 // (u + 0.5, v + 0.5); "depth" is the scene model's depth: z for a pinhole camera, distance along
 // the ray for an equirect one, 0 = unknown / no surface. Images are row-major (H, W[, C]) float32.
-// Kernels never throw or allocate policy: the binding (cpp/bindings/hybrid_render.cpp) checks
+// Kernels never throw or allocate policy: the binding (cpp/bindings/hybrid.cpp) checks
 // shapes and values and allocates every output.
 #pragma once
 #include <cstdint>

@@ -79,7 +79,7 @@
 //     share of the candidates. filtered = false: the foreground cluster's colour (PVM-H-like
 //     baseline without the spatial filter). Pixels with one cluster take its colour either way.
 //
-// Kernels trust their inputs (the binding cpp/bindings/pvm_render.cpp checks them) and never
+// Kernels trust their inputs (the binding cpp/bindings/hybrid.cpp checks them) and never
 // throw; buffers live in PvmFrame, reused from frame to frame.
 #pragma once
 #include <cstdint>

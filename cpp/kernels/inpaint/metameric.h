@@ -21,7 +21,7 @@
 // multiply-add unless the compiler contracts it, e.g. with -march=native: then ~1 ulp).
 // Shapes (row, col, channel), C-contiguous: bands/noise (h, w, C), moments/out (h, w, 2kC),
 // mask (h, w) one byte per sample. Bands may not alias moments or noise. The front
-// (cpp/bindings/metameric.cpp) checks everything; kernels trust their inputs, never throw and
+// (cpp/bindings/inpaint.cpp) checks everything; kernels trust their inputs, never throw and
 // never allocate. Multithreaded over rows with ibr::ParallelFor; every sample is independent, so
 // the result is identical for any thread count.
 #pragma once
@@ -107,49 +107,6 @@ inline void MetamericChangeSample(const MetamericSynth& synth, int y, int x, con
     }
   }
 }
-
-// Display encoding of metameric synthesis (Walton et al. 2021 sec. 6: "all methods operate on
-// non-linear color (subject to display gamma) as they are concerned with perceived contrasts"):
-// the sRGB curve (IEC 61966-2-1) extended to every real number, odd (f(-v) = -f(v)) and
-// unbounded above with the same formula:
-//   SrgbEncode(v) = 12.92 v for |v| <= 0.0031308, sign(v) (1.055 |v|^(1/2.4) - 0.055) beyond;
-//   SrgbDecode(e) = e / 12.92 for |e| <= 0.04045, sign(e) ((|e| + 0.055) / 1.055)^2.4 beyond,
-// its exact inverse. The powers use a polynomial log2/exp2 with integer selects, so the row loops
-// vectorise (relative error < 1e-6 for the encoding, < 1e-5 for the round trip up to 1e6:
-// tests/test_metameric_kernels.py; 3M values: ~12 ms of one core under load, std::pow-based
-// scalar code ~4x that); NaN stays NaN, +-inf stays +-inf, decoding overflows to +inf.
-float SrgbEncode(float v);
-float SrgbDecode(float e);
-
-// The display encoding of linear colour for images, metrics and 8-bit files (Python:
-// ibrtools.imageio.linear_to_srgb): out[i] = SrgbEncode(in[i] clamped to [0, 1]), NaN -> 0, for n
-// values (in and out may be the same memory); multithreaded. Within 1e-6 (relative) of the
-// IEC 61966-2-1 curve, like SrgbEncode.
-void LinearToSrgb(const float* in, float* out, std::int64_t n);
-
-// The sRGB encoding of linear colour for blending in sRGB space (Python: ibrtools.render.dibr.srgb_encode,
-// the DIBR inputs with blend_space "srgb"): out[i] = SrgbEncode(max(in[i], 0)) for n values (in and out may
-// be the same memory), multithreaded: negative values and -inf -> +0, not clipped above 1 (HDR inputs keep
-// their range), +inf stays +inf, NaN stays NaN. In [0, 1] the curve is read from a table of its own values
-// indexed by the float's bits (1024 linear segments per binade above 2^-9; 12.92 x at and below the toe,
-// as SrgbEncode), ~3x cheaper than evaluating it; SrgbEncode itself above 1 (at least 1: monotonic).
-// In [0, 1] within 1e-6 absolute of the float64 curve (measured 1.8e-7; SrgbEncode 1.5e-7), above 1
-// SrgbEncode's 1e-6 relative; exact at 0 and 1. avx2: eight values per step with gathers (call it so
-// only on a CPU with AVX2); the same bits as the portable loop (no FMA), for any thread count.
-void LinearToSrgbUnclipped(const float* in, float* out, std::int64_t n, bool avx2);
-
-// Its inverse for stored colour (Python: ibrtools.imageio.srgb_to_linear): out[i] = in[i] / 12.92
-// for in[i] <= 0.04045 (negative values included), ((in[i] + 0.055) / 1.055)^2.4 above (beyond 1
-// too); NaN stays NaN. Within 1e-5 (relative) of the exact curve, like SrgbDecode.
-void SrgbToLinear(const float* in, float* out, std::int64_t n);
-
-// SrgbToLinear's curve for n values in place on the calling thread, for kernels that decode inside
-// their own parallel loops (the sRGB blend space of DIBR: cpp/kernels/dibr/blend.h ResolveBlend). In
-// [0, 1] read from a table of SrgbToLinear's own values at 4097 nodes with linear interpolation:
-// within 1e-6 (absolute) of SrgbToLinear, exact at the nodes (0 stays 0); outside [0, 1] and NaN
-// SrgbToLinear itself. avx2: gathers (call it so only on a CPU with AVX2); the same bits as the
-// portable loop (no FMA).
-void SrgbToLinearTableRun(float* v, std::int64_t n, bool avx2);
 
 // out = SrgbEncode(image) for every value (image and out (h, w, C), may be the same array).
 void MetamericEncode(const ImageView<const float>& image, const ImageView<float>& out);

@@ -38,7 +38,7 @@
 //   bit-identical to the generic path (tests/test_mip_foveate_level.py, against a numpy reference).
 //
 // Shapes (row, col, channel), C-contiguous, float32; level_map (H, W) finite. The front
-// (cpp/bindings/mip.cpp) checks everything; kernels trust their inputs, never throw and never
+// (cpp/bindings/metamers.cpp) checks everything; kernels trust their inputs, never throw and never
 // allocate. Multithreaded over output rows with ibr::ParallelFor; every output sample depends only
 // on its inputs, so the result is identical for any thread count.
 #pragma once

@@ -39,7 +39,7 @@
 // h_l x w_l with h_0 = H, h_{l+1} = ceil(h_l / 2); highpass (H, W, C); band[l][k] (h_l, w_l, C);
 // lowpass (h_L, w_L, C). Every level's input must be at least 3 x 3 (h_l, w_l >= 3 for
 // l < L: a 5-tap reflect1 border needs 3 samples), see SteerableMaxLevels. ycbcr needs C = 3.
-// The front (cpp/bindings/steerable.cpp) checks all of it; kernels trust their inputs, never
+// The front (cpp/bindings/metamers.cpp) checks all of it; kernels trust their inputs, never
 // throw, and allocate only scratch: the low-pass images of levels 1..L-1 (~0.33 x the input,
 // uninitialised, first touched by the parallel loop that writes them) and per-thread row
 // buffers kept between calls (~21 rows of the widest image seen). Full resolution is never
