@@ -428,11 +428,11 @@ py::dict RasterGBufferBinding(const Camera& camera, const py::object& vertices_o
 py::tuple UlrBlendBinding(const Camera& novel, const py::object& depth_obj, const py::list& views_obj,
                           const py::object& normal_obj, const py::object& mask_obj, int k, double resolution_weight,
                           double depth_tol, const std::string& resample, bool reference, const std::string& simd) {
-  if (k < 1 || k > 64) throw BadValueError("k: expected 1 .. 64 views per pixel, got " + std::to_string(k));
   UlrOptions opt;
   opt.k = k;
-  opt.resolution_weight = CheckFinite(resolution_weight, "resolution_weight", 0.0);
-  opt.depth_tol = CheckFinite(depth_tol, "depth_tol", 0.0);
+  opt.resolution_weight = static_cast<float>(resolution_weight);
+  opt.depth_tol = static_cast<float>(depth_tol);
+  opt.Check();
   opt.reference = reference;
   opt.cubic = ParseResample(resample);
   if (simd == "sse2") {
@@ -626,14 +626,17 @@ static void BindHybridRender(py::module_& m) {
         if (fast) return UlrPenaltyFast(pp, cn - pp, glm::length(cn - pp), cv, static_cast<float>(resolution_weight));
         return UlrPenalty(pp, cn, cv, static_cast<float>(resolution_weight));
       },
-      py::arg("p"), py::arg("c_novel"), py::arg("c_view"), py::arg("resolution_weight") = 0.5, py::arg("fast") = false,
+      py::arg("p"), py::arg("c_novel"), py::arg("c_view"),
+      py::arg("resolution_weight") = UlrOptions::kDefaultResolutionWeight, py::arg("fast") = false,
       "ULR penalty (cpp/kernels/hybrid/ulr.h): angle + resolution_weight * max(0, |c_view-p|/|c_novel-p| - 1); "
       "fast=True: the per-pixel kernel's version (polynomial atan2, within 2e-5).");
   m.def(
       "ulr_select",
       [](const py::object& pen_obj, int k) {
         auto pen = CheckArray<float>(pen_obj, "penalty", {{"n", -1}});
-        if (k < 1 || k > 64) throw BadValueError("k: expected 1 .. 64, got " + std::to_string(k));
+        if (k < 1 || k > UlrOptions::kMaxK) {
+          throw BadValueError("k: expected 1 .. " + std::to_string(UlrOptions::kMaxK) + ", got " + std::to_string(k));
+        }
         std::vector<int> idx(k);
         std::vector<float> wt(k);
         const int mm = UlrSelect(pen.data(), static_cast<int>(pen.shape(0)), k, idx.data(), wt.data());
@@ -643,9 +646,14 @@ static void BindHybridRender(py::module_& m) {
       },
       py::arg("penalty"), py::arg("k"),
       "The k smallest finite penalties (cpp/kernels/hybrid/ulr.h UlrSelect): (indices, weights summing to 1).");
+  m.attr("ULR_MAX_K") = UlrOptions::kMaxK;
+  m.attr("ULR_DEFAULT_K") = UlrOptions::kDefaultK;
+  m.attr("ULR_DEFAULT_RESOLUTION_WEIGHT") = UlrOptions::kDefaultResolutionWeight;
+  m.attr("ULR_DEFAULT_DEPTH_TOL") = UlrOptions::kDefaultDepthTol;
   m.def("ulr_blend", &UlrBlendBinding, py::arg("camera"), py::arg("gbuffer_depth"), py::arg("views"), py::kw_only(),
-        py::arg("normal") = py::none(), py::arg("pixel_mask") = py::none(), py::arg("k") = 4,
-        py::arg("resolution_weight") = 0.5, py::arg("depth_tol") = 0.005, py::arg("resample") = "cubic",
+        py::arg("normal") = py::none(), py::arg("pixel_mask") = py::none(), py::arg("k") = UlrOptions::kDefaultK,
+        py::arg("resolution_weight") = UlrOptions::kDefaultResolutionWeight,
+        py::arg("depth_tol") = UlrOptions::kDefaultDepthTol, py::arg("resample") = "cubic",
         py::arg("reference") = false, py::arg("simd") = "auto",
         "Per-pixel ULR at the G-buffer's points: views = [(camera, color, depth), ...] -> (color (H, W, 3), "
         "count (H, W) uint8 views used, 0 = none sees the point). resample: the views' colour reads, 'cubic' "

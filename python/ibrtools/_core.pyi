@@ -17,7 +17,7 @@ _U8: typing.TypeAlias = numpy.typing.NDArray[numpy.uint8]
 _I8: typing.TypeAlias = numpy.typing.NDArray[numpy.int8]
 _Bool: typing.TypeAlias = numpy.typing.NDArray[numpy.bool_]
 _Light: typing.TypeAlias = tuple[str, collections.abc.Sequence[float], collections.abc.Sequence[float], bool]
-__all__: list[str] = ['Camera', 'CameraModel', 'DepthWarpMips', 'DibrAccumulator', 'EMBREE_VERSION', 'MVS_MAX_ITERATIONS', 'MVS_MAX_SOURCE_VIEWS', 'MVS_MAX_WINDOW_RADIUS', 'OcclusionScene', 'PatchMatchOptions', 'PvmRenderer', 'RayScene', 'WARP_DISOCCLUDED', 'WARP_SURFACE', 'WARP_UNCOVERED', 'WarpOptions', 'YMap', 'blur_selection', 'cpu_has_avx2', 'cross_view_prediction', 'cull_awoc_fill', 'cull_object_boxes', 'cull_project_boxes', 'dw_build_mips', 'dw_forward', 'dw_motion', 'dw_motion_mips', 'dw_warp', 'forward_warp', 'gain_median_ratios', 'get_num_threads', 'grid_maxflow', 'hybrid_composite', 'hybrid_frame_outputs', 'hybrid_needs', 'hybrid_select', 'interpolate_vertex_attribute', 'linear_to_srgb', 'metameric_composite', 'metameric_encode', 'metameric_fill_holes', 'metameric_pushpull_change', 'metameric_pushpull_moments', 'metameric_stack_moments', 'mip_build', 'mip_foveate_level', 'mip_lookup', 'mip_max_levels', 'mvs_consistent_views', 'mvs_patchmatch', 'point_colors', 'poisson_blend', 'pushpull', 'pvm_slice', 'pvm_triangulate', 'raster_gbuffer', 'sample_atlas', 'set_num_threads', 'set_warp_isa', 'shadow_map_visibility', 'srgb_encode_unclipped', 'srgb_to_linear', 'ssim', 'steerable_analyse', 'steerable_max_levels', 'steerable_synthesise', 'texel_points', 'ulr_blend', 'ulr_penalty', 'ulr_select', 'vertex_colour_sums', 'warp_flow', 'warp_isa', 'warp_with_holes']
+__all__: list[str] = ['Camera', 'CameraModel', 'DepthWarpMips', 'DibrAccumulator', 'EMBREE_VERSION', 'MVS_MAX_ITERATIONS', 'MVS_MAX_SOURCE_VIEWS', 'MVS_MAX_WINDOW_RADIUS', 'OcclusionScene', 'PatchMatchOptions', 'PvmRenderer', 'RayScene', 'ULR_DEFAULT_DEPTH_TOL', 'ULR_DEFAULT_K', 'ULR_DEFAULT_RESOLUTION_WEIGHT', 'ULR_MAX_K', 'WARP_DISOCCLUDED', 'WARP_SURFACE', 'WARP_UNCOVERED', 'WarpOptions', 'YMap', 'blur_selection', 'cpu_has_avx2', 'cross_view_prediction', 'cull_awoc_fill', 'cull_object_boxes', 'cull_project_boxes', 'dw_build_mips', 'dw_forward', 'dw_motion', 'dw_motion_mips', 'dw_warp', 'forward_warp', 'gain_median_ratios', 'get_num_threads', 'grid_maxflow', 'hybrid_composite', 'hybrid_frame_outputs', 'hybrid_needs', 'hybrid_select', 'interpolate_vertex_attribute', 'linear_to_srgb', 'metameric_composite', 'metameric_encode', 'metameric_fill_holes', 'metameric_pushpull_change', 'metameric_pushpull_moments', 'metameric_stack_moments', 'mip_build', 'mip_foveate_level', 'mip_lookup', 'mip_max_levels', 'mvs_consistent_views', 'mvs_patchmatch', 'point_colors', 'poisson_blend', 'pushpull', 'pvm_slice', 'pvm_triangulate', 'raster_gbuffer', 'sample_atlas', 'set_num_threads', 'set_warp_isa', 'shadow_map_visibility', 'srgb_encode_unclipped', 'srgb_to_linear', 'ssim', 'steerable_analyse', 'steerable_max_levels', 'steerable_synthesise', 'texel_points', 'ulr_blend', 'ulr_penalty', 'ulr_select', 'vertex_colour_sums', 'warp_flow', 'warp_isa', 'warp_with_holes']
 
 class CameraModel:
     """
@@ -751,6 +751,10 @@ EMBREE_VERSION: str = '3.13.5'
 MVS_MAX_ITERATIONS: int = 64
 MVS_MAX_SOURCE_VIEWS: int = 32
 MVS_MAX_WINDOW_RADIUS: int = 15
+ULR_DEFAULT_DEPTH_TOL: float = 0.005
+ULR_DEFAULT_K: int = 4
+ULR_DEFAULT_RESOLUTION_WEIGHT: float = 0.5
+ULR_MAX_K: int = 64
 WARP_DISOCCLUDED: int = 1
 WARP_SURFACE: int = 0
 WARP_UNCOVERED: int = 2

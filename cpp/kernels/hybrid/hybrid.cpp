@@ -75,15 +75,15 @@ void UlrBlendScalar(const Camera& novel, ImageView<const float> gbuffer_depth, I
   const glm::vec3 c_novel(c_novel_d);
   std::vector<glm::vec3> centres(num_views);
   for (int i = 0; i < num_views; ++i) centres[i] = glm::vec3(views[i].camera.CentreInWorld());
-  const int k = std::max(1, std::min(options.k, 64));
+  const int k = std::max(1, std::min(options.k, UlrOptions::kMaxK));
   const bool use_normal = !normal.Empty();
   const glm::dmat3 world_from_cam = glm::transpose(novel.rot);
   ParallelFor2D(H, W, 64, [&](int y0, int y1, int x0, int x1) {
     std::vector<float> pen(num_views);
     std::vector<std::uint8_t> tested(num_views);
     std::vector<double> proj(3 * std::size_t(num_views));  // x, y, depth of p in each view
-    int index[64];
-    float weight[64];
+    int index[UlrOptions::kMaxK];
+    float weight[UlrOptions::kMaxK];
     for (int y = y0; y < y1; ++y) {
       const float* drow = gbuffer_depth.Row(y);
       float* crow = color_out.Row(y);
@@ -737,7 +737,7 @@ void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, Ima
   const glm::dvec3 c_novel_d = novel.CentreInWorld();
   const glm::vec3 c_novel(c_novel_d);
   const UlrViewTable vt(views, num_views);
-  const int k = std::max(1, std::min(options.k, 64));
+  const int k = std::max(1, std::min(options.k, UlrOptions::kMaxK));
   const bool use_normal = !normal.Empty();
   const float rw = options.resolution_weight, tol = options.depth_tol;
   const bool cubic = options.cubic;
@@ -785,12 +785,12 @@ void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, Ima
     const std::ptrdiff_t* DS = vt.depth_stride.data();
     const float* WL = vt.wlast.data();
     const float* HL = vt.hlast.data();
-    int index[kUlrGroup * 64];  // [j * kUlrGroup + g]
-    float weight[kUlrGroup * 64];
+    int index[kUlrGroup * UlrOptions::kMaxK];  // [j * kUlrGroup + g]
+    float weight[kUlrGroup * UlrOptions::kMaxK];
     int selected[kUlrGroup];
     // The group's colour reads (at most k per pixel; padded to a multiple of 8): pixel, view,
     // weight, position; and the cubic reads' tap origins and weights.
-    constexpr int kMaxReads = kUlrGroup * 64 + 8;
+    constexpr int kMaxReads = kUlrGroup * UlrOptions::kMaxK + 8;
     int read_g[kMaxReads], read_view[kMaxReads];
     float read_w[kMaxReads];
     alignas(32) float read_x[kMaxReads] = {}, read_y[kMaxReads] = {};

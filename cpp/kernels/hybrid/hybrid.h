@@ -36,14 +36,23 @@ struct UlrInputView {
 
 enum class UlrSimd { kAuto, kSse2, kAvx2 };
 
+// ULR's tuning. The defaults and bounds are defined here only: the binding's argument defaults and
+// Python's ULR method (_core.ULR_DEFAULT_K, ULR_DEFAULT_RESOLUTION_WEIGHT, ULR_DEFAULT_DEPTH_TOL,
+// ULR_MAX_K) read them; the decimal defaults are doubles so that Python sees 0.005, not float 0.005's
+// double value. Check() (defined by the front, front.cpp) throws BadValueError for a value out of range.
 struct UlrOptions {
-  int k = 4;                       // views kept per pixel (UlrSelect: the k-th gets weight 0)
-  float resolution_weight = 0.5f;  // UlrPenalty's resolution term
+  static constexpr int kMaxK = 64;  // the per-pixel selection lists of the kernels have this size
+  static constexpr int kDefaultK = 4;
+  static constexpr double kDefaultResolutionWeight = 0.5;
+  // 0.5 %: chosen on the selection scenes (docs/hybrid.md).
+  static constexpr double kDefaultDepthTol = 0.005;
+
+  int k = kDefaultK;  // views kept per pixel (UlrSelect: the k-th gets weight 0), 1 .. kMaxK
+  float resolution_weight = static_cast<float>(kDefaultResolutionWeight);  // UlrPenalty's resolution term, >= 0
   // Occlusion test: the input view sees the point when its depth at the point's (nearest) pixel
   // agrees with the point's depth in that view within depth_tol * view depth (relative: depth
-  // maps and the global mesh err in proportion to distance). 0.5 %: the ULR method's default
-  // (python/ibrtools/render/hybrid.py ULR_DEFAULTS, chosen on the selection scenes; docs/hybrid.md).
-  float depth_tol = 0.005f;
+  // maps and the global mesh err in proportion to distance); >= 0.
+  float depth_tol = static_cast<float>(kDefaultDepthTol);
   // Input views behind the surface (angle between the G-buffer normal and the direction to the
   // view >= 90 degrees) are skipped when a normal is given.
   // The scalar reference path (double projections, one view at a time) instead of the fast path
@@ -59,6 +68,9 @@ struct UlrOptions {
   // _core.set_warp_isa("baseline") gives SSE2), kAvx2 stops at AVX2, kSse2 forces SSE2 (tests: all
   // give the same bits).
   UlrSimd simd = UlrSimd::kAuto;
+
+  // k in 1 .. kMaxK, resolution_weight and depth_tol finite and >= 0.
+  void Check() const;
 };
 
 // For every pixel with gbuffer_depth > 0 (and pixel_mask != 0 when a mask is given): the world
