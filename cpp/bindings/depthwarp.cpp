@@ -15,6 +15,7 @@
 
 #include "array.h"
 #include "ibr/camera.h"
+#include "ibr/checks.h"
 #include "ibr/embree_scene.h"
 #include "ibr/errors.h"
 #include "kernels/depthwarp/culling.h"
@@ -390,11 +391,9 @@ py::array_t<float> CullObjectBoxes(const py::object& vertices_obj, const py::obj
   if (num_objects < 0) throw BadValueError("num_objects: expected >= 0, got " + std::to_string(num_objects));
   const std::int64_t n = vertices.shape(0), m = faces.shape(0);
   const std::int32_t* f = faces.data();
-  for (std::int64_t i = 0; i < m * 3; ++i) {
-    if (f[i] < 0 || f[i] >= n) {
-      throw BadValueError("faces: vertex index " + std::to_string(f[i]) + " out of range [0, " + std::to_string(n) +
-                          ") in face " + std::to_string(i / 3));
-    }
+  if (const std::int64_t i = FindOutOfRange(f, m * 3, 0, n); i >= 0) {
+    throw BadValueError("faces: vertex index " + std::to_string(f[i]) + " out of range [0, " + std::to_string(n) +
+                        ") in face " + std::to_string(i / 3));
   }
   auto boxes = NewArray<float>({num_objects, 2, 3});
   float* out = boxes.mutable_data();
@@ -512,8 +511,8 @@ class OcclusionScene {
     auto lights = CheckArray<double>(lights_obj, "light_positions", {{"S", -1}, {"3", 3}});
     const py::ssize_t s = lights.shape(0);
     if (s < 1) throw BadValueError("light_positions: expected at least one light sample");
-    for (py::ssize_t i = 0; i < s * 3; ++i) {
-      if (!std::isfinite(lights.data()[i])) throw BadValueError("light_positions: contain NaN or infinity");
+    if (FindNonFinite(lights.data(), std::int64_t(s) * 3) >= 0) {
+      throw BadValueError("light_positions: contain NaN or infinity");
     }
     if (!std::isfinite(eps_rel) || eps_rel < 0.0f) throw BadValueError("eps_rel: expected a finite number >= 0");
     auto vis = NewArray<float>({view.height, view.width});

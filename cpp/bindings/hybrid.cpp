@@ -18,6 +18,7 @@
 
 #include "array.h"
 #include "ibr/camera.h"
+#include "ibr/checks.h"
 #include "ibr/errors.h"
 #include "kernels/hybrid/atlas8.h"
 #include "kernels/hybrid/front.h"
@@ -44,12 +45,6 @@ py::array_t<T> Own(std::vector<T>&& v, std::vector<py::ssize_t> shape) {
   auto* heap = new std::vector<T>(std::move(v));
   py::capsule owner(heap, [](void* p) { delete static_cast<std::vector<T>*>(p); });
   return py::array_t<T>(shape, heap->data(), owner);
-}
-
-bool AllFinite(const float* p, std::size_t n) {
-  for (std::size_t i = 0; i < n; ++i)
-    if (!std::isfinite(p[i])) return false;
-  return true;
 }
 
 }  // namespace
@@ -123,22 +118,18 @@ static void BindPvmMeshes(py::module_& m) {
         if (nf > (py::ssize_t(1) << 31) - 1 || nv > (py::ssize_t(1) << 31) - 1) {
           throw ShapeError("pvm_slice: more than 2^31 faces or vertices");
         }
-        if (!AllFinite(vertices.data(), static_cast<std::size_t>(nv) * 3)) {
+        if (FindNonFinite(vertices.data(), std::int64_t(nv) * 3) >= 0) {
           throw BadValueError("vertices: contain NaN or infinity");
         }
         const std::int32_t* f = faces.data();
-        for (py::ssize_t i = 0; i < 3 * nf; ++i) {
-          if (f[i] < 0 || f[i] >= nv) {
-            throw BadValueError("faces: vertex index " + std::to_string(f[i]) + " out of range [0, " +
-                                std::to_string(nv) + ")");
-          }
+        if (const std::int64_t i = FindOutOfRange(f, 3 * std::int64_t(nf), 0, nv); i >= 0) {
+          throw BadValueError("faces: vertex index " + std::to_string(f[i]) + " out of range [0, " +
+                              std::to_string(nv) + ")");
         }
         const std::int32_t* fvw = face_view.data();
-        for (py::ssize_t i = 0; i < nf; ++i) {
-          if (fvw[i] < 0 || fvw[i] >= n_views) {
-            throw BadValueError("face_view: view " + std::to_string(fvw[i]) + " out of range [0, " +
-                                std::to_string(n_views) + ")");
-          }
+        if (const std::int64_t i = FindOutOfRange(fvw, std::int64_t(nf), 0, n_views); i >= 0) {
+          throw BadValueError("face_view: view " + std::to_string(fvw[i]) + " out of range [0, " +
+                              std::to_string(n_views) + ")");
         }
         PvmGrid grid{{origin[0], origin[1], origin[2]}, {cell[0], cell[1], cell[2]}, coarse, sub};
         PvmTiles t;
@@ -183,9 +174,8 @@ namespace {
 using FArray = py::array_t<float, py::array::c_style>;
 
 void CheckLabels(const py::array_t<std::uint8_t, py::array::c_style>& label) {
-  const std::uint8_t* l = label.data();
-  for (py::ssize_t i = 0; i < label.size(); ++i) {
-    if (l[i] > kLabelNone) throw BadValueError("label: values must be 0 (TM), 1 (ULR), 2 (PVM) or 3 (none)");
+  if (FindOutOfRange(label.data(), label.size(), 0, kLabelNone + 1) >= 0) {
+    throw BadValueError("label: values must be 0 (TM), 1 (ULR), 2 (PVM) or 3 (none)");
   }
 }
 
@@ -208,7 +198,7 @@ void CheckHits(const py::array_t<std::int32_t, py::array::c_style>& prim,
   const auto w = prim.shape(1);
   const std::int32_t* p = prim.data();
   const float* ba = bary.data();
-  for (py::ssize_t i = 0; i < prim.size(); ++i) {
+  if (const std::int64_t i = HybridFindBadHit(p, ba, prim.size(), m); i >= 0) {
     if (p[i] < -1 || p[i] >= m) {
       throw BadValueError("prim_id: " + std::to_string(p[i]) + " is not a face index in [-1, " + std::to_string(m) +
                           ")");
@@ -356,17 +346,13 @@ py::tuple TexelPointsBinding(const py::object& fot_obj, int row0, const py::obje
   if (row0 < 0) throw BadValueError("row0: expected >= 0, got " + std::to_string(row0));
   const py::ssize_t rows = fot.shape(0), width = fot.shape(1);
   const std::int32_t* fo = fot.data();
-  for (py::ssize_t i = 0; i < rows * width; ++i) {
-    if (fo[i] < -1 || fo[i] >= m) {
-      throw BadValueError("face_of_texel: face " + std::to_string(fo[i]) + " out of range [-1, " + std::to_string(m) +
-                          ")");
-    }
+  if (const std::int64_t i = FindOutOfRange(fo, std::int64_t(rows) * width, -1, m); i >= 0) {
+    throw BadValueError("face_of_texel: face " + std::to_string(fo[i]) + " out of range [-1, " + std::to_string(m) +
+                        ")");
   }
   const std::int32_t* f = faces.data();
-  for (py::ssize_t i = 0; i < 3 * m; ++i) {
-    if (f[i] < 0 || f[i] >= nv) {
-      throw BadValueError("faces: vertex " + std::to_string(f[i]) + " out of range [0, " + std::to_string(nv) + ")");
-    }
+  if (const std::int64_t i = FindOutOfRange(f, 3 * std::int64_t(m), 0, nv); i >= 0) {
+    throw BadValueError("faces: vertex " + std::to_string(f[i]) + " out of range [0, " + std::to_string(nv) + ")");
   }
   std::vector<std::int64_t> row_start(static_cast<std::size_t>(rows) + 1);
   TexelRowStarts(fo, static_cast<int>(rows), static_cast<int>(width), row_start.data());
@@ -396,16 +382,13 @@ py::dict RasterGBufferBinding(const Camera& camera, const py::object& vertices_o
   auto faces = CheckArray<std::int32_t>(faces_obj, "faces", {{"M", -1}, {"3", 3}});
   const auto n = vertices.shape(0), m = faces.shape(0);
   {
-    const float* v = vertices.data();
-    for (py::ssize_t i = 0; i < 3 * n; ++i) {
-      if (!std::isfinite(v[i])) throw BadValueError("vertices: expected finite coordinates");
+    if (FindNonFinite(vertices.data(), 3 * std::int64_t(n)) >= 0) {
+      throw BadValueError("vertices: expected finite coordinates");
     }
     const std::int32_t* f = faces.data();
-    for (py::ssize_t i = 0; i < 3 * m; ++i) {
-      if (f[i] < 0 || f[i] >= n) {
-        throw BadValueError("faces: index " + std::to_string(f[i]) + " out of range for " + std::to_string(n) +
-                            " vertices");
-      }
+    if (const std::int64_t i = FindOutOfRange(f, 3 * std::int64_t(m), 0, n); i >= 0) {
+      throw BadValueError("faces: index " + std::to_string(f[i]) + " out of range for " + std::to_string(n) +
+                          " vertices");
     }
   }
   const py::ssize_t h = camera.height, w = camera.width;
@@ -988,15 +971,13 @@ void CheckSamples(const py::array_t<std::int64_t, py::array::c_style>& bounds,
     throw ShapeError("bounds: expected (views + 1,) offsets from 0 to " + std::to_string(rows) +
                      " (the samples), got " + DescribeShape(bounds));
   }
-  for (py::ssize_t k = 0; k < v; ++k) {
-    if (b[k + 1] < b[k]) throw BadValueError("bounds: expected non-decreasing offsets, got " + std::to_string(b[k]) +
-                                             " then " + std::to_string(b[k + 1]));
+  if (const std::int64_t k = FindDecreasing(b, v + 1); k >= 0) {
+    throw BadValueError("bounds: expected non-decreasing offsets, got " + std::to_string(b[k]) + " then " +
+                        std::to_string(b[k + 1]));
   }
   const std::int64_t* ix = index.data();
-  for (py::ssize_t i = 0; i < rows; ++i) {
-    if (ix[i] < 0 || ix[i] >= n) {
-      throw BadValueError("index: vertex " + std::to_string(ix[i]) + " out of range [0, " + std::to_string(n) + ")");
-    }
+  if (const std::int64_t i = FindOutOfRange(ix, rows, 0, n); i >= 0) {
+    throw BadValueError("index: vertex " + std::to_string(ix[i]) + " out of range [0, " + std::to_string(n) + ")");
   }
 }
 

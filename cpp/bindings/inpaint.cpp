@@ -8,6 +8,7 @@
 #include <pybind11/pybind11.h>
 
 #include "array.h"
+#include "ibr/checks.h"
 #include "ibr/errors.h"
 #include "kernels/inpaint/metameric.h"
 #include "kernels/inpaint/pushpull.h"
@@ -178,9 +179,7 @@ MetamericFlow CheckFlow(py::handle flow_obj, py::ssize_t h, py::ssize_t w, int s
   {
     py::gil_scoped_release release;
     const std::int64_t n = std::int64_t(flow.height) * flow.width * 2;
-    for (std::int64_t i = 0; i < n; ++i) {
-      bad += flow.f64 ? !std::isfinite(flow.f64[i]) : !std::isfinite(flow.f32[i]);
-    }
+    bad = flow.f64 ? CountNonFiniteValues(flow.f64, n) : CountNonFiniteValues(flow.f32, n);
   }
   if (bad) throw BadValueError("flow: contains " + std::to_string(bad) + " NaN or infinite values");
   return flow;

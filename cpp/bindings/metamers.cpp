@@ -9,7 +9,9 @@
 #include <pybind11/stl.h>
 
 #include "array.h"
+#include "ibr/checks.h"
 #include "ibr/errors.h"
+#include "kernels/metamers/front.h"
 #include "kernels/metamers/mip.h"
 #include "kernels/metamers/steerable.h"
 #include "module.h"
@@ -164,8 +166,8 @@ static void BindSteerable(py::module_& m) {
 
 }  // namespace ibr::bind
 
-// Bindings of cpp/kernels/metamers/mip.h: the checking front (dtypes, shapes of the chain, finiteness of
-// the level map) and the calls with the GIL released. Python: ibrtools.foveate.
+// Bindings of cpp/kernels/metamers/mip.h and its pipelines (front.h): the checks (dtypes, shapes of the
+// chain, finiteness of the level map) and the calls with the GIL released. Python: ibrtools.foveate.
 namespace ibr::bind {
 namespace {
 
@@ -219,12 +221,7 @@ static void BindMip(py::module_& m) {
         const ImageView<const float> in = ConstViewOf(image);
         {
           py::gil_scoped_release release;
-          for (int l = 0; l < levels; ++l) {
-            const ImageView<float>& prev = views[l > 0 ? l - 1 : 0];
-            const ImageView<const float> src =
-                l == 0 ? in : ImageView<const float>(prev.data, prev.height, prev.width, prev.channels);
-            MipDown(src, views[l]);
-          }
+          MipBuildChain(in, views.data(), levels);
         }
         py::list result;
         for (FloatArray& a : out) result.append(a);
@@ -265,7 +262,7 @@ static void BindMip(py::module_& m) {
         const float* lp = level.data();
         {
           py::gil_scoped_release release;
-          for (std::int64_t i = 0; i < std::int64_t(hh) * ww; ++i) bad += !std::isfinite(lp[i]);
+          bad = CountNonFiniteValues(lp, std::int64_t(hh) * ww);
         }
         if (bad) throw BadValueError("level: contains " + std::to_string(bad) + " NaN or infinite values");
         FloatArray out = NewArray<float>({hh, ww, c});
@@ -322,40 +319,17 @@ static void BindMip(py::module_& m) {
         const float* lp = level.data();
         {
           py::gil_scoped_release release;
-          for (std::int64_t i = 0; i < std::int64_t(h) * w; ++i) bad += !std::isfinite(lp[i]);
+          bad = CountNonFiniteValues(lp, std::int64_t(h) * w);
         }
         if (bad) throw BadValueError("level: contains " + std::to_string(bad) + " NaN or infinite values");
-        std::vector<FloatArray> chain;
-        py::ssize_t lh = h, lw = w;
-        for (int l = 0; l < levels; ++l) {
-          lh = (lh + 1) / 2;
-          lw = (lw + 1) / 2;
-          chain.push_back(NewArray<float>({lh, lw, 2 * k * c}));
-        }
         std::vector<ImageView<float>> band_views;
-        std::vector<ImageView<const float>> band_in, noise_views, chain_in;
-        for (FloatArray& b : bands) {
-          band_views.push_back(ViewOf(b));
-          band_in.push_back(ConstViewOf(b));
-        }
+        std::vector<ImageView<const float>> noise_views;
+        for (FloatArray& b : bands) band_views.push_back(ViewOf(b));
         for (FloatArray& a : noise) noise_views.push_back(ConstViewOf(a));
-        std::vector<ImageView<float>> chain_views;
-        for (FloatArray& a : chain) {
-          chain_views.push_back(ViewOf(a));
-          chain_in.push_back(ConstViewOf(a));
-        }
         const ImageView<const float> level_view = ConstViewOf(level);
         {
           py::gil_scoped_release release;
-          for (int l = 0; l < levels; ++l) {
-            if (l == 0) {
-              MipDownMoments(band_in.data(), static_cast<int>(k), chain_views[0]);
-            } else {
-              MipDown(chain_in[l - 1], chain_views[l]);
-            }
-          }
-          MipFoveateChange(band_views.data(), static_cast<int>(k), chain_in.data(), levels, level_view,
-                           noise_views.data());
+          MipFoveateLevel(band_views.data(), static_cast<int>(k), level_view, noise_views.data(), levels);
         }
       },
       py::arg("bands"), py::arg("level"), py::arg("noise"), py::arg("levels"),

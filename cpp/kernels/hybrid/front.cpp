@@ -48,6 +48,14 @@ void UlrOptions::Check() const {
 }
 
 
+std::int64_t HybridFindBadHit(const std::int32_t* p, const float* ba, std::int64_t n, std::int64_t m) {
+  for (std::int64_t i = 0; i < n; ++i) {
+    if (p[i] < -1 || p[i] >= m) return i;
+    if (p[i] >= 0 && !(std::isfinite(ba[2 * i]) && std::isfinite(ba[2 * i + 1]))) return i;
+  }
+  return -1;
+}
+
 void PvmCheckGridSize(int coarse, int sub) {
   if (coarse < 1 || sub < 1 || static_cast<std::int64_t>(coarse) * sub > 4096) {
     throw BadValueError("coarse, sub: expected >= 1 with coarse * sub <= 4096, got " + std::to_string(coarse) + ", " +

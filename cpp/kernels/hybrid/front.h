@@ -13,6 +13,10 @@
 
 namespace ibr {
 
+// The first of n G-buffer pixels whose hit a per-pixel read cannot index: prim_id outside [-1, m)
+// (-1 = no hit), or a hit (prim_id >= 0) with a non-finite barycentric (bary (n, 2)); -1 if none.
+std::int64_t HybridFindBadHit(const std::int32_t* prim_id, const float* bary, std::int64_t n, std::int64_t m);
+
 // Throws BadValueError unless coarse, sub >= 1 with coarse * sub <= 4096.
 void PvmCheckGridSize(int coarse, int sub);
 // Throws BadValueError unless origin is finite and cell finite and > 0 (3 numbers each).
