@@ -1,4 +1,4 @@
-// The one boundary helper for arrays (STYLE.md 5): checks dtype, ndim, shape and
+// The one boundary helper for arrays (every binding checks its arrays here, once): checks dtype, ndim, shape and
 // C-contiguity once, with messages that name the argument and say what was expected, e.g.
 //   "depth: expected float32 array of shape (H, W) = (1080, 1920), got float64 (1080, 1920, 1)".
 // No conversion ever happens: a silent copy would lose writes and hide mistakes.

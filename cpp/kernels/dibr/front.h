@@ -40,8 +40,7 @@ struct DibrAccumulatorStorage;
 // running sums (constant memory); Resolve blends (paper Eq. 3). The sums and the warp's scratch
 // come from a pool of one spare storage: the renderer makes a new accumulator per frame, and 58 MB
 // of new sums + 25 MB of new vertex scratch at 1080p cost page faults (the kernel zeroes every page
-// on first touch) in each frame's first views -- about 20 ms of CPU per frame (docs/dibr.md,
-// "Speed"). A new accumulator of the same target size takes the spare (any bits in the sums are
+// on first touch) in each frame's first views -- about 20 ms of CPU per frame, measured. A new accumulator of the same target size takes the spare (any bits in the sums are
 // fine: they start fresh); one of another size frees it. So at most one unused set (83 MB at
 // 1080p) stays allocated. Not thread-safe: one call at a time per object.
 class DibrAccumulator {

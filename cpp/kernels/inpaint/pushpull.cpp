@@ -18,7 +18,8 @@ namespace {
 
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 
-// Unknown depth (DESIGN.md: NaN or 0) never sets a block's reference depth.
+// Unknown depth (the engine marks it NaN or 0; infinite and negative values count as unknown too)
+// never sets a block's reference depth.
 inline bool Known(float d) { return std::isfinite(d) && d > 0.0f; }
 
 // Rows per task so that a task has at least kMinPixelsPerTask pixels; depends on the size only.

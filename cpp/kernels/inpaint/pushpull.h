@@ -38,7 +38,8 @@
 // the children, and children with ref - d > threshold (nearer, foreground) are dropped. Hole
 // pixels take part in ref (the warper writes background depth into holes, sec. 3.1), so a block
 // that mixes a foreground sample with a background hole rejects the foreground.
-// Unknown depth (NaN, +-inf or <= 0, DESIGN.md) never sets ref and is never rejected.
+// Unknown depth (NaN, +-inf or <= 0: the engine's marks of unknown depth) never sets ref and is never
+// rejected.
 // The threshold is "0.04 of the normalised depth" (authors' Unity code): the kernel normalises by
 // the image's range of known depth, threshold_abs = depth_threshold * (max - min).
 //

@@ -6,8 +6,8 @@
 // Rays: one per pixel through its centre (u + 0.5, v + 0.5) (cpp/ibr/camera.h), from the
 // camera centre, direction RayInCam rotated to world. Pinhole rays have z_cam = 1, so the hit
 // parameter t is the z-depth; equirect rays have unit length, so t is the ray distance. Hence
-// "depth" is the scene model's depth convention (DESIGN.md): z for pinhole, distance for
-// equirect; 0 where nothing is hit (unknown).
+// "depth" is the scene model's depth convention (cpp/ibr/camera.h: depth_z for pinhole, depth_ray for
+// equirect): z for pinhole, distance for equirect; 0 where nothing is hit (unknown).
 //
 // Output layout (all row-major, C-contiguous; any pointer may be null = not computed):
 //   depth     float (H, W)      0 = no hit
