@@ -1,6 +1,6 @@
 """Fit the small (5x5) filters of ibrtools' steerable pyramid, once, offline.
 
-    .venv/bin/python tools/fit_steerable_filters.py [--out cpp/kernels/steerable_taps.h]
+    .venv/bin/python tools/fit_steerable_filters.py [--out cpp/kernels/metamers/steerable_taps.h]
 
 Reference: pyrtools' spatial steerable pyramid (Simoncelli & Freeman 1995; filters of
 Karasaridis & Simoncelli 1996): ``sp1_filters`` (2 orientations, 9x9 band / lo0 / hi0
@@ -284,7 +284,7 @@ def fmt(f: np.ndarray) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--out", type=Path, default=ROOT / "cpp" / "kernels" / "steerable_taps.h")
+    ap.add_argument("--out", type=Path, default=ROOT / "cpp" / "kernels" / "metamers" / "steerable_taps.h")
     ap.add_argument("--grid", type=int, default=32, help="frequency grid N x N of the fit (default 32)")
     ap.add_argument("--pr-weight", type=float, default=4.0, help="weight of the reconstruction residuals (default 4)")
     args = ap.parse_args(argv)

@@ -1,4 +1,4 @@
-// The one boundary helper for arrays (STYLE.md 5): checks dtype, ndim, shape and
+// The one boundary helper for arrays (every binding checks its arrays here, once): checks dtype, ndim, shape and
 // C-contiguity once, with messages that name the argument and say what was expected, e.g.
 //   "depth: expected float32 array of shape (H, W) = (1080, 1920), got float64 (1080, 1920, 1)".
 // No conversion ever happens: a silent copy would lose writes and hide mistakes.
@@ -104,7 +104,7 @@ std::vector<py::array_t<float, py::array::c_style>> CheckPairedArrayList(
 bool Overlaps(const py::array& a, const py::array& b);
 
 // The `resample` argument of the ULR and PVM colour reads: "cubic" (Catmull-Rom,
-// kernels/resample.h) -> true, "bilinear" -> false; anything else is a BadValueError.
+// ibr/resample.h) -> true, "bilinear" -> false; anything else is a BadValueError.
 bool ParseResample(const std::string& resample);
 
 }  // namespace ibr::bind

@@ -1,14 +1,53 @@
-// Bindings of cpp/ibr: cameras, thread control, error translation.
+// Bindings of cpp/ibr: cameras, thread control, error translation, the sRGB curves (colour.h).
+#include <cstdint>
+#include <string>
+#include <vector>
+
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 
 #include "array.h"
 #include "ibr/camera.h"
+#include "ibr/colour.h"
 #include "ibr/errors.h"
 #include "ibr/parallel.h"
+#include "ibr/simd.h"  // UseAvx2: the process-wide instruction set
 #include "module.h"
 
 namespace ibr::bind {
+namespace {
+
+// out = kernel(values) for a C-contiguous float32 array of any shape (a new array of its shape),
+// with the GIL released.
+py::array_t<float> MapValues(const py::handle& values_obj, void (*kernel)(const float*, float*, std::int64_t)) {
+  if (!py::isinstance<py::array>(values_obj)) {
+    throw DtypeError("values: expected a numpy float32 array, got " +
+                     std::string(py::str(py::type::of(values_obj).attr("__name__"))));
+  }
+  const py::array a = py::reinterpret_borrow<py::array>(values_obj);
+  if (!a.dtype().equal(py::dtype::of<float>())) {
+    throw DtypeError("values: expected a float32 array, got " + std::string(py::str(a.dtype())) + " " +
+                     DescribeShape(a));
+  }
+  if (!(a.flags() & py::array::c_style)) {
+    throw ShapeError("values: expected a C-contiguous array (use numpy.ascontiguousarray)");
+  }
+  const auto values = py::reinterpret_borrow<py::array_t<float, py::array::c_style>>(a);
+  py::array_t<float> out(std::vector<py::ssize_t>(values.shape(), values.shape() + values.ndim()));
+  const float* in = values.data();
+  float* o = out.mutable_data();
+  const std::int64_t n = values.size();
+  py::gil_scoped_release release;
+  kernel(in, o, n);
+  return out;
+}
+
+// LinearToSrgbUnclipped on the instruction set the warp uses (set_warp_isa: tests compare both).
+void EncodeUnclippedActiveIsa(const float* in, float* out, std::int64_t n) {
+  LinearToSrgbUnclipped(in, out, n, UseAvx2());
+}
+
+}  // namespace
 
 void BindCore(py::module_& m) {
   // C++ front errors become the typed Python errors of ibrtools.errors.
@@ -78,6 +117,30 @@ void BindCore(py::module_& m) {
              return py::make_tuple(ok, u, v, d);
            }, py::arg("x"), py::arg("y"), py::arg("z"),
            "Project one world point: (ok, x_img, y_img, depth). For tests and debugging.");
+
+  m.def(
+      "linear_to_srgb", [](py::handle values) { return MapValues(values, LinearToSrgb); }, py::arg("values"),
+      "The display encoding of linear colour (cpp/ibr/colour.h LinearToSrgb; Python: "
+      "ibrtools.imageio.linear_to_srgb): the IEC 61966-2-1 sRGB curve of every value of a C-contiguous "
+      "float32 array of any shape, clamped to [0, 1] first, NaN -> 0; within 1e-6 (relative) of the exact "
+      "curve. Returns a new float32 array of the same shape.");
+  m.def(
+      "srgb_encode_unclipped", [](py::handle values) { return MapValues(values, EncodeUnclippedActiveIsa); },
+      py::arg("values"),
+      "The sRGB encoding of linear colour for blending in sRGB space (cpp/ibr/colour.h "
+      "LinearToSrgbUnclipped; Python: ibrtools.render.dibr.srgb_encode): the IEC 61966-2-1 curve of every value "
+      "of a C-contiguous float32 array of any shape, negative values and -inf -> 0, not clipped above 1, +inf "
+      "stays +inf, NaN stays NaN; within 1e-6 of the exact curve (absolute in [0, 1], relative above), exact at 0 "
+      "and 1. A table in [0, 1] "
+      "(AVX2 gathers when set_warp_isa allows: the same bits either way). Returns a new float32 array of the "
+      "same shape.");
+  m.def(
+      "srgb_to_linear", [](py::handle values) { return MapValues(values, SrgbToLinear); }, py::arg("values"),
+      "The decoding of stored sRGB colour (cpp/ibr/colour.h SrgbToLinear; Python: "
+      "ibrtools.imageio.srgb_to_linear): v / 12.92 for v <= 0.04045 (negative values included), "
+      "((v + 0.055) / 1.055)^2.4 above (beyond 1 too), NaN stays NaN, for every value of a C-contiguous float32 "
+      "array of any shape; within 1e-5 (relative) of the exact curve. Returns a new float32 array of the same "
+      "shape.");
 }
 
 }  // namespace ibr::bind

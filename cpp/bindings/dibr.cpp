@@ -1,13 +1,11 @@
-// Binding of depth-image-based rendering (cpp/kernels/forward_warp.h, cpp/kernels/blend.h):
+// Binding of depth-image-based rendering (cpp/kernels/dibr/forward_warp.h, cpp/kernels/dibr/blend.h):
 // _core.WarpOptions, _core.DibrAccumulator (streaming warp + blend into one target camera)
 // and _core.forward_warp (one view, per-view buffers); _core.warp_with_holes and _core.warp_flow
 // (single-view warp with background-depth holes, dos Anjos et al. sec. 3.1). Thin: checks arrays (array.h),
-// releases the GIL around the kernels, raises typed errors after them.
-#include <chrono>
+// calls the kernels and the front (cpp/kernels/dibr/front.h: value checks, the accumulator and its
+// storage pool) with the GIL released.
 #include <cstdint>
-#include <cstring>
 #include <memory>
-#include <mutex>
 #include <string>
 #include <vector>
 
@@ -18,8 +16,9 @@
 #include "ibr/camera.h"
 #include "ibr/errors.h"
 #include "ibr/simd.h"
-#include "kernels/blend.h"
-#include "kernels/forward_warp.h"
+#include "kernels/dibr/blend.h"
+#include "kernels/dibr/forward_warp.h"
+#include "kernels/dibr/front.h"
 #include "module.h"
 
 namespace ibr::bind {
@@ -49,28 +48,11 @@ DepthTest ParseDepthTest(const std::string& s) {
   throw BadValueError("depth_test: expected 'combined' or 'nearest', got '" + s + "'");
 }
 
-// Colour must be finite everywhere: a NaN or inf input colour would otherwise be blended into
-// the output image (found by tests/test_stress.py; DESIGN.md: NaN never leaks into an output).
-// A float is not finite when its exponent bits are all set; the integer OR-reduction vectorises
-// (one pass over the colour, about a millisecond per 1080p view).
-void ThrowBadColor(std::int64_t bad) {
-  throw BadValueError("color: " + std::to_string(bad) + " values are NaN or infinite (expected finite colour)");
-}
-
 void CheckFiniteColor(const py::array_t<float, py::array::c_style>& color) {
   const float* p = color.data();
-  const std::ptrdiff_t n = color.size();
-  std::uint32_t any = 0;
-  for (std::ptrdiff_t i = 0; i < n; ++i) {
-    std::uint32_t u;
-    std::memcpy(&u, p + i, sizeof u);
-    any |= std::uint32_t((u & 0x7f800000u) == 0x7f800000u);
-  }
-  if (any) {
-    std::ptrdiff_t bad = 0;
-    for (std::ptrdiff_t i = 0; i < n; ++i) bad += !std::isfinite(p[i]);
-    ThrowBadColor(bad);
-  }
+  const std::int64_t n = color.size();
+  py::gil_scoped_release release;
+  DibrCheckFiniteColor(p, n);
 }
 
 // A checked input view: colour (H, W, 3), depth (H, W) with (H, W) = the camera's size.
@@ -93,189 +75,11 @@ InputView CheckInput(const py::handle& color_obj, const py::handle& depth_obj, c
   return v;
 }
 
-void CheckCounts(const WarpCounts& c) {
-  if (c.bad_depths > 0) {
-    throw BadValueError("depth: " + std::to_string(c.bad_depths) +
-                        " values are NaN or negative (expected > 0, 0 = unknown, +inf = at infinity)");
-  }
-  if (c.valid_vertices == 0) throw BadValueError("depth: no valid depth (every value is 0 = unknown)");
-}
-
-float CheckStretch(float t) {
-  if (!(t > 0.f) || std::isinf(t)) {
-    throw BadValueError("stretch_threshold: expected a finite number of pixels > 0, got " + std::to_string(t));
-  }
-  return t;
-}
-
-float CheckJump(float j) {
-  if (!(j >= 0.f) || std::isinf(j)) {
-    throw BadValueError("depth_jump: expected a finite number >= 0 (0 = off), got " + std::to_string(j));
-  }
-  return j;
-}
-
-// (color, depth, mask) of the hole-mode warp; throws after the kernel for bad depth / flow.
-py::tuple HoleResult(py::array_t<float> c, py::array_t<float> d, py::array_t<std::uint8_t> m, const WarpCounts& counts) {
-  if (counts.bad_flow > 0) {
-    throw BadValueError("flow: " + std::to_string(counts.bad_flow) + " vectors are not finite (NaN or inf)");
-  }
-  CheckCounts(counts);
-  return py::make_tuple(c, d, m);
-}
-
-double MsSince(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-}
-
-// The memory of a DibrAccumulator: the running sums of its target size (uninitialised: the sums
-// start "fresh", blend.h, and the first view writes every pixel) and the warp's scratch.
-struct AccumulatorStorage {
-  std::size_t pixels = 0;
-  std::unique_ptr<float[]> sum_wc, sum_w, sum_w_invd, sum_q, max_q;
-  WarpScratch scratch;
-};
-
-// One spare storage, the last one a destroyed accumulator left: the renderer makes a new
-// accumulator per frame (render/dibr.py), and 58 MB of new sums + 25 MB of new vertex scratch
-// at 1080p cost page faults (the kernel zeroes every page on first touch) in each frame's first
-// views -- about 20 ms of CPU per frame, measured (docs/dibr.md, "Speed"). A new accumulator of
-// the same target size takes the spare (any bits in the sums are fine: they start fresh); one of
-// another size frees it. So at most one unused set (83 MB at 1080p) stays allocated.
-std::mutex g_spare_mutex;
-std::unique_ptr<AccumulatorStorage> g_spare;
-
-std::unique_ptr<AccumulatorStorage> TakeStorage(std::size_t n) {
-  std::unique_ptr<AccumulatorStorage> s;
-  {
-    std::lock_guard<std::mutex> lock(g_spare_mutex);
-    s = std::move(g_spare);
-  }
-  if (s && s->pixels == n) return s;
-  s.reset();  // another size: free it before allocating
-  s = std::make_unique<AccumulatorStorage>();
-  s->pixels = n;
-  s->sum_wc.reset(new float[3 * n]);
-  s->sum_w.reset(new float[n]);
-  s->sum_w_invd.reset(new float[n]);
-  s->sum_q.reset(new float[n]);
-  s->max_q.reset(new float[n]);
-  return s;
-}
-
-void ReturnStorage(std::unique_ptr<AccumulatorStorage> s) {
-  std::unique_ptr<AccumulatorStorage> old;
-  std::lock_guard<std::mutex> lock(g_spare_mutex);
-  old = std::move(g_spare);  // freed after the lock is released (declared before the guard)
-  g_spare = std::move(s);
-}
-
-class DibrAccumulator {
- public:
-  DibrAccumulator(const Camera& target, float stretched_quality, bool stretched_holes, float depth_tolerance)
-      : target_(target) {
-    if (!(stretched_quality >= 0.f && stretched_quality <= 1.f)) {
-      throw BadValueError("stretched_quality: expected a number in [0, 1], got " + std::to_string(stretched_quality));
-    }
-    if (!(depth_tolerance >= 0.f && depth_tolerance < 1.f)) {
-      throw BadValueError("depth_tolerance: expected a number in [0, 1), got " + std::to_string(depth_tolerance));
-    }
-    if (stretched_holes && stretched_quality == 0.f) {
-      throw BadValueError("stretched_holes: needs stretched_quality > 0 to say which fragments are stretched");
-    }
-    // Not cleared: the sums start "fresh" (blend.h), the first view writes them.
-    storage_ = TakeStorage(std::size_t(target.width) * target.height);
-    buffers_.stretched_quality = stretched_quality;
-    buffers_.stretched_holes = stretched_holes;
-    buffers_.depth_tolerance = depth_tolerance;
-    Buffers();
-  }
-
-  ~DibrAccumulator() {
-    if (storage_) ReturnStorage(std::move(storage_));
-  }
-  DibrAccumulator(const DibrAccumulator&) = delete;
-  DibrAccumulator& operator=(const DibrAccumulator&) = delete;
-
-  void AddView(const py::object& color_obj, const py::object& depth_obj, const Camera& camera,
-               const WarpOptions& options) {
-    // The colour's finiteness is counted by the kernel, in its parallel projection pass.
-    InputView in = CheckInput(color_obj, depth_obj, camera, false);
-    const ImageView<const float> color = ConstViewOf(in.color), depth = ConstViewOf(in.depth);
-    WarpCounts counts;
-    {
-      py::gil_scoped_release release;
-      const auto t0 = std::chrono::steady_clock::now();
-      // The kernel adds the view to the sums only when its colour and depth passed the checks
-      // below. Band-local mode (forward_warp.h): no per-view full-size buffers.
-      counts = ForwardWarp(color, depth, camera, target_, options, storage_->scratch, ImageView<float>(), ImageView<float>(),
-                           ImageView<float>(), nullptr, &buffers_, true);
-      if (counts.bad_depths == 0 && counts.valid_vertices > 0 && counts.bad_colors == 0) {
-        ++num_views_;
-        buffers_.fresh = false;  // the view wrote every pixel's sums
-      }
-      last_ms_ = MsSince(t0);
-    }
-    if (counts.bad_colors > 0) ThrowBadColor(counts.bad_colors);
-    CheckCounts(counts);
-  }
-
-  // srgb_to_linear: the views' colours were sRGB encodings (render/dibr.py, blend_space "srgb");
-  // the resolve decodes the blended colour row by row (blend.h BlendSpace::kSrgb).
-  py::tuple Result(bool srgb_to_linear) {
-    const py::ssize_t h = target_.height, w = target_.width;
-    auto color = NewArray<float>({h, w, 3});
-    auto depth = NewArray<float>({h, w});
-    auto conf = NewArray<float>({h, w});
-    auto hole = NewArray<bool>({h, w});
-    float *c = color.mutable_data(), *d = depth.mutable_data(), *q = conf.mutable_data();
-    auto* o = reinterpret_cast<std::uint8_t*>(hole.mutable_data());
-    {
-      py::gil_scoped_release release;
-      if (buffers_.fresh) {  // no view since reset(): empty sums
-        ClearBlend(buffers_);
-        buffers_.fresh = false;
-      }
-      ResolveBlend(buffers_, c, d, q, o, UseAvx2(),
-                   srgb_to_linear ? BlendSpace::kSrgb : BlendSpace::kLinear);
-    }
-    return py::make_tuple(color, depth, conf, hole);
-  }
-
-  // The next view writes the sums instead of adding to them (BlendBuffers::fresh): no clearing pass.
-  void Reset() {
-    buffers_.fresh = true;
-    num_views_ = 0;
-  }
-
-  int NumViews() const { return num_views_; }
-  double LastMs() const { return last_ms_; }
-  const Camera& Target() const { return target_; }
-
- private:
-  void Buffers() {
-    buffers_.height = target_.height;
-    buffers_.width = target_.width;
-    buffers_.sum_wc = storage_->sum_wc.get();
-    buffers_.sum_w = storage_->sum_w.get();
-    buffers_.sum_w_invd = storage_->sum_w_invd.get();
-    buffers_.sum_q = storage_->sum_q.get();
-    buffers_.max_q = storage_->max_q.get();
-    buffers_.fresh = true;
-  }
-
-  Camera target_;
-  std::unique_ptr<AccumulatorStorage> storage_;  // sums (uninitialised: fresh) and scratch
-  BlendBuffers buffers_;
-  int num_views_ = 0;
-  double last_ms_ = 0.0;
-};
-
 }  // namespace
 
 void BindDibr(py::module_& m) {
   py::class_<WarpOptions>(m, "WarpOptions",
-                          "Options of the forward mesh warp (cpp/kernels/forward_warp.h); defaults: RVS 4.0.")
+                          "Options of the forward mesh warp (cpp/kernels/dibr/forward_warp.h); defaults: RVS 4.0.")
       .def(py::init<>())
       .def_property(
           "quality", [](const WarpOptions& o) { return std::string(QualityName(o.quality)); },
@@ -319,28 +123,61 @@ void BindDibr(py::module_& m) {
                "', discard_stretched=" + (o.discard_stretched ? "True" : "False") + ")";
       });
 
+  const DibrAccumulatorOptions kAccumulator;  // the defaults of DibrAccumulator's arguments
   py::class_<DibrAccumulator>(m, "DibrAccumulator",
                               "Streaming DIBR into one target camera: add_view warps a colour + depth view and "
                               "adds it to running sums (constant memory); result() blends (paper Eq. 3).")
-      .def(py::init<const Camera&, float, bool, float>(), py::arg("target_camera"),
-           py::arg("stretched_quality") = 0.f, py::arg("stretched_holes") = false, py::arg("depth_tolerance") = 0.f,
-           "Visibility across views (cpp/kernels/blend.h; all off = RVS): stretched_quality in [0, 1] "
+      .def(py::init([](const Camera& target, float stretched_quality, bool stretched_holes, float depth_tolerance) {
+             DibrAccumulatorOptions o;
+             o.stretched_quality = stretched_quality;
+             o.stretched_holes = stretched_holes;
+             o.depth_tolerance = depth_tolerance;
+             return std::make_unique<DibrAccumulator>(target, o);
+           }),
+           py::arg("target_camera"), py::arg("stretched_quality") = kAccumulator.stretched_quality,
+           py::arg("stretched_holes") = kAccumulator.stretched_holes,
+           py::arg("depth_tolerance") = kAccumulator.depth_tolerance,
+           "Visibility across views (cpp/kernels/dibr/blend.h; all off = RVS): stretched_quality in [0, 1] "
            "(fragments with q below it are stretched: never mixed into unstretched content), "
            "stretched_holes (pixels only stretched fragments cover become holes), depth_tolerance "
            "(relative: a nearer fragment replaces the sums, a farther one is dropped).")
-      .def("add_view", &DibrAccumulator::AddView, py::arg("color"), py::arg("depth"), py::arg("camera"),
+      .def("add_view",
+           [](DibrAccumulator& acc, const py::object& color_obj, const py::object& depth_obj, const Camera& camera,
+              const WarpOptions& options) {
+             // The colour's finiteness is counted by the kernel, in its parallel projection pass.
+             InputView in = CheckInput(color_obj, depth_obj, camera, false);
+             const ImageView<const float> color = ConstViewOf(in.color), depth = ConstViewOf(in.depth);
+             py::gil_scoped_release release;
+             acc.AddView(color, depth, camera, options);
+           },
+           py::arg("color"), py::arg("depth"), py::arg("camera"),
            py::arg("options") = WarpOptions(),
            "color float32 (H, W, 3) linear, depth float32 (H, W) (pinhole: z, equirect: ray distance; 0 = "
            "unknown, +inf = at infinity), camera: _core.Camera of size W x H. GIL released.")
-      .def("result", &DibrAccumulator::Result, py::arg("srgb_to_linear") = false,
+      .def("result",
+           [](DibrAccumulator& acc, bool srgb_to_linear) {
+             const py::ssize_t h = acc.target().height, w = acc.target().width;
+             auto color = NewArray<float>({h, w, 3});
+             auto depth = NewArray<float>({h, w});
+             auto conf = NewArray<float>({h, w});
+             auto hole = NewArray<bool>({h, w});
+             float *c = color.mutable_data(), *d = depth.mutable_data(), *q = conf.mutable_data();
+             auto* o = reinterpret_cast<std::uint8_t*>(hole.mutable_data());
+             {
+               py::gil_scoped_release release;
+               acc.Resolve(c, d, q, o, srgb_to_linear);
+             }
+             return py::make_tuple(color, depth, conf, hole);
+           },
+           py::arg("srgb_to_linear") = false,
            "(color (H, W, 3) f32, depth (H, W) f32 (0 in holes), confidence (H, W) f32 = sum over views of "
            "the kept triangle quality in (0, 1], hole (H, W) bool). srgb_to_linear: the added colours were "
            "sRGB encodings (blend space 'srgb'); the blended colour is decoded inside the resolve with the "
            "curve of _core.srgb_to_linear (read from a table of it in [0, 1]: within 1e-6 of srgb_to_linear of "
            "result()'s colour; holes stay 0). GIL released.")
       .def("reset", &DibrAccumulator::Reset, "Forget every view added.")
-      .def_property_readonly("num_views", &DibrAccumulator::NumViews)
-      .def_property_readonly("last_add_ms", &DibrAccumulator::LastMs,
+      .def_property_readonly("num_views", &DibrAccumulator::num_views)
+      .def_property_readonly("last_add_ms", &DibrAccumulator::last_add_ms,
                              "Wall time of the last add_view's warp + accumulation (checks excluded), ms.");
 
   m.def(
@@ -362,7 +199,7 @@ void BindDibr(py::module_& m) {
           py::gil_scoped_release release;
           counts = ForwardWarp(color, depth, camera, target, options, scratch, cv, dv, wv, quality.data(), nullptr);
         }
-        CheckCounts(counts);
+        DibrCheckCounts(counts);
         return py::make_tuple(c, d, w);
       },
       py::arg("color"), py::arg("depth"), py::arg("camera"), py::arg("target_camera"),
@@ -403,8 +240,9 @@ void BindDibr(py::module_& m) {
       [](const py::object& color_obj, const py::object& depth_obj, const Camera& camera, const Camera& target,
          float stretch_threshold, float depth_jump) {
         HoleWarpOptions options;
-        options.stretch_threshold = CheckStretch(stretch_threshold);
-        options.depth_jump = CheckJump(depth_jump);
+        options.stretch_threshold = stretch_threshold;
+        options.depth_jump = depth_jump;
+        DibrCheckHoleWarpOptions(options);
         InputView in = CheckInput(color_obj, depth_obj, camera);
         const ImageView<const float> color = ConstViewOf(in.color), depth = ConstViewOf(in.depth);
         const py::ssize_t th = target.height, tw = target.width;
@@ -419,12 +257,13 @@ void BindDibr(py::module_& m) {
           WarpScratch scratch;
           counts = WarpWithHoles(color, depth, camera, target, options, scratch, cv, dv, mp);
         }
-        return HoleResult(c, d, mk, counts);
+        DibrCheckHoleCounts(counts);
+        return py::make_tuple(c, d, mk);
       },
       py::arg("color"), py::arg("depth"), py::arg("camera"), py::arg("target_camera"),
       py::arg("stretch_threshold") = kDefaultStretchThreshold, py::arg("depth_jump") = kDefaultDepthJump,
       "Warp one RGB-D view into target_camera with background-depth holes (dos Anjos et al. sec. 3.1, "
-      "Eq. 1; cpp/kernels/forward_warp.h). color float32 (H, W, 3), depth float32 (H, W) (pinhole: z, "
+      "Eq. 1; cpp/kernels/dibr/forward_warp.h). color float32 (H, W, 3), depth float32 (H, W) (pinhole: z, "
       "equirect: ray distance; 0 = unknown, +inf = at infinity). Quads whose longest target edge exceeds "
       "stretch_threshold pixels and whose corner depths differ by more than a factor 1 + depth_jump (0 = "
       "stretch only) are stretched. Returns (color (Ht, Wt, 3) (0 in holes), depth (Ht, Wt) "
@@ -435,8 +274,9 @@ void BindDibr(py::module_& m) {
       [](const py::object& color_obj, const py::object& depth_obj, const py::object& flow_obj,
          float stretch_threshold, float depth_jump) {
         HoleWarpOptions options;
-        options.stretch_threshold = CheckStretch(stretch_threshold);
-        options.depth_jump = CheckJump(depth_jump);
+        options.stretch_threshold = stretch_threshold;
+        options.depth_jump = depth_jump;
+        DibrCheckHoleWarpOptions(options);
         auto depth_arr = CheckArray<float>(depth_obj, "depth", {{"H", -1}, {"W", -1}});
         const int h = int(depth_arr.shape(0)), w = int(depth_arr.shape(1));
         auto color_arr = CheckArray<float>(color_obj, "color", {{"H", h}, {"W", w}, {"3", 3}});
@@ -459,7 +299,8 @@ void BindDibr(py::module_& m) {
           WarpScratch scratch;
           counts = WarpFlowWithHoles(color, depth, flow, options, scratch, cv, dv, mp);
         }
-        return HoleResult(c, d, mk, counts);
+        DibrCheckHoleCounts(counts);
+        return py::make_tuple(c, d, mk);
       },
       py::arg("color"), py::arg("depth"), py::arg("flow"), py::arg("stretch_threshold") = kDefaultStretchThreshold,
       py::arg("depth_jump") = kDefaultDepthJump,

@@ -1,17 +1,48 @@
-// Bindings of cpp/kernels/pushpull.h: the checking front (shapes, dtypes, finiteness outside the
-// holes, options) and the call with the GIL released. Python: ibrtools.inpaint.
+// The inpaint family's bindings: push-pull hole filling (cpp/kernels/inpaint/pushpull.h) and the
+// per-sample passes of metameric inpainting (metameric.h). Python: ibrtools.inpaint, ibrtools.metameric.
 #include <cmath>
 #include <string>
+#include <vector>
 
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 
 #include "array.h"
+#include "ibr/checks.h"
 #include "ibr/errors.h"
-#include "kernels/pushpull.h"
+#include "kernels/inpaint/metameric.h"
+#include "kernels/inpaint/pushpull.h"
 #include "module.h"
-#include "pushpull_args.h"
 
+// The push-pull options of a binding's arguments, shared by ibrtools.inpaint.pushpull
+// (inpaint.cpp) and the moments push-pulls of metameric inpainting (metameric.cpp): depth None
+// (classic push-pull) or float32 (h, w) (depth-aware, Alg. 1 of dos Anjos et al.), gamma and
+// depth_threshold finite and >= 0; one-line errors naming the argument.
+namespace ibr::bind {
+
+// `depth` receives the checked depth array (kept alive by the caller) when depth_obj is not None.
+inline PushPullOptions CheckPushPullArgs(py::handle depth_obj, py::ssize_t h, py::ssize_t w, double depth_threshold,
+                                         double gamma, py::array_t<float, py::array::c_style>* depth) {
+  if (!(std::isfinite(gamma) && gamma >= 0.0)) {
+    throw BadValueError("gamma: expected a finite number >= 0, got " + std::to_string(gamma));
+  }
+  if (!(std::isfinite(depth_threshold) && depth_threshold >= 0.0)) {
+    throw BadValueError("depth_threshold: expected a finite number >= 0, got " + std::to_string(depth_threshold));
+  }
+  PushPullOptions options;
+  options.gamma = static_cast<float>(gamma);
+  options.depth_threshold = static_cast<float>(depth_threshold);
+  if (!depth_obj.is_none()) {
+    *depth = CheckArray<float>(depth_obj, "depth", {{"H", h}, {"W", w}});
+    options.depth_aware = true;
+  }
+  return options;
+}
+
+}  // namespace ibr::bind
+
+// Bindings of cpp/kernels/inpaint/pushpull.h: the checking front (shapes, dtypes, finiteness outside the
+// holes, options) and the call with the GIL released. Python: ibrtools.inpaint.
 namespace ibr::bind {
 namespace {
 
@@ -33,7 +64,7 @@ ImageView<const std::uint8_t> HoleView(const py::handle& obj, py::ssize_t h, py:
 
 }  // namespace
 
-void BindInpaint(py::module_& m) {
+static void BindPushPull(py::module_& m) {
   m.def(
       "pushpull",
       [](py::handle image_obj, py::handle hole_obj, py::handle depth_obj, double depth_threshold,
@@ -88,11 +119,324 @@ void BindInpaint(py::module_& m) {
       },
       py::arg("image"), py::arg("hole"), py::arg("depth") = py::none(), py::arg("depth_threshold") = 0.04,
       py::arg("gamma") = 0.0, py::arg("out") = py::none(), py::arg("holes_only") = false,
-      "Push-pull hole filling (cpp/kernels/pushpull.h). image float32 (H, W) or (H, W, C); hole bool or "
+      "Push-pull hole filling (cpp/kernels/inpaint/pushpull.h). image float32 (H, W) or (H, W, C); hole bool or "
       "uint8 (H, W), non-zero = hole; depth float32 (H, W) or None (classic); out: None (a new array) or "
       "a writeable float32 array of image's shape to fill (image itself with holes_only: in place); holes_only: "
       "write the hole pixels of out only. "
       "Returns (out, no_hole) where no_hole says the image had no hole.");
+}
+
+}  // namespace ibr::bind
+
+// Bindings of cpp/kernels/inpaint/metameric.h: the checking front (dtypes, shapes of every band, mask,
+// flow, scale, no aliasing of written bands) and the calls with the GIL released.
+// Python: ibrtools.metameric (private helpers of metameric()).
+namespace ibr::bind {
+namespace {
+
+using FloatArray = py::array_t<float, py::array::c_style>;
+
+void CheckNoAlias(const std::vector<FloatArray>& written, const std::vector<py::array>& others, const char* name,
+                  bool indexed) {
+  for (std::size_t i = 0; i < written.size(); ++i) {
+    for (std::size_t j = 0; j < others.size(); ++j) {
+      if (Overlaps(written[i], others[j])) {
+        throw BadValueError(std::string(name) + (indexed ? "[" + std::to_string(i) + "]" : std::string()) +
+                            ": shares memory with another argument of the call (it is written in place)");
+      }
+    }
+  }
+}
+
+// The noise flow of a level of h x w samples at `scale`: None, or float32/float64 (H, W, 2) finite,
+// large enough to be read at (y * scale, x * scale). `keep` holds the checked array.
+MetamericFlow CheckFlow(py::handle flow_obj, py::ssize_t h, py::ssize_t w, int scale, py::array* keep) {
+  MetamericFlow flow;
+  if (scale < 1) throw BadValueError("scale: expected an integer >= 1, got " + std::to_string(scale));
+  if (flow_obj.is_none()) return flow;
+  py::array& flow_arr = *keep;
+  const bool f64 = py::isinstance<py::array>(flow_obj) &&
+                   py::reinterpret_borrow<py::array>(flow_obj).dtype().equal(py::dtype::of<double>());
+  if (f64) {
+    auto a = CheckArray<double>(flow_obj, "flow", {{"H", -1}, {"W", -1}, {"2", 2}});
+    flow.f64 = a.data();
+    flow_arr = a;
+  } else {
+    auto a = CheckArray<float>(flow_obj, "flow", {{"H", -1}, {"W", -1}, {"2", 2}});
+    flow.f32 = a.data();
+    flow_arr = a;
+  }
+  flow.height = static_cast<int>(flow_arr.shape(0));
+  flow.width = static_cast<int>(flow_arr.shape(1));
+  if ((h - 1) * static_cast<py::ssize_t>(scale) >= flow.height ||
+      (w - 1) * static_cast<py::ssize_t>(scale) >= flow.width) {
+    throw ShapeError("flow: expected the full-resolution flow of a level of " + std::to_string(h) + "x" +
+                     std::to_string(w) + " samples at scale " + std::to_string(scale) + " (at least " +
+                     std::to_string((h - 1) * scale + 1) + "x" + std::to_string((w - 1) * scale + 1) +
+                     " pixels), got " + DescribeShape(flow_arr));
+  }
+  std::int64_t bad = 0;
+  {
+    py::gil_scoped_release release;
+    const std::int64_t n = std::int64_t(flow.height) * flow.width * 2;
+    bad = flow.f64 ? CountNonFiniteValues(flow.f64, n) : CountNonFiniteValues(flow.f32, n);
+  }
+  if (bad) throw BadValueError("flow: contains " + std::to_string(bad) + " NaN or infinite values");
+  return flow;
+}
+
+}  // namespace
+
+static void BindMetameric(py::module_& m) {
+  m.def(
+      "metameric_stack_moments",
+      [](py::handle bands_obj, py::handle out_obj) {
+        std::vector<FloatArray> bands = CheckArrayList(bands_obj, "bands", -1, -1, -1, false);
+        const py::ssize_t h = bands[0].shape(0), w = bands[0].shape(1), c = bands[0].shape(2);
+        const py::ssize_t k = static_cast<py::ssize_t>(bands.size());
+        FloatArray out = CheckArray<float>(out_obj, "out", {{"h", h}, {"w", w}, {"2kC", 2 * k * c}}, true);
+        std::vector<py::array> ins(bands.begin(), bands.end());
+        CheckNoAlias({out}, ins, "out", false);
+        std::vector<ImageView<const float>> views;
+        for (FloatArray& b : bands) views.push_back(ConstViewOf(b));
+        const ImageView<float> out_view = ViewOf(out);
+        py::gil_scoped_release release;
+        MetamericStackMoments(views.data(), static_cast<int>(k), out_view);
+      },
+      py::arg("bands"), py::arg("out"),
+      "Push-pull input of one level's moments (cpp/kernels/inpaint/metameric.h): bands = k float32 (h, w, C) "
+      "arrays; writes out float32 (h, w, 2kC) = [X_0..X_{k-1}, X_0^2..X_{k-1}^2] along the channels.");
+
+  m.def(
+      "metameric_pushpull_moments",
+      [](py::handle bands_obj, py::handle hole_obj, py::handle depth_obj, double depth_threshold, double gamma,
+         py::handle out_obj) {
+        std::vector<FloatArray> bands = CheckArrayList(bands_obj, "bands", -1, -1, -1, false);
+        const py::ssize_t h = bands[0].shape(0), w = bands[0].shape(1), c = bands[0].shape(2);
+        const py::ssize_t k = static_cast<py::ssize_t>(bands.size());
+        auto hole = CheckArray<std::uint8_t>(hole_obj, "mask", {{"h", h}, {"w", w}});
+        FloatArray out = CheckArray<float>(out_obj, "out", {{"h", h}, {"w", w}, {"2kC", 2 * k * c}}, true);
+        FloatArray depth;
+        const PushPullOptions options = CheckPushPullArgs(depth_obj, h, w, depth_threshold, gamma, &depth);
+        std::vector<py::array> ins(bands.begin(), bands.end());
+        ins.push_back(hole);
+        if (options.depth_aware) ins.push_back(depth);
+        CheckNoAlias({out}, ins, "out", false);
+        std::vector<ImageView<const float>> views;
+        for (FloatArray& b : bands) views.push_back(ConstViewOf(b));
+        const ImageView<const std::uint8_t> hole_view = ConstViewOf(hole);
+        const ImageView<const float> depth_view = options.depth_aware ? ConstViewOf(depth) : ImageView<const float>();
+        const ImageView<float> out_view = ViewOf(out);
+        PushPullStatus status;
+        {
+          py::gil_scoped_release release;
+          for (std::size_t i = 0; i < views.size(); ++i) {
+            if (const std::int64_t bad = CountNonFiniteOutsideHoles(views[i], hole_view)) {
+              throw BadValueError("bands[" + std::to_string(i) + "]: contains " + std::to_string(bad) +
+                                  " NaN or infinite values outside the mask");
+            }
+          }
+          status = PushPullMomentsKernel(views.data(), static_cast<int>(k), hole_view, depth_view, options, out_view);
+        }
+        if (status == PushPullStatus::kNoValidPixel) {
+          throw BadValueError("mask: every sample is masked; the moments need samples outside the mask");
+        }
+      },
+      py::arg("bands"), py::arg("mask"), py::arg("depth"), py::arg("depth_threshold"), py::arg("gamma"),
+      py::arg("out"),
+      "Push-pull of one level's moments (cpp/kernels/inpaint/pushpull.h PushPullMomentsKernel): bands = k float32 "
+      "(h, w, C) arrays; mask uint8 (h, w), non-zero = fill; depth float32 (h, w) or None (classic); writes "
+      "the masked samples of out float32 (h, w, 2kC): push-pull of [X_0..X_{k-1}, X_0^2..X_{k-1}^2].");
+
+  m.def(
+      "metameric_composite",
+      [](py::handle moments_obj, py::handle mask_obj, py::handle noise_obj, py::handle bands_obj,
+         py::handle flow_obj, int scale, bool delta) {
+        std::vector<FloatArray> bands = CheckArrayList(bands_obj, "bands", -1, -1, -1, true);
+        const py::ssize_t h = bands[0].shape(0), w = bands[0].shape(1), c = bands[0].shape(2);
+        const py::ssize_t k = static_cast<py::ssize_t>(bands.size());
+        std::vector<FloatArray> noise = CheckPairedArrayList(noise_obj, "noise", bands, "band");
+        FloatArray moments = CheckArray<float>(moments_obj, "moments", {{"h", h}, {"w", w}, {"2kC", 2 * k * c}});
+        py::array mask_arr;
+        if (py::isinstance<py::array>(mask_obj) &&
+            py::reinterpret_borrow<py::array>(mask_obj).dtype().equal(py::dtype::of<std::uint8_t>())) {
+          mask_arr = CheckArray<std::uint8_t>(mask_obj, "mask", {{"h", h}, {"w", w}});
+        } else {
+          mask_arr = CheckArray<bool>(mask_obj, "mask", {{"h", h}, {"w", w}});
+        }
+        py::array flow_arr;
+        const MetamericFlow flow = CheckFlow(flow_obj, h, w, scale, &flow_arr);
+        std::vector<py::array> others(noise.begin(), noise.end());
+        others.push_back(moments);
+        others.push_back(mask_arr);
+        if (flow_arr) others.push_back(flow_arr);
+        for (std::size_t i = 0; i < bands.size(); ++i) {
+          for (std::size_t j = 0; j < bands.size(); ++j) {
+            if (i != j && Overlaps(bands[i], bands[j])) {
+              throw BadValueError("bands[" + std::to_string(i) + "]: shares memory with bands[" +
+                                  std::to_string(j) + "] (each is written in place)");
+            }
+          }
+        }
+        CheckNoAlias(bands, others, "bands", true);
+        std::vector<ImageView<const float>> noise_views;
+        for (FloatArray& n : noise) noise_views.push_back(ConstViewOf(n));
+        std::vector<ImageView<float>> band_views;
+        for (FloatArray& b : bands) band_views.push_back(ViewOf(b));
+        const ImageView<const float> moments_view = ConstViewOf(moments);
+        const ImageView<const std::uint8_t> mask_view(static_cast<const std::uint8_t*>(mask_arr.data()),
+                                                      static_cast<int>(h), static_cast<int>(w), 1);
+        py::gil_scoped_release release;
+        MetamericComposite(moments_view, mask_view, noise_views.data(), band_views.data(), static_cast<int>(k),
+                           flow, scale, delta);
+      },
+      py::arg("moments"), py::arg("mask"), py::arg("noise"), py::arg("bands"), py::arg("flow") = py::none(),
+      py::arg("scale") = 1, py::arg("delta") = false,
+      "Metameric synthesis of one level in place (cpp/kernels/inpaint/metameric.h): where mask (bool or uint8 (h, w)) "
+      "is set, bands[i] = mean + sqrt(max(0, E[X^2] - mean^2)) * noise[i] at the (flow-moved, wrapped) "
+      "noise position, with mean, E[X^2] from moments float32 (h, w, 2kC); flow None or float32/float64 "
+      "full-resolution (H, W, 2), read at (y * scale, x * scale). delta=True: bands[i] = sigma * noise[i] "
+      "where mask is set and 0 elsewhere (the band's change when the fill's mean is the band itself).");
+
+  m.def(
+      "metameric_pushpull_change",
+      [](py::handle bands_obj, py::handle mask_obj, py::handle depth_obj, double depth_threshold, double gamma,
+         py::handle noise_obj, py::handle flow_obj, int scale, bool check_finite) {
+        std::vector<FloatArray> bands = CheckArrayList(bands_obj, "bands", -1, -1, -1, true);
+        const py::ssize_t h = bands[0].shape(0), w = bands[0].shape(1);
+        const py::ssize_t k = static_cast<py::ssize_t>(bands.size());
+        std::vector<FloatArray> noise = CheckPairedArrayList(noise_obj, "noise", bands, "band");
+        auto mask = CheckArray<std::uint8_t>(mask_obj, "mask", {{"h", h}, {"w", w}});
+        FloatArray depth;
+        const PushPullOptions options = CheckPushPullArgs(depth_obj, h, w, depth_threshold, gamma, &depth);
+        py::array flow_arr;
+        const MetamericFlow flow = CheckFlow(flow_obj, h, w, scale, &flow_arr);
+        for (std::size_t i = 0; i < bands.size(); ++i) {
+          for (std::size_t j = 0; j < bands.size(); ++j) {
+            if (i != j && Overlaps(bands[i], bands[j])) {
+              throw BadValueError("bands[" + std::to_string(i) + "]: shares memory with bands[" +
+                                  std::to_string(j) + "] (each is written in place)");
+            }
+          }
+        }
+        std::vector<py::array> others(noise.begin(), noise.end());
+        others.push_back(mask);
+        if (options.depth_aware) others.push_back(depth);
+        if (flow_arr) others.push_back(flow_arr);
+        CheckNoAlias(bands, others, "bands", true);
+        std::vector<ImageView<const float>> views;
+        std::vector<ImageView<float>> band_views;
+        for (FloatArray& b : bands) {
+          views.push_back(ConstViewOf(b));
+          band_views.push_back(ViewOf(b));
+        }
+        std::vector<ImageView<const float>> noise_views;
+        for (FloatArray& n : noise) noise_views.push_back(ConstViewOf(n));
+        const ImageView<const std::uint8_t> mask_view = ConstViewOf(mask);
+        const ImageView<const float> depth_view = options.depth_aware ? ConstViewOf(depth) : ImageView<const float>();
+        MetamericSynth synth;
+        synth.noise = noise_views.data();
+        synth.bands = band_views.data();
+        synth.k = static_cast<int>(k);
+        synth.flow = flow;
+        synth.scale = scale;
+        PushPullStatus status;
+        {
+          py::gil_scoped_release release;
+          for (std::size_t i = 0; check_finite && i < views.size(); ++i) {
+            if (const std::int64_t bad = CountNonFiniteOutsideHoles(views[i], mask_view)) {
+              throw BadValueError("bands[" + std::to_string(i) + "]: contains " + std::to_string(bad) +
+                                  " NaN or infinite values outside the mask");
+            }
+          }
+          status = PushPullMomentsChangeKernel(views.data(), static_cast<int>(k), mask_view, depth_view, options, synth);
+        }
+        if (status == PushPullStatus::kNoValidPixel) {
+          throw BadValueError("mask: every sample is masked; the moments need samples outside the mask");
+        }
+      },
+      py::arg("bands"), py::arg("mask"), py::arg("depth"), py::arg("depth_threshold"), py::arg("gamma"),
+      py::arg("noise"), py::arg("flow") = py::none(), py::arg("scale") = 1, py::arg("check_finite") = true,
+      "One level of metameric synthesis in place (cpp/kernels/inpaint/pushpull.h PushPullMomentsChangeKernel): "
+      "metameric_pushpull_moments then metameric_composite(..., delta=True) without the moments image, the "
+      "same values bit for bit. bands k float32 (h, w, C) arrays, read, then overwritten with their change "
+      "(sigma * noise where mask (uint8 (h, w)) is set, 0 elsewhere); depth float32 (h, w) or None; noise k "
+      "float32 (h, w, C); flow None or float32/float64 full-resolution (H, W, 2), read at (y * scale, x * scale). "
+      "Raises BadValueError when every sample is masked (the bands are then left as they were) and, with "
+      "check_finite (default), for NaN or infinite band values outside the mask; check_finite=False skips that "
+      "scan for callers whose bands come from analysing a finite image (ibrtools.metameric: the pre-fill is "
+      "checked finite by push-pull's front).");
+
+  m.def(
+      "metameric_encode",
+      [](py::handle image_obj) {
+        FloatArray image = CheckArray<float>(image_obj, "image", {{"H", -1}, {"W", -1}, {"C", -1}});
+        const py::ssize_t h = image.shape(0), w = image.shape(1), c = image.shape(2);
+        FloatArray out = NewArray<float>({h, w, c});
+        const ImageView<const float> in_view = ConstViewOf(image);
+        const ImageView<float> out_view = ViewOf(out);
+        py::gil_scoped_release release;
+        MetamericEncode(in_view, out_view);
+        return out;
+      },
+      py::arg("image"),
+      "Display encoding of metameric synthesis (cpp/ibr/colour.h SrgbEncode): the sRGB curve of every "
+      "value of image float32 (H, W, C), odd-extended to negatives and unbounded above; NaN stays NaN. Returns "
+      "a new float32 (H, W, C) array.");
+
+  m.def(
+      "metameric_fill_holes",
+      [](py::handle image_obj, py::handle hole_obj, py::handle base_obj, py::handle change_obj, bool decode,
+         py::handle out_obj) {
+        FloatArray image = CheckArray<float>(image_obj, "image", {{"H", -1}, {"W", -1}, {"C", -1}});
+        const py::ssize_t h = image.shape(0), w = image.shape(1), c = image.shape(2);
+        py::array hole_arr;
+        if (py::isinstance<py::array>(hole_obj) &&
+            py::reinterpret_borrow<py::array>(hole_obj).dtype().equal(py::dtype::of<std::uint8_t>())) {
+          hole_arr = CheckArray<std::uint8_t>(hole_obj, "hole", {{"H", h}, {"W", w}});
+        } else {
+          hole_arr = CheckArray<bool>(hole_obj, "hole", {{"H", h}, {"W", w}});
+        }
+        FloatArray base = CheckArray<float>(base_obj, "base", {{"H", h}, {"W", w}, {"C", c}});
+        FloatArray change = CheckArray<float>(change_obj, "change", {{"H", h}, {"W", w}, {"C", c}});
+        FloatArray out;
+        if (out_obj.is_none()) {
+          out = NewArray<float>({h, w, c});
+        } else {
+          out = CheckArray<float>(out_obj, "out", {{"H", h}, {"W", w}, {"C", c}}, true);
+          // out may be exactly image's or change's memory (read before written, pixel by pixel), nothing
+          // else of the call's.
+          auto same = [](const py::array& a, const py::array& b) { return a.data() == b.data(); };
+          if ((Overlaps(out, image) && !same(out, image)) || (Overlaps(out, change) && !same(out, change)) ||
+              Overlaps(out, base) || Overlaps(out, hole_arr)) {
+            throw BadValueError("out: shares memory with base or hole, or overlaps image or change without being "
+                                "the same array");
+          }
+        }
+        const ImageView<const float> image_view = ConstViewOf(image), base_view = ConstViewOf(base),
+                                     change_view = ConstViewOf(change);
+        const ImageView<const std::uint8_t> hole_view(static_cast<const std::uint8_t*>(hole_arr.data()),
+                                                      static_cast<int>(h), static_cast<int>(w), 1);
+        const ImageView<float> out_view = ViewOf(out);
+        py::gil_scoped_release release;
+        MetamericFillHoles(image_view, hole_view, base_view, change_view, decode, out_view);
+        return out;
+      },
+      py::arg("image"), py::arg("hole"), py::arg("base"), py::arg("change"), py::arg("decode"),
+      py::arg("out") = py::none(),
+      "The result of metameric inpainting (cpp/kernels/inpaint/metameric.h MetamericFillHoles): image where hole (bool or "
+      "uint8 (H, W)) is 0, base + change inside the holes (decoded from the display encoding and clamped at 0 with "
+      "decode=True); image, base, change float32 (H, W, C). Returns out: a new float32 (H, W, C) array, or the given "
+      "writeable one, which may be image or change itself (not base).");
+}
+
+}  // namespace ibr::bind
+
+namespace ibr::bind {
+
+void BindInpaint(py::module_& m) {
+  BindPushPull(m);
+  BindMetameric(m);
 }
 
 }  // namespace ibr::bind

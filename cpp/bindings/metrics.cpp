@@ -1,4 +1,4 @@
-// Bindings of cpp/kernels/ssim.h: the checking front (shapes, dtypes, sizes, finiteness,
+// Bindings of cpp/kernels/metrics/ssim.h: the checking front (shapes, dtypes, sizes, finiteness,
 // options) and the call with the GIL released. Python: ibrtools.metrics.
 #include <cmath>
 #include <string>
@@ -8,7 +8,7 @@
 
 #include "array.h"
 #include "ibr/errors.h"
-#include "kernels/ssim.h"
+#include "kernels/metrics/ssim.h"
 #include "module.h"
 
 namespace ibr::bind {

@@ -1,4 +1,5 @@
-// One Bind* function per family; module.cpp calls them all.
+// One Bind* function per family (cpp/kernels/<family>/ <-> cpp/bindings/<family>.cpp); module.cpp
+// calls them all.
 #pragma once
 #include <pybind11/pybind11.h>
 
@@ -9,15 +10,9 @@ void BindRaycast(py::module_& m);
 void BindMetrics(py::module_& m);
 void BindDibr(py::module_& m);
 void BindInpaint(py::module_& m);
-void BindSteerable(py::module_& m);
-void BindMetameric(py::module_& m);
-void BindMip(py::module_& m);
+void BindMetamers(py::module_& m);
 void BindSolvers(py::module_& m);
 void BindDepthwarp(py::module_& m);
-void BindCulling(py::module_& m);
 void BindHybrid(py::module_& m);
-void BindHybridRender(py::module_& m);
-void BindPvmRender(py::module_& m);
-void BindHarmonise(py::module_& m);
 void BindMvs(py::module_& m);
 }  // namespace ibr::bind

@@ -1,4 +1,4 @@
-// Binding of the reference ray caster (cpp/ibr/embree_scene.h, cpp/kernels/raycast.h):
+// Binding of the reference ray caster (cpp/ibr/embree_scene.h, cpp/kernels/raycast/raycast.h):
 // _core.RayScene. Thin: checks arrays (array.h), allocates the outputs once as numpy arrays
 // the kernel writes into (returned without a copy), releases the GIL around the kernel.
 #include <memory>
@@ -12,7 +12,7 @@
 #include "array.h"
 #include "ibr/embree_scene.h"
 #include "ibr/errors.h"
-#include "kernels/raycast.h"
+#include "kernels/raycast/raycast.h"
 #include "module.h"
 
 namespace ibr::bind {
@@ -158,7 +158,7 @@ class RayScene {
     return a;
   }
 
-  // Deep depth buffer: (L, H, W) depth and object ids by depth peeling (kernels/raycast.h), with
+  // Deep depth buffer: (L, H, W) depth and object ids by depth peeling (kernels/raycast/raycast.h), with
   // generalised umbra culling for novel camera centres `umbra_positions` (K, 3) float64 in world
   // axes (each within `umbra_radius`); None = standard peeling.
   py::dict Peel(const Camera& camera, int layers, const py::object& positions_obj, double radius) {
@@ -211,7 +211,7 @@ void BindRaycast(py::module_& m) {
   m.attr("EMBREE_VERSION") = RTC_VERSION_STRING;
   py::class_<RayScene>(m, "RayScene",
                        "A triangle mesh in an Embree BVH (built once) with its shading attributes; "
-                       "renders reference buffers and shaded colour for cameras (cpp/kernels/raycast.h).")
+                       "renders reference buffers and shaded colour for cameras (cpp/kernels/raycast/raycast.h).")
       .def(py::init<const py::object&, const py::object&, const py::object&, const py::object&, const py::object&,
                     const py::object&, const py::list&, const py::object&, const std::string&, bool>(),
            py::arg("vertices"), py::arg("faces"), py::arg("object_ids") = py::none(), py::kw_only(),

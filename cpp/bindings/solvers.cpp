@@ -1,6 +1,6 @@
-// Bindings of cpp/kernels/maxflow.h and cpp/kernels/poisson.h: the checking fronts (shapes,
-// dtypes, non-negative finite capacities, finite images, options) and the calls with the GIL
-// released. Python: ibrtools.solvers.
+// Bindings of cpp/kernels/solvers/maxflow.h and cpp/kernels/solvers/poisson.h: array checks (shapes,
+// dtypes), the front's value checks (front.h: non-negative finite capacities, finite images, options)
+// and the calls with the GIL released. Python: ibrtools.solvers.
 #include <cmath>
 #include <limits>
 #include <string>
@@ -11,8 +11,9 @@
 
 #include "array.h"
 #include "ibr/errors.h"
-#include "kernels/maxflow.h"
-#include "kernels/poisson.h"
+#include "kernels/solvers/front.h"
+#include "kernels/solvers/maxflow.h"
+#include "kernels/solvers/poisson.h"
 #include "module.h"
 
 namespace ibr::bind {
@@ -38,41 +39,8 @@ py::tuple GridMaxflowTyped(py::handle source_obj, py::handle sink_obj, py::handl
   std::string bad;
   {
     py::gil_scoped_release release;
-    const char* names[4] = {"source_cap", "sink_cap", "right", "down"};
-    const Cap* arrays[4] = {source.data(), sink.data(), right.data(), down.data()};
-    // Total capacity (edges twice: a residual edge holds both directions' capacities), which
-    // bounds every residual capacity and the flow: it must fit the capacity type. Before this
-    // check, int64 capacities summing past 2^63 gave a wrapped, silently wrong flow and cut
-    // (found by tests/test_stress.py); float64 sums past 1e308 became inf.
-    __int128 total_int = 0;
-    double total_float = 0.0;
-    for (int k = 0; k < 4 && bad.empty(); ++k) {
-      for (py::ssize_t i = 0; i < h * w; ++i) {
-        const Cap v = arrays[k][i];
-        if (!(v >= 0) || !std::isfinite(static_cast<double>(v))) {
-          bad = std::string(names[k]) + ": expected finite capacities >= 0, got " + std::to_string(v) +
-                " at flat index " + std::to_string(i);
-          break;
-        }
-        const int times = k < 2 ? 1 : 2;
-        if constexpr (std::is_integral_v<Cap>) {
-          total_int += static_cast<__int128>(v) * times;
-        } else {
-          total_float += static_cast<double>(v) * times;
-        }
-      }
-    }
-    if (bad.empty()) {
-      if constexpr (std::is_integral_v<Cap>) {
-        if (total_int > static_cast<__int128>(std::numeric_limits<Cap>::max())) {
-          bad = "capacities: their total (source_cap + sink_cap + 2 x (right + down)) exceeds the int64 range "
-                "(2^63 - 1); scale them down";
-        }
-      } else if (!std::isfinite(total_float)) {
-        bad = "capacities: their total (source_cap + sink_cap + 2 x (right + down)) overflows float64; "
-              "scale them down";
-      }
-    }
+    const Cap* const arrays[4] = {source.data(), sink.data(), right.data(), down.data()};
+    bad = MaxflowCheckCapacities<Cap>(arrays, std::int64_t(h) * w);
     if (bad.empty()) {
       static_assert(sizeof(Cap) == sizeof(KernelCap), "same representation");
       flow = static_cast<Cap>(GridMaxflowKernel<KernelCap>(
@@ -98,7 +66,7 @@ void BindSolvers(py::module_& m) {
         return GridMaxflowTyped<double>(source_cap, sink_cap, right, down);
       },
       py::arg("source_cap"), py::arg("sink_cap"), py::arg("right"), py::arg("down"),
-      "Boykov-Kolmogorov max-flow on a 4-connected grid (cpp/kernels/maxflow.h). All four arrays (H, W), "
+      "Boykov-Kolmogorov max-flow on a 4-connected grid (cpp/kernels/solvers/maxflow.h). All four arrays (H, W), "
       "int64 (exact) or float64, >= 0. Returns (flow, sink_side bool (H, W)).");
 
   m.def(
@@ -116,21 +84,12 @@ void BindSolvers(py::module_& m) {
         auto source = has_c ? CheckArray<float>(source_obj, "source", {{"H", h}, {"W", w}, {"C", c}})
                             : CheckArray<float>(source_obj, "source", {{"H", h}, {"W", w}});
         auto mask = CheckArray<bool>(mask_obj, "mask", {{"H", h}, {"W", w}});
-        if (!(std::isfinite(tol) && tol > 0.0 && tol < 1.0)) {
-          throw BadValueError("tol: expected a number in (0, 1), got " + std::to_string(tol));
-        }
-        if (max_iter < 1) throw BadValueError("max_iter: expected >= 1, got " + std::to_string(max_iter));
-        if (smooth_sweeps < 1 || smooth_sweeps > 8) {
-          throw BadValueError("smooth_sweeps: expected 1..8, got " + std::to_string(smooth_sweeps));
-        }
-        if (!(coarse_scale > 0.0 && coarse_scale < 2.0)) {
-          throw BadValueError("coarse_scale: expected a number in (0, 2), got " + std::to_string(coarse_scale));
-        }
         PoissonOptions options;
         options.tol = tol;
         options.max_iter = max_iter;
         options.smooth_sweeps = smooth_sweeps;
         options.coarse_scale = coarse_scale;
+        PoissonCheckOptions(options);
         const ImageView<const float> bview(boundary.data(), int(h), int(w), int(c));
         const ImageView<const float> sview(source.data(), int(h), int(w), int(c));
         const ImageView<const std::uint8_t> mview(reinterpret_cast<const std::uint8_t*>(mask.data()), int(h), int(w),
@@ -141,19 +100,7 @@ void BindSolvers(py::module_& m) {
         std::string bad;
         {
           py::gil_scoped_release release;
-          std::int64_t count = 0, bad_count = 0;
-          const std::int64_t n = std::int64_t(h) * w;
-          const bool* m = mask.data();
-          for (std::int64_t i = 0; i < n; ++i) count += m[i];
-          if (count == n) {
-            bad = "mask: covers the whole image; Poisson blending needs boundary pixels outside the mask";
-          }
-          for (std::int64_t i = 0; bad.empty() && i < n * c; ++i) {
-            if (!std::isfinite(bview.data[i]) || !std::isfinite(sview.data[i])) ++bad_count;
-          }
-          if (bad.empty() && bad_count) {
-            bad = "boundary/source: contain " + std::to_string(bad_count) + " NaN or infinite values";
-          }
+          bad = PoissonCheckInputs(bview, sview, mview);
           if (bad.empty()) stats = PoissonBlendKernel(bview, sview, mview, options, oview);
         }
         if (!bad.empty()) throw BadValueError(bad);
@@ -166,7 +113,7 @@ void BindSolvers(py::module_& m) {
       },
       py::arg("boundary"), py::arg("source"), py::arg("mask"), py::arg("tol") = 1e-6, py::arg("max_iter") = 200,
       py::arg("smooth_sweeps") = 1, py::arg("coarse_scale") = 1.8,
-      "Perez et al. 2003 seamless cloning by multigrid-preconditioned CG (cpp/kernels/poisson.h). boundary, "
+      "Perez et al. 2003 seamless cloning by multigrid-preconditioned CG (cpp/kernels/solvers/poisson.h). boundary, "
       "source float32 (H, W) or (H, W, C); mask bool (H, W). Returns (out, info).");
 }
 

@@ -1,4 +1,4 @@
-// Cameras of the engine. One convention everywhere (DESIGN.md "Data model"):
+// Cameras of the engine. One convention everywhere (every kernel, binding and the Python model):
 //   camera axes OpenCV: x right, y down, z forward;
 //   pixel (col u, row v) has its centre at (u + 0.5, v + 0.5) in continuous image coordinates;
 //   pose cam_from_world: point_in_cam = R * point_in_world + t (rigid, stored 3x4 row-major).

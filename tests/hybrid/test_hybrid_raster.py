@@ -175,3 +175,20 @@ def test_gbuffer_rasterises_small_meshes_and_ray_casts_dense_ones(scene_mesh, mo
     cam = big.scaled(1600, 1200)
     got = gm.gbuffer(cam)
     assert np.array_equal(got["prim_id"], gm.renderer.render(cam, outputs=("prim_id",), lights=[], ambient=0.0)["prim_id"])
+
+
+def test_srgb8_atlas_decodes_each_code_as_an_8bit_image_file():
+    """An 8-bit atlas texel decodes to _core.srgb_to_linear(code / 255) bit for bit: the atlas read and
+    the image reader (ibrtools.imageio) share the engine's one sRGB decoder (cpp/ibr/colour.h)."""
+    codes = np.arange(256, dtype=np.uint8).reshape(16, 16)
+    a8 = np.empty((16, 16, 4), np.uint8)
+    a8[..., :3] = codes[..., None]
+    a8[..., 3] = 255
+    # One face whose uv maps barycentrics (x / 16, y / 16) exactly onto texel (x, y)'s centre.
+    uv = np.array([[[0.5, 0.5], [16.5, 0.5], [0.5, 16.5]]], np.float32)
+    yy, xx = np.mgrid[0:16, 0:16]
+    bary = np.ascontiguousarray(np.stack([xx / 16.0, yy / 16.0], axis=-1), np.float32)
+    prim = np.zeros((16, 16), np.int32)
+    got = _core.sample_atlas(prim, bary, uv, a8)
+    want = _core.srgb_to_linear(codes.astype(np.float32) / 255.0)
+    np.testing.assert_array_equal(got, np.repeat(want[..., None], 3, axis=2))

@@ -32,7 +32,7 @@ def fit():
 
 def taps(k: int):
     """(L0, H0, L1, bands) as float64 from the committed header (the kernel's taps)."""
-    text = (ROOT / "cpp" / "kernels" / "steerable_taps.h").read_text()
+    text = (ROOT / "cpp" / "kernels" / "metamers" / "steerable_taps.h").read_text()
     block = text.split(f"template <> struct SteerableTaps<{k}>")[1]
     nums = [float(v) for v in re.findall(r"[-+]?\d\.\d+e[-+]\d+", block)[:(3 + k) * 25]]
     a = np.array(nums).reshape(3 + k, 5, 5)

@@ -50,6 +50,7 @@ import time
 
 import numpy as np
 
+from ibrtools import _core
 from ibrtools.camera import Camera
 from ibrtools.errors import BadValueError, InputError, MissingFileError
 from ibrtools.hybrid.pvm_render import DEFAULTS as PVM_DEFAULTS, RESAMPLE, check_params as check_pvm_params
@@ -72,8 +73,9 @@ from ibrtools.hybrid.pvm_render import PvmRenderer, harmonised_images
 # mixes both sides) or is seen at a grazing angle (docs/ulr.md "Parameters"). resample "cubic": the
 # views' colours are read with Catmull-Rom (cpp/kernels/resample.h), sharper than bilinear; chosen on
 # the selection scenes (docs/ulr.md "Parameters"; the PVM renderer reads its candidates the same way).
-ULR_DEFAULTS = {"k": 4, "resolution_weight": 0.5, "depth_tol": 0.005, "harmonised": True, "occlusion": "mesh",
-                "resample": "cubic"}
+# k, resolution_weight, depth_tol: the kernel's defaults, defined once (cpp/kernels/hybrid/hybrid.h UlrOptions).
+ULR_DEFAULTS = {"k": _core.ULR_DEFAULT_K, "resolution_weight": _core.ULR_DEFAULT_RESOLUTION_WEIGHT,
+                "depth_tol": _core.ULR_DEFAULT_DEPTH_TOL, "harmonised": True, "occlusion": "mesh", "resample": "cubic"}
 # sigma, alpha, gamma, tau_depth: the paper's sweep values (sec. 7). sigma_blur 16 px (the
 # paper: 4): chosen on synth:objects seed 1, a scene no reported figure uses (12 views of
 # 480x360, 4 targets: sigma_blur 4 / 8 / 12 / 16 -> hybrid 30.50 / 30.63 / 30.72 / 30.78 dB,
@@ -117,9 +119,9 @@ def check_params(method: str, params: dict | None) -> dict:
     p = P.with_defaults(method, params, defaults)
     if method == "tm":
         return p
-    # k: the kernel's bound (cpp/bindings/hybrid_render.cpp, a fixed-size per-pixel list); the
+    # k: the kernel's bound (UlrOptions::kMaxK, a fixed-size per-pixel list); the
     # others only have to stay finite in the kernels' float32 (params.py FINITE_MAX).
-    p["k"] = P.integer(p["k"], "--param k", 1, 64)
+    p["k"] = P.integer(p["k"], "--param k", 1, _core.ULR_MAX_K)
     p["resolution_weight"] = P.number(p["resolution_weight"], "--param resolution_weight", 0.0, maximum=P.FINITE_MAX)
     p["depth_tol"] = P.number(p["depth_tol"], "--param depth_tol", 0.0, strict=True, maximum=P.FINITE_MAX)
     p["harmonised"] = P.boolean(p["harmonised"], "--param harmonised")

@@ -1,0 +1,19 @@
+// The metamers family's front (Python: ibrtools.foveate, ibrtools.metameric through
+// cpp/bindings/metamers.cpp): the multi-level pipelines over the kernels of mip.h, callable from C++
+// without Python. The binding checks the arrays and values and allocates the outputs.
+#pragma once
+#include "ibr/image.h"
+
+namespace ibr {
+
+// The box-filter MIP chain of in: out[l] = MipDown(level l) for l = 0 .. levels - 1 (level 0 = in);
+// out[l] (ceil(H / 2^(l+1)), ceil(W / 2^(l+1)), C).
+void MipBuildChain(const ImageView<const float>& in, const ImageView<float>* out, int levels);
+
+// The fused foveation of one pyramid level in place (mip.h MipFoveateChange): the moments' MIP
+// chain of the k bands (h, w, C), `levels` levels above them (2 k C channels, allocated here), then
+// the change of every band at its per-pixel MIP level (level (h, w)) with noise (h, w, C) per band.
+void MipFoveateLevel(const ImageView<float>* bands, int k, const ImageView<const float>& level,
+                     const ImageView<const float>* noise, int levels);
+
+}  // namespace ibr
