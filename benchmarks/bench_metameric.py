@@ -127,13 +127,8 @@ def run(size: int, repeats: int) -> str:
         f"{threads_list[0]} thread{'s' if threads_list[0] > 1 else ''}"
         + (" - the target is met." if best <= 60 else f" - the target is missed by {best / 60:.2f}x."),
         "",
-        "Since commit 4bbb52f the fill's mean is the push-pull pre-fill and RGB is synthesised on display "
-        "(sRGB-encoded) values (docs/inpaint_quality.md: the quality fix); that adds a whole-frame encoding pass. "
-        "History of this figure: 177 ms before the per-sample C++ kernels (commit a79125a), 66 ms before the fused "
-        "moments push-pull (commit af0af67, load 1.5), 84 ms at the end of the previous session (quiet machine, "
-        "stage table then: moments push-pull 42, copy into holes 11, composite 8 ms), 62-65 ms on the quiet machine "
-        "before commits e711fd1 and b85ce1f (AVX2 build of the sRGB curves, decode-and-copy into the holes by runs, "
-        "push-pull's row-wise finiteness scan; output identical) - the lead's run of this script at 20:57.",
+        "The fill's mean is the push-pull pre-fill and RGB is synthesised on display (sRGB-encoded) values "
+        "(docs/inpaint_quality.md), which adds a whole-frame encoding pass.",
         "",
         "| implementation | time (ms) | vs TELEA | MAE in holes |",
         "|---|---:|---:|---:|",

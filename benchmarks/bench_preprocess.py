@@ -98,7 +98,7 @@ def main(argv=None) -> int:
 
     med = statistics.median(totals)
     lines = [
-        "## Preprocessing (issue 6): whole hybrid pipeline, synthetic scene",
+        "## Preprocessing: whole hybrid pipeline, synthetic scene",
         "",
         f"`python benchmarks/bench_preprocess.py --size {w}x{h} --views {args.views} --runs {args.runs}` on "
         f"{machine()}, engine threads: {args.threads or 'all'}. `synth:objects`, {args.views} views of {w}x{h} "

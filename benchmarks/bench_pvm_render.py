@@ -142,7 +142,7 @@ def main(argv=None) -> int:
     angles = tuple(sorted({180.0, 90.0, 60.0, 50.0, 40.0, default_angle}, reverse=True))
     qrows = quality(qscene, qtiles, qgbufs, angles)
 
-    lines = ["## PVM rendering (issue 7)", "",
+    lines = ["## PVM rendering", "",
              f"`python benchmarks/bench_pvm_render.py --size {a.size} --quality-size {a.quality_size} --views "
              f"{a.views} --runs {a.runs} --threads {a.threads}`. synth:objects, {a.views} views, 3 held-out targets, "
              "0.5 % depth noise; G-buffer = z of the degraded reconstructed mesh (not timed). "

@@ -4,7 +4,7 @@
                                  [--size 1920x1080] [--plain] [--srgb | --srgb-b]
 
 Builds benchmarks/dibr_ab/dibr_ab.cpp twice with the release flags of the engine (g++ -O3, no
--march): once against cpp/kernels/{forward_warp,blend}.{h,cpp} of git revision --base (default
+-march): once against cpp/kernels/dibr/{forward_warp,blend}.{h,cpp} and cpp/ibr/colour.{h,cpp} of git revision --base (default
 HEAD), once against the working tree, and runs them alternately --rounds times on the scene of
 benchmarks/bench_dibr.py (``synth.make_scene("objects", views=8)``, target half-way between two
 ring cameras, the --views nearest inputs). Each run prints the minimum over --repeats of the
@@ -17,8 +17,8 @@ the load average at the start and the end. Needs g++ and TBB's headers (the engi
 --srgb runs both sides in the blend space "srgb" of ``--method dibr`` (inputs sRGB-encoded before the timing,
 as the renderer caches them; the result decoded: inside ResolveBlend where the kernels have it, else by a
 separate SrgbToLinear pass, timed: the hashes of the two forms differ, the resolve's decoding reads the
-curve from a table, cpp/kernels/blend.h); --srgb-b only the B side (the cost of srgb against linear; the
-hashes then differ by design). The sRGB curve is cpp/kernels/metameric.{h,cpp}, taken from the same revision.
+curve from a table, cpp/kernels/dibr/blend.h); --srgb-b only the B side (the cost of srgb against linear; the
+hashes then differ by design). The sRGB curve is cpp/ibr/colour.{h,cpp}, taken from the same revision.
 """
 from __future__ import annotations
 
@@ -34,7 +34,9 @@ import numpy as np
 from ibrtools import synth
 
 ROOT = Path(__file__).resolve().parents[1]
-KERNEL_FILES = ("forward_warp.h", "forward_warp.cpp", "blend.h", "blend.cpp", "metameric.h", "metameric.cpp")
+# The A side's files, under cpp/ of revision --base (the family layout: kernels/dibr/, the sRGB curve in ibr/).
+KERNEL_FILES = ("kernels/dibr/forward_warp.h", "kernels/dibr/forward_warp.cpp", "kernels/dibr/blend.h",
+                "kernels/dibr/blend.cpp", "ibr/colour.h", "ibr/colour.cpp")
 
 
 def dump_scene(out: Path, size: tuple[int, int], k: int) -> None:
@@ -54,11 +56,10 @@ def dump_scene(out: Path, size: tuple[int, int], k: int) -> None:
 
 
 def build(kernels: Path, exe: Path) -> None:
-    """kernels: a directory with kernels/<KERNEL_FILES>; the rest of the engine from the tree."""
+    """kernels: a directory holding KERNEL_FILES (as under cpp/); the rest of the engine from the tree."""
     cmd = ["g++", "-std=c++17", "-O3", "-DGLM_FORCE_XYZW_ONLY", f"-I{kernels}", f"-I{ROOT / 'cpp'}",
            "-o", str(exe), str(ROOT / "benchmarks" / "dibr_ab" / "dibr_ab.cpp"),
-           str(kernels / "kernels" / "forward_warp.cpp"), str(kernels / "kernels" / "blend.cpp"),
-           str(kernels / "kernels" / "metameric.cpp"),
+           *[str(kernels / f) for f in KERNEL_FILES if f.endswith(".cpp")],
            str(ROOT / "cpp" / "ibr" / "parallel.cpp"), str(ROOT / "cpp" / "ibr" / "simd.cpp"), "-ltbb", "-lpthread"]
     subprocess.run(cmd, check=True)
 
@@ -93,15 +94,14 @@ def main() -> None:
         data.mkdir()
         dump_scene(data, (w, h), a.views)
         base = tmp / "base"
-        (base / "kernels").mkdir(parents=True)
         for f in KERNEL_FILES:
-            got = subprocess.run(["git", "-C", str(ROOT), "show", f"{a.base}:cpp/kernels/{f}"], capture_output=True,
+            got = subprocess.run(["git", "-C", str(ROOT), "show", f"{a.base}:cpp/{f}"], capture_output=True,
                                  check=False)
-            if got.returncode != 0 and f.startswith("metameric"):  # older than the sRGB curve: the tree's
-                got = subprocess.CompletedProcess([], 0, (ROOT / "cpp" / "kernels" / f).read_bytes())
-            elif got.returncode != 0:
-                raise SystemExit(f"git show {a.base}:cpp/kernels/{f} failed: {got.stderr.decode().strip()}")
-            (base / "kernels" / f).write_bytes(got.stdout)
+            if got.returncode != 0:
+                raise SystemExit(f"git show {a.base}:cpp/{f} failed (a revision older than the family layout of "
+                                 f"cpp/kernels/ is not supported): {got.stderr.decode().strip()}")
+            (base / f).parent.mkdir(parents=True, exist_ok=True)
+            (base / f).write_bytes(got.stdout)
         exes = {"A (" + a.base + ")": tmp / "a.bin", "B (working tree)": tmp / "b.bin"}
         build(base, exes["A (" + a.base + ")"])
         build(ROOT / "cpp", exes["B (working tree)"])

@@ -1,4 +1,4 @@
-"""Independent NumPy references of the colour reads at sub-pixel positions (cpp/kernels/resample.h
+"""Independent NumPy references of the colour reads at sub-pixel positions (cpp/ibr/resample.h
 and the bilinear reads): pixel centres at +0.5, positions and taps clamped to the image."""
 from __future__ import annotations
 

@@ -24,9 +24,9 @@ static double Cpu() { timespec t; clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t); r
 #include <algorithm>
 #include "ibr/parallel.h"
 #include "ibr/simd.h"  // the tree's switch: also for a base revision older than it
-#include "kernels/forward_warp.h"
-#include "kernels/blend.h"
-#include "kernels/metameric.h"
+#include "kernels/dibr/forward_warp.h"
+#include "kernels/dibr/blend.h"
+#include "ibr/colour.h"
 using namespace ibr;
 static std::vector<float> Load(const char* p, size_t n) {
   std::vector<float> v(n); FILE* f = fopen(p, "rb"); if (!f || fread(v.data(), 4, n, f) != n) { perror(p); exit(1); } fclose(f); return v;
@@ -60,7 +60,7 @@ int main(int argc, char** argv) {
     const size_t ni = size_t(cams[i].width) * cams[i].height;
     snprintf(p, sizeof p, "%s/c%d.raw", dir, i); col[i] = Load(p, 3 * ni);
     snprintf(p, sizeof p, "%s/d%d.raw", dir, i); dep[i] = Load(p, ni);
-    if (srgb) for (float& v : col[i]) v = SrgbEncode(std::max(v, 0.f));  // render/dibr.py srgb_encode (cached there)
+    if (srgb) for (float& v : col[i]) v = SrgbEncode(std::max(v, 0.f));  // dibr/method.py srgb_encode (cached there)
   }
   std::vector<float> swc(3 * n), sw(n), swi(n), sq(n), mq(n), vc(3 * n), vd(n), vw(n), vq(n), oc(3 * n), od(n), oq(n);
   std::vector<unsigned char> oh(n);

@@ -128,7 +128,7 @@ void BindCore(py::module_& m) {
       "srgb_encode_unclipped", [](py::handle values) { return MapValues(values, EncodeUnclippedActiveIsa); },
       py::arg("values"),
       "The sRGB encoding of linear colour for blending in sRGB space (cpp/ibr/colour.h "
-      "LinearToSrgbUnclipped; Python: ibrtools.render.dibr.srgb_encode): the IEC 61966-2-1 curve of every value "
+      "LinearToSrgbUnclipped; Python: ibrtools.dibr.method.srgb_encode): the IEC 61966-2-1 curve of every value "
       "of a C-contiguous float32 array of any shape, negative values and -inf -> 0, not clipped above 1, +inf "
       "stays +inf, NaN stays NaN; within 1e-6 of the exact curve (absolute in [0, 1], relative above), exact at 0 "
       "and 1. A table in [0, 1] "

@@ -1,6 +1,6 @@
 // The depthwarp family's bindings: the backward depth warp and its N-buffer Y-map
 // (cpp/kernels/depthwarp/depthwarp.h, nbuffer.h), warping-based occlusion culling (culling.h) and
-// soft shadows (shadows.h). Python: ibrtools.depthwarp, ibrtools.culling, ibrtools.shadows.
+// soft shadows (shadows.h). Python: ibrtools.depthwarp.core, ibrtools.depthwarp.culling, ibrtools.depthwarp.shadows.
 #include <array>
 #include <cmath>
 #include <cstdint>
@@ -26,7 +26,7 @@
 
 // Bindings of the depth warp and the Y-map (cpp/kernels/depthwarp/front.h): array checks (dtypes,
 // shapes, aliasing), then the front (value checks, buffers, pipelines, stage times) with the GIL
-// released. Python: ibrtools.depthwarp (the only user; other modules use that API).
+// released. Python: ibrtools.depthwarp.core (the only user; other modules use that API).
 namespace ibr::bind {
 namespace {
 

@@ -1,7 +1,7 @@
 // The hybrid family's bindings: per-view meshes and tiles (cpp/kernels/hybrid/pvm.h), TM / ULR /
 // hybrid rendering (hybrid.h, ulr.h, gbuffer_raster.h, atlas8.h), the PVM renderer (pvm_render.h)
 // and the texture stage's harmonisation (harmonise.h, vertexstats.h). Python: ibrtools.hybrid,
-// ibrtools.render.hybrid.
+// ibrtools.hybrid.method.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -649,7 +649,7 @@ static void BindHybridRender(py::module_& m) {
         py::arg("inside_grid") = py::none(), py::arg("pvm_valid") = py::none(), py::arg("pvm_depth") = py::none(),
         py::arg("vd") = py::none(), py::arg("geo_threshold") = 0.03, py::arg("tau_var") = 0.82,
         "Per-pixel method (Prakash et al. 2021 Fig. 7): uint8 (H, W) 0 TM, 1 ULR, 2 PVM, 3 nothing to render. "
-        "Defaults: the paper's values; --method hybrid passes its own (render/hybrid.py HYBRID_DEFAULTS: tau_var 0).");
+        "Defaults: the paper's values; --method hybrid passes its own (hybrid/method.py HYBRID_DEFAULTS: tau_var 0).");
   m.def("blur_selection", &BlurSelectionBinding, py::arg("label"), py::arg("sigma_blur"), py::arg("min_weight") = 0.0,
         py::arg("decimate") = false, py::arg("pvm_floor") = 0.0,
         "Gaussian-blurred one-hot selection weights (H, W, 3) = (TM, ULR, PVM), normalised to sum 1; "

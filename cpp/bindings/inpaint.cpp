@@ -1,5 +1,5 @@
 // The inpaint family's bindings: push-pull hole filling (cpp/kernels/inpaint/pushpull.h) and the
-// per-sample passes of metameric inpainting (metameric.h). Python: ibrtools.inpaint, ibrtools.metameric.
+// per-sample passes of metameric inpainting (metameric.h). Python: ibrtools.inpaint.pushpull, ibrtools.inpaint.metameric.
 #include <cmath>
 #include <string>
 #include <vector>
@@ -14,7 +14,7 @@
 #include "kernels/inpaint/pushpull.h"
 #include "module.h"
 
-// The push-pull options of a binding's arguments, shared by ibrtools.inpaint.pushpull
+// The push-pull options of a binding's arguments, shared by ibrtools.inpaint.pushpull.pushpull
 // (inpaint.cpp) and the moments push-pulls of metameric inpainting (metameric.cpp): depth None
 // (classic push-pull) or float32 (h, w) (depth-aware, Alg. 1 of dos Anjos et al.), gamma and
 // depth_threshold finite and >= 0; one-line errors naming the argument.
@@ -42,7 +42,7 @@ inline PushPullOptions CheckPushPullArgs(py::handle depth_obj, py::ssize_t h, py
 }  // namespace ibr::bind
 
 // Bindings of cpp/kernels/inpaint/pushpull.h: the checking front (shapes, dtypes, finiteness outside the
-// holes, options) and the call with the GIL released. Python: ibrtools.inpaint.
+// holes, options) and the call with the GIL released. Python: ibrtools.inpaint.pushpull.
 namespace ibr::bind {
 namespace {
 
@@ -130,7 +130,7 @@ static void BindPushPull(py::module_& m) {
 
 // Bindings of cpp/kernels/inpaint/metameric.h: the checking front (dtypes, shapes of every band, mask,
 // flow, scale, no aliasing of written bands) and the calls with the GIL released.
-// Python: ibrtools.metameric (private helpers of metameric()).
+// Python: ibrtools.inpaint.metameric (private helpers of metameric()).
 namespace ibr::bind {
 namespace {
 
@@ -364,7 +364,7 @@ static void BindMetameric(py::module_& m) {
       "float32 (h, w, C); flow None or float32/float64 full-resolution (H, W, 2), read at (y * scale, x * scale). "
       "Raises BadValueError when every sample is masked (the bands are then left as they were) and, with "
       "check_finite (default), for NaN or infinite band values outside the mask; check_finite=False skips that "
-      "scan for callers whose bands come from analysing a finite image (ibrtools.metameric: the pre-fill is "
+      "scan for callers whose bands come from analysing a finite image (ibrtools.inpaint.metameric: the pre-fill is "
       "checked finite by push-pull's front).");
 
   m.def(

@@ -1,5 +1,5 @@
 // The metamers family's bindings: the small-filter steerable pyramid (cpp/kernels/metamers/steerable.h)
-// and the moment mipmaps of foveation (mip.h). Python: ibrtools.steerable, ibrtools.foveate.
+// and the moment mipmaps of foveation (mip.h). Python: ibrtools.metamers.steerable, ibrtools.metamers.foveate.
 #include <cmath>
 #include <string>
 #include <vector>
@@ -18,7 +18,7 @@
 
 // Bindings of cpp/kernels/metamers/steerable.h: the checking front (dtypes, shapes of every level,
 // orientations, levels against the image size, finiteness) and the calls with the GIL released.
-// Python: ibrtools.steerable.
+// Python: ibrtools.metamers.steerable.
 namespace ibr::bind {
 namespace {
 
@@ -167,7 +167,7 @@ static void BindSteerable(py::module_& m) {
 }  // namespace ibr::bind
 
 // Bindings of cpp/kernels/metamers/mip.h and its pipelines (front.h): the checks (dtypes, shapes of the
-// chain, finiteness of the level map) and the calls with the GIL released. Python: ibrtools.foveate.
+// chain, finiteness of the level map) and the calls with the GIL released. Python: ibrtools.metamers.foveate.
 namespace ibr::bind {
 namespace {
 

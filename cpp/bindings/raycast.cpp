@@ -88,7 +88,7 @@ class RayScene {
     }
     std::vector<Light> lights;
     for (std::size_t i = 0; i < lights_obj.size(); ++i) {
-      // (kind, vector, colour, shadows): ibrtools.render.reference.Light, flattened.
+      // (kind, vector, colour, shadows): ibrtools.raycast.reference.Light, flattened.
       const auto t = lights_obj[i].cast<py::tuple>();
       if (t.size() != 4) throw ShapeError("lights: expected (kind, vector, color, shadows) tuples");
       Light l;

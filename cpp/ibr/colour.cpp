@@ -80,7 +80,7 @@ namespace {
 // exactly, the curve's value, where the polynomial gives 1 - 2^-24. The lerp's error h^2 / 8 max|f''|
 // = 0.032 2^(0.417 e - 20) in binade [2^e, 2^(e+1)), 2.3e-8 at most (e = -1); with the nodes' own
 // error and float rounding, measured 1.8e-7 absolute against the float64 curve in [0, 1] (Encode:
-// 1.5e-7; tests/test_srgb_encode.py). At and below the toe 12.92 x, Encode's operation (the same
+// 1.5e-7; tests/dibr/test_srgb_encode.py). At and below the toe 12.92 x, Encode's operation (the same
 // bits); above 1 (HDR), +inf and NaN Encode itself (at least 1: monotonic across 1), so NaN stays
 // NaN. Negative values and -inf give +0 (negative light does not exist).
 // The table is stored as pairs (node k, node k + 1) at 2 k: the AVX2 loop reads a segment's two

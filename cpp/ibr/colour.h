@@ -69,7 +69,7 @@ inline float Decode(float e) {
 //   SrgbDecode(e) = e / 12.92 for |e| <= 0.04045, sign(e) ((|e| + 0.055) / 1.055)^2.4 beyond,
 // its exact inverse. The powers use a polynomial log2/exp2 with integer selects, so the row loops
 // vectorise (relative error < 1e-6 for the encoding, < 1e-5 for the round trip up to 1e6:
-// tests/test_metameric_kernels.py; 3M values: ~12 ms of one core under load, std::pow-based
+// tests/inpaint/test_metameric_kernels.py; 3M values: ~12 ms of one core under load, std::pow-based
 // scalar code ~4x that); NaN stays NaN, +-inf stays +-inf, decoding overflows to +inf.
 float SrgbEncode(float v);
 float SrgbDecode(float e);
@@ -80,7 +80,7 @@ float SrgbDecode(float e);
 // IEC 61966-2-1 curve, like SrgbEncode.
 void LinearToSrgb(const float* in, float* out, std::int64_t n);
 
-// The sRGB encoding of linear colour for blending in sRGB space (Python: ibrtools.render.dibr.srgb_encode,
+// The sRGB encoding of linear colour for blending in sRGB space (Python: ibrtools.dibr.method.srgb_encode,
 // the DIBR inputs with blend_space "srgb"): out[i] = SrgbEncode(max(in[i], 0)) for n values (in and out may
 // be the same memory), multithreaded: negative values and -inf -> +0, not clipped above 1 (HDR inputs keep
 // their range), +inf stays +inf, NaN stays NaN. In [0, 1] the curve is read from a table of its own values

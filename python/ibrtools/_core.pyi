@@ -555,7 +555,7 @@ def hybrid_needs(weights: _F32, pvm_valid: _Bool) -> tuple[_Bool, _Bool, int, in
 
 def hybrid_select(gbuffer_depth: _F32, *, inside_grid: _Bool | None=None, pvm_valid: _Bool | None=None, pvm_depth: _F32 | None=None, vd: _F32 | None=None, geo_threshold: typing.SupportsFloat | typing.SupportsIndex=0.03, tau_var: typing.SupportsFloat | typing.SupportsIndex=0.82) -> numpy.typing.NDArray[numpy.uint8]:
     """
-    Per-pixel method (Prakash et al. 2021 Fig. 7): uint8 (H, W) 0 TM, 1 ULR, 2 PVM, 3 nothing to render. Defaults: the paper's values; --method hybrid passes its own (render/hybrid.py HYBRID_DEFAULTS: tau_var 0).
+    Per-pixel method (Prakash et al. 2021 Fig. 7): uint8 (H, W) 0 TM, 1 ULR, 2 PVM, 3 nothing to render. Defaults: the paper's values; --method hybrid passes its own (hybrid/method.py HYBRID_DEFAULTS: tau_var 0).
     """
 
 def interpolate_vertex_attribute(prim_id: _I32, bary: _F32, faces: _I32, attrib: _F32) -> numpy.typing.NDArray[numpy.float32]:
@@ -585,7 +585,7 @@ def metameric_fill_holes(image: _F32, hole: _Bool | _U8, base: _F32, change: _F3
 
 def metameric_pushpull_change(bands: collections.abc.Sequence[_F32], mask: _U8, depth: _F32 | None, depth_threshold: typing.SupportsFloat | typing.SupportsIndex, gamma: typing.SupportsFloat | typing.SupportsIndex, noise: collections.abc.Sequence[_F32], flow: _F32 | _F64 | None=None, scale: typing.SupportsInt | typing.SupportsIndex=1, check_finite: bool=True) -> None:
     """
-    One level of metameric synthesis in place (cpp/kernels/inpaint/pushpull.h PushPullMomentsChangeKernel): metameric_pushpull_moments then metameric_composite(..., delta=True) without the moments image, the same values bit for bit. bands k float32 (h, w, C) arrays, read, then overwritten with their change (sigma * noise where mask (uint8 (h, w)) is set, 0 elsewhere); depth float32 (h, w) or None; noise k float32 (h, w, C); flow None or float32/float64 full-resolution (H, W, 2), read at (y * scale, x * scale). Raises BadValueError when every sample is masked (the bands are then left as they were) and, with check_finite (default), for NaN or infinite band values outside the mask; check_finite=False skips that scan for callers whose bands come from analysing a finite image (ibrtools.metameric: the pre-fill is checked finite by push-pull's front).
+    One level of metameric synthesis in place (cpp/kernels/inpaint/pushpull.h PushPullMomentsChangeKernel): metameric_pushpull_moments then metameric_composite(..., delta=True) without the moments image, the same values bit for bit. bands k float32 (h, w, C) arrays, read, then overwritten with their change (sigma * noise where mask (uint8 (h, w)) is set, 0 elsewhere); depth float32 (h, w) or None; noise k float32 (h, w, C); flow None or float32/float64 full-resolution (H, W, 2), read at (y * scale, x * scale). Raises BadValueError when every sample is masked (the bands are then left as they were) and, with check_finite (default), for NaN or infinite band values outside the mask; check_finite=False skips that scan for callers whose bands come from analysing a finite image (ibrtools.inpaint.metameric: the pre-fill is checked finite by push-pull's front).
     """
 
 def metameric_pushpull_moments(bands: collections.abc.Sequence[_F32], mask: _U8, depth: _F32 | None, depth_threshold: typing.SupportsFloat | typing.SupportsIndex, gamma: typing.SupportsFloat | typing.SupportsIndex, out: _F32) -> None:
@@ -680,7 +680,7 @@ def shadow_map_visibility(view_depth: _F32, view: Camera, maps: _F32, cameras: c
 
 def srgb_encode_unclipped(values: _F32) -> _F32:
     """
-    The sRGB encoding of linear colour for blending in sRGB space (cpp/ibr/colour.h LinearToSrgbUnclipped; Python: ibrtools.render.dibr.srgb_encode): the IEC 61966-2-1 curve of every value of a C-contiguous float32 array of any shape, negative values and -inf -> 0, not clipped above 1, +inf stays +inf, NaN stays NaN; within 1e-6 of the exact curve (absolute in [0, 1], relative above), exact at 0 and 1. A table in [0, 1] (AVX2 gathers when set_warp_isa allows: the same bits either way). Returns a new float32 array of the same shape.
+    The sRGB encoding of linear colour for blending in sRGB space (cpp/ibr/colour.h LinearToSrgbUnclipped; Python: ibrtools.dibr.method.srgb_encode): the IEC 61966-2-1 curve of every value of a C-contiguous float32 array of any shape, negative values and -inf -> 0, not clipped above 1, +inf stays +inf, NaN stays NaN; within 1e-6 of the exact curve (absolute in [0, 1], relative above), exact at 0 and 1. A table in [0, 1] (AVX2 gathers when set_warp_isa allows: the same bits either way). Returns a new float32 array of the same shape.
     """
 
 def srgb_to_linear(values: _F32) -> _F32:

@@ -17,7 +17,7 @@ Definitions
   ``Infinity``, which Python's ``json`` reads back.
 * ``ssim``: scikit-image's default ``structural_similarity`` (7x7 box window, K1 = 0.01,
   K2 = 0.03, sample covariance, mean over the image cropped by 3 pixels, colour = mean over
-  channels), computed by the C++ kernel ``cpp/kernels/ssim.cpp`` (multithreaded, float64);
+  channels), computed by the C++ kernel ``cpp/kernels/metrics/ssim.cpp`` (multithreaded, float64);
   agrees with scikit-image to better than 1e-5 (tests/test_metrics.py).
 * masked variants: PSNR over the pixels of the mask (all channels); SSIM = mean of the
   per-pixel SSIM map over the mask *within the cropped interior* (so that an all-true mask

@@ -1,12 +1,12 @@
 """General solvers of the engine (docs/solvers.md): grid max-flow/min-cut and Poisson blending.
 
 * :func:`grid_maxflow` — minimum s-t cut of a 4-connected pixel grid by the Boykov-Kolmogorov
-  algorithm (``cpp/kernels/maxflow.{h,cpp}``): binary labelling energies with per-pixel terminal
+  algorithm (``cpp/kernels/solvers/maxflow.{h,cpp}``): binary labelling energies with per-pixel terminal
   capacities and symmetric edge capacities, e.g. graph-cut segmentation or the view-dependent
   mask of the hybrid harmonisation. int64 capacities give the exact optimum; float64 also works.
 * :func:`poisson_blend` — Pérez et al. 2003 seamless cloning: inside ``mask`` the image whose
   Laplacian equals ``source``'s, with ``boundary``'s values on the mask's outer border, solved by
-  multigrid-preconditioned conjugate gradients (``cpp/kernels/poisson.{h,cpp}``) to a stated
+  multigrid-preconditioned conjugate gradients (``cpp/kernels/solvers/poisson.{h,cpp}``) to a stated
   relative residual.
 
 Both check their arguments in C++ (``cpp/bindings/solvers.cpp``) and release the GIL.

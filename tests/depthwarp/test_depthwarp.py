@@ -472,7 +472,7 @@ def test_dilation_closes_cracks_but_not_wide_holes():
     assert (on.layer[1:-1, 20] == 0).all()
 
 
-# Proven occluder depth (warp_depth(..., surface_ids=...): cpp/kernels/depthwarp.h "proof").
+# Proven occluder depth (warp_depth(..., surface_ids=...): cpp/kernels/depthwarp/depthwarp.h "proof").
 
 def test_proof_of_a_shifted_plane_stops_at_the_seam_between_two_surfaces():
     # A plane at z = 4 seen after a sideways step of (0.125, 0.0625): every pixel moves by exactly

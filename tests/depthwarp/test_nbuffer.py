@@ -1,5 +1,5 @@
 """Conservative max-depth queries (ibrtools.depthwarp.core.MaxDepthQuery: Y-map = max-mipmap levels
-then N-buffers; cpp/kernels/nbuffer.h) against a brute-force numpy max over random boxes."""
+then N-buffers; cpp/kernels/depthwarp/nbuffer.h) against a brute-force numpy max over random boxes."""
 from __future__ import annotations
 
 import numpy as np

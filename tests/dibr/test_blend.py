@@ -1,4 +1,4 @@
-"""Visibility across views in the streaming blend (cpp/kernels/blend.h): stretched fragments
+"""Visibility across views in the streaming blend (cpp/kernels/dibr/blend.h): stretched fragments
 and the depth tolerance. Exact answers: constant colours, so any mixing shows."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Forward mesh warp and streaming blending (cpp/kernels/forward_warp.h, blend.h, _core DIBR API).
+"""Forward mesh warp and streaming blending (cpp/kernels/dibr/forward_warp.h, blend.h, _core DIBR API).
 
 Tolerances:
 * Identity warp: PSNR > 60 dB away from borders. Vertices land within 1/512 px of pixel

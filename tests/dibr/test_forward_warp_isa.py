@@ -1,4 +1,4 @@
-"""Speed paths of the forward warp (cpp/kernels/forward_warp.h): the AVX2 clones of the hot loops
+"""Speed paths of the forward warp (cpp/kernels/dibr/forward_warp.h): the AVX2 clones of the hot loops
 against the SSE2 baseline, and the band-local accumulation of _core.DibrAccumulator against the
 full-size per-view buffers of _core.forward_warp.
 
@@ -237,7 +237,7 @@ def test_srgb_resolve_decodes_the_blend(isa, restore_isa):
     """result(srgb_to_linear=True) (blend space "srgb": the views' colours are sRGB encodings) is
     result() with its colour decoded by _core.srgb_to_linear, done inside the resolve. Tolerance
     1e-6 absolute: in [0, 1] the resolve reads the curve from a table of 4097 of its own values
-    with linear interpolation (cpp/kernels/blend.cpp; measured 2.4e-7 here, the lerp's error
+    with linear interpolation (cpp/kernels/dibr/blend.cpp; measured 2.4e-7 here, the lerp's error
     bound is 2.5e-8 plus the curve's own polynomial wiggle between nodes); outside [0, 1] (HDR
     encodings above 1, negative colour) it is the curve itself, the same bits. Depth, confidence
     and hole are unchanged bit for bit, holes stay exactly 0, nothing is NaN. Both visibility

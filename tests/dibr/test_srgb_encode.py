@@ -1,4 +1,4 @@
-"""The sRGB encode of DIBR's inputs (cpp/kernels/metameric.h LinearToSrgbUnclipped, Python
+"""The sRGB encode of DIBR's inputs (cpp/kernels/inpaint/metameric.h LinearToSrgbUnclipped, Python
 _core.srgb_encode_unclipped / ibrtools.dibr.method.srgb_encode): a table of the curve's own values
 in [0, 1] read by the float's bits, 12.92 x at the toe, the curve SrgbEncode above 1."""
 

@@ -1,4 +1,4 @@
-"""Single-view warp with background-depth holes (cpp/kernels/forward_warp.h "Warp with
+"""Single-view warp with background-depth holes (cpp/kernels/dibr/forward_warp.h "Warp with
 background-depth holes", _core.warp_with_holes / warp_flow, dibr/warp.py, --method warp).
 
 Tolerances:

@@ -256,7 +256,7 @@ def test_equirect_cube_faces_and_fusion_of_a_room():
     assert np.median(err) < 0.2 and np.percentile(err, 95) < 0.6 and err.max() < 1.0
 
 
-# -- the point-colour kernel (_core.point_colors, cpp/kernels/atlas8.cpp) against numpy ------------
+# -- the point-colour kernel (_core.point_colors, cpp/kernels/hybrid/atlas8.cpp) against numpy ------------
 def _sample_bilinear_ref(img, x, y):
     h, w = img.shape[:2]
     xf, yf = np.clip(x - 0.5, 0, w - 1), np.clip(y - 0.5, 0, h - 1)

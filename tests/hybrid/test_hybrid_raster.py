@@ -1,5 +1,5 @@
-"""The rasterised G-buffer of TM / ULR / hybrid (_core.raster_gbuffer, cpp/kernels/gbuffer_raster.h)
-against the Embree ray caster, and the 8-bit sRGB atlas read (cpp/kernels/atlas8.h) against the
+"""The rasterised G-buffer of TM / ULR / hybrid (_core.raster_gbuffer, cpp/kernels/hybrid/gbuffer_raster.h)
+against the Embree ray caster, and the 8-bit sRGB atlas read (cpp/kernels/hybrid/atlas8.h) against the
 float32 one."""
 import numpy as np
 import pytest

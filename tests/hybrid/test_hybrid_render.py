@@ -1,5 +1,5 @@
 """Hybrid rendering: TM, per-pixel ULR, the hybrid selection and composite
-(cpp/kernels/ulr.h, cpp/kernels/hybrid.h, python/ibrtools/hybrid/method.py)."""
+(cpp/kernels/hybrid/ulr.h, cpp/kernels/hybrid/hybrid.h, python/ibrtools/hybrid/method.py)."""
 from __future__ import annotations
 
 import copy

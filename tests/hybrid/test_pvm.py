@@ -1,4 +1,4 @@
-"""Per-view meshes and their two-level voxel tiles (ibrtools.hybrid.pvm, cpp/kernels/pvm.h):
+"""Per-view meshes and their two-level voxel tiles (ibrtools.hybrid.pvm, cpp/kernels/hybrid/pvm.h):
 hand-checked grids, cut discontinuities, planar merging, tiles that reassemble the PVM and lie
 in their cells, thread independence, bad input."""
 import numpy as np

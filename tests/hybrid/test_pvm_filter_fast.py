@@ -1,4 +1,4 @@
-"""The spatial filter of Eq. 1 (cpp/kernels/pvm_render.cpp PvmFilter) on its four-lane path
+"""The spatial filter of Eq. 1 (cpp/kernels/hybrid/pvm_render.cpp PvmFilter) on its four-lane path
 (ExpNeg4): two clusters whose depths differ by less than the falloff scale, so that the
 cross-cluster exponentials are far from 0 and 1 and the weight ratio has a closed form; the
 filter_step and alpha values vary the window and the exponent arguments."""

@@ -1,4 +1,4 @@
-"""PVM rendering with clustered depth filtering (ibrtools.hybrid.pvm_render, cpp/kernels/pvm_render.h,
+"""PVM rendering with clustered depth filtering (ibrtools.hybrid.pvm_render, cpp/kernels/hybrid/pvm_render.h,
 --method pvm): an exact scene reproduces held-out views, a thin object missing from the global mesh
 gets PVM candidates at its depth, identical depths make one cluster, empty candidate lists give
 valid = False without NaN, the pixel mask restricts the work without changing the result, thread

@@ -1,7 +1,7 @@
 """The fast paths of the hybrid renderer's per-pixel kernels: ULR's SIMD loop over
 views against its scalar reference path (and its AVX2 loop against its SSE2 one), and the
 selection blur against a NumPy reference
-(cpp/kernels/hybrid.cpp; docs/ulr.md "Conventions and limits")."""
+(cpp/kernels/hybrid/hybrid.cpp; docs/ulr.md "Conventions and limits")."""
 from __future__ import annotations
 
 import dataclasses

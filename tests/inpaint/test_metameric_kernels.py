@@ -1,6 +1,6 @@
-"""The per-sample C++ passes of metameric inpainting (cpp/kernels/metameric.h): the stacked
+"""The per-sample C++ passes of metameric inpainting (cpp/kernels/inpaint/metameric.h): the stacked
 [X, X^2] push-pull input, the push-pull of the moments computed on the fly
-(cpp/kernels/pushpull.h PushPullMomentsKernel) and the mean + sigma * noise composite, against the numpy expressions
+(cpp/kernels/inpaint/pushpull.h PushPullMomentsKernel) and the mean + sigma * noise composite, against the numpy expressions
 python/ibrtools/metameric.py used before them (exact: same float32 operations, same order)."""
 from __future__ import annotations
 
@@ -189,7 +189,7 @@ def _srgb_encode_f64(v):
 
 
 def test_display_encoding_accuracy():
-    # The polynomial log2/exp2 sRGB curve (cpp/kernels/metameric.h SrgbEncode / SrgbDecode)
+    # The polynomial log2/exp2 sRGB curve (cpp/kernels/inpaint/metameric.h SrgbEncode / SrgbDecode)
     # against float64 numpy: the whole [0, 1] range on a fine grid, negatives (odd extension) and
     # HDR values up to 1e6. Tolerance 1e-5 relative (measured 3e-6 for the encoding, 8e-6 for the
     # round trip: float32 has 6e-8; the polynomial's own error is ~1e-7, the rest is the float32
@@ -297,7 +297,7 @@ def test_pushpull_change_classic_fallback():
     depth[hole != 0] = 9.0
     img = rng.random((48, 48, 3)).astype(np.float32)
     # The path under test: the farthest depth (9) is hole only, so every block that holds it drops
-    # its valid samples (depth 2) and the 1x1 top has no data (cpp/kernels/pushpull.h, "Classic
+    # its valid samples (depth 2) and the 1x1 top has no data (cpp/kernels/inpaint/pushpull.h, "Classic
     # fallback"); the depth-aware fill then differs from the classic one only where depth-aware
     # data reaches through the bilinear push.
     aware, _ = _core.pushpull(img, hole, depth, 0.04, 0.5)

@@ -1,4 +1,4 @@
-"""Push-pull hole filling (cpp/kernels/pushpull.*, ibrtools.inpaint.pushpull): exact answers, an
+"""Push-pull hole filling (cpp/kernels/inpaint/pushpull.*, ibrtools.inpaint.pushpull): exact answers, an
 independent numpy reference, the depth-aware variant's edge stopping, determinism, bad input."""
 from __future__ import annotations
 

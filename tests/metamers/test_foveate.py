@@ -1,5 +1,5 @@
 """Foveated ventral metamers (ibrtools.metamers.foveate, Walton et al. 2021 sec. 3 and 5) and the MIP-map
-kernel they read the moment maps from (_core.mip_build / mip_lookup, cpp/kernels/mip.h)."""
+kernel they read the moment maps from (_core.mip_build / mip_lookup, cpp/kernels/metamers/mip.h)."""
 import json
 import threading
 

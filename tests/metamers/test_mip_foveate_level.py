@@ -1,4 +1,4 @@
-"""Bad input of the fused foveation kernel binding _core.mip_foveate_level (cpp/bindings/mip.cpp).
+"""Bad input of the fused foveation kernel binding _core.mip_foveate_level (cpp/bindings/metamers.cpp).
 Its results are pinned by tests/metamers/test_foveate.py (bit-identical to the unfused path)."""
 from __future__ import annotations
 
@@ -51,7 +51,7 @@ def test_read_only_band_is_refused():
 
 
 def _reference_change(bands, level, noise, n):
-    """mip_foveate_level's equations (cpp/kernels/mip.h) in float32 numpy, every operation in the
+    """mip_foveate_level's equations (cpp/kernels/metamers/mip.h) in float32 numpy, every operation in the
     kernel's order (numpy float32 element ops are IEEE, no contraction on x86-64 without -march):
     the result must match bit for bit."""
     f = np.float32

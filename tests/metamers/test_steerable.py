@@ -1,4 +1,4 @@
-"""Small-filter steerable pyramid (cpp/kernels/steerable.*, ibrtools.metamers.steerable): the C++ kernel
+"""Small-filter steerable pyramid (cpp/kernels/metamers/steerable.*, ibrtools.metamers.steerable): the C++ kernel
 against the numpy reference of tools/fit_steerable_filters.py, reconstruction within the
 documented error, meaning (constant image, oriented grating, linearity), sizes, thread-count
 determinism, bad input."""

@@ -1,4 +1,4 @@
-"""Deep depth buffers by depth peeling (ReferenceRenderer.peel; cpp/kernels/raycast.h
+"""Deep depth buffers by depth peeling (ReferenceRenderer.peel; cpp/kernels/raycast/raycast.h
 "Deep depth buffers"; Lee, Kim, Eisemann 2018 sec. 3.4, Eq. 1)."""
 from __future__ import annotations
 

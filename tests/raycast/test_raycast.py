@@ -1,4 +1,4 @@
-"""Reference ray casting (cpp/kernels/raycast.h, ibrtools.raycast.reference).
+"""Reference ray casting (cpp/kernels/raycast/raycast.h, ibrtools.raycast.reference).
 
 Tolerances:
 * REL_DEPTH = 1e-5: rays and vertices are float32 (7 significant digits) and Embree

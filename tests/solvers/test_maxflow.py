@@ -1,4 +1,4 @@
-"""Grid max-flow/min-cut (ibrtools.solvers.grid_maxflow, cpp/kernels/maxflow.{h,cpp}):
+"""Grid max-flow/min-cut (ibrtools.solvers.grid_maxflow, cpp/kernels/solvers/maxflow.{h,cpp}):
 hand-checked graphs, random grids against PyMaxflow (an independent Boykov-Kolmogorov
 implementation), the cut's energy recomputed from the labels, bad input, the GIL."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Poisson blending (ibrtools.solvers.poisson_blend, cpp/kernels/poisson.{h,cpp}): exact on a
+"""Poisson blending (ibrtools.solvers.poisson_blend, cpp/kernels/solvers/poisson.{h,cpp}): exact on a
 quadratic, scipy's sparse direct solve as the reference, masks at the image border, empty and
 one-pixel masks, thread-count independence, bad input, the GIL."""
 from __future__ import annotations

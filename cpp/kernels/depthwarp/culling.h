@@ -1,7 +1,7 @@
 // Warping-based occlusion culling, the geometric half (Lee, Kim, Eisemann 2018, sec. 5.2):
 // per-object world AABBs, view-frustum culling of each box, and the screen-space rectangle and
 // minimum camera z of the boxes that remain. The max-depth half (Y-map / N-buffer queries of the
-// warped depth) is ibrtools.depthwarp.MaxDepthQuery; python/ibrtools/culling.py joins the two:
+// warped depth) is ibrtools.depthwarp.core.MaxDepthQuery; python/ibrtools/culling.py joins the two:
 // an on-screen box is occluded when its min z exceeds the max depth over its rectangle.
 //
 // ObjectBoxes: boxes (K, 2, 3) float32 = (min corner, max corner) in world units of the
@@ -29,7 +29,7 @@
 //   extrema of the local search bound ... we simply consider the nearest of them as an approximate
 //   depth"). Inputs: the source frame's motion (H, W, 2) float32 = target pixel position - source
 //   pixel position and dst_depth (H, W) float32 = z of each source pixel moved into the target
-//   camera (0 = invalid), i.e. ibrtools.depthwarp.motion_buffer; the warped target depth
+//   camera (0 = invalid), i.e. ibrtools.depthwarp.core.motion_buffer; the warped target depth
 //   (H', W') float32 and hole (H', W') uint8, both updated in place.
 //   Search bound (Fig. 5): a min-max mipmap of the valid motions (level 0 = the pixels, level
 //   l + 1 = 2x2 blocks of level l, up to one texel). For a hole pixel p (integer index; its source

@@ -477,7 +477,7 @@ struct StaticMotion {
     int x = 0;
 #if defined(__SSE2__)
     // Four pixels at a time, the scalar loop's operations in the same order (so the same bits;
-    // tests/test_depthwarp_speed.py checks against the scalar loop). GCC does not vectorise the
+    // tests/depthwarp/test_depthwarp_speed.py checks against the scalar loop). GCC does not vectorise the
     // scalar loop: with trapping math it keeps the comparisons' control flow.
     {
       const __m128 v_cxr = _mm_set1_ps(cxr), v_cyr = _mm_set1_ps(cyr), v_czr = _mm_set1_ps(czr);

@@ -1,6 +1,6 @@
 // Iterative backward depth warping (Lee, Kim, Eisemann 2018, "Iterative Depth Warping",
 // ../shared/papers/001_*, sections 3 and 4.1) and the forward baselines it is compared with.
-// Python: ibrtools.depthwarp (the checking front is cpp/bindings/depthwarp.cpp).
+// Python: ibrtools.depthwarp.core (the checking front is cpp/bindings/depthwarp.cpp).
 //
 // Conventions: cameras are ibr::Camera pinhole (OpenCV axes, pixel centres at +0.5); depth is z
 // in the camera, float32, 0 = empty. A "packed" motion buffer is (H, W, 4) float32 per source

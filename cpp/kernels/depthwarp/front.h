@@ -1,4 +1,4 @@
-// The depthwarp family's checked front (Python: ibrtools.depthwarp through cpp/bindings/depthwarp.cpp):
+// The depthwarp family's checked front (Python: ibrtools.depthwarp.core through cpp/bindings/depthwarp.cpp):
 // the value checks of the kernels' inputs (they throw the typed errors of cpp/ibr/errors.h), the
 // buffers (motion mipmaps, the Y-map's N-buffer pyramid), and the pipelines of a frame with their
 // stage times: motion of every layer, mipmaps, backward warp + dilation, the forward baselines.

@@ -26,7 +26,7 @@ constexpr std::int32_t kInvalid = std::numeric_limits<std::int32_t>::min();
 
 // Instruction-set dispatch (forward_warp.h): the hot loops run through
 // CallAvx2 / UseAvx2 (cpp/ibr/simd.h), which compile them for AVX2 (no FMA: the same IEEE
-// operations in the same order, so the same bits; tests/test_forward_warp_isa.py compares both
+// operations in the same order, so the same bits; tests/dibr/test_forward_warp_isa.py compares both
 // paths) and follow the engine's process-wide switch.
 
 // Floor / ceil of a / 256 (arithmetic shift: floor for negative a too).

@@ -1,4 +1,4 @@
-// The dibr family's checked front (Python: ibrtools.render.dibr through cpp/bindings/dibr.cpp): the
+// The dibr family's checked front (Python: ibrtools.dibr.method through cpp/bindings/dibr.cpp): the
 // value checks of the warp's inputs and outputs (typed errors of cpp/ibr/errors.h), and the
 // streaming accumulator that owns a target's running sums and the warp's scratch, with a pool of
 // one spare storage. Callable from C++ without Python; the binding only converts arrays and calls these.

@@ -1,4 +1,4 @@
-// The hybrid family's checked front (Python: ibrtools.hybrid, ibrtools.render.hybrid through
+// The hybrid family's checked front (Python: ibrtools.hybrid, ibrtools.hybrid.method through
 // cpp/bindings/hybrid.cpp): the PVM renderer, which owns the checked tiles, the input views and
 // the per-frame buffers and runs the five stages of pvm_render.h with their times; the checks of
 // UlrOptions (hybrid.h) are defined here too. The checks throw the typed errors of cpp/ibr/errors.h.

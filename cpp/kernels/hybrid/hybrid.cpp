@@ -644,7 +644,7 @@ constexpr int kUlrGroup = 8;
 // penalty passes down the four slots, each slot keeping the strictly smaller of itself and it (so
 // equal penalties keep the lower index first, as the insertion does; non-finite penalties are +inf,
 // never kept), then Buehler's weights with UlrSelect's operations in its order (no FMA), so the
-// same indices and weights bit for bit (tests/test_ulr_fast.py compares with simd="sse2", which
+// same indices and weights bit for bit (tests/hybrid/test_ulr_fast.py compares with simd="sse2", which
 // selects pixel by pixel). Writes index[j * 8 + g], weight[j * 8 + g] for j < m[g], and m[g].
 // The per-pixel insertion over 12 views had 15 % of the loop's samples; this took ulr_blend's
 // 1-thread median 150 -> 136 ms (a branch-free insertion per pixel gained nothing).
@@ -729,7 +729,7 @@ constexpr std::ptrdiff_t kPrefetchAhead = 2;
 // pixel by pixel for a group of 8 pixels; then the group's selection (with AVX2: all 8 at once)
 // and the blends. Differences from the scalar path: float instead of double
 // projections (positions agree within ~1e-4 px at the synthetic scenes' scale), so a depth test
-// exactly at its tolerance may flip (tests/test_ulr_fast.py bounds it).
+// exactly at its tolerance may flip (tests/hybrid/test_ulr_fast.py bounds it).
 void UlrBlendFast(const Camera& novel, ImageView<const float> gbuffer_depth, ImageView<const float> normal,
                   const std::uint8_t* pixel_mask, const UlrInputView* views, int num_views, const UlrOptions& options,
                   ImageView<float> color_out, ImageView<std::uint8_t> count_out) {

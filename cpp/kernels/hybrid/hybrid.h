@@ -87,7 +87,7 @@ struct UlrOptions {
 // same bits), in float with the projection folded into one 3x4 matrix per view, and the depth
 // test done, without branches, for every view that passed the cheap tests before one selection
 // (the same views pass as with the lazy test, so the same selection); else the scalar path
-// (double) runs. Float rounding may flip a depth test at its tolerance (tests/test_ulr_fast.py).
+// (double) runs. Float rounding may flip a depth test at its tolerance (tests/hybrid/test_ulr_fast.py).
 void UlrBlend(const Camera& novel, ImageView<const float> gbuffer_depth, ImageView<const float> normal,
               const std::uint8_t* pixel_mask, const UlrInputView* views, int num_views, const UlrOptions& options,
               ImageView<float> color_out, ImageView<std::uint8_t> count_out);
@@ -98,7 +98,7 @@ enum HybridLabel : std::uint8_t { kLabelTm = 0, kLabelUlr = 1, kLabelPvm = 2, kL
 struct HybridSelectOptions {
   float geo_threshold = 0.03f;  // |PVM depth - global depth| above this -> PVM (3 cm in scene units)
   float tau_var = 0.82f;        // view-dependent texture above this -> ULR
-};  // the paper's values; --method hybrid passes its own (render/hybrid.py HYBRID_DEFAULTS: tau_var -1)
+};  // the paper's values; --method hybrid passes its own (hybrid/method.py HYBRID_DEFAULTS: tau_var -1)
 
 // Per pixel, with global hit = gbuffer_depth > 0:
 //   !inside_grid                                              -> ULR (kLabelNone if no global hit)
@@ -134,7 +134,7 @@ void BlurSelection(ImageView<const std::uint8_t> label, float sigma, float min_w
 // (1 - floor) / (1 - pvm), so the three still sum to 1 (pixels with no weight stay 0). floor in
 // [0, 1]; 0 leaves the weights as they are. The composite then mixes the PVM colour into every
 // pixel that has one (its fallback, ULR, where the PVM has no candidate): the hybrid's pvm_floor,
-// which the mix stage fits per scene (python/ibrtools/render/hybrid.py, docs/hybrid.md).
+// which the mix stage fits per scene (python/ibrtools/hybrid/method.py, docs/hybrid.md).
 void FloorPvmWeight(ImageView<float> weights, float floor);
 
 // The block size of BlurSelection's decimated form: 1 (full resolution) below sigma 8, else

@@ -108,7 +108,7 @@ inline float FastAtan2Pos(float y, float x) {
 }
 
 // UlrPenalty with the novel-side vector b = c_novel - p and its length lb computed once per point
-// and the fast atan2: agrees with UlrPenalty within 2e-5 (tests/test_hybrid_render.py). The ULR
+// and the fast atan2: agrees with UlrPenalty within 2e-5 (tests/hybrid/test_hybrid_render.py). The ULR
 // kernel's scalar path and PVM's cluster & blend (inline there: it runs per candidate).
 inline float UlrPenaltyFast(const glm::vec3& p, const glm::vec3& b, float lb, const glm::vec3& c_view,
                             float resolution_weight) {

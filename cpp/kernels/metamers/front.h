@@ -1,4 +1,4 @@
-// The metamers family's front (Python: ibrtools.foveate, ibrtools.metameric through
+// The metamers family's front (Python: ibrtools.metamers.foveate, ibrtools.inpaint.metameric through
 // cpp/bindings/metamers.cpp): the multi-level pipelines over the kernels of mip.h, callable from C++
 // without Python. The binding checks the arrays and values and allocates the outputs.
 #pragma once

@@ -35,7 +35,7 @@
 //   RGB bands (C = 3, k = 2..5) take a fixed-size path (row chunks: moments of both levels summed in
 //   registers into per-band planes, then the composite over contiguous floats in SIMD lanes; an AVX2
 //   build of it, without FMA, when the CPU has AVX2) with the same float operations in the same order:
-//   bit-identical to the generic path (tests/test_mip_foveate_level.py, against a numpy reference).
+//   bit-identical to the generic path (tests/metamers/test_mip_foveate_level.py, against a numpy reference).
 //
 // Shapes (row, col, channel), C-contiguous, float32; level_map (H, W) finite. The front
 // (cpp/bindings/metamers.cpp) checks everything; kernels trust their inputs, never throw and never

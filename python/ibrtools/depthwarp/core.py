@@ -3,7 +3,7 @@
 from (deep) depth buffers that exist, without rendering the geometry again.
 
 The algorithm, its parameters and what each option does: docs/depthwarp.md ("Kernels"). The
-hot loops are C++ (``cpp/kernels/depthwarp.h``, ``cpp/kernels/nbuffer.h``); this module checks
+hot loops are C++ (``cpp/kernels/depthwarp/depthwarp.h``, ``cpp/kernels/depthwarp/nbuffer.h``); this module checks
 arguments, orchestrates the stages and times them.
 
 Conventions: pinhole cameras only (:class:`ibrtools.camera.Camera`, OpenCV axes, pixel centres at
@@ -200,7 +200,7 @@ def warp_depth(layers, src, dst, params=DepthWarpParams(), *, object_ids=None, o
     """Iterative backward depth warping (Lee et al. 2018, Fig. 2/3/5/6) of an L-layer deep depth buffer.
     layers (L,H,W) f32 (layer 0 = nearest surfaces, 0 = empty), or (H,W) for L = 1; object_ids (L,H,W) int32
     (with object_motion). surface_ids (L,H,W) int32: the object id of each source pixel (< 0 = none); when
-    given, the result's ``occluder`` is the proven occluder depth (cpp/kernels/depthwarp.h, "proof": a target
+    given, the result's ``occluder`` is the proven occluder depth (cpp/kernels/depthwarp/depthwarp.h, "proof": a target
     pixel inside the moved triangle of three neighbouring source samples of one convex object), the
     conservative occlusion map of warping-based culling (docs/culling.md)."""
     src = _check_camera(src, "src")

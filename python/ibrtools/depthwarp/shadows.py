@@ -7,7 +7,7 @@ point (what a view sees, from the view's depth) is the fraction of the S samples
 is rendered once at the light's centre (depth peeling, :meth:`ReferenceRenderer.peel`, with an
 optional ground-only last layer as in the paper's set-up) and warped to each light sample with
 :func:`ibrtools.depthwarp.core.warp_depth` (iterative backward warping, N seeds). The shadow-map test
-(``cpp/kernels/shadows.h``, S x H x W work in C++) then counts the maps in which the point is lit.
+(``cpp/kernels/depthwarp/shadows.h``, S x H x W work in C++) then counts the maps in which the point is lit.
 Peers in the same engine:
 
 * ``method="render"``: each of the S shadow maps rendered by the Embree reference renderer (the
@@ -252,7 +252,7 @@ def soft_shadows(renderer, light: AreaLight, view: Camera, view_depth: np.ndarra
 
 def shadow_map_visibility(view: Camera, view_depth: np.ndarray, maps: np.ndarray, cameras: list[Camera],
                           bias: float = DEFAULT_BIAS, slope_bias: float = DEFAULT_SLOPE_BIAS) -> np.ndarray:
-    """The shadow-map test alone (``cpp/kernels/shadows.h``): fraction of the S maps (S, Hs, Ws)
+    """The shadow-map test alone (``cpp/kernels/depthwarp/shadows.h``): fraction of the S maps (S, Hs, Ws)
     float32 (pinhole z of ``cameras[s]``, 0 = no occluder) in which each view pixel's surface
     point is lit; ``bias`` in texels, ``slope_bias`` times the map's depth slope."""
     if not isinstance(view, Camera):

@@ -5,9 +5,9 @@ Per frame:
           volume by Monte Carlo x viewing-direction agreement, Eq. 4-7), or the listed inputs;
           inputs that do not overlap the target are never warped;
   warp    each selected view is forward-warped as an implicit triangle mesh into the target
-          (C++ kernel cpp/kernels/forward_warp.cpp, triangle quality of the paper's Table 1,
+          (C++ kernel cpp/kernels/dibr/forward_warp.cpp, triangle quality of the paper's Table 1,
           combined depth test within a view) and accumulated at once into
-          ``_core.DibrAccumulator`` (cpp/kernels/blend.cpp): constant memory whatever the
+          ``_core.DibrAccumulator`` (cpp/kernels/dibr/blend.cpp): constant memory whatever the
           number of inputs, views are streamed one at a time;
   blend   weighted mean of the warped views (Eq. 3) with weights (q / d)^p, p = --blend-exponent
           (RVS's BlendingFactor 5 by default).
@@ -51,7 +51,7 @@ QUALITIES = ("side", "shape", "depth", "normal")
 # target pixels, whatever the resolution. Measured (docs/dibr.md, "Parameters"): on the real-data
 # cases T = 10 beats the kernel's resolution-scaled auto T (5.6 px at 800x800, 4 px at 640x480)
 # by +0.5 dB on lego object pixels and +0.2 dB on ICL-NUIM, and changes Middlebury by < 0.05 dB.
-# stretched_quality 0.1 with stretched_holes (cpp/kernels/blend.h, "Visibility across views"):
+# stretched_quality 0.1 with stretched_holes (cpp/kernels/dibr/blend.h, "Visibility across views"):
 # a fragment on a triangle stretched past 0.9 T never mixes into real surface, and pixels only
 # such fragments cover are holes (background that no input sees is a hole, not
 # stretched foreground). Measured (docs/dibr.md): lego all pixels +1.4 dB, RVS-protocol
@@ -255,7 +255,7 @@ def srgb_encode(v: np.ndarray) -> np.ndarray:
     """sRGB encoding (IEC 61966-2-1) of linear colour as a new float32 array of v's shape: negative
     values as 0, values above 1 on the same curve (not clipped: HDR inputs keep their range
     through the blend), NaN stays NaN (``add_view`` then rejects the view, as in linear space).
-    The C++ ``_core.srgb_encode_unclipped`` (cpp/kernels/metameric.h LinearToSrgbUnclipped: a
+    The C++ ``_core.srgb_encode_unclipped`` (cpp/kernels/inpaint/metameric.h LinearToSrgbUnclipped: a
     table of the curve's own values in [0, 1], the curve ``SrgbEncode`` above; within 1e-6 of the
     exact curve; ~6 ms of one core per 1080p RGB view, the curve per value ~18 ms); not
     ``_core.linear_to_srgb``, which clips above 1."""

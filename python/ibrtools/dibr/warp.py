@@ -5,7 +5,7 @@ Per frame:
   select  the one input view most similar to the target (view_selection.py, k = 1: the DIBR
           similarity of Eq. 4-6), or the view named by ``--inputs NAME``;
   warp    that view's RGB-D is forward-warped into the target by ``_core.warp_with_holes``
-          (cpp/kernels/forward_warp.h, "Warp with background-depth holes": DIBR's rasteriser,
+          (cpp/kernels/dibr/forward_warp.h, "Warp with background-depth holes": DIBR's rasteriser,
           stretched quads drawn flat at their farthest corner's depth and re-partitioned by Eq. 1
           so that they only fill disocclusions).
 

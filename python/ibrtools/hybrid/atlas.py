@@ -277,7 +277,7 @@ def bake(mesh: Mesh, lay: AtlasLayout, cameras: Mapping[str, Camera], colors: Ma
 
 def to_srgb8(img: np.ndarray) -> np.ndarray:
     """Linear RGB (H, W, 3) float -> (H, W, 4) uint8 sRGB RGBA (alpha 255; values clipped to [0, 1]),
-    the storage ``_core.sample_atlas`` reads fastest (cpp/kernels/atlas8.h)."""
+    the storage ``_core.sample_atlas`` reads fastest (cpp/kernels/hybrid/atlas8.h)."""
     a = np.asarray(img)
     if a.ndim != 3 or a.shape[2] != 3:
         raise ShapeError(f"atlas: expected shape (H, W, 3), got {a.shape}")

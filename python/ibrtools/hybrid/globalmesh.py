@@ -461,7 +461,7 @@ def point_colors(points: np.ndarray, normals: np.ndarray, cameras: Mapping[str, 
     max(0, distance / nearest such view's distance - 1) (Buehler et al.'s resolution term); the
     views below the (k+1)-th smallest penalty are blended with weights max(1e-3, 1 - p / p_(k+1))
     (a point seen by one view keeps its colour) of their bilinear colour. The kernel is
-    ``_core.point_colors`` (cpp/kernels/atlas8.h; the numpy version it replaced, kept as the
+    ``_core.point_colors`` (cpp/kernels/hybrid/atlas8.h; the numpy version it replaced, kept as the
     reference in tests/hybrid/test_globalmesh.py, gives the same bits)."""
     from ibrtools import _core
 

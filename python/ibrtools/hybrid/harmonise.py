@@ -270,7 +270,7 @@ def _cross_view_prediction(j: int, cams, depths, hms, hits, p: HarmoniseParams, 
     (the mesh's depth) projected into the ``neighbours`` nearest views that see it (depth test
     against their mesh depth), their colours ``hms`` sampled bilinearly, the per-channel
     quantile (median) taken -- the C++ kernel ``_core.cross_view_prediction``
-    (cpp/kernels/harmonise.h; multithreaded, the same arithmetic as the numpy reference in
+    (cpp/kernels/hybrid/harmonise.h; multithreaded, the same arithmetic as the numpy reference in
     tests/hybrid/test_harmonise.py). A highlight is seen at a surface point by few views, so the median
     of the others is its diffuse colour; texture detail, unlike in the mesh colour T, is in every
     view alike. Returns (prediction (H, W, 3) float32, n_seen (H, W) int32)."""

@@ -12,7 +12,7 @@ ones and for meshes dense for the frame (``RASTER_MAX_FACES``, ``RASTER_MAX_FACE
   stage from before the atlas (no ``atlas`` array): its per-vertex colour interpolated
   (``_core.interpolate_vertex_attribute``). Pixels the mesh misses are holes.
 * ``ulr`` (per-pixel Unstructured Lumigraph, Buehler et al. 2001): at each G-buffer point the
-  input views are ranked by the ULR penalty (cpp/kernels/ulr.h: angle + 0.5 x resolution term),
+  input views are ranked by the ULR penalty (cpp/kernels/hybrid/ulr.h: angle + 0.5 x resolution term),
   views that do not see the point (outside the image, behind the surface, or the depth at the
   point's pixel differs by more than ``depth_tol`` = 0.5 % relative; that depth is the global mesh
   rendered into the view, ``occlusion=mesh``, or the view's own, ``occlusion=views``) are dropped, the best
@@ -71,7 +71,7 @@ from ibrtools.hybrid.pvm_render import PvmRenderer, harmonised_images
 # 27.99 dB, FLIP 0.0502 -> 0.0487; synth 31.75 -> 31.87, 0.0596 -> 0.0588; ULR alone better too).
 # The rejected views are those where the point sits at a depth edge of the view (its bilinear colour
 # mixes both sides) or is seen at a grazing angle (docs/ulr.md "Parameters"). resample "cubic": the
-# views' colours are read with Catmull-Rom (cpp/kernels/resample.h), sharper than bilinear; chosen on
+# views' colours are read with Catmull-Rom (cpp/ibr/resample.h), sharper than bilinear; chosen on
 # the selection scenes (docs/ulr.md "Parameters"; the PVM renderer reads its candidates the same way).
 # k, resolution_weight, depth_tol: the kernel's defaults, defined once (cpp/kernels/hybrid/hybrid.h UlrOptions).
 ULR_DEFAULTS = {"k": _core.ULR_DEFAULT_K, "resolution_weight": _core.ULR_DEFAULT_RESOLUTION_WEIGHT,

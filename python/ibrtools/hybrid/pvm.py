@@ -6,7 +6,7 @@ Fig. 2b; per-view meshes after Hedman et al. 2016, sec. 4). docs/preprocess.md.
   (relative jump > ``max_rel_jump``), blocks of up to ``max_block`` quads merged into two
   triangles where the surface is planar (pinhole: 1/z affine in the pixel coordinates within
   a tolerance: ``plane_tol``, raised to ``noise_tol`` times the view's relative depth noise as
-  :func:`depth_noise` estimates it). C++: ``_core.pvm_triangulate`` (cpp/kernels/pvm.h).
+  :func:`depth_noise` estimates it). C++: ``_core.pvm_triangulate`` (cpp/kernels/hybrid/pvm.h).
   With the global mesh's depth in the view (``mesh_depth``), depth within ``snap`` of it takes the
   mesh's depth first (:func:`snap_depth`): the fused surface, averaged over every view, where the
   view's own depth cannot be told from it; the view's depth where it departs (geometry the global

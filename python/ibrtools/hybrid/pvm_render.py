@@ -1,5 +1,5 @@
 """Rendering per-view meshes (PVM) with clustered depth filtering (Prakash et al. 2021, sec. 5.1-5.2,
-Eq. 1-2). docs/pvm_render.md; C++: cpp/kernels/pvm_render.h (five stages, GIL released).
+Eq. 1-2). docs/pvm_render.md; C++: cpp/kernels/hybrid/pvm_render.h (five stages, GIL released).
 
 :class:`PvmRenderer` loads the PVM tiles of the ``pvm`` preprocessing stage (tiles.npz) and the
 input images (the ``harmonise`` stage's images when that stage ran, else the originals). Tiles of
@@ -71,7 +71,7 @@ from ibrtools import cache
 # tau_empty 2: a one-cluster pixel seen past by >= 2 x n_fg views without a candidate there is
 # emptied (a sheet across a gap); chosen on the selection scenes over 0 (off) / 1.5 / 2 / 2.5 / 3 / 4
 # (docs/pvm_render.md "Seen through"). resample "cubic": the candidates' colours are read with
-# Catmull-Rom, as the ULR blend's (cpp/kernels/resample.h; "bilinear" the plain read).
+# Catmull-Rom, as the ULR blend's (cpp/ibr/resample.h; "bilinear" the plain read).
 # stretch_weight 0.1, stretch_free 0 (ours): a candidate's ULR penalty gains
 # 0.1 x log2 of its triangle's magnification in the target (its area there over its area in its own
 # view) when above 1; chosen on the selection scenes (the 36 lego views outside the held-out set

@@ -15,7 +15,7 @@ correct; what remains is what a global gain cannot explain: specular highlights,
 errors, noise. (The paper does not say; this is our reading of what the variance must measure.)
 
 Per-view work is vectorised numpy over vertices, the loop over views; the gain estimation's
-two inner loops (per-vertex sums, per-view median ratios) are kernels (cpp/kernels/vertexstats.h).
+two inner loops (per-vertex sums, per-view median ratios) are kernels (cpp/kernels/hybrid/vertexstats.h).
 """
 from __future__ import annotations
 

@@ -12,7 +12,7 @@ The inputs are asked in the order of their viewing-direction agreement with the 
 surface there: a far surface, e.g. ground at the horizon that another input sees past, is not
 sky); a direction no input sees as background stays a hole (the inpainting
 fills it, inpaint/complete.py). DIBR's kernel already warps background triangles (all three
-vertices at infinity, cpp/kernels/forward_warp.cpp); this pass gives the same background to the
+vertices at infinity, cpp/kernels/dibr/forward_warp.cpp); this pass gives the same background to the
 methods that render a mesh (tm, ulr, pvm, hybrid) and to the pixels the kernel leaves at
 silhouettes against the sky (triangles with a vertex at infinity and one on a surface are
 dropped there).

@@ -39,7 +39,7 @@ once and cached (Walton et al.: "this random pattern is held constant over time"
 moves it with the scene (sec. 3.4.1): the noise at pixel x is read at x + flow(x) (nearest
 sample of each level, wrapping at the borders). All per-pixel work is C++: display encoding,
 steerable analysis / synthesis, push-pull (of the colours, and of each level's moments fused with
-the sigma * noise composite of cpp/kernels/metameric.h), the decode-and-copy into the holes;
+the sigma * noise composite of cpp/kernels/inpaint/metameric.h), the decode-and-copy into the holes;
 numpy builds the masks.
 """
 from __future__ import annotations
@@ -53,7 +53,7 @@ from ibrtools.errors import BadValueError, DtypeError, ShapeError
 from ibrtools.inpaint.pushpull import DEPTH_THRESHOLD, GAMMA, check_arrays, pushpull
 from ibrtools.metamers.steerable import ORIENTATIONS, SteerablePyramid, analyse, max_levels, synthesise
 
-FILTER_RADIUS = 2  # the 5x5 taps of cpp/kernels/steerable_taps.h
+FILTER_RADIUS = 2  # the 5x5 taps of cpp/kernels/metamers/steerable_taps.h
 
 
 def _dilate(mask: np.ndarray, r: int = FILTER_RADIUS) -> np.ndarray:
@@ -287,7 +287,7 @@ def metameric(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = No
         # One push-pull of [X..., X^2...] of every band of the level (sec. 3.3.1), each masked
         # sample's moments turned at once into the band's change sigma * noise (sec. 3.4 with the
         # mean of step 4), 0 outside the mask, written over the bands in place: one C++ pass
-        # (cpp/kernels/pushpull.h PushPullMomentsChangeKernel; [X, X^2] computed on the fly, no
+        # (cpp/kernels/inpaint/pushpull.h PushPullMomentsChangeKernel; [X, X^2] computed on the fly, no
         # moments image).
         mask = _level_mask(mask, hole, scale)
         d = None if depth is None else np.ascontiguousarray(depth[::scale, ::scale])

@@ -13,7 +13,7 @@
 * :func:`nearest_covered` — for every hole pixel, the nearest pixel outside the holes in each of
   the four directions (the background-depth fills of inpaint/complete.py and depthwarp/method.py).
 
-The C++ kernel is ``cpp/kernels/pushpull.{h,cpp}`` (equations, the paper's depth convention and
+The C++ kernel is ``cpp/kernels/inpaint/pushpull.{h,cpp}`` (equations, the paper's depth convention and
 where we read Alg. 1 differently are written there). Outside the holes the result *is* the input
 (copied, bit for bit); an image without holes is returned unchanged (a copy). An image that is
 all hole raises :class:`BadValueError` (there is nothing to fill from).

@@ -12,13 +12,13 @@ eccentricity (Bouma 1970; the paper's sec. 3.1 "Size"):
    length ``pooling * eccentricity`` (degrees), in pixels with the local pixel density; the MIP
    level of band level l is ``log2(size_px) - l`` (a 2^m x 2^m box of band samples);
 3. moment maps (sec. 3.2 "Pooling"): per level, the MIP maps of X and X^2 of every band
-   (cpp/kernels/mip.h, one chain for the stacked [X..., X^2...]) read trilinearly at that level:
+   (cpp/kernels/metamers/mip.h, one chain for the stacked [X..., X^2...]) read trilinearly at that level:
    mean = E[X], variance = max(0, E[X^2] - E[X]^2) (:func:`foveate` fuses this step with step 4
    in one C++ pass per level, _core.mip_foveate_level, without storing the moment maps);
 4. synthesis (sec. 3.4): band = mean + sigma * noise, the noise being white noise analysed by
    the same pyramid and normalised to unit variance per band (:mod:`ibrtools.inpaint.metameric`'s cached
    noise pyramid, "held constant over time"), written where the pooling region is larger than a
-   band sample (:func:`ibrtools.inpaint.metameric`'s C++ composite, cpp/kernels/metameric.h);
+   band sample (:func:`ibrtools.inpaint.metameric`'s C++ composite, cpp/kernels/inpaint/metameric.h);
 5. collapse. :func:`foveate` adds the collapsed *change* of the pyramid to the input
    (out = image + synthesise(new - old), exact because analysis/synthesis are linear) instead of
    collapsing the new pyramid, so the 5x5 filters' reconstruction error (docs/steerable.md) never
@@ -46,7 +46,7 @@ from ibrtools.metamers.steerable import SteerablePyramid, analyse, synthesise
 # the corridor" of Fig. 3 without printing a number; that corridor is centred on Bouma's law
 # (1970): critical spacing ~0.5 x eccentricity, which we take as the default.
 POOLING = 0.5
-_MAX_FUSED_MOMENTS = 256  # cpp/kernels/mip.h kMipMaxMomentChannels: 2 x bands x channels of the fused path
+_MAX_FUSED_MOMENTS = 256  # cpp/kernels/metamers/mip.h kMipMaxMomentChannels: 2 x bands x channels of the fused path
 FOV_DEG = 90.0  # horizontal field of view of the display the image is viewed on (a typical HMD)
 
 
@@ -213,7 +213,7 @@ def foveate(image: np.ndarray, fixation: tuple[float, float] = (0.5, 0.5), *, po
         h_l, w_l = bands[0].shape[:2]
         n = min(int(_core.mip_max_levels(h_l, w_l)), math.ceil(top))
         if 2 * len(bands) * c <= _MAX_FUSED_MOMENTS:
-            # Fused (cpp/kernels/mip.h MipFoveateChange): the MIP chain of [X, X^2] built from the
+            # Fused (cpp/kernels/metamers/mip.h MipFoveateChange): the MIP chain of [X, X^2] built from the
             # bands and read trilinearly per sample straight into mean + sigma * noise - band; the
             # moment maps are never materialised. Equals the branch below to float rounding.
             _core.mip_foveate_level(bands, lam, nz, n)

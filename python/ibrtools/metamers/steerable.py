@@ -8,8 +8,8 @@
   pyrtools' ``SteerablePyramidSpace.recon_pyr``).
 * :func:`reconstruction_error` — analysis → synthesis error of an image, interior and border.
 
-The filters are the fitted 5x5 taps of ``cpp/kernels/steerable_taps.h`` (fit and fit error:
-``tools/fit_steerable_filters.py``); the C++ kernel is ``cpp/kernels/steerable.{h,cpp}``. The
+The filters are the fitted 5x5 taps of ``cpp/kernels/metamers/steerable_taps.h`` (fit and fit error:
+``tools/fit_steerable_filters.py``); the C++ kernel is ``cpp/kernels/metamers/steerable.{h,cpp}``. The
 small filters do not reconstruct exactly: analysis → synthesis of a natural image in [0, 1] has
 an error of ~0.02 rms (~0.1 max) in the interior, larger within a few pixels of the border
 (reflect1 borders), see docs/steerable.md.

@@ -285,7 +285,7 @@ def _run_texture(ctx: _Context) -> dict:
     else:
         img, unseen = A.bake(mesh, lay, cams, colors, deps, col, opts)
         # Stored as 8-bit sRGB RGBA (A.to_srgb8): a third of the bytes of float32 RGB, which is what
-        # the TM read is bound by (cache misses; cpp/kernels/atlas8.h); 8-bit sRGB is the inputs' own
+        # the TM read is bound by (cache misses; cpp/kernels/hybrid/atlas8.h); 8-bit sRGB is the inputs' own
         # precision.
         arrays.update(atlas=A.to_srgb8(img), uv=lay.uv)
         rec.update(atlas=f"{img.shape[1]}x{img.shape[0]}", texel=float(f"{lay.texel:.4g}"),

@@ -3,7 +3,7 @@
 The ground truth that every other method is measured against, and the renderer that makes the
 synthetic scenes. One ray per pixel through its centre; the mesh's BVH is built once per
 :class:`ReferenceRenderer`. The C++ side is ``cpp/ibr/embree_scene.h`` (the BVH) and
-``cpp/kernels/raycast.h`` (rays, buffers and the shading model, stated in full there).
+``cpp/kernels/raycast/raycast.h`` (rays, buffers and the shading model, stated in full there).
 
 Outputs of :meth:`ReferenceRenderer.render` (all C-contiguous, allocated once by the engine):
 
@@ -28,7 +28,7 @@ with hard shadows by occlusion rays, (ks, shininess) = ``mesh.materials[object_i
 Deep depth buffers (:meth:`ReferenceRenderer.peel`, Lee, Kim, Eisemann 2018 sec. 3.4): L layers
 of z-depth and object ids per pixel by depth peeling (each layer continues the pixel's ray past
 the previous layer's hit), optionally with generalised umbra culling (Eq. 1; the derivation of
-c, e, h and s is in ``cpp/kernels/raycast.h``) and a last "ground only" layer.
+c, e, h and s is in ``cpp/kernels/raycast/raycast.h``) and a last "ground only" layer.
 """
 from __future__ import annotations
 
