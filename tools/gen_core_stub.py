@@ -47,6 +47,8 @@ _ARRAYS = "dict[str, numpy.typing.NDArray[typing.Any]]"
 _INFO = "dict[str, typing.Any]"
 
 # qualified name -> {parameter: annotation, "return": annotation}; "X | None" where None is allowed.
+# Module attributes whose value the generator types vaguely (a dict): their exact types.
+ATTRIBUTES: dict[str, str] = {"PVM_DEFAULTS": "dict[str, float | int | bool | str]"}
 OVERRIDES: dict[str, dict[str, str]] = {
     "CameraModel.__eq__": {"other": "object"},
     "CameraModel.__ne__": {"other": "object"},
@@ -175,7 +177,14 @@ def refine(source: str) -> tuple[str, list[str]]:
 
     def visit(body: list[ast.stmt], prefix: str) -> None:
         for node in body:
-            if isinstance(node, ast.ClassDef):
+            if isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+                name = prefix + node.target.id
+                if name in ATTRIBUTES:
+                    node.annotation = ast.parse(ATTRIBUTES[name], mode="eval").body
+                    used.add((name, ""))
+                elif _vague(node.annotation):
+                    vague.append(f"{name}: {ast.unparse(node.annotation)}")
+            elif isinstance(node, ast.ClassDef):
                 visit(node.body, prefix + node.name + ".")
             elif isinstance(node, ast.FunctionDef):
                 qual = prefix + node.name
@@ -197,6 +206,7 @@ def refine(source: str) -> tuple[str, list[str]]:
 
     visit(tree.body, "")
     stale = [f"{q}.{k}" for q, t in OVERRIDES.items() for k in t if (q, k) not in used]
+    stale += [name for name in ATTRIBUTES if (name, "") not in used]
     if stale:
         sys.exit(f"OVERRIDES name parameters that _core no longer has: {', '.join(stale)}")
     # The aliases go after the imports.

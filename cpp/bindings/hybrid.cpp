@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <cstring>
 #include <memory>
 #include <string>
@@ -949,6 +950,37 @@ static void BindPvmRender(py::module_& m) {
            "The last frame's per-pixel candidate lists (count, depth, view), with the stretch term on their "
            "stretch (log2 of the triangle's magnification, octaves, 1/16 steps, within +-8) and, when it clustered "
            "every pixel, the cluster sizes n_fg, n_bg (the counted background: free_space).");
+
+  // The renderer's defaults as one dict, in the order of --param's documentation (docs/pvm_render.md):
+  // Python's ibrtools.hybrid.pvm_render.DEFAULTS reads them from here. A float default is given with the
+  // 7 significant digits that name it (0.83, not 0.8299999833), the same float when passed back.
+  const auto f = [](float v) { char buf[32]; std::snprintf(buf, sizeof buf, "%.7g", v); return std::stod(buf); };
+  py::dict defaults;
+  defaults["sigma"] = f(d.sigma);
+  defaults["alpha"] = f(d.alpha);
+  defaults["gamma"] = f(d.gamma);
+  defaults["tau_depth"] = f(d.tau_depth);
+  defaults["max_tiles"] = d.max_tiles;
+  defaults["max_candidates"] = d.max_candidates;
+  defaults["ulr_k"] = d.ulr_k;
+  defaults["merge_rel"] = f(d.merge_rel);
+  defaults["radius_sigmas"] = f(d.radius_sigmas);
+  defaults["margin"] = d.margin;
+  defaults["near"] = f(d.near);
+  defaults["cull_back"] = d.cull_back;
+  defaults["max_angle"] = f(kPvm.max_angle_deg);
+  defaults["ray_stride"] = d.ray_stride;
+  defaults["filter_step"] = d.filter_step;
+  defaults["filtered"] = d.filtered;
+  defaults["free_space"] = d.free_space;
+  defaults["free_space_tol"] = f(d.free_space_tol);
+  defaults["free_space_point_tol"] = f(d.free_space_point_tol);
+  defaults["tau_empty"] = f(d.tau_empty);
+  defaults["min_views"] = d.min_views;
+  defaults["stretch_weight"] = f(d.stretch_weight);
+  defaults["stretch_free"] = f(d.stretch_free);
+  defaults["resample"] = d.cubic ? "cubic" : "bilinear";
+  m.attr("PVM_DEFAULTS") = defaults;
 }
 
 }  // namespace ibr::bind

@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ibrtools import _core
 from ibrtools.camera import PINHOLE, Camera
 from ibrtools.errors import BadValueError, DtypeError, InputError, MissingFileError, NotBuiltError, ShapeError
 from ibrtools import params as P
@@ -77,12 +78,7 @@ from ibrtools import cache
 # view) when above 1; chosen on the selection scenes (the 36 lego views outside the held-out set
 # and synth seed 1) over weights 0.05 / 0.1 / 0.2 / 0.4 / 0.8 and free octaves 0 / 1 / 2
 # (docs/pvm_render.md "Stretch"); 0 = the paper's ULR weights.
-DEFAULTS = {"sigma": 3.0, "alpha": 7.0, "gamma": 7.0, "tau_depth": 0.83, "max_tiles": 12,
-            "max_candidates": 12, "ulr_k": 3, "merge_rel": 0.02, "radius_sigmas": 2.0, "margin": 1,
-            "near": 1e-3, "cull_back": True, "max_angle": 55.0, "ray_stride": 8, "filter_step": 2,
-            "filtered": True, "free_space": True, "free_space_tol": 0.02,
-            "free_space_point_tol": 0.005, "tau_empty": 2.0, "min_views": 2, "stretch_weight": 0.1,
-            "stretch_free": 0.0, "resample": "cubic"}
+DEFAULTS = dict(_core.PVM_DEFAULTS)  # defined once, in the C++ options (cpp/kernels/hybrid/pvm_render.h)
 
 # How the views' colours are read at sub-pixel positions (the ULR method takes the same values).
 RESAMPLE = ("cubic", "bilinear")
