@@ -48,7 +48,8 @@ _INFO = "dict[str, typing.Any]"
 
 # qualified name -> {parameter: annotation, "return": annotation}; "X | None" where None is allowed.
 # Module attributes whose value the generator types vaguely (a dict): their exact types.
-ATTRIBUTES: dict[str, str] = {"PVM_DEFAULTS": "dict[str, float | int | bool | str]"}
+ATTRIBUTES: dict[str, str] = {"PVM_DEFAULTS": "dict[str, float | int | bool | str]",
+                              "DEPTHWARP_DEFAULTS": "dict[str, float | int | bool | str]"}
 OVERRIDES: dict[str, dict[str, str]] = {
     "CameraModel.__eq__": {"other": "object"},
     "CameraModel.__ne__": {"other": "object"},

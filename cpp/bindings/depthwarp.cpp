@@ -4,6 +4,7 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <memory>
 #include <string>
 #include <vector>
@@ -226,6 +227,19 @@ static void BindDepthWarp(py::module_& m) {
       "motion_ms. out / reuse: buffers to refill, as in dw_motion / dw_build_mips.");
 
   const DepthWarpFrameOptions kFrame;  // the defaults of dw_warp's arguments
+  // The search's defaults the depthwarp method exposes as parameters (ibrtools.depthwarp.method.DEFAULTS
+  // reads them from here): seeds, iters, threshold (px; the float's 7 significant digits), dilate, bound.
+  {
+    char buf[32];
+    std::snprintf(buf, sizeof buf, "%.7g", kFrame.warp.threshold);
+    py::dict defaults;
+    defaults["seeds"] = kFrame.warp.seeds;
+    defaults["iters"] = kFrame.warp.iters;
+    defaults["threshold"] = std::stod(buf);
+    defaults["dilate"] = kFrame.dilate;
+    defaults["bound"] = kFrame.warp.tight ? "tight" : "global";
+    m.attr("DEPTHWARP_DEFAULTS") = defaults;
+  }
   m.def(
       "dw_warp",
       [](py::handle packed_obj, const DepthWarpMips& mm, int dst_height, int dst_width, int seeds, int iters,

@@ -60,6 +60,7 @@ import time
 
 import numpy as np
 
+from ibrtools import _core
 from ibrtools.camera import PINHOLE, Camera
 from ibrtools.errors import BadValueError, InputError, NotBuiltError
 from ibrtools.scene import Scene
@@ -69,9 +70,11 @@ from ibrtools.imageio import srgb_to_linear
 from ibrtools.inpaint.pushpull import nearest_covered
 from ibrtools.metrics import psnr, ssim
 
-DEFAULTS = {"layers": 3, "seeds": 16, "iters": 3, "threshold": 0.5, "oriented_bounds": False, "umbra": False,
-            "ground": "none", "cull": False, "forward": "none", "dilate": True, "bound": "tight",
-            "far_plane": True}
+# seeds, iters, threshold, dilate, bound: the kernel's defaults, defined once (cpp/kernels/depthwarp/front.h).
+_KERNEL = _core.DEPTHWARP_DEFAULTS
+DEFAULTS = {"layers": 3, "seeds": _KERNEL["seeds"], "iters": _KERNEL["iters"], "threshold": _KERNEL["threshold"],
+            "oriented_bounds": False, "umbra": False, "ground": "none", "cull": False, "forward": "none",
+            "dilate": _KERNEL["dilate"], "bound": _KERNEL["bound"], "far_plane": True}
 FORWARD = ("none", "vfw", "afw")
 # Upper bounds of the numeric parameters (docs/depthwarp.md "Parameters"), checked by check_params
 # for ibr-render, ibr-bench and DepthWarpMethod alike. The kernels take up to 127 layers, 4096
