@@ -19,8 +19,14 @@
 #include "ibr/parallel.h"
 
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
-#define IBR_AVX2_CLONES __attribute__((target_clones("avx2", "default")))
 #define IBR_HAVE_AVX2_DISPATCH 1
+#if defined(__SANITIZE_THREAD__)
+// Not under ThreadSanitizer: a clone's resolver runs while the module is being relocated, and
+// TSan's instrumented entry hook inside it would call through a GOT entry not relocated yet.
+#define IBR_AVX2_CLONES
+#else
+#define IBR_AVX2_CLONES __attribute__((target_clones("avx2", "default")))
+#endif
 #else
 #define IBR_AVX2_CLONES
 #endif
