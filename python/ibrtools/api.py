@@ -96,8 +96,7 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
     ...
     ibrtools.errors.FormatError: load_scene: .../api.py: a file, not a scene directory (expected a directory holding scene.json)
     """
-    if not isinstance(path, (str, os.PathLike)):
-        raise DtypeError(f"load_scene: path: expected a str or os.PathLike, got {type(path).__name__}")
+    _check_path(path, "load_scene: path")
     p = Path(path)
     if not p.exists():
         raise MissingFileError(f"load_scene: {p}: no such directory")
@@ -231,8 +230,7 @@ def save_scene(scene: Scene, path: str | os.PathLike[str]) -> Path:
     docs/FORMAT.md), atomically; returns the directory. ``load_scene`` reads it back."""
     if not isinstance(scene, Scene):
         raise DtypeError(f"save_scene: scene: expected an ibrtools.Scene, got {type(scene).__name__}")
-    if not isinstance(path, (str, os.PathLike)):
-        raise DtypeError(f"save_scene: path: expected a str or os.PathLike, got {type(path).__name__}")
+    _check_path(path, "save_scene: path")
     return Path(native.save(scene, path))
 
 
