@@ -72,6 +72,10 @@ def build_parser() -> argparse.ArgumentParser:
     lf.add_argument("--mp4", metavar="FILE", help="also write the frames, in order, as an H.264 MP4 "
                                                   "(needs imageio-ffmpeg: pip install 'ibrtools[video]')")
     lf.add_argument("--fps", type=float, default=None, metavar="F", help="with --mp4: frames per second (default 24)")
+    lf.add_argument("--yuv", metavar="FILE", help="also write the frames, in order, as one raw YUV 4:2:0 file "
+                                                  "(BT.709 limited range, as RVS writes; docs/render.md)")
+    lf.add_argument("--yuv-bits", type=int, default=None, metavar="B",
+                    help="with --yuv: bits per sample, 8 or 10 (.. 16; default 10: little-endian 16-bit words)")
     d = p.add_argument_group("dibr options (method parameters; also as --param key=value)")
     d.add_argument("--inputs", metavar="K|v1,v2,...",
                    help="the K most similar input views per frame (default 4), or these views")
@@ -144,6 +148,8 @@ def _body(args: argparse.Namespace) -> int:
             raise BadValueError(f"--fps: expected a positive frame rate, got {args.fps}")
     elif args.fps is not None:
         raise BadValueError("--fps: only with --mp4 FILE")
+    if args.yuv_bits is not None and args.yuv is None:
+        raise BadValueError("--yuv-bits: only with --yuv FILE")
     if args.report_html is not None:
         from pathlib import Path
 
@@ -163,7 +169,8 @@ def _body(args: argparse.Namespace) -> int:
                                 background=args.background,
                                 foveate=foveate, pooling=args.pooling,
                                 progress=lambda i, n, name: bar.update(i, n, name),
-                                scheduler=args.scheduler, workers=args.workers)
+                                scheduler=args.scheduler, workers=args.workers, yuv=args.yuv,
+                                yuv_bits=10 if args.yuv_bits is None else args.yuv_bits)
     extra = {}
     if video is not None:
         from pathlib import Path
@@ -300,6 +307,11 @@ def _print_summary(args: argparse.Namespace, report: dict) -> None:
                     quiet=args.quiet and not args.report,
                     totals=[label, f"median {med}", _fmt(s.get("mean_psnr")), _fmt(s.get("mean_psnr_covered")),
                             _fmt(s.get("mean_ssim"), 4), _fmt(s.get("mean_coverage"), 3), _fmt(s.get("mean_filled"), 3)])
+    seq = report.get("sequence")
+    if seq and (args.report or not args.quiet):
+        split = ", ".join(f"{k} {v:.1f}" for k, v in seq["stage_ms_mean"].items() if k != "total")
+        print(f"sequence: {seq['frames']} frames in {seq['wall_ms'] / 1e3:.2f} s = {seq['fps']:.2f} fps sustained "
+              f"(decode waits {seq['decode_wait_ms']:.0f} ms); mean ms per frame: {split}")
 
 
 def _fixation(text: str) -> tuple[float, float]:

@@ -284,13 +284,15 @@ def render_job(scene: Scene, out_dir: str | os.PathLike[str], method: str = "aut
                path_frames: int | None = None, poses: str | os.PathLike[str] | None = None, params: dict[str, Any] | None = None,
                inpaint: str | None = None, background: str | None = None, float_out: bool = False,
                depth_out: bool = False, threads: int = 0, workers: int = 0,
-               scheduler: str | None = None) -> dict[str, Any]:
+               scheduler: str | None = None, yuv: str | os.PathLike[str] | None = None,
+               yuv_bits: int = 10) -> dict[str, Any]:
     """Render many cameras as ``ibr-render`` does and write them to ``out_dir`` with report.json:
     the scene's targets (or ``targets`` by name), held-out input views scored against their own
     images (``holdout``), a camera path (``path``: stored in the scene, else generated:
     "interpolate", "spiral" or "orbit" of ``path_frames`` cameras, default 48; docs/render.md
     "Camera paths") or a pose file (``poses``: our camera list, a nerfstudio camera_path.json or
-    a transforms.json). Returns the report (per-frame times per stage, metrics against ground truth when known;
+    a transforms.json); ``yuv``: also one raw YUV 4:2:0 file of every frame (``yuv_bits`` per
+    sample; docs/render.md "YUV output"). Returns the report (per-frame times per stage, metrics against ground truth when known;
     docs/render.md, docs/reports.md). All or nothing: an interrupt removes what the job wrote."""
     if not isinstance(scene, Scene):
         raise DtypeError(f"render_job: scene: expected an ibrtools.Scene, got {type(scene).__name__}")
@@ -300,7 +302,8 @@ def render_job(scene: Scene, out_dir: str | os.PathLike[str], method: str = "aut
     report: dict[str, Any] = job.run(planned, method, out_dir, params=params, float_out=float_out,
                                      depth_out=depth_out, threads=threads,
                                      inpaint=DEFAULT_INPAINT if inpaint is None else inpaint,
-                                     background=background, scheduler=scheduler, workers=workers)
+                                     background=background, scheduler=scheduler, workers=workers,
+                                     yuv=None if yuv is None else os.fspath(yuv), yuv_bits=yuv_bits)
     return report
 
 

@@ -83,8 +83,21 @@ class View:
                 # the frame being rendered: render jobs stop on it instead of failing frame by frame.
                 e.scene_data = True  # type: ignore[attr-defined]
                 raise
-            lazy._loader = None
         return lazy._value
+
+    def release(self) -> None:
+        """Forget the decoded images that can be loaded again from their files (the next use
+        reads them anew); images given as arrays stay. A video's renderer releases each scene
+        frame once its frames are done, so a long sequence holds about two frames' images."""
+        for which in ("color", "depth", "mask", "depth_stored"):
+            lazy: _Lazy = getattr(self, "_" + which)
+            if lazy._loader is not None:
+                lazy._value = None
+
+    def load(self) -> None:
+        """Decode every image of the view now (what its first use would do)."""
+        for which in ("color", "depth", "mask", "depth_stored"):
+            self._get(which)
 
     def check_files(self) -> None:
         """Check, from their headers alone (no pixel is decoded), the files this view loads lazily:
@@ -226,6 +239,16 @@ class Scene:
         if self.stages:
             lines.append("stages: " + _some(self.stages, 10))
         return "\n  ".join(lines) + ")"
+
+    def release(self) -> None:
+        """View.release() of every input view and target (decoded images that can be read again)."""
+        for v in (*self.views, *self.targets):
+            v.release()
+
+    def load(self) -> None:
+        """Decode every input view's images now (View.load)."""
+        for v in self.views:
+            v.load()
 
     def view(self, name: str) -> View:
         for v in self.views:

@@ -135,3 +135,52 @@ def test_bad_video_scenes(video_dir, tmp_path, capsys):
         synth.make_video("objects", frames=0)
     assert preprocess.main(["synth:objects", "-o", str(tmp_path / "v2"), "--frames", "0"]) == 2
     assert "--frames: expected an integer >= 1" in capsys.readouterr().err
+
+
+def test_streamed_video_writes_the_frames_of_frame_by_frame_rendering(video_dir, tmp_path):
+    """The video loop decodes scene frame k + 1 while k renders and releases k's images after
+    it: the same files as rendering each scene frame as a still scene on its own."""
+    video = J.run(planning.plan(native.load(video_dir), targets=["t000", "t002"]), "dibr", tmp_path / "video",
+                  depth_out=True)
+    seq = video["sequence"]
+    assert seq["frames"] == 6 and seq["fps"] > 0 and seq["wall_ms"] > 0 and seq["decode_wait_ms"] >= 0
+    assert {"warp", "total"} <= set(seq["stage_ms_mean"])
+    for fr in ("f000", "f001", "f002"):
+        still = J.run(planning.plan(native.load(video_dir / "frames" / fr), targets=["t000", "t002"]), "dibr",
+                      tmp_path / fr, depth_out=True)
+        assert "sequence" not in still
+        for f in sorted(p.name for p in (tmp_path / fr).iterdir() if p.name != "report.json"):
+            assert filecmp.cmp(tmp_path / fr / f, tmp_path / "video" / f"{fr}_{f}", shallow=False), f
+
+
+def test_stream_prefetches_and_releases(video_dir):
+    job = planning.plan(native.load(video_dir), targets=["t000"])
+    views = {fr: job.scenes[fr].views[0] for fr in job.scenes}
+    with J.VideoStream(job) as stream:
+        assert stream.order == ["f000", "f001", "f002"]
+        stream.entered("f000")  # decodes f001 in the background
+        scene = stream.enter("f001")
+        assert scene is job.scenes["f001"] and views["f001"]._color._value is not None
+        first = views["f000"].color
+        assert views["f000"]._color._value is not None
+        stream.leave("f000")
+        assert views["f000"]._color._value is None
+        np.testing.assert_array_equal(views["f000"].color, first)  # read again on use
+        stream.leave("f001")
+        assert views["f001"]._color._value is None
+    # A still job streams nothing.
+    still = planning.plan(native.load(video_dir / "frames" / "f000"), targets=["t000"])
+    with J.VideoStream(still) as stream:
+        assert stream.order == []
+        stream.entered(None)
+
+
+def test_render_reports_the_sustained_rate(video_dir, tmp_path, capsys):
+    from ibrtools_cli import render
+
+    assert render.main([str(video_dir), "--method", "dibr", "--target", "t000", "-o", str(tmp_path / "o"),
+                        "--report"]) == 0
+    out = capsys.readouterr().out
+    assert "sequence: 3 frames in" in out and "fps sustained" in out and "warp" in out
+    rep = json.loads((tmp_path / "o" / "report.json").read_text())
+    assert rep["sequence"]["frames"] == 3

@@ -1,4 +1,5 @@
-"""Raw planar YUV files (MPEG test content): reading one frame, and Y'CbCr -> linear RGB.
+"""Raw planar YUV files (MPEG test content): reading one frame, Y'CbCr <-> linear RGB, and
+writing frames (``rgb_to_yuv``, ``write_frame``: what ``ibr-render --yuv`` appends per frame).
 
 File layout: frames one after the other; each frame is the Y plane (W x H) followed, for 4:2:0,
 by the Cb and Cr planes (ceil(W/2) x ceil(H/2) each); 4:0:0 files hold the Y plane only.
@@ -13,6 +14,10 @@ linear filter (weights 3/4, 1/4, edges clamped). The resulting R'G'B' are clippe
 and decoded with the sRGB transfer function (an approximation of the BT.709/BT.1886 display
 transfer: the two differ by a few code values in the darks), giving linear RGB like every
 other importer.
+
+Writing (``rgb_to_yuv``) is the inverse: linear RGB clipped to [0, 1], sRGB-encoded, the same
+matrix and range, chroma averaged over each 2x2 block (centred siting, the one ``yuv_to_rgb``
+upsamples; the last row / column repeated for odd sizes), rounded to the nearest code.
 """
 from __future__ import annotations
 
@@ -21,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ibrtools.errors import BadValueError, FormatError, MissingFileError
-from ibrtools.imageio import srgb_to_linear
+from ibrtools.imageio import linear_to_srgb, srgb_to_linear
 
 MATRICES = {"bt709": (0.2126, 0.0722), "bt601": (0.299, 0.114)}
 
@@ -119,3 +124,41 @@ def yuv_to_rgb(planes: list[np.ndarray], bits: int, matrix: str = "bt709", full_
     g = (yn - kr * r - kb * b) / kg
     rgb = np.clip(np.stack([r, g, b], -1), 0, 1)
     return np.ascontiguousarray(srgb_to_linear(rgb))
+
+
+def rgb_to_yuv(rgb: np.ndarray, bits: int = 10, matrix: str = "bt709", full_range: bool = False) -> list[np.ndarray]:
+    """The 4:2:0 planes [Y, Cb, Cr] (uint8 for 8 bits, uint16 above) of linear RGB (H, W, 3)
+    (see the module docstring); NaN counts as 0."""
+    if not 8 <= int(bits) <= 16:
+        raise BadValueError(f"YUV bit depth: expected 8..16, got {bits}")
+    if matrix not in MATRICES:
+        raise BadValueError(f"yuv matrix: expected one of {', '.join(MATRICES)}, got {matrix!r}")
+    a = np.asarray(rgb)
+    if a.ndim != 3 or a.shape[2] != 3 or a.shape[0] < 1 or a.shape[1] < 1:
+        raise BadValueError(f"rgb_to_yuv: expected an (H, W, 3) image, got shape {a.shape}")
+    e = linear_to_srgb(a).astype(np.float64)  # clipped to [0, 1], NaN -> 0
+    kr, kb = MATRICES[matrix]
+    y = kr * e[..., 0] + (1 - kr - kb) * e[..., 1] + kb * e[..., 2]
+    cb, cr = (e[..., 2] - y) / (2 * (1 - kb)), (e[..., 0] - y) / (2 * (1 - kr))
+    h, w = y.shape
+
+    def half(c: np.ndarray) -> np.ndarray:
+        c = np.pad(c, ((0, h % 2), (0, w % 2)), mode="edge")
+        return 0.25 * (c[0::2, 0::2] + c[1::2, 0::2] + c[0::2, 1::2] + c[1::2, 1::2])
+
+    cb, cr = half(cb), half(cr)
+    vmax = float((1 << bits) - 1)
+    scale = float(1 << (bits - 8))
+    if full_range:
+        mid = float(1 << (bits - 1))
+        planes = [y * vmax, mid + cb * vmax, mid + cr * vmax]
+    else:
+        planes = [16 * scale + 219 * scale * y, 128 * scale + 224 * scale * cb, 128 * scale + 224 * scale * cr]
+    dtype = np.uint8 if bits <= 8 else np.dtype("<u2")
+    return [np.clip(np.rint(p), 0, vmax).astype(dtype) for p in planes]
+
+
+def write_frame(f, planes: list[np.ndarray]) -> None:
+    """Append one frame (its planes as ``rgb_to_yuv`` makes them) to the open binary file ``f``."""
+    for p in planes:
+        f.write(np.ascontiguousarray(p).tobytes())

@@ -37,6 +37,8 @@ from ibrtools import methods
 from ibrtools.inpaint.complete import (DEFAULT_INPAINT, INPAINT_FILLS, NOTHING_TO_FILL, check_inpaint, complete, completion,
                        parse_background)
 from ibrtools.formats import native
+from ibrtools.formats.yuv import rgb_to_yuv
+from ibrtools.formats.yuv import write_frame as write_yuv_frame
 from ibrtools.imageio import linear_to_srgb
 from ibrtools.metrics import compare, psnr
 
@@ -75,7 +77,8 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
         float_out: bool = False, depth_out: bool = False, threads: int = 0, inpaint: str = DEFAULT_INPAINT,
         background: str | None = None, foveate: tuple[float, float] | None = None, pooling: float | None = None,
         progress: Callable[[int, int, str], None] | None = None,
-        scheduler: str | None = None, workers: int = 0) -> dict:
+        scheduler: str | None = None, workers: int = 0,
+        yuv: str | os.PathLike | None = None, yuv_bits: int = 10) -> dict:
     """Render every frame of ``job``; write images and report.json; return the report.
 
     Every frame is completed (inpaint/complete.py): the background at infinity where an input
@@ -110,6 +113,9 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
         fov_kw = {"fixation": foveate, "pooling": POOLING if pooling is None else pooling}
         _check_geometry(fov_kw["fixation"], fov_kw["pooling"], 90.0)  # bad values fail before rendering
     out_dir = check_output_dir(out_dir)
+    sink = YuvSink(yuv, yuv_bits, job)  # bad --yuv values fail before anything is written
+    if yuv is not None and D.wanted(scheduler, workers):
+        raise BadValueError("--yuv: not with --workers/--scheduler (the frames are written by the workers)")
     name = methods.resolve(method_name, job.scene)
     check_memory(job, name)
     parse_background(background)  # a bad value fails before anything is written
@@ -155,16 +161,22 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
                 # Frame i's files are encoded and written by one background thread while frame i + 1
                 # renders (PNG encoding takes about as long as a 1080p DIBR frame; OpenImageIO
                 # releases the GIL). At most one frame's files are in flight; a write error is raised
-                # here, at the next frame or at the end.
-                with ThreadPoolExecutor(1, thread_name_prefix="ibr-write") as writer:
+                # here, at the next frame or at the end. A video's next scene frame is decoded by
+                # another thread meanwhile (VideoStream), so the sustained rate is the render rate.
+                t_loop = time.perf_counter()
+                with ThreadPoolExecutor(1, thread_name_prefix="ibr-write") as writer, \
+                        VideoStream(job) as stream, sink:
+                    stream.entered(prepared_for)
                     in_flight: list[Future] = []
                     for i, frame in enumerate(job.frames):
                         if progress:
                             progress(i, n, frame.name)
                         if frame.scene_frame != prepared_for:  # a video's next scene frame: prepared anew
                             method = None  # the previous frame's preparation is freed first
+                            stream.leave(prepared_for)
+                            scene_now = stream.enter(frame.scene_frame)
                             method = methods.create(name, params)
-                            method.prepare(job.scenes[frame.scene_frame])
+                            method.prepare(scene_now)
                             prepared_for = frame.scene_frame
                         entries[i], failures[i], outputs = render_frame(method, frame, frame_scene(job, frame),
                                                                         **frame_kw)
@@ -176,8 +188,15 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
                             written.append(out_dir / rel)
                             # a copy: the method may reuse its output buffers for the next frame
                             in_flight.append(writer.submit(write_output, out_dir, rel, kind, np.array(array)))
+                            if sink.path is not None and entries[i] is not None and rel == entries[i].get("image"):
+                                in_flight.append(writer.submit(sink.add, np.array(array[..., :3])))
                     for f in in_flight:
                         f.result()
+                if sink.path is not None:
+                    written.append(sink.path)  # all or nothing: an interrupt from here on removes it too
+                    extra["yuv"] = sink.describe()
+                if job.scenes is not None:
+                    extra["sequence"] = sequence_report(entries, time.perf_counter() - t_loop, stream.wait_ms)
                 used_threads = int(_core.get_num_threads())
             else:
                 done = 0
@@ -253,6 +272,126 @@ def write_output(out_dir: Path, rel: str, kind: str, array: np.ndarray) -> Path:
     else:
         _write_image(path, array)
     return path
+
+
+class YuvSink:
+    """``--yuv FILE``: every rendered frame's colour appended, in frame order, to one raw YUV 4:2:0
+    file (formats/yuv.py: BT.709, limited range, 8-bit samples or little-endian 16-bit words for
+    9..16 bits, as RVS writes and reads them). Written to a temporary file beside FILE and renamed
+    when the job ends (an interrupted job leaves no half-written video). Failed frames are not in
+    it (report.json "yuv" counts the frames written). add() runs on the writer thread, which keeps
+    the frame order."""
+
+    def __init__(self, path: str | os.PathLike | None, bits: int, job: "Job"):
+        self.path = None if path is None else Path(path)
+        self.bits, self.frames, self.size = bits, 0, None
+        self._cm = self._file = None
+        if self.path is None:
+            return
+        if isinstance(bits, bool) or not isinstance(bits, (int, np.integer)) or not 8 <= bits <= 16:
+            raise BadValueError(f"--yuv-bits: expected a bit depth of 8..16, got {bits!r}")
+        if self.path.is_dir():
+            raise BadValueError(f"--yuv {self.path}: is a directory (expected a file name, e.g. out.yuv)")
+        if not self.path.parent.is_dir():
+            raise BadValueError(f"--yuv {self.path}: its folder {self.path.parent} does not exist")
+        sizes = sorted({(f.camera.width, f.camera.height) for f in job.frames})
+        if len(sizes) > 1:
+            raise BadValueError(f"--yuv: one file holds frames of one size; these frames are "
+                                f"{', '.join(f'{w}x{h}' for w, h in sizes[:4])}")
+        self.size = sizes[0] if sizes else None
+        self.bits = int(bits)
+
+    def __enter__(self) -> "YuvSink":
+        if self.path is not None:
+            self._cm = atomic_path(self.path)
+            self._file = open(self._cm.__enter__(), "wb")
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        if self._cm is None:
+            return False
+        self._file.close()
+        cm, self._cm = self._cm, None
+        return bool(cm.__exit__(*exc))
+
+    def add(self, color: np.ndarray) -> None:
+        write_yuv_frame(self._file, rgb_to_yuv(color, self.bits))
+        self.frames += 1
+
+    def describe(self) -> dict:
+        w, h = self.size or (0, 0)
+        return {"path": str(self.path), "frames": self.frames, "width": w, "height": h, "chroma": "420",
+                "bits": self.bits, "matrix": "bt709", "range": "limited"}
+
+
+class VideoStream:
+    """The input side of a video job's render loop: while the frames of scene frame k render, a
+    background thread decodes the input images of scene frame k + 1 (Scene.load; OpenImageIO
+    releases the GIL), and the images of a scene frame whose frames are done are released
+    (Scene.release), so a sequence of any length holds about two scene frames' images. A still
+    job (no scene frames) does nothing. A decoding error is raised by enter(), where the
+    frame's first use would have raised it."""
+
+    def __init__(self, job: "Job"):
+        self.job = job
+        self.order: list[str] = []
+        for f in job.frames:
+            if f.scene_frame is not None and (not self.order or self.order[-1] != f.scene_frame):
+                self.order.append(f.scene_frame)
+        self.wait_ms = 0.0  # time enter() waited for a decode (the stream was behind the renderer)
+        self._pending: dict[str, Future] = {}
+        self._pool: ThreadPoolExecutor | None = None
+
+    def __enter__(self) -> "VideoStream":
+        if self.job.scenes is not None and len(self.order) > 1:
+            self._pool = ThreadPoolExecutor(1, thread_name_prefix="ibr-decode")
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._pool is not None:
+            for f in self._pending.values():
+                f.cancel()
+            self._pool.shutdown(wait=True)
+
+    def _prefetch_after(self, name: str | None) -> None:
+        if self._pool is None or name not in self.order:
+            return
+        k = self.order.index(name) + 1
+        if k < len(self.order) and self.order[k] not in self._pending:
+            self._pending[self.order[k]] = self._pool.submit(self.job.scenes[self.order[k]].load)
+
+    def entered(self, name: str | None) -> None:
+        """The loop starts on scene frame ``name`` (prepared already): decode the next one."""
+        self._prefetch_after(name)
+
+    def enter(self, name: str) -> Scene:
+        """Scene frame ``name``, decoded (waiting for its decode if it is still running)."""
+        fut = self._pending.pop(name, None)
+        if fut is not None:
+            t0 = time.perf_counter()
+            fut.result()
+            self.wait_ms += (time.perf_counter() - t0) * 1e3
+        self._prefetch_after(name)
+        return self.job.scenes[name]
+
+    def leave(self, name: str | None) -> None:
+        """Scene frame ``name``'s frames are done: its decoded images are released."""
+        if self._pool is not None and name is not None:
+            self.job.scenes[name].release()
+
+
+def sequence_report(entries: list[dict | None], wall_s: float, wait_ms: float) -> dict:
+    """report.json "sequence" of a video job: the sustained rate over the whole loop (decode,
+    render, completion and writing, as a user's sequence runs) and the mean per-stage split."""
+    done = [e for e in entries if e is not None]
+    stages: dict[str, list[float]] = {}
+    for e in done:
+        for k, v in e["time_ms"].items():
+            stages.setdefault(k, []).append(float(v))
+    return {"frames": len(done), "wall_ms": round(wall_s * 1e3, 3),
+            "fps": round(len(done) / wall_s, 3) if wall_s > 0 else 0.0,
+            "decode_wait_ms": round(wait_ms, 3),
+            "stage_ms_mean": {k: round(float(np.mean(v)), 3) for k, v in stages.items()}}
 
 
 def frame_scene(job: "Job", frame: Frame) -> Scene:
