@@ -90,7 +90,8 @@ def main() -> None:
             f"{med(rows_f, 2):.1f} |\n\n"
             f"Streaming / frame-by-frame sustained rate: {ratio:.2f}x (median of the per-run ratios). Mean stage "
             f"split of a streamed frame, ms: {split}; decode waits {seq['decode_wait_ms']:.0f} ms over the "
-            f"sequence.\n")
+            f"sequence. The scene has ground truth, so every frame is also scored (PSNR, SSIM, FLIP) on the "
+            f"render thread, inside the sustained time but not in the render ms.\n")
     print(text)
     if a.write_docs:
         write_section("bench_video", text)
