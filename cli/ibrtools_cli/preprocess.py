@@ -73,6 +73,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "the nearest known depth of each block; docs/importers.md \"Downscaling\")")
     p.add_argument("--max-size", type=int, default=None, metavar="PX",
                    help="import images with their longer side at most PX pixels (smaller images are kept)")
+    p.add_argument("--frames", default=None, metavar="A:B|N",
+                   help="import a video scene (docs/FORMAT.md \"Frames\"): of a video data set (MPEG/RVS YUV), "
+                        "frames A to B - 1 (A:B, A:, :B, all, or default: an RVS config's StartFrame and "
+                        "NumberOfFrames); of synth:NAME, N frames with the objects moving (default: a still scene)")
     p.add_argument("--json", action="store_true", help="print the stage table as JSON on stdout, and nothing else")
     g = p.add_argument_group("synthetic scenes")
     g.add_argument("--size", type=_size, default=(640, 480), metavar="WxH", help="image size (default 640x480)")
@@ -84,9 +88,6 @@ def build_parser() -> argparse.ArgumentParser:
                    help="per-view, per-channel white-balance jitter (std of the log gain; default 0)")
     g.add_argument("--reconstructed", action="store_true",
                    help="also store a degraded 'reconstructed' copy of the mesh")
-    g.add_argument("--frames", type=int, default=1, metavar="N",
-                   help="a video scene of N frames, the objects moving (default 1: a still scene; "
-                        "docs/FORMAT.md \"Frames\")")
     add_common(p)
     add_distributed(p)
     return p
@@ -110,8 +111,14 @@ def _body(args: argparse.Namespace) -> int:
                              f"{', '.join('synth:' + k for k in PRESETS)})")
         from ibrtools.synth import check_scale
 
+        n_frames = 1
+        if args.frames is not None:
+            try:
+                n_frames = int(args.frames)
+            except ValueError:
+                raise InputError(f"--frames {args.frames}: a synthetic video takes a number of frames N") from None
         # the bounds and the memory estimate (docs/synth.md "Size and memory"), before any work
-        check_scale(args.size, args.views, args.frames, flags=("--size", "--views", "--frames"))
+        check_scale(args.size, args.views, n_frames, flags=("--size", "--views", "--frames"))
         synth = {"preset": preset, "size": list(args.size), "views": args.views, "seed": args.seed,
                  "reconstructed": bool(args.reconstructed)}
         # Only when set, so that the import key of scenes made without jitter is unchanged.
@@ -120,8 +127,8 @@ def _body(args: argparse.Namespace) -> int:
                 raise InputError(f"--{key.replace('_', '-').replace('white-balance', 'wb')}: expected >= 0, got {value}")
             if value > 0:
                 synth[key] = value
-        if args.frames > 1:  # only then: the import key of still scenes is unchanged
-            synth["frames"] = args.frames
+        if n_frames > 1:  # only then: the import key of still scenes is unchanged
+            synth["frames"] = n_frames
     methods = parse_methods(args.methods)
     stages = parse_stages(args.stages)
     stage_options = parse_stage_options(args.stage_set)
@@ -139,7 +146,8 @@ def _body(args: argparse.Namespace) -> int:
                              synth=synth, force=args.force, methods=methods, stages=stages,
                              stage_options=stage_options, progress=progress, scheduler=args.scheduler,
                              workers=args.workers, threads=args.threads, holdout=args.holdout, mesh=args.mesh,
-                             downscale=args.downscale, max_size=args.max_size)
+                             downscale=args.downscale, max_size=args.max_size,
+                             frames=None if synth is not None else args.frames)
         bar.advance("done")
     if not (args.quiet or args.json):  # the import's summary: what it adapted, what to check
         for r in results[:1]:

@@ -43,7 +43,9 @@ def build_parser() -> argparse.ArgumentParser:
                "target, else the first view), B scene units apart, all looking along the centre's direction\n"
                "(parallel optical axes, as light-field displays use); frames lf_0000... row-major from the top\n"
                "left, with row/col in report.json. docs/reports.md describes --report-html.")
-    p.add_argument("scene", metavar="SCENE", help="scene directory (ibr-preprocess output)")
+    p.add_argument("scene", metavar="SCENE", help="scene directory (ibr-preprocess output), or an RVS synthesis "
+                   "config (JSON): its frames imported into OUT/scene, its virtual cameras rendered and written to "
+                   "its OutputFiles (YUV) in OUT")
     p.add_argument("-o", "--output", default="render-out", metavar="DIR",
                    help="output directory (default: render-out)")
     p.add_argument("--method", default="auto", choices=list(METHODS), help="method (default: auto)")
@@ -73,7 +75,8 @@ def build_parser() -> argparse.ArgumentParser:
                                                   "(needs imageio-ffmpeg: pip install 'ibrtools[video]')")
     lf.add_argument("--fps", type=float, default=None, metavar="F", help="with --mp4: frames per second (default 24)")
     lf.add_argument("--yuv", metavar="FILE", help="also write the frames, in order, as one raw YUV 4:2:0 file "
-                                                  "(BT.709 limited range, as RVS writes; docs/render.md)")
+                                                  "(BT.709 limited range, as RVS writes; docs/render.md); a FILE "
+                                                  "with {camera} in its name: one file per camera")
     lf.add_argument("--yuv-bits", type=int, default=None, metavar="B",
                     help="with --yuv: bits per sample, 8 or 10 (.. 16; default 10: little-endian 16-bit words)")
     d = p.add_argument_group("dibr options (method parameters; also as --param key=value)")
@@ -129,6 +132,7 @@ def _body(args: argparse.Namespace) -> int:
     from ibrtools.formats import native
     from ibrtools.pipeline import job as render_job
     from ibrtools.pipeline import plan as planning
+    from ibrtools.pipeline import rvs
     check_options(args.scheduler, args.workers)  # usage errors before the scene is read
     foveate = None
     if args.foveate is not None:
@@ -157,20 +161,37 @@ def _body(args: argparse.Namespace) -> int:
 
         html_path = check_output(args.report_html or Path(args.output) / "report.html")
     params = _params(args)
-    scene = native.load(args.scene)
+    yuv, yuv_bits = args.yuv, 10 if args.yuv_bits is None else args.yuv_bits
+    scene_dir = args.scene
+    if rvs.is_config(args.scene):  # an RVS synthesis config: imported, rendered and written as RVS would
+        if args.yuv is not None or args.yuv_bits is not None:
+            raise BadValueError(f"--yuv: {args.scene} is an RVS config, whose OutputFiles name the YUV files")
+
+        def stage_line(msg: str) -> None:
+            if not (args.quiet or args.json):
+                print(f"{PROG}: {msg}", file=sys.stderr, flush=True)
+
+        run = rvs.prepare(args.scene, args.output, args.method, progress=stage_line)
+        scene_dir, yuv, yuv_bits = run.scene_dir, run.yuv or None, run.yuv_bits
+        params = {**run.params, **params}  # the flags win over the config
+        if not (args.quiet or args.json):
+            print(f"{PROG}: RVS config {args.scene}: scene {scene_dir}; YUV outputs "
+                  f"{', '.join(str(p) for p in run.yuv.values()) or 'none'}", file=sys.stderr)
+            for note in run.notes:
+                print(f"{PROG}: note: {note}", file=sys.stderr)
+    scene = native.load(scene_dir)
     job = planning.plan(scene, targets=args.target, holdout=args.holdout, path=args.path,
                           path_frames=args.path_frames, poses=args.poses, lightfield=lightfield)
     if video is not None:
         batches.check_same_size([f.camera for f in job.frames])
-    warn_stale(PROG, scene, args.method, silent=args.quiet or args.json)
+    warn_stale(PROG, job.scene, args.method, silent=args.quiet or args.json)  # a video: its first frame
     with progress_bar(PROG, "frames", len(job.frames), quiet=args.quiet) as bar:
         report = render_job.run(job, args.method, args.output, params=params, float_out=args.float,
                                 depth_out=args.depth, threads=args.threads, inpaint=args.inpaint,
                                 background=args.background,
                                 foveate=foveate, pooling=args.pooling,
                                 progress=lambda i, n, name: bar.update(i, n, name),
-                                scheduler=args.scheduler, workers=args.workers, yuv=args.yuv,
-                                yuv_bits=10 if args.yuv_bits is None else args.yuv_bits)
+                                scheduler=args.scheduler, workers=args.workers, yuv=yuv, yuv_bits=yuv_bits)
     extra = {}
     if video is not None:
         from pathlib import Path

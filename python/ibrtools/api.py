@@ -53,7 +53,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Union
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -237,13 +237,15 @@ def save_scene(scene: Scene, path: str | os.PathLike[str]) -> Path:
 def import_dataset(source: str | os.PathLike[str], output: str | os.PathLike[str], *, format: str | None = None,
                    options: dict[str, Any] | None = None, holdout: list[str] | None = None,
                    mesh: str | os.PathLike[str] | None = None, downscale: float | None = None,
-                   max_size: int | None = None, synth: dict[str, Any] | None = None, force: bool = False) -> Scene:
+                   max_size: int | None = None, frames: str | None = None, synth: dict[str, Any] | None = None,
+                   force: bool = False) -> Scene:
     """Import a data set (a directory or file of any supported layout: native, MPEG/RVS, COLMAP,
     NeRF, LLFF, Middlebury, RGB-D; ``synth:NAME`` for a synthetic scene; docs/importers.md) into a
     native scene at ``output`` and return it loaded. ``format`` names the layout (None: detected),
     ``options`` the importer's options (``ibr-preprocess --opt``), ``holdout`` input views to
     import as targets, ``mesh`` a reconstructed mesh of the capture, ``downscale`` / ``max_size``
-    shrink the images; ``synth`` the keyword arguments of :func:`ibrtools.synth.make_scene` for a
+    shrink the images, ``frames`` the frames of a video data set to import as a video scene ("A:B"
+    for frames A to B - 1, "all", or "default": an RVS config's own); ``synth`` the keyword arguments of :func:`ibrtools.synth.make_scene` for a
     ``synth:NAME`` source (e.g. ``{"size": (64, 48), "views": 4}``; ``frames`` > 1 makes a video).
     Re-importing unchanged inputs does nothing (``force`` re-imports). The derived stages are
     :func:`preprocess`'s."""
@@ -256,7 +258,7 @@ def import_dataset(source: str | os.PathLike[str], output: str | os.PathLike[str
     elif synth is not None:
         raise BadValueError(f"import_dataset: synth: only for a synth:NAME source, got source {spec!r}")
     run_import(str(spec), Path(output), fmt=format, options=options, synth=made, force=force, holdout=holdout,
-               mesh=mesh, downscale=downscale, max_size=max_size)
+               mesh=mesh, downscale=downscale, max_size=max_size, frames=frames)
     return load_scene(output)
 
 
@@ -284,15 +286,17 @@ def render_job(scene: Scene, out_dir: str | os.PathLike[str], method: str = "aut
                path_frames: int | None = None, poses: str | os.PathLike[str] | None = None, params: dict[str, Any] | None = None,
                inpaint: str | None = None, background: str | None = None, float_out: bool = False,
                depth_out: bool = False, threads: int = 0, workers: int = 0,
-               scheduler: str | None = None, yuv: str | os.PathLike[str] | None = None,
-               yuv_bits: int = 10) -> dict[str, Any]:
+               scheduler: str | None = None,
+               yuv: str | os.PathLike[str] | Mapping[str, str | os.PathLike[str]] | None = None,
+               yuv_bits: int | Mapping[str, int] = 10) -> dict[str, Any]:
     """Render many cameras as ``ibr-render`` does and write them to ``out_dir`` with report.json:
     the scene's targets (or ``targets`` by name), held-out input views scored against their own
     images (``holdout``), a camera path (``path``: stored in the scene, else generated:
     "interpolate", "spiral" or "orbit" of ``path_frames`` cameras, default 48; docs/render.md
     "Camera paths") or a pose file (``poses``: our camera list, a nerfstudio camera_path.json or
     a transforms.json); ``yuv``: also one raw YUV 4:2:0 file of every frame (``yuv_bits`` per
-    sample; docs/render.md "YUV output"). Returns the report (per-frame times per stage, metrics against ground truth when known;
+    sample; a name with ``{camera}``, or a mapping camera -> file: a file per camera;
+    docs/render.md "YUV output"). Returns the report (per-frame times per stage, metrics against ground truth when known;
     docs/render.md, docs/reports.md). All or nothing: an interrupt removes what the job wrote."""
     if not isinstance(scene, Scene):
         raise DtypeError(f"render_job: scene: expected an ibrtools.Scene, got {type(scene).__name__}")
@@ -303,7 +307,8 @@ def render_job(scene: Scene, out_dir: str | os.PathLike[str], method: str = "aut
                                      depth_out=depth_out, threads=threads,
                                      inpaint=DEFAULT_INPAINT if inpaint is None else inpaint,
                                      background=background, scheduler=scheduler, workers=workers,
-                                     yuv=None if yuv is None else os.fspath(yuv), yuv_bits=yuv_bits)
+                                     yuv=yuv if yuv is None or isinstance(yuv, Mapping) else os.fspath(yuv),
+                                     yuv_bits=yuv_bits)
     return report
 
 

@@ -5,15 +5,18 @@ Every importer module defines
   DESCRIPTION  one line for ``--help``
   detect(path: Path) -> bool      True when ``path`` looks like this format
   load(path: Path, options: dict) -> Scene
-and states, in its docstring, the convention it converts from.
+and states, in its docstring, the convention it converts from. An importer of video data sets
+also defines
+  frame_range(path: Path, options: dict) -> (frames held, frames rendered by default)
+and reads the frame given by its ``frame`` option (:func:`load_frames`).
 """
 from __future__ import annotations
 
 import importlib
 from pathlib import Path
 
-from ibrtools.errors import FormatError, MissingFileError
-from ibrtools.scene import Scene
+from ibrtools.errors import BadValueError, FormatError, MissingFileError
+from ibrtools.scene import Scene, View
 from ibrtools.formats.resize import check_factors, downscale_scene
 
 # Order matters for detection: the most specific formats first.
@@ -57,3 +60,61 @@ def load(path: str | Path, fmt: str | None = None, options: dict | None = None, 
         scene = downscale_scene(scene, downscale, max_size)
     scene.validate()
     return scene
+
+
+def parse_frames(spec: str) -> tuple[int | None, int | None] | None:
+    """A data set's frame selection: "A:B" (frames A to B - 1, as a Python slice), "A:" (A to the
+    last), ":B", "all" (every frame), "default" (the data set's own, e.g. an RVS config's
+    ``StartFrame`` and ``NumberOfFrames``: returns None). BadValueError naming ``--frames``."""
+    text = str(spec).strip()
+    if text == "default":
+        return None
+    if text == "all":
+        return (0, None)
+    a, sep, b = text.partition(":")
+    try:
+        first = int(a) if a.strip() else 0
+        stop = int(b) if b.strip() else None
+    except ValueError:
+        first = stop = -1
+    if not sep or first < 0 or (stop is not None and stop <= first):
+        raise BadValueError(f"--frames {spec}: expected A:B (frames A to B - 1, 0 <= A < B), A:, :B, all or default")
+    return first, stop
+
+
+def load_frames(path: str | Path, fmt: str | None = None, options: dict | None = None, *,
+                frames: str = "default", downscale: float | None = None,
+                max_size: int | None = None) -> tuple[Scene, dict[str, Scene]]:
+    """Import frames ``frames`` (:func:`parse_frames`) of a video data set as the parts of a video
+    scene (docs/FORMAT.md "Frames"): the shared scene (the first frame's targets' cameras, paths,
+    units and source) and frame name "f<index>" -> that frame's still scene (:func:`load` with
+    the importer's ``frame`` option; images are decoded when used). Formats without frames, a
+    frame out of the data set and a ``frame`` option beside ``frames`` are BadValueErrors."""
+    path = Path(path)
+    downscale, max_size = check_factors(downscale, max_size)
+    selection = parse_frames(frames)
+    if not path.exists():
+        raise MissingFileError(f"{path}: no such file or directory")
+    name = fmt or detect(path)
+    module = importer(name)
+    if not hasattr(module, "frame_range"):
+        raise BadValueError(f"--frames: the {name} format has one frame per view (video data sets: mpeg)")
+    options = dict(options or {})
+    if "frame" in options:
+        raise BadValueError("--frames: not with --opt frame= (give the frames to import with --frames A:B)")
+    held, default = module.frame_range(path, options)
+    if selection is None:
+        chosen = default
+    else:
+        chosen = range(selection[0], held if selection[1] is None else selection[1])
+    if not chosen or chosen.stop > held:
+        raise BadValueError(f"--frames {frames}: frames {chosen.start}..{chosen.stop - 1} asked for, "
+                            f"{path} has {held} frame(s) (0..{held - 1})")
+    width = max(3, len(str(chosen.stop - 1)))
+    scenes = {f"f{i:0{width}d}": load(path, name, {**options, "frame": i}, downscale=downscale, max_size=max_size)
+              for i in chosen}
+    first = next(iter(scenes.values()))
+    source = {**first.source, "frames": [chosen.start, chosen.stop]}
+    video = Scene(targets=[View.create(t.name, t.camera) for t in first.targets], paths=first.paths,
+                  units=first.units, source=source)
+    return video, scenes

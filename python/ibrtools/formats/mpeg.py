@@ -264,28 +264,33 @@ def _load_depth(path: Path, mc: MpegCamera, frame: int) -> np.ndarray:
     return np.ascontiguousarray(np.where(np.isnan(d), 0, d).astype(np.float32))
 
 
-def _check_file(path: Path, mc: MpegCamera, what: str) -> None:
-    """Check size cheaply at import time (YUV byte count, image header)."""
+def _check_file(path: Path, mc: MpegCamera, what: str, frame: int) -> int | None:
+    """Check size cheaply at import time (YUV byte count, image header) and that ``frame`` is in
+    the file; the number of frames of a YUV file (None for an image: the same at every frame)."""
     if not path.is_file():
         raise MissingFileError(f"{path}: {what} of camera {mc.name!r} not found")
     w, h = mc.camera.width, mc.camera.height
-    if path.suffix.lower() == ".yuv":
-        if what == "colour":
-            yuv.frame_count(path, w, h, mc.bits_color, mc.chroma)
-        else:
-            yuv.frame_count(path, w, h, mc.bits_depth, mc.depth_chroma)
-    else:
+    if path.suffix.lower() != ".yuv":
         check_same_size(path, (w, h), what, f"Resolution of camera {mc.name!r}")
+        return None
+    if what == "colour":
+        n = yuv.frame_count(path, w, h, mc.bits_color, mc.chroma)
+    else:
+        n = yuv.frame_count(path, w, h, mc.bits_depth, mc.depth_chroma)
+    if frame >= n:
+        raise BadValueError(f"{path}: frame {frame} asked for, the file has {n} frame(s) (0..{n - 1})")
+    return n
 
 
 def _view(mc: MpegCamera, color: Path | None, depth: Path | None, frame: int, matrix: str, full: bool,
-          use_depth: bool) -> View:
+          use_depth: bool, counts: list[int]) -> View:
+    """The view of camera ``mc`` at ``frame``; the frame counts of its YUV files go to ``counts``."""
     col = dep = None
     if color is not None:
-        _check_file(color, mc, "colour")
+        counts.append(_check_file(color, mc, "colour", frame))
         col = FileLoader(color, _load_color, color, mc, frame, matrix, full)
     if depth is not None and use_depth:
-        _check_file(depth, mc, "depth map")
+        counts.append(_check_file(depth, mc, "depth map", frame))
         mc.check_depth_range()
         dep = FileLoader(depth, _load_depth, depth, mc, frame)
     return View.create(mc.name, mc.camera, color=col, depth=dep)
@@ -305,8 +310,24 @@ def _find_files(folder: Path, name: str) -> tuple[Path | None, Path | None]:
 
 @document_errors
 def load(path: Path, options: dict) -> Scene:
+    return _load(path, options)[0]
+
+
+@document_errors
+def frame_range(path: Path, options: dict) -> tuple[int, range]:
+    """The video frames of the data set: (how many frames every YUV file of its views holds,
+    the frames an RVS config renders: ``StartFrame`` and ``NumberOfFrames``, else the ``frame``
+    option's or 0 alone). Images (PNG, EXR) are the same at every frame."""
+    scene, counts, default = _load(path, options)
+    known = [n for n in counts if n is not None]
+    return (min(known) if known else 1), default
+
+
+def _load(path: Path, options: dict) -> tuple[Scene, list[int | None], range]:
+    """load(), with the frame counts of the files read and the config's frames (frame_range)."""
     path = Path(path)
     options = check_options(options, OPTIONS, NAME)
+    counts: list[int | None] = []
     matrix = opt_choice(options, "yuv_matrix", "bt709", tuple(yuv.MATRICES))
     full = opt_choice(options, "yuv_range", "limited", ("limited", "full")) == "full"
     use_depth = opt_choice(options, "depth", "auto", ("auto", "none")) == "auto"
@@ -325,7 +346,8 @@ def load(path: Path, options: dict) -> Scene:
     notes = [f"YUV {matrix} {'full' if full else 'limited'} range, sRGB-decoded"]
     if kind == "config":
         base = path.parent
-        frame = opt_int(options, "frame", int(doc.get("StartFrame", 0)), minimum=0)
+        frame = opt_int(options, "frame", _config_int(doc, "StartFrame", 0, path), minimum=0)
+        default = range(frame, frame + _config_int(doc, "NumberOfFrames", 1, path))
 
         def listing(key: str, required: bool = True) -> list[str]:
             v = doc.get(key, [] if not required else None)
@@ -349,7 +371,7 @@ def load(path: Path, options: dict) -> Scene:
             if n not in in_cams:
                 raise FormatError(f"{path}: input camera {n!r} is not in {doc['InputCameraParameterFile']}")
             views.append(_view(in_cams[n], base / images[i], base / depths[i] if depths else None, frame,
-                               matrix, full, use_depth))
+                               matrix, full, use_depth, counts))
         targets = []
         vnames = listing("VirtualCameraNames", required=False)
         if vnames:
@@ -364,7 +386,7 @@ def load(path: Path, options: dict) -> Scene:
                 gt_file = None
                 if gt:
                     gt_file = Path(gt[i]) if Path(gt[i]).is_absolute() else base / gt[i]
-                targets.append(_view(v_cams[n], gt_file, None, frame, matrix, full, False))
+                targets.append(_view(v_cams[n], gt_file, None, frame, matrix, full, False, counts))
         elif "target_images" in options:
             raise BadValueError("option target_images: the config has no VirtualCameraNames")
         notes.append(f"RVS config, frame {frame}")
@@ -372,6 +394,7 @@ def load(path: Path, options: dict) -> Scene:
         if "target_images" in options:
             raise BadValueError("option target_images: only for RVS configs")
         frame = opt_int(options, "frame", 0, minimum=0)
+        default = range(frame, frame + 1)
         cams = read_camera_file(path)
         views, targets = [], []
         for n, mc in cams.items():
@@ -379,11 +402,66 @@ def load(path: Path, options: dict) -> Scene:
             if color is None:
                 targets.append(View.create(n, mc.camera))
             else:
-                views.append(_view(mc, color, depth, frame, matrix, full, use_depth))
+                views.append(_view(mc, color, depth, frame, matrix, full, use_depth, counts))
         notes.append(f"camera file, frame {frame}; cameras without images are targets")
     else:
         raise FormatError(f"{path}: neither an MPEG camera file ('cameras' list with 'Projection') nor "
                           "an RVS config ('InputCameraNames', 'InputCameraParameterFile')")
     return Scene(views=views, targets=targets, units="m",
                  source={"format": NAME, "path": str(path), "notes": "; ".join(notes)},
-                 root=path.parent)
+                 root=path.parent), counts, default
+
+
+def _config_int(doc: dict, key: str, default: int, path: Path) -> int:
+    """An RVS config's frame key (``StartFrame`` >= 0, ``NumberOfFrames`` >= 1)."""
+    v = doc.get(key, default)
+    low = 1 if key == "NumberOfFrames" else 0
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or v != int(v) or v < low:
+        raise FormatError(f"{path}: {key!r} must be an integer >= {low}, got {v!r}")
+    return int(v)
+
+
+# RVS config keys that ask for what rendering an RVS config does not do (yet): refused by name.
+UNSUPPORTED_CONFIG_KEYS = {"VirtualPoseTraceName": "a pose trace for the virtual cameras",
+                           "NumberOfOutputFrames": "more output frames than input frames"}
+
+
+@document_errors
+def config_outputs(path: Path) -> dict:
+    """What an RVS synthesis config asks RVS to write, for rendering it as RVS would:
+    ``{"files": {virtual camera: (OutputFiles entry, its camera's BitDepthColor)}, "frames":
+    range (StartFrame, NumberOfFrames), "blending_factor": BlendingFactor or None,
+    "ignored": [output keys not written: MaskedOutputFiles, DepthOutputFiles, ...]}``.
+    A config without VirtualCameraNames / OutputFiles, or with a key of UNSUPPORTED_CONFIG_KEYS,
+    is a FormatError naming the file and the key."""
+    path = Path(path)
+    doc = read_json(path)
+    if _kind(doc) != "config":
+        raise FormatError(f"{path}: not an RVS synthesis config ('InputCameraNames', 'InputCameraParameterFile')")
+    for key, what in UNSUPPORTED_CONFIG_KEYS.items():
+        if key in doc and not (key == "NumberOfOutputFrames" and doc[key] == doc.get("NumberOfFrames", 1)):
+            raise FormatError(f"{path}: {key!r} ({what}) is not built yet")
+    names, outputs = doc.get("VirtualCameraNames"), doc.get("OutputFiles")
+    for key, v in (("VirtualCameraNames", names), ("OutputFiles", outputs)):
+        if not isinstance(v, list) or not v or not all(isinstance(x, str) and x for x in v):
+            raise FormatError(f"{path}: {key!r}: expected a non-empty list of names (what RVS renders and writes)")
+    if len(outputs) != len(names):
+        raise FormatError(f"{path}: OutputFiles ({len(outputs)}) and VirtualCameraNames ({len(names)}) "
+                          "must have the same length")
+    vfile = doc.get("VirtualCameraParameterFile", doc["InputCameraParameterFile"])
+    if not isinstance(vfile, str):
+        raise FormatError(f"{path}: 'VirtualCameraParameterFile': expected a file name")
+    cams = read_camera_file(path.parent / vfile)
+    missing = [n for n in names if n not in cams]
+    if missing:
+        raise FormatError(f"{path}: virtual camera {missing[0]!r} is not in {vfile}")
+    factor = doc.get("BlendingFactor")
+    if factor is not None and (isinstance(factor, bool) or not isinstance(factor, (int, float))
+                               or not math.isfinite(factor) or factor <= 0):
+        raise FormatError(f"{path}: 'BlendingFactor': expected a positive number, got {factor!r}")
+    start = _config_int(doc, "StartFrame", 0, path)
+    ignored = [k for k in ("MaskedOutputFiles", "OutputMasks", "DepthOutputFiles", "MaskedDepthOutputFiles")
+               if doc.get(k)]
+    return {"files": {n: (o, cams[n].bits_color) for n, o in zip(names, outputs)},
+            "frames": range(start, start + _config_int(doc, "NumberOfFrames", 1, path)),
+            "blending_factor": None if factor is None else float(factor), "ignored": ignored}

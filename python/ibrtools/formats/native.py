@@ -151,6 +151,7 @@ def save_video(video: Scene, frames: dict[str, Scene], path: str | os.PathLike, 
     try:
         for name, scene in frames.items():
             save(scene, tmp / FRAMES_DIR / name, color_format=color_format)
+            scene.release()  # a long video holds one frame's decoded images at a time
         doc: dict = {"format": FORMAT_TAG, "version": VIDEO_VERSION, "units": video.units,
                      "source": _json_safe(video.source), "frames": list(frames), "views": [],
                      "targets": [{"name": t.name, "camera": t.camera.to_dict()} for t in video.targets],

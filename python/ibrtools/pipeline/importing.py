@@ -16,7 +16,8 @@ import numpy as np
 from ibrtools.cache import StageResult, existing_record, hash_inputs
 from ibrtools.dibr.view_selection import outlier_limits
 from ibrtools.errors import BadValueError
-from ibrtools.formats import load as load_dataset, native
+from ibrtools.formats import load as load_dataset, load_frames, native, parse_frames
+from ibrtools.formats._common import record_summary
 from ibrtools.formats.resize import check_factors
 from ibrtools.scene import Scene
 
@@ -31,7 +32,7 @@ _NO_VIDEO_HOLDOUT = "--holdout: not for a video scene (ibr-render --holdout remo
 def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options: dict | None = None,
                synth: dict | None = None, force: bool = False, holdout: list[str] | None = None,
                mesh: str | os.PathLike | None = None, downscale: float | None = None,
-               max_size: int | None = None) -> StageResult:
+               max_size: int | None = None, frames: str | None = None) -> StageResult:
     """The ``import`` stage: read a data set (or make a synthetic one), validate it, write the
     native scene. Up to date when ``output`` holds a scene made from the same input bytes and
     parameters. ``holdout``: input views imported as targets (ground truth no stage reads), so
@@ -39,7 +40,8 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
     in the capture's frame, imported as the scene's ``reconstructed`` mesh (the mesh stage then
     uses it, and the depth stage renders it for the views without depth; no multi-view stereo).
     ``downscale`` / ``max_size``: every view resized on import (``formats.resize``; data sets only:
-    a synthetic scene is made at its ``--size``). The import's summary (``source["adapted"]`` and
+    a synthetic scene is made at its ``--size``). ``frames``: the frames of a video data set
+    imported as a video scene (``formats.load_frames``: "A:B", "all", "default"). The import's summary (``source["adapted"]`` and
     ``source["warnings"]``, what the importer adapted) is in the result's details."""
     options = dict(options or {})
     output = Path(output)
@@ -72,6 +74,13 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
         params["downscale"] = downscale
     if max_size is not None:
         params["max_size"] = max_size
+    if frames is not None:
+        if synth is not None:
+            raise BadValueError("--frames A:B: for video data sets (a synthetic video: --frames N)")
+        parse_frames(frames)  # a bad value fails before any file is read
+        if held or mesh is not None:
+            raise BadValueError(_NO_VIDEO_HOLDOUT if held else "--mesh: not for a video scene (one mesh per frame)")
+        params["frames"] = frames
     user_mesh = None
     if mesh is not None:  # only then, likewise; the mesh's bytes enter the key
         from ibrtools.meshio import read_mesh
@@ -103,6 +112,23 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
         return StageResult("import", "ran", f"{reason}; {fmt_used}, {len(frames)} frames", seconds,
                            {"frames": len(frames), "views": video.stages["import"]["views"],
                             "targets": len(video.targets)})
+    if frames is not None:  # a video data set: its frames, each a still scene
+        video, scenes = load_frames(src, fmt, options, frames=frames, downscale=downscale, max_size=max_size)
+        fmt_used = video.source.get("format", fmt)
+        first = next(iter(scenes.values()))
+        warning = depth_outlier_warning(first.views + first.targets)
+        if warning:
+            record_summary(video.source, warnings=[f"frame {next(iter(scenes))}: {warning}"])
+        video.stages["import"] = {"key": key, "format": fmt_used, "frames": len(scenes), "views": len(first.views),
+                                  "targets": len(video.targets), "seconds": round(time.perf_counter() - t0, 4)}
+        native.save_video(video, scenes, output)
+        seconds = time.perf_counter() - t0
+        reason = "forced" if force else ("inputs changed" if record else "no scene yet")
+        details = {"frames": len(scenes), "views": len(first.views), "targets": len(video.targets)}
+        for k in ("adapted", "warnings"):
+            if video.source.get(k):
+                details[k] = list(video.source[k])
+        return StageResult("import", "ran", f"{reason}; {fmt_used}, {len(scenes)} frames", seconds, details)
     if synth is not None:
         from ibrtools.synth import make_scene
 
@@ -112,8 +138,6 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
         scene = load_dataset(Path(input_spec), fmt, options, downscale=downscale, max_size=max_size)
         fmt_used = scene.source.get("format", fmt)
     if synth is None:  # robust depth statistics of the data set's views (synthetic depth is exact)
-        from ibrtools.formats._common import record_summary
-
         warning = depth_outlier_warning(scene.views + scene.targets)
         if warning:
             record_summary(scene.source, warnings=[warning])

@@ -19,7 +19,8 @@ import time
 import uuid
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import Callable
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -28,7 +29,7 @@ from ibrtools.errors import BadValueError, InputError, InternalError
 from ibrtools.imageio import atomic_path
 from ibrtools.imageio import write_depth as _write_depth
 from ibrtools.imageio import write_image as _write_image
-from ibrtools.outputs import OutputDir, check_output_dir, is_plain_name, temp_prefix
+from ibrtools.outputs import OutputDir, check_output_dir, file_stem, is_plain_name, temp_prefix
 from ibrtools.scene import Scene, View
 from ibrtools.pipeline import distributed as D
 from ibrtools.pipeline.plan import (FRAME_SUFFIXES, Frame, Job, check_memory, holdout_note, plan, renamed_frames,
@@ -78,7 +79,8 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
         background: str | None = None, foveate: tuple[float, float] | None = None, pooling: float | None = None,
         progress: Callable[[int, int, str], None] | None = None,
         scheduler: str | None = None, workers: int = 0,
-        yuv: str | os.PathLike | None = None, yuv_bits: int = 10) -> dict:
+        yuv: str | os.PathLike | Mapping[str, str | os.PathLike] | None = None,
+        yuv_bits: int | Mapping[str, int] = 10) -> dict:
     """Render every frame of ``job``; write images and report.json; return the report.
 
     Every frame is completed (inpaint/complete.py): the background at infinity where an input
@@ -188,12 +190,12 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
                             written.append(out_dir / rel)
                             # a copy: the method may reuse its output buffers for the next frame
                             in_flight.append(writer.submit(write_output, out_dir, rel, kind, np.array(array)))
-                            if sink.path is not None and entries[i] is not None and rel == entries[i].get("image"):
-                                in_flight.append(writer.submit(sink.add, np.array(array[..., :3])))
+                            if sink.files and entries[i] is not None and rel == entries[i].get("image"):
+                                in_flight.append(writer.submit(sink.add, frame.camera_name, np.array(array[..., :3])))
                     for f in in_flight:
                         f.result()
-                if sink.path is not None:
-                    written.append(sink.path)  # all or nothing: an interrupt from here on removes it too
+                if sink.files:
+                    written += sink.paths  # all or nothing: an interrupt from here on removes them too
                     extra["yuv"] = sink.describe()
                 if job.scenes is not None:
                     extra["sequence"] = sequence_report(entries, time.perf_counter() - t_loop, stream.wait_ms)
@@ -277,51 +279,89 @@ def write_output(out_dir: Path, rel: str, kind: str, array: np.ndarray) -> Path:
 class YuvSink:
     """``--yuv FILE``: every rendered frame's colour appended, in frame order, to one raw YUV 4:2:0
     file (formats/yuv.py: BT.709, limited range, 8-bit samples or little-endian 16-bit words for
-    9..16 bits, as RVS writes and reads them). Written to a temporary file beside FILE and renamed
-    when the job ends (an interrupted job leaves no half-written video). Failed frames are not in
-    it (report.json "yuv" counts the frames written). add() runs on the writer thread, which keeps
-    the frame order."""
+    9..16 bits, as RVS writes and reads them); a FILE with ``{camera}`` in its name, or a mapping
+    camera name -> file (an RVS config's ``OutputFiles``), writes one file per camera, as RVS does,
+    each with its frames in order (``bits`` an int, or camera name -> bits). Each file is written
+    to a temporary beside it and renamed when the job ends (an interrupted job leaves no
+    half-written video). Failed frames are not in it (report.json "yuv" counts the frames
+    written). add() runs on the writer thread, which keeps the frame order."""
 
-    def __init__(self, path: str | os.PathLike | None, bits: int, job: "Job"):
-        self.path = None if path is None else Path(path)
-        self.bits, self.frames, self.size = bits, 0, None
-        self._cm = self._file = None
-        if self.path is None:
+    def __init__(self, path: str | os.PathLike | Mapping[str, str | os.PathLike] | None,
+                 bits: int | Mapping[str, int], job: "Job"):
+        self.files: dict[str | None, _YuvFile] = {}
+        if path is None:
             return
-        if isinstance(bits, bool) or not isinstance(bits, (int, np.integer)) or not 8 <= bits <= 16:
-            raise BadValueError(f"--yuv-bits: expected a bit depth of 8..16, got {bits!r}")
-        if self.path.is_dir():
-            raise BadValueError(f"--yuv {self.path}: is a directory (expected a file name, e.g. out.yuv)")
-        if not self.path.parent.is_dir():
-            raise BadValueError(f"--yuv {self.path}: its folder {self.path.parent} does not exist")
-        sizes = sorted({(f.camera.width, f.camera.height) for f in job.frames})
-        if len(sizes) > 1:
-            raise BadValueError(f"--yuv: one file holds frames of one size; these frames are "
-                                f"{', '.join(f'{w}x{h}' for w, h in sizes[:4])}")
-        self.size = sizes[0] if sizes else None
-        self.bits = int(bits)
+        cameras = list(dict.fromkeys(f.camera_name for f in job.frames))
+        if isinstance(path, Mapping):  # the cameras this job renders (a file per camera not rendered: none)
+            targets = {str(k): Path(v) for k, v in path.items() if str(k) in cameras}
+        elif "{camera}" in os.fspath(path):
+            targets = {c: Path(os.fspath(path).replace("{camera}", file_stem(c))) for c in cameras}
+        else:
+            targets = {None: Path(path)}
+        missing = [c for c in cameras if None not in targets and c not in targets]
+        if missing:
+            raise BadValueError(f"--yuv: no output file for camera {missing[0]!r} (files for: "
+                                f"{', '.join(sorted(str(k) for k in targets))})")
+        if len(set(targets.values())) != len(targets):
+            raise BadValueError("--yuv: two cameras write the same file")
+        for key, file in targets.items():
+            b = bits.get(key, 10) if isinstance(bits, Mapping) else bits
+            if isinstance(b, bool) or not isinstance(b, (int, np.integer)) or not 8 <= b <= 16:
+                raise BadValueError(f"--yuv-bits: expected a bit depth of 8..16, got {b!r}")
+            if file.is_dir():
+                raise BadValueError(f"--yuv {file}: is a directory (expected a file name, e.g. out.yuv)")
+            if not file.parent.is_dir():
+                raise BadValueError(f"--yuv {file}: its folder {file.parent} does not exist")
+            sizes = sorted({(f.camera.width, f.camera.height) for f in job.frames if key in (None, f.camera_name)})
+            if len(sizes) > 1:
+                raise BadValueError(f"--yuv: one file holds frames of one size; these frames are "
+                                    f"{', '.join(f'{w}x{h}' for w, h in sizes[:4])}")
+            self.files[key] = _YuvFile(file, int(b), sizes[0] if sizes else None)
+
+    @property
+    def paths(self) -> list[Path]:
+        return [f.path for f in self.files.values()]
 
     def __enter__(self) -> "YuvSink":
-        if self.path is not None:
-            self._cm = atomic_path(self.path)
-            self._file = open(self._cm.__enter__(), "wb")
+        for f in self.files.values():
+            f.cm = atomic_path(f.path)
+            f.file = open(f.cm.__enter__(), "wb")
         return self
 
     def __exit__(self, *exc) -> bool:
-        if self._cm is None:
-            return False
-        self._file.close()
-        cm, self._cm = self._cm, None
-        return bool(cm.__exit__(*exc))
+        suppress = False
+        for f in self.files.values():
+            if f.cm is None:
+                continue
+            f.file.close()
+            cm, f.cm = f.cm, None
+            suppress = bool(cm.__exit__(*exc)) or suppress
+        return suppress
 
-    def add(self, color: np.ndarray) -> None:
-        write_yuv_frame(self._file, rgb_to_yuv(color, self.bits))
-        self.frames += 1
+    def add(self, camera: str, color: np.ndarray) -> None:
+        f = self.files[None if None in self.files else camera]
+        write_yuv_frame(f.file, rgb_to_yuv(color, f.bits))
+        f.frames += 1
 
-    def describe(self) -> dict:
-        w, h = self.size or (0, 0)
-        return {"path": str(self.path), "frames": self.frames, "width": w, "height": h, "chroma": "420",
-                "bits": self.bits, "matrix": "bt709", "range": "limited"}
+    def describe(self) -> dict | list[dict]:
+        """report.json "yuv": the file written (one dict), or one dict per camera's file."""
+        out = []
+        for key, f in self.files.items():
+            w, h = f.size or (0, 0)
+            out.append({**({"camera": key} if key is not None else {}), "path": str(f.path), "frames": f.frames,
+                        "width": w, "height": h, "chroma": "420", "bits": f.bits, "matrix": "bt709",
+                        "range": "limited"})
+        return out[0] if None in self.files else out
+
+
+@dataclass
+class _YuvFile:
+    path: Path
+    bits: int
+    size: tuple[int, int] | None
+    frames: int = 0
+    cm: Any = None
+    file: Any = None
 
 
 class VideoStream:

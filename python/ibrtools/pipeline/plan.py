@@ -33,6 +33,13 @@ class Frame:
         (ibrtools.outputs.file_stem: "train/r_0" -> "train_r_0", "../x" -> "_._x")."""
         return file_stem(self.name)
 
+    @property
+    def camera_name(self) -> str:
+        """The camera the frame renders: its name without a video's "<scene frame>_" prefix."""
+        if self.scene_frame is not None and self.name.startswith(self.scene_frame + "_"):
+            return self.name[len(self.scene_frame) + 1:]
+        return self.name
+
 
 # The files a frame may write: <stem><suffix> (render_frame), and the keys of its report entry
 # that name them.

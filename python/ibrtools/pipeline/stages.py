@@ -573,12 +573,13 @@ def preprocess(input_spec: str, output: str | os.PathLike, *, fmt: str | None = 
                stage_options: dict | None = None, progress=None, scheduler: str | None = None,
                workers: int = 0, threads: int = 0, holdout: list[str] | None = None,
                mesh: str | os.PathLike | None = None, downscale: float | None = None,
-               max_size: int | None = None) -> list[StageResult]:
+               max_size: int | None = None, frames: str | None = None) -> list[StageResult]:
     """Import (or find up to date) the scene, then run the derived stages ``methods`` need (or
     exactly ``stages``); returns the stage table. ``scheduler`` / ``workers`` / ``threads``: the
     per-view stages on Dask (:func:`run_stages`). ``holdout``: input views imported as targets,
     ``mesh``: a user's reconstructed mesh imported with the views, ``downscale`` / ``max_size``: the
-    views resized on import (:func:`run_import`)."""
+    views resized on import, ``frames`` the frames of a video data set ("A:B", "all", "default";
+    :func:`run_import`)."""
     check_options(scheduler, workers)
     check_factors(downscale, max_size)  # usage errors before the scene directory is touched
     if stages is not None:
@@ -591,7 +592,8 @@ def preprocess(input_spec: str, output: str | os.PathLike, *, fmt: str | None = 
     # run left (temporaries, half-written scene directories) is swept first (ibrtools.outputs).
     with scene_lock(output) as lock:
         results = [run_import(input_spec, Path(output), fmt=fmt, options=options, synth=synth, force=force,
-                              holdout=holdout, mesh=mesh, downscale=downscale, max_size=max_size)]
+                              holdout=holdout, mesh=mesh, downscale=downscale, max_size=max_size,
+                              frames=frames)]
         if lock.swept:
             results[0].details["swept"] = len(lock.swept)
         if stages == []:
