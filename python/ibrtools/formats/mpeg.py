@@ -99,6 +99,12 @@ def _dir_candidates(path: Path) -> list[tuple[str, Path]]:
     return out
 
 
+def is_config(path: Path) -> bool:
+    """True when ``path`` is an RVS synthesis config file."""
+    path = Path(path)
+    return path.is_file() and _kind(_peek_json(path)) == "config"
+
+
 def detect(path: Path) -> bool:
     path = Path(path)
     if path.is_file():

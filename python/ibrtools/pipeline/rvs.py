@@ -34,8 +34,7 @@ class RvsRun:
 
 def is_config(path: str | os.PathLike) -> bool:
     """True when ``path`` is an RVS synthesis config file (not a scene directory)."""
-    p = Path(path)
-    return p.is_file() and mpeg._kind(mpeg._peek_json(p)) == "config"
+    return mpeg.is_config(Path(path))
 
 
 def prepare(config: str | os.PathLike, out_dir: str | os.PathLike, method: str = "auto", *,
