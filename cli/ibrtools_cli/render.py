@@ -161,7 +161,9 @@ def _body(args: argparse.Namespace) -> int:
 
         html_path = check_output(args.report_html or Path(args.output) / "report.html")
     params = _params(args)
-    yuv, yuv_bits = args.yuv, 10 if args.yuv_bits is None else args.yuv_bits
+    from ibrtools.formats.yuv import DEFAULT_BITS
+
+    yuv, yuv_bits = args.yuv, DEFAULT_BITS if args.yuv_bits is None else args.yuv_bits
     scene_dir = args.scene
     if rvs.is_config(args.scene):  # an RVS synthesis config: imported, rendered and written as RVS would
         if args.yuv is not None or args.yuv_bits is not None:

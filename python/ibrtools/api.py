@@ -64,6 +64,7 @@ from ibrtools.formats.native import SCENE_FILE
 from ibrtools.scene import Scene
 from ibrtools import methods, synth
 from ibrtools.formats import native
+from ibrtools.formats import yuv as yuv_format
 from ibrtools.imageio import write_image
 from ibrtools.inpaint.complete import DEFAULT_INPAINT, check_inpaint, complete, completion, parse_background
 from ibrtools.pipeline import job
@@ -288,7 +289,7 @@ def render_job(scene: Scene, out_dir: str | os.PathLike[str], method: str = "aut
                depth_out: bool = False, threads: int = 0, workers: int = 0,
                scheduler: str | None = None,
                yuv: str | os.PathLike[str] | Mapping[str, str | os.PathLike[str]] | None = None,
-               yuv_bits: int | Mapping[str, int] = 10) -> dict[str, Any]:
+               yuv_bits: int | Mapping[str, int] = yuv_format.DEFAULT_BITS) -> dict[str, Any]:
     """Render many cameras as ``ibr-render`` does and write them to ``out_dir`` with report.json:
     the scene's targets (or ``targets`` by name), held-out input views scored against their own
     images (``holdout``), a camera path (``path``: stored in the scene, else generated:

@@ -143,6 +143,11 @@ def test_render_rvs_config_bad_input(tmp_path, capsys):
     cfg.write_text(json.dumps(doc))
     with pytest.raises(FormatError, match="OutputFiles"):
         mpeg.config_outputs(cfg)
+    doc["OutputFiles"] = ["a.yuv", "b.yuv"]
+    for bad in (1e400, -1, 1.5, "3"):  # 1e400: JSON's overflow to infinity
+        cfg.write_text(json.dumps(doc).replace('"NumberOfFrames": 3', f'"NumberOfFrames": {json.dumps(bad) if bad != 1e400 else "1e400"}'))
+        with pytest.raises(FormatError, match="NumberOfFrames"):
+            mpeg.config_outputs(cfg)
 
 
 def test_yuv_file_per_camera_pattern(tmp_path):

@@ -422,7 +422,7 @@ def _config_int(doc: dict, key: str, default: int, path: Path) -> int:
     """An RVS config's frame key (``StartFrame`` >= 0, ``NumberOfFrames`` >= 1)."""
     v = doc.get(key, default)
     low = 1 if key == "NumberOfFrames" else 0
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or v != int(v) or v < low:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v != int(v) or v < low:
         raise FormatError(f"{path}: {key!r} must be an integer >= {low}, got {v!r}")
     return int(v)
 

@@ -126,7 +126,11 @@ def yuv_to_rgb(planes: list[np.ndarray], bits: int, matrix: str = "bt709", full_
     return np.ascontiguousarray(srgb_to_linear(rgb))
 
 
-def rgb_to_yuv(rgb: np.ndarray, bits: int = 10, matrix: str = "bt709", full_range: bool = False) -> list[np.ndarray]:
+# The bits per sample of YUV output when none is asked for (--yuv-bits): 10, as MPEG content is.
+DEFAULT_BITS = 10
+
+
+def rgb_to_yuv(rgb: np.ndarray, bits: int = DEFAULT_BITS, matrix: str = "bt709", full_range: bool = False) -> list[np.ndarray]:
     """The 4:2:0 planes [Y, Cb, Cr] (uint8 for 8 bits, uint16 above) of linear RGB (H, W, 3)
     (see the module docstring); NaN counts as 0."""
     if not 8 <= int(bits) <= 16:

@@ -96,35 +96,29 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
         return StageResult("import", "up to date", "inputs and parameters unchanged", 0.0,
                            {"views": record.get("views"), "targets": record.get("targets")})
     t0 = time.perf_counter()
+    video = None
     if synth is not None and synth.get("frames", 1) > 1:  # a synthetic video (docs/FORMAT.md "Frames")
         from ibrtools.synth import make_video
 
         if held:
             raise BadValueError(_NO_VIDEO_HOLDOUT)
-        video, frames = make_video(**synth)
+        video, scenes = make_video(**synth)
         fmt_used = f"synth:{synth['preset']}"
-        video.stages["import"] = {"key": key, "format": fmt_used, "frames": len(frames),
-                                  "views": len(next(iter(frames.values())).views), "targets": len(video.targets),
-                                  "seconds": round(time.perf_counter() - t0, 4)}
-        native.save_video(video, frames, output)
-        seconds = time.perf_counter() - t0
-        reason = "forced" if force else ("inputs changed" if record else "no scene yet")
-        return StageResult("import", "ran", f"{reason}; {fmt_used}, {len(frames)} frames", seconds,
-                           {"frames": len(frames), "views": video.stages["import"]["views"],
-                            "targets": len(video.targets)})
-    if frames is not None:  # a video data set: its frames, each a still scene
+    elif frames is not None:  # a video data set: its frames, each a still scene
         video, scenes = load_frames(src, fmt, options, frames=frames, downscale=downscale, max_size=max_size)
         fmt_used = video.source.get("format", fmt)
-        first = next(iter(scenes.values()))
+        first_name, first = next(iter(scenes.items()))
         warning = depth_outlier_warning(first.views + first.targets)
         if warning:
-            record_summary(video.source, warnings=[f"frame {next(iter(scenes))}: {warning}"])
-        video.stages["import"] = {"key": key, "format": fmt_used, "frames": len(scenes), "views": len(first.views),
+            record_summary(video.source, warnings=[f"frame {first_name}: {warning}"])
+    if video is not None:
+        n_views = len(next(iter(scenes.values())).views)
+        video.stages["import"] = {"key": key, "format": fmt_used, "frames": len(scenes), "views": n_views,
                                   "targets": len(video.targets), "seconds": round(time.perf_counter() - t0, 4)}
         native.save_video(video, scenes, output)
         seconds = time.perf_counter() - t0
         reason = "forced" if force else ("inputs changed" if record else "no scene yet")
-        details = {"frames": len(scenes), "views": len(first.views), "targets": len(video.targets)}
+        details: dict = {"frames": len(scenes), "views": n_views, "targets": len(video.targets)}
         for k in ("adapted", "warnings"):
             if video.source.get(k):
                 details[k] = list(video.source[k])
@@ -152,7 +146,7 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
     native.save(scene, output)
     seconds = time.perf_counter() - t0
     reason = "forced" if force else ("inputs changed" if record else "no scene yet")
-    details: dict = {"views": n_views, "targets": n_targets}
+    details = {"views": n_views, "targets": n_targets}
     for k in ("adapted", "warnings"):
         if scene.source.get(k):
             details[k] = list(scene.source[k])

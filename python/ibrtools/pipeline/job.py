@@ -38,7 +38,7 @@ from ibrtools import methods
 from ibrtools.inpaint.complete import (DEFAULT_INPAINT, INPAINT_FILLS, NOTHING_TO_FILL, check_inpaint, complete, completion,
                        parse_background)
 from ibrtools.formats import native
-from ibrtools.formats.yuv import rgb_to_yuv
+from ibrtools.formats.yuv import DEFAULT_BITS as DEFAULT_YUV_BITS, rgb_to_yuv
 from ibrtools.formats.yuv import write_frame as write_yuv_frame
 from ibrtools.imageio import linear_to_srgb
 from ibrtools.metrics import compare, psnr
@@ -80,7 +80,7 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
         progress: Callable[[int, int, str], None] | None = None,
         scheduler: str | None = None, workers: int = 0,
         yuv: str | os.PathLike | Mapping[str, str | os.PathLike] | None = None,
-        yuv_bits: int | Mapping[str, int] = 10) -> dict:
+        yuv_bits: int | Mapping[str, int] = DEFAULT_YUV_BITS) -> dict:
     """Render every frame of ``job``; write images and report.json; return the report.
 
     Every frame is completed (inpaint/complete.py): the background at infinity where an input
@@ -305,7 +305,7 @@ class YuvSink:
         if len(set(targets.values())) != len(targets):
             raise BadValueError("--yuv: two cameras write the same file")
         for key, file in targets.items():
-            b = bits.get(key, 10) if isinstance(bits, Mapping) else bits
+            b = bits.get(key, DEFAULT_YUV_BITS) if isinstance(bits, Mapping) else bits
             if isinstance(b, bool) or not isinstance(b, (int, np.integer)) or not 8 <= b <= 16:
                 raise BadValueError(f"--yuv-bits: expected a bit depth of 8..16, got {b!r}")
             if file.is_dir():
