@@ -146,3 +146,35 @@ def test_cli_prints_the_import_summary(tmp_path, capsys):
         from ibrtools.pipeline.stages import preprocess as run
 
         run("synth:objects", tmp_path / "syn", synth={"preset": "objects"}, downscale=2, stages=[])
+
+
+def test_area_resample_matches_the_overlap_weighted_mean():
+    # An independent answer: each output pixel's mean over the source pixels, each weighted by the
+    # length of its overlap with the footprint, one pixel at a time; edges with a scale, an
+    # offset and a footprint that leaves the image (clipped; wholly outside: the edge pixel).
+    from ibrtools.formats.resize import area_resample
+
+    rng = np.random.default_rng(3)
+    img = rng.random((13, 17, 3))
+
+    def ref_axis(n_src, e):
+        w = np.zeros((len(e) - 1, n_src))
+        for k in range(len(e) - 1):
+            a, b = np.clip(e[k], 0, n_src), np.clip(e[k + 1], 0, n_src)
+            if b - a <= 1e-12:
+                w[k, min(int(np.floor(a)), n_src - 1)] = 1
+                continue
+            for i in range(n_src):
+                w[k, i] = max(0.0, min(b, i + 1) - max(a, i))
+            w[k] /= w[k].sum()
+        return w
+
+    xe = (np.arange(8) - 3.2) * 2.37 + 8.9  # 7 output columns, the last ones past the right edge
+    ye = np.arange(6) * 2.6 - 1.5  # 5 rows, the first starting above the image
+    xe = np.append(xe, [xe[-1] + 3, xe[-1] + 6])  # wholly outside
+    want = np.einsum("yi,ijc,xj->yxc", ref_axis(13, ye), img, ref_axis(17, xe))
+    got = area_resample(img.astype(np.float32), xe, ye)
+    assert got.shape == (5, 9, 3) and got.dtype == np.float32
+    np.testing.assert_allclose(got, want, atol=1e-6)
+    # the columns wholly past the right edge are the last source column, averaged over the rows
+    np.testing.assert_allclose(got[:, -2:], np.repeat((ref_axis(13, ye) @ img[:, -1])[:, None], 2, 1), atol=1e-6)

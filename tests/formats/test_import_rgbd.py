@@ -177,7 +177,7 @@ def test_7scenes_bad_input(tmp_path):
     with pytest.raises(BadValueError, match="option max_depth: expected a positive number"):
         rgbd.load(seq, {"max_depth": "0"})
     with pytest.raises(BadValueError, match="pose_format"):
-        rgbd.load(seq, {"pose_format": "scannet"})
+        rgbd.load(seq, {"pose_format": "kinect"})
     (seq / "frame-000001.pose.txt").write_text("1 0 0 0\n0 1 0 0\n0 0 1 0\n")
     with pytest.raises(FormatError, match=r"frame-000001.pose.txt: expected a 4x4 matrix"):
         rgbd.load(seq, {})
@@ -391,3 +391,98 @@ def test_cli_redwood_import_and_bad_trajectory_exit_2(tmp_path, small_synth, cap
     err = capsys.readouterr().err.strip()
     assert "none.log: no such file (camera trajectory)" in err and len(err.splitlines()) == 1
     assert not (tmp_path / "t").exists()
+
+
+# --- ScanNet SensReader export: color/N.jpg (1296x968 in ScanNet), depth/N.png (640x480, uint16 mm),
+# pose/N.txt (4x4 camera-to-world; -inf rows where tracking was lost), intrinsic/*.txt (4x4) ---
+def _k4(fx, fy, cx, cy):
+    return f"{fx} 0 {cx} 0\n0 {fy} {cy} 0\n0 0 1 0\n0 0 0 1\n"
+
+
+def make_scannet(root, scene, scale=2.5, shift=(3.0, -2.0), lost=()):
+    """The views of ``scene`` as ScanNet's SensReader exports them: the depth at the views'
+    cameras, the colour rendered by a larger camera (``scale`` times the focal, principal point
+    moved by ``shift`` colour pixels) at the same pose, as ScanNet's colour camera is."""
+    import ibrtools
+    from ibrtools.camera import Camera
+
+    for d in ("color", "depth", "pose", "intrinsic"):
+        (root / d).mkdir(parents=True)
+    c = scene.views[0].camera
+    cw, ch = round(c.width * scale), round(c.height * scale)
+    kc = (c.fx * scale, c.fy * scale, (c.cx - 0.5) * scale + shift[0], (c.cy - 0.5) * scale + shift[1])
+    for i, v in enumerate(scene.views):
+        cam = Camera.pinhole(cw, ch, kc[0], kc[1], kc[2] + 0.5, kc[3] + 0.5, v.camera.cam_from_world)
+        color = ibrtools.render(scene, cam, "reference").color
+        write_image(root / "color" / f"{i}.jpg", color)
+        d = np.where(np.isfinite(v.depth), np.round(v.depth * 1000), 0).astype(np.uint16)
+        write_png(root / "depth" / f"{i}.png", d)
+        pose = np.full((4, 4), -np.inf) if i in lost else v.camera.world_from_cam
+        np.savetxt(root / "pose" / f"{i}.txt", pose)  # as SensReader writes them
+    (root / "intrinsic" / "intrinsic_depth.txt").write_text(_k4(c.fx, c.fy, c.cx - 0.5, c.cy - 0.5))
+    (root / "intrinsic" / "intrinsic_color.txt").write_text(_k4(*kc))
+    return root
+
+
+def test_scannet_layout_resamples_colour_into_the_depth_camera(tmp_path, small_synth):
+    from ibrtools.formats import detect
+    from ibrtools.metrics import psnr
+
+    root = make_scannet(tmp_path / "scene0000_00", small_synth, lost=(2,))
+    assert detect(root) == "rgbd" and rgbd.detect(root)
+    scene = rgbd.load(root, {})
+    assert scene.source["layout"] == "scannet" and [v.name for v in scene.views] == ["0", "1", "3"]
+    assert scene.source["adapted"] == ["1 frames skipped (pose not finite)",
+                                       "colour resampled from 160x120 (intrinsic/intrinsic_color.txt) into the "
+                                       "depth camera 64x48 (area average)"]
+    assert scene.source["warnings"] == ["1 of 4 frames skipped: pose not finite, tracking lost (pose/2.txt)"]
+    for v, ref in zip(scene.views, [small_synth.views[i] for i in (0, 1, 3)]):
+        assert v.camera.allclose(ref.camera, 1e-9)
+        assert v.color.shape == (48, 64, 3)
+        # the colour camera's view, averaged into the depth camera's pixels, is the depth camera's view
+        # (measured 30.1-31.3 dB; misregistered by the principal point shift below: 22.0 dB)
+        assert psnr(v.color, ref.color) > 28
+    # with the shift ignored (a plain 2.5x downscale) the colour is misregistered: worse
+    c = small_synth.views[0].camera
+    (root / "intrinsic" / "intrinsic_color.txt").write_text(_k4(c.fx * 2.5, c.fy * 2.5, (c.cx - 0.5) * 2.5,
+                                                                (c.cy - 0.5) * 2.5))
+    misregistered = rgbd.load(root, {}).views[0].color
+    assert psnr(misregistered, small_synth.views[0].color) < psnr(scene.views[0].color, small_synth.views[0].color) - 3
+
+
+def test_scannet_renders_a_held_out_view_as_the_native_scene(tmp_path, small_synth):
+    import ibrtools
+    from ibrtools.formats import native
+    from ibrtools.metrics import psnr
+    from ibrtools.scene import Scene, View
+
+    views = [View.create(v.name, v.camera, color=v.color, depth=np.where(np.isfinite(v.depth), v.depth, 0))
+             for v in small_synth.views]
+    native.save(Scene(views=views, units="m"), tmp_path / "native")
+    scenes = {"native": native.load(tmp_path / "native"),
+              "scannet": rgbd.load(make_scannet(tmp_path / "scannet", small_synth), {})}
+    target = small_synth.targets[0]
+    objects = np.isfinite(target.depth)
+    db = {k: psnr(ibrtools.render(s, target.camera, "dibr").color, target.color, mask=objects)
+          for k, s in scenes.items()}
+    assert db["native"] > 20 and abs(db["scannet"] - db["native"]) < 0.5, db
+
+
+def test_scannet_bad_input(tmp_path, small_synth):
+    root = make_scannet(tmp_path / "s", small_synth, lost=(0, 1, 2, 3))
+    with pytest.raises(FormatError, match=r"pose: no frame has a finite pose \(4 of 4"):
+        rgbd.load(root, {})
+    np.savetxt(root / "pose" / "0.txt", np.eye(4))
+    (root / "intrinsic" / "intrinsic_depth.txt").unlink()
+    with pytest.raises(MissingFileError, match=r"no intrinsics file \(intrinsic/intrinsic_depth.txt\); give"):
+        rgbd.load(root, {})
+    c = small_synth.views[0].camera
+    k = rgbd.load(root, {"fx": c.fx, "fy": c.fy, "cx": c.cx - 0.5, "cy": c.cy - 0.5}).views[0].camera
+    assert (k.fx, k.fy, k.cx, k.cy) == (c.fx, c.fy, c.cx, c.cy)
+    # without the colour camera's intrinsics, colour and depth of other sizes are refused
+    (root / "intrinsic" / "intrinsic_color.txt").unlink()
+    with pytest.raises(ShapeError, match=r"0.png: depth image is 64x48, expected 160x120 \(size of its colour"):
+        rgbd.load(root, {"fx": 1, "fy": 1, "cx": 0, "cy": 0})
+    (root / "pose" / "0.txt").unlink()
+    with pytest.raises(MissingFileError, match=r"pose/0.txt: pose of 0.jpg not found"):
+        rgbd.load(root, {"fx": 1, "fy": 1, "cx": 0, "cy": 0})

@@ -89,15 +89,44 @@ def _area_axis(img: np.ndarray, n_dst: int, axis: int) -> np.ndarray:
             step[axis] = slice(o, None, k)
             acc = img[tuple(step)].copy() if acc is None else np.add(acc, img[tuple(step)], out=acc)
         return acc * np.float32(1.0 / k)
-    # The integral of the piecewise-constant signal at each edge e: C(e) = S[floor e] + frac(e) img[floor e].
     moved = np.moveaxis(img, axis, 0).astype(np.float64)
-    cum = np.concatenate([np.zeros((1,) + moved.shape[1:]), np.cumsum(moved, axis=0)], axis=0)
-    e = _edges(n_src, n_dst)
-    i = np.minimum(np.floor(e).astype(np.int64), n_src - 1)
-    frac = (e - i).reshape((-1,) + (1,) * (moved.ndim - 1))
-    integral = cum[i] + frac * moved[i]
+    integral = _integral(moved, _edges(n_src, n_dst))
     out = (integral[1:] - integral[:-1]) / (n_src / n_dst)
     return np.moveaxis(out, 0, axis)
+
+
+def _integral(moved: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """The integral of the piecewise-constant signal ``moved`` (along axis 0) from 0 to each source
+    coordinate of ``e`` (within [0, n]): C(e) = S[floor e] + frac(e) img[floor e], float64."""
+    cum = np.concatenate([np.zeros((1,) + moved.shape[1:]), np.cumsum(moved, axis=0)], axis=0)
+    i = np.minimum(np.floor(e).astype(np.int64), moved.shape[0] - 1)
+    frac = (e - i).reshape((-1,) + (1,) * (moved.ndim - 1))
+    return cum[i] + frac * moved[i]
+
+
+def _area_between(img: np.ndarray, e: np.ndarray, axis: int) -> np.ndarray:
+    """Mean of ``img`` along ``axis`` over each source interval [e[k], e[k + 1]] (source pixel
+    coordinates, increasing; clipped to the image). An interval wholly outside the image takes
+    the nearest edge pixel."""
+    n_src = img.shape[axis]
+    e = np.clip(np.asarray(e, np.float64), 0.0, float(n_src))
+    moved = np.moveaxis(img, axis, 0).astype(np.float64)
+    integral = _integral(moved, e)
+    width = (e[1:] - e[:-1]).reshape((-1,) + (1,) * (moved.ndim - 1))
+    out = (integral[1:] - integral[:-1]) / np.maximum(width, 1e-12)
+    empty = width.reshape(-1) <= 1e-12
+    if empty.any():
+        out[empty] = moved[np.minimum(np.floor(e[:-1][empty]).astype(np.int64), n_src - 1)]
+    return np.moveaxis(out, 0, axis)
+
+
+def area_resample(img: np.ndarray, x_edges: np.ndarray, y_edges: np.ndarray) -> np.ndarray:
+    """``img`` (H, W[, C]) resampled by an axis-aligned affine map: output pixel (i, j) is the
+    area average of the source rectangle [x_edges[j], x_edges[j + 1]] x [y_edges[i],
+    y_edges[i + 1]] (source pixel coordinates, edges at integers); float32 out. What
+    :func:`area_resize` does for a pure scale, for any scale and offset per axis."""
+    out = _area_between(_area_between(img, y_edges, 0), x_edges, 1)
+    return np.ascontiguousarray(out, dtype=np.float32)
 
 
 def area_resize(img: np.ndarray, width: int, height: int) -> np.ndarray:

@@ -1,5 +1,5 @@
-"""RGB-D sequences: ICL-NUIM, TUM RGB-D, 7-Scenes and Redwood / Open3D layouts (colour + 16-bit
-depth PNG + poses).
+"""RGB-D sequences: ICL-NUIM, TUM RGB-D, 7-Scenes, Redwood / Open3D and ScanNet layouts (colour +
+16-bit depth PNG + poses).
 
 Layouts
   icl  ``color/<k>.png``, ``depth/<k>.png`` (same names), ``pose.txt`` (or ``poses.txt``,
@@ -25,6 +25,14 @@ Layouts
        from ``camera_intrinsic.json`` (Open3D's ``PinholeCameraIntrinsic``: ``width``,
        ``height``, column-major ``intrinsic_matrix``) when the folder has one, else the
        trajectory JSON's, else Open3D's PrimeSense default.
+  scannet  a ScanNet SensReader export: ``color/<i>.jpg``, ``depth/<i>.png`` (uint16 millimetres),
+       ``pose/<i>.txt`` (4x4 **camera-to-world**, OpenCV axes), ``intrinsic/intrinsic_depth.txt``
+       and ``intrinsic_color.txt`` (4x4). The views are the depth camera (its intrinsics, the
+       pose); where the colour image has another size (ScanNet: 1296x968 beside 640x480), it is
+       resampled into the depth camera by the area average of each depth pixel's footprint in
+       the colour image (same pose: a scale and an offset per axis from the two intrinsics).
+       Frames whose pose is not finite (ScanNet writes -inf where tracking was lost) are skipped,
+       counted in one warning.
 
 Convention converted from
   Depth is z (metres = value * depth_scale, 0 = unknown). A pixel (u, v) with depth z is the
@@ -58,13 +66,15 @@ Options
                         TUM/ROS default 525.0, 525.0, 319.5, 239.5 (pose_format=tum)
                         7-Scenes 585, 585, 319.5, 239.5 (its documented principal point (320, 240)
                         is the image centre, i.e. 319.5, 239.5 in integer pixel indices);
-                        Redwood / Open3D's PrimeSense default 525, 525, 319.5, 239.5
-  depth_scale=          metres per depth unit (ICL-NUIM and TUM: 1/5000; 7-Scenes, Redwood: 1/1000)
+                        Redwood / Open3D's PrimeSense default 525, 525, 319.5, 239.5;
+                        ScanNet: none (its intrinsic/intrinsic_depth.txt, or all four options)
+  depth_scale=          metres per depth unit (ICL-NUIM and TUM: 1/5000; 7-Scenes, Redwood, ScanNet:
+                        1/1000)
   invalid_depth=V       a stored depth value meaning unknown, beside 0 which always does
                         (7-Scenes default 65535; others: none)
   max_depth=M           depth beyond M metres is marked unknown (0); default: none
-  pose_format=icl|tum|7scenes|redwood   (default: redwood when the folder has a Redwood
-                        trajectory and none of the ICL/TUM pose files, or when trajectory= is
+  pose_format=icl|tum|7scenes|redwood|scannet   (default: scannet when color/, depth/ and pose/
+                        are folders; redwood when the folder has a Redwood trajectory and none of the ICL/TUM pose files, or when trajectory= is
                         given; else icl when color/ exists, tum when rgb/ exists, 7scenes when
                         the folder holds ``*.pose.txt`` files)
   trajectory=FILE       redwood: the camera trajectory (.log or Open3D .json; default
@@ -83,20 +93,22 @@ from ibrtools.camera import Camera
 from ibrtools.errors import BadValueError, FormatError, MissingFileError, ShapeError
 from ibrtools.imageio import read_depth, read_image
 from ibrtools.scene import Scene, View
+from ibrtools.formats.resize import area_resample
 from ibrtools.imageio import F32_MAX
 from ibrtools.formats._common import document_errors, FileLoader, check_options, check_same_size, image_size, invert_rigid, named, \
     opt_choice, opt_float, quat_to_rotation, read_json, record_summary, rigid_from_matrix
 
 NAME = "rgbd"
 DESCRIPTION = ("RGB-D sequence: ICL-NUIM (color/, depth/, pose.txt), TUM (rgb/, depth/, groundtruth.txt), "
-               "7-Scenes (frame-N.color.png, .depth.png, .pose.txt) or Redwood / Open3D "
-               "(color/, depth/, trajectory.log, camera_intrinsic.json)")
+               "7-Scenes (frame-N.color.png, .depth.png, .pose.txt), Redwood / Open3D "
+               "(color/, depth/, trajectory.log, camera_intrinsic.json) or a ScanNet export "
+               "(color/, depth/, pose/, intrinsic/)")
 OPTIONS = {"fx": "focal x (px)", "fy": "focal y (px; negative = flipped y)", "cx": "principal x",
            "cy": "principal y", "intrinsics": "intrinsics file (Open3D JSON, or a 3x3/4x4 matrix as text)",
-           "depth_scale": "metres per depth unit (default 1/5000; 7scenes, redwood 1/1000)",
+           "depth_scale": "metres per depth unit (default 1/5000; 7scenes, redwood, scannet 1/1000)",
            "invalid_depth": "stored depth value meaning unknown (0 always is; 7scenes default 65535)",
            "max_depth": "depth beyond this (metres) is marked unknown",
-           "pose_format": "icl|tum|7scenes|redwood", "max_dt": "TUM timestamp tolerance (s)",
+           "pose_format": "icl|tum|7scenes|redwood|scannet", "max_dt": "TUM timestamp tolerance (s)",
            "trajectory": "redwood camera trajectory (.log or Open3D .json)"}
 ICL_INTRINSICS = (481.2, -480.0, 319.5, 239.5)
 TUM_INTRINSICS = (525.0, 525.0, 319.5, 239.5)
@@ -105,12 +117,15 @@ PRIMESENSE_INTRINSICS = (525.0, 525.0, 319.5, 239.5)  # Open3D's PrimeSenseDefau
 # Per layout: (intrinsics, metres per depth unit, the stored value meaning unknown besides 0).
 LAYOUT_DEFAULTS = {"icl": (ICL_INTRINSICS, 1 / 5000, None), "tum": (TUM_INTRINSICS, 1 / 5000, None),
                    "7scenes": (SEVEN_SCENES_INTRINSICS, 1 / 1000, 65535),
-                   "redwood": (PRIMESENSE_INTRINSICS, 1 / 1000, None)}
+                   "redwood": (PRIMESENSE_INTRINSICS, 1 / 1000, None),
+                   "scannet": (None, 1 / 1000, None)}  # ScanNet's intrinsics are per scene, in its files
 SEVEN_SCENES_COLOR = (".color.png", ".color.jpg")
 POSE_FILES = ("pose.txt", "poses.txt", "groundtruth.txt")
 REDWOOD_COLOR_DIRS = ("color", "image", "rgb")
 REDWOOD_TRAJECTORIES = ("trajectory.log", "trajectory.json", "odometry.log")
 REDWOOD_INTRINSICS = ("camera_intrinsic.json", "intrinsic.json")
+SCANNET_INTRINSICS = "intrinsic/intrinsic_depth.txt"  # the camera of the depth images, which the views take
+SCANNET_COLOR_INTRINSICS = "intrinsic/intrinsic_color.txt"
 IMAGE_EXTS = {".png", ".jpg", ".jpeg", ".exr", ".tif", ".tiff"}
 
 
@@ -142,6 +157,8 @@ def _redwood_dirs(path: Path) -> tuple[Path, Path] | None:
 
 
 def _layout(path: Path) -> str | None:
+    if all((path / d).is_dir() for d in ("color", "depth", "pose")):
+        return "scannet"
     has_pose_file = any((path / f).is_file() for f in POSE_FILES)
     if (not has_pose_file and _redwood_dirs(path) is not None
             and any((path / f).is_file() for f in REDWOOD_TRAJECTORIES)):
@@ -162,6 +179,8 @@ def detect(path: Path) -> bool:
     lay = _layout(path)
     if lay == "redwood":
         return True
+    if lay == "scannet":
+        return next((path / "pose").glob("*.txt"), None) is not None
     if lay == "icl":
         return any((path / f).is_file() for f in POSE_FILES)
     if lay == "tum":
@@ -237,14 +256,43 @@ def _seven_scenes_frames(path: Path) -> list[_Frame]:
             raise MissingFileError(f"{d}: depth image of {c.name} not found")
         if not pf.is_file():
             raise MissingFileError(f"{pf}: pose of {c.name} not found")
-        try:
-            m = np.array([[float(x) for x in ln.split()] for ln in pf.read_text().splitlines() if ln.strip()])
-        except ValueError:
-            raise FormatError(f"{pf}: expected a 4x4 matrix of numbers (camera-to-world)") from None
-        if m.shape != (4, 4):
-            raise FormatError(f"{pf}: expected a 4x4 matrix (camera-to-world), got shape {m.shape}")
-        frames.append(_Frame(stem, c, d, rigid_from_matrix(m, f"{pf}: pose")))
+        frames.append(_Frame(stem, c, d, rigid_from_matrix(_pose_matrix(pf), f"{pf}: pose")))
     return frames
+
+
+def _pose_matrix(pf: Path) -> np.ndarray:
+    """The 4x4 camera-to-world matrix of a pose file (4 rows of numbers; not checked further)."""
+    try:
+        m = np.array([[float(x) for x in ln.split()] for ln in pf.read_text().splitlines() if ln.strip()])
+    except ValueError:
+        raise FormatError(f"{pf}: expected a 4x4 matrix of numbers (camera-to-world)") from None
+    if m.shape != (4, 4):
+        raise FormatError(f"{pf}: expected a 4x4 matrix (camera-to-world), got shape {m.shape}")
+    return m
+
+
+def _scannet_frames(path: Path) -> tuple[list[_Frame], list[str]]:
+    """Frames of a ScanNet SensReader export, and the pose files of the frames skipped because
+    their pose is not finite (ScanNet marks lost tracking with -inf)."""
+    colors = sorted((p for p in (path / "color").iterdir() if p.suffix.lower() in IMAGE_EXTS), key=_numeric_key)
+    if not colors:
+        raise FormatError(f"{path / 'color'}: no images")
+    frames, skipped = [], []
+    for c in colors:
+        d, pf = path / "depth" / f"{c.stem}.png", path / "pose" / f"{c.stem}.txt"
+        if not d.is_file():
+            raise MissingFileError(f"{d}: depth image of {c.name} not found")
+        if not pf.is_file():
+            raise MissingFileError(f"{pf}: pose of {c.name} not found")
+        m = _pose_matrix(pf)
+        if not np.all(np.isfinite(m)):
+            skipped.append(f"pose/{pf.name}")
+            continue
+        frames.append(_Frame(c.stem, c, d, rigid_from_matrix(m, f"{pf}: pose")))
+    if not frames:
+        raise FormatError(f"{path / 'pose'}: no frame has a finite pose ({len(skipped)} of {len(colors)} are -inf "
+                          "or NaN: tracking lost)")
+    return frames, skipped
 
 
 def _numbers(text: str, where: str) -> list[float]:
@@ -397,6 +445,18 @@ def _load_depth(path: Path, scale: float, invalid: float | None, max_depth: floa
     return d
 
 
+def _color_in_camera(path: Path, k_color: _Intrinsics, k_view: _Intrinsics, out_size: tuple[int, int], *,
+                     size: tuple[int, int]) -> np.ndarray:
+    """The colour image ``path`` (of ``size``, camera ``k_color``) seen by the camera ``k_view`` of
+    ``out_size`` at the same pose: each output pixel is the area average of its footprint (the
+    pixel-centre +0.5 convention on both sides; the map is a scale and an offset per axis)."""
+    img = read_image(path, size=size)
+    w, h = out_size
+    xe = (np.arange(w + 1) - (k_view.cx + 0.5)) * abs(k_color.fx / k_view.fx) + (k_color.cx + 0.5)
+    ye = (np.arange(h + 1) - (k_view.cy + 0.5)) * abs(k_color.fy / k_view.fy) + (k_color.cy + 0.5)
+    return area_resample(img, xe, ye)
+
+
 def _nearest(times: np.ndarray, t: float) -> int:
     i = int(np.searchsorted(times, t))
     cands = [j for j in (i - 1, i) if 0 <= j < len(times)]
@@ -436,11 +496,18 @@ def _tum_frames(path: Path, max_dt: float) -> list[_Frame]:
     return frames
 
 
-def _frame_intrinsics(frame: _Frame, base: _Intrinsics | None, default: tuple[float, ...],
+def _frame_intrinsics(frame: _Frame, base: _Intrinsics | None, default: tuple[float, ...] | None,
                       overrides: dict[str, float]) -> _Intrinsics:
     """The intrinsics of one frame: the intrinsics file, else the frame's own, else the layout's
     default; then each of fx, fy, cx, cy given as an option replaces its value."""
-    k = base or frame.intrinsics or _Intrinsics(*default, None, "options fx, fy, cx, cy")
+    k = base or frame.intrinsics
+    if k is None:
+        if default is None:
+            if len(overrides) < 4:
+                raise MissingFileError(f"{frame.color.parent.parent}: no intrinsics file ({SCANNET_INTRINSICS}); "
+                                       "give --opt intrinsics=FILE or all of fx, fy, cx, cy")
+            default = (0.0, 0.0, 0.0, 0.0)
+        k = _Intrinsics(*default, None, "options fx, fy, cx, cy")
     return k._replace(**overrides) if overrides else k
 
 
@@ -460,6 +527,11 @@ def load(path: Path, options: dict) -> Scene:
     intrinsics_file = _option_file(path, options, "intrinsics")
     if intrinsics_file is None and fmt == "redwood":
         intrinsics_file = next((path / f for f in REDWOOD_INTRINSICS if (path / f).is_file()), None)
+    if intrinsics_file is None and fmt == "scannet" and (path / SCANNET_INTRINSICS).is_file():
+        intrinsics_file = path / SCANNET_INTRINSICS
+    color_k = None  # the colour camera, when the layout records it apart from the depth's
+    if fmt == "scannet" and (path / SCANNET_COLOR_INTRINSICS).is_file():
+        color_k = _read_intrinsics(path / SCANNET_COLOR_INTRINSICS)
     base = _read_intrinsics(intrinsics_file) if intrinsics_file is not None else None
     depth_scale = opt_float(options, "depth_scale", default_scale, positive=True)
     invalid = opt_float(options, "invalid_depth", default_invalid, positive=True)
@@ -469,12 +541,18 @@ def load(path: Path, options: dict) -> Scene:
         raise BadValueError(f"option depth_scale: {depth_scale:g} times 65535 (the largest 16-bit depth value) "
                             f"overflows float32 (largest {F32_MAX:.3g}); expected metres per depth unit")
     max_dt = opt_float(options, "max_dt", 0.02, positive=True)
+    skipped: list[str] = []
     if fmt == "icl":
         if not (path / "color").is_dir():
             raise MissingFileError(f"{path / 'color'}: no such directory (pose_format=icl)")
         frames = _icl_frames(path)
     elif fmt == "7scenes":
         frames = _seven_scenes_frames(path)
+    elif fmt == "scannet":
+        for d in ("color", "depth", "pose"):
+            if not (path / d).is_dir():
+                raise MissingFileError(f"{path / d}: no such directory (pose_format=scannet)")
+        frames, skipped = _scannet_frames(path)
     elif fmt == "redwood":
         trajectory = _option_file(path, options, "trajectory") or next(
             (path / f for f in REDWOOD_TRAJECTORIES if (path / f).is_file()), None)
@@ -488,17 +566,31 @@ def load(path: Path, options: dict) -> Scene:
     m = s if mirror else np.eye(4)  # world -> imported world
     views = []
     size = None
+    resampled = None  # (colour size, view size) of colour images resampled into the depth camera
     for frame in frames:
         name, color, depth, world_from_cam_ds = frame.name, frame.color, frame.depth, frame.pose
         for f in (color, depth):
             if not f.is_file():
                 raise MissingFileError(f"{f}: no such file")
-        if size is None:
-            size = image_size(color)
-        else:
-            check_same_size(color, size, "colour image", f"size of {frames[0][1].name}")
-        check_same_size(depth, size, "depth image", f"size of its colour image {color.name}")
         k = _frame_intrinsics(frame, base, defaults, overrides)
+        color_size = image_size(color)
+        if color_k is None:
+            if size is None:
+                size = color_size
+            else:
+                check_same_size(color, size, "colour image", f"size of {frames[0][1].name}")
+            check_same_size(depth, size, "depth image", f"size of its colour image {color.name}")
+            color_loader = FileLoader(color, read_image, color, size=size)
+        else:  # the view is the depth camera; its colour is resampled into it when the sizes differ
+            if size is None:
+                size = image_size(depth)
+            else:
+                check_same_size(depth, size, "depth image", f"size of {frames[0].depth.name}")
+            if color_size == size:
+                color_loader = FileLoader(color, read_image, color, size=size)
+            else:
+                color_loader = FileLoader(color, _color_in_camera, color, color_k, k, size, size=color_size)
+                resampled = (color_size, size)
         if k.size is not None and tuple(k.size) != tuple(size):
             raise ShapeError(f"{k.source}: intrinsics are for {k.size[0]}x{k.size[1]} images, but {color} is "
                              f"{size[0]}x{size[1]}")
@@ -514,9 +606,16 @@ def load(path: Path, options: dict) -> Scene:
             depth_loader = FileLoader(depth, read_depth, depth, scale=depth_scale, size=size)
         else:
             depth_loader = FileLoader(depth, _load_depth, depth, depth_scale, invalid, max_depth, size=size)
-        views.append(View.create(name, cam, color=FileLoader(color, read_image, color, size=size),
-                                 depth=depth_loader))
-    adapted = []
+        views.append(View.create(name, cam, color=color_loader, depth=depth_loader))
+    adapted, warnings = [], []
+    if skipped:
+        adapted.append(f"{len(skipped)} frames skipped (pose not finite)")
+        warnings.append(f"{len(skipped)} of {len(skipped) + len(frames)} frames skipped: pose not finite, tracking "
+                        f"lost ({', '.join(skipped[:3])}{', ...' if len(skipped) > 3 else ''})")
+    if resampled is not None:
+        (cw, ch), (w, h) = resampled
+        adapted.append(f"colour resampled from {cw}x{ch} ({SCANNET_COLOR_INTRINSICS}) into the depth camera "
+                       f"{w}x{h} (area average)")
     if invalid is not None:
         how = "invalid_depth" if "invalid_depth" in options else f"invalid_depth, the {fmt} default"
         adapted.append(f"depth value {invalid:g} marked unknown ({how})")
@@ -532,5 +631,5 @@ def load(path: Path, options: dict) -> Scene:
                   f"diag{tuple(int(v) for v in np.diag(s)[:3])} to keep poses rigid")
     source = {"format": NAME, "path": str(path), "layout": fmt, "notes": notes,
               "world_mirror": np.diag(m)[:3].tolist()}
-    record_summary(source, adapted=adapted)
+    record_summary(source, adapted=adapted, warnings=warnings)
     return Scene(views=views, units="m", source=source, root=path)
