@@ -56,6 +56,21 @@ def test_render_holdout_writes_images_and_report_contract(scene_dir, tmp_path):
     assert "summary" in rep and rep["summary"]["frames"] == 2
 
 
+def test_render_metrics_choice_and_bad_value(scene_dir, tmp_path, capsys):
+    out = tmp_path / "m"
+    assert render.main([str(scene_dir), "--holdout", "v001", "-o", str(out), "--metrics", "psnr", "-q"]) == 0
+    m = json.loads((out / "report.json").read_text())["frames"][0]["metrics"]
+    assert {"psnr", "psnr_covered", "coverage"} <= set(m) and not {"ssim", "flip"} & set(m)
+    assert render.main([str(scene_dir), "--holdout", "v001", "-o", str(out), "--metrics", "none", "-q"]) == 0
+    m = json.loads((out / "report.json").read_text())["frames"][0]["metrics"]
+    assert "coverage" in m and not {"psnr", "ssim", "flip"} & set(m)
+    capsys.readouterr()
+    assert render.main([str(scene_dir), "--holdout", "v001", "-o", str(tmp_path / "bad"), "--metrics", "lpips"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "--metrics: expected all, none or a comma list of psnr, ssim, flip, got 'lpips'" in err
+    assert len(err.splitlines()) == 1 and not (tmp_path / "bad").exists()
+
+
 def test_render_targets_path_and_poses(scene_dir, tmp_path):
     from ibrtools.formats import native
     scene = native.load(scene_dir)

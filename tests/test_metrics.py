@@ -273,6 +273,22 @@ def test_compare_on_srgb_values():
     assert all(v is None or not math.isnan(v) for v in m.values())
 
 
+def test_compare_scores_only_what_is_asked():
+    a, b = _pair((24, 32, 3), 4)
+    holes = np.zeros((24, 32), bool)
+    holes[:, :8] = True
+    full = metrics.compare(a, b, hole_mask=holes)
+    for spec, keys in (("psnr", {"psnr", "psnr_covered"}), ("ssim", {"ssim", "ssim_covered"}), ("none", set()),
+                       ("PSNR, ssim", {"psnr", "psnr_covered", "ssim", "ssim_covered"})):
+        m = metrics.compare(a, b, hole_mask=holes, scores=metrics.parse_scores(spec))
+        assert set(m) == keys | {"coverage"}, spec
+        assert all(m[k] == full[k] for k in m)  # the same values as the full comparison
+    assert metrics.parse_scores("all") == metrics.SCORES and metrics.parse_scores(["ssim", "psnr"]) == ("psnr", "ssim")
+    for bad in ("psnr,lpips", "", "psnr,", 3):
+        with pytest.raises((BadValueError, DtypeError), match="--metrics: expected all, none or a comma list"):
+            metrics.parse_scores(bad)
+
+
 def test_compare_identical_and_empty_region():
     a, _ = _pair((16, 16, 3), 1)
     m = metrics.compare(a, a.copy(), hole_mask=np.ones((16, 16), bool))

@@ -16,6 +16,7 @@ def build_parser() -> argparse.ArgumentParser:
     from ibrtools.inpaint.complete import DEFAULT_INPAINT, INPAINT
     from ibrtools.methods import BUILT, METHODS
     from ibrtools.paths import DEFAULT_FRAMES
+    from ibrtools.metrics import DEFAULT_SCORES
 
     methods = "\n".join(f"  {k:<10} {v}{'' if k in BUILT or k == 'auto' else '  [not built yet]'}"
                         for k, v in METHODS.items())
@@ -113,6 +114,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pooling", type=float, default=None, metavar="ALPHA",
                    help="with --foveate: pooling region size per degree of eccentricity (default 0.5, "
                         "Bouma's law); the display's horizontal field of view is taken as 90 degrees")
+    p.add_argument("--metrics", default=DEFAULT_SCORES, metavar="LIST",
+                   help="scores of frames with ground truth: all (default: psnr, ssim, and flip when installed), "
+                        "none, or a comma list of psnr, ssim, flip (FLIP takes seconds per 1080p frame; "
+                        "coverage is always reported)")
     p.add_argument("--float", action="store_true", help="also write <frame>.exr (linear float)")
     p.add_argument("--depth", action="store_true", help="also write <frame>.depth.exr")
     p.add_argument("--report", action="store_true", help="print the per-frame report table")
@@ -193,7 +198,8 @@ def _body(args: argparse.Namespace) -> int:
                                 background=args.background,
                                 foveate=foveate, pooling=args.pooling,
                                 progress=lambda i, n, name: bar.update(i, n, name),
-                                scheduler=args.scheduler, workers=args.workers, yuv=yuv, yuv_bits=yuv_bits)
+                                scheduler=args.scheduler, workers=args.workers, yuv=yuv, yuv_bits=yuv_bits,
+                                metrics=args.metrics)
     extra = {}
     if video is not None:
         from pathlib import Path

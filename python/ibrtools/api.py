@@ -53,7 +53,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Mapping, Union
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -66,6 +66,7 @@ from ibrtools import methods, synth
 from ibrtools.formats import native
 from ibrtools.formats import yuv as yuv_format
 from ibrtools.imageio import write_image
+from ibrtools.metrics import DEFAULT_SCORES
 from ibrtools.inpaint.complete import DEFAULT_INPAINT, check_inpaint, complete, completion, parse_background
 from ibrtools.pipeline import job
 from ibrtools.pipeline import plan as planning
@@ -289,7 +290,8 @@ def render_job(scene: Scene, out_dir: str | os.PathLike[str], method: str = "aut
                depth_out: bool = False, threads: int = 0, workers: int = 0,
                scheduler: str | None = None,
                yuv: str | os.PathLike[str] | Mapping[str, str | os.PathLike[str]] | None = None,
-               yuv_bits: int | Mapping[str, int] = yuv_format.DEFAULT_BITS) -> dict[str, Any]:
+               yuv_bits: int | Mapping[str, int] = yuv_format.DEFAULT_BITS,
+               metrics: str | Sequence[str] = DEFAULT_SCORES) -> dict[str, Any]:
     """Render many cameras as ``ibr-render`` does and write them to ``out_dir`` with report.json:
     the scene's targets (or ``targets`` by name), held-out input views scored against their own
     images (``holdout``), a camera path (``path``: stored in the scene, else generated:
@@ -297,7 +299,8 @@ def render_job(scene: Scene, out_dir: str | os.PathLike[str], method: str = "aut
     "Camera paths") or a pose file (``poses``: our camera list, a nerfstudio camera_path.json or
     a transforms.json); ``yuv``: also one raw YUV 4:2:0 file of every frame (``yuv_bits`` per
     sample; a name with ``{camera}``, or a mapping camera -> file: a file per camera;
-    docs/render.md "YUV output"). Returns the report (per-frame times per stage, metrics against ground truth when known;
+    docs/render.md "YUV output"); ``metrics``: the scores of frames with ground truth ("all",
+    "none", or names of psnr, ssim, flip; as ``ibr-render --metrics``). Returns the report (per-frame times per stage, metrics against ground truth when known;
     docs/render.md, docs/reports.md). All or nothing: an interrupt removes what the job wrote."""
     if not isinstance(scene, Scene):
         raise DtypeError(f"render_job: scene: expected an ibrtools.Scene, got {type(scene).__name__}")
@@ -309,7 +312,7 @@ def render_job(scene: Scene, out_dir: str | os.PathLike[str], method: str = "aut
                                      inpaint=DEFAULT_INPAINT if inpaint is None else inpaint,
                                      background=background, scheduler=scheduler, workers=workers,
                                      yuv=yuv if yuv is None or isinstance(yuv, Mapping) else os.fspath(yuv),
-                                     yuv_bits=yuv_bits)
+                                     yuv_bits=yuv_bits, metrics=metrics)
     return report
 
 

@@ -28,6 +28,10 @@ Definitions
   absent and :func:`compare` then leaves the ``"flip"`` key out.
 
 No metric is ever NaN: a metric over an empty mask is ``None``.
+
+Which scores a report computes (``ibr-render --metrics``, :func:`parse_scores`): "all" (the
+default: PSNR, SSIM and FLIP when installed), "none", or a comma list of psnr, ssim, flip.
+FLIP costs seconds per 1080p frame; PSNR milliseconds.
 """
 from __future__ import annotations
 
@@ -189,8 +193,36 @@ def flip(rendered: np.ndarray, reference: np.ndarray, return_map: bool = False):
     return (mean, np.ascontiguousarray(fmap[..., 0])) if return_map else mean
 
 
+SCORES = ("psnr", "ssim", "flip")
+DEFAULT_SCORES = "all"
+
+
+def parse_scores(spec: Any) -> tuple[str, ...]:
+    """The scores a ``--metrics`` value asks for: "all" (every score, FLIP when installed),
+    "none" (no score), or a comma list of psnr, ssim, flip (FLIP named while it is not
+    installed: NotBuiltError). A sequence of names is accepted from Python."""
+    if isinstance(spec, str):
+        text = spec.strip().lower()
+        if text == "all":
+            return SCORES
+        if text == "none":
+            return ()
+        names = [t.strip() for t in text.split(",")]
+    elif isinstance(spec, (list, tuple)) and all(isinstance(t, str) for t in spec):
+        names = [t.strip().lower() for t in spec]
+    else:
+        raise DtypeError(f"--metrics: expected all, none or a comma list of {', '.join(SCORES)}, got {spec!r}")
+    bad = [t for t in names if t not in SCORES]
+    if bad or not names:
+        raise BadValueError(f"--metrics: expected all, none or a comma list of {', '.join(SCORES)}, got {spec!r}")
+    if "flip" in names and not flip_available():
+        raise NotBuiltError("--metrics flip: the optional package flip-evaluator is not installed "
+                            "(pip install 'ibrtools[flip]' or pip install flip-evaluator)")
+    return tuple(t for t in SCORES if t in names)
+
+
 def compare(rendered: np.ndarray, reference: np.ndarray, mask: np.ndarray | None = None,
-            hole_mask: np.ndarray | None = None) -> dict:
+            hole_mask: np.ndarray | None = None, scores: tuple[str, ...] = SCORES) -> dict:
     """Metrics of a rendered frame against its ground truth, for ``report.json`` "metrics".
 
     ``rendered`` and ``reference`` are *linear* RGB float images (H, W, 3), compared as sRGB
@@ -204,6 +236,9 @@ def compare(rendered: np.ndarray, reference: np.ndarray, mask: np.ndarray | None
         {"psnr_covered", "ssim_covered"} over mask AND NOT hole (the whole image when both are
                                        absent); None when that region is empty;
         "flip"                         mean LDR-FLIP, only when flip-evaluator is installed.
+
+    ``scores`` (:func:`parse_scores`) limits it to those scores (and their covered variants);
+    "coverage" is always there.
     """
     rendered, reference = _pair(rendered, reference, ("rendered", "reference"))
     if rendered.ndim != 3 or rendered.shape[2] != 3:
@@ -216,16 +251,19 @@ def compare(rendered: np.ndarray, reference: np.ndarray, mask: np.ndarray | None
     region = np.ones(a.shape[:2], bool) if mask is None else mask.copy()
     if hole_mask is not None:
         region &= ~hole_mask
-    s_mean, s_map = ssim(a, b, 1.0, return_map=True)
-    c = SSIM_CROP
-    inner = region[c:region.shape[0] - c, c:region.shape[1] - c]
-    out: dict[str, Any] = {
-        "psnr": psnr(a, b, 1.0),
-        "ssim": s_mean,
-        "coverage": 1.0 if hole_mask is None else coverage(hole_mask=hole_mask),
-        "psnr_covered": psnr(a, b, 1.0, mask=region),
-        "ssim_covered": float(s_map[c:-c, c:-c][inner].mean(dtype=np.float64)) if inner.any() else None,
-    }
-    if flip_available():
+    out: dict[str, Any] = {}
+    if "psnr" in scores:
+        out["psnr"] = psnr(a, b, 1.0)
+    if "ssim" in scores:
+        s_mean, s_map = ssim(a, b, 1.0, return_map=True)
+        c = SSIM_CROP
+        inner = region[c:region.shape[0] - c, c:region.shape[1] - c]
+        out["ssim"] = s_mean
+    out["coverage"] = 1.0 if hole_mask is None else coverage(hole_mask=hole_mask)
+    if "psnr" in scores:
+        out["psnr_covered"] = psnr(a, b, 1.0, mask=region)
+    if "ssim" in scores:
+        out["ssim_covered"] = float(s_map[c:-c, c:-c][inner].mean(dtype=np.float64)) if inner.any() else None
+    if "flip" in scores and flip_available():
         out["flip"] = flip(rendered, reference)
     return out

@@ -20,7 +20,7 @@ import uuid
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Collection, Mapping
 
 import numpy as np
 
@@ -41,16 +41,18 @@ from ibrtools.formats import native
 from ibrtools.formats.yuv import DEFAULT_BITS as DEFAULT_YUV_BITS, rgb_to_yuv
 from ibrtools.formats.yuv import write_frame as write_yuv_frame
 from ibrtools.imageio import linear_to_srgb
-from ibrtools.metrics import compare, psnr
+from ibrtools.metrics import DEFAULT_SCORES, SCORES, compare, parse_scores, psnr
 
 
-def _frame_metrics(color: np.ndarray, hole: np.ndarray | None, filled: bool, truth: View | None) -> dict:
-    """The frame's scores: "psnr", "ssim", "flip" of the image as written, "psnr_covered" /
-    "ssim_covered" over the pixels the method or the background covered, "coverage" (that
-    fraction) and "filled" (the fraction the inpainting filled)."""
+def _frame_metrics(color: np.ndarray, hole: np.ndarray | None, filled: bool, truth: View | None,
+                   scores: Collection[str] = SCORES) -> dict:
+    """The frame's scores (those of ``scores``): "psnr", "ssim", "flip" of the image as written,
+    "psnr_covered" / "ssim_covered" over the pixels the method or the background covered,
+    "coverage" (that fraction) and "filled" (the fraction the inpainting filled)."""
     m: dict = {}
-    if truth is not None and truth.has_color:
-        m = compare(color, truth.color, hole_mask=hole, mask=truth.mask if truth.has_mask else None)
+    if truth is not None and truth.has_color and scores:
+        m = compare(color, truth.color, hole_mask=hole, mask=truth.mask if truth.has_mask else None,
+                    scores=tuple(scores))
     elif hole is not None:
         m = {"coverage": float(1.0 - hole.mean())}
     if hole is not None:
@@ -80,7 +82,7 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
         progress: Callable[[int, int, str], None] | None = None,
         scheduler: str | None = None, workers: int = 0,
         yuv: str | os.PathLike | Mapping[str, str | os.PathLike] | None = None,
-        yuv_bits: int | Mapping[str, int] = DEFAULT_YUV_BITS) -> dict:
+        yuv_bits: int | Mapping[str, int] = DEFAULT_YUV_BITS, metrics: Any = DEFAULT_SCORES) -> dict:
     """Render every frame of ``job``; write images and report.json; return the report.
 
     Every frame is completed (inpaint/complete.py): the background at infinity where an input
@@ -91,6 +93,9 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
     says "inpaint": "skipped: no hole"). ``background`` (None, "black", "white", "R,G,B" sRGB in
     [0, 1], or "transparent": RGBA images with alpha 0 on the background) recolours the
     background at infinity (complete.parse_background).
+
+    ``metrics`` ("all", "none" or names of psnr, ssim, flip: :func:`ibrtools.metrics.parse_scores`)
+    are the scores computed for frames with ground truth; "coverage" and "filled" always are.
 
     ``foveate`` ((x, y) fixation in [0, 1]^2, or None) post-processes every frame, after the
     inpainting, into a foveated ventral metamer (:func:`ibrtools.metamers.foveate.foveate`, seed 0 and
@@ -107,6 +112,7 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
     from ibrtools import _core
     D.check_options(scheduler, workers)
     check_inpaint(inpaint)
+    scores = list(parse_scores(metrics))
 
     fov_kw: dict = {}
     if foveate is not None:
@@ -122,7 +128,7 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
     check_memory(job, name)
     parse_background(background)  # a bad value fails before anything is written
     frame_kw = {"inpaint": inpaint, "fov_kw": fov_kw, "float_out": float_out, "depth_out": depth_out,
-                "background": background}
+                "background": background, "scores": scores}
     method = methods.create(name, params)  # bad parameters fail here, before anything is written
     # The output directory is this job's until it ends (a second job is refused, before any
     # work), its dead jobs' temporaries are swept, and the files an earlier job left there are
@@ -440,7 +446,7 @@ def frame_scene(job: "Job", frame: Frame) -> Scene:
 
 
 def render_frame(method, frame: Frame, scene: Scene, *, inpaint: str, fov_kw: dict, float_out: bool,
-                 depth_out: bool, background: str | None = None
+                 depth_out: bool, background: str | None = None, scores: Collection[str] = SCORES
                  ) -> tuple[dict | None, dict | None, list[tuple[str, str, np.ndarray]]]:
     """Render one frame with a ``method`` prepared on ``scene`` and post-process it: NaN guard,
     the background at infinity and the holes (inpaint/complete.py), foveation, metrics. Returns (report entry, None, outputs) with outputs the files
@@ -450,14 +456,15 @@ def render_frame(method, frame: Frame, scene: Scene, *, inpaint: str, fov_kw: di
     the caller does (the local loop, or the client of a distributed run)."""
     try:
         return _render_frame(method, frame, scene, inpaint=inpaint, fov_kw=fov_kw, float_out=float_out,
-                             depth_out=depth_out, background=background)
+                             depth_out=depth_out, background=background, scores=scores)
     except Exception as e:  # noqa: BLE001 - reported by name in report.json "failed"
         if isinstance(e, InputError) and getattr(e, "scene_data", False):
             raise  # an input file found bad when first read (scene.View): the job stops, exit 2
         return None, {"name": frame.name, "error": f"{type(e).__name__}: {e}"}, []
 
 
-def _render_frame(method, frame: Frame, scene: Scene, *, inpaint, fov_kw, float_out, depth_out, background=None):
+def _render_frame(method, frame: Frame, scene: Scene, *, inpaint, fov_kw, float_out, depth_out, background=None,
+                  scores: Collection[str] = SCORES):
     outputs: list[tuple[str, str, np.ndarray]] = []
     t0 = time.perf_counter()
     out, stage_ms = method.render(frame.camera)
@@ -477,10 +484,10 @@ def _render_frame(method, frame: Frame, scene: Scene, *, inpaint, fov_kw, float_
     outputs.append((image, "image", written))
     entry: dict = {"name": frame.name, "image": image,
                    "time_ms": {"total": round(total_ms, 3), **{k: round(v, 3) for k, v in stage_ms.items()}},
-                   "metrics": _frame_metrics(color, hole, done.filled, frame.truth), **frame.info}
+                   "metrics": _frame_metrics(color, hole, done.filled, frame.truth, scores), **frame.info}
     if done.note is not None:
         entry["inpaint"] = done.note
-        if done.filled and frame.truth is not None and frame.truth.has_color:
+        if done.filled and frame.truth is not None and frame.truth.has_color and "psnr" in scores:
             entry["metrics"]["psnr_holes"] = _psnr_in(color, frame.truth.color, hole)
     # Method-specific facts about the frame (dibr: the selected input views, best first,
     # their similarity, and how many candidates were skipped for not overlapping).
