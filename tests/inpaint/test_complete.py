@@ -204,3 +204,19 @@ def test_background_option_recolours_or_makes_it_transparent(sky_scene, tmp_path
     assert render.main([str(sky_scene.root), "--holdout", "v002", "--background", "pink", "-o",
                         str(tmp_path / "b"), "-q"]) == 2
     assert not (tmp_path / "b").exists() or not any((tmp_path / "b").iterdir())
+
+
+@pytest.mark.parametrize("margin", [1, 2, 3, 5])
+def test_clear_mask_is_no_surface_within_the_margin(margin):
+    # An independent answer, pixel by pixel: clear where the (2 margin - 1)-wide square around the
+    # pixel, cut by the image edge, holds no surface pixel.
+    from ibrtools.inpaint.background import _clear
+
+    rng = np.random.default_rng(margin)
+    surface = rng.random((23, 31)) < 0.04
+    surface[0, 30] = surface[22, 0] = True  # corners
+    r = margin - 1
+    want = np.array([[not surface[max(0, y - r):y + r + 1, max(0, x - r):x + r + 1].any() for x in range(31)]
+                     for y in range(23)])
+    np.testing.assert_array_equal(_clear(surface, margin), want)
+    assert not _clear(np.ones((4, 5), bool), margin).any() and _clear(np.zeros((4, 5), bool), margin).all()

@@ -45,7 +45,7 @@ class Background:
     """The input views that have background pixels (depth +inf), ready for :meth:`fill`."""
 
     views: list  # scene.View, each with some depth +inf
-    clearance: list  # per view: (H, W) uint8, pixels to the nearest surface pixel (<= CLEARANCE)
+    clear: list  # per view: (H, W) bool, no surface pixel within CLEARANCE - 1 pixels (Chebyshev)
     colour: np.ndarray | None = None  # the scene's background colour (linear RGB), when it has one
 
     @classmethod
@@ -57,7 +57,7 @@ class Background:
         if not bg:
             return None
         c = None if colour is None else np.asarray(colour, np.float32).reshape(3)
-        return cls(bg, [_clearance(np.isfinite(v.depth) & (v.depth > 0)) for v in bg], c)
+        return cls(bg, [_clear(np.isfinite(v.depth) & (v.depth > 0)) for v in bg], c)
 
     def fill(self, camera: Camera, color: np.ndarray, hole: np.ndarray,
              depth: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -81,7 +81,7 @@ class Background:
                 if not len(todo):
                     break
                 v = self.views[i]
-                seen, sky, rgb = _look_up(v, self.clearance[i] >= CLEARANCE, dirs[todo])
+                seen, sky, rgb = _look_up(v, self.clear[i], dirs[todo])
                 idx = todo[sky]
                 color[ys[idx], xs[idx]] = rgb
                 found[idx] = True
@@ -105,25 +105,22 @@ class Background:
         return [int(i) for i in np.argsort(-np.asarray(agree), kind="stable")]
 
 
-def _clearance(surface: np.ndarray) -> np.ndarray:
-    """Chebyshev distance in pixels (uint8, capped at CLEARANCE) from every pixel to the nearest
-    ``surface`` pixel: the row distance by running scans, then the minimum over the rows within
-    the cap."""
-    h, w = surface.shape
-    cap = CLEARANCE
-    cols = np.arange(w)[None, :]
-    big = np.int64(1 << 30)
-    left = np.maximum.accumulate(np.where(surface, cols, -big), axis=1)
-    right = np.minimum.accumulate(np.where(surface, cols, big)[:, ::-1], axis=1)[:, ::-1]
-    row = np.minimum(np.minimum(cols - left, right - cols), cap).astype(np.int16)
-    out = row.copy()
-    for dy in range(1, cap + 1):
-        up = np.full_like(row, cap)
-        up[dy:] = row[:-dy]
-        down = np.full_like(row, cap)
-        down[:-dy] = row[dy:]
-        np.minimum(out, np.maximum(np.minimum(up, down), dy), out=out)
-    return np.minimum(out, cap).astype(np.uint8)
+def _clear(surface: np.ndarray, margin: int = CLEARANCE) -> np.ndarray:
+    """True where no ``surface`` pixel is within Chebyshev distance ``margin - 1`` (the square of
+    radius ``margin - 1`` around the pixel holds none; outside the image there is none): the
+    surface dilated by a separable running OR, rows then columns, and negated."""
+    r = int(margin) - 1
+    if r <= 0:
+        return ~surface
+    rows = surface.copy()
+    for d in range(1, r + 1):
+        rows[:, d:] |= surface[:, :-d]
+        rows[:, :-d] |= surface[:, d:]
+    near = rows.copy()
+    for d in range(1, r + 1):
+        near[d:] |= rows[:-d]
+        near[:-d] |= rows[d:]
+    return ~near
 
 
 def _look_up(view, clear: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
