@@ -1,5 +1,7 @@
-// The inpaint family's bindings: push-pull hole filling (cpp/kernels/inpaint/pushpull.h) and the
-// per-sample passes of metameric inpainting (metameric.h). Python: ibrtools.inpaint.pushpull, ibrtools.inpaint.metameric.
+// The inpaint family's bindings: push-pull hole filling (cpp/kernels/inpaint/pushpull.h), the
+// per-sample passes of metameric inpainting (metameric.h) and the background lookup (background.h).
+// Python: ibrtools.inpaint.pushpull, ibrtools.inpaint.metameric, ibrtools.inpaint.background.
+#include <algorithm>
 #include <cmath>
 #include <string>
 #include <vector>
@@ -10,6 +12,7 @@
 #include "array.h"
 #include "ibr/checks.h"
 #include "ibr/errors.h"
+#include "kernels/inpaint/background.h"
 #include "kernels/inpaint/metameric.h"
 #include "kernels/inpaint/pushpull.h"
 #include "module.h"
@@ -48,21 +51,75 @@ namespace {
 
 using FloatArray = py::array_t<float, py::array::c_style>;
 
-// The hole mask as one byte per pixel: bool or uint8 (non-zero = hole), (H, W), C-contiguous.
-ImageView<const std::uint8_t> HoleView(const py::handle& obj, py::ssize_t h, py::ssize_t w, py::object* keep) {
+// A mask as one byte per pixel: bool or uint8 (non-zero = true), (H, W), C-contiguous.
+ImageView<const std::uint8_t> MaskView(const py::handle& obj, const char* name, py::ssize_t h, py::ssize_t w,
+                                       py::object* keep) {
   if (py::isinstance<py::array>(obj) &&
       py::reinterpret_borrow<py::array>(obj).dtype().equal(py::dtype::of<std::uint8_t>())) {
-    auto a = CheckArray<std::uint8_t>(obj, "hole", {{"H", h}, {"W", w}});
+    auto a = CheckArray<std::uint8_t>(obj, name, {{"H", h}, {"W", w}});
     *keep = a;
     return ImageView<const std::uint8_t>(a.data(), static_cast<int>(h), static_cast<int>(w), 1);
   }
-  auto a = CheckArray<bool>(obj, "hole", {{"H", h}, {"W", w}});
+  auto a = CheckArray<bool>(obj, name, {{"H", h}, {"W", w}});
   *keep = a;
   return ImageView<const std::uint8_t>(reinterpret_cast<const std::uint8_t*>(a.data()), static_cast<int>(h),
                                        static_cast<int>(w), 1);
 }
 
 }  // namespace
+
+// Binding of cpp/kernels/inpaint/background.h: the checking front (each input's arrays against its
+// camera's size, the target's hole and colour) and the call with the GIL released.
+static void BindBackground(py::module_& m) {
+  m.def(
+      "background_lookup",
+      [](const Camera& target, py::sequence inputs_obj, py::handle hole_obj, py::handle color_obj) {
+        const py::ssize_t h = target.height, w = target.width;
+        py::object hole_keep;
+        const ImageView<const std::uint8_t> hole = MaskView(hole_obj, "hole", h, w, &hole_keep);
+        FloatArray color = CheckArray<float>(color_obj, "color", {{"H", h}, {"W", w}, {"3", 3}}, true);
+        std::vector<BackgroundInput> inputs;
+        std::vector<py::object> keep;
+        for (py::ssize_t i = 0; i < static_cast<py::ssize_t>(py::len(inputs_obj)); ++i) {
+          const std::string at = "inputs[" + std::to_string(i) + "]";
+          py::object item = inputs_obj[i];
+          if (!py::isinstance<py::tuple>(item) || py::len(item) != 4) {
+            throw DtypeError(at + ": expected a tuple (camera, depth, clear, color)");
+          }
+          py::tuple t = item.cast<py::tuple>();
+          BackgroundInput in;
+          in.camera = t[0].cast<const Camera&>();
+          const py::ssize_t ih = in.camera.height, iw = in.camera.width;
+          FloatArray depth = CheckArray<float>(t[1], (at + ".depth").c_str(), {{"h", ih}, {"w", iw}});
+          py::object clear_keep;
+          in.clear = MaskView(t[2], (at + ".clear").c_str(), ih, iw, &clear_keep);
+          FloatArray rgb = CheckArray<float>(t[3], (at + ".color").c_str(), {{"h", ih}, {"w", iw}, {"3", 3}});
+          if (Overlaps(color, depth) || Overlaps(color, rgb)) {
+            throw BadValueError("color: shares memory with " + at + " (it is written)");
+          }
+          in.depth = ConstViewOf(depth);
+          in.color = ConstViewOf(rgb);
+          keep.push_back(depth);
+          keep.push_back(clear_keep);
+          keep.push_back(rgb);
+          inputs.push_back(in);
+        }
+        auto state = NewArray<std::uint8_t>({h, w});
+        {
+          py::gil_scoped_release release;
+          std::fill(state.mutable_data(), state.mutable_data() + h * w, std::uint8_t{0});
+          BackgroundLookupKernel(target, inputs.data(), static_cast<int>(inputs.size()), hole, ViewOf(color),
+                                 ViewOf(state));
+        }
+        return state;
+      },
+      py::arg("target"), py::arg("inputs"), py::arg("hole"), py::arg("color"),
+      "The background at infinity looked up in the inputs, in their order (cpp/kernels/inpaint/background.h). "
+      "target: Camera; inputs: a sequence of (Camera, depth float32 (h, w), clear bool (h, w), color float32 "
+      "(h, w, 3)); hole bool or uint8 (H, W); color float32 (H, W, 3), written in place at the background "
+      "pixels found. Returns state uint8 (H, W): at the hole pixels 0 undecided, 1 a surface, 2 background "
+      "(colour written); 0 elsewhere.");
+}
 
 static void BindPushPull(py::module_& m) {
   m.def(
@@ -78,7 +135,7 @@ static void BindPushPull(py::module_& m) {
           throw ShapeError("image: expected at least 1 pixel and 1 channel, got shape " + DescribeShape(image));
         }
         py::object hole_keep;
-        const ImageView<const std::uint8_t> hole = HoleView(hole_obj, h, w, &hole_keep);
+        const ImageView<const std::uint8_t> hole = MaskView(hole_obj, "hole", h, w, &hole_keep);
         FloatArray depth;
         PushPullOptions options = CheckPushPullArgs(depth_obj, h, w, depth_threshold, gamma, &depth);
         const ImageView<const float> depth_view = options.depth_aware ? ConstViewOf(depth) : ImageView<const float>();
@@ -437,6 +494,7 @@ namespace ibr::bind {
 void BindInpaint(py::module_& m) {
   BindPushPull(m);
   BindMetameric(m);
+  BindBackground(m);
 }
 
 }  // namespace ibr::bind

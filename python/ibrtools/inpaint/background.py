@@ -26,7 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ibrtools.camera import PINHOLE, Camera
+from ibrtools import _core
+from ibrtools.camera import Camera
 
 # Inputs tried per frame, best viewing-direction agreement first: a background direction is seen
 # by the views that face it; more views only cost time on the pixels none of them sees.
@@ -71,30 +72,24 @@ class Background:
                  else np.array(depth, np.float32, copy=True))
         color = np.array(color, np.float32, copy=True)
         hole = hole.copy()
-        ys, xs = np.nonzero(hole)
-        if len(ys):
-            dirs = camera.rays_in_cam(xs + 0.5, ys + 0.5) @ camera.cam_from_world[:3, :3]  # world
-            found = np.zeros(len(ys), bool)
-            decided = np.zeros(len(ys), bool)
-            for i in self._order(camera)[:MAX_VIEWS]:
-                todo = np.nonzero(~decided)[0]
-                if not len(todo):
-                    break
-                v = self.views[i]
-                seen, sky, rgb = _look_up(v, self.clear[i], dirs[todo])
-                idx = todo[sky]
-                color[ys[idx], xs[idx]] = rgb
-                found[idx] = True
-                decided[todo[seen]] = True
+        if hole.any():
+            # The inputs in order, each asked about the directions no input before it decided
+            # (cpp/kernels/inpaint/background.h); the background colours are written into color.
+            inputs = [(self.views[i].camera.to_core(), np.ascontiguousarray(self.views[i].depth, np.float32),
+                       self.clear[i], np.ascontiguousarray(self.views[i].color, np.float32))
+                      for i in self._order(camera)[:MAX_VIEWS]]
+            state = _core.background_lookup(camera.to_core(), inputs, hole, color)  # 0 outside the holes
+            found = state == 2
             # A method that renders geometry says where its rays miss it (depth +inf in a hole):
             # there the background is seen whatever its colour; no input seeing the direction at
             # all, it takes the scene's background colour.
-            miss = np.isposinf(depth[ys, xs]) & ~found & ~decided
-            if self.colour is not None and miss.any():
-                color[ys[miss], xs[miss]] = self.colour
-                found |= miss
-            hole[ys[found], xs[found]] = False
-            depth[ys[found], xs[found]] = np.inf
+            if self.colour is not None:
+                miss = hole & (state == 0) & np.isposinf(depth)
+                if miss.any():
+                    color[miss] = self.colour
+                    found |= miss
+            hole &= ~found
+            depth[found] = np.inf
         depth[hole & np.isposinf(depth)] = 0  # still a hole: unknown
         background = np.isposinf(depth) & ~hole
         return color, hole, depth, background
@@ -121,50 +116,3 @@ def _clear(surface: np.ndarray, margin: int = CLEARANCE) -> np.ndarray:
         near[d:] |= rows[:-d]
         near[:-d] |= rows[d:]
     return ~near
-
-
-def _look_up(view, clear: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """For world directions (n, 3): which ones ``view`` sees with a known depth at its nearest
-    pixel in that direction (``seen``), which of those as clear background (``clear``: no surface
-    within the parallax margin, ``sky``), and
-    the colour of those (bilinear over the background pixels of the 2 x 2 neighbourhood; the
-    nearest one always among them)."""
-    cam = view.camera
-    rot = np.eye(4)
-    rot[:3, :3] = cam.cam_from_world[:3, :3]
-    xy, _ = cam.with_pose(rot).project(dirs)  # camera at the origin: a direction projects as a point
-    w, h = cam.width, cam.height
-    with np.errstate(invalid="ignore"):
-        inside = np.isfinite(xy).all(-1) & (xy[:, 0] >= 0) & (xy[:, 0] < w) & (xy[:, 1] >= 0) & (xy[:, 1] < h)
-    depth = view.depth
-    seen = np.zeros(len(dirs), bool)
-    got = np.zeros(len(dirs), bool)
-    rgb = np.zeros((0, 3), np.float32)
-    if not inside.any():
-        return seen, got, rgb
-    p = xy[inside]
-    ix = np.minimum(p[:, 0].astype(np.int64), w - 1)
-    iy = np.minimum(p[:, 1].astype(np.int64), h - 1)
-    at = depth[iy, ix]
-    sky = clear[iy, ix] & np.isposinf(at)
-    seen[np.nonzero(inside)[0][at > 0]] = True  # +inf included
-    got[np.nonzero(inside)[0][sky]] = True
-    p = p[sky]
-    if not len(p):
-        return seen, got, rgb
-    # Bilinear between pixel centres, over background pixels only (weights renormalised).
-    gx, gy = p[:, 0] - 0.5, p[:, 1] - 0.5
-    x0, y0 = np.floor(gx).astype(np.int64), np.floor(gy).astype(np.int64)
-    fx, fy = gx - x0, gy - y0
-    color = view.color
-    acc = np.zeros((len(p), 3))
-    wsum = np.zeros(len(p))
-    for dx, dy, wt in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
-        cx, cy = np.clip(x0 + dx, 0, w - 1), np.clip(y0 + dy, 0, h - 1)
-        wt = wt * np.isposinf(depth[cy, cx])
-        acc += wt[:, None] * color[cy, cx]
-        wsum += wt
-    # wsum > 0: the nearest pixel is background and one of the four with weight >= 1/4 (a clipped
-    # corner repeats an edge pixel, whose weight then adds up the same way).
-    rgb = (acc / np.maximum(wsum, 1e-12)[:, None]).astype(np.float32)
-    return seen, got, rgb

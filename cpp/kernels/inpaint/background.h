@@ -1,0 +1,45 @@
+// The background at infinity, looked up in the inputs (python/ibrtools/inpaint/background.py,
+// docs/FORMAT.md "Background"): a target pixel is a direction; an input sees that direction at
+// the pixel it projects to with its camera at the origin (a rotation-only warp: a direction has no
+// parallax).
+//
+// For every hole pixel of the target (its centre's ray, in world axes), the inputs are asked in
+// the order given (the caller sorts them by viewing-direction agreement) until one decides:
+//   - the direction projects inside the input (0 <= x < W, 0 <= y < H) to the pixel (floor x,
+//     floor y), whose depth d is known (d > 0, +inf included): the input decides;
+//   - and the pixel is background (d = +inf) and `clear` (no surface pixel near it): the
+//     direction is the background, with the colour of the input's background pixels around it:
+//     bilinear between pixel centres over the 2 x 2 neighbourhood (clamped at the border), each
+//     weight multiplied by "that pixel's depth is +inf" and the sum renormalised (the nearest
+//     pixel, background, is always among them), accumulated in double;
+//   - an input where the direction falls outside, behind the camera, or on unknown depth (0)
+//     does not decide: the next one is asked.
+// state (H, W) is written at the hole pixels: 0 no input decided, 1 an input saw a surface
+// there (or background too near a surface), 2 background: its colour written into `color`.
+// Pixels outside the holes are neither read nor written in `color` or `state`.
+//
+// Shapes: hole (H, W) one byte per pixel (non-zero = hole), color (H, W, 3) float32; per input:
+// depth (h, w) float32, clear (h, w) one byte (non-zero = clear), color (h, w, 3) float32, h, w
+// the input camera's size. The front (cpp/bindings/inpaint.cpp) checks them. Multithreaded over
+// rows with ibr::ParallelFor; every pixel is independent, so the result is the same for any
+// thread count. Nothing is allocated or thrown.
+#pragma once
+#include <cstdint>
+
+#include "ibr/camera.h"
+#include "ibr/image.h"
+
+namespace ibr {
+
+struct BackgroundInput {
+  Camera camera;                         // only its rotation and intrinsics are used
+  ImageView<const float> depth;          // (h, w)
+  ImageView<const std::uint8_t> clear;   // (h, w)
+  ImageView<const float> color;          // (h, w, 3), linear
+};
+
+void BackgroundLookupKernel(const Camera& target, const BackgroundInput* inputs, int num_inputs,
+                            const ImageView<const std::uint8_t>& hole, const ImageView<float>& color,
+                            const ImageView<std::uint8_t>& state);
+
+}  // namespace ibr

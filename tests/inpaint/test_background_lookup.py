@@ -1,0 +1,109 @@
+"""The background lookup kernel (cpp/kernels/inpaint/background.h) against an independent numpy
+implementation of the same rule, on pinhole and equirectangular inputs with sky, surfaces,
+unknown depth, pixels too near a surface, directions behind or outside an input; and its front."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ibrtools import _core
+from ibrtools.camera import Camera, look_at
+from ibrtools.errors import DtypeError, ShapeError
+
+
+def reference(target: Camera, inputs, hole: np.ndarray):
+    """(state, rgb) per hole pixel in np.nonzero order: each input in turn, with numpy, for the
+    directions no earlier input decided."""
+    ys, xs = np.nonzero(hole)
+    dirs = target.rays_in_cam(xs + 0.5, ys + 0.5) @ target.cam_from_world[:3, :3]
+    state = np.zeros(len(ys), np.uint8)
+    rgb = np.zeros((len(ys), 3), np.float32)
+    for cam, depth, clear, color in inputs:
+        todo = np.nonzero(state == 0)[0]
+        rot = np.eye(4)
+        rot[:3, :3] = cam.cam_from_world[:3, :3]
+        xy, _ = cam.with_pose(rot).project(dirs[todo])
+        w, h = cam.width, cam.height
+        with np.errstate(invalid="ignore"):
+            inside = np.isfinite(xy).all(-1) & (xy[:, 0] >= 0) & (xy[:, 0] < w) & (xy[:, 1] >= 0) & (xy[:, 1] < h)
+        for k in np.nonzero(inside)[0]:
+            x, y = xy[k]
+            ix, iy = min(int(x), w - 1), min(int(y), h - 1)
+            at = depth[iy, ix]
+            if not at > 0:
+                continue
+            j = todo[k]
+            if not (np.isposinf(at) and clear[iy, ix]):
+                state[j] = 1
+                continue
+            gx, gy = x - 0.5, y - 0.5
+            x0, y0 = int(np.floor(gx)), int(np.floor(gy))
+            fx, fy = gx - x0, gy - y0
+            acc, wsum = np.zeros(3), 0.0
+            for dx, dy, wt in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy),
+                               (1, 1, fx * fy)):
+                cx, cy = np.clip(x0 + dx, 0, w - 1), np.clip(y0 + dy, 0, h - 1)
+                if np.isposinf(depth[cy, cx]):
+                    acc += wt * color[cy, cx].astype(np.float64)
+                    wsum += wt
+            state[j] = 2
+            rgb[j] = (acc / max(wsum, 1e-12)).astype(np.float32)
+    return state, rgb
+
+
+def _input(cam: Camera, rng: np.random.Generator):
+    h, w = cam.height, cam.width
+    depth = rng.uniform(1, 5, (h, w)).astype(np.float32)
+    sky = rng.random((h, w)) < 0.6
+    depth[sky] = np.inf
+    depth[rng.random((h, w)) < 0.1] = 0  # unknown
+    clear = rng.random((h, w)) < 0.8
+    color = rng.random((h, w, 3)).astype(np.float32)
+    return cam, depth, clear, color
+
+
+def test_lookup_matches_the_reference():
+    rng = np.random.default_rng(7)
+    target = Camera.pinhole(41, 29, 30, 31, 20.3, 14.1, look_at((0.2, 0, 0), (0.5, 0.1, 5), up=(0, -1, 0)))
+    cams = [Camera.pinhole(23, 17, 14, 15, 11.5, 8.5, look_at((0, 0, 0), (0, 0, 5), up=(0, -1, 0))),
+            Camera.pinhole(19, 21, 12, 12, 9.0, 10.0, look_at((1, 0, 0), (2, 0.5, 5), up=(0, -1, 0))),
+            Camera.pinhole(15, 15, 10, 10, 7.5, 7.5, look_at((0, 0, 0), (0, 0, -5), up=(0, -1, 0))),  # behind
+            Camera.equirect(32, 16, cam_from_world=look_at((0, 0, 0), (0, 0, 5), up=(0, -1, 0)))]
+    inputs = [_input(c, rng) for c in cams]
+    hole = rng.random((29, 41)) < 0.7
+    color = rng.random((29, 41, 3)).astype(np.float32)
+    before = color.copy()
+    state = _core.background_lookup(target.to_core(), [(c.to_core(), d, m, col) for c, d, m, col in inputs],
+                                    hole, color)
+    want_state, want_rgb = reference(target, inputs, hole)
+    ys, xs = np.nonzero(hole)
+    assert {0, 1, 2} <= set(np.unique(want_state))  # every outcome is exercised
+    np.testing.assert_array_equal(state[ys, xs], want_state)
+    assert (state[~hole] == 0).all()
+    bg = want_state == 2
+    np.testing.assert_allclose(color[ys[bg], xs[bg]], want_rgb[bg], rtol=0, atol=1e-6)
+    # everything else untouched
+    untouched = np.ones(hole.shape, bool)
+    untouched[ys[bg], xs[bg]] = False
+    np.testing.assert_array_equal(color[untouched], before[untouched])
+    # no inputs: nothing decided
+    assert (_core.background_lookup(target.to_core(), [], hole, color.copy()) == 0).all()
+
+
+def test_lookup_front_names_bad_arguments():
+    rng = np.random.default_rng(1)
+    target = Camera.pinhole(8, 6, 5, 5, 4, 3, np.eye(4))
+    cam, depth, clear, color = _input(Camera.pinhole(7, 5, 5, 5, 3.5, 2.5, np.eye(4)), rng)
+    hole = np.ones((6, 8), bool)
+    out = np.zeros((6, 8, 3), np.float32)
+    with pytest.raises(ShapeError, match=r"inputs\[0\].depth: expected float32 array of shape \(h, w\) = \(5, 7\)"):
+        _core.background_lookup(target.to_core(), [(cam.to_core(), depth[:4], clear, color)], hole, out)
+    with pytest.raises(DtypeError, match=r"inputs\[0\].clear: expected bool"):
+        _core.background_lookup(target.to_core(), [(cam.to_core(), depth, clear.astype(np.float32), color)],
+                                hole, out)
+    with pytest.raises(DtypeError, match=r"inputs\[0\]: expected a tuple \(camera, depth, clear, color\)"):
+        _core.background_lookup(target.to_core(), [(cam.to_core(), depth)], hole, out)
+    with pytest.raises(ShapeError, match=r"color: expected float32 array of shape \(H, W, 3\) = \(6, 8, 3\)"):
+        _core.background_lookup(target.to_core(), [], hole, out[:, :, :2].copy())
+    with pytest.raises(ShapeError, match=r"hole: expected"):
+        _core.background_lookup(target.to_core(), [], hole[:5], out)
