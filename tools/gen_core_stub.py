@@ -59,6 +59,7 @@ OVERRIDES: dict[str, dict[str, str]] = {
                           "textures": "list[_F32]", "materials": "_F32 | None"},
     "RayScene.peel": {"umbra_positions": "_F64 | None", "return": _ARRAYS},
     "RayScene.render": {"lights": "list[_Light]", "return": _ARRAYS},
+    "hole_sides": {"hole": "_Bool", "background": "_Bool", "known_depth": "_F32", "return": "tuple[_U8, _F32]"},
     "background_lookup": {"inputs": "collections.abc.Sequence[tuple[Camera, _F32, _Bool, _F32]]", "hole": "_Bool",
                           "color": "_F32", "return": "_U8"},
     "DibrAccumulator.add_view": {"color": "_F32", "depth": "_F32"},

@@ -13,6 +13,7 @@
 #include "ibr/checks.h"
 #include "ibr/errors.h"
 #include "kernels/inpaint/background.h"
+#include "kernels/inpaint/hole_sides.h"
 #include "kernels/inpaint/metameric.h"
 #include "kernels/inpaint/pushpull.h"
 #include "module.h"
@@ -119,6 +120,30 @@ static void BindBackground(py::module_& m) {
       "(h, w, 3)); hole bool or uint8 (H, W); color float32 (H, W, 3), written in place at the background "
       "pixels found. Returns state uint8 (H, W): at the hole pixels 0 undecided, 1 a surface, 2 background "
       "(colour written); 0 elsewhere.");
+}
+
+// Binding of cpp/kernels/inpaint/hole_sides.h: the checking front and the call with the GIL released.
+static void BindHoleSides(py::module_& m) {
+  m.def(
+      "hole_sides",
+      [](py::handle hole_obj, py::handle background_obj, py::handle known_depth_obj) {
+        FloatArray known = CheckArray<float>(known_depth_obj, "known_depth", {{"H", -1}, {"W", -1}});
+        const py::ssize_t h = known.shape(0), w = known.shape(1);
+        py::object hole_keep, bg_keep;
+        const ImageView<const std::uint8_t> hole = MaskView(hole_obj, "hole", h, w, &hole_keep);
+        const ImageView<const std::uint8_t> bg = MaskView(background_obj, "background", h, w, &bg_keep);
+        auto sides = NewArray<std::uint8_t>({h, w});
+        FloatArray around = NewArray<float>({h, w});
+        {
+          py::gil_scoped_release release;
+          HoleSidesKernel(hole, bg, ConstViewOf(known), ViewOf(sides), ViewOf(around));
+        }
+        return py::make_tuple(sides, around);
+      },
+      py::arg("hole"), py::arg("background"), py::arg("known_depth"),
+      "The nearest covered pixels left, right, above and below each hole pixel (cpp/kernels/inpaint/hole_sides.h). "
+      "hole, background bool or uint8 (H, W); known_depth float32 (H, W). Returns (sides uint8 (H, W) = found | "
+      "background-found << 4, around float32 (H, W) = the largest known_depth of those found), 0 outside the holes.");
 }
 
 static void BindPushPull(py::module_& m) {
@@ -495,6 +520,7 @@ void BindInpaint(py::module_& m) {
   BindPushPull(m);
   BindMetameric(m);
   BindBackground(m);
+  BindHoleSides(m);
 }
 
 }  // namespace ibr::bind

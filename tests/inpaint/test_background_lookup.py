@@ -107,3 +107,37 @@ def test_lookup_front_names_bad_arguments():
         _core.background_lookup(target.to_core(), [], hole, out[:, :, :2].copy())
     with pytest.raises(ShapeError, match=r"hole: expected"):
         _core.background_lookup(target.to_core(), [], hole[:5], out)
+
+
+def test_hole_sides_match_nearest_covered():
+    # The kernel's per-pixel summary against ibrtools.inpaint.pushpull.nearest_covered, the numpy
+    # search of the four nearest covered pixels, reduced the same way.
+    from ibrtools.inpaint.pushpull import nearest_covered
+
+    rng = np.random.default_rng(5)
+    for shape in ((37, 150), (1, 9), (9, 1), (64, 65)):
+        hole = rng.random(shape) < 0.6
+        hole[:, :1] = True  # runs touching the borders
+        bg = ~hole & (rng.random(shape) < 0.4)
+        known = np.where(~hole & ~bg, rng.uniform(0.5, 9, shape), 0).astype(np.float32)
+        sides, around = _core.hole_sides(hole, bg, known)
+        ys, xs = np.nonzero(hole)
+        votes = np.zeros(len(ys), int)
+        bg_votes = np.zeros(len(ys), int)
+        want = np.zeros(len(ys), np.float32)
+        for ny, nx, found in nearest_covered(hole):
+            ny, nx = np.where(found, ny, 0), np.where(found, nx, 0)
+            votes += found
+            bg_votes += found & bg[ny, nx]
+            want = np.maximum(want, np.where(found, known[ny, nx], 0))
+        np.testing.assert_array_equal(sides[ys, xs] & 15, votes)
+        np.testing.assert_array_equal(sides[ys, xs] >> 4, bg_votes)
+        np.testing.assert_array_equal(around[ys, xs], want)
+        assert (sides[~hole] == 0).all() and (around[~hole] == 0).all()
+    all_hole = np.ones((4, 5), bool)
+    sides, around = _core.hole_sides(all_hole, np.zeros((4, 5), bool), np.zeros((4, 5), np.float32))
+    assert (sides == 0).all() and (around == 0).all()
+    with pytest.raises(ShapeError, match=r"background: expected bool array of shape \(H, W\) = \(4, 5\)"):
+        _core.hole_sides(all_hole, np.zeros((4, 4), bool), np.zeros((4, 5), np.float32))
+    with pytest.raises(DtypeError, match=r"known_depth: expected float32"):
+        _core.hole_sides(all_hole, all_hole, np.zeros((4, 5)))

@@ -25,11 +25,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ibrtools import _core
 from ibrtools.errors import BadValueError
 from ibrtools.inpaint.background import Background
 from ibrtools.imageio import srgb_to_linear
 from ibrtools.inpaint import inpaint as fill_holes
-from ibrtools.inpaint.pushpull import nearest_covered
 
 INPAINT = {
     "auto": "the measured best fill: depth-aware push-pull from the background side (default)",
@@ -192,19 +192,15 @@ def _fill(color: np.ndarray, hole: np.ndarray, depth: np.ndarray | None, bg: np.
     if d is not None:
         ok = surface & np.isfinite(d) & (d > 0)
         known_depth[ok] = d[ok]
-    ys, xs = np.nonzero(hole)
-    votes = np.zeros(len(ys), np.int8)
-    bg_votes = np.zeros(len(ys), np.int8)
-    around = np.zeros(len(ys), np.float32)  # largest depth of the nearest surface pixels
-    for ny, nx, found in nearest_covered(hole):
-        ny, nx = np.where(found, ny, 0), np.where(found, nx, 0)
-        is_bg = found & bg[ny, nx]
-        votes += found
-        bg_votes += is_bg
-        around = np.maximum(around, np.where(found & ~is_bg, known_depth[ny, nx], np.float32(0)))
-    sky = np.zeros(hole.shape, bool)
+    # The nearest covered pixels left, right, above and below each hole pixel
+    # (cpp/kernels/inpaint/hole_sides.h): how many, how many of them background, and the largest
+    # depth of the surface ones (known_depth is 0 on the background).
+    sides, around = _core.hole_sides(hole, bg, known_depth)
     if bg.any():
-        sky[ys, xs] = (2 * bg_votes >= votes) & (votes > 0)
+        votes, bg_votes = sides & 15, sides >> 4
+        sky = hole & (2 * bg_votes >= votes) & (votes > 0)
+    else:
+        sky = np.zeros(hole.shape, bool)
     ground = hole & ~sky
     if ground.any() and not surface.any():
         sky, ground = hole, np.zeros(hole.shape, bool)  # nothing but background to fill from
@@ -215,8 +211,7 @@ def _fill(color: np.ndarray, hole: np.ndarray, depth: np.ndarray | None, bg: np.
         method = "pushpull" if mode == "auto" else mode
         aware = None
         if d is not None and known_depth.any():
-            aware = known_depth.copy()
-            aware[ys, xs] = np.where(around > 0, around, np.float32(known_depth.max()))
+            aware = np.where(hole, np.where(around > 0, around, np.float32(known_depth.max())), known_depth)
             aware[sky] = 0  # not read: the background holes are blocked as the background is
         filled = fill_holes(color, hole | bg, method, depth=aware)  # never from the background at infinity
         out = out.copy() if out is color else out
