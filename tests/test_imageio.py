@@ -132,3 +132,19 @@ def test_write_is_atomic(tmp_path, monkeypatch):
     monkeypatch.setattr(io, "linear_to_srgb", real)
     assert f.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["keep.png"]
+
+
+def test_png_level_changes_the_bytes_not_the_pixels(tmp_path):
+    rng = np.random.default_rng(0)
+    img = np.repeat(np.linspace(0, 1, 64, dtype=np.float32)[None, :, None], 48, 0) * np.ones(3, np.float32)
+    img[::7] = rng.random((7, 64, 3)).astype(np.float32)
+    sizes = {}
+    for level in (None, 0, 1, 9):
+        p = write_image(tmp_path / f"l{level}.png", img, png_level=level)
+        sizes[level] = p.stat().st_size
+        np.testing.assert_array_equal(read_image(p), read_image(tmp_path / "lNone.png"))
+    assert sizes[0] > sizes[1] >= sizes[9] and sizes[None] >= sizes[9]
+    for bad in (10, -1, 1.5, True):
+        with pytest.raises(BadValueError, match="png_level must be an integer 0-9"):
+            write_image(tmp_path / "bad.png", img, png_level=bad)
+    assert not (tmp_path / "bad.png").exists()
