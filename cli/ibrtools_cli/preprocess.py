@@ -103,13 +103,7 @@ def _body(args: argparse.Namespace) -> int:
     check_options(args.scheduler, args.workers)  # usage errors before any work
     synth = None
     if args.input.startswith("synth:"):
-        from ibrtools.synth import PRESETS
-
-        preset = args.input.split(":", 1)[1]
-        if preset not in PRESETS:
-            raise InputError(f"INPUT {args.input!r}: unknown preset (expected one of "
-                             f"{', '.join('synth:' + k for k in PRESETS)})")
-        from ibrtools.synth import check_scale
+        from ibrtools.synth import scene_spec
 
         n_frames = 1
         if args.frames is not None:
@@ -117,18 +111,18 @@ def _body(args: argparse.Namespace) -> int:
                 n_frames = int(args.frames)
             except ValueError:
                 raise InputError(f"--frames {args.frames}: a synthetic video takes a number of frames N") from None
-        # the bounds and the memory estimate (docs/synth.md "Size and memory"), before any work
-        check_scale(args.size, args.views, n_frames, flags=("--size", "--views", "--frames"))
-        synth = {"preset": preset, "size": list(args.size), "views": args.views, "seed": args.seed,
-                 "reconstructed": bool(args.reconstructed)}
+        options = {"size": list(args.size), "views": args.views, "seed": args.seed,
+                   "reconstructed": bool(args.reconstructed)}
         # Only when set, so that the import key of scenes made without jitter is unchanged.
         for key, value in (("exposure_jitter", args.exposure_jitter), ("white_balance_jitter", args.wb_jitter)):
             if not value >= 0:
                 raise InputError(f"--{key.replace('_', '-').replace('white-balance', 'wb')}: expected >= 0, got {value}")
             if value > 0:
-                synth[key] = value
-        if n_frames > 1:  # only then: the import key of still scenes is unchanged
-            synth["frames"] = n_frames
+                options[key] = value
+        if n_frames != 1:  # only then (a bad count is refused below): the import key of still scenes is unchanged
+            options["frames"] = n_frames
+        # the preset, the bounds and the memory estimate (docs/synth.md "Size and memory"), before any work
+        synth = scene_spec(args.input, options, source_label="INPUT", flags=("--size", "--views", "--frames"))
     methods = parse_methods(args.methods)
     stages = parse_stages(args.stages)
     stage_options = parse_stage_options(args.stage_set)

@@ -62,7 +62,8 @@ from ibrtools.camera import Camera
 from ibrtools.errors import BadValueError, DtypeError, FormatError, MissingFileError
 from ibrtools.formats.native import SCENE_FILE
 from ibrtools.scene import Scene
-from ibrtools import methods, synth
+from ibrtools import methods
+from ibrtools.synth import scene_spec as synth_scene_spec
 from ibrtools.formats import native
 from ibrtools.formats import yuv as yuv_format
 from ibrtools.imageio import write_image
@@ -256,7 +257,8 @@ def import_dataset(source: str | os.PathLike[str], output: str | os.PathLike[str
     spec = os.fspath(source)
     made = None
     if isinstance(spec, str) and spec.startswith("synth:"):
-        made = _synth_spec(spec, synth or {})
+        made = synth_scene_spec(spec, synth or {}, source_label="import_dataset: source",
+                                options_label="import_dataset: synth")
     elif synth is not None:
         raise BadValueError(f"import_dataset: synth: only for a synth:NAME source, got source {spec!r}")
     run_import(str(spec), Path(output), fmt=format, options=options, synth=made, force=force, holdout=holdout,
@@ -333,27 +335,6 @@ def bench(scene: Scene, method: str, grid: dict[str, list[Any]], *, holdout: lis
     rows: list[dict[str, Any]] = sweep(scene, method, grid, holdout=holdout, base=base, out_dir=out_dir,
                                        inpaint=DEFAULT_INPAINT if inpaint is None else inpaint)
     return rows
-
-
-def _synth_spec(source: str, options: dict[str, Any]) -> dict[str, Any]:
-    """The import's description of a synthetic scene: the preset and make_scene's arguments."""
-    import inspect
-
-    preset = source.split(":", 1)[1]
-    if preset not in synth.PRESETS:
-        raise BadValueError(f"import_dataset: source {source!r}: unknown preset (expected one of "
-                            f"{', '.join('synth:' + k for k in synth.PRESETS)})")
-    known = (set(inspect.signature(synth.make_scene).parameters) | {"frames"}) - {"preset"}
-    bad = sorted(set(options) - known)
-    if bad:
-        raise BadValueError(f"import_dataset: synth: unknown option(s) {', '.join(bad)} (options: {', '.join(sorted(known))})")
-    spec = {"preset": preset, **options}
-    defaults = inspect.signature(synth.make_scene).parameters
-    synth.check_scale(spec.get("size", defaults["size"].default), spec.get("views", defaults["views"].default),
-                      spec.get("frames", 1), flags=("synth size", "synth views", "synth frames"))
-    if "size" in spec:
-        spec["size"] = list(spec["size"])
-    return spec
 
 
 def _check_path(value: Any, what: str) -> None:

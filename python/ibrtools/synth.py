@@ -692,6 +692,32 @@ def check_scale(size: Sequence[int], views: int, frames: int = 1, holdout_target
                             f"use a smaller {fs} or fewer {fv}")
 
 
+def scene_spec(source: str, options: dict[str, Any], *, source_label: str = "source",
+               options_label: str = "synth", flags: tuple[str, str, str] = ("synth size", "synth views", "synth frames")
+               ) -> dict[str, Any]:
+    """The import's description of a ``synth:PRESET`` source with :func:`make_scene`'s keyword
+    ``options`` (and ``frames``): {"preset": PRESET, **options}, after checking the preset, that
+    every option is one make_scene takes, and the scale (:func:`check_scale`, naming ``flags``),
+    before anything is rendered. BadValueError names ``source_label`` / ``options_label``."""
+    import inspect
+
+    preset = source.split(":", 1)[1]
+    if preset not in PRESETS:
+        raise BadValueError(f"{source_label} {source!r}: unknown preset (expected one of "
+                            f"{', '.join('synth:' + k for k in PRESETS)})")
+    params = inspect.signature(make_scene).parameters
+    known = (set(params) | {"frames"}) - {"preset"}
+    bad = sorted(set(options) - known)
+    if bad:
+        raise BadValueError(f"{options_label}: unknown option(s) {', '.join(bad)} (options: {', '.join(sorted(known))})")
+    spec = {"preset": preset, **options}
+    check_scale(spec.get("size", params["size"].default), spec.get("views", params["views"].default),
+                spec.get("frames", 1), flags=flags)
+    if "size" in spec:
+        spec["size"] = list(spec["size"])
+    return spec
+
+
 def _check_size(size: Any, name: str = "size") -> tuple[int, int]:
     if isinstance(size, str) or not hasattr(size, "__len__") or len(size) != 2:
         raise DtypeError(f"{name}: expected (width, height), got {size!r}")
