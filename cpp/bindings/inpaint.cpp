@@ -108,7 +108,6 @@ static void BindBackground(py::module_& m) {
         auto state = NewArray<std::uint8_t>({h, w});
         {
           py::gil_scoped_release release;
-          std::fill(state.mutable_data(), state.mutable_data() + h * w, std::uint8_t{0});
           BackgroundLookupKernel(target, inputs.data(), static_cast<int>(inputs.size()), hole, ViewOf(color),
                                  ViewOf(state));
         }

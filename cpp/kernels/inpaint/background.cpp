@@ -52,13 +52,17 @@ void BackgroundLookupKernel(const Camera& target, const BackgroundInput* inputs,
   ParallelFor(hole.height, 8, [&](std::int64_t y0, std::int64_t y1) {
     for (int y = static_cast<int>(y0); y < static_cast<int>(y1); ++y) {
       const std::uint8_t* hrow = hole.Row(y);
+      std::uint8_t* srow = state.Row(y);
       for (int x = 0; x < hole.width; ++x) {
-        if (!hrow[x]) continue;
+        if (!hrow[x]) {
+          srow[x] = kUndecided;
+          continue;
+        }
         const glm::dvec3 dir = target.WorldFromCamDir(target.RayInCam(x + 0.5, y + 0.5));
         std::uint8_t s = kUndecided;
         float rgb[3];
         for (int i = 0; i < num_inputs && s == kUndecided; ++i) s = Ask(inputs[i], dir, rgb);
-        state.At(y, x) = s;
+        srow[x] = s;
         if (s == kBackground) {
           for (int c = 0; c < 3; ++c) color.At(y, x, c) = rgb[c];
         }

@@ -14,9 +14,9 @@
 //     pixel, background, is always among them), accumulated in double;
 //   - an input where the direction falls outside, behind the camera, or on unknown depth (0)
 //     does not decide: the next one is asked.
-// state (H, W) is written at the hole pixels: 0 no input decided, 1 an input saw a surface
-// there (or background too near a surface), 2 background: its colour written into `color`.
-// Pixels outside the holes are neither read nor written in `color` or `state`.
+// state (H, W) is written at every pixel: at a hole pixel 0 no input decided, 1 an input saw a
+// surface there (or background too near a surface), 2 background: its colour written into
+// `color`; 0 outside the holes, where `color` is neither read nor written.
 //
 // Shapes: hole (H, W) one byte per pixel (non-zero = hole), color (H, W, 3) float32; per input:
 // depth (h, w) float32, clear (h, w) one byte (non-zero = clear), color (h, w, 3) float32, h, w
