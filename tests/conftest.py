@@ -89,3 +89,13 @@ def wall(zw: float = 2.0, size: float = 1.0):
     if vertex_normals(v, f)[0, 2] > 0:
         f = f[:, [0, 2, 1]]
     return Mesh(v, f)
+
+
+def synth_scene_dir(tmp_path_factory, *flags: str, preset: str = "objects", name: str = "synth") -> Path:
+    """A synthetic scene made by ``ibr-preprocess synth:PRESET -o DIR FLAGS... -q`` in a new
+    temporary directory (one per call: a module's fixture owns its scene and may change it)."""
+    from ibrtools_cli import preprocess
+
+    d = tmp_path_factory.mktemp(name) / "scene"
+    assert preprocess.main([f"synth:{preset}", "-o", str(d), *flags, "-q"]) == 0
+    return d

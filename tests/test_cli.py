@@ -8,15 +8,14 @@ import numpy as np
 import pytest
 
 from ibrtools_cli import bench, preprocess, render
+from conftest import synth_scene_dir
 
 SIZE = "64x48"
 
 
 @pytest.fixture(scope="module")
 def scene_dir(tmp_path_factory):
-    d = tmp_path_factory.mktemp("cli") / "scene"
-    assert preprocess.main(["synth:objects", "-o", str(d), "--views", "6", "--size", SIZE, "-q"]) == 0
-    return d
+    return synth_scene_dir(tmp_path_factory, "--views", "6", "--size", SIZE, name="cli")
 
 
 def test_preprocess_prints_stage_table_then_is_up_to_date(scene_dir, capsys):

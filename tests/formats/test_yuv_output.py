@@ -10,6 +10,7 @@ import pytest
 from ibrtools.errors import BadValueError
 from ibrtools.formats import yuv
 from ibrtools.imageio import linear_to_srgb, read_image, srgb_to_linear
+from conftest import synth_scene_dir
 
 
 def test_codes_of_black_white_and_grey():
@@ -60,10 +61,7 @@ def test_bad_arguments():
 
 @pytest.fixture(scope="module")
 def small_scene(tmp_path_factory):
-    from ibrtools_cli import preprocess
-
-    d = tmp_path_factory.mktemp("yuvscene") / "scene"
-    assert preprocess.main(["synth:objects", "-o", str(d), "--views", "4", "--size", "64x48", "-q"]) == 0
+    d = synth_scene_dir(tmp_path_factory, "--views", "4", "--size", "64x48", name="yuvscene")
     return d
 
 

@@ -12,7 +12,8 @@ from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError, InputError
 from ibrtools.pipeline import batches as B
 from ibrtools.scene import Scene, View
-from ibrtools_cli import preprocess, render
+from ibrtools_cli import render
+from conftest import synth_scene_dir
 
 # Poses are composed in float64 from one rotation: the only error is the rounding of a few
 # additions of numbers of order 1 (1e-12 is ~1e4 ulp of margin).
@@ -147,9 +148,7 @@ def test_missing_imageio_ffmpeg_is_a_clear_error(monkeypatch):
 # --- the command --------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def scene_dir(tmp_path_factory):
-    d = tmp_path_factory.mktemp("lf") / "scene"
-    assert preprocess.main(["synth:objects", "-o", str(d), "--views", "4", "--size", "64x48", "-q"]) == 0
-    return d
+    return synth_scene_dir(tmp_path_factory, "--views", "4", "--size", "64x48", name="lf")
 
 
 def test_render_lightfield_with_mp4(scene_dir, tmp_path):

@@ -21,6 +21,7 @@ from ibrtools.errors import BadValueError  # noqa: E402
 from ibrtools.formats import native  # noqa: E402
 from ibrtools.pipeline import job as J  # noqa: E402
 from ibrtools.pipeline import plan as planning  # noqa: E402
+from conftest import synth_scene_dir  # noqa: E402
 
 SIZE = "64x48"
 # Fields that differ between any two runs by nature (times; depthwarp's warp/reference time
@@ -30,10 +31,7 @@ TIMES = {"seconds", "threads", "distributed", "reference_over_warp", "stat"}  # 
 
 @pytest.fixture(scope="module")
 def scene_dir(tmp_path_factory):
-    from ibrtools_cli import preprocess
-
-    d = tmp_path_factory.mktemp("dist") / "scene"
-    assert preprocess.main(["synth:objects", "-o", str(d), "--views", "4", "--size", SIZE, "-q"]) == 0
+    d = synth_scene_dir(tmp_path_factory, "--views", "4", "--size", SIZE, name="dist")
     return d
 
 

@@ -15,7 +15,8 @@ import pytest
 
 from ibrtools.pipeline import report_html as R
 from ibrtools.errors import BadValueError, ShapeError
-from ibrtools_cli import bench, preprocess, render
+from ibrtools_cli import bench, render
+from conftest import synth_scene_dir
 
 CHROMIUM = next((p for p in ("/usr/bin/chromium-headless-shell", shutil.which("chromium-headless-shell") or "",
                              shutil.which("chromium") or "") if p and Path(p).exists()), None)
@@ -119,9 +120,7 @@ def test_unwritable_directory_is_refused(tmp_path, monkeypatch, capsys, scene_di
 # --- the commands ---------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def scene_dir(tmp_path_factory):
-    d = tmp_path_factory.mktemp("html") / "scene"
-    assert preprocess.main(["synth:objects", "-o", str(d), "--views", "4", "--size", "64x48", "-q"]) == 0
-    return d
+    return synth_scene_dir(tmp_path_factory, "--views", "4", "--size", "64x48", name="html")
 
 
 @pytest.fixture(scope="module")

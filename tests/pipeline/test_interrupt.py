@@ -23,6 +23,7 @@ import pytest
 
 from ibrtools.errors import MissingFileError
 from procs import interruptible
+from conftest import synth_scene_dir
 
 BIN = Path(sys.executable).parent
 SIZE = "48x36"
@@ -79,10 +80,7 @@ def _run_until(argv: list[str], ready, sig, timeout: float = 120.0) -> int:
 
 @pytest.fixture(scope="module")
 def scene_dir(tmp_path_factory):
-    from ibrtools_cli import preprocess
-
-    d = tmp_path_factory.mktemp("intr") / "scene"
-    assert preprocess.main(["synth:objects", "-o", str(d), "--views", "3", "--size", SIZE, "-q"]) == 0
+    d = synth_scene_dir(tmp_path_factory, "--views", "3", "--size", SIZE, name="intr")
     return d
 
 

@@ -12,6 +12,7 @@ from ibrtools import BadValueError, Camera, Scene, View, look_at
 from ibrtools import memory
 from ibrtools.pipeline import job as render_job
 from ibrtools.pipeline import plan as planning
+from conftest import synth_scene_dir
 SIZE = "48x36"
 
 
@@ -59,10 +60,7 @@ def test_estimate_scales_and_reference_ignores_views():
 
 @pytest.fixture(scope="module")
 def scene_dir(tmp_path_factory):
-    from ibrtools_cli import preprocess
-
-    d = tmp_path_factory.mktemp("mem") / "scene"
-    assert preprocess.main(["synth:objects", "-o", str(d), "--views", "3", "--size", SIZE, "-q"]) == 0
+    d = synth_scene_dir(tmp_path_factory, "--views", "3", "--size", SIZE, name="mem")
     return d
 
 
