@@ -312,27 +312,6 @@ def test_redwood_open3d_trajectory_json(tmp_path, small_synth):
         assert v.camera.allclose(ref.camera, 1e-9)
 
 
-def test_redwood_renders_a_held_out_view_as_the_native_scene(tmp_path, small_synth):
-    # The same data in the native format (unknown depth 0, as the layout stores it) and in the
-    # Redwood layout (JPEG colour, millimetre depth) render the held-out view within 0.5 dB on its
-    # object pixels (the sky, unknown in both, is filled alike; measured: 24.8 and 24.5 dB).
-    import ibrtools
-    from ibrtools.formats import native
-    from ibrtools.metrics import psnr
-    from ibrtools.scene import Scene, View
-
-    views = [View.create(v.name, v.camera, color=v.color, depth=np.where(np.isfinite(v.depth), v.depth, 0))
-             for v in small_synth.views]
-    native.save(Scene(views=views, units="m"), tmp_path / "native")
-    scenes = {"native": native.load(tmp_path / "native"),
-              "redwood": rgbd.load(make_redwood(tmp_path / "redwood", small_synth), {})}
-    target = small_synth.targets[0]
-    objects = np.isfinite(target.depth)
-    db = {k: psnr(ibrtools.render(s, target.camera, "dibr").color, target.color, mask=objects)
-          for k, s in scenes.items()}
-    assert db["native"] > 20 and abs(db["redwood"] - db["native"]) < 0.5, db
-
-
 def test_redwood_bad_input(tmp_path, small_synth):
     import json
 
@@ -450,7 +429,12 @@ def test_scannet_layout_resamples_colour_into_the_depth_camera(tmp_path, small_s
     assert psnr(misregistered, small_synth.views[0].color) < psnr(scene.views[0].color, small_synth.views[0].color) - 3
 
 
-def test_scannet_renders_a_held_out_view_as_the_native_scene(tmp_path, small_synth):
+@pytest.mark.parametrize("layout", ["redwood", "scannet"])
+def test_layout_renders_a_held_out_view_as_the_native_scene(tmp_path, small_synth, layout):
+    # The same data in the native format (unknown depth 0, as the layouts store it) and in the
+    # layout (JPEG colour, millimetre depth; ScanNet's colour resampled from its larger camera)
+    # render the held-out view within 0.5 dB on its object pixels (the sky, unknown in both, is
+    # filled alike). Measured: native 24.8, redwood 24.5, scannet 25.1 dB.
     import ibrtools
     from ibrtools.formats import native
     from ibrtools.metrics import psnr
@@ -459,13 +443,13 @@ def test_scannet_renders_a_held_out_view_as_the_native_scene(tmp_path, small_syn
     views = [View.create(v.name, v.camera, color=v.color, depth=np.where(np.isfinite(v.depth), v.depth, 0))
              for v in small_synth.views]
     native.save(Scene(views=views, units="m"), tmp_path / "native")
-    scenes = {"native": native.load(tmp_path / "native"),
-              "scannet": rgbd.load(make_scannet(tmp_path / "scannet", small_synth), {})}
+    make = {"redwood": make_redwood, "scannet": make_scannet}[layout]
+    scenes = {"native": native.load(tmp_path / "native"), layout: rgbd.load(make(tmp_path / layout, small_synth), {})}
     target = small_synth.targets[0]
     objects = np.isfinite(target.depth)
     db = {k: psnr(ibrtools.render(s, target.camera, "dibr").color, target.color, mask=objects)
           for k, s in scenes.items()}
-    assert db["native"] > 20 and abs(db["scannet"] - db["native"]) < 0.5, db
+    assert db["native"] > 20 and abs(db[layout] - db["native"]) < 0.5, db
 
 
 def test_scannet_bad_input(tmp_path, small_synth):

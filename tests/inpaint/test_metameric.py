@@ -211,8 +211,8 @@ def test_depth_aware_does_not_bleed_the_foreground():
 
 
 def _dilate_any(a, b):
-    from ibrtools.inpaint.metameric import _dilate
-    return bool((_dilate(a, 1) & b).any())
+    from ibrtools.inpaint.pushpull import dilate
+    return bool((dilate(a, 1) & b).any())
 
 
 def test_level_masks():

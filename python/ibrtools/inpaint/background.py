@@ -28,6 +28,7 @@ import numpy as np
 
 from ibrtools import _core
 from ibrtools.camera import Camera
+from ibrtools.inpaint.pushpull import dilate
 
 # Inputs tried per frame, best viewing-direction agreement first: a background direction is seen
 # by the views that face it; more views only cost time on the pixels none of them sees.
@@ -102,17 +103,5 @@ class Background:
 
 def _clear(surface: np.ndarray, margin: int = CLEARANCE) -> np.ndarray:
     """True where no ``surface`` pixel is within Chebyshev distance ``margin - 1`` (the square of
-    radius ``margin - 1`` around the pixel holds none; outside the image there is none): the
-    surface dilated by a separable running OR, rows then columns, and negated."""
-    r = int(margin) - 1
-    if r <= 0:
-        return ~surface
-    rows = surface.copy()
-    for d in range(1, r + 1):
-        rows[:, d:] |= surface[:, :-d]
-        rows[:, :-d] |= surface[:, d:]
-    near = rows.copy()
-    for d in range(1, r + 1):
-        near[d:] |= rows[:-d]
-        near[:-d] |= rows[d:]
-    return ~near
+    radius ``margin - 1`` around the pixel holds none; outside the image there is none)."""
+    return ~dilate(surface, int(margin) - 1)

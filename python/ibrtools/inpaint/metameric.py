@@ -50,23 +50,10 @@ from typing import Any
 import numpy as np
 
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
-from ibrtools.inpaint.pushpull import DEPTH_THRESHOLD, GAMMA, check_arrays, pushpull
+from ibrtools.inpaint.pushpull import DEPTH_THRESHOLD, GAMMA, check_arrays, dilate, pushpull
 from ibrtools.metamers.steerable import ORIENTATIONS, SteerablePyramid, analyse, max_levels, synthesise
 
 FILTER_RADIUS = 2  # the 5x5 taps of cpp/kernels/metamers/steerable_taps.h
-
-
-def _dilate(mask: np.ndarray, r: int = FILTER_RADIUS) -> np.ndarray:
-    """Square (2r+1)^2 binary dilation, separable: 2r shifted ORs per axis (no pixel loop)."""
-    h = mask.copy()
-    for s in range(1, r + 1):
-        h[:, s:] |= mask[:, :-s]
-        h[:, :-s] |= mask[:, s:]
-    v = h.copy()
-    for s in range(1, r + 1):
-        v[s:] |= h[:-s]
-        v[:-s] |= h[s:]
-    return v
 
 
 def _any_down(mask: np.ndarray) -> np.ndarray:
@@ -90,12 +77,12 @@ def level_masks(hole: np.ndarray, levels: int) -> tuple[list[np.ndarray], np.nda
     replace the low-pass (module docstring, step 4: it keeps the pre-fill's); the mask says which
     low-pass samples a hole pixel's synthesis reads."""
     if levels == 0:
-        return [_dilate(hole)], _dilate(hole)
+        return [dilate(hole, FILTER_RADIUS)], dilate(hole, FILTER_RADIUS)
     m, bands = hole, []
     for _ in range(levels):
-        bands.append(_dilate(m))
+        bands.append(dilate(m, FILTER_RADIUS))
         m = _any_down(m)
-    return bands, _dilate(m)
+    return bands, dilate(m, FILTER_RADIUS)
 
 
 def _block_all(hole: np.ndarray, scale: int, shape: tuple[int, int]) -> np.ndarray:

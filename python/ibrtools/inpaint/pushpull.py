@@ -12,6 +12,8 @@
   ``pushpull.h``), so the depth-aware fill always completes.
 * :func:`nearest_covered` — for every hole pixel, the nearest pixel outside the holes in each of
   the four directions (the background-depth fills of inpaint/complete.py and depthwarp/method.py).
+* :func:`dilate` — the square binary dilation of a mask (metameric inpainting's band masks, the
+  background pass's clearance).
 
 The C++ kernel is ``cpp/kernels/inpaint/pushpull.{h,cpp}`` (equations, the paper's depth convention and
 where we read Alg. 1 differently are written there). Outside the holes the result *is* the input
@@ -73,6 +75,20 @@ def pushpull(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = Non
     else:
         out, _ = _core.pushpull(image, hole, depth, float(depth_threshold), float(gamma))
     return out
+
+
+def dilate(mask: np.ndarray, r: int) -> np.ndarray:
+    """Square (2r+1)^2 binary dilation of a bool (H, W) mask, separable: 2r shifted ORs per axis
+    (nothing outside the image); a new array (``mask`` itself copied for r <= 0)."""
+    h = mask.copy()
+    for s in range(1, r + 1):
+        h[:, s:] |= mask[:, :-s]
+        h[:, :-s] |= mask[:, s:]
+    v = h.copy()
+    for s in range(1, r + 1):
+        v[s:] |= h[:-s]
+        v[:-s] |= h[s:]
+    return v
 
 
 def nearest_covered(hole: np.ndarray):
