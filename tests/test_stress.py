@@ -211,6 +211,38 @@ def test_pushpull(size, data):
         assert out.min() >= img[~hole].min() - 1e-5 and out.max() <= img[~hole].max() + 1e-5
 
 
+# --- the completion's kernels: background lookup, hole sides ------------------------------------------
+@STRESS
+@given(size=SIZES, f=FOCALS, data=st.data())
+def test_background_lookup_and_hole_sides(size, f, data):
+    h, w = size
+    rng = np.random.default_rng(data.draw(st.integers(0, 999)))
+    colour = data.draw(colours(h, w))
+    depth = data.draw(depth_maps(h, w))
+    depth[rng.uniform(size=(h, w)) < data.draw(st.sampled_from([0.0, 0.5, 1.0]))] = np.inf  # background
+    clear = rng.uniform(size=(h, w)) < 0.7
+    hole = rng.uniform(size=(h, w)) < data.draw(st.sampled_from([0.0, 0.3, 1.0]))
+    yaw = data.draw(st.sampled_from([0.0, 0.2, 3.0]))
+    target = pinhole(h, w, f, target=(np.sin(yaw), 0.1, np.cos(yaw)))
+    inputs = [(pinhole(h, w, f).to_core(), depth, clear, colour),
+              (Camera.equirect(w, h, cam_from_world=np.eye(4)).to_core(), depth, clear, colour)]
+    base = rng.uniform(0, 1, (h, w, 3)).astype(np.float32)
+
+    def lookup():
+        out = base.copy()
+        return _core.background_lookup(target.to_core(), inputs, hole, out), out
+    state, out = same_for_1_and_2_threads(lookup)
+    assert set(np.unique(state)) <= {0, 1, 2} and (state[~hole] == 0).all()
+    assert np.all(np.isfinite(out))
+    np.testing.assert_array_equal(out[state != 2], base[state != 2])
+    if (state == 2).any():  # bilinear over background pixels: within the inputs' colour range
+        assert out[state == 2].min() >= colour.min() - 1e-6 and out[state == 2].max() <= colour.max() + 1e-6
+    known = np.where(~hole & np.isfinite(depth), depth, 0).astype(np.float32)
+    sides, around = same_for_1_and_2_threads(lambda: _core.hole_sides(hole, ~hole & np.isposinf(depth), known))
+    assert ((sides & 15) <= 4).all() and ((sides >> 4) <= (sides & 15)).all() and (sides[~hole] == 0).all()
+    assert np.all(np.isfinite(around)) and (around >= 0).all() and (around <= known.max(initial=0)).all()
+
+
 # --- steerable pyramid ---------------------------------------------------------------------------------
 @STRESS
 @given(size=BIG_SIZES, data=st.data())

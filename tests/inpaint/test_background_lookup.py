@@ -10,6 +10,8 @@ from ibrtools import _core
 from ibrtools.camera import Camera, look_at
 from ibrtools.errors import DtypeError, ShapeError
 
+pytestmark = [pytest.mark.asan, pytest.mark.kernel]
+
 
 def reference(target: Camera, inputs, hole: np.ndarray):
     """(state, rgb) per hole pixel in np.nonzero order: each input in turn, with numpy, for the
