@@ -132,3 +132,27 @@ def test_core_decoding_rejects_other_arrays_with_one_line():
 
     with pytest.raises(DtypeError, match="values: expected a float32 array, got int64"):
         _core.srgb_to_linear(np.zeros(3, np.int64))
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_read_image_decodes_every_code_as_the_curve_does(tmp_path, dtype):
+    # read_image looks 8- and 16-bit codes up in a table: the same float32 as srgb_to_linear of
+    # code / (2^bits - 1), for every code, and alpha stays linear.
+    from ibrtools.imageio import _oiio, read_image
+
+    n = np.iinfo(dtype).max + 1
+    side = int(np.sqrt(n))
+    codes = np.arange(n, dtype=dtype).reshape(side, side)
+    rgba = np.stack([codes, codes[::-1], codes[:, ::-1], codes], -1)
+    oiio = _oiio()
+    path = str(tmp_path / "codes.png")
+    out = oiio.ImageOutput.create(path)
+    spec = oiio.ImageSpec(side, side, 4, "uint8" if dtype == np.uint8 else "uint16")
+    spec.attribute("oiio:UnassociatedAlpha", 1)
+    out.open(path, spec)
+    out.write_image(rgba)
+    out.close()
+    got = read_image(path, alpha=True)
+    scaled = rgba.astype(np.float32) / np.float32(n - 1)
+    np.testing.assert_array_equal(got[..., :3], srgb_to_linear(scaled[..., :3]))
+    np.testing.assert_array_equal(got[..., 3], scaled[..., 3])

@@ -11,6 +11,7 @@ Writes are atomic: a temporary file in the same directory, then a rename.
 """
 from __future__ import annotations
 
+import functools
 import math
 import os
 import signal
@@ -272,6 +273,15 @@ def read_pixels(path: str | os.PathLike, size: tuple[int, int] | None = None) ->
     return arr, fmt
 
 
+@functools.lru_cache(maxsize=2)
+def _srgb_decode_table(fmt: str) -> np.ndarray:
+    """Linear float32 of every code of an 8- or 16-bit sRGB sample: srgb_to_linear(code / max)."""
+    n = 256 if fmt == "uint8" else 65536
+    table = srgb_to_linear(np.arange(n, dtype=np.float32) / np.float32(n - 1))
+    table.flags.writeable = False
+    return table
+
+
 def read_image(path: str | os.PathLike, *, alpha: bool = False, size: tuple[int, int] | None = None
                ) -> np.ndarray:
     """Linear float32 colour (H, W, 3), or (H, W, 4) with ``alpha=True`` (alpha is never
@@ -280,8 +290,12 @@ def read_image(path: str | os.PathLike, *, alpha: bool = False, size: tuple[int,
     arr, fmt = read_pixels(path, size)
     c = arr.shape[2]
     if fmt in ("uint8", "uint16"):
-        scaled = arr.astype(np.float32) / (255.0 if fmt == "uint8" else 65535.0)
-        rgb = srgb_to_linear(scaled[..., :3] if c >= 3 else np.repeat(scaled[..., :1], 3, axis=2))
+        # The decode of every code, looked up: the same values as decoding code / (2^bits - 1)
+        # pixel by pixel, in one gather.
+        codes = arr[..., :3] if c >= 3 else np.repeat(arr[..., :1], 3, axis=2)
+        rgb = np.take(_srgb_decode_table(fmt), codes)
+        if alpha and c in (2, 4):
+            scaled = arr.astype(np.float32) / (255.0 if fmt == "uint8" else 65535.0)
     else:
         scaled = arr.astype(np.float32)
         rgb = scaled[..., :3] if c >= 3 else np.repeat(scaled[..., :1], 3, axis=2)
