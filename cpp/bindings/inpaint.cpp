@@ -1,4 +1,5 @@
-// The inpaint family's bindings: push-pull hole filling (cpp/kernels/inpaint/pushpull.h), the
+// The inpaint family's bindings (dtypes, shapes, aliasing; the value checks are the front's,
+// cpp/kernels/inpaint/front.h): push-pull hole filling (cpp/kernels/inpaint/pushpull.h), the
 // per-sample passes of metameric inpainting (metameric.h) and the background lookup (background.h).
 // Python: ibrtools.inpaint.pushpull, ibrtools.inpaint.metameric, ibrtools.inpaint.background.
 #include <algorithm>
@@ -10,9 +11,9 @@
 #include <pybind11/pybind11.h>
 
 #include "array.h"
-#include "ibr/checks.h"
 #include "ibr/errors.h"
 #include "kernels/inpaint/background.h"
+#include "kernels/inpaint/front.h"
 #include "kernels/inpaint/hole_sides.h"
 #include "kernels/inpaint/metameric.h"
 #include "kernels/inpaint/pushpull.h"
@@ -27,19 +28,8 @@ namespace ibr::bind {
 // `depth` receives the checked depth array (kept alive by the caller) when depth_obj is not None.
 inline PushPullOptions CheckPushPullArgs(py::handle depth_obj, py::ssize_t h, py::ssize_t w, double depth_threshold,
                                          double gamma, py::array_t<float, py::array::c_style>* depth) {
-  if (!(std::isfinite(gamma) && gamma >= 0.0)) {
-    throw BadValueError("gamma: expected a finite number >= 0, got " + std::to_string(gamma));
-  }
-  if (!(std::isfinite(depth_threshold) && depth_threshold >= 0.0)) {
-    throw BadValueError("depth_threshold: expected a finite number >= 0, got " + std::to_string(depth_threshold));
-  }
-  PushPullOptions options;
-  options.gamma = static_cast<float>(gamma);
-  options.depth_threshold = static_cast<float>(depth_threshold);
-  if (!depth_obj.is_none()) {
-    *depth = CheckArray<float>(depth_obj, "depth", {{"H", h}, {"W", w}});
-    options.depth_aware = true;
-  }
+  const PushPullOptions options = InpaintPushPullOptions(!depth_obj.is_none(), depth_threshold, gamma);
+  if (options.depth_aware) *depth = CheckArray<float>(depth_obj, "depth", {{"H", h}, {"W", w}});
   return options;
 }
 
@@ -183,20 +173,12 @@ static void BindPushPull(py::module_& m) {
         }
         const ImageView<float> out_view(out.mutable_data(), static_cast<int>(h), static_cast<int>(w),
                                         static_cast<int>(c));
-        PushPullStatus status;
+        bool no_hole;
         {
           py::gil_scoped_release release;
-          const std::int64_t bad = CountNonFiniteOutsideHoles(image_view, hole);
-          if (bad) {
-            throw BadValueError("image: contains " + std::to_string(bad) +
-                                " NaN or infinite values outside the holes");
-          }
-          status = PushPullKernel(image_view, hole, depth_view, options, out_view);
+          no_hole = InpaintPushPull(image_view, hole, depth_view, options, out_view);
         }
-        if (status == PushPullStatus::kNoValidPixel) {
-          throw BadValueError("hole: every pixel is a hole; push-pull needs at least one pixel outside the holes");
-        }
-        return py::make_tuple(out, status == PushPullStatus::kNoHole);
+        return py::make_tuple(out, no_hole);
       },
       py::arg("image"), py::arg("hole"), py::arg("depth") = py::none(), py::arg("depth_threshold") = 0.04,
       py::arg("gamma") = 0.0, py::arg("out") = py::none(), py::arg("holes_only") = false,
@@ -229,12 +211,26 @@ void CheckNoAlias(const std::vector<FloatArray>& written, const std::vector<py::
   }
 }
 
-// The noise flow of a level of h x w samples at `scale`: None, or float32/float64 (H, W, 2) finite,
-// large enough to be read at (y * scale, x * scale). `keep` holds the checked array.
+// Bands written in place must not share memory with each other.
+void CheckBandsDistinct(const std::vector<FloatArray>& bands) {
+  for (std::size_t i = 0; i < bands.size(); ++i) {
+    for (std::size_t j = 0; j < bands.size(); ++j) {
+      if (i != j && Overlaps(bands[i], bands[j])) {
+        throw BadValueError("bands[" + std::to_string(i) + "]: shares memory with bands[" + std::to_string(j) +
+                            "] (each is written in place)");
+      }
+    }
+  }
+}
+
+// The noise flow of a level of h x w samples at `scale`: None, or float32/float64 (H, W, 2), then
+// the front's checks (InpaintCheckFlow: size and finiteness). `keep` holds the checked array.
 MetamericFlow CheckFlow(py::handle flow_obj, py::ssize_t h, py::ssize_t w, int scale, py::array* keep) {
   MetamericFlow flow;
-  if (scale < 1) throw BadValueError("scale: expected an integer >= 1, got " + std::to_string(scale));
-  if (flow_obj.is_none()) return flow;
+  if (flow_obj.is_none()) {
+    InpaintCheckFlow(flow, static_cast<int>(h), static_cast<int>(w), scale);
+    return flow;
+  }
   py::array& flow_arr = *keep;
   const bool f64 = py::isinstance<py::array>(flow_obj) &&
                    py::reinterpret_borrow<py::array>(flow_obj).dtype().equal(py::dtype::of<double>());
@@ -249,20 +245,8 @@ MetamericFlow CheckFlow(py::handle flow_obj, py::ssize_t h, py::ssize_t w, int s
   }
   flow.height = static_cast<int>(flow_arr.shape(0));
   flow.width = static_cast<int>(flow_arr.shape(1));
-  if ((h - 1) * static_cast<py::ssize_t>(scale) >= flow.height ||
-      (w - 1) * static_cast<py::ssize_t>(scale) >= flow.width) {
-    throw ShapeError("flow: expected the full-resolution flow of a level of " + std::to_string(h) + "x" +
-                     std::to_string(w) + " samples at scale " + std::to_string(scale) + " (at least " +
-                     std::to_string((h - 1) * scale + 1) + "x" + std::to_string((w - 1) * scale + 1) +
-                     " pixels), got " + DescribeShape(flow_arr));
-  }
-  std::int64_t bad = 0;
-  {
-    py::gil_scoped_release release;
-    const std::int64_t n = std::int64_t(flow.height) * flow.width * 2;
-    bad = flow.f64 ? CountNonFiniteValues(flow.f64, n) : CountNonFiniteValues(flow.f32, n);
-  }
-  if (bad) throw BadValueError("flow: contains " + std::to_string(bad) + " NaN or infinite values");
+  py::gil_scoped_release release;
+  InpaintCheckFlow(flow, static_cast<int>(h), static_cast<int>(w), scale);
   return flow;
 }
 
@@ -308,20 +292,8 @@ static void BindMetameric(py::module_& m) {
         const ImageView<const std::uint8_t> hole_view = ConstViewOf(hole);
         const ImageView<const float> depth_view = options.depth_aware ? ConstViewOf(depth) : ImageView<const float>();
         const ImageView<float> out_view = ViewOf(out);
-        PushPullStatus status;
-        {
-          py::gil_scoped_release release;
-          for (std::size_t i = 0; i < views.size(); ++i) {
-            if (const std::int64_t bad = CountNonFiniteOutsideHoles(views[i], hole_view)) {
-              throw BadValueError("bands[" + std::to_string(i) + "]: contains " + std::to_string(bad) +
-                                  " NaN or infinite values outside the mask");
-            }
-          }
-          status = PushPullMomentsKernel(views.data(), static_cast<int>(k), hole_view, depth_view, options, out_view);
-        }
-        if (status == PushPullStatus::kNoValidPixel) {
-          throw BadValueError("mask: every sample is masked; the moments need samples outside the mask");
-        }
+        py::gil_scoped_release release;
+        InpaintPushPullMoments(views.data(), static_cast<int>(k), hole_view, depth_view, options, out_view);
       },
       py::arg("bands"), py::arg("mask"), py::arg("depth"), py::arg("depth_threshold"), py::arg("gamma"),
       py::arg("out"),
@@ -351,14 +323,7 @@ static void BindMetameric(py::module_& m) {
         others.push_back(moments);
         others.push_back(mask_arr);
         if (flow_arr) others.push_back(flow_arr);
-        for (std::size_t i = 0; i < bands.size(); ++i) {
-          for (std::size_t j = 0; j < bands.size(); ++j) {
-            if (i != j && Overlaps(bands[i], bands[j])) {
-              throw BadValueError("bands[" + std::to_string(i) + "]: shares memory with bands[" +
-                                  std::to_string(j) + "] (each is written in place)");
-            }
-          }
-        }
+        CheckBandsDistinct(bands);
         CheckNoAlias(bands, others, "bands", true);
         std::vector<ImageView<const float>> noise_views;
         for (FloatArray& n : noise) noise_views.push_back(ConstViewOf(n));
@@ -392,14 +357,7 @@ static void BindMetameric(py::module_& m) {
         const PushPullOptions options = CheckPushPullArgs(depth_obj, h, w, depth_threshold, gamma, &depth);
         py::array flow_arr;
         const MetamericFlow flow = CheckFlow(flow_obj, h, w, scale, &flow_arr);
-        for (std::size_t i = 0; i < bands.size(); ++i) {
-          for (std::size_t j = 0; j < bands.size(); ++j) {
-            if (i != j && Overlaps(bands[i], bands[j])) {
-              throw BadValueError("bands[" + std::to_string(i) + "]: shares memory with bands[" +
-                                  std::to_string(j) + "] (each is written in place)");
-            }
-          }
-        }
+        CheckBandsDistinct(bands);
         std::vector<py::array> others(noise.begin(), noise.end());
         others.push_back(mask);
         if (options.depth_aware) others.push_back(depth);
@@ -421,20 +379,8 @@ static void BindMetameric(py::module_& m) {
         synth.k = static_cast<int>(k);
         synth.flow = flow;
         synth.scale = scale;
-        PushPullStatus status;
-        {
-          py::gil_scoped_release release;
-          for (std::size_t i = 0; check_finite && i < views.size(); ++i) {
-            if (const std::int64_t bad = CountNonFiniteOutsideHoles(views[i], mask_view)) {
-              throw BadValueError("bands[" + std::to_string(i) + "]: contains " + std::to_string(bad) +
-                                  " NaN or infinite values outside the mask");
-            }
-          }
-          status = PushPullMomentsChangeKernel(views.data(), static_cast<int>(k), mask_view, depth_view, options, synth);
-        }
-        if (status == PushPullStatus::kNoValidPixel) {
-          throw BadValueError("mask: every sample is masked; the moments need samples outside the mask");
-        }
+        py::gil_scoped_release release;
+        InpaintPushPullChange(views.data(), static_cast<int>(k), mask_view, depth_view, options, synth, check_finite);
       },
       py::arg("bands"), py::arg("mask"), py::arg("depth"), py::arg("depth_threshold"), py::arg("gamma"),
       py::arg("noise"), py::arg("flow") = py::none(), py::arg("scale") = 1, py::arg("check_finite") = true,

@@ -20,7 +20,7 @@
 //
 // Shapes: hole (H, W) one byte per pixel (non-zero = hole), color (H, W, 3) float32; per input:
 // depth (h, w) float32, clear (h, w) one byte (non-zero = clear), color (h, w, 3) float32, h, w
-// the input camera's size. The front (cpp/bindings/inpaint.cpp) checks them. Multithreaded over
+// the input camera's size. The binding (cpp/bindings/inpaint.cpp) checks them. Multithreaded over
 // rows with ibr::ParallelFor; every pixel is independent, so the result is the same for any
 // thread count. Nothing is allocated or thrown.
 #pragma once

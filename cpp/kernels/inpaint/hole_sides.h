@@ -9,7 +9,7 @@
 // holes. The same as ibrtools.inpaint.pushpull.nearest_covered's four directions, reduced.
 //
 // Shapes: hole, background (H, W) one byte per pixel (non-zero = true); known_depth (H, W)
-// float32; sides (H, W) uint8 and around (H, W) float32, written. The front
+// float32; sides (H, W) uint8 and around (H, W) float32, written. The binding
 // (cpp/bindings/inpaint.cpp) checks them. Three passes: rows (left and right: the ends of each
 // run of holes), then columns in blocks (up and down), each multithreaded with ibr::ParallelFor
 // over independent rows or columns; sums of small integers and maxima, so the result is the

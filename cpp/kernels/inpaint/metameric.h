@@ -20,8 +20,9 @@
 // The arithmetic is the float32 numpy expression's, operation by operation (no fused
 // multiply-add unless the compiler contracts it, e.g. with -march=native: then ~1 ulp).
 // Shapes (row, col, channel), C-contiguous: bands/noise (h, w, C), moments/out (h, w, 2kC),
-// mask (h, w) one byte per sample. Bands may not alias moments or noise. The front
-// (cpp/bindings/inpaint.cpp) checks everything; kernels trust their inputs, never throw and
+// mask (h, w) one byte per sample. Bands may not alias moments or noise. The binding
+// (cpp/bindings/inpaint.cpp: dtypes, shapes, aliasing) and the front (front.h: values) check
+// everything; kernels trust their inputs, never throw and
 // never allocate. Multithreaded over rows with ibr::ParallelFor; every sample is independent, so
 // the result is identical for any thread count.
 #pragma once

@@ -63,7 +63,8 @@
 // (H, W) float32 or empty, out (H, W, C) float32 (may not alias image, except out == image with
 // holes_only: only pixels outside the holes are read and only hole pixels written, after every
 // read). H, W, C >= 1.
-// The front (cpp/bindings/inpaint.cpp) checks shapes, finiteness outside holes and options.
+// The binding (cpp/bindings/inpaint.cpp) checks shapes, the front (front.h) finiteness outside
+// holes and options.
 // Multithreaded over the rows of each level with ibr::ParallelFor; every pixel is computed
 // independently, so the result is identical for any thread count. Scratch for levels >= 1 is
 // allocated here (about 1/3 of the input; the fallback adds a classic run and 1/3 of a channel);
