@@ -1,5 +1,6 @@
-// Bindings of cpp/kernels/metrics/ssim.h: the checking front (shapes, dtypes, sizes, finiteness,
-// options) and the call with the GIL released. Python: ibrtools.metrics.
+// Bindings of cpp/kernels/metrics/ssim.h: dtypes, shapes and sizes checked here, the options and
+// the values by the front (cpp/kernels/metrics/front.h), called with the GIL released.
+// Python: ibrtools.metrics.
 #include <cmath>
 #include <string>
 
@@ -8,7 +9,7 @@
 
 #include "array.h"
 #include "ibr/errors.h"
-#include "kernels/metrics/ssim.h"
+#include "kernels/metrics/front.h"
 #include "module.h"
 
 namespace ibr::bind {
@@ -16,7 +17,7 @@ namespace {
 
 using FloatArray = py::array_t<float, py::array::c_style>;
 
-// a and b: float32 (H, W) or (H, W, C), same shape, at least win x win, finite.
+// a and b: float32 (H, W) or (H, W, C), same shape, at least win x win (their values: the front's).
 void CheckPair(const py::handle& a_obj, const py::handle& b_obj, int win_size, FloatArray* a_out,
                FloatArray* b_out) {
   auto dims_of = [](const py::handle& obj) -> std::vector<Dim> {
@@ -37,15 +38,6 @@ void CheckPair(const py::handle& a_obj, const py::handle& b_obj, int win_size, F
                      std::to_string(win_size) + " pixels (the window), got shape " + DescribeShape(a));
   }
   if (a.ndim() == 3 && a.shape(2) < 1) throw ShapeError("a and b: images with 0 channels");
-  {
-    py::gil_scoped_release release;
-    const std::int64_t bad_a = CountNonFinite(a.data(), a.size());
-    const std::int64_t bad_b = CountNonFinite(b.data(), b.size());
-    if (bad_a || bad_b) {
-      throw BadValueError(std::string(bad_a ? "a" : "b") + ": contains " +
-                          std::to_string(bad_a ? bad_a : bad_b) + " NaN or infinite values");
-    }
-  }
   *a_out = a;
   *b_out = b;
 }
@@ -57,23 +49,15 @@ void BindMetrics(py::module_& m) {
       "ssim",
       [](py::handle a_obj, py::handle b_obj, double data_range, bool return_map, int win_size,
          double k1, double k2, bool sample_covariance) {
-        if (!(std::isfinite(data_range) && data_range > 0)) {
-          throw BadValueError("data_range: expected a positive finite number, got " + std::to_string(data_range));
-        }
-        if (win_size < 3 || win_size % 2 == 0) {
-          throw BadValueError("win_size: expected an odd integer >= 3, got " + std::to_string(win_size));
-        }
-        if (!(k1 > 0 && k2 > 0 && std::isfinite(k1) && std::isfinite(k2))) {
-          throw BadValueError("K1, K2: expected positive finite numbers");
-        }
-        FloatArray a, b;
-        CheckPair(a_obj, b_obj, win_size, &a, &b);
         SsimOptions options;
         options.win_size = win_size;
         options.k1 = k1;
         options.k2 = k2;
         options.data_range = data_range;
         options.sample_covariance = sample_covariance;
+        SsimCheckOptions(options);
+        FloatArray a, b;
+        CheckPair(a_obj, b_obj, win_size, &a, &b);
         py::object map_obj = py::none();
         ImageView<float> map_view;
         if (return_map) {
@@ -85,13 +69,13 @@ void BindMetrics(py::module_& m) {
         double mean = 0.0;
         {
           py::gil_scoped_release release;
-          mean = SsimKernel(va, vb, options, map_view);
+          mean = Ssim(va, vb, options, map_view);
         }
         return py::make_tuple(mean, map_obj);
       },
-      py::arg("a"), py::arg("b"), py::arg("data_range") = 1.0, py::arg("return_map") = false,
-      py::arg("win_size") = 7, py::arg("k1") = 0.01, py::arg("k2") = 0.03,
-      py::arg("sample_covariance") = true,
+      py::arg("a"), py::arg("b"), py::arg("data_range") = SsimOptions{}.data_range, py::arg("return_map") = false,
+      py::arg("win_size") = SsimOptions{}.win_size, py::arg("k1") = SsimOptions{}.k1, py::arg("k2") = SsimOptions{}.k2,
+      py::arg("sample_covariance") = SsimOptions{}.sample_covariance,
       "SSIM of two float32 images (H, W) or (H, W, C), skimage's default definition (7x7 box "
       "window, sample covariance, mean over the image cropped by 3 pixels, channel mean). Returns "
       "(mean, map or None); map is float32 (H, W), the per-pixel SSIM averaged over channels.");

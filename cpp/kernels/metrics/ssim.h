@@ -15,7 +15,8 @@
 // float32 for float32 input), so we agree with skimage to ~1e-6, not bit for bit.
 //
 // Inputs are (H, W) or (H, W, C) float32 images, row-major, channel-interleaved, same shape,
-// H >= win and W >= win, finite values. The front (cpp/bindings/metrics.cpp) checks all that.
+// H >= win and W >= win, finite values. The binding (cpp/bindings/metrics.cpp: shapes) and the
+// front (front.h: options, values) check all that.
 #pragma once
 #include <cstdint>
 
