@@ -24,30 +24,6 @@
 namespace ibr::bind {
 namespace {
 
-const char* QualityName(WarpQuality q) {
-  switch (q) {
-    case WarpQuality::kSide: return "side";
-    case WarpQuality::kShape: return "shape";
-    case WarpQuality::kDepth: return "depth";
-    case WarpQuality::kNormal: return "normal";
-  }
-  return "?";
-}
-
-WarpQuality ParseQuality(const std::string& s) {
-  if (s == "side") return WarpQuality::kSide;
-  if (s == "shape") return WarpQuality::kShape;
-  if (s == "depth") return WarpQuality::kDepth;
-  if (s == "normal") return WarpQuality::kNormal;
-  throw BadValueError("quality: expected 'side', 'shape', 'depth' or 'normal', got '" + s + "'");
-}
-
-DepthTest ParseDepthTest(const std::string& s) {
-  if (s == "combined") return DepthTest::kCombined;
-  if (s == "nearest") return DepthTest::kNearest;
-  throw BadValueError("depth_test: expected 'combined' or 'nearest', got '" + s + "'");
-}
-
 void CheckFiniteColor(const py::array_t<float, py::array::c_style>& color) {
   const float* p = color.data();
   const std::int64_t n = color.size();
@@ -82,44 +58,50 @@ void BindDibr(py::module_& m) {
                           "Options of the forward mesh warp (cpp/kernels/dibr/forward_warp.h); defaults: RVS 4.0.")
       .def(py::init<>())
       .def_property(
-          "quality", [](const WarpOptions& o) { return std::string(QualityName(o.quality)); },
-          [](WarpOptions& o, const std::string& s) { o.quality = ParseQuality(s); },
+          "quality", [](const WarpOptions& o) { return std::string(WarpQualityName(o.quality)); },
+          [](WarpOptions& o, const std::string& s) { o.quality = WarpQualityFromName(s); },
           "Triangle quality (paper Table 1): 'side' (default, RVS), 'shape', 'depth', 'normal'.")
       .def_property(
           "side_threshold", [](const WarpOptions& o) { return o.side_threshold; },
           [](WarpOptions& o, float t) {
-            if (!(t >= 0.f) || std::isinf(t)) throw BadValueError("side_threshold: expected a finite value >= 0 (0 = auto)");
-            o.side_threshold = t;
+            WarpOptions checked = o;
+            checked.side_threshold = t;
+            DibrCheckWarpOptions(checked);
+            o = checked;
           },
           "T in target pixels; 0 = auto: max(4, 10 * sqrt(W * H / (1920 * 1080))).")
       .def_property(
           "blend_exponent", [](const WarpOptions& o) { return o.blend_exponent; },
           [](WarpOptions& o, float p) {
-            if (!(p >= 0.f && p <= 16.f)) throw BadValueError("blend_exponent: expected a value in [0, 16]");
-            o.blend_exponent = p;
+            WarpOptions checked = o;
+            checked.blend_exponent = p;
+            DibrCheckWarpOptions(checked);
+            o = checked;
           },
           "p in the blending weight (q / d)^p; RVS uses 5, the paper's Eq. 2 is q / d^3.")
       .def_property(
           "depth_test",
-          [](const WarpOptions& o) { return std::string(o.depth_test == DepthTest::kCombined ? "combined" : "nearest"); },
-          [](WarpOptions& o, const std::string& s) { o.depth_test = ParseDepthTest(s); },
+          [](const WarpOptions& o) { return std::string(DepthTestName(o.depth_test)); },
+          [](WarpOptions& o, const std::string& s) { o.depth_test = DepthTestFromName(s); },
           "'combined' (paper Eq. 2: largest q / d^3 wins) or 'nearest' (plain z-buffer).")
       .def_readwrite("discard_stretched", &WarpOptions::discard_stretched,
                      "Drop triangles whose quality reaches 0 (paper Eq. 1) instead of flooring it (RVS).")
       .def_property(
           "view_weight", [](const WarpOptions& o) { return o.view_weight; },
           [](WarpOptions& o, float v) {
-            if (!(v >= 1e-6f && v <= 1.f)) throw BadValueError("view_weight: expected a value in [1e-6, 1]");
-            o.view_weight = v;
+            WarpOptions checked = o;
+            checked.view_weight = v;
+            DibrCheckWarpOptions(checked);
+            o = checked;
           },
           "Per-view factor on every fragment weight, w = view_weight * (q / d)^p, in [1e-6, 1]; 1 = RVS.")
       .def("effective_side_threshold", [](const WarpOptions& o, const Camera& t) { return SideThreshold(o, t); },
            py::arg("target_camera"), "T used for this target camera.")
       .def("__repr__", [](const WarpOptions& o) {
-        return "WarpOptions(quality='" + std::string(QualityName(o.quality)) +
+        return "WarpOptions(quality='" + std::string(WarpQualityName(o.quality)) +
                "', side_threshold=" + std::to_string(o.side_threshold) +
                ", blend_exponent=" + std::to_string(o.blend_exponent) + ", depth_test='" +
-               (o.depth_test == DepthTest::kCombined ? "combined" : "nearest") +
+               DepthTestName(o.depth_test) +
                "', discard_stretched=" + (o.discard_stretched ? "True" : "False") + ")";
       });
 

@@ -104,6 +104,42 @@ void DibrCheckHoleWarpOptions(const HoleWarpOptions& o) {
   }
 }
 
+void DibrCheckWarpOptions(const WarpOptions& o) {
+  if (!(o.side_threshold >= 0.f) || std::isinf(o.side_threshold)) {
+    throw BadValueError("side_threshold: expected a finite value >= 0 (0 = auto)");
+  }
+  if (!(o.blend_exponent >= 0.f && o.blend_exponent <= 16.f)) {
+    throw BadValueError("blend_exponent: expected a value in [0, 16]");
+  }
+  if (!(o.view_weight >= 1e-6f && o.view_weight <= 1.f)) throw BadValueError("view_weight: expected a value in [1e-6, 1]");
+}
+
+const char* WarpQualityName(WarpQuality q) {
+  switch (q) {
+    case WarpQuality::kSide: return "side";
+    case WarpQuality::kShape: return "shape";
+    case WarpQuality::kDepth: return "depth";
+    case WarpQuality::kNormal: return "normal";
+  }
+  return "?";
+}
+
+WarpQuality WarpQualityFromName(const std::string& s) {
+  if (s == "side") return WarpQuality::kSide;
+  if (s == "shape") return WarpQuality::kShape;
+  if (s == "depth") return WarpQuality::kDepth;
+  if (s == "normal") return WarpQuality::kNormal;
+  throw BadValueError("quality: expected 'side', 'shape', 'depth' or 'normal', got '" + s + "'");
+}
+
+const char* DepthTestName(DepthTest t) { return t == DepthTest::kCombined ? "combined" : "nearest"; }
+
+DepthTest DepthTestFromName(const std::string& s) {
+  if (s == "combined") return DepthTest::kCombined;
+  if (s == "nearest") return DepthTest::kNearest;
+  throw BadValueError("depth_test: expected 'combined' or 'nearest', got '" + s + "'");
+}
+
 void DibrAccumulatorOptions::Check() const {
   if (!(stretched_quality >= 0.f && stretched_quality <= 1.f)) {
     throw BadValueError("stretched_quality: expected a number in [0, 1], got " + std::to_string(stretched_quality));

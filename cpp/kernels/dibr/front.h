@@ -6,6 +6,7 @@
 #pragma once
 #include <cstdint>
 #include <memory>
+#include <string>
 
 #include "ibr/camera.h"
 #include "ibr/image.h"
@@ -25,6 +26,17 @@ void DibrCheckHoleCounts(const WarpCounts& counts);
 
 // Throws BadValueError unless stretch_threshold is finite and > 0 and depth_jump finite and >= 0.
 void DibrCheckHoleWarpOptions(const HoleWarpOptions& options);
+
+// Throws BadValueError unless side_threshold is finite and >= 0 (0 = auto), blend_exponent in
+// [0, 16] and view_weight in [1e-6, 1] (each named by its field).
+void DibrCheckWarpOptions(const WarpOptions& options);
+
+// The names of WarpOptions' enums ("side", "shape", "depth", "normal"; "combined", "nearest")
+// and back (BadValueError naming the option and the names it takes).
+const char* WarpQualityName(WarpQuality quality);
+WarpQuality WarpQualityFromName(const std::string& name);
+const char* DepthTestName(DepthTest test);
+DepthTest DepthTestFromName(const std::string& name);
 
 // Visibility across views of the streaming blend (blend.h; all off = RVS).
 struct DibrAccumulatorOptions {
