@@ -16,29 +16,13 @@
 #include "kernels/metamers/steerable.h"
 #include "module.h"
 
-// Bindings of cpp/kernels/metamers/steerable.h: the checking front (dtypes, shapes of every level,
-// orientations, levels against the image size, finiteness) and the calls with the GIL released.
+// Bindings of cpp/kernels/metamers/steerable.h: dtypes and shapes of every level checked here, the
+// orientations, levels and finiteness by the front (front.h), the calls with the GIL released.
 // Python: ibrtools.metamers.steerable.
 namespace ibr::bind {
 namespace {
 
 using FloatArray = py::array_t<float, py::array::c_style>;
-
-void CheckOrientations(int orientations) {
-  if (!SteerableOrientationsSupported(orientations)) {
-    throw BadValueError("orientations: expected 2 or 4 (the fitted taps in cpp/kernels/metamers/steerable_taps.h), got " +
-                        std::to_string(orientations));
-  }
-}
-
-void CheckLevels(int levels, int h, int w) {
-  const int max_levels = SteerableMaxLevels(h, w);
-  if (levels < 0 || levels > max_levels) {
-    throw BadValueError("levels: expected 0.." + std::to_string(max_levels) + " for a " + std::to_string(h) + "x" +
-                        std::to_string(w) + " image (every level's input must be at least 3x3), got " +
-                        std::to_string(levels));
-  }
-}
 
 void CheckColour(bool ycbcr, py::ssize_t c) {
   if (ycbcr && c != 3) {
@@ -54,12 +38,8 @@ ImageView<T> View(const FloatArray& a) {
 }
 
 void CheckFinite(const FloatArray& a, const std::string& name) {
-  std::int64_t bad;
-  {
-    py::gil_scoped_release release;
-    bad = SteerableCountNonFinite(View<const float>(a));
-  }
-  if (bad) throw BadValueError(name + ": contains " + std::to_string(bad) + " NaN or infinite values");
+  py::gil_scoped_release release;
+  SteerableCheckFinite(View<const float>(a), name);
 }
 
 }  // namespace
@@ -76,8 +56,7 @@ static void BindSteerable(py::module_& m) {
         if (h < 3 || w < 3 || c < 1) {
           throw ShapeError("image: expected at least 3x3 pixels and 1 channel, got shape " + DescribeShape(image));
         }
-        CheckOrientations(orientations);
-        CheckLevels(levels, static_cast<int>(h), static_cast<int>(w));
+        SteerableCheckOptions(orientations, levels, static_cast<int>(h), static_cast<int>(w));
         CheckColour(ycbcr, c);
         CheckFinite(image, "image");
         SteerablePyramidViews<float> pyr;
@@ -118,9 +97,8 @@ static void BindSteerable(py::module_& m) {
         if (h < 3 || w < 3 || c < 1) {
           throw ShapeError("highpass: expected at least 3x3 pixels and 1 channel, got shape " + DescribeShape(hi));
         }
-        CheckOrientations(orientations);
         const int levels = static_cast<int>(py::len(bands_obj));
-        CheckLevels(levels, static_cast<int>(h), static_cast<int>(w));
+        SteerableCheckOptions(orientations, levels, static_cast<int>(h), static_cast<int>(w));
         CheckColour(ycbcr, c);
         std::vector<FloatArray> keep;
         SteerablePyramidViews<const float> pyr;

@@ -2,11 +2,34 @@
 #include "kernels/metamers/front.h"
 
 #include <cstddef>
+#include <cstdint>
+#include <string>
 #include <vector>
 
+#include "ibr/errors.h"
 #include "kernels/metamers/mip.h"
+#include "kernels/metamers/steerable.h"
 
 namespace ibr {
+
+void SteerableCheckOptions(int orientations, int levels, int h, int w) {
+  if (!SteerableOrientationsSupported(orientations)) {
+    throw BadValueError("orientations: expected 2 or 4 (the fitted taps in cpp/kernels/metamers/steerable_taps.h), got " +
+                        std::to_string(orientations));
+  }
+  const int max_levels = SteerableMaxLevels(h, w);
+  if (levels < 0 || levels > max_levels) {
+    throw BadValueError("levels: expected 0.." + std::to_string(max_levels) + " for a " + std::to_string(h) + "x" +
+                        std::to_string(w) + " image (every level's input must be at least 3x3), got " +
+                        std::to_string(levels));
+  }
+}
+
+void SteerableCheckFinite(const ImageView<const float>& image, const std::string& name) {
+  if (const std::int64_t bad = SteerableCountNonFinite(image)) {
+    throw BadValueError(name + ": contains " + std::to_string(bad) + " NaN or infinite values");
+  }
+}
 
 void MipBuildChain(const ImageView<const float>& in, const ImageView<float>* views, int levels) {
   for (int l = 0; l < levels; ++l) {

@@ -1,10 +1,20 @@
 // The metamers family's front (Python: ibrtools.metamers.foveate, ibrtools.inpaint.metameric through
-// cpp/bindings/metamers.cpp): the multi-level pipelines over the kernels of mip.h, callable from C++
-// without Python. The binding checks the arrays and values and allocates the outputs.
+// cpp/bindings/metamers.cpp): the steerable pyramid's value checks and the multi-level pipelines
+// over the kernels of mip.h, callable from C++ without Python. The binding checks the arrays'
+// dtypes and shapes and allocates the outputs.
 #pragma once
+#include <string>
+
 #include "ibr/image.h"
 
 namespace ibr {
+
+// Throws BadValueError unless the steerable pyramid has fitted taps for `orientations` (2 or 4)
+// and `levels` is in 0 .. SteerableMaxLevels(h, w).
+void SteerableCheckOptions(int orientations, int levels, int h, int w);
+
+// Throws BadValueError naming `name` when the image holds NaN or infinite values.
+void SteerableCheckFinite(const ImageView<const float>& image, const std::string& name);
 
 // The box-filter MIP chain of in: out[l] = MipDown(level l) for l = 0 .. levels - 1 (level 0 = in);
 // out[l] (ceil(H / 2^(l+1)), ceil(W / 2^(l+1)), C).
