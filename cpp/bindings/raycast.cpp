@@ -43,10 +43,7 @@ class RayScene {
       object_ids = object_ids_.data();
     }
     EmbreeSceneOptions options;
-    if (quality == "low") options.quality = RTC_BUILD_QUALITY_LOW;
-    else if (quality == "medium") options.quality = RTC_BUILD_QUALITY_MEDIUM;
-    else if (quality == "high") options.quality = RTC_BUILD_QUALITY_HIGH;
-    else throw BadValueError("quality: expected 'low', 'medium' or 'high', got '" + quality + "'");
+    options.quality = BuildQualityFromName(quality);
     options.robust = robust;
     if (!vertex_colors_obj.is_none()) {
       vertex_colors_ = CheckArray<float>(vertex_colors_obj, "vertex_colors", {{"N", n}, {"3", 3}});
@@ -83,19 +80,16 @@ class RayScene {
   py::dict Render(const Camera& camera, const std::vector<std::string>& outputs, const py::list& lights_obj,
                   float ambient, const std::vector<float>& background, int packet) {
     if (background.size() != 3) throw ShapeError("background: expected 3 values (linear RGB)");
-    if (packet != 1 && packet != 8 && packet != 16) {
-      throw BadValueError("packet: expected 1, 8 or 16, got " + std::to_string(packet));
-    }
+    RaycastOptions options;
+    options.packet = packet;
+    CheckRaycastOptions(options);
     std::vector<Light> lights;
     for (std::size_t i = 0; i < lights_obj.size(); ++i) {
       // (kind, vector, colour, shadows): ibrtools.raycast.reference.Light, flattened.
       const auto t = lights_obj[i].cast<py::tuple>();
       if (t.size() != 4) throw ShapeError("lights: expected (kind, vector, color, shadows) tuples");
       Light l;
-      const std::string kind = t[0].cast<std::string>();
-      if (kind == "point") l.kind = LightKind::kPoint;
-      else if (kind == "directional") l.kind = LightKind::kDirectional;
-      else throw BadValueError("lights[" + std::to_string(i) + "]: kind must be 'point' or 'directional', got '" + kind + "'");
+      l.kind = LightKindFromName(t[0].cast<std::string>(), i);
       const auto vec = t[1].cast<std::vector<float>>();
       const auto col = t[2].cast<std::vector<float>>();
       if (vec.size() != 3 || col.size() != 3) throw ShapeError("lights: vector and color must have 3 values");
@@ -137,8 +131,6 @@ class RayScene {
         throw BadValueError("outputs: unknown output '" + name + "'; expected any of " + OutputList());
       }
     }
-    RaycastOptions options;
-    options.packet = packet;
     {
       py::gil_scoped_release release;
       RaycastCamera(*scene_, camera, surface_, shading, options, out);

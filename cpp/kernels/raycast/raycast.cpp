@@ -296,6 +296,26 @@ void CheckSurface(const SurfaceView& s, std::int64_t num_faces) {
   }
 }
 
+void CheckRaycastOptions(const RaycastOptions& o) {
+  if (o.packet != 1 && o.packet != 8 && o.packet != 16) {
+    throw BadValueError("packet: expected 1, 8 or 16, got " + std::to_string(o.packet));
+  }
+}
+
+LightKind LightKindFromName(const std::string& kind, std::size_t index) {
+  if (kind == "point") return LightKind::kPoint;
+  if (kind == "directional") return LightKind::kDirectional;
+  throw BadValueError("lights[" + std::to_string(index) + "]: kind must be 'point' or 'directional', got '" + kind +
+                      "'");
+}
+
+RTCBuildQuality BuildQualityFromName(const std::string& quality) {
+  if (quality == "low") return RTC_BUILD_QUALITY_LOW;
+  if (quality == "medium") return RTC_BUILD_QUALITY_MEDIUM;
+  if (quality == "high") return RTC_BUILD_QUALITY_HIGH;
+  throw BadValueError("quality: expected 'low', 'medium' or 'high', got '" + quality + "'");
+}
+
 void CheckShading(const ShadingOptions& sh) {
   if (!std::isfinite(sh.ambient) || sh.ambient < 0.f) {
     throw BadValueError("ambient: expected a finite number >= 0, got " + std::to_string(sh.ambient));

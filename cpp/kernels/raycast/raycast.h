@@ -37,6 +37,8 @@
 // Deterministic: the image is cut into tiles and packets by its size only, so the result is
 // identical for any thread count. The kernel never throws nor allocates beyond its stack.
 #pragma once
+#include <cstddef>
+#include <string>
 #include <atomic>
 #include <cstdint>
 #include <vector>
@@ -105,6 +107,12 @@ struct RaycastOptions {
 void CheckSurface(const SurfaceView& surface, std::int64_t num_faces);
 // Light vectors and colours finite, colours >= 0, directional vectors non-zero, ambient finite.
 void CheckShading(const ShadingOptions& shading);
+// packet 1, 8 or 16.
+void CheckRaycastOptions(const RaycastOptions& options);
+// "point" / "directional" (BadValueError naming lights[index] otherwise).
+LightKind LightKindFromName(const std::string& name, std::size_t index);
+// The BVH build quality "low", "medium" or "high" (BadValueError naming quality otherwise).
+RTCBuildQuality BuildQualityFromName(const std::string& name);
 
 // Kernel: fills every non-null output of `out` for camera.width x camera.height pixels.
 void RaycastCamera(const EmbreeScene& scene, const Camera& camera, const SurfaceView& surface,
