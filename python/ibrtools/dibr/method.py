@@ -42,6 +42,7 @@ import numpy as np
 from ibrtools.camera import Camera
 from ibrtools.errors import BadValueError, InputError
 from ibrtools.scene import Scene
+from ibrtools import _core
 from ibrtools import params as P
 from ibrtools.dibr import view_selection as vs
 from ibrtools.cache import missing_depth_error, with_stage_depth
@@ -61,7 +62,9 @@ QUALITIES = ("side", "shape", "depth", "normal")
 # on lego validation views (3 with the srgb blend space, 4 with linear) gains +1.4-1.7 dB on lego
 # object pixels but loses 0.3-0.6 dB on ICL-NUIM, whose nearest input has the worse ground-truth
 # pose (docs/dibr_accuracy.md, "lego").
-DEFAULTS = {"inputs": vs.DEFAULT_K, "quality": "side", "blend_exponent": 5.0, "side_threshold": 10.0,
+_WARP = _core.WarpOptions()  # the kernel's defaults (RVS 4.0): the triangle quality and the blend exponent
+DEFAULTS = {"inputs": vs.DEFAULT_K, "quality": _WARP.quality, "blend_exponent": float(_WARP.blend_exponent),
+            "side_threshold": 10.0,
             "samples": vs.DEFAULT_SAMPLES, "seed": vs.DEFAULT_SEED,
             "stretched_quality": 0.1, "stretched_holes": True, "depth_tolerance": 0.0,
             "blend_space": "srgb", "distance_exponent": 0.0}
