@@ -1167,6 +1167,21 @@ WarpCounts ProjectVertices(const ImageView<const float>& depth, const Camera& so
     for (int u = 0; u < w; ++u) scratch.ray_x[u] = (u + 0.5 - source.cx) / source.fx;
   }
   const double* ray_x = scratch.ray_x.data();
+  // Equirect source: Camera::RayInCam's longitude terms per column (its latitude terms once per
+  // row below), the same operations in the same order, so the same doubles: 2 sines and cosines
+  // per row and column instead of 4 per vertex.
+  const bool equirect_source = source.model == CameraModel::kEquirect;
+  if (equirect_source) {
+    scratch.lon_sin.resize(w);
+    scratch.lon_cos.resize(w);
+    for (int u = 0; u < w; ++u) {
+      const double lon = source.lon_min + ((u + 0.5) / source.width) * (source.lon_max - source.lon_min);
+      scratch.lon_sin[u] = std::sin(lon);
+      scratch.lon_cos[u] = std::cos(lon);
+    }
+  }
+  const double* lon_sin = scratch.lon_sin.data();
+  const double* lon_cos = scratch.lon_cos.data();
   const bool avx2 = UseAvx2();
   std::atomic<std::int64_t> valid{0}, bad{0}, bad_colors{0};
   ParallelFor(h, 8, [&](std::int64_t r0, std::int64_t r1) {
@@ -1188,6 +1203,12 @@ WarpCounts ProjectVertices(const ImageView<const float>& depth, const Camera& so
       // same doubles, bit for bit), without the per-pixel model branches or divisions for the
       // ray (its x comes from a per-column table, its y is computed once per row).
       const double ray_y = (double(r) + 0.5 - source.cy) / source.fy;
+      double lat_cos = 0.0, lat_sin = 0.0;
+      if (equirect_source) {
+        const double lat = source.lat_max - ((double(r) + 0.5) / source.height) * (source.lat_max - source.lat_min);
+        lat_cos = std::cos(lat);
+        lat_sin = std::sin(lat);
+      }
       const auto scalar_vertex = [&](int u) {
         const float d = drow[u];
         WarpVertex& o = vrow[u];
@@ -1220,7 +1241,9 @@ WarpCounts ProjectVertices(const ImageView<const float>& depth, const Camera& so
           }
           return;
         } else {
-          const glm::dvec3 ray = source.RayInCam(u + 0.5, double(r) + 0.5);
+          const glm::dvec3 ray = equirect_source
+                                     ? glm::dvec3(lat_cos * lon_sin[u], -lat_sin, lat_cos * lon_cos[u])
+                                     : source.RayInCam(u + 0.5, double(r) + 0.5);
           glm::dvec3 p;
           if (std::isinf(d)) {
             p = rot * ray;  // a direction: rotation only

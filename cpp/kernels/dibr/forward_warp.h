@@ -113,6 +113,7 @@ struct YRange {
 struct WarpScratch {
   std::vector<WarpVertex> verts;              // per input pixel
   std::vector<double> ray_x;                  // per input column (pinhole source)
+  std::vector<double> lon_sin, lon_cos;       // per input column (equirect source): sin, cos of the longitude
   std::vector<YRange> seg_y;                  // per input row, per column segment
   std::vector<std::uint32_t> seg_bands;       // per block row segment: first, last band
   std::vector<std::uint32_t> band_start;      // per band: start in band_segs (+ end)
