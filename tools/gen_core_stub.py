@@ -38,6 +38,7 @@ _F64: typing.TypeAlias = numpy.typing.NDArray[numpy.float64]
 _I32: typing.TypeAlias = numpy.typing.NDArray[numpy.int32]
 _I64: typing.TypeAlias = numpy.typing.NDArray[numpy.int64]
 _U8: typing.TypeAlias = numpy.typing.NDArray[numpy.uint8]
+_U16: typing.TypeAlias = numpy.typing.NDArray[numpy.uint16]
 _I8: typing.TypeAlias = numpy.typing.NDArray[numpy.int8]
 _Bool: typing.TypeAlias = numpy.typing.NDArray[numpy.bool_]
 _Light: typing.TypeAlias = tuple[str, collections.abc.Sequence[float], collections.abc.Sequence[float], bool]
@@ -59,6 +60,7 @@ OVERRIDES: dict[str, dict[str, str]] = {
                           "textures": "list[_F32]", "materials": "_F32 | None"},
     "RayScene.peel": {"umbra_positions": "_F64 | None", "return": _ARRAYS},
     "RayScene.render": {"lights": "list[_Light]", "return": _ARRAYS},
+    "yuv_to_linear_rgb": {"y": "_U8 | _U16", "cb": "_U8 | _U16 | None", "cr": "_U8 | _U16 | None", "return": "_F32"},
     "hole_sides": {"hole": "_Bool", "background": "_Bool", "known_depth": "_F32", "return": "tuple[_U8, _F32]"},
     "background_lookup": {"inputs": "collections.abc.Sequence[tuple[Camera, _F32, _Bool, _F32]]", "hole": "_Bool",
                           "color": "_F32", "return": "_U8"},

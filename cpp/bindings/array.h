@@ -30,6 +30,7 @@ template <> inline const char* DtypeName<double>() { return "float64"; }
 template <> inline const char* DtypeName<std::int32_t>() { return "int32"; }
 template <> inline const char* DtypeName<std::int64_t>() { return "int64"; }
 template <> inline const char* DtypeName<std::uint32_t>() { return "uint32"; }
+template <> inline const char* DtypeName<std::uint16_t>() { return "uint16"; }
 template <> inline const char* DtypeName<std::uint8_t>() { return "uint8"; }
 template <> inline const char* DtypeName<bool>() { return "bool"; }
 

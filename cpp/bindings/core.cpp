@@ -135,6 +135,38 @@ void BindCore(py::module_& m) {
       "(AVX2 gathers when set_warp_isa allows: the same bits either way). Returns a new float32 array of the "
       "same shape.");
   m.def(
+      "yuv_to_linear_rgb",
+      [](py::handle y_obj, py::handle cb_obj, py::handle cr_obj, int bits, double kr, double kb, bool full_range) {
+        YuvCheckArgs(bits, kr, kb);
+        const bool wide = py::isinstance<py::array>(y_obj) &&
+                          py::reinterpret_borrow<py::array>(y_obj).dtype().equal(py::dtype::of<std::uint16_t>());
+        const bool chroma = !cb_obj.is_none() || !cr_obj.is_none();
+        auto run = [&](auto tag) -> py::array_t<float> {
+          using T = decltype(tag);
+          auto y = CheckArray<T>(y_obj, "y", {{"H", -1}, {"W", -1}});
+          const py::ssize_t h = y.shape(0), w = y.shape(1);
+          py::array_t<T, py::array::c_style> cb, cr;
+          if (chroma) {
+            cb = CheckArray<T>(cb_obj, "cb", {{"(H+1)/2", (h + 1) / 2}, {"(W+1)/2", (w + 1) / 2}});
+            cr = CheckArray<T>(cr_obj, "cr", {{"(H+1)/2", (h + 1) / 2}, {"(W+1)/2", (w + 1) / 2}});
+          }
+          auto out = NewArray<float>({h, w, 3});
+          const T* py_ = y.data();
+          const T* pb = chroma ? cb.data() : nullptr;
+          const T* pr = chroma ? cr.data() : nullptr;
+          float* o = out.mutable_data();
+          py::gil_scoped_release release;
+          YuvToLinearRgb<T>(py_, pb, pr, static_cast<int>(h), static_cast<int>(w), bits, kr, kb, full_range, o);
+          return out;
+        };
+        return wide ? run(std::uint16_t{}) : run(std::uint8_t{});
+      },
+      py::arg("y"), py::arg("cb"), py::arg("cr"), py::arg("bits"), py::arg("kr"), py::arg("kb"),
+      py::arg("full_range") = false,
+      "Y'CbCr planes to linear RGB (cpp/ibr/colour.h YuvToLinearRgb; Python: ibrtools.formats.yuv.yuv_to_rgb, "
+      "which it computes bit for bit): y uint8 or uint16 (H, W); cb, cr the same dtype "
+      "((H+1)/2, (W+1)/2), or both None (4:0:0). Returns a new float32 (H, W, 3) array.");
+  m.def(
       "srgb_to_linear", [](py::handle values) { return MapValues(values, SrgbToLinear); }, py::arg("values"),
       "The decoding of stored sRGB colour (cpp/ibr/colour.h SrgbToLinear; Python: "
       "ibrtools.imageio.srgb_to_linear): v / 12.92 for v <= 0.04045 (negative values included), "

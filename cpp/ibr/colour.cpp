@@ -2,11 +2,14 @@
 #include "ibr/colour.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cstdint>
+#include <string>
 #include <vector>
 
 #include <immintrin.h>  // AVX2: only in target("avx2") functions, called when the CPU has it
 
+#include "ibr/errors.h"
 #include "ibr/parallel.h"
 #include "ibr/simd.h"
 
@@ -184,6 +187,81 @@ void LinearToSrgbUnclipped(const float* in, float* out, std::int64_t n, bool avx
   ParallelValues(in, out, n, [&](const float* i, float* o, std::int64_t m) { EncodeTableRun(p, i, o, m, avx2); });
 }
 void SrgbToLinear(const float* in, float* out, std::int64_t n) { ParallelValues(in, out, n, DecodeStdRun); }
+
+namespace {
+
+// One row of a chroma plane upsampled vertically to output row `row` (numpy's first axis pass).
+template <class T>
+void ChromaRowUp(const T* c, int ch, int cw, int row, float* t) {
+  const int i = row / 2, j = (row % 2 == 0) ? std::max(i - 1, 0) : std::min(i + 1, ch - 1);
+  const T* a = c + std::ptrdiff_t(i) * cw;
+  const T* b = c + std::ptrdiff_t(j) * cw;
+  for (int x = 0; x < cw; ++x) t[x] = 0.75f * static_cast<float>(a[x]) + 0.25f * static_cast<float>(b[x]);
+}
+
+// The horizontal pass at output column x of a vertically upsampled row t (cw values).
+inline float ChromaColUp(const float* t, int cw, int x) {
+  const int i = x / 2, j = (x % 2 == 0) ? std::max(i - 1, 0) : std::min(i + 1, cw - 1);
+  return 0.75f * t[i] + 0.25f * t[j];
+}
+
+}  // namespace
+
+void YuvCheckArgs(int bits, double kr, double kb) {
+  if (bits < 1 || bits > 16) throw BadValueError("bits: expected 1..16, got " + std::to_string(bits));
+  if (!(std::isfinite(kr) && std::isfinite(kb) && kr > 0 && kb > 0 && kr + kb < 1)) {
+    throw BadValueError("kr, kb: expected a Y'CbCr matrix's weights (positive, kr + kb < 1)");
+  }
+}
+
+template <class T>
+void YuvToLinearRgb(const T* y, const T* cb, const T* cr, int h, int w, int bits, double kr, double kb,
+                    bool full_range, float* out) {
+  const int ch = (h + 1) / 2, cw = (w + 1) / 2;
+  const double scale = bits >= 8 ? double(1 << (bits - 8)) : 1.0 / double(1 << (8 - bits));
+  const double vmax = double((1 << bits) - 1), mid = double(1 << (bits - 1));
+  // The numpy definition's constants: Python floats, rounded to float32 where they meet the arrays.
+  const float y_off = full_range ? 0.0f : static_cast<float>(16 * scale);
+  const float y_div = full_range ? static_cast<float>(vmax) : static_cast<float>(219 * scale);
+  const float c_off = full_range ? static_cast<float>(mid) : static_cast<float>(128 * scale);
+  const float c_div = full_range ? static_cast<float>(vmax) : static_cast<float>(224 * scale);
+  const float k_r = static_cast<float>(2 * (1 - kr)), k_b = static_cast<float>(2 * (1 - kb));
+  const float f_kr = static_cast<float>(kr), f_kb = static_cast<float>(kb), f_kg = static_cast<float>(1 - kr - kb);
+  const bool chroma = cb != nullptr && cr != nullptr;
+  ParallelFor(h, 8, [&](std::int64_t r0, std::int64_t r1) {
+    std::vector<float> tb(chroma ? cw : 0), tr(chroma ? cw : 0);
+    for (int r = static_cast<int>(r0); r < static_cast<int>(r1); ++r) {
+      if (chroma) {
+        ChromaRowUp(cb, ch, cw, r, tb.data());
+        ChromaRowUp(cr, ch, cw, r, tr.data());
+      }
+      const T* yr = y + std::ptrdiff_t(r) * w;
+      float* o = out + std::ptrdiff_t(r) * w * 3;
+      for (int x = 0; x < w; ++x) {
+        const float yv = static_cast<float>(yr[x]);
+        // full range: y / vmax (no offset: the subtraction of 0 is skipped, as numpy does not do it)
+        const float yn = full_range ? yv / y_div : (yv - y_off) / y_div;
+        float cbn = 0.0f, crn = 0.0f;
+        if (chroma) {
+          cbn = (ChromaColUp(tb.data(), cw, x) - c_off) / c_div;
+          crn = (ChromaColUp(tr.data(), cw, x) - c_off) / c_div;
+        }
+        const float rv = yn + k_r * crn;
+        const float bv = yn + k_b * cbn;
+        const float gv = (yn - f_kr * rv - f_kb * bv) / f_kg;
+        o[3 * x + 0] = std::min(std::max(rv, 0.0f), 1.0f);
+        o[3 * x + 1] = std::min(std::max(gv, 0.0f), 1.0f);
+        o[3 * x + 2] = std::min(std::max(bv, 0.0f), 1.0f);
+      }
+      DecodeStdRun(o, o, std::int64_t(w) * 3);
+    }
+  });
+}
+
+template void YuvToLinearRgb<std::uint8_t>(const std::uint8_t*, const std::uint8_t*, const std::uint8_t*, int, int,
+                                            int, double, double, bool, float*);
+template void YuvToLinearRgb<std::uint16_t>(const std::uint16_t*, const std::uint16_t*, const std::uint16_t*, int,
+                                             int, int, double, double, bool, float*);
 
 namespace {
 // SrgbToLinearTableRun (colour.h), the decoding of DIBR's resolve (blend.h BlendSpace::kSrgb). The curve

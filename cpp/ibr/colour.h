@@ -108,6 +108,21 @@ void SrgbToLinearTableRun(float* v, std::int64_t n, bool avx2);
 // kernels that encode inside their own parallel loops (metameric.h MetamericEncode).
 void SrgbEncodeRun(const float* in, float* out, std::int64_t n);
 
+// Y'CbCr 4:2:0 or 4:0:0 planes -> linear RGB (Python: ibrtools.formats.yuv.yuv_to_rgb, which defines
+// the conversion: the MPEG/RVS reader). y (h, w); cb, cr (ceil(h/2), ceil(w/2)) or null (4:0:0);
+// samples of `bits` bits as uint8 (bits <= 8) or uint16. Chroma is upsampled by the centred linear
+// filter (3/4, 1/4; rows, then columns; clamped at the border), normalised (limited range: Y 16..235,
+// C 16..240 scaled to the bit depth; full: 0..2^bits - 1), converted by the matrix (kr, kb), clipped
+// to [0, 1] and decoded by SrgbToLinear. Every step in float32 with the same operations in the same
+// order as the numpy definition (its constants rounded from double once), so the same bits.
+// out (h, w, 3) float32; multithreaded over rows (each row independent).
+// Throws BadValueError unless bits is in 1..16 and (kr, kb) a Y'CbCr matrix's weights (positive,
+// kr + kb < 1, finite).
+void YuvCheckArgs(int bits, double kr, double kb);
+template <class T>
+void YuvToLinearRgb(const T* y, const T* cb, const T* cr, int h, int w, int bits, double kr, double kb,
+                    bool full_range, float* out);
+
 // The linear value of every 8-bit sRGB code c = 0..255: SrgbToLinear of float(c) / 255 (a table of
 // 256 values made once; exact 0 at 0 and 1 at 255 within SrgbToLinear's 1e-5).
 const float* Srgb8ToLinearTable();

@@ -119,12 +119,6 @@ def test_yuv_10bit_little_endian_and_full_range(tmp_path):
     np.testing.assert_allclose(rgb, srgb_to_linear(np.float32(512 / 1023)), atol=1e-6)
 
 
-def test_chroma_upsampling_centred():
-    c = np.array([[0.0, 4.0]])
-    up = yuv._upsample2(c, 2, 4)
-    np.testing.assert_allclose(up[0], [0.0, 1.0, 3.0, 4.0])  # 3/4-1/4 weights, edges clamped
-
-
 def test_yuv_wrong_size_names_file_and_bytes(tmp_path):
     f = tmp_path / "bad.yuv"
     f.write_bytes(b"\0" * 100)

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ibrtools.errors import BadValueError, FormatError, MissingFileError
-from ibrtools.imageio import linear_to_srgb, srgb_to_linear
+from ibrtools.imageio import linear_to_srgb
 
 MATRICES = {"bt709": (0.2126, 0.0722), "bt601": (0.299, 0.114)}
 
@@ -80,50 +80,25 @@ def read_frame(path: Path, width: int, height: int, bits: int, frame: int = 0,
     return planes
 
 
-def _upsample2(c: np.ndarray, h: int, w: int) -> np.ndarray:
-    """2x upsampling of a chroma plane with the centred linear filter (3/4, 1/4)."""
-    def axis(a: np.ndarray, ax: int, n: int) -> np.ndarray:
-        prev = np.concatenate([np.take(a, [0], axis=ax), np.take(a, np.arange(a.shape[ax] - 1), axis=ax)], ax)
-        nxt = np.concatenate([np.take(a, np.arange(1, a.shape[ax]), axis=ax), np.take(a, [-1], axis=ax)], ax)
-        even, odd = 0.75 * a + 0.25 * prev, 0.75 * a + 0.25 * nxt
-        out = np.stack([even, odd], axis=ax + 1)
-        shape = list(a.shape)
-        shape[ax] *= 2
-        return np.take(out.reshape(shape), np.arange(n), axis=ax)
-
-    return axis(axis(c.astype(np.float32), 0, h), 1, w)
-
-
 def yuv_to_rgb(planes: list[np.ndarray], bits: int, matrix: str = "bt709", full_range: bool = False) -> np.ndarray:
-    """Linear float32 RGB (H, W, 3) of Y'CbCr planes (see the module docstring)."""
+    """Linear float32 RGB (H, W, 3) of Y'CbCr planes [Y] or [Y, Cb, Cr] as :func:`read_frame`
+    returns them (see the module docstring). The C++ kernel ``_core.yuv_to_linear_rgb``
+    (cpp/ibr/colour.h YuvToLinearRgb): every step in float32, bit for bit the numpy definition
+    kept as the reference in tests/formats/test_yuv_kernel.py."""
+    from ibrtools import _core
+
     if matrix not in MATRICES:
         raise BadValueError(f"yuv matrix: expected one of {', '.join(MATRICES)}, got {matrix!r}")
-    y = planes[0].astype(np.float32)
-    h, w = y.shape
-    scale = float(1 << (bits - 8)) if bits >= 8 else 1.0 / (1 << (8 - bits))
-    vmax = float((1 << bits) - 1)
-    if len(planes) == 1:
-        cb = cr = np.zeros_like(y)
-    else:
-        cb, cr = (_upsample2(p, h, w) for p in planes[1:3])
-    if full_range:
-        yn = y / vmax
-        mid = float(1 << (bits - 1))
-        cbn, crn = (cb - mid) / vmax, (cr - mid) / vmax
-        if len(planes) == 1:
-            cbn = crn = np.zeros_like(y)
-    else:
-        yn = (y - 16 * scale) / (219 * scale)
-        cbn, crn = (cb - 128 * scale) / (224 * scale), (cr - 128 * scale) / (224 * scale)
-        if len(planes) == 1:
-            cbn = crn = np.zeros_like(y)
+    arrays = [np.asarray(p) for p in planes]
+    wide = bits > 8 or any(a.dtype != np.uint8 for a in arrays)
+    dtype = np.uint16 if wide else np.uint8
+    for a in arrays:
+        if a.dtype != dtype and a.size and not (a.min() >= 0 and a.max() <= np.iinfo(dtype).max):
+            raise BadValueError(f"yuv planes: expected samples in 0..{np.iinfo(dtype).max}, got {a.min()}..{a.max()}")
+    y, *chroma = (np.ascontiguousarray(a, dtype=dtype) for a in arrays)
+    cb, cr = chroma[:2] if len(chroma) >= 2 else (None, None)
     kr, kb = MATRICES[matrix]
-    kg = 1 - kr - kb
-    r = yn + 2 * (1 - kr) * crn
-    b = yn + 2 * (1 - kb) * cbn
-    g = (yn - kr * r - kb * b) / kg
-    rgb = np.clip(np.stack([r, g, b], -1), 0, 1)
-    return np.ascontiguousarray(srgb_to_linear(rgb))
+    return _core.yuv_to_linear_rgb(y, cb, cr, int(bits), kr, kb, bool(full_range))
 
 
 # The bits per sample of YUV output when none is asked for (--yuv-bits): 10, as MPEG content is.
