@@ -167,6 +167,32 @@ void BindCore(py::module_& m) {
       "which it computes bit for bit): y uint8 or uint16 (H, W); cb, cr the same dtype "
       "((H+1)/2, (W+1)/2), or both None (4:0:0). Returns a new float32 (H, W, 3) array.");
   m.def(
+      "linear_rgb_to_yuv",
+      [](py::handle rgb_obj, int bits, double kr, double kb, bool full_range) {
+        YuvCheckArgs(bits, kr, kb, 8);
+        auto rgb = CheckArray<float>(rgb_obj, "rgb", {{"H", -1}, {"W", -1}, {"3", 3}});
+        const py::ssize_t h = rgb.shape(0), w = rgb.shape(1);
+        if (h < 1 || w < 1) throw ShapeError("rgb: expected at least 1 x 1 pixels, got " + DescribeShape(rgb));
+        auto run = [&](auto tag) -> py::tuple {
+          using T = decltype(tag);
+          auto y = NewArray<T>({h, w});
+          auto cb = NewArray<T>({(h + 1) / 2, (w + 1) / 2});
+          auto cr = NewArray<T>({(h + 1) / 2, (w + 1) / 2});
+          const float* in = rgb.data();
+          T *py_ = y.mutable_data(), *pb = cb.mutable_data(), *pr = cr.mutable_data();
+          {
+            py::gil_scoped_release release;
+            LinearRgbToYuv<T>(in, static_cast<int>(h), static_cast<int>(w), bits, kr, kb, full_range, py_, pb, pr);
+          }
+          return py::make_tuple(y, cb, cr);
+        };
+        return bits > 8 ? run(std::uint16_t{}) : run(std::uint8_t{});
+      },
+      py::arg("rgb"), py::arg("bits"), py::arg("kr"), py::arg("kb"), py::arg("full_range") = false,
+      "Linear RGB to Y'CbCr 4:2:0 planes (cpp/ibr/colour.h LinearRgbToYuv; Python: "
+      "ibrtools.formats.yuv.rgb_to_yuv, which it computes bit for bit): rgb float32 (H, W, 3), bits 8..16. "
+      "Returns (y (H, W), cb, cr ((H+1)/2, (W+1)/2)), uint8 for 8 bits, else uint16.");
+  m.def(
       "srgb_to_linear", [](py::handle values) { return MapValues(values, SrgbToLinear); }, py::arg("values"),
       "The decoding of stored sRGB colour (cpp/ibr/colour.h SrgbToLinear; Python: "
       "ibrtools.imageio.srgb_to_linear): v / 12.92 for v <= 0.04045 (negative values included), "

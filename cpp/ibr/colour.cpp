@@ -207,8 +207,10 @@ inline float ChromaColUp(const float* t, int cw, int x) {
 
 }  // namespace
 
-void YuvCheckArgs(int bits, double kr, double kb) {
-  if (bits < 1 || bits > 16) throw BadValueError("bits: expected 1..16, got " + std::to_string(bits));
+void YuvCheckArgs(int bits, double kr, double kb, int min_bits) {
+  if (bits < min_bits || bits > 16) {
+    throw BadValueError("bits: expected " + std::to_string(min_bits) + "..16, got " + std::to_string(bits));
+  }
   if (!(std::isfinite(kr) && std::isfinite(kb) && kr > 0 && kb > 0 && kr + kb < 1)) {
     throw BadValueError("kr, kb: expected a Y'CbCr matrix's weights (positive, kr + kb < 1)");
   }
@@ -257,6 +259,59 @@ void YuvToLinearRgb(const T* y, const T* cb, const T* cr, int h, int w, int bits
     }
   });
 }
+
+template <class T>
+void LinearRgbToYuv(const float* rgb, int h, int w, int bits, double kr, double kb, bool full_range, T* y, T* cb,
+                    T* cr) {
+  const int ch = (h + 1) / 2, cw = (w + 1) / 2;
+  const double kg = 1 - kr - kb, db = 2 * (1 - kb), dr = 2 * (1 - kr);
+  const double vmax = double((1 << bits) - 1), scale = double(1 << (bits - 8)), mid = double(1 << (bits - 1));
+  const double y_off = 16 * scale, y_mul = 219 * scale, c_off = 128 * scale, c_mul = 224 * scale;
+  auto code = [&](double v) {  // np.clip(np.rint(v), 0, vmax).astype(T)
+    return static_cast<T>(std::min(std::max(std::nearbyint(v), 0.0), vmax));
+  };
+  ParallelFor(ch, 4, [&](std::int64_t i0, std::int64_t i1) {
+    std::vector<float> enc(std::size_t(2) * w * 3);
+    std::vector<double> ys(std::size_t(2) * w), cbs(std::size_t(2) * w), crs(std::size_t(2) * w);
+    for (int i = static_cast<int>(i0); i < static_cast<int>(i1); ++i) {
+      const int rows[2] = {2 * i, std::min(2 * i + 1, h - 1)};
+      for (int k = 0; k < 2; ++k) {
+        float* e = enc.data() + std::size_t(k) * w * 3;
+        EncodeUnitRun(rgb + std::ptrdiff_t(rows[k]) * w * 3, e, std::int64_t(w) * 3);
+        for (int x = 0; x < w; ++x) {
+          const double r = e[3 * x], g = e[3 * x + 1], b = e[3 * x + 2];
+          const double yv = kr * r + kg * g + kb * b;
+          ys[std::size_t(k) * w + x] = yv;
+          cbs[std::size_t(k) * w + x] = (b - yv) / db;
+          crs[std::size_t(k) * w + x] = (r - yv) / dr;
+        }
+      }
+      for (int k = 0; k < 2; ++k) {
+        if (k == 1 && 2 * i + 1 >= h) break;
+        T* yrow = y + std::ptrdiff_t(rows[k]) * w;
+        for (int x = 0; x < w; ++x) {
+          const double v = ys[std::size_t(k) * w + x];
+          yrow[x] = code(full_range ? v * vmax : y_off + y_mul * v);
+        }
+      }
+      T* cbrow = cb + std::ptrdiff_t(i) * cw;
+      T* crrow = cr + std::ptrdiff_t(i) * cw;
+      for (int j = 0; j < cw; ++j) {
+        const int x0 = 2 * j, x1 = std::min(2 * j + 1, w - 1);
+        // 0.25 * (c[0::2, 0::2] + c[1::2, 0::2] + c[0::2, 1::2] + c[1::2, 1::2]), in that order
+        const double mb = 0.25 * (cbs[x0] + cbs[std::size_t(w) + x0] + cbs[x1] + cbs[std::size_t(w) + x1]);
+        const double mr = 0.25 * (crs[x0] + crs[std::size_t(w) + x0] + crs[x1] + crs[std::size_t(w) + x1]);
+        cbrow[j] = code(full_range ? mid + mb * vmax : c_off + c_mul * mb);
+        crrow[j] = code(full_range ? mid + mr * vmax : c_off + c_mul * mr);
+      }
+    }
+  });
+}
+
+template void LinearRgbToYuv<std::uint8_t>(const float*, int, int, int, double, double, bool, std::uint8_t*,
+                                            std::uint8_t*, std::uint8_t*);
+template void LinearRgbToYuv<std::uint16_t>(const float*, int, int, int, double, double, bool, std::uint16_t*,
+                                             std::uint16_t*, std::uint16_t*);
 
 template void YuvToLinearRgb<std::uint8_t>(const std::uint8_t*, const std::uint8_t*, const std::uint8_t*, int, int,
                                             int, double, double, bool, float*);

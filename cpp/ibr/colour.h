@@ -116,12 +116,23 @@ void SrgbEncodeRun(const float* in, float* out, std::int64_t n);
 // to [0, 1] and decoded by SrgbToLinear. Every step in float32 with the same operations in the same
 // order as the numpy definition (its constants rounded from double once), so the same bits.
 // out (h, w, 3) float32; multithreaded over rows (each row independent).
-// Throws BadValueError unless bits is in 1..16 and (kr, kb) a Y'CbCr matrix's weights (positive,
-// kr + kb < 1, finite).
-void YuvCheckArgs(int bits, double kr, double kb);
+// Throws BadValueError unless bits is in min_bits..16 and (kr, kb) a Y'CbCr matrix's weights
+// (positive, kr + kb < 1, finite).
+void YuvCheckArgs(int bits, double kr, double kb, int min_bits = 1);
 template <class T>
 void YuvToLinearRgb(const T* y, const T* cb, const T* cr, int h, int w, int bits, double kr, double kb,
                     bool full_range, float* out);
+
+// Linear RGB -> Y'CbCr 4:2:0 planes (Python: ibrtools.formats.yuv.rgb_to_yuv, the inverse of
+// YuvToLinearRgb, which defines it): rgb (h, w, 3) float32 encoded by LinearToSrgb's curve (clipped
+// to [0, 1], NaN 0), then in double: the matrix (kr, kb), chroma averaged over each 2 x 2 block (the
+// last row / column repeated for odd sizes), scaled to the code range (limited or full), rounded to
+// nearest even and clipped to [0, 2^bits - 1]. The same double operations in the same order as the
+// numpy definition, so the same codes. y (h, w), cb and cr (ceil(h/2), ceil(w/2)) of uint8 (bits 8)
+// or uint16 (9..16 bits); multithreaded over chroma rows.
+template <class T>
+void LinearRgbToYuv(const float* rgb, int h, int w, int bits, double kr, double kb, bool full_range, T* y, T* cb,
+                    T* cr);
 
 // The linear value of every 8-bit sRGB code c = 0..255: SrgbToLinear of float(c) / 255 (a table of
 // 256 values made once; exact 0 at 0 and 1 at 255 within SrgbToLinear's 1e-5).

@@ -1,7 +1,8 @@
-"""The Y'CbCr -> linear RGB kernel (_core.yuv_to_linear_rgb, cpp/ibr/colour.h YuvToLinearRgb) against
-the numpy definition below (the MPEG importer's conversion as first written): the same float32
-values, bit for bit, for 8, 10, 16 and 5-bit samples, odd and one-pixel sizes, limited and full
-range, both matrices, 4:2:0 and 4:0:0; and its front."""
+"""The Y'CbCr <-> linear RGB kernels (_core.yuv_to_linear_rgb and _core.linear_rgb_to_yuv,
+cpp/ibr/colour.h) against the numpy definitions below (the MPEG importer's and the YUV writer's
+conversions as first written): the same float32 values and the same codes, bit for bit, for 8 to
+16-bit samples (5 for reading), odd and one-pixel sizes, limited and full range, both matrices,
+4:2:0 and 4:0:0 (reading), NaN and out-of-range colour (writing); and their fronts."""
 from __future__ import annotations
 
 import numpy as np
@@ -10,7 +11,7 @@ import pytest
 from ibrtools import _core
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
 from ibrtools.formats import yuv
-from ibrtools.imageio import srgb_to_linear
+from ibrtools.imageio import linear_to_srgb, srgb_to_linear
 
 pytestmark = [pytest.mark.asan, pytest.mark.kernel]
 
@@ -54,6 +55,43 @@ def reference(planes, bits, matrix="bt709", full_range=False):
     return np.ascontiguousarray(srgb_to_linear(np.clip(np.stack([r, g, b], -1), 0, 1)))
 
 
+def reference_to_yuv(rgb, bits, matrix="bt709", full_range=False):
+    e = linear_to_srgb(rgb).astype(np.float64)  # clipped to [0, 1], NaN -> 0
+    kr, kb = yuv.MATRICES[matrix]
+    y = kr * e[..., 0] + (1 - kr - kb) * e[..., 1] + kb * e[..., 2]
+    cb, cr = (e[..., 2] - y) / (2 * (1 - kb)), (e[..., 0] - y) / (2 * (1 - kr))
+    h, w = y.shape
+
+    def half(c):
+        c = np.pad(c, ((0, h % 2), (0, w % 2)), mode="edge")
+        return 0.25 * (c[0::2, 0::2] + c[1::2, 0::2] + c[0::2, 1::2] + c[1::2, 1::2])
+
+    cb, cr = half(cb), half(cr)
+    vmax = float((1 << bits) - 1)
+    scale = float(1 << (bits - 8))
+    if full_range:
+        mid = float(1 << (bits - 1))
+        planes = [y * vmax, mid + cb * vmax, mid + cr * vmax]
+    else:
+        planes = [16 * scale + 219 * scale * y, 128 * scale + 224 * scale * cb, 128 * scale + 224 * scale * cr]
+    dtype = np.uint8 if bits <= 8 else np.dtype("<u2")
+    return [np.clip(np.rint(p), 0, vmax).astype(dtype) for p in planes]
+
+
+@pytest.mark.parametrize("bits", [8, 10, 12, 16])
+@pytest.mark.parametrize("size", [(37, 54), (7, 9), (1, 1), (2, 3), (5, 1)])
+def test_writer_kernel_is_the_reference_bit_for_bit(bits, size):
+    rng = np.random.default_rng(bits * 7 + size[1])
+    rgb = rng.random(size + (3,), dtype=np.float32) * 1.2 - 0.1  # below 0 and above 1 too
+    rgb[0, 0, 0] = np.nan
+    for full in (False, True):
+        for matrix in yuv.MATRICES:
+            got, want = yuv.rgb_to_yuv(rgb, bits, matrix, full), reference_to_yuv(rgb, bits, matrix, full)
+            for g, w in zip(got, want):
+                assert g.dtype == w.dtype
+                np.testing.assert_array_equal(g, w)
+
+
 def test_reference_upsampling_is_centred():
     np.testing.assert_allclose(upsample2(np.array([[0.0, 4.0]]), 2, 4)[0], [0.0, 1.0, 3.0, 4.0])
 
@@ -90,3 +128,10 @@ def test_kernel_front_names_bad_arguments():
         _core.yuv_to_linear_rgb(y, c.astype(np.uint8), c, 10, kr, kb)
     with pytest.raises(BadValueError, match=r"yuv planes: expected samples in 0..65535, got -1..-1"):
         yuv.yuv_to_rgb([np.full((2, 2), -1, np.int32)], 8)
+    rgb = np.zeros((4, 6, 3), np.float32)
+    with pytest.raises(BadValueError, match="bits: expected 8..16, got 7"):
+        _core.linear_rgb_to_yuv(rgb, 7, kr, kb)
+    with pytest.raises(ShapeError, match=r"rgb: expected float32 array of shape \(H, W, 3\)"):
+        _core.linear_rgb_to_yuv(rgb[..., :2].copy(), 10, kr, kb)
+    with pytest.raises(ShapeError, match="rgb: expected at least 1 x 1 pixels"):
+        _core.linear_rgb_to_yuv(np.zeros((0, 6, 3), np.float32), 10, kr, kb)

@@ -26,7 +26,6 @@ from pathlib import Path
 import numpy as np
 
 from ibrtools.errors import BadValueError, FormatError, MissingFileError
-from ibrtools.imageio import linear_to_srgb
 
 MATRICES = {"bt709": (0.2126, 0.0722), "bt601": (0.299, 0.114)}
 
@@ -107,7 +106,11 @@ DEFAULT_BITS = 10
 
 def rgb_to_yuv(rgb: np.ndarray, bits: int = DEFAULT_BITS, matrix: str = "bt709", full_range: bool = False) -> list[np.ndarray]:
     """The 4:2:0 planes [Y, Cb, Cr] (uint8 for 8 bits, uint16 above) of linear RGB (H, W, 3)
-    (see the module docstring); NaN counts as 0."""
+    (see the module docstring); NaN counts as 0. The C++ kernel ``_core.linear_rgb_to_yuv``
+    (cpp/ibr/colour.h LinearRgbToYuv), bit for bit the numpy definition kept as the reference in
+    tests/formats/test_yuv_kernel.py."""
+    from ibrtools import _core
+
     if not 8 <= int(bits) <= 16:
         raise BadValueError(f"YUV bit depth: expected 8..16, got {bits}")
     if matrix not in MATRICES:
@@ -115,26 +118,9 @@ def rgb_to_yuv(rgb: np.ndarray, bits: int = DEFAULT_BITS, matrix: str = "bt709",
     a = np.asarray(rgb)
     if a.ndim != 3 or a.shape[2] != 3 or a.shape[0] < 1 or a.shape[1] < 1:
         raise BadValueError(f"rgb_to_yuv: expected an (H, W, 3) image, got shape {a.shape}")
-    e = linear_to_srgb(a).astype(np.float64)  # clipped to [0, 1], NaN -> 0
     kr, kb = MATRICES[matrix]
-    y = kr * e[..., 0] + (1 - kr - kb) * e[..., 1] + kb * e[..., 2]
-    cb, cr = (e[..., 2] - y) / (2 * (1 - kb)), (e[..., 0] - y) / (2 * (1 - kr))
-    h, w = y.shape
-
-    def half(c: np.ndarray) -> np.ndarray:
-        c = np.pad(c, ((0, h % 2), (0, w % 2)), mode="edge")
-        return 0.25 * (c[0::2, 0::2] + c[1::2, 0::2] + c[0::2, 1::2] + c[1::2, 1::2])
-
-    cb, cr = half(cb), half(cr)
-    vmax = float((1 << bits) - 1)
-    scale = float(1 << (bits - 8))
-    if full_range:
-        mid = float(1 << (bits - 1))
-        planes = [y * vmax, mid + cb * vmax, mid + cr * vmax]
-    else:
-        planes = [16 * scale + 219 * scale * y, 128 * scale + 224 * scale * cb, 128 * scale + 224 * scale * cr]
-    dtype = np.uint8 if bits <= 8 else np.dtype("<u2")
-    return [np.clip(np.rint(p), 0, vmax).astype(dtype) for p in planes]
+    y, cb, cr = _core.linear_rgb_to_yuv(np.ascontiguousarray(a, dtype=np.float32), int(bits), kr, kb, bool(full_range))
+    return [y, cb, cr]
 
 
 def write_frame(f, planes: list[np.ndarray]) -> None:
