@@ -191,7 +191,7 @@ def test_core_ssim_front_checks():
 def test_core_ssim_releases_the_gil():
     # While the worker thread is inside the kernel, the main thread must be able to run:
     # any main-thread timestamp strictly inside the call proves the GIL was released.
-    a, b = _pair((1024, 1024), 2)
+    a, b = _pair((2048, 2048), 2)  # ~25-50 ms on 2 cores: long enough for the check on a fast machine
     assert runs_python_during(lambda: _core.ssim(a, b, 1.0, True)), "no Python ran during the kernel (or it lasted < 20 ms)"
 
 
