@@ -62,6 +62,7 @@ OVERRIDES: dict[str, dict[str, str]] = {
     "RayScene.render": {"lights": "list[_Light]", "return": _ARRAYS},
     "yuv_to_linear_rgb": {"y": "_U8 | _U16", "cb": "_U8 | _U16 | None", "cr": "_U8 | _U16 | None", "return": "_F32"},
     "linear_rgb_to_yuv": {"rgb": "_F32", "return": "tuple[_U8 | _U16, _U8 | _U16, _U8 | _U16]"},
+    "clean_color": {"color": "_F32", "hole": "_Bool | None", "return": "_F32"},
     "hole_sides": {"hole": "_Bool", "background": "_Bool", "known_depth": "_F32", "return": "tuple[_U8, _F32]"},
     "background_lookup": {"inputs": "collections.abc.Sequence[tuple[Camera, _F32, _Bool, _F32]]", "hole": "_Bool",
                           "color": "_F32", "return": "_U8"},

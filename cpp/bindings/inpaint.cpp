@@ -13,6 +13,7 @@
 #include "array.h"
 #include "ibr/errors.h"
 #include "kernels/inpaint/background.h"
+#include "kernels/inpaint/clean.h"
 #include "kernels/inpaint/front.h"
 #include "kernels/inpaint/hole_sides.h"
 #include "kernels/inpaint/metameric.h"
@@ -109,6 +110,28 @@ static void BindBackground(py::module_& m) {
       "(h, w, 3)); hole bool or uint8 (H, W); color float32 (H, W, 3), written in place at the background "
       "pixels found. Returns state uint8 (H, W): at the hole pixels 0 undecided, 1 a surface, 2 background "
       "(colour written); 0 elsewhere.");
+}
+
+// Binding of cpp/kernels/inpaint/clean.h: the checking front and the call with the GIL released.
+static void BindCleanColor(py::module_& m) {
+  m.def(
+      "clean_color",
+      [](py::handle color_obj, py::handle hole_obj) {
+        FloatArray color = CheckArray<float>(color_obj, "color", {{"H", -1}, {"W", -1}, {"C", -1}});
+        const py::ssize_t h = color.shape(0), w = color.shape(1), c = color.shape(2);
+        py::object hole_keep;
+        const std::uint8_t* hole = nullptr;
+        if (!hole_obj.is_none()) hole = MaskView(hole_obj, "hole", h, w, &hole_keep).data;
+        FloatArray out = NewArray<float>({h, w, c});
+        const float* in = color.data();
+        float* o = out.mutable_data();
+        py::gil_scoped_release release;
+        CleanColorKernel(in, hole, std::int64_t(h) * w, static_cast<int>(c), o);
+        return out;
+      },
+      py::arg("color"), py::arg("hole") = py::none(),
+      "A method's colour as written (cpp/kernels/inpaint/clean.h): color float32 (H, W, C); NaN and +-inf -> 0, "
+      "every channel of a hole pixel (hole bool or uint8 (H, W), or None) -> 0. Returns a new float32 array.");
 }
 
 // Binding of cpp/kernels/inpaint/hole_sides.h: the checking front and the call with the GIL released.
@@ -466,6 +489,7 @@ void BindInpaint(py::module_& m) {
   BindMetameric(m);
   BindBackground(m);
   BindHoleSides(m);
+  BindCleanColor(m);
 }
 
 }  // namespace ibr::bind

@@ -143,3 +143,22 @@ def test_hole_sides_match_nearest_covered():
         _core.hole_sides(all_hole, np.zeros((4, 4), bool), np.zeros((4, 5), np.float32))
     with pytest.raises(DtypeError, match=r"known_depth: expected float32"):
         _core.hole_sides(all_hole, all_hole, np.zeros((4, 5)))
+
+
+def test_clean_color_matches_numpy():
+    # NaN and +-inf -> 0 and hole pixels -> +0, other values (negative, above 1, -0.0) kept: as
+    # numpy's nan_to_num then where(hole, 0, colour), bit for bit.
+    rng = np.random.default_rng(9)
+    col = rng.normal(0, 2, (13, 17, 3)).astype(np.float32)
+    col[::3, ::5] = np.nan
+    col[1, 2, 0], col[2, 3, 1], col[4, 4, 2] = np.inf, -np.inf, -0.0
+    hole = rng.random((13, 17)) < 0.3
+    for h in (hole, None):
+        want = np.nan_to_num(col, nan=0.0, posinf=0.0, neginf=0.0)
+        if h is not None:
+            want = np.where(h[..., None], np.float32(0.0), want)
+        got = _core.clean_color(col, h)
+        np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(np.signbit(got), np.signbit(want))
+    with pytest.raises(ShapeError, match=r"hole: expected bool array of shape \(H, W\) = \(13, 17\)"):
+        _core.clean_color(col, hole[:5])

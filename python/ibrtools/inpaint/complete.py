@@ -124,11 +124,9 @@ def background_of(scene) -> Background | None:
 def clean_color(out: dict) -> np.ndarray:
     """A method's colour as written: float32, C-contiguous, NaN/inf as 0, holes
     (``out["hole"]``) black."""
-    color = np.nan_to_num(np.asarray(out["color"], np.float32), nan=0.0, posinf=0.0, neginf=0.0)
     hole = out.get("hole")
-    if hole is not None:
-        color = np.where(np.asarray(hole, bool)[..., None], np.float32(0.0), color)
-    return np.ascontiguousarray(color, np.float32)
+    return _core.clean_color(np.ascontiguousarray(out["color"], np.float32),
+                             None if hole is None else np.ascontiguousarray(hole, bool))  # inpaint/clean.h
 
 
 def complete(out: dict, camera, background: Background | None, inpaint: str,
