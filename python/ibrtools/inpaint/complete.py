@@ -188,8 +188,7 @@ def _fill(color: np.ndarray, hole: np.ndarray, depth: np.ndarray | None, bg: np.
     surface = ~hole & ~bg
     known_depth = np.zeros(hole.shape, np.float32)
     if d is not None:
-        ok = surface & np.isfinite(d) & (d > 0)
-        known_depth[ok] = d[ok]
+        known_depth = np.where(surface & np.isfinite(d) & (d > 0), d, np.float32(0))
     # The nearest covered pixels left, right, above and below each hole pixel
     # (cpp/kernels/inpaint/hole_sides.h): how many, how many of them background, and the largest
     # depth of the surface ones (known_depth is 0 on the background).
@@ -212,8 +211,7 @@ def _fill(color: np.ndarray, hole: np.ndarray, depth: np.ndarray | None, bg: np.
             aware = np.where(hole, np.where(around > 0, around, np.float32(known_depth.max())), known_depth)
             aware[sky] = 0  # not read: the background holes are blocked as the background is
         filled = fill_holes(color, hole | bg, method, depth=aware)  # never from the background at infinity
-        out = out.copy() if out is color else out
-        out[ground] = filled[ground]
+        out = np.where(ground[..., None], filled, out)
     if sky.any():
         filled = bg_colour.astype(np.float32) if bg_colour is not None else \
             fill_holes(color, ~bg, "pushpull")[sky]  # from the background at infinity only
