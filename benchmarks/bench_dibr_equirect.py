@@ -91,7 +91,7 @@ def main() -> None:
         db = psnr(linear_to_srgb(color), linear_to_srgb(truth))
         rows.append((k, cam.width, cam.height, wall, min(t[0] for t in times[k]), cpu, db, float(hole.mean())))
     ratio = statistics.median(e[0] / p[0] for p, e in zip(times["pinhole"], times["equirect"]))
-    lines = [f"## DIBR with equirectangular inputs and output (benchmarks/bench_dibr_equirect.py)", "",
+    lines = ["## DIBR with equirectangular inputs and output (benchmarks/bench_dibr_equirect.py)", "",
              f"`python benchmarks/bench_dibr_equirect.py --repeats {a.repeats}`, {machine()}; median of "
              f"{a.repeats} frames after a warm-up, the two jobs alternating. 4 inputs → 1 target, each frame: "
              "reset, 4 × (sRGB encode + add_view), result(); the bench_dibr scene (synth objects, 8 ring "
