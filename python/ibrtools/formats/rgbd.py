@@ -74,9 +74,10 @@ Options
                         (7-Scenes default 65535; others: none)
   max_depth=M           depth beyond M metres is marked unknown (0); default: none
   pose_format=icl|tum|7scenes|redwood|scannet   (default: scannet when color/, depth/ and pose/
-                        are folders; redwood when the folder has a Redwood trajectory and none of the ICL/TUM pose files, or when trajectory= is
-                        given; else icl when color/ exists, tum when rgb/ exists, 7scenes when
-                        the folder holds ``*.pose.txt`` files)
+                        are folders; redwood when the folder has a Redwood trajectory and none
+                        of the ICL/TUM pose files, or when trajectory= is given; else icl when
+                        color/ exists, tum when rgb/ exists, 7scenes when the folder holds
+                        ``*.pose.txt`` files)
   trajectory=FILE       redwood: the camera trajectory (.log or Open3D .json; default
                         ``trajectory.log``, ``trajectory.json`` or ``odometry.log``)
   max_dt=0.02           TUM: largest timestamp difference accepted, seconds

@@ -62,16 +62,21 @@ class Background:
         return cls(bg, [_clear(np.isfinite(v.depth) & (v.depth > 0)) for v in bg], c)
 
     def fill(self, camera: Camera, color: np.ndarray, hole: np.ndarray,
-             depth: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+             depth: np.ndarray | None, *, color_is_ours: bool = False
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(colour, hole, depth, background) of a frame with its background directions filled:
-        new arrays; ``background`` (H, W) bool marks every background pixel of the result (the
-        ones the method already gave depth +inf and the ones filled here). ``depth`` None: the
-        result's depth is 0 except +inf on the background. A hole with depth +inf (a mesh
-        method's ray that missed the mesh) no input sees takes :attr:`colour`, when known."""
+        new arrays (``color_is_ours``: the caller's float32 C-contiguous ``color`` is written in
+        place and returned, not copied); ``background`` (H, W) bool marks every background pixel
+        of the result (the ones the method already gave depth +inf and the ones filled here).
+        ``depth`` None: the result's depth is 0 except +inf on the background. A hole with depth
+        +inf (a mesh method's ray that missed the mesh) no input sees takes :attr:`colour`, when
+        known."""
         hole = np.asarray(hole, bool)
         depth = (np.zeros(hole.shape, np.float32) if depth is None
                  else np.array(depth, np.float32, copy=True))
-        color = np.array(color, np.float32, copy=True)
+        if not (color_is_ours and isinstance(color, np.ndarray) and color.dtype == np.float32
+                and color.flags.c_contiguous and color.flags.writeable):
+            color = np.array(color, np.float32, copy=True)
         hole = hole.copy()
         if hole.any():
             # The inputs in order, each asked about the directions no input before it decided

@@ -143,7 +143,7 @@ def complete(out: dict, camera, background: Background | None, inpaint: str,
         hole = np.asarray(hole, bool)
         if background is not None and hole.any():
             t0 = time.perf_counter()
-            color, hole, depth, bg = background.fill(camera, color, hole, depth)
+            color, hole, depth, bg = background.fill(camera, color, hole, depth, color_is_ours=True)  # clean_color's
             stage_ms["background"] = (time.perf_counter() - t0) * 1e3
         elif depth is not None:
             depth = np.where(hole & np.isposinf(depth), np.float32(0), depth)  # a miss no input explains: unknown
