@@ -86,7 +86,7 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
@@ -196,6 +196,11 @@ def _numeric_key(p: Path):
     return (float(m[-1]) if m else float("inf"), p.name)
 
 
+def _listed(folder: Path, key: Callable[[Path], Any] | None = None) -> list[Path]:
+    """The images of ``folder`` (by extension), sorted by ``key`` (default: the file name)."""
+    return sorted((p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTS), key=key)
+
+
 def _read_table(path: Path, ncols: int) -> list[list[str]]:
     if not path.is_file():
         raise MissingFileError(f"{path}: no such file")
@@ -226,7 +231,7 @@ def _pose(values: list[str], where: str) -> np.ndarray:
 
 
 def _icl_frames(path: Path) -> list[_Frame]:
-    colors = sorted((p for p in (path / "color").iterdir() if p.suffix.lower() in IMAGE_EXTS), key=_numeric_key)
+    colors = _listed(path / "color", key=_numeric_key)
     if not colors:
         raise FormatError(f"{path / 'color'}: no images")
     pose_file = next((path / f for f in POSE_FILES if (path / f).is_file()), None)
@@ -275,7 +280,7 @@ def _pose_matrix(pf: Path) -> np.ndarray:
 def _scannet_frames(path: Path) -> tuple[list[_Frame], list[str]]:
     """Frames of a ScanNet SensReader export, and the pose files of the frames skipped because
     their pose is not finite (ScanNet marks lost tracking with -inf)."""
-    colors = sorted((p for p in (path / "color").iterdir() if p.suffix.lower() in IMAGE_EXTS), key=_numeric_key)
+    colors = _listed(path / "color", key=_numeric_key)
     if not colors:
         raise FormatError(f"{path / 'color'}: no images")
     frames, skipped = [], []
@@ -398,8 +403,6 @@ def _read_o3d_trajectory(path: Path) -> list[tuple[np.ndarray, _Intrinsics | Non
     return out
 
 
-def _listed(folder: Path) -> list[Path]:
-    return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTS)
 
 
 def _redwood_frames(path: Path, trajectory: Path | None) -> list[_Frame]:
