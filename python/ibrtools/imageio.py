@@ -390,8 +390,11 @@ def write_image(path: str | os.PathLike, image: np.ndarray, *, bits: int = 8, pn
     an alpha channel stays linear); EXR/PFM: linear float32, as it is (NaN written as 0, +-inf kept: a depth map's
     background at infinity). ``png_level``: a PNG's zlib compression level, 0-9 (None: zlib's
     default, 6; 1 encodes a 1080p frame about 2.6x faster for a file about 30 % larger; the
-    pixels are the same)."""
+    pixels are the same); other formats ignore it."""
     path = Path(path)
+    if png_level is not None and (isinstance(png_level, bool) or not isinstance(png_level, int)
+                                  or not 0 <= png_level <= 9):
+        raise BadValueError(f"{path}: png_level must be an integer 0-9, got {png_level!r}")
     image = np.asarray(image)
     if image.ndim == 2:
         image = image[:, :, None]
@@ -420,9 +423,7 @@ def write_image(path: str | os.PathLike, image: np.ndarray, *, bits: int = 8, pn
         enc[..., colour:] = np.clip(np.nan_to_num(enc[..., colour:]), 0, 1)
         pixels = quantize(enc, bits)
         spec = oiio.ImageSpec(w, h, c, "uint8" if bits == 8 else "uint16")
-        if png_level is not None:
-            if isinstance(png_level, bool) or not isinstance(png_level, int) or not 0 <= png_level <= 9:
-                raise BadValueError(f"{path}: png_level must be an integer 0-9, got {png_level!r}")
+        if png_level is not None and ext == ".png":
             spec.attribute("png:compressionLevel", png_level)
     else:
         raise FormatError(f"{path}: unknown image extension {ext!r} (expected one of "

@@ -283,7 +283,7 @@ def write_output(out_dir: Path, rel: str, kind: str, array: np.ndarray) -> Path:
     if kind == "depth":
         _write_depth(path, array)
     else:
-        _write_image(path, array, png_level=FRAME_PNG_LEVEL if path.suffix.lower() == ".png" else None)
+        _write_image(path, array, png_level=FRAME_PNG_LEVEL)
     return path
 
 
