@@ -31,7 +31,8 @@ No metric is ever NaN: a metric over an empty mask is ``None``.
 
 Which scores a report computes (``ibr-render --metrics``, :func:`parse_scores`): "all" (the
 default: PSNR, SSIM and FLIP when installed), "none", or a comma list of psnr, ssim, flip.
-FLIP costs seconds per 1080p frame; PSNR milliseconds.
+On a 1080p frame FLIP costs about 1.4 s, PSNR (with its covered variant) 0.16 s, SSIM 0.07 s
+(docs/render.md).
 """
 from __future__ import annotations
 
