@@ -181,11 +181,11 @@ def main():
     ap.add_argument("--isa", default="auto", choices=("auto", "baseline", "avx2"),
                     help="instruction set of the warp's hot loops (_core.set_warp_isa; results are identical)")
     ap.add_argument("--blend-space", default=None, choices=("srgb", "linear"),
-                    help="blend space of the timed job (default: the renderer's, dibr/method.py DEFAULTS)")
+                    help="blend space of the timed job (default: the renderer's, dibr/method.py DibrParams)")
     a = ap.parse_args()
-    from ibrtools.dibr.method import DEFAULTS
+    from ibrtools.dibr.method import DibrParams
 
-    space = a.blend_space or DEFAULTS["blend_space"]
+    space = a.blend_space or DibrParams.blend_space
     _core.set_warp_isa(a.isa)
     cases = [((1920, 1080), k) for k in (1, 2, 4, 8)]
     sizes = [(512, 512), (1024, 1024)] + ([] if a.quick else [(3840, 2160)])

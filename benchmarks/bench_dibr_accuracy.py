@@ -393,9 +393,9 @@ def distance_weighting(data: Path, params=None) -> dict:
 
 
 def _space(params: dict) -> str:
-    from ibrtools.dibr.method import DEFAULTS
+    from ibrtools.dibr.method import DibrParams
 
-    return params.get("blend_space", DEFAULTS["blend_space"])
+    return params.get("blend_space", DibrParams.blend_space)
 
 
 def _other_space(params: dict) -> str:

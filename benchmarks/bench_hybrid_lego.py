@@ -150,7 +150,7 @@ def main(argv=None) -> int:
                    help="with --keep: reuse the scene DIR holds (same protocol) and its stage cache instead of re-importing")
     p.add_argument("--options", default=None, metavar="JSON", help="stage options for run_stages (JSON object)")
     p.add_argument("--hybrid-params", default=None, metavar="JSON",
-                   help="hybrid render parameters (JSON object, e.g. '{\"tau_var\": 0.1}'; default: HYBRID_DEFAULTS)")
+                   help="hybrid render parameters (JSON object, e.g. '{\"tau_var\": 0.1}'; default: HybridParams)")
     p.add_argument("--speed-repeats", type=int, default=5, metavar="N",
                    help="after scoring, render every held-out view N more times per method and report the median "
                         "ms per frame (default 5; 0: no speed table)")
@@ -179,9 +179,9 @@ def main(argv=None) -> int:
 
     stage_options = json_object(args.options, "--options")
     hybrid_params = json_object(args.hybrid_params, "--hybrid-params")
-    from ibrtools.hybrid.method import check_params
+    from ibrtools.hybrid.method import HybridParams
 
-    check_params("hybrid", hybrid_params)  # a bad key or value fails here, before the data is read
+    HybridParams.from_dict(hybrid_params)  # a bad key or value fails here, before the data is read
     data = shared_data()
     if not (data / "nerf_lego" / "transforms_test.json").exists():
         print(f"skipped: {data / 'nerf_lego'} is absent (set IBR_SHARED_DATA)", file=sys.stderr)

@@ -136,9 +136,9 @@ def main(argv=None) -> int:
     sp0, stats0 = speed(scene, tiles, gbufs, a.runs)
     del scene, tiles, gbufs
     qscene, qtiles, qgbufs = build(qsize, a.views)
-    from ibrtools.hybrid.pvm_render import DEFAULTS
+    from ibrtools.hybrid.pvm_render import PvmParams
 
-    default_angle = float(DEFAULTS["max_angle"])  # always measured: the target is checked there
+    default_angle = float(PvmParams.max_angle)  # always measured: the target is checked there
     angles = tuple(sorted({180.0, 90.0, 60.0, 50.0, 40.0, default_angle}, reverse=True))
     qrows = quality(qscene, qtiles, qgbufs, angles)
 

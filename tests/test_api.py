@@ -18,7 +18,7 @@ import pytest
 
 import ibrtools
 from ibrtools import api
-from ibrtools.errors import BadValueError, DtypeError, FormatError, MissingFileError
+from ibrtools.errors import BadValueError, DtypeError, FormatError, MissingFileError, ParamError
 
 SIZE = (64, 48)
 
@@ -254,7 +254,7 @@ def test_render_bad_input(scene):
         ibrtools.render(scene, 42)  # type: ignore[arg-type]
     with pytest.raises(BadValueError, match=r"method 'dibr' has no parameter\(s\) \['colour'\]"):
         ibrtools.render(scene, "t000", method="dibr", colour=1)
-    with pytest.raises(BadValueError, match="--blend-exponent: expected a finite number > 0 and <= 16, got -1"):
+    with pytest.raises(ParamError, match="parameter blend_exponent: expected a finite number > 0 and <= 16, got -1"):
         ibrtools.render(scene, "t000", method="dibr", blend_exponent=-1)
     with pytest.raises(DtypeError, match="scene: expected an ibrtools.Scene"):
         api.render("not a scene", "t000")  # type: ignore[arg-type]

@@ -60,7 +60,7 @@ def test_render_refuses_out_of_bound_parameters_before_any_work(scene_dir, tmp_p
 def test_bench_and_python_api_share_the_bounds(scene_dir, tmp_path, capsys):
     out = tmp_path / "sweep"
     assert bench.main([str(scene_dir), "--method", "depthwarp", "--sweep", "layers=2:1000", "-o", str(out)]) == 2
-    _one_line(capsys, "ibr-bench: error: --layers", "<= 16")
+    _one_line(capsys, "ibr-bench: error: --sweep layers", "<= 16")
     assert not out.exists()
     for name, params in (("depthwarp", {"layers": 17}), ("depthwarp", {"seeds": 257}), ("dibr", {"blend_exponent": 17})):
         with pytest.raises(BadValueError):

@@ -13,7 +13,8 @@ import numpy as np
 
 from ibrtools.errors import BadValueError
 
-from .common import ArgumentParser, add_common, print_json, print_table, progress_bar, run_command, warn_stale
+from .common import (ArgumentParser, add_common, param_flag, print_json, print_table, progress_bar, run_command,
+                     warn_stale)
 
 PROG = "ibr-bench"
 
@@ -51,6 +52,12 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _param_flag(name: str | None, args: argparse.Namespace) -> str:
+    """--sweep NAME for a swept parameter, else --param NAME."""
+    swept = {g.split("=", 1)[0].strip() for spec in args.sweep or () for g in spec.split(",") if "=" in g}
+    return f"--sweep {name}" if name in swept else param_flag(name, args)
+
+
 def _body(args: argparse.Namespace) -> int:
     from ibrtools.formats import native
     from ibrtools.outputs import OutputDir, check_output_dir
@@ -68,7 +75,7 @@ def _body(args: argparse.Namespace) -> int:
 
     if args.method != "auto" and args.method in methods.BUILT:
         for config in configurations(grid, base):  # bad values: exit 2 before the scene is read
-            methods.create(args.method, config)
+            methods.check_params(args.method, config)
     if args.report_frames < 0:
         raise BadValueError(f"--report-frames: expected a number >= 0, got {args.report_frames}")
     from ibrtools.pipeline.report_html import check_output
@@ -173,7 +180,7 @@ class _BestFrames:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    return run_command(PROG, _body, build_parser(), argv)
+    return run_command(PROG, _body, build_parser(), argv, _param_flag)
 
 
 if __name__ == "__main__":

@@ -16,7 +16,7 @@ import sys
 from typing import Callable, Iterator, Sequence
 
 from ibrtools.cache import ALL_METHODS, ORDER, STAGES, available_stages, default_methods
-from ibrtools.errors import BadValueError, InputError, NotBuiltError
+from ibrtools.errors import BadValueError, InputError, NotBuiltError, ParamError
 
 
 class ArgumentParser(argparse.ArgumentParser):
@@ -73,8 +73,17 @@ def _terminated(prog: str, argv: Sequence[str] | None) -> int:
     return 143
 
 
+def param_flag(name: str | None, args: argparse.Namespace) -> str:
+    """The flag that sets method parameter ``name``: ``--param NAME`` (``--param`` for an unknown
+    key); commands with flags of their own for some parameters pass their own function."""
+    return "--param" if name is None else f"--param {name}"
+
+
 def run_command(prog: str, body: Callable[[argparse.Namespace], int],
-                parser: argparse.ArgumentParser, argv: Sequence[str] | None) -> int:
+                parser: argparse.ArgumentParser, argv: Sequence[str] | None,
+                flag_of: Callable[[str | None, argparse.Namespace], str] = param_flag) -> int:
+    """Run ``body(args)``: bad input is one ``PROG: error:`` line and exit 2 (a method parameter's
+    error named by the flag ``flag_of`` gives), interrupts 130, anything else exit 1."""
     args = parser.parse_args(argv)
     try:
         old_term = signal.signal(signal.SIGTERM, _on_sigterm)
@@ -88,7 +97,8 @@ def run_command(prog: str, body: Callable[[argparse.Namespace], int],
     except (InputError, NotBuiltError) as e:
         if args.debug:
             raise
-        print(f"{prog}: error: {e}", file=sys.stderr)
+        message = f"{flag_of(e.param, args)}: {e.detail}" if isinstance(e, ParamError) else str(e)
+        print(f"{prog}: error: {message}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)

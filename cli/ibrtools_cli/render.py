@@ -7,7 +7,8 @@ from typing import Sequence
 
 from ibrtools.errors import BadValueError
 
-from .common import ArgumentParser, add_common, add_distributed, print_json, print_table, progress_bar, run_command, warn_stale
+from .common import (ArgumentParser, add_common, add_distributed, param_flag, print_json, print_table, progress_bar,
+                     run_command, warn_stale)
 
 PROG = "ibr-render"
 
@@ -233,27 +234,37 @@ def _body(args: argparse.Namespace) -> int:
     return status
 
 
+# The method parameters that have flags of their own; the others are --param KEY=VALUE.
+PARAM_FLAGS = {"inputs": "--inputs", "quality": "--quality", "blend_exponent": "--blend-exponent",
+               "layers": "--layers", "seeds": "--seeds", "iters": "--iters", "forward": "--forward",
+               "oriented_bounds": "--oriented-bounds", "umbra": "--umbra", "cull": "--cull"}
+DEPTHWARP_FLAGS = ("layers", "seeds", "iters", "forward", "oriented_bounds", "umbra", "cull")
+
+
+def _param_flag(name: str | None, args: argparse.Namespace) -> str:
+    """The flag the user set parameter ``name`` with (its own flag, else --param NAME)."""
+    given = {k for k in PARAM_FLAGS if getattr(args, k, None) not in (None, False)}
+    return PARAM_FLAGS[name] if name in given else param_flag(name, args)
+
+
 def _params(args: argparse.Namespace) -> dict:
-    """The method parameters of the flags and --param, checked (their bounds: each method's
-    check_params) before the scene is read when --method names the method."""
+    """The method parameters of the flags and --param, checked (methods.check_params) before the
+    scene is read when --method names the method."""
     from ibrtools import methods
     from ibrtools_cli.common import parse_options
 
     params = {k: _number(v) for k, v in parse_options(args.param).items()}
-    for key, value in (("inputs", args.inputs), ("quality", args.quality),
-                       ("blend_exponent", args.blend_exponent), ("layers", args.layers),
-                       ("seeds", args.seeds), ("iters", args.iters), ("forward", args.forward)):
-        if value is not None:
-            params[key] = _number(value)
-    for key, flag in (("oriented_bounds", args.oriented_bounds), ("umbra", args.umbra), ("cull", args.cull)):
-        if flag:
+    for key in PARAM_FLAGS:
+        value = getattr(args, key)
+        if value is True:
             params[key] = True
-    depthwarp_only = [k for k in ("layers", "seeds", "iters", "forward", "oriented_bounds", "umbra", "cull")
-                      if k in params]
+        elif value is not None and value is not False:
+            params[key] = _number(value)
+    depthwarp_only = [k for k in DEPTHWARP_FLAGS if k in params]
     if depthwarp_only and args.method != "depthwarp":
         raise BadValueError(f"--{depthwarp_only[0].replace('_', '-')}: only with --method depthwarp")
     if args.method != "auto" and args.method in methods.BUILT:
-        methods.create(args.method, params)  # bad values: exit 2 before any work
+        methods.check_params(args.method, params)  # bad values: exit 2 before any work
     return params
 
 
@@ -369,7 +380,7 @@ def _fmt(v, digits: int = 2) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    return run_command(PROG, _body, build_parser(), argv)
+    return run_command(PROG, _body, build_parser(), argv, _param_flag)
 
 
 if __name__ == "__main__":

@@ -63,6 +63,7 @@ from ibrtools.errors import BadValueError, DtypeError, FormatError, MissingFileE
 from ibrtools.formats.native import SCENE_FILE
 from ibrtools.scene import Scene
 from ibrtools import methods
+from ibrtools.params import MethodParams
 from ibrtools.synth import scene_spec as synth_scene_spec
 from ibrtools.formats import native
 from ibrtools.formats import yuv as yuv_format
@@ -287,7 +288,8 @@ def preprocess(scene: str | os.PathLike[str], *, methods: list[str] | None = Non
 
 def render_job(scene: Scene, out_dir: str | os.PathLike[str], method: str = "auto", *,
                targets: list[str] | None = None, holdout: list[str] | None = None, path: str | None = None,
-               path_frames: int | None = None, poses: str | os.PathLike[str] | None = None, params: dict[str, Any] | None = None,
+               path_frames: int | None = None, poses: str | os.PathLike[str] | None = None,
+               params: Mapping[str, Any] | MethodParams | None = None,
                inpaint: str | None = None, background: str | None = None, float_out: bool = False,
                depth_out: bool = False, threads: int = 0, workers: int = 0,
                scheduler: str | None = None,

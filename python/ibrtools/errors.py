@@ -41,3 +41,18 @@ class NotBuiltError(IbrError):
 
 class InternalError(IbrError, RuntimeError):
     """A bug or a failure of a library underneath; not the user's input."""
+
+
+class ParamError(BadValueError):
+    """A method parameter has a bad value (or is not a parameter of the method).
+
+    ``param`` names it (None: the key itself is unknown) and ``detail`` says what was expected;
+    the message is "parameter PARAM: DETAIL". The commands reprint it under the flag the user
+    typed (``--blend-exponent``, ``--param k``), which the library does not know."""
+
+    def __init__(self, param: str | None, detail: str):
+        self.param, self.detail = param, detail
+        super().__init__(detail if param is None else f"parameter {param}: {detail}")
+
+    def __reduce__(self):  # pickled as its two parts (Dask workers raise it in another process)
+        return (type(self), (self.param, self.detail))

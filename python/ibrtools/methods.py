@@ -8,7 +8,7 @@ where outputs holds "color" (H, W, 3) float32 linear, optionally "depth" (H, W) 
 from __future__ import annotations
 
 import importlib.util
-from typing import Protocol
+from typing import Any, Mapping, Protocol
 
 import numpy as np
 
@@ -16,12 +16,13 @@ from ibrtools.camera import Camera
 from ibrtools.errors import BadValueError, NotBuiltError
 from ibrtools.scene import Scene
 from ibrtools.cache import with_stage_depth
-from ibrtools.depthwarp.method import DepthWarpMethod
-from ibrtools.dibr.method import DibrMethod
-from ibrtools.dibr.warp import WarpMethod
-from ibrtools.hybrid.method import HybridMethod, TmMethod, UlrMethod
-from ibrtools.hybrid.pvm_method import PvmMethod
-from ibrtools.raycast.method import ReferenceMethod
+from ibrtools.params import MethodParams
+from ibrtools.depthwarp.method import DepthWarpMethod, DepthWarpMethodParams
+from ibrtools.dibr.method import DibrMethod, DibrParams
+from ibrtools.dibr.warp import WarpMethod, WarpParams
+from ibrtools.hybrid.method import HybridMethod, HybridParams, TmMethod, TmParams, UlrMethod, UlrParams
+from ibrtools.hybrid.pvm_method import PvmMethod, PvmMethodParams
+from ibrtools.raycast.method import ReferenceMethod, ReferenceParams
 
 METHODS: dict[str, str] = {
     "auto": "pick the best built method for the scene's data",
@@ -37,6 +38,22 @@ METHODS: dict[str, str] = {
 BUILT = ("reference", "dibr", "warp", "depthwarp", "tm", "ulr") + (
     ("hybrid",) if importlib.util.find_spec("ibrtools.hybrid.pvm_render") is not None else ())
 BUILT += ("pvm",)  # per-view meshes (hybrid/pvm_method.py)
+
+
+# Each built method's typed parameters (ibrtools.params): defaults, bounds and checks, defined once.
+PARAMS: dict[str, type[MethodParams]] = {
+    "reference": ReferenceParams, "dibr": DibrParams, "warp": WarpParams, "depthwarp": DepthWarpMethodParams,
+    "tm": TmParams, "ulr": UlrParams, "hybrid": HybridParams, "pvm": PvmMethodParams}
+
+
+def check_params(name: str, params: Mapping[str, Any] | MethodParams | None = None) -> MethodParams:
+    """``params`` of method ``name`` checked, with the defaults filled in (ParamError naming the
+    parameter; NotBuiltError for a method that is not built)."""
+    if name not in METHODS or name == "auto":
+        raise BadValueError(f"method: expected one of {', '.join(PARAMS)}, got {name!r}")
+    if name not in BUILT:
+        raise NotBuiltError(f"--method {name}: not built yet ({METHODS[name]}); built: {', '.join(BUILT)}")
+    return PARAMS[name].from_dict(params)
 
 
 class Method(Protocol):
@@ -67,17 +84,10 @@ def resolve(name: str, scene: Scene) -> str:
     return name
 
 
-def create(name: str, params: dict | None = None) -> Method:
-    if name == "reference":
-        return ReferenceMethod(params)
-    if name == "dibr":
-        return DibrMethod(params)
-    if name == "warp":
-        return WarpMethod(params)
-    if name == "depthwarp":
-        return DepthWarpMethod(params)
-    if name in ("tm", "ulr", "hybrid") and name in BUILT:
-        return {"tm": TmMethod, "ulr": UlrMethod, "hybrid": HybridMethod}[name](params)
-    if name == "pvm":
-        return PvmMethod(params)
-    raise NotBuiltError(f"--method {name}: not built yet")
+def create(name: str, params: Mapping[str, Any] | MethodParams | None = None) -> Method:
+    """Method ``name`` with ``params`` (checked: ParamError before any work)."""
+    classes = {"reference": ReferenceMethod, "dibr": DibrMethod, "warp": WarpMethod, "depthwarp": DepthWarpMethod,
+               "tm": TmMethod, "ulr": UlrMethod, "hybrid": HybridMethod, "pvm": PvmMethod}
+    if name not in classes or name not in BUILT:
+        raise NotBuiltError(f"--method {name}: not built yet")
+    return classes[name](check_params(name, params))

@@ -13,7 +13,7 @@ from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError, InputError
 from ibrtools.pipeline import job as render_job
 from ibrtools.pipeline import plan as planning
-from ibrtools.depthwarp.method import (DepthWarpMethod, check_params, depth_scores, far_depth, fill_background,
+from ibrtools.depthwarp.method import (DepthWarpMethod, DepthWarpMethodParams, depth_scores, far_depth, fill_background,
                                        visualise)
 from ibrtools.scene import Scene, View
 
@@ -35,15 +35,15 @@ def crowd():
 
 # --- parameters ------------------------------------------------------------------------------
 def test_params_defaults_and_checks():
-    p = check_params(None)
-    assert (p["layers"], p["seeds"], p["iters"], p["forward"], p["ground"]) == (3, 16, 3, "none", "none")
-    assert check_params({"layers": "2", "umbra": "true", "ground": "none"})["umbra"] is True
-    for bad, msg in [({"layers": 0}, "--layers"), ({"seeds": -1}, "--seeds"), ({"iters": 0.5}, "--iters"),
-                     ({"forward": "splat"}, "--forward"), ({"threshold": 0}, "threshold"),
-                     ({"umbra": "maybe"}, "--umbra"), ({"ground": -2}, "ground"), ({"bound": "loose"}, "bound"),
+    p = DepthWarpMethodParams.from_dict(None)
+    assert (p.layers, p.seeds, p.iters, p.forward, p.ground) == (3, 16, 3, "none", "none")
+    assert DepthWarpMethodParams.from_dict({"layers": "2", "umbra": "true", "ground": "none"}).umbra is True
+    for bad, msg in [({"layers": 0}, "layers"), ({"seeds": -1}, "seeds"), ({"iters": 0.5}, "iters"),
+                     ({"forward": "splat"}, "forward"), ({"threshold": 0}, "threshold"),
+                     ({"umbra": "maybe"}, "umbra"), ({"ground": -2}, "ground"), ({"bound": "loose"}, "bound"),
                      ({"nope": 1}, "no parameter")]:
         with pytest.raises(BadValueError, match=msg):
-            check_params(bad)
+            DepthWarpMethodParams.from_dict(bad)
 
 
 # --- scores ----------------------------------------------------------------------------------

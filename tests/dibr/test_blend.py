@@ -106,10 +106,10 @@ def test_bad_visibility_options(kwargs, msg):
     ({"stretched_holes": "maybe"}, "stretched_holes"), ({"depth_tolerance": 1.0}, "depth_tolerance"),
     ({"stretched_quality": -1}, "stretched_quality")])
 def test_dibr_method_checks_visibility_params(params, msg):
-    from ibrtools.dibr.method import check_params
+    from ibrtools.dibr.method import DibrParams
     with pytest.raises(BadValueError, match=msg):
-        check_params(params)
-    assert check_params({"stretched_holes": "false"})["stretched_holes"] is False
+        DibrParams.from_dict(params)
+    assert DibrParams.from_dict({"stretched_holes": "false"}).stretched_holes is False
 
 
 # ---- Fresh sums (BlendBuffers::fresh): no clearing pass; the first view after construction or

@@ -10,9 +10,9 @@ import pytest
 from conftest import need_data, shared_data
 from ibrtools import _core
 from ibrtools.camera import Camera, look_at
-from ibrtools.errors import BadValueError, InputError
+from ibrtools.errors import BadValueError, InputError, ParamError
 from ibrtools import methods
-from ibrtools.dibr.method import DibrMethod, check_params
+from ibrtools.dibr.method import DibrMethod, DibrParams
 from ibrtools.scene import Scene, View
 from ibrtools_cli import preprocess, render
 
@@ -31,28 +31,29 @@ def _plane_scene(n=3, depth_ok=True):
 
 # --- parameters --------------------------------------------------------------------------
 def test_params_defaults_and_forms():
-    p = check_params(None)
-    assert p["inputs"] == 4 and p["quality"] == "side" and p["blend_exponent"] == 5.0
-    assert check_params({"inputs": "2"})["inputs"] == 2
-    assert check_params({"inputs": "v1, v2"})["inputs"] == ["v1", "v2"]
-    assert check_params({"inputs": ["a"]})["inputs"] == ["a"]
+    p = DibrParams.from_dict(None)
+    assert p.inputs == 4 and p.quality == "side" and p.blend_exponent == 5.0
+    assert DibrParams.from_dict({"inputs": "2"}).inputs == 2
+    assert DibrParams.from_dict({"inputs": "v1, v2"}).inputs == ["v1", "v2"]
+    assert DibrParams.from_dict({"inputs": ["a"]}).inputs == ["a"]
     for q in ("side", "shape", "depth", "normal"):
-        assert check_params({"quality": q})["quality"] == q
+        assert DibrParams.from_dict({"quality": q}).quality == q
 
 
 @pytest.mark.parametrize("params, flag", [
-    ({"inputs": 0}, "--inputs"), ({"inputs": -2}, "--inputs"), ({"inputs": 2.5}, "--inputs"),
-    ({"inputs": "a,,b"}, "--inputs"), ({"inputs": "a,a"}, "--inputs"), ({"inputs": True}, "--inputs"),
-    ({"inputs": {}}, "--inputs"),
-    ({"quality": "best"}, "--quality"), ({"quality": 3}, "--quality"),
-    ({"blend_exponent": 0}, "--blend-exponent"), ({"blend_exponent": -1}, "--blend-exponent"),
-    ({"blend_exponent": "x"}, "--blend-exponent"), ({"blend_exponent": float("nan")}, "--blend-exponent"),
+    ({"inputs": 0}, "inputs"), ({"inputs": -2}, "inputs"), ({"inputs": 2.5}, "inputs"),
+    ({"inputs": "a,,b"}, "inputs"), ({"inputs": "a,a"}, "inputs"), ({"inputs": True}, "inputs"),
+    ({"inputs": {}}, "inputs"),
+    ({"quality": "best"}, "quality"), ({"quality": 3}, "quality"),
+    ({"blend_exponent": 0}, "blend_exponent"), ({"blend_exponent": -1}, "blend_exponent"),
+    ({"blend_exponent": "x"}, "blend_exponent"), ({"blend_exponent": float("nan")}, "blend_exponent"),
     ({"side_threshold": -1}, "side_threshold"), ({"samples": 0}, "samples"), ({"seed": 1.5}, "seed"),
     ({"bogus": 1}, "no parameter"),
 ])
 def test_bad_params_name_the_option(params, flag):
-    with pytest.raises(BadValueError, match=flag):
+    with pytest.raises(ParamError, match=flag) as e:
         DibrMethod(params)
+    assert e.value.param == (None if flag == "no parameter" else flag)
 
 
 def test_prepare_rejects_views_without_depth_and_unknown_inputs():
@@ -60,7 +61,7 @@ def test_prepare_rejects_views_without_depth_and_unknown_inputs():
         DibrMethod().prepare(_plane_scene(depth_ok=False))
     with pytest.raises(InputError, match="no input views"):
         DibrMethod().prepare(Scene(views=[]))
-    with pytest.raises(BadValueError, match="--inputs"):
+    with pytest.raises(ParamError, match="parameter inputs: .*'nope'"):
         DibrMethod({"inputs": "v0,nope"}).prepare(_plane_scene())
     s = _plane_scene()
     s.views[1] = View.create("v1", s.views[1].camera, color=s.views[1].color,
@@ -156,8 +157,7 @@ def test_bench_scoring_three_ways(bench):
 
 def test_default_side_threshold_is_rvs():
     # RVS 4.0: q = clamp(10000 - 1000 L, 1, 10000), i.e. T = 10 target pixels (docs/dibr.md).
-    from ibrtools.dibr.method import check_params
-    assert check_params({})["side_threshold"] == 10.0
+    assert DibrParams.from_dict({}).side_threshold == 10.0
 
 
 # Floors ~0.5 dB below what was measured (docs/dibr.md, T = 10 px, stretched-only pixels as

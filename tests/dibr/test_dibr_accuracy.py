@@ -12,7 +12,7 @@ from ibrtools import _core
 from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError
 from ibrtools.imageio import srgb_to_linear
-from ibrtools.dibr.method import DibrMethod, check_params, srgb_encode
+from ibrtools.dibr.method import DibrMethod, DibrParams, srgb_encode
 from ibrtools.scene import Scene, View
 
 DATA = shared_data()
@@ -29,9 +29,9 @@ def _render(views, camera, **params):
 
 # --- blend_space ---------------------------------------------------------------------------
 def test_blend_space_default_and_bad_values():
-    assert check_params(None)["blend_space"] == "srgb"  # chosen on validation views (docs/dibr_accuracy.md "Blend space")
-    assert check_params({"blend_space": "linear"})["blend_space"] == "linear"
-    assert check_params({"blend_space": "srgb"})["blend_space"] == "srgb"
+    assert DibrParams.from_dict(None).blend_space == "srgb"  # chosen on validation views (docs/dibr_accuracy.md "Blend space")
+    assert DibrParams.from_dict({"blend_space": "linear"}).blend_space == "linear"
+    assert DibrParams.from_dict({"blend_space": "srgb"}).blend_space == "srgb"
     for bad in ("sRGB", "gamma", "", 1, None):
         with pytest.raises(BadValueError, match="blend_space"):
             DibrMethod({"blend_space": bad})
@@ -75,7 +75,7 @@ def test_blend_space_srgb_render_is_the_decoded_srgb_blend():
     m.prepare(Scene(views=views))
     out, _ = m.render(target)
     p = m.params
-    acc = _core.DibrAccumulator(target.to_core(), p["stretched_quality"], p["stretched_holes"], p["depth_tolerance"])
+    acc = _core.DibrAccumulator(target.to_core(), p.stretched_quality, p.stretched_holes, p.depth_tolerance)
     for name in m.frame_report()["selected"]:
         v = next(x for x in views if x.name == name)
         acc.add_view(srgb_encode(v.color), v.depth, v.camera.to_core(), m.warp_options())
@@ -373,8 +373,8 @@ def test_view_weight_weights_the_blend(isa):
 
 
 def test_distance_exponent_default_and_bad_values():
-    assert check_params(None)["distance_exponent"] == 0.0
-    assert check_params({"distance_exponent": "2"})["distance_exponent"] == 2.0
+    assert DibrParams.from_dict(None).distance_exponent == 0.0
+    assert DibrParams.from_dict({"distance_exponent": "2"}).distance_exponent == 2.0
     for bad in (-1, "far", True, float("nan"), 17):
         with pytest.raises(BadValueError, match="distance_exponent"):
             DibrMethod({"distance_exponent": bad})
@@ -390,10 +390,10 @@ def test_distance_exponent_view_factors():
     m = DibrMethod({"distance_exponent": 1})
     m.prepare(Scene(views=views))
     np.testing.assert_allclose(m.view_factors(target, [0, 1, 2]), [0.5, 1.0, 0.25])
-    m.params["distance_exponent"] = 2.0
+    m.params = m.params.replace(distance_exponent=2.0)
     np.testing.assert_allclose(m.view_factors(target, [0, 1, 2]), [0.25, 1.0, 0.0625])
     assert m.view_factors(target, [3, 1]) == [1.0, 1e-6]
-    m.params["distance_exponent"] = 0.0
+    m.params = m.params.replace(distance_exponent=0.0)
     assert m.view_factors(target, [0, 1, 2]) == [1.0, 1.0, 1.0]
 
 

@@ -20,7 +20,7 @@ import pytest
 
 from ibrtools import BadValueError, Camera, DtypeError, ShapeError, _core
 from ibrtools.errors import InputError
-from ibrtools.dibr.warp import WarpMethod, check_params
+from ibrtools.dibr.warp import WarpMethod, WarpParams
 from ibrtools_cli import preprocess, render
 
 pytestmark = [pytest.mark.asan, pytest.mark.kernel]
@@ -269,7 +269,7 @@ def test_bad_input():
 
 # --- method and CLI -------------------------------------------------------------------------
 @pytest.mark.parametrize("params, flag", [
-    ({"inputs": 2}, "--inputs"), ({"inputs": "a,b"}, "--inputs"), ({"inputs": True}, "--inputs"),
+    ({"inputs": 2}, "inputs"), ({"inputs": "a,b"}, "inputs"), ({"inputs": True}, "inputs"),
     ({"stretch_threshold": 0}, "stretch_threshold"), ({"stretch_threshold": "x"}, "stretch_threshold"),
     ({"depth_jump": -1}, "depth_jump"), ({"samples": 0}, "samples"), ({"bogus": 1}, "no parameter"),
 ])
@@ -279,10 +279,10 @@ def test_bad_params(params, flag):
 
 
 def test_params_defaults():
-    p = check_params(None)
-    assert p["inputs"] == 1 and p["stretch_threshold"] == 2.0
-    assert check_params({"inputs": "v002"})["inputs"] == "v002"
-    assert check_params({"inputs": "1"})["inputs"] == 1
+    p = WarpParams.from_dict(None)
+    assert p.inputs == 1 and p.stretch_threshold == 2.0
+    assert WarpParams.from_dict({"inputs": "v002"}).inputs == "v002"
+    assert WarpParams.from_dict({"inputs": "1"}).inputs == 1
 
 
 @pytest.fixture(scope="module")

@@ -12,7 +12,7 @@ import pytest
 from ibrtools import _core, look_at
 from ibrtools.camera import Camera
 from ibrtools.errors import BadValueError, DtypeError, InputError, MissingFileError, ShapeError
-from ibrtools.hybrid.pvm_render import DEFAULTS as PVM_DEFAULTS
+from ibrtools.hybrid.pvm_render import PvmParams
 from ibrtools.hybrid.method import SELECTION_COLORS
 
 pytestmark = [pytest.mark.asan, pytest.mark.kernel]
@@ -336,7 +336,7 @@ def test_method_params_and_missing_stages(tmp_path):
     for method in ("ulr", "hybrid"):
         with pytest.raises(BadValueError, match="resample: expected 'cubic' or 'bilinear', got 'lanczos'"):
             methods.create(method, {"resample": "lanczos"})
-    assert methods.create("hybrid", {"resample": "bilinear"}).params["resample"] == "bilinear"
+    assert methods.create("hybrid", {"resample": "bilinear"}).params.resample == "bilinear"
     # The hybrid's PVM parameters go through the PVM renderer's checks.
     for bad, name in (({"free_space_tol": 1.5}, "free_space_tol"), ({"free_space": "sometimes"}, "free_space"),
                       ({"free_space_point_tol": -0.01}, "free_space_point_tol"), ({"tau_empty": -1}, "tau_empty"),
@@ -344,10 +344,10 @@ def test_method_params_and_missing_stages(tmp_path):
                       ({"max_angle": 0}, "max_angle"), ({"max_angle": 200}, "max_angle"), ({"merge_rel": -0.1}, "merge_rel")):
         with pytest.raises(BadValueError, match=name):
             methods.create("hybrid", bad)
-    assert methods.create("hybrid", {"free_space": "false"}).params["free_space"] is False
+    assert methods.create("hybrid", {"free_space": "false"}).params.free_space is False
     hp = methods.create("hybrid").params  # the hybrid's PVM defaults are the PVM renderer's
-    assert hp["max_angle"] == PVM_DEFAULTS["max_angle"] and hp["merge_rel"] == PVM_DEFAULTS["merge_rel"]
-    assert methods.create("hybrid", {"max_angle": "40", "merge_rel": 0.04}).params["max_angle"] == 40.0
+    assert hp.max_angle == PvmParams.max_angle and hp.merge_rel == PvmParams.merge_rel
+    assert methods.create("hybrid", {"max_angle": "40", "merge_rel": 0.04}).params.max_angle == 40.0
     m = methods.create("tm")
     with pytest.raises(InputError, match="ibr-preprocess"):
         m.prepare(Scene(views=[], targets=[]))
@@ -616,8 +616,8 @@ def test_pvm_floor_parameter_checks(tmp_path):
     from ibrtools import methods
     from ibrtools import synth
 
-    assert methods.create("hybrid").params["pvm_floor"] == "auto"
-    assert methods.create("hybrid", {"pvm_floor": "0.3"}).params["pvm_floor"] == 0.3
+    assert methods.create("hybrid").params.pvm_floor == "auto"
+    assert methods.create("hybrid", {"pvm_floor": "0.3"}).params.pvm_floor == 0.3
     for bad in (1.5, -0.2, "sometimes"):
         with pytest.raises(BadValueError, match="pvm_floor"):
             methods.create("hybrid", {"pvm_floor": bad})

@@ -13,7 +13,7 @@ from ibrtools import _core
 from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError, DtypeError, InputError, NotBuiltError, ShapeError
 from ibrtools.hybrid.pvm import build_tiles
-from ibrtools.hybrid.pvm_render import DEFAULTS, PvmRenderer, PvmResult
+from ibrtools.hybrid.pvm_render import PvmParams, PvmRenderer, PvmResult
 from ibrtools.raycast.reference import ReferenceRenderer
 from ibrtools.scene import Scene, View
 from ibrtools.synth import make_scene
@@ -238,7 +238,7 @@ def test_triangles_reaching_behind_the_near_plane_are_clipped(clip):
     np.testing.assert_array_equal(c["count"], np.where(inside, 2, 0))
     live = np.arange(c["depth"].shape[-1]) < c["count"][..., None]
     d = c["depth"][live]
-    assert np.isfinite(d).all() and (d >= DEFAULTS["near"]).all()
+    assert np.isfinite(d).all() and (d >= PvmParams.near).all()
     for k in range(2):
         world = cam.unproject(np.where(inside, c["depth"][..., k], 0.0).astype(np.float32))
         np.testing.assert_allclose(world[inside][:, 2], 5.0, rtol=1e-4)
@@ -799,7 +799,7 @@ def test_tau_empty_matches_an_independent_implementation(exact):
             if v.name in listed:  # a view with a candidate here does not see through it
                 continue
             a, b = v.camera.centre - p, cam.centre - p
-            if a @ b < np.cos(np.radians(DEFAULTS["max_angle"])) * np.linalg.norm(a) * np.linalg.norm(b):
+            if a @ b < np.cos(np.radians(PvmParams.max_angle)) * np.linalg.norm(a) * np.linalg.norm(b):
                 continue
             past += _sees_past(v.camera, v.depth, p, 0.02, 0.005)
         want[y, x] = past >= need

@@ -55,7 +55,7 @@ def test_bench_ulr_sweep_writes_csv_plot_table(scene_dir, tmp_path, capsys):
 
 
 @pytest.mark.parametrize("argv, msg", [
-    (["--method", "ulr", "--sweep", "k=0"], "--param k"),
+    (["--method", "ulr", "--sweep", "k=0"], "--sweep k: expected an integer >= 1"),
     (["--method", "ulr", "--sweep", "magic=1"], "no parameter"),
     (["--method", "ulr", "--sweep", "k"], "--sweep"),
     (["--method", "ulr", "--sweep", "k=2", "--param", "k=3"], "both set"),

@@ -57,12 +57,14 @@ Parameters (flags of ibr-render or ``--param key=value``)
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
 from ibrtools import _core
 from ibrtools.camera import PINHOLE, Camera
-from ibrtools.errors import BadValueError, InputError, NotBuiltError
+from ibrtools.errors import BadValueError, InputError, NotBuiltError, ParamError
 from ibrtools.scene import Scene
 from ibrtools import params as P
 from ibrtools.depthwarp.core import DepthWarpParams, forward_warp_depth, warp_depth
@@ -72,39 +74,44 @@ from ibrtools.metrics import psnr, ssim
 
 # seeds, iters, threshold, dilate, bound: the kernel's defaults, defined once (cpp/kernels/depthwarp/front.h).
 _KERNEL = _core.DEPTHWARP_DEFAULTS
-DEFAULTS = {"layers": 3, "seeds": _KERNEL["seeds"], "iters": _KERNEL["iters"], "threshold": _KERNEL["threshold"],
-            "oriented_bounds": False, "umbra": False, "ground": "none", "cull": False, "forward": "none",
-            "dilate": _KERNEL["dilate"], "bound": _KERNEL["bound"], "far_plane": True}
 FORWARD = ("none", "vfw", "afw")
-# Upper bounds of the numeric parameters (docs/depthwarp.md "Parameters"), checked by check_params
-# for ibr-render, ibr-bench and DepthWarpMethod alike. The kernels take up to 127 layers, 4096
-# seeds and 1000 iterations (cpp/bindings/depthwarp.cpp); the method's bounds are lower:
+# Upper bounds of the numeric parameters (docs/depthwarp.md "Parameters"), checked for ibr-render,
+# ibr-bench and DepthWarpMethod alike. The kernels take up to 127 layers, 4096 seeds and 1000
+# iterations (cpp/bindings/depthwarp.cpp); the method's bounds are lower:
 # layers  the deep buffer holds 8 bytes a pixel a layer (z + object id) and the warp's min-max
 #         motion mipmaps as much again: ~2 GB at 3840x2160 for 16 layers; the paper peels <= 4;
 # seeds x iters  fixed-point steps per pixel and layer: 256 x 64 is 340x the default 16 x 3,
 #         minutes per 1080p frame already; the kernel's bounds multiply to hours.
-LIMITS = {"layers": 16, "seeds": 256, "iters": 64, "threshold": P.FINITE_MAX}
 
 
-def check_params(params: dict | None) -> dict:
-    """Validated parameters with defaults filled in (BadValueError naming the flag)."""
-    p = P.with_defaults("depthwarp", params, DEFAULTS)
-    p["layers"] = P.integer(p["layers"], "--layers", 1, LIMITS["layers"])
-    p["seeds"] = P.integer(p["seeds"], "--seeds", 1, LIMITS["seeds"])
-    p["iters"] = P.integer(p["iters"], "--iters", 1, LIMITS["iters"])
-    p["threshold"] = P.number(p["threshold"], "--param threshold", 0.0, strict=True, maximum=LIMITS["threshold"])
-    for key, flag in (("oriented_bounds", "--oriented-bounds"), ("umbra", "--umbra"), ("cull", "--cull"),
-                      ("dilate", "--param dilate"), ("far_plane", "--param far_plane")):
-        p[key] = P.boolean(p[key], flag)
-    if p["forward"] not in FORWARD:
-        raise BadValueError(f"--forward: expected one of {', '.join(FORWARD)}, got {p['forward']!r}")
-    p["bound"] = P.choice(p["bound"], "--param bound", ("tight", "global"))
-    g = p["ground"]
+def _ground(g, name: str) -> str | int:
+    """"auto", "none" or an object id (int32)."""
     if isinstance(g, str) and g.strip().lower() in ("auto", "none"):
-        p["ground"] = g.strip().lower()
-    else:
-        p["ground"] = P.integer(g, "--param ground (auto, none or an object id)", 0, 2**31 - 1)  # int32 ids
-    return p
+        return g.strip().lower()
+    try:
+        return P.to_integer(g, name, 0, 2**31 - 1)
+    except ParamError:
+        raise ParamError(name, f"expected auto, none or an object id (an integer >= 0 and <= {2**31 - 1}), "
+                               f"got {g!r}") from None
+
+
+@dataclass(frozen=True)
+class DepthWarpMethodParams(P.MethodParams):
+    """Parameters of ``--method depthwarp`` (the module doc)."""
+
+    method: ClassVar[str] = "depthwarp"
+    layers: int = P.integer(3, 1, 16)
+    seeds: int = P.integer(_KERNEL["seeds"], 1, 256)
+    iters: int = P.integer(_KERNEL["iters"], 1, 64)
+    threshold: float = P.number(_KERNEL["threshold"], 0.0, strict=True, maximum=P.FINITE_MAX)
+    oriented_bounds: bool = P.boolean(False)
+    umbra: bool = P.boolean(False)
+    ground: str | int = P.custom("none", _ground)
+    cull: bool = P.boolean(False)
+    forward: str = P.choice("none", FORWARD)
+    dilate: bool = P.boolean(_KERNEL["dilate"])
+    bound: str = P.choice(_KERNEL["bound"], ("tight", "global"))
+    far_plane: bool = P.boolean(True)
 
 
 def fill_background(depth: np.ndarray, hole: np.ndarray, far: float) -> np.ndarray:
@@ -221,8 +228,8 @@ class DepthWarpMethod:
     name = "depthwarp"
     image_is_depth = True  # its image is the warped depth visualised: not completed (inpaint/complete.py)
 
-    def __init__(self, params: dict | None = None):
-        self.params = check_params(params)
+    def __init__(self, params: dict | DepthWarpMethodParams | None = None):
+        self.params = DepthWarpMethodParams.from_dict(params)
         self._renderer = None
         self._prev: Camera | None = None
         self.last_frame: dict = {}
@@ -242,22 +249,22 @@ class DepthWarpMethod:
                                 "not built yet") from None
         self._mesh = mesh
         p = self.params
-        ground = p["ground"]
+        ground = p.ground
         if ground == "auto":
-            ground = 0 if p["layers"] >= 2 and mesh.num_objects > 1 and np.any(mesh.object_ids == 0) else None
+            ground = 0 if p.layers >= 2 and mesh.num_objects > 1 and np.any(mesh.object_ids == 0) else None
         elif ground == "none":
             ground = None
         else:
-            if p["layers"] < 2:
-                raise BadValueError("--param ground: a ground-only last layer needs --layers >= 2")
+            if p.layers < 2:
+                raise ParamError("ground", "a ground-only last layer needs layers >= 2")
             if not np.any(mesh.object_ids == ground):
-                raise BadValueError(f"--param ground: no face of the mesh has object id {ground}")
+                raise ParamError("ground", f"no face of the mesh has object id {ground}")
         self._ground = ground
         t0 = time.perf_counter()
         self._renderer = ReferenceRenderer(mesh)
         setup = {"bvh": (time.perf_counter() - t0) * 1e3}
         self._bounds = mesh.bounds()
-        if p["cull"]:
+        if p.cull:
             from ibrtools.depthwarp.culling import object_boxes
 
             t1 = time.perf_counter()
@@ -271,8 +278,8 @@ class DepthWarpMethod:
         # Culling needs conservative holes: a dilated hole takes a neighbour's (occluder's) depth
         # and culled a 5-px object seen through a 1-px gap (docs/culling.md), so --cull warps
         # without dilation (the report says so).
-        return DepthWarpParams(seeds=p["seeds"], iters=p["iters"], threshold=p["threshold"], bound=p["bound"],
-                               oriented=p["oriented_bounds"], dilate=p["dilate"] and not p["cull"])
+        return DepthWarpParams(seeds=p.seeds, iters=p.iters, threshold=p.threshold, bound=p.bound,
+                               oriented=p.oriented_bounds, dilate=p.dilate and not p.cull)
 
     def render(self, camera: Camera) -> tuple[dict[str, np.ndarray], dict[str, float]]:
         if self._renderer is None:
@@ -293,33 +300,33 @@ class DepthWarpMethod:
             self.last_metrics = {}
             return {"color": visualise(ref, far), "depth": ref, "hole": hole}, stages
 
-        deep = self._renderer.peel(src, p["layers"], umbra=[camera] if p["umbra"] else None,
+        deep = self._renderer.peel(src, p.layers, umbra=[camera] if p.umbra else None,
                                    ground_object=self._ground)
         stages["peel"] = sum(deep.times_ms.values())
-        backward = p["forward"] == "none"
-        res = warp_with_far_plane(deep.depth, src, camera, self._bounds, p["forward"],
-                                  self._warp_params() if backward else None, p["far_plane"],
-                                  surface_ids=deep.object_id if p["cull"] and backward else None)
+        backward = p.forward == "none"
+        res = warp_with_far_plane(deep.depth, src, camera, self._bounds, p.forward,
+                                  self._warp_params() if backward else None, p.far_plane,
+                                  surface_ids=deep.object_id if p.cull and backward else None)
         for k in ("motion", "mipmap", "warp", "dilate"):
             if k in res.times_ms:
                 stages[k] = float(res.times_ms[k])
         warp_ms = sum(stages.get(k, 0.0) for k in ("motion", "mipmap", "warp", "dilate"))
         t0 = time.perf_counter()
-        ref_out = self._renderer.render(camera, outputs=("depth", "object_id") if p["cull"] else ("depth",),
+        ref_out = self._renderer.render(camera, outputs=("depth", "object_id") if p.cull else ("depth",),
                                         lights=[])
         stages["reference"] = (time.perf_counter() - t0) * 1e3
         ref = ref_out["depth"]
         hole = np.asarray(res.hole, bool)
         depth = res.depth
         report = {"source": "previous frame", "layers": deep.layers, "ground_layer": deep.ground_layer,
-                  "umbra": deep.umbra, "forward": p["forward"],
-                  "dilate": bool(p["dilate"] and not p["cull"] and p["forward"] == "none"),
+                  "umbra": deep.umbra, "forward": p.forward,
+                  "dilate": bool(p.dilate and not p.cull and p.forward == "none"),
                   "source_fill": [round(float(f), 6) for f in deep.fill],
                   "warp_ms": round(warp_ms, 3), "reference_ms": round(stages["reference"], 3),
                   "reference_over_warp": round(stages["reference"] / warp_ms, 3) if warp_ms > 0 else None,
                   "stats": {k: _jsonable(v) for k, v in dict(res.stats).items()}}
         self.last_frame = {"depthwarp": report}
-        if p["cull"]:
+        if p.cull:
             from ibrtools.depthwarp.culling import cull_objects
 
             t0 = time.perf_counter()

@@ -36,11 +36,13 @@ Parameters (``ibr-render --inputs/--quality/--blend-exponent`` or ``--param key=
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
 from ibrtools.camera import Camera
-from ibrtools.errors import BadValueError, InputError
+from ibrtools.errors import InputError, ParamError
 from ibrtools.scene import Scene
 from ibrtools import _core
 from ibrtools import params as P
@@ -63,11 +65,6 @@ QUALITIES = ("side", "shape", "depth", "normal")
 # object pixels but loses 0.3-0.6 dB on ICL-NUIM, whose nearest input has the worse ground-truth
 # pose (docs/dibr_accuracy.md, "lego").
 _WARP = _core.WarpOptions()  # the kernel's defaults (RVS 4.0): the triangle quality and the blend exponent
-DEFAULTS = {"inputs": vs.DEFAULT_K, "quality": _WARP.quality, "blend_exponent": float(_WARP.blend_exponent),
-            "side_threshold": 10.0,
-            "samples": vs.DEFAULT_SAMPLES, "seed": vs.DEFAULT_SEED,
-            "stretched_quality": 0.1, "stretched_holes": True, "depth_tolerance": 0.0,
-            "blend_space": "srgb", "distance_exponent": 0.0}
 # blend_space "srgb" (the default since 2026-11-22): the kernel interpolates and blends the sRGB
 # encodings of the colours (RVS blends the stored code values) and decodes the result in its
 # resolve (DibrAccumulator.result(srgb_to_linear=True)). The weighted mean of misregistered samples
@@ -83,57 +80,52 @@ BLEND_SPACES = ("linear", "srgb")
 # past 16 for the depths it weights, 1e-6..1e6). samples: view selection multiplies an (M, N, 3)
 # float64 matrix of N samples for M inputs: 100 000 samples are 240 MB for 100 inputs (25x the
 # default 4000). side_threshold: pixels, float32 in the kernel.
-LIMITS = {"blend_exponent": 16.0, "samples": 100_000, "side_threshold": P.FINITE_MAX, "distance_exponent": 16.0}
+MAX_SAMPLES = 100_000
 
 
-def _parse_inputs(v) -> int | list[str]:
+def parse_inputs(v, name: str = "inputs") -> int | list[str]:
+    """The selected inputs: a count K >= 1 or view names (a list, or "v1,v2,...")."""
     if isinstance(v, bool):
-        raise BadValueError(f"--inputs: expected a count K >= 1 or view names v1,v2,..., got {v!r}")
+        raise ParamError(name, f"expected a count K >= 1 or view names v1,v2,..., got {v!r}")
     if isinstance(v, (int, np.integer)):
         if v < 1:
-            raise BadValueError(f"--inputs: expected a count K >= 1 or view names v1,v2,..., got {v}")
+            raise ParamError(name, f"expected a count K >= 1 or view names v1,v2,..., got {v}")
         return int(v)
     if isinstance(v, float):
-        raise BadValueError(f"--inputs: expected a whole count K >= 1 or view names, got {v}")
+        raise ParamError(name, f"expected a whole count K >= 1 or view names, got {v}")
     if isinstance(v, str):
         s = v.strip()
         if s.lstrip("+-").isdigit():
-            return _parse_inputs(int(s))
+            return parse_inputs(int(s), name)
         names = [n.strip() for n in s.split(",")]
     elif isinstance(v, (list, tuple)):
         names = [str(n).strip() for n in v]
     else:
-        raise BadValueError(f"--inputs: expected a count K or view names v1,v2,..., got {type(v).__name__}")
+        raise ParamError(name, f"expected a count K or view names v1,v2,..., got {type(v).__name__}")
     if not names or any(not n for n in names):
-        raise BadValueError(f"--inputs: empty view name in {v!r} (expected K or v1,v2,...)")
+        raise ParamError(name, f"empty view name in {v!r} (expected K or v1,v2,...)")
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
-        raise BadValueError(f"--inputs: view(s) listed twice: {dup}")
+        raise ParamError(name, f"view(s) listed twice: {dup}")
     return names
 
 
-def check_params(params: dict | None) -> dict:
-    """Validated DIBR parameters with defaults filled in (BadValueError naming the option)."""
-    p = P.with_defaults("dibr", params, DEFAULTS)
-    p["inputs"] = _parse_inputs(p["inputs"])
-    if p["quality"] not in QUALITIES:
-        raise BadValueError(f"--quality: expected one of {', '.join(QUALITIES)}, got {p['quality']!r}")
-    p["blend_exponent"] = P.number(p["blend_exponent"], "--blend-exponent", 0.0, strict=True,
-                                   maximum=LIMITS["blend_exponent"])
-    p["side_threshold"] = P.number(p["side_threshold"], "--param side_threshold", 0.0,
-                                   maximum=LIMITS["side_threshold"])
-    p["stretched_quality"] = P.number(p["stretched_quality"], "--param stretched_quality", 0.0, maximum=1.0)
-    p["depth_tolerance"] = P.number(p["depth_tolerance"], "--param depth_tolerance", 0.0, maximum=1.0,
-                                    strict_max=True)
-    p["stretched_holes"] = P.boolean(p["stretched_holes"], "--param stretched_holes")
-    if p["blend_space"] not in BLEND_SPACES:
-        raise BadValueError(f"--param blend_space: expected one of {', '.join(BLEND_SPACES)}, "
-                            f"got {p['blend_space']!r}")
-    p["distance_exponent"] = P.number(p["distance_exponent"], "--param distance_exponent", 0.0,
-                                      maximum=LIMITS["distance_exponent"])
-    p["samples"] = P.integer(p["samples"], "--param samples", 1, LIMITS["samples"])
-    p["seed"] = P.integer(p["seed"], "--param seed", 0)
-    return p
+@dataclass(frozen=True)
+class DibrParams(P.MethodParams):
+    """Parameters of ``--method dibr`` (docs/dibr.md "Parameters")."""
+
+    method: ClassVar[str] = "dibr"
+    inputs: int | list[str] = P.custom(vs.DEFAULT_K, parse_inputs)
+    quality: str = P.choice(_WARP.quality, QUALITIES)
+    blend_exponent: float = P.number(float(_WARP.blend_exponent), 0.0, strict=True, maximum=16.0)
+    side_threshold: float = P.number(10.0, 0.0, maximum=P.FINITE_MAX)
+    samples: int = P.integer(vs.DEFAULT_SAMPLES, 1, MAX_SAMPLES)
+    seed: int = P.integer(vs.DEFAULT_SEED, 0)
+    stretched_quality: float = P.number(0.1, 0.0, maximum=1.0)
+    stretched_holes: bool = P.boolean(True)
+    depth_tolerance: float = P.number(0.0, 0.0, maximum=1.0, strict_max=True)
+    blend_space: str = P.choice("srgb", BLEND_SPACES)
+    distance_exponent: float = P.number(0.0, 0.0, maximum=16.0)
 
 
 class DibrMethod:
@@ -141,8 +133,8 @@ class DibrMethod:
 
     name = "dibr"
 
-    def __init__(self, params: dict | None = None):
-        self.params = check_params(params)
+    def __init__(self, params: dict | DibrParams | None = None):
+        self.params = DibrParams.from_dict(params)
         self.last_frame: dict = {}
         self._scene: Scene | None = None
 
@@ -150,9 +142,9 @@ class DibrMethod:
         from ibrtools import _core
 
         o = _core.WarpOptions()
-        o.quality = self.params["quality"]
-        o.side_threshold = float(self.params["side_threshold"])
-        o.blend_exponent = float(self.params["blend_exponent"])
+        o.quality = self.params.quality
+        o.side_threshold = float(self.params.side_threshold)
+        o.blend_exponent = float(self.params.blend_exponent)
         return o
 
     def prepare(self, scene: Scene) -> dict[str, float]:
@@ -167,12 +159,12 @@ class DibrMethod:
             raise InputError(f"--method dibr needs colour for every input view; without colour: "
                              f"{', '.join(no_color[:5])}")
         names = [v.name for v in scene.views]
-        inputs = self.params["inputs"]
+        inputs = self.params.inputs
         if isinstance(inputs, list):
             missing = [n for n in inputs if n not in names]
             if missing:
-                raise BadValueError(f"--inputs: view(s) {missing} not among the input views "
-                                    f"(held-out views are not inputs)")
+                raise ParamError("inputs", f"view(s) {missing} not among the input views "
+                                           f"(held-out views are not inputs)")
             self._candidates = [names.index(n) for n in inputs]
             self._k = len(inputs)
         else:
@@ -189,7 +181,7 @@ class DibrMethod:
 
     def select(self, camera: Camera) -> vs.Selection:
         return self._views.select(camera, self._k, candidates=self._candidates,
-                                  samples=self.params["samples"], seed=self.params["seed"])
+                                  samples=self.params.samples, seed=self.params.seed)
 
     def render(self, camera: Camera) -> tuple[dict[str, np.ndarray], dict[str, float]]:
         from ibrtools import _core
@@ -201,8 +193,8 @@ class DibrMethod:
         t0 = time.perf_counter()
         sel = self.select(camera)
         t1 = time.perf_counter()
-        acc = _core.DibrAccumulator(camera.to_core(), float(self.params["stretched_quality"]),
-                                    self.params["stretched_holes"], float(self.params["depth_tolerance"]))
+        acc = _core.DibrAccumulator(camera.to_core(), float(self.params.stretched_quality),
+                                    self.params.stretched_holes, float(self.params.depth_tolerance))
         for i in [i for i in self._encoded if i not in sel.indices]:
             del self._encoded[i]  # the cache holds the selected views only (memory: k encoded copies)
         factors = self.view_factors(camera, sel.indices)
@@ -216,7 +208,7 @@ class DibrMethod:
                          self._core_cams[i], opts)
         t2 = time.perf_counter()
         # blend_space "srgb": the kernel decodes the blended colour in its resolve (row by row).
-        color, depth, confidence, hole = acc.result(srgb_to_linear=self.params["blend_space"] == "srgb")
+        color, depth, confidence, hole = acc.result(srgb_to_linear=self.params.blend_space == "srgb")
         t3 = time.perf_counter()
         views = self._scene.views
         self.last_frame = {
@@ -225,7 +217,7 @@ class DibrMethod:
             "candidates": len(sel.candidates),
             "skipped_no_overlap": int(sel.skipped),
         }
-        if self.params["distance_exponent"] > 0:
+        if self.params.distance_exponent > 0:
             self.last_frame["view_factors"] = [round(f, 6) for f in factors]
         out = {"color": color, "depth": depth, "confidence": confidence, "hole": hole}
         return out, {"select": (t1 - t0) * 1e3, "warp": (t2 - t1) * 1e3, "blend": (t3 - t2) * 1e3}
@@ -234,7 +226,7 @@ class DibrMethod:
         """Per-view weight factors (b_min / b_i)^distance_exponent of the views ``indices`` for
         the target ``camera`` (module doc), in [1e-6, 1]; all 1 when the exponent is 0. A view
         at the target's own centre (b_i = 0) gets 1 and the others the floor 1e-6."""
-        beta = float(self.params["distance_exponent"])
+        beta = float(self.params.distance_exponent)
         if beta == 0.0 or len(indices) == 0:
             return [1.0] * len(indices)
         b = np.array([np.linalg.norm(self._views.cameras[i].centre - camera.centre) for i in indices])
@@ -243,7 +235,7 @@ class DibrMethod:
 
     def _input_color(self, i: int, color: np.ndarray) -> np.ndarray:
         """View i's colour as the kernel blends it: linear, or its sRGB encoding (cached)."""
-        if self.params["blend_space"] == "linear":
+        if self.params.blend_space == "linear":
             return np.ascontiguousarray(color, np.float32)
         if i not in self._encoded:
             self._encoded[i] = srgb_encode(color)

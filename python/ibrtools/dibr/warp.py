@@ -24,39 +24,41 @@ Parameters (``--inputs`` or ``--param key=value``)
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
 from ibrtools.camera import Camera
-from ibrtools.errors import BadValueError, InputError
+from ibrtools.errors import InputError, ParamError
 from ibrtools.scene import Scene
 from ibrtools import params as P
 from ibrtools.dibr import view_selection as vs
-from ibrtools.dibr.method import LIMITS as DIBR_LIMITS
+from ibrtools.dibr.method import MAX_SAMPLES
 from ibrtools.cache import missing_depth_error, with_stage_depth
 
-DEFAULTS = {"inputs": 1, "stretch_threshold": 2.0, "depth_jump": 0.1, "samples": vs.DEFAULT_SAMPLES, "seed": vs.DEFAULT_SEED}
-
-
-def check_params(params: dict | None) -> dict:
-    """Validated parameters with defaults filled in (BadValueError naming the option)."""
-    p = P.with_defaults("warp", params, DEFAULTS)
-    v = p["inputs"]
+def _one_input(v, name: str) -> int | str:
+    """1 (the most similar input) or one view name."""
     if isinstance(v, str) and v.strip() == "1":
         v = 1
     if isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v == 1:
-        p["inputs"] = 1
-    elif isinstance(v, str) and v.strip() and "," not in v:
-        p["inputs"] = v.strip()
-    else:
-        raise BadValueError(f"--inputs: method 'warp' uses one input view: expected 1 (the most similar) "
-                            f"or one view name, got {v!r}")
-    p["stretch_threshold"] = P.number(p["stretch_threshold"], "--param stretch_threshold", 0.0, strict=True,
-                                      maximum=P.FINITE_MAX)
-    p["depth_jump"] = P.number(p["depth_jump"], "--param depth_jump", 0.0, maximum=P.FINITE_MAX)
-    p["samples"] = P.integer(p["samples"], "--param samples", 1, DIBR_LIMITS["samples"])
-    p["seed"] = P.integer(p["seed"], "--param seed", 0)
-    return p
+        return 1
+    if isinstance(v, str) and v.strip() and "," not in v:
+        return v.strip()
+    raise ParamError(name, f"method 'warp' uses one input view: expected 1 (the most similar) "
+                           f"or one view name, got {v!r}")
+
+
+@dataclass(frozen=True)
+class WarpParams(P.MethodParams):
+    """Parameters of ``--method warp`` (the module doc)."""
+
+    method: ClassVar[str] = "warp"
+    inputs: int | str = P.custom(1, _one_input)
+    stretch_threshold: float = P.number(2.0, 0.0, strict=True, maximum=P.FINITE_MAX)
+    depth_jump: float = P.number(0.1, 0.0, maximum=P.FINITE_MAX)
+    samples: int = P.integer(vs.DEFAULT_SAMPLES, 1, MAX_SAMPLES)
+    seed: int = P.integer(vs.DEFAULT_SEED, 0)
 
 
 class WarpMethod:
@@ -64,8 +66,8 @@ class WarpMethod:
 
     name = "warp"
 
-    def __init__(self, params: dict | None = None):
-        self.params = check_params(params)
+    def __init__(self, params: dict | WarpParams | None = None):
+        self.params = WarpParams.from_dict(params)
         self.last_frame: dict = {}
         self._scene: Scene | None = None
 
@@ -74,11 +76,11 @@ class WarpMethod:
             raise InputError("--method warp: the scene has no input views")
         scene = with_stage_depth(scene)  # photographs: the mvs stage's depth (else the mesh's)
         names = [v.name for v in scene.views]
-        inputs = self.params["inputs"]
+        inputs = self.params.inputs
         if isinstance(inputs, str):
             if inputs not in names:
-                raise BadValueError(f"--inputs: view {inputs!r} is not among the input views "
-                                    f"(held-out views are not inputs)")
+                raise ParamError("inputs", f"view {inputs!r} is not among the input views "
+                                           f"(held-out views are not inputs)")
             self._candidates = [names.index(inputs)]
         else:
             self._candidates = None
@@ -105,7 +107,7 @@ class WarpMethod:
         if self._candidates is not None:
             index = self._candidates[0]
         else:
-            sel = self._views.select(camera, 1, samples=self.params["samples"], seed=self.params["seed"])
+            sel = self._views.select(camera, 1, samples=self.params.samples, seed=self.params.seed)
             if not sel.indices:
                 raise InputError("--method warp: no input view overlaps the target camera")
             index = sel.indices[0]
@@ -113,8 +115,8 @@ class WarpMethod:
         v = self._scene.views[index]
         color, depth, mask = _core.warp_with_holes(
             np.ascontiguousarray(v.color, np.float32), np.ascontiguousarray(v.depth, np.float32),
-            v.camera.to_core(), camera.to_core(), float(self.params["stretch_threshold"]),
-            float(self.params["depth_jump"]))
+            v.camera.to_core(), camera.to_core(), float(self.params.stretch_threshold),
+            float(self.params.depth_jump))
         t2 = time.perf_counter()
         disoccluded = mask == _core.WARP_DISOCCLUDED
         hole = mask != _core.WARP_SURFACE

@@ -47,13 +47,15 @@ import copy
 import math
 
 import time
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
 from ibrtools import _core
 from ibrtools.camera import Camera
-from ibrtools.errors import BadValueError, InputError, MissingFileError
-from ibrtools.hybrid.pvm_render import DEFAULTS as PVM_DEFAULTS, RESAMPLE, check_params as check_pvm_params
+from ibrtools.errors import BadValueError, InputError, MissingFileError, ParamError
+from ibrtools.hybrid.pvm_render import RESAMPLE, PvmParams
 from ibrtools.mesh import Mesh
 from ibrtools.scene import Scene
 from ibrtools import params as P
@@ -74,8 +76,28 @@ from ibrtools.hybrid.pvm_render import PvmRenderer, harmonised_images
 # views' colours are read with Catmull-Rom (cpp/ibr/resample.h), sharper than bilinear; chosen on
 # the selection scenes (docs/ulr.md "Parameters"; the PVM renderer reads its candidates the same way).
 # k, resolution_weight, depth_tol: the kernel's defaults, defined once (cpp/kernels/hybrid/hybrid.h UlrOptions).
-ULR_DEFAULTS = {"k": _core.ULR_DEFAULT_K, "resolution_weight": _core.ULR_DEFAULT_RESOLUTION_WEIGHT,
-                "depth_tol": _core.ULR_DEFAULT_DEPTH_TOL, "harmonised": True, "occlusion": "mesh", "resample": "cubic"}
+# k: the kernel's bound (UlrOptions::kMaxK, a fixed-size per-pixel list); the others only have to
+# stay finite in the kernels' float32 (params.py FINITE_MAX).
+
+
+@dataclass(frozen=True)
+class TmParams(P.MethodParams):
+    """``--method tm`` has no parameters."""
+
+    method: ClassVar[str] = "tm"
+
+
+@dataclass(frozen=True)
+class UlrParams(P.MethodParams):
+    """Parameters of ``--method ulr`` (docs/ulr.md "Parameters")."""
+
+    method: ClassVar[str] = "ulr"
+    k: int = P.integer(_core.ULR_DEFAULT_K, 1, _core.ULR_MAX_K)
+    resolution_weight: float = P.number(_core.ULR_DEFAULT_RESOLUTION_WEIGHT, 0.0, maximum=P.FINITE_MAX)
+    depth_tol: float = P.number(_core.ULR_DEFAULT_DEPTH_TOL, 0.0, strict=True, maximum=P.FINITE_MAX)
+    harmonised: bool = P.boolean(True)
+    occlusion: str = P.choice("mesh", ("mesh", "views"))
+    resample: str = P.choice("cubic", RESAMPLE)
 # sigma, alpha, gamma, tau_depth: the paper's sweep values (sec. 7). sigma_blur 16 px (the
 # paper: 4): chosen on synth:objects seed 1, a scene no reported figure uses (12 views of
 # 480x360, 4 targets: sigma_blur 4 / 8 / 12 / 16 -> hybrid 30.50 / 30.63 / 30.72 / 30.78 dB,
@@ -104,9 +126,6 @@ RASTER_MAX_FACES_PER_PIXEL = 0.3
 # The hybrid parameters that are the PVM renderer's: its defaults, checked by it, passed to it.
 PVM_KEYS = ("sigma", "alpha", "gamma", "tau_depth", "free_space", "free_space_tol", "free_space_point_tol", "tau_empty",
             "ulr_k", "min_views", "resample", "max_angle", "merge_rel", "stretch_weight", "stretch_free")
-HYBRID_DEFAULTS = {**ULR_DEFAULTS, **{k: PVM_DEFAULTS[k] for k in PVM_KEYS},
-                   "tau_var": -1.0, "sigma_blur": 16.0, "min_weight": 0.05, "geo_threshold": None, "filtered": True,
-                   "pvm_floor": "auto"}
 STAGES_FOR = {"tm": ("mesh", "texture"), "ulr": ("mesh", "depth"),
               "hybrid": ("mesh", "depth", "texture", "variance", "harmonise", "pvm", "mix")}
 _UNIT_METRES = {"m": 1.0, "meter": 1.0, "metre": 1.0, "meters": 1.0, "metres": 1.0, "cm": 0.01, "mm": 0.001,
@@ -114,31 +133,50 @@ _UNIT_METRES = {"m": 1.0, "meter": 1.0, "metre": 1.0, "meters": 1.0, "metres": 1
 SELECTION_COLORS = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]], np.float32)  # TM, ULR, PVM
 
 
-def check_params(method: str, params: dict | None) -> dict:
-    defaults = {"tm": {}, "ulr": ULR_DEFAULTS, "hybrid": HYBRID_DEFAULTS}[method]
-    p = P.with_defaults(method, params, defaults)
-    if method == "tm":
-        return p
-    # k: the kernel's bound (UlrOptions::kMaxK, a fixed-size per-pixel list); the
-    # others only have to stay finite in the kernels' float32 (params.py FINITE_MAX).
-    p["k"] = P.integer(p["k"], "--param k", 1, _core.ULR_MAX_K)
-    p["resolution_weight"] = P.number(p["resolution_weight"], "--param resolution_weight", 0.0, maximum=P.FINITE_MAX)
-    p["depth_tol"] = P.number(p["depth_tol"], "--param depth_tol", 0.0, strict=True, maximum=P.FINITE_MAX)
-    p["harmonised"] = P.boolean(p["harmonised"], "--param harmonised")
-    p["occlusion"] = P.choice(p["occlusion"], "--param occlusion", ("mesh", "views"))
-    p["resample"] = P.choice(p["resample"], "--param resample", RESAMPLE)
-    if method == "hybrid":
-        pvm = check_pvm_params({k: p[k] for k in PVM_KEYS})  # the PVM renderer's own checks
-        p.update({k: pvm[k] for k in PVM_KEYS})
-        p["tau_var"] = P.number(p["tau_var"], "--param tau_var", -P.FINITE_MAX, maximum=P.FINITE_MAX)
-        p["sigma_blur"] = P.number(p["sigma_blur"], "--param sigma_blur", 0.0, maximum=1000.0)
-        p["min_weight"] = P.number(p["min_weight"], "--param min_weight", 0.0, maximum=1.0 / 3.0)
-        if p["geo_threshold"] is not None:
-            p["geo_threshold"] = P.number(p["geo_threshold"], "--param geo_threshold", 0.0, maximum=P.FINITE_MAX)
-        p["filtered"] = P.boolean(p["filtered"], "--param filtered")
-        if p["pvm_floor"] != "auto":
-            p["pvm_floor"] = P.number(p["pvm_floor"], "--param pvm_floor ('auto' or a weight)", 0.0, maximum=1.0)
-    return p
+def _pvm_floor(v, name: str) -> str | float:
+    """"auto" (fitted by the mix stage) or a weight in [0, 1]."""
+    if v == "auto":
+        return "auto"
+    try:
+        return P.to_number(v, name, 0.0, maximum=1.0)
+    except ParamError:
+        raise ParamError(name, f"expected 'auto' or a weight in [0, 1], got {v!r}") from None
+
+
+@dataclass(frozen=True)
+class HybridParams(UlrParams):
+    """Parameters of ``--method hybrid`` (docs/hybrid.md "Parameters"): ULR's, the PVM renderer's
+    PVM_KEYS (checked by it, passed to it) and the choice's own."""
+
+    method: ClassVar[str] = "hybrid"
+    sigma: float = P.same_as(PvmParams, "sigma")
+    alpha: float = P.same_as(PvmParams, "alpha")
+    gamma: float = P.same_as(PvmParams, "gamma")
+    tau_depth: float = P.same_as(PvmParams, "tau_depth")
+    free_space: bool = P.same_as(PvmParams, "free_space")
+    free_space_tol: float = P.same_as(PvmParams, "free_space_tol")
+    free_space_point_tol: float = P.same_as(PvmParams, "free_space_point_tol")
+    tau_empty: float = P.same_as(PvmParams, "tau_empty")
+    ulr_k: int = P.same_as(PvmParams, "ulr_k")
+    min_views: int = P.same_as(PvmParams, "min_views")
+    resample: str = P.same_as(PvmParams, "resample")
+    max_angle: float = P.same_as(PvmParams, "max_angle")
+    merge_rel: float = P.same_as(PvmParams, "merge_rel")
+    stretch_weight: float = P.same_as(PvmParams, "stretch_weight")
+    stretch_free: float = P.same_as(PvmParams, "stretch_free")
+    tau_var: float = P.number(-1.0, -P.FINITE_MAX, maximum=P.FINITE_MAX)
+    sigma_blur: float = P.number(16.0, 0.0, maximum=1000.0)
+    min_weight: float = P.number(0.05, 0.0, maximum=1.0 / 3.0)
+    geo_threshold: float | None = P.number(None, 0.0, maximum=P.FINITE_MAX, optional=True)
+    filtered: bool = P.boolean(True)
+    pvm_floor: str | float = P.custom("auto", _pvm_floor)
+
+    def pvm(self) -> PvmParams:
+        """The PVM renderer's parameters: PVM_KEYS from these, the rest its defaults."""
+        return PvmParams.from_dict({k: getattr(self, k) for k in PVM_KEYS})
+
+    def check(self) -> None:
+        self.pvm()  # the PVM renderer's bounds between its fields
 
 
 # geo_threshold in a scene without a length unit: this many voxels of the global mesh. Chosen on
@@ -312,8 +350,8 @@ class TmMethod:
 
     name = "tm"
 
-    def __init__(self, params: dict | None = None):
-        self.params = check_params("tm", params)
+    def __init__(self, params: dict | TmParams | None = None):
+        self.params = TmParams.from_dict(params)
         self._gm: _GlobalMesh | None = None
 
     def prepare(self, scene: Scene) -> dict[str, float]:
@@ -338,8 +376,8 @@ class UlrMethod:
 
     name = "ulr"
 
-    def __init__(self, params: dict | None = None):
-        self.params = check_params("ulr", params)
+    def __init__(self, params: dict | UlrParams | None = None):
+        self.params = UlrParams.from_dict(params)
         self._gm: _GlobalMesh | None = None
         self._last: dict = {}
 
@@ -347,8 +385,8 @@ class UlrMethod:
         t0 = time.perf_counter()
         has_tex = bool(_stage_record(scene, "texture").get("outputs"))
         self._gm = _GlobalMesh(scene, "ulr", texture=has_tex)
-        self._views, self._source = _views_for_ulr(scene, "ulr", self.params["harmonised"],
-                                                   self._gm if self.params["occlusion"] == "mesh" else None)
+        self._views, self._source = _views_for_ulr(scene, "ulr", self.params.harmonised,
+                                                   self._gm if self.params.occlusion == "mesh" else None)
         return {"load": (time.perf_counter() - t0) * 1e3 - self._gm.build_ms, "bvh": self._gm.build_ms}
 
     def render(self, camera: Camera) -> tuple[dict[str, np.ndarray], dict[str, float]]:
@@ -360,9 +398,9 @@ class UlrMethod:
         t0 = time.perf_counter()
         gb = self._gm.gbuffer(camera)
         t1 = time.perf_counter()
-        ulr, count = _core.ulr_blend(camera.to_core(), gb["depth"], self._views, normal=gb["normal"], k=p["k"],
-                                     resolution_weight=p["resolution_weight"], depth_tol=p["depth_tol"],
-                                     resample=p["resample"])
+        ulr, count = _core.ulr_blend(camera.to_core(), gb["depth"], self._views, normal=gb["normal"], k=p.k,
+                                     resolution_weight=p.resolution_weight, depth_tol=p.depth_tol,
+                                     resample=p.resample)
         t2 = time.perf_counter()
         seen = count > 0
         times = {"gbuffer": (t1 - t0) * 1e3, "ulr_blend": (t2 - t1) * 1e3}
@@ -392,8 +430,8 @@ class HybridMethod:
 
     name = "hybrid"
 
-    def __init__(self, params: dict | None = None):
-        self.params = check_params("hybrid", params)
+    def __init__(self, params: dict | HybridParams | None = None):
+        self.params = HybridParams.from_dict(params)
         self._gm: _GlobalMesh | None = None
         self._last: dict = {}
 
@@ -412,8 +450,8 @@ class HybridMethod:
             h = _stage(scene, "harmonise", "hybrid")
         elif not rec.get("skipped"):
             _stage(scene, "harmonise", "hybrid")  # raises, naming the command
-        self._views, self._source = _views_for_ulr(scene, "hybrid", self.params["harmonised"],
-                                                   self._gm if self.params["occlusion"] == "mesh" else None, h)
+        self._views, self._source = _views_for_ulr(scene, "hybrid", self.params.harmonised,
+                                                   self._gm if self.params.occlusion == "mesh" else None, h)
         self._view_names = [v.name for v in scene.views]  # _views_for_ulr's order
         self._vd = None
         if h is not None and ("vd_render" in h or "vd_texture" in h):
@@ -425,11 +463,10 @@ class HybridMethod:
         p = self.params
         voxel = (_stage_record(scene, "mesh").get("details") or {}).get("voxel")
         self._geo = (geo_threshold_for(scene.units, voxel if isinstance(voxel, (int, float)) else None)
-                     if p["geo_threshold"] is None else p["geo_threshold"])
+                     if p.geo_threshold is None else p.geo_threshold)
         self._floor, self._floor_source = self._resolve_floor(scene)
         t1 = time.perf_counter()
-        pvm_params = {k: p[k] for k in PVM_KEYS}
-        self._pvm = PvmRenderer(scene, pvm_params, images=load_images(scene, h))
+        self._pvm = PvmRenderer(scene, p.pvm(), images=load_images(scene, h))
         t2 = time.perf_counter()
         return {"load": (t1 - t0) * 1e3 - self._gm.build_ms, "bvh": self._gm.build_ms, "pvm_load": (t2 - t1) * 1e3}
 
@@ -443,7 +480,7 @@ class HybridMethod:
         if self._gm is None:
             raise BadValueError("hybrid: prepare(scene) must be called before _without_views")
         keep = {v.name for v in scene.views}
-        if not keep <= set(self._view_names) or self.params["occlusion"] != "mesh":
+        if not keep <= set(self._view_names) or self.params.occlusion != "mesh":
             raise BadValueError("hybrid: _without_views needs a subset of the prepared scene's views "
                                 "and occlusion mesh")
         m = copy.copy(self)
@@ -458,7 +495,7 @@ class HybridMethod:
     def _resolve_floor(self, scene: Scene) -> tuple[float, str]:
         """pvm_floor: the parameter when it is a number; "auto": the mix stage's fit (0 when the
         stage skipped the scene, e.g. too few views to hold one out)."""
-        f = self.params["pvm_floor"]
+        f = self.params.pvm_floor
         if f != "auto":
             return float(f), "parameter"
         rec = _stage_record(scene, "mix")
@@ -487,7 +524,7 @@ class HybridMethod:
         t1 = time.perf_counter()
         # The view-dependent texture lies in [0, 1]: with tau_var < 0 the test sends every pixel to
         # ULR whatever it is, and it is not interpolated.
-        vd = self._gm.interpolate(gb, self._vd) if self._vd is not None and p["tau_var"] >= 0 else None
+        vd = self._gm.interpolate(gb, self._vd) if self._vd is not None and p.tau_var >= 0 else None
         t2 = time.perf_counter()
         times["gbuffer"], times["vd"] = (t1 - t0) * 1e3, (t2 - t1) * 1e3
         # PVM in two passes: the depth pass (candidates of the visible voxels, 2-means, the Eq. 2
@@ -501,12 +538,12 @@ class HybridMethod:
         valid = np.ascontiguousarray(res.valid, bool)
         pvm_depth = np.ascontiguousarray(res.depth, np.float32)
         label = _core.hybrid_select(gb["depth"], inside_grid=inside, pvm_valid=valid, pvm_depth=pvm_depth, vd=vd,
-                                    geo_threshold=self._geo, tau_var=p["tau_var"])
+                                    geo_threshold=self._geo, tau_var=p.tau_var)
         by_floor: dict[float, np.ndarray] = {}
 
         def weights_at(floor):  # the blurred selection at a floor, computed once
             if floor not in by_floor:
-                by_floor[floor] = _core.blur_selection(label, p["sigma_blur"], p["min_weight"], decimate=True,
+                by_floor[floor] = _core.blur_selection(label, p.sigma_blur, p.min_weight, decimate=True,
                                                        pvm_floor=floor)
             return by_floor[floor]
 
@@ -516,15 +553,15 @@ class HybridMethod:
         times["masking"] = (t4 - t3) * 1e3
         pvm_color = None
         if n_pvm:
-            col = self._pvm.resolve(camera, pixel_mask=need_pvm, filtered=p["filtered"])
+            col = self._pvm.resolve(camera, pixel_mask=need_pvm, filtered=p.filtered)
             for k, v in (col.times_ms or {}).items():
                 times[k] = times.get(k, 0.0) + float(v)
             pvm_color = np.ascontiguousarray(col.color, np.float32)
         t4 = time.perf_counter()
         if n_ulr:
             ulr, count = _core.ulr_blend(camera.to_core(), gb["depth"], self._views, normal=gb["normal"],
-                                         pixel_mask=need_ulr, k=p["k"], resolution_weight=p["resolution_weight"],
-                                         depth_tol=p["depth_tol"], resample=p["resample"])
+                                         pixel_mask=need_ulr, k=p.k, resolution_weight=p.resolution_weight,
+                                         depth_tol=p.depth_tol, resample=p.resample)
         else:
             ulr, count = None, None
         t5 = time.perf_counter()

@@ -18,15 +18,24 @@ stretch_weight, stretch_free, filtered, ...) and ``gbuffer`` = mesh | none. Need
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
 from ibrtools.camera import Camera
-from ibrtools.errors import BadValueError, MissingFileError
+from ibrtools.errors import MissingFileError
 from ibrtools.scene import Scene
-from ibrtools.hybrid.pvm_render import PvmRenderer, check_params
+from ibrtools import params as P
+from ibrtools.hybrid.pvm_render import PvmParams, PvmRenderer
 
 GBUFFERS = ("mesh", "none")
+
+
+@dataclass(frozen=True)
+class PvmMethodParams(PvmParams):
+    """Parameters of ``--method pvm``: the renderer's and ``gbuffer`` (the module doc)."""
+
+    gbuffer: str = P.choice("mesh", GBUFFERS)
 
 
 class PvmMethod:
@@ -34,12 +43,9 @@ class PvmMethod:
 
     name = "pvm"
 
-    def __init__(self, params: dict | None = None):
-        params = dict(params or {})
-        self.gbuffer = params.pop("gbuffer", "mesh")
-        if self.gbuffer not in GBUFFERS:
-            raise BadValueError(f"--param gbuffer: expected one of {', '.join(GBUFFERS)}, got {self.gbuffer!r}")
-        self.params = check_params(params)
+    def __init__(self, params: dict | PvmMethodParams | None = None):
+        self.params = PvmMethodParams.from_dict(params)
+        self.gbuffer = self.params.gbuffer
         self._renderer = None
         self._gm = None
         self.last_stats: dict = {}
@@ -55,7 +61,7 @@ class PvmMethod:
             try:
                 self._gm = _GlobalMesh(scene, "pvm", texture=False)
             except MissingFileError as e:
-                raise MissingFileError(f"{e} (or --param gbuffer=none)") from None
+                raise MissingFileError(f"{e} (or the parameter gbuffer=none)") from None
             setup["bvh"] = self._gm.build_ms
         return setup
 

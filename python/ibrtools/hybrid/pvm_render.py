@@ -31,12 +31,13 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
 from ibrtools import _core
 from ibrtools.camera import PINHOLE, Camera
-from ibrtools.errors import BadValueError, DtypeError, InputError, MissingFileError, NotBuiltError, ShapeError
+from ibrtools.errors import BadValueError, DtypeError, InputError, MissingFileError, NotBuiltError, ParamError, ShapeError
 from ibrtools import params as P
 from ibrtools.scene import Scene
 from ibrtools.hybrid.pvm import PvmTiles
@@ -78,7 +79,7 @@ from ibrtools import cache
 # view) when above 1; chosen on the selection scenes (the 36 lego views outside the held-out set
 # and synth seed 1) over weights 0.05 / 0.1 / 0.2 / 0.4 / 0.8 and free octaves 0 / 1 / 2
 # (docs/pvm_render.md "Stretch"); 0 = the paper's ULR weights.
-DEFAULTS = dict(_core.PVM_DEFAULTS)  # defined once, in the C++ options (cpp/kernels/hybrid/pvm_render.h)
+_D = _core.PVM_DEFAULTS  # the defaults, defined once, in the C++ options (cpp/kernels/hybrid/pvm_render.h)
 
 # How the views' colours are read at sub-pixel positions (the ULR method takes the same values).
 RESAMPLE = ("cubic", "bilinear")
@@ -88,48 +89,43 @@ STAGE_NAMES = {"voxel_lookup": "voxel lookup", "tile_sort": "tile sort",
                "spatial_filter": "spatial filter"}
 
 
-def check_params(params: dict | None) -> dict:
-    """Validated PVM parameters with defaults (BadValueError naming the parameter)."""
-    p = P.with_defaults("pvm", params, DEFAULTS)
-    p["sigma"] = P.number(p["sigma"], "--param sigma", 0.0, strict=True, maximum=32.0)
-    p["alpha"] = P.number(p["alpha"], "--param alpha", 0.0, maximum=P.FINITE_MAX)
-    p["gamma"] = P.number(p["gamma"], "--param gamma", 0.0, strict=True, maximum=P.FINITE_MAX)
-    p["tau_depth"] = P.number(p["tau_depth"], "--param tau_depth", 0.0, maximum=P.FINITE_MAX)
-    p["merge_rel"] = P.number(p["merge_rel"], "--param merge_rel", 0.0, maximum=P.FINITE_MAX)
-    p["radius_sigmas"] = P.number(p["radius_sigmas"], "--param radius_sigmas", 0.0, maximum=64.0)
-    p["near"] = P.number(p["near"], "--param near", 0.0, strict=True, maximum=P.FINITE_MAX)
-    p["max_angle"] = P.number(p["max_angle"], "--param max_angle", 0.0, strict=True, maximum=180.0)
-    p["max_tiles"] = P.integer(p["max_tiles"], "--param max_tiles", 1)
-    p["max_candidates"] = P.integer(p["max_candidates"], "--param max_candidates", 1)
-    p["ulr_k"] = P.integer(p["ulr_k"], "--param ulr_k", 1, 64)  # the kernel's bound
-    p["margin"] = P.integer(p["margin"], "--param margin", 0)
-    p["ray_stride"] = P.integer(p["ray_stride"], "--param ray_stride", 0, 1 << 16)  # past any frame side
-    p["filter_step"] = P.integer(p["filter_step"], "--param filter_step", 1)
-    p["min_views"] = P.integer(p["min_views"], "--param min_views", 1)
-    if p["filter_step"] > 16:
-        raise BadValueError(f"--param filter_step: expected <= 16, got {p['filter_step']}")
-    p["cull_back"] = P.boolean(p["cull_back"], "--param cull_back")
-    p["filtered"] = P.boolean(p["filtered"], "--param filtered")
-    p["free_space"] = P.boolean(p["free_space"], "--param free_space")
-    p["free_space_tol"] = P.number(p["free_space_tol"], "--param free_space_tol", 0.0)
-    if p["free_space_tol"] >= 1:
-        raise BadValueError(f"--param free_space_tol: expected < 1, got {p['free_space_tol']}")
-    p["free_space_point_tol"] = P.number(p["free_space_point_tol"], "--param free_space_point_tol", 0.0,
-                                         maximum=P.FINITE_MAX)
-    p["tau_empty"] = P.number(p["tau_empty"], "--param tau_empty", 0.0, maximum=P.FINITE_MAX)
-    p["stretch_weight"] = P.number(p["stretch_weight"], "--param stretch_weight", 0.0, maximum=P.FINITE_MAX)
-    p["stretch_free"] = P.number(p["stretch_free"], "--param stretch_free", 0.0, maximum=P.FINITE_MAX)
-    p["resample"] = P.choice(p["resample"], "--param resample", RESAMPLE)
-    if p["max_tiles"] > 255:
-        raise BadValueError(f"--param max_tiles: expected <= 255, got {p['max_tiles']}")
-    for key in ("max_candidates", "min_views"):
-        if p[key] > 16:
-            raise BadValueError(f"--param {key}: expected <= 16, got {p[key]}")
-    if p["margin"] > 32:
-        raise BadValueError(f"--param margin: expected <= 32, got {p['margin']}")
-    if p["sigma"] * p["radius_sigmas"] > 64:
-        raise BadValueError("--param sigma * radius_sigmas: expected <= 64 pixels")
-    return p
+@dataclass(frozen=True)
+class PvmParams(P.MethodParams):
+    """Parameters of the PVM renderer (``--method pvm``; the hybrid passes its PVM ones on).
+    Bounds: ulr_k, max_tiles, max_candidates and min_views are the kernel's fixed-size lists;
+    ray_stride 65536 is past any frame side; the others stay finite in float32 (FINITE_MAX) or
+    bound a window the kernel allocates (sigma * radius_sigmas <= 64 px, margin <= 32 cells)."""
+
+    method: ClassVar[str] = "pvm"
+    sigma: float = P.number(_D["sigma"], 0.0, strict=True, maximum=32.0)
+    alpha: float = P.number(_D["alpha"], 0.0, maximum=P.FINITE_MAX)
+    gamma: float = P.number(_D["gamma"], 0.0, strict=True, maximum=P.FINITE_MAX)
+    tau_depth: float = P.number(_D["tau_depth"], 0.0, maximum=P.FINITE_MAX)
+    max_tiles: int = P.integer(_D["max_tiles"], 1, 255)
+    max_candidates: int = P.integer(_D["max_candidates"], 1, 16)
+    ulr_k: int = P.integer(_D["ulr_k"], 1, _core.ULR_MAX_K)
+    merge_rel: float = P.number(_D["merge_rel"], 0.0, maximum=P.FINITE_MAX)
+    radius_sigmas: float = P.number(_D["radius_sigmas"], 0.0, maximum=64.0)
+    margin: int = P.integer(_D["margin"], 0, 32)
+    near: float = P.number(_D["near"], 0.0, strict=True, maximum=P.FINITE_MAX)
+    cull_back: bool = P.boolean(_D["cull_back"])
+    max_angle: float = P.number(_D["max_angle"], 0.0, strict=True, maximum=180.0)
+    ray_stride: int = P.integer(_D["ray_stride"], 0, 1 << 16)
+    filter_step: int = P.integer(_D["filter_step"], 1, 16)
+    filtered: bool = P.boolean(_D["filtered"])
+    free_space: bool = P.boolean(_D["free_space"])
+    free_space_tol: float = P.number(_D["free_space_tol"], 0.0, maximum=1.0, strict_max=True)
+    free_space_point_tol: float = P.number(_D["free_space_point_tol"], 0.0, maximum=P.FINITE_MAX)
+    tau_empty: float = P.number(_D["tau_empty"], 0.0, maximum=P.FINITE_MAX)
+    min_views: int = P.integer(_D["min_views"], 1, 16)
+    stretch_weight: float = P.number(_D["stretch_weight"], 0.0, maximum=P.FINITE_MAX)
+    stretch_free: float = P.number(_D["stretch_free"], 0.0, maximum=P.FINITE_MAX)
+    resample: str = P.choice(_D["resample"], RESAMPLE)
+
+    def check(self) -> None:
+        if self.sigma * self.radius_sigmas > 64:
+            raise ParamError("sigma * radius_sigmas", f"expected <= 64 pixels, got {self.sigma:g} * "
+                                                      f"{self.radius_sigmas:g}")
 
 
 @dataclass
@@ -218,13 +214,13 @@ class PvmRenderer:
     ``free_space`` (attribute): whether the free-space count runs (the parameter is on and every
     view has a depth map)."""
 
-    def __init__(self, scene: Scene, params: dict | None = None, *, tiles: PvmTiles | None = None,
+    def __init__(self, scene: Scene, params: Mapping | PvmParams | None = None, *, tiles: PvmTiles | None = None,
                  images: dict[str, np.ndarray] | None = None, depths: dict[str, np.ndarray] | None = None):
         from ibrtools import _core
 
         if not isinstance(scene, Scene):
             raise DtypeError(f"scene: expected an ibrtools Scene, got {type(scene).__name__}")
-        self.params = check_params(params)
+        self.params = PvmParams.from_dict(params)
         if not scene.views:
             raise InputError("PVM rendering: the scene has no input views")
         self.tiles = tiles if tiles is not None else load_tiles(scene)
@@ -239,13 +235,13 @@ class PvmRenderer:
         if not present:
             raise InputError(f"PVM rendering: none of the tiles' views {self.tiles.views[:5]} is an input view "
                              f"of the scene; rerun {_preprocess_hint(scene)}")
-        if self.params["free_space"] and depths is None:
+        if self.params.free_space and depths is None:
             depths = load_depths(scene)
         # what was loaded, for a renderer of a subset of these views (HybridMethod._without_views)
         self.images, self.depths = images, depths
-        self.free_space = bool(self.params["free_space"] and depths is not None)
+        self.free_space = bool(self.params.free_space and depths is not None)
         # stats["free_space"]: whether Eq. 1 / Eq. 2 counted background candidates by free space
-        self._free_space_report: bool | str = (self.free_space if self.free_space or not self.params["free_space"]
+        self._free_space_report: bool | str = (self.free_space if self.free_space or not self.params.free_space
                                                else "not run: no depth maps")
         cams, imgs, deps, enabled = [], [], [], []
         stand_in = None
@@ -311,14 +307,14 @@ class PvmRenderer:
         if camera.model != PINHOLE:
             raise NotBuiltError("PVM rendering of an equirect target camera: not built yet (pinhole targets only)")
         p = self.params
-        filt = p["filtered"] if filtered is None else P.boolean(filtered, "filtered")
-        out = self._core.render(camera.to_core(), gbuffer_depth, pixel_mask, filt, p["sigma"], p["alpha"],
-                                p["gamma"], p["tau_depth"], p["max_tiles"], p["max_candidates"], p["ulr_k"],
-                                p["merge_rel"], p["radius_sigmas"], p["margin"], p["near"], p["cull_back"],
-                                p["max_angle"], p["ray_stride"], p["filter_step"], self.free_space,
-                                p["free_space_tol"], p["free_space_point_tol"], p["tau_empty"], p["min_views"],
-                                p["stretch_weight"], p["stretch_free"],
-                                p["resample"], mode)
+        filt = p.filtered if filtered is None else P.to_boolean(filtered, "filtered")
+        out = self._core.render(camera.to_core(), gbuffer_depth, pixel_mask, filt, p.sigma, p.alpha,
+                                p.gamma, p.tau_depth, p.max_tiles, p.max_candidates, p.ulr_k,
+                                p.merge_rel, p.radius_sigmas, p.margin, p.near, p.cull_back,
+                                p.max_angle, p.ray_stride, p.filter_step, self.free_space,
+                                p.free_space_tol, p.free_space_point_tol, p.tau_empty, p.min_views,
+                                p.stretch_weight, p.stretch_free,
+                                p.resample, mode)
         times = {STAGE_NAMES[k]: float(v) for k, v in out["times_ms"].items()}
         if mode == "resolve":
             times = {k: times[k] for k in ("cluster & blend", "spatial filter")}
@@ -335,4 +331,4 @@ class PvmRenderer:
         pixel mask), the cluster sizes ``n_fg``, ``n_bg`` (H, W) of Eq. 1 / Eq. 2 (``n_bg`` counts
         only the background candidates whose view sees past the foreground, with ``free_space``;
         0 = one cluster), for tests and inspection."""
-        return self._core.candidates(camera.height, camera.width, self.params["max_candidates"])
+        return self._core.candidates(camera.height, camera.width, self.params.max_candidates)

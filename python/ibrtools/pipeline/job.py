@@ -35,6 +35,7 @@ from ibrtools.pipeline import distributed as D
 from ibrtools.pipeline.plan import (FRAME_SUFFIXES, Frame, Job, check_memory, holdout_note, plan, renamed_frames,
                                     report_files, stale_note)
 from ibrtools import methods
+from ibrtools.params import MethodParams
 from ibrtools.inpaint.complete import (DEFAULT_INPAINT, INPAINT_FILLS, NOTHING_TO_FILL, check_inpaint, complete, completion,
                        parse_background)
 from ibrtools.formats import native
@@ -76,7 +77,7 @@ def warm_up(method, camera: Camera) -> float:
 SEQUENTIAL = frozenset({"depthwarp"})
 
 
-def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict | None = None,
+def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: Mapping | MethodParams | None = None,
         float_out: bool = False, depth_out: bool = False, threads: int = 0, inpaint: str = DEFAULT_INPAINT,
         background: str | None = None, foveate: tuple[float, float] | None = None, pooling: float | None = None,
         progress: Callable[[int, int, str], None] | None = None,
@@ -110,6 +111,8 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: dict 
     "error"}); the other frames are written. An interrupt (KeyboardInterrupt, SIGTERM through
     the commands) removes every file the run wrote: all or nothing."""
     from ibrtools import _core
+    if isinstance(params, MethodParams):  # the typed form: the report and the Dask tasks hold its values
+        params = params.as_dict()
     D.check_options(scheduler, workers)
     check_inpaint(inpaint)
     scores = list(parse_scores(metrics))

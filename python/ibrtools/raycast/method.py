@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -11,17 +13,23 @@ from ibrtools.errors import InputError
 from ibrtools.scene import Scene
 
 
+@dataclass(frozen=True)
+class ReferenceParams(P.MethodParams):
+    """Parameters of ``--method reference``. ambient: None = the scene's own shading (how its
+    views were rendered)."""
+
+    method: ClassVar[str] = "reference"
+    ambient: float | None = P.number(None, 0.0, maximum=P.FINITE_MAX, optional=True)
+
+
 class ReferenceMethod:
     """Ray-cast the ground-truth mesh with the scene's lights: the ideal answer, and the
     renderer that made the synthetic scenes (so held-out views match it to quantisation)."""
 
     name = "reference"
 
-    def __init__(self, params: dict | None = None):
-        # ambient: None = the scene's own shading (how its views were rendered).
-        self.params = P.with_defaults("reference", params, {"ambient": None})
-        if self.params["ambient"] is not None:
-            self.params["ambient"] = P.number(self.params["ambient"], "--param ambient", 0.0, maximum=P.FINITE_MAX)
+    def __init__(self, params: dict | ReferenceParams | None = None):
+        self.params = ReferenceParams.from_dict(params)
         self._renderer = None
 
     def prepare(self, scene: Scene) -> dict[str, float]:
@@ -39,7 +47,7 @@ class ReferenceMethod:
                                   shadows=bool(d.get("shadows", True))) for d in scene.lights]
         else:
             self._lights = default_lights(mesh.bounds())
-        ambient = self.params["ambient"]
+        ambient = self.params.ambient
         self._ambient = float(scene.shading.get("ambient", 0.15) if ambient is None else ambient)
         self._background = tuple(scene.shading.get("background", (0.0, 0.0, 0.0)))
         return {"bvh": setup_ms}
