@@ -133,6 +133,24 @@ def test_deterministic_per_seed_and_for_any_thread_count():
     assert not np.array_equal(other.depth, outs[0].depth)
 
 
+@pytest.mark.skipif(not _core.cpu_has_avx2(), reason="this CPU has no AVX2: only the baseline path runs")
+def test_avx2_and_baseline_matching_give_the_same_bits():
+    # The window's bilinear samples are summed in 8 lanes by AVX2 gathers or by the baseline loop
+    # (cpp/kernels/mvs/patchmatch.cpp SampleSums), as the engine's switch says: the same bits.
+    views, truth = _views([_cam(0), _cam(-0.4), _cam(0.4)], [0.2, 0.1, -1])
+    outs = {}
+    try:
+        for isa in ("baseline", "avx2"):
+            _core.set_warp_isa(isa)
+            outs[isa] = run_mvs(views, MvsOptions(**OPTS))["v0"]
+    finally:
+        _core.set_warp_isa("auto")
+    a, b = outs["baseline"], outs["avx2"]
+    assert (a.depth > 0).mean() > 0.7
+    for x, y in ((a.depth, b.depth), (a.normal, b.normal), (a.confidence, b.confidence)):
+        np.testing.assert_array_equal(x, y)
+
+
 def test_source_selection_prefers_overlap_and_a_baseline():
     ref = _cam(0)
     cands = {"near": _cam(0.4), "far": _cam(30.0), "same": _cam(0), "tiny": _cam(1e-4)}

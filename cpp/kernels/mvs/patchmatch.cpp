@@ -7,6 +7,11 @@
 #include <limits>
 
 #include "ibr/parallel.h"
+#include "ibr/simd.h"
+
+#if defined(IBR_HAVE_AVX2_DISPATCH)
+#include <immintrin.h>
+#endif
 
 namespace ibr::mvs {
 namespace {
@@ -73,6 +78,108 @@ struct Window {
   float sw = 0, mean = 0, var = 0;
 };
 
+// Samples of a window in whole groups of 8 (the padding has weight 0, grey 0, offset 0).
+inline int PaddedSamples(int n) { return (n + 7) & ~7; }
+
+// The source's weighted sums of Photometric over the window: the bilinear grey v_i at the
+// homography's image of each sample, ss = sum w_i v_i, sss = sum w_i v_i^2, srs = sum w_i v_i g_i.
+// Sample i adds into lane i mod 8 in order and the 8 lanes are summed as ((l0 + l4) + (l2 + l6))
+// + ((l1 + l5) + (l3 + l7)), in both versions: the AVX2 one (gathers; no FMA) and the baseline one
+// give the same bits (tests/mvs/test_mvs.py compares them). A padding sample adds 0 * v = 0.
+struct SampleSums {
+  float ss, sss, srs;
+};
+
+inline float Reduce8(const float l[8]) {
+  const float s0 = l[0] + l[4], s1 = l[1] + l[5], s2 = l[2] + l[6], s3 = l[3] + l[7];
+  return (s0 + s2) + (s1 + s3);
+}
+
+// max / min as the SSE / AVX instructions define them (a > b ? a : b), so that both versions agree
+// on the sign of a zero.
+inline float MaxPs(float a, float b) { return a > b ? a : b; }
+inline float MinPs(float a, float b) { return a < b ? a : b; }
+
+SampleSums SampleSumsBaseline(const ImageView<const float>& im, const float* h, float hx0, float hy0, float hz0,
+                              float xmax, float ymax, const Window& win) {
+  float ss[8] = {}, sss[8] = {}, srs[8] = {};
+  const float* base = im.Row(0);
+  const std::ptrdiff_t stride = im.row_stride;
+  const int n = PaddedSamples(win.n);
+  for (int i0 = 0; i0 < n; i0 += 8) {
+    for (int l = 0; l < 8; ++l) {
+      const int i = i0 + l;
+      const float dx = win.dx[i], dy = win.dy[i];
+      const float inv = 1.0f / ((hz0 + h[6] * dx) + h[7] * dy);
+      const float x = MinPs(MaxPs(((hx0 + h[0] * dx) + h[1] * dy) * inv - 0.5f, 0.0f), xmax);
+      const float y = MinPs(MaxPs(((hy0 + h[3] * dx) + h[4] * dy) * inv - 0.5f, 0.0f), ymax);
+      const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
+      const float ax = x - static_cast<float>(x0), ay = y - static_cast<float>(y0);
+      const float* r0 = base + std::ptrdiff_t(y0) * stride + x0;
+      const float* r1 = r0 + stride;
+      const float top = r0[0] + ax * (r0[1] - r0[0]);
+      const float bot = r1[0] + ax * (r1[1] - r1[0]);
+      const float v = top + ay * (bot - top);
+      const float wv = win.w[i] * v;
+      ss[l] += wv;
+      sss[l] += wv * v;
+      srs[l] += wv * win.g[i];
+    }
+  }
+  return {Reduce8(ss), Reduce8(sss), Reduce8(srs)};
+}
+
+#if defined(IBR_HAVE_AVX2_DISPATCH)
+__attribute__((target("avx2"))) inline float Reduce8Avx2(__m256 v) {
+  const __m128 s = _mm_add_ps(_mm256_castps256_ps128(v), _mm256_extractf128_ps(v, 1));  // l_k + l_k+4
+  const __m128 t = _mm_add_ps(s, _mm_movehl_ps(s, s));                                 // s0 + s2, s1 + s3
+  return _mm_cvtss_f32(_mm_add_ss(t, _mm_shuffle_ps(t, t, 1)));
+}
+
+__attribute__((target("avx2"))) SampleSums SampleSumsAvx2(const ImageView<const float>& im, const float* h, float hx0,
+                                                          float hy0, float hz0, float xmax, float ymax,
+                                                          const Window& win) {
+  const __m256 h0 = _mm256_set1_ps(h[0]), h1 = _mm256_set1_ps(h[1]), h3 = _mm256_set1_ps(h[3]);
+  const __m256 h4 = _mm256_set1_ps(h[4]), h6 = _mm256_set1_ps(h[6]), h7 = _mm256_set1_ps(h[7]);
+  const __m256 vx0 = _mm256_set1_ps(hx0), vy0 = _mm256_set1_ps(hy0), vz0 = _mm256_set1_ps(hz0);
+  const __m256 one = _mm256_set1_ps(1.0f), half = _mm256_set1_ps(0.5f), zero = _mm256_setzero_ps();
+  const __m256 vxmax = _mm256_set1_ps(xmax), vymax = _mm256_set1_ps(ymax);
+  const float* base = im.Row(0);
+  const __m256i stride = _mm256_set1_epi32(static_cast<int>(im.row_stride));
+  const __m256i stride1 = _mm256_set1_epi32(static_cast<int>(im.row_stride) + 1), one_i = _mm256_set1_epi32(1);
+  __m256 ss = zero, sss = zero, srs = zero;
+  const int n = PaddedSamples(win.n);
+  for (int i = 0; i < n; i += 8) {
+    const __m256 dx = _mm256_loadu_ps(win.dx + i), dy = _mm256_loadu_ps(win.dy + i);
+    const __m256 inv = _mm256_div_ps(one, _mm256_add_ps(_mm256_add_ps(vz0, _mm256_mul_ps(h6, dx)), _mm256_mul_ps(h7, dy)));
+    const __m256 px = _mm256_add_ps(_mm256_add_ps(vx0, _mm256_mul_ps(h0, dx)), _mm256_mul_ps(h1, dy));
+    const __m256 py = _mm256_add_ps(_mm256_add_ps(vy0, _mm256_mul_ps(h3, dx)), _mm256_mul_ps(h4, dy));
+    const __m256 x = _mm256_min_ps(_mm256_max_ps(_mm256_sub_ps(_mm256_mul_ps(px, inv), half), zero), vxmax);
+    const __m256 y = _mm256_min_ps(_mm256_max_ps(_mm256_sub_ps(_mm256_mul_ps(py, inv), half), zero), vymax);
+    const __m256i xi = _mm256_cvttps_epi32(x), yi = _mm256_cvttps_epi32(y);
+    const __m256 ax = _mm256_sub_ps(x, _mm256_cvtepi32_ps(xi)), ay = _mm256_sub_ps(y, _mm256_cvtepi32_ps(yi));
+    const __m256i idx = _mm256_add_epi32(_mm256_mullo_epi32(yi, stride), xi);
+    const __m256 a = _mm256_i32gather_ps(base, idx, 4);
+    const __m256 b = _mm256_i32gather_ps(base, _mm256_add_epi32(idx, one_i), 4);
+    const __m256 c = _mm256_i32gather_ps(base, _mm256_add_epi32(idx, stride), 4);
+    const __m256 d = _mm256_i32gather_ps(base, _mm256_add_epi32(idx, stride1), 4);
+    const __m256 top = _mm256_add_ps(a, _mm256_mul_ps(ax, _mm256_sub_ps(b, a)));
+    const __m256 bot = _mm256_add_ps(c, _mm256_mul_ps(ax, _mm256_sub_ps(d, c)));
+    const __m256 v = _mm256_add_ps(top, _mm256_mul_ps(ay, _mm256_sub_ps(bot, top)));
+    const __m256 wv = _mm256_mul_ps(_mm256_loadu_ps(win.w + i), v);
+    ss = _mm256_add_ps(ss, wv);
+    sss = _mm256_add_ps(sss, _mm256_mul_ps(wv, v));
+    srs = _mm256_add_ps(srs, _mm256_mul_ps(wv, _mm256_loadu_ps(win.g + i)));
+  }
+  return {Reduce8Avx2(ss), Reduce8Avx2(sss), Reduce8Avx2(srs)};
+}
+#else
+inline SampleSums SampleSumsAvx2(const ImageView<const float>& im, const float* h, float hx0, float hy0, float hz0,
+                                 float xmax, float ymax, const Window& win) {
+  return SampleSumsBaseline(im, h, hx0, hy0, hz0, xmax, ymax, win);
+}
+#endif
+
 class Matcher {
  public:
   Matcher(const ImageView<const float>& ref, const Camera& cam, const std::vector<SourceView>& sources,
@@ -133,6 +240,7 @@ class Matcher {
       ++n;
     }
     win->n = n;
+    for (int i = n; i < PaddedSamples(n); ++i) win->dx[i] = 0, win->dy[i] = 0, win->g[i] = 0, win->w[i] = 0;
     if (!(sw > 0)) return false;
     const double mean = sg / sw;
     const double var = sgg / sw - mean * mean;
@@ -191,32 +299,9 @@ class Matcher {
       }
     }
     const ImageView<const float>& im = s.view->grey;
-    const float xmax = s.w - 1.001f, ymax = s.h - 1.001f;
-    const int n = win.n;
-    // The samples' positions first (a loop without branches or loads: vectorised), then the
-    // bilinear reads, then the weighted sums.
-    float xs[kMaxSamples], ys[kMaxSamples];
-    for (int i = 0; i < n; ++i) {
-      const float dx = win.dx[i], dy = win.dy[i];
-      const float inv = 1.0f / (hz0 + h[6] * dx + h[7] * dy);
-      xs[i] = std::min(std::max((hx0 + h[0] * dx + h[1] * dy) * inv - 0.5f, 0.0f), xmax);
-      ys[i] = std::min(std::max((hy0 + h[3] * dx + h[4] * dy) * inv - 0.5f, 0.0f), ymax);
-    }
-    float ss = 0, sss = 0, srs = 0;
-    for (int i = 0; i < n; ++i) {
-      const float x = xs[i], y = ys[i];
-      const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
-      const float ax = x - x0, ay = y - y0;
-      const float* r0 = im.Row(y0) + x0;
-      const float* r1 = r0 + im.row_stride;
-      const float top = r0[0] + ax * (r0[1] - r0[0]);
-      const float bot = r1[0] + ax * (r1[1] - r1[0]);
-      const float v = top + ay * (bot - top);
-      const float wv = win.w[i] * v;
-      ss += wv;
-      sss += wv * v;
-      srs += wv * win.g[i];
-    }
+    const SampleSums sums = avx2_ ? SampleSumsAvx2(im, h, hx0, hy0, hz0, s.w - 1.001f, s.h - 1.001f, win)
+                                  : SampleSumsBaseline(im, h, hx0, hy0, hz0, s.w - 1.001f, s.h - 1.001f, win);
+    const float ss = sums.ss, sss = sums.sss, srs = sums.srs;
     const float inv_sw = 1.0f / win.sw;
     const float ms = ss * inv_sw;
     const float vs = sss * inv_sw - ms * ms;
@@ -256,6 +341,7 @@ class Matcher {
   std::vector<Offset> offsets_;
   std::vector<Source> sources_;
   int k_ = 1;
+  bool avx2_ = UseAvx2();
 };
 
 // A random unit normal facing the camera along `ray` (not grazing: |cos| >= 0.1).
