@@ -162,7 +162,7 @@ static void BindPushPull(py::module_& m) {
   m.def(
       "pushpull",
       [](py::handle image_obj, py::handle hole_obj, py::handle depth_obj, double depth_threshold,
-         double gamma, py::handle out_obj, bool holes_only) {
+         double gamma, py::handle out_obj, bool holes_only, py::handle write_obj) {
         const bool has_c = py::isinstance<py::array>(image_obj) &&
                            py::reinterpret_borrow<py::array>(image_obj).ndim() == 3;
         FloatArray image = has_c ? CheckArray<float>(image_obj, "image", {{"H", -1}, {"W", -1}, {"C", -1}})
@@ -196,19 +196,27 @@ static void BindPushPull(py::module_& m) {
         }
         const ImageView<float> out_view(out.mutable_data(), static_cast<int>(h), static_cast<int>(w),
                                         static_cast<int>(c));
+        py::object write_keep;
+        const ImageView<const std::uint8_t> write =
+            write_obj.is_none() ? ImageView<const std::uint8_t>() : MaskView(write_obj, "write", h, w, &write_keep);
+        if (!write_obj.is_none() && Overlaps(out, py::reinterpret_borrow<py::array>(write_keep))) {
+          throw BadValueError("out: shares memory with write (it is written)");
+        }
         bool no_hole;
         {
           py::gil_scoped_release release;
-          no_hole = InpaintPushPull(image_view, hole, depth_view, options, out_view);
+          no_hole = InpaintPushPull(image_view, hole, depth_view, options, out_view, write);
         }
         return py::make_tuple(out, no_hole);
       },
       py::arg("image"), py::arg("hole"), py::arg("depth") = py::none(), py::arg("depth_threshold") = 0.04,
       py::arg("gamma") = 0.0, py::arg("out") = py::none(), py::arg("holes_only") = false,
+      py::arg("write") = py::none(),
       "Push-pull hole filling (cpp/kernels/inpaint/pushpull.h). image float32 (H, W) or (H, W, C); hole bool or "
       "uint8 (H, W), non-zero = hole; depth float32 (H, W) or None (classic); out: None (a new array) or "
       "a writeable float32 array of image's shape to fill (image itself with holes_only: in place); holes_only: "
-      "write the hole pixels of out only. "
+      "write the hole pixels of out only; write: None or bool / uint8 (H, W), with holes_only: write only the "
+      "hole pixels where it is set. "
       "Returns (out, no_hole) where no_hole says the image had no hole.");
 }
 

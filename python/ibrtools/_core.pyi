@@ -659,9 +659,9 @@ def poisson_blend(boundary: _F32, source: _F32, mask: _Bool, tol: typing.Support
     Perez et al. 2003 seamless cloning by multigrid-preconditioned CG (cpp/kernels/solvers/poisson.h). boundary, source float32 (H, W) or (H, W, C); mask bool (H, W). Returns (out, info).
     """
 
-def pushpull(image: _F32, hole: _Bool | _U8, depth: _F32 | None=None, depth_threshold: typing.SupportsFloat | typing.SupportsIndex=0.04, gamma: typing.SupportsFloat | typing.SupportsIndex=0.0, out: _F32 | None=None, holes_only: bool=False) -> tuple[numpy.typing.NDArray[numpy.float32], bool]:
+def pushpull(image: _F32, hole: _Bool | _U8, depth: _F32 | None=None, depth_threshold: typing.SupportsFloat | typing.SupportsIndex=0.04, gamma: typing.SupportsFloat | typing.SupportsIndex=0.0, out: _F32 | None=None, holes_only: bool=False, write: _Bool | _U8 | None=None) -> tuple[numpy.typing.NDArray[numpy.float32], bool]:
     """
-    Push-pull hole filling (cpp/kernels/inpaint/pushpull.h). image float32 (H, W) or (H, W, C); hole bool or uint8 (H, W), non-zero = hole; depth float32 (H, W) or None (classic); out: None (a new array) or a writeable float32 array of image's shape to fill (image itself with holes_only: in place); holes_only: write the hole pixels of out only. Returns (out, no_hole) where no_hole says the image had no hole.
+    Push-pull hole filling (cpp/kernels/inpaint/pushpull.h). image float32 (H, W) or (H, W, C); hole bool or uint8 (H, W), non-zero = hole; depth float32 (H, W) or None (classic); out: None (a new array) or a writeable float32 array of image's shape to fill (image itself with holes_only: in place); holes_only: write the hole pixels of out only; write: None or bool / uint8 (H, W), with holes_only: write only the hole pixels where it is set. Returns (out, no_hole) where no_hole says the image had no hole.
     """
 
 def pvm_slice(vertices: _F32, faces: _I32, face_view: _I32, n_views: typing.SupportsInt | typing.SupportsIndex, origin: collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], cell: collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], coarse: typing.SupportsInt | typing.SupportsIndex=32, sub: typing.SupportsInt | typing.SupportsIndex=4, clip_all: bool=False) -> dict[str, numpy.typing.NDArray[typing.Any]]:

@@ -314,6 +314,38 @@ def test_out_and_holes_only(depth_aware):
     assert np.array_equal(inplace[hole], full[hole]) and np.array_equal(inplace[~hole], img[~hole])
 
 
+@pytest.mark.parametrize("depth_aware", [False, True])
+def test_write_mask_fills_only_its_pixels(depth_aware):
+    # write: a part of the holes is filled (complete.py: the surface holes), the other hole pixels
+    # keep out's values; the fill is the full push-pull's, bit for bit, also in place and on the
+    # classic-fallback path of the far-ground scene.
+    img, depth, hole = _far_ground_scene() if depth_aware else _scene()
+    d = depth if depth_aware else None
+    gamma = 0.5 if depth_aware else 0.0
+    full = pushpull(img, hole, d, gamma=gamma)
+    write = hole & (np.arange(hole.shape[1])[None, :] % 3 != 0)  # two thirds of the hole pixels
+    base = np.where(hole[..., None] if img.ndim == 3 else hole, np.float32(-7.0), img)
+    expected = np.where(write[..., None] if img.ndim == 3 else write, full, base)
+    got = pushpull(img, hole, d, gamma=gamma, write=write, out=base.copy())
+    assert np.array_equal(got, expected)
+    inplace = base.copy()
+    assert pushpull(inplace, hole, d, gamma=gamma, write=write, out=inplace) is inplace
+    assert np.array_equal(inplace, expected)
+    copy = pushpull(base, hole, d, gamma=gamma, write=write)  # out: a copy of image
+    assert np.array_equal(copy, expected) and copy is not base
+    assert np.array_equal(pushpull(img, hole, d, gamma=gamma, write=np.zeros_like(hole)), img, equal_nan=True)
+    with pytest.raises(BadValueError, match="write: only with holes_only"):
+        _core.pushpull(img, hole, d, 0.04, gamma, write=write)
+    with pytest.raises(ShapeError, match="write"):
+        pushpull(img, hole, d, write=write[:, 1:])
+    with pytest.raises(DtypeError, match="write"):
+        pushpull(img, hole, d, write=[[True]])
+    with pytest.raises(BadValueError, match="shares memory with write"):
+        buf = base.copy()
+        alias = buf.reshape(-1).view(np.uint8)[:hole.size].reshape(hole.shape)  # write's bytes inside out
+        _core.pushpull(img, hole, d, 0.04, gamma, out=buf, holes_only=True, write=alias)
+
+
 def test_out_bad_input():
     img, depth, hole = _scene()
     with pytest.raises(ShapeError, match="out"):

@@ -26,11 +26,14 @@ PushPullOptions InpaintPushPullOptions(bool depth_aware, double depth_threshold,
 
 bool InpaintPushPull(const ImageView<const float>& image, const ImageView<const std::uint8_t>& hole,
                      const ImageView<const float>& depth, const PushPullOptions& options,
-                     const ImageView<float>& out) {
+                     const ImageView<float>& out, const ImageView<const std::uint8_t>& write) {
+  if (!write.Empty() && !options.holes_only) {
+    throw BadValueError("write: only with holes_only (the pixels outside the holes would be written)");
+  }
   if (const std::int64_t bad = CountNonFiniteOutsideHoles(image, hole)) {
     throw BadValueError("image: contains " + std::to_string(bad) + " NaN or infinite values outside the holes");
   }
-  const PushPullStatus status = PushPullKernel(image, hole, depth, options, out);
+  const PushPullStatus status = PushPullKernel(image, hole, depth, options, out, write);
   if (status == PushPullStatus::kNoValidPixel) {
     throw BadValueError("hole: every pixel is a hole; push-pull needs at least one pixel outside the holes");
   }

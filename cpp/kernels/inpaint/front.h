@@ -17,10 +17,12 @@ PushPullOptions InpaintPushPullOptions(bool depth_aware, double depth_threshold,
                                        bool holes_only = false);
 
 // PushPullKernel after checking `image` finite outside the holes (BadValueError naming "image");
-// BadValueError when every pixel is a hole. Returns true when the image had no hole.
+// BadValueError when every pixel is a hole, or when `write` (the hole pixels to write) is given
+// without options.holes_only. Returns true when the image had no hole.
 bool InpaintPushPull(const ImageView<const float>& image, const ImageView<const std::uint8_t>& hole,
                      const ImageView<const float>& depth, const PushPullOptions& options,
-                     const ImageView<float>& out);
+                     const ImageView<float>& out,
+                     const ImageView<const std::uint8_t>& write = ImageView<const std::uint8_t>());
 
 // PushPullMomentsKernel after checking every band finite outside the mask (BadValueError naming
 // "bands[i]"); BadValueError when every sample is masked.

@@ -320,6 +320,15 @@ struct OutSink {
   void End(int, int, const float*) const {}
 };
 
+// OutSink restricted to the pixels where `write` is non-zero (PushPullKernel's write mask).
+struct MaskedOutSink {
+  const ImageView<float>& out;
+  const ImageView<const std::uint8_t>& write;
+  void Row(int) const {}
+  float* Begin(int y, int x, float* scratch) const { return write.At(y, x) ? &out.At(y, x, 0) : scratch; }
+  void End(int, int, const float*) const {}
+};
+
 struct ChangeSink {
   const MetamericSynth& synth;
   void Row(int y) const { MetamericZeroRow(synth, y); }
@@ -558,19 +567,29 @@ PushPullStatus RunMoments(const MomentsSource& src, PushPullOptions o, const Ima
 
 }  // namespace
 
-PushPullStatus PushPullKernel(const ImageView<const float>& image,
-                              const ImageView<const std::uint8_t>& hole,
-                              const ImageView<const float>& depth, const PushPullOptions& options,
-                              const ImageView<float>& out) {
-  const InputSource src{image, hole, depth};
-  const OutSink sink{out};
-  switch (image.channels) {
+namespace {
+
+template <class Sink>
+PushPullStatus RunImage(const InputSource& src, const PushPullOptions& options, const ImageView<float>& out,
+                        const Sink& sink) {
+  switch (src.channels()) {
     case 1: return Run<1>(src, options, out, sink);
     case 2: return Run<2>(src, options, out, sink);
     case 3: return Run<3>(src, options, out, sink);
     case 4: return Run<4>(src, options, out, sink);
     default: return Run<0>(src, options, out, sink);
   }
+}
+
+}  // namespace
+
+PushPullStatus PushPullKernel(const ImageView<const float>& image,
+                              const ImageView<const std::uint8_t>& hole,
+                              const ImageView<const float>& depth, const PushPullOptions& options,
+                              const ImageView<float>& out, const ImageView<const std::uint8_t>& write) {
+  const InputSource src{image, hole, depth};
+  if (!write.Empty() && options.holes_only) return RunImage(src, options, out, MaskedOutSink{out, write});
+  return RunImage(src, options, out, OutSink{out});
 }
 
 PushPullStatus PushPullMomentsKernel(const ImageView<const float>* bands, int k,

@@ -92,10 +92,15 @@ enum class PushPullStatus {
   kClassicFallback,  // depth-aware found no data at the top: filled with the classic fallback
 };
 
+// write: empty, or (H, W) one byte per pixel with options.holes_only: only the hole pixels where
+// write is non-zero are written (the others' fill is computed and dropped), so a caller that fills
+// a part of the holes (inpaint/complete.py: the surface holes, not the holes at the background at
+// infinity, which are not data either) writes into its own image in place, with no second pass.
 PushPullStatus PushPullKernel(const ImageView<const float>& image,
                               const ImageView<const std::uint8_t>& hole,
                               const ImageView<const float>& depth, const PushPullOptions& options,
-                              const ImageView<float>& out);
+                              const ImageView<float>& out,
+                              const ImageView<const std::uint8_t>& write = ImageView<const std::uint8_t>());
 
 // The push-pull of the moments [X_0 .. X_{k-1}, X_0^2 .. X_{k-1}^2] of k bands (h, w, C) each
 // (metameric inpainting, dos Anjos et al. sec. 3.3.1), without storing them: the level-0 rows

@@ -51,7 +51,8 @@ def check_arrays(image: Any, hole: Any, depth: Any) -> tuple[np.ndarray, np.ndar
 
 
 def pushpull(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = None, *,
-             depth_threshold: float = DEPTH_THRESHOLD, gamma: float = GAMMA) -> np.ndarray:
+             depth_threshold: float = DEPTH_THRESHOLD, gamma: float = GAMMA, write: np.ndarray | None = None,
+             out: np.ndarray | None = None) -> np.ndarray:
     """Fill the holes of ``image`` by push-pull.
 
     image: float32 (H, W) or (H, W, C), any number of channels, finite outside the holes (the
@@ -62,7 +63,12 @@ def pushpull(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = Non
     fraction of the image's known-depth range) and ``gamma`` (>= 0) only apply to the depth-aware
     fill; classic is gamma = 0 (a pixel with any valid data keeps it).
 
-    Returns a new float32 array of image's shape, equal to ``image`` outside the holes.
+    write: None, or a bool (H, W) mask of the hole pixels to fill (the other hole pixels are not
+    data and keep their values): they are written into ``out`` (default: a copy of ``image``;
+    ``out`` may be ``image`` itself, filled in place) and nothing else is.
+
+    Returns a new float32 array of image's shape, equal to ``image`` outside the holes (with
+    ``write``: ``out``).
     Raises ShapeError/DtypeError for bad arrays, BadValueError for non-finite pixels outside the
     holes, bad options or an all-hole image. When the depth test leaves a hole with no data at
     any scale, that hole falls back to the classic fill (docs/inpaint.md), it does not raise.
@@ -70,11 +76,15 @@ def pushpull(image: np.ndarray, hole: np.ndarray, depth: np.ndarray | None = Non
     from ibrtools import _core
 
     image, hole, depth = check_arrays(image, hole, depth)
-    if depth is None:
-        out, _ = _core.pushpull(image, hole, None, 0.0, 0.0)
-    else:
-        out, _ = _core.pushpull(image, hole, depth, float(depth_threshold), float(gamma))
-    return out
+    threshold, g = (0.0, 0.0) if depth is None else (float(depth_threshold), float(gamma))
+    if write is None:
+        filled, _ = _core.pushpull(image, hole, depth, threshold, g)
+        return filled
+    if not isinstance(write, np.ndarray):
+        raise DtypeError(f"write: expected a bool numpy array of shape (H, W), got {type(write).__name__}")
+    target = image.copy() if out is None else out
+    _core.pushpull(image, hole, depth, threshold, g, out=target, holes_only=True, write=np.ascontiguousarray(write))
+    return target
 
 
 def dilate(mask: np.ndarray, r: int) -> np.ndarray:
