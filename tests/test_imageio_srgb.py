@@ -156,3 +156,32 @@ def test_read_image_decodes_every_code_as_the_curve_does(tmp_path, dtype):
     scaled = rgba.astype(np.float32) / np.float32(n - 1)
     np.testing.assert_array_equal(got[..., :3], srgb_to_linear(scaled[..., :3]))
     np.testing.assert_array_equal(got[..., 3], scaled[..., 3])
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_lookup_codes_is_the_table_gather(dtype):
+    # _core.lookup_codes (cpp/ibr/colour.h LookupCodes) against numpy's take, on 1 and 2 threads.
+    from ibrtools.errors import DtypeError, ShapeError
+
+    rng = np.random.default_rng(3)
+    n = np.iinfo(dtype).max + 1
+    table = rng.normal(size=n).astype(np.float32)
+    codes = rng.integers(0, n, (301, 257, 3)).astype(dtype)
+    codes.flat[:2] = (0, n - 1)
+    for threads in (1, 2):
+        _core.set_num_threads(threads)
+        try:
+            got = _core.lookup_codes(codes, table)
+        finally:
+            _core.set_num_threads(0)
+        assert got.dtype == np.float32 and got.shape == codes.shape
+        np.testing.assert_array_equal(got, np.take(table, codes))
+    assert _core.lookup_codes(codes[:0], table).shape == (0, 257, 3)
+    with pytest.raises(DtypeError, match="codes: expected a uint8 or uint16 array, got int32"):
+        _core.lookup_codes(codes.astype(np.int32), table)
+    with pytest.raises(ShapeError, match="codes: expected a C-contiguous array"):
+        _core.lookup_codes(codes[..., :2], table)
+    with pytest.raises(ShapeError, match="table"):
+        _core.lookup_codes(codes, table[:-1])  # one entry per code
+    with pytest.raises(DtypeError, match="table"):
+        _core.lookup_codes(codes, table.astype(np.float64))

@@ -123,6 +123,7 @@ OVERRIDES: dict[str, dict[str, str]] = {
                                   "noise": "collections.abc.Sequence[_F32]", "flow": "_F32 | _F64 | None"},
     "metameric_encode": {"image": "_F32", "return": "_F32"},
     "linear_to_srgb": {"values": "_F32", "return": "_F32"},
+    "lookup_codes": {"codes": "_U8 | _U16", "table": "_F32", "return": "_F32"},
     "srgb_to_linear": {"values": "_F32", "return": "_F32"},
     "srgb_encode_unclipped": {"values": "_F32", "return": "_F32"},
     "metameric_fill_holes": {"image": "_F32", "hole": "_Bool | _U8", "base": "_F32", "change": "_F32",

@@ -125,6 +125,41 @@ void BindCore(py::module_& m) {
       "float32 array of any shape, clamped to [0, 1] first, NaN -> 0; within 1e-6 (relative) of the exact "
       "curve. Returns a new float32 array of the same shape.");
   m.def(
+      "lookup_codes",
+      [](py::handle codes_obj, py::handle table_obj) {
+        if (!py::isinstance<py::array>(codes_obj)) {
+          throw DtypeError("codes: expected a numpy uint8 or uint16 array, got " +
+                           std::string(py::str(py::type::of(codes_obj).attr("__name__"))));
+        }
+        const py::array codes = py::reinterpret_borrow<py::array>(codes_obj);
+        const bool u8 = codes.dtype().equal(py::dtype::of<std::uint8_t>());
+        if (!u8 && !codes.dtype().equal(py::dtype::of<std::uint16_t>())) {
+          throw DtypeError("codes: expected a uint8 or uint16 array, got " + std::string(py::str(codes.dtype())) +
+                           " " + DescribeShape(codes));
+        }
+        if (!(codes.flags() & py::array::c_style)) {
+          throw ShapeError("codes: expected a C-contiguous array (use numpy.ascontiguousarray)");
+        }
+        const py::ssize_t entries = u8 ? 256 : 65536;
+        const auto table = CheckArray<float>(table_obj, "table", {{"N", entries}});
+        py::array_t<float> out(std::vector<py::ssize_t>(codes.shape(), codes.shape() + codes.ndim()));
+        const std::int64_t n = codes.size();
+        float* o = out.mutable_data();
+        const float* t = table.data();
+        const void* c = codes.data();
+        py::gil_scoped_release release;
+        if (u8) {
+          LookupCodes(static_cast<const std::uint8_t*>(c), t, o, n);
+        } else {
+          LookupCodes(static_cast<const std::uint16_t*>(c), t, o, n);
+        }
+        return out;
+      },
+      py::arg("codes"), py::arg("table"),
+      "The value of every stored code (cpp/ibr/colour.h LookupCodes; Python: ibrtools.imageio.read_image): "
+      "codes uint8 or uint16, C-contiguous, any shape; table float32 (256,) for uint8 or (65536,) for uint16. "
+      "Returns a new float32 array of the codes' shape, out[i] = table[codes[i]].");
+  m.def(
       "srgb_encode_unclipped", [](py::handle values) { return MapValues(values, EncodeUnclippedActiveIsa); },
       py::arg("values"),
       "The sRGB encoding of linear colour for blending in sRGB space (cpp/ibr/colour.h "

@@ -73,6 +73,24 @@ void ParallelValues(const float* in, float* out, std::int64_t n, Run run) {
 void LinearToSrgb(const float* in, float* out, std::int64_t n) { ParallelValues(in, out, n, EncodeUnitRun); }
 
 namespace {
+template <class T>
+void LookupCodesT(const T* codes, const float* table, float* out, std::int64_t n) {
+  const std::int64_t chunk = std::int64_t(1) << 16;  // values per task
+  ParallelFor((n + chunk - 1) / chunk, 1, [&](std::int64_t c0, std::int64_t c1) {
+    const std::int64_t i1 = std::min(n, c1 * chunk);
+    for (std::int64_t i = c0 * chunk; i < i1; ++i) out[i] = table[codes[i]];
+  });
+}
+}  // namespace
+
+void LookupCodes(const std::uint8_t* codes, const float* table, float* out, std::int64_t n) {
+  LookupCodesT(codes, table, out, n);
+}
+void LookupCodes(const std::uint16_t* codes, const float* table, float* out, std::int64_t n) {
+  LookupCodesT(codes, table, out, n);
+}
+
+namespace {
 // The encode of LinearToSrgbUnclipped (colour.h). The curve per value (Encode) is compute-bound
 // (two polynomials: 17.6 ms of one core per 1080p RGB view). Linear colour of LDR images lies in
 // [0, 1], so there the curve is read from a table indexed by the float's bits: piecewise linear with

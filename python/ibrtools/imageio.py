@@ -287,13 +287,15 @@ def read_image(path: str | os.PathLike, *, alpha: bool = False, size: tuple[int,
     """Linear float32 colour (H, W, 3), or (H, W, 4) with ``alpha=True`` (alpha is never
     sRGB-decoded). Colour is straight, not multiplied by alpha. Grey images are expanded to
     RGB; missing alpha reads as 1. ``size`` (width, height): as :func:`read_pixels`."""
+    from ibrtools import _core
+
     arr, fmt = read_pixels(path, size)
     c = arr.shape[2]
     if fmt in ("uint8", "uint16"):
         # The decode of every code, looked up: the same values as decoding code / (2^bits - 1)
         # pixel by pixel, in one gather.
         codes = arr[..., :3] if c >= 3 else np.repeat(arr[..., :1], 3, axis=2)
-        rgb = np.take(_srgb_decode_table(fmt), codes)
+        rgb = _core.lookup_codes(np.ascontiguousarray(codes), _srgb_decode_table(fmt))
         if alpha and c in (2, 4):
             scaled = arr.astype(np.float32) / (255.0 if fmt == "uint8" else 65535.0)
     else:
