@@ -124,6 +124,8 @@ OVERRIDES: dict[str, dict[str, str]] = {
     "metameric_encode": {"image": "_F32", "return": "_F32"},
     "linear_to_srgb": {"values": "_F32", "return": "_F32"},
     "lookup_codes": {"codes": "_U8 | _U16", "table": "_F32", "return": "_F32"},
+    "valid_depth_order_stats": {"depth": "_F32", "quantiles": "collections.abc.Sequence[float]",
+                                "return": "tuple[int, float, float, list[int], list[float]]"},
     "srgb_to_linear": {"values": "_F32", "return": "_F32"},
     "srgb_encode_unclipped": {"values": "_F32", "return": "_F32"},
     "metameric_fill_holes": {"image": "_F32", "hole": "_Bool | _U8", "base": "_F32", "change": "_F32",

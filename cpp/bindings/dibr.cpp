@@ -17,6 +17,7 @@
 #include "ibr/errors.h"
 #include "ibr/simd.h"
 #include "kernels/dibr/blend.h"
+#include "kernels/dibr/depth_stats.h"
 #include "kernels/dibr/forward_warp.h"
 #include "kernels/dibr/front.h"
 #include "module.h"
@@ -213,6 +214,30 @@ void BindDibr(py::module_& m) {
       "warp_isa", [] { return std::string(UseAvx2() ? "avx2" : "baseline"); },
       "Instruction set the engine's plain hot loops (set_warp_isa) use now: 'avx2' or 'baseline'.");
   m.def("cpu_has_avx2", &CpuHasAvx2, "Whether this CPU has AVX2 (run-time check).");
+  m.def(
+      "valid_depth_order_stats",
+      [](py::handle depth_obj, py::sequence quantiles_obj) {
+        const auto depth = CheckArray<float>(depth_obj, "depth", {{"H", -1}, {"W", -1}});
+        std::vector<double> quantiles;
+        for (const py::handle q_obj : quantiles_obj) {
+          const double q = q_obj.cast<double>();
+          if (!(q >= 0.0 && q <= 1.0)) throw BadValueError("quantiles: expected values in [0, 1], got " + std::to_string(q));
+          quantiles.push_back(q);
+        }
+        DepthOrderStats s;
+        {
+          py::gil_scoped_release release;
+          s = ValidDepthOrderStats(depth.data(), depth.size(), quantiles);
+        }
+        py::list ranks, values;
+        for (const std::int64_t r : s.ranks) ranks.append(r);
+        for (const float v : s.values) values.append(v);
+        return py::make_tuple(s.count, s.min, s.max, ranks, values);
+      },
+      py::arg("depth"), py::arg("quantiles"),
+      "Order statistics of a depth map's valid values, finite and > 0 (cpp/kernels/dibr/depth_stats.h; Python: "
+      "ibrtools.dibr.view_selection.depth_range): (count, min, max, ranks, values), per quantile q the two ranks "
+      "numpy.quantile's linear method reads (floor((count - 1) q) and the next) and their values, exactly.");
 
   m.attr("WARP_SURFACE") = int(kMaskSurface);
   m.attr("WARP_DISOCCLUDED") = int(kMaskDisoccluded);

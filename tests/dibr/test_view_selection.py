@@ -8,6 +8,7 @@ import time
 import numpy as np
 import pytest
 
+from ibrtools import _core
 from ibrtools.camera import Camera, look_at
 from ibrtools.errors import BadValueError, InputError
 from ibrtools.dibr import view_selection as vs
@@ -102,6 +103,47 @@ def test_speed_is_not_per_pixel():
     t0 = time.perf_counter()
     vs.select_views(target, R, cams, [R] * 40)
     assert time.perf_counter() - t0 < 0.5
+
+
+def _numpy_depth_range(d):
+    # The definition, in numpy: np.quantile of the valid values (an independent reference for the
+    # C++ order statistics, cpp/kernels/dibr/depth_stats.h).
+    v = d[np.isfinite(d) & (d > 0)]
+    lo, hi = np.quantile(v, [vs.OUTLIER_QUANTILE, 1 - vs.OUTLIER_QUANTILE])
+    low, high = float(lo) / vs.OUTLIER_FACTOR, float(hi) * vs.OUTLIER_FACTOR
+    near = float(v[v >= low].min())
+    far = float(v[v <= high].max())
+    return (low, high), vs.DepthRange(near * (1 - vs.RANGE_MARGIN), far * (1 + vs.RANGE_MARGIN))
+
+
+@pytest.mark.asan
+@pytest.mark.tsan
+@pytest.mark.kernel
+def test_depth_range_is_numpys_quantile_definition_bit_for_bit():
+    rng = np.random.default_rng(11)
+    cases = [rng.uniform(0.1, 10, (1, n)).astype(np.float32) for n in (1, 2, 3, 99, 100, 101, 4097)]
+    cases.append(np.full((30, 40), 2.5, np.float32))  # one value: every rank in one bin
+    cases.append(np.r_[np.full(1000, 1.0), np.full(5, 65.5), [0.001]].astype(np.float32).reshape(2, -1))
+    wall = (3.0 + rng.normal(0, 1e-4, (700, 1000))).astype(np.float32)  # a plane: > 2^19 values in a bin
+    wall[:3] = 65.5
+    cases.append(wall)
+    odd = rng.lognormal(0, 3, (300, 400)).astype(np.float32)
+    odd[rng.random(odd.shape) < 0.3] = 0
+    odd[0, :6] = [np.nan, np.inf, -np.inf, -1.0, 1e-42, 3e38]  # invalid, a denormal and float max
+    cases.append(odd)
+    for d in cases:
+        limits, expected = _numpy_depth_range(d)
+        v = d[np.isfinite(d) & (d > 0)]
+        assert vs.outlier_limits(v) == limits
+        for threads in (1, 2):
+            _core.set_num_threads(threads)
+            try:
+                assert vs.depth_range(d) == expected
+            finally:
+                _core.set_num_threads(0)
+    with pytest.raises(BadValueError, match="quantiles: expected values in"):
+        _core.valid_depth_order_stats(odd, [1.5])
+    assert _core.valid_depth_order_stats(np.zeros((2, 2), np.float32), [0.5])[0] == 0
 
 
 def test_depth_range_and_bad_input():

@@ -75,12 +75,35 @@ class DepthRange:
                                 f"[{self.near}, {self.far}]")
 
 
+def _order_stats(depth: np.ndarray) -> tuple[int, float, float, tuple[float, float]]:
+    """(count, min, max, (1st, 99th percentile)) of the valid values (finite, > 0) of ``depth``
+    (any shape): the percentiles as ``np.quantile(valid, [q, 1 - q])`` (linear method) gives them,
+    bit for bit, from the exact order statistics of the C++ kernel (cpp/kernels/dibr/depth_stats.h,
+    a radix select on the float bits: ~6 ms for a 1080p map where the partition took ~25)."""
+    from ibrtools import _core
+
+    d = np.ascontiguousarray(depth, np.float32)
+    d = d.reshape(1, -1) if d.ndim != 2 else d
+    q = np.array([OUTLIER_QUANTILE, 1.0 - OUTLIER_QUANTILE])
+    n, vmin, vmax, _, values = _core.valid_depth_order_stats(d, q.tolist())
+    if n == 0:
+        return 0, 0.0, 0.0, (math.nan, math.nan)
+    # numpy's _quantile and _lerp, in its dtypes: float64 virtual ranks and weights, float32 values.
+    virtual = (n - 1) * q
+    previous = np.where(virtual >= n - 1, -1.0, np.floor(virtual))
+    gamma = virtual - previous
+    a, b = np.array(values[0::2], np.float32), np.array(values[1::2], np.float32)
+    diff = b - a
+    lerp = np.where(gamma >= 0.5, b - diff * (1 - gamma), a + diff * gamma)
+    return int(n), float(vmin), float(vmax), (float(lerp[0]), float(lerp[1]))
+
+
 def outlier_limits(valid: np.ndarray) -> tuple[float, float]:
     """(low, high) of the valid depth values ``valid`` (finite, > 0; 1-D): values below low (half
     the 1st percentile) or above high (twice the 99th) are outliers. :func:`depth_range` leaves
     them out; the import stage warns about far ones (pipeline/importing.py ``depth_outlier_warning``)."""
-    lo, hi = np.quantile(valid, [OUTLIER_QUANTILE, 1.0 - OUTLIER_QUANTILE])
-    return float(lo) / OUTLIER_FACTOR, float(hi) * OUTLIER_FACTOR
+    lo, hi = _order_stats(valid)[3]
+    return lo / OUTLIER_FACTOR, hi * OUTLIER_FACTOR
 
 
 def depth_range(depth: np.ndarray, name: str = "depth") -> DepthRange:
@@ -90,16 +113,16 @@ def depth_range(depth: np.ndarray, name: str = "depth") -> DepthRange:
     with every target 20 times smaller); on depth without such outliers, [min, max].
     InputError when no pixel is valid."""
     d = np.asarray(depth)
-    ok = np.isfinite(d) & (d > 0)
-    if not ok.any():
+    n, near, far, (lo, hi) = _order_stats(d)
+    if n == 0:
         raise InputError(f"{name}: no valid depth (every pixel is 0, NaN or infinite)")
-    v = d[ok]
-    low, high = outlier_limits(v)
-    near, far = float(v.min()), float(v.max())
-    if near < low:
-        near = float(v[v >= low].min())
-    if far > high:
-        far = float(v[v <= high].max())
+    low, high = lo / OUTLIER_FACTOR, hi * OUTLIER_FACTOR
+    if near < low or far > high:  # outliers: the extremes of the values between the limits
+        v = d[np.isfinite(d) & (d > 0)]
+        if near < low:
+            near = float(v[v >= low].min())
+        if far > high:
+            far = float(v[v <= high].max())
     # Widened by RANGE_MARGIN on each side: a view of one plane (near = far) still bounds a
     # frustum with a volume, and samples exactly on the surface are not lost to rounding.
     return DepthRange(near * (1 - RANGE_MARGIN), far * (1 + RANGE_MARGIN))
