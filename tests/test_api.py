@@ -187,6 +187,21 @@ def test_render_prepares_once(scene, monkeypatch):
     assert len(created) == 4
 
 
+def test_render_cache_and_lazy_meshes(scene_dir):
+    # A loaded scene's meshes are read when a method asks: dibr never does, reference once; the
+    # cache compares the mapping and its version, so reading a mesh does not prepare again, and
+    # replacing one does.
+    s = ibrtools.load_scene(scene_dir)
+    assert ibrtools.render(s, "t000", method="dibr", inputs=2).prepared
+    assert "not read yet" in repr(s.meshes)
+    assert not ibrtools.render(s, "t000", method="dibr", inputs=2).prepared
+    assert ibrtools.render(s, "t000", method="reference").prepared
+    assert "not read yet" not in repr(s.meshes)
+    assert not ibrtools.render(s, "t000", method="reference").prepared
+    s.meshes["ground_truth"] = s.meshes["ground_truth"]  # set again: another mesh as far as caches know
+    assert ibrtools.render(s, "t000", method="reference").prepared
+
+
 def test_render_cache_goes_with_the_scene(scene_dir):
     s = ibrtools.load_scene(scene_dir)
     ibrtools.render(s, "t000", method="reference")

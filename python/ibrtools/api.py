@@ -61,7 +61,7 @@ import numpy.typing as npt
 from ibrtools.camera import Camera
 from ibrtools.errors import BadValueError, DtypeError, FormatError, MissingFileError
 from ibrtools.formats.native import SCENE_FILE
-from ibrtools.scene import Scene
+from ibrtools.scene import LazyMeshes, Scene
 from ibrtools import methods
 from ibrtools.params import MethodParams
 from ibrtools.synth import scene_spec as synth_scene_spec
@@ -360,8 +360,14 @@ class _Cache:
 
     def method(self, scene: Scene, name: str, params: dict[str, Any]) -> tuple[Any, dict[str, float], bool]:
         key = (name, _freeze(params))
-        # The objects themselves (held by the entry, so their ids cannot be reused meanwhile).
-        signature = (tuple(scene.views), tuple(scene.meshes.items()), scene.root)
+        # The objects themselves (held by the entry, so their ids cannot be reused meanwhile); a
+        # scene's LazyMeshes by its identity and version, so that no mesh is read to compare.
+        m = scene.meshes
+        signature: tuple[Any, ...]
+        if isinstance(m, LazyMeshes):
+            signature = (tuple(scene.views), (("", m),), m.version, scene.root)
+        else:
+            signature = (tuple(scene.views), tuple(m.items()), None, scene.root)
         hashable = key[1] is not _UNHASHABLE
         entry = self.entries.get(key) if hashable else None
         if entry is not None and _same(entry[0], signature):
@@ -395,11 +401,12 @@ def _cache_of(scene: Scene) -> _Cache:
 
 
 def _same(a: tuple[Any, ...], b: tuple[Any, ...]) -> bool:
-    views_a, meshes_a, root_a = a
-    views_b, meshes_b, root_b = b
+    views_a, meshes_a, version_a, root_a = a
+    views_b, meshes_b, version_b, root_b = b
     return (len(views_a) == len(views_b) and all(x is y for x, y in zip(views_a, views_b))
             and len(meshes_a) == len(meshes_b)
-            and all(ka == kb and ma is mb for (ka, ma), (kb, mb) in zip(meshes_a, meshes_b)) and root_a == root_b)
+            and all(ka == kb and ma is mb for (ka, ma), (kb, mb) in zip(meshes_a, meshes_b))
+            and version_a == version_b and root_a == root_b)
 
 
 def _freeze(value: Any) -> Any:

@@ -229,6 +229,18 @@ def _has_polygons(path: Path) -> bool:
     return False
 
 
+def check_mesh_path(path: str | os.PathLike) -> Path:
+    """``path`` as a Path when it is a file of a mesh format :func:`read_mesh` reads
+    (MissingFileError / FormatError otherwise); the file itself is not read."""
+    path = Path(path)
+    if not path.is_file():
+        raise MissingFileError(f"{path}: no such mesh file")
+    ext = path.suffix.lower()
+    if ext not in MESH_EXTS:
+        raise FormatError(f"{path}: unknown mesh extension {ext!r} (expected one of {MESH_EXTS})")
+    return path
+
+
 def read_mesh(path: str | os.PathLike, kind: str = "ground_truth", *,
               texture: str | os.PathLike | None = None) -> Mesh:
     """Read a PLY or OBJ (+ MTL, textures) mesh, and its sidecar ``<path>.attrs.npz`` if any.
@@ -236,12 +248,8 @@ def read_mesh(path: str | os.PathLike, kind: str = "ground_truth", *,
     ``texture``: an image used as the albedo of every face, for OBJs that name no texture
     (spot ships ``spot_texture.png`` without an MTL); it replaces textures from the MTL.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise MissingFileError(f"{path}: no such mesh file")
+    path = check_mesh_path(path)
     ext = path.suffix.lower()
-    if ext not in MESH_EXTS:
-        raise FormatError(f"{path}: unknown mesh extension {ext!r} (expected one of {MESH_EXTS})")
     tex_image = None
     if texture is not None:
         tex_image = read_image(texture)  # MissingFileError / FormatError with its own message

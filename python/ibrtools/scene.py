@@ -15,7 +15,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator, Mapping, MutableMapping
 
 import numpy as np
 
@@ -186,6 +186,43 @@ def _check_image(v: np.ndarray, name: str, camera: Camera, what: str) -> np.ndar
     return np.ascontiguousarray(v)
 
 
+class LazyMeshes(MutableMapping[str, Mesh]):
+    """Meshes by kind, each read the first time it is asked for (``loaders``: kind -> a callable
+    that returns the Mesh, picklable for Dask workers): a scene loaded from disk reads no mesh a
+    method, stage or save does not ask for (the frames of a video rendered by DIBR never read
+    their ground-truth meshes). Otherwise a dict of meshes: keys in order, meshes set and deleted."""
+
+    def __init__(self, loaders: Mapping[str, Callable[[], Mesh]]):
+        self._items: dict[str, Mesh | Callable[[], Mesh]] = dict(loaders)
+        self.version = 0  # counts the meshes set and deleted (not the ones read): caches compare it
+
+    def __getitem__(self, kind: str) -> Mesh:
+        item = self._items[kind]
+        if isinstance(item, Mesh):
+            return item
+        mesh = item()  # two threads asking at once read it twice, and keep one: harmless
+        self._items[kind] = mesh
+        return mesh
+
+    def __setitem__(self, kind: str, mesh: Mesh) -> None:
+        self._items[kind] = mesh
+        self.version += 1
+
+    def __delitem__(self, kind: str) -> None:
+        del self._items[kind]
+        self.version += 1
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._items)
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def __repr__(self) -> str:
+        state = {k: ("read" if isinstance(v, Mesh) else "not read yet") for k, v in self._items.items()}
+        return f"LazyMeshes({state})"
+
+
 @dataclass(eq=False)
 class Scene:
     """Input views, named targets (cameras to render, with ground truth when known), camera
@@ -194,7 +231,8 @@ class Scene:
     views: list[View] = field(default_factory=list)
     targets: list[View] = field(default_factory=list)
     paths: dict[str, list[Camera]] = field(default_factory=dict)
-    meshes: dict[str, Mesh] = field(default_factory=dict)
+    # A dict, or LazyMeshes (a scene loaded from disk: each mesh read when first asked for).
+    meshes: MutableMapping[str, Mesh] = field(default_factory=dict)
     units: str = "unknown"
     source: dict = field(default_factory=dict)
     # Lights the views were rendered with (synthetic scenes), as scene.json stores them:

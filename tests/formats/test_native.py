@@ -58,6 +58,36 @@ def test_images_load_lazily_and_report_their_file(tmp_path, rng):
         load(tmp_path / "s")
 
 
+def test_meshes_load_lazily_and_report_their_file(tmp_path, rng):
+    # A mesh is read when first asked for (a video's frames rendered by DIBR never read theirs);
+    # a missing file is still found when the scene is loaded, a corrupt one names itself on use.
+    import pickle
+
+    from ibrtools.mesh import Mesh
+    from ibrtools.scene import LazyMeshes
+
+    s = small_scene(rng)
+    s.meshes["ground_truth"] = Mesh(vertices=np.array([[0, 0, 3], [1, 0, 3], [0, 1, 3]], np.float32),
+                                    faces=np.array([[0, 1, 2]], np.int32))
+    native.save(s, tmp_path / "s")
+    t = load(tmp_path / "s")
+    assert isinstance(t.meshes, LazyMeshes) and "not read yet" in repr(t.meshes)
+    assert list(t.meshes) == ["ground_truth"] and len(t.meshes) == 1 and "reconstructed" not in t.meshes
+    again = pickle.loads(pickle.dumps(t)).meshes  # Dask workers get scenes pickled, unread meshes too
+    m = t.meshes["ground_truth"]
+    assert t.meshes["ground_truth"] is m and "read" in repr(t.meshes) and np.array_equal(m.faces, [[0, 1, 2]])
+    assert np.array_equal(again["ground_truth"].vertices, m.vertices)
+    assert dict(t.meshes) == {"ground_truth": m} and t.meshes.get("reconstructed") is None
+    f = tmp_path / "s" / json.loads((tmp_path / "s/scene.json").read_text())["meshes"]["ground_truth"]["path"]
+    f.write_bytes(b"garbage")
+    t = load(tmp_path / "s")           # the file's existence is checked at load, its content on use
+    with pytest.raises(FormatError, match=f.name):
+        _ = t.meshes["ground_truth"]
+    f.unlink()
+    with pytest.raises(MissingFileError, match=f.name):
+        load(tmp_path / "s")
+
+
 def test_save_replaces_atomically_and_refuses_foreign_dirs(tmp_path, rng):
     s = small_scene(rng)
     native.save(s, tmp_path / "s")

@@ -9,6 +9,7 @@ into place, so a reader never sees a half-written scene.
 """
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -19,7 +20,7 @@ from ibrtools.camera import Camera
 from ibrtools.errors import BadValueError, FormatError, MissingFileError
 from ibrtools.imageio import read_depth, read_image, read_mask, write_depth, write_image
 from ibrtools.outputs import mkdtemp_beside
-from ibrtools.scene import Scene, View
+from ibrtools.scene import LazyMeshes, Scene, View
 from ibrtools.formats._common import document_errors, FileLoader, read_json
 
 NAME = "native"
@@ -226,13 +227,15 @@ def load(path: Path, options: dict | None = None) -> Scene:
         if not isinstance(cams, list) or not cams:
             raise FormatError(f"{f}: paths.{name}: expected a non-empty list of cameras")
         paths[name] = [Camera.from_dict(c, f"{f}: paths.{name}[{i}]") for i, c in enumerate(cams)]
-    meshes = {}
+    loaders = {}
     for kind, m in (doc.get("meshes") or {}).items():
         if not isinstance(m, dict) or "path" not in m:
             raise FormatError(f"{f}: meshes.{kind}: expected an object with 'path'")
-        from ibrtools.meshio import read_mesh
+        from ibrtools.meshio import check_mesh_path, read_mesh
 
-        meshes[kind] = read_mesh(root / m["path"], kind=kind)
+        check_mesh_path(root / m["path"])  # a missing file or unknown format stops the load; the rest is read on use
+        loaders[kind] = functools.partial(read_mesh, root / m["path"], kind=kind)
+    meshes = LazyMeshes(loaders)
     scene = Scene(views=views, targets=targets, paths=paths, meshes=meshes,
                   units=str(doc.get("units", "unknown")), source=dict(doc.get("source") or {}),
                   lights=list(doc.get("lights") or []), shading=dict(doc.get("shading") or {}),

@@ -231,6 +231,7 @@ _FRAME_BPP = {"reference": 120, "dibr": 64, "warp": 64, "depthwarp": 120, "tm": 
 
 
 _TRIANGLE_BYTES = 160   # mesh arrays + Embree BVH per triangle
+_MESHLESS = ("dibr", "warp")  # methods that never read the scene's meshes (nor count them)
 
 
 _BASE_BYTES = 400 << 20  # the interpreter, numpy, OpenImageIO, open3d, the engine, loaded once
@@ -238,10 +239,12 @@ _BASE_BYTES = 400 << 20  # the interpreter, numpy, OpenImageIO, open3d, the engi
 
 def estimate_memory(job: Job, method: str) -> dict:
     """A coarse upper estimate of the peak bytes of rendering ``job`` with ``method``, from the
-    camera sizes alone (no image is loaded): {"total", "inputs", "frame", "mesh", "base"}."""
+    camera sizes alone (no image is loaded) and the faces of the meshes the method reads:
+    {"total", "inputs", "frame", "mesh", "base"}."""
     in_px = sum(v.camera.width * v.camera.height for v in job.scene.views)
     out_px = max((f.camera.width * f.camera.height for f in job.frames), default=0)
-    tris = sum(len(m.faces) for m in (job.scene.meshes or {}).values() if hasattr(m, "faces"))
+    meshes = {} if method in _MESHLESS else (job.scene.meshes or {})  # LazyMeshes: read here only if used
+    tris = sum(len(m.faces) for m in meshes.values() if hasattr(m, "faces"))
     est = {"inputs": in_px * _INPUT_BPP.get(method, 64), "frame": out_px * _FRAME_BPP.get(method, 600),
            "mesh": tris * _TRIANGLE_BYTES, "base": _BASE_BYTES}
     est["total"] = sum(est.values())
