@@ -51,7 +51,8 @@ where a protocol below says otherwise.
   r_0, r_50 for A (the data set's depth) and B (MVS depth); MVS depth vs the data set's depth
   (the importer's de-quantised z) on the input views: % of the pixels with GT depth whose MVS
   depth is within 1 % (unknown counts as a miss), % of kept pixels (MVS and GT known) off by more
-  than 5 %, completeness (% of GT pixels with MVS depth), and MVS depth on background pixels.
+  than 5 %, completeness (% of GT pixels with MVS depth), and MVS depth on background pixels (a surface's
+  or the background's, +inf).
 """
 from __future__ import annotations
 
@@ -417,12 +418,13 @@ def lego_depth_accuracy(with_depth: Path, mvs_scene: Path) -> dict:
 
     gt_scene = load_scene(with_depth)
     mvs = mvs_arrays(load_npz(stage_output(mvs_scene, "mvs")), "depth")
-    hit = total = kept = off5 = bg = bg_given = 0
+    hit = total = kept = off5 = bg = bg_given = bg_inf = 0
     per = {}
     for n, z in mvs.items():
         g = gt_scene.view(n).depth
         known = np.isfinite(g) & (g > 0)  # the background is +inf
-        k = known & (z > 0)
+        surface = np.isfinite(z) & (z > 0)  # MVS writes +inf outside an RGBA capture's masks: the background
+        k = known & surface
         rel = np.abs(z - g) / np.where(known, g, 1)
         per[n] = float(100.0 * (k & (rel <= 0.01)).sum() / known.sum())
         hit += int((k & (rel <= 0.01)).sum())
@@ -430,9 +432,11 @@ def lego_depth_accuracy(with_depth: Path, mvs_scene: Path) -> dict:
         kept += int(k.sum())
         off5 += int((k & (rel > 0.05)).sum())
         bg += int((~known).sum())
-        bg_given += int((~known & (z > 0)).sum())
+        bg_given += int((~known & surface).sum())
+        bg_inf += int((~known & np.isposinf(z)).sum())
     return {"within1": 100.0 * hit / total, "off5_kept": 100.0 * off5 / max(kept, 1),
             "completeness": 100.0 * kept / total, "background_given": 100.0 * bg_given / max(bg, 1),
+            "background_inf": 100.0 * bg_inf / max(bg, 1),
             "views": len(mvs), "per_view_within1": per}
 
 
@@ -507,8 +511,9 @@ def section_lego(data: Path, keep: Path, reuse: bool, log: list[str]) -> tuple[s
                      f"{100 * r['coverage']:.2f} |")
     L += ["", f"MVS depth against the data set's on the {acc['views']} input views: **{acc['within1']:.2f} %** of the "
               f"pixels with GT depth within 1 % (unknown = miss), {acc['off5_kept']:.2f} % of the kept pixels off by more "
-              f"than 5 %, completeness {acc['completeness']:.2f} %; {acc['background_given']:.2f} % of the background "
-              "pixels (no GT depth) were given a depth. Within 1 % per view: min "
+              f"than 5 %, completeness {acc['completeness']:.2f} %; of the background pixels (no GT depth) "
+              f"{acc['background_given']:.2f} % were given a surface's depth and {acc['background_inf']:.2f} % the "
+              "background's (+inf, outside the views' masks). Within 1 % per view: min "
               f"{min(acc['per_view_within1'].values()):.1f} %, median {statistics.median(acc['per_view_within1'].values()):.1f} %,"
               f" max {max(acc['per_view_within1'].values()):.1f} %.",
           f"mvs stage ({n_views} views, 800×800): {st.get('seconds', float('nan')):.1f} s (photometric "

@@ -76,7 +76,7 @@ class Stage:
 STAGES: dict[str, Stage] = {s.name: s for s in (
     Stage("mvs", ("scene",), ("mvs.npz",), frozenset({"dibr", "warp", "tm", "ulr", "pvm", "hybrid"}),
           "per-view depth, normal and confidence by PatchMatch multi-view stereo, for the views without depth "
-          "(photographs and cameras; docs/mvs.md)"),
+          "(photographs and cameras; docs/mvs.md)", version=2),
     Stage("mesh", ("scene", "mvs"), ("mesh.npz",), frozenset({"tm", "ulr", "pvm", "hybrid"}),
           "global mesh: reconstructed mesh, else TSDF fusion of the depth maps, else ground truth; "
           "dense (per-vertex statistics) and render (G-buffer, atlas) versions of the same surface",

@@ -134,3 +134,37 @@ def test_the_stage_refuses_a_run_beyond_the_memory_in_one_line(photos, capsys, t
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "mvs: multi-view stereo of 8 views" in err, err
     assert "mvs" not in json.loads((s / "scene.json").read_text()).get("stages", {})
+
+
+def test_outside_the_masks_of_a_scene_with_a_background_is_the_background(photos, capsys, tmp_path):
+    # An RGBA capture (nerf synthetic: shading.background, mask = alpha > 1/2) says its empty pixels
+    # are the background at infinity: the stage writes +inf there (docs/FORMAT.md "Background"), so
+    # dibr renders the background, not holes filled with smeared surface.
+    from ibrtools.formats import native
+    from ibrtools.imageio import write_image
+
+    base, scene = photos
+    s = tmp_path / "s"
+    shutil.copytree(scene, s)
+    truth = native.load(base / "full")
+    doc = json.loads((s / "scene.json").read_text())
+    assert doc["shading"]["background"] == [0.0, 0.0, 0.0]
+    for v, entry in zip(truth.views, doc["views"]):
+        write_image(s / "images" / f"{v.name}.mask.png", np.isfinite(v.depth).astype(np.float32)[..., None])
+        entry["mask"] = f"images/{v.name}.mask.png"
+    (s / "scene.json").write_text(json.dumps(doc))
+    assert preprocess.main([str(s), "-o", str(s), "--methods", "dibr", "--json", "--set", "mvs.iterations=2"]) == 0
+    row = {r["stage"]: r for r in json.loads(capsys.readouterr().out)}["mvs"]
+    assert row["background_pixels"] == sum(int(np.isinf(v.depth).sum()) for v in truth.views) > 0
+    arrays = cache.load_npz(cache.stage_output(s, "mvs"))
+    for v in truth.views:
+        d = arrays[f"depth:{v.name}"]
+        assert np.array_equal(np.isposinf(d), np.isinf(v.depth))  # exactly the pixels outside the mask
+        assert np.all(arrays[f"confidence:{v.name}"][np.isinf(d)] == 0)  # not a surface measurement
+    out = tmp_path / "o"
+    assert render.main([str(s), "--method", "dibr", "--holdout", "v002", "-o", str(out), "-q", "--depth"]) == 0
+    from ibrtools.imageio import read_depth
+
+    # The sky the neighbours see in the held-out view's directions is background (without masks the
+    # views' empty pixels are unknown and the render has no background at all).
+    assert np.isposinf(read_depth(out / "v002.depth.exr")).mean() > 0.03

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ibrtools import _core
+from ibrtools.cache import with_stage_depth
 from ibrtools.errors import BadValueError
 from ibrtools.inpaint.background import Background
 from ibrtools.imageio import srgb_to_linear
@@ -113,11 +114,12 @@ def completion(method, scene, inpaint: str) -> tuple[Background | None, str]:
 
 def background_of(scene) -> Background | None:
     """The scene's :class:`Background` (None when no input has a background pixel), made once per
-    scene object."""
+    scene object; views without depth of their own take the depth a stage made (the mvs stage's
+    background outside an RGBA capture's masks), as the methods warp them."""
     try:
         return _BACKGROUNDS[scene]
     except KeyError:
-        bg = Background.of(scene.views, (scene.shading or {}).get("background"))
+        bg = Background.of(with_stage_depth(scene).views, (scene.shading or {}).get("background"))
         _BACKGROUNDS[scene] = bg
         return bg
 
