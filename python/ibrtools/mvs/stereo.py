@@ -40,6 +40,14 @@ def _f(v: float) -> float:
     return float(f"{v:.6g}")  # float32 defaults as the decimal they were written as
 
 
+# refine_only "auto": a view with at most this many sources runs the full candidate set at every
+# level (13 planes a pixel and source instead of 7): 2 sources x 13 cost less per pixel than the
+# default 6 x 7, and with one or two sources the full set is the more accurate (docs/mvs.md
+# "Choices, measured": Middlebury's two views, bad-2.0 lower on all 5 pairs); with more sources
+# refine-only keeps the kept pixels more accurate for 1.7x less CPU (synth:objects).
+AUTO_FULL_SOURCES = 2
+
+
 @dataclass
 class MvsOptions:
     """Parameters of the ``mvs`` stage (``--set mvs.KEY=VALUE``; docs/mvs.md has the table)."""
@@ -52,8 +60,9 @@ class MvsOptions:
     iterations: int = _K.iterations   # photometric red/black iterations at the coarsest level
     levels: int = 3                   # image pyramid levels (1: full resolution only)
     fine_iterations: int = 2          # iterations at each finer level, started from the coarser one
-    refine_only: bool = True          # finer levels and the geometric pass: near neighbours and
-                                      #   perturbations only (no random planes, no far neighbours)
+    refine_only: bool | str = "auto"  # finer levels and the geometric pass: near neighbours and
+                                      #   perturbations only (no random planes, no far neighbours);
+                                      #   "auto": so for a view with more than AUTO_FULL_SOURCES sources
     best_k: int = _K.best_k           # source costs aggregated per hypothesis
     seed: int = 0
     min_variance: float = _f(_K.min_variance)
@@ -86,21 +95,26 @@ class MvsOptions:
             raise BadValueError(f"mvs.max_cost: expected a cost in (0, 2], got {self.max_cost}")
         if self.consistency_px <= 0 or self.consistency_depth <= 0 or self.min_angle_deg >= 90:
             raise BadValueError("mvs.consistency_px, mvs.consistency_depth: expected > 0; mvs.min_angle_deg: < 90")
+        if not (isinstance(self.refine_only, bool) or self.refine_only == "auto"):
+            raise BadValueError(f"mvs.refine_only: expected true, false or auto, got {self.refine_only!r}")
         parse_range(self.depth_range)
         o = self.kernel_options(1.0, 2.0)
         o.check()
 
-    def kernel_options(self, min_depth: float, max_depth: float, geometric: bool = False, level: int = 0):
-        """The kernel's options for a pass: photometric at pyramid ``level`` (0 = full resolution;
-        the coarsest level runs ``iterations`` from random planes, each finer one
-        ``fine_iterations`` from the coarser result, continuing its refinement schedule), or
-        geometric (at full resolution, after them)."""
+    def kernel_options(self, min_depth: float, max_depth: float, geometric: bool = False, level: int = 0,
+                       sources: int | None = None):
+        """The kernel's options for a pass of a view with ``sources`` source views: photometric at
+        pyramid ``level`` (0 = full resolution; the coarsest level runs ``iterations`` from random
+        planes, each finer one ``fine_iterations`` from the coarser result, continuing its
+        refinement schedule), or geometric (at full resolution, after them)."""
         o = _core.PatchMatchOptions()
         for k in ("window_radius", "window_step", "sigma_color", "sigma_spatial", "best_k", "seed", "min_variance",
                   "geom_max_error"):
             setattr(o, k, getattr(self, k))
         steps = self.levels - 1 - level  # levels between the coarsest and this one
-        o.refine_only = bool(self.refine_only) and (geometric or steps > 0)
+        refine = self.refine_only if isinstance(self.refine_only, bool) else \
+            (sources is None or sources > AUTO_FULL_SOURCES)
+        o.refine_only = refine and (geometric or steps > 0)
         if geometric:
             o.iterations = self.geom_iterations
             o.first_iteration = self.iterations + self.fine_iterations * (self.levels - 1)
@@ -356,7 +370,7 @@ class MvsRun:
         for level in range(top, -1, -1):
             cams = self._core_cams([n, *src], level)
             args = (self.grey(n, level), cams[0], [self.grey(m, level) for m in src], cams[1:], None,
-                    o.kernel_options(*self.ranges[n], level=level + o.levels - 1 - top))
+                    o.kernel_options(*self.ranges[n], level=level + o.levels - 1 - top, sources=len(src)))
             if init is None:
                 d, nrm, c, st = _core.mvs_patchmatch(*args)
             else:
@@ -389,7 +403,7 @@ class MvsRun:
         cams = self._core_cams([n, *src], 0)
         d, nrm, c, st = _core.mvs_patchmatch(self.grey(n), cams[0], [self.grey(m) for m in src], cams[1:],
                                              [depths[m] for m in src],
-                                             self.o.kernel_options(*self.ranges[n], geometric=True),
+                                             self.o.kernel_options(*self.ranges[n], geometric=True, sources=len(src)),
                                              result[0], result[1])
         return d, nrm, c, st["evaluations"]
 
