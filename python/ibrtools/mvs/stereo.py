@@ -309,8 +309,9 @@ class MvsRun:
     and the kernels are deterministic). :func:`run_mvs` runs them in turn here."""
 
     def __init__(self, views, options: MvsOptions | None = None, names: list[str] | None = None,
-                 bounds: dict[str, Any] | None = None):
+                 bounds: dict[str, Any] | None = None, background: bool = False):
         self.o = o = options or MvsOptions()
+        self.background = background  # run_mvs's: the filter writes +inf outside the views' masks
         self.views = {v.name: v for v in views}
         self.names = list(names) if names is not None else list(self.views)
         if len(self.views) < 2:
@@ -417,11 +418,16 @@ class MvsRun:
         mine = np.where(c < o.max_cost, d, np.float32(0)).astype(np.float32)
         count = _core.mvs_consistent_views(mine, cams[0], [depths[m] for m in voters], cams[1:], o.consistency_px,
                                            o.consistency_depth, o.min_angle_deg)
-        keep = (c < o.max_cost) & (d > 0) & (count >= min(o.min_consistent, len(voters))) & self._foreground(n)
-        return MvsResult(np.where(keep, d, np.float32(0)).astype(np.float32),
-                         np.where(keep[..., None], nrm, np.float32(0)).astype(np.float32),
+        foreground = self._foreground(n)
+        keep = (c < o.max_cost) & (d > 0) & (count >= min(o.min_consistent, len(voters))) & foreground
+        depth = np.where(keep, d, np.float32(0)).astype(np.float32)
+        empty = 0
+        if self.background and self.views[n].has_mask:  # outside the mask: the background at infinity
+            depth[~foreground] = np.inf
+            empty = int((~foreground).sum())
+        return MvsResult(depth, np.where(keep[..., None], nrm, np.float32(0)).astype(np.float32),
                          np.where(keep, 1.0 - c / 2.0, 0.0).astype(np.float32), self.sources[n], self.ranges[n],
-                         {"kept": float(keep.mean())})
+                         {"kept": float(keep.mean()), "background": empty})
 
     def finish(self, out: dict[str, MvsResult], timing: dict[str, float], evals: dict[str, int]) -> None:
         """The run's figures in every view's stats."""
@@ -439,15 +445,18 @@ PassRunner = Callable[[str, list[str], dict | None], dict]
 
 def run_mvs(views, options: MvsOptions | None = None, names: list[str] | None = None,
             progress: Callable[[str], None] | None = None, run_pass: PassRunner | None = None,
-            bounds: dict[str, Any] | None = None) -> dict[str, MvsResult]:
+            bounds: dict[str, Any] | None = None, background: bool = False) -> dict[str, MvsResult]:
     """Multi-view stereo of the views ``names`` (default: every view) of ``views`` (a list of
     :class:`ibrtools.scene.View` with colour and pinhole cameras); every view may be a source.
     Views that have depth of their own serve it to the geometric pass and the filter.
     ``run_pass`` runs a pass over views elsewhere (the stage's Dask workers, which rebuild the
     same :class:`MvsRun` from the scene); the filter always runs here. ``bounds``: {view: (near,
-    far)}, the capture's own depth range of those views (used when ``depth_range`` is "auto")."""
+    far)}, the capture's own depth range of those views (used when ``depth_range`` is "auto").
+    ``background``: the scene has a uniform background (``shading.background``: an RGBA capture
+    composited over a colour), so what a view's mask leaves out is the background at infinity:
+    depth +inf there (docs/FORMAT.md "Background"), not unknown."""
     t0 = time.perf_counter()
-    run = MvsRun(views, options, names, bounds)
+    run = MvsRun(views, options, names, bounds, background)
 
     def here(which: str, todo: list[str], previous: dict | None) -> dict:
         out = {}

@@ -165,29 +165,20 @@ def _run_mvs(ctx: _Context) -> dict:
     opts = MvsOptions(**ctx.options.get("mvs", {}))
     names = [v.name for v in ctx.scene.views if not v.has_depth]
     res = run_mvs(ctx.scene.views, opts, names=names, run_pass=None if ctx.cluster is None else _mvs_on_workers(ctx),
-                  bounds=ctx.scene.source.get("depth_bounds"))
-    if not any(np.any(r.depth > 0) for r in res.values()):
+                  bounds=ctx.scene.source.get("depth_bounds"),
+                  background=(ctx.scene.shading or {}).get("background") is not None)
+    if not any(np.any(np.isfinite(r.depth) & (r.depth > 0)) for r in res.values()):
         raise BadValueError(f"mvs: multi-view stereo matched no pixel in any of the {len(res)} views without depth "
                             "(textureless images, or cameras that do not see the same surfaces); give the views "
                             "depth or the scene a reconstructed mesh (ibr-preprocess ... --mesh FILE)")
-    # A scene with a uniform background (shading.background: an RGBA capture composited over a
-    # colour) says what its views' masks leave out: the background at infinity (docs/FORMAT.md
-    # "Background"), depth +inf as the nerf importer writes it where it has depth, not unknown.
-    background = (ctx.scene.shading or {}).get("background") is not None
-    views = {v.name: v for v in ctx.scene.views}
-    arrays, infinite = {}, 0
+    arrays = {}
     for n, r in res.items():
-        depth = r.depth
-        if background and views[n].has_mask:
-            empty = ~np.asarray(views[n].mask, bool)
-            depth = np.where(empty, np.float32(np.inf), depth)
-            infinite += int(empty.sum())
-        arrays.update({mvs_key("depth", n): depth, mvs_key("normal", n): r.normal,
+        arrays.update({mvs_key("depth", n): r.depth, mvs_key("normal", n): r.normal,
                        mvs_key("confidence", n): r.confidence})
     save_npz(ctx.cache("mvs") / "mvs.npz", **arrays)
     first = next(iter(res.values()))
     return {"views": len(res), "kept": round(float(np.mean([r.stats["kept"] for r in res.values()])), 4),
-            "background_pixels": infinite,
+            "background_pixels": sum(r.stats["background"] for r in res.values()),
             "seconds": first.stats["seconds"], "evaluations_per_second": first.stats["evaluations_per_second"],
             "sources": {n: r.sources for n, r in res.items()},
             "depth_range": {n: [round(x, 6) for x in r.depth_range] for n, r in res.items()}}
