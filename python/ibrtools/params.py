@@ -16,7 +16,8 @@ from typing import Any, Callable, ClassVar, Mapping, TypeVar
 
 import numpy as np
 
-from ibrtools.errors import ParamError
+from ibrtools.checks import check_int
+from ibrtools.errors import InputError, ParamError
 
 # The largest value of a parameter that only has to stay finite in the kernels' float32 arithmetic
 # (a length in scene units, a weight, a tolerance): 1e6 keeps products of two such values and a
@@ -56,13 +57,11 @@ def to_integer(value: Any, name: str, minimum: int, maximum: int | None = None) 
     integral value are converted first."""
     if isinstance(value, str) and value.strip().lstrip("+-").isdigit():
         value = int(value)
-    if isinstance(value, float) and value.is_integer():
-        value = int(value)
-    bound = f">= {minimum}" + ("" if maximum is None else f" and <= {maximum}")
-    if (isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum
-            or (maximum is not None and value > maximum)):
-        raise ParamError(name, f"expected an integer {bound}, got {value!r}")
-    return int(value)
+    try:
+        return check_int(value, name, minimum, maximum)
+    except InputError:  # a parameter's value is a bad value, whatever its type
+        bound = f">= {minimum}" + ("" if maximum is None else f" and <= {maximum}")
+        raise ParamError(name, f"expected an integer {bound}, got {value!r}") from None
 
 
 def to_boolean(value: Any, name: str) -> bool:
