@@ -84,61 +84,68 @@ DepthOrderStats ValidDepthOrderStats(const float* depth, std::int64_t n, const s
     while (below + std::int64_t(total[b]) <= out.ranks[r]) below += std::int64_t(total[b++]);
     bin_of[r] = b, rank_in_bin[r] = out.ranks[r] - below;
   }
-  // ... and pass 2, per distinct top bin: a bin spans 1/128 of a binade, so it usually holds few
-  // values, gathered per chunk at the offsets pass 1's counts give, and the rank's value picked by
-  // nth_element (an order statistic: any algorithm gives it); a bin of more than kGather values
-  // (depth of one plane) is counted by the low 16 bits instead, per chunk.
+  // ... and pass 2, one scan for every distinct top bin: a bin spans 1/128 of a binade, so it
+  // usually holds few values, gathered per chunk at the offsets pass 1's counts give, and the
+  // rank's value picked by nth_element (an order statistic: any algorithm gives it); a bin of
+  // more than kGather values (depth of one plane) is counted by the low 16 bits instead, per chunk.
   constexpr std::int64_t kGather = std::int64_t(1) << 19;
   std::vector<int> bins(bin_of);
   std::sort(bins.begin(), bins.end());
   bins.erase(std::unique(bins.begin(), bins.end()), bins.end());
-  for (const int bin : bins) {
-    const std::int64_t size = std::int64_t(total[bin]);
-    std::vector<float> members;
-    std::vector<std::uint32_t> low;
-    std::vector<std::int64_t> offset(std::size_t(chunks), 0);  // gathered: chunk c's first slot
+  const std::size_t nb = bins.size();
+  std::vector<std::vector<float>> members(nb);
+  std::vector<std::vector<std::uint32_t>> low(nb);          // counted bins: chunks x kBins
+  std::vector<std::int64_t> offset(std::size_t(chunks) * nb, 0);  // gathered bins: chunk c's first slot
+  for (std::size_t j = 0; j < nb; ++j) {
+    const std::int64_t size = std::int64_t(total[bins[j]]);
     if (size <= kGather) {
-      members.resize(std::size_t(size));
-      for (std::int64_t c = 1; c < chunks; ++c) offset[c] = offset[c - 1] + hist[std::size_t(c - 1) * kBins + bin];
+      members[j].resize(std::size_t(size));
+      for (std::int64_t c = 1; c < chunks; ++c) {
+        offset[std::size_t(c) * nb + j] = offset[std::size_t(c - 1) * nb + j] + hist[std::size_t(c - 1) * kBins + bins[j]];
+      }
     } else {
-      low.assign(std::size_t(chunks) * kBins, 0);
+      low[j].assign(std::size_t(chunks) * kBins, 0);
     }
-    ParallelFor(chunks, 1, [&](std::int64_t c0, std::int64_t c1) {
-      for (std::int64_t c = c0; c < c1; ++c) {
-        std::int64_t at = offset[c];
-        std::uint32_t* h = low.empty() ? nullptr : low.data() + std::size_t(c) * kBins;
-        const std::int64_t i1 = std::min(n, (c + 1) * kChunk);
-        for (std::int64_t i = c * kChunk; i < i1; ++i) {
-          const float d = depth[i];
-          if (!Valid(d) || static_cast<int>(Bits(d) >> 16) != bin) continue;
-          if (h) {
-            ++h[Bits(d) & 0xFFFFu];
+  }
+  ParallelFor(chunks, 1, [&](std::int64_t c0, std::int64_t c1) {
+    for (std::int64_t c = c0; c < c1; ++c) {
+      std::vector<std::int64_t> at(offset.begin() + c * std::int64_t(nb), offset.begin() + (c + 1) * std::int64_t(nb));
+      const std::int64_t i1 = std::min(n, (c + 1) * kChunk);
+      for (std::int64_t i = c * kChunk; i < i1; ++i) {
+        const float d = depth[i];
+        if (!Valid(d)) continue;
+        const std::uint32_t bits = Bits(d);
+        const int top = static_cast<int>(bits >> 16);
+        for (std::size_t j = 0; j < nb; ++j) {
+          if (bins[j] != top) continue;
+          if (low[j].empty()) {
+            members[j][std::size_t(at[j]++)] = d;
           } else {
-            members[std::size_t(at++)] = d;
+            ++low[j][std::size_t(c) * kBins + (bits & 0xFFFFu)];
           }
         }
       }
-    });
-    for (std::size_t r = 0; r < out.ranks.size(); ++r) {
-      if (bin_of[r] != bin) continue;
-      float value;
-      if (low.empty()) {
-        std::nth_element(members.begin(), members.begin() + rank_in_bin[r], members.end());
-        value = members[std::size_t(rank_in_bin[r])];
-      } else {
-        std::int64_t below = 0;
-        std::uint32_t b = 0;
-        for (;; ++b) {
-          std::int64_t k = 0;
-          for (std::int64_t c = 0; c < chunks; ++c) k += low[std::size_t(c) * kBins + b];
-          if (below + k > rank_in_bin[r]) break;
-          below += k;
-        }
-        const std::uint32_t bits = (std::uint32_t(bin) << 16) | b;
-        std::memcpy(&value, &bits, sizeof value);
-      }
-      values_by_rank[r] = value;
     }
+  });
+  for (std::size_t r = 0; r < out.ranks.size(); ++r) {
+    const std::size_t j = std::size_t(std::lower_bound(bins.begin(), bins.end(), bin_of[r]) - bins.begin());
+    float value;
+    if (low[j].empty()) {
+      std::nth_element(members[j].begin(), members[j].begin() + rank_in_bin[r], members[j].end());
+      value = members[j][std::size_t(rank_in_bin[r])];
+    } else {
+      std::int64_t below = 0;
+      std::uint32_t b = 0;
+      for (;; ++b) {
+        std::int64_t k = 0;
+        for (std::int64_t c = 0; c < chunks; ++c) k += low[j][std::size_t(c) * kBins + b];
+        if (below + k > rank_in_bin[r]) break;
+        below += k;
+      }
+      const std::uint32_t bits = (std::uint32_t(bins[j]) << 16) | b;
+      std::memcpy(&value, &bits, sizeof value);
+    }
+    values_by_rank[r] = value;
   }
   out.values = values_by_rank;
   return out;
