@@ -279,7 +279,7 @@ def test_render_not_built_for_the_data():
     """auto on views without depth nor a mesh: the typed NotBuiltError that says what to do."""
     cam = ibrtools.Camera.from_fov(8, 6, 60.0)
     s = ibrtools.Scene(views=[ibrtools.View.create("a", cam, color=np.zeros((6, 8, 3), np.float32))])
-    with pytest.raises(ibrtools.NotBuiltError, match="--method auto"):
+    with pytest.raises(ibrtools.NotBuiltError, match="method 'auto'"):
         ibrtools.render(s, "a")
 
 

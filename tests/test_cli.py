@@ -1,13 +1,17 @@
 """The commands end to end on a tiny synthetic scene: stage table, report.json contract,
 exit codes and one-line errors for bad input, nothing half-written."""
+import argparse
 import json
+import pickle
 import subprocess
 import sys
 
 import numpy as np
 import pytest
 
+from ibrtools.errors import BadValueError, InputError, MissingFileError, NotBuiltError, ParamError
 from ibrtools_cli import bench, preprocess, render
+from ibrtools_cli.common import error_line
 from conftest import synth_scene_dir
 
 SIZE = "64x48"
@@ -96,7 +100,7 @@ def test_thread_count_does_not_change_pixels(scene_dir, tmp_path):
     (["{scene}", "--method", "depthwarp", "--holdout", "v001", "--layers", "0"], "--layers"),
     (["{scene}", "--holdout", "nope"], "view 'nope': not in the scene"),
     (["{scene}", "--target", "nope"], "target 'nope'"),
-    (["{scene}", "--path", "nope"], "--path 'nope'"),
+    (["{scene}", "--path", "nope"], "--path nope"),
     (["{scene}", "--poses", "{tmp}/absent.json"], "absent.json: no such file"),
     (["{scene}", "--poses", "{tmp}/bad.json"], "malformed JSON"),
     (["{scene}", "--holdout", "v000", "v001", "v002", "v003", "v004", "v005"], "every input view is held out"),
@@ -119,6 +123,8 @@ def test_render_bad_input(scene_dir, tmp_path, capsys, argv, msg):
     (["synth:nope", "-o", "{tmp}/s"], "unknown preset"),
     (["synth:objects", "-o", "{tmp}/s", "--views", "0"], "--views"),
     (["{tmp}/emptydir", "-o", "{tmp}/s", "--opt", "novalue"], "key=value"),
+    (["synth:objects", "-o", "{tmp}/s", "--max-size", "10"], "--max-size: for data sets only"),
+    (["synth:objects", "-o", "{tmp}/s", "--set", "mesh.bogus=1"], "--set mesh.bogus: unknown parameter"),
 ])
 def test_preprocess_bad_input(tmp_path, capsys, argv, msg):
     (tmp_path / "emptydir").mkdir()
@@ -126,6 +132,32 @@ def test_preprocess_bad_input(tmp_path, capsys, argv, msg):
     err = capsys.readouterr().err.strip()
     assert msg in err and len(err.splitlines()) == 1
     assert not (tmp_path / "s").exists()
+
+
+def test_errors_about_arguments_read_as_flags_in_the_commands():
+    """The library names the argument (its keyword); the commands print the flag that sets it."""
+    args = argparse.Namespace()
+    cases = [(BadValueError.about("max_size", "expected a whole number"), "max_size: expected a whole number",
+              "--max-size: expected a whole number"),
+             (BadValueError.about("stage_options", "unknown parameter", "mesh.bogus"),
+              "stage_options 'mesh.bogus': unknown parameter", "--set mesh.bogus: unknown parameter"),
+             (MissingFileError.about("method", "needs stage 'pvm'", "hybrid"), "method 'hybrid': needs stage 'pvm'",
+              "--method hybrid: needs stage 'pvm'"),
+             (NotBuiltError.about(("workers", "scheduler"), "needs dask"), "workers/scheduler: needs dask",
+              "--workers/--scheduler: needs dask"),
+             (BadValueError.about("centre", "no view", "v9"), "centre 'v9': no view", "--center v9: no view"),
+             (InputError("a.png: truncated"), "a.png: truncated", "a.png: truncated"),
+             (ParamError("blend_exponent", "expected >= 0"), "parameter blend_exponent: expected >= 0",
+              "--param blend_exponent: expected >= 0")]
+    tblib = pytest.importorskip("tblib.pickling_support")
+    for e, library, command in cases:
+        again = pickle.loads(pickle.dumps(e))  # raised on a Dask worker, printed by the command
+        assert type(again) is type(e) and str(again) == str(e) == library
+        assert error_line(again, args) == error_line(e, args) == command
+    tblib.install(*{type(e) for e, _, _ in cases})  # how dask.distributed pickles a worker's errors
+    for e, library, command in cases:
+        again = pickle.loads(pickle.dumps(e))
+        assert type(again) is type(e) and str(again) == library and error_line(again, args) == command
 
 
 def test_usage_errors_exit_2(capsys):

@@ -4,6 +4,7 @@ a lower one; the module graph has no cycle. Read from the source (ast), so it ne
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "python" / "ibrtools"
@@ -112,3 +113,38 @@ def test_the_module_graph_has_no_cycle():
 def test_every_module_is_in_a_layer():
     for m in modules():
         layer_of(m)
+
+
+COMMANDS = ("ibr-preprocess", "ibr-render", "ibr-bench", "ibr-view")
+FLAG = re.compile(r"(?:^|[\s(/])--[a-z]")
+
+
+def _strings(tree: ast.AST):
+    """(line, text) of every string literal that is not a docstring; an f-string whole, with
+    ``{}`` for its fields."""
+    skip: set[int] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and node.body:
+            first = node.body[0]
+            if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant):
+                skip.add(id(first.value))
+        if isinstance(node, ast.JoinedStr):
+            skip.update(id(v) for v in node.values)
+            yield node.lineno, "".join(v.value if isinstance(v, ast.Constant) else "{}" for v in node.values)
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in skip:
+            yield node.lineno, node.value
+
+
+def test_the_library_spells_no_flag():
+    """The commands own the flags' spellings (they map an error's argument onto its flag,
+    ``IbrError.about``); the library names arguments. A flag may appear only in a command line the
+    message suggests (after ``ibr-preprocess`` etc.)."""
+    bad = []
+    for name, path in modules().items():
+        for line, text in _strings(ast.parse(path.read_text())):
+            for m in FLAG.finditer(text):
+                if not any(c in text[:m.start()] for c in COMMANDS):
+                    bad.append(f"{path.relative_to(PACKAGE.parent)}:{line}: {text[:80]!r}")
+                    break
+    assert not bad, "\n".join(bad)

@@ -285,7 +285,7 @@ def test_compare_scores_only_what_is_asked():
         assert all(m[k] == full[k] for k in m)  # the same values as the full comparison
     assert metrics.parse_scores("all") == metrics.SCORES and metrics.parse_scores(["ssim", "psnr"]) == ("psnr", "ssim")
     for bad in ("psnr,lpips", "", "psnr,", 3):
-        with pytest.raises((BadValueError, DtypeError), match="--metrics: expected all, none or a comma list"):
+        with pytest.raises((BadValueError, DtypeError), match="metrics: expected all, none or a comma list"):
             metrics.parse_scores(bad)
 
 

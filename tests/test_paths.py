@@ -91,7 +91,7 @@ def test_interpolate_degenerate_inputs():
     c = _rig(1)[0]
     with pytest.raises(BadValueError, match="needs at least 2 input views"):
         interpolate([c], 10)
-    with pytest.raises(BadValueError, match="--path-frames"):
+    with pytest.raises(BadValueError, match="path_frames: expected an integer >= 2"):
         interpolate(_rig(3), 1)
     same = interpolate([c, c, c], 9)  # coincident cameras: the same pose, no NaN
     for f in same:
@@ -184,7 +184,7 @@ def test_stored_path_wins_and_names_are_listed():
     with pytest.raises(BadValueError) as e:
         plan(scene, path="nope")
     assert "stored: orbit" in str(e.value) and all(g in str(e.value) for g in GENERATED)
-    with pytest.raises(BadValueError, match="only with --path"):
+    with pytest.raises(BadValueError, match="path_frames: only with a path"):
         plan(scene, path_frames=5)
 
 
@@ -266,9 +266,9 @@ def _bad(tmp_path, name: str, text: str):
 
 
 @pytest.mark.parametrize("argv, msg", [
-    (["--path", "nope"], "--path 'nope': not a path of the scene (stored: none; generated: interpolate, spiral, orbit)"),
+    (["--path", "nope"], "--path nope: not a path of the scene (stored: none; generated: interpolate, spiral, orbit)"),
     (["--path", "spiral", "--path-frames", "1"], "--path-frames: expected an integer >= 2, got 1"),
-    (["--path-frames", "5", "--holdout", "v001"], "--path-frames: only with --path"),
+    (["--path-frames", "5", "--holdout", "v001"], "--path-frames: only with a path"),
     (["--poses", "{tmp}/ns.json"], "ns.json: 'render_height': expected an integer in [1, 65536]"),
     (["--poses", "{tmp}/ns2.json"], "ns2.json: camera_path[0].camera_to_world: expected a 4x4 matrix"),
     (["--poses", "{tmp}/ns3.json"], "ns3.json: camera_path[0]: 'fov'"),
@@ -327,4 +327,4 @@ def test_pose_files_with_any_values_are_input_errors(tmp_path_factory, data):
         for fr in read_poses(f):
             assert np.all(np.isfinite(fr.camera.cam_from_world))
     except InputError as e:
-        assert "\n" not in str(e) and "--poses" in str(e)
+        assert "\n" not in str(e) and str(e).startswith("poses: ") and e.argument == ("poses",)

@@ -80,7 +80,7 @@ def _body(args: argparse.Namespace) -> int:
         raise BadValueError(f"--report-frames: expected a number >= 0, got {args.report_frames}")
     from ibrtools.pipeline.report_html import check_output
 
-    check_output(out / "report.html", "-o")
+    check_output(out / "report.html", "output")
     # The output directory is held for the run (a second job there is refused) and a dead run's
     # temporaries are swept (ibrtools.outputs).
     with OutputDir(out, stems={"sweep", "report"}):

@@ -79,6 +79,29 @@ def param_flag(name: str | None, args: argparse.Namespace) -> str:
     return "--param" if name is None else f"--param {name}"
 
 
+ARG_FLAGS = {"options": "--opt", "stage_options": "--set", "params": "--param", "grid": "--sweep",
+             "out_dir": "--output", "targets": "--target", "centre": "--center"}
+"""The flags whose names are not the library's keywords (the rest: ``--`` and the keyword with ``-``
+for ``_``: ``max_size`` is ``--max-size``)."""
+
+
+def arg_flag(name: str) -> str:
+    """The flag that sets the library's argument ``name``."""
+    return ARG_FLAGS.get(name, "--" + name.replace("_", "-"))
+
+
+def error_line(e: InputError | NotBuiltError, args: argparse.Namespace,
+               flag_of: Callable[[str | None, argparse.Namespace], str] = param_flag) -> str:
+    """The message of ``e`` as the command's user reads it: an error about an argument or a method
+    parameter is named by the flag that sets it."""
+    if isinstance(e, ParamError):
+        return f"{flag_of(e.param, args)}: {e.detail}"
+    if e.argument:
+        shown = "" if e.value is None else f" {e.value}"
+        return f"{'/'.join(arg_flag(a) for a in e.argument)}{shown}: {e.detail}"
+    return str(e)
+
+
 def run_command(prog: str, body: Callable[[argparse.Namespace], int],
                 parser: argparse.ArgumentParser, argv: Sequence[str] | None,
                 flag_of: Callable[[str | None, argparse.Namespace], str] = param_flag) -> int:
@@ -97,8 +120,7 @@ def run_command(prog: str, body: Callable[[argparse.Namespace], int],
     except (InputError, NotBuiltError) as e:
         if args.debug:
             raise
-        message = f"{flag_of(e.param, args)}: {e.detail}" if isinstance(e, ParamError) else str(e)
-        print(f"{prog}: error: {message}", file=sys.stderr)
+        print(f"{prog}: error: {error_line(e, args, flag_of)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)

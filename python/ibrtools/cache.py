@@ -276,7 +276,7 @@ def missing_depth_error(method: str, scene: Scene, names: list[str]) -> InputErr
         how = f"render it from the scene's mesh: ibr-preprocess {where} -o {where} --stages depth"
     else:
         how = f"compute it from the photographs: ibr-preprocess {where} -o {where} --methods {method}"
-    return InputError(f"--method {method} needs depth for every input view; without depth: {some}; {how}")
+    return InputError.about("method", f"needs depth for every input view; without depth: {some}; {how}", method)
 
 
 def view_depths(views, load_rendered) -> dict[str, np.ndarray]:
@@ -329,14 +329,15 @@ def stage_output(root: str | os.PathLike, stage: str, *, verify: bool = True) ->
     if stage not in STAGES:
         raise BadValueError(f"stage {stage!r}: unknown (expected one of {', '.join(STAGES)})")
     rec = (read_doc(root).get("stages") or {}).get(stage) if (root / SCENE_FILE).is_file() else None
-    hint = f"run: ibr-preprocess {root} -o {root} --stages {stage}"
     if not rec or not rec.get("outputs"):
         why = f" ({rec['skipped']})" if rec and rec.get("skipped") else ""
-        raise MissingFileError(f"{root}: no output of stage {stage!r}{why}; {hint}")
+        raise MissingFileError(f"{root}: no output of stage {stage!r}{why}; run: ibr-preprocess {root} -o {root} "
+                               f"--stages {stage}")
     rel = next(iter(rec["outputs"]))
     f = root / CACHE_DIR / stage / rel
     if not (output_intact(f, rec, rel) if verify else f.is_file()):
-        raise MissingFileError(f"{f}: missing or changed since stage {stage!r} wrote it; {hint} --force")
+        raise MissingFileError(f"{f}: missing or changed since stage {stage!r} wrote it; run: ibr-preprocess {root} "
+                               f"-o {root} --stages {stage} --force")
     return f
 
 

@@ -7,33 +7,40 @@ from typing import Any
 
 import numpy as np
 
-from ibrtools.errors import BadValueError, DtypeError, ShapeError
+from ibrtools.errors import BadValueError, DtypeError, InputError, ShapeError
 
 
-def check_int(value: Any, name: str, minimum: int | None = None, maximum: int | None = None) -> int:
+def _error(cls: type[InputError], name: str, detail: str, argument: bool) -> InputError:
+    """``NAME: DETAIL``; with ``argument``, an error about the public argument ``name``
+    (:meth:`ibrtools.errors.IbrError.about`: the commands name its flag)."""
+    return cls.about(name, detail) if argument else cls(f"{name}: {detail}")
+
+
+def check_int(value: Any, name: str, minimum: int | None = None, maximum: int | None = None, *,
+              argument: bool = False) -> int:
     """An integer (a float with an integral value is accepted), at least ``minimum`` and at most
-    ``maximum``."""
+    ``maximum``. ``argument``: ``name`` is the keyword of a public function's argument."""
     if isinstance(value, float) and value.is_integer():
         value = int(value)
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise DtypeError(f"{name}: expected an integer, got {value!r}")
+        raise _error(DtypeError, name, f"expected an integer, got {value!r}", argument)
     if minimum is not None and value < minimum:
-        raise BadValueError(f"{name}: expected an integer >= {minimum}, got {value}")
+        raise _error(BadValueError, name, f"expected an integer >= {minimum}, got {value}", argument)
     if maximum is not None and value > maximum:
-        raise BadValueError(f"{name}: expected an integer <= {maximum}, got {value}")
+        raise _error(BadValueError, name, f"expected an integer <= {maximum}, got {value}", argument)
     return int(value)
 
 
-def check_float(value: Any, name: str, minimum: float | None = None) -> float:
-    """A finite number, at least ``minimum``."""
+def check_float(value: Any, name: str, minimum: float | None = None, *, argument: bool = False) -> float:
+    """A finite number, at least ``minimum``. ``argument``: as :func:`check_int`."""
     try:
         v = float(value)
     except (TypeError, ValueError):
-        raise DtypeError(f"{name}: expected a number, got {value!r}") from None
+        raise _error(DtypeError, name, f"expected a number, got {value!r}", argument) from None
     if not math.isfinite(v):
-        raise BadValueError(f"{name}: expected a finite number, got {v}")
+        raise _error(BadValueError, name, f"expected a finite number, got {v}", argument)
     if minimum is not None and v < minimum:
-        raise BadValueError(f"{name}: expected a finite number >= {minimum:g}, got {v}")
+        raise _error(BadValueError, name, f"expected a finite number >= {minimum:g}, got {v}", argument)
     return v
 
 

@@ -6,9 +6,37 @@ message and exit with status 2. Each kind of bad input has its own class so that
 """
 from __future__ import annotations
 
+from typing import TypeVar
+
+_E = TypeVar("_E", bound="IbrError")
+
 
 class IbrError(Exception):
-    """Base of every error ibrtools raises on purpose."""
+    """Base of every error ibrtools raises on purpose.
+
+    An error about an argument of a public function is made by :meth:`about`, which keeps the
+    argument's keyword apart from the message, so that the commands can name the flag that sets
+    it instead (``--max-size`` for ``max_size``); the library itself never spells a flag."""
+
+    argument: tuple[str, ...] = ()  # the argument(s) at fault, by their keywords (() = none)
+    value: object = None            # the value given, shown after the name (None: not shown)
+    detail: str = ""                # what was expected
+
+    @classmethod
+    def about(cls: type[_E], argument: str | tuple[str, ...], detail: str, value: object = None) -> _E:
+        """The error ``ARGUMENT: DETAIL`` (``ARGUMENT 'VALUE': DETAIL`` when ``value`` is given;
+        several arguments are joined by ``/``)."""
+        names = (argument,) if isinstance(argument, str) else tuple(argument)
+        e = cls(f"{'/'.join(names)}{'' if value is None else f' {value!r}'}: {detail}")
+        e.argument, e.value, e.detail = names, value, detail
+        return e
+
+    def __reduce__(self):
+        # Rebuilt from the message and the instance's attributes (Dask returns a worker's errors
+        # pickled, through tblib). Our own reducer: tblib's rebuilds an exception whose __init__
+        # is not BaseException's with __new__ alone, which the classes that are also an OSError
+        # (MissingFileError) refuse.
+        return (type(self), self.args, self.__dict__ or None)
 
 
 class InputError(IbrError, ValueError):

@@ -50,9 +50,9 @@ def check_params(name: str, params: Mapping[str, Any] | MethodParams | None = No
     """``params`` of method ``name`` checked, with the defaults filled in (ParamError naming the
     parameter; NotBuiltError for a method that is not built)."""
     if name not in METHODS or name == "auto":
-        raise BadValueError(f"method: expected one of {', '.join(PARAMS)}, got {name!r}")
+        raise BadValueError.about("method", f"expected one of {', '.join(PARAMS)}, got {name!r}")
     if name not in BUILT:
-        raise NotBuiltError(f"--method {name}: not built yet ({METHODS[name]}); built: {', '.join(BUILT)}")
+        raise NotBuiltError.about("method", f"not built yet ({METHODS[name]}); built: {', '.join(BUILT)}", name)
     return PARAMS[name].from_dict(params)
 
 
@@ -67,7 +67,7 @@ class Method(Protocol):
 def resolve(name: str, scene: Scene) -> str:
     """The concrete method for ``--method name`` on ``scene``."""
     if name not in METHODS:
-        raise BadValueError(f"--method: unknown method {name!r} (expected one of {', '.join(METHODS)})")
+        raise BadValueError.about("method", f"unknown method {name!r} (expected one of {', '.join(METHODS)})")
     if name == "auto":
         # Captured colour + depth views are what DIBR is for; a ground-truth mesh alone (views
         # without depth) still renders exactly with the reference ray caster.
@@ -75,12 +75,12 @@ def resolve(name: str, scene: Scene) -> str:
             return "dibr"
         if "ground_truth" in scene.meshes:
             return "reference"
-        raise NotBuiltError("--method auto: some input views have no depth (dibr needs depth) and the "
-                            "scene has no ground-truth mesh; the methods for colour-only views "
-                            "(tm, ulr, pvm, hybrid) need ibr-preprocess SCENE --methods ...; "
-                            "ask for one with --method")
+        raise NotBuiltError.about("method", "some input views have no depth (dibr needs depth) and the "
+                                  "scene has no ground-truth mesh; the methods for colour-only views "
+                                  "(tm, ulr, pvm, hybrid) need ibr-preprocess SCENE --methods ...; "
+                                  "name one of them", "auto")
     if name not in BUILT:
-        raise NotBuiltError(f"--method {name}: not built yet ({METHODS[name]}); built: {', '.join(BUILT)}")
+        raise NotBuiltError.about("method", f"not built yet ({METHODS[name]}); built: {', '.join(BUILT)}", name)
     return name
 
 
@@ -89,5 +89,5 @@ def create(name: str, params: Mapping[str, Any] | MethodParams | None = None) ->
     classes = {"reference": ReferenceMethod, "dibr": DibrMethod, "warp": WarpMethod, "depthwarp": DepthWarpMethod,
                "tm": TmMethod, "ulr": UlrMethod, "hybrid": HybridMethod, "pvm": PvmMethod}
     if name not in classes or name not in BUILT:
-        raise NotBuiltError(f"--method {name}: not built yet")
+        raise NotBuiltError.about("method", "not built yet", name)
     return classes[name](check_params(name, params))

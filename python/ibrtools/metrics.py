@@ -212,13 +212,15 @@ def parse_scores(spec: Any) -> tuple[str, ...]:
     elif isinstance(spec, (list, tuple)) and all(isinstance(t, str) for t in spec):
         names = [t.strip().lower() for t in spec]
     else:
-        raise DtypeError(f"--metrics: expected all, none or a comma list of {', '.join(SCORES)}, got {spec!r}")
+        raise DtypeError.about("metrics", f"expected all, none or a comma list of {', '.join(SCORES)}, "
+                                           f"got {spec!r}")
     bad = [t for t in names if t not in SCORES]
     if bad or not names:
-        raise BadValueError(f"--metrics: expected all, none or a comma list of {', '.join(SCORES)}, got {spec!r}")
+        raise BadValueError.about("metrics", f"expected all, none or a comma list of {', '.join(SCORES)}, "
+                                        f"got {spec!r}")
     if "flip" in names and not flip_available():
-        raise NotBuiltError("--metrics flip: the optional package flip-evaluator is not installed "
-                            "(pip install 'ibrtools[flip]' or pip install flip-evaluator)")
+        raise NotBuiltError.about("metrics", "the optional package flip-evaluator is not installed "
+                                        "(pip install 'ibrtools[flip]' or pip install flip-evaluator)", "flip")
     return tuple(t for t in SCORES if t in names)
 
 

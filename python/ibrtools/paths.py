@@ -161,16 +161,17 @@ def mean_rotation(rotations: Sequence[np.ndarray]) -> np.ndarray:
 
 
 # --- the three paths --------------------------------------------------------------------------
-def check_frames(n: object, what: str = "--path-frames") -> int:
-    """A path's number of frames: an integer in [2, MAX_FRAMES]."""
-    return check_int(n, what, 2, MAX_FRAMES)
+def check_frames(n: object) -> int:
+    """A path's number of frames (render_job's ``path_frames``): an integer in [2, MAX_FRAMES]."""
+    return check_int(n, "path_frames", 2, MAX_FRAMES, argument=True)
 
 
 def spline(cameras: Sequence[Camera]) -> Callable[[float], np.ndarray]:
     """The interpolating path through ``cameras`` as a function of s in [0, len - 1] returning
     ``cam_from_world``: input i at s = i exactly (centre and rotation), C1 in between."""
     if len(cameras) < 2:
-        raise BadValueError(f"--path interpolate: needs at least 2 input views, the scene has {len(cameras)}")
+        raise BadValueError.about("path", f"needs at least 2 input views, the scene has {len(cameras)}",
+                                 "interpolate")
     c = np.array([cam.centre for cam in cameras])
     rot = [cam.world_from_cam[:3, :3] for cam in cameras]
     q = _hemisphere([quat_from_matrix(r) for r in rot])
@@ -331,7 +332,7 @@ def spiral(scene: Scene, frames: int = DEFAULT_FRAMES, cameras: Sequence[Camera]
     n = check_frames(frames)
     cams = [v.camera for v in scene.views] if cameras is None else list(cameras)
     if not cams:
-        raise BadValueError("--path spiral: the scene has no input view")
+        raise BadValueError.about("path", "the scene has no input view", "spiral")
     centres = np.array([c.centre for c in cams])
     mean_c = centres.mean(0)
     r_cw = mean_rotation([c.cam_from_world[:3, :3] for c in cams])  # world -> mean camera
@@ -371,7 +372,7 @@ def orbit(scene: Scene, frames: int = DEFAULT_FRAMES, cameras: Sequence[Camera] 
     n = check_frames(frames)
     cams = [v.camera for v in scene.views] if cameras is None else list(cameras)
     if not cams:
-        raise BadValueError("--path orbit: the scene has no input view")
+        raise BadValueError.about("path", "the scene has no input view", "orbit")
     centre = scene_centre(scene, cams)
     up = _up(cams)
     rel = np.array([c.centre for c in cams]) - centre
@@ -405,7 +406,7 @@ def generate(scene: Scene, name: str, frames: int = DEFAULT_FRAMES) -> list[Came
         return spiral(scene, frames)[0]
     if name == "orbit":
         return orbit(scene, frames)[0]
-    raise BadValueError(f"--path {name!r}: not a generated path (expected one of {', '.join(GENERATED)})")
+    raise BadValueError.about("path", f"not a generated path (expected one of {', '.join(GENERATED)})", name)
 
 
 def path_names(scene: Scene) -> list[str]:
@@ -420,13 +421,14 @@ def camera_path(scene: Scene, name: str, frames: int | None = None) -> list[Came
     (a stored path has its own cameras)."""
     if name in scene.paths:
         if frames is not None:
-            raise BadValueError(f"--path-frames: path {name!r} is stored in the scene with {len(scene.paths[name])} "
-                                f"cameras; --path-frames applies to the generated paths ({', '.join(GENERATED)}) only")
+            raise BadValueError.about("path_frames", f"path {name!r} is stored in the scene with "
+                                      f"{len(scene.paths[name])} cameras; a number of frames applies to the "
+                                      f"generated paths ({', '.join(GENERATED)}) only")
         return list(scene.paths[name])
     if name not in GENERATED:
         stored = ", ".join(scene.paths) or "none"
-        raise BadValueError(f"--path {name!r}: not a path of the scene (stored: {stored}; generated: "
-                            f"{', '.join(GENERATED)})")
+        raise BadValueError.about("path", f"not a path of the scene (stored: {stored}; generated: "
+                                  f"{', '.join(GENERATED)})", name)
     return generate(scene, name, DEFAULT_FRAMES if frames is None else check_frames(frames))
 
 

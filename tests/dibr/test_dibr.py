@@ -57,7 +57,7 @@ def test_bad_params_name_the_option(params, flag):
 
 
 def test_prepare_rejects_views_without_depth_and_unknown_inputs():
-    with pytest.raises(InputError, match="dibr needs depth"):
+    with pytest.raises(InputError, match="method .dibr.: needs depth"):
         DibrMethod().prepare(_plane_scene(depth_ok=False))
     with pytest.raises(InputError, match="no input views"):
         DibrMethod().prepare(Scene(views=[]))

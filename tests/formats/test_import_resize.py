@@ -76,7 +76,7 @@ def test_every_importer_downscaled_lazily(tmp_path):
     np.testing.assert_array_equal(b.depth, resize.min_depth_resize(a.depth, 4, 3))
     assert b.depth[0, 0] < np.inf  # the block of the background pixel (0, 0) has object depth too
     np.testing.assert_array_equal(b.mask, resize.mask_resize(a.mask, 4, 3))
-    assert half.source["adapted"] == ["images downscaled (--downscale 2): 1 views 8x6 -> 4x3 (colour: area "
+    assert half.source["adapted"] == ["images downscaled (by 2): 1 views 8x6 -> 4x3 (colour: area "
                                       "average; depth: nearest known depth of each block)"]
     assert "adapted" not in full.source
     (tmp_path / "icl").mkdir()
@@ -101,12 +101,12 @@ def test_downscaled_scene_round_trips_native(tmp_path):
 
 
 @pytest.mark.parametrize("kw, msg", [
-    ({"downscale": 0.5}, "--downscale: expected a number >= 1"),
-    ({"downscale": "two"}, "--downscale: expected a number >= 1"),
-    ({"downscale": float("nan")}, "--downscale"),
-    ({"max_size": 0}, "--max-size: expected a whole number of pixels >= 1"),
-    ({"max_size": 1.5}, "--max-size"),
-    ({"max_size": "big"}, "--max-size"),
+    ({"downscale": 0.5}, "downscale: expected a number >= 1"),
+    ({"downscale": "two"}, "downscale: expected a number >= 1"),
+    ({"downscale": float("nan")}, "downscale"),
+    ({"max_size": 0}, "max_size: expected a whole number of pixels >= 1"),
+    ({"max_size": 1.5}, "max_size"),
+    ({"max_size": "big"}, "max_size"),
 ])
 def test_bad_factors(tmp_path, kw, msg):
     make_set(tmp_path)
@@ -141,8 +141,8 @@ def test_cli_prints_the_import_summary(tmp_path, capsys):
     make_set(tmp_path / "in")
     assert preprocess.main([str(tmp_path / "in"), "-o", str(tmp_path / "s"), "--downscale", "2"]) == 0
     err = capsys.readouterr().err
-    assert "ibr-preprocess: import: images downscaled (--downscale 2): 1 views 8x6 -> 4x3" in err
-    with pytest.raises(BadValueError, match="--downscale: for data sets only"):
+    assert "ibr-preprocess: import: images downscaled (by 2): 1 views 8x6 -> 4x3" in err
+    with pytest.raises(BadValueError, match="downscale: for data sets only"):
         from ibrtools.pipeline.stages import preprocess as run
 
         run("synth:objects", tmp_path / "syn", synth={"preset": "objects"}, downscale=2, stages=[])

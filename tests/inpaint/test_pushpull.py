@@ -488,5 +488,5 @@ def test_job_skips_inpaint_without_holes(scene_dir, tmp_path, monkeypatch):
     assert rep["frames"][0]["inpaint"] == "skipped: no hole"
     from ibrtools.errors import BadValueError as Bad
 
-    with pytest.raises(Bad, match="--inpaint"):
+    with pytest.raises(Bad, match="inpaint: expected"):
         render_job.run(job, "nohole", tmp_path / "b", inpaint="blur")

@@ -219,7 +219,7 @@ def test_unreachable_scheduler_is_a_quick_error(scene_dir, tmp_path, capsys):
 
 def test_library_bad_input(scene_dir, tmp_path):
     job = planning.plan(native.load(scene_dir), holdout=["v001"])
-    with pytest.raises(BadValueError, match="--workers"):
+    with pytest.raises(BadValueError, match="workers: expected"):
         J.run(job, "dibr", tmp_path / "a", workers=-1)
     with pytest.raises(BadValueError, match="give one"):
         J.run(job, "dibr", tmp_path / "a", workers=1, scheduler="tcp://127.0.0.1:8786")

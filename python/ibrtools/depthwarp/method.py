@@ -240,13 +240,13 @@ class DepthWarpMethod:
 
         mesh = scene.meshes.get("ground_truth") or scene.mesh
         if mesh is None:
-            raise InputError("--method depthwarp needs the scene's geometry (a synthetic scene, or a mesh "
-                             "given to ibr-preprocess): the scene has no mesh")
+            raise InputError.about("method", "needs the scene's geometry (a synthetic scene, or a mesh "
+                                   "given to ibr-preprocess): the scene has no mesh", "depthwarp")
         try:
             from ibrtools.depthwarp import core as _dw  # noqa: F401
         except ImportError:
-            raise NotBuiltError("--method depthwarp: the depth-warping kernels (ibrtools.depthwarp.core) are "
-                                "not built yet") from None
+            raise NotBuiltError.about("method", "the depth-warping kernels (ibrtools.depthwarp.core) are "
+                                      "not built yet", "depthwarp") from None
         self._mesh = mesh
         p = self.params
         ground = p.ground

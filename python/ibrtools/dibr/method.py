@@ -149,15 +149,15 @@ class DibrMethod:
 
     def prepare(self, scene: Scene) -> dict[str, float]:
         if not scene.views:
-            raise InputError("--method dibr: the scene has no input views")
+            raise InputError.about("method", "the scene has no input views", "dibr")
         scene = with_stage_depth(scene)  # photographs: the mvs stage's depth (else the mesh's)
         no_depth = [v.name for v in scene.views if not v.has_depth]
         if no_depth:
             raise missing_depth_error("dibr", scene, no_depth)
         no_color = [v.name for v in scene.views if not v.has_color]
         if no_color:
-            raise InputError(f"--method dibr needs colour for every input view; without colour: "
-                             f"{', '.join(no_color[:5])}")
+            raise InputError.about("method", f"needs colour for every input view; without colour: "
+                                   f"{', '.join(no_color[:5])}", "dibr")
         names = [v.name for v in scene.views]
         inputs = self.params.inputs
         if isinstance(inputs, list):

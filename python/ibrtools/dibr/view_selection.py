@@ -256,7 +256,7 @@ def select_views(target: Camera, target_range: DepthRange, cameras: list[Camera]
                  samples: int = DEFAULT_SAMPLES, seed: int = DEFAULT_SEED) -> Selection:
     """The ``k`` best inputs for ``target`` by Eq. 6 among ``candidates`` (default all);
     candidates with S <= 0 are skipped (never warped), so fewer than k may be returned."""
-    k = check_int(k, "k (--inputs)", 1)
+    k = check_int(k, "k", 1)
     scores, vols, agree = similarities(target, target_range, cameras, ranges, samples=samples, seed=seed)
     cand = list(range(len(cameras))) if candidates is None else list(candidates)
     usable = [i for i in cand if scores[i] > 0]

@@ -73,7 +73,7 @@ class WarpMethod:
 
     def prepare(self, scene: Scene) -> dict[str, float]:
         if not scene.views:
-            raise InputError("--method warp: the scene has no input views")
+            raise InputError.about("method", "the scene has no input views", "warp")
         scene = with_stage_depth(scene)  # photographs: the mvs stage's depth (else the mesh's)
         names = [v.name for v in scene.views]
         inputs = self.params.inputs
@@ -90,8 +90,8 @@ class WarpMethod:
             raise missing_depth_error("warp", scene, no_depth)
         bad = [names[i] for i in cand if not scene.views[i].has_color]
         if bad:
-            raise InputError(f"--method warp needs colour and depth for its input view(s); missing for: "
-                             f"{', '.join(bad[:5])}{' ...' if len(bad) > 5 else ''}")
+            raise InputError.about("method", f"needs colour and depth for its input view(s); missing for: "
+                                   f"{', '.join(bad[:5])}{' ...' if len(bad) > 5 else ''}", "warp")
         t0 = time.perf_counter()
         self._views = vs.ViewSet.of(scene.views)
         ms = (time.perf_counter() - t0) * 1e3
@@ -109,7 +109,7 @@ class WarpMethod:
         else:
             sel = self._views.select(camera, 1, samples=self.params.samples, seed=self.params.seed)
             if not sel.indices:
-                raise InputError("--method warp: no input view overlaps the target camera")
+                raise InputError.about("method", "no input view overlaps the target camera", "warp")
             index = sel.indices[0]
         t1 = time.perf_counter()
         v = self._scene.views[index]

@@ -27,7 +27,7 @@ IMPORTERS = ("native", "mpeg", "nerf", "colmap", "llff", "middlebury", "rgbd")
 
 def importer(name: str):
     if name not in IMPORTERS:
-        raise FormatError(f"--format: unknown format {name!r} (expected one of {', '.join(IMPORTERS)})")
+        raise FormatError.about("format", f"unknown format {name!r} (expected one of {', '.join(IMPORTERS)})")
     return importlib.import_module(f"{__name__}.{name}")
 
 
@@ -40,7 +40,7 @@ def detect(path: Path) -> str:
         if importer(name).detect(path):
             return name
     raise FormatError(f"{path}: unknown data-set format (expected one of: {', '.join(IMPORTERS)}; "
-                      "or pass --format)")
+                      "or name the format)")
 
 
 def load(path: str | Path, fmt: str | None = None, options: dict | None = None, *,
@@ -65,7 +65,7 @@ def load(path: str | Path, fmt: str | None = None, options: dict | None = None, 
 def parse_frames(spec: str) -> tuple[int | None, int | None] | None:
     """A data set's frame selection: "A:B" (frames A to B - 1, as a Python slice), "A:" (A to the
     last), ":B", "all" (every frame), "default" (the data set's own, e.g. an RVS config's
-    ``StartFrame`` and ``NumberOfFrames``: returns None). BadValueError naming ``--frames``."""
+    ``StartFrame`` and ``NumberOfFrames``: returns None). BadValueError naming ``frames``."""
     text = str(spec).strip()
     if text == "default":
         return None
@@ -78,7 +78,8 @@ def parse_frames(spec: str) -> tuple[int | None, int | None] | None:
     except ValueError:
         first = stop = -1
     if not sep or first < 0 or (stop is not None and stop <= first):
-        raise BadValueError(f"--frames {spec}: expected A:B (frames A to B - 1, 0 <= A < B), A:, :B, all or default")
+        raise BadValueError.about("frames", "expected A:B (frames A to B - 1, 0 <= A < B), A:, :B, all or default",
+                                  spec)
     return first, stop
 
 
@@ -98,18 +99,19 @@ def load_frames(path: str | Path, fmt: str | None = None, options: dict | None =
     name = fmt or detect(path)
     module = importer(name)
     if not hasattr(module, "frame_range"):
-        raise BadValueError(f"--frames: the {name} format has one frame per view (video data sets: mpeg)")
+        raise BadValueError.about("frames", f"the {name} format has one frame per view (video data sets: mpeg)")
     options = dict(options or {})
     if "frame" in options:
-        raise BadValueError("--frames: not with --opt frame= (give the frames to import with --frames A:B)")
+        raise BadValueError.about("frames", "not with the importer's option frame= (give the frames to import "
+                                            "as frames A:B)")
     held, default = module.frame_range(path, options)
     if selection is None:
         chosen = default
     else:
         chosen = range(selection[0], held if selection[1] is None else selection[1])
     if not chosen or chosen.stop > held:
-        raise BadValueError(f"--frames {frames}: frames {chosen.start}..{chosen.stop - 1} asked for, "
-                            f"{path} has {held} frame(s) (0..{held - 1})")
+        raise BadValueError.about("frames", f"frames {chosen.start}..{chosen.stop - 1} asked for, "
+                                            f"{path} has {held} frame(s) (0..{held - 1})", frames)
     width = max(3, len(str(chosen.stop - 1)))
     scenes = {f"f{i:0{width}d}": load(path, name, {**options, "frame": i}, downscale=downscale, max_size=max_size)
               for i in chosen}

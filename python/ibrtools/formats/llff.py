@@ -62,7 +62,7 @@ def _image_dir(path: Path, options: dict) -> Path:
     cands = sorted(d for d in path.glob("images_*") if d.is_dir())
     if len(cands) != 1:
         raise FormatError(f"{path}: no image folder (expected images/ or a single images_*/, found "
-                          f"{[d.name for d in cands] or 'none'}; pass --opt images=DIR)")
+                          f"{[d.name for d in cands] or 'none'}; give the importer option images=DIR)")
     return cands[0]
 
 

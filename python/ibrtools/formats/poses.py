@@ -32,15 +32,23 @@ from typing import Any
 import numpy as np
 
 from ibrtools.camera import MAX_SIDE, Camera
-from ibrtools.errors import FormatError, MissingFileError
+from ibrtools.errors import FormatError, InputError, MissingFileError
 from ibrtools.formats._common import image_size, named, read_json
 from ibrtools.formats.nerf import cam_from_gl, frame_camera, frame_size, resolve_image
 
-def load(path: str | Path, flag: str = "--poses") -> list[tuple[str, Camera]]:
-    """[(name, camera)] of the pose file ``path``; errors start with ``flag`` and the file
-    ("--poses cams.json[2]: missing 'cam_from_world'")."""
-    path = Path(path)
-    where = f"{flag} {path}"
+def load(path: str | Path, argument: str = "poses") -> list[tuple[str, Camera]]:
+    """[(name, camera)] of the pose file ``path``; its errors are about the argument ``argument``
+    and start with the file ("poses: cams.json[2]: missing 'cam_from_world'")."""
+    try:
+        return _load(Path(path))
+    except InputError as e:
+        if e.argument:
+            raise
+        raise type(e).about(argument, str(e)) from None
+
+
+def _load(path: Path) -> list[tuple[str, Camera]]:
+    where = str(path)
     if not path.is_file():
         raise MissingFileError(f"{where}: no such file")
     doc = read_json(path)
@@ -55,7 +63,7 @@ def load(path: str | Path, flag: str = "--poses") -> list[tuple[str, Camera]]:
                           "camera_path.json ('camera_path') or a transforms.json ('frames')")
     out = []
     for i, d in enumerate(doc):
-        cam = Camera.from_dict(d, f"{flag} {path.name}[{i}]")
+        cam = Camera.from_dict(d, f"{path.name}[{i}]")
         out.append((str(d.get("name", f"pose_{i:03d}")), cam))
     return out
 

@@ -49,14 +49,14 @@ def scaled_size(width: int, height: int, downscale: float | None = None, max_siz
 
 
 def check_factors(downscale: Any, max_size: Any) -> tuple[float | None, int | None]:
-    """``--downscale`` / ``--max-size`` as numbers, or BadValueError naming the flag."""
+    """``downscale`` / ``max_size`` as numbers, or BadValueError naming the argument."""
     if downscale is not None:
         try:
             d = float(downscale)
         except (TypeError, ValueError):
-            raise BadValueError(f"--downscale: expected a number >= 1, got {downscale!r}") from None
+            raise BadValueError.about("downscale", f"expected a number >= 1, got {downscale!r}") from None
         if not (math.isfinite(d) and d >= 1):
-            raise BadValueError(f"--downscale: expected a number >= 1 (1 = full size), got {downscale!r}")
+            raise BadValueError.about("downscale", f"expected a number >= 1 (1 = full size), got {downscale!r}")
         downscale = d
     if max_size is not None:
         try:
@@ -65,7 +65,7 @@ def check_factors(downscale: Any, max_size: Any) -> tuple[float | None, int | No
         except (TypeError, ValueError, OverflowError):
             ok = False
         if not ok or isinstance(max_size, bool) or m < 1:
-            raise BadValueError(f"--max-size: expected a whole number of pixels >= 1, got {max_size!r}")
+            raise BadValueError.about("max_size", f"expected a whole number of pixels >= 1, got {max_size!r}")
         max_size = m
     return downscale, max_size
 
@@ -225,7 +225,7 @@ def downscale_scene(scene: Scene, downscale: float | None = None, max_size: int 
     paths = {name: [c.scaled(*scaled_size(c.width, c.height, downscale, max_size)) for c in cams]
              for name, cams in scene.paths.items()}
     source = dict(scene.source)
-    how = f"--downscale {downscale:g}" if max_size is None else f"--max-size {max_size}"
+    how = f"by {downscale:g}" if max_size is None else f"to at most {max_size} px"
     record_summary(source, adapted=[
         f"images downscaled ({how}): {n} views {a[0]}x{a[1]} -> {b[0]}x{b[1]} (colour: area average; "
         "depth: nearest known depth of each block)" for (a, b), n in sorted(sizes.items())])

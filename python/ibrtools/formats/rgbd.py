@@ -418,7 +418,7 @@ def _redwood_frames(path: Path, trajectory: Path | None) -> list[_Frame]:
                           f"{color_dir} (paired in file-name order)")
     if trajectory is None:
         raise MissingFileError(f"{path}: no camera trajectory ({', '.join(REDWOOD_TRAJECTORIES)}; "
-                               "or --opt trajectory=FILE)")
+                               "or the importer option trajectory=FILE)")
     if trajectory.suffix.lower() == ".json":
         entries = _read_o3d_trajectory(trajectory)
     else:
@@ -509,7 +509,7 @@ def _frame_intrinsics(frame: _Frame, base: _Intrinsics | None, default: tuple[fl
         if default is None:
             if len(overrides) < 4:
                 raise MissingFileError(f"{frame.color.parent.parent}: no intrinsics file ({SCANNET_INTRINSICS}); "
-                                       "give --opt intrinsics=FILE or all of fx, fy, cx, cy")
+                                       "give the importer option intrinsics=FILE or all of fx, fy, cx, cy")
             default = (0.0, 0.0, 0.0, 0.0)
         k = _Intrinsics(*default, None, "options fx, fy, cx, cy")
     return k._replace(**overrides) if overrides else k

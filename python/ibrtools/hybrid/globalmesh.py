@@ -544,11 +544,12 @@ def check_fusion_memory(cameras: Mapping[str, Camera], depths: Mapping[str, np.n
     avail = available_memory()
     if est["total"] > avail:
         gib = 1 << 30
-        raise BadValueError(
-            f"--set mesh.resolution={options.resolution}: TSDF fusion needs about {est['total'] / gib:.1f} GiB "
+        raise BadValueError.about(
+            "stage_options",
+            f"TSDF fusion needs about {est['total'] / gib:.1f} GiB "
             f"({est['blocks']} blocks of 8^3 voxels of {est['voxel']:.3g}), only {avail / gib:.1f} GiB is "
             f"available{' (IBR_MEMORY_LIMIT)' if os.environ.get('IBR_MEMORY_LIMIT') else ''}: "
-            "use a lower mesh.resolution, or free memory")
+            "use a lower mesh.resolution, or free memory", f"mesh.resolution={options.resolution}")
     return est
 
 

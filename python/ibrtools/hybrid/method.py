@@ -211,13 +211,14 @@ def _stage_record(scene: Scene, stage: str) -> dict:
 
 def _stage(scene: Scene, stage: str, method: str):
     if scene.root is None:
-        raise InputError(f"--method {method}: the scene has no directory with preprocessed stages; "
-                         f"run: ibr-preprocess INPUT -o SCENE --methods {method}")
+        raise InputError.about("method", f"the scene has no directory with preprocessed stages; "
+                                   f"run: ibr-preprocess INPUT -o SCENE --methods {method}", method)
     try:
         return load_npz(stage_output(scene.root, stage))
     except MissingFileError as e:
-        raise MissingFileError(f"--method {method} needs stage {stage!r}: {e}; or run: "
-                               f"ibr-preprocess {scene.root} -o {scene.root} --methods {method}") from None
+        raise MissingFileError.about("method", f"needs stage {stage!r}: {e}; or run: "
+                                     f"ibr-preprocess {scene.root} -o {scene.root} --methods {method}",
+                                     method) from None
 
 
 def _miss_at_infinity(gb: dict) -> np.ndarray:
@@ -327,8 +328,9 @@ def _views_for_ulr(scene: Scene, method: str, harmonised: bool, gm: "_GlobalMesh
         try:
             depths = view_depths(scene.views, lambda: _stage(scene, "depth", method))
         except KeyError as e:
-            raise InputError(f"--method {method}: view {e.args[0]!r} has no depth and the depth stage has none; "
-                             f"rerun ibr-preprocess {scene.root} -o {scene.root} --stages depth --force") from None
+            raise InputError.about("method", f"view {e.args[0]!r} has no depth and the depth stage has none; "
+                                       f"rerun ibr-preprocess {scene.root} -o {scene.root} --stages depth --force",
+                                   method) from None
     out = []
     for v in scene.views:
         if gm is not None:
@@ -341,7 +343,7 @@ def _views_for_ulr(scene: Scene, method: str, harmonised: bool, gm: "_GlobalMesh
         out.append((v.camera.to_core(), np.ascontiguousarray(color, np.float32),
                     np.ascontiguousarray(depth, np.float32)))
     if not out:
-        raise InputError(f"--method {method}: the scene has no input views")
+        raise InputError.about("method", "the scene has no input views", method)
     return out, source
 
 
@@ -441,7 +443,8 @@ class HybridMethod:
         except ImportError:
             from ibrtools.errors import NotBuiltError
 
-            raise NotBuiltError("--method hybrid: the PVM renderer (ibrtools.hybrid.pvm_render) is not built yet") from None
+            raise NotBuiltError.about("method", "the PVM renderer (ibrtools.hybrid.pvm_render) is not built yet",
+                                      "hybrid") from None
         t0 = time.perf_counter()
         self._gm = _GlobalMesh(scene, "hybrid", texture=True)
         h = None  # the harmonise stage, loaded once for ULR's images, PVM's and the vd texture

@@ -69,14 +69,15 @@ def parse_background(value) -> "np.ndarray | str | None":
         except (TypeError, ValueError):
             rgb = ()
     if len(rgb) != 3 or not all(0.0 <= x <= 1.0 for x in rgb):
-        raise BadValueError(f"--background: expected black, white, transparent or R,G,B in [0, 1], got {value!r}")
+        raise BadValueError.about("background", f"expected black, white, transparent or R,G,B in [0, 1], "
+                                                f"got {value!r}")
 
     return np.asarray(srgb_to_linear(np.asarray(rgb, np.float32)), np.float32).reshape(3)
 
 
 def check_inpaint(mode) -> str:
     if not isinstance(mode, str) or mode not in INPAINT:
-        raise BadValueError(f"--inpaint: expected one of {', '.join(INPAINT)}, got {mode!r}")
+        raise BadValueError.about("inpaint", f"expected one of {', '.join(INPAINT)}, got {mode!r}")
     return mode
 
 

@@ -208,8 +208,8 @@ def depth_range(cam: Camera, cameras: list[Camera], option: str = "auto",
         zc = float((cam.cam_from_world[:3, :3] @ point + cam.cam_from_world[:3, 3])[2])
     if zc is None or not zc > 0:
         if not gap > 0:
-            raise BadValueError("mvs: cannot find a depth range (the cameras share one centre); "
-                                "give it with --set mvs.depth_range=MIN,MAX")
+            raise BadValueError.about("stage_options", "mvs: cannot find a depth range (the cameras share one "
+                                                       "centre); give it as mvs.depth_range=MIN,MAX")
         zc = 20.0 * gap
     return zc / 4.0, zc * 4.0
 

@@ -33,26 +33,26 @@ VIDEO_HINT = "install the video extra: pip install 'ibrtools[video]' (imageio-ff
 
 
 class MissingVideoError(InputError):
-    """--mp4 asked for but imageio-ffmpeg is not installed."""
+    """An MP4 asked for but imageio-ffmpeg is not installed."""
 
 
 def parse_grid(text: str) -> tuple[int, int]:
     """``"NxM"`` -> (N columns, M rows), both positive."""
     m = re.fullmatch(r"\s*(\d+)\s*[xX×]\s*(\d+)\s*", str(text))
     if not m:
-        raise BadValueError(f"--lightfield: expected NxM (columns x rows, e.g. 9x8), got {text!r}")
+        raise BadValueError.about("lightfield", f"expected NxM (columns x rows, e.g. 9x8), got {text!r}")
     n, rows = int(m.group(1)), int(m.group(2))
     if n < 1 or rows < 1:
-        raise BadValueError(f"--lightfield: the grid needs at least 1x1 cameras, got {text!r}")
+        raise BadValueError.about("lightfield", f"the grid needs at least 1x1 cameras, got {text!r}")
     if n * rows > 100_000:
-        raise BadValueError(f"--lightfield {text}: {n * rows} cameras is more than 100000")
+        raise BadValueError.about("lightfield", f"{n * rows} cameras is more than 100000", text)
     return n, rows
 
 
 def check_baseline(baseline) -> float:
-    b = check_float(baseline, "--baseline")
+    b = check_float(baseline, "baseline", argument=True)
     if not b > 0:
-        raise BadValueError(f"--baseline: expected a positive spacing in scene units, got {b}")
+        raise BadValueError.about("baseline", f"expected a positive spacing in scene units, got {b}")
     return b
 
 
@@ -86,13 +86,14 @@ def centre_camera(scene: Scene, name: str | None = None) -> tuple[str, Camera]:
             if v.name == name:
                 return v.name, v.camera
         known = [t.name for t in scene.targets] + [v.name for v in scene.views]
-        raise BadValueError(f"--center {name!r}: no target or input view of that name "
-                            f"(known: {', '.join(known[:10]) or 'none'}{' ...' if len(known) > 10 else ''})")
+        raise BadValueError.about("centre", f"no target or input view of that name (known: "
+                                            f"{', '.join(known[:10]) or 'none'}{' ...' if len(known) > 10 else ''})",
+                                  name)
     if scene.targets:
         return scene.targets[0].name, scene.targets[0].camera
     if scene.views:
         return scene.views[0].name, scene.views[0].camera
-    raise BadValueError("--lightfield: the scene has neither targets nor input views to centre the grid on")
+    raise BadValueError.about("lightfield", "the scene has neither targets nor input views to centre the grid on")
 
 
 def lightfield_cameras(scene: Scene, n: int, m: int, baseline: float,
@@ -115,17 +116,17 @@ def require_video() -> None:
     try:
         import imageio_ffmpeg  # noqa: F401
     except ImportError:
-        raise MissingVideoError(f"--mp4: writing video needs imageio-ffmpeg; {VIDEO_HINT}") from None
+        raise MissingVideoError.about("mp4", f"writing video needs imageio-ffmpeg; {VIDEO_HINT}") from None
 
 
 def check_video_path(path: str | os.PathLike) -> Path:
     """The MP4 path: not a directory, ends in .mp4, and its folder can be written."""
     p = Path(path)
     if p.is_dir():
-        raise BadValueError(f"--mp4 {p}: is a directory")
+        raise BadValueError.about("mp4", "is a directory", str(p))
     if p.suffix.lower() != ".mp4":
-        raise BadValueError(f"--mp4 {p}: expected a file name ending in .mp4")
-    return check_output(p, "--mp4")
+        raise BadValueError.about("mp4", "expected a file name ending in .mp4", str(p))
+    return check_output(p, "mp4")
 
 
 def write_mp4(images: list[str | os.PathLike], path: str | os.PathLike, *, fps: float = 24.0) -> Path:
@@ -135,11 +136,11 @@ def write_mp4(images: list[str | os.PathLike], path: str | os.PathLike, *, fps: 
     require_video()
     import imageio_ffmpeg
 
-    fps = check_float(fps, "--fps")
+    fps = check_float(fps, "fps", argument=True)
     if not fps > 0:
-        raise BadValueError(f"--fps: expected a positive frame rate, got {fps}")
+        raise BadValueError.about("fps", f"expected a positive frame rate, got {fps}")
     if not images:
-        raise BadValueError("--mp4: no frame to encode")
+        raise BadValueError.about("mp4", "no frame to encode")
     path = check_video_path(path)
     first = None
     with atomic_path(path) as tmp:
@@ -155,8 +156,9 @@ def write_mp4(images: list[str | os.PathLike], path: str | os.PathLike, *, fps: 
                                                          output_params=["-movflags", "+faststart"])
                     writer.send(None)
                 elif rgb.shape != first:
-                    raise BadValueError(f"--mp4: frame {Path(f).name} is {rgb.shape[1]}x{rgb.shape[0]}, the first "
-                                        f"was {first[1]}x{first[0]}: a video needs frames of one size")
+                    raise BadValueError.about("mp4", f"frame {Path(f).name} is {rgb.shape[1]}x{rgb.shape[0]}, the "
+                                                     f"first was {first[1]}x{first[0]}: a video needs frames of one "
+                                                     "size")
                 if rgb.shape[0] != h or rgb.shape[1] != w:
                     rgb = np.pad(rgb, ((0, h - rgb.shape[0]), (0, w - rgb.shape[1]), (0, 0)), mode="edge")
                 writer.send(np.ascontiguousarray(rgb))
@@ -167,8 +169,8 @@ def write_mp4(images: list[str | os.PathLike], path: str | os.PathLike, *, fps: 
 
 
 def check_same_size(cameras: list[Camera]) -> None:
-    """--mp4: every frame must have one size (checked before rendering)."""
+    """An MP4's frames must have one size (checked before rendering)."""
     sizes = {(c.width, c.height) for c in cameras}
     if len(sizes) > 1:
-        raise BadValueError(f"--mp4: the frames have {len(sizes)} different sizes "
-                            f"({', '.join(f'{w}x{h}' for w, h in sorted(sizes)[:4])}); a video needs one")
+        raise BadValueError.about("mp4", f"the frames have {len(sizes)} different sizes "
+                                         f"({', '.join(f'{w}x{h}' for w, h in sorted(sizes)[:4])}); a video needs one")

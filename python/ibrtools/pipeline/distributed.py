@@ -36,20 +36,20 @@ HINT = "install the distributed extra: pip install 'ibrtools[distributed]' (dask
 
 
 class MissingDaskError(InputError):
-    """--workers / --scheduler asked for but dask.distributed is not installed."""
+    """Workers or a scheduler asked for but dask.distributed is not installed."""
 
 
 def check_options(scheduler: str | None, workers: int) -> None:
     """Usage errors before any work: a negative worker count, both options at once."""
     if isinstance(workers, bool) or not isinstance(workers, int):
-        raise BadValueError(f"--workers: expected a whole number, got {workers!r}")
+        raise BadValueError.about("workers", f"expected a whole number, got {workers!r}")
     if workers < 0:
-        raise BadValueError(f"--workers: expected a number of worker processes >= 0, got {workers}")
+        raise BadValueError.about("workers", f"expected a number of worker processes >= 0, got {workers}")
     if scheduler is not None and workers:
-        raise BadValueError("--workers and --scheduler: give one (--workers N starts a local cluster, "
-                            "--scheduler ADDRESS uses an existing one)")
+        raise BadValueError.about(("workers", "scheduler"), "give one: a number of workers starts a local "
+                                                             "cluster, a scheduler's address uses an existing one")
     if scheduler is not None and (not isinstance(scheduler, str) or not scheduler.strip()):
-        raise BadValueError(f"--scheduler: expected an address such as tcp://host:8786, got {scheduler!r}")
+        raise BadValueError.about("scheduler", f"expected an address such as tcp://host:8786, got {scheduler!r}")
 
 
 def wanted(scheduler: str | None, workers: int) -> bool:
@@ -60,8 +60,8 @@ def _import_distributed():
     try:
         import distributed
     except ImportError:
-        raise MissingDaskError(f"--workers/--scheduler: distributed execution needs dask.distributed; {HINT}") \
-            from None
+        raise MissingDaskError.about(("workers", "scheduler"),
+                                     f"distributed execution needs dask.distributed; {HINT}") from None
     return distributed
 
 
@@ -79,7 +79,7 @@ def open_client(scheduler: str | None = None, workers: int = 0, *, threads_per_w
         try:
             client = distributed.Client(scheduler, timeout=CONNECT_TIMEOUT, set_as_default=False)
         except (OSError, TimeoutError, ValueError, TypeError) as e:
-            raise BadValueError(f"--scheduler {scheduler}: cannot connect ({e})") from None
+            raise BadValueError.about("scheduler", f"cannot connect ({e})", scheduler) from None
         try:
             with _note_interrupt(interrupted):
                 yield client

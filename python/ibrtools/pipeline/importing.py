@@ -26,7 +26,9 @@ from ibrtools.scene import Scene
 IMPORT_STAGE_VERSION = 2  # 2: the background at infinity (depth +inf) of synthetic and nerf scenes
 
 
-_NO_VIDEO_HOLDOUT = "--holdout: not for a video scene (ibr-render --holdout removes views from a render)"
+def _no_video_holdout() -> BadValueError:
+    return BadValueError.about("holdout", "not for a video scene (a render job's holdout removes views from "
+                                          "a render: ibr-render --holdout)")
 
 
 def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options: dict | None = None,
@@ -49,8 +51,8 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
     src = Path(input_spec)
     downscale, max_size = check_factors(downscale, max_size)
     if synth is not None and (downscale is not None or max_size is not None):
-        raise BadValueError(f"{'--downscale' if downscale is not None else '--max-size'}: for data sets only "
-                            "(a synthetic scene is made at its --size)")
+        raise BadValueError.about("downscale" if downscale is not None else "max_size",
+                                  "for data sets only (a synthetic scene is made at its own size)")
     if synth is not None:
         params: dict = {"synth": synth, "version": IMPORT_STAGE_VERSION}
     else:
@@ -58,12 +60,12 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
             # A native scene preprocessed in place (`ibr-preprocess SCENE -o SCENE --stages ...`,
             # what the renderers' error messages suggest): nothing to import.
             if not (output / "scene.json").is_file():
-                raise BadValueError(f"-o {output}: output is the input and it holds no native scene "
-                                    f"(scene.json); choose another directory")
+                raise BadValueError.about("output", "output is the input and it holds no native scene "
+                                                    "(scene.json); choose another directory", str(output))
             if held or mesh is not None:
-                flag = "--holdout" if held else "--mesh"
-                raise BadValueError(f"{flag}: only when importing a data set (the input is the scene itself; "
-                                    "import the data set again into another directory)")
+                raise BadValueError.about("holdout" if held else "mesh",
+                                          "only when importing a data set (the input is the scene itself; "
+                                          "import the data set again into another directory)")
             record = existing_record(output, "import") or {}
             return StageResult("import", "up to date", "the input is the scene itself (preprocessed in place)", 0.0,
                                {k: record[k] for k in ("views", "targets") if k in record})
@@ -76,10 +78,12 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
         params["max_size"] = max_size
     if frames is not None:
         if synth is not None:
-            raise BadValueError("--frames A:B: for video data sets (a synthetic video: --frames N)")
+            raise BadValueError.about("frames", "A:B is for video data sets (a synthetic video is made with "
+                                                "its number of frames: ibr-preprocess synth:NAME --frames N)")
         parse_frames(frames)  # a bad value fails before any file is read
         if held or mesh is not None:
-            raise BadValueError(_NO_VIDEO_HOLDOUT if held else "--mesh: not for a video scene (one mesh per frame)")
+            raise (_no_video_holdout() if held else
+                   BadValueError.about("mesh", "not for a video scene (one mesh per frame)"))
         params["frames"] = frames
     user_mesh = None
     if mesh is not None:  # only then, likewise; the mesh's bytes enter the key
@@ -87,7 +91,7 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
 
         user_mesh = read_mesh(mesh, kind="reconstructed")
         if len(user_mesh.faces) == 0:
-            raise BadValueError(f"--mesh {mesh}: the mesh has no faces")
+            raise BadValueError.about("mesh", "the mesh has no faces", str(mesh))
         params["mesh"] = hash_inputs(Path(mesh), {})
     key = (hashlib.blake2b(json.dumps(params, sort_keys=True).encode(), digest_size=16).hexdigest()
            if synth is not None else hash_inputs(src, params))
@@ -101,7 +105,7 @@ def run_import(input_spec: str, output: Path, *, fmt: str | None = None, options
         from ibrtools.synth import make_video
 
         if held:
-            raise BadValueError(_NO_VIDEO_HOLDOUT)
+            raise _no_video_holdout()
         video, scenes = make_video(**synth)
         fmt_used = f"synth:{synth['preset']}"
     elif frames is not None:  # a video data set: its frames, each a still scene
@@ -184,7 +188,7 @@ def depth_outlier_warning(views) -> str | None:
     share, name, top, p99 = max(hits)
     return (f"depth outliers in {len(hits)} of {n} views (worst: {name}, {100 * share:.2g} % of its depth beyond "
             f"twice its 99th percentile {p99:.4g}, up to {top:.4g}); view selection leaves them out; if they are "
-            "a sensor's invalid code, mark it unknown (rgbd: --opt invalid_depth=V or max_depth=M)")
+            "a sensor's invalid code, mark it unknown (the rgbd importer's option invalid_depth=V or max_depth=M)")
 
 
 def hold_out(scene: Scene, names: list[str]) -> Scene:
@@ -193,17 +197,17 @@ def hold_out(scene: Scene, names: list[str]) -> Scene:
     views (``ibr-render --holdout`` instead removes views from one render, after the stages ran on
     them). Names must be input views, not all of them, and not names of existing targets."""
     if scene.frames:
-        raise BadValueError(_NO_VIDEO_HOLDOUT)
+        raise _no_video_holdout()
     have = {v.name for v in scene.views}
     missing = [n for n in names if n not in have]
     if missing:
         shown = ", ".join(sorted(have)[:8]) + (", ..." if len(have) > 8 else "")
-        raise BadValueError(f"--holdout: no input view named {', '.join(missing)} (views: {shown})")
+        raise BadValueError.about("holdout", f"no input view named {', '.join(missing)} (views: {shown})")
     if len(set(names)) >= len(scene.views):
-        raise BadValueError("--holdout: every input view is held out; at least one must remain")
+        raise BadValueError.about("holdout", "every input view is held out; at least one must remain")
     clash = sorted(set(names) & {t.name for t in scene.targets})
     if clash:
-        raise BadValueError(f"--holdout: the scene already has targets named {', '.join(clash)}")
+        raise BadValueError.about("holdout", f"the scene already has targets named {', '.join(clash)}")
     keep = set(names)
     return replace(scene, views=[v for v in scene.views if v.name not in keep],
                    targets=[*scene.targets, *[v for v in scene.views if v.name in keep]])

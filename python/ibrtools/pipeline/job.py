@@ -126,7 +126,7 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: Mappi
     out_dir = check_output_dir(out_dir)
     sink = YuvSink(yuv, yuv_bits, job)  # bad --yuv values fail before anything is written
     if yuv is not None and D.wanted(scheduler, workers):
-        raise BadValueError("--yuv: not with --workers/--scheduler (the frames are written by the workers)")
+        raise BadValueError.about("yuv", "not with workers or a scheduler (the frames are written by the workers)")
     name = methods.resolve(method_name, job.scene)
     check_memory(job, name)
     parse_background(background)  # a bad value fails before anything is written
@@ -144,11 +144,13 @@ def run(job: Job, method_name: str, out_dir: str | os.PathLike, *, params: Mappi
             if root is not None and job.scenes is not None:
                 root = Path(root).parents[1]  # a video scene's frame lives in <video>/frames/<frame>/
             if root is None or not (Path(root) / "scene.json").is_file():
-                raise BadValueError("--workers/--scheduler: the workers load the scene from disk; this job's "
-                                    "scene has no scene directory (save it with ibrtools.save_scene first)")
+                raise BadValueError.about(("workers", "scheduler"), "the workers load the scene from disk; this "
+                                          "job's scene has no scene directory (save it with ibrtools.save_scene "
+                                          "first)")
             if job.spec is None:
-                raise BadValueError("--workers/--scheduler: the workers rebuild the job with ibrtools.pipeline.plan.plan(); "
-                                    "this job was not made by plan() with JSON-able arguments")
+                raise BadValueError.about(("workers", "scheduler"), "the workers rebuild the job with "
+                                          "ibrtools.pipeline.plan.plan(); this job was not made by plan() with "
+                                          "JSON-able arguments")
             # Engine threads per task: -j, else 1 (a Dask worker thread is a core; pipeline/distributed.py).
             spec = {"root": str(Path(root).resolve()), "stamp": D.scene_stamp(root), "plan": job.spec,
                     "method": name, "params": dict(params or {}), "frame": frame_kw, "threads": int(threads)}
@@ -314,22 +316,22 @@ class YuvSink:
             targets = {None: Path(path)}
         missing = [c for c in cameras if None not in targets and c not in targets]
         if missing:
-            raise BadValueError(f"--yuv: no output file for camera {missing[0]!r} (files for: "
-                                f"{', '.join(sorted(str(k) for k in targets))})")
+            raise BadValueError.about("yuv", f"no output file for camera {missing[0]!r} (files for: "
+                                             f"{', '.join(sorted(str(k) for k in targets))})")
         if len(set(targets.values())) != len(targets):
-            raise BadValueError("--yuv: two cameras write the same file")
+            raise BadValueError.about("yuv", "two cameras write the same file")
         for key, file in targets.items():
             b = bits.get(key, DEFAULT_YUV_BITS) if isinstance(bits, Mapping) else bits
             if isinstance(b, bool) or not isinstance(b, (int, np.integer)) or not 8 <= b <= 16:
-                raise BadValueError(f"--yuv-bits: expected a bit depth of 8..16, got {b!r}")
+                raise BadValueError.about("yuv_bits", f"expected a bit depth of 8..16, got {b!r}")
             if file.is_dir():
-                raise BadValueError(f"--yuv {file}: is a directory (expected a file name, e.g. out.yuv)")
+                raise BadValueError.about("yuv", "is a directory (expected a file name, e.g. out.yuv)", str(file))
             if not file.parent.is_dir():
-                raise BadValueError(f"--yuv {file}: its folder {file.parent} does not exist")
+                raise BadValueError.about("yuv", f"its folder {file.parent} does not exist", str(file))
             sizes = sorted({(f.camera.width, f.camera.height) for f in job.frames if key in (None, f.camera_name)})
             if len(sizes) > 1:
-                raise BadValueError(f"--yuv: one file holds frames of one size; these frames are "
-                                    f"{', '.join(f'{w}x{h}' for w, h in sizes[:4])}")
+                raise BadValueError.about("yuv", f"one file holds frames of one size; these frames are "
+                                                 f"{', '.join(f'{w}x{h}' for w, h in sizes[:4])}")
             self.files[key] = _YuvFile(file, int(b), sizes[0] if sizes else None)
 
     @property

@@ -30,12 +30,13 @@ def check_mix_options(options: dict) -> None:
     ``tol_db`` a finite number >= 0; a BadValueError naming the option otherwise."""
     bad = sorted(set(options) - set(MIX_DEFAULTS))
     if bad:
-        raise BadValueError(f"--set mix.*: unknown parameter(s) {bad} (parameters: {', '.join(MIX_DEFAULTS)})")
+        raise BadValueError.about("stage_options", f"unknown parameter(s) {bad} (parameters: "
+                                                   f"{', '.join(MIX_DEFAULTS)})", "mix.*")
     views, tol = options.get("views", 1), options.get("tol_db", 0.0)
     if isinstance(views, bool) or not isinstance(views, (int, np.integer)) or views < 1:
-        raise BadValueError(f"--set mix.views={views!r}: expected a whole number of views >= 1")
+        raise BadValueError.about("stage_options", "expected a whole number of views >= 1", f"mix.views={views!r}")
     if isinstance(tol, bool) or not isinstance(tol, (int, float, np.number)) or not 0.0 <= float(tol) < math.inf:
-        raise BadValueError(f"--set mix.tol_db={tol!r}: expected a finite number of dB >= 0")
+        raise BadValueError.about("stage_options", "expected a finite number of dB >= 0", f"mix.tol_db={tol!r}")
 
 
 def fit_pvm_floor(scene: Scene, views: int = MIX_DEFAULTS["views"], tol_db: float = MIX_DEFAULTS["tol_db"],

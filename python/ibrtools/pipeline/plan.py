@@ -125,7 +125,7 @@ def plan(scene: Scene, *, targets: list[str] | None = None, holdout: list[str] |
         frames.append(Frame(v.name, v.camera, v))
     inputs = [v for v in scene.views if v.name not in set(held)]
     if held and not inputs:
-        raise BadValueError("--holdout: every input view is held out; at least one must remain")
+        raise BadValueError.about("holdout", "every input view is held out; at least one must remain")
     for name in targets or []:
         t = scene.target(name)
         frames.append(Frame(t.name, t.camera, t if t.has_color else None))
@@ -133,8 +133,7 @@ def plan(scene: Scene, *, targets: list[str] | None = None, holdout: list[str] |
         # generated from every view of the scene, held out or not: the same path whatever --holdout
         frames += [Frame(f"{path}_{i:04d}", c) for i, c in enumerate(camera_path(scene, path, path_frames))]
     elif path_frames is not None:
-        raise BadValueError("--path-frames: only with --path NAME (a generated path: "
-                            f"{', '.join(GENERATED)})")
+        raise BadValueError.about("path_frames", f"only with a path (a generated path: {', '.join(GENERATED)})")
     if poses is not None:
         frames += read_poses(poses)
     if lightfield is not None:
@@ -145,8 +144,8 @@ def plan(scene: Scene, *, targets: list[str] | None = None, holdout: list[str] |
     if not (held or targets or path or poses or lightfield):
         frames = [Frame(t.name, t.camera, t if t.has_color else None) for t in scene.targets]
         if not frames:
-            raise BadValueError("nothing to render: the scene has no targets; give --target, --holdout, "
-                                "--path or --poses")
+            raise BadValueError.about(("targets", "holdout", "path", "poses"),
+                                      "nothing to render: the scene has no targets; give one of these")
     names = [f.name for f in frames]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
@@ -192,7 +191,7 @@ def holdout_note(scene: Scene, held: list[str], method: str) -> str | None:
              else f"held-out view {held[0]} was an input")
     stages = read[0] if len(read) == 1 else ", ".join(read[:-1]) + " and " + read[-1]
     return (f"{views} of the {stages} stage{'s' if len(read) > 1 else ''} (ibr-preprocess ran on every view): "
-            f"--method {method}'s figures on {'them' if len(held) > 1 else 'it'} are optimistic; to score unseen "
+            f"the {method} method's figures on {'them' if len(held) > 1 else 'it'} are optimistic; to score unseen "
             "views, import them as targets (ibr-preprocess INPUT -o SCENE --holdout NAME ...) and render the targets")
 
 
@@ -259,11 +258,12 @@ def check_memory(job: Job, method: str) -> dict:
     if est["total"] > avail:
         gib = 1 << 30
         big = max(job.frames, key=lambda f: f.camera.width * f.camera.height)
-        raise BadValueError(
-            f"--method {method}: this job needs about {est['total'] / gib:.1f} GiB "
+        raise BadValueError.about(
+            "method",
+            f"this job needs about {est['total'] / gib:.1f} GiB "
             f"({len(job.scene.views)} input views: {est['inputs'] / gib:.1f} GiB; largest frame "
             f"{big.camera.width}x{big.camera.height}: {est['frame'] / gib:.1f} GiB; mesh "
             f"{est['mesh'] / gib:.1f} GiB), only {avail / gib:.1f} GiB is available"
             f"{' (IBR_MEMORY_LIMIT)' if os.environ.get('IBR_MEMORY_LIMIT') else ''}: render smaller frames, "
-            "use fewer input views (dibr: --inputs), or free memory")
+            "use fewer input views (dibr: parameter inputs), or free memory", method)
     return est

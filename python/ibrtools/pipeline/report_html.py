@@ -274,19 +274,20 @@ def page(title: str, body: str) -> str:
             "</body></html>\n")
 
 
-def check_output(path: str | os.PathLike, flag: str = "--report-html") -> Path:
+def check_output(path: str | os.PathLike, argument: str = "report_html") -> Path:
     """Fail early (before any rendering) when a file cannot be written at ``path`` (a
-    directory; a parent that is a file; a folder this process may not write into)."""
+    directory; a parent that is a file; a folder this process may not write into); the error
+    names the argument ``argument``."""
     p = Path(path)
     if p.is_dir():
-        raise BadValueError(f"{flag} {p}: is a directory (give a file name)")
+        raise BadValueError.about(argument, "is a directory (give a file name)", str(p))
     probe = p.parent
     while not probe.exists() and probe != probe.parent:
         probe = probe.parent
     if not probe.is_dir():
-        raise BadValueError(f"{flag} {p}: {probe} is not a directory")
+        raise BadValueError.about(argument, f"{probe} is not a directory", str(p))
     if not os.access(probe, os.W_OK | os.X_OK):
-        raise BadValueError(f"{flag} {p}: cannot write into {probe}")
+        raise BadValueError.about(argument, f"cannot write into {probe}", str(p))
     return p
 
 

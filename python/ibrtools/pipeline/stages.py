@@ -459,7 +459,7 @@ def run_stages(root: str | os.PathLike, *, methods: list[str] | None = None, sta
     avail = available_stages()
     if stages is not None:
         wanted = _closure([s for s in stages])
-        why = {s: ("selected (--stages)" if s in stages else
+        why = {s: ("selected" if s in stages else
                    "read by " + ", ".join(t for t in stages if s in _closure([t]) and t != s)) for s in wanted}
     else:
         wanted = _closure([s for s in avail if STAGES[s].methods & set(methods)])
@@ -469,7 +469,7 @@ def run_stages(root: str | os.PathLike, *, methods: list[str] | None = None, sta
                 why[s] = "read by a needed stage"
     wanted = [s for s in wanted if s in avail]
     if not wanted:  # nothing to plan: no scene load, no hashing (the plain import stays fast)
-        reason = ("not selected (--stages)" if stages is not None else
+        reason = ("not selected" if stages is not None else
                   f"not needed by methods {', '.join(methods) or 'none'}")
         return [StageResult(name, "skipped", reason) for name in ORDER if name in avail]
     with D.LazyClient(scheduler, workers, threads) as cluster:
@@ -501,7 +501,7 @@ def _run_planned(root: Path, options: dict, wanted: list[str], why: dict, avail:
         st = STAGES[name]
         unserved = _SERVES[name](ctx) if name in wanted and name in _SERVES else None
         if name not in wanted or unserved:
-            reason = ("not selected (--stages)" if stages is not None else
+            reason = ("not selected" if stages is not None else
                       f"not needed by methods {', '.join(methods) or 'none'}")
             if unserved:
                 reason += f" ({unserved})"
@@ -634,13 +634,13 @@ def _check_stage_options(options: dict) -> None:
         known = [f.name for f in dataclasses.fields(cls)] if dataclasses.is_dataclass(cls) else None
         unknown = sorted(set(kw) - set(known)) if known is not None else []
         if unknown:
-            raise BadValueError(f"--set {stage}.{unknown[0]}: unknown parameter of stage {stage!r} "
-                                f"(parameters: {', '.join(known)})")
+            raise BadValueError.about("stage_options", f"unknown parameter of stage {stage!r} "
+                                                       f"(parameters: {', '.join(known)})", f"{stage}.{unknown[0]}")
         try:
             cls(**kw)
         except InputError as e:  # a bad value (or type): name the --set that gave it
             key = max((k for k in kw if k in str(e).split(":", 1)[0]), key=len, default=None)
             given = f"{stage}.{key}={kw[key]}" if key is not None else f"{stage}.*"
-            raise BadValueError(f"--set {given}: {e}") from None
+            raise BadValueError.about("stage_options", str(e), given) from None
         except TypeError as e:  # a class that is not a dataclass: its own words
-            raise BadValueError(f"--set {stage}.*: {e}") from None
+            raise BadValueError.about("stage_options", str(e), f"{stage}.*") from None

@@ -38,7 +38,7 @@ from ibrtools.imageio import atomic_path
 def _value(text: str):
     t = text.strip()
     if not t:
-        raise BadValueError("--sweep: empty value")
+        raise BadValueError.about("grid", "empty value")
     low = t.lower()
     if low in ("true", "false"):
         return low == "true"
@@ -51,7 +51,7 @@ def _value(text: str):
     except ValueError:
         return t
     if not math.isfinite(f):
-        raise BadValueError(f"--sweep: value {t!r} is not finite")
+        raise BadValueError.about("grid", f"value {t!r} is not finite")
     return f
 
 
@@ -64,12 +64,12 @@ def parse_sweep(specs: list[str] | None) -> dict[str, list]:
             if not group:
                 continue
             if "=" not in group or not group.split("=", 1)[0].strip():
-                raise BadValueError(f"--sweep {spec!r}: expected key=v1:v2:... groups separated by commas, "
-                                    f"got {group!r}")
+                raise BadValueError.about("grid", f"expected key=v1:v2:... groups separated by commas, "
+                                                  f"got {group!r}", spec)
             key, vals = group.split("=", 1)
             key = key.strip()
             if key in grid:
-                raise BadValueError(f"--sweep: parameter {key!r} is given twice")
+                raise BadValueError.about("grid", f"parameter {key!r} is given twice")
             grid[key] = [_value(v) for v in vals.split(":")]
     return grid
 
@@ -96,8 +96,8 @@ def sweep(scene: Scene, method: str, grid: dict[str, list], *, holdout: list[str
     job = planning.plan(scene, holdout=holdout) if holdout else planning.plan(scene)
     frames = [f for f in job.frames if f.truth is not None and f.truth.has_color]
     if not frames:
-        raise BadValueError("ibr-bench: no frame with ground truth to score (give --holdout NAME ... or a scene "
-                            "whose targets have colour)")
+        raise BadValueError.about("holdout", "no frame with ground truth to score (hold out input views by name, "
+                                             "or bench a scene whose targets have colour)")
     configs = configurations(grid, base)
     # Check every configuration's parameters before rendering anything.
     for c in configs:

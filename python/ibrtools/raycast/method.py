@@ -37,8 +37,8 @@ class ReferenceMethod:
 
         mesh = scene.meshes.get("ground_truth")
         if mesh is None:
-            raise InputError("--method reference: the scene has no ground-truth mesh "
-                             "(reference rendering needs one; synthetic scenes carry it)")
+            raise InputError.about("method", "the scene has no ground-truth mesh (reference rendering needs "
+                                   "one; synthetic scenes carry it)", "reference")
         t0 = time.perf_counter()
         self._renderer = ReferenceRenderer(mesh)
         setup_ms = (time.perf_counter() - t0) * 1e3
