@@ -7,8 +7,8 @@ from typing import Sequence
 
 from ibrtools.errors import BadValueError
 
-from .common import (ArgumentParser, add_common, add_distributed, param_flag, print_json, print_table, progress_bar,
-                     run_command, warn_stale)
+from .common import (ArgumentParser, add_common, add_distributed, arg_flag, param_flag, print_json, print_table,
+                     progress_bar, run_command, warn_stale)
 
 PROG = "ibr-render"
 
@@ -234,17 +234,16 @@ def _body(args: argparse.Namespace) -> int:
     return status
 
 
-# The method parameters that have flags of their own; the others are --param KEY=VALUE.
-PARAM_FLAGS = {"inputs": "--inputs", "quality": "--quality", "blend_exponent": "--blend-exponent",
-               "layers": "--layers", "seeds": "--seeds", "iters": "--iters", "forward": "--forward",
-               "oriented_bounds": "--oriented-bounds", "umbra": "--umbra", "cull": "--cull"}
+# The method parameters that have flags of their own (arg_flag spells them: blend_exponent is
+# --blend-exponent); the others are --param KEY=VALUE.
 DEPTHWARP_FLAGS = ("layers", "seeds", "iters", "forward", "oriented_bounds", "umbra", "cull")
+PARAM_FLAGS = ("inputs", "quality", "blend_exponent") + DEPTHWARP_FLAGS
 
 
 def _param_flag(name: str | None, args: argparse.Namespace) -> str:
     """The flag the user set parameter ``name`` with (its own flag, else --param NAME)."""
     given = {k for k in PARAM_FLAGS if getattr(args, k, None) not in (None, False)}
-    return PARAM_FLAGS[name] if name in given else param_flag(name, args)
+    return arg_flag(name) if name in given else param_flag(name, args)
 
 
 def _params(args: argparse.Namespace) -> dict:
@@ -262,7 +261,7 @@ def _params(args: argparse.Namespace) -> dict:
             params[key] = _number(value)
     depthwarp_only = [k for k in DEPTHWARP_FLAGS if k in params]
     if depthwarp_only and args.method != "depthwarp":
-        raise BadValueError(f"--{depthwarp_only[0].replace('_', '-')}: only with --method depthwarp")
+        raise BadValueError(f"{arg_flag(depthwarp_only[0])}: only with --method depthwarp")
     if args.method != "auto" and args.method in methods.BUILT:
         methods.check_params(args.method, params)  # bad values: exit 2 before any work
     return params
