@@ -227,10 +227,11 @@ def test_background_lookup_and_hole_sides(size, f, data):
     inputs = [(pinhole(h, w, f).to_core(), depth, clear, colour),
               (Camera.equirect(w, h, cam_from_world=np.eye(4)).to_core(), depth, clear, colour)]
     base = rng.uniform(0, 1, (h, w, 3)).astype(np.float32)
+    near, far = data.draw(st.sampled_from([(0.0, 0.0), (0.05, 50.0), (1e-6, 1e6)]))  # without / with the ray test
 
     def lookup():
         out = base.copy()
-        return _core.background_lookup(target.to_core(), inputs, hole, out), out
+        return _core.background_lookup(target.to_core(), inputs, hole, out, near=near, far=far), out
     state, out = same_for_1_and_2_threads(lookup)
     assert set(np.unique(state)) <= {0, 1, 2} and (state[~hole] == 0).all()
     assert np.all(np.isfinite(out))

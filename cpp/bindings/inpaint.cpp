@@ -65,7 +65,8 @@ ImageView<const std::uint8_t> MaskView(const py::handle& obj, const char* name, 
 static void BindBackground(py::module_& m) {
   m.def(
       "background_lookup",
-      [](const Camera& target, py::sequence inputs_obj, py::handle hole_obj, py::handle color_obj) {
+      [](const Camera& target, py::sequence inputs_obj, py::handle hole_obj, py::handle color_obj, double near,
+         double far) {
         const py::ssize_t h = target.height, w = target.width;
         py::object hole_keep;
         const ImageView<const std::uint8_t> hole = MaskView(hole_obj, "hole", h, w, &hole_keep);
@@ -96,20 +97,28 @@ static void BindBackground(py::module_& m) {
           keep.push_back(rgb);
           inputs.push_back(in);
         }
+        if (!(std::isfinite(near) && std::isfinite(far) && near >= 0.0 && far >= 0.0)) {
+          throw BadValueError("near, far: expected finite depths >= 0 (0: no ray test), got " + std::to_string(near) +
+                              ", " + std::to_string(far));
+        }
+        BackgroundRay ray;
+        ray.near = near;
+        ray.far = far;
         auto state = NewArray<std::uint8_t>({h, w});
         {
           py::gil_scoped_release release;
-          BackgroundLookupKernel(target, inputs.data(), static_cast<int>(inputs.size()), hole, ViewOf(color),
+          BackgroundLookupKernel(target, inputs.data(), static_cast<int>(inputs.size()), ray, hole, ViewOf(color),
                                  ViewOf(state));
         }
         return state;
       },
-      py::arg("target"), py::arg("inputs"), py::arg("hole"), py::arg("color"),
+      py::arg("target"), py::arg("inputs"), py::arg("hole"), py::arg("color"), py::kw_only(), py::arg("near") = 0.0,
+      py::arg("far") = 0.0,
       "The background at infinity looked up in the inputs, in their order (cpp/kernels/inpaint/background.h). "
       "target: Camera; inputs: a sequence of (Camera, depth float32 (h, w), clear bool (h, w), color float32 "
       "(h, w, 3)); hole bool or uint8 (H, W); color float32 (H, W, 3), written in place at the background "
-      "pixels found. Returns state uint8 (H, W): at the hole pixels 0 undecided, 1 a surface, 2 background "
-      "(colour written); 0 elsewhere.");
+      "pixels found; near < far (> 0): the ray test between these target depths (0, 0: none). Returns state "
+      "uint8 (H, W): at the hole pixels 0 undecided, 1 a surface, 2 background (colour written); 0 elsewhere.");
 }
 
 // Binding of cpp/kernels/inpaint/clean.h: the checking front and the call with the GIL released.

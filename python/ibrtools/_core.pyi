@@ -464,9 +464,9 @@ class PatchMatchOptions:
     def window_step(self, arg0: typing.SupportsInt | typing.SupportsIndex) -> None:
         ...
 
-def background_lookup(target: Camera, inputs: collections.abc.Sequence[tuple[Camera, _F32, _Bool, _F32]], hole: _Bool, color: _F32) -> _U8:
+def background_lookup(target: Camera, inputs: collections.abc.Sequence[tuple[Camera, _F32, _Bool, _F32]], hole: _Bool, color: _F32, *, near: typing.SupportsFloat | typing.SupportsIndex=0.0, far: typing.SupportsFloat | typing.SupportsIndex=0.0) -> _U8:
     """
-    The background at infinity looked up in the inputs, in their order (cpp/kernels/inpaint/background.h). target: Camera; inputs: a sequence of (Camera, depth float32 (h, w), clear bool (h, w), color float32 (h, w, 3)); hole bool or uint8 (H, W); color float32 (H, W, 3), written in place at the background pixels found. Returns state uint8 (H, W): at the hole pixels 0 undecided, 1 a surface, 2 background (colour written); 0 elsewhere.
+    The background at infinity looked up in the inputs, in their order (cpp/kernels/inpaint/background.h). target: Camera; inputs: a sequence of (Camera, depth float32 (h, w), clear bool (h, w), color float32 (h, w, 3)); hole bool or uint8 (H, W); color float32 (H, W, 3), written in place at the background pixels found; near < far (> 0): the ray test between these target depths (0, 0: none). Returns state uint8 (H, W): at the hole pixels 0 undecided, 1 a surface, 2 background (colour written); 0 elsewhere.
     """
 
 def blur_selection(label: _U8, sigma_blur: typing.SupportsFloat | typing.SupportsIndex, min_weight: typing.SupportsFloat | typing.SupportsIndex=0.0, decimate: bool=False, pvm_floor: typing.SupportsFloat | typing.SupportsIndex=0.0) -> numpy.typing.NDArray[numpy.float32]:

@@ -8,14 +8,38 @@ import pytest
 
 from ibrtools import _core
 from ibrtools.camera import Camera, look_at
-from ibrtools.errors import DtypeError, ShapeError
+from ibrtools.errors import BadValueError, DtypeError, ShapeError
 
 pytestmark = [pytest.mark.asan, pytest.mark.kernel]
 
 
-def reference(target: Camera, inputs, hole: np.ndarray):
+RAY_SAMPLES, RAY_TOLERANCE = 64, 0.01  # BackgroundRay in cpp/kernels/inpaint/background.h
+
+
+def ray_is_free(target: Camera, inputs, direction: np.ndarray, near: float, far: float) -> bool:
+    """The ray test in numpy: every sample of the target's ray that some input sees (inside its
+    image, known depth) is seen past by one of them."""
+    t = near * np.exp(np.log(far / near) / (RAY_SAMPLES - 1) * np.arange(RAY_SAMPLES))
+    points = target.centre + t[:, None] * direction
+    seen = np.zeros(RAY_SAMPLES, bool)
+    free = np.zeros(RAY_SAMPLES, bool)
+    for cam, depth, _, _ in inputs:
+        xy, d = cam.project(points)
+        w, h = cam.width, cam.height
+        with np.errstate(invalid="ignore"):
+            inside = np.isfinite(xy).all(-1) & (xy[:, 0] >= 0) & (xy[:, 0] < w) & (xy[:, 1] >= 0) & (xy[:, 1] < h)
+        for k in np.nonzero(inside)[0]:
+            at = float(depth[min(int(xy[k, 1]), h - 1), min(int(xy[k, 0]), w - 1)])
+            if at > 0:
+                seen[k] = True
+                free[k] |= at > d[k] * (1.0 + RAY_TOLERANCE)
+    return bool(np.all(free | ~seen))
+
+
+def reference(target: Camera, inputs, hole: np.ndarray, near: float = 0.0, far: float = 0.0):
     """(state, rgb) per hole pixel in np.nonzero order: each input in turn, with numpy, for the
-    directions no earlier input decided."""
+    directions no earlier input decided; a background found then passes the ray test when
+    0 < near < far."""
     ys, xs = np.nonzero(hole)
     dirs = target.rays_in_cam(xs + 0.5, ys + 0.5) @ target.cam_from_world[:3, :3]
     state = np.zeros(len(ys), np.uint8)
@@ -50,6 +74,10 @@ def reference(target: Camera, inputs, hole: np.ndarray):
                     wsum += wt
             state[j] = 2
             rgb[j] = (acc / max(wsum, 1e-12)).astype(np.float32)
+    if 0 < near < far:
+        for j in np.nonzero(state == 2)[0]:
+            if not ray_is_free(target, inputs, dirs[j], near, far):
+                state[j], rgb[j] = 0, 0
     return state, rgb
 
 
@@ -90,6 +118,42 @@ def test_lookup_matches_the_reference():
     np.testing.assert_array_equal(color[untouched], before[untouched])
     # no inputs: nothing decided
     assert (_core.background_lookup(target.to_core(), [], hole, color.copy()) == 0).all()
+    # The ray test: the same, less the background directions whose ray passes behind a surface.
+    ray_color = before.copy()
+    ray_state = _core.background_lookup(target.to_core(), [(c.to_core(), d, m, col) for c, d, m, col in inputs],
+                                        hole, ray_color, near=0.5, far=20.0)
+    want_ray, _ = reference(target, inputs, hole, 0.5, 20.0)
+    np.testing.assert_array_equal(ray_state[ys, xs], want_ray)
+    assert 0 < np.count_nonzero(want_ray == 2) < np.count_nonzero(want_state == 2)
+    np.testing.assert_array_equal(ray_color[ray_state == 2], color[ray_state == 2])  # the same colours
+    np.testing.assert_array_equal(ray_color[ray_state != 2], before[ray_state != 2])
+
+
+def test_a_surface_no_input_sees_is_not_background():
+    """Input A at the origin sees a box (depth 2, x/z in [-0.1, 0.1]) against the sky. From a
+    target 1 unit to the right, the ray to (0, 0, 4) passes behind the box as A sees it: its
+    direction is sky in A, but what the target sees there is unknown (it stays a hole). The ray
+    to (0, 0, 1) passes in front of the box: free, the sky."""
+    a = Camera.pinhole(64, 9, 16, 16, 32, 4.5, np.eye(4))
+    depth = np.full((9, 64), np.inf, np.float32)
+    box = np.abs((np.arange(64) + 0.5 - 32) / 16) <= 0.1
+    depth[:, box] = 2.0
+    clear = ~np.repeat(np.convolve(box, np.ones(3), "same")[None] > 0, 9, 0)
+    color = np.ones((9, 64, 3), np.float32)
+    pose = np.eye(4)
+    pose[0, 3] = -1.0  # centre (1, 0, 0)
+    target = Camera.pinhole(64, 9, 16, 16, 32, 4.5, pose)
+    hidden, free = (int(32 + 16 * -1 / 4 - 0.5), 4), (int(32 + 16 * -1 / 1 - 0.5), 4)  # (x, y): dirs (-1, 0, 4), (-1, 0, 1)
+    hole = np.zeros((9, 64), bool)
+    for x, y in (hidden, free):
+        hole[y, x] = True
+    inputs = [(a.to_core(), depth, clear, color)]
+    without = _core.background_lookup(target.to_core(), inputs, hole, np.zeros((9, 64, 3), np.float32))
+    assert without[hidden[1], hidden[0]] == 2 and without[free[1], free[0]] == 2  # the direction alone: sky
+    out = np.zeros((9, 64, 3), np.float32)
+    state = _core.background_lookup(target.to_core(), inputs, hole, out, near=0.5, far=8.0)
+    assert state[hidden[1], hidden[0]] == 0 and (out[hidden[1], hidden[0]] == 0).all()
+    assert state[free[1], free[0]] == 2 and (out[free[1], free[0]] == 1).all()
 
 
 def test_lookup_front_names_bad_arguments():
@@ -109,6 +173,9 @@ def test_lookup_front_names_bad_arguments():
         _core.background_lookup(target.to_core(), [], hole, out[:, :, :2].copy())
     with pytest.raises(ShapeError, match=r"hole: expected"):
         _core.background_lookup(target.to_core(), [], hole[:5], out)
+    for near, far in ((-1.0, 2.0), (1.0, float("inf")), (float("nan"), 1.0)):
+        with pytest.raises(BadValueError, match=r"near, far: expected finite depths >= 0"):
+            _core.background_lookup(target.to_core(), [], hole, out, near=near, far=far)
 
 
 def test_hole_sides_match_nearest_covered():

@@ -14,6 +14,39 @@ constexpr std::uint8_t kUndecided = 0, kSurface = 1, kBackground = 2;
 
 inline bool IsPosInf(float d) { return d == std::numeric_limits<float>::infinity(); }
 
+// What input `in` knows of world point p: 0 nothing (outside its image, behind it, unknown
+// depth), 1 free (it sees past p: its depth there above p's by more than the tolerance, or
+// +inf), 2 on or behind its surface.
+int SeesPast(const BackgroundInput& in, const glm::dvec3& p, double tolerance) {
+  const Camera& cam = in.camera;
+  double x, y, d;
+  if (!cam.ProjectCam(cam.CamFromWorld(p), &x, &y, &d)) return 0;
+  if (!(x >= 0.0 && x < cam.width && y >= 0.0 && y < cam.height)) return 0;  // NaN too
+  const int ix = std::min(static_cast<int>(x), cam.width - 1), iy = std::min(static_cast<int>(y), cam.height - 1);
+  const float at = in.depth.At(iy, ix);
+  if (!(at > 0.0f)) return 0;
+  return static_cast<double>(at) > d * (1.0 + tolerance) ? 1 : 2;  // +inf is free
+}
+
+// Whether every sample of the target's ray origin + t dir that some input sees is free in one of
+// them (background.h: free space is what any input sees past).
+bool RayIsFree(const BackgroundInput* inputs, int num_inputs, const glm::dvec3& origin, const glm::dvec3& dir,
+               const BackgroundRay& ray) {
+  const int n = BackgroundRay::kRaySamples;
+  const double step = std::log(ray.far / ray.near) / (n - 1);
+  for (int k = 0; k < n; ++k) {
+    const glm::dvec3 p = origin + (ray.near * std::exp(step * k)) * dir;
+    bool seen = false, free = false;
+    for (int i = 0; i < num_inputs && !free; ++i) {
+      const int s = SeesPast(inputs[i], p, ray.tolerance);
+      seen |= s != 0;
+      free = s == 1;
+    }
+    if (seen && !free) return false;
+  }
+  return true;
+}
+
 // Asks one input about world direction `dir`: kUndecided, kSurface, or kBackground with rgb set.
 std::uint8_t Ask(const BackgroundInput& in, const glm::dvec3& dir, float rgb[3]) {
   const Camera& cam = in.camera;
@@ -47,8 +80,9 @@ std::uint8_t Ask(const BackgroundInput& in, const glm::dvec3& dir, float rgb[3])
 }  // namespace
 
 void BackgroundLookupKernel(const Camera& target, const BackgroundInput* inputs, int num_inputs,
-                            const ImageView<const std::uint8_t>& hole, const ImageView<float>& color,
-                            const ImageView<std::uint8_t>& state) {
+                            const BackgroundRay& ray, const ImageView<const std::uint8_t>& hole,
+                            const ImageView<float>& color, const ImageView<std::uint8_t>& state) {
+  const glm::dvec3 origin = target.CentreInWorld();
   ParallelFor(hole.height, 8, [&](std::int64_t y0, std::int64_t y1) {
     for (int y = static_cast<int>(y0); y < static_cast<int>(y1); ++y) {
       const std::uint8_t* hrow = hole.Row(y);
@@ -62,6 +96,7 @@ void BackgroundLookupKernel(const Camera& target, const BackgroundInput* inputs,
         std::uint8_t s = kUndecided;
         float rgb[3];
         for (int i = 0; i < num_inputs && s == kUndecided; ++i) s = Ask(inputs[i], dir, rgb);
+        if (s == kBackground && ray.Active() && !RayIsFree(inputs, num_inputs, origin, dir, ray)) s = kUndecided;
         srow[x] = s;
         if (s == kBackground) {
           for (int c = 0; c < 3; ++c) color.At(y, x, c) = rgb[c];

@@ -13,7 +13,16 @@
 //     weight multiplied by "that pixel's depth is +inf" and the sum renormalised (the nearest
 //     pixel, background, is always among them), accumulated in double;
 //   - an input where the direction falls outside, behind the camera, or on unknown depth (0)
-//     does not decide: the next one is asked.
+//     does not decide: the next one is asked;
+//   - the ray test (BackgroundRay, when 0 < near < far): a background direction must also be
+//     free space all along the target's ray in that input. The ray's points at kRaySamples
+//     depths from near to far (geometric steps, the target's depth convention: z for a pinhole,
+//     distance for an equirect camera) are projected into the input; a point the input sees
+//     past (its depth there above the point's by more than the relative `tolerance`, or +inf)
+//     is free, one outside the image, behind the camera or on unknown depth is not looked at,
+//     and one on or behind the input's surface is not proven free: that input does not decide.
+//     Without it, a pixel of a surface that no input sees (self-occluded, behind another part)
+//     took the colour of the background that a displaced input sees past the object.
 // state (H, W) is written at every pixel: at a hole pixel 0 no input decided, 1 an input saw a
 // surface there (or background too near a surface), 2 background: its colour written into
 // `color`; 0 outside the holes, where `color` is neither read nor written.
@@ -24,12 +33,22 @@
 // rows with ibr::ParallelFor; every pixel is independent, so the result is the same for any
 // thread count. Nothing is allocated or thrown.
 #pragma once
+#include <cmath>
 #include <cstdint>
 
 #include "ibr/camera.h"
 #include "ibr/image.h"
 
 namespace ibr {
+
+// The target's ray, searched for surfaces between near and far (background.h header).
+struct BackgroundRay {
+  static constexpr int kRaySamples = 64;
+  double near = 0.0, far = 0.0;  // no ray test unless 0 < near < far
+  double tolerance = 0.01;       // relative depth margin of a free point
+
+  bool Active() const { return near > 0.0 && far > near && std::isfinite(far); }
+};
 
 struct BackgroundInput {
   Camera camera;                         // only its rotation and intrinsics are used
@@ -39,7 +58,7 @@ struct BackgroundInput {
 };
 
 void BackgroundLookupKernel(const Camera& target, const BackgroundInput* inputs, int num_inputs,
-                            const ImageView<const std::uint8_t>& hole, const ImageView<float>& color,
-                            const ImageView<std::uint8_t>& state);
+                            const BackgroundRay& ray, const ImageView<const std::uint8_t>& hole,
+                            const ImageView<float>& color, const ImageView<std::uint8_t>& state);
 
 }  // namespace ibr

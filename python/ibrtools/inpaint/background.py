@@ -6,7 +6,10 @@ rotation-only warp).
 :class:`Background` completes a method's frame after the method ran: every hole pixel whose
 viewing direction the input that faces it best sees as background (depth +inf at its nearest
 pixel in that direction) takes the colour of the input's background pixels around that direction (bilinear,
-over background pixels only: never a foreground colour) and depth +inf, and is no longer a hole.
+over background pixels only: never a foreground colour) and depth +inf, and is no longer a hole,
+when the target's ray in that direction is free space (the ray test: each of its samples that an
+asked input sees, that input or another sees past; a surface that no input sees, hidden behind
+another part, is not the background that a displaced input sees beside the object).
 The inputs are asked in the order of their viewing-direction agreement with the target (at most
 ``MAX_VIEWS`` of them); the first whose image holds the direction with a known depth decides (a
 surface there: a far surface, e.g. ground at the horizon that another input sees past, is not
@@ -40,6 +43,12 @@ MAX_VIEWS = 8
 # the horizon, 2 px: none); wider margins leave the sky of wide-baseline captures to the
 # inpainting, which fills it worse.
 CLEARANCE = 2
+# The ray test (cpp/kernels/inpaint/background.h): a background direction is also free space
+# along the target's ray between the inputs' depth range widened by this factor either way
+# (the 0.1 % and 99.9 % quantiles of their known depth, robust to a few outliers): the target
+# may stand nearer to a surface or farther from it than the inputs.
+RAY_QUANTILE = 0.001
+RAY_MARGIN = 2.0
 
 
 @dataclass
@@ -49,6 +58,8 @@ class Background:
     views: list  # scene.View, each with some depth +inf
     clear: list  # per view: (H, W) bool, no surface pixel within CLEARANCE - 1 pixels (Chebyshev)
     colour: np.ndarray | None = None  # the scene's background colour (linear RGB), when it has one
+    near: float = 0.0  # the ray test's depth bounds (0, 0: no ray test, a scene without surfaces)
+    far: float = 0.0
 
     @classmethod
     def of(cls, views, colour=None) -> "Background | None":
@@ -59,7 +70,8 @@ class Background:
         if not bg:
             return None
         c = None if colour is None else np.asarray(colour, np.float32).reshape(3)
-        return cls(bg, [_clear(np.isfinite(v.depth) & (v.depth > 0)) for v in bg], c)
+        near, far = _ray_bounds(bg)
+        return cls(bg, [_clear(np.isfinite(v.depth) & (v.depth > 0)) for v in bg], c, near, far)
 
     def fill(self, camera: Camera, color: np.ndarray, hole: np.ndarray,
              depth: np.ndarray | None, *, color_is_ours: bool = False
@@ -84,7 +96,8 @@ class Background:
             inputs = [(self.views[i].camera.to_core(), np.ascontiguousarray(self.views[i].depth, np.float32),
                        self.clear[i], np.ascontiguousarray(self.views[i].color, np.float32))
                       for i in self._order(camera)[:MAX_VIEWS]]
-            state = _core.background_lookup(camera.to_core(), inputs, hole, color)  # 0 outside the holes
+            state = _core.background_lookup(camera.to_core(), inputs, hole, color,  # 0 outside the holes
+                                            near=self.near, far=self.far)
             found = state == 2
             # A method that renders geometry says where its rays miss it (depth +inf in a hole):
             # there the background is seen whatever its colour; no input seeing the direction at
@@ -104,6 +117,21 @@ class Background:
         axis = camera.world_from_cam[:3, 2]
         agree = [float(np.dot(v.camera.world_from_cam[:3, 2], axis)) for v in self.views]
         return [int(i) for i in np.argsort(-np.asarray(agree), kind="stable")]
+
+
+def _ray_bounds(views) -> tuple[float, float]:
+    """(near, far) of the ray test: the views' known depth range (RAY_QUANTILE), widened by
+    RAY_MARGIN; (0, 0) when no view has a surface pixel."""
+    lows, highs = [], []
+    for v in views:
+        n, _, _, _, values = _core.valid_depth_order_stats(np.ascontiguousarray(v.depth, np.float32),
+                                                           [RAY_QUANTILE, 1.0 - RAY_QUANTILE])
+        if n:
+            lows.append(values[0])
+            highs.append(values[3])
+    if not lows or not min(lows) > 0:
+        return 0.0, 0.0
+    return float(min(lows)) / RAY_MARGIN, float(max(highs)) * RAY_MARGIN
 
 
 def _clear(surface: np.ndarray, margin: int = CLEARANCE) -> np.ndarray:
