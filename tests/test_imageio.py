@@ -147,4 +147,12 @@ def test_png_level_changes_the_bytes_not_the_pixels(tmp_path):
     for bad in (10, -1, 1.5, True):
         with pytest.raises(BadValueError, match="png_level must be an integer 0-9"):
             write_image(tmp_path / "bad.png", img, png_level=bad)
+    # One row filter: other bytes, the same pixels.
+    plain = (tmp_path / "l1.png").read_bytes()
+    for name in ("none", "sub", "up", "avg", "paeth"):
+        p = write_image(tmp_path / f"f{name}.png", img, png_level=1, png_filter=name)
+        np.testing.assert_array_equal(read_image(p), read_image(tmp_path / "lNone.png"))
+    assert (tmp_path / "fnone.png").read_bytes() != plain or (tmp_path / "fsub.png").read_bytes() != plain
+    with pytest.raises(BadValueError, match="png_filter must be one of none, sub"):
+        write_image(tmp_path / "bad.png", img, png_filter="best")
     assert not (tmp_path / "bad.png").exists()

@@ -387,16 +387,26 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
             signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)
 
 
-def write_image(path: str | os.PathLike, image: np.ndarray, *, bits: int = 8, png_level: int | None = None) -> Path:
+# A PNG's row filters (libpng's PNG_FILTER_* bits), by name.
+PNG_FILTERS = {"none": 0x08, "sub": 0x10, "up": 0x20, "avg": 0x40, "paeth": 0x80}
+
+
+def write_image(path: str | os.PathLike, image: np.ndarray, *, bits: int = 8, png_level: int | None = None,
+                png_filter: str | None = None) -> Path:
     """Write linear float colour (H, W, C). PNG/JPEG/TIFF: sRGB-encoded at ``bits`` (8 or 16;
     an alpha channel stays linear); EXR/PFM: linear float32, as it is (NaN written as 0, +-inf kept: a depth map's
     background at infinity). ``png_level``: a PNG's zlib compression level, 0-9 (None: zlib's
     default, 6; 1 encodes a 1080p frame about 2.6x faster for a file about 30 % larger; the
-    pixels are the same); other formats ignore it."""
+    pixels are the same); ``png_filter``: one row filter of PNG_FILTERS for every row (None:
+    libpng's adaptive choice among all five, which tries each per row; "sub" at level 1 encodes a
+    1080p frame in 40 ms of CPU instead of 86 ms, for a file 1.6 % larger; the same pixels);
+    other formats ignore both."""
     path = Path(path)
     if png_level is not None and (isinstance(png_level, bool) or not isinstance(png_level, int)
                                   or not 0 <= png_level <= 9):
         raise BadValueError(f"{path}: png_level must be an integer 0-9, got {png_level!r}")
+    if png_filter is not None and png_filter not in PNG_FILTERS:
+        raise BadValueError(f"{path}: png_filter must be one of {', '.join(PNG_FILTERS)}, got {png_filter!r}")
     image = np.asarray(image)
     if image.ndim == 2:
         image = image[:, :, None]
@@ -427,6 +437,8 @@ def write_image(path: str | os.PathLike, image: np.ndarray, *, bits: int = 8, pn
         spec = oiio.ImageSpec(w, h, c, "uint8" if bits == 8 else "uint16")
         if png_level is not None and ext == ".png":
             spec.attribute("png:compressionLevel", png_level)
+        if png_filter is not None and ext == ".png":
+            spec.attribute("png:filter", PNG_FILTERS[png_filter])
     else:
         raise FormatError(f"{path}: unknown image extension {ext!r} (expected one of "
                           f"{sorted(FLOAT_EXTS | INT_EXTS)})")
