@@ -125,11 +125,11 @@ def test_write_is_atomic(tmp_path, monkeypatch):
     class Boom(Exception):
         pass
 
-    real = io.linear_to_srgb
-    monkeypatch.setattr(io, "linear_to_srgb", lambda v: (_ for _ in ()).throw(Boom()))
+    real = io.srgb8
+    monkeypatch.setattr(io, "srgb8", lambda v: (_ for _ in ()).throw(Boom()))
     with pytest.raises(Boom):
         write_image(f, np.ones((4, 4, 3), np.float32))
-    monkeypatch.setattr(io, "linear_to_srgb", real)
+    monkeypatch.setattr(io, "srgb8", real)
     assert f.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["keep.png"]
 

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from ibrtools import _core
-from ibrtools.imageio import linear_to_srgb, srgb_to_linear
+from ibrtools.errors import DtypeError, ShapeError
+from ibrtools.imageio import linear_to_srgb, quantize, srgb8, srgb_to_linear
 
 pytestmark = [pytest.mark.asan, pytest.mark.tsan]
 
@@ -75,7 +76,26 @@ def test_non_contiguous_input_and_lists():
     np.testing.assert_array_equal(linear_to_srgb([0.25, 0.75]), linear_to_srgb(np.array([0.25, 0.75], np.float32)))
 
 
-@pytest.mark.parametrize("fn", [linear_to_srgb, srgb_to_linear])
+def test_srgb8_is_the_quantised_encoding_bit_for_bit():
+    # _core.linear_to_srgb8 (one pass) against numpy's round of linear_to_srgb * 255, on random
+    # values in and out of [0, 1], the edges, and a dense band of every 7th float in [2^-11, 1]
+    # (every float in [0, 1], 1.07e9 values, was checked once the same way: no difference).
+    rng = np.random.default_rng(8)
+    x = np.concatenate([rng.random(300_000, dtype=np.float32), rng.normal(0.5, 1, 100_000).astype(np.float32),
+                        np.array([np.nan, np.inf, -np.inf, 0.0, -0.0, 1.0, 1e-40, 2.0, 0.5 / 255], np.float32),
+                        np.arange(0x3A000000, 0x3F800001, 7, dtype=np.uint32).view(np.float32)])
+    got = _core.linear_to_srgb8(x)
+    assert got.dtype == np.uint8 and got.shape == x.shape
+    np.testing.assert_array_equal(got, quantize(linear_to_srgb(x)))
+    np.testing.assert_array_equal(srgb8(x[:3000].reshape(-1, 1, 3)), quantize(linear_to_srgb(x[:3000])).reshape(-1, 1, 3))
+    assert srgb8(np.float32(0.5)).shape == ()
+    with pytest.raises(ShapeError, match="C-contiguous"):
+        _core.linear_to_srgb8(np.zeros((4, 6), np.float32)[:, ::2])
+    with pytest.raises(DtypeError, match="values: expected a float32 array, got float64"):
+        _core.linear_to_srgb8(np.zeros(3))
+
+
+@pytest.mark.parametrize("fn", [linear_to_srgb, srgb_to_linear, srgb8])
 def test_same_bits_on_one_and_two_threads(fn):
     x = np.random.default_rng(4).uniform(-0.1, 1.1, (301, 257, 3)).astype(np.float32)
     try:

@@ -123,6 +123,7 @@ OVERRIDES: dict[str, dict[str, str]] = {
                                   "noise": "collections.abc.Sequence[_F32]", "flow": "_F32 | _F64 | None"},
     "metameric_encode": {"image": "_F32", "return": "_F32"},
     "linear_to_srgb": {"values": "_F32", "return": "_F32"},
+    "linear_to_srgb8": {"values": "_F32", "return": "_U8"},
     "lookup_codes": {"codes": "_U8 | _U16", "table": "_F32", "return": "_F32"},
     "valid_depth_order_stats": {"depth": "_F32", "quantiles": "collections.abc.Sequence[float]",
                                 "return": "tuple[int, float, float, list[int], list[float]]"},

@@ -17,9 +17,8 @@
 namespace ibr::bind {
 namespace {
 
-// out = kernel(values) for a C-contiguous float32 array of any shape (a new array of its shape),
-// with the GIL released.
-py::array_t<float> MapValues(const py::handle& values_obj, void (*kernel)(const float*, float*, std::int64_t)) {
+// `values` checked: a C-contiguous float32 array of any shape.
+py::array_t<float, py::array::c_style> CheckedValues(const py::handle& values_obj) {
   if (!py::isinstance<py::array>(values_obj)) {
     throw DtypeError("values: expected a numpy float32 array, got " +
                      std::string(py::str(py::type::of(values_obj).attr("__name__"))));
@@ -32,7 +31,13 @@ py::array_t<float> MapValues(const py::handle& values_obj, void (*kernel)(const 
   if (!(a.flags() & py::array::c_style)) {
     throw ShapeError("values: expected a C-contiguous array (use numpy.ascontiguousarray)");
   }
-  const auto values = py::reinterpret_borrow<py::array_t<float, py::array::c_style>>(a);
+  return py::reinterpret_borrow<py::array_t<float, py::array::c_style>>(a);
+}
+
+// out = kernel(values) for a C-contiguous float32 array of any shape (a new array of its shape),
+// with the GIL released.
+py::array_t<float> MapValues(const py::handle& values_obj, void (*kernel)(const float*, float*, std::int64_t)) {
+  const auto values = CheckedValues(values_obj);
   py::array_t<float> out(std::vector<py::ssize_t>(values.shape(), values.shape() + values.ndim()));
   const float* in = values.data();
   float* o = out.mutable_data();
@@ -124,6 +129,22 @@ void BindCore(py::module_& m) {
       "ibrtools.imageio.linear_to_srgb): the IEC 61966-2-1 sRGB curve of every value of a C-contiguous "
       "float32 array of any shape, clamped to [0, 1] first, NaN -> 0; within 1e-6 (relative) of the exact "
       "curve. Returns a new float32 array of the same shape.");
+  m.def(
+      "linear_to_srgb8",
+      [](py::handle values_obj) {
+        const auto values = CheckedValues(values_obj);
+        py::array_t<std::uint8_t> out(std::vector<py::ssize_t>(values.shape(), values.shape() + values.ndim()));
+        const float* in = values.data();
+        std::uint8_t* o = out.mutable_data();
+        const std::int64_t n = values.size();
+        py::gil_scoped_release release;
+        LinearToSrgb8(in, o, n);
+        return out;
+      },
+      py::arg("values"),
+      "linear_to_srgb's values as 8-bit codes in one pass (cpp/ibr/colour.h LinearToSrgb8; Python: "
+      "ibrtools.imageio.srgb8): round(linear_to_srgb(values) * 255), ties to even, the same bits as numpy's. "
+      "values: C-contiguous float32 of any shape; returns uint8 of the same shape.");
   m.def(
       "lookup_codes",
       [](py::handle codes_obj, py::handle table_obj) {

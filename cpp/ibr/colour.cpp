@@ -73,6 +73,26 @@ void ParallelValues(const float* in, float* out, std::int64_t n, Run run) {
 void LinearToSrgb(const float* in, float* out, std::int64_t n) { ParallelValues(in, out, n, EncodeUnitRun); }
 
 namespace {
+// q[i] = e[i] * 255 rounded to nearest, ties to even (nearbyint in the default rounding mode:
+// numpy's round), for e in [0, 1]: float32 multiply, as numpy multiplies a float32 array by 255.
+IBR_AVX2_CLONES void Quantize8Run(const float* e, std::uint8_t* q, std::int64_t n) {
+  for (std::int64_t i = 0; i < n; ++i) q[i] = static_cast<std::uint8_t>(std::nearbyint(e[i] * 255.0f));
+}
+}  // namespace
+
+void LinearToSrgb8(const float* in, std::uint8_t* out, std::int64_t n) {
+  const std::int64_t chunk = std::int64_t(1) << 16;  // values per task
+  ParallelFor((n + chunk - 1) / chunk, 1, [&](std::int64_t c0, std::int64_t c1) {
+    float encoded[4096];  // one cache-resident run of the curve at a time
+    for (std::int64_t i = c0 * chunk, i1 = std::min(n, c1 * chunk); i < i1; i += 4096) {
+      const std::int64_t m = std::min<std::int64_t>(4096, i1 - i);
+      EncodeUnitRun(in + i, encoded, m);
+      Quantize8Run(encoded, out + i, m);
+    }
+  });
+}
+
+namespace {
 template <class T>
 void LookupCodesT(const T* codes, const float* table, float* out, std::int64_t n) {
   const std::int64_t chunk = std::int64_t(1) << 16;  // values per task

@@ -80,6 +80,11 @@ float SrgbDecode(float e);
 // IEC 61966-2-1 curve, like SrgbEncode.
 void LinearToSrgb(const float* in, float* out, std::int64_t n);
 
+// LinearToSrgb's values as 8-bit codes in one pass (Python: ibrtools.imageio.srgb8, every 8-bit file
+// written): out[i] = LinearToSrgb(in[i]) * 255 (float32) rounded to nearest, ties to even: the bits
+// of numpy's round(linear_to_srgb(v) * 255) without the float array between; multithreaded.
+void LinearToSrgb8(const float* in, std::uint8_t* out, std::int64_t n);
+
 // The sRGB encoding of linear colour for blending in sRGB space (Python: ibrtools.dibr.method.srgb_encode,
 // the DIBR inputs with blend_space "srgb"): out[i] = SrgbEncode(max(in[i], 0)) for n values (in and out may
 // be the same memory), multithreaded: negative values and -inf -> +0, not clipped above 1 (HDR inputs keep

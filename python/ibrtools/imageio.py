@@ -66,8 +66,11 @@ def quantize(encoded: np.ndarray, bits: int = 8) -> np.ndarray:
 
 
 def srgb8(linear: np.ndarray) -> np.ndarray:
-    """Linear colour -> 8-bit sRGB (clipped to [0, 1], NaN -> 0), as PNGs are written."""
-    return quantize(linear_to_srgb(linear))
+    """Linear colour -> 8-bit sRGB (clipped to [0, 1], NaN -> 0), as PNGs are written:
+    ``quantize(linear_to_srgb(linear))`` in one C++ pass (``_core.linear_to_srgb8``, the same bits)."""
+    from ibrtools import _core
+
+    return _core.linear_to_srgb8(np.asarray(linear, dtype=np.float32, order="C"))  # 0-d stays 0-d
 
 
 # Images read without an expected size (textures, reports, importers that learn the size from the
@@ -429,11 +432,14 @@ def write_image(path: str | os.PathLike, image: np.ndarray, *, bits: int = 8, pn
             raise BadValueError(f"{path}: bits must be 8 or 16, got {bits}")
         if ext in (".jpg", ".jpeg") and bits != 8:
             raise BadValueError(f"{path}: JPEG is 8-bit only")
-        enc = image.astype(np.float32).copy()
         colour = min(c, 3) if c != 2 else 1
-        enc[..., :colour] = linear_to_srgb(enc[..., :colour])
-        enc[..., colour:] = np.clip(np.nan_to_num(enc[..., colour:]), 0, 1)
-        pixels = quantize(enc, bits)
+        if bits == 8 and colour == c:
+            pixels = srgb8(image)  # the colour in one pass, without the float copy
+        else:
+            enc = image.astype(np.float32).copy()
+            enc[..., :colour] = linear_to_srgb(enc[..., :colour])
+            enc[..., colour:] = np.clip(np.nan_to_num(enc[..., colour:]), 0, 1)
+            pixels = quantize(enc, bits)
         spec = oiio.ImageSpec(w, h, c, "uint8" if bits == 8 else "uint16")
         if png_level is not None and ext == ".png":
             spec.attribute("png:compressionLevel", png_level)
