@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
+from conftest import synth_scene_dir
 
 SIZE = "160x120"
 
@@ -30,11 +31,7 @@ def _tree(root: Path) -> dict[str, str]:
 
 @pytest.fixture(scope="module")
 def scene_dir(tmp_path_factory):
-    from ibrtools_cli import preprocess
-
-    d = tmp_path_factory.mktemp("hostile") / "scene"
-    assert preprocess.main(["synth:objects", "-o", str(d), "--views", "4", "--size", SIZE, "-q"]) == 0
-    return d
+    return synth_scene_dir(tmp_path_factory, "--views", "4", "--size", SIZE, name="hostile")
 
 
 def _pose(scene_dir: Path, name) -> dict:

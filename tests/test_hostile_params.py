@@ -7,13 +7,12 @@ import pytest
 from ibrtools.errors import BadValueError
 from ibrtools import methods
 from ibrtools_cli import bench, preprocess, render
+from conftest import synth_scene_dir
 
 
 @pytest.fixture(scope="module")
 def scene_dir(tmp_path_factory):
-    d = tmp_path_factory.mktemp("hostile") / "scene"
-    assert preprocess.main(["synth:objects", "-o", str(d), "--views", "4", "--size", "48x36", "-q"]) == 0
-    return d
+    return synth_scene_dir(tmp_path_factory, "--views", "4", "--size", "48x36", name="hostile")
 
 
 def _one_line(capsys, *names: str) -> str:

@@ -14,7 +14,8 @@ from ibrtools.errors import BadValueError, InputError, ParamError
 from ibrtools import methods
 from ibrtools.dibr.method import DibrMethod, DibrParams
 from ibrtools.scene import Scene, View
-from ibrtools_cli import preprocess, render
+from ibrtools_cli import render
+from conftest import synth_scene_dir
 
 needs_kernel = pytest.mark.skipif(not hasattr(_core, "DibrAccumulator"),
                                   reason="_core.DibrAccumulator (the DIBR kernel) is not built")
@@ -88,9 +89,7 @@ def test_selection_uses_listed_inputs_only():
 # --- end to end --------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def scene_dir(tmp_path_factory):
-    d = tmp_path_factory.mktemp("dibr") / "scene"
-    assert preprocess.main(["synth:objects", "-o", str(d), "--views", "8", "--size", "96x72", "-q"]) == 0
-    return d
+    return synth_scene_dir(tmp_path_factory, "--views", "8", "--size", "96x72", name="dibr")
 
 
 @needs_kernel

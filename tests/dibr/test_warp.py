@@ -21,7 +21,8 @@ import pytest
 from ibrtools import BadValueError, Camera, DtypeError, ShapeError, _core
 from ibrtools.errors import InputError
 from ibrtools.dibr.warp import WarpMethod, WarpParams
-from ibrtools_cli import preprocess, render
+from ibrtools_cli import render
+from conftest import synth_scene_dir
 
 pytestmark = [pytest.mark.asan, pytest.mark.kernel]
 
@@ -290,9 +291,7 @@ def scene_dir(tmp_path_factory):
     # 16 views on the ring (22.5 degrees apart): the warp is meant for small view changes
     # (frame to frame); at 60 degrees most of the oblique ground plane is magnified past the
     # stretch threshold and becomes disocclusion.
-    d = tmp_path_factory.mktemp("warp") / "objects"
-    assert preprocess.main(["synth:objects", "-o", str(d), "--views", "16", "--size", "64x48", "-q"]) == 0
-    return d
+    return synth_scene_dir(tmp_path_factory, "--views", "16", "--size", "64x48", name="warp")
 
 
 def test_cli_holdout_inpaint_pushpull(scene_dir, tmp_path):

@@ -11,6 +11,7 @@ from ibrtools.errors import BadValueError, DtypeError, ShapeError
 from ibrtools.inpaint import inpaint, pushpull
 from ibrtools.inpaint.metameric import level_masks, local_moments, metameric, noise_pyramid
 from ibrtools.metamers.steerable import analyse, synthesise
+from conftest import synth_scene_dir
 
 
 def _texture(n: int = 96, seed: int = 1) -> np.ndarray:
@@ -308,11 +309,7 @@ def test_bad_input():
 # --- ibr-render --method warp --inpaint metameric, end to end ---------------------------------
 @pytest.fixture(scope="module")
 def scene_dir(tmp_path_factory):
-    from ibrtools_cli import preprocess
-
-    d = tmp_path_factory.mktemp("metameric") / "scene"
-    assert preprocess.main(["synth:objects", "-o", str(d), "--views", "6", "--size", "64x48", "-q"]) == 0
-    return d
+    return synth_scene_dir(tmp_path_factory, "--views", "6", "--size", "64x48", name="metameric")
 
 
 def test_cli_warp_inpaint_metameric(scene_dir, tmp_path):

@@ -10,6 +10,7 @@ import pytest
 from ibrtools import _core
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
 from ibrtools.inpaint import inpaint, pushpull
+from conftest import synth_scene_dir
 
 pytestmark = [pytest.mark.asan, pytest.mark.kernel]
 
@@ -427,11 +428,7 @@ def test_inpaint_switch():
 # --- ibr-render --inpaint, end to end -------------------------------------------------------
 @pytest.fixture(scope="module")
 def scene_dir(tmp_path_factory):
-    from ibrtools_cli import preprocess
-
-    d = tmp_path_factory.mktemp("inpaint") / "scene"
-    assert preprocess.main(["synth:objects", "-o", str(d), "--views", "6", "--size", "64x48", "-q"]) == 0
-    return d
+    return synth_scene_dir(tmp_path_factory, "--views", "6", "--size", "64x48", name="inpaint")
 
 
 def test_cli_render_dibr_inpaint_pushpull(scene_dir, tmp_path, capsys):

@@ -10,6 +10,7 @@ from ibrtools import _core
 from ibrtools.metamers import foveate as fv
 from ibrtools.errors import BadValueError, DtypeError, ShapeError
 from ibrtools.metamers.steerable import analyse, synthesise
+from conftest import synth_scene_dir
 
 pytestmark = [pytest.mark.asan, pytest.mark.kernel]
 
@@ -297,11 +298,7 @@ def test_bad_input():
 # ---------------------------------------------------------------- CLI
 @pytest.fixture(scope="module")
 def scene_dir(tmp_path_factory):
-    from ibrtools_cli import preprocess
-
-    d = tmp_path_factory.mktemp("fov") / "scene"
-    assert preprocess.main(["synth:objects", "-o", str(d), "--views", "3", "--size", "64x48", "-q"]) == 0
-    return d
+    return synth_scene_dir(tmp_path_factory, "--views", "3", "--size", "64x48", name="fov")
 
 
 def test_cli_foveate_end_to_end(scene_dir, tmp_path):
