@@ -14,15 +14,16 @@
 //     pixel, background, is always among them), accumulated in double;
 //   - an input where the direction falls outside, behind the camera, or on unknown depth (0)
 //     does not decide: the next one is asked;
-//   - the ray test (BackgroundRay, when 0 < near < far): a background direction must also be
-//     free space all along the target's ray in that input. The ray's points at kRaySamples
-//     depths from near to far (geometric steps, the target's depth convention: z for a pinhole,
-//     distance for an equirect camera) are projected into the input; a point the input sees
-//     past (its depth there above the point's by more than the relative `tolerance`, or +inf)
-//     is free, one outside the image, behind the camera or on unknown depth is not looked at,
-//     and one on or behind the input's surface is not proven free: that input does not decide.
-//     Without it, a pixel of a surface that no input sees (self-occluded, behind another part)
-//     took the colour of the background that a displaced input sees past the object.
+//   - the ray test (BackgroundRay, when 0 < near < far): a background direction is background
+//     only when the target's ray is free space as the inputs show it. The ray's points at
+//     kRaySamples depths from near to far (geometric steps, the target's depth convention: z for
+//     a pinhole, distance for an equirect camera) are projected into every input (with its pose);
+//     an input sees past a point when its depth there (nearest pixel) is above the point's by
+//     more than the relative `tolerance`, or +inf; a point outside an input's image, behind it or
+//     on unknown depth is not seen by it. Every point some input sees must be seen past by one of
+//     them; else the pixel is undecided (state 0: a hole for the inpainting). Without it, a pixel
+//     of a surface that no input sees (self-occluded, behind another part) took the colour of the
+//     background that a displaced input sees beside the object.
 // state (H, W) is written at every pixel: at a hole pixel 0 no input decided, 1 an input saw a
 // surface there (or background too near a surface), 2 background: its colour written into
 // `color`; 0 outside the holes, where `color` is neither read nor written.
@@ -51,7 +52,7 @@ struct BackgroundRay {
 };
 
 struct BackgroundInput {
-  Camera camera;                         // only its rotation and intrinsics are used
+  Camera camera;                         // the direction: rotation and intrinsics; the ray test: its pose
   ImageView<const float> depth;          // (h, w)
   ImageView<const std::uint8_t> clear;   // (h, w)
   ImageView<const float> color;          // (h, w, 3), linear
