@@ -28,17 +28,15 @@ int SeesPast(const BackgroundInput& in, const glm::dvec3& p, double tolerance) {
   return static_cast<double>(at) > d * (1.0 + tolerance) ? 1 : 2;  // +inf is free
 }
 
-// Whether every sample of the target's ray origin + t dir that some input sees is free in one of
-// them (background.h: free space is what any input sees past).
+// Whether every sample of the target's ray origin + t dir (t in `ts`, kRaySamples of them) that
+// some input sees is free in one of them (background.h: free space is what any input sees past).
 bool RayIsFree(const BackgroundInput* inputs, int num_inputs, const glm::dvec3& origin, const glm::dvec3& dir,
-               const BackgroundRay& ray) {
-  const int n = BackgroundRay::kRaySamples;
-  const double step = std::log(ray.far / ray.near) / (n - 1);
-  for (int k = 0; k < n; ++k) {
-    const glm::dvec3 p = origin + (ray.near * std::exp(step * k)) * dir;
+               const double* ts, double tolerance) {
+  for (int k = 0; k < BackgroundRay::kRaySamples; ++k) {
+    const glm::dvec3 p = origin + ts[k] * dir;
     bool seen = false, free = false;
     for (int i = 0; i < num_inputs && !free; ++i) {
-      const int s = SeesPast(inputs[i], p, ray.tolerance);
+      const int s = SeesPast(inputs[i], p, tolerance);
       seen |= s != 0;
       free = s == 1;
     }
@@ -83,6 +81,12 @@ void BackgroundLookupKernel(const Camera& target, const BackgroundInput* inputs,
                             const BackgroundRay& ray, const ImageView<const std::uint8_t>& hole,
                             const ImageView<float>& color, const ImageView<std::uint8_t>& state) {
   const glm::dvec3 origin = target.CentreInWorld();
+  // The ray's sample depths, the same for every pixel: geometric steps from near to far.
+  double ts[BackgroundRay::kRaySamples] = {};
+  if (ray.Active()) {
+    const double step = std::log(ray.far / ray.near) / (BackgroundRay::kRaySamples - 1);
+    for (int k = 0; k < BackgroundRay::kRaySamples; ++k) ts[k] = ray.near * std::exp(step * k);
+  }
   ParallelFor(hole.height, 8, [&](std::int64_t y0, std::int64_t y1) {
     for (int y = static_cast<int>(y0); y < static_cast<int>(y1); ++y) {
       const std::uint8_t* hrow = hole.Row(y);
@@ -96,7 +100,9 @@ void BackgroundLookupKernel(const Camera& target, const BackgroundInput* inputs,
         std::uint8_t s = kUndecided;
         float rgb[3];
         for (int i = 0; i < num_inputs && s == kUndecided; ++i) s = Ask(inputs[i], dir, rgb);
-        if (s == kBackground && ray.Active() && !RayIsFree(inputs, num_inputs, origin, dir, ray)) s = kUndecided;
+        if (s == kBackground && ray.Active() && !RayIsFree(inputs, num_inputs, origin, dir, ts, ray.tolerance)) {
+          s = kUndecided;
+        }
         srow[x] = s;
         if (s == kBackground) {
           for (int c = 0; c < 3; ++c) color.At(y, x, c) = rgb[c];
