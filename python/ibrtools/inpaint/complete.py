@@ -190,10 +190,14 @@ def _fill(color: np.ndarray, hole: np.ndarray, depth: np.ndarray | None, bg: np.
     over the hole), else by push-pull from the background pixels only."""
     bg = np.zeros(hole.shape, bool) if bg is None else bg
     d = None if depth is None else np.asarray(depth, np.float32)
-    surface = ~hole & ~bg
+    blocked = hole | bg  # what a fill never reads from
+    surface = ~blocked
     known_depth = np.zeros(hole.shape, np.float32)
     if d is not None:
-        known_depth = np.where(surface & np.isfinite(d) & (d > 0), d, np.float32(0))
+        known = d > 0
+        known &= d < np.inf  # finite and > 0 (NaN fails both)
+        known &= surface
+        known_depth = np.where(known, d, np.float32(0))
     # The nearest covered pixels left, right, above and below each hole pixel
     # (cpp/kernels/inpaint/hole_sides.h): how many, how many of them background, and the largest
     # depth of the surface ones (known_depth is 0 on the background).
@@ -213,12 +217,15 @@ def _fill(color: np.ndarray, hole: np.ndarray, depth: np.ndarray | None, bg: np.
         method = "pushpull" if mode == "auto" else mode
         aware = None
         if d is not None and known_depth.any():
-            aware = np.where(hole, np.where(around > 0, around, np.float32(known_depth.max())), known_depth)
-            aware[sky] = 0  # not read: the background holes are blocked as the background is
+            # A hole pixel's background depth is `around` (0 outside the holes, where known_depth
+            # is 0 inside them), or the largest known depth where no side found one.
+            aware = np.maximum(known_depth, around)
+            np.copyto(aware, known_depth.max(), where=hole & (around <= 0))
+            np.copyto(aware, np.float32(0), where=sky)  # not read: the background holes are blocked as the background is
         if method == "pushpull":  # the surface holes filled in place (color is ours: complete's)
-            out = pushpull(color, hole | bg, depth=aware, write=ground, out=color)
+            out = pushpull(color, blocked, depth=aware, write=ground, out=color)
         else:
-            filled = fill_holes(color, hole | bg, method, depth=aware)  # never from the background at infinity
+            filled = fill_holes(color, blocked, method, depth=aware)  # never from the background at infinity
             out = np.where(ground[..., None], filled, out)
     if sky.any():
         filled = bg_colour.astype(np.float32) if bg_colour is not None else \
