@@ -104,14 +104,15 @@ class Background:
             # there the background is seen whatever its colour; no input seeing the direction at
             # all, it takes the scene's background colour.
             if self.colour is not None:
-                miss = hole & (state == 0) & np.isposinf(depth)
+                miss = hole & (state == 0) & (depth == np.inf)
                 if miss.any():
-                    color[miss] = self.colour
+                    np.copyto(color, self.colour, where=miss[..., None])
                     found |= miss
             hole &= ~found
-            depth[found] = np.inf
-        depth[hole & np.isposinf(depth)] = 0  # still a hole: unknown
-        background = np.isposinf(depth) & ~hole
+            np.copyto(depth, np.float32(np.inf), where=found)
+        np.copyto(depth, np.float32(0), where=hole & (depth == np.inf))  # still a hole: unknown
+        background = depth == np.inf
+        background &= ~hole
         return color, hole, depth, background
 
     def _order(self, camera: Camera) -> list[int]:
