@@ -12,14 +12,23 @@
 #include <immintrin.h>  // AVX2: only in target("avx2") functions, called when the CPU has it
 
 #include "ibr/parallel.h"
+#include "ibr/raster.h"
 #include "ibr/simd.h"
 
 namespace ibr {
 namespace {
 
+// The rasteriser core (cpp/ibr/raster.h): fixed point, edge functions and their fill rule, the
+// candidate centres and the span scan.
+using raster::CeilSub;
+using raster::Edges;
+using raster::FloorSub;
+using raster::kSubpixel;
+using raster::RoundHalfAway;
+using raster::SetupEdges;
+
 constexpr int kSegCols = 16;     // input quads per column segment (y-range culling unit)
 constexpr int kBandRows = 32;    // target rows per rasterisation task
-constexpr int kSubpixel = 256;   // fixed point: 1/256 pixel
 constexpr float kGuardPixels = 16384.f;
 constexpr float kInf = std::numeric_limits<float>::infinity();
 constexpr std::int32_t kInvalid = std::numeric_limits<std::int32_t>::min();
@@ -29,16 +38,6 @@ constexpr std::int32_t kInvalid = std::numeric_limits<std::int32_t>::min();
 // operations in the same order, so the same bits; tests/dibr/test_forward_warp_isa.py compares both
 // paths) and follow the engine's process-wide switch.
 
-// Floor / ceil of a / 256 (arithmetic shift: floor for negative a too).
-inline std::int64_t FloorSub(std::int64_t a) { return a >> 8; }
-inline std::int64_t CeilSub(std::int64_t a) { return -((-a) >> 8); }
-inline std::int64_t FloorDiv(std::int64_t a, std::int64_t b) {
-  std::int64_t q = a / b;
-  if ((a % b != 0) && ((a < 0) != (b < 0))) --q;
-  return q;
-}
-inline std::int64_t CeilDiv(std::int64_t a, std::int64_t b) { return -FloorDiv(-a, b); }
-
 // The three input pixels (linear indices) of triangle `id` of an input of width w.
 inline void TriangleVertices(std::uint32_t id, int w, std::int64_t v[3]) {
   const std::int64_t a = id >> 1;  // the block's top-left pixel
@@ -47,14 +46,6 @@ inline void TriangleVertices(std::uint32_t id, int w, std::int64_t v[3]) {
   } else {
     v[0] = a + 1; v[1] = a + w + 1; v[2] = a + w;
   }
-}
-
-// std::lround(v) without the library call: the same value for |v| < 2^31 (v - trunc(v) is
-// exact). Branch-free: the rounding direction is random per vertex, a branch mispredicts.
-inline std::int32_t RoundHalfAway(double v) {
-  const std::int32_t t = static_cast<std::int32_t>(v);  // truncation
-  const double frac = v - double(t);
-  return t + std::int32_t(frac >= 0.5) - std::int32_t(frac <= -0.5);
 }
 
 // Inverse depth of a finite vertex, clamped to [1e-30, 1e30] (depth 1e-30 .. 1e30): 1 / depth of
@@ -86,29 +77,6 @@ inline float Weight(float q, float d, float p) {
 // float (floored at 1e-36). The same scalar multiply on every ISA path (bit-identical).
 inline void ScaleRow(float* w, int n, float factor) {
   for (int x = 0; x < n; ++x) w[x] = w[x] > 0.f ? std::max(w[x] * factor, 1e-36f) : 0.f;
-}
-
-// Fixed-point edge functions of a triangle with vertices X, Y (1/256 px), set up at the pixel
-// centre (px0 + 0.5, py0 + 0.5). Edge e is opposite vertex e: from vertex e+1 to vertex e+2;
-// E_e / area2 = barycentric e. e_row includes the tie-rule bias (-1 on edges the triangle
-// does not own), so "covered" is simply E_0, E_1, E_2 >= 0. inclusive (the DIBR shader): every
-// edge owns its points (bias 0), so a centre on an edge shared by two triangles goes to both.
-struct Edges {
-  std::int64_t ex[3], ey[3], e_row[3], bias[3];
-};
-
-inline void SetupEdges(const std::int64_t X[3], const std::int64_t Y[3], int px0, int py0, bool inclusive, Edges* E) {
-  const std::int64_t sx = std::int64_t(px0) * kSubpixel + kSubpixel / 2;
-  const std::int64_t sy = std::int64_t(py0) * kSubpixel + kSubpixel / 2;
-  for (int e = 0; e < 3; ++e) {
-    const int a = (e + 1) % 3, b = (e + 2) % 3;
-    const std::int64_t dx = X[b] - X[a], dy = Y[b] - Y[a];
-    const bool owns = inclusive || dy > 0 || (dy == 0 && dx < 0);
-    E->ex[e] = -dy * kSubpixel;  // step in x
-    E->ey[e] = dx * kSubpixel;   // step in y
-    E->bias[e] = owns ? 0 : 1;
-    E->e_row[e] = dx * (sy - Y[a]) - dy * (sx - X[a]) - E->bias[e];
-  }
 }
 
 // Coverage of the nx x ny (each 1 or 2) centres from the set-up corner: bit 2 * j + i set when
@@ -299,22 +267,17 @@ void RasterTriangle(const Context& cx, std::uint32_t id, int band_y0, int band_y
     y[k] = float(Y[k]) * (1.f / kSubpixel);
   }
   if (X[0] == kInvalid || X[1] == kInvalid || X[2] == kInvalid) return;
-  const std::int64_t area2 = (X[1] - X[0]) * (Y[2] - Y[0]) - (Y[1] - Y[0]) * (X[2] - X[0]);
+  const std::int64_t area2 = raster::Area2(X, Y);
   if (area2 <= 0) return;  // back-facing or degenerate
   const std::int64_t min_x = std::min(X[0], std::min(X[1], X[2])), max_x = std::max(X[0], std::max(X[1], X[2]));
   if (cx.equirect_target && max_x - min_x > std::int64_t(cx.tw) * kSubpixel / 2) return;  // straddles the seam
-  const std::int64_t min_y = std::min(Y[0], std::min(Y[1], Y[2])), max_y = std::max(Y[0], std::max(Y[1], Y[2]));
-  static_assert(kSubpixel == 256, "FloorSub / CeilSub divide by 256");
-  const int px0 = static_cast<int>(std::max<std::int64_t>(0, CeilSub(min_x - kSubpixel / 2)));
-  const int px1 = static_cast<int>(std::min<std::int64_t>(cx.tw - 1, FloorSub(max_x - kSubpixel / 2)));
-  const int py0 = static_cast<int>(std::max<std::int64_t>(band_y0, CeilSub(min_y - kSubpixel / 2)));
-  const int py1 = static_cast<int>(std::min<std::int64_t>(band_y1 - 1, FloorSub(max_y - kSubpixel / 2)));
-  if (px0 > px1 || py0 > py1) return;
+  raster::CentreBox box;
+  if (!raster::Centres(X, Y, 0, cx.tw - 1, band_y0, band_y1 - 1, &box)) return;
+  const int px0 = box.x0, px1 = box.x1, py0 = box.y0, py1 = box.y1;
 
   Edges E;
   SetupEdges(X, Y, px0, py0, Sh::kInclusiveEdges, &E);
-  const std::int64_t *ex = E.ex, *ey = E.ey;
-  std::int64_t* e_row = E.e_row;
+  const std::int64_t *ex = E.ex, *ey = E.ey, *e_row = E.e_row;
   // Small triangles (<= 2 x 2 candidate centres): test them directly.
   const bool small = px1 - px0 <= 1 && py1 - py0 <= 1;
   const unsigned mask = small ? SmallCoverage(E, px1 - px0 + 1, py1 - py0 + 1) : 0u;
@@ -340,31 +303,9 @@ void RasterTriangle(const Context& cx, std::uint32_t id, int band_y0, int band_y
     }
     return;
   }
-  // Wide triangles (long slivers across disocclusions): per row, the exact span where the three
-  // edge functions are >= 0 (integer division), instead of scanning the whole bounding box.
-  const bool spans = px1 - px0 >= 8;
-  for (int py = py0; py <= py1; ++py, e_row[0] += ey[0], e_row[1] += ey[1], e_row[2] += ey[2]) {
-    int xs = px0, xe = px1;
-    if (spans) {
-      for (int e = 0; e < 3; ++e) {
-        const std::int64_t v = e_row[e], st = ex[e];
-        if (st > 0) {
-          if (v < 0) xs = static_cast<int>(std::max<std::int64_t>(xs, px0 + CeilDiv(-v, st)));
-        } else if (st < 0) {
-          xe = v < 0 ? px0 - 1 : static_cast<int>(std::min<std::int64_t>(xe, px0 + v / (-st)));
-        } else if (v < 0) {
-          xe = px0 - 1;
-        }
-      }
-      if (xs > xe) continue;
-    }
-    std::int64_t e0 = e_row[0] + ex[0] * (xs - px0), e1 = e_row[1] + ex[1] * (xs - px0),
-                 e2 = e_row[2] + ex[2] * (xs - px0);
-    for (int px = xs; px <= xe; ++px) {
-      if ((e0 | e1 | e2) >= 0) sh.Shade(px, py, e0, e1, e2);
-      e0 += ex[0]; e1 += ex[1]; e2 += ex[2];
-    }
-  }
+  raster::ScanTriangle(E, box, [&](int px, int py, std::int64_t e0, std::int64_t e1, std::int64_t e2) {
+    sh.Shade(px, py, e0, e1, e2);
+  });
 }
 
 // Shades one triangle of a small quad whose covered candidate centres are `mask` (bit 4 j + i:
@@ -399,7 +340,7 @@ inline void ShadeSmallTriangle(const Context& cx, const WarpVertex& v0, const Wa
 inline void SmallEdge(const WarpVertex& p, const WarpVertex& q, std::int32_t sx, std::int32_t sy, bool inclusive,
                       std::int32_t* ex, std::int32_t* ey, std::int32_t* er, std::int64_t* bias) {
   const std::int32_t dx = q.x - p.x, dy = q.y - p.y;
-  const bool owns = inclusive || dy > 0 || (dy == 0 && dx < 0);
+  const bool owns = inclusive || raster::OwnsEdge(dx, dy);
   *ex = -dy * kSubpixel;
   *ey = dx * kSubpixel;
   *bias = owns ? 0 : 1;

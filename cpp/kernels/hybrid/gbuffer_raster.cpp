@@ -10,6 +10,7 @@
 
 #include "ibr/bands.h"
 #include "ibr/parallel.h"
+#include "ibr/raster.h"
 #include "ibr/simd.h"
 
 namespace ibr {
@@ -17,117 +18,90 @@ namespace {
 
 constexpr int kBandRows = 16;
 
+// A triangle to draw: snapped vertices (cpp/ibr/raster.h), oriented so that area2 > 0.
 struct ScreenTri {
-  double x[3], y[3], iz[3];  // pixel coordinates (centres at +0.5) and 1 / z
+  std::int64_t X[3], Y[3];
+  double iz[3];  // 1 / z at the vertices
+  std::int64_t area2;
   std::int32_t prim;
-  int y0, y1;  // rows whose centres may be covered, [y0, y1]
-  int x0, x1;  // columns, [x0, x1]
+  raster::CentreBox box;  // candidate centres in the image
 };
 
-// Appends the screen triangles of face `prim` (camera-space vertices p) clipped to z >= near.
+// Appends the screen triangles of face `prim` (camera-space vertices p) clipped to z >= near and to
+// the rasteriser's guard band.
 void SetUp(const Camera& cam, const glm::dvec3 p[3], double near, std::int32_t prim, std::vector<ScreenTri>* out) {
   glm::dvec3 poly[4];
-  int n = 0;
-  for (int i = 0; i < 3; ++i) {
-    const glm::dvec3& a = p[i];
-    const glm::dvec3& b = p[(i + 1) % 3];
-    const bool ina = a.z >= near, inb = b.z >= near;
-    if (ina) poly[n++] = a;
-    if (ina != inb) {
-      const double t = (near - a.z) / (b.z - a.z);
-      glm::dvec3 c = a + t * (b - a);
-      c.z = near;
-      poly[n++] = c;
-    }
-  }
+  const bool in_front = p[0].z >= near && p[1].z >= near && p[2].z >= near;  // most faces: no clip
+  if (in_front) std::copy(p, p + 3, poly);
+  const int n = in_front ? 3 : raster::ClipPolygon(
+      p, 3, poly, [near](const glm::dvec3& v) { return v.z >= near; },
+      [](const glm::dvec3& a, const glm::dvec3& b) {
+        return a.x < b.x || (a.x == b.x && (a.y < b.y || (a.y == b.y && a.z < b.z)));
+      },
+      [near](const glm::dvec3& a, const glm::dvec3& b) {
+        const double t = (near - a.z) / (b.z - a.z);
+        glm::dvec3 c = a + t * (b - a);
+        c.z = near;
+        return c;
+      });
   if (n < 3) return;
-  double sx[4], sy[4], iz[4];
+  raster::ScreenVertex sv[8];
+  bool in_band = true;
   for (int i = 0; i < n; ++i) {
-    iz[i] = 1.0 / poly[i].z;
-    sx[i] = cam.fx * poly[i].x * iz[i] + cam.cx;
-    sy[i] = cam.fy * poly[i].y * iz[i] + cam.cy;
+    const double iz = 1.0 / poly[i].z;
+    sv[i] = {cam.fx * poly[i].x * iz + cam.cx, cam.fy * poly[i].y * iz + cam.cy, iz};
+    if (!(std::isfinite(sv[i].x) && std::isfinite(sv[i].y) && std::isfinite(iz))) return;
+    in_band = in_band && raster::InGuardBand(sv[i].x, sv[i].y);
   }
-  for (int k = 1; k + 1 < n; ++k) {
+  raster::ScreenVertex clipped[8];
+  const raster::ScreenVertex* v = sv;
+  int m = n;
+  if (!in_band) {  // a face reaching far outside the image (next to the near plane)
+    m = raster::ClipToGuardBand(sv, n, clipped);
+    v = clipped;
+  }
+  for (int k = 1; k + 1 < m; ++k) {
     const int idx[3] = {0, k, k + 1};
     ScreenTri t;
-    double minx = INFINITY, maxx = -INFINITY, miny = INFINITY, maxy = -INFINITY;
     for (int j = 0; j < 3; ++j) {
-      t.x[j] = sx[idx[j]];
-      t.y[j] = sy[idx[j]];
-      t.iz[j] = iz[idx[j]];
-      minx = std::min(minx, t.x[j]);
-      maxx = std::max(maxx, t.x[j]);
-      miny = std::min(miny, t.y[j]);
-      maxy = std::max(maxy, t.y[j]);
+      t.X[j] = raster::ToFixed(v[idx[j]].x);
+      t.Y[j] = raster::ToFixed(v[idx[j]].y);
+      t.iz[j] = v[idx[j]].iz;
     }
-    if (!(std::isfinite(minx) && std::isfinite(maxx) && std::isfinite(miny) && std::isfinite(maxy))) continue;
-    // Pixel i has its centre at i + 0.5: covered columns satisfy minx <= i + 0.5 <= maxx.
-    const double cx0 = std::ceil(minx - 0.5), cx1 = std::floor(maxx - 0.5);
-    const double cy0 = std::ceil(miny - 0.5), cy1 = std::floor(maxy - 0.5);
-    if (cx1 < 0 || cy1 < 0 || cx0 > cam.width - 1 || cy0 > cam.height - 1 || cx0 > cx1 || cy0 > cy1) continue;
-    t.x0 = static_cast<int>(std::max(0.0, cx0));
-    t.x1 = static_cast<int>(std::min(double(cam.width - 1), cx1));
-    t.y0 = static_cast<int>(std::max(0.0, cy0));
-    t.y1 = static_cast<int>(std::min(double(cam.height - 1), cy1));
+    t.area2 = raster::Area2(t.X, t.Y);
+    if (t.area2 == 0) continue;
+    if (t.area2 < 0) {  // either winding: the G-buffer draws both sides
+      std::swap(t.X[1], t.X[2]);
+      std::swap(t.Y[1], t.Y[2]);
+      std::swap(t.iz[1], t.iz[2]);
+      t.area2 = -t.area2;
+    }
+    if (!raster::Centres(t.X, t.Y, 0, cam.width - 1, 0, cam.height - 1, &t.box)) continue;
     t.prim = prim;
     out->push_back(t);
   }
 }
 
-// Scan-converts t into rows [r0, r1] of the band: nearest 1/z wins (ties: smaller prim).
+// Scan-converts t into rows [r0, r1] of the band (the core's inclusive edges: a centre on an edge
+// shared by two faces is covered by both, no cracks): nearest 1/z wins (ties: smaller prim). 1/z
+// is interpolated with the snapped triangle's barycentric weights.
 void Raster(const ScreenTri& t, int r0, int r1, int width, float* best_iz, std::int32_t* prim) {
-  const double area = (t.x[1] - t.x[0]) * (t.y[2] - t.y[0]) - (t.x[2] - t.x[0]) * (t.y[1] - t.y[0]);
-  if (!(std::abs(area) > 0.0) || !std::isfinite(area)) return;
-  const double s = area > 0 ? 1.0 : -1.0;
-  // Edge function of edge (a -> b) at (x, y): s * ((bx - ax) (y - ay) - (by - ay) (x - ax)) >= 0 inside.
-  double ea[3], eb[3], ec[3];
-  for (int i = 0; i < 3; ++i) {
-    const int a = (i + 1) % 3, b = (i + 2) % 3;  // edge opposite vertex i
-    ea[i] = -s * (t.y[b] - t.y[a]);
-    eb[i] = s * (t.x[b] - t.x[a]);
-    ec[i] = -(ea[i] * t.x[a] + eb[i] * t.y[a]);
-  }
-  // 1/z as a plane over the screen: barycentric weights w_i = e_i / (s * area).
-  const double inv = 1.0 / (s * area);
-  const double za = inv * (ea[0] * t.iz[0] + ea[1] * t.iz[1] + ea[2] * t.iz[2]);
-  const double zb = inv * (eb[0] * t.iz[0] + eb[1] * t.iz[1] + eb[2] * t.iz[2]);
-  const double zc = inv * (ec[0] * t.iz[0] + ec[1] * t.iz[1] + ec[2] * t.iz[2]);
-  const int y0 = std::max(r0, t.y0), y1 = std::min(r1, t.y1);
-  for (int y = y0; y <= y1; ++y) {
-    const double py = y + 0.5;
-    // Columns where all three edge functions are >= 0 on this row: intersect the half-lines.
-    double lo = t.x0 + 0.5, hi = t.x1 + 0.5;
-    bool empty = false;
-    for (int i = 0; i < 3; ++i) {
-      const double c = eb[i] * py + ec[i];
-      if (ea[i] > 0) {
-        lo = std::max(lo, -c / ea[i]);
-      } else if (ea[i] < 0) {
-        hi = std::min(hi, -c / ea[i]);
-      } else if (c < 0) {
-        empty = true;
-      }
+  raster::CentreBox box = t.box;
+  box.y0 = std::max(box.y0, r0);
+  box.y1 = std::min(box.y1, r1);
+  if (box.y0 > box.y1) return;
+  raster::Edges E;
+  raster::SetupEdges(t.X, t.Y, box.x0, box.y0, /*inclusive=*/true, &E);
+  const double inv = 1.0 / static_cast<double>(t.area2);
+  raster::ScanTriangle(E, box, [&](int x, int y, std::int64_t e0, std::int64_t e1, std::int64_t e2) {
+    const float iz = static_cast<float>(
+        (static_cast<double>(e0) * t.iz[0] + static_cast<double>(e1) * t.iz[1] + static_cast<double>(e2) * t.iz[2]) * inv);
+    const std::int64_t i = static_cast<std::int64_t>(y) * width + x;
+    if (iz > best_iz[i] || (iz == best_iz[i] && t.prim < prim[i])) {
+      best_iz[i] = iz;
+      prim[i] = t.prim;
     }
-    if (empty || lo > hi) continue;
-    int xa = static_cast<int>(std::ceil(lo - 0.5)), xb = static_cast<int>(std::floor(hi - 0.5));
-    xa = std::max(xa, t.x0);
-    xb = std::min(xb, t.x1);
-    float* bz = best_iz + static_cast<std::int64_t>(y) * width;
-    std::int32_t* bp = prim + static_cast<std::int64_t>(y) * width;
-    for (int x = xa; x <= xb; ++x) {
-      const double px = x + 0.5;
-      // Exact inclusion re-check (the bounds above are divided; rounding may admit a pixel).
-      if (ea[0] * px + eb[0] * py + ec[0] < 0 || ea[1] * px + eb[1] * py + ec[1] < 0 ||
-          ea[2] * px + eb[2] * py + ec[2] < 0) {
-        continue;
-      }
-      const float iz = static_cast<float>(za * px + zb * py + zc);
-      if (iz > bz[x] || (iz == bz[x] && t.prim < bp[x])) {
-        bz[x] = iz;
-        bp[x] = t.prim;
-      }
-    }
-  }
+  });
 }
 
 // Rows [r0, r1] of the visibility pass: cleared, then the triangles reaching them (`tris`, the
@@ -245,7 +219,7 @@ void RasterGBuffer(const Camera& camera, const float* vertices, std::int64_t num
   ParallelFor(nchunks, 1, [&](std::int64_t b, std::int64_t e) {
     for (std::int64_t c = b; c < e; ++c) {
       auto& out = parts[c];
-      out.reserve(static_cast<std::size_t>(chunk));  // no regrowth (a face clipped by the near plane may give 2)
+      out.reserve(static_cast<std::size_t>(chunk));  // a clipped face may give up to 6 (then it regrows)
       for (std::int64_t f = c * chunk; f < std::min(num_faces, (c + 1) * chunk); ++f) {
         const std::int32_t* fv = faces + 3 * f;
         const glm::dvec3 p[3] = {pc[fv[0]], pc[fv[1]], pc[fv[2]]};
@@ -262,7 +236,7 @@ void RasterGBuffer(const Camera& camera, const float* vertices, std::int64_t num
   std::vector<const ScreenTri*> binned;
   BinByBand<const ScreenTri*>(nbands, kBandRows, [&](auto&& emit) {
     for (const auto& part : parts) {
-      for (const ScreenTri& t : part) emit(&t, t.y0, t.y1);
+      for (const ScreenTri& t : part) emit(&t, t.box.y0, t.box.y1);
     }
   }, start, binned);
   // Visibility, band by band: depth holds 1/z meanwhile (0 = nothing).

@@ -14,8 +14,9 @@
 #include "ibr/bands.h"
 #include "ibr/fastmath.h"
 #include "ibr/parallel.h"
-#include "ibr/simd.h"
+#include "ibr/raster.h"
 #include "ibr/resample.h"
+#include "ibr/simd.h"
 #include "kernels/hybrid/ulr.h"
 
 namespace ibr {
@@ -117,10 +118,6 @@ __attribute__((target("avx2"))) void PairSumsAvx2(const float* pw, const float* 
 
 #endif  // __GNUC__
 #endif
-
-// The edge a->b owns its pixels exactly on it when it is a "top-left" edge under this one
-// consistent rule; the reversed edge of a neighbour gets the complement (watertight).
-inline bool OwnsEdge(double dx, double dy) { return dy > 0.0 || (dy == 0.0 && dx < 0.0); }
 
 // Clips [t0, t1] to where the ray o + t dir is inside the box [lo, hi] (slabs); a ray parallel
 // to a slab and outside it empties the interval (t1 = -1).
@@ -329,11 +326,18 @@ void PvmSelectTiles(const PvmTileArrays& tiles, const PvmViews& views, const std
   }
 }
 
-// Slack of PvmRasterise's per-row column spans, in pixels (was a whole pixel each side: 2-3 extra
-// exact tests per row of a triangle, most of which cover no pixel centre).
-constexpr double kSpanSlack = 1e-6;
-// Screen coordinates beyond this (pixels) skip the vertex's triangles (int conversions stay defined).
-constexpr float kMaxScreen = 1e9f;
+// Screen coordinates beyond the rasteriser's guard band (pixels) send the vertex's faces to the
+// clipping path.
+constexpr float kMaxScreen = static_cast<float>(raster::kGuardPixels);
+
+// raster::ToFixed of a float (|v| <= kMaxScreen), in float arithmetic so that the vertex loop
+// vectorises: v * 256 and v - trunc(v) are exact in float, so the same integer.
+inline std::int32_t ToFixedF(float v) {
+  const float s = v * static_cast<float>(raster::kSubpixel);
+  const std::int32_t t = static_cast<std::int32_t>(s);
+  const float frac = s - static_cast<float>(t);
+  return t + std::int32_t(frac >= 0.5f) - std::int32_t(frac <= -0.5f);
+}
 
 // Prefetch of the cache line at p. GCC removes loops of __builtin_prefetch alone (seen here: a
 // tile's prefetch loop compiled to nothing), so on x86 it is an asm statement it keeps.
@@ -388,16 +392,15 @@ inline bool FacesPoint(const float* pa, const float* pb, const float* pc, float 
   return nx * (cx - pa[0]) + ny * (cy - pa[1]) + nz * (cz - pa[2]) > 0.f;
 }
 
-// World point where the segment p -> q (camera depths zp >= near > zq) meets the plane z = near,
-// computed from the lexicographically smaller end so that two faces sharing the edge get the same
-// point (no crack between them).
-inline void NearCut(const float* p, float zp, const float* q, float zq, float near, float* out) {
-  if (std::lexicographical_compare(q, q + 3, p, p + 3)) {
-    std::swap(p, q);
-    std::swap(zp, zq);
-  }
-  const float t = (near - zp) / (zq - zp);
-  for (int a = 0; a < 3; ++a) out[a] = p[a] + t * (q[a] - p[a]);
+// A face's vertex for the near-plane clip: world position and camera depth.
+struct NearVertex {
+  float p[3];
+  float z;
+  std::int32_t index;  // the tile vertex it is, or -1 for a cut point
+};
+
+inline bool WorldLess(const NearVertex& a, const NearVertex& b) {
+  return std::lexicographical_compare(a.p, a.p + 3, b.p, b.p + 3);
 }
 
 void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camera& camera,
@@ -488,7 +491,8 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
   std::uint32_t* cs = frame.cand_seen.data();
   std::vector<std::int64_t> tri_count(static_cast<std::size_t>(nb), 0);
   const auto bands = [&](std::int64_t b0, std::int64_t b1) {
-    std::vector<float> sx, sy, siz, sz;  // this tile's vertices: screen x, y, 1/z; camera z
+    std::vector<float> siz, sz;  // this tile's vertices: 1/z (-1: not drawable as is), camera z
+    std::vector<std::int32_t> fx, fy;  // and their snapped screen positions (cpp/ibr/raster.h)
     std::vector<KeptFace> kept, near_kept;
     // The camera and near plane as locals of the task (the vertex loop vectorises).
     const float r[16] = {cam[0], cam[1], cam[2], cam[3], cam[4], cam[5], cam[6], cam[7],
@@ -514,10 +518,10 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
         const std::uint8_t rank = frame.tile_rank[static_cast<std::size_t>(i)];
         const std::int64_t v0 = tiles.vertex_offsets[t], v1 = tiles.vertex_offsets[t + 1];
         const std::size_t nv = static_cast<std::size_t>(v1 - v0);
-        sx.resize(nv), sy.resize(nv), siz.resize(nv), sz.resize(nv);
+        fx.resize(nv), fy.resize(nv), siz.resize(nv), sz.resize(nv);
         const float* wv = tiles.vertices + 3 * v0;  // this tile's world vertices
-        float* vx = sx.data();
-        float* vy = sy.data();
+        std::int32_t* vx = fx.data();
+        std::int32_t* vy = fy.data();
         float* viz = siz.data();
         float* vz = sz.data();
         for (std::size_t k = 0; k < nv; ++k) {
@@ -525,57 +529,76 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
           const float X = r[0] * v[0] + r[1] * v[1] + r[2] * v[2] + r[9];
           const float Y = r[3] * v[0] + r[4] * v[1] + r[5] * v[2] + r[10];
           const float Z = r[6] * v[0] + r[7] * v[1] + r[8] * v[2] + r[11];
-          // Without a branch (vectorised): a vertex behind the near plane, or projecting further
-          // than kMaxScreen pixels from the origin, gets siz -1 (its triangles are skipped) and a
-          // finite (unused) screen position: screen bounds are converted to int (a NaN is kMaxScreen).
+          // Without a branch (vectorised): a vertex behind the near plane, or projecting outside
+          // the guard band, gets siz -1 (its faces take the clipping path) and a snapped position
+          // of a clamped (unused) value: a NaN clamps to kMaxScreen.
           const float iz = 1.f / Z;
           const float px = r[12] * X * iz + r[14], py = r[13] * Y * iz + r[15];
           const float qx = std::max(-kMaxScreen, std::min(kMaxScreen, px));
           const float qy = std::max(-kMaxScreen, std::min(kMaxScreen, py));
-          vx[k] = qx;
-          vy[k] = qy;
+          vx[k] = ToFixedF(qx);
+          vy[k] = ToFixedF(qy);
           vz[k] = Z;
           const bool use = std::isgreaterequal(Z, near) & (qx == px) & (qy == py);  // quiet compares
           viz[k] = use ? iz : -1.f;
         }
         // The pixel centres a face (vertices a, b, c of this tile) may cover in this band and the tile's box.
         const auto pixel_bounds = [&](std::size_t a, std::size_t b, std::size_t c) {
-          const float ymn = std::min({sy[a], sy[b], sy[c]}), ymx = std::max({sy[a], sy[b], sy[c]});
-          const float xmn = std::min({sx[a], sx[b], sx[c]}), xmx = std::max({sx[a], sx[b], sx[c]});
-          return std::array<int, 4>{std::max(ty0, static_cast<int>(std::ceil(ymn - 0.5f))),
-                                    std::min(ty1, static_cast<int>(std::floor(ymx - 0.5f))),
-                                    std::max(tx0, static_cast<int>(std::ceil(xmn - 0.5f))),
-                                    std::min(tx1, static_cast<int>(std::floor(xmx - 0.5f)))};
+          const std::int64_t X[3] = {fx[a], fx[b], fx[c]}, Y[3] = {fy[a], fy[b], fy[c]};
+          raster::CentreBox cb;
+          raster::Centres(X, Y, tx0, tx1, ty0, ty1, &cb);  // empty: x0 > x1 or y0 > y1
+          return std::array<int, 4>{cb.y0, cb.y1, cb.x0, cb.x1};
         };
-        // A face with a vertex behind the near plane and one in front is clipped against it (the
-        // pieces' new vertices appended to this tile's); rare, so a branch.
+        // A face with a vertex behind the near plane and one in front, or one beyond the guard
+        // band, is clipped against both (the pieces' new vertices appended to this tile's); rare,
+        // so a branch. Cut points come from the lexicographically smaller end (world position
+        // for the near plane, screen position for the guard band): two faces sharing an edge get
+        // the same point, no crack between them.
         near_kept.clear();
-        const auto clip_near = [&](std::size_t ia, std::size_t ib, std::size_t ic) {
-          const std::size_t id[3] = {ia, ib, ic};
+        const auto clip_face = [&](std::size_t ia, std::size_t ib, std::size_t ic) {
           // The face's own back-face test (its pieces are not tested again in the draw loop).
           if (options.cull_back && !FacesPoint(wv + 3 * ia, wv + 3 * ib, wv + 3 * ic, cnx, cny, cnz)) return;
-          std::size_t poly[4];
-          int n = 0;
-          for (int e = 0; e < 3; ++e) {  // Sutherland-Hodgman against z >= near, in order
-            const std::size_t p = id[e], q = id[(e + 1) % 3];
-            const bool pin = sz[p] >= near, qin = sz[q] >= near;
-            if (pin) poly[n++] = p;
-            if (pin != qin) {
-              float w[3];
-              NearCut(wv + 3 * p, sz[p], wv + 3 * q, sz[q], near, w);
-              const float X = r[0] * w[0] + r[1] * w[1] + r[2] * w[2] + r[9];
-              const float Y = r[3] * w[0] + r[4] * w[1] + r[5] * w[2] + r[10];
-              const float Z = std::max(near, r[6] * w[0] + r[7] * w[1] + r[8] * w[2] + r[11]);
-              const float px = r[12] * X / Z + r[14], py = r[13] * Y / Z + r[15];
-              if (!(std::fabs(px) <= kMaxScreen && std::fabs(py) <= kMaxScreen)) return;
-              poly[n++] = sx.size();
-              sx.push_back(px), sy.push_back(py), siz.push_back(1.f / Z), sz.push_back(Z);
-            }
+          NearVertex face[3], poly[4];
+          const std::size_t id[3] = {ia, ib, ic};
+          for (int e = 0; e < 3; ++e) {
+            const float* w = wv + 3 * id[e];
+            face[e] = {{w[0], w[1], w[2]}, sz[id[e]], static_cast<std::int32_t>(id[e])};
           }
-          for (int k = 0; k < n; ++k)
-            if (siz[poly[k]] < 0.f) return;  // a vertex in front but beyond kMaxScreen
-          for (int t = 1; t + 1 < n; ++t) {
-            const std::size_t a = poly[0], b = poly[t], c = poly[t + 1];
+          const int n = raster::ClipPolygon(
+              face, 3, poly, [near](const NearVertex& v) { return v.z >= near; }, WorldLess,
+              [near](const NearVertex& p, const NearVertex& q) {
+                const float t = (near - p.z) / (q.z - p.z);
+                NearVertex c{{}, near, -1};
+                for (int a = 0; a < 3; ++a) c.p[a] = p.p[a] + t * (q.p[a] - p.p[a]);
+                return c;
+              });
+          if (n < 3) return;
+          raster::ScreenVertex sv[8];
+          bool in_band = true;
+          for (int k = 0; k < n; ++k) {
+            const float* w = poly[k].p;
+            const float X = r[0] * w[0] + r[1] * w[1] + r[2] * w[2] + r[9];
+            const float Y = r[3] * w[0] + r[4] * w[1] + r[5] * w[2] + r[10];
+            const float Z = std::max(near, r[6] * w[0] + r[7] * w[1] + r[8] * w[2] + r[11]);
+            const float px = r[12] * X / Z + r[14], py = r[13] * Y / Z + r[15];
+            if (!(std::isfinite(px) && std::isfinite(py))) return;
+            sv[k] = {px, py, 1.0 / Z};
+            in_band = in_band && raster::InGuardBand(px, py);
+          }
+          raster::ScreenVertex clipped[8];
+          const raster::ScreenVertex* v = sv;
+          int m = n;
+          if (!in_band) {
+            m = raster::ClipToGuardBand(sv, n, clipped);
+            v = clipped;
+          }
+          std::size_t base = siz.size();
+          for (int k = 0; k < m; ++k) {
+            fx.push_back(raster::ToFixed(v[k].x)), fy.push_back(raster::ToFixed(v[k].y));
+            siz.push_back(static_cast<float>(v[k].iz)), sz.push_back(static_cast<float>(1.0 / v[k].iz));
+          }
+          for (int t = 1; t + 1 < m; ++t) {
+            const std::size_t a = base, b = base + t, c = base + t + 1;
             const auto [ra, rb, ca, cb] = pixel_bounds(a, b, c);
             if (ra <= rb && ca <= cb)
               near_kept.push_back({static_cast<std::int32_t>(a), static_cast<std::int32_t>(b),
@@ -593,7 +616,7 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
                             ic = static_cast<std::size_t>(fv[2] - v0);
           const bool front = !(siz[ia] < 0.f) & !(siz[ib] < 0.f) & !(siz[ic] < 0.f);
           const int n_behind = (sz[ia] < near) + (sz[ib] < near) + (sz[ic] < near);
-          if (n_behind == 1 || n_behind == 2) clip_near(ia, ib, ic);
+          if (!front && n_behind < 3) clip_face(ia, ib, ic);
           const auto [ra, rb, ca, cb] = pixel_bounds(ia, ib, ic);
           const bool keep = front & (ra <= rb) & (ca <= cb);
           kept[nk] = {static_cast<std::int32_t>(ia), static_cast<std::int32_t>(ib), static_cast<std::int32_t>(ic), ra, rb, ca, cb,
@@ -611,104 +634,78 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
           std::size_t ib = static_cast<std::size_t>(kf.b), ic = static_cast<std::size_t>(kf.c);
           const int ra = kf.ra, rb = kf.rb, ca = kf.ca, cb = kf.cb;
           if (options.cull_back && kf.face >= 0 && !FacesPoint(wv + 3 * ia, wv + 3 * ib, wv + 3 * ic, cnx, cny, cnz)) continue;
-          double area = (static_cast<double>(sx[ib]) - sx[ia]) * (static_cast<double>(sy[ic]) - sy[ia]) -
-                        (static_cast<double>(sx[ic]) - sx[ia]) * (static_cast<double>(sy[ib]) - sy[ia]);
-          if (area == 0.0 || !std::isfinite(area)) continue;
-          if (area < 0.0) {
+          std::int64_t X[3] = {fx[ia], fx[ib], fx[ic]}, Y[3] = {fy[ia], fy[ib], fy[ic]};
+          std::int64_t area2 = raster::Area2(X, Y);
+          if (area2 == 0) continue;
+          if (area2 < 0) {
             std::swap(ib, ic);
-            area = -area;
+            std::swap(X[1], X[2]);
+            std::swap(Y[1], Y[2]);
+            area2 = -area2;
           }
           ++drawn;
-          const double ax = sx[ia], ay = sy[ia], bx = sx[ib], by = sy[ib], qx = sx[ic], qy = sy[ic];
           const float iza = siz[ia], izb = siz[ib], izc = siz[ic];
-          // Edges: e0 = b->c (weight of a), e1 = c->a (weight of b), e2 = a->b (weight of c).
-          const bool own0 = OwnsEdge(qx - bx, qy - by), own1 = OwnsEdge(ax - qx, ay - qy), own2 = OwnsEdge(bx - ax, by - ay);
+          // The core's top-left rule: a centre on an edge shared by two faces goes to one of them.
+          raster::Edges E;
+          raster::SetupEdges(X, Y, ca, ra, /*inclusive=*/false, &E);
           // 1 / area only once a pixel centre is covered: most noisy-depth triangles are smaller than
           // a pixel and cover none (the same value when computed; no division otherwise).
           double inv = 0.0;
           bool have_inv = false;
           std::uint8_t scode = kStretchZero;  // with inv: StretchCode of this face
-          // Per row, the columns where all three edge functions can be >= 0: each edge function is
-          // e(px) = c - dy * (px - x0) along the row; its sign changes at px = x0 + c / dy. The span
-          // is widened by kSpanSlack on each side (the exact test below decides; the span only skips
-          // pixel centres whose edge function is negative by far more than its rounding: the
-          // crossing is two roundings, ~1e-12 px, from the exact one inside the bounding box).
-          const double ex[3] = {bx, qx, ax}, ey[3] = {by, qy, ay};
-          const double edx[3] = {qx - bx, ax - qx, bx - ax}, edy[3] = {qy - by, ay - qy, by - ay};
-          for (int y = ra; y <= rb; ++y) {
-            const double py = y + 0.5;
-            double lo_x = ca, hi_x = cb;
-            for (int k = 0; k < 3; ++k) {
-              const double c = edx[k] * (py - ey[k]);  // e at px = ex[k]
-              if (edy[k] == 0.0) {
-                if (c < 0.0) hi_x = lo_x - 1.0;  // the whole row is outside this edge
-                continue;
+          const raster::CentreBox box{ca, cb, ra, rb};
+          raster::ScanTriangle(E, box, [&](int x, int y, std::int64_t e0, std::int64_t e1, std::int64_t e2) {
+            if (!have_inv) {
+              inv = 1.0 / static_cast<double>(area2);
+              have_inv = true;
+              const double area_px2 = static_cast<double>(area2) / (double(raster::kSubpixel) * raster::kSubpixel);
+              if (stretch && kf.face >= 0) scode = StretchCode(area_px2, tiles.face_src_log2[kf.face]);
+            }
+            // Barycentric numerators: the biased edge functions with the bias added back.
+            const double w0 = static_cast<double>(e0 + E.bias[0]), w1 = static_cast<double>(e1 + E.bias[1]),
+                         w2 = static_cast<double>(e2 + E.bias[2]);
+            const float iz = static_cast<float>((w0 * iza + w1 * izb + w2 * izc) * inv);
+            if (!(iz > 0.f)) return;
+            const float z = 1.f / iz;
+            const std::int64_t p = static_cast<std::int64_t>(y) * w + x;
+            float* pd = cd + p * K;
+            std::int16_t* pv = cv + p * K;
+            std::uint8_t* pr = cr + p * K;
+            const int n = cc[p];
+            int s = n;
+            // The list holds this view only if its class bit is set: most fragments are a view's
+            // first at the pixel and skip the search (same result as always searching).
+            if (cs[p] & view_bit) {
+              s = 0;
+              while (s < n && pv[s] != view) ++s;
+            }
+            std::uint8_t* pst = cst + p * K;
+            if (s < n) {
+              if (z < pd[s]) {
+                pd[s] = z;
+                pr[s] = rank;
+                pst[s] = scode;
               }
-              const double cross = ex[k] + c / edy[k] - 0.5;  // column index where e = 0
-              if (edy[k] < 0.0) {
-                lo_x = std::max(lo_x, std::ceil(cross - kSpanSlack));  // e grows with px: px >= cross
-              } else {
-                hi_x = std::min(hi_x, std::floor(cross + kSpanSlack));  // e falls with px: px <= cross
+            } else if (n < K) {
+              pd[n] = z;
+              pv[n] = view;
+              pr[n] = rank;
+              pst[n] = scode;
+              cc[p] = static_cast<std::uint8_t>(n + 1);
+              cs[p] |= view_bit;
+            } else {
+              int worst = 0;
+              for (int j = 1; j < n; ++j)
+                if (pr[j] > pr[worst] || (pr[j] == pr[worst] && pv[j] > pv[worst])) worst = j;
+              if (rank < pr[worst] || (rank == pr[worst] && view < pv[worst])) {
+                pd[worst] = z;
+                pv[worst] = view;
+                pr[worst] = rank;
+                pst[worst] = scode;
+                cs[p] |= view_bit;  // the evicted view's bit may stay set: a superset, only a hint
               }
             }
-            if (!(lo_x <= hi_x)) continue;
-            const int xa = static_cast<int>(lo_x), xb = static_cast<int>(hi_x);
-            for (int x = xa; x <= xb; ++x) {
-              const double px = x + 0.5;
-              const double e0 = (qx - bx) * (py - by) - (qy - by) * (px - bx);
-              const double e1 = (ax - qx) * (py - qy) - (ay - qy) * (px - qx);
-              const double e2 = (bx - ax) * (py - ay) - (by - ay) * (px - ax);
-              // Positive area: inside where all e >= 0 (in y-down image coordinates).
-              if (e0 < 0.0 || e1 < 0.0 || e2 < 0.0) continue;
-              if ((e0 == 0.0 && !own0) || (e1 == 0.0 && !own1) || (e2 == 0.0 && !own2)) continue;
-              if (!have_inv) {
-                inv = 1.0 / area;
-                have_inv = true;
-                if (stretch && kf.face >= 0) scode = StretchCode(area, tiles.face_src_log2[kf.face]);
-              }
-              const float iz = static_cast<float>((e0 * iza + e1 * izb + e2 * izc) * inv);
-              if (!(iz > 0.f)) continue;
-              const float z = 1.f / iz;
-              const std::int64_t p = static_cast<std::int64_t>(y) * w + x;
-              float* pd = cd + p * K;
-              std::int16_t* pv = cv + p * K;
-              std::uint8_t* pr = cr + p * K;
-              const int n = cc[p];
-              int s = n;
-              // The list holds this view only if its class bit is set: most fragments are a view's
-              // first at the pixel and skip the search (same result as always searching).
-              if (cs[p] & view_bit) {
-                s = 0;
-                while (s < n && pv[s] != view) ++s;
-              }
-              std::uint8_t* pst = cst + p * K;
-              if (s < n) {
-                if (z < pd[s]) {
-                  pd[s] = z;
-                  pr[s] = rank;
-                  pst[s] = scode;
-                }
-              } else if (n < K) {
-                pd[n] = z;
-                pv[n] = view;
-                pr[n] = rank;
-                pst[n] = scode;
-                cc[p] = static_cast<std::uint8_t>(n + 1);
-                cs[p] |= view_bit;
-              } else {
-                int worst = 0;
-                for (int j = 1; j < n; ++j)
-                  if (pr[j] > pr[worst] || (pr[j] == pr[worst] && pv[j] > pv[worst])) worst = j;
-                if (rank < pr[worst] || (rank == pr[worst] && view < pv[worst])) {
-                  pd[worst] = z;
-                  pv[worst] = view;
-                  pr[worst] = rank;
-                  pst[worst] = scode;
-                  cs[p] |= view_bit;  // the evicted view's bit may stay set: a superset, only a hint
-                }
-              }
-            }
-          }
+          });
         }
       }
       tri_count[static_cast<std::size_t>(b)] = drawn;

@@ -21,13 +21,15 @@
 //     from the far side, which see the background behind what the novel camera sees.
 //  3. PvmRasterise      "per-view depth pass": the kept tiles' triangles rasterised into per-pixel
 //     candidate lists of at most `max_candidates` entries (z, view, rank). Pixel centres at
-//     +0.5, top-left fill rule, z interpolated perspective-correctly (1/z affine in the screen).
+//     +0.5, the engine's rasteriser core (cpp/ibr/raster.h: vertices snapped to 1/256 px, top-left
+//     fill rule), z interpolated perspective-correctly (1/z affine in the screen).
 //     One entry per view and pixel holding that view's nearest fragment (a per-view depth test);
 //     a new view arriving at a full list replaces the entry of the worst (rank, view) when its
 //     own is better. Back faces (seen from the other side than from their own view) are
 //     skipped; triangles with a vertex closer than `near` are clipped against the plane z = near
 //     (Sutherland-Hodgman, cut points computed from an edge's lexicographically smaller end) and
-//     their part in front drawn; until the twenty-second session they were skipped. The image
+//     their part in front drawn, and so are triangles reaching beyond the rasteriser's guard
+//     band (2^20 px, clipped to it in screen space). The image
 //     is cut into bands of kBandRows rows; kept tiles are binned into the bands their projected
 //     AABB covers (in kept order); each band is one task that projects a tile's vertices once
 //     and draws its triangles clipped to the band, in that order: results are identical for
