@@ -396,7 +396,6 @@ inline bool FacesPoint(const float* pa, const float* pb, const float* pc, float 
 struct NearVertex {
   float p[3];
   float z;
-  std::int32_t index;  // the tile vertex it is, or -1 for a cut point
 };
 
 inline bool WorldLess(const NearVertex& a, const NearVertex& b) {
@@ -562,13 +561,13 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
           const std::size_t id[3] = {ia, ib, ic};
           for (int e = 0; e < 3; ++e) {
             const float* w = wv + 3 * id[e];
-            face[e] = {{w[0], w[1], w[2]}, sz[id[e]], static_cast<std::int32_t>(id[e])};
+            face[e] = {{w[0], w[1], w[2]}, sz[id[e]]};
           }
           const int n = raster::ClipPolygon(
               face, 3, poly, [near](const NearVertex& v) { return v.z >= near; }, WorldLess,
               [near](const NearVertex& p, const NearVertex& q) {
                 const float t = (near - p.z) / (q.z - p.z);
-                NearVertex c{{}, near, -1};
+                NearVertex c{{}, near};
                 for (int a = 0; a < 3; ++a) c.p[a] = p.p[a] + t * (q.p[a] - p.p[a]);
                 return c;
               });
@@ -580,9 +579,12 @@ void PvmRasterise(const PvmTileArrays& tiles, const PvmViews& views, const Camer
             const float X = r[0] * w[0] + r[1] * w[1] + r[2] * w[2] + r[9];
             const float Y = r[3] * w[0] + r[4] * w[1] + r[5] * w[2] + r[10];
             const float Z = std::max(near, r[6] * w[0] + r[7] * w[1] + r[8] * w[2] + r[11]);
-            const float px = r[12] * X / Z + r[14], py = r[13] * Y / Z + r[15];
+            // The vertex loop's expressions: a corner this face shares with an unclipped
+            // neighbour snaps to the same fixed-point position (no crack between them).
+            const float iz = 1.f / Z;
+            const float px = r[12] * X * iz + r[14], py = r[13] * Y * iz + r[15];
             if (!(std::isfinite(px) && std::isfinite(py))) return;
-            sv[k] = {px, py, 1.0 / Z};
+            sv[k] = {px, py, iz};
             in_band = in_band && raster::InGuardBand(px, py);
           }
           raster::ScreenVertex clipped[8];
