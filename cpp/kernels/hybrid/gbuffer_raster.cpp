@@ -18,20 +18,62 @@ namespace {
 
 constexpr int kBandRows = 16;
 
-// A triangle to draw: snapped vertices (cpp/ibr/raster.h), oriented so that area2 > 0.
+// A triangle to draw: snapped vertices (cpp/ibr/raster.h; 32-bit inside the guard band), oriented
+// so that area2 > 0. 80 bytes (104 with 64-bit coordinates: the bins are walked once per band).
 struct ScreenTri {
-  std::int64_t X[3], Y[3];
+  std::int32_t X[3], Y[3];
   double iz[3];  // 1 / z at the vertices
   std::int64_t area2;
   std::int32_t prim;
   raster::CentreBox box;  // candidate centres in the image
 };
 
+// A vertex projected once for all the faces that share it: snapped screen position and 1 / z;
+// `ok` when it is in front of the near plane and inside the guard band (a face of three such
+// vertices needs no clipping: the common case, which then projects nothing per face).
+struct ScreenPoint {
+  std::int32_t X, Y;
+  double iz;
+  bool ok;
+};
+
+// The projection of camera-space p (z >= near) to the screen, as every path computes it (a vertex
+// shared by a clipped and an unclipped face snaps to the same point).
+inline raster::ScreenVertex Project(const Camera& cam, const glm::dvec3& p) {
+  const double iz = 1.0 / p.z;
+  return {cam.fx * p.x * iz + cam.cx, cam.fy * p.y * iz + cam.cy, iz};
+}
+
+// Appends triangle (X, Y, iz) of face `prim` when it has area and covers a pixel centre.
+void Emit(const Camera& cam, const std::int32_t X[3], const std::int32_t Y[3], const double iz[3], std::int32_t prim,
+          std::vector<ScreenTri>* out) {
+  std::int64_t X64[3] = {X[0], X[1], X[2]}, Y64[3] = {Y[0], Y[1], Y[2]};
+  ScreenTri t;
+  t.area2 = raster::Area2(X64, Y64);
+  if (t.area2 == 0) return;
+  // Either winding: the G-buffer draws both sides.
+  const int i1 = t.area2 > 0 ? 1 : 2, i2 = 3 - i1;
+  if (t.area2 < 0) {
+    std::swap(X64[1], X64[2]);
+    std::swap(Y64[1], Y64[2]);
+    t.area2 = -t.area2;
+  }
+  if (!raster::Centres(X64, Y64, 0, cam.width - 1, 0, cam.height - 1, &t.box)) return;
+  const int idx[3] = {0, i1, i2};
+  for (int j = 0; j < 3; ++j) {
+    t.X[j] = X[idx[j]];
+    t.Y[j] = Y[idx[j]];
+    t.iz[j] = iz[idx[j]];
+  }
+  t.prim = prim;
+  out->push_back(t);
+}
+
 // Appends the screen triangles of face `prim` (camera-space vertices p) clipped to z >= near and to
-// the rasteriser's guard band.
+// the rasteriser's guard band: the faces whose vertices are not all ScreenPoint::ok.
 void SetUp(const Camera& cam, const glm::dvec3 p[3], double near, std::int32_t prim, std::vector<ScreenTri>* out) {
   glm::dvec3 poly[4];
-  const bool in_front = p[0].z >= near && p[1].z >= near && p[2].z >= near;  // most faces: no clip
+  const bool in_front = p[0].z >= near && p[1].z >= near && p[2].z >= near;
   if (in_front) std::copy(p, p + 3, poly);
   const int n = in_front ? 3 : raster::ClipPolygon(
       p, 3, poly, [near](const glm::dvec3& v) { return v.z >= near; },
@@ -48,9 +90,8 @@ void SetUp(const Camera& cam, const glm::dvec3 p[3], double near, std::int32_t p
   raster::ScreenVertex sv[8];
   bool in_band = true;
   for (int i = 0; i < n; ++i) {
-    const double iz = 1.0 / poly[i].z;
-    sv[i] = {cam.fx * poly[i].x * iz + cam.cx, cam.fy * poly[i].y * iz + cam.cy, iz};
-    if (!(std::isfinite(sv[i].x) && std::isfinite(sv[i].y) && std::isfinite(iz))) return;
+    sv[i] = Project(cam, poly[i]);
+    if (!(std::isfinite(sv[i].x) && std::isfinite(sv[i].y) && std::isfinite(sv[i].iz))) return;
     in_band = in_band && raster::InGuardBand(sv[i].x, sv[i].y);
   }
   raster::ScreenVertex clipped[8];
@@ -62,23 +103,14 @@ void SetUp(const Camera& cam, const glm::dvec3 p[3], double near, std::int32_t p
   }
   for (int k = 1; k + 1 < m; ++k) {
     const int idx[3] = {0, k, k + 1};
-    ScreenTri t;
+    std::int32_t X[3], Y[3];
+    double iz[3];
     for (int j = 0; j < 3; ++j) {
-      t.X[j] = raster::ToFixed(v[idx[j]].x);
-      t.Y[j] = raster::ToFixed(v[idx[j]].y);
-      t.iz[j] = v[idx[j]].iz;
+      X[j] = raster::ToFixed(v[idx[j]].x);
+      Y[j] = raster::ToFixed(v[idx[j]].y);
+      iz[j] = v[idx[j]].iz;
     }
-    t.area2 = raster::Area2(t.X, t.Y);
-    if (t.area2 == 0) continue;
-    if (t.area2 < 0) {  // either winding: the G-buffer draws both sides
-      std::swap(t.X[1], t.X[2]);
-      std::swap(t.Y[1], t.Y[2]);
-      std::swap(t.iz[1], t.iz[2]);
-      t.area2 = -t.area2;
-    }
-    if (!raster::Centres(t.X, t.Y, 0, cam.width - 1, 0, cam.height - 1, &t.box)) continue;
-    t.prim = prim;
-    out->push_back(t);
+    Emit(cam, X, Y, iz, prim, out);
   }
 }
 
@@ -90,8 +122,9 @@ void Raster(const ScreenTri& t, int r0, int r1, int width, float* best_iz, std::
   box.y0 = std::max(box.y0, r0);
   box.y1 = std::min(box.y1, r1);
   if (box.y0 > box.y1) return;
+  const std::int64_t X[3] = {t.X[0], t.X[1], t.X[2]}, Y[3] = {t.Y[0], t.Y[1], t.Y[2]};
   raster::Edges E;
-  raster::SetupEdges(t.X, t.Y, box.x0, box.y0, /*inclusive=*/true, &E);
+  raster::SetupEdges(X, Y, box.x0, box.y0, /*inclusive=*/true, &E);
   const double inv = 1.0 / static_cast<double>(t.area2);
   raster::ScanTriangle(E, box, [&](int x, int y, std::int64_t e0, std::int64_t e1, std::int64_t e2) {
     const float iz = static_cast<float>(
@@ -212,6 +245,18 @@ void RasterGBuffer(const Camera& camera, const float* vertices, std::int64_t num
   double zmax = 0.0;
   for (const auto& p : pc) zmax = std::max(zmax, std::abs(p.z));
   const double near = std::max(zmax * 1e-7, std::numeric_limits<double>::min());
+  // Every vertex projected once (most faces then only gather their three points).
+  std::vector<ScreenPoint> sp(static_cast<std::size_t>(num_vertices));
+  ParallelFor(num_vertices, 16384, [&](std::int64_t b, std::int64_t e) {
+    for (std::int64_t i = b; i < e; ++i) {
+      ScreenPoint& q = sp[i];
+      q = {0, 0, 0.0, false};
+      if (!(pc[i].z >= near)) continue;
+      const raster::ScreenVertex s = Project(camera, pc[i]);
+      if (!(std::isfinite(s.x) && std::isfinite(s.y) && std::isfinite(s.iz)) || !raster::InGuardBand(s.x, s.y)) continue;
+      q = {raster::ToFixed(s.x), raster::ToFixed(s.y), s.iz, true};
+    }
+  });
   // Screen triangles, set up in chunks (in parallel) and concatenated in face order.
   const std::int64_t chunk = 4096;
   const std::int64_t nchunks = (num_faces + chunk - 1) / chunk;
@@ -222,6 +267,13 @@ void RasterGBuffer(const Camera& camera, const float* vertices, std::int64_t num
       out.reserve(static_cast<std::size_t>(chunk));  // a clipped face may give up to 6 (then it regrows)
       for (std::int64_t f = c * chunk; f < std::min(num_faces, (c + 1) * chunk); ++f) {
         const std::int32_t* fv = faces + 3 * f;
+        const ScreenPoint &a = sp[fv[0]], &b = sp[fv[1]], &d = sp[fv[2]];
+        if (a.ok && b.ok && d.ok) {
+          const std::int32_t X[3] = {a.X, b.X, d.X}, Y[3] = {a.Y, b.Y, d.Y};
+          const double iz[3] = {a.iz, b.iz, d.iz};
+          Emit(camera, X, Y, iz, static_cast<std::int32_t>(f), &out);
+          continue;
+        }
         const glm::dvec3 p[3] = {pc[fv[0]], pc[fv[1]], pc[fv[2]]};
         if (p[0].z < near && p[1].z < near && p[2].z < near) continue;
         SetUp(camera, p, near, static_cast<std::int32_t>(f), &out);
