@@ -62,7 +62,7 @@ def build(size, views, depth_noise=0.005):
 def edge_band(depth: np.ndarray, px: int = 3) -> np.ndarray:
     from scipy import ndimage
 
-    ld = np.log(np.where(depth > 0, depth, 1e3))
+    ld = np.log(np.where(np.isfinite(depth) & (depth > 0), depth, 1e3))
     edge = (ndimage.maximum_filter(ld, 3) - ndimage.minimum_filter(ld, 3)) > 0.05
     return ndimage.binary_dilation(edge, iterations=px)
 
@@ -102,13 +102,14 @@ def quality(scene, tiles, gbufs, angles):
         for t in scene.targets:
             f = r.render(t.camera, gbuffer_depth=gbufs[t.name], filtered=True)
             u = r.render(t.camera, gbuffer_depth=gbufs[t.name], filtered=False)
-            both = f.valid & u.valid & (t.depth > 0)
+            surface = np.isfinite(t.depth) & (t.depth > 0)  # sky is +inf: background, not surface
+            both = f.valid & u.valid & surface
             band = both & edge_band(t.depth)
             acc["f_edge"].append(psnr(f.color, t.color, band))
             acc["u_edge"].append(psnr(u.color, t.color, band))
             acc["f_all"].append(psnr(f.color, t.color, both))
             acc["u_all"].append(psnr(u.color, t.color, both))
-            acc["cov"].append(float((f.valid & (t.depth > 0)).sum() / max(1, (t.depth > 0).sum())))
+            acc["cov"].append(float((f.valid & surface).sum() / max(1, surface.sum())))
             acc["edge_px"].append(int(band.sum()))
         rows.append((ang, acc))
     return rows
