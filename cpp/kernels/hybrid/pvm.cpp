@@ -2,6 +2,7 @@
 #include "kernels/hybrid/pvm.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -11,6 +12,7 @@
 #include <tbb/parallel_sort.h>
 
 #include "ibr/parallel.h"
+#include "ibr/raster.h"
 
 namespace ibr {
 namespace {
@@ -98,37 +100,30 @@ void Block(const GridCtx& c, int x0, int y0, int s, std::vector<std::int32_t>& o
 
 // ---- slicing ---------------------------------------------------------------------------
 
-constexpr int kMaxPoly = 24;
+constexpr int kMaxPoly = 24;  // a triangle cut by six planes has at most nine vertices
 
 struct Poly {
-  double p[kMaxPoly][3];
+  std::array<double, 3> p[kMaxPoly];
   int n = 0;
 };
 
-// Keeps the part of `in` with sign * (x[axis] - value) >= 0.
+// Keeps the part of `in` with sign * (x[axis] - value) >= 0. Each cut point is interpolated from
+// the lexicographically smaller end of its edge (raster::ClipPolygon), so the two triangles sharing
+// an edge get bit-identical cut points (then a tile can share them).
 void ClipHalf(const Poly& in, int axis, double value, double sign, Poly& out) {
-  out.n = 0;
-  if (in.n == 0) return;
-  for (int i = 0; i < in.n; ++i) {
-    const double* a = in.p[i];
-    const double* b = in.p[(i + 1) % in.n];
-    const double da = sign * (a[axis] - value), db = sign * (b[axis] - value);
-    if (da >= 0 && out.n < kMaxPoly) {
-      std::copy(a, a + 3, out.p[out.n++]);
-    }
-    if ((da >= 0) != (db >= 0) && out.n < kMaxPoly) {
-      // Interpolate from the lexicographically smaller end so that the two triangles sharing
-      // an edge get bit-identical cut points (then a tile can share them).
-      const bool swap = std::lexicographical_compare(b, b + 3, a, a + 3);
-      const double* p0 = swap ? b : a;
-      const double* p1 = swap ? a : b;
-      const double d0 = swap ? db : da, d1 = swap ? da : db;
-      const double t = d0 / (d0 - d1);
-      double* q = out.p[out.n++];
-      for (int k = 0; k < 3; ++k) q[k] = p0[k] + t * (p1[k] - p0[k]);
-      q[axis] = value;  // exactly on the face, whatever the rounding of t
-    }
-  }
+  using V = std::array<double, 3>;
+  const auto d = [&](const V& v) { return sign * (v[axis] - value); };
+  out.n = raster::ClipPolygon(
+      in.p, in.n, out.p, [&](const V& v) { return d(v) >= 0; },
+      [](const V& a, const V& b) { return std::lexicographical_compare(a.begin(), a.end(), b.begin(), b.end()); },
+      [&](const V& p0, const V& p1) {
+        const double d0 = d(p0), d1 = d(p1);
+        const double t = d0 / (d0 - d1);
+        V q;
+        for (int k = 0; k < 3; ++k) q[k] = p0[k] + t * (p1[k] - p0[k]);
+        q[axis] = value;  // exactly on the face, whatever the rounding of t
+        return q;
+      });
 }
 
 void ClipSlab(const Poly& in, int axis, double lo, double hi, Poly& tmp, Poly& out) {
@@ -264,7 +259,7 @@ void PvmSlice(const float* vertices, std::int64_t num_vertices, const std::int32
         tri.n = 3;
         for (int k = 0; k < 3; ++k)
           for (int a = 0; a < 3; ++a) tri.p[k][a] = vertices[3 * fv[k] + a];
-        const double area = TriArea2(tri.p[0], tri.p[1], tri.p[2]);
+        const double area = TriArea2(tri.p[0].data(), tri.p[1].data(), tri.p[2].data());
         const double min_area = 1e-7 * area;
         for (int i = lo[0]; i <= hi[0]; ++i) {
           ClipSlab(tri, 0, i == 0 ? -kInf : bound(0, i), i == dims - 1 ? kInf : bound(0, i + 1), tmp, px);
@@ -279,12 +274,12 @@ void PvmSlice(const float* vertices, std::int64_t num_vertices, const std::int32
               if (!clip_all) {  // a copy of the whole triangle in every cell it has area in: no new vertices
                 bool area_here = false;
                 for (int t = 1; t + 1 < pz.n && !area_here; ++t)
-                  area_here = TriArea2(pz.p[0], pz.p[t], pz.p[t + 1]) > min_area;
+                  area_here = TriArea2(pz.p[0].data(), pz.p[t].data(), pz.p[t + 1].data()) > min_area;
                 if (area_here) ch.pieces.push_back({key, 0, static_cast<std::int32_t>(f), kCopy});
                 continue;
               }
               for (int t = 1; t + 1 < pz.n; ++t) {
-                if (!(TriArea2(pz.p[0], pz.p[t], pz.p[t + 1]) > min_area)) continue;
+                if (!(TriArea2(pz.p[0].data(), pz.p[t].data(), pz.p[t + 1].data()) > min_area)) continue;
                 ch.pieces.push_back({key, 0, static_cast<std::int32_t>(f),
                                      static_cast<std::int32_t>(ch.clip.size() / 9)});
                 for (const int q : {0, t, t + 1})
