@@ -143,11 +143,11 @@ static void BindCleanColor(py::module_& m) {
       "every channel of a hole pixel (hole bool or uint8 (H, W), or None) -> 0. Returns a new float32 array.");
 }
 
-// Binding of cpp/kernels/inpaint/hole_sides.h: the checking front and the call with the GIL released.
+// Binding of cpp/kernels/inpaint/hole_sides.h: the array checks and the front's call with the GIL released.
 static void BindHoleSides(py::module_& m) {
   m.def(
       "hole_sides",
-      [](py::handle hole_obj, py::handle background_obj, py::handle known_depth_obj) {
+      [](py::handle hole_obj, py::handle background_obj, py::handle known_depth_obj, double occluder_ratio) {
         FloatArray known = CheckArray<float>(known_depth_obj, "known_depth", {{"H", -1}, {"W", -1}});
         const py::ssize_t h = known.shape(0), w = known.shape(1);
         py::object hole_keep, bg_keep;
@@ -157,14 +157,19 @@ static void BindHoleSides(py::module_& m) {
         FloatArray around = NewArray<float>({h, w});
         {
           py::gil_scoped_release release;
-          HoleSidesKernel(hole, bg, ConstViewOf(known), ViewOf(sides), ViewOf(around));
+          InpaintHoleSides(hole, bg, ConstViewOf(known), occluder_ratio, ViewOf(sides), ViewOf(around));
         }
         return py::make_tuple(sides, around);
       },
-      py::arg("hole"), py::arg("background"), py::arg("known_depth"),
+      py::arg("hole"), py::arg("background"), py::arg("known_depth"), py::arg("occluder_ratio"),
       "The nearest covered pixels left, right, above and below each hole pixel (cpp/kernels/inpaint/hole_sides.h). "
-      "hole, background bool or uint8 (H, W); known_depth float32 (H, W). Returns (sides uint8 (H, W) = found | "
-      "background-found << 4, around float32 (H, W) = the largest known_depth of those found), 0 outside the holes.");
+      "hole, background bool or uint8 (H, W); known_depth float32 (H, W); occluder_ratio 0 or > 1. Returns (sides "
+      "uint8 (H, W) = 2 bits per side, left, right, up, down from bit 0: SIDE_NONE, SIDE_BACKGROUND, SIDE_SURFACE "
+      "or SIDE_OCCLUDER; around float32 (H, W) = the largest known_depth of the sides), 0 outside the holes.");
+  m.attr("SIDE_NONE") = kSideNone;
+  m.attr("SIDE_BACKGROUND") = kSideBackground;
+  m.attr("SIDE_SURFACE") = kSideSurface;
+  m.attr("SIDE_OCCLUDER") = kSideOccluder;
 }
 
 static void BindPushPull(py::module_& m) {

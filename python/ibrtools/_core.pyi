@@ -18,7 +18,7 @@ _U16: typing.TypeAlias = numpy.typing.NDArray[numpy.uint16]
 _I8: typing.TypeAlias = numpy.typing.NDArray[numpy.int8]
 _Bool: typing.TypeAlias = numpy.typing.NDArray[numpy.bool_]
 _Light: typing.TypeAlias = tuple[str, collections.abc.Sequence[float], collections.abc.Sequence[float], bool]
-__all__: list[str] = ['Camera', 'CameraModel', 'DEPTHWARP_DEFAULTS', 'DepthWarpMips', 'DibrAccumulator', 'EMBREE_VERSION', 'MVS_MAX_ITERATIONS', 'MVS_MAX_SOURCE_VIEWS', 'MVS_MAX_WINDOW_RADIUS', 'OcclusionScene', 'PVM_DEFAULTS', 'PatchMatchOptions', 'PvmRenderer', 'RayScene', 'ULR_DEFAULT_DEPTH_TOL', 'ULR_DEFAULT_K', 'ULR_DEFAULT_RESOLUTION_WEIGHT', 'ULR_MAX_K', 'WARP_DISOCCLUDED', 'WARP_SURFACE', 'WARP_UNCOVERED', 'WarpOptions', 'YMap', 'background_lookup', 'blur_selection', 'clean_color', 'cpu_has_avx2', 'cross_view_prediction', 'cull_awoc_fill', 'cull_object_boxes', 'cull_project_boxes', 'dw_build_mips', 'dw_forward', 'dw_motion', 'dw_motion_mips', 'dw_warp', 'forward_warp', 'gain_median_ratios', 'get_num_threads', 'grid_maxflow', 'hole_sides', 'hybrid_composite', 'hybrid_frame_outputs', 'hybrid_needs', 'hybrid_select', 'interpolate_vertex_attribute', 'linear_rgb_to_yuv', 'linear_to_srgb', 'linear_to_srgb8', 'lookup_codes', 'metameric_composite', 'metameric_encode', 'metameric_fill_holes', 'metameric_pushpull_change', 'metameric_pushpull_moments', 'metameric_stack_moments', 'mip_build', 'mip_foveate_level', 'mip_lookup', 'mip_max_levels', 'mvs_consistent_views', 'mvs_patchmatch', 'point_colors', 'poisson_blend', 'pushpull', 'pvm_slice', 'pvm_triangulate', 'raster_gbuffer', 'sample_atlas', 'set_num_threads', 'set_warp_isa', 'shadow_map_visibility', 'srgb_encode_unclipped', 'srgb_to_linear', 'ssim', 'steerable_analyse', 'steerable_max_levels', 'steerable_synthesise', 'texel_points', 'ulr_blend', 'ulr_penalty', 'ulr_select', 'valid_depth_order_stats', 'vertex_colour_sums', 'warp_flow', 'warp_isa', 'warp_with_holes', 'yuv_to_linear_rgb']
+__all__: list[str] = ['Camera', 'CameraModel', 'DEPTHWARP_DEFAULTS', 'DepthWarpMips', 'DibrAccumulator', 'EMBREE_VERSION', 'MVS_MAX_ITERATIONS', 'MVS_MAX_SOURCE_VIEWS', 'MVS_MAX_WINDOW_RADIUS', 'OcclusionScene', 'PVM_DEFAULTS', 'PatchMatchOptions', 'PvmRenderer', 'RayScene', 'SIDE_BACKGROUND', 'SIDE_NONE', 'SIDE_OCCLUDER', 'SIDE_SURFACE', 'ULR_DEFAULT_DEPTH_TOL', 'ULR_DEFAULT_K', 'ULR_DEFAULT_RESOLUTION_WEIGHT', 'ULR_MAX_K', 'WARP_DISOCCLUDED', 'WARP_SURFACE', 'WARP_UNCOVERED', 'WarpOptions', 'YMap', 'background_lookup', 'blur_selection', 'clean_color', 'cpu_has_avx2', 'cross_view_prediction', 'cull_awoc_fill', 'cull_object_boxes', 'cull_project_boxes', 'dw_build_mips', 'dw_forward', 'dw_motion', 'dw_motion_mips', 'dw_warp', 'forward_warp', 'gain_median_ratios', 'get_num_threads', 'grid_maxflow', 'hole_sides', 'hybrid_composite', 'hybrid_frame_outputs', 'hybrid_needs', 'hybrid_select', 'interpolate_vertex_attribute', 'linear_rgb_to_yuv', 'linear_to_srgb', 'linear_to_srgb8', 'lookup_codes', 'metameric_composite', 'metameric_encode', 'metameric_fill_holes', 'metameric_pushpull_change', 'metameric_pushpull_moments', 'metameric_stack_moments', 'mip_build', 'mip_foveate_level', 'mip_lookup', 'mip_max_levels', 'mvs_consistent_views', 'mvs_patchmatch', 'point_colors', 'poisson_blend', 'pushpull', 'pvm_slice', 'pvm_triangulate', 'raster_gbuffer', 'sample_atlas', 'set_num_threads', 'set_warp_isa', 'shadow_map_visibility', 'srgb_encode_unclipped', 'srgb_to_linear', 'ssim', 'steerable_analyse', 'steerable_max_levels', 'steerable_synthesise', 'texel_points', 'ulr_blend', 'ulr_penalty', 'ulr_select', 'valid_depth_order_stats', 'vertex_colour_sums', 'warp_flow', 'warp_isa', 'warp_with_holes', 'yuv_to_linear_rgb']
 
 class CameraModel:
     """
@@ -549,9 +549,9 @@ def grid_maxflow(source_cap: _I64 | _F64, sink_cap: _I64 | _F64, right: _I64 | _
     Boykov-Kolmogorov max-flow on a 4-connected grid (cpp/kernels/solvers/maxflow.h). All four arrays (H, W), int64 (exact) or float64, >= 0. Returns (flow, sink_side bool (H, W)).
     """
 
-def hole_sides(hole: _Bool, background: _Bool, known_depth: _F32) -> tuple[_U8, _F32]:
+def hole_sides(hole: _Bool, background: _Bool, known_depth: _F32, occluder_ratio: typing.SupportsFloat | typing.SupportsIndex) -> tuple[_U8, _F32]:
     """
-    The nearest covered pixels left, right, above and below each hole pixel (cpp/kernels/inpaint/hole_sides.h). hole, background bool or uint8 (H, W); known_depth float32 (H, W). Returns (sides uint8 (H, W) = found | background-found << 4, around float32 (H, W) = the largest known_depth of those found), 0 outside the holes.
+    The nearest covered pixels left, right, above and below each hole pixel (cpp/kernels/inpaint/hole_sides.h). hole, background bool or uint8 (H, W); known_depth float32 (H, W); occluder_ratio 0 or > 1. Returns (sides uint8 (H, W) = 2 bits per side, left, right, up, down from bit 0: SIDE_NONE, SIDE_BACKGROUND, SIDE_SURFACE or SIDE_OCCLUDER; around float32 (H, W) = the largest known_depth of the sides), 0 outside the holes.
     """
 
 def hybrid_composite(weights: _F32, tm: _F32, *, ulr: _F32 | None=None, ulr_count: _U8 | None=None, pvm: _F32 | None=None, pvm_valid: _Bool | None=None) -> numpy.typing.NDArray[numpy.float32]:
@@ -794,6 +794,10 @@ MVS_MAX_ITERATIONS: int = 64
 MVS_MAX_SOURCE_VIEWS: int = 32
 MVS_MAX_WINDOW_RADIUS: int = 15
 PVM_DEFAULTS: dict[str, float | int | bool | str] = {'sigma': 3.0, 'alpha': 7.0, 'gamma': 7.0, 'tau_depth': 0.83, 'max_tiles': 12, 'max_candidates': 12, 'ulr_k': 3, 'merge_rel': 0.02, 'radius_sigmas': 2.0, 'margin': 1, 'near': 0.001, 'cull_back': True, 'max_angle': 55.0, 'ray_stride': 8, 'filter_step': 2, 'filtered': True, 'free_space': True, 'free_space_tol': 0.02, 'free_space_point_tol': 0.005, 'tau_empty': 2.0, 'min_views': 2, 'stretch_weight': 0.1, 'stretch_free': 0.0, 'resample': 'cubic'}
+SIDE_BACKGROUND: int = 1
+SIDE_NONE: int = 0
+SIDE_OCCLUDER: int = 3
+SIDE_SURFACE: int = 2
 ULR_DEFAULT_DEPTH_TOL: float = 0.005
 ULR_DEFAULT_K: int = 4
 ULR_DEFAULT_RESOLUTION_WEIGHT: float = 0.5

@@ -189,27 +189,34 @@ def test_hole_sides_match_nearest_covered():
         hole[:, :1] = True  # runs touching the borders
         bg = ~hole & (rng.random(shape) < 0.4)
         known = np.where(~hole & ~bg, rng.uniform(0.5, 9, shape), 0).astype(np.float32)
-        sides, around = _core.hole_sides(hole, bg, known)
         ys, xs = np.nonzero(hole)
-        votes = np.zeros(len(ys), int)
-        bg_votes = np.zeros(len(ys), int)
+        found_sides = list(nearest_covered(hole))  # left, right, up, down
         want = np.zeros(len(ys), np.float32)
-        for ny, nx, found in nearest_covered(hole):
-            ny, nx = np.where(found, ny, 0), np.where(found, nx, 0)
-            votes += found
-            bg_votes += found & bg[ny, nx]
-            want = np.maximum(want, np.where(found, known[ny, nx], 0))
-        np.testing.assert_array_equal(sides[ys, xs] & 15, votes)
-        np.testing.assert_array_equal(sides[ys, xs] >> 4, bg_votes)
-        np.testing.assert_array_equal(around[ys, xs], want)
-        assert (sides[~hole] == 0).all() and (around[~hole] == 0).all()
+        for ny, nx, found in found_sides:
+            want = np.maximum(want, np.where(found, known[np.where(found, ny, 0), np.where(found, nx, 0)], 0))
+        for ratio in (0.0, 1.5, 4.0):  # 0: no occluders
+            sides, around = _core.hole_sides(hole, bg, known, ratio)
+            code = np.zeros(len(ys), np.int64)
+            for k, (ny, nx, found) in enumerate(found_sides):
+                ny, nx = np.where(found, ny, 0), np.where(found, nx, 0)
+                d = known[ny, nx].astype(np.float64)
+                occluder = (ratio > 0) & found & ~bg[ny, nx] & (d > 0) & (d * ratio < want)
+                c = np.select([~found, bg[ny, nx], occluder],
+                              [_core.SIDE_NONE, _core.SIDE_BACKGROUND, _core.SIDE_OCCLUDER], _core.SIDE_SURFACE)
+                code |= c << (2 * k)
+            np.testing.assert_array_equal(sides[ys, xs], code)
+            np.testing.assert_array_equal(around[ys, xs], want)
+            assert (sides[~hole] == 0).all() and (around[~hole] == 0).all()
     all_hole = np.ones((4, 5), bool)
-    sides, around = _core.hole_sides(all_hole, np.zeros((4, 5), bool), np.zeros((4, 5), np.float32))
+    sides, around = _core.hole_sides(all_hole, np.zeros((4, 5), bool), np.zeros((4, 5), np.float32), 1.5)
     assert (sides == 0).all() and (around == 0).all()
     with pytest.raises(ShapeError, match=r"background: expected bool array of shape \(H, W\) = \(4, 5\)"):
-        _core.hole_sides(all_hole, np.zeros((4, 4), bool), np.zeros((4, 5), np.float32))
+        _core.hole_sides(all_hole, np.zeros((4, 4), bool), np.zeros((4, 5), np.float32), 0.0)
     with pytest.raises(DtypeError, match=r"known_depth: expected float32"):
-        _core.hole_sides(all_hole, all_hole, np.zeros((4, 5)))
+        _core.hole_sides(all_hole, all_hole, np.zeros((4, 5)), 0.0)
+    for ratio in (0.5, 1.0, -2.0, float("inf"), float("nan")):
+        with pytest.raises(BadValueError, match=r"occluder_ratio: expected 0 \(no occluders\) or a finite ratio > 1"):
+            _core.hole_sides(all_hole, all_hole, np.zeros((4, 5), np.float32), ratio)
 
 
 def test_clean_color_matches_numpy():

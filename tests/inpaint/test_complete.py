@@ -109,6 +109,37 @@ def test_disocclusion_filled_from_the_background_side():
     assert np.array_equal(classic.color, done.color)  # auto is the depth-aware push-pull
 
 
+def test_sky_hidden_behind_a_pole_top_is_filled_as_sky():
+    """The sky no input sees past a near pole's top: a hole between the sky (left and above), the
+    pole (right, near) and the ground at the horizon (below, far). The pole is the occluder: it
+    does not vote, and the hole takes the sky's colour, not the ground's."""
+    h, w = 40, 60
+    color = np.zeros((h, w, 3), np.float32)
+    depth = np.full((h, w), np.inf, np.float32)  # sky
+    color[20:] = (0.0, 0.6, 0.0)
+    depth[20:] = 15.0  # ground from the horizon down
+    color[5:, 40:43] = (0.8, 0.8, 0.8)
+    depth[5:, 40:43] = 4.0  # the pole, in front of sky and ground
+    hole = np.zeros((h, w), bool)
+    hole[10:20, 25:40] = True  # left of the pole, above the horizon
+    depth[hole] = 0.0  # unknown, as the warp leaves a hole (not a mesh method's miss)
+    sky_colour = np.array([0.1, 0.2, 0.9], np.float32)
+    color[np.isposinf(depth)] = sky_colour
+    bg = C.Background([], [], sky_colour)
+    done = C.complete({"color": color, "depth": depth, "hole": hole}, Camera.from_fov(w, h, 60.0), bg, "auto")
+    np.testing.assert_allclose(done.color[hole], np.tile(sky_colour, (hole.sum(), 1)))
+    assert done.background[hole].all()
+    # The pole is the right side's occluder: with every side voting for itself (no occluders),
+    # the hole's rows right of the sky's reach would be split by a tie-free ground majority.
+    from ibrtools import _core
+
+    known = np.where(np.isfinite(depth) & ~hole, depth, 0).astype(np.float32)
+    bgmask = np.isposinf(depth) & ~hole
+    sides, _ = _core.hole_sides(hole, bgmask, known, C.OCCLUDER_RATIO)
+    assert (((sides[hole] >> 2) & 3) == _core.SIDE_OCCLUDER).all()  # right: the pole
+    assert C._background_holes(hole, sides)[hole].all()
+
+
 def test_hole_inside_the_sky_takes_the_background_colour():
     h, w = 30, 30
     color = np.zeros((h, w, 3), np.float32)

@@ -24,6 +24,16 @@ PushPullOptions InpaintPushPullOptions(bool depth_aware, double depth_threshold,
   return options;
 }
 
+void InpaintHoleSides(const ImageView<const std::uint8_t>& hole, const ImageView<const std::uint8_t>& background,
+                      const ImageView<const float>& known_depth, double occluder_ratio,
+                      const ImageView<std::uint8_t>& sides, const ImageView<float>& around) {
+  if (!(occluder_ratio == 0.0 || (std::isfinite(occluder_ratio) && occluder_ratio > 1.0))) {
+    throw BadValueError("occluder_ratio: expected 0 (no occluders) or a finite ratio > 1, got " +
+                        std::to_string(occluder_ratio));
+  }
+  HoleSidesKernel(hole, background, known_depth, occluder_ratio, sides, around);
+}
+
 bool InpaintPushPull(const ImageView<const float>& image, const ImageView<const std::uint8_t>& hole,
                      const ImageView<const float>& depth, const PushPullOptions& options,
                      const ImageView<float>& out, const ImageView<const std::uint8_t>& write) {

@@ -1,5 +1,5 @@
 // The inpaint family's checked front (Python: ibrtools.inpaint through cpp/bindings/inpaint.cpp):
-// the value checks of push-pull's options, inputs and flow, and the kernel calls whose statuses
+// the value checks of push-pull's options, inputs and flow and of the hole sides' ratio, and the kernel calls whose statuses
 // become the typed errors of cpp/ibr/errors.h ("every pixel is a hole"). Callable from C++
 // without Python; the binding checks array dtypes and shapes (bindings/array.h), converts and
 // calls these. Shapes and conventions: pushpull.h and metameric.h.
@@ -7,6 +7,7 @@
 #include <cstdint>
 
 #include "ibr/image.h"
+#include "kernels/inpaint/hole_sides.h"
 #include "kernels/inpaint/metameric.h"
 #include "kernels/inpaint/pushpull.h"
 
@@ -15,6 +16,11 @@ namespace ibr {
 // Push-pull's options: depth_threshold and gamma finite and >= 0 (BadValueError naming them).
 PushPullOptions InpaintPushPullOptions(bool depth_aware, double depth_threshold, double gamma,
                                        bool holes_only = false);
+
+// HoleSidesKernel after checking occluder_ratio: 0 or finite and > 1 (BadValueError naming it).
+void InpaintHoleSides(const ImageView<const std::uint8_t>& hole, const ImageView<const std::uint8_t>& background,
+                      const ImageView<const float>& known_depth, double occluder_ratio,
+                      const ImageView<std::uint8_t>& sides, const ImageView<float>& around);
 
 // PushPullKernel after checking `image` finite outside the holes (BadValueError naming "image");
 // BadValueError when every pixel is a hole, or when `write` (the hole pixels to write) is given

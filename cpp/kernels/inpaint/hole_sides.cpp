@@ -8,27 +8,16 @@
 namespace ibr {
 namespace {
 
-// Adds covered pixel (y, x) as one side of hole pixel (hy, hx).
-inline void AddSide(const ImageView<const std::uint8_t>& background, const ImageView<const float>& known_depth,
-                    int y, int x, std::uint8_t* side, float* around) {
-  *side = static_cast<std::uint8_t>(*side + 1 + (background.At(y, x) ? 16 : 0));
-  *around = std::max(*around, known_depth.At(y, x));
-}
-
-}  // namespace
-
-void HoleSidesKernel(const ImageView<const std::uint8_t>& hole, const ImageView<const std::uint8_t>& background,
-                     const ImageView<const float>& known_depth, const ImageView<std::uint8_t>& sides,
-                     const ImageView<float>& around) {
+// Calls visit(hy, hx, y, x, side) for every hole pixel (hy, hx) and each of its nearest covered
+// pixels (y, x) to the left, right, above and below (side 0, 1, 2, 3). Rows first (the ends of each run of holes), then
+// blocks of columns (a top-down and a bottom-up sweep, each row's access contiguous); within each
+// of the two passes a hole pixel is visited by one thread only.
+template <typename Visit>
+void VisitSides(const ImageView<const std::uint8_t>& hole, const Visit& visit) {
   const int h = hole.height, w = hole.width;
-  // Left and right: the pixels before and after each run of holes in a row.
   ParallelFor(h, 8, [&](std::int64_t y0, std::int64_t y1) {
     for (int y = static_cast<int>(y0); y < static_cast<int>(y1); ++y) {
       const std::uint8_t* hr = hole.Row(y);
-      std::uint8_t* sr = sides.Row(y);
-      float* ar = around.Row(y);
-      std::fill(sr, sr + w, std::uint8_t{0});
-      std::fill(ar, ar + w, 0.0f);
       int x = 0;
       while (x < w) {
         if (!hr[x]) {
@@ -38,15 +27,13 @@ void HoleSidesKernel(const ImageView<const std::uint8_t>& hole, const ImageView<
         int end = x;
         while (end < w && hr[end]) ++end;  // the run of holes [x, end)
         for (int k = x; k < end; ++k) {
-          if (x > 0) AddSide(background, known_depth, y, x - 1, sr + k, ar + k);
-          if (end < w) AddSide(background, known_depth, y, end, sr + k, ar + k);
+          if (x > 0) visit(y, k, y, x - 1, 0);
+          if (end < w) visit(y, k, y, end, 1);
         }
         x = end;
       }
     }
   });
-  // Up and down: per column, the last covered row above (a top-down sweep) and below (bottom-up);
-  // blocks of columns, so that each row's access is contiguous.
   constexpr int kBlock = 64;
   const int blocks = (w + kBlock - 1) / kBlock;
   ParallelFor(blocks, 1, [&](std::int64_t b0, std::int64_t b1) {
@@ -62,11 +49,38 @@ void HoleSidesKernel(const ImageView<const std::uint8_t>& hole, const ImageView<
             if (!hr[x]) {
               last[x - x0] = y;
             } else if (last[x - x0] >= 0) {
-              AddSide(background, known_depth, last[x - x0], x, &sides.At(y, x), &around.At(y, x));
+              visit(y, x, last[x - x0], x, 2 + pass);
             }
           }
         }
       }
+    }
+  });
+}
+
+}  // namespace
+
+void HoleSidesKernel(const ImageView<const std::uint8_t>& hole, const ImageView<const std::uint8_t>& background,
+                     const ImageView<const float>& known_depth, double occluder_ratio,
+                     const ImageView<std::uint8_t>& sides, const ImageView<float>& around) {
+  const int h = hole.height, w = hole.width;
+  ParallelFor(h, 8, [&](std::int64_t y0, std::int64_t y1) {
+    for (int y = static_cast<int>(y0); y < static_cast<int>(y1); ++y) {
+      std::fill(sides.Row(y), sides.Row(y) + w, std::uint8_t{0});
+      std::fill(around.Row(y), around.Row(y) + w, 0.0f);
+    }
+  });
+  VisitSides(hole, [&](int hy, int hx, int y, int x, int side) {
+    const int code = background.At(y, x) ? kSideBackground : kSideSurface;
+    sides.At(hy, hx) = static_cast<std::uint8_t>(sides.At(hy, hx) | code << (2 * side));
+    around.At(hy, hx) = std::max(around.At(hy, hx), known_depth.At(y, x));
+  });
+  if (occluder_ratio <= 0.0) return;
+  // The occluders, once `around` is complete (hole_sides.h): surface -> occluder sets both bits.
+  VisitSides(hole, [&](int hy, int hx, int y, int x, int side) {
+    const double d = known_depth.At(y, x);
+    if (!background.At(y, x) && d > 0.0 && d * occluder_ratio < around.At(hy, hx)) {
+      sides.At(hy, hx) = static_cast<std::uint8_t>(sides.At(hy, hx) | kSideOccluder << (2 * side));
     }
   });
 }

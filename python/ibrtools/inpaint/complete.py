@@ -4,7 +4,9 @@ it (docs/render.md "Complete images"):
 1. **background**: hole pixels whose direction an input sees as background at infinity take its
    colour (inpaint/background.py); they are not holes;
 2. **holes filled** (``inpaint``): each hole pixel is a background hole when at least half of
-   its nearest covered pixels left, right, above and below are background at infinity (it takes
+   its nearest covered pixels left, right, above and below are background at infinity (a surface
+   pixel :data:`OCCLUDER_RATIO` times nearer than the farthest of them, the occluder, gives its
+   vote to the side opposite it; it takes
    the scene's background colour, or a push-pull of the background pixels), else a surface hole,
    a disocclusion, filled from the surface pixels only: ``auto`` (the default) and ``pushpull``
    = depth-aware push-pull (inpaint.py) with each hole's depth the background depth around it
@@ -42,6 +44,11 @@ INPAINT = {
 DEFAULT_INPAINT = "auto"
 # The notes of a frame whose holes were filled.
 INPAINT_FILLS = ("auto", "pushpull", "metameric", "from the background")
+# A surface pixel beside a hole that is nearer than its farthest surface side by this factor is
+# the occluder whose disocclusion the hole is: its vote on whether the hole is background goes to
+# the side opposite it (the sky behind a pole's top, between the sky and the ground at the
+# horizon, is sky; a wall's disocclusion beside a box under the sky is wall).
+OCCLUDER_RATIO = 1.5
 NOTHING_TO_FILL = "nothing to fill from: no input covers any pixel of the frame"
 
 
@@ -199,14 +206,10 @@ def _fill(color: np.ndarray, hole: np.ndarray, depth: np.ndarray | None, bg: np.
         known &= surface
         known_depth = np.where(known, d, np.float32(0))
     # The nearest covered pixels left, right, above and below each hole pixel
-    # (cpp/kernels/inpaint/hole_sides.h): how many, how many of them background, and the largest
-    # depth of the surface ones (known_depth is 0 on the background).
-    sides, around = _core.hole_sides(hole, bg, known_depth)
-    if bg.any():
-        votes, bg_votes = sides & 15, sides >> 4
-        sky = hole & (2 * bg_votes >= votes) & (votes > 0)
-    else:
-        sky = np.zeros(hole.shape, bool)
+    # (cpp/kernels/inpaint/hole_sides.h): what each is, and the largest depth of the surface ones
+    # (known_depth is 0 on the background).
+    sides, around = _core.hole_sides(hole, bg, known_depth, OCCLUDER_RATIO)
+    sky = _background_holes(hole, sides) if bg.any() else np.zeros(hole.shape, bool)
     ground = hole & ~sky
     if ground.any() and not surface.any():
         sky, ground = hole, np.zeros(hole.shape, bool)  # nothing but background to fill from
@@ -235,3 +238,23 @@ def _fill(color: np.ndarray, hole: np.ndarray, depth: np.ndarray | None, bg: np.
         else:
             out[sky] = filled
     return out, (mode if ground.any() else "from the background"), sky
+
+
+def _background_holes(hole: np.ndarray, sides: np.ndarray) -> np.ndarray:
+    """The background holes among ``hole`` by their ``sides`` (cpp/kernels/inpaint/hole_sides.h):
+    every side found votes, background or surface, except an occluder, whose vote goes to the side
+    opposite it (what the disocclusion reveals: the sky left of a pole, the wall right of a box);
+    a background hole has at least half its votes background."""
+    at = np.flatnonzero(hole)
+    code = sides.reshape(-1)[at]
+    side = [(code >> (2 * k)) & 3 for k in range(4)]  # left, right, up, down
+    votes = np.zeros(len(at), np.int8)
+    bg_votes = np.zeros(len(at), np.int8)
+    for k, opposite in ((0, 1), (1, 0), (2, 3), (3, 2)):
+        seen = (side[k] == _core.SIDE_BACKGROUND) | (side[k] == _core.SIDE_SURFACE)
+        weight = seen.astype(np.int8) + (seen & (side[opposite] == _core.SIDE_OCCLUDER))
+        votes += weight
+        bg_votes += np.where(side[k] == _core.SIDE_BACKGROUND, weight, np.int8(0))
+    out = np.zeros(hole.shape, bool)
+    out.reshape(-1)[at[(2 * bg_votes >= votes) & (votes > 0)]] = True
+    return out
