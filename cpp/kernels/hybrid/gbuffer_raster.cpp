@@ -44,27 +44,29 @@ inline raster::ScreenVertex Project(const Camera& cam, const glm::dvec3& p) {
   return {cam.fx * p.x * iz + cam.cx, cam.fy * p.y * iz + cam.cy, iz};
 }
 
+inline bool Finite(const raster::ScreenVertex& s) {
+  return std::isfinite(s.x) && std::isfinite(s.y) && std::isfinite(s.iz);
+}
+
 // Appends triangle (X, Y, iz) of face `prim` when it has area and covers a pixel centre.
 void Emit(const Camera& cam, const std::int32_t X[3], const std::int32_t Y[3], const double iz[3], std::int32_t prim,
           std::vector<ScreenTri>* out) {
-  std::int64_t X64[3] = {X[0], X[1], X[2]}, Y64[3] = {Y[0], Y[1], Y[2]};
   ScreenTri t;
+  std::copy(X, X + 3, t.X);
+  std::copy(Y, Y + 3, t.Y);
+  std::copy(iz, iz + 3, t.iz);
+  std::int64_t X64[3] = {X[0], X[1], X[2]}, Y64[3] = {Y[0], Y[1], Y[2]};
   t.area2 = raster::Area2(X64, Y64);
   if (t.area2 == 0) return;
-  // Either winding: the G-buffer draws both sides.
-  const int i1 = t.area2 > 0 ? 1 : 2, i2 = 3 - i1;
-  if (t.area2 < 0) {
+  if (t.area2 < 0) {  // either winding: the G-buffer draws both sides
     std::swap(X64[1], X64[2]);
     std::swap(Y64[1], Y64[2]);
+    std::swap(t.X[1], t.X[2]);
+    std::swap(t.Y[1], t.Y[2]);
+    std::swap(t.iz[1], t.iz[2]);
     t.area2 = -t.area2;
   }
   if (!raster::Centres(X64, Y64, 0, cam.width - 1, 0, cam.height - 1, &t.box)) return;
-  const int idx[3] = {0, i1, i2};
-  for (int j = 0; j < 3; ++j) {
-    t.X[j] = X[idx[j]];
-    t.Y[j] = Y[idx[j]];
-    t.iz[j] = iz[idx[j]];
-  }
   t.prim = prim;
   out->push_back(t);
 }
@@ -91,7 +93,7 @@ void SetUp(const Camera& cam, const glm::dvec3 p[3], double near, std::int32_t p
   bool in_band = true;
   for (int i = 0; i < n; ++i) {
     sv[i] = Project(cam, poly[i]);
-    if (!(std::isfinite(sv[i].x) && std::isfinite(sv[i].y) && std::isfinite(sv[i].iz))) return;
+    if (!Finite(sv[i])) return;
     in_band = in_band && raster::InGuardBand(sv[i].x, sv[i].y);
   }
   raster::ScreenVertex clipped[8];
@@ -253,7 +255,7 @@ void RasterGBuffer(const Camera& camera, const float* vertices, std::int64_t num
       q = {0, 0, 0.0, false};
       if (!(pc[i].z >= near)) continue;
       const raster::ScreenVertex s = Project(camera, pc[i]);
-      if (!(std::isfinite(s.x) && std::isfinite(s.y) && std::isfinite(s.iz)) || !raster::InGuardBand(s.x, s.y)) continue;
+      if (!Finite(s) || !raster::InGuardBand(s.x, s.y)) continue;
       q = {raster::ToFixed(s.x), raster::ToFixed(s.y), s.iz, true};
     }
   });
