@@ -207,13 +207,15 @@ def _fill(color: np.ndarray, hole: np.ndarray, depth: np.ndarray | None, bg: np.
         known_depth = np.where(known, d, np.float32(0))
     # The nearest covered pixels left, right, above and below each hole pixel
     # (cpp/kernels/inpaint/hole_sides.h): what each is, and the largest depth of the surface ones
-    # (known_depth is 0 on the background).
-    sides, around = _core.hole_sides(hole, bg, known_depth, OCCLUDER_RATIO)
-    sky = _background_holes(hole, sides) if bg.any() else np.zeros(hole.shape, bool)
+    # (known_depth is 0 on the background; without background no occluder is looked for: the
+    # sides then only give `around`).
+    has_bg = bool(bg.any())
+    sides, around = _core.hole_sides(hole, bg, known_depth, OCCLUDER_RATIO if has_bg else 0.0)
+    sky = _background_holes(hole, sides) if has_bg else np.zeros(hole.shape, bool)
     ground = hole & ~sky
     if ground.any() and not surface.any():
         sky, ground = hole, np.zeros(hole.shape, bool)  # nothing but background to fill from
-    if sky.any() and not bg.any() and bg_colour is None:
+    if sky.any() and not has_bg and bg_colour is None:
         return color, NOTHING_TO_FILL, None
     out = color
     if ground.any():
