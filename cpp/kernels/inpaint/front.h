@@ -1,8 +1,8 @@
 // The inpaint family's checked front (Python: ibrtools.inpaint through cpp/bindings/inpaint.cpp):
-// the value checks of push-pull's options, inputs and flow and of the hole sides' ratio, and the kernel calls whose statuses
-// become the typed errors of cpp/ibr/errors.h ("every pixel is a hole"). Callable from C++
-// without Python; the binding checks array dtypes and shapes (bindings/array.h), converts and
-// calls these. Shapes and conventions: pushpull.h and metameric.h.
+// the value checks of push-pull's options, inputs and flow and of the hole sides' ratio, and the
+// kernel calls whose statuses become the typed errors of cpp/ibr/errors.h ("every pixel is a
+// hole"). Callable from C++ without Python; the binding checks array dtypes and shapes
+// (bindings/array.h), converts and calls these. Shapes and conventions: pushpull.h and metameric.h.
 #pragma once
 #include <cstdint>
 

@@ -9,9 +9,9 @@ namespace ibr {
 namespace {
 
 // Calls visit(hy, hx, y, x, side) for every hole pixel (hy, hx) and each of its nearest covered
-// pixels (y, x) to the left, right, above and below (side 0, 1, 2, 3). Rows first (the ends of each run of holes), then
-// blocks of columns (a top-down and a bottom-up sweep, each row's access contiguous); within each
-// of the two passes a hole pixel is visited by one thread only.
+// pixels (y, x) to the left, right, above and below (side 0, 1, 2, 3). Rows first (the ends of
+// each run of holes), then blocks of columns (a top-down and a bottom-up sweep, each row's access
+// contiguous); within each of the two passes a hole pixel is visited by one thread only.
 template <typename Visit>
 void VisitSides(const ImageView<const std::uint8_t>& hole, const Visit& visit) {
   const int h = hole.height, w = hole.width;
