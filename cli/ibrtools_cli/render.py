@@ -106,7 +106,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--background", metavar="COLOR", default=None,
                    help="the background at infinity (sky, a NeRF capture's transparent background; docs/render.md) "
                         "as black, white, R,G,B (sRGB in [0, 1]) or transparent (RGBA images, alpha 0 there); "
-                        "default: as the inputs show it")
+                        "default: the scene's background colour (a NeRF capture's compositing colour), else as the inputs "
+                        "show it")
     p.add_argument("--foveate", metavar="X,Y",
                    help="foveated ventral metamers (Walton et al. 2021; docs/foveate.md): keep the image "
                         "around the fixation point X,Y (fractions of width and height, e.g. 0.5,0.5 = "

@@ -140,6 +140,27 @@ def test_sky_hidden_behind_a_pole_top_is_filled_as_sky():
     assert C._background_holes(hole, sides)[hole].all()
 
 
+def test_uniform_background_paints_the_edge_colours_inputs_carry():
+    """An input's background pixels beside its silhouette carry the object's antialiased edge;
+    warped rotation-only they would be a ghost outline. A scene with a background colour paints
+    every background pixel in it; without one they stay as rendered."""
+    h, w = 20, 30
+    color = np.full((h, w, 3), 0.5, np.float32)
+    depth = np.full((h, w), 2.0, np.float32)
+    depth[:, 15:] = np.inf
+    color[:, 15:] = 0.0
+    color[5:15, 20] = (0.4, 0.3, 0.2)  # an edge colour drawn in the background
+    out = {"color": color, "depth": depth, "hole": np.zeros((h, w), bool)}
+    cam = Camera.from_fov(w, h, 60.0)
+    black = np.zeros(3, np.float32)
+    done = C.complete(out, cam, C.Background([], [], black), "auto")
+    assert (done.color[:, 15:] == 0).all() and (done.color[:, :15] == 0.5).all()
+    kept = C.complete(out, cam, C.Background([], [], None), "auto")
+    np.testing.assert_array_equal(kept.color, color)
+    white = C.complete(out, cam, C.Background([], [], black), "auto", C.parse_background("white"))
+    assert (white.color[:, 15:] == 1).all()
+
+
 def test_hole_inside_the_sky_takes_the_background_colour():
     h, w = 30, 30
     color = np.zeros((h, w, 3), np.float32)

@@ -14,7 +14,12 @@ it (docs/render.md "Complete images"):
    filled with ground, not with the object nor the sky; ``metameric`` = the same set-up through
    metameric inpainting; ``none`` leaves holes black. A frame whose only covered pixels are
    background is filled as background; a frame with no covered pixel at all is left black and
-   says so (``NOTHING_TO_FILL``).
+   says so (``NOTHING_TO_FILL``);
+3. **background colour**: a scene with a uniform background (``shading.background``: the colour an
+   RGBA capture was composited over, a synthetic scene's sky) paints every background pixel in it
+   (an input's background pixels beside its silhouette carry the object's antialiased edge,
+   which the rotation-only warp would draw as a thin ghost outline far from the object), or in
+   ``override`` (``--background``) when given.
 
 ``auto`` is depth-aware push-pull because it measured best of the built fills on the held-out
 views we score (docs/benchmarks.md "Complete images").
@@ -53,7 +58,8 @@ NOTHING_TO_FILL = "nothing to fill from: no input covers any pixel of the frame"
 
 
 def parse_background(value) -> "np.ndarray | str | None":
-    """``--background``: None (the background as the inputs show it), "transparent" (alpha 0 on
+    """``--background``: None (the scene's background colour when it has one, else the background
+    as the inputs show it), "transparent" (alpha 0 on
     the background: an RGBA image), or a colour: black, white or R,G,B (sRGB in [0, 1]) ->
     linear RGB float32 (3,)."""
     if value is None:
@@ -171,6 +177,8 @@ def complete(out: dict, camera, background: Background | None, inpaint: str,
             if sky is not None and sky.any():
                 bg = sky if bg is None else bg | sky
     alpha = None
+    if override is None and background is not None and background.colour is not None:
+        override = background.colour  # the uniform background's own colour (step 3 of the module doc)
     if override is not None and bg is not None:
         if isinstance(override, str):  # transparent
             alpha = (~bg).astype(np.float32)
